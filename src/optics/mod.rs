@@ -1,0 +1,17 @@
+//! Pure optics of the wall: Fresnel reflectance, the GGX microfacet model and
+//! the camera polarizer's action on the specular ray (MODEL.md "One entry of T").
+//!
+//! Everything here is a pure function of unit vectors and material constants,
+//! so it can be unit-tested against limits and symmetries and reused by the
+//! transport builder, the simulator and the benchmarks alike.
+
+pub mod brdf;
+pub mod fresnel;
+pub mod ggx;
+pub mod polarizer;
+
+/// Three-vector used across the crate (metres or unit directions).
+pub type Vec3 = nalgebra::Vector3<f64>;
+
+pub use brdf::{Brdf, Polarization};
+pub use fresnel::{FresnelAmplitudes, FresnelHalf};

@@ -1,0 +1,419 @@
+//! The TOML schema of a scene file and its validation into a [`Scene`].
+
+use serde::Deserialize;
+
+use super::{
+    analyzer_axis, crossed_axis, Analyzer, Emitter, Grid, HiddenScene, Homography, Occluder, Plane,
+    Pose, Scene, SceneError, Wall,
+};
+use crate::optics::{Brdf, Vec3};
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFile {
+    wall: RawWall,
+    scene: RawScenePlane,
+    #[serde(default)]
+    pose: Vec<RawPose>,
+    #[serde(default)]
+    occluder: Vec<RawOccluder>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawWall {
+    center: [f64; 3],
+    normal: [f64; 3],
+    u_axis: [f64; 3],
+    size: [f64; 2],
+    grid: [i64; 2],
+    #[serde(default = "one")]
+    supersample: i64,
+    roughness: f64,
+    ior: f64,
+    #[serde(default = "unit")]
+    ks: f64,
+    #[serde(default)]
+    kd: f64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScenePlane {
+    center: [f64; 3],
+    normal: [f64; 3],
+    u_axis: [f64; 3],
+    size: [f64; 2],
+    grid: [i64; 2],
+    #[serde(default = "one")]
+    supersample: i64,
+    #[serde(default = "lambertian")]
+    emitter: Emitter,
+    polarization: Option<[f64; 3]>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPose {
+    name: String,
+    camera: [f64; 3],
+    #[serde(default)]
+    polarizer_deg: Vec<f64>,
+    homography: Option<[[f64; 3]; 3]>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawOccluder {
+    rect: Option<RawRect>,
+    sphere: Option<RawSphere>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawRect {
+    center: [f64; 3],
+    half_u: [f64; 3],
+    half_v: [f64; 3],
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSphere {
+    center: [f64; 3],
+    radius: f64,
+}
+
+fn one() -> i64 {
+    1
+}
+fn unit() -> f64 {
+    1.0
+}
+fn lambertian() -> Emitter {
+    Emitter::Lambertian
+}
+
+/// Largest grid side accepted; a typo like `grid = [32000, 32000]` should be an
+/// error, not an attempt to allocate a terabyte.
+const MAX_GRID: i64 = 4096;
+const MAX_SUPERSAMPLE: i64 = 16;
+
+pub(super) fn parse(text: &str) -> Result<Scene, SceneError> {
+    let raw: RawFile = toml::from_str(text).map_err(|e| SceneError::Parse {
+        path: None,
+        message: e.to_string().trim_end().to_string(),
+    })?;
+    validate(raw)
+}
+
+fn point(key: &str, v: [f64; 3]) -> Result<Vec3, SceneError> {
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(SceneError::invalid(key, v, "must be three finite numbers"));
+    }
+    Ok(Vec3::from(v))
+}
+
+fn direction(key: &str, v: [f64; 3]) -> Result<Vec3, SceneError> {
+    let p = point(key, v)?;
+    let n = p.norm();
+    if n < 1e-12 {
+        return Err(SceneError::invalid(key, v, "must be a non-zero direction"));
+    }
+    Ok(p / n)
+}
+
+fn plane(section: &str, c: [f64; 3], n: [f64; 3], u: [f64; 3], size: [f64; 2], grid: [i64; 2], m: i64) -> Result<Plane, SceneError> {
+    let center = point(&format!("{section}.center"), c)?;
+    let normal = direction(&format!("{section}.normal"), n)?;
+    let u_raw = direction(&format!("{section}.u_axis"), u)?;
+    // Gram-Schmidt: keep u in the plane even when the file is slightly off.
+    let u_perp = u_raw - normal * normal.dot(&u_raw);
+    if u_perp.norm() < 1e-6 {
+        return Err(SceneError::invalid(
+            format!("{section}.u_axis"),
+            u,
+            format!("is parallel to {section}.normal; it must lie in the plane"),
+        ));
+    }
+    let u_axis = u_perp.normalize();
+    if size.iter().any(|s| !s.is_finite() || *s <= 0.0) {
+        return Err(SceneError::invalid(format!("{section}.size"), size, "both sides must be positive metres"));
+    }
+    if grid.iter().any(|g| *g < 1 || *g > MAX_GRID) {
+        return Err(SceneError::invalid(
+            format!("{section}.grid"),
+            grid,
+            format!("both counts must be whole numbers from 1 to {MAX_GRID}"),
+        ));
+    }
+    if !(1..=MAX_SUPERSAMPLE).contains(&m) {
+        return Err(SceneError::invalid(
+            format!("{section}.supersample"),
+            m,
+            format!("must be a whole number from 1 to {MAX_SUPERSAMPLE}"),
+        ));
+    }
+    Ok(Plane {
+        center,
+        normal,
+        u: u_axis,
+        v: normal.cross(&u_axis),
+        size,
+        grid: Grid {
+            nu: grid[0] as usize,
+            nv: grid[1] as usize,
+        },
+        supersample: m as usize,
+    })
+}
+
+fn validate(raw: RawFile) -> Result<Scene, SceneError> {
+    let w = raw.wall;
+    let wall_plane = plane("wall", w.center, w.normal, w.u_axis, w.size, w.grid, w.supersample)?;
+    if !(w.roughness > 0.0 && w.roughness <= 1.0) {
+        return Err(SceneError::invalid("wall.roughness", w.roughness, "must be in (0, 1]"));
+    }
+    if !(w.ior > 1.0 && w.ior.is_finite()) {
+        return Err(SceneError::invalid("wall.ior", w.ior, "must be a refractive index > 1"));
+    }
+    for (key, k) in [("wall.ks", w.ks), ("wall.kd", w.kd)] {
+        if !(k >= 0.0 && k.is_finite()) {
+            return Err(SceneError::invalid(key, k, "must be a finite weight >= 0"));
+        }
+    }
+    let brdf = Brdf {
+        alpha: w.roughness,
+        eta: w.ior,
+        ks: w.ks,
+        kd: w.kd,
+    };
+
+    let s = raw.scene;
+    let scene_plane = plane("scene", s.center, s.normal, s.u_axis, s.size, s.grid, s.supersample)?;
+    let n = wall_plane.normal;
+    let c0 = wall_plane.center;
+    let s0 = scene_plane.center;
+    if n.dot(&(s0 - c0)) <= 0.0 {
+        return Err(SceneError::invalid("scene.center", s.center, "is on or behind the wall; it must be on the side wall.normal points to"));
+    }
+    if s.emitter == Emitter::Lambertian && scene_plane.normal.dot(&(c0 - s0)) <= 0.0 {
+        return Err(SceneError::invalid(
+            "scene.normal",
+            s.normal,
+            "faces away from the wall centre; a lambertian screen must face the wall (flip its sign or use emitter = \"isotropic\")",
+        ));
+    }
+    let polarization = s
+        .polarization
+        .map(|p| direction("scene.polarization", p))
+        .transpose()?;
+
+    if raw.pose.is_empty() {
+        return Err(SceneError::invalid("pose", "[]", "at least one [[pose]] is required"));
+    }
+    let mut poses = Vec::with_capacity(raw.pose.len());
+    for (i, p) in raw.pose.into_iter().enumerate() {
+        let key = |k: &str| format!("pose[{i}].{k}");
+        let name = p.name.trim().to_string();
+        if name.is_empty() || name.len() > 64 || !name.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c)) {
+            return Err(SceneError::invalid(key("name"), &p.name, "must be 1-64 letters, digits, '-', '_' or '.'"));
+        }
+        if poses.iter().any(|q: &Pose| q.name == name) {
+            return Err(SceneError::invalid(key("name"), &name, "is used by an earlier pose; names must be unique"));
+        }
+        let camera = point(&key("camera"), p.camera)?;
+        if n.dot(&(camera - c0)) <= 0.0 {
+            return Err(SceneError::invalid(key("camera"), p.camera, format!("pose {name:?}: the camera is on or behind the wall")));
+        }
+        let mut analyzers = Vec::with_capacity(p.polarizer_deg.len());
+        if !p.polarizer_deg.is_empty() {
+            let q0 = crossed_axis(&c0, &s0, &camera).ok_or_else(|| {
+                SceneError::invalid(
+                    key("polarizer_deg"),
+                    &p.polarizer_deg,
+                    format!("pose {name:?}: the crossed axis is undefined because the camera, the wall centre and the scene centre are collinear"),
+                )
+            })?;
+            for &deg in &p.polarizer_deg {
+                if !deg.is_finite() {
+                    return Err(SceneError::invalid(key("polarizer_deg"), &p.polarizer_deg, "angles must be finite degrees"));
+                }
+                analyzers.push(Analyzer {
+                    angle_deg: deg,
+                    axis: analyzer_axis(&q0, &c0, &camera, deg.to_radians()),
+                });
+            }
+        }
+        let homography = match p.homography {
+            None => None,
+            Some(h) => Some(Homography::new(h).ok_or_else(|| {
+                SceneError::invalid(key("homography"), h, "must be a finite, invertible 3x3 matrix")
+            })?),
+        };
+        poses.push(Pose {
+            name,
+            camera,
+            analyzers,
+            homography,
+        });
+    }
+
+    let mut occluders = Vec::with_capacity(raw.occluder.len());
+    for (i, o) in raw.occluder.into_iter().enumerate() {
+        let key = |k: &str| format!("occluder[{i}].{k}");
+        match (o.rect, o.sphere) {
+            (Some(r), None) => {
+                let center = point(&key("rect.center"), r.center)?;
+                let half_u = point(&key("rect.half_u"), r.half_u)?;
+                let half_v = point(&key("rect.half_v"), r.half_v)?;
+                if half_u.cross(&half_v).norm() <= 1e-12 * half_u.norm().max(1e-300) * half_v.norm().max(1e-300) || half_u.norm() == 0.0 || half_v.norm() == 0.0 {
+                    return Err(SceneError::invalid(key("rect"), (r.half_u, r.half_v), "half_u and half_v must be non-zero and not parallel"));
+                }
+                occluders.push(Occluder::Rect { center, half_u, half_v });
+            }
+            (None, Some(sp)) => {
+                let center = point(&key("sphere.center"), sp.center)?;
+                if !(sp.radius > 0.0 && sp.radius.is_finite()) {
+                    return Err(SceneError::invalid(key("sphere.radius"), sp.radius, "must be positive metres"));
+                }
+                occluders.push(Occluder::Sphere { center, radius: sp.radius });
+            }
+            _ => {
+                return Err(SceneError::invalid(key(""), "", "give exactly one of rect = {...} or sphere = {...}"));
+            }
+        }
+    }
+
+    Ok(Scene {
+        wall: Wall { plane: wall_plane, brdf },
+        scene: HiddenScene {
+            plane: scene_plane,
+            emitter: s.emitter,
+            polarization,
+        },
+        poses,
+        occluders,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const BASE: &str = r#"
+[wall]
+center = [0.0, 0.0, 0.0]
+normal = [0.0, 0.0, 2.0]
+u_axis = [1.0, 0.0, 0.1]
+size = [0.3, 0.3]
+grid = [4, 3]
+roughness = 0.3
+ior = 1.5
+
+[scene]
+center = [-0.374, 0.0, 0.25]
+normal = [0.831365691684, 0.0, -0.555725729736]
+u_axis = [0.0, 1.0, 0.0]
+size = [0.2, 0.2]
+grid = [2, 2]
+
+[[pose]]
+name = "A"
+camera = [0.416, 0.0, 0.277]
+polarizer_deg = [0.0, 90.0]
+"#;
+
+    fn with(from: &str, to: &str) -> Result<Scene, SceneError> {
+        assert!(BASE.contains(from), "{from}");
+        parse(&BASE.replacen(from, to, 1))
+    }
+
+    #[test]
+    fn defaults_and_normalization() {
+        let s = parse(BASE).unwrap();
+        assert_eq!(s.wall.plane.normal, Vec3::z());
+        // u_axis made orthogonal to the normal.
+        assert_eq!(s.wall.plane.u, Vec3::x());
+        assert_eq!(s.wall.plane.v, Vec3::y());
+        assert_eq!(s.wall.brdf.ks, 1.0);
+        assert_eq!(s.wall.brdf.kd, 0.0);
+        assert_eq!(s.wall.plane.supersample, 1);
+        assert_eq!(s.scene.emitter, Emitter::Lambertian);
+        assert!(s.occluders.is_empty());
+        assert_eq!(s.rows(), 24);
+        assert_eq!(s.cols(), 4);
+    }
+
+    #[test]
+    fn crossed_axis_is_normal_to_the_s_direction_and_rotates() {
+        let s = parse(BASE).unwrap();
+        let p = &s.poses[0];
+        let q0 = p.analyzers[0].axis;
+        let q90 = p.analyzers[1].axis;
+        // The bench's plane of incidence is x-z, so e_s0 is +-y and q(0) has no y part.
+        assert!(q0.y.abs() < 1e-12);
+        assert!((q90.y.abs() - 1.0).abs() < 1e-12);
+        assert!(q0.dot(&q90).abs() < 1e-12);
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        let cases = [
+            ("roughness = 0.3", "roughness = 0", "wall.roughness"),
+            ("roughness = 0.3", "roughness = 1.5", "wall.roughness"),
+            ("ior = 1.5", "ior = 1.0", "wall.ior"),
+            ("grid = [4, 3]", "grid = [0, 3]", "wall.grid"),
+            ("grid = [2, 2]", "grid = [2, -1]", "scene.grid"),
+            ("normal = [0.0, 0.0, 2.0]", "normal = [0.0, 0.0, 0.0]", "wall.normal"),
+            ("u_axis = [1.0, 0.0, 0.1]", "u_axis = [0.0, 0.0, 1.0]", "wall.u_axis"),
+            ("camera = [0.416, 0.0, 0.277]", "camera = [0.416, 0.0, -0.1]", "pose[0].camera"),
+            ("center = [-0.374, 0.0, 0.25]", "center = [-0.374, 0.0, 0.0]", "scene.center"),
+            ("normal = [0.831365691684, 0.0, -0.555725729736]", "normal = [-0.83, 0.0, 0.55]", "scene.normal"),
+            ("size = [0.2, 0.2]", "size = [0.2, 0.0]", "scene.size"),
+            ("camera = [0.416, 0.0, 0.277]", "camera = [-0.748, 0.0, 0.5]", "pose[0].polarizer_deg"),
+        ];
+        for (from, to, key) in cases {
+            let e = with(from, to).unwrap_err();
+            assert_eq!(e.key(), Some(key), "{to}: {e}");
+        }
+        let e = with("roughness = 0.3", "roughness = 0").unwrap_err();
+        assert_eq!(e.to_string(), "wall.roughness = 0.0: must be in (0, 1]");
+    }
+
+    #[test]
+    fn missing_and_unknown_keys_are_parse_errors() {
+        let e = with("ior = 1.5\n", "").unwrap_err();
+        assert!(e.to_string().contains("ior"), "{e}");
+        let e = with("ior = 1.5", "ior = 1.5\nroughnes = 0.2").unwrap_err();
+        assert!(e.to_string().contains("roughnes"), "{e}");
+        let e = with("[[pose]]\nname = \"A\"\ncamera = [0.416, 0.0, 0.277]\npolarizer_deg = [0.0, 90.0]\n", "").unwrap_err();
+        assert_eq!(e.key(), Some("pose"));
+    }
+
+    #[test]
+    fn duplicate_pose_names_are_rejected() {
+        let twice = format!("{BASE}\n[[pose]]\nname = \"A\"\ncamera = [0.4, 0.1, 0.3]\n");
+        assert_eq!(parse(&twice).unwrap_err().key(), Some("pose[1].name"));
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn arbitrary_text_never_panics(s in "\\PC{0,400}") {
+            let _ = parse(&s);
+        }
+
+        #[test]
+        fn arbitrary_values_in_a_valid_frame_never_panic(
+            key in proptest::sample::select(vec!["roughness", "ior", "ks", "kd", "supersample", "grid", "size", "normal", "u_axis", "camera", "polarizer_deg", "homography"]),
+            value in proptest::sample::select(vec!["0", "-1", "1e308", "nan", "inf", "[]", "[0,0]", "[1e-300, 0, 0]", "\"x\"", "[[1,2,3],[4,5,6],[7,8,9]]", "[0, 0, 0]", "{ a = 1 }", "9999999999999"]),
+        ) {
+            let text = BASE
+                .lines()
+                .map(|l| if l.starts_with(&format!("{key} =")) { format!("{key} = {value}") } else { l.to_string() })
+                .collect::<Vec<_>>()
+                .join("\n");
+            let _ = parse(&text);
+        }
+    }
+}

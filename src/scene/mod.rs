@@ -1,0 +1,155 @@
+//! Scene files and the validated geometry they describe (MODEL.md "Scene files",
+//! "Geometry of a scene file", "The crossed polarizer of a pose").
+//!
+//! A [`Scene`] is only ever built through validation, so every other room can
+//! rely on unit normals, orthonormal plane axes, positive sizes and grids, a
+//! camera and a hidden scene in front of the wall, and well-defined polarizer axes.
+
+mod error;
+mod file;
+pub mod homography;
+pub mod occluder;
+pub mod plane;
+
+use std::path::Path;
+
+pub use error::SceneError;
+pub use homography::Homography;
+pub use occluder::Occluder;
+pub use plane::{Grid, Plane};
+
+use crate::optics::{Brdf, Vec3};
+
+/// How a hidden-scene element radiates towards the wall (MODEL.md `g_k`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Emitter {
+    /// `g = max(0, n_s . (c - s)/|c - s|)`.
+    Lambertian,
+    /// `g = 1`.
+    Isotropic,
+}
+
+/// The rough wall the camera sees.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Wall {
+    /// Geometry and discretization of the wall.
+    pub plane: Plane,
+    /// Its reflectance.
+    pub brdf: Brdf,
+}
+
+/// The hidden scene: a plane of emitting elements.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HiddenScene {
+    /// Geometry and discretization of the emitting screen.
+    pub plane: Plane,
+    /// Angular emission lobe.
+    pub emitter: Emitter,
+    /// Field direction of a linearly polarized scene (unit), if any (MODEL.md Eq. 11).
+    pub polarization: Option<Vec3>,
+}
+
+/// One polarizer setting of a pose: the angle the user wrote and the axis it means.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Analyzer {
+    /// Rotation from the crossed setting, degrees (as in the file).
+    pub angle_deg: f64,
+    /// Transmission axis `q(psi)` in world coordinates (unit, in the polarizer plane).
+    pub axis: Vec3,
+}
+
+/// A camera pose: where the camera is and which polarizer angles it captures.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pose {
+    /// Name used in captures and API requests.
+    pub name: String,
+    /// Centre of projection `o`.
+    pub camera: Vec3,
+    /// Polarizer settings, in file order; empty means no polarizer.
+    pub analyzers: Vec<Analyzer>,
+    /// Wall (u, v) metres to image pixels, when the pose has been calibrated.
+    pub homography: Option<Homography>,
+}
+
+impl Pose {
+    /// Number of row blocks this pose adds to `T` (one per angle, one without a polarizer).
+    pub fn block_count(&self) -> usize {
+        self.analyzers.len().max(1)
+    }
+}
+
+/// A validated scene: wall, hidden scene, poses and occluders.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// The wall.
+    pub wall: Wall,
+    /// The hidden scene.
+    pub scene: HiddenScene,
+    /// Camera poses, in file order (the row-block order of `T`).
+    pub poses: Vec<Pose>,
+    /// Occluders between scene and wall.
+    pub occluders: Vec<Occluder>,
+}
+
+impl Scene {
+    /// Parses and validates a scene from TOML text.
+    pub fn from_toml_str(text: &str) -> Result<Self, SceneError> {
+        file::parse(text)
+    }
+
+    /// Reads, parses and validates a scene file.
+    pub fn load(path: &Path) -> Result<Self, SceneError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::from_toml_str(&text).map_err(|e| e.in_file(path))
+    }
+
+    /// Number of rows of the stacked `T`: wall elements times row blocks.
+    pub fn rows(&self) -> usize {
+        self.wall.plane.grid.count() * self.block_count()
+    }
+
+    /// Number of columns of `T`: scene elements.
+    pub fn cols(&self) -> usize {
+        self.scene.plane.grid.count()
+    }
+
+    /// Number of (pose, angle) row blocks.
+    pub fn block_count(&self) -> usize {
+        self.poses.iter().map(Pose::block_count).sum()
+    }
+
+    /// The pose with this name.
+    pub fn pose(&self, name: &str) -> Option<&Pose> {
+        self.poses.iter().find(|p| p.name == name)
+    }
+
+    /// The same scene with every polarizer removed: the reference for exposure
+    /// (the unpolarized image sets full scale) and the "no polarizer" baseline.
+    pub fn without_polarizers(&self) -> Scene {
+        let mut s = self.clone();
+        for p in &mut s.poses {
+            p.analyzers.clear();
+        }
+        s
+    }
+}
+
+/// Crossed polarizer axis of a pose, `q(0) = normalize(e_s0 x n_p)` (MODEL.md
+/// "The crossed polarizer of a pose"); `None` when `w_i0` is parallel to `w_o0`.
+pub fn crossed_axis(wall_center: &Vec3, scene_center: &Vec3, camera: &Vec3) -> Option<Vec3> {
+    let n_p = (wall_center - camera).normalize();
+    let w_i0 = (scene_center - wall_center).normalize();
+    let w_o0 = (camera - wall_center).normalize();
+    let e_s0 = crate::optics::polarizer::s_direction(&w_i0, &w_o0)?;
+    Some(e_s0.cross(&n_p).normalize())
+}
+
+/// `q(psi)`: the crossed axis rotated by `+psi` about `n_p = normalize(c0 - o)` (Rodrigues).
+pub fn analyzer_axis(q0: &Vec3, wall_center: &Vec3, camera: &Vec3, psi: f64) -> Vec3 {
+    let n_p = (wall_center - camera).normalize();
+    crate::optics::polarizer::rotate(q0, &n_p, psi)
+}

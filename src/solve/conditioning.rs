@@ -1,0 +1,81 @@
+//! Conditioning of the stacked `T` (MODEL.md "Metrics"): singular values,
+//! `kappa = sigma_max / sigma_min` (infinite when rank-deficient, never NaN)
+//! and the numerical rank at the same threshold.
+
+use super::SolveError;
+use crate::transport::Transport;
+
+/// Singular spectrum of `T` and what follows from it.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Conditioning {
+    /// Rows of `T`.
+    pub rows: usize,
+    /// Columns of `T`.
+    pub cols: usize,
+    /// Singular values, non-increasing.
+    pub singular_values: Vec<f64>,
+    /// `sigma_max / sigma_min`, or infinity (serialized as the string `"inf"`).
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub kappa: f64,
+    /// Number of singular values above the threshold.
+    pub rank: usize,
+    /// `sigma_max * max(M, N) * 2.2e-16`.
+    pub threshold: f64,
+}
+
+impl Conditioning {
+    /// From singular values of an `rows x cols` matrix, sorted non-increasing.
+    pub fn from_singular_values(rows: usize, cols: usize, singular_values: Vec<f64>) -> Self {
+        let smax = singular_values.first().copied().unwrap_or(0.0);
+        let threshold = smax * rows.max(cols) as f64 * 2.2e-16;
+        let rank = singular_values.iter().filter(|&&s| s > threshold).count();
+        let smin = singular_values.last().copied().unwrap_or(0.0);
+        let kappa = if rows < cols || smax == 0.0 || smin <= threshold {
+            f64::INFINITY
+        } else {
+            smax / smin
+        };
+        Self {
+            rows,
+            cols,
+            singular_values,
+            kappa,
+            rank,
+            threshold,
+        }
+    }
+
+    /// Whether `T` is rank-deficient (kappa infinite).
+    pub fn is_rank_deficient(&self) -> bool {
+        self.kappa.is_infinite()
+    }
+}
+
+/// Computes the singular values of `T` with faer.
+pub fn condition(t: &Transport) -> Result<Conditioning, SolveError> {
+    let s = t
+        .as_mat()
+        .singular_values()
+        .map_err(|e| SolveError::Factorization(format!("SVD of T did not converge ({e:?})")))?;
+    Ok(Conditioning::from_singular_values(t.rows(), t.cols(), s))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kappa_rules() {
+        let c = Conditioning::from_singular_values(4, 2, vec![2.0, 0.5]);
+        assert_eq!(c.kappa, 4.0);
+        assert_eq!(c.rank, 2);
+        let c = Conditioning::from_singular_values(4, 2, vec![2.0, 0.0]);
+        assert!(c.kappa.is_infinite() && c.rank == 1);
+        let c = Conditioning::from_singular_values(4, 2, vec![2.0, 2.0 * 4.0 * 1e-16]);
+        assert!(c.kappa.is_infinite(), "below the threshold counts as zero");
+        let c = Conditioning::from_singular_values(1, 2, vec![1.0]);
+        assert!(c.kappa.is_infinite(), "fewer rows than columns");
+        let c = Conditioning::from_singular_values(3, 3, vec![0.0, 0.0, 0.0]);
+        assert!(c.kappa.is_infinite() && !c.kappa.is_nan());
+    }
+}

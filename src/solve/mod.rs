@@ -1,0 +1,115 @@
+//! Recovering the hidden scene from a measurement (MODEL.md Eq. 12) and
+//! judging the result: ADMM-TV with a box constraint, least-squares and
+//! Tikhonov baselines, conditioning of `T`, and image metrics.
+//!
+//! Solvers take the transport as a dense column-major view and a measurement
+//! slice; they check both before any arithmetic, so a wrong length or a NaN
+//! becomes a [`SolveError`], never a panic or a NaN image.
+
+pub mod admm;
+pub mod baseline;
+pub mod conditioning;
+mod gram;
+pub mod metrics;
+pub mod tv;
+
+pub use admm::{admm_tv, AdmmSettings};
+pub use baseline::{least_squares, tikhonov};
+pub use conditioning::{condition, Conditioning};
+
+use crate::transport::Transport;
+
+/// Why a reconstruction could not be computed.
+#[derive(Debug, thiserror::Error)]
+pub enum SolveError {
+    /// The measurement does not have one value per row of `T`.
+    #[error("measurement has {got} values but T has {expected} rows (wall elements x pose/angle blocks); was it simulated for another scene?")]
+    Length {
+        /// Rows of `T`.
+        expected: usize,
+        /// Values given.
+        got: usize,
+    },
+    /// The measurement holds a NaN or an infinity.
+    #[error("measurement value {index} is {value}; every value must be finite (check the capture or the dark frame)")]
+    NonFinite {
+        /// First bad index.
+        index: usize,
+        /// Its value.
+        value: f64,
+    },
+    /// A solver parameter is out of range.
+    #[error("{name} = {value}: {reason}")]
+    Parameter {
+        /// Parameter name, as on the command line.
+        name: &'static str,
+        /// Given value.
+        value: f64,
+        /// Acceptable range.
+        reason: &'static str,
+    },
+    /// A dense factorization failed (not positive definite / no convergence).
+    #[error("{0}")]
+    Factorization(String),
+}
+
+/// The recovered scene and how it was obtained.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Reconstruction {
+    /// Scene radiance per element, row-major on the scene grid, in [0, 1].
+    #[serde(skip)]
+    pub image: Vec<f64>,
+    /// Solver statistics.
+    pub stats: SolveStats,
+}
+
+/// Statistics every solver reports (the `solver` object of `report.json`).
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct SolveStats {
+    /// `admm-tv`, `tikhonov` or `lsq`.
+    pub solver: String,
+    /// Regularization weight actually used (MODEL.md units), if any.
+    pub lambda: Option<f64>,
+    /// ADMM penalty actually used.
+    pub rho: Option<f64>,
+    /// Iterations run (0 for direct solvers).
+    pub iterations: usize,
+    /// Whether the stopping rule was met (direct solvers: always).
+    pub converged: bool,
+    /// Final primal residual `||A l - z||` (ADMM).
+    pub primal_residual: Option<f64>,
+    /// Final dual residual `rho ||A^T (z - z_prev)||` (ADMM).
+    pub dual_residual: Option<f64>,
+    /// `||i - T l||^2 + lambda TV(l)` at the returned `l`.
+    pub objective: f64,
+    /// `||i - T l||^2` at the returned `l`.
+    pub data_misfit: f64,
+    /// Rank used by the pseudo-inverse (lsq).
+    pub rank: Option<usize>,
+    /// Fraction of the unconstrained solution clipped into [0, 1] (baselines).
+    pub clipped_fraction: Option<f64>,
+    /// Seconds spent forming `T^T T` (and `T^T i`).
+    pub gram_seconds: f64,
+    /// Seconds spent in the factorization.
+    pub factor_seconds: f64,
+    /// Seconds spent iterating (ADMM) or back-substituting.
+    pub iterate_seconds: f64,
+    /// Total wall time of the solve.
+    pub total_seconds: f64,
+    /// Things the user should know before trusting the result.
+    pub warnings: Vec<String>,
+}
+
+/// Checks a measurement against `T` before a solve.
+pub fn check_measurement(t: &Transport, i: &[f64]) -> Result<(), SolveError> {
+    if i.len() != t.rows() {
+        return Err(SolveError::Length {
+            expected: t.rows(),
+            got: i.len(),
+        });
+    }
+    if let Some((index, &value)) = i.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        return Err(SolveError::NonFinite { index, value });
+    }
+    Ok(())
+}

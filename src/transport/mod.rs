@@ -1,0 +1,130 @@
+//! The transport matrix `T` (MODEL.md Eq. 2, "One entry of T"): built in
+//! parallel in f64, one row block per (pose, polarizer angle).
+//!
+//! Row order: pose order, then angle order; within a block, wall elements
+//! row-major (v outer, u inner). Column order: scene elements row-major.
+
+mod build;
+
+pub use build::{build, build_with_progress};
+
+use faer::MatRef;
+
+use crate::scene::Grid;
+
+/// One block of rows of `T`: a camera pose at one polarizer setting.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Block {
+    /// Pose name.
+    pub pose: String,
+    /// Polarizer angle in degrees from crossed, or `None` without a polarizer.
+    pub polarizer_deg: Option<f64>,
+}
+
+/// The stacked transport matrix with the layout needed to read it.
+#[derive(Debug, Clone)]
+pub struct Transport {
+    rows: usize,
+    cols: usize,
+    /// Column-major entries, `data[k * rows + j] = T[j, k]`.
+    data: Vec<f64>,
+    /// Row blocks, in row order.
+    pub blocks: Vec<Block>,
+    /// Wall grid (rows within a block).
+    pub wall_grid: Grid,
+    /// Scene grid (columns).
+    pub scene_grid: Grid,
+}
+
+/// Why `T` could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum TransportError {
+    /// The matrix would not fit in the memory budget.
+    #[error("T would be {rows} x {cols} ({gib:.1} GiB in f64), over the {limit_gib:.1} GiB limit; reduce wall.grid, scene.grid or the number of poses/angles")]
+    TooLarge {
+        /// Rows asked for.
+        rows: usize,
+        /// Columns asked for.
+        cols: usize,
+        /// Size in GiB.
+        gib: f64,
+        /// Limit in GiB.
+        limit_gib: f64,
+    },
+}
+
+impl Transport {
+    /// Wraps column-major entries; `data.len()` must be `rows * cols`.
+    pub fn from_col_major(rows: usize, cols: usize, data: Vec<f64>, blocks: Vec<Block>, wall_grid: Grid, scene_grid: Grid) -> Self {
+        assert_eq!(data.len(), rows * cols, "transport data does not match its shape");
+        Self {
+            rows,
+            cols,
+            data,
+            blocks,
+            wall_grid,
+            scene_grid,
+        }
+    }
+
+    /// Number of rows (measurements).
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// Number of columns (scene elements).
+    pub fn cols(&self) -> usize {
+        self.cols
+    }
+
+    /// Entry `T[j, k]`.
+    pub fn get(&self, j: usize, k: usize) -> f64 {
+        self.data[k * self.rows + j]
+    }
+
+    /// Column `k` (the wall response to scene element `k`, all blocks stacked).
+    pub fn col(&self, k: usize) -> &[f64] {
+        &self.data[k * self.rows..(k + 1) * self.rows]
+    }
+
+    /// Column-major entries.
+    pub fn col_major(&self) -> &[f64] {
+        &self.data
+    }
+
+    /// A faer view for the dense linear algebra.
+    pub fn as_mat(&self) -> MatRef<'_, f64> {
+        MatRef::from_column_major_slice(&self.data, self.rows, self.cols)
+    }
+
+    /// Rows of block `b`.
+    pub fn block_rows(&self, b: usize) -> std::ops::Range<usize> {
+        let n = self.wall_grid.count();
+        b * n..(b + 1) * n
+    }
+
+    /// `i = T l`: the noiseless measurement of scene `l` (MODEL.md Eq. 2).
+    pub fn apply(&self, l: &[f64]) -> Vec<f64> {
+        assert_eq!(l.len(), self.cols, "scene vector length");
+        let mut out = vec![0.0; self.rows];
+        for (k, &lk) in l.iter().enumerate() {
+            if lk != 0.0 {
+                for (o, t) in out.iter_mut().zip(self.col(k)) {
+                    *o += t * lk;
+                }
+            }
+        }
+        out
+    }
+
+    /// Row-major entries (the order of a C-order `.npy`).
+    pub fn to_row_major(&self) -> Vec<f64> {
+        let mut out = vec![0.0; self.data.len()];
+        for k in 0..self.cols {
+            for (j, &t) in self.col(k).iter().enumerate() {
+                out[j * self.cols + k] = t;
+            }
+        }
+        out
+    }
+}
