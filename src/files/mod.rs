@@ -64,3 +64,31 @@ pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<(), FileErro
         FileError::write(path, e)
     })
 }
+
+/// Loads a scene image onto a grid: a PNG/TIFF (8/16-bit grey, resampled by
+/// area averaging) or a `.npy` (values used as given; resampled when its shape
+/// is not the grid's). Row `iv` of the grid is image row `iv`, top first.
+pub fn load_grid_image(path: &std::path::Path, grid: crate::scene::Grid) -> Result<Vec<f64>, FileError> {
+    let is_npy = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    let gray = if is_npy {
+        let a = npy::read(path)?;
+        let (h, w) = match a.shape.as_slice() {
+            [n] if *n == grid.count() => return Ok(a.data),
+            [h, w] => (*h, *w),
+            s => return Err(FileError::format(path, format!("shape {s:?} is neither the scene grid ({} x {}) nor a 2-D image", grid.nv, grid.nu))),
+        };
+        if (h, w) == (grid.nv, grid.nu) {
+            return Ok(a.data);
+        }
+        image::Gray { width: w, height: h, data: a.data }
+    } else {
+        image::read_gray(path)?
+    };
+    if gray.width == 0 || gray.height == 0 {
+        return Err(FileError::format(path, "the image is empty"));
+    }
+    if let Some(v) = gray.data.iter().find(|v| !v.is_finite()) {
+        return Err(FileError::format(path, format!("holds the non-finite value {v}")));
+    }
+    Ok(image::resample_area(&gray, grid.nu, grid.nv))
+}

@@ -8,6 +8,9 @@
 //! and quantization to `bits` with the full well mapped to full scale.
 
 use rand::SeedableRng;
+
+use crate::scene::Scene;
+use crate::transport::{Transport, TransportError};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal, Poisson};
 
@@ -110,6 +113,19 @@ impl NoiseModel {
         let measurement = dn.iter().map(|&d| f64::from(d) * units_per_dn).collect();
         Ok(Simulation { measurement, clean, dn, electrons_per_unit, units_per_dn })
     }
+}
+
+/// Brightest element of the scene's unpolarized wall image, `max(T_nopol l)`,
+/// which sets the exposure. Reuses `t` when the scene has no polarizer;
+/// otherwise builds the polarizer-free `T` (one block per pose).
+pub fn unpolarized_peak(scene: &Scene, t: &Transport, l: &[f64]) -> Result<f64, TransportError> {
+    let has_polarizer = scene.poses.iter().any(|p| !p.analyzers.is_empty());
+    let image = if has_polarizer {
+        crate::transport::build(&scene.without_polarizers())?.apply(l)
+    } else {
+        t.apply(l)
+    };
+    Ok(image.into_iter().fold(0.0, f64::max))
 }
 
 #[cfg(test)]

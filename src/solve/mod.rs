@@ -11,6 +11,7 @@ pub mod baseline;
 pub mod conditioning;
 mod gram;
 pub mod metrics;
+pub mod report;
 pub mod tv;
 
 pub use admm::{admm_tv, AdmmSettings};

@@ -21,6 +21,16 @@ pub struct Block {
     pub polarizer_deg: Option<f64>,
 }
 
+impl Block {
+    /// A file-name-safe label: `A-pol0`, `A-pol22.5`, `B-nopol`.
+    pub fn label(&self) -> String {
+        match self.polarizer_deg {
+            Some(a) => format!("{}-pol{}", self.pose, a),
+            None => format!("{}-nopol", self.pose),
+        }
+    }
+}
+
 /// The stacked transport matrix with the layout needed to read it.
 #[derive(Debug, Clone)]
 pub struct Transport {

@@ -1,0 +1,76 @@
+//! Command-line interface: argument definitions and dispatch to one module per
+//! subcommand. Each subcommand reads files, calls the library and writes files.
+
+mod cond;
+mod progress;
+mod reconstruct;
+mod simulate;
+mod transport;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+
+use polnlos::scene::Scene;
+
+/// Polarization-enhanced passive non-line-of-sight imaging.
+///
+/// Build the light-transport matrix of a scene file, check its conditioning,
+/// simulate wall images of a hidden scene, and recover the hidden scene from
+/// a measurement. Scene files are TOML (see MODEL.md); examples ship in
+/// config/scenes/.
+#[derive(Debug, Parser)]
+#[command(name = "polnlos", version, propagate_version = true)]
+pub struct Cli {
+    /// Worker threads for the numeric core (default: all cores).
+    #[arg(long, global = true, value_name = "N")]
+    threads: Option<usize>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Build the transport matrix T of a scene and save it as .npy.
+    Transport(transport::Args),
+    /// Print the conditioning of T: singular values, condition number, rank.
+    Cond(cond::Args),
+    /// Render a noisy measurement i = T l of a truth image.
+    Simulate(simulate::Args),
+    /// Recover the hidden scene from a measurement.
+    Reconstruct(reconstruct::Args),
+}
+
+/// Runs the parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    if let Some(n) = cli.threads {
+        anyhow::ensure!(n >= 1, "--threads must be at least 1");
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+            .context("cannot start the worker threads")?;
+    }
+    faer::set_global_parallelism(faer::Par::rayon(0));
+    match cli.command {
+        Command::Transport(a) => transport::run(a),
+        Command::Cond(a) => cond::run(a),
+        Command::Simulate(a) => simulate::run(a),
+        Command::Reconstruct(a) => reconstruct::run(a),
+    }
+}
+
+/// Loads a scene file; the error names the file, the key and the reason.
+fn load_scene(path: &Path) -> anyhow::Result<Scene> {
+    Ok(Scene::load(path)?)
+}
+
+/// The scene's name: its file stem.
+fn scene_name(path: &Path) -> String {
+    path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scene".into())
+}
+
+/// Creates an output folder (and its parents).
+fn out_dir(dir: &PathBuf) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create the output folder {}", dir.display()))
+}

@@ -1,0 +1,78 @@
+//! The `report.json` of a reconstruction: solver statistics, conditioning of
+//! `T` and, when the truth is known, the image metrics. Shared by the CLI and
+//! the daemon so both write the same, documented format.
+
+use super::conditioning::Conditioning;
+use super::metrics::Metrics;
+use super::SolveStats;
+use crate::scene::Grid;
+use crate::transport::Block;
+
+/// Above this condition number a result is flagged as untrustworthy.
+pub const KAPPA_WARN: f64 = 1e8;
+
+/// Conditioning of `T` without the full spectrum.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ConditioningSummary {
+    /// `sigma_max / sigma_min` (`"inf"` when rank-deficient).
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub kappa: f64,
+    /// Numerical rank.
+    pub rank: usize,
+    /// Largest singular value.
+    pub sigma_max: f64,
+    /// Smallest singular value.
+    pub sigma_min: f64,
+}
+
+impl From<&Conditioning> for ConditioningSummary {
+    fn from(c: &Conditioning) -> Self {
+        Self {
+            kappa: c.kappa,
+            rank: c.rank,
+            sigma_max: c.singular_values.first().copied().unwrap_or(0.0),
+            sigma_min: c.singular_values.last().copied().unwrap_or(0.0),
+        }
+    }
+}
+
+/// Everything a reconstruction reports.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Report {
+    /// Scene name (file stem).
+    pub scene: String,
+    /// Scene grid (shape of the recovered image: `nv` rows, `nu` columns).
+    pub scene_grid: Grid,
+    /// Wall grid.
+    pub wall_grid: Grid,
+    /// Row blocks of `T`, in measurement order.
+    pub blocks: Vec<Block>,
+    /// Rows of `T`.
+    pub rows: usize,
+    /// Columns of `T`.
+    pub cols: usize,
+    /// Seconds spent building `T`.
+    pub transport_seconds: f64,
+    /// Conditioning of `T`.
+    pub conditioning: ConditioningSummary,
+    /// Solver statistics.
+    pub solver: SolveStats,
+    /// Metrics against the truth, when one was given.
+    pub metrics: Option<Metrics>,
+    /// Warnings from every stage (solver, conditioning).
+    pub warnings: Vec<String>,
+}
+
+/// Warnings that the conditioning of `T` implies for any result.
+pub fn conditioning_warnings(c: &Conditioning) -> Vec<String> {
+    if c.is_rank_deficient() {
+        vec![format!(
+            "T is rank-deficient (rank {} of {} scene elements): some scene patterns are invisible to this setup; use a coarser scene grid, more poses or polarizer angles",
+            c.rank, c.cols
+        )]
+    } else if c.kappa > KAPPA_WARN {
+        vec![format!("kappa(T) = {:.3e} > {KAPPA_WARN:.0e}: noise is amplified that much; trust only heavily regularized results", c.kappa)]
+    } else {
+        Vec::new()
+    }
+}
