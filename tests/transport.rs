@@ -47,7 +47,10 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
     let s0 = s.center;
     let q = angle.map(|deg| {
         let n_p = (c0 - o).normalize();
-        let e_s0 = (s0 - c0).normalize().cross(&(o - c0).normalize()).normalize();
+        let e_s0 = (s0 - c0)
+            .normalize()
+            .cross(&(o - c0).normalize())
+            .normalize();
         let q0 = e_s0.cross(&n_p).normalize();
         let psi = deg.to_radians();
         q0 * psi.cos() + n_p.cross(&q0) * psi.sin() + n_p * n_p.dot(&q0) * (1.0 - psi.cos())
@@ -70,7 +73,10 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                     let sp = point(s, k, sa, sb);
                     let w_i = (sp - c).normalize();
                     let w_o = (o - c).normalize();
-                    if n.dot(&w_i) <= 0.0 || n.dot(&w_o) <= 0.0 || scene.occluders.iter().any(|oc| oc.blocks(&sp, &c)) {
+                    if n.dot(&w_i) <= 0.0
+                        || n.dot(&w_o) <= 0.0
+                        || scene.occluders.iter().any(|oc| oc.blocks(&sp, &c))
+                    {
                         continue;
                     }
                     let g = match scene.scene.emitter {
@@ -81,14 +87,19 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                     let h = (w_i + w_o).normalize();
                     let nh = n.dot(&h);
                     let d = alpha * alpha / (PI * (nh * nh * (alpha * alpha - 1.0) + 1.0).powi(2));
-                    let g1 = |x: f64| 2.0 * x / (x + (alpha * alpha + (1.0 - alpha * alpha) * x * x).sqrt());
+                    let g1 = |x: f64| {
+                        2.0 * x / (x + (alpha * alpha + (1.0 - alpha * alpha) * x * x).sqrt())
+                    };
                     let phi = 0.5 * w_i.dot(&w_o).clamp(-1.0, 1.0).acos();
                     let (rs, rp) = if phi < 1e-7 {
                         let r = ((brdf.eta - 1.0) / (brdf.eta + 1.0)).powi(2);
                         (r, r)
                     } else {
                         let pt = (phi.sin() / brdf.eta).asin();
-                        (((phi - pt).sin() / (phi + pt).sin()).powi(2), ((phi - pt).tan() / (phi + pt).tan()).powi(2))
+                        (
+                            ((phi - pt).sin() / (phi + pt).sin()).powi(2),
+                            ((phi - pt).tan() / (phi + pt).tan()).powi(2),
+                        )
                     };
                     let (p_spec, p_diff) = match q {
                         None => ((rs + rp) / 2.0, 1.0),
@@ -100,13 +111,17 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                             } else {
                                 let e_s = x.normalize();
                                 let e_p = e_s.cross(&w_o);
-                                ((rs * t.dot(&e_s).powi(2) + rp * t.dot(&e_p).powi(2)) / 2.0, 0.5)
+                                (
+                                    (rs * t.dot(&e_s).powi(2) + rp * t.dot(&e_p).powi(2)) / 2.0,
+                                    0.5,
+                                )
                             }
                         }
                     };
                     let ci = n.dot(&w_i);
                     let co = n.dot(&w_o);
-                    let f = brdf.ks * d * g1(ci) * g1(co) / (4.0 * ci * co) * p_spec + brdf.kd / PI * p_diff;
+                    let f = brdf.ks * d * g1(ci) * g1(co) / (4.0 * ci * co) * p_spec
+                        + brdf.kd / PI * p_diff;
                     sum += g * ci / (sp - c).norm_squared() * f;
                 }
             }
@@ -126,14 +141,24 @@ fn assert_matches_reference(scene: &Scene, t: &Transport, label: &str) {
         for k in 0..t.cols() {
             let r = reference(scene, row / nw, row % nw, k);
             let got = t.get(row, k);
-            assert!((got - r).abs() <= 1e-9 * r.abs() + floor, "{label}: T[{row},{k}] = {got:e}, reference {r:e}");
+            assert!(
+                (got - r).abs() <= 1e-9 * r.abs() + floor,
+                "{label}: T[{row},{k}] = {got:e}, reference {r:e}"
+            );
         }
     }
 }
 
 #[test]
 fn every_small_reference_scene_matches_the_literal_model() {
-    for name in ["brewster-crossed-3x3", "brewster-nopol-3x3", "brewster-rotating-3x3", "brewster-multi-3x3", "occluder-crossed-3x3", "occluder-multi-3x3"] {
+    for name in [
+        "brewster-crossed-3x3",
+        "brewster-nopol-3x3",
+        "brewster-rotating-3x3",
+        "brewster-multi-3x3",
+        "occluder-crossed-3x3",
+        "occluder-multi-3x3",
+    ] {
         let scene = load(name);
         let t = build(&scene).unwrap();
         assert_matches_reference(&scene, &t, name);
@@ -145,20 +170,68 @@ fn entries_computed_independently_in_python() {
     // Python's math module, MODEL.md formulas (see the note on issue 2); wall
     // element (ju, jv) -> row jv*32 + ju, scene element (ku, kv) -> col kv*3 + ku.
     let cases: [(&str, usize, [usize; 4], f64); 9] = [
-        ("brewster-nopol-3x3", 0, [16, 16, 1, 1], 0.002282704138008312),
-        ("brewster-nopol-3x3", 0, [3, 20, 0, 2], 0.0004768112271055904),
-        ("brewster-nopol-3x3", 0, [31, 0, 2, 1], 4.2444403481189806e-05),
-        ("brewster-crossed-3x3", 0, [16, 16, 1, 1], 5.257392284104868e-07),
-        ("brewster-crossed-3x3", 0, [3, 20, 0, 2], 5.533420281941725e-05),
-        ("brewster-crossed-3x3", 0, [31, 0, 2, 1], 1.1290610324327305e-05),
-        ("brewster-rotating-3x3", 1, [16, 16, 1, 1], 0.0011758940334991581),
-        ("brewster-rotating-3x3", 1, [3, 20, 0, 2], 0.0003580275498368275),
-        ("brewster-rotating-3x3", 1, [31, 0, 2, 1], 4.270724519592195e-06),
+        (
+            "brewster-nopol-3x3",
+            0,
+            [16, 16, 1, 1],
+            0.002282704138008312,
+        ),
+        (
+            "brewster-nopol-3x3",
+            0,
+            [3, 20, 0, 2],
+            0.0004768112271055904,
+        ),
+        (
+            "brewster-nopol-3x3",
+            0,
+            [31, 0, 2, 1],
+            4.2444403481189806e-05,
+        ),
+        (
+            "brewster-crossed-3x3",
+            0,
+            [16, 16, 1, 1],
+            5.257392284104868e-07,
+        ),
+        (
+            "brewster-crossed-3x3",
+            0,
+            [3, 20, 0, 2],
+            5.533420281941725e-05,
+        ),
+        (
+            "brewster-crossed-3x3",
+            0,
+            [31, 0, 2, 1],
+            1.1290610324327305e-05,
+        ),
+        (
+            "brewster-rotating-3x3",
+            1,
+            [16, 16, 1, 1],
+            0.0011758940334991581,
+        ),
+        (
+            "brewster-rotating-3x3",
+            1,
+            [3, 20, 0, 2],
+            0.0003580275498368275,
+        ),
+        (
+            "brewster-rotating-3x3",
+            1,
+            [31, 0, 2, 1],
+            4.270724519592195e-06,
+        ),
     ];
     for (name, block, [ju, jv, ku, kv], expect) in cases {
         let t = build(&load(name)).unwrap();
         let got = t.get(block * 1024 + jv * 32 + ju, kv * 3 + ku);
-        assert!((got - expect).abs() <= 1e-9 * expect, "{name} block {block} ({ju},{jv})x({ku},{kv}): {got:e} vs {expect:e}");
+        assert!(
+            (got - expect).abs() <= 1e-9 * expect,
+            "{name} block {block} ({ju},{jv})x({ku},{kv}): {got:e} vs {expect:e}"
+        );
     }
 }
 
@@ -186,7 +259,14 @@ fn reference_scenes_load_with_their_shapes_and_condition_numbers() {
     ];
     let mut on_disk: Vec<String> = std::fs::read_dir(scenes_dir())
         .unwrap()
-        .map(|e| e.unwrap().path().file_stem().unwrap().to_string_lossy().into_owned())
+        .map(|e| {
+            e.unwrap()
+                .path()
+                .file_stem()
+                .unwrap()
+                .to_string_lossy()
+                .into_owned()
+        })
         .collect();
     on_disk.sort();
     let mut named: Vec<String> = golden.iter().map(|g| g.0.to_string()).collect();
@@ -196,15 +276,26 @@ fn reference_scenes_load_with_their_shapes_and_condition_numbers() {
         let t = build(&load(name)).unwrap();
         assert_eq!((t.rows(), t.cols()), (rows, cols), "{name}");
         let c = condition(&t).unwrap();
-        assert!((c.kappa / kappa - 1.0).abs() < 1e-6, "{name}: kappa {} vs {kappa}", c.kappa);
+        assert!(
+            (c.kappa / kappa - 1.0).abs() < 1e-6,
+            "{name}: kappa {} vs {kappa}",
+            c.kappa
+        );
     }
 }
 
 #[test]
 fn the_paper_trend_holds_on_the_3x3_bench() {
     let k = |n: &str| condition(&build(&load(n)).unwrap()).unwrap().kappa;
-    let (crossed, rotating, nopol) = (k("brewster-crossed-3x3"), k("brewster-rotating-3x3"), k("brewster-nopol-3x3"));
-    assert!(crossed < rotating && rotating < nopol, "crossed {crossed} rotating {rotating} nopol {nopol}");
+    let (crossed, rotating, nopol) = (
+        k("brewster-crossed-3x3"),
+        k("brewster-rotating-3x3"),
+        k("brewster-nopol-3x3"),
+    );
+    assert!(
+        crossed < rotating && rotating < nopol,
+        "crossed {crossed} rotating {rotating} nopol {nopol}"
+    );
 }
 
 const CUSTOM: &str = r#"
@@ -243,11 +334,19 @@ fn row_and_column_order_on_a_non_square_grid() {
     let labels: Vec<String> = t.blocks.iter().map(|b| b.label()).collect();
     assert_eq!(labels, ["A-pol0", "A-pol30", "B-nopol"]);
     // Rows: block, then v outer, u inner. Columns: v outer, u inner.
-    for (block, iu, iv, ku, kv) in [(0, 5, 33, 6, 1), (1, 23, 0, 0, 4), (2, 11, 17, 3, 2), (2, 0, 39, 6, 4)] {
+    for (block, iu, iv, ku, kv) in [
+        (0, 5, 33, 6, 1),
+        (1, 23, 0, 0, 4),
+        (2, 11, 17, 3, 2),
+        (2, 0, 39, 6, 4),
+    ] {
         let row = block * 960 + iv * 24 + iu;
         let col = kv * 7 + ku;
         let r = reference(&scene, block, iv * 24 + iu, col);
-        assert!((t.get(row, col) - r).abs() <= 1e-9 * r.abs(), "block {block} ({iu},{iv}) ({ku},{kv})");
+        assert!(
+            (t.get(row, col) - r).abs() <= 1e-9 * r.abs(),
+            "block {block} ({iu},{iv}) ({ku},{kv})"
+        );
         // The transposed reading would be a different entry.
         let swapped = reference(&scene, block, iu * 40 + iv, ku * 5 + kv);
         assert!((swapped - r).abs() > 1e-6 * r.abs());
@@ -257,7 +356,9 @@ fn row_and_column_order_on_a_non_square_grid() {
 
 #[test]
 fn supersampling_matches_the_reference() {
-    let text = CUSTOM.replace("grid = [24, 40]", "grid = [6, 5]\nsupersample = 3").replace("grid = [7, 5]", "grid = [3, 2]\nsupersample = 2");
+    let text = CUSTOM
+        .replace("grid = [24, 40]", "grid = [6, 5]\nsupersample = 3")
+        .replace("grid = [7, 5]", "grid = [3, 2]\nsupersample = 2");
     let scene = Scene::from_toml_str(&text).unwrap();
     let t = build(&scene).unwrap();
     assert_matches_reference(&scene, &t, "supersampled");
@@ -304,7 +405,12 @@ sphere = { center = [0.0, 0.0, 0.5], radius = 0.1 }
         let x = ((iu as f64 + 0.5) / 21.0 - 0.5) * 0.8;
         let y = ((iv as f64 + 0.5) / 21.0 - 0.5) * 0.8;
         let inside = x.hypot(y) < shadow;
-        assert_eq!(t.get(j, 0) == 0.0, inside, "element ({iu},{iv}) at r = {}", x.hypot(y));
+        assert_eq!(
+            t.get(j, 0) == 0.0,
+            inside,
+            "element ({iu},{iv}) at r = {}",
+            x.hypot(y)
+        );
         dark += inside as usize;
     }
     // Elements within r < 0.204 on a 0.0381 m pitch: 89 by count.
@@ -315,14 +421,22 @@ sphere = { center = [0.0, 0.0, 0.5], radius = 0.1 }
 fn crossed_polarizer_darkens_the_central_brewster_path() {
     // A wall element exactly at c0 (odd grid) and a point scene element at s0.
     let base = std::fs::read_to_string(scenes_dir().join("brewster-crossed-3x3.toml")).unwrap();
-    let text = base.replace("grid = [32, 32]", "grid = [33, 33]").replace("grid = [3, 3]", "grid = [1, 1]").replace("size = [0.2, 0.2]", "size = [0.001, 0.001]");
+    let text = base
+        .replace("grid = [32, 32]", "grid = [33, 33]")
+        .replace("grid = [3, 3]", "grid = [1, 1]")
+        .replace("size = [0.2, 0.2]", "size = [0.001, 0.001]");
     let crossed = build(&Scene::from_toml_str(&text).unwrap()).unwrap();
-    let open = build(&Scene::from_toml_str(&text.replace("polarizer_deg = [0.0]", "polarizer_deg = []")).unwrap()).unwrap();
+    let open = build(
+        &Scene::from_toml_str(&text.replace("polarizer_deg = [0.0]", "polarizer_deg = []"))
+            .unwrap(),
+    )
+    .unwrap();
     let centre = 16 * 33 + 16;
     let ratio = crossed.get(centre, 0) / open.get(centre, 0);
     // The bench is at Brewster to 3 digits: Rp ~ 1e-7 of Rs remains.
     assert!(ratio < 1e-5, "crossed/open on the central path = {ratio:e}");
     // Off the central path the crossed polarizer passes far more (relative).
-    let off = (crossed.get(0, 0) / open.get(0, 0)).min(crossed.get(33 * 33 - 1, 0) / open.get(33 * 33 - 1, 0));
+    let off = (crossed.get(0, 0) / open.get(0, 0))
+        .min(crossed.get(33 * 33 - 1, 0) / open.get(33 * 33 - 1, 0));
     assert!(off > 100.0 * ratio, "corner ratio {off:e}");
 }

@@ -15,12 +15,17 @@ pub struct Frame {
 impl Frame {
     /// A black frame.
     pub fn zeros(width: usize, height: usize) -> Self {
-        Self { width, height, pixels: vec![0.0; width * height] }
+        Self {
+            width,
+            height,
+            pixels: vec![0.0; width * height],
+        }
     }
 
     /// Bilinear sample at (x, y); `None` outside `[0, w-1] x [0, h-1]`.
     pub fn bilinear(&self, x: f64, y: f64) -> Option<f64> {
-        if !(x >= 0.0 && y >= 0.0 && x <= (self.width - 1) as f64 && y <= (self.height - 1) as f64) {
+        if !(x >= 0.0 && y >= 0.0 && x <= (self.width - 1) as f64 && y <= (self.height - 1) as f64)
+        {
             return None;
         }
         let (x0, y0) = (x.floor() as usize, y.floor() as usize);
@@ -39,7 +44,11 @@ mod tests {
 
     #[test]
     fn bilinear_centres_and_edges() {
-        let f = Frame { width: 2, height: 2, pixels: vec![0.0, 1.0, 2.0, 3.0] };
+        let f = Frame {
+            width: 2,
+            height: 2,
+            pixels: vec![0.0, 1.0, 2.0, 3.0],
+        };
         assert_eq!(f.bilinear(0.0, 0.0), Some(0.0));
         assert_eq!(f.bilinear(1.0, 1.0), Some(3.0));
         assert_eq!(f.bilinear(0.5, 0.5), Some(1.5));

@@ -55,7 +55,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         let smax = c.singular_values.first().copied().unwrap_or(0.0);
         let smin = c.singular_values.last().copied().unwrap_or(0.0);
         println!("scene      {}", super::scene_name(&a.scene));
-        println!("T          {} x {} ({} blocks)", c.rows, c.cols, t.blocks.len());
+        println!(
+            "T          {} x {} ({} blocks)",
+            c.rows,
+            c.cols,
+            t.blocks.len()
+        );
         println!("sigma_max  {smax:.6e}");
         println!("sigma_min  {smin:.6e}");
         if c.kappa.is_finite() {

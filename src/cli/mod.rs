@@ -67,10 +67,13 @@ fn load_scene(path: &Path) -> anyhow::Result<Scene> {
 
 /// The scene's name: its file stem.
 fn scene_name(path: &Path) -> String {
-    path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scene".into())
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".into())
 }
 
 /// Creates an output folder (and its parents).
 fn out_dir(dir: &PathBuf) -> anyhow::Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create the output folder {}", dir.display()))
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create the output folder {}", dir.display()))
 }

@@ -5,7 +5,9 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 /// A bar over `len` steps that draws only on an interactive stderr.
 pub fn bar(len: usize, what: &str) -> ProgressBar {
     let pb = ProgressBar::with_draw_target(Some(len as u64), ProgressDrawTarget::stderr());
-    if let Ok(style) = ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} {elapsed_precise} eta {eta}") {
+    if let Ok(style) =
+        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} {elapsed_precise} eta {eta}")
+    {
         pb.set_style(style.progress_chars("=> "));
     }
     pb.set_message(what.to_string());
@@ -13,7 +15,9 @@ pub fn bar(len: usize, what: &str) -> ProgressBar {
 }
 
 /// Builds `T` with a bar over its columns.
-pub fn build_transport(scene: &polnlos::scene::Scene) -> anyhow::Result<(polnlos::transport::Transport, f64)> {
+pub fn build_transport(
+    scene: &polnlos::scene::Scene,
+) -> anyhow::Result<(polnlos::transport::Transport, f64)> {
     let pb = bar(scene.cols(), "building T");
     let start = std::time::Instant::now();
     let t = polnlos::transport::build_with_progress(scene, &|done| pb.set_position(done as u64))?;

@@ -18,8 +18,10 @@ enum Solver {
 
 /// Recover the hidden scene from a measurement.
 #[derive(Debug, clap::Args)]
-#[command(after_help = "Writes recovered.npy (scene grid, rows = v), recovered.png (16-bit) and report.json. Example:\n  \
-polnlos reconstruct config/scenes/brewster-crossed.toml --measurement sim/measurement.npy --truth sim/truth.npy --out rec/")]
+#[command(
+    after_help = "Writes recovered.npy (scene grid, rows = v), recovered.png (16-bit) and report.json. Example:\n  \
+polnlos reconstruct config/scenes/brewster-crossed.toml --measurement sim/measurement.npy --truth sim/truth.npy --out rec/"
+)]
 pub struct Args {
     /// Scene file (TOML) the measurement was taken with.
     scene: PathBuf,
@@ -32,10 +34,10 @@ pub struct Args {
     /// Solver.
     #[arg(long, value_enum, default_value = "admm-tv")]
     solver: Solver,
-    /// Regularization weight in MODEL.md units (default: 1e-3 x mean diagonal of T^T T).
+    /// Regularization weight in MODEL.md units (default: 1e-2 x mean diagonal of T^T T for admm-tv, 1e-3 x for tikhonov).
     #[arg(long, value_name = "L")]
     lambda: Option<f64>,
-    /// ADMM penalty (default: mean diagonal of T^T T).
+    /// ADMM penalty (default: equal to lambda).
     #[arg(long, value_name = "R")]
     rho: Option<f64>,
     /// ADMM iteration cap.
@@ -56,7 +58,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let meas = npy::read(&a.measurement)?;
     let sgrid = scene.scene.plane.grid;
-    let truth = a.truth.as_ref().map(|p| load_grid_image(p, sgrid)).transpose()?;
+    let truth = a
+        .truth
+        .as_ref()
+        .map(|p| load_grid_image(p, sgrid))
+        .transpose()?;
     super::out_dir(&a.out)?;
 
     let (t, transport_seconds) = super::progress::build_transport(&scene)?;
@@ -64,7 +70,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Solver::AdmmTv => admm_tv(
             &t,
             &meas.data,
-            &AdmmSettings { lambda: a.lambda, rho: a.rho, max_iter: a.max_iter, tol: a.tol },
+            &AdmmSettings {
+                lambda: a.lambda,
+                rho: a.rho,
+                max_iter: a.max_iter,
+                tol: a.tol,
+            },
         )?,
         Solver::Tikhonov => tikhonov(&t, &meas.data, a.lambda)?,
         Solver::Lsq => least_squares(&t, &meas.data, a.rcond)?,
@@ -81,19 +92,38 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         cols: t.cols(),
         transport_seconds,
         conditioning: (&cond).into(),
-        metrics: truth.as_ref().map(|tr| metrics::compare(sgrid, tr, &rec.image)),
+        metrics: truth
+            .as_ref()
+            .map(|tr| metrics::compare(sgrid, tr, &rec.image)),
         solver: rec.stats,
         warnings,
     };
-    npy::write_f64(&a.out.join("recovered.npy"), &[sgrid.nv, sgrid.nu], &rec.image)?;
-    image::write_png16(&a.out.join("recovered.png"), sgrid.nu, sgrid.nv, &image::unit_to_u16(&rec.image))?;
+    npy::write_f64(
+        &a.out.join("recovered.npy"),
+        &[sgrid.nv, sgrid.nu],
+        &rec.image,
+    )?;
+    image::write_png16(
+        &a.out.join("recovered.png"),
+        sgrid.nu,
+        sgrid.nv,
+        &image::unit_to_u16(&rec.image),
+    )?;
     json::write(&a.out.join("report.json"), &report)?;
     for w in &report.warnings {
         eprintln!("warning: {w}");
     }
     if let Some(m) = &report.metrics {
-        eprintln!("PSNR {:.2} dB, ZNCC {:.4}, SSIM {:.4}", m.psnr_db, m.zncc, m.ssim);
+        eprintln!(
+            "PSNR {:.2} dB, ZNCC {:.4}, SSIM {:.4}",
+            m.psnr_db, m.zncc, m.ssim
+        );
     }
-    eprintln!("recovered {}x{} scene into {}", sgrid.nu, sgrid.nv, a.out.display());
+    eprintln!(
+        "recovered {}x{} scene into {}",
+        sgrid.nu,
+        sgrid.nv,
+        a.out.display()
+    );
     Ok(())
 }

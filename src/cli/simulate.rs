@@ -10,11 +10,13 @@ use polnlos::simulate::{unpolarized_peak, NoiseModel};
 
 /// Simulate a measurement of a hidden scene.
 #[derive(Debug, clap::Args)]
-#[command(after_help = "Exposure is set so that the brightest element of the UNPOLARIZED wall image collects \
+#[command(
+    after_help = "Exposure is set so that the brightest element of the UNPOLARIZED wall image collects \
 --photons electrons; polarized blocks collect what the polarizer passes at that same exposure.\n\
 Writes measurement.npy, truth.npy, wall-<pose>-<angle>.png per block, simulate.json \
 (and frame-<pose>-<angle>.png with --frames). Example:\n  \
-polnlos simulate config/scenes/brewster-crossed.toml --truth disk.png --out sim/ --photons 20000 --seed 3")]
+polnlos simulate config/scenes/brewster-crossed.toml --truth disk.png --out sim/ --photons 20000 --seed 3"
+)]
 pub struct Args {
     /// Scene file (TOML).
     scene: PathBuf,
@@ -76,20 +78,33 @@ struct Output {
 }
 
 fn parse_size(s: &str) -> anyhow::Result<(usize, usize)> {
-    let (w, h) = s.split_once('x').context("--frame-size must look like 512x512")?;
+    let (w, h) = s
+        .split_once('x')
+        .context("--frame-size must look like 512x512")?;
     let (w, h): (usize, usize) = (w.trim().parse()?, h.trim().parse()?);
-    anyhow::ensure!((1..=16384).contains(&w) && (1..=16384).contains(&h), "--frame-size must be 1..16384 on each side");
+    anyhow::ensure!(
+        (1..=16384).contains(&w) && (1..=16384).contains(&h),
+        "--frame-size must be 1..16384 on each side"
+    );
     Ok((w, h))
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
-    let model = NoiseModel { photons: a.photons, read_noise: a.read_noise, bits: a.bits, seed: a.seed };
+    let model = NoiseModel {
+        photons: a.photons,
+        read_noise: a.read_noise,
+        bits: a.bits,
+        seed: a.seed,
+    };
     model.validate()?;
     let frame_size = a.frames.then(|| parse_size(&a.frame_size)).transpose()?;
     if a.frames {
         if let Some(p) = scene.poses.iter().find(|p| p.homography.is_none()) {
-            anyhow::bail!("--frames needs a homography for every pose; pose {:?} has none", p.name);
+            anyhow::bail!(
+                "--frames needs a homography for every pose; pose {:?} has none",
+                p.name
+            );
         }
     }
     let sgrid = scene.scene.plane.grid;
@@ -101,7 +116,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let peak = unpolarized_peak(&scene, &t, &truth)?;
     let sim = model.apply(clean, peak)?;
 
-    npy::write_f64(&a.out.join("measurement.npy"), &[t.rows()], &sim.measurement)?;
+    npy::write_f64(
+        &a.out.join("measurement.npy"),
+        &[t.rows()],
+        &sim.measurement,
+    )?;
     npy::write_f64(&a.out.join("truth.npy"), &[sgrid.nv, sgrid.nu], &truth)?;
     let full = f64::from((1u32 << a.bits) - 1);
     let png_scale = 65535.0 / full;
@@ -110,10 +129,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     for (b, block) in t.blocks.iter().enumerate() {
         let rows = t.block_rows(b);
         let dn = &sim.dn[rows.clone()];
-        let scaled: Vec<u16> = dn.iter().map(|&d| (f64::from(d) * png_scale).round() as u16).collect();
+        let scaled: Vec<u16> = dn
+            .iter()
+            .map(|&d| (f64::from(d) * png_scale).round() as u16)
+            .collect();
         let wall_png = format!("wall-{}.png", block.label());
         image::write_png16(&a.out.join(&wall_png), wgrid.nu, wgrid.nv, &scaled)?;
-        let frame_png = match (frame_size, scene.pose(&block.pose).and_then(|p| p.homography.as_ref())) {
+        let frame_png = match (
+            frame_size,
+            scene.pose(&block.pose).and_then(|p| p.homography.as_ref()),
+        ) {
             (Some((w, h)), Some(hom)) => {
                 let values: Vec<f64> = scaled.iter().map(|&v| f64::from(v)).collect();
                 let frame = render_wall(&values, hom, &scene.wall.plane, w, h, 0.0);
@@ -124,7 +149,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             }
             _ => None,
         };
-        let electrons: Vec<f64> = sim.clean[rows].iter().map(|c| c * sim.electrons_per_unit).collect();
+        let electrons: Vec<f64> = sim.clean[rows]
+            .iter()
+            .map(|c| c * sim.electrons_per_unit)
+            .collect();
         let n = electrons.len().max(1) as f64;
         let r2 = a.read_noise * a.read_noise;
         blocks.push(BlockOut {
@@ -134,7 +162,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             frame_png,
             mean_electrons: electrons.iter().sum::<f64>() / n,
             max_electrons: electrons.iter().copied().fold(0.0, f64::max),
-            mean_snr: electrons.iter().map(|e| if *e > 0.0 { e / (e + r2).sqrt() } else { 0.0 }).sum::<f64>() / n,
+            mean_snr: electrons
+                .iter()
+                .map(|e| if *e > 0.0 { e / (e + r2).sqrt() } else { 0.0 })
+                .sum::<f64>()
+                / n,
         });
     }
     let out = Output {
@@ -153,6 +185,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         blocks,
     };
     json::write(&a.out.join("simulate.json"), &out)?;
-    eprintln!("simulated {} blocks of {} wall elements into {}", t.blocks.len(), wgrid.count(), a.out.display());
+    eprintln!(
+        "simulated {} blocks of {} wall elements into {}",
+        t.blocks.len(),
+        wgrid.count(),
+        a.out.display()
+    );
     Ok(())
 }

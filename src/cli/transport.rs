@@ -6,8 +6,10 @@ use polnlos::files::npy;
 
 /// Build the transport matrix of a scene.
 #[derive(Debug, clap::Args)]
-#[command(after_help = "Rows are (pose, polarizer angle) blocks of wall elements, row-major (v outer, u inner); \
-columns are scene elements, row-major. Example:\n  polnlos transport config/scenes/brewster-crossed.toml --out T.npy")]
+#[command(
+    after_help = "Rows are (pose, polarizer angle) blocks of wall elements, row-major (v outer, u inner); \
+columns are scene elements, row-major. Example:\n  polnlos transport config/scenes/brewster-crossed.toml --out T.npy"
+)]
 pub struct Args {
     /// Scene file (TOML).
     scene: PathBuf,

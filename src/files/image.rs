@@ -23,34 +23,56 @@ pub fn read_gray(path: &Path) -> Result<Gray, FileError> {
         .with_guessed_format()
         .map_err(|e| FileError::read(path, e))?
         .decode()
-        .map_err(|e| FileError::format(path, format!("cannot decode image ({e}); use an 8- or 16-bit grey PNG")))?;
+        .map_err(|e| {
+            FileError::format(
+                path,
+                format!("cannot decode image ({e}); use an 8- or 16-bit grey PNG"),
+            )
+        })?;
     let g = img.to_luma16();
     let (w, h) = (g.width() as usize, g.height() as usize);
     Ok(Gray {
         width: w,
         height: h,
-        data: g.into_raw().into_iter().map(|v| f64::from(v) / 65535.0).collect(),
+        data: g
+            .into_raw()
+            .into_iter()
+            .map(|v| f64::from(v) / 65535.0)
+            .collect(),
     })
 }
 
 /// Encodes 16-bit grey pixels as PNG bytes.
 pub fn encode_png16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, String> {
-    let buf = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(width as u32, height as u32, pixels.to_vec())
-        .ok_or_else(|| "pixel count does not match the image size".to_string())?;
+    let buf = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(
+        width as u32,
+        height as u32,
+        pixels.to_vec(),
+    )
+    .ok_or_else(|| "pixel count does not match the image size".to_string())?;
     let mut out = std::io::Cursor::new(Vec::new());
-    buf.write_to(&mut out, image::ImageFormat::Png).map_err(|e| e.to_string())?;
+    buf.write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| e.to_string())?;
     Ok(out.into_inner())
 }
 
 /// Writes 16-bit grey pixels as a PNG, atomically.
-pub fn write_png16(path: &Path, width: usize, height: usize, pixels: &[u16]) -> Result<(), FileError> {
+pub fn write_png16(
+    path: &Path,
+    width: usize,
+    height: usize,
+    pixels: &[u16],
+) -> Result<(), FileError> {
     let bytes = encode_png16(width, height, pixels).map_err(|e| FileError::format(path, e))?;
     super::write_atomic(path, &bytes)
 }
 
 /// Maps [0, 1] to the full 16-bit range (values outside are clipped).
 pub fn unit_to_u16(values: &[f64]) -> Vec<u16> {
-    values.iter().map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16).collect()
+    values
+        .iter()
+        .map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
+        .collect()
 }
 
 /// Scales values by `1 / max` into 16 bits, for viewing a physical image.
@@ -59,7 +81,10 @@ pub fn normalized_u16(values: &[f64]) -> Vec<u16> {
     if max <= 0.0 {
         return vec![0; values.len()];
     }
-    values.iter().map(|v| ((v / max).clamp(0.0, 1.0) * 65535.0).round() as u16).collect()
+    values
+        .iter()
+        .map(|v| ((v / max).clamp(0.0, 1.0) * 65535.0).round() as u16)
+        .collect()
 }
 
 /// Box-filter resampling with fractional pixel coverage: each destination
@@ -111,9 +136,16 @@ mod tests {
         };
         assert_eq!(resample_area(&src, 2, 1), vec![0.5, 0.5]);
         // Fractional coverage: [0, 0.3, 0.9] onto 2 cells of 1.5 pixels each.
-        let src = Gray { width: 3, height: 1, data: vec![0.0, 0.3, 0.9] };
+        let src = Gray {
+            width: 3,
+            height: 1,
+            data: vec![0.0, 0.3, 0.9],
+        };
         let r = resample_area(&src, 2, 1);
-        assert!((r[0] - 0.1).abs() < 1e-15 && (r[1] - 0.7).abs() < 1e-15, "{r:?}");
+        assert!(
+            (r[0] - 0.1).abs() < 1e-15 && (r[1] - 0.7).abs() < 1e-15,
+            "{r:?}"
+        );
     }
 
     #[test]

@@ -17,8 +17,12 @@ pub fn finite_or_inf<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
 }
 
 /// Writes a value as pretty JSON atomically.
-pub fn write<T: serde::Serialize>(path: &std::path::Path, value: &T) -> Result<(), super::FileError> {
-    let mut text = serde_json::to_string_pretty(value).map_err(|e| super::FileError::format(path, e.to_string()))?;
+pub fn write<T: serde::Serialize>(
+    path: &std::path::Path,
+    value: &T,
+) -> Result<(), super::FileError> {
+    let mut text = serde_json::to_string_pretty(value)
+        .map_err(|e| super::FileError::format(path, e.to_string()))?;
     text.push('\n');
     super::write_atomic(path, text.as_bytes())
 }

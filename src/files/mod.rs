@@ -32,13 +32,24 @@ pub enum FileError {
 
 impl FileError {
     pub(crate) fn read(path: &std::path::Path, source: std::io::Error) -> Self {
-        FileError::Io { action: "cannot read", path: path.to_path_buf(), source }
+        FileError::Io {
+            action: "cannot read",
+            path: path.to_path_buf(),
+            source,
+        }
     }
     pub(crate) fn write(path: &std::path::Path, source: std::io::Error) -> Self {
-        FileError::Io { action: "cannot write", path: path.to_path_buf(), source }
+        FileError::Io {
+            action: "cannot write",
+            path: path.to_path_buf(),
+            source,
+        }
     }
     pub(crate) fn format(path: &std::path::Path, reason: impl Into<String>) -> Self {
-        FileError::Format { path: path.to_path_buf(), reason: reason.into() }
+        FileError::Format {
+            path: path.to_path_buf(),
+            reason: reason.into(),
+        }
     }
 }
 
@@ -46,8 +57,14 @@ impl FileError {
 /// fsynced, then renamed over the target, so a crash never leaves half a file.
 pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<(), FileError> {
     use std::io::Write;
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
     let result = (|| {
         let mut f = std::fs::File::create(&tmp)?;
@@ -68,19 +85,36 @@ pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<(), FileErro
 /// Loads a scene image onto a grid: a PNG/TIFF (8/16-bit grey, resampled by
 /// area averaging) or a `.npy` (values used as given; resampled when its shape
 /// is not the grid's). Row `iv` of the grid is image row `iv`, top first.
-pub fn load_grid_image(path: &std::path::Path, grid: crate::scene::Grid) -> Result<Vec<f64>, FileError> {
-    let is_npy = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+pub fn load_grid_image(
+    path: &std::path::Path,
+    grid: crate::scene::Grid,
+) -> Result<Vec<f64>, FileError> {
+    let is_npy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
     let gray = if is_npy {
         let a = npy::read(path)?;
         let (h, w) = match a.shape.as_slice() {
             [n] if *n == grid.count() => return Ok(a.data),
             [h, w] => (*h, *w),
-            s => return Err(FileError::format(path, format!("shape {s:?} is neither the scene grid ({} x {}) nor a 2-D image", grid.nv, grid.nu))),
+            s => {
+                return Err(FileError::format(
+                    path,
+                    format!(
+                        "shape {s:?} is neither the scene grid ({} x {}) nor a 2-D image",
+                        grid.nv, grid.nu
+                    ),
+                ))
+            }
         };
         if (h, w) == (grid.nv, grid.nu) {
             return Ok(a.data);
         }
-        image::Gray { width: w, height: h, data: a.data }
+        image::Gray {
+            width: w,
+            height: h,
+            data: a.data,
+        }
     } else {
         image::read_gray(path)?
     };
@@ -88,7 +122,10 @@ pub fn load_grid_image(path: &std::path::Path, grid: crate::scene::Grid) -> Resu
         return Err(FileError::format(path, "the image is empty"));
     }
     if let Some(v) = gray.data.iter().find(|v| !v.is_finite()) {
-        return Err(FileError::format(path, format!("holds the non-finite value {v}")));
+        return Err(FileError::format(
+            path,
+            format!("holds the non-finite value {v}"),
+        ));
     }
     Ok(image::resample_area(&gray, grid.nu, grid.nv))
 }

@@ -53,15 +53,46 @@ fn decode(bytes: &[u8]) -> Result<Array, String> {
     let shape: Vec<usize> = npy.shape().iter().map(|&s| s as usize).collect();
     let fortran = npy.order() == npyz::Order::Fortran;
     let kind = npy.dtype().descr();
-    let code = kind.trim_matches(['\'', '"']).trim_start_matches(['<', '>', '|', '=']);
+    let code = kind
+        .trim_matches(['\'', '"'])
+        .trim_start_matches(['<', '>', '|', '=']);
     let data: Vec<f64> = match code {
         "f8" => npy.into_vec::<f64>().map_err(|e| e.to_string())?,
-        "f4" => npy.into_vec::<f32>().map_err(|e| e.to_string())?.into_iter().map(f64::from).collect(),
-        "u2" => npy.into_vec::<u16>().map_err(|e| e.to_string())?.into_iter().map(f64::from).collect(),
-        "u1" => npy.into_vec::<u8>().map_err(|e| e.to_string())?.into_iter().map(f64::from).collect(),
-        "i4" => npy.into_vec::<i32>().map_err(|e| e.to_string())?.into_iter().map(f64::from).collect(),
-        "i8" => npy.into_vec::<i64>().map_err(|e| e.to_string())?.into_iter().map(|v| v as f64).collect(),
-        other => return Err(format!("dtype {other:?} is not supported; save as float64 or float32")),
+        "f4" => npy
+            .into_vec::<f32>()
+            .map_err(|e| e.to_string())?
+            .into_iter()
+            .map(f64::from)
+            .collect(),
+        "u2" => npy
+            .into_vec::<u16>()
+            .map_err(|e| e.to_string())?
+            .into_iter()
+            .map(f64::from)
+            .collect(),
+        "u1" => npy
+            .into_vec::<u8>()
+            .map_err(|e| e.to_string())?
+            .into_iter()
+            .map(f64::from)
+            .collect(),
+        "i4" => npy
+            .into_vec::<i32>()
+            .map_err(|e| e.to_string())?
+            .into_iter()
+            .map(f64::from)
+            .collect(),
+        "i8" => npy
+            .into_vec::<i64>()
+            .map_err(|e| e.to_string())?
+            .into_iter()
+            .map(|v| v as f64)
+            .collect(),
+        other => {
+            return Err(format!(
+                "dtype {other:?} is not supported; save as float64 or float32"
+            ))
+        }
     };
     let data = if fortran && shape.len() == 2 {
         let (r, c) = (shape[0], shape[1]);

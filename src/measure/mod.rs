@@ -38,7 +38,12 @@ pub enum MeasureError {
 
 /// One wall value per element: the mean of the frame bilinearly sampled at
 /// the element's sub-sample points through `h`.
-pub fn sample_wall(frame: &Frame, h: &Homography, wall: &Plane, pose: &str) -> Result<Vec<f64>, MeasureError> {
+pub fn sample_wall(
+    frame: &Frame,
+    h: &Homography,
+    wall: &Plane,
+    pose: &str,
+) -> Result<Vec<f64>, MeasureError> {
     let m2 = wall.samples_per_element();
     let uv = wall.sample_uv();
     let mut out = vec![0.0; wall.grid.count()];
@@ -64,7 +69,14 @@ pub fn sample_wall(frame: &Frame, h: &Homography, wall: &Plane, pose: &str) -> R
 /// The camera frame showing a wall whose elements have the given values:
 /// each pixel shows the wall element it sees (piecewise constant), `background`
 /// where it sees no wall.
-pub fn render_wall(values: &[f64], h: &Homography, wall: &Plane, width: usize, height: usize, background: f64) -> Frame {
+pub fn render_wall(
+    values: &[f64],
+    h: &Homography,
+    wall: &Plane,
+    width: usize,
+    height: usize,
+    background: f64,
+) -> Frame {
     let mut frame = Frame::zeros(width, height);
     let (nu, nv) = (wall.grid.nu as f64, wall.grid.nv as f64);
     for y in 0..height {
@@ -72,7 +84,8 @@ pub fn render_wall(values: &[f64], h: &Homography, wall: &Plane, width: usize, h
             let value = h.invert(x as f64, y as f64).and_then(|(u, v)| {
                 let fu = (u / wall.size[0] + 0.5) * nu;
                 let fv = (v / wall.size[1] + 0.5) * nv;
-                (fu >= 0.0 && fv >= 0.0 && fu < nu && fv < nv).then(|| values[wall.grid.index(fu as usize, fv as usize)])
+                (fu >= 0.0 && fv >= 0.0 && fu < nu && fv < nv)
+                    .then(|| values[wall.grid.index(fu as usize, fv as usize)])
             });
             frame.pixels[y * width + x] = value.unwrap_or(background) as f32;
         }

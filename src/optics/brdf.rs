@@ -99,7 +99,13 @@ impl Brdf {
 
     /// `f = weight P_spec + (kd/pi) P_diff` for one polarization state.
     #[inline]
-    pub fn finish(&self, lobe: &SpecularLobe, i: &Direction, o: &Direction, pol: Polarization<'_>) -> f64 {
+    pub fn finish(
+        &self,
+        lobe: &SpecularLobe,
+        i: &Direction,
+        o: &Direction,
+        pol: Polarization<'_>,
+    ) -> f64 {
         let mut f = 0.0;
         if lobe.weight != 0.0 {
             f += lobe.weight * specular_factor(lobe.fresnel, &i.w, &o.w, pol);
@@ -195,7 +201,11 @@ mod tests {
     #[test]
     fn reciprocity_without_polarizer() {
         let b = Brdf { kd: 0.2, ..wall() };
-        for (ti, ai, to, ao) in [(0.3, 0.0, 1.1, 2.0), (1.4, 1.0, 0.1, -2.5), (0.9, 0.2, 0.9, 3.0)] {
+        for (ti, ai, to, ao) in [
+            (0.3, 0.0, 1.1, 2.0),
+            (1.4, 1.0, 0.1, -2.5),
+            (0.9, 0.2, 0.9, 3.0),
+        ] {
             let (i, o) = (dir(ti, ai), dir(to, ao));
             let f1 = b.eval(&N, &i, &o, Polarization::default());
             let f2 = b.eval(&N, &o, &i, Polarization::default());
@@ -206,8 +216,14 @@ mod tests {
     #[test]
     fn below_the_horizon_is_black() {
         let b = Brdf { kd: 1.0, ..wall() };
-        assert_eq!(b.eval(&N, &dir(1.7, 0.0), &dir(0.3, 0.0), Polarization::default()), 0.0);
-        assert_eq!(b.eval(&N, &dir(0.3, 0.0), &dir(1.6, 0.0), Polarization::default()), 0.0);
+        assert_eq!(
+            b.eval(&N, &dir(1.7, 0.0), &dir(0.3, 0.0), Polarization::default()),
+            0.0
+        );
+        assert_eq!(
+            b.eval(&N, &dir(0.3, 0.0), &dir(1.6, 0.0), Polarization::default()),
+            0.0
+        );
     }
 
     #[test]
@@ -234,21 +250,55 @@ mod tests {
         let n_p = -o;
         let q = e_s.cross(&n_p).normalize();
         let t = effective_axis(&q, &o).unwrap();
-        let crossed = b.eval(&N, &i, &o, Polarization { analyzer: Some(&t), source: None });
+        let crossed = b.eval(
+            &N,
+            &i,
+            &o,
+            Polarization {
+                analyzer: Some(&t),
+                source: None,
+            },
+        );
         let open = b.eval(&N, &i, &o, Polarization::default());
-        assert!(crossed < 1e-28 * open.max(1.0), "crossed {crossed} open {open}");
+        assert!(
+            crossed < 1e-28 * open.max(1.0),
+            "crossed {crossed} open {open}"
+        );
         // The parallel analyzer passes the s light: half of the unpolarized power, all of it Rs.
-        let par = b.eval(&N, &i, &o, Polarization { analyzer: Some(&e_s), source: None });
-        assert!((par - open).abs() < 1e-12 * open, "parallel {par} open {open}");
+        let par = b.eval(
+            &N,
+            &i,
+            &o,
+            Polarization {
+                analyzer: Some(&e_s),
+                source: None,
+            },
+        );
+        assert!(
+            (par - open).abs() < 1e-12 * open,
+            "parallel {par} open {open}"
+        );
     }
 
     #[test]
     fn diffuse_light_is_halved_by_any_polarizer() {
-        let b = Brdf { ks: 0.0, kd: 0.7, ..wall() };
+        let b = Brdf {
+            ks: 0.0,
+            kd: 0.7,
+            ..wall()
+        };
         let (i, o) = (dir(0.4, 1.0), dir(0.8, -1.0));
         let t = effective_axis(&Vec3::new(0.3, 0.8, 0.1), &o).unwrap();
         let open = b.eval(&N, &i, &o, Polarization::default());
-        let pol = b.eval(&N, &i, &o, Polarization { analyzer: Some(&t), source: None });
+        let pol = b.eval(
+            &N,
+            &i,
+            &o,
+            Polarization {
+                analyzer: Some(&t),
+                source: None,
+            },
+        );
         assert!((open - 0.7 / PI).abs() < 1e-15);
         assert!((pol - 0.35 / PI).abs() < 1e-15);
     }
@@ -258,7 +308,15 @@ mod tests {
         let w = dir(0.5, 0.3);
         let f = FresnelAmplitudes::from_cos(1.0, 1.5);
         let t = effective_axis(&Vec3::x(), &w).unwrap();
-        let p = specular_factor(f, &w, &w, Polarization { analyzer: Some(&t), source: None });
+        let p = specular_factor(
+            f,
+            &w,
+            &w,
+            Polarization {
+                analyzer: Some(&t),
+                source: None,
+            },
+        );
         assert!((p - 0.02).abs() < 1e-15);
     }
 
@@ -272,9 +330,33 @@ mod tests {
         let b = i.cross(&a);
         let t = effective_axis(&Vec3::new(0.2, 0.9, -0.3), &o).unwrap();
         for analyzer in [None, Some(&t)] {
-            let pa = specular_factor(fr, &i, &o, Polarization { analyzer, source: Some(&a) });
-            let pb = specular_factor(fr, &i, &o, Polarization { analyzer, source: Some(&b) });
-            let pu = specular_factor(fr, &i, &o, Polarization { analyzer, source: None });
+            let pa = specular_factor(
+                fr,
+                &i,
+                &o,
+                Polarization {
+                    analyzer,
+                    source: Some(&a),
+                },
+            );
+            let pb = specular_factor(
+                fr,
+                &i,
+                &o,
+                Polarization {
+                    analyzer,
+                    source: Some(&b),
+                },
+            );
+            let pu = specular_factor(
+                fr,
+                &i,
+                &o,
+                Polarization {
+                    analyzer,
+                    source: None,
+                },
+            );
             assert!((0.5 * (pa + pb) - pu).abs() < 1e-14, "{pa} {pb} {pu}");
         }
     }

@@ -42,7 +42,11 @@ fn at(path: &Option<PathBuf>) -> String {
 }
 
 impl SceneError {
-    pub(crate) fn invalid(key: impl Into<String>, value: impl std::fmt::Debug, reason: impl Into<String>) -> Self {
+    pub(crate) fn invalid(
+        key: impl Into<String>,
+        value: impl std::fmt::Debug,
+        reason: impl Into<String>,
+    ) -> Self {
         SceneError::Invalid {
             path: None,
             key: key.into(),
@@ -58,7 +62,9 @@ impl SceneError {
                 path: Some(file.to_path_buf()),
                 message,
             },
-            SceneError::Invalid { key, value, reason, .. } => SceneError::Invalid {
+            SceneError::Invalid {
+                key, value, reason, ..
+            } => SceneError::Invalid {
                 path: Some(file.to_path_buf()),
                 key,
                 value,

@@ -123,7 +123,15 @@ fn direction(key: &str, v: [f64; 3]) -> Result<Vec3, SceneError> {
     Ok(p / n)
 }
 
-fn plane(section: &str, c: [f64; 3], n: [f64; 3], u: [f64; 3], size: [f64; 2], grid: [i64; 2], m: i64) -> Result<Plane, SceneError> {
+fn plane(
+    section: &str,
+    c: [f64; 3],
+    n: [f64; 3],
+    u: [f64; 3],
+    size: [f64; 2],
+    grid: [i64; 2],
+    m: i64,
+) -> Result<Plane, SceneError> {
     let center = point(&format!("{section}.center"), c)?;
     let normal = direction(&format!("{section}.normal"), n)?;
     let u_raw = direction(&format!("{section}.u_axis"), u)?;
@@ -138,7 +146,11 @@ fn plane(section: &str, c: [f64; 3], n: [f64; 3], u: [f64; 3], size: [f64; 2], g
     }
     let u_axis = u_perp.normalize();
     if size.iter().any(|s| !s.is_finite() || *s <= 0.0) {
-        return Err(SceneError::invalid(format!("{section}.size"), size, "both sides must be positive metres"));
+        return Err(SceneError::invalid(
+            format!("{section}.size"),
+            size,
+            "both sides must be positive metres",
+        ));
     }
     if grid.iter().any(|g| *g < 1 || *g > MAX_GRID) {
         return Err(SceneError::invalid(
@@ -170,12 +182,28 @@ fn plane(section: &str, c: [f64; 3], n: [f64; 3], u: [f64; 3], size: [f64; 2], g
 
 fn validate(raw: RawFile) -> Result<Scene, SceneError> {
     let w = raw.wall;
-    let wall_plane = plane("wall", w.center, w.normal, w.u_axis, w.size, w.grid, w.supersample)?;
+    let wall_plane = plane(
+        "wall",
+        w.center,
+        w.normal,
+        w.u_axis,
+        w.size,
+        w.grid,
+        w.supersample,
+    )?;
     if !(w.roughness > 0.0 && w.roughness <= 1.0) {
-        return Err(SceneError::invalid("wall.roughness", w.roughness, "must be in (0, 1]"));
+        return Err(SceneError::invalid(
+            "wall.roughness",
+            w.roughness,
+            "must be in (0, 1]",
+        ));
     }
     if !(w.ior > 1.0 && w.ior.is_finite()) {
-        return Err(SceneError::invalid("wall.ior", w.ior, "must be a refractive index > 1"));
+        return Err(SceneError::invalid(
+            "wall.ior",
+            w.ior,
+            "must be a refractive index > 1",
+        ));
     }
     for (key, k) in [("wall.ks", w.ks), ("wall.kd", w.kd)] {
         if !(k >= 0.0 && k.is_finite()) {
@@ -190,12 +218,24 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
     };
 
     let s = raw.scene;
-    let scene_plane = plane("scene", s.center, s.normal, s.u_axis, s.size, s.grid, s.supersample)?;
+    let scene_plane = plane(
+        "scene",
+        s.center,
+        s.normal,
+        s.u_axis,
+        s.size,
+        s.grid,
+        s.supersample,
+    )?;
     let n = wall_plane.normal;
     let c0 = wall_plane.center;
     let s0 = scene_plane.center;
     if n.dot(&(s0 - c0)) <= 0.0 {
-        return Err(SceneError::invalid("scene.center", s.center, "is on or behind the wall; it must be on the side wall.normal points to"));
+        return Err(SceneError::invalid(
+            "scene.center",
+            s.center,
+            "is on or behind the wall; it must be on the side wall.normal points to",
+        ));
     }
     if s.emitter == Emitter::Lambertian && scene_plane.normal.dot(&(c0 - s0)) <= 0.0 {
         return Err(SceneError::invalid(
@@ -210,21 +250,42 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         .transpose()?;
 
     if raw.pose.is_empty() {
-        return Err(SceneError::invalid("pose", "[]", "at least one [[pose]] is required"));
+        return Err(SceneError::invalid(
+            "pose",
+            "[]",
+            "at least one [[pose]] is required",
+        ));
     }
     let mut poses = Vec::with_capacity(raw.pose.len());
     for (i, p) in raw.pose.into_iter().enumerate() {
         let key = |k: &str| format!("pose[{i}].{k}");
         let name = p.name.trim().to_string();
-        if name.is_empty() || name.len() > 64 || !name.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c)) {
-            return Err(SceneError::invalid(key("name"), &p.name, "must be 1-64 letters, digits, '-', '_' or '.'"));
+        if name.is_empty()
+            || name.len() > 64
+            || !name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+        {
+            return Err(SceneError::invalid(
+                key("name"),
+                &p.name,
+                "must be 1-64 letters, digits, '-', '_' or '.'",
+            ));
         }
         if poses.iter().any(|q: &Pose| q.name == name) {
-            return Err(SceneError::invalid(key("name"), &name, "is used by an earlier pose; names must be unique"));
+            return Err(SceneError::invalid(
+                key("name"),
+                &name,
+                "is used by an earlier pose; names must be unique",
+            ));
         }
         let camera = point(&key("camera"), p.camera)?;
         if n.dot(&(camera - c0)) <= 0.0 {
-            return Err(SceneError::invalid(key("camera"), p.camera, format!("pose {name:?}: the camera is on or behind the wall")));
+            return Err(SceneError::invalid(
+                key("camera"),
+                p.camera,
+                format!("pose {name:?}: the camera is on or behind the wall"),
+            ));
         }
         let mut analyzers = Vec::with_capacity(p.polarizer_deg.len());
         if !p.polarizer_deg.is_empty() {
@@ -237,7 +298,11 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
             })?;
             for &deg in &p.polarizer_deg {
                 if !deg.is_finite() {
-                    return Err(SceneError::invalid(key("polarizer_deg"), &p.polarizer_deg, "angles must be finite degrees"));
+                    return Err(SceneError::invalid(
+                        key("polarizer_deg"),
+                        &p.polarizer_deg,
+                        "angles must be finite degrees",
+                    ));
                 }
                 analyzers.push(Analyzer {
                     angle_deg: deg,
@@ -248,7 +313,11 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         let homography = match p.homography {
             None => None,
             Some(h) => Some(Homography::new(h).ok_or_else(|| {
-                SceneError::invalid(key("homography"), h, "must be a finite, invertible 3x3 matrix")
+                SceneError::invalid(
+                    key("homography"),
+                    h,
+                    "must be a finite, invertible 3x3 matrix",
+                )
             })?),
         };
         poses.push(Pose {
@@ -267,26 +336,52 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
                 let center = point(&key("rect.center"), r.center)?;
                 let half_u = point(&key("rect.half_u"), r.half_u)?;
                 let half_v = point(&key("rect.half_v"), r.half_v)?;
-                if half_u.cross(&half_v).norm() <= 1e-12 * half_u.norm().max(1e-300) * half_v.norm().max(1e-300) || half_u.norm() == 0.0 || half_v.norm() == 0.0 {
-                    return Err(SceneError::invalid(key("rect"), (r.half_u, r.half_v), "half_u and half_v must be non-zero and not parallel"));
+                if half_u.cross(&half_v).norm()
+                    <= 1e-12 * half_u.norm().max(1e-300) * half_v.norm().max(1e-300)
+                    || half_u.norm() == 0.0
+                    || half_v.norm() == 0.0
+                {
+                    return Err(SceneError::invalid(
+                        key("rect"),
+                        (r.half_u, r.half_v),
+                        "half_u and half_v must be non-zero and not parallel",
+                    ));
                 }
-                occluders.push(Occluder::Rect { center, half_u, half_v });
+                occluders.push(Occluder::Rect {
+                    center,
+                    half_u,
+                    half_v,
+                });
             }
             (None, Some(sp)) => {
                 let center = point(&key("sphere.center"), sp.center)?;
                 if !(sp.radius > 0.0 && sp.radius.is_finite()) {
-                    return Err(SceneError::invalid(key("sphere.radius"), sp.radius, "must be positive metres"));
+                    return Err(SceneError::invalid(
+                        key("sphere.radius"),
+                        sp.radius,
+                        "must be positive metres",
+                    ));
                 }
-                occluders.push(Occluder::Sphere { center, radius: sp.radius });
+                occluders.push(Occluder::Sphere {
+                    center,
+                    radius: sp.radius,
+                });
             }
             _ => {
-                return Err(SceneError::invalid(key(""), "", "give exactly one of rect = {...} or sphere = {...}"));
+                return Err(SceneError::invalid(
+                    key(""),
+                    "",
+                    "give exactly one of rect = {...} or sphere = {...}",
+                ));
             }
         }
     }
 
     Ok(Scene {
-        wall: Wall { plane: wall_plane, brdf },
+        wall: Wall {
+            plane: wall_plane,
+            brdf,
+        },
         scene: HiddenScene {
             plane: scene_plane,
             emitter: s.emitter,
@@ -365,13 +460,37 @@ polarizer_deg = [0.0, 90.0]
             ("ior = 1.5", "ior = 1.0", "wall.ior"),
             ("grid = [4, 3]", "grid = [0, 3]", "wall.grid"),
             ("grid = [2, 2]", "grid = [2, -1]", "scene.grid"),
-            ("normal = [0.0, 0.0, 2.0]", "normal = [0.0, 0.0, 0.0]", "wall.normal"),
-            ("u_axis = [1.0, 0.0, 0.1]", "u_axis = [0.0, 0.0, 1.0]", "wall.u_axis"),
-            ("camera = [0.416, 0.0, 0.277]", "camera = [0.416, 0.0, -0.1]", "pose[0].camera"),
-            ("center = [-0.374, 0.0, 0.25]", "center = [-0.374, 0.0, 0.0]", "scene.center"),
-            ("normal = [0.831365691684, 0.0, -0.555725729736]", "normal = [-0.83, 0.0, 0.55]", "scene.normal"),
+            (
+                "normal = [0.0, 0.0, 2.0]",
+                "normal = [0.0, 0.0, 0.0]",
+                "wall.normal",
+            ),
+            (
+                "u_axis = [1.0, 0.0, 0.1]",
+                "u_axis = [0.0, 0.0, 1.0]",
+                "wall.u_axis",
+            ),
+            (
+                "camera = [0.416, 0.0, 0.277]",
+                "camera = [0.416, 0.0, -0.1]",
+                "pose[0].camera",
+            ),
+            (
+                "center = [-0.374, 0.0, 0.25]",
+                "center = [-0.374, 0.0, 0.0]",
+                "scene.center",
+            ),
+            (
+                "normal = [0.831365691684, 0.0, -0.555725729736]",
+                "normal = [-0.83, 0.0, 0.55]",
+                "scene.normal",
+            ),
             ("size = [0.2, 0.2]", "size = [0.2, 0.0]", "scene.size"),
-            ("camera = [0.416, 0.0, 0.277]", "camera = [-0.748, 0.0, 0.5]", "pose[0].polarizer_deg"),
+            (
+                "camera = [0.416, 0.0, 0.277]",
+                "camera = [-0.748, 0.0, 0.5]",
+                "pose[0].polarizer_deg",
+            ),
         ];
         for (from, to, key) in cases {
             let e = with(from, to).unwrap_err();
@@ -387,7 +506,11 @@ polarizer_deg = [0.0, 90.0]
         assert!(e.to_string().contains("ior"), "{e}");
         let e = with("ior = 1.5", "ior = 1.5\nroughnes = 0.2").unwrap_err();
         assert!(e.to_string().contains("roughnes"), "{e}");
-        let e = with("[[pose]]\nname = \"A\"\ncamera = [0.416, 0.0, 0.277]\npolarizer_deg = [0.0, 90.0]\n", "").unwrap_err();
+        let e = with(
+            "[[pose]]\nname = \"A\"\ncamera = [0.416, 0.0, 0.277]\npolarizer_deg = [0.0, 90.0]\n",
+            "",
+        )
+        .unwrap_err();
         assert_eq!(e.key(), Some("pose"));
     }
 

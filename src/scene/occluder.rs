@@ -32,7 +32,11 @@ impl Occluder {
     pub fn blocks(&self, s: &Vec3, c: &Vec3) -> bool {
         let d = c - s;
         match *self {
-            Occluder::Rect { center, half_u, half_v } => {
+            Occluder::Rect {
+                center,
+                half_u,
+                half_v,
+            } => {
                 let m = half_u.cross(&half_v);
                 let denom = m.dot(&d);
                 if denom.abs() <= 1e-14 * m.norm() * d.norm() {
@@ -44,7 +48,11 @@ impl Occluder {
                 }
                 // Solve p = a half_u + b half_v in the (possibly skew) edge basis.
                 let p = s + d * t - center;
-                let (uu, uv, vv) = (half_u.dot(&half_u), half_u.dot(&half_v), half_v.dot(&half_v));
+                let (uu, uv, vv) = (
+                    half_u.dot(&half_u),
+                    half_u.dot(&half_v),
+                    half_v.dot(&half_v),
+                );
                 let (pu, pv) = (p.dot(&half_u), p.dot(&half_v));
                 let det = uu * vv - uv * uv;
                 let a = (pu * vv - pv * uv) / det;
@@ -115,7 +123,10 @@ mod tests {
 
     #[test]
     fn sphere_cases() {
-        let o = Occluder::Sphere { center: Vec3::zeros(), radius: 0.5 };
+        let o = Occluder::Sphere {
+            center: Vec3::zeros(),
+            radius: 0.5,
+        };
         assert!(o.blocks(&Vec3::new(-1.0, 0.0, 0.0), &Vec3::new(1.0, 0.0, 0.0)));
         assert!(o.blocks(&Vec3::new(-1.0, 0.5, 0.0), &Vec3::new(1.0, 0.5, 0.0)));
         assert!(!o.blocks(&Vec3::new(-1.0, 0.51, 0.0), &Vec3::new(1.0, 0.51, 0.0)));

@@ -7,6 +7,8 @@
 //! the bench. Each element then gets Poisson shot noise, Gaussian read noise,
 //! and quantization to `bits` with the full well mapped to full scale.
 
+pub mod patterns;
+
 use rand::SeedableRng;
 
 use crate::scene::Scene;
@@ -30,7 +32,12 @@ pub struct NoiseModel {
 
 impl Default for NoiseModel {
     fn default() -> Self {
-        Self { photons: 10_000.0, read_noise: 5.0, bits: 12, seed: 1 }
+        Self {
+            photons: 10_000.0,
+            read_noise: 5.0,
+            bits: 12,
+            seed: 1,
+        }
     }
 }
 
@@ -71,20 +78,36 @@ impl NoiseModel {
     /// Checks every parameter.
     pub fn validate(&self) -> Result<(), SimulateError> {
         if !(self.photons > 0.0 && self.photons.is_finite()) {
-            return Err(SimulateError::Parameter { name: "photons", value: self.photons, reason: "must be a positive number of electrons" });
+            return Err(SimulateError::Parameter {
+                name: "photons",
+                value: self.photons,
+                reason: "must be a positive number of electrons",
+            });
         }
         if !(self.read_noise >= 0.0 && self.read_noise.is_finite()) {
-            return Err(SimulateError::Parameter { name: "read-noise", value: self.read_noise, reason: "must be >= 0 electrons" });
+            return Err(SimulateError::Parameter {
+                name: "read-noise",
+                value: self.read_noise,
+                reason: "must be >= 0 electrons",
+            });
         }
         if !(1..=16).contains(&self.bits) {
-            return Err(SimulateError::Parameter { name: "bits", value: f64::from(self.bits), reason: "must be from 1 to 16" });
+            return Err(SimulateError::Parameter {
+                name: "bits",
+                value: f64::from(self.bits),
+                reason: "must be from 1 to 16",
+            });
         }
         Ok(())
     }
 
     /// Applies the model to a clean image `clean = T l`, with exposure set by
     /// `unpolarized_peak = max(T_nopol l)`.
-    pub fn apply(&self, clean: Vec<f64>, unpolarized_peak: f64) -> Result<Simulation, SimulateError> {
+    pub fn apply(
+        &self,
+        clean: Vec<f64>,
+        unpolarized_peak: f64,
+    ) -> Result<Simulation, SimulateError> {
         self.validate()?;
         if !(unpolarized_peak > 0.0 && unpolarized_peak.is_finite()) {
             return Err(SimulateError::Black);
@@ -93,16 +116,19 @@ impl NoiseModel {
         let full = f64::from((1u32 << self.bits) - 1);
         let dn_per_electron = full / self.photons;
         let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
-        let read = Normal::new(0.0, self.read_noise.max(0.0)).map_err(|_| SimulateError::Parameter {
-            name: "read-noise",
-            value: self.read_noise,
-            reason: "must be >= 0 electrons",
-        })?;
+        let read =
+            Normal::new(0.0, self.read_noise.max(0.0)).map_err(|_| SimulateError::Parameter {
+                name: "read-noise",
+                value: self.read_noise,
+                reason: "must be >= 0 electrons",
+            })?;
         let mut dn = Vec::with_capacity(clean.len());
         for &c in &clean {
             let mean = (c * electrons_per_unit).max(0.0);
             let shot = if mean > 0.0 {
-                Poisson::new(mean).map(|p| p.sample(&mut rng)).unwrap_or(mean)
+                Poisson::new(mean)
+                    .map(|p| p.sample(&mut rng))
+                    .unwrap_or(mean)
             } else {
                 0.0
             };
@@ -111,7 +137,13 @@ impl NoiseModel {
         }
         let units_per_dn = 1.0 / (dn_per_electron * electrons_per_unit);
         let measurement = dn.iter().map(|&d| f64::from(d) * units_per_dn).collect();
-        Ok(Simulation { measurement, clean, dn, electrons_per_unit, units_per_dn })
+        Ok(Simulation {
+            measurement,
+            clean,
+            dn,
+            electrons_per_unit,
+            units_per_dn,
+        })
     }
 }
 
@@ -134,7 +166,12 @@ mod tests {
 
     #[test]
     fn same_seed_same_noise_and_unbiased() {
-        let m = NoiseModel { photons: 1e4, read_noise: 3.0, bits: 16, seed: 7 };
+        let m = NoiseModel {
+            photons: 1e4,
+            read_noise: 3.0,
+            bits: 16,
+            seed: 7,
+        };
         let clean = vec![0.5; 4000];
         let a = m.apply(clean.clone(), 1.0).unwrap();
         let b = m.apply(clean.clone(), 1.0).unwrap();
@@ -142,24 +179,50 @@ mod tests {
         let mean = a.measurement.iter().sum::<f64>() / 4000.0;
         // 5000 electrons: shot noise sigma ~71 e-, i.e. 0.0071 units; the mean of 4000 is within 4e-4.
         assert!((mean - 0.5).abs() < 4e-4, "{mean}");
-        let var = a.measurement.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / 4000.0;
+        let var = a
+            .measurement
+            .iter()
+            .map(|v| (v - mean).powi(2))
+            .sum::<f64>()
+            / 4000.0;
         let expect = (5000.0 + 9.0) / 1e8;
-        assert!((var / expect - 1.0).abs() < 0.1, "variance {var} vs {expect}");
+        assert!(
+            (var / expect - 1.0).abs() < 0.1,
+            "variance {var} vs {expect}"
+        );
     }
 
     #[test]
     fn quantization_and_saturation() {
-        let m = NoiseModel { photons: 1e9, read_noise: 0.0, bits: 2, seed: 1 };
+        let m = NoiseModel {
+            photons: 1e9,
+            read_noise: 0.0,
+            bits: 2,
+            seed: 1,
+        };
         let s = m.apply(vec![0.0, 0.34, 1.0, 3.0], 1.0).unwrap();
         assert_eq!(s.dn, vec![0, 1, 3, 3]);
     }
 
     #[test]
     fn bad_parameters_are_named() {
-        let m = NoiseModel { bits: 0, ..NoiseModel::default() };
-        assert!(m.apply(vec![1.0], 1.0).unwrap_err().to_string().starts_with("bits = 0"));
-        let m = NoiseModel { photons: f64::NAN, ..NoiseModel::default() };
+        let m = NoiseModel {
+            bits: 0,
+            ..NoiseModel::default()
+        };
+        assert!(m
+            .apply(vec![1.0], 1.0)
+            .unwrap_err()
+            .to_string()
+            .starts_with("bits = 0"));
+        let m = NoiseModel {
+            photons: f64::NAN,
+            ..NoiseModel::default()
+        };
         assert!(m.validate().is_err());
-        assert!(matches!(NoiseModel::default().apply(vec![0.0], 0.0), Err(SimulateError::Black)));
+        assert!(matches!(
+            NoiseModel::default().apply(vec![0.0], 0.0),
+            Err(SimulateError::Black)
+        ));
     }
 }

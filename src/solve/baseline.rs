@@ -17,11 +17,19 @@ pub const TIKHONOV_REL: f64 = 1e-3;
 /// `l = clip(T^+ i)` with singular values below `rcond * sigma_max` dropped;
 /// `rcond = None` keeps MODEL.md's numerical-rank threshold
 /// `max(M, N) * 2.2e-16`, i.e. the plain pseudo-inverse.
-pub fn least_squares(t: &Transport, i: &[f64], rcond: Option<f64>) -> Result<Reconstruction, SolveError> {
+pub fn least_squares(
+    t: &Transport,
+    i: &[f64],
+    rcond: Option<f64>,
+) -> Result<Reconstruction, SolveError> {
     check_measurement(t, i)?;
     if let Some(r) = rcond {
         if !(0.0..1.0).contains(&r) {
-            return Err(SolveError::Parameter { name: "rcond", value: r, reason: "must be in [0, 1)" });
+            return Err(SolveError::Parameter {
+                name: "rcond",
+                value: r,
+                reason: "must be in [0, 1)",
+            });
         }
     }
     let start = Instant::now();
@@ -74,7 +82,11 @@ pub fn least_squares(t: &Transport, i: &[f64], rcond: Option<f64>) -> Result<Rec
 
 /// `l = clip((T^T T + lambda I)^{-1} T^T i)`, the minimizer of
 /// `||i - T l||^2 + lambda ||l||^2`; default `lambda = 1e-3 mean(diag(T^T T))`.
-pub fn tikhonov(t: &Transport, i: &[f64], lambda: Option<f64>) -> Result<Reconstruction, SolveError> {
+pub fn tikhonov(
+    t: &Transport,
+    i: &[f64],
+    lambda: Option<f64>,
+) -> Result<Reconstruction, SolveError> {
     check_measurement(t, i)?;
     let start = Instant::now();
     let m = t.as_mat();
@@ -84,7 +96,11 @@ pub fn tikhonov(t: &Transport, i: &[f64], lambda: Option<f64>) -> Result<Reconst
     let scale = mean_diag(&g);
     let lambda = lambda.unwrap_or(TIKHONOV_REL * if scale > 0.0 { scale } else { 1.0 });
     if !(lambda >= 0.0 && lambda.is_finite()) {
-        return Err(SolveError::Parameter { name: "lambda", value: lambda, reason: "must be a finite number >= 0" });
+        return Err(SolveError::Parameter {
+            name: "lambda",
+            value: lambda,
+            reason: "must be a finite number >= 0",
+        });
     }
     let t0 = Instant::now();
     for k in 0..t.cols() {

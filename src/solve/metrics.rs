@@ -28,7 +28,12 @@ pub fn compare(grid: Grid, truth: &[f64], x: &[f64]) -> Metrics {
 /// `10 log10(1 / MSE)` (peak 1).
 pub fn psnr(truth: &[f64], x: &[f64]) -> f64 {
     assert_eq!(truth.len(), x.len());
-    let mse = truth.iter().zip(x).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / truth.len().max(1) as f64;
+    let mse = truth
+        .iter()
+        .zip(x)
+        .map(|(a, b)| (a - b) * (a - b))
+        .sum::<f64>()
+        / truth.len().max(1) as f64;
     if mse == 0.0 {
         f64::INFINITY
     } else {
@@ -100,7 +105,8 @@ pub fn ssim(grid: Grid, a: &[f64], b: &[f64]) -> f64 {
                 }
             }
             let (va, vb, cov) = (saa - ma * ma, sbb - mb * mb, sab - ma * mb);
-            total += ((2.0 * ma * mb + c1) * (2.0 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2));
+            total += ((2.0 * ma * mb + c1) * (2.0 * cov + c2))
+                / ((ma * ma + mb * mb + c1) * (va + vb + c2));
             count += 1;
         }
     }

@@ -11,8 +11,16 @@ pub fn gradient(grid: Grid, l: &[f64], out: &mut [f64]) {
     for iv in 0..grid.nv {
         for iu in 0..grid.nu {
             let j = grid.index(iu, iv);
-            dx[j] = if iu + 1 < grid.nu { l[j + 1] - l[j] } else { 0.0 };
-            dy[j] = if iv + 1 < grid.nv { l[j + grid.nu] - l[j] } else { 0.0 };
+            dx[j] = if iu + 1 < grid.nu {
+                l[j + 1] - l[j]
+            } else {
+                0.0
+            };
+            dy[j] = if iv + 1 < grid.nv {
+                l[j + grid.nu] - l[j]
+            } else {
+                0.0
+            };
         }
     }
 }
@@ -74,7 +82,9 @@ mod tests {
         let grid = Grid { nu: 4, nv: 3 };
         let n = grid.count();
         let l: Vec<f64> = (0..n).map(|i| ((i * 7) % 5) as f64 - 1.3).collect();
-        let z: Vec<f64> = (0..2 * n).map(|i| ((i * 3) % 7) as f64 * 0.5 - 1.0).collect();
+        let z: Vec<f64> = (0..2 * n)
+            .map(|i| ((i * 3) % 7) as f64 * 0.5 - 1.0)
+            .collect();
         let mut dl = vec![0.0; 2 * n];
         gradient(grid, &l, &mut dl);
         let mut dtz = vec![0.0; n];

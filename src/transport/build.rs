@@ -35,7 +35,10 @@ pub fn build(scene: &Scene) -> Result<Transport, TransportError> {
 }
 
 /// Builds `T`, calling `progress(columns_done)` as columns complete.
-pub fn build_with_progress(scene: &Scene, progress: &(dyn Fn(usize) + Sync)) -> Result<Transport, TransportError> {
+pub fn build_with_progress(
+    scene: &Scene,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Transport, TransportError> {
     let rows = scene.rows();
     let cols = scene.cols();
     let bytes = rows as f64 * cols as f64 * 8.0;
@@ -105,48 +108,50 @@ pub fn build_with_progress(scene: &Scene, progress: &(dyn Fn(usize) + Sync)) -> 
     let done = AtomicUsize::new(0);
 
     let mut data = vec![0.0f64; rows * cols];
-    data.par_chunks_mut(rows.max(1)).enumerate().for_each(|(k, col)| {
-        for s in &scene_pts[k * ms..(k + 1) * ms] {
-            for (ws, c) in wall_pts.iter().enumerate() {
-                let d = s - c;
-                let r2 = d.norm_squared();
-                let w_i = d / r2.sqrt();
-                let cos_i = n.dot(&w_i);
-                if cos_i <= 0.0 {
-                    continue;
-                }
-                let g = match hidden.emitter {
-                    Emitter::Lambertian => (-n_s.dot(&w_i)).max(0.0),
-                    Emitter::Isotropic => 1.0,
-                };
-                if g == 0.0 {
-                    continue;
-                }
-                if occluders.iter().any(|o| o.blocks(s, c)) {
-                    continue;
-                }
-                let base = weight * g * cos_i / r2;
-                let i = brdf.direction(&n, w_i);
-                let j = ws / mw;
-                for view in &views {
-                    let o = &view.out[ws];
-                    if o.cos <= 0.0 {
+    data.par_chunks_mut(rows.max(1))
+        .enumerate()
+        .for_each(|(k, col)| {
+            for s in &scene_pts[k * ms..(k + 1) * ms] {
+                for (ws, c) in wall_pts.iter().enumerate() {
+                    let d = s - c;
+                    let r2 = d.norm_squared();
+                    let w_i = d / r2.sqrt();
+                    let cos_i = n.dot(&w_i);
+                    if cos_i <= 0.0 {
                         continue;
                     }
-                    let lobe = brdf.lobe(&i, o);
-                    for (b, axes) in view.analyzers.iter().enumerate() {
-                        let pol = Polarization {
-                            analyzer: axes.as_ref().map(|a| &a[ws]),
-                            source: source.as_ref(),
-                        };
-                        let f = brdf.finish(&lobe, &i, o, pol);
-                        col[(view.first_block + b) * n_wall + j] += base * f;
+                    let g = match hidden.emitter {
+                        Emitter::Lambertian => (-n_s.dot(&w_i)).max(0.0),
+                        Emitter::Isotropic => 1.0,
+                    };
+                    if g == 0.0 {
+                        continue;
+                    }
+                    if occluders.iter().any(|o| o.blocks(s, c)) {
+                        continue;
+                    }
+                    let base = weight * g * cos_i / r2;
+                    let i = brdf.direction(&n, w_i);
+                    let j = ws / mw;
+                    for view in &views {
+                        let o = &view.out[ws];
+                        if o.cos <= 0.0 {
+                            continue;
+                        }
+                        let lobe = brdf.lobe(&i, o);
+                        for (b, axes) in view.analyzers.iter().enumerate() {
+                            let pol = Polarization {
+                                analyzer: axes.as_ref().map(|a| &a[ws]),
+                                source: source.as_ref(),
+                            };
+                            let f = brdf.finish(&lobe, &i, o, pol);
+                            col[(view.first_block + b) * n_wall + j] += base * f;
+                        }
                     }
                 }
             }
-        }
-        progress(done.fetch_add(1, Ordering::Relaxed) + 1);
-    });
+            progress(done.fetch_add(1, Ordering::Relaxed) + 1);
+        });
 
     Ok(Transport::from_col_major(
         rows,

@@ -65,8 +65,19 @@ pub enum TransportError {
 
 impl Transport {
     /// Wraps column-major entries; `data.len()` must be `rows * cols`.
-    pub fn from_col_major(rows: usize, cols: usize, data: Vec<f64>, blocks: Vec<Block>, wall_grid: Grid, scene_grid: Grid) -> Self {
-        assert_eq!(data.len(), rows * cols, "transport data does not match its shape");
+    pub fn from_col_major(
+        rows: usize,
+        cols: usize,
+        data: Vec<f64>,
+        blocks: Vec<Block>,
+        wall_grid: Grid,
+        scene_grid: Grid,
+    ) -> Self {
+        assert_eq!(
+            data.len(),
+            rows * cols,
+            "transport data does not match its shape"
+        );
         Self {
             rows,
             cols,

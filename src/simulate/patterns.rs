@@ -1,0 +1,102 @@
+//! Test patterns for the hidden scene on any grid: a disk, vertical bars and
+//! the letter F (asymmetric, so a flipped or transposed recovery shows).
+//!
+//! Each is drawn on a 0..1 square and averaged over 4x4 sub-samples per
+//! element, so coarse grids get grey edges instead of aliasing.
+
+use crate::scene::Grid;
+
+/// A named test pattern.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Pattern {
+    /// Bright disk of radius 0.3 in the middle.
+    Disk,
+    /// Three vertical bars.
+    Bars,
+    /// The letter F.
+    Letter,
+}
+
+impl Pattern {
+    /// Every pattern, in a fixed order.
+    pub const ALL: [Pattern; 3] = [Pattern::Disk, Pattern::Bars, Pattern::Letter];
+
+    /// Parses `disk`, `bars` or `letter`.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "disk" => Some(Pattern::Disk),
+            "bars" => Some(Pattern::Bars),
+            "letter" => Some(Pattern::Letter),
+            _ => None,
+        }
+    }
+
+    /// The pattern's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Pattern::Disk => "disk",
+            Pattern::Bars => "bars",
+            Pattern::Letter => "letter",
+        }
+    }
+
+    fn at(self, x: f64, y: f64) -> bool {
+        match self {
+            Pattern::Disk => (x - 0.5).hypot(y - 0.5) <= 0.3,
+            Pattern::Bars => {
+                (0.15..0.85).contains(&y)
+                    && [0.15, 0.42, 0.69]
+                        .iter()
+                        .any(|a| (*a..a + 0.16).contains(&x))
+            }
+            Pattern::Letter => {
+                let stem = (0.25..0.42).contains(&x) && (0.12..0.88).contains(&y);
+                let top = (0.25..0.78).contains(&x) && (0.12..0.28).contains(&y);
+                let mid = (0.25..0.66).contains(&x) && (0.44..0.58).contains(&y);
+                stem || top || mid
+            }
+        }
+    }
+
+    /// Values in [0, 1] on `grid`, row-major (row `iv` = image row, top first).
+    pub fn render(self, grid: Grid) -> Vec<f64> {
+        const S: usize = 4;
+        let mut out = Vec::with_capacity(grid.count());
+        for iv in 0..grid.nv {
+            for iu in 0..grid.nu {
+                let mut hits = 0;
+                for b in 0..S {
+                    for a in 0..S {
+                        let x = (iu as f64 + (a as f64 + 0.5) / S as f64) / grid.nu as f64;
+                        let y = (iv as f64 + (b as f64 + 0.5) / S as f64) / grid.nv as f64;
+                        hits += self.at(x, y) as usize;
+                    }
+                }
+                out.push(hits as f64 / (S * S) as f64);
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn patterns_are_distinct_and_in_range() {
+        let g = Grid { nu: 16, nv: 16 };
+        let imgs: Vec<Vec<f64>> = Pattern::ALL.iter().map(|p| p.render(g)).collect();
+        for img in &imgs {
+            assert!(img.iter().all(|v| (0.0..=1.0).contains(v)));
+            let lit = img.iter().sum::<f64>() / 256.0;
+            assert!(lit > 0.15 && lit < 0.5, "{lit}");
+        }
+        assert_ne!(imgs[0], imgs[1]);
+        // The letter is not mirror-symmetric left to right.
+        let l = &imgs[2];
+        let mirrored: Vec<f64> = (0..256).map(|j| l[(j / 16) * 16 + 15 - j % 16]).collect();
+        assert_ne!(*l, mirrored);
+    }
+}
