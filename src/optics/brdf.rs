@@ -10,7 +10,7 @@ use std::f64::consts::PI;
 
 use super::fresnel::FresnelAmplitudes;
 use super::ggx;
-use super::polarizer::{s_direction, source_field};
+use super::polarizer::{analyzer_factor, s_direction, source_field};
 use super::Vec3;
 
 /// Material of the wall: GGX roughness, refractive index, specular and diffuse weights.
@@ -81,18 +81,26 @@ impl Brdf {
     /// everything but `P_spec`, computed once and shared by all polarizer angles.
     #[inline]
     pub fn lobe(&self, i: &Direction, o: &Direction) -> SpecularLobe {
-        if self.ks == 0.0 {
-            return SpecularLobe {
-                weight: 0.0,
-                fresnel: FresnelAmplitudes { rs: 0.0, rp: 0.0 },
-            };
-        }
+        self.lobe_from_cosines(i.cos, i.g1, o.cos, o.g1, i.w.dot(&o.w))
+    }
+
+    /// [`Brdf::lobe`] from scalars: `n.w_i`, `G1(w_i)`, `n.w_o`, `G1(w_o)` and
+    /// `w_i.w_o`; branch-free so that the transport builder's loops vectorize.
+    #[inline(always)]
+    pub fn lobe_from_cosines(
+        &self,
+        cos_i: f64,
+        g1_i: f64,
+        cos_o: f64,
+        g1_o: f64,
+        wi_dot_wo: f64,
+    ) -> SpecularLobe {
         // cos(2 theta_h) = w_i.w_o (Eq. 9); n.h = (n.w_i + n.w_o)/|w_i + w_o|.
-        let c2 = i.w.dot(&o.w).clamp(-1.0, 1.0);
-        let cos_h = (i.cos + o.cos) / (2.0 + 2.0 * c2).sqrt();
+        let c2 = wi_dot_wo.clamp(-1.0, 1.0);
+        let cos_h = (cos_i + cos_o) / (2.0 + 2.0 * c2).sqrt();
         let d = ggx::distribution(cos_h, self.alpha);
         SpecularLobe {
-            weight: self.ks * d * i.g1 * o.g1 / (4.0 * i.cos * o.cos),
+            weight: self.ks * d * g1_i * g1_o / (4.0 * cos_i * cos_o),
             fresnel: FresnelAmplitudes::from_cos_2phi(c2, self.eta),
         }
     }
@@ -107,7 +115,7 @@ impl Brdf {
         pol: Polarization<'_>,
     ) -> f64 {
         let mut f = 0.0;
-        if lobe.weight != 0.0 {
+        if self.ks != 0.0 {
             f += lobe.weight * specular_factor(lobe.fresnel, &i.w, &o.w, pol);
         }
         if self.kd != 0.0 {
@@ -144,13 +152,16 @@ pub fn specular_factor(
     let e_s = s_direction(w_i, w_o);
     match (pol.source, pol.analyzer, e_s) {
         (None, None, _) => fresnel.reflectances().mean(),
-        (None, Some(_), None) => 0.5 * fresnel.reflectances().rs,
-        (None, Some(t), Some(e_s)) => {
+        (None, Some(t), _) => {
             let r = fresnel.reflectances();
-            let e_p = e_s.cross(w_o);
-            let ts = t.dot(&e_s);
-            let tp = t.dot(&e_p);
-            0.5 * (r.rs * ts * ts + r.rp * tp * tp)
+            let b = w_o.cross(t);
+            analyzer_factor(
+                r.rs,
+                r.rp,
+                w_i.dot(&b),
+                w_i.dot(t),
+                w_i.cross(w_o).norm_squared(),
+            )
         }
         (Some(e_src), analyzer, None) => {
             let e = source_field(e_src, w_i);

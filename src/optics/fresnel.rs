@@ -22,20 +22,24 @@ pub struct FresnelAmplitudes {
 
 impl FresnelAmplitudes {
     /// Amplitudes from `cos phi` (in [0, 1]) and the wall index `eta > 1`.
-    #[inline]
+    #[inline(always)]
     pub fn from_cos(cos_phi: f64, eta: f64) -> Self {
         let c = cos_phi.clamp(0.0, 1.0);
         let sin2 = (1.0 - c * c).max(0.0);
         // Snell: sin phi' = sin phi / eta, so cos phi' = sqrt(1 - sin^2 phi / eta^2).
         let ct = (1.0 - sin2 / (eta * eta)).max(0.0).sqrt();
-        let rs = (c - eta * ct) / (c + eta * ct);
-        let rp = (eta * c - ct) / (eta * c + ct);
-        Self { rs, rp }
+        // One division for both ratios (this sits in the transport kernel).
+        let (ds, dp) = (c + eta * ct, eta * c + ct);
+        let inv = 1.0 / (ds * dp);
+        Self {
+            rs: (c - eta * ct) * dp * inv,
+            rp: (eta * c - ct) * ds * inv,
+        }
     }
 
     /// Amplitudes at the half angle `phi = 1/2 acos(cos_2phi)` (MODEL.md Eq. 9),
     /// computed without trigonometric calls: `cos phi = sqrt((1 + cos 2phi)/2)`.
-    #[inline]
+    #[inline(always)]
     pub fn from_cos_2phi(cos_2phi: f64, eta: f64) -> Self {
         let c2 = cos_2phi.clamp(-1.0, 1.0);
         Self::from_cos((0.5 * (1.0 + c2)).sqrt(), eta)
@@ -47,7 +51,7 @@ impl FresnelAmplitudes {
     }
 
     /// Power reflectances `(Rs, Rp)`.
-    #[inline]
+    #[inline(always)]
     pub fn reflectances(self) -> FresnelHalf {
         FresnelHalf {
             rs: self.rs * self.rs,

@@ -29,6 +29,23 @@ pub fn s_direction(w_i: &Vec3, w_o: &Vec3) -> Option<Vec3> {
     (n >= DEGENERATE_CROSS).then(|| x / n)
 }
 
+/// `P_spec` for unpolarized light through an analyzer, without normalizing `e_s`.
+///
+/// With `x = w_i x w_o`, `e_s = x/|x|` and `e_p = e_s x w_o`, the projections
+/// of the effective axis `t` are `t.e_s = w_i.(w_o x t)/|x|` and
+/// `t.e_p = -w_i.t/|x|` (because `w_o x (w_o x t) = -t` for `t` normal to
+/// `w_o`). So MODEL.md's `(Rs (t.e_s)^2 + Rp (t.e_p)^2)/2` is
+/// `(Rs (w_i.b)^2 + Rp (w_i.t)^2) / (2 |x|^2)` with `b = w_o x t`, which
+/// needs no square root. Below `|x| = 1e-12` it returns `Rs/2` (MODEL.md).
+#[inline(always)]
+pub fn analyzer_factor(rs: f64, rp: f64, wi_dot_b: f64, wi_dot_t: f64, cross2: f64) -> f64 {
+    if cross2 < DEGENERATE_CROSS * DEGENERATE_CROSS {
+        0.5 * rs
+    } else {
+        (rs * wi_dot_b * wi_dot_b + rp * wi_dot_t * wi_dot_t) / (2.0 * cross2)
+    }
+}
+
 /// Projects a polarized source's field direction onto the plane normal to `w_i`
 /// and normalizes it; zero when it is parallel to `w_i` (MODEL.md edge cases).
 #[inline]

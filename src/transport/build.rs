@@ -1,30 +1,66 @@
 //! Parallel assembly of `T`, one scene element (column) per task.
 //!
-//! Everything that depends only on the wall and a pose (direction to the camera,
-//! its Smith term, the effective polarizer axis of each angle) is computed once;
-//! the inner loop evaluates MODEL.md's entry formula for each (scene sample,
-//! wall sample) pair, sharing the unpolarized lobe across a pose's angles.
+//! Everything that depends only on the wall and a pose (direction to the
+//! camera, its Smith term, each angle's effective polarizer axis `t` and
+//! `b = w_o x t`) is computed once, as structure-of-arrays. For each scene
+//! sub-sample the column is then filled in two branch-free passes over the
+//! wall samples that the compiler vectorizes: the incident geometry, then per
+//! pose the specular lobe and per angle the polarizer factor. Only what the
+//! scene turns on runs: occlusion tests with occluders, the Jones path with a
+//! polarized source, the diffuse term with `kd > 0`.
 
+use std::f64::consts::PI;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
 use super::{Block, Transport, TransportError};
 use crate::optics::brdf::Direction;
-use crate::optics::polarizer::effective_axis;
-use crate::optics::{Polarization, Vec3};
+use crate::optics::polarizer::{analyzer_factor, effective_axis};
+use crate::optics::{ggx, Polarization, Vec3};
 use crate::scene::{Emitter, Scene};
 
 /// Memory budget for a dense f64 `T`.
 const LIMIT_BYTES: f64 = 12.0 * (1u64 << 30) as f64;
 
+/// Three coordinate arrays, one entry per wall sample.
+#[derive(Default, Clone)]
+struct Soa {
+    x: Vec<f64>,
+    y: Vec<f64>,
+    z: Vec<f64>,
+}
+
+impl Soa {
+    fn from_vecs(v: impl Iterator<Item = Vec3>) -> Self {
+        let mut s = Soa::default();
+        for p in v {
+            s.x.push(p.x);
+            s.y.push(p.y);
+            s.z.push(p.z);
+        }
+        s
+    }
+
+    fn get(&self, i: usize) -> Vec3 {
+        Vec3::new(self.x[i], self.y[i], self.z[i])
+    }
+}
+
+/// One polarizer angle of a pose: `t` and `b = w_o x t` per wall sample.
+struct AnalyzerView {
+    t: Soa,
+    b: Soa,
+}
+
 /// What one pose contributes, precomputed per wall sample.
 struct PoseView {
-    /// Direction to the camera from each wall sample.
-    out: Vec<Direction>,
-    /// Effective analyzer axis per block of this pose, per wall sample;
-    /// one `None` block when the pose has no polarizer.
-    analyzers: Vec<Option<Vec<Vec3>>>,
+    /// Direction to the camera, `n.w_o` and `G1(w_o)` per wall sample.
+    w_o: Soa,
+    cos_o: Vec<f64>,
+    g1_o: Vec<f64>,
+    /// Analyzers in block order; empty when the pose has no polarizer.
+    analyzers: Vec<AnalyzerView>,
     /// Index of this pose's first block.
     first_block: usize,
 }
@@ -55,43 +91,52 @@ pub fn build_with_progress(
     let brdf = wall.brdf;
     let n = wall.plane.normal;
     let wall_pts = wall.plane.sample_points();
+    let wall_soa = Soa::from_vecs(wall_pts.iter().copied());
     let mw = wall.plane.samples_per_element();
     let n_wall = wall.plane.grid.count();
+    let n_samples = wall_pts.len();
 
     let mut blocks = Vec::with_capacity(scene.block_count());
     let mut views = Vec::with_capacity(scene.poses.len());
     for pose in &scene.poses {
-        let out: Vec<Direction> = wall_pts
+        let dirs: Vec<Vec3> = wall_pts
             .iter()
-            .map(|c| brdf.direction(&n, (pose.camera - c).normalize()))
+            .map(|c| (pose.camera - c).normalize())
+            .collect();
+        let cos_o: Vec<f64> = dirs.iter().map(|w| n.dot(w)).collect();
+        let g1_o = cos_o
+            .iter()
+            .map(|&c| ggx::smith_g1(c, brdf.alpha))
             .collect();
         let first_block = blocks.len();
-        let analyzers = if pose.analyzers.is_empty() {
+        let mut analyzers = Vec::with_capacity(pose.analyzers.len());
+        if pose.analyzers.is_empty() {
             blocks.push(Block {
                 pose: pose.name.clone(),
                 polarizer_deg: None,
             });
-            vec![None]
-        } else {
-            pose.analyzers
+        }
+        for a in &pose.analyzers {
+            blocks.push(Block {
+                pose: pose.name.clone(),
+                polarizer_deg: Some(a.angle_deg),
+            });
+            // A polarizer facing the wall never sees a ray along its axis;
+            // should it, the ray passes no light (t = 0).
+            let t: Vec<Vec3> = dirs
                 .iter()
-                .map(|a| {
-                    blocks.push(Block {
-                        pose: pose.name.clone(),
-                        polarizer_deg: Some(a.angle_deg),
-                    });
-                    // A polarizer facing the wall never sees a ray along its axis;
-                    // should it, the ray passes no light through it.
-                    Some(
-                        out.iter()
-                            .map(|o| effective_axis(&a.axis, &o.w).unwrap_or_else(Vec3::zeros))
-                            .collect(),
-                    )
-                })
-                .collect()
-        };
+                .map(|w| effective_axis(&a.axis, w).unwrap_or_else(Vec3::zeros))
+                .collect();
+            let b = Soa::from_vecs(dirs.iter().zip(&t).map(|(w, t)| w.cross(t)));
+            analyzers.push(AnalyzerView {
+                t: Soa::from_vecs(t.into_iter()),
+                b,
+            });
+        }
         views.push(PoseView {
-            out,
+            w_o: Soa::from_vecs(dirs.into_iter()),
+            cos_o,
+            g1_o,
             analyzers,
             first_block,
         });
@@ -100,58 +145,34 @@ pub fn build_with_progress(
     let hidden = &scene.scene;
     let scene_pts = hidden.plane.sample_points();
     let ms = hidden.plane.samples_per_element();
-    let n_s = hidden.plane.normal;
-    let area = hidden.plane.element_area();
-    let weight = area / (mw * ms) as f64;
-    let source = hidden.polarization;
-    let occluders = &scene.occluders;
+    let weight = hidden.plane.element_area() / (mw * ms) as f64;
     let done = AtomicUsize::new(0);
 
     let mut data = vec![0.0f64; rows * cols];
-    data.par_chunks_mut(rows.max(1))
-        .enumerate()
-        .for_each(|(k, col)| {
-            for s in &scene_pts[k * ms..(k + 1) * ms] {
-                for (ws, c) in wall_pts.iter().enumerate() {
-                    let d = s - c;
-                    let r2 = d.norm_squared();
-                    let w_i = d / r2.sqrt();
-                    let cos_i = n.dot(&w_i);
-                    if cos_i <= 0.0 {
-                        continue;
-                    }
-                    let g = match hidden.emitter {
-                        Emitter::Lambertian => (-n_s.dot(&w_i)).max(0.0),
-                        Emitter::Isotropic => 1.0,
-                    };
-                    if g == 0.0 {
-                        continue;
-                    }
-                    if occluders.iter().any(|o| o.blocks(s, c)) {
-                        continue;
-                    }
-                    let base = weight * g * cos_i / r2;
-                    let i = brdf.direction(&n, w_i);
-                    let j = ws / mw;
-                    for view in &views {
-                        let o = &view.out[ws];
-                        if o.cos <= 0.0 {
-                            continue;
-                        }
-                        let lobe = brdf.lobe(&i, o);
-                        for (b, axes) in view.analyzers.iter().enumerate() {
-                            let pol = Polarization {
-                                analyzer: axes.as_ref().map(|a| &a[ws]),
-                                source: source.as_ref(),
-                            };
-                            let f = brdf.finish(&lobe, &i, o, pol);
-                            col[(view.first_block + b) * n_wall + j] += base * f;
-                        }
-                    }
-                }
-            }
+    let ctx = Ctx {
+        scene,
+        views: &views,
+        wall_pts: &wall_pts,
+        wall_soa: &wall_soa,
+        scene_pts: &scene_pts,
+        ms,
+        mw,
+        n_wall,
+        n: wall.plane.normal,
+        n_s: hidden.plane.normal,
+        lambertian: hidden.emitter == Emitter::Lambertian,
+        weight,
+        brdf,
+        diffuse: brdf.kd / PI,
+        ks_on: brdf.ks != 0.0,
+    };
+    data.par_chunks_mut(rows.max(1)).enumerate().for_each_init(
+        || Scratch::new(n_samples),
+        |sc, (k, col)| {
+            fill_column(sc, col, k, &ctx);
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
-        });
+        },
+    );
 
     Ok(Transport::from_col_major(
         rows,
@@ -161,4 +182,241 @@ pub fn build_with_progress(
         wall.plane.grid,
         hidden.plane.grid,
     ))
+}
+
+/// Everything a column needs, shared read-only by all tasks.
+struct Ctx<'a> {
+    scene: &'a Scene,
+    views: &'a [PoseView],
+    wall_pts: &'a [Vec3],
+    wall_soa: &'a Soa,
+    scene_pts: &'a [Vec3],
+    ms: usize,
+    mw: usize,
+    n_wall: usize,
+    n: Vec3,
+    n_s: Vec3,
+    lambertian: bool,
+    weight: f64,
+    brdf: crate::optics::Brdf,
+    diffuse: f64,
+    ks_on: bool,
+}
+
+/// Column `k` of `T`: every block's response to scene element `k`.
+#[multiversion::multiversion(targets("x86_64+avx2+fma"))]
+fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
+    let (n_wall, mw) = (c.n_wall, c.mw);
+    for s in &c.scene_pts[k * c.ms..(k + 1) * c.ms] {
+        sc.incident(
+            s,
+            c.wall_soa,
+            &c.n,
+            &c.n_s,
+            c.lambertian,
+            c.brdf.alpha,
+            c.weight,
+        );
+        if !c.scene.occluders.is_empty() {
+            for (ws, p) in c.wall_pts.iter().enumerate() {
+                if sc.base[ws] != 0.0 && c.scene.occluders.iter().any(|o| o.blocks(s, p)) {
+                    sc.base[ws] = 0.0;
+                }
+            }
+        }
+        for view in c.views {
+            if let Some(e_src) = c.scene.scene.polarization.as_ref() {
+                sc.polarized_source(view, e_src, &c.brdf, col, n_wall, mw);
+                continue;
+            }
+            sc.pose(view, &c.brdf, c.ks_on);
+            for blk in 0..view.analyzers.len().max(1) {
+                sc.block(view.analyzers.get(blk), c.ks_on, c.diffuse);
+                let out = &mut col
+                    [(view.first_block + blk) * n_wall..(view.first_block + blk + 1) * n_wall];
+                if mw == 1 {
+                    for (o, v) in out.iter_mut().zip(&sc.value) {
+                        *o += v;
+                    }
+                } else {
+                    for (ws, v) in sc.value.iter().enumerate() {
+                        out[ws / mw] += v;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Per-thread buffers, one entry per wall sample, reused across columns.
+struct Scratch {
+    /// Incident direction `w_i`.
+    w_i: Soa,
+    /// `n.w_i` and `G1(w_i)`.
+    cos_i: Vec<f64>,
+    g1_i: Vec<f64>,
+    /// `a_k g (n.w_i) / |s - c|^2` over the sample count; 0 where the entry is 0.
+    base: Vec<f64>,
+    /// Per pose: `w_i.w_o`-derived specular weight, Fresnel `Rs`, `Rp`, `|w_i x w_o|^2`; 0 weight where `n.w_o <= 0`.
+    spec: Vec<f64>,
+    rs: Vec<f64>,
+    rp: Vec<f64>,
+    cross2: Vec<f64>,
+    /// 1 where the camera of the current pose sees the wall sample (`n.w_o > 0`), else 0.
+    open: Vec<f64>,
+    /// `base * f` for the current block.
+    value: Vec<f64>,
+}
+
+impl Scratch {
+    fn new(n: usize) -> Self {
+        let z = || vec![0.0; n];
+        Self {
+            w_i: Soa {
+                x: z(),
+                y: z(),
+                z: z(),
+            },
+            cos_i: z(),
+            g1_i: z(),
+            base: z(),
+            spec: z(),
+            rs: z(),
+            rp: z(),
+            cross2: z(),
+            open: z(),
+            value: z(),
+        }
+    }
+
+    /// Incident geometry from scene point `s` to every wall sample.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn incident(
+        &mut self,
+        s: &Vec3,
+        c: &Soa,
+        n: &Vec3,
+        n_s: &Vec3,
+        lambertian: bool,
+        alpha: f64,
+        weight: f64,
+    ) {
+        let len = self.base.len();
+        for j in 0..len {
+            let (dx, dy, dz) = (s.x - c.x[j], s.y - c.y[j], s.z - c.z[j]);
+            let r2 = dx * dx + dy * dy + dz * dz;
+            let inv = 1.0 / r2.sqrt();
+            let (wx, wy, wz) = (dx * inv, dy * inv, dz * inv);
+            let cos_i = n.x * wx + n.y * wy + n.z * wz;
+            let g = if lambertian {
+                (-(n_s.x * wx + n_s.y * wy + n_s.z * wz)).max(0.0)
+            } else {
+                1.0
+            };
+            self.w_i.x[j] = wx;
+            self.w_i.y[j] = wy;
+            self.w_i.z[j] = wz;
+            self.cos_i[j] = cos_i;
+            self.g1_i[j] = ggx::smith_g1(cos_i, alpha);
+            self.base[j] = if cos_i > 0.0 {
+                weight * g * cos_i * inv * inv
+            } else {
+                0.0
+            };
+        }
+    }
+
+    /// The unpolarized specular lobe of one pose.
+    #[inline(always)]
+    fn pose(&mut self, v: &PoseView, brdf: &crate::optics::Brdf, ks_on: bool) {
+        let len = self.base.len();
+        for j in 0..len {
+            self.open[j] = if v.cos_o[j] > 0.0 { 1.0 } else { 0.0 };
+        }
+        if !ks_on {
+            return;
+        }
+        for j in 0..len {
+            let (ix, iy, iz) = (self.w_i.x[j], self.w_i.y[j], self.w_i.z[j]);
+            let (ox, oy, oz) = (v.w_o.x[j], v.w_o.y[j], v.w_o.z[j]);
+            let c2 = ix * ox + iy * oy + iz * oz;
+            let (cos_i, cos_o) = (self.cos_i[j], v.cos_o[j]);
+            let lobe = brdf.lobe_from_cosines(cos_i, self.g1_i[j], cos_o, v.g1_o[j], c2);
+            let r = lobe.fresnel.reflectances();
+            let ok = cos_i > 0.0 && cos_o > 0.0;
+            self.spec[j] = if ok { lobe.weight } else { 0.0 };
+            self.rs[j] = r.rs;
+            self.rp[j] = r.rp;
+            let (xx, xy, xz) = (iy * oz - iz * oy, iz * ox - ix * oz, ix * oy - iy * ox);
+            self.cross2[j] = xx * xx + xy * xy + xz * xz;
+        }
+    }
+
+    /// `value = base * f` for one block of the current pose (analyzer or none).
+    #[inline(always)]
+    fn block(&mut self, a: Option<&AnalyzerView>, ks_on: bool, diffuse: f64) {
+        let len = self.base.len();
+        let p_diff = if a.is_some() { 0.5 } else { 1.0 };
+        let d = diffuse * p_diff;
+        match a {
+            Some(a) => {
+                for j in 0..len {
+                    let (ix, iy, iz) = (self.w_i.x[j], self.w_i.y[j], self.w_i.z[j]);
+                    let wi_b = ix * a.b.x[j] + iy * a.b.y[j] + iz * a.b.z[j];
+                    let wi_t = ix * a.t.x[j] + iy * a.t.y[j] + iz * a.t.z[j];
+                    let p = analyzer_factor(self.rs[j], self.rp[j], wi_b, wi_t, self.cross2[j]);
+                    let spec = if ks_on { self.spec[j] * p } else { 0.0 };
+                    self.value[j] = self.base[j] * self.open[j] * (spec + d);
+                }
+            }
+            None => {
+                for j in 0..len {
+                    let spec = if ks_on {
+                        self.spec[j] * 0.5 * (self.rs[j] + self.rp[j])
+                    } else {
+                        0.0
+                    };
+                    self.value[j] = self.base[j] * self.open[j] * (spec + d);
+                }
+            }
+        }
+    }
+
+    /// A linearly polarized scene (MODEL.md Eq. 11): the Jones path, per element.
+    fn polarized_source(
+        &mut self,
+        v: &PoseView,
+        e_src: &Vec3,
+        brdf: &crate::optics::Brdf,
+        col: &mut [f64],
+        n_wall: usize,
+        mw: usize,
+    ) {
+        for j in 0..self.base.len() {
+            if self.base[j] == 0.0 || v.cos_o[j] <= 0.0 {
+                continue;
+            }
+            let i = Direction {
+                w: self.w_i.get(j),
+                cos: self.cos_i[j],
+                g1: self.g1_i[j],
+            };
+            let o = Direction {
+                w: v.w_o.get(j),
+                cos: v.cos_o[j],
+                g1: v.g1_o[j],
+            };
+            let lobe = brdf.lobe(&i, &o);
+            for blk in 0..v.analyzers.len().max(1) {
+                let t = v.analyzers.get(blk).map(|a| a.t.get(j));
+                let pol = Polarization {
+                    analyzer: t.as_ref(),
+                    source: Some(e_src),
+                };
+                col[(v.first_block + blk) * n_wall + j / mw] +=
+                    self.base[j] * brdf.finish(&lobe, &i, &o, pol);
+            }
+        }
+    }
 }
