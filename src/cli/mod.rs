@@ -2,6 +2,7 @@
 //! subcommand. Each subcommand reads files, calls the library and writes files.
 
 mod cond;
+mod pattern;
 mod progress;
 mod reconstruct;
 mod simulate;
@@ -40,6 +41,8 @@ enum Command {
     Simulate(simulate::Args),
     /// Recover the hidden scene from a measurement.
     Reconstruct(reconstruct::Args),
+    /// Write a test pattern (disk, bars, letter) as a PNG truth image.
+    Pattern(pattern::Args),
 }
 
 /// Runs the parsed command line.
@@ -57,6 +60,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Cond(a) => cond::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Reconstruct(a) => reconstruct::run(a),
+        Command::Pattern(a) => pattern::run(a),
     }
 }
 
