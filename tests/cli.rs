@@ -13,16 +13,28 @@ fn scene(name: &str) -> PathBuf {
 }
 
 fn polnlos(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_polnlos")).args(args).output().expect("run polnlos")
+    Command::new(env!("CARGO_BIN_EXE_polnlos"))
+        .args(args)
+        .output()
+        .expect("run polnlos")
 }
 
 fn ok(out: &Output) -> String {
-    assert!(out.status.success(), "stderr: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "stderr: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 fn fails(out: &Output) -> String {
-    assert_eq!(out.status.code(), Some(2), "stdout {}", String::from_utf8_lossy(&out.stdout));
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "stdout {}",
+        String::from_utf8_lossy(&out.stdout)
+    );
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
@@ -40,20 +52,35 @@ fn transport_writes_a_standard_npy() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("T.npy");
     let s = scene("brewster-rotating-3x3");
-    ok(&polnlos(&["transport", s.to_str().unwrap(), "--out", out.to_str().unwrap()]));
+    ok(&polnlos(&[
+        "transport",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]));
     let a = npy::read(&out).unwrap();
     assert_eq!(a.shape, vec![4096, 9]);
     let t = polnlos::transport::build(&polnlos::scene::Scene::load(&s).unwrap()).unwrap();
     // C order: row j, column k at j * 9 + k.
     assert_eq!(a.data[1500 * 9 + 7], t.get(1500, 7));
-    ok(&polnlos(&["transport", s.to_str().unwrap(), "--out", out.to_str().unwrap(), "--f32"]));
+    ok(&polnlos(&[
+        "transport",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--f32",
+    ]));
     let b = npy::read(&out).unwrap();
     assert!((b.data[1500 * 9 + 7] / t.get(1500, 7) - 1.0).abs() < 1e-6);
 }
 
 #[test]
 fn cond_json_reports_kappa_and_rank() {
-    let text = ok(&polnlos(&["cond", scene("brewster-crossed-3x3").to_str().unwrap(), "--json"]));
+    let text = ok(&polnlos(&[
+        "cond",
+        scene("brewster-crossed-3x3").to_str().unwrap(),
+        "--json",
+    ]));
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
     assert!((v["kappa"].as_f64().unwrap() / 111.5248909751125 - 1.0).abs() < 1e-6);
     assert_eq!(v["rank"], 9);
@@ -66,20 +93,49 @@ fn simulate_then_reconstruct_through_files() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let truth = d.join("letter.png");
-    ok(&polnlos(&["pattern", "letter", "--size", "32", "--out", truth.to_str().unwrap()]));
+    ok(&polnlos(&[
+        "pattern",
+        "letter",
+        "--size",
+        "32",
+        "--out",
+        truth.to_str().unwrap(),
+    ]));
     let png = image::read_gray(&truth).unwrap();
     let expect = Pattern::Letter.render(Grid { nu: 32, nv: 32 });
-    assert!(png.data.iter().zip(&expect).all(|(a, b)| (a - b).abs() < 1e-4));
+    assert!(png
+        .data
+        .iter()
+        .zip(&expect)
+        .all(|(a, b)| (a - b).abs() < 1e-4));
     let s = scene("brewster-multi");
     let sim = d.join("sim");
     ok(&polnlos(&[
-        "simulate", s.to_str().unwrap(), "--truth", truth.to_str().unwrap(), "--out", sim.to_str().unwrap(),
-        "--photons", "50000", "--seed", "4", "--frames",
+        "simulate",
+        s.to_str().unwrap(),
+        "--truth",
+        truth.to_str().unwrap(),
+        "--out",
+        sim.to_str().unwrap(),
+        "--photons",
+        "50000",
+        "--seed",
+        "4",
+        "--frames",
     ]));
-    for f in ["measurement.npy", "truth.npy", "simulate.json", "wall-B-pol0.png", "wall-C-pol0.png", "frame-B-pol0.png", "frame-C-pol0.png"] {
+    for f in [
+        "measurement.npy",
+        "truth.npy",
+        "simulate.json",
+        "wall-B-pol0.png",
+        "wall-C-pol0.png",
+        "frame-B-pol0.png",
+        "frame-C-pol0.png",
+    ] {
         assert!(sim.join(f).exists(), "{f} missing");
     }
-    let sj: serde_json::Value = serde_json::from_slice(&std::fs::read(sim.join("simulate.json")).unwrap()).unwrap();
+    let sj: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(sim.join("simulate.json")).unwrap()).unwrap();
     assert_eq!(sj["rows"], 2048);
     assert_eq!(sj["noise"]["photons"], 50000.0);
     let frame = image::read_gray(&sim.join("frame-B-pol0.png")).unwrap();
@@ -89,12 +145,21 @@ fn simulate_then_reconstruct_through_files() {
     let rec = d.join("rec");
     let args = |solver: &str, out: &PathBuf| {
         polnlos(&[
-            "reconstruct", s.to_str().unwrap(), "--measurement", sim.join("measurement.npy").to_str().unwrap(),
-            "--truth", sim.join("truth.npy").to_str().unwrap(), "--out", out.to_str().unwrap(), "--solver", solver,
+            "reconstruct",
+            s.to_str().unwrap(),
+            "--measurement",
+            sim.join("measurement.npy").to_str().unwrap(),
+            "--truth",
+            sim.join("truth.npy").to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--solver",
+            solver,
         ])
     };
     ok(&args("admm-tv", &rec));
-    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(rec.join("report.json")).unwrap()).unwrap();
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(rec.join("report.json")).unwrap()).unwrap();
     assert_eq!(r["solver"]["solver"], "admm-tv");
     assert!(r["solver"]["converged"].as_bool().unwrap());
     assert!(r["conditioning"]["kappa"].as_f64().unwrap() > 1e6);
@@ -103,11 +168,15 @@ fn simulate_then_reconstruct_through_files() {
     let img = npy::read(&rec.join("recovered.npy")).unwrap();
     assert_eq!(img.shape, vec![8, 8]);
     assert!(img.data.iter().all(|v| (0.0..=1.0).contains(v)));
-    assert_eq!(image::read_gray(&rec.join("recovered.png")).unwrap().width, 8);
+    assert_eq!(
+        image::read_gray(&rec.join("recovered.png")).unwrap().width,
+        8
+    );
 
     let rec_lsq = d.join("lsq");
     ok(&args("lsq", &rec_lsq));
-    let l: serde_json::Value = serde_json::from_slice(&std::fs::read(rec_lsq.join("report.json")).unwrap()).unwrap();
+    let l: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(rec_lsq.join("report.json")).unwrap()).unwrap();
     assert!(l["metrics"]["psnr_db"].as_f64().unwrap() < psnr);
     ok(&args("tikhonov", &d.join("tik")));
 }
@@ -118,9 +187,18 @@ fn bad_input_gets_a_clear_error() {
     let d = dir.path();
     // A scene file with an out-of-range key.
     let bad = d.join("bad.toml");
-    std::fs::write(&bad, std::fs::read_to_string(scene("brewster-crossed")).unwrap().replace("roughness = 0.3", "roughness = 0")).unwrap();
+    std::fs::write(
+        &bad,
+        std::fs::read_to_string(scene("brewster-crossed"))
+            .unwrap()
+            .replace("roughness = 0.3", "roughness = 0"),
+    )
+    .unwrap();
     let err = fails(&polnlos(&["cond", bad.to_str().unwrap()]));
-    assert!(err.contains("wall.roughness = 0.0: must be in (0, 1]") && err.contains("bad.toml"), "{err}");
+    assert!(
+        err.contains("wall.roughness = 0.0: must be in (0, 1]") && err.contains("bad.toml"),
+        "{err}"
+    );
     // A missing file.
     let err = fails(&polnlos(&["cond", d.join("nope.toml").to_str().unwrap()]));
     assert!(err.contains("cannot read scene file"), "{err}");
@@ -128,19 +206,39 @@ fn bad_input_gets_a_clear_error() {
     let m = d.join("short.npy");
     npy::write_f64(&m, &[10], &[0.5; 10]).unwrap();
     let err = fails(&polnlos(&[
-        "reconstruct", scene("brewster-crossed").to_str().unwrap(), "--measurement", m.to_str().unwrap(), "--out", d.join("o").to_str().unwrap(),
+        "reconstruct",
+        scene("brewster-crossed").to_str().unwrap(),
+        "--measurement",
+        m.to_str().unwrap(),
+        "--out",
+        d.join("o").to_str().unwrap(),
     ]));
-    assert!(err.contains("measurement has 10 values but T has 1024 rows"), "{err}");
+    assert!(
+        err.contains("measurement has 10 values but T has 1024 rows"),
+        "{err}"
+    );
     // A truth that is not an image.
     let junk = d.join("junk.png");
     std::fs::write(&junk, b"not a png").unwrap();
     let err = fails(&polnlos(&[
-        "simulate", scene("brewster-crossed").to_str().unwrap(), "--truth", junk.to_str().unwrap(), "--out", d.join("s").to_str().unwrap(),
+        "simulate",
+        scene("brewster-crossed").to_str().unwrap(),
+        "--truth",
+        junk.to_str().unwrap(),
+        "--out",
+        d.join("s").to_str().unwrap(),
     ]));
     assert!(err.contains("junk.png"), "{err}");
     // Out-of-range noise parameters.
     let err = fails(&polnlos(&[
-        "simulate", scene("brewster-crossed").to_str().unwrap(), "--truth", junk.to_str().unwrap(), "--out", d.join("s").to_str().unwrap(), "--bits", "20",
+        "simulate",
+        scene("brewster-crossed").to_str().unwrap(),
+        "--truth",
+        junk.to_str().unwrap(),
+        "--out",
+        d.join("s").to_str().unwrap(),
+        "--bits",
+        "20",
     ]));
     assert!(err.contains("bits = 20: must be from 1 to 16"), "{err}");
 }

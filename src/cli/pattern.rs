@@ -23,9 +23,16 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    anyhow::ensure!((1..=4096).contains(&a.size), "--size must be from 1 to 4096 pixels");
-    let p = Pattern::from_name(&a.name).ok_or_else(|| anyhow::anyhow!("unknown pattern {:?}", a.name))?;
-    let img = p.render(Grid { nu: a.size, nv: a.size });
+    anyhow::ensure!(
+        (1..=4096).contains(&a.size),
+        "--size must be from 1 to 4096 pixels"
+    );
+    let p = Pattern::from_name(&a.name)
+        .ok_or_else(|| anyhow::anyhow!("unknown pattern {:?}", a.name))?;
+    let img = p.render(Grid {
+        nu: a.size,
+        nv: a.size,
+    });
     image::write_png16(&a.out, a.size, a.size, &image::unit_to_u16(&img))?;
     Ok(())
 }

@@ -42,7 +42,7 @@ pub fn least_squares(
     let s = svd.S().column_vector();
     let (u, v) = (svd.U(), svd.V());
     let smax = if s.nrows() > 0 { s[0] } else { 0.0 };
-    let cut = smax * rcond.unwrap_or(t.rows().max(t.cols()) as f64 * f64::EPSILON);
+    let cut = smax * rcond.unwrap_or(t.rows().max(t.cols()) as f64 * super::conditioning::RANK_EPS);
     let n = t.cols();
     let mut x = vec![0.0; n];
     let mut rank = 0;

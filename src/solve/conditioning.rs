@@ -5,6 +5,10 @@
 use super::SolveError;
 use crate::transport::Transport;
 
+/// MODEL.md's relative rank tolerance per dimension: a singular value counts
+/// as zero at or below `sigma_max * max(M, N) * RANK_EPS`.
+pub const RANK_EPS: f64 = 2.2e-16;
+
 /// Singular spectrum of `T` and what follows from it.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct Conditioning {
@@ -27,7 +31,7 @@ impl Conditioning {
     /// From singular values of an `rows x cols` matrix, sorted non-increasing.
     pub fn from_singular_values(rows: usize, cols: usize, singular_values: Vec<f64>) -> Self {
         let smax = singular_values.first().copied().unwrap_or(0.0);
-        let threshold = smax * rows.max(cols) as f64 * 2.2e-16;
+        let threshold = smax * rows.max(cols) as f64 * RANK_EPS;
         let rank = singular_values.iter().filter(|&&s| s > threshold).count();
         let smin = singular_values.last().copied().unwrap_or(0.0);
         let kappa = if rows < cols || smax == 0.0 || smin <= threshold {
