@@ -95,12 +95,18 @@ impl Brdf {
         g1_o: f64,
         wi_dot_wo: f64,
     ) -> SpecularLobe {
-        // cos(2 theta_h) = w_i.w_o (Eq. 9); n.h = (n.w_i + n.w_o)/|w_i + w_o|.
+        // cos(2 theta_h) = w_i.w_o (Eq. 9) and (n.h)^2 = (n.w_i + n.w_o)^2 / |w_i + w_o|^2
+        // with |w_i + w_o|^2 = 2 + 2 w_i.w_o. Substituting into
+        // ks D G2 / (4 (n.w_i)(n.w_o)), D = a^2 / (pi ((n.h)^2 (a^2 - 1) + 1)^2),
+        // and clearing the inner fraction leaves a single division:
+        // ks a^2 G2 m^2 / (4 pi (s^2 (a^2 - 1) + m)^2 (n.w_i)(n.w_o)), s = n.w_i + n.w_o, m = 2 + 2 w_i.w_o.
         let c2 = wi_dot_wo.clamp(-1.0, 1.0);
-        let cos_h = (cos_i + cos_o) / (2.0 + 2.0 * c2).sqrt();
-        let d = ggx::distribution(cos_h, self.alpha);
+        let a2 = self.alpha * self.alpha;
+        let sum = cos_i + cos_o;
+        let m = 2.0 + 2.0 * c2;
+        let den = sum * sum * (a2 - 1.0) + m;
         SpecularLobe {
-            weight: self.ks * d * g1_i * g1_o / (4.0 * cos_i * cos_o),
+            weight: self.ks * a2 * g1_i * g1_o * m * m / (4.0 * PI * den * den * cos_i * cos_o),
             fresnel: FresnelAmplitudes::from_cos_2phi(c2, self.eta),
         }
     }
