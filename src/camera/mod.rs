@@ -1,9 +1,20 @@
-//! Camera frames and (with the daemon) the camera driver.
+//! The camera: frames, the small trait the daemon sees, the Aravis driver
+//! behind it, the Aravis fake camera bench used by default and in tests, and
+//! the thread that owns the camera.
 //!
-//! [`Frame`] is the type every room that handles images agrees on: the
-//! simulator renders frames, the measurement code samples them, the driver
-//! fills them from the sensor.
+//! Aravis objects are `Send` but not `Sync`, so one dedicated thread owns the
+//! camera ([`worker`]); everyone else talks to it through a channel. That
+//! thread only configures, triggers and pops buffers: averaging and disk I/O
+//! happen elsewhere.
 
+pub mod aravis;
+mod device;
+pub mod fake;
 mod frame;
+pub mod hotplug;
+pub mod settings;
+pub mod worker;
 
+pub use device::{CameraDevice, CameraError, CameraInfo, Counters, RawFrame};
 pub use frame::Frame;
+pub use settings::{CameraSettings, PixelFormat, TriggerMode};

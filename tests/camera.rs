@@ -1,0 +1,214 @@
+//! The camera path through real Aravis: its GigE Vision fake camera on
+//! 127.0.0.1 (unicast, opened by address; no discovery broadcast), driven by
+//! polnlos's camera thread. Aravis state is global: tests hold one lock.
+
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use polnlos::camera::aravis::AravisCamera;
+use polnlos::camera::fake::{Bench, FakeBench};
+use polnlos::camera::worker::CameraHandle;
+use polnlos::camera::{CameraDevice, CameraError, CameraSettings, Frame, PixelFormat};
+
+static ARAVIS: Mutex<()> = Mutex::new(());
+
+const ADDR: &str = "127.0.0.1";
+
+fn gradient() -> Frame {
+    let (w, h) = (512, 512);
+    Frame {
+        width: w,
+        height: h,
+        pixels: (0..w * h)
+            .map(|i| 0.5 * (i % w) as f32 / w as f32)
+            .collect(),
+    }
+}
+
+fn bench() -> FakeBench {
+    FakeBench::start(
+        ADDR,
+        "POLNLOS-TEST",
+        vec![("A".into(), Some(0.0), gradient())],
+        20_000.0,
+    )
+    .expect("fake camera")
+}
+
+fn handle() -> CameraHandle {
+    CameraHandle::spawn(Box::new(|| {
+        AravisCamera::open(ADDR).map(|c| Box::new(c) as Box<dyn CameraDevice>)
+    }))
+}
+
+fn rt() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+fn wait_connected(h: &CameraHandle, want: bool, within: Duration) -> bool {
+    let t = Instant::now();
+    while t.elapsed() < within {
+        if h.status().connected == want {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    false
+}
+
+#[test]
+fn frames_show_the_selected_block_and_scale_with_exposure() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    let fake = bench();
+    fake.select("A", Some(0.0));
+    let cam = handle();
+    assert!(
+        wait_connected(&cam, true, Duration::from_secs(5)),
+        "{:?}",
+        cam.status()
+    );
+    let info = rt().block_on(cam.describe()).unwrap();
+    assert_eq!(info.exposure_feature, "ExposureTimeAbs");
+    assert_eq!(info.gain_feature, "GainRaw");
+    let seen = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let s2 = seen.clone();
+    let settings = CameraSettings {
+        exposure_us: 20_000.0,
+        ..CameraSettings::default()
+    };
+    let frames = rt()
+        .block_on(cam.acquire(
+            settings.clone(),
+            3,
+            Box::new(move |k| s2.store(k, std::sync::atomic::Ordering::SeqCst)),
+        ))
+        .unwrap();
+    assert_eq!(frames.len(), 3);
+    assert_eq!(
+        seen.load(std::sync::atomic::Ordering::SeqCst),
+        3,
+        "progress reported per frame"
+    );
+    let f = &frames[0];
+    assert_eq!((f.width, f.height, f.bits), (512, 512, 16));
+    // Pixel x shows (0.01 + 0.5 x/512) of full scale at the reference exposure.
+    let at = |f: &polnlos::camera::RawFrame, x: usize| f64::from(f.pixels[100 * 512 + x]);
+    let expect = |x: usize, s: f64| (0.01 + 0.5 * x as f64 / 512.0) * s * 65535.0;
+    for x in [0, 100, 400] {
+        assert!(
+            (at(f, x) - expect(x, 1.0)).abs() <= 1.0,
+            "x {x}: {} vs {}",
+            at(f, x),
+            expect(x, 1.0)
+        );
+    }
+    // Half the exposure, half the signal.
+    let half = rt()
+        .block_on(cam.acquire(
+            CameraSettings {
+                exposure_us: 10_000.0,
+                ..settings
+            },
+            1,
+            Box::new(|_| {}),
+        ))
+        .unwrap();
+    assert!((at(&half[0], 400) - expect(400, 0.5)).abs() <= 1.0);
+    assert!(cam.status().counters.completed >= 4);
+    cam.shutdown();
+}
+
+#[test]
+fn a_two_second_exposure_does_not_time_out() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    let fake = bench();
+    fake.select("A", Some(0.0));
+    let cam = handle();
+    assert!(wait_connected(&cam, true, Duration::from_secs(5)));
+    let settings = CameraSettings {
+        exposure_us: 2_000_000.0,
+        pixel_format: PixelFormat::Mono8,
+        ..CameraSettings::default()
+    };
+    let frames = rt()
+        .block_on(cam.acquire(settings, 3, Box::new(|_| {})))
+        .unwrap();
+    assert_eq!(frames.len(), 3);
+    assert_eq!(frames[0].bits, 8);
+    // The fake camera aligns frames to multiples of its period on the wall
+    // clock, so the first interval is shorter; the next one is the full 2 s.
+    let dt = (frames[2].system_timestamp_ns - frames[1].system_timestamp_ns) as f64 * 1e-9;
+    assert!((dt - 2.0).abs() < 0.25, "frame interval {dt} s");
+    assert_eq!(cam.status().counters.timeouts, 0);
+    cam.shutdown();
+}
+
+#[test]
+fn out_of_range_settings_name_the_feature() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    let _fake = bench();
+    let mut cam = AravisCamera::open(ADDR).unwrap();
+    let e = cam
+        .configure(&CameraSettings {
+            exposure_us: 5.0,
+            ..CameraSettings::default()
+        })
+        .unwrap_err();
+    assert!(
+        matches!(&e, CameraError::OutOfRange { feature, .. } if feature == "ExposureTimeAbs"),
+        "{e}"
+    );
+    let e = cam
+        .configure(&CameraSettings {
+            gain: 99.0,
+            ..CameraSettings::default()
+        })
+        .unwrap_err();
+    assert!(
+        e.to_string()
+            .starts_with("camera feature GainRaw = 99: out of range"),
+        "{e}"
+    );
+    assert!(matches!(
+        AravisCamera::open("127.0.0.9"),
+        Err(CameraError::Open { .. })
+    ));
+}
+
+#[test]
+fn a_camera_that_vanishes_mid_capture_fails_the_capture_and_comes_back() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    let fake = bench();
+    let cam = handle();
+    assert!(wait_connected(&cam, true, Duration::from_secs(5)));
+    // 20 frames at 10 fps take 2 s; the camera disappears after 0.5 s.
+    let settings = CameraSettings {
+        exposure_us: 100_000.0,
+        ..CameraSettings::default()
+    };
+    let killer = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(500));
+        drop(fake);
+    });
+    let r = rt().block_on(cam.acquire(settings.clone(), 20, Box::new(|_| {})));
+    killer.join().unwrap();
+    let e = r.unwrap_err();
+    assert!(e.is_connection_loss(), "{e}");
+    assert!(wait_connected(&cam, false, Duration::from_secs(5)));
+    // The camera comes back: the thread reconnects on its own.
+    let fake = bench();
+    fake.select("A", Some(0.0));
+    assert!(
+        wait_connected(&cam, true, Duration::from_secs(15)),
+        "{:?}",
+        cam.status()
+    );
+    let frames = rt()
+        .block_on(cam.acquire(settings, 2, Box::new(|_| {})))
+        .unwrap();
+    assert_eq!(frames.len(), 2);
+    cam.shutdown();
+}
