@@ -10,11 +10,14 @@
 //! metrics), [`simulate`] (noise model), [`measure`] (frames to `i`),
 //! [`camera`] (frames), [`files`] (npy, png, json).
 
+pub mod api;
 pub mod camera;
+pub mod daemon;
 pub mod files;
 pub mod measure;
 pub mod optics;
 pub mod scene;
 pub mod simulate;
 pub mod solve;
+pub mod store;
 pub mod transport;

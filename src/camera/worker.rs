@@ -212,7 +212,12 @@ fn run(opener: Opener, rx: mpsc::Receiver<Request>, status: Arc<Mutex<CameraStat
                 };
                 if let Some(c) = camera.as_ref() {
                     let k = c.counters();
-                    update(&mut |s| s.counters = add(base, k));
+                    update(&mut |s| {
+                        s.counters = Counters {
+                            connects: s.counters.connects,
+                            ..add(base, k)
+                        }
+                    });
                 }
                 if let Err(e) = &r {
                     if e.is_connection_loss() {

@@ -5,6 +5,7 @@ mod cond;
 mod pattern;
 mod progress;
 mod reconstruct;
+mod serve;
 mod simulate;
 mod transport;
 
@@ -43,6 +44,8 @@ enum Command {
     Reconstruct(reconstruct::Args),
     /// Write a test pattern (disk, bars, letter) as a PNG truth image.
     Pattern(pattern::Args),
+    /// Run the acquisition daemon: camera, capture and reconstruction queues, HTTP API.
+    Serve(serve::Args),
 }
 
 /// Runs the parsed command line.
@@ -61,6 +64,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(a) => simulate::run(a),
         Command::Reconstruct(a) => reconstruct::run(a),
         Command::Pattern(a) => pattern::run(a),
+        Command::Serve(a) => serve::run(a),
     }
 }
 

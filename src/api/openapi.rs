@@ -1,0 +1,48 @@
+//! `GET /openapi.json`, generated from the handlers' annotations (utoipa).
+
+use axum::Json;
+use utoipa::OpenApi;
+
+use super::routes;
+
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "polnlos",
+        description = "Polarization-enhanced passive NLOS imaging: captures, reconstructions, camera."
+    ),
+    paths(
+        routes::health,
+        routes::metrics,
+        routes::camera,
+        routes::camera_settings,
+        routes::post_capture,
+        routes::list_captures,
+        routes::get_capture,
+        routes::capture_frames,
+        routes::capture_mean,
+        routes::capture_preview,
+        routes::post_reconstruction,
+        routes::list_reconstructions,
+        routes::get_reconstruction,
+        routes::reconstruction_image,
+        routes::reconstruction_npy,
+        routes::get_job,
+        routes::events,
+        routes::scenes,
+    ),
+    components(schemas(
+        crate::daemon::CaptureBody,
+        crate::daemon::ReconstructionBody,
+        crate::camera::CameraSettings,
+        crate::store::CaptureRecord,
+        crate::store::ReconstructionRecord,
+        crate::store::JobState,
+    ))
+)]
+struct Doc;
+
+/// The OpenAPI document.
+pub async fn spec() -> Json<utoipa::openapi::OpenApi> {
+    Json(Doc::openapi())
+}

@@ -1,0 +1,432 @@
+//! Handlers: parse, ask the daemon, answer. No business logic lives here.
+
+use std::convert::Infallible;
+use std::sync::Arc;
+
+use axum::body::Body;
+use axum::extract::rejection::JsonRejection;
+use axum::extract::{Path, Query, State};
+use axum::http::{header, StatusCode};
+use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use futures_util::Stream;
+use serde::Deserialize;
+use tokio_stream::wrappers::BroadcastStream;
+use tokio_stream::StreamExt;
+
+use super::ApiError;
+use crate::camera::CameraSettings;
+use crate::daemon::metrics::{Metrics, Sample};
+use crate::daemon::{
+    validate_capture, validate_reconstruction, CaptureBody, Daemon, ReconstructionBody,
+};
+use crate::store::{CaptureFiles, CaptureRecord, ReconstructionRecord};
+
+type St = State<Arc<Daemon>>;
+
+/// Paging of list endpoints.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+pub struct Page {
+    /// At most this many (1-1000, default 100).
+    limit: Option<usize>,
+    /// Skip this many.
+    offset: Option<usize>,
+}
+
+impl Page {
+    fn get(&self) -> Result<(usize, usize), ApiError> {
+        let limit = self.limit.unwrap_or(100);
+        if !(1..=1000).contains(&limit) {
+            return Err(ApiError::invalid(format!(
+                "limit = {limit}: must be from 1 to 1000"
+            )));
+        }
+        Ok((limit, self.offset.unwrap_or(0)))
+    }
+}
+
+fn parse_id(raw: &str, kind: &str) -> Result<i64, ApiError> {
+    raw.parse::<i64>().ok().filter(|v| *v > 0).ok_or_else(|| {
+        ApiError::not_found(format!(
+            "{raw:?} is not a {kind} id (a positive whole number)"
+        ))
+    })
+}
+
+/// Liveness and camera connection.
+#[utoipa::path(get, path = "/health", responses((status = 200, description = "The daemon is up")))]
+pub async fn health(State(d): St) -> Json<serde_json::Value> {
+    let s = d.camera.status();
+    Json(
+        serde_json::json!({ "status": "ok", "camera_connected": s.connected, "version": env!("CARGO_PKG_VERSION") }),
+    )
+}
+
+/// Prometheus metrics.
+#[utoipa::path(get, path = "/metrics", responses((status = 200, description = "Prometheus text format", content_type = "text/plain")))]
+pub async fn metrics(State(d): St) -> Response {
+    let s = d.camera.status();
+    let c = s.counters;
+    let m = &d.metrics;
+    let depth = |tx: &tokio::sync::mpsc::Sender<i64>| (tx.max_capacity() - tx.capacity()) as f64;
+    let samples = [
+        Sample {
+            name: "polnlos_camera_connected",
+            kind: "gauge",
+            help: "1 when a camera is open",
+            value: f64::from(u8::from(s.connected)),
+        },
+        Sample {
+            name: "polnlos_camera_frames_completed_total",
+            kind: "counter",
+            help: "Frames received",
+            value: c.completed as f64,
+        },
+        Sample {
+            name: "polnlos_camera_frames_failed_total",
+            kind: "counter",
+            help: "Broken buffers",
+            value: c.failed as f64,
+        },
+        Sample {
+            name: "polnlos_camera_timeouts_total",
+            kind: "counter",
+            help: "Buffer pops that timed out",
+            value: c.timeouts as f64,
+        },
+        Sample {
+            name: "polnlos_camera_underruns_total",
+            kind: "counter",
+            help: "Frames dropped for lack of buffers",
+            value: c.underruns as f64,
+        },
+        Sample {
+            name: "polnlos_camera_missing_packets_total",
+            kind: "counter",
+            help: "GigE Vision packets missing",
+            value: c.missing_packets as f64,
+        },
+        Sample {
+            name: "polnlos_camera_resent_packets_total",
+            kind: "counter",
+            help: "GigE Vision packets resent",
+            value: c.resent_packets as f64,
+        },
+        Sample {
+            name: "polnlos_camera_connects_total",
+            kind: "counter",
+            help: "Camera (re)connections",
+            value: c.connects as f64,
+        },
+        Sample {
+            name: "polnlos_camera_reconnect_failures_total",
+            kind: "counter",
+            help: "Failed reconnection attempts",
+            value: s.reconnect_failures as f64,
+        },
+        Sample {
+            name: "polnlos_capture_queue_depth",
+            kind: "gauge",
+            help: "Captures waiting",
+            value: depth(&d.captures),
+        },
+        Sample {
+            name: "polnlos_reconstruction_queue_depth",
+            kind: "gauge",
+            help: "Reconstructions waiting",
+            value: depth(&d.reconstructions),
+        },
+        Sample {
+            name: "polnlos_captures_done_total",
+            kind: "counter",
+            help: "Captures finished",
+            value: Metrics::get(&m.captures_done),
+        },
+        Sample {
+            name: "polnlos_captures_failed_total",
+            kind: "counter",
+            help: "Captures failed",
+            value: Metrics::get(&m.captures_failed),
+        },
+        Sample {
+            name: "polnlos_capture_seconds_total",
+            kind: "counter",
+            help: "Time spent capturing",
+            value: Metrics::get(&m.capture_micros) * 1e-6,
+        },
+        Sample {
+            name: "polnlos_reconstructions_done_total",
+            kind: "counter",
+            help: "Reconstructions finished",
+            value: Metrics::get(&m.reconstructions_done),
+        },
+        Sample {
+            name: "polnlos_reconstructions_failed_total",
+            kind: "counter",
+            help: "Reconstructions failed",
+            value: Metrics::get(&m.reconstructions_failed),
+        },
+        Sample {
+            name: "polnlos_reconstruction_seconds_total",
+            kind: "counter",
+            help: "Time spent reconstructing",
+            value: Metrics::get(&m.reconstruction_micros) * 1e-6,
+        },
+        Sample {
+            name: "polnlos_requests_rejected_queue_full_total",
+            kind: "counter",
+            help: "Requests answered 429",
+            value: Metrics::get(&m.rejected_full),
+        },
+    ];
+    (
+        [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
+        Metrics::render(&samples),
+    )
+        .into_response()
+}
+
+/// Camera identity, ranges, counters and connection state.
+#[utoipa::path(get, path = "/camera", responses((status = 200, description = "Camera state")))]
+pub async fn camera(State(d): St) -> Json<crate::camera::worker::CameraStatus> {
+    Json(d.camera.status())
+}
+
+/// Applies camera settings now (validated against the camera's ranges).
+#[utoipa::path(put, path = "/camera/settings", request_body = CameraSettings, responses((status = 200, description = "Applied"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
+pub async fn camera_settings(
+    State(d): St,
+    body: Result<Json<CameraSettings>, JsonRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let Json(s) = body?;
+    match d.camera.configure(s).await {
+        Ok(()) => Ok(Json(
+            serde_json::to_value(d.camera.describe().await.ok()).unwrap_or_default(),
+        )),
+        Err(
+            e @ (crate::camera::CameraError::OutOfRange { .. }
+            | crate::camera::CameraError::Feature { .. }),
+        ) => Err(ApiError::invalid(e.to_string())),
+        Err(e) => Err(ApiError::unavailable(e.to_string())),
+    }
+}
+
+fn accepted(kind: &str, id: i64) -> Response {
+    let location = format!("/{kind}s/{id}");
+    (
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, location)],
+        Json(serde_json::json!({ "id": id, "state": "queued", "job": format!("{kind}-{id}") })),
+    )
+        .into_response()
+}
+
+/// Queues a capture.
+#[utoipa::path(post, path = "/captures", request_body = CaptureBody, responses((status = 202, description = "Queued; Location names the capture"), (status = 404, description = "Unknown scene"), (status = 422, description = "Out of range"), (status = 429, description = "Queue full")))]
+pub async fn post_capture(
+    State(d): St,
+    body: Result<Json<CaptureBody>, JsonRejection>,
+) -> Result<Response, ApiError> {
+    let Json(b) = body?;
+    let req = validate_capture(&d, &b)?;
+    let permit = d.captures.try_reserve().map_err(|_| {
+        d.metrics
+            .rejected_full
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        ApiError::queue_full(
+            "capture",
+            (req.exposure_us * 1e-6 * req.frames as f64).ceil().max(1.0) as u64,
+        )
+    })?;
+    let id = d.store.insert_capture(&req)?;
+    permit.send(id);
+    Ok(accepted("capture", id))
+}
+
+/// Captures, newest first.
+#[utoipa::path(get, path = "/captures", params(Page), responses((status = 200, body = [CaptureRecord])))]
+pub async fn list_captures(
+    State(d): St,
+    Query(p): Query<Page>,
+) -> Result<Json<Vec<CaptureRecord>>, ApiError> {
+    let (limit, offset) = p.get()?;
+    Ok(Json(d.store.captures(limit, offset)?))
+}
+
+/// One capture.
+#[utoipa::path(get, path = "/captures/{id}", responses((status = 200, body = CaptureRecord), (status = 404, description = "No such capture")))]
+pub async fn get_capture(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Json<CaptureRecord>, ApiError> {
+    Ok(Json(d.store.capture(parse_id(&id, "capture")?)?))
+}
+
+async fn file(
+    path: std::path::PathBuf,
+    content_type: &'static str,
+    what: String,
+) -> Result<Response, ApiError> {
+    match tokio::fs::read(&path).await {
+        Ok(bytes) => {
+            Ok(([(header::CONTENT_TYPE, content_type)], Body::from(bytes)).into_response())
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(ApiError::not_found(format!(
+            "{what} has no such file yet (is it done?)"
+        ))),
+        Err(e) => Err(ApiError::internal(format!("{}: {e}", path.display()))),
+    }
+}
+
+async fn capture_file(
+    d: &Daemon,
+    id: &str,
+    name: &str,
+    ct: &'static str,
+) -> Result<Response, ApiError> {
+    let id = parse_id(id, "capture")?;
+    d.store.capture(id)?;
+    file(
+        d.store.capture_dir(id).join(name),
+        ct,
+        format!("capture {id}"),
+    )
+    .await
+}
+
+/// Raw frames, multi-page 16-bit TIFF with metadata.
+#[utoipa::path(get, path = "/captures/{id}/frame.tiff", responses((status = 200, content_type = "image/tiff", description = "Raw frames")))]
+pub async fn capture_frames(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
+    capture_file(&d, &id, CaptureFiles::FRAMES, "image/tiff").await
+}
+
+/// Mean dark-subtracted frame, 32-bit float TIFF.
+#[utoipa::path(get, path = "/captures/{id}/mean.tiff", responses((status = 200, content_type = "image/tiff", description = "Mean frame")))]
+pub async fn capture_mean(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
+    capture_file(&d, &id, CaptureFiles::MEAN, "image/tiff").await
+}
+
+/// 16-bit PNG preview of the mean frame.
+#[utoipa::path(get, path = "/captures/{id}/preview.png", responses((status = 200, content_type = "image/png", description = "Preview")))]
+pub async fn capture_preview(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
+    capture_file(&d, &id, CaptureFiles::PREVIEW, "image/png").await
+}
+
+/// Queues a reconstruction.
+#[utoipa::path(post, path = "/reconstructions", request_body = ReconstructionBody, responses((status = 202, description = "Queued"), (status = 404, description = "Unknown scene or capture"), (status = 422, description = "Invalid"), (status = 429, description = "Queue full")))]
+pub async fn post_reconstruction(
+    State(d): St,
+    body: Result<Json<ReconstructionBody>, JsonRejection>,
+) -> Result<Response, ApiError> {
+    let Json(b) = body?;
+    let req = validate_reconstruction(&d, &b)?;
+    let permit = d.reconstructions.try_reserve().map_err(|_| {
+        d.metrics
+            .rejected_full
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        ApiError::queue_full("reconstruction", 5)
+    })?;
+    let id = d.store.insert_reconstruction(&req)?;
+    permit.send(id);
+    Ok(accepted("reconstruction", id))
+}
+
+/// Reconstructions, newest first.
+#[utoipa::path(get, path = "/reconstructions", params(Page), responses((status = 200, body = [ReconstructionRecord])))]
+pub async fn list_reconstructions(
+    State(d): St,
+    Query(p): Query<Page>,
+) -> Result<Json<Vec<ReconstructionRecord>>, ApiError> {
+    let (limit, offset) = p.get()?;
+    Ok(Json(d.store.reconstructions(limit, offset)?))
+}
+
+/// One reconstruction, with kappa and the report when done.
+#[utoipa::path(get, path = "/reconstructions/{id}", responses((status = 200, body = ReconstructionRecord), (status = 404, description = "No such reconstruction")))]
+pub async fn get_reconstruction(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Json<ReconstructionRecord>, ApiError> {
+    Ok(Json(
+        d.store.reconstruction(parse_id(&id, "reconstruction")?)?,
+    ))
+}
+
+async fn recon_file(
+    d: &Daemon,
+    id: &str,
+    name: &str,
+    ct: &'static str,
+) -> Result<Response, ApiError> {
+    let id = parse_id(id, "reconstruction")?;
+    d.store.reconstruction(id)?;
+    file(
+        d.store.reconstruction_dir(id).join(name),
+        ct,
+        format!("reconstruction {id}"),
+    )
+    .await
+}
+
+/// Recovered image, 16-bit PNG.
+#[utoipa::path(get, path = "/reconstructions/{id}/image.png", responses((status = 200, content_type = "image/png", description = "Recovered image")))]
+pub async fn reconstruction_image(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    recon_file(&d, &id, "image.png", "image/png").await
+}
+
+/// Recovered image, .npy (float64, scene grid).
+#[utoipa::path(get, path = "/reconstructions/{id}/recovered.npy", responses((status = 200, content_type = "application/octet-stream", description = "Recovered image")))]
+pub async fn reconstruction_npy(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    recon_file(&d, &id, "recovered.npy", "application/octet-stream").await
+}
+
+/// A job by id: `capture-<n>` or `reconstruction-<n>`.
+#[utoipa::path(get, path = "/jobs/{id}", responses((status = 200, description = "The capture or reconstruction"), (status = 404, description = "No such job")))]
+pub async fn get_job(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let bad = || {
+        ApiError::not_found(format!(
+            "{id:?} is not a job id; jobs are capture-<n> or reconstruction-<n>"
+        ))
+    };
+    let (kind, n) = id.split_once('-').ok_or_else(bad)?;
+    let n = n.parse::<i64>().map_err(|_| bad())?;
+    let v = match kind {
+        "capture" => serde_json::to_value(d.store.capture(n)?),
+        "reconstruction" => serde_json::to_value(d.store.reconstruction(n)?),
+        _ => return Err(bad()),
+    };
+    let mut v = v.map_err(|e| ApiError::internal(e.to_string()))?;
+    v["job"] = serde_json::Value::String(id.clone());
+    Ok(Json(v))
+}
+
+/// Server-sent events: job progress, frames taken, camera state changes.
+#[utoipa::path(get, path = "/events", responses((status = 200, content_type = "text/event-stream", description = "Event stream")))]
+pub async fn events(State(d): St) -> Sse<impl Stream<Item = Result<SseEvent, Infallible>>> {
+    let stream = BroadcastStream::new(d.events.subscribe()).filter_map(|e| {
+        let e = e.ok()?;
+        SseEvent::default().json_data(&e).ok().map(Ok)
+    });
+    Sse::new(stream).keep_alive(KeepAlive::default())
+}
+
+/// Scene names the daemon knows.
+#[utoipa::path(get, path = "/scenes", responses((status = 200, description = "Scene names")))]
+pub async fn scenes(State(d): St) -> Json<Vec<String>> {
+    Json(d.scenes.names())
+}
+
+/// Unknown path.
+pub async fn not_found(uri: axum::http::Uri) -> ApiError {
+    ApiError::not_found(format!("no route {uri}; see /openapi.json"))
+}

@@ -1,0 +1,109 @@
+//! `polnlos serve`: the acquisition daemon.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use polnlos::daemon::{Config, Daemon};
+
+/// Run the acquisition daemon (camera, queues, HTTP API).
+#[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Without --config the embedded default runs: Aravis's GigE Vision fake camera on 127.0.0.1 \
+showing a demo hidden scene, the API on 127.0.0.1:8470, data in ./polnlos-data.\n\
+Example:\n  polnlos serve\n  curl -s localhost:8470/health"
+)]
+pub struct Args {
+    /// Configuration file (TOML; start from config/polnlos.toml).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Address to serve the API on (overrides the config).
+    #[arg(long, value_name = "ADDR:PORT")]
+    bind: Option<std::net::SocketAddr>,
+    /// Data directory (overrides the config).
+    #[arg(long = "data-dir", value_name = "DIR")]
+    data_dir: Option<PathBuf>,
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let mut config = match &a.config {
+        Some(p) => Config::load(p)?,
+        None => Config::embedded(),
+    };
+    if let Some(b) = a.bind {
+        config.bind = b;
+    }
+    if let Some(d) = a.data_dir {
+        config.data_dir = d;
+    }
+    // Two cores: two async workers for I/O; the maths runs on blocking threads and rayon.
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    rt.block_on(serve(config))
+}
+
+async fn serve(config: Config) -> anyhow::Result<()> {
+    let bind = config.bind;
+    let daemon = Daemon::start(config).await?;
+    let listener = tokio::net::TcpListener::bind(bind)
+        .await
+        .with_context(|| format!("cannot listen on {bind}"))?;
+    tracing::info!("polnlos API on http://{}", listener.local_addr()?);
+    notify(&[sd_notify::NotifyState::Ready]);
+    let watchdog = watchdog();
+    let app = polnlos::api::router(daemon.clone());
+    let result = axum::serve(listener, app)
+        .with_graceful_shutdown(shutdown_signal())
+        .await;
+    notify(&[sd_notify::NotifyState::Stopping]);
+    if let Some(w) = watchdog {
+        w.abort();
+    }
+    daemon.shutdown();
+    result.context("HTTP server stopped")
+}
+
+fn notify(state: &[sd_notify::NotifyState<'_>]) {
+    if let Err(e) = sd_notify::notify(false, state) {
+        tracing::debug!("sd_notify: {e}");
+    }
+}
+
+/// Pings systemd's watchdog at half its interval when the unit asks for one.
+fn watchdog() -> Option<tokio::task::JoinHandle<()>> {
+    let mut usec = 0;
+    if !sd_notify::watchdog_enabled(false, &mut usec) || usec == 0 {
+        return None;
+    }
+    let period = std::time::Duration::from_micros(usec / 2);
+    Some(tokio::spawn(async move {
+        loop {
+            notify(&[sd_notify::NotifyState::Watchdog]);
+            tokio::time::sleep(period).await;
+        }
+    }))
+}
+
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
+    tracing::info!("shutting down");
+}

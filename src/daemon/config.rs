@@ -1,0 +1,196 @@
+//! The daemon's configuration: `config/polnlos.toml` embedded as the default,
+//! an optional file on top, command-line flags last.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+/// The embedded default configuration (runs against Aravis's fake camera).
+pub const DEFAULT_TOML: &str = include_str!("../../config/polnlos.toml");
+
+/// Full configuration.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// HTTP bind address.
+    pub bind: SocketAddr,
+    /// Data directory.
+    pub data_dir: PathBuf,
+    /// Bearer token ("" = none).
+    #[serde(default)]
+    pub token: String,
+    /// File holding the bearer token.
+    pub token_file: Option<PathBuf>,
+    /// Extra scene files.
+    #[serde(default)]
+    pub scene_files: Vec<PathBuf>,
+    /// Camera selection.
+    pub camera: CameraConfig,
+    /// Demo scene of the fake camera.
+    pub demo: DemoConfig,
+    /// Queue limits.
+    pub queue: QueueConfig,
+    /// Fraction of full scale per microsecond per unit of `T l`, per scene.
+    #[serde(default)]
+    pub calibration: BTreeMap<String, f64>,
+}
+
+/// Which camera to open.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    /// Start Aravis's GigE Vision fake camera on `address`.
+    #[serde(default)]
+    pub fake: bool,
+    /// IP address to open the camera at.
+    pub address: Option<String>,
+    /// Aravis device id to open the camera by.
+    pub id: Option<String>,
+}
+
+/// The fake camera's hidden scene.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DemoConfig {
+    /// Scene name.
+    pub scene: String,
+    /// `disk`, `bars` or `letter`.
+    pub pattern: String,
+}
+
+/// Queue limits.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QueueConfig {
+    /// Captures waiting.
+    pub captures: usize,
+    /// Reconstructions waiting.
+    pub reconstructions: usize,
+    /// Reconstructions running at once.
+    pub reconstruction_workers: usize,
+    /// Largest request body, bytes.
+    pub max_body_bytes: usize,
+}
+
+/// A configuration that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// The file is not valid.
+    #[error("config {path} is not valid: {message}")]
+    Parse {
+        /// File (or "embedded default").
+        path: String,
+        /// Parser message naming the key.
+        message: String,
+    },
+    /// A value is not acceptable.
+    #[error("config: {0}")]
+    Invalid(String),
+}
+
+impl Config {
+    /// The embedded default.
+    pub fn embedded() -> Self {
+        toml::from_str(DEFAULT_TOML).expect("the embedded config/polnlos.toml is valid")
+    }
+
+    /// Reads a config file (a complete file: start from config/polnlos.toml).
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        toml::from_str(&text).map_err(|e| ConfigError::Parse {
+            path: path.display().to_string(),
+            message: e.to_string().trim_end().to_string(),
+        })
+    }
+
+    /// The token in force ("" for none): `token`, or the contents of `token_file`.
+    pub fn resolved_token(&self) -> Result<String, ConfigError> {
+        match &self.token_file {
+            Some(p) if self.token.is_empty() => std::fs::read_to_string(p)
+                .map(|t| t.trim().to_string())
+                .map_err(|source| ConfigError::Read {
+                    path: p.clone(),
+                    source,
+                }),
+            _ => Ok(self.token.clone()),
+        }
+    }
+
+    /// Checks the combinations that would be unsafe or cannot work.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let token = self.resolved_token()?;
+        if !self.bind.ip().is_loopback() && token.is_empty() {
+            return Err(ConfigError::Invalid(format!(
+                "bind = {} is beyond loopback, so a token is required: set token or token_file",
+                self.bind
+            )));
+        }
+        if self.camera.address.is_none() && self.camera.id.is_none() {
+            return Err(ConfigError::Invalid(
+                "[camera] needs address or id (polnlos never runs a broadcast discovery)".into(),
+            ));
+        }
+        if self.camera.fake
+            && !self
+                .camera
+                .address
+                .as_deref()
+                .map(|a| a.starts_with("127."))
+                .unwrap_or(false)
+        {
+            return Err(ConfigError::Invalid(
+                "[camera] fake = true needs a loopback address (127.x.y.z)".into(),
+            ));
+        }
+        let q = &self.queue;
+        if q.captures == 0
+            || q.reconstructions == 0
+            || q.reconstruction_workers == 0
+            || q.max_body_bytes < 1024
+        {
+            return Err(ConfigError::Invalid(
+                "[queue] sizes must be at least 1 (max_body_bytes at least 1024)".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_default_is_valid_and_loopback() {
+        let c = Config::embedded();
+        c.validate().unwrap();
+        assert!(c.bind.ip().is_loopback());
+        assert!(c.camera.fake);
+    }
+
+    #[test]
+    fn beyond_loopback_needs_a_token() {
+        let mut c = Config::embedded();
+        c.bind = "0.0.0.0:8470".parse().unwrap();
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("token is required"));
+        c.token = "secret".into();
+        c.validate().unwrap();
+    }
+}

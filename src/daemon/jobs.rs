@@ -1,0 +1,570 @@
+//! Capture and reconstruction jobs: request validation (so that a bad request
+//! is refused before it is queued) and the workers that run them.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use serde::Deserialize;
+use tokio::sync::{mpsc, Mutex};
+
+use super::{Daemon, Event};
+use crate::camera::settings::EXPOSURE_RANGE_US;
+use crate::camera::{CameraSettings, PixelFormat, TriggerMode};
+use crate::files::{image, json, npy};
+use crate::measure::sample_wall;
+use crate::solve::report::{conditioning_warnings, Report};
+use crate::solve::{admm_tv, condition, least_squares, tikhonov, AdmmSettings};
+use crate::store::{
+    read_mean, write_capture_files, CaptureRequest, FrameMeta, JobState, ReconstructionRequest,
+};
+
+/// `POST /captures` body.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CaptureBody {
+    /// Scene name.
+    pub scene: String,
+    /// Pose name in the scene.
+    pub pose: String,
+    /// Polarizer angle of the pose, degrees (omit or null for a pose without polarizer).
+    pub polarizer_deg: Option<f64>,
+    /// Exposure per frame, microseconds.
+    pub exposure_us: f64,
+    /// Gain (camera units).
+    #[serde(default)]
+    pub gain: f64,
+    /// Frames to average (1-1000).
+    #[serde(default = "one")]
+    pub frames: usize,
+    /// Dark frames with the scene off, averaged and subtracted (0-1000).
+    #[serde(default)]
+    pub dark_frames: usize,
+    /// Pixel format (default Mono16).
+    pub pixel_format: Option<PixelFormat>,
+}
+
+fn one() -> usize {
+    1
+}
+
+/// `POST /reconstructions` body.
+#[derive(Debug, Clone, Deserialize, serde::Serialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ReconstructionBody {
+    /// Scene name.
+    pub scene: String,
+    /// One finished capture per (pose, polarizer angle) block of the scene.
+    pub captures: Vec<i64>,
+    /// `admm-tv` (default), `tikhonov` or `lsq`.
+    #[serde(default = "admm")]
+    pub solver: String,
+    /// Regularization weight (MODEL.md units); default as `polnlos reconstruct`.
+    pub lambda: Option<f64>,
+    /// ADMM penalty.
+    pub rho: Option<f64>,
+    /// ADMM iteration cap (1-100000).
+    pub max_iter: Option<usize>,
+    /// ADMM tolerance.
+    pub tol: Option<f64>,
+}
+
+fn admm() -> String {
+    "admm-tv".into()
+}
+
+/// A request that cannot be accepted: status 404 (unknown thing) or 422.
+#[derive(Debug, thiserror::Error)]
+pub enum RequestError {
+    /// A referenced thing does not exist.
+    #[error("{0}")]
+    NotFound(String),
+    /// A value is out of range or inconsistent.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Checks a capture request against the scene and the camera's ranges.
+pub fn validate_capture(d: &Daemon, b: &CaptureBody) -> Result<CaptureRequest, RequestError> {
+    let scene = d.scenes.get(&b.scene).ok_or_else(|| {
+        RequestError::NotFound(format!(
+            "unknown scene {:?}; known: {}",
+            b.scene,
+            d.scenes.names().join(", ")
+        ))
+    })?;
+    let pose = scene.pose(&b.pose).ok_or_else(|| {
+        RequestError::Invalid(format!(
+            "scene {:?} has no pose {:?}; its poses: {}",
+            b.scene,
+            b.pose,
+            scene
+                .poses
+                .iter()
+                .map(|p| p.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))
+    })?;
+    let angles: Vec<f64> = pose.analyzers.iter().map(|a| a.angle_deg).collect();
+    match (b.polarizer_deg, angles.is_empty()) {
+        (None, true) => {}
+        (Some(a), false) if angles.iter().any(|x| (x - a).abs() < 1e-6) => {}
+        (None, false) => {
+            return Err(RequestError::Invalid(format!(
+                "pose {:?} of scene {:?} has a polarizer: give polarizer_deg, one of {angles:?}",
+                b.pose, b.scene
+            )))
+        }
+        (Some(a), true) => {
+            return Err(RequestError::Invalid(format!(
+                "pose {:?} of scene {:?} has no polarizer, but polarizer_deg = {a} was given",
+                b.pose, b.scene
+            )))
+        }
+        (Some(a), false) => {
+            return Err(RequestError::Invalid(format!(
+                "polarizer_deg = {a} is not an angle of pose {:?} (scene {:?}): {angles:?}",
+                b.pose, b.scene
+            )))
+        }
+    }
+    let (mut lo, mut hi) = EXPOSURE_RANGE_US;
+    let info = d.camera.status().info;
+    if let Some(i) = &info {
+        lo = lo.max(i.exposure_us.0);
+        hi = hi.min(i.exposure_us.1);
+    }
+    if !(b.exposure_us >= lo && b.exposure_us <= hi) {
+        return Err(RequestError::Invalid(format!(
+            "exposure_us = {}: must be from {lo} to {hi} microseconds",
+            b.exposure_us
+        )));
+    }
+    let (glo, ghi) = info.as_ref().map(|i| i.gain).unwrap_or((0.0, f64::MAX));
+    if !(b.gain >= glo && b.gain <= ghi) {
+        return Err(RequestError::Invalid(format!(
+            "gain = {}: must be from {glo} to {ghi}",
+            b.gain
+        )));
+    }
+    if !(1..=1000).contains(&b.frames) {
+        return Err(RequestError::Invalid(format!(
+            "frames = {}: must be from 1 to 1000",
+            b.frames
+        )));
+    }
+    if b.dark_frames > 1000 {
+        return Err(RequestError::Invalid(format!(
+            "dark_frames = {}: must be from 0 to 1000",
+            b.dark_frames
+        )));
+    }
+    Ok(CaptureRequest {
+        scene: b.scene.clone(),
+        pose: b.pose.clone(),
+        polarizer_deg: b.polarizer_deg,
+        exposure_us: b.exposure_us,
+        gain: b.gain,
+        frames: b.frames,
+        dark_frames: b.dark_frames,
+        pixel_format: b.pixel_format.unwrap_or(PixelFormat::Mono16),
+    })
+}
+
+/// Checks a reconstruction request: solver parameters, and one finished
+/// capture of this scene for every (pose, angle) block.
+pub fn validate_reconstruction(
+    d: &Daemon,
+    b: &ReconstructionBody,
+) -> Result<ReconstructionRequest, RequestError> {
+    let scene = d
+        .scenes
+        .get(&b.scene)
+        .ok_or_else(|| RequestError::NotFound(format!("unknown scene {:?}", b.scene)))?;
+    if !["admm-tv", "tikhonov", "lsq"].contains(&b.solver.as_str()) {
+        return Err(RequestError::Invalid(format!(
+            "solver = {:?}: must be admm-tv, tikhonov or lsq",
+            b.solver
+        )));
+    }
+    if let Some(l) = b.lambda {
+        if !(l >= 0.0 && l.is_finite()) {
+            return Err(RequestError::Invalid(format!(
+                "lambda = {l}: must be a finite number >= 0"
+            )));
+        }
+    }
+    if let Some(r) = b.rho {
+        if !(r > 0.0 && r.is_finite()) {
+            return Err(RequestError::Invalid(format!(
+                "rho = {r}: must be a finite number > 0"
+            )));
+        }
+    }
+    if let Some(m) = b.max_iter {
+        if !(1..=100_000).contains(&m) {
+            return Err(RequestError::Invalid(format!(
+                "max_iter = {m}: must be from 1 to 100000"
+            )));
+        }
+    }
+    if let Some(t) = b.tol {
+        if !(t > 0.0 && t < 1.0) {
+            return Err(RequestError::Invalid(format!(
+                "tol = {t}: must be in (0, 1)"
+            )));
+        }
+    }
+    let mut blocks: Vec<(String, Option<f64>)> = Vec::new();
+    for p in &scene.poses {
+        if p.analyzers.is_empty() {
+            blocks.push((p.name.clone(), None));
+        }
+        for a in &p.analyzers {
+            blocks.push((p.name.clone(), Some(a.angle_deg)));
+        }
+    }
+    if b.captures.len() != blocks.len() {
+        return Err(RequestError::Invalid(format!(
+            "scene {:?} has {} (pose, polarizer) blocks {blocks:?}; give exactly one capture for each ({} given)",
+            b.scene,
+            blocks.len(),
+            b.captures.len()
+        )));
+    }
+    let mut covered = vec![false; blocks.len()];
+    for &id in &b.captures {
+        let c = d
+            .store
+            .capture(id)
+            .map_err(|_| RequestError::NotFound(format!("no capture with id {id}")))?;
+        if c.state != JobState::Done {
+            return Err(RequestError::Invalid(format!(
+                "capture {id} is {:?}, not done",
+                c.state
+            )));
+        }
+        if c.scene != b.scene {
+            return Err(RequestError::Invalid(format!(
+                "capture {id} belongs to scene {:?}, not {:?}",
+                c.scene, b.scene
+            )));
+        }
+        let k = blocks
+            .iter()
+            .position(|(p, a)| {
+                *p == c.pose
+                    && a.zip(c.polarizer_deg)
+                        .map(|(x, y)| (x - y).abs() < 1e-6)
+                        .unwrap_or(a.is_none() && c.polarizer_deg.is_none())
+            })
+            .ok_or_else(|| {
+                RequestError::Invalid(format!(
+                    "capture {id} (pose {:?}, polarizer {:?}) is not a block of scene {:?}",
+                    c.pose, c.polarizer_deg, b.scene
+                ))
+            })?;
+        if covered[k] {
+            return Err(RequestError::Invalid(format!(
+                "two captures for block {:?}; give one per block",
+                blocks[k]
+            )));
+        }
+        covered[k] = true;
+    }
+    Ok(ReconstructionRequest {
+        scene: b.scene.clone(),
+        captures: b.captures.clone(),
+        solver: b.solver.clone(),
+        params: serde_json::json!({ "lambda": b.lambda, "rho": b.rho, "max_iter": b.max_iter, "tol": b.tol }),
+    })
+}
+
+fn job_event(d: &Daemon, job: String, state: JobState, error: Option<String>) {
+    d.emit(Event::Job { job, state, error });
+}
+
+/// Runs captures one at a time (one camera).
+pub(super) async fn capture_worker(d: Arc<Daemon>, mut rx: mpsc::Receiver<i64>) {
+    while let Some(id) = rx.recv().await {
+        let job = format!("capture-{id}");
+        let start = Instant::now();
+        let result = run_capture(&d, id).await;
+        d.metrics.capture_micros.fetch_add(
+            start.elapsed().as_micros() as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
+        match result {
+            Ok(()) => {
+                d.metrics
+                    .captures_done
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                job_event(&d, job, JobState::Done, None);
+            }
+            Err(e) => {
+                tracing::warn!("{job} failed: {e}");
+                d.metrics
+                    .captures_failed
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                if let Err(se) = d.store.capture_failed(id, &e) {
+                    tracing::error!("cannot record the failure of {job}: {se}");
+                }
+                job_event(&d, job, JobState::Failed, Some(e));
+            }
+        }
+    }
+}
+
+async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
+    let c = d.store.capture(id).map_err(|e| e.to_string())?;
+    d.store.capture_running(id).map_err(|e| e.to_string())?;
+    job_event(d, format!("capture-{id}"), JobState::Running, None);
+    let pixel_format = match c.pixel_format.as_str() {
+        "Mono8" => PixelFormat::Mono8,
+        "Mono12" => PixelFormat::Mono12,
+        _ => PixelFormat::Mono16,
+    };
+    let settings = CameraSettings {
+        exposure_us: c.exposure_us,
+        gain: c.gain,
+        pixel_format,
+        region: None,
+        binning: None,
+        trigger: TriggerMode::Free,
+    };
+    let total = (c.frames + c.dark_frames) as usize;
+    let progress = |offset: usize| {
+        let d2 = d.clone();
+        Box::new(move |k: usize| {
+            let taken = offset + k;
+            d2.emit(Event::Frame {
+                job: format!("capture-{id}"),
+                taken,
+                total,
+            });
+            let _ = d2.store.capture_progress(id, taken);
+        }) as Box<dyn FnMut(usize) + Send>
+    };
+    d.bench.select(&c.pose, c.polarizer_deg);
+    let mut dark = Vec::new();
+    if c.dark_frames > 0 {
+        d.bench.scene_on(false);
+        let r = d
+            .camera
+            .acquire(settings.clone(), c.dark_frames as usize, progress(0))
+            .await;
+        d.bench.scene_on(true);
+        dark = r.map_err(|e| format!("dark frames: {e}"))?;
+    }
+    let frames = d
+        .camera
+        .acquire(
+            settings,
+            c.frames as usize,
+            progress(c.dark_frames as usize),
+        )
+        .await
+        .map_err(|e| e.to_string())?;
+    let status = d.camera.status();
+    let camera_id = status
+        .info
+        .as_ref()
+        .map(|i| i.id.clone())
+        .unwrap_or_default();
+    let meta = FrameMeta {
+        capture: id,
+        scene: c.scene.clone(),
+        pose: c.pose.clone(),
+        polarizer_deg: c.polarizer_deg,
+        exposure_us: c.exposure_us,
+        gain: c.gain,
+        camera_id: camera_id.clone(),
+        counters: status.counters,
+    };
+    let dir = d.store.capture_dir(id);
+    tokio::task::spawn_blocking(move || write_capture_files(&dir, &frames, &dark, &meta))
+        .await
+        .map_err(|e| e.to_string())?
+        .map_err(|e| e.to_string())?;
+    let counters = serde_json::to_string(&status.counters).unwrap_or_default();
+    d.store
+        .capture_done(id, &camera_id, &counters)
+        .map_err(|e| e.to_string())
+}
+
+/// Takes reconstructions from the shared queue.
+pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Receiver<i64>>>) {
+    loop {
+        let Some(id) = rx.lock().await.recv().await else {
+            return;
+        };
+        let job = format!("reconstruction-{id}");
+        let start = Instant::now();
+        if let Err(e) = d.store.reconstruction_running(id) {
+            tracing::error!("{job}: {e}");
+            continue;
+        }
+        job_event(&d, job.clone(), JobState::Running, None);
+        let d2 = d.clone();
+        let r = tokio::task::spawn_blocking(move || run_reconstruction(&d2, id))
+            .await
+            .map_err(|e| e.to_string())
+            .and_then(|r| r);
+        d.metrics.reconstruction_micros.fetch_add(
+            start.elapsed().as_micros() as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
+        match r {
+            Ok(()) => {
+                d.metrics
+                    .reconstructions_done
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                job_event(&d, job, JobState::Done, None);
+            }
+            Err(e) => {
+                tracing::warn!("{job} failed: {e}");
+                d.metrics
+                    .reconstructions_failed
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                if let Err(se) = d.store.reconstruction_failed(id, &e) {
+                    tracing::error!("cannot record the failure of {job}: {se}");
+                }
+                job_event(&d, job, JobState::Failed, Some(e));
+            }
+        }
+    }
+}
+
+/// Frames to `i` through the homographies, the solve, and the files.
+fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
+    let rec = d.store.reconstruction(id).map_err(|e| e.to_string())?;
+    let scene = d
+        .scenes
+        .get(&rec.scene)
+        .ok_or_else(|| format!("scene {:?} is no longer configured", rec.scene))?;
+    let t0 = Instant::now();
+    let t = d
+        .scenes
+        .transport(&rec.scene)
+        .ok_or("scene vanished")?
+        .map_err(|e| e.to_string())?;
+    let transport_seconds = t0.elapsed().as_secs_f64();
+    // Stack the captures in block order: MODEL.md row order.
+    let mut i = vec![0.0; t.rows()];
+    for (b, block) in t.blocks.iter().enumerate() {
+        let cap = rec
+            .captures
+            .iter()
+            .filter_map(|&cid| d.store.capture(cid).ok())
+            .find(|c| {
+                c.pose == block.pose
+                    && c.polarizer_deg
+                        .zip(block.polarizer_deg)
+                        .map(|(x, y)| (x - y).abs() < 1e-6)
+                        .unwrap_or(c.polarizer_deg.is_none() && block.polarizer_deg.is_none())
+            })
+            .ok_or_else(|| format!("no capture for block {}", block.label()))?;
+        let pose = scene.pose(&block.pose).ok_or("pose vanished")?;
+        let mean = read_mean(&d.store.capture_dir(cap.id))
+            .map_err(|e| format!("capture {}: {e}", cap.id))?;
+        let h = pose.homography.as_ref().ok_or_else(|| {
+            crate::measure::MeasureError::NoHomography {
+                pose: pose.name.clone(),
+            }
+            .to_string()
+        })?;
+        let wall = sample_wall(&mean, h, &scene.wall.plane, &pose.name)
+            .map_err(|e| format!("capture {}: {e}", cap.id))?;
+        let full = match cap.pixel_format.as_str() {
+            "Mono8" => 255.0,
+            "Mono12" => 4095.0,
+            _ => 65535.0,
+        };
+        // Fraction of full scale per microsecond: captures of different exposures compare.
+        for (dst, v) in i[t.block_rows(b)].iter_mut().zip(wall) {
+            *dst = v / full / cap.exposure_us;
+        }
+    }
+    let mut warnings = Vec::new();
+    match d.calibration.get(&rec.scene) {
+        Some(&c) if c > 0.0 => i.iter_mut().for_each(|v| *v /= c),
+        _ => {
+            // No calibration: scale so that the brightest element of a Tikhonov
+            // solution is 1 (the box constraint needs some scale).
+            let probe = tikhonov(&t, &i, None).map_err(|e| e.to_string())?;
+            let unclipped_max = probe.image.iter().copied().fold(0.0, f64::max).max(1e-300);
+            let lsq_scale = t
+                .apply(&probe.image)
+                .iter()
+                .zip(&i)
+                .map(|(a, b)| a * b)
+                .sum::<f64>()
+                .max(1e-300)
+                / t.apply(&probe.image)
+                    .iter()
+                    .map(|a| a * a)
+                    .sum::<f64>()
+                    .max(1e-300);
+            let s = lsq_scale * unclipped_max;
+            i.iter_mut().for_each(|v| *v /= s);
+            warnings.push("no radiometric calibration for this scene: the measurement was scaled so that the brightest element is about 1".to_string());
+        }
+    }
+    let p = &rec.params;
+    let lambda = p.get("lambda").and_then(|v| v.as_f64());
+    let r = match rec.solver.as_str() {
+        "tikhonov" => tikhonov(&t, &i, lambda),
+        "lsq" => least_squares(&t, &i, None),
+        _ => admm_tv(
+            &t,
+            &i,
+            &AdmmSettings {
+                lambda,
+                rho: p.get("rho").and_then(|v| v.as_f64()),
+                max_iter: p
+                    .get("max_iter")
+                    .and_then(|v| v.as_u64())
+                    .map(|v| v as usize)
+                    .unwrap_or(AdmmSettings::default().max_iter),
+                tol: p
+                    .get("tol")
+                    .and_then(|v| v.as_f64())
+                    .unwrap_or(AdmmSettings::default().tol),
+            },
+        ),
+    }
+    .map_err(|e| e.to_string())?;
+    let cond = condition(&t).map_err(|e| e.to_string())?;
+    warnings.extend(conditioning_warnings(&cond));
+    warnings.extend(r.stats.warnings.iter().cloned());
+    let grid = t.scene_grid;
+    let report = Report {
+        scene: rec.scene.clone(),
+        scene_grid: grid,
+        wall_grid: t.wall_grid,
+        blocks: t.blocks.clone(),
+        rows: t.rows(),
+        cols: t.cols(),
+        transport_seconds,
+        conditioning: (&cond).into(),
+        metrics: None,
+        solver: r.stats,
+        warnings,
+    };
+    let dir = d.store.reconstruction_dir(id);
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    npy::write_f64(&dir.join("recovered.npy"), &[grid.nv, grid.nu], &r.image)
+        .map_err(|e| e.to_string())?;
+    image::write_png16(
+        &dir.join("image.png"),
+        grid.nu,
+        grid.nv,
+        &image::unit_to_u16(&r.image),
+    )
+    .map_err(|e| e.to_string())?;
+    json::write(&dir.join("report.json"), &report).map_err(|e| e.to_string())?;
+    let text = serde_json::to_string(&report).map_err(|e| e.to_string())?;
+    d.store
+        .reconstruction_done(id, cond.kappa, &text)
+        .map_err(|e| e.to_string())
+}

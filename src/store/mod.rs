@@ -1,0 +1,355 @@
+//! The durable catalogue of captures and reconstructions: SQLite (WAL,
+//! synchronous FULL) for the rows, files under the data directory for the
+//! images. A file is written to a temporary name, fsynced and renamed before
+//! its row says it exists; a job that fails (a full disk, a lost camera) leaves
+//! every earlier row and file as it was. On open, jobs that were queued or
+//! running when the daemon stopped are marked `interrupted`.
+
+mod files;
+mod records;
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use rusqlite::{params, Connection, OptionalExtension};
+
+pub use files::{mean_frame, read_mean, write_capture_files, CaptureFiles, FrameMeta};
+pub use records::{
+    CaptureRecord, CaptureRequest, JobState, ReconstructionRecord, ReconstructionRequest,
+};
+
+/// What can go wrong with the store, naming the path or the row.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// The database could not be opened or used.
+    #[error("catalogue {path}: {source}")]
+    Database {
+        /// Database file.
+        path: PathBuf,
+        /// SQLite's error.
+        source: rusqlite::Error,
+    },
+    /// A file could not be written or read (full disk, read-only folder, ...).
+    #[error(transparent)]
+    File(#[from] crate::files::FileError),
+    /// The data directory cannot be created or written.
+    #[error("data directory {path}: {source}; check that it exists, is writable by the polnlos user and has free space")]
+    DataDir {
+        /// The directory.
+        path: PathBuf,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+    /// No such row.
+    #[error("no {kind} with id {id}")]
+    NotFound {
+        /// `capture` or `reconstruction`.
+        kind: &'static str,
+        /// The id asked for.
+        id: i64,
+    },
+}
+
+/// The catalogue and its data directory.
+pub struct Store {
+    dir: PathBuf,
+    db_path: PathBuf,
+    conn: Mutex<Connection>,
+}
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS captures (
+    id INTEGER PRIMARY KEY,
+    scene TEXT NOT NULL,
+    pose TEXT NOT NULL,
+    polarizer_deg REAL,
+    exposure_us REAL NOT NULL,
+    gain REAL NOT NULL,
+    frames INTEGER NOT NULL,
+    dark_frames INTEGER NOT NULL,
+    pixel_format TEXT NOT NULL,
+    state TEXT NOT NULL,
+    error TEXT,
+    created_at TEXT NOT NULL,
+    started_at TEXT,
+    finished_at TEXT,
+    camera_id TEXT,
+    counters TEXT,
+    frames_taken INTEGER NOT NULL DEFAULT 0
+);
+CREATE TABLE IF NOT EXISTS reconstructions (
+    id INTEGER PRIMARY KEY,
+    scene TEXT NOT NULL,
+    captures TEXT NOT NULL,
+    solver TEXT NOT NULL,
+    params TEXT NOT NULL,
+    state TEXT NOT NULL,
+    error TEXT,
+    created_at TEXT NOT NULL,
+    started_at TEXT,
+    finished_at TEXT,
+    kappa TEXT,
+    report TEXT
+);
+";
+
+/// Current UTC time, RFC 3339.
+pub fn now() -> String {
+    let d = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let secs = d.as_secs() as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}.{:03}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60,
+        d.subsec_millis()
+    )
+}
+
+impl Store {
+    /// Opens (creating if needed) the catalogue under `dir` and marks jobs left
+    /// queued or running by a previous run as interrupted.
+    pub fn open(dir: &Path) -> Result<Self, StoreError> {
+        for sub in ["", "captures", "reconstructions"] {
+            std::fs::create_dir_all(dir.join(sub)).map_err(|source| StoreError::DataDir {
+                path: dir.join(sub),
+                source,
+            })?;
+        }
+        let db_path = dir.join("catalogue.sqlite");
+        let db = |source| StoreError::Database {
+            path: db_path.clone(),
+            source,
+        };
+        let conn = Connection::open(&db_path).map_err(db)?;
+        conn.pragma_update(None, "journal_mode", "WAL")
+            .map_err(db)?;
+        conn.pragma_update(None, "synchronous", "FULL")
+            .map_err(db)?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))
+            .map_err(db)?;
+        conn.execute_batch(SCHEMA).map_err(db)?;
+        let why = "the daemon stopped before this job finished; submit it again";
+        for table in ["captures", "reconstructions"] {
+            conn.execute(
+                &format!("UPDATE {table} SET state = 'interrupted', error = ?1, finished_at = ?2 WHERE state IN ('queued', 'running')"),
+                params![why, now()],
+            )
+            .map_err(db)?;
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            db_path,
+            conn: Mutex::new(conn),
+        })
+    }
+
+    /// The data directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Folder of capture `id`.
+    pub fn capture_dir(&self, id: i64) -> PathBuf {
+        self.dir.join("captures").join(id.to_string())
+    }
+
+    /// Folder of reconstruction `id`.
+    pub fn reconstruction_dir(&self, id: i64) -> PathBuf {
+        self.dir.join("reconstructions").join(id.to_string())
+    }
+
+    fn with<T>(&self, f: impl FnOnce(&Connection) -> rusqlite::Result<T>) -> Result<T, StoreError> {
+        let conn = self.conn.lock().unwrap_or_else(|e| e.into_inner());
+        f(&conn).map_err(|source| StoreError::Database {
+            path: self.db_path.clone(),
+            source,
+        })
+    }
+
+    /// Records a new capture job (state `queued`); returns its id.
+    pub fn insert_capture(&self, r: &CaptureRequest) -> Result<i64, StoreError> {
+        self.with(|c| {
+            c.execute(
+                "INSERT INTO captures (scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, 'queued', ?9)",
+                params![r.scene, r.pose, r.polarizer_deg, r.exposure_us, r.gain, r.frames as i64, r.dark_frames as i64, r.pixel_format.name(), now()],
+            )?;
+            Ok(c.last_insert_rowid())
+        })
+    }
+
+    /// Marks a capture running.
+    pub fn capture_running(&self, id: i64) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET state = 'running', started_at = ?2 WHERE id = ?1",
+                params![id, now()],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// Records progress (frames taken so far).
+    pub fn capture_progress(&self, id: i64, frames_taken: usize) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET frames_taken = ?2 WHERE id = ?1",
+                params![id, frames_taken as i64],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// Marks a capture done; call only after its files are durable.
+    pub fn capture_done(&self, id: i64, camera_id: &str, counters: &str) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET state = 'done', finished_at = ?2, camera_id = ?3, counters = ?4, error = NULL WHERE id = ?1",
+                params![id, now(), camera_id, counters],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// Marks a capture failed with a reason.
+    pub fn capture_failed(&self, id: i64, error: &str) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET state = 'failed', finished_at = ?2, error = ?3 WHERE id = ?1",
+                params![id, now(), error],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// One capture.
+    pub fn capture(&self, id: i64) -> Result<CaptureRecord, StoreError> {
+        self.with(|c| {
+            c.query_row(
+                &format!("{} WHERE id = ?1", records::CAPTURE_SELECT),
+                [id],
+                records::capture_row,
+            )
+            .optional()
+        })?
+        .ok_or(StoreError::NotFound {
+            kind: "capture",
+            id,
+        })
+    }
+
+    /// Captures, newest first.
+    pub fn captures(&self, limit: usize, offset: usize) -> Result<Vec<CaptureRecord>, StoreError> {
+        self.with(|c| {
+            let mut st = c.prepare(&format!(
+                "{} ORDER BY id DESC LIMIT ?1 OFFSET ?2",
+                records::CAPTURE_SELECT
+            ))?;
+            let rows = st.query_map(params![limit as i64, offset as i64], records::capture_row)?;
+            rows.collect()
+        })
+    }
+
+    /// Records a new reconstruction job (state `queued`).
+    pub fn insert_reconstruction(&self, r: &ReconstructionRequest) -> Result<i64, StoreError> {
+        let captures = serde_json::to_string(&r.captures).unwrap_or_else(|_| "[]".into());
+        let params_json = serde_json::to_string(&r.params).unwrap_or_else(|_| "{}".into());
+        self.with(|c| {
+            c.execute(
+                "INSERT INTO reconstructions (scene, captures, solver, params, state, created_at) VALUES (?1, ?2, ?3, ?4, 'queued', ?5)",
+                params![r.scene, captures, r.solver, params_json, now()],
+            )?;
+            Ok(c.last_insert_rowid())
+        })
+    }
+
+    /// Marks a reconstruction running.
+    pub fn reconstruction_running(&self, id: i64) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE reconstructions SET state = 'running', started_at = ?2 WHERE id = ?1",
+                params![id, now()],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// Marks a reconstruction done with its kappa and report; call after its files are durable.
+    pub fn reconstruction_done(&self, id: i64, kappa: f64, report: &str) -> Result<(), StoreError> {
+        let kappa = if kappa.is_finite() {
+            kappa.to_string()
+        } else {
+            "inf".into()
+        };
+        self.with(|c| {
+            c.execute(
+                "UPDATE reconstructions SET state = 'done', finished_at = ?2, kappa = ?3, report = ?4, error = NULL WHERE id = ?1",
+                params![id, now(), kappa, report],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// Marks a reconstruction failed.
+    pub fn reconstruction_failed(&self, id: i64, error: &str) -> Result<(), StoreError> {
+        self.with(|c| c.execute("UPDATE reconstructions SET state = 'failed', finished_at = ?2, error = ?3 WHERE id = ?1", params![id, now(), error]).map(|_| ()))
+    }
+
+    /// One reconstruction.
+    pub fn reconstruction(&self, id: i64) -> Result<ReconstructionRecord, StoreError> {
+        self.with(|c| {
+            c.query_row(
+                &format!("{} WHERE id = ?1", records::RECON_SELECT),
+                [id],
+                records::recon_row,
+            )
+            .optional()
+        })?
+        .ok_or(StoreError::NotFound {
+            kind: "reconstruction",
+            id,
+        })
+    }
+
+    /// Reconstructions, newest first.
+    pub fn reconstructions(
+        &self,
+        limit: usize,
+        offset: usize,
+    ) -> Result<Vec<ReconstructionRecord>, StoreError> {
+        self.with(|c| {
+            let mut st = c.prepare(&format!(
+                "{} ORDER BY id DESC LIMIT ?1 OFFSET ?2",
+                records::RECON_SELECT
+            ))?;
+            let rows = st.query_map(params![limit as i64, offset as i64], records::recon_row)?;
+            rows.collect()
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn timestamps_are_rfc3339() {
+        let t = now();
+        assert_eq!(t.len(), 24, "{t}");
+        assert!(t.starts_with("20") && t.ends_with('Z') && &t[10..11] == "T");
+    }
+}

@@ -1,0 +1,194 @@
+//! Rows of the catalogue and the requests that create them.
+
+use rusqlite::Row;
+use serde::{Deserialize, Serialize};
+
+use crate::camera::PixelFormat;
+
+/// Life of a job.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum JobState {
+    /// Accepted, waiting in the queue.
+    Queued,
+    /// Being worked on.
+    Running,
+    /// Finished; its files are durable.
+    Done,
+    /// Finished with an error (see `error`).
+    Failed,
+    /// The daemon stopped while it was queued or running.
+    Interrupted,
+}
+
+impl JobState {
+    fn parse(s: &str) -> Self {
+        match s {
+            "queued" => JobState::Queued,
+            "running" => JobState::Running,
+            "done" => JobState::Done,
+            "interrupted" => JobState::Interrupted,
+            _ => JobState::Failed,
+        }
+    }
+}
+
+/// A validated capture request.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureRequest {
+    /// Scene name.
+    pub scene: String,
+    /// Pose name in that scene.
+    pub pose: String,
+    /// Polarizer angle (None: the pose has no polarizer).
+    pub polarizer_deg: Option<f64>,
+    /// Exposure per frame, microseconds.
+    pub exposure_us: f64,
+    /// Gain.
+    pub gain: f64,
+    /// Frames to average.
+    pub frames: usize,
+    /// Dark frames (scene off) to average and subtract.
+    pub dark_frames: usize,
+    /// Pixel format.
+    pub pixel_format: PixelFormat,
+}
+
+/// A capture as the API shows it.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct CaptureRecord {
+    /// Id.
+    pub id: i64,
+    /// Scene name.
+    pub scene: String,
+    /// Pose name.
+    pub pose: String,
+    /// Polarizer angle, degrees (null: no polarizer).
+    pub polarizer_deg: Option<f64>,
+    /// Exposure, microseconds.
+    pub exposure_us: f64,
+    /// Gain.
+    pub gain: f64,
+    /// Frames averaged.
+    pub frames: i64,
+    /// Dark frames subtracted.
+    pub dark_frames: i64,
+    /// Pixel format.
+    pub pixel_format: String,
+    /// Job state.
+    pub state: JobState,
+    /// Why it failed or was interrupted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// When it was requested.
+    pub created_at: String,
+    /// When it started.
+    pub started_at: Option<String>,
+    /// When it ended.
+    pub finished_at: Option<String>,
+    /// Camera that took it.
+    pub camera_id: Option<String>,
+    /// Camera counters after the capture.
+    #[schema(value_type = Object)]
+    pub counters: Option<serde_json::Value>,
+    /// Frames taken so far.
+    pub frames_taken: i64,
+}
+
+pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken FROM captures";
+
+pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
+    Ok(CaptureRecord {
+        id: r.get(0)?,
+        scene: r.get(1)?,
+        pose: r.get(2)?,
+        polarizer_deg: r.get(3)?,
+        exposure_us: r.get(4)?,
+        gain: r.get(5)?,
+        frames: r.get(6)?,
+        dark_frames: r.get(7)?,
+        pixel_format: r.get(8)?,
+        state: JobState::parse(&r.get::<_, String>(9)?),
+        error: r.get(10)?,
+        created_at: r.get(11)?,
+        started_at: r.get(12)?,
+        finished_at: r.get(13)?,
+        camera_id: r.get(14)?,
+        counters: r
+            .get::<_, Option<String>>(15)?
+            .and_then(|s| serde_json::from_str(&s).ok()),
+        frames_taken: r.get(16)?,
+    })
+}
+
+/// A validated reconstruction request.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ReconstructionRequest {
+    /// Scene name.
+    pub scene: String,
+    /// Capture ids, one per (pose, angle) block.
+    pub captures: Vec<i64>,
+    /// `admm-tv`, `tikhonov` or `lsq`.
+    pub solver: String,
+    /// Solver parameters as given.
+    pub params: serde_json::Value,
+}
+
+/// A reconstruction as the API shows it.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct ReconstructionRecord {
+    /// Id.
+    pub id: i64,
+    /// Scene name.
+    pub scene: String,
+    /// Capture ids used.
+    pub captures: Vec<i64>,
+    /// Solver.
+    pub solver: String,
+    /// Solver parameters.
+    #[schema(value_type = Object)]
+    pub params: serde_json::Value,
+    /// Job state.
+    pub state: JobState,
+    /// Why it failed or was interrupted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// When it was requested.
+    pub created_at: String,
+    /// When it started.
+    pub started_at: Option<String>,
+    /// When it ended.
+    pub finished_at: Option<String>,
+    /// Condition number of the stacked T (`"inf"` when rank-deficient).
+    #[schema(value_type = Object)]
+    pub kappa: Option<serde_json::Value>,
+    /// The full report (same format as `polnlos reconstruct`'s report.json).
+    #[schema(value_type = Object)]
+    pub report: Option<serde_json::Value>,
+}
+
+pub(super) const RECON_SELECT: &str = "SELECT id, scene, captures, solver, params, state, error, created_at, started_at, finished_at, kappa, report FROM reconstructions";
+
+pub(super) fn recon_row(r: &Row<'_>) -> rusqlite::Result<ReconstructionRecord> {
+    let kappa: Option<String> = r.get(10)?;
+    Ok(ReconstructionRecord {
+        id: r.get(0)?,
+        scene: r.get(1)?,
+        captures: serde_json::from_str(&r.get::<_, String>(2)?).unwrap_or_default(),
+        solver: r.get(3)?,
+        params: serde_json::from_str(&r.get::<_, String>(4)?).unwrap_or(serde_json::Value::Null),
+        state: JobState::parse(&r.get::<_, String>(5)?),
+        error: r.get(6)?,
+        created_at: r.get(7)?,
+        started_at: r.get(8)?,
+        finished_at: r.get(9)?,
+        kappa: kappa.map(|k| {
+            k.parse::<f64>()
+                .map(serde_json::Value::from)
+                .unwrap_or(serde_json::Value::String(k))
+        }),
+        report: r
+            .get::<_, Option<String>>(11)?
+            .and_then(|s| serde_json::from_str(&s).ok()),
+    })
+}

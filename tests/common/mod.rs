@@ -1,0 +1,189 @@
+//! Helpers for the daemon tests: run `polnlos serve` on 127.0.0.1 and talk
+//! HTTP to it. Everything stays on loopback and is bounded in time.
+
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+/// Aravis state is global and the fake camera owns 127.0.0.1's GVCP port:
+/// one daemon test at a time.
+pub static ARAVIS: Mutex<()> = Mutex::new(());
+
+pub fn lock() -> std::sync::MutexGuard<'static, ()> {
+    ARAVIS.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// A config file: the embedded default with some lines replaced.
+pub fn config(dir: &Path, edits: &[(&str, &str)]) -> PathBuf {
+    let mut text = polnlos::daemon::config::DEFAULT_TOML.to_string();
+    for (from, to) in edits {
+        assert!(text.contains(from), "{from}");
+        text = text.replacen(from, to, 1);
+    }
+    let p = dir.join("polnlos.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// A running daemon; killed on drop.
+pub struct Daemon {
+    pub child: Child,
+    pub base: String,
+    pub agent: ureq::Agent,
+    pub token: Option<String>,
+}
+
+impl Daemon {
+    /// Starts `polnlos serve` and waits for /health.
+    pub fn start(config: &Path, data: &Path) -> Self {
+        Self::start_with(Command::new(env!("CARGO_BIN_EXE_polnlos")), config, data)
+    }
+
+    pub fn start_with(mut cmd: Command, config: &Path, data: &Path) -> Self {
+        let port = free_port();
+        let log = std::fs::File::create(data.with_extension("log")).unwrap();
+        let child = cmd
+            .args(["serve", "--config"])
+            .arg(config)
+            .args(["--bind", &format!("127.0.0.1:{port}"), "--data-dir"])
+            .arg(data)
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .expect("spawn polnlos serve");
+        let agent: ureq::Agent = ureq::Agent::config_builder()
+            .http_status_as_error(false)
+            .timeout_global(Some(Duration::from_secs(30)))
+            .build()
+            .into();
+        let mut d = Self {
+            child,
+            base: format!("http://127.0.0.1:{port}"),
+            agent,
+            token: None,
+        };
+        let t = Instant::now();
+        loop {
+            if d.get("/health").0 == 200 {
+                break;
+            }
+            if let Ok(Some(status)) = d.child.try_wait() {
+                panic!(
+                    "daemon exited with {status}: {}",
+                    std::fs::read_to_string(data.with_extension("log")).unwrap_or_default()
+                );
+            }
+            assert!(
+                t.elapsed() < Duration::from_secs(30),
+                "daemon did not come up"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        d
+    }
+
+    pub fn get(&self, path: &str) -> (u16, String) {
+        match self.agent.get(format!("{}{path}", self.base)).call() {
+            Ok(mut r) => (
+                r.status().as_u16(),
+                r.body_mut().read_to_string().unwrap_or_default(),
+            ),
+            Err(_) => (0, String::new()),
+        }
+    }
+
+    pub fn get_bytes(&self, path: &str) -> (u16, Vec<u8>) {
+        let mut r = self
+            .agent
+            .get(format!("{}{path}", self.base))
+            .call()
+            .unwrap();
+        (
+            r.status().as_u16(),
+            r.body_mut()
+                .with_config()
+                .limit(64 << 20)
+                .read_to_vec()
+                .unwrap(),
+        )
+    }
+
+    pub fn post(&self, path: &str, body: &str) -> (u16, String, Option<String>) {
+        let mut req = self
+            .agent
+            .post(format!("{}{path}", self.base))
+            .header("content-type", "application/json");
+        if let Some(t) = &self.token {
+            req = req.header("authorization", format!("Bearer {t}"));
+        }
+        let mut r = req.send(body).unwrap();
+        let loc = r
+            .headers()
+            .get("location")
+            .and_then(|v| v.to_str().ok())
+            .map(String::from);
+        (
+            r.status().as_u16(),
+            r.body_mut().read_to_string().unwrap_or_default(),
+            loc,
+        )
+    }
+
+    pub fn json(&self, path: &str) -> serde_json::Value {
+        let (s, b) = self.get(path);
+        assert_eq!(s, 200, "{path}: {b}");
+        serde_json::from_str(&b).unwrap()
+    }
+
+    /// Posts a job and waits until it leaves queued/running.
+    pub fn run_job(&self, path: &str, body: &str, within: Duration) -> serde_json::Value {
+        let (s, b, loc) = self.post(path, body);
+        assert_eq!(s, 202, "{path}: {b}");
+        let loc = loc.expect("Location header");
+        self.wait(&loc, within)
+    }
+
+    pub fn wait(&self, loc: &str, within: Duration) -> serde_json::Value {
+        let t = Instant::now();
+        loop {
+            let v = self.json(loc);
+            let st = v["state"].as_str().unwrap_or("").to_string();
+            if st != "queued" && st != "running" {
+                return v;
+            }
+            assert!(t.elapsed() < within, "{loc} still {st}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    pub fn rss_kib(&self) -> u64 {
+        std::fs::read_to_string(format!("/proc/{}/status", self.pid()))
+            .unwrap_or_default()
+            .lines()
+            .find(|l| l.starts_with("VmRSS:"))
+            .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
+            .unwrap_or(0)
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
