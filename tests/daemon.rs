@@ -102,3 +102,116 @@ fn capture_every_block_reconstruct_and_fetch() {
     assert!(spec["paths"]["/captures"]["post"].is_object());
     assert!(spec["components"]["schemas"]["CaptureBody"].is_object());
 }
+
+#[test]
+fn bad_requests_get_a_reason_never_a_500() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[("max_body_bytes = 65536", "max_body_bytes = 4096")]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let cases: Vec<(&str, String, u16, &str)> = vec![
+        ("/captures", "{not json".into(), 400, "malformed_json"),
+        ("/captures", r#"{"scene": "brewster-crossed"}"#.into(), 422, "invalid_request"),
+        ("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1}"#.into(), 422, "exposure_us = 1"),
+        ("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1e12}"#.into(), 422, "exposure_us"),
+        ("/captures", r#"{"scene": "nope", "pose": "A", "exposure_us": 1000}"#.into(), 404, "unknown scene"),
+        ("/captures", r#"{"scene": "brewster-crossed", "pose": "Z", "polarizer_deg": 0, "exposure_us": 1000}"#.into(), 422, "has no pose"),
+        ("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 45, "exposure_us": 1000}"#.into(), 422, "not an angle"),
+        ("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "exposure_us": 1000}"#.into(), 422, "give polarizer_deg"),
+        ("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000, "frames": 0}"#.into(), 422, "frames = 0"),
+        ("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000, "gain": 99}"#.into(), 422, "gain = 99"),
+        ("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000, "colour": 1}"#.into(), 422, "unknown field"),
+        ("/captures", format!(r#"{{"scene": "{}"}}"#, "x".repeat(5000)), 413, "body_too_large"),
+        ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [999]}"#.into(), 404, "no capture with id 999"),
+        ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": []}"#.into(), 422, "give exactly one capture"),
+        ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [1], "solver": "magic"}"#.into(), 422, "solver"),
+        ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [1], "lambda": -1}"#.into(), 422, "lambda = -1"),
+    ];
+    for (path, body, status, needle) in cases {
+        let (s, b, _) = d.post(path, &body);
+        assert_eq!(s, status, "{body}: {b}");
+        let v: serde_json::Value = serde_json::from_str(&b).unwrap_or_else(|_| panic!("not JSON: {b}"));
+        assert!(v["error"].is_string() && v["detail"].is_string(), "{b}");
+        assert!(b.contains(needle), "{body}: {b} lacks {needle:?}");
+    }
+    for (path, status) in [("/captures/999", 404), ("/captures/abc", 404), ("/reconstructions/5", 404), ("/jobs/capture-77", 404), ("/jobs/x", 404), ("/nowhere", 404), ("/captures?limit=0", 422)] {
+        let (s, b) = d.get(path);
+        assert_eq!(s, status, "{path}: {b}");
+        assert!(serde_json::from_str::<serde_json::Value>(&b).unwrap()["detail"].is_string());
+    }
+    // A capture of another scene cannot feed this scene's reconstruction.
+    let c = d.run_job("/captures", r#"{"scene": "brewster-nopol", "pose": "A", "exposure_us": 1000}"#, Duration::from_secs(20));
+    assert_eq!(c["state"], "done", "{c}");
+    let (s, b, _) = d.post("/reconstructions", &format!(r#"{{"scene": "brewster-crossed", "captures": [{}]}}"#, c["id"]));
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("belongs to scene \\\"brewster-nopol\\\""), "{b}");
+    assert_eq!(d.get("/health").0, 200, "still up");
+}
+
+#[test]
+fn a_token_guards_every_mutating_request() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[("token = \"\"", "token = \"s3cret\"")]);
+    let mut d = Daemon::start(&cfg, &dir.path().join("data"));
+    let body = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000}"#;
+    let (s, b, _) = d.post("/captures", body);
+    assert_eq!(s, 401, "{b}");
+    assert!(b.contains("Bearer"));
+    d.token = Some("wrong".into());
+    assert_eq!(d.post("/captures", body).0, 401);
+    assert_eq!(d.get("/captures").0, 200, "reads need no token");
+    d.token = Some("s3cret".into());
+    assert_eq!(d.post("/captures", body).0, 202);
+}
+
+#[test]
+fn a_full_queue_answers_429_and_a_bounded_load_sees_nothing_else() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[("captures = 16", "captures = 4")]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let rss_before = d.rss_kib();
+    let body = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 50000, "frames": 2}"#;
+    let (base, agent) = (d.base.clone(), d.agent.clone());
+    let started = std::time::Instant::now();
+    // 32 threads x 63 requests = 2016, every third a POST.
+    let handles: Vec<_> = (0..32)
+        .map(|t| {
+            let (base, agent) = (base.clone(), agent.clone());
+            std::thread::spawn(move || {
+                let mut counts = std::collections::BTreeMap::<u16, u32>::new();
+                for k in 0..63 {
+                    let r = if (t + k) % 3 == 0 {
+                        agent.post(format!("{base}/captures")).header("content-type", "application/json").send(body)
+                    } else if k % 2 == 0 {
+                        agent.get(format!("{base}/captures?limit=5")).call()
+                    } else {
+                        agent.get(format!("{base}/health")).call()
+                    };
+                    let s = r.map(|mut r| {
+                        let _ = r.body_mut().read_to_string();
+                        r.status().as_u16()
+                    });
+                    *counts.entry(s.unwrap_or(0)).or_default() += 1;
+                }
+                counts
+            })
+        })
+        .collect();
+    let mut total = std::collections::BTreeMap::<u16, u32>::new();
+    for h in handles {
+        for (s, n) in h.join().unwrap() {
+            *total.entry(s).or_default() += n;
+        }
+    }
+    let elapsed = started.elapsed();
+    let rss_after = d.rss_kib();
+    println!("2016 requests in {elapsed:?}: {total:?}; RSS {rss_before} -> {rss_after} KiB");
+    assert_eq!(total.values().sum::<u32>(), 2016);
+    assert!(total.keys().all(|s| [200, 202, 429].contains(s)), "{total:?}");
+    assert!(total.get(&429).copied().unwrap_or(0) > 0, "the queue of 4 must overflow");
+    assert!(rss_after < rss_before + 100 * 1024, "RSS grew from {rss_before} to {rss_after} KiB");
+    let m = d.get("/metrics").1;
+    assert!(m.contains(&format!("polnlos_requests_rejected_queue_full_total {}", total[&429])), "{m}");
+}

@@ -1,0 +1,135 @@
+//! Faults the daemon must survive (issue 3): the camera vanishing mid-capture
+//! and coming back, a SIGKILL during a capture, a full data disk, an unusable
+//! data directory. Real Aravis, real HTTP on 127.0.0.1, the real database file.
+
+mod common;
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use common::{config, lock, Daemon};
+use polnlos::camera::fake::FakeBench;
+use polnlos::camera::Frame;
+
+fn external_fake() -> FakeBench {
+    FakeBench::start("127.0.0.1", "POLNLOS-EXT", vec![("A".into(), Some(0.0), Frame::zeros(512, 512))], 20_000.0).unwrap()
+}
+
+fn wait_camera(d: &Daemon, connected: bool, within: Duration) -> bool {
+    let t = Instant::now();
+    while t.elapsed() < within {
+        if d.json("/camera")["connected"] == connected {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    false
+}
+
+#[test]
+fn the_camera_stops_mid_capture_the_job_fails_and_the_daemon_reconnects() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    // The camera is not the daemon's own fake: this test owns it and pulls its plug.
+    let cfg = config(dir.path(), &[("fake = true", "fake = false")]);
+    let fake = external_fake();
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    assert!(wait_camera(&d, true, Duration::from_secs(10)));
+    let (s, b, loc) = d.post("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 100000, "frames": 30}"#);
+    assert_eq!(s, 202, "{b}");
+    std::thread::sleep(Duration::from_millis(800));
+    drop(fake);
+    let c = d.wait(&loc.unwrap(), Duration::from_secs(30));
+    assert_eq!(c["state"], "failed", "{c}");
+    let err = c["error"].as_str().unwrap();
+    assert!(err.contains("no frame within") || err.contains("not connected"), "{err}");
+    assert_eq!(d.get("/health").0, 200);
+    assert!(wait_camera(&d, false, Duration::from_secs(5)));
+    // While it is away, captures fail fast with the reason.
+    let c = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000}"#, Duration::from_secs(20));
+    assert_eq!(c["state"], "failed");
+    assert!(c["error"].as_str().unwrap().contains("not connected"), "{c}");
+    // It comes back: the daemon reconnects by itself.
+    let _fake = external_fake();
+    assert!(wait_camera(&d, true, Duration::from_secs(20)), "{}", d.json("/camera"));
+    // A 2 s exposure (frame rate matched to it) completes without a timeout.
+    let c = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 2000000, "frames": 2, "pixel_format": "Mono8"}"#, Duration::from_secs(30));
+    assert_eq!(c["state"], "done", "{c}");
+    assert_eq!(c["counters"]["timeouts"], 1, "only the one from the pulled plug: {c}");
+}
+
+#[test]
+fn sigkill_during_a_capture_loses_nothing_completed() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let cfg = config(dir.path(), &[]);
+    let mut d = Daemon::start(&cfg, &data);
+    let done = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 3}"#, Duration::from_secs(20));
+    assert_eq!(done["state"], "done");
+    let (_, mean_before) = d.get_bytes("/captures/1/mean.tiff");
+    let (s, _, loc) = d.post("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 500000, "frames": 20}"#);
+    assert_eq!(s, 202);
+    let loc = loc.unwrap();
+    let t = Instant::now();
+    while d.json(&loc)["frames_taken"].as_i64().unwrap_or(0) < 1 {
+        assert!(t.elapsed() < Duration::from_secs(10), "capture never started");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    d.child.kill().unwrap(); // SIGKILL
+    d.child.wait().unwrap();
+    drop(d);
+    let d = Daemon::start(&cfg, &data);
+    let before = d.json("/captures/1");
+    assert_eq!(before["state"], "done");
+    assert_eq!(d.get_bytes("/captures/1/mean.tiff").1, mean_before, "completed files intact");
+    let killed = d.json(&loc);
+    assert_eq!(killed["state"], "interrupted", "{killed}");
+    assert!(killed["error"].as_str().unwrap().contains("daemon stopped"), "{killed}");
+    let again = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000}"#, Duration::from_secs(20));
+    assert_eq!(again["state"], "done");
+    assert_eq!(again["id"], 3);
+}
+
+#[test]
+fn a_full_disk_fails_the_job_clearly_and_keeps_earlier_data() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    let cfg = config(dir.path(), &[]);
+    // A private mount namespace with a 3 MiB tmpfs as the data directory.
+    let mut cmd = Command::new("unshare");
+    cmd.args(["-m", "sh", "-c", "mount -t tmpfs -o size=3m tmpfs \"$POLNLOS_TMPFS\" && exec \"$0\" \"$@\"", env!("CARGO_BIN_EXE_polnlos")])
+        .env("POLNLOS_TMPFS", &data);
+    let d = Daemon::start_with(cmd, &cfg, &data);
+    let small = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "pixel_format": "Mono8"}"#, Duration::from_secs(20));
+    assert_eq!(small["state"], "done", "{small}");
+    let (_, mean) = d.get_bytes("/captures/1/mean.tiff");
+    // 8 frames of 512 x 512 x 16 bit do not fit in what is left.
+    let big = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 8}"#, Duration::from_secs(20));
+    assert_eq!(big["state"], "failed", "{big}");
+    assert!(big["error"].as_str().unwrap().contains("No space left on device"), "{big}");
+    assert_eq!(d.get("/health").0, 200);
+    assert_eq!(d.json("/captures/1")["state"], "done");
+    assert_eq!(d.get_bytes("/captures/1/mean.tiff").1, mean, "earlier files intact");
+    assert_eq!(d.get("/captures/2/frame.tiff").0, 404, "no half-written file is served");
+}
+
+#[test]
+fn an_unusable_data_directory_is_a_clear_startup_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("not-a-dir");
+    std::fs::write(&file, b"x").unwrap();
+    let cfg = config(dir.path(), &[]);
+    let out = Command::new(env!("CARGO_BIN_EXE_polnlos"))
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .arg("--data-dir")
+        .arg(file.join("data"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("data directory") && err.contains("not-a-dir"), "{err}");
+}
