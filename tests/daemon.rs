@@ -107,7 +107,10 @@ fn capture_every_block_reconstruct_and_fetch() {
 fn bad_requests_get_a_reason_never_a_500() {
     let _g = lock();
     let dir = tempfile::tempdir().unwrap();
-    let cfg = config(dir.path(), &[("max_body_bytes = 65536", "max_body_bytes = 4096")]);
+    let cfg = config(
+        dir.path(),
+        &[("max_body_bytes = 65536", "max_body_bytes = 4096")],
+    );
     let d = Daemon::start(&cfg, &dir.path().join("data"));
     let cases: Vec<(&str, String, u16, &str)> = vec![
         ("/captures", "{not json".into(), 400, "malformed_json"),
@@ -130,19 +133,38 @@ fn bad_requests_get_a_reason_never_a_500() {
     for (path, body, status, needle) in cases {
         let (s, b, _) = d.post(path, &body);
         assert_eq!(s, status, "{body}: {b}");
-        let v: serde_json::Value = serde_json::from_str(&b).unwrap_or_else(|_| panic!("not JSON: {b}"));
+        let v: serde_json::Value =
+            serde_json::from_str(&b).unwrap_or_else(|_| panic!("not JSON: {b}"));
         assert!(v["error"].is_string() && v["detail"].is_string(), "{b}");
         assert!(b.contains(needle), "{body}: {b} lacks {needle:?}");
     }
-    for (path, status) in [("/captures/999", 404), ("/captures/abc", 404), ("/reconstructions/5", 404), ("/jobs/capture-77", 404), ("/jobs/x", 404), ("/nowhere", 404), ("/captures?limit=0", 422)] {
+    for (path, status) in [
+        ("/captures/999", 404),
+        ("/captures/abc", 404),
+        ("/reconstructions/5", 404),
+        ("/jobs/capture-77", 404),
+        ("/jobs/x", 404),
+        ("/nowhere", 404),
+        ("/captures?limit=0", 422),
+    ] {
         let (s, b) = d.get(path);
         assert_eq!(s, status, "{path}: {b}");
         assert!(serde_json::from_str::<serde_json::Value>(&b).unwrap()["detail"].is_string());
     }
     // A capture of another scene cannot feed this scene's reconstruction.
-    let c = d.run_job("/captures", r#"{"scene": "brewster-nopol", "pose": "A", "exposure_us": 1000}"#, Duration::from_secs(20));
+    let c = d.run_job(
+        "/captures",
+        r#"{"scene": "brewster-nopol", "pose": "A", "exposure_us": 1000}"#,
+        Duration::from_secs(20),
+    );
     assert_eq!(c["state"], "done", "{c}");
-    let (s, b, _) = d.post("/reconstructions", &format!(r#"{{"scene": "brewster-crossed", "captures": [{}]}}"#, c["id"]));
+    let (s, b, _) = d.post(
+        "/reconstructions",
+        &format!(
+            r#"{{"scene": "brewster-crossed", "captures": [{}]}}"#,
+            c["id"]
+        ),
+    );
     assert_eq!(s, 422, "{b}");
     assert!(b.contains("belongs to scene \\\"brewster-nopol\\\""), "{b}");
     assert_eq!(d.get("/health").0, 200, "still up");
@@ -154,7 +176,8 @@ fn a_token_guards_every_mutating_request() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[("token = \"\"", "token = \"s3cret\"")]);
     let mut d = Daemon::start(&cfg, &dir.path().join("data"));
-    let body = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000}"#;
+    let body =
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000}"#;
     let (s, b, _) = d.post("/captures", body);
     assert_eq!(s, 401, "{b}");
     assert!(b.contains("Bearer"));
@@ -183,7 +206,10 @@ fn a_full_queue_answers_429_and_a_bounded_load_sees_nothing_else() {
                 let mut counts = std::collections::BTreeMap::<u16, u32>::new();
                 for k in 0..63 {
                     let r = if (t + k) % 3 == 0 {
-                        agent.post(format!("{base}/captures")).header("content-type", "application/json").send(body)
+                        agent
+                            .post(format!("{base}/captures"))
+                            .header("content-type", "application/json")
+                            .send(body)
                     } else if k % 2 == 0 {
                         agent.get(format!("{base}/captures?limit=5")).call()
                     } else {
@@ -209,9 +235,71 @@ fn a_full_queue_answers_429_and_a_bounded_load_sees_nothing_else() {
     let rss_after = d.rss_kib();
     println!("2016 requests in {elapsed:?}: {total:?}; RSS {rss_before} -> {rss_after} KiB");
     assert_eq!(total.values().sum::<u32>(), 2016);
-    assert!(total.keys().all(|s| [200, 202, 429].contains(s)), "{total:?}");
-    assert!(total.get(&429).copied().unwrap_or(0) > 0, "the queue of 4 must overflow");
-    assert!(rss_after < rss_before + 100 * 1024, "RSS grew from {rss_before} to {rss_after} KiB");
+    assert!(
+        total.keys().all(|s| [200, 202, 429].contains(s)),
+        "{total:?}"
+    );
+    assert!(
+        total.get(&429).copied().unwrap_or(0) > 0,
+        "the queue of 4 must overflow"
+    );
+    assert!(
+        rss_after < rss_before + 100 * 1024,
+        "RSS grew from {rss_before} to {rss_after} KiB"
+    );
     let m = d.get("/metrics").1;
-    assert!(m.contains(&format!("polnlos_requests_rejected_queue_full_total {}", total[&429])), "{m}");
+    assert!(
+        m.contains(&format!(
+            "polnlos_requests_rejected_queue_full_total {}",
+            total[&429]
+        )),
+        "{m}"
+    );
+}
+
+#[test]
+fn events_report_frames_and_job_states() {
+    use std::io::BufRead;
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let agent: ureq::Agent = ureq::Agent::config_builder()
+        .timeout_global(Some(Duration::from_secs(15)))
+        .build()
+        .into();
+    let url = format!("{}/events", d.base);
+    let reader = std::thread::spawn(move || {
+        let mut r = agent.get(url).call().unwrap();
+        assert_eq!(
+            r.headers().get("content-type").unwrap(),
+            "text/event-stream"
+        );
+        let mut lines = std::io::BufReader::new(r.body_mut().as_reader()).lines();
+        let mut seen = Vec::new();
+        while let Some(Ok(line)) = lines.next() {
+            if let Some(data) = line.strip_prefix("data: ") {
+                let v: serde_json::Value = serde_json::from_str(data).unwrap();
+                let done = v["type"] == "job" && v["state"] == "done";
+                seen.push(v);
+                if done {
+                    break;
+                }
+            }
+        }
+        seen
+    });
+    std::thread::sleep(Duration::from_millis(300));
+    let c = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 10000, "frames": 3, "dark_frames": 1}"#, Duration::from_secs(20));
+    assert_eq!(c["state"], "done");
+    let seen = reader.join().unwrap();
+    let frames: Vec<i64> = seen
+        .iter()
+        .filter(|v| v["type"] == "frame")
+        .map(|v| v["taken"].as_i64().unwrap())
+        .collect();
+    assert_eq!(frames, vec![1, 2, 3, 4], "{seen:?}");
+    assert!(seen
+        .iter()
+        .any(|v| v["type"] == "job" && v["state"] == "running" && v["job"] == "capture-1"));
 }

@@ -12,7 +12,13 @@ use polnlos::camera::fake::FakeBench;
 use polnlos::camera::Frame;
 
 fn external_fake() -> FakeBench {
-    FakeBench::start("127.0.0.1", "POLNLOS-EXT", vec![("A".into(), Some(0.0), Frame::zeros(512, 512))], 20_000.0).unwrap()
+    FakeBench::start(
+        "127.0.0.1",
+        "POLNLOS-EXT",
+        vec![("A".into(), Some(0.0), Frame::zeros(512, 512))],
+        20_000.0,
+    )
+    .unwrap()
 }
 
 fn wait_camera(d: &Daemon, connected: bool, within: Duration) -> bool {
@@ -42,20 +48,37 @@ fn the_camera_stops_mid_capture_the_job_fails_and_the_daemon_reconnects() {
     let c = d.wait(&loc.unwrap(), Duration::from_secs(30));
     assert_eq!(c["state"], "failed", "{c}");
     let err = c["error"].as_str().unwrap();
-    assert!(err.contains("no frame within") || err.contains("not connected"), "{err}");
+    assert!(
+        err.contains("no frame within") || err.contains("not connected"),
+        "{err}"
+    );
     assert_eq!(d.get("/health").0, 200);
     assert!(wait_camera(&d, false, Duration::from_secs(5)));
     // While it is away, captures fail fast with the reason.
-    let c = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000}"#, Duration::from_secs(20));
+    let c = d.run_job(
+        "/captures",
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000}"#,
+        Duration::from_secs(20),
+    );
     assert_eq!(c["state"], "failed");
-    assert!(c["error"].as_str().unwrap().contains("not connected"), "{c}");
+    assert!(
+        c["error"].as_str().unwrap().contains("not connected"),
+        "{c}"
+    );
     // It comes back: the daemon reconnects by itself.
     let _fake = external_fake();
-    assert!(wait_camera(&d, true, Duration::from_secs(20)), "{}", d.json("/camera"));
+    assert!(
+        wait_camera(&d, true, Duration::from_secs(20)),
+        "{}",
+        d.json("/camera")
+    );
     // A 2 s exposure (frame rate matched to it) completes without a timeout.
     let c = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 2000000, "frames": 2, "pixel_format": "Mono8"}"#, Duration::from_secs(30));
     assert_eq!(c["state"], "done", "{c}");
-    assert_eq!(c["counters"]["timeouts"], 1, "only the one from the pulled plug: {c}");
+    assert_eq!(
+        c["counters"]["timeouts"], 1,
+        "only the one from the pulled plug: {c}"
+    );
 }
 
 #[test]
@@ -73,7 +96,10 @@ fn sigkill_during_a_capture_loses_nothing_completed() {
     let loc = loc.unwrap();
     let t = Instant::now();
     while d.json(&loc)["frames_taken"].as_i64().unwrap_or(0) < 1 {
-        assert!(t.elapsed() < Duration::from_secs(10), "capture never started");
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "capture never started"
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
     d.child.kill().unwrap(); // SIGKILL
@@ -82,11 +108,22 @@ fn sigkill_during_a_capture_loses_nothing_completed() {
     let d = Daemon::start(&cfg, &data);
     let before = d.json("/captures/1");
     assert_eq!(before["state"], "done");
-    assert_eq!(d.get_bytes("/captures/1/mean.tiff").1, mean_before, "completed files intact");
+    assert_eq!(
+        d.get_bytes("/captures/1/mean.tiff").1,
+        mean_before,
+        "completed files intact"
+    );
     let killed = d.json(&loc);
     assert_eq!(killed["state"], "interrupted", "{killed}");
-    assert!(killed["error"].as_str().unwrap().contains("daemon stopped"), "{killed}");
-    let again = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000}"#, Duration::from_secs(20));
+    assert!(
+        killed["error"].as_str().unwrap().contains("daemon stopped"),
+        "{killed}"
+    );
+    let again = d.run_job(
+        "/captures",
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000}"#,
+        Duration::from_secs(20),
+    );
     assert_eq!(again["state"], "done");
     assert_eq!(again["id"], 3);
 }
@@ -100,8 +137,14 @@ fn a_full_disk_fails_the_job_clearly_and_keeps_earlier_data() {
     let cfg = config(dir.path(), &[]);
     // A private mount namespace with a 3 MiB tmpfs as the data directory.
     let mut cmd = Command::new("unshare");
-    cmd.args(["-m", "sh", "-c", "mount -t tmpfs -o size=3m tmpfs \"$POLNLOS_TMPFS\" && exec \"$0\" \"$@\"", env!("CARGO_BIN_EXE_polnlos")])
-        .env("POLNLOS_TMPFS", &data);
+    cmd.args([
+        "-m",
+        "sh",
+        "-c",
+        "mount -t tmpfs -o size=3m tmpfs \"$POLNLOS_TMPFS\" && exec \"$0\" \"$@\"",
+        env!("CARGO_BIN_EXE_polnlos"),
+    ])
+    .env("POLNLOS_TMPFS", &data);
     let d = Daemon::start_with(cmd, &cfg, &data);
     let small = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "pixel_format": "Mono8"}"#, Duration::from_secs(20));
     assert_eq!(small["state"], "done", "{small}");
@@ -109,11 +152,25 @@ fn a_full_disk_fails_the_job_clearly_and_keeps_earlier_data() {
     // 8 frames of 512 x 512 x 16 bit do not fit in what is left.
     let big = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 8}"#, Duration::from_secs(20));
     assert_eq!(big["state"], "failed", "{big}");
-    assert!(big["error"].as_str().unwrap().contains("No space left on device"), "{big}");
+    assert!(
+        big["error"]
+            .as_str()
+            .unwrap()
+            .contains("No space left on device"),
+        "{big}"
+    );
     assert_eq!(d.get("/health").0, 200);
     assert_eq!(d.json("/captures/1")["state"], "done");
-    assert_eq!(d.get_bytes("/captures/1/mean.tiff").1, mean, "earlier files intact");
-    assert_eq!(d.get("/captures/2/frame.tiff").0, 404, "no half-written file is served");
+    assert_eq!(
+        d.get_bytes("/captures/1/mean.tiff").1,
+        mean,
+        "earlier files intact"
+    );
+    assert_eq!(
+        d.get("/captures/2/frame.tiff").0,
+        404,
+        "no half-written file is served"
+    );
 }
 
 #[test]
@@ -131,5 +188,8 @@ fn an_unusable_data_directory_is_a_clear_startup_error() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("data directory") && err.contains("not-a-dir"), "{err}");
+    assert!(
+        err.contains("data directory") && err.contains("not-a-dir"),
+        "{err}"
+    );
 }
