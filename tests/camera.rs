@@ -212,3 +212,11 @@ fn a_camera_that_vanishes_mid_capture_fails_the_capture_and_comes_back() {
     assert_eq!(frames.len(), 2);
     cam.shutdown();
 }
+
+#[test]
+fn usb_hot_plug_watching_is_harmless_without_usb_cameras() {
+    // Starts (or declines with a log line where libusb has no hot-plug), and stops cleanly.
+    let w = polnlos::camera::hotplug::Hotplug::start(|| {});
+    std::thread::sleep(Duration::from_millis(300));
+    drop(w);
+}

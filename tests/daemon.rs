@@ -61,7 +61,7 @@ fn capture_every_block_reconstruct_and_fetch() {
             );
         }
         let body =
-            serde_json::json!({ "scene": scene, "captures": ids, "solver": "admm-tv" }).to_string();
+            serde_json::json!({ "scene": scene, "captures": ids, "solver": "admm-tv", "truth": "letter" }).to_string();
         let r = d.run_job("/reconstructions", &body, Duration::from_secs(60));
         assert_eq!(r["state"], "done", "{r}");
         assert!(r["kappa"].as_f64().unwrap() > 1.0);
@@ -69,6 +69,17 @@ fn capture_every_block_reconstruct_and_fetch() {
         let img = recovered(&d, r["id"].as_i64().unwrap());
         let (grid, t) = truth(scene);
         let m = metrics::compare(grid, &t, &img);
+        assert!(
+            (r["report"]["metrics"]["psnr_db"]
+                .as_f64()
+                .unwrap_or(f64::NAN)
+                - m.psnr_db)
+                .abs()
+                < 1e-9,
+            "report metrics = recomputed: {} {}",
+            r["params"],
+            r["report"]["metrics"]
+        );
         report.push(format!(
             "{scene}: PSNR {:.2} dB, ZNCC {:.3}, SSIM {:.3}",
             m.psnr_db, m.zncc, m.ssim
@@ -129,6 +140,7 @@ fn bad_requests_get_a_reason_never_a_500() {
         ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": []}"#.into(), 422, "give exactly one capture"),
         ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [1], "solver": "magic"}"#.into(), 422, "solver"),
         ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [1], "lambda": -1}"#.into(), 422, "lambda = -1"),
+        ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [1], "truth": "cat"}"#.into(), 422, "truth"),
     ];
     for (path, body, status, needle) in cases {
         let (s, b, _) = d.post(path, &body);
@@ -302,4 +314,38 @@ fn events_report_frames_and_job_states() {
     assert!(seen
         .iter()
         .any(|v| v["type"] == "job" && v["state"] == "running" && v["job"] == "capture-1"));
+}
+
+#[test]
+fn camera_settings_are_validated_and_applied() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let cam = d.json("/camera");
+    assert_eq!(cam["info"]["exposure_feature"], "ExposureTimeAbs", "{cam}");
+    assert_eq!(cam["info"]["gain_feature"], "GainRaw");
+    assert_eq!(cam["info"]["sensor"], serde_json::json!([2048, 2048]));
+    let put = |body: &str| {
+        let mut r = d
+            .agent
+            .put(format!("{}/camera/settings", d.base))
+            .header("content-type", "application/json")
+            .send(body)
+            .unwrap();
+        (r.status().as_u16(), r.body_mut().read_to_string().unwrap())
+    };
+    let (s, b) = put(
+        r#"{"exposure_us": 5000, "gain": 2, "pixel_format": "Mono8", "region": null, "binning": null, "trigger": "software"}"#,
+    );
+    assert_eq!(s, 200, "{b}");
+    let v: serde_json::Value = serde_json::from_str(&b).unwrap();
+    assert_eq!(v["settings"]["pixel_format"], "Mono8");
+    let (s, b) = put(
+        r#"{"exposure_us": 1, "gain": 0, "pixel_format": "Mono16", "region": null, "binning": null, "trigger": "free"}"#,
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("ExposureTimeAbs = 1: out of range"), "{b}");
+    let (s, b) = put(r#"{"exposure_us": 1000}"#);
+    assert_eq!(s, 422, "{b}");
 }

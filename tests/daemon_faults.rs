@@ -54,7 +54,7 @@ fn the_camera_stops_mid_capture_the_job_fails_and_the_daemon_reconnects() {
     );
     assert_eq!(d.get("/health").0, 200);
     assert!(wait_camera(&d, false, Duration::from_secs(5)));
-    // While it is away, captures fail fast with the reason.
+    // While it is away, captures fail (after a 5 s grace) with the reason.
     let c = d.run_job(
         "/captures",
         r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000}"#,

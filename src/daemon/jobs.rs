@@ -66,6 +66,9 @@ pub struct ReconstructionBody {
     pub max_iter: Option<usize>,
     /// ADMM tolerance.
     pub tol: Option<f64>,
+    /// Known truth, as a test pattern name (`disk`, `bars`, `letter`): the
+    /// report then carries PSNR, ZNCC and SSIM (e.g. against the fake camera's demo scene).
+    pub truth: Option<String>,
 }
 
 fn admm() -> String {
@@ -215,6 +218,13 @@ pub fn validate_reconstruction(
             )));
         }
     }
+    if let Some(t) = &b.truth {
+        if crate::simulate::patterns::Pattern::from_name(t).is_none() {
+            return Err(RequestError::Invalid(format!(
+                "truth = {t:?}: must be a test pattern name (disk, bars, letter)"
+            )));
+        }
+    }
     let mut blocks: Vec<(String, Option<f64>)> = Vec::new();
     for p in &scene.poses {
         if p.analyzers.is_empty() {
@@ -276,9 +286,12 @@ pub fn validate_reconstruction(
         scene: b.scene.clone(),
         captures: b.captures.clone(),
         solver: b.solver.clone(),
-        params: serde_json::json!({ "lambda": b.lambda, "rho": b.rho, "max_iter": b.max_iter, "tol": b.tol }),
+        params: serde_json::json!({ "lambda": b.lambda, "rho": b.rho, "max_iter": b.max_iter, "tol": b.tol, "truth": b.truth }),
     })
 }
+
+/// How long a capture waits for a camera that is not connected.
+const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 
 fn job_event(d: &Daemon, job: String, state: JobState, error: Option<String>) {
     d.emit(Event::Job { job, state, error });
@@ -345,6 +358,11 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
             let _ = d2.store.capture_progress(id, taken);
         }) as Box<dyn FnMut(usize) + Send>
     };
+    // A camera that is (re)connecting gets a short grace period before the capture fails.
+    let grace = Instant::now();
+    while !d.camera.status().connected && grace.elapsed() < CAMERA_GRACE {
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
     d.bench.select(&c.pose, c.polarizer_deg);
     let mut dark = Vec::new();
     if c.dark_frames > 0 {
@@ -547,7 +565,11 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
         cols: t.cols(),
         transport_seconds,
         conditioning: (&cond).into(),
-        metrics: None,
+        metrics: p
+            .get("truth")
+            .and_then(|v| v.as_str())
+            .and_then(crate::simulate::patterns::Pattern::from_name)
+            .map(|pat| crate::solve::metrics::compare(grid, &pat.render(grid), &r.image)),
         solver: r.stats,
         warnings,
     };

@@ -75,7 +75,8 @@ impl Daemon {
         };
         let t = Instant::now();
         loop {
-            if d.get("/health").0 == 200 {
+            let (status, body) = d.get("/health");
+            if status == 200 && body.contains("\"camera_connected\":true") {
                 break;
             }
             if let Ok(Some(status)) = d.child.try_wait() {
