@@ -220,3 +220,24 @@ fn usb_hot_plug_watching_is_harmless_without_usb_cameras() {
     std::thread::sleep(Duration::from_millis(300));
     drop(w);
 }
+
+#[test]
+fn software_trigger_delivers_one_frame_per_trigger() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    let fake = bench();
+    fake.select("A", Some(0.0));
+    let mut cam = AravisCamera::open(ADDR).unwrap();
+    let settings = CameraSettings {
+        exposure_us: 5_000.0,
+        trigger: polnlos::camera::TriggerMode::Software,
+        ..CameraSettings::default()
+    };
+    cam.configure(&settings).unwrap();
+    assert_eq!(cam.string_feature("TriggerMode").unwrap(), "On");
+    assert_eq!(cam.string_feature("TriggerSource").unwrap(), "Software");
+    let frames = cam.acquire(3, &mut |_| {}).unwrap();
+    assert_eq!(frames.len(), 3);
+    cam.configure(&CameraSettings::default()).unwrap();
+    assert_eq!(cam.string_feature("TriggerMode").unwrap(), "Off");
+    assert!(f64::from(frames[0].pixels[100 * 512 + 400]) > 0.3 * 65535.0 * 0.25);
+}

@@ -92,6 +92,14 @@ impl AravisCamera {
         Ok(cam)
     }
 
+    /// The current value of a string or enumeration feature (for diagnostics).
+    pub fn string_feature(&self, name: &str) -> Result<String, CameraError> {
+        self.device()?
+            .string_feature_value(name)
+            .map(|g| g.to_string())
+            .map_err(feature_err(name))
+    }
+
     fn device(&self) -> Result<aravis::Device, CameraError> {
         self.camera
             .device()

@@ -346,16 +346,25 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
         trigger: TriggerMode::Free,
     };
     let total = (c.frames + c.dark_frames) as usize;
-    let progress = |offset: usize| {
-        let d2 = d.clone();
-        Box::new(move |k: usize| {
-            let taken = offset + k;
+    // The camera thread only sends a number; the store write and the event
+    // happen here, off the thread that pops buffers.
+    let (tx, mut rx) = mpsc::unbounded_channel::<usize>();
+    let d2 = d.clone();
+    let progress_task = tokio::spawn(async move {
+        while let Some(taken) = rx.recv().await {
             d2.emit(Event::Frame {
                 job: format!("capture-{id}"),
                 taken,
                 total,
             });
-            let _ = d2.store.capture_progress(id, taken);
+            let store = d2.store.clone();
+            let _ = tokio::task::spawn_blocking(move || store.capture_progress(id, taken)).await;
+        }
+    });
+    let progress = |offset: usize| {
+        let tx = tx.clone();
+        Box::new(move |k: usize| {
+            let _ = tx.send(offset + k);
         }) as Box<dyn FnMut(usize) + Send>
     };
     // A camera that is (re)connecting gets a short grace period before the capture fails.
@@ -381,8 +390,10 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
             c.frames as usize,
             progress(c.dark_frames as usize),
         )
-        .await
-        .map_err(|e| e.to_string())?;
+        .await;
+    drop(tx);
+    let _ = progress_task.await;
+    let frames = frames.map_err(|e| e.to_string())?;
     let status = d.camera.status();
     let camera_id = status
         .info
