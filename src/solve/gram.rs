@@ -42,6 +42,44 @@ pub fn mean_diag(g: &Mat<f64>) -> f64 {
     (0..n).map(|k| g[(k, k)]).sum::<f64>() / n as f64
 }
 
+/// The normal-equation pieces of one measurement, computed once and shared by
+/// every solve on it (e.g. the trials of an automatic lambda).
+pub struct Normal {
+    /// Lower triangle of `T^T T`.
+    pub gram: Mat<f64>,
+    /// `T^T i`.
+    pub ti: Vec<f64>,
+    /// `mean(diag(T^T T))`, the unit of `lambda` and `rho` defaults.
+    pub scale: f64,
+    /// Seconds it took.
+    pub seconds: f64,
+}
+
+impl Normal {
+    /// Forms `T^T T` and `T^T i`.
+    pub fn new(t: MatRef<'_, f64>, i: &[f64]) -> Self {
+        let start = std::time::Instant::now();
+        let gram = gram_lower(t, par());
+        let ti = adjoint(t, i);
+        let scale = mean_diag(&gram);
+        Self {
+            gram,
+            ti,
+            scale,
+            seconds: start.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// `scale`, or 1 for an all-zero `T`.
+    pub fn unit(&self) -> f64 {
+        if self.scale > 0.0 {
+            self.scale
+        } else {
+            1.0
+        }
+    }
+}
+
 /// Current parallelism for dense kernels (faer's global setting).
 pub fn par() -> Par {
     faer::get_global_parallelism()

@@ -10,6 +10,7 @@ pub mod admm;
 pub mod baseline;
 pub mod conditioning;
 mod gram;
+pub mod lambda;
 pub mod metrics;
 pub mod report;
 pub mod tv;
