@@ -173,6 +173,41 @@ fn simulate_then_reconstruct_through_files() {
         8
     );
 
+    // lambda from the noise level of the simulation.
+    let auto = d.join("auto");
+    ok(&polnlos(&[
+        "reconstruct",
+        s.to_str().unwrap(),
+        "--measurement",
+        sim.join("measurement.npy").to_str().unwrap(),
+        "--out",
+        auto.to_str().unwrap(),
+        "--lambda",
+        "auto",
+        "--noise-from",
+        sim.join("simulate.json").to_str().unwrap(),
+    ]));
+    let a: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(auto.join("report.json")).unwrap()).unwrap();
+    let c = &a["lambda_choice"];
+    assert_eq!(c["rule"], "discrepancy");
+    assert!(
+        (c["misfit"].as_f64().unwrap() / c["target"].as_f64().unwrap() - 1.0).abs() < 0.01,
+        "{c}"
+    );
+    assert_eq!(a["solver"]["lambda"], c["lambda"]);
+    let err = fails(&polnlos(&[
+        "reconstruct",
+        s.to_str().unwrap(),
+        "--measurement",
+        sim.join("measurement.npy").to_str().unwrap(),
+        "--out",
+        auto.to_str().unwrap(),
+        "--lambda",
+        "auto",
+    ]));
+    assert!(err.contains("--noise-from"), "{err}");
+
     let rec_lsq = d.join("lsq");
     ok(&args("lsq", &rec_lsq));
     let l: serde_json::Value =

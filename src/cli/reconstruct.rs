@@ -2,7 +2,9 @@
 
 use std::path::PathBuf;
 
+use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
+use polnlos::solve::lambda::{admm_tv_discrepancy, NoiseLevel};
 use polnlos::solve::report::{conditioning_warnings, Report};
 use polnlos::solve::{admm_tv, condition, least_squares, metrics, tikhonov, AdmmSettings};
 
@@ -34,9 +36,15 @@ pub struct Args {
     /// Solver.
     #[arg(long, value_enum, default_value = "admm-tv")]
     solver: Solver,
-    /// Regularization weight in MODEL.md units (default: 1e-2 x mean diagonal of T^T T for admm-tv, 1e-3 x for tikhonov).
-    #[arg(long, value_name = "L")]
-    lambda: Option<f64>,
+    /// Regularization weight in MODEL.md units, or `auto` (admm-tv: discrepancy
+    /// principle, needs --noise-from). Default: 1e-2 x mean diagonal of T^T T
+    /// for admm-tv, 1e-3 x for tikhonov.
+    #[arg(long, value_name = "L|auto")]
+    lambda: Option<LambdaArg>,
+    /// simulate.json whose camera model (photons, read noise, bits) gives the
+    /// noise level for --lambda auto.
+    #[arg(long = "noise-from", value_name = "FILE")]
+    noise_from: Option<PathBuf>,
     /// ADMM penalty (default: equal to lambda).
     #[arg(long, value_name = "R")]
     rho: Option<f64>,
@@ -54,6 +62,45 @@ pub struct Args {
     truth: Option<PathBuf>,
 }
 
+/// `--lambda`: a number or `auto`.
+#[derive(Debug, Clone, Copy)]
+enum LambdaArg {
+    Auto,
+    Value(f64),
+}
+
+impl std::str::FromStr for LambdaArg {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "auto" {
+            return Ok(LambdaArg::Auto);
+        }
+        s.parse()
+            .map(LambdaArg::Value)
+            .map_err(|_| format!("{s:?} is neither a number nor `auto`"))
+    }
+}
+
+/// The noise level a simulation implies for its own measurement.
+fn noise_from(path: &std::path::Path, measurement: &[f64]) -> anyhow::Result<NoiseLevel> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
+    let num = |k: &[&str]| -> anyhow::Result<f64> {
+        k.iter()
+            .try_fold(&v, |v, k| v.get(*k))
+            .and_then(|x| x.as_f64())
+            .with_context(|| format!("{} has no number at {}", path.display(), k.join(".")))
+    };
+    Ok(NoiseLevel::from_camera(
+        measurement,
+        num(&["electrons_per_unit"])?,
+        num(&["noise", "read_noise"])?,
+        num(&["units_per_dn"])?,
+    ))
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let meas = npy::read(&a.measurement)?;
@@ -66,19 +113,32 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     super::out_dir(&a.out)?;
 
     let (t, transport_seconds) = super::progress::build_transport(&scene)?;
-    let rec = match a.solver {
-        Solver::AdmmTv => admm_tv(
-            &t,
-            &meas.data,
-            &AdmmSettings {
-                lambda: a.lambda,
-                rho: a.rho,
-                max_iter: a.max_iter,
-                tol: a.tol,
-            },
-        )?,
-        Solver::Tikhonov => tikhonov(&t, &meas.data, a.lambda)?,
-        Solver::Lsq => least_squares(&t, &meas.data, a.rcond)?,
+    let fixed = match a.lambda {
+        Some(LambdaArg::Value(l)) => Some(l),
+        _ => None,
+    };
+    let settings = AdmmSettings {
+        lambda: fixed,
+        rho: a.rho,
+        max_iter: a.max_iter,
+        tol: a.tol,
+    };
+    let mut lambda_choice = None;
+    let rec = match (a.solver, a.lambda) {
+        (Solver::AdmmTv, Some(LambdaArg::Auto)) => {
+            let path = a
+                .noise_from
+                .as_ref()
+                .context("--lambda auto needs --noise-from simulate.json (the noise level)")?;
+            let noise = noise_from(path, &meas.data)?;
+            let (r, choice) = admm_tv_discrepancy(&t, &meas.data, &noise, &settings)?;
+            lambda_choice = Some(choice);
+            r
+        }
+        (Solver::AdmmTv, _) => admm_tv(&t, &meas.data, &settings)?,
+        (_, Some(LambdaArg::Auto)) => anyhow::bail!("--lambda auto is for --solver admm-tv"),
+        (Solver::Tikhonov, _) => tikhonov(&t, &meas.data, fixed)?,
+        (Solver::Lsq, _) => least_squares(&t, &meas.data, a.rcond)?,
     };
     let cond = condition(&t)?;
     let mut warnings = conditioning_warnings(&cond);
@@ -96,6 +156,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .as_ref()
             .map(|tr| metrics::compare(sgrid, tr, &rec.image)),
         solver: rec.stats,
+        lambda_choice,
         warnings,
     };
     npy::write_f64(

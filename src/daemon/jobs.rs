@@ -582,6 +582,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             .and_then(crate::simulate::patterns::Pattern::from_name)
             .map(|pat| crate::solve::metrics::compare(grid, &pat.render(grid), &r.image)),
         solver: r.stats,
+        lambda_choice: None,
         warnings,
     };
     let dir = d.store.reconstruction_dir(id);

@@ -59,6 +59,9 @@ pub struct Report {
     pub solver: SolveStats,
     /// Metrics against the truth, when one was given.
     pub metrics: Option<Metrics>,
+    /// How lambda was chosen, when it was chosen automatically.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lambda_choice: Option<super::lambda::LambdaChoice>,
     /// Warnings from every stage (solver, conditioning).
     pub warnings: Vec<String>,
 }
