@@ -11,6 +11,7 @@
 //! [`camera`] (frames), [`files`] (npy, png, json).
 
 pub mod api;
+pub mod bench;
 pub mod camera;
 pub mod daemon;
 pub mod files;

@@ -277,3 +277,45 @@ fn bad_input_gets_a_clear_error() {
     ]));
     assert!(err.contains("bits = 20: must be from 1 to 16"), "{err}");
 }
+
+#[test]
+fn bench_quick_writes_its_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    ok(&polnlos(&[
+        "bench",
+        "--quick",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]));
+    for f in [
+        "bench.json",
+        "bench.md",
+        "conditioning.png",
+        "conditioning.svg",
+        "roughness.png",
+        "roughness.svg",
+    ] {
+        assert!(dir.path().join(f).metadata().unwrap().len() > 100, "{f}");
+    }
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("bench.json")).unwrap()).unwrap();
+    assert_eq!(v["conditioning"].as_array().unwrap().len(), 8);
+    assert_eq!(v["roughness"].as_array().unwrap().len(), 42);
+    let crossed = v["conditioning"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["scene"] == "brewster-crossed-3x3")
+        .unwrap();
+    assert!((crossed["kappa"].as_f64().unwrap() / 111.5248909751125 - 1.0).abs() < 1e-6);
+    let md = std::fs::read_to_string(dir.path().join("bench.md")).unwrap();
+    assert!(
+        md.contains("| 3x3 | no | 2.028e2 | 1.838e2 | 1.115e2 | 7.660e1 | holds |"),
+        "{md}"
+    );
+    assert!(std::fs::read_to_string(dir.path().join("roughness.svg"))
+        .unwrap()
+        .starts_with("<svg"));
+    let png = image::read_gray(&dir.path().join("conditioning.png")).unwrap();
+    assert_eq!((png.width, png.height), (900, 560));
+}

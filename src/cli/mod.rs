@@ -1,6 +1,7 @@
 //! Command-line interface: argument definitions and dispatch to one module per
 //! subcommand. Each subcommand reads files, calls the library and writes files.
 
+mod bench;
 mod cond;
 mod pattern;
 mod progress;
@@ -44,6 +45,8 @@ enum Command {
     Reconstruct(reconstruct::Args),
     /// Write a test pattern (disk, bars, letter) as a PNG truth image.
     Pattern(pattern::Args),
+    /// Write conditioning and roughness reports (JSON, Markdown, charts).
+    Bench(bench::Args),
     /// Run the acquisition daemon: camera, capture and reconstruction queues, HTTP API.
     Serve(serve::Args),
 }
@@ -65,6 +68,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Reconstruct(a) => reconstruct::run(a),
         Command::Pattern(a) => pattern::run(a),
         Command::Serve(a) => serve::run(a),
+        Command::Bench(a) => bench::run(a),
     }
 }
 

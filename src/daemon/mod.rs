@@ -6,7 +6,6 @@
 //! queue for a small worker pool and run their maths on blocking threads. Both
 //! queues are bounded: a full queue is refused at once (HTTP 429), never waited on.
 
-mod builtin_scenes;
 pub mod config;
 pub mod events;
 mod jobs;

@@ -18,7 +18,7 @@ impl Scenes {
     /// Built-in scenes plus these files (a file replaces a built-in of the same name).
     pub fn load(files: &[impl AsRef<Path>]) -> Result<Self, SceneError> {
         let mut scenes = BTreeMap::new();
-        for (name, text) in super::builtin_scenes::BUILT_IN {
+        for (name, text) in crate::scene::builtin::BUILT_IN {
             scenes.insert(name.to_string(), Arc::new(Scene::from_toml_str(text)?));
         }
         for f in files {

@@ -5,6 +5,7 @@
 //! rely on unit normals, orthonormal plane axes, positive sizes and grids, a
 //! camera and a hidden scene in front of the wall, and well-defined polarizer axes.
 
+pub mod builtin;
 mod error;
 mod file;
 pub mod homography;
@@ -93,6 +94,14 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// A built-in reference scene by name (e.g. `brewster-crossed-3x3`).
+    pub fn builtin(name: &str) -> Option<Result<Self, SceneError>> {
+        builtin::BUILT_IN
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, text)| Self::from_toml_str(text))
+    }
+
     /// Parses and validates a scene from TOML text.
     pub fn from_toml_str(text: &str) -> Result<Self, SceneError> {
         file::parse(text)

@@ -1,0 +1,194 @@
+//! Reproducible reports of how well-posed the bench is: the paper's Table 1
+//! (condition number per polarizer configuration, with and without the
+//! occluder) and Fig. 6 (condition number against wall roughness).
+//!
+//! Pure computations returning typed rows; `polnlos bench` writes them as
+//! JSON, Markdown and charts ([`charts`]).
+
+pub mod charts;
+
+use serde::Serialize;
+
+use crate::scene::{Scene, SceneError};
+use crate::solve::{condition, SolveError};
+use crate::transport::{build, TransportError};
+
+/// Polarizer configurations of the reference bench, in the paper's order.
+pub const CONFIGS: [&str; 4] = ["nopol", "rotating", "crossed", "multi"];
+
+/// Wall roughness values of the Fig. 6 sweep.
+pub const ROUGHNESS: [f64; 7] = [0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0];
+
+/// Why a report could not be computed.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    /// A built-in scene is missing or invalid.
+    #[error("scene {name}: {reason}")]
+    Scene {
+        /// Scene name.
+        name: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Building `T` failed.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The SVD failed.
+    #[error(transparent)]
+    Solve(#[from] SolveError),
+}
+
+/// One row of the conditioning table.
+#[derive(Debug, Clone, Serialize)]
+pub struct CondRow {
+    /// Scene file name.
+    pub scene: String,
+    /// `nopol`, `rotating`, `crossed` or `multi`.
+    pub config: String,
+    /// With the Saunders occluder.
+    pub occluder: bool,
+    /// Scene grid side (3 or 8).
+    pub grid: usize,
+    /// Rows x columns of `T`.
+    pub shape: (usize, usize),
+    /// Condition number (`"inf"` when rank-deficient).
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub kappa: f64,
+    /// Seconds to build `T` and its SVD.
+    pub seconds: f64,
+}
+
+/// The name of a built-in bench scene.
+pub fn scene_name(config: &str, occluder: bool, grid: usize) -> String {
+    let base = if occluder { "occluder" } else { "brewster" };
+    if grid == 3 {
+        format!("{base}-{config}-3x3")
+    } else {
+        format!("{base}-{config}")
+    }
+}
+
+fn builtin(name: &str) -> Result<Scene, BenchError> {
+    match Scene::builtin(name) {
+        Some(Ok(s)) => Ok(s),
+        Some(Err(e)) => Err(BenchError::Scene {
+            name: name.into(),
+            reason: e.to_string(),
+        }),
+        None => Err(BenchError::Scene {
+            name: name.into(),
+            reason: "not a built-in scene".into(),
+        }),
+    }
+}
+
+fn kappa(scene: &Scene) -> Result<f64, BenchError> {
+    Ok(condition(&build(scene)?)?.kappa)
+}
+
+/// Table 1: kappa for every configuration, with and without the occluder, on
+/// the given scene grids (3 and/or 8). `step()` is called after each row.
+pub fn conditioning_table(
+    grids: &[usize],
+    step: &mut dyn FnMut(),
+) -> Result<Vec<CondRow>, BenchError> {
+    let mut rows = Vec::new();
+    for &grid in grids {
+        for occluder in [false, true] {
+            for config in CONFIGS {
+                let name = scene_name(config, occluder, grid);
+                let scene = builtin(&name)?;
+                let start = std::time::Instant::now();
+                let t = build(&scene)?;
+                let c = condition(&t)?;
+                rows.push(CondRow {
+                    scene: name,
+                    config: config.into(),
+                    occluder,
+                    grid,
+                    shape: (t.rows(), t.cols()),
+                    kappa: c.kappa,
+                    seconds: start.elapsed().as_secs_f64(),
+                });
+                step();
+            }
+        }
+    }
+    Ok(rows)
+}
+
+/// One point of the roughness sweep.
+#[derive(Debug, Clone, Serialize)]
+pub struct RoughRow {
+    /// `nopol`, `crossed` or `multi`.
+    pub config: String,
+    /// With the Saunders occluder.
+    pub occluder: bool,
+    /// Scene grid side.
+    pub grid: usize,
+    /// GGX alpha.
+    pub roughness: f64,
+    /// Condition number.
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub kappa: f64,
+}
+
+/// Fig. 6: kappa against roughness for nopol, crossed and multi, with and without the occluder.
+pub fn roughness_sweep(grid: usize, step: &mut dyn FnMut()) -> Result<Vec<RoughRow>, BenchError> {
+    let mut rows = Vec::new();
+    for occluder in [false, true] {
+        for config in ["nopol", "crossed", "multi"] {
+            let base = builtin(&scene_name(config, occluder, grid))?;
+            for &alpha in &ROUGHNESS {
+                let mut s = base.clone();
+                s.wall.brdf.alpha = alpha;
+                rows.push(RoughRow {
+                    config: config.into(),
+                    occluder,
+                    grid,
+                    roughness: alpha,
+                    kappa: kappa(&s)?,
+                });
+                step();
+            }
+        }
+    }
+    Ok(rows)
+}
+
+/// Rows that [`conditioning_table`] will compute, for a progress bar.
+pub fn conditioning_len(grids: &[usize]) -> usize {
+    grids.len() * 2 * CONFIGS.len()
+}
+
+/// Points that [`roughness_sweep`] will compute.
+pub fn roughness_len() -> usize {
+    2 * 3 * ROUGHNESS.len()
+}
+
+impl From<SceneError> for BenchError {
+    fn from(e: SceneError) -> Self {
+        BenchError::Scene {
+            name: String::new(),
+            reason: e.to_string(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_match_the_shipped_files() {
+        assert_eq!(scene_name("crossed", false, 3), "brewster-crossed-3x3");
+        assert_eq!(scene_name("multi", true, 8), "occluder-multi");
+        for grid in [3, 8] {
+            for occ in [false, true] {
+                for c in CONFIGS {
+                    assert!(Scene::builtin(&scene_name(c, occ, grid)).is_some());
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,204 @@
+//! `polnlos bench`: conditioning (the paper's Table 1) and roughness (Fig. 6)
+//! reports as JSON, Markdown and PNG/SVG charts.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use polnlos::bench::{self, charts, CondRow, RoughRow};
+use polnlos::files::{json, write_atomic};
+
+/// Write the bench reports (JSON, Markdown, charts) into a folder.
+#[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  polnlos bench --quick --out bench/\nThe full run adds the 8x8 scene grids."
+)]
+pub struct Args {
+    /// Output folder.
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Only the 3x3 scene grids (seconds instead of minutes).
+    #[arg(long)]
+    quick: bool,
+}
+
+#[derive(serde::Serialize)]
+struct Output {
+    quick: bool,
+    conditioning: Vec<CondRow>,
+    roughness: Vec<RoughRow>,
+    seconds: f64,
+}
+
+fn fmt_kappa(k: f64) -> String {
+    if k.is_finite() {
+        format!("{k:.3e}")
+    } else {
+        "inf".into()
+    }
+}
+
+fn markdown(o: &Output) -> String {
+    let mut md = String::from("# polnlos bench\n\n## Conditioning (the paper's Table 1)\n\n| grid | occluder | nopol | rotating | crossed | multi | trend nopol > rotating > crossed > multi |\n|---|---|---|---|---|---|---|\n");
+    let mut groups: Vec<(usize, bool)> = o
+        .conditioning
+        .iter()
+        .map(|r| (r.grid, r.occluder))
+        .collect();
+    groups.dedup();
+    for (grid, occ) in groups {
+        let k = |c: &str| {
+            o.conditioning
+                .iter()
+                .find(|r| r.grid == grid && r.occluder == occ && r.config == c)
+                .map(|r| r.kappa)
+                .unwrap_or(f64::NAN)
+        };
+        let (a, b, c, d) = (k("nopol"), k("rotating"), k("crossed"), k("multi"));
+        let trend = if a > b && b > c && c > d {
+            "holds"
+        } else {
+            "does not hold"
+        };
+        let _ = writeln!(
+            md,
+            "| {grid}x{grid} | {} | {} | {} | {} | {} | {trend} |",
+            if occ { "yes" } else { "no" },
+            fmt_kappa(a),
+            fmt_kappa(b),
+            fmt_kappa(c),
+            fmt_kappa(d)
+        );
+    }
+    md.push_str("\n![conditioning](conditioning.png)\n\n## Roughness (the paper's Fig. 6)\n\n| config | occluder | ");
+    let alphas = bench::ROUGHNESS;
+    md.push_str(
+        &alphas
+            .iter()
+            .map(|a| format!("α = {a}"))
+            .collect::<Vec<_>>()
+            .join(" | "),
+    );
+    md.push_str(" |\n|---|---|");
+    md.push_str(&"---|".repeat(alphas.len()));
+    md.push('\n');
+    for occ in [false, true] {
+        for config in ["nopol", "crossed", "multi"] {
+            let ks: Vec<String> = alphas
+                .iter()
+                .map(|a| {
+                    o.roughness
+                        .iter()
+                        .find(|r| r.occluder == occ && r.config == config && r.roughness == *a)
+                        .map(|r| fmt_kappa(r.kappa))
+                        .unwrap_or_default()
+                })
+                .collect();
+            let _ = writeln!(
+                md,
+                "| {config} | {} | {} |",
+                if occ { "yes" } else { "no" },
+                ks.join(" | ")
+            );
+        }
+        let ratio: Vec<String> = alphas
+            .iter()
+            .map(|a| {
+                let k = |c: &str| {
+                    o.roughness
+                        .iter()
+                        .find(|r| r.occluder == occ && r.config == c && r.roughness == *a)
+                        .map(|r| r.kappa)
+                        .unwrap_or(f64::NAN)
+                };
+                let (a, b) = (k("nopol"), k("crossed"));
+                if a.is_infinite() && b.is_infinite() {
+                    "n/a".to_string()
+                } else {
+                    format!("{:.2}", a / b)
+                }
+            })
+            .collect();
+        let _ = writeln!(
+            md,
+            "| improvement nopol/crossed | {} | {} |",
+            if occ { "yes" } else { "no" },
+            ratio.join(" | ")
+        );
+    }
+    let _ = writeln!(md, "\n`inf`: `T` is rank-deficient at that roughness (no line point on the chart).\n\n![roughness](roughness.png)\n\nRun time: {:.1} s{}.", o.seconds, if o.quick { " (--quick: 3x3 grids)" } else { "" });
+    md
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    super::out_dir(&a.out)?;
+    let start = std::time::Instant::now();
+    let grids: &[usize] = if a.quick { &[3] } else { &[3, 8] };
+    let pb = super::progress::bar(
+        bench::conditioning_len(grids) + bench::roughness_len(),
+        "bench",
+    );
+    let conditioning = bench::conditioning_table(grids, &mut || pb.inc(1))?;
+    let roughness = bench::roughness_sweep(*grids.last().unwrap_or(&3), &mut || pb.inc(1))?;
+    pb.finish_and_clear();
+    let out = Output {
+        quick: a.quick,
+        conditioning,
+        roughness,
+        seconds: start.elapsed().as_secs_f64(),
+    };
+
+    let mut groups: Vec<(String, Vec<f64>)> = Vec::new();
+    for r in &out.conditioning {
+        let label = format!(
+            "{}x{}{}",
+            r.grid,
+            r.grid,
+            if r.occluder { " + occluder" } else { "" }
+        );
+        match groups.last_mut() {
+            Some((l, v)) if *l == label => v.push(r.kappa),
+            _ => groups.push((label, vec![r.kappa])),
+        }
+    }
+    let c = charts::log_bars(
+        "Condition number of T (Table 1)",
+        "kappa(T)",
+        &bench::CONFIGS,
+        &groups,
+    )?;
+    write_atomic(&a.out.join("conditioning.png"), &c.png)?;
+    write_atomic(&a.out.join("conditioning.svg"), c.svg.as_bytes())?;
+
+    let mut series = Vec::new();
+    for occ in [false, true] {
+        for config in ["nopol", "crossed", "multi"] {
+            series.push(charts::Series {
+                name: format!("{config}{}", if occ { " + occluder" } else { "" }),
+                points: out
+                    .roughness
+                    .iter()
+                    .filter(|r| r.occluder == occ && r.config == config)
+                    .map(|r| (r.roughness, r.kappa))
+                    .collect(),
+            });
+        }
+    }
+    let grid = out.roughness.first().map(|r| r.grid).unwrap_or(3);
+    let c = charts::log_lines(
+        &format!("kappa(T) against wall roughness ({grid}x{grid} scene)"),
+        "GGX roughness alpha",
+        "kappa(T)",
+        &series,
+    )?;
+    write_atomic(&a.out.join("roughness.png"), &c.png)?;
+    write_atomic(&a.out.join("roughness.svg"), c.svg.as_bytes())?;
+
+    json::write(&a.out.join("bench.json"), &out)?;
+    write_atomic(&a.out.join("bench.md"), markdown(&out).as_bytes())?;
+    eprintln!(
+        "bench written to {} in {:.1} s",
+        a.out.display(),
+        out.seconds
+    );
+    Ok(())
+}
