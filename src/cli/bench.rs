@@ -4,6 +4,7 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
+use polnlos::bench::stability::{stability_table, StabilityRow, CASES};
 use polnlos::bench::{self, charts, CondRow, RoughRow};
 use polnlos::files::{json, write_atomic};
 
@@ -26,6 +27,7 @@ struct Output {
     quick: bool,
     conditioning: Vec<CondRow>,
     roughness: Vec<RoughRow>,
+    stability: Vec<StabilityRow>,
     seconds: f64,
 }
 
@@ -125,7 +127,34 @@ fn markdown(o: &Output) -> String {
             ratio.join(" | ")
         );
     }
-    let _ = writeln!(md, "\n`inf`: `T` is rank-deficient at that roughness (no line point on the chart).\n\n![roughness](roughness.png)\n\nRun time: {:.1} s{}.", o.seconds, if o.quick { " (--quick: 3x3 grids)" } else { "" });
+    let _ = writeln!(md, "\n`inf`: `T` is rank-deficient at that roughness (no line point on the chart).\n\n![roughness](roughness.png)\n");
+    md.push_str("## Stability where methods fail (ADMM-TV, letter pattern, 8x8 scene)\n\n| case | kappa | mean SNR | converged | iterations | primal / dual residual | PSNR dB | finite | warnings |\n|---|---|---|---|---|---|---|---|---|\n");
+    for r in &o.stability {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {:.1} | {} | {} | {:.1e} / {:.1e} | {:.2} | {} | {} |",
+            r.case,
+            fmt_kappa(r.kappa),
+            r.snr,
+            if r.converged { "yes" } else { "no" },
+            r.iterations,
+            r.primal_residual,
+            r.dual_residual,
+            r.psnr_db,
+            if r.finite { "yes" } else { "NO" },
+            if r.warnings.is_empty() {
+                "none".to_string()
+            } else {
+                r.warnings.join("; ")
+            }
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\nRun time: {:.1} s{}.",
+        o.seconds,
+        if o.quick { " (--quick: 3x3 grids)" } else { "" }
+    );
     md
 }
 
@@ -134,16 +163,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let start = std::time::Instant::now();
     let grids: &[usize] = if a.quick { &[3] } else { &[3, 8] };
     let pb = super::progress::bar(
-        bench::conditioning_len(grids) + bench::roughness_len(),
+        bench::conditioning_len(grids) + bench::roughness_len() + CASES,
         "bench",
     );
     let conditioning = bench::conditioning_table(grids, &mut || pb.inc(1))?;
     let roughness = bench::roughness_sweep(*grids.last().unwrap_or(&3), &mut || pb.inc(1))?;
+    let stability = stability_table(&mut || pb.inc(1))?;
     pb.finish_and_clear();
     let out = Output {
         quick: a.quick,
         conditioning,
         roughness,
+        stability,
         seconds: start.elapsed().as_secs_f64(),
     };
 

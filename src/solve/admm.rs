@@ -231,6 +231,16 @@ pub fn admm_tv_prepared(
 
     // The returned image is z2: feasible by construction.
     let image = z2;
+    let (lo, hi) = image
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    if n > 1 && hi - lo < 1e-3 {
+        warnings.push(format!(
+            "the recovered image is flat (values {lo:.4} to {hi:.4}): lambda = {lambda:.3e} may be far too large, or the measurement carries no signal"
+        ));
+    }
     let (misfit, objective) = objective_of(t, i, &image, lambda);
     Ok(Reconstruction {
         image,

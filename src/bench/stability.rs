@@ -1,0 +1,210 @@
+//! Where reconstruction breaks: each case builds its scene, simulates the
+//! letter pattern, runs ADMM-TV and reports whether it converged, its
+//! residuals, kappa, PSNR and the warnings it carries. No case may produce a
+//! NaN or panic; a case that cannot be trusted must say so.
+
+use serde::Serialize;
+
+use super::BenchError;
+use crate::scene::Scene;
+use crate::simulate::patterns::Pattern;
+use crate::simulate::{unpolarized_peak, NoiseModel};
+use crate::solve::report::conditioning_warnings;
+use crate::solve::{admm_tv, condition, metrics, AdmmSettings};
+use crate::transport::build;
+
+/// Outcome of one stability case.
+#[derive(Debug, Clone, Serialize)]
+pub struct StabilityRow {
+    /// What was stressed.
+    pub case: String,
+    /// Condition number of `T` (`"inf"` when rank-deficient).
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub kappa: f64,
+    /// Mean SNR of the simulated measurement.
+    pub snr: f64,
+    /// Whether ADMM met its tolerance.
+    pub converged: bool,
+    /// Iterations run.
+    pub iterations: usize,
+    /// Final primal residual.
+    pub primal_residual: f64,
+    /// Final dual residual.
+    pub dual_residual: f64,
+    /// PSNR against the truth, dB.
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub psnr_db: f64,
+    /// Whether every recovered value is finite.
+    pub finite: bool,
+    /// Warnings the result carries (conditioning and solver).
+    pub warnings: Vec<String>,
+}
+
+struct Case {
+    name: String,
+    scene: Scene,
+    photons: f64,
+    lambda_rel: Option<f64>,
+}
+
+fn base(name: &str) -> Result<Scene, BenchError> {
+    Scene::builtin(name)
+        .ok_or_else(|| BenchError::Scene {
+            name: name.into(),
+            reason: "not built in".into(),
+        })?
+        .map_err(|e| BenchError::Scene {
+            name: name.into(),
+            reason: e.to_string(),
+        })
+}
+
+fn cases() -> Result<Vec<Case>, BenchError> {
+    let crossed = base("brewster-crossed")?;
+    let with = |f: &dyn Fn(&mut Scene)| {
+        let mut s = crossed.clone();
+        f(&mut s);
+        s
+    };
+    let case = |name: &str, scene: Scene, photons: f64, lambda_rel: Option<f64>| Case {
+        name: name.into(),
+        scene,
+        photons,
+        lambda_rel,
+    };
+    // Exact Brewster mirror geometry: the camera on the mirror ray at atan(eta).
+    let eta: f64 = crossed.wall.brdf.eta;
+    let tb = eta.atan();
+    let exact =
+        with(&|s| s.poses[0].camera = nalgebra::Vector3::new(0.5 * tb.sin(), 0.0, 0.5 * tb.cos()));
+    let mirror30 = with(&|s| {
+        // Scene and camera both at 30 deg incidence: far from Brewster.
+        let t = 30f64.to_radians();
+        s.scene.plane.center = nalgebra::Vector3::new(-0.45 * t.sin(), 0.0, 0.45 * t.cos());
+        s.scene.plane.normal = -s.scene.plane.center.normalize();
+        s.scene.plane.v = s.scene.plane.normal.cross(&s.scene.plane.u);
+        s.poses[0].camera = nalgebra::Vector3::new(0.5 * t.sin(), 0.0, 0.5 * t.cos());
+        s.poses[0].analyzers[0].axis = crate::scene::crossed_axis(
+            &s.wall.plane.center,
+            &s.scene.plane.center,
+            &s.poses[0].camera,
+        )
+        .unwrap_or(s.poses[0].analyzers[0].axis);
+    });
+    let mut fine = crossed.clone();
+    fine.scene.plane.grid = crate::scene::Grid { nu: 40, nv: 40 };
+    Ok(vec![
+        case(
+            "reference: Brewster bench, crossed, alpha 0.3",
+            crossed.clone(),
+            2e4,
+            None,
+        ),
+        case(
+            "mirror-like wall (alpha 0.01)",
+            with(&|s| s.wall.brdf.alpha = 0.01),
+            2e4,
+            None,
+        ),
+        case(
+            "fully diffuse wall (alpha 1.0, kd 1)",
+            with(&|s| {
+                s.wall.brdf.alpha = 1.0;
+                s.wall.brdf.kd = 1.0;
+            }),
+            2e4,
+            None,
+        ),
+        case(
+            "camera at grazing angle (89.8 deg)",
+            with(&|s| s.poses[0].camera = nalgebra::Vector3::new(2.0, 0.0, 0.007)),
+            2e4,
+            None,
+        ),
+        case("polarizer exactly at Brewster", exact, 2e4, None),
+        case(
+            "far from Brewster (30 deg mirror geometry)",
+            mirror30,
+            2e4,
+            None,
+        ),
+        case(
+            "scene grid 40x40 > 1024 wall rows (rank-deficient)",
+            fine,
+            2e4,
+            None,
+        ),
+        case("1e6 photons at full scale", crossed.clone(), 1e6, None),
+        case("1e4 photons at full scale", crossed.clone(), 1e4, None),
+        case("1e2 photons at full scale", crossed.clone(), 1e2, None),
+        case(
+            "lambda far too small (1e-9 x diag)",
+            crossed.clone(),
+            2e4,
+            Some(1e-9),
+        ),
+        case("lambda far too large (1e3 x diag)", crossed, 2e4, Some(1e3)),
+    ])
+}
+
+/// Number of cases, for a progress bar.
+pub const CASES: usize = 12;
+
+/// Runs every case.
+pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, BenchError> {
+    let mut rows = Vec::new();
+    for c in cases()? {
+        let t = build(&c.scene)?;
+        let truth = Pattern::Letter.render(t.scene_grid);
+        let model = NoiseModel {
+            photons: c.photons,
+            read_noise: 5.0,
+            bits: 12,
+            seed: 17,
+        };
+        let peak = unpolarized_peak(&c.scene, &t, &truth)?;
+        let sim = match model.apply(t.apply(&truth), peak) {
+            Ok(s) => s,
+            Err(e) => {
+                return Err(BenchError::Scene {
+                    name: c.name,
+                    reason: e.to_string(),
+                })
+            }
+        };
+        let snr = {
+            let e: Vec<f64> = sim
+                .clean
+                .iter()
+                .map(|v| v * sim.electrons_per_unit)
+                .collect();
+            e.iter()
+                .map(|e| if *e > 0.0 { e / (e + 25.0).sqrt() } else { 0.0 })
+                .sum::<f64>()
+                / e.len().max(1) as f64
+        };
+        let unit = t.col_major().iter().map(|v| v * v).sum::<f64>() / t.cols().max(1) as f64;
+        let settings = AdmmSettings {
+            lambda: c.lambda_rel.map(|r| r * unit),
+            ..AdmmSettings::default()
+        };
+        let r = admm_tv(&t, &sim.measurement, &settings)?;
+        let cond = condition(&t)?;
+        let mut warnings = conditioning_warnings(&cond);
+        warnings.extend(r.stats.warnings.iter().cloned());
+        rows.push(StabilityRow {
+            case: c.name,
+            kappa: cond.kappa,
+            snr,
+            converged: r.stats.converged,
+            iterations: r.stats.iterations,
+            primal_residual: r.stats.primal_residual.unwrap_or(f64::NAN),
+            dual_residual: r.stats.dual_residual.unwrap_or(f64::NAN),
+            psnr_db: metrics::psnr(&truth, &r.image),
+            finite: r.image.iter().all(|v| v.is_finite()),
+            warnings,
+        });
+        step();
+    }
+    Ok(rows)
+}
