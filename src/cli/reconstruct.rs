@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::solve::lambda::{admm_tv_discrepancy, NoiseLevel};
-use polnlos::solve::report::{conditioning_warnings, Report};
-use polnlos::solve::{admm_tv, condition, least_squares, metrics, tikhonov, AdmmSettings};
+use polnlos::solve::report::Report;
+use polnlos::solve::{admm_tv, condition, least_squares, tikhonov, AdmmSettings};
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 enum Solver {
@@ -141,34 +141,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         (Solver::Lsq, _) => least_squares(&t, &meas.data, a.rcond)?,
     };
     let cond = condition(&t)?;
-    let mut warnings = conditioning_warnings(&cond);
-    warnings.extend(rec.stats.warnings.iter().cloned());
-    let report = Report {
-        scene: super::scene_name(&a.scene),
-        scene_grid: sgrid,
-        wall_grid: t.wall_grid,
-        blocks: t.blocks.clone(),
-        rows: t.rows(),
-        cols: t.cols(),
+    let image = rec.image.clone();
+    let report = Report::new(
+        super::scene_name(&a.scene),
+        &t,
         transport_seconds,
-        conditioning: (&cond).into(),
-        metrics: truth
-            .as_ref()
-            .map(|tr| metrics::compare(sgrid, tr, &rec.image)),
-        solver: rec.stats,
+        &cond,
+        rec,
+        truth.as_deref(),
         lambda_choice,
-        warnings,
-    };
-    npy::write_f64(
-        &a.out.join("recovered.npy"),
-        &[sgrid.nv, sgrid.nu],
-        &rec.image,
-    )?;
+    );
+    npy::write_f64(&a.out.join("recovered.npy"), &[sgrid.nv, sgrid.nu], &image)?;
     image::write_png16(
         &a.out.join("recovered.png"),
         sgrid.nu,
         sgrid.nv,
-        &image::unit_to_u16(&rec.image),
+        &image::unit_to_u16(&image),
     )?;
     json::write(&a.out.join("report.json"), &report)?;
     for w in &report.warnings {

@@ -12,7 +12,7 @@ use crate::camera::settings::EXPOSURE_RANGE_US;
 use crate::camera::{CameraSettings, PixelFormat, TriggerMode};
 use crate::files::{image, json, npy};
 use crate::measure::sample_wall;
-use crate::solve::report::{conditioning_warnings, Report};
+use crate::solve::report::Report;
 use crate::solve::{admm_tv, condition, least_squares, tikhonov, AdmmSettings};
 use crate::store::{
     read_mean, write_capture_files, CaptureRequest, FrameMeta, JobState, ReconstructionRequest,
@@ -262,12 +262,7 @@ pub fn validate_reconstruction(
         }
         let k = blocks
             .iter()
-            .position(|(p, a)| {
-                *p == c.pose
-                    && a.zip(c.polarizer_deg)
-                        .map(|(x, y)| (x - y).abs() < 1e-6)
-                        .unwrap_or(a.is_none() && c.polarizer_deg.is_none())
-            })
+            .position(|(p, a)| *p == c.pose && same_angle(*a, c.polarizer_deg))
             .ok_or_else(|| {
                 RequestError::Invalid(format!(
                     "capture {id} (pose {:?}, polarizer {:?}) is not a block of scene {:?}",
@@ -288,6 +283,15 @@ pub fn validate_reconstruction(
         solver: b.solver.clone(),
         params: serde_json::json!({ "lambda": b.lambda, "rho": b.rho, "max_iter": b.max_iter, "tol": b.tol, "truth": b.truth }),
     })
+}
+
+/// Whether two polarizer settings are the same block (both absent, or equal angles).
+fn same_angle(a: Option<f64>, b: Option<f64>) -> bool {
+    match (a, b) {
+        (None, None) => true,
+        (Some(x), Some(y)) => (x - y).abs() < 1e-6,
+        _ => false,
+    }
 }
 
 /// How long a capture waits for a camera that is not connected.
@@ -485,13 +489,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             .captures
             .iter()
             .filter_map(|&cid| d.store.capture(cid).ok())
-            .find(|c| {
-                c.pose == block.pose
-                    && c.polarizer_deg
-                        .zip(block.polarizer_deg)
-                        .map(|(x, y)| (x - y).abs() < 1e-6)
-                        .unwrap_or(c.polarizer_deg.is_none() && block.polarizer_deg.is_none())
-            })
+            .find(|c| c.pose == block.pose && same_angle(c.polarizer_deg, block.polarizer_deg))
             .ok_or_else(|| format!("no capture for block {}", block.label()))?;
         let pose = scene.pose(&block.pose).ok_or("pose vanished")?;
         let mean = read_mean(&d.store.capture_dir(cap.id))
@@ -564,36 +562,32 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
     }
     .map_err(|e| e.to_string())?;
     let cond = condition(&t).map_err(|e| e.to_string())?;
-    warnings.extend(conditioning_warnings(&cond));
-    warnings.extend(r.stats.warnings.iter().cloned());
     let grid = t.scene_grid;
-    let report = Report {
-        scene: rec.scene.clone(),
-        scene_grid: grid,
-        wall_grid: t.wall_grid,
-        blocks: t.blocks.clone(),
-        rows: t.rows(),
-        cols: t.cols(),
+    let truth = p
+        .get("truth")
+        .and_then(|v| v.as_str())
+        .and_then(crate::simulate::patterns::Pattern::from_name)
+        .map(|pat| pat.render(grid));
+    let image = r.image.clone();
+    let mut report = Report::new(
+        rec.scene.clone(),
+        &t,
         transport_seconds,
-        conditioning: (&cond).into(),
-        metrics: p
-            .get("truth")
-            .and_then(|v| v.as_str())
-            .and_then(crate::simulate::patterns::Pattern::from_name)
-            .map(|pat| crate::solve::metrics::compare(grid, &pat.render(grid), &r.image)),
-        solver: r.stats,
-        lambda_choice: None,
-        warnings,
-    };
+        &cond,
+        r,
+        truth.as_deref(),
+        None,
+    );
+    report.warnings.splice(0..0, warnings);
     let dir = d.store.reconstruction_dir(id);
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    npy::write_f64(&dir.join("recovered.npy"), &[grid.nv, grid.nu], &r.image)
+    npy::write_f64(&dir.join("recovered.npy"), &[grid.nv, grid.nu], &image)
         .map_err(|e| e.to_string())?;
     image::write_png16(
         &dir.join("image.png"),
         grid.nu,
         grid.nv,
-        &image::unit_to_u16(&r.image),
+        &image::unit_to_u16(&image),
     )
     .map_err(|e| e.to_string())?;
     json::write(&dir.join("report.json"), &report).map_err(|e| e.to_string())?;

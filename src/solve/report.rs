@@ -66,6 +66,38 @@ pub struct Report {
     pub warnings: Vec<String>,
 }
 
+impl Report {
+    /// Assembles the report of a finished solve: layout from `T`, the
+    /// conditioning summary, metrics against `truth` when given, and every
+    /// warning (conditioning first, then the solver's).
+    pub fn new(
+        scene: String,
+        t: &crate::transport::Transport,
+        transport_seconds: f64,
+        cond: &Conditioning,
+        rec: super::Reconstruction,
+        truth: Option<&[f64]>,
+        lambda_choice: Option<super::lambda::LambdaChoice>,
+    ) -> Self {
+        let mut warnings = conditioning_warnings(cond);
+        warnings.extend(rec.stats.warnings.iter().cloned());
+        Self {
+            scene,
+            scene_grid: t.scene_grid,
+            wall_grid: t.wall_grid,
+            blocks: t.blocks.clone(),
+            rows: t.rows(),
+            cols: t.cols(),
+            transport_seconds,
+            conditioning: cond.into(),
+            metrics: truth.map(|tr| super::metrics::compare(t.scene_grid, tr, &rec.image)),
+            solver: rec.stats,
+            lambda_choice,
+            warnings,
+        }
+    }
+}
+
 /// Warnings that the conditioning of `T` implies for any result.
 pub fn conditioning_warnings(c: &Conditioning) -> Vec<String> {
     if c.is_rank_deficient() {
