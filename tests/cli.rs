@@ -319,3 +319,35 @@ fn bench_quick_writes_its_reports() {
     let png = image::read_gray(&dir.path().join("conditioning.png")).unwrap();
     assert_eq!((png.width, png.height), (900, 560));
 }
+
+#[test]
+fn plan_recommends_a_grid_and_more_light_allows_a_finer_one() {
+    let s = scene("occluder-crossed");
+    let run = |photons: &str| -> serde_json::Value {
+        serde_json::from_str(&ok(&polnlos(&[
+            "plan",
+            s.to_str().unwrap(),
+            "--photons",
+            photons,
+            "--grids",
+            "2,3,4,6,8",
+            "--json",
+        ])))
+        .unwrap()
+    };
+    let dim = run("1000");
+    let bright = run("10000000");
+    assert_eq!(dim["rows"].as_array().unwrap().len(), 5);
+    let rec = |v: &serde_json::Value| v["recommended"].as_u64().unwrap_or(0);
+    assert!(
+        rec(&bright) > rec(&dim),
+        "dim {} bright {}",
+        dim["recommended"],
+        bright["recommended"]
+    );
+    let text = ok(&polnlos(&["plan", s.to_str().unwrap(), "--grids", "3,8"]));
+    assert!(
+        text.contains("recommended") || text.contains("no candidate"),
+        "{text}"
+    );
+}

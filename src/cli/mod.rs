@@ -4,6 +4,7 @@
 mod bench;
 mod cond;
 mod pattern;
+mod plan;
 mod progress;
 mod reconstruct;
 mod serve;
@@ -45,6 +46,8 @@ enum Command {
     Reconstruct(reconstruct::Args),
     /// Write a test pattern (disk, bars, letter) as a PNG truth image.
     Pattern(pattern::Args),
+    /// Recommend the finest scene grid the measurement supports.
+    Plan(plan::Args),
     /// Write conditioning and roughness reports (JSON, Markdown, charts).
     Bench(bench::Args),
     /// Run the acquisition daemon: camera, capture and reconstruction queues, HTTP API.
@@ -69,6 +72,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Pattern(a) => pattern::run(a),
         Command::Serve(a) => serve::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Plan(a) => plan::run(a),
     }
 }
 

@@ -12,6 +12,7 @@ pub mod conditioning;
 mod gram;
 pub mod lambda;
 pub mod metrics;
+pub mod plan;
 pub mod report;
 pub mod tv;
 

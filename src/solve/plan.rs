@@ -1,0 +1,146 @@
+//! Scene resolution from the physics: for candidate scene grids, the
+//! condition number of `T` and how much the pseudo-inverse amplifies the
+//! camera noise, and the finest grid whose least-squares estimate stays within
+//! a tolerance of the radiance range.
+//!
+//! Why this rule: the least-squares error covariance is `sigma^2 (T^T T)^-1`,
+//! so the expected per-element RMS error is `sigma sqrt(mean_i 1/s_i^2)` with
+//! `s_i` the singular values of `T`; when it is below `tolerance` (default 0.1
+//! of the [0, 1] range) the measurement alone resolves every element, and a
+//! finer grid asks the regularizer to invent what the data cannot say.
+
+use serde::Serialize;
+
+use super::conditioning::condition;
+use super::lambda::NoiseLevel;
+use super::SolveError;
+use crate::scene::{Grid, Scene};
+use crate::simulate::NoiseModel;
+use crate::transport::{build, TransportError};
+
+/// One candidate grid.
+#[derive(Debug, Clone, Serialize)]
+pub struct PlanRow {
+    /// Scene grid side.
+    pub grid: usize,
+    /// Rows x columns of `T`.
+    pub shape: (usize, usize),
+    /// Condition number.
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub kappa: f64,
+    /// Numerical rank.
+    pub rank: usize,
+    /// Expected per-element RMS error of the pseudo-inverse, in units of the
+    /// radiance range (`"inf"` when rank-deficient).
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub noise_amplification: f64,
+    /// Whether the measurement supports this grid.
+    pub supported: bool,
+}
+
+/// The plan for a scene.
+#[derive(Debug, Clone, Serialize)]
+pub struct Plan {
+    /// Candidates, coarse to fine.
+    pub rows: Vec<PlanRow>,
+    /// Finest supported grid side, if any.
+    pub recommended: Option<usize>,
+    /// RMS noise of one measurement at mid-grey, units of `T l`.
+    pub sigma: f64,
+    /// Tolerance used.
+    pub tolerance: f64,
+}
+
+/// Why a plan could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum PlanError {
+    /// Building `T`.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The SVD.
+    #[error(transparent)]
+    Solve(#[from] SolveError),
+    /// The noise model.
+    #[error(transparent)]
+    Noise(#[from] crate::simulate::SimulateError),
+}
+
+/// Plans the scene grid for `scene` under the camera `noise`.
+pub fn plan(
+    scene: &Scene,
+    noise: &NoiseModel,
+    grids: &[usize],
+    tolerance: f64,
+) -> Result<Plan, PlanError> {
+    noise.validate()?;
+    let mut rows = Vec::new();
+    let mut sigma = 0.0;
+    for &g in grids {
+        let mut s = scene.clone();
+        s.scene.plane.grid = Grid { nu: g, nv: g };
+        let t = build(&s)?;
+        let c = condition(&t)?;
+        // Exposure as in `simulate`: `photons` at the unpolarized peak of a fully lit scene.
+        let ones = vec![1.0; t.cols()];
+        let peak = crate::simulate::unpolarized_peak(&s, &t, &ones)?;
+        let epu = noise.photons / peak.max(1e-300);
+        let full = f64::from((1u32 << noise.bits) - 1);
+        let grey = t.apply(&vec![0.5; t.cols()]);
+        let level =
+            NoiseLevel::from_camera(&grey, epu, noise.read_noise, noise.photons / full / epu);
+        sigma = (level.total() / level.variance.len().max(1) as f64).sqrt();
+        let amp = if c.is_rank_deficient() {
+            f64::INFINITY
+        } else {
+            sigma
+                * (c.singular_values.iter().map(|s| 1.0 / (s * s)).sum::<f64>() / t.cols() as f64)
+                    .sqrt()
+        };
+        rows.push(PlanRow {
+            grid: g,
+            shape: (t.rows(), t.cols()),
+            kappa: c.kappa,
+            rank: c.rank,
+            noise_amplification: amp,
+            supported: amp <= tolerance,
+        });
+    }
+    let recommended = rows.iter().filter(|r| r.supported).map(|r| r.grid).max();
+    Ok(Plan {
+        rows,
+        recommended,
+        sigma,
+        tolerance,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn more_light_supports_finer_grids() {
+        let s = Scene::builtin("brewster-crossed").unwrap().unwrap();
+        let grids = [2, 3, 4, 6, 8];
+        let shot = |photons| NoiseModel {
+            photons,
+            read_noise: 0.0,
+            bits: 16,
+            seed: 1,
+        };
+        let dim = plan(&s, &shot(1e3), &grids, 0.1).unwrap();
+        let bright = plan(&s, &shot(1e5), &grids, 0.1).unwrap();
+        // Amplification grows with the grid, and shrinks as sqrt(photons).
+        for w in dim.rows.windows(2) {
+            assert!(
+                w[1].noise_amplification >= w[0].noise_amplification,
+                "{:?}",
+                dim.rows
+            );
+        }
+        assert!(bright.recommended.unwrap_or(0) >= dim.recommended.unwrap_or(0));
+        // Shot-noise limited: 100 x the photons, 1/10 of the noise.
+        let r = bright.rows[1].noise_amplification / dim.rows[1].noise_amplification;
+        assert!((r - 0.1).abs() < 0.01, "{r}");
+    }
+}
