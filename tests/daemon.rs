@@ -66,6 +66,14 @@ fn capture_every_block_reconstruct_and_fetch() {
         assert_eq!(r["state"], "done", "{r}");
         assert!(r["kappa"].as_f64().unwrap() > 1.0);
         assert!(r["report"]["solver"]["converged"].as_bool().unwrap(), "{r}");
+        // kappa ~1e8: the frame-to-frame noise cannot support an 8x8 least-squares estimate.
+        assert!(
+            r["report"]["warnings"]
+                .to_string()
+                .contains("finer than this measurement supports"),
+            "{}",
+            r["report"]["warnings"]
+        );
         let img = recovered(&d, r["id"].as_i64().unwrap());
         let (grid, t) = truth(scene);
         let m = metrics::compare(grid, &t, &img);
@@ -98,15 +106,31 @@ fn capture_every_block_reconstruct_and_fetch() {
             report.last().unwrap()
         );
     }
+    // The 3x3 grid of the same bench is supported: no such warning.
+    let c = d.run_job("/captures", r#"{"scene": "brewster-crossed-3x3", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 4, "dark_frames": 1}"#, Duration::from_secs(30));
+    let r = d.run_job(
+        "/reconstructions",
+        &format!(
+            r#"{{"scene": "brewster-crossed-3x3", "captures": [{}]}}"#,
+            c["id"]
+        ),
+        Duration::from_secs(30),
+    );
+    assert_eq!(r["state"], "done", "{r}");
+    assert!(
+        !r["report"]["warnings"].to_string().contains("finer than"),
+        "{}",
+        r["report"]["warnings"]
+    );
     let jobs = d.json("/jobs/capture-1");
     assert_eq!(jobs["job"], "capture-1");
     let metrics = d.get("/metrics").1;
     assert!(
-        metrics.contains("polnlos_captures_done_total 3"),
+        metrics.contains("polnlos_captures_done_total 4"),
         "{metrics}"
     );
     assert!(
-        metrics.contains("polnlos_camera_frames_completed_total 18"),
+        metrics.contains("polnlos_camera_frames_completed_total 23"),
         "{metrics}"
     );
     let spec = d.json("/openapi.json");

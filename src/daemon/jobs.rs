@@ -294,6 +294,10 @@ fn same_angle(a: Option<f64>, b: Option<f64>) -> bool {
     }
 }
 
+/// Largest least-squares RMS error (fraction of the radiance range) before a
+/// reconstruction warns that its grid is too fine (as `polnlos plan`).
+const PLAN_TOLERANCE: f64 = 0.1;
+
 /// How long a capture waits for a camera that is not connected.
 const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 
@@ -482,8 +486,11 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
         .ok_or("scene vanished")?
         .map_err(|e| e.to_string())?;
     let transport_seconds = t0.elapsed().as_secs_f64();
-    // Stack the captures in block order: MODEL.md row order.
+    // Stack the captures in block order: MODEL.md row order. The frame-to-frame
+    // variance of each capture gives the measurement's noise, when there are
+    // at least two frames per capture.
     let mut i = vec![0.0; t.rows()];
+    let mut var = Some(vec![0.0; t.rows()]);
     for (b, block) in t.blocks.iter().enumerate() {
         let cap = rec
             .captures
@@ -508,13 +515,29 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             _ => 65535.0,
         };
         // Fraction of full scale per microsecond: captures of different exposures compare.
+        let to_units = 1.0 / full / cap.exposure_us;
         for (dst, v) in i[t.block_rows(b)].iter_mut().zip(wall) {
-            *dst = v / full / cap.exposure_us;
+            *dst = v * to_units;
+        }
+        let frame_var = crate::store::read_mean_variance(&d.store.capture_dir(cap.id))
+            .map_err(|e| format!("capture {}: {e}", cap.id))?;
+        match (frame_var, var.as_mut()) {
+            (Some(fv), Some(acc)) => {
+                let wall_var = sample_wall(&fv, h, &scene.wall.plane, &pose.name)
+                    .map_err(|e| format!("capture {}: {e}", cap.id))?;
+                for (dst, v) in acc[t.block_rows(b)].iter_mut().zip(wall_var) {
+                    *dst = v * to_units * to_units;
+                }
+            }
+            _ => var = None,
         }
     }
     let mut warnings = Vec::new();
     match d.calibration.get(&rec.scene) {
-        Some(&c) if c > 0.0 => i.iter_mut().for_each(|v| *v /= c),
+        Some(&c) if c > 0.0 => {
+            i.iter_mut().for_each(|v| *v /= c);
+            var.iter_mut().flatten().for_each(|v| *v /= c * c);
+        }
         _ => {
             // No calibration: scale so that the brightest element of a Tikhonov
             // solution is 1 (the box constraint needs some scale).
@@ -534,6 +557,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
                     .max(1e-300);
             let s = lsq_scale * unclipped_max;
             i.iter_mut().for_each(|v| *v /= s);
+            var.iter_mut().flatten().for_each(|v| *v /= s * s);
             warnings.push("no radiometric calibration for this scene: the measurement was scaled so that the brightest element is about 1".to_string());
         }
     }
@@ -563,6 +587,28 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
     .map_err(|e| e.to_string())?;
     let cond = condition(&t).map_err(|e| e.to_string())?;
     let grid = t.scene_grid;
+    if let Some(v) = &var {
+        // The least-squares error the noise implies (see `polnlos plan`).
+        let sigma = (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt();
+        let amp = if cond.is_rank_deficient() {
+            f64::INFINITY
+        } else {
+            sigma
+                * (cond
+                    .singular_values
+                    .iter()
+                    .map(|s| 1.0 / (s * s))
+                    .sum::<f64>()
+                    / t.cols() as f64)
+                    .sqrt()
+        };
+        if amp > PLAN_TOLERANCE {
+            warnings.push(format!(
+                "the {}x{} scene grid is finer than this measurement supports: the frame-to-frame noise alone gives a least-squares RMS error of {amp:.2e} of the radiance range (> {PLAN_TOLERANCE}); `polnlos plan` suggests a coarser grid, or take more frames",
+                grid.nu, grid.nv
+            ));
+        }
+    }
     let truth = p
         .get("truth")
         .and_then(|v| v.as_str())

@@ -156,6 +156,58 @@ pub fn mean_frame(frames: &[RawFrame], dark: &[RawFrame]) -> Frame {
     }
 }
 
+/// Per-pixel variance of the mean of a capture's raw frames (DN^2): the
+/// sample variance across frames divided by their number. `None` with fewer
+/// than two frames. Used to estimate the noise of a measurement.
+pub fn read_mean_variance(dir: &Path) -> Result<Option<Frame>, StoreError> {
+    let p = dir.join(CaptureFiles::FRAMES);
+    let f = std::fs::File::open(&p).map_err(|e| {
+        StoreError::File(FileError::Io {
+            action: "cannot read",
+            path: p.clone(),
+            source: e,
+        })
+    })?;
+    let bad = |e: tiff::TiffError| {
+        StoreError::File(FileError::Format {
+            path: p.clone(),
+            reason: format!("cannot decode TIFF: {e}"),
+        })
+    };
+    let mut dec = tiff::decoder::Decoder::new(std::io::BufReader::new(f)).map_err(bad)?;
+    let (w, h) = dec.dimensions().map_err(bad)?;
+    let n_px = (w as usize) * (h as usize);
+    let (mut sum, mut sum2, mut n) = (vec![0.0f64; n_px], vec![0.0f64; n_px], 0usize);
+    loop {
+        if let tiff::decoder::DecodingResult::U16(v) = dec.read_image().map_err(bad)? {
+            for ((s, s2), &x) in sum.iter_mut().zip(sum2.iter_mut()).zip(&v) {
+                let x = f64::from(x);
+                *s += x;
+                *s2 += x * x;
+            }
+            n += 1;
+        }
+        if !dec.more_images() {
+            break;
+        }
+        dec.next_image().map_err(bad)?;
+    }
+    if n < 2 {
+        return Ok(None);
+    }
+    let nf = n as f64;
+    let pixels = sum
+        .iter()
+        .zip(&sum2)
+        .map(|(s, s2)| (((s2 - s * s / nf) / (nf - 1.0)).max(0.0) / nf) as f32)
+        .collect();
+    Ok(Some(Frame {
+        width: w as usize,
+        height: h as usize,
+        pixels,
+    }))
+}
+
 /// Reads a capture's mean frame back.
 pub fn read_mean(dir: &Path) -> Result<Frame, StoreError> {
     let p = dir.join(CaptureFiles::MEAN);

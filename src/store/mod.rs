@@ -13,7 +13,9 @@ use std::sync::Mutex;
 
 use rusqlite::{params, Connection, OptionalExtension};
 
-pub use files::{mean_frame, read_mean, write_capture_files, CaptureFiles, FrameMeta};
+pub use files::{
+    mean_frame, read_mean, read_mean_variance, write_capture_files, CaptureFiles, FrameMeta,
+};
 pub use records::{
     CaptureRecord, CaptureRequest, JobState, ReconstructionRecord, ReconstructionRequest,
 };
