@@ -290,6 +290,9 @@ impl Scratch {
     }
 
     /// Incident geometry from scene point `s` to every wall sample.
+    ///
+    /// Every array is re-sliced to the same length first, so that the bounds
+    /// checks vanish and the loop vectorizes (likewise in `pose` and `block`).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn incident(
@@ -303,24 +306,34 @@ impl Scratch {
         weight: f64,
     ) {
         let len = self.base.len();
+        let (cx, cy, cz) = (&c.x[..len], &c.y[..len], &c.z[..len]);
+        let Scratch {
+            w_i,
+            cos_i,
+            g1_i,
+            base,
+            ..
+        } = self;
+        let (wx, wy, wz) = (&mut w_i.x[..len], &mut w_i.y[..len], &mut w_i.z[..len]);
+        let (ci_out, g1_out, base) = (&mut cos_i[..len], &mut g1_i[..len], &mut base[..len]);
         for j in 0..len {
-            let (dx, dy, dz) = (s.x - c.x[j], s.y - c.y[j], s.z - c.z[j]);
+            let (dx, dy, dz) = (s.x - cx[j], s.y - cy[j], s.z - cz[j]);
             let r2 = dx * dx + dy * dy + dz * dz;
             let inv = 1.0 / r2.sqrt();
-            let (wx, wy, wz) = (dx * inv, dy * inv, dz * inv);
-            let cos_i = n.x * wx + n.y * wy + n.z * wz;
+            let (ux, uy, uz) = (dx * inv, dy * inv, dz * inv);
+            let ci = n.x * ux + n.y * uy + n.z * uz;
             let g = if lambertian {
-                (-(n_s.x * wx + n_s.y * wy + n_s.z * wz)).max(0.0)
+                (-(n_s.x * ux + n_s.y * uy + n_s.z * uz)).max(0.0)
             } else {
                 1.0
             };
-            self.w_i.x[j] = wx;
-            self.w_i.y[j] = wy;
-            self.w_i.z[j] = wz;
-            self.cos_i[j] = cos_i;
-            self.g1_i[j] = ggx::smith_g1(cos_i, alpha);
-            self.base[j] = if cos_i > 0.0 {
-                weight * g * cos_i * inv * inv
+            wx[j] = ux;
+            wy[j] = uy;
+            wz[j] = uz;
+            ci_out[j] = ci;
+            g1_out[j] = ggx::smith_g1(ci, alpha);
+            base[j] = if ci > 0.0 {
+                weight * g * ci * inv * inv
             } else {
                 0.0
             };
@@ -331,25 +344,48 @@ impl Scratch {
     #[inline(always)]
     fn pose(&mut self, v: &PoseView, brdf: &crate::optics::Brdf, ks_on: bool) {
         let len = self.base.len();
+        let Scratch {
+            w_i,
+            cos_i,
+            g1_i,
+            spec,
+            rs,
+            rp,
+            cross2,
+            open,
+            ..
+        } = self;
+        let cos_o = &v.cos_o[..len];
+        let open = &mut open[..len];
         for j in 0..len {
-            self.open[j] = if v.cos_o[j] > 0.0 { 1.0 } else { 0.0 };
+            open[j] = if cos_o[j] > 0.0 { 1.0 } else { 0.0 };
         }
         if !ks_on {
             return;
         }
+        let (ix, iy, iz) = (&w_i.x[..len], &w_i.y[..len], &w_i.z[..len]);
+        let (ox, oy, oz) = (&v.w_o.x[..len], &v.w_o.y[..len], &v.w_o.z[..len]);
+        let (ci, g1i, g1o) = (&cos_i[..len], &g1_i[..len], &v.g1_o[..len]);
+        let (spec, rs, rp, cross2) = (
+            &mut spec[..len],
+            &mut rs[..len],
+            &mut rp[..len],
+            &mut cross2[..len],
+        );
         for j in 0..len {
-            let (ix, iy, iz) = (self.w_i.x[j], self.w_i.y[j], self.w_i.z[j]);
-            let (ox, oy, oz) = (v.w_o.x[j], v.w_o.y[j], v.w_o.z[j]);
-            let c2 = ix * ox + iy * oy + iz * oz;
-            let (cos_i, cos_o) = (self.cos_i[j], v.cos_o[j]);
-            let lobe = brdf.lobe_from_cosines(cos_i, self.g1_i[j], cos_o, v.g1_o[j], c2);
+            let c2 = ix[j] * ox[j] + iy[j] * oy[j] + iz[j] * oz[j];
+            let lobe = brdf.lobe_from_cosines(ci[j], g1i[j], cos_o[j], g1o[j], c2);
             let r = lobe.fresnel.reflectances();
-            let ok = cos_i > 0.0 && cos_o > 0.0;
-            self.spec[j] = if ok { lobe.weight } else { 0.0 };
-            self.rs[j] = r.rs;
-            self.rp[j] = r.rp;
-            let (xx, xy, xz) = (iy * oz - iz * oy, iz * ox - ix * oz, ix * oy - iy * ox);
-            self.cross2[j] = xx * xx + xy * xy + xz * xz;
+            let ok = ci[j] > 0.0 && cos_o[j] > 0.0;
+            spec[j] = if ok { lobe.weight } else { 0.0 };
+            rs[j] = r.rs;
+            rp[j] = r.rp;
+            let (xx, xy, xz) = (
+                iy[j] * oz[j] - iz[j] * oy[j],
+                iz[j] * ox[j] - ix[j] * oz[j],
+                ix[j] * oy[j] - iy[j] * ox[j],
+            );
+            cross2[j] = xx * xx + xy * xy + xz * xz;
         }
     }
 
@@ -359,25 +395,50 @@ impl Scratch {
         let len = self.base.len();
         let p_diff = if a.is_some() { 0.5 } else { 1.0 };
         let d = diffuse * p_diff;
+        let Scratch {
+            w_i,
+            base,
+            spec,
+            rs,
+            rp,
+            cross2,
+            open,
+            value,
+            ..
+        } = self;
+        let (base, spec, rs, rp, cross2, open) = (
+            &base[..len],
+            &spec[..len],
+            &rs[..len],
+            &rp[..len],
+            &cross2[..len],
+            &open[..len],
+        );
+        let value = &mut value[..len];
         match a {
             Some(a) => {
+                let (ix, iy, iz) = (&w_i.x[..len], &w_i.y[..len], &w_i.z[..len]);
+                let (tx, ty, tz) = (&a.t.x[..len], &a.t.y[..len], &a.t.z[..len]);
+                let (bx, by, bz) = (&a.b.x[..len], &a.b.y[..len], &a.b.z[..len]);
                 for j in 0..len {
-                    let (ix, iy, iz) = (self.w_i.x[j], self.w_i.y[j], self.w_i.z[j]);
-                    let wi_b = ix * a.b.x[j] + iy * a.b.y[j] + iz * a.b.z[j];
-                    let wi_t = ix * a.t.x[j] + iy * a.t.y[j] + iz * a.t.z[j];
-                    let p = analyzer_factor(self.rs[j], self.rp[j], wi_b, wi_t, self.cross2[j]);
-                    let spec = if ks_on { self.spec[j] * p } else { 0.0 };
-                    self.value[j] = self.base[j] * self.open[j] * (spec + d);
+                    let wi_b = ix[j] * bx[j] + iy[j] * by[j] + iz[j] * bz[j];
+                    let wi_t = ix[j] * tx[j] + iy[j] * ty[j] + iz[j] * tz[j];
+                    let sp = if ks_on {
+                        spec[j] * analyzer_factor(rs[j], rp[j], wi_b, wi_t, cross2[j])
+                    } else {
+                        0.0
+                    };
+                    value[j] = base[j] * open[j] * (sp + d);
                 }
             }
             None => {
                 for j in 0..len {
-                    let spec = if ks_on {
-                        self.spec[j] * 0.5 * (self.rs[j] + self.rp[j])
+                    let sp = if ks_on {
+                        spec[j] * 0.5 * (rs[j] + rp[j])
                     } else {
                         0.0
                     };
-                    self.value[j] = self.base[j] * self.open[j] * (spec + d);
+                    value[j] = base[j] * open[j] * (sp + d);
                 }
             }
         }
