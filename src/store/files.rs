@@ -156,25 +156,28 @@ pub fn mean_frame(frames: &[RawFrame], dark: &[RawFrame]) -> Frame {
     }
 }
 
+type TiffReader = tiff::decoder::Decoder<std::io::BufReader<std::fs::File>>;
+
+fn decode_error(path: &Path, e: tiff::TiffError) -> StoreError {
+    StoreError::File(FileError::Format {
+        path: path.to_path_buf(),
+        reason: format!("cannot decode TIFF: {e}"),
+    })
+}
+
+/// Opens one of a capture's TIFF files for decoding.
+fn open_tiff(path: &Path) -> Result<TiffReader, StoreError> {
+    let f = std::fs::File::open(path).map_err(|e| StoreError::File(FileError::read(path, e)))?;
+    tiff::decoder::Decoder::new(std::io::BufReader::new(f)).map_err(|e| decode_error(path, e))
+}
+
 /// Per-pixel variance of the mean of a capture's raw frames (DN^2): the
 /// sample variance across frames divided by their number. `None` with fewer
 /// than two frames. Used to estimate the noise of a measurement.
 pub fn read_mean_variance(dir: &Path) -> Result<Option<Frame>, StoreError> {
     let p = dir.join(CaptureFiles::FRAMES);
-    let f = std::fs::File::open(&p).map_err(|e| {
-        StoreError::File(FileError::Io {
-            action: "cannot read",
-            path: p.clone(),
-            source: e,
-        })
-    })?;
-    let bad = |e: tiff::TiffError| {
-        StoreError::File(FileError::Format {
-            path: p.clone(),
-            reason: format!("cannot decode TIFF: {e}"),
-        })
-    };
-    let mut dec = tiff::decoder::Decoder::new(std::io::BufReader::new(f)).map_err(bad)?;
+    let bad = |e: tiff::TiffError| decode_error(&p, e);
+    let mut dec = open_tiff(&p)?;
     let (w, h) = dec.dimensions().map_err(bad)?;
     let n_px = (w as usize) * (h as usize);
     let (mut sum, mut sum2, mut n) = (vec![0.0f64; n_px], vec![0.0f64; n_px], 0usize);
@@ -211,20 +214,8 @@ pub fn read_mean_variance(dir: &Path) -> Result<Option<Frame>, StoreError> {
 /// Reads a capture's mean frame back.
 pub fn read_mean(dir: &Path) -> Result<Frame, StoreError> {
     let p = dir.join(CaptureFiles::MEAN);
-    let f = std::fs::File::open(&p).map_err(|e| {
-        StoreError::File(FileError::Io {
-            action: "cannot read",
-            path: p.clone(),
-            source: e,
-        })
-    })?;
-    let bad = |e: tiff::TiffError| {
-        StoreError::File(FileError::Format {
-            path: p.clone(),
-            reason: format!("cannot decode TIFF: {e}"),
-        })
-    };
-    let mut dec = tiff::decoder::Decoder::new(std::io::BufReader::new(f)).map_err(bad)?;
+    let bad = |e: tiff::TiffError| decode_error(&p, e);
+    let mut dec = open_tiff(&p)?;
     let (w, h) = dec.dimensions().map_err(bad)?;
     match dec.read_image().map_err(bad)? {
         tiff::decoder::DecodingResult::F32(v) => Ok(Frame {
