@@ -13,7 +13,7 @@ use crate::camera::{CameraSettings, PixelFormat, TriggerMode};
 use crate::files::{image, json, npy};
 use crate::measure::sample_wall;
 use crate::solve::report::Report;
-use crate::solve::{admm_tv, condition, least_squares, tikhonov, AdmmSettings};
+use crate::solve::{admm_tv, least_squares, tikhonov, AdmmSettings};
 use crate::store::{
     read_mean, write_capture_files, CaptureRequest, FrameMeta, JobState, ReconstructionRequest,
 };
@@ -585,7 +585,10 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
         ),
     }
     .map_err(|e| e.to_string())?;
-    let cond = condition(&t).map_err(|e| e.to_string())?;
+    let cond = d
+        .scenes
+        .conditioning(&rec.scene)
+        .ok_or("scene vanished")??;
     let grid = t.scene_grid;
     if let Some(v) = &var {
         // The least-squares error the noise implies (see `polnlos plan`).

@@ -1,17 +1,20 @@
 //! Scenes the daemon knows by name: the built-in bench scenes and the
-//! config's `scene_files`, each with its transport matrix built once on first use.
+//! config's `scene_files`, each with its transport matrix and its singular
+//! values computed once on first use (both depend on the scene alone).
 
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use crate::scene::{Scene, SceneError};
+use crate::solve::{condition, Conditioning};
 use crate::transport::{build, Transport, TransportError};
 
 /// Scenes by name, with a cache of their `T`.
 pub struct Scenes {
     scenes: BTreeMap<String, Arc<Scene>>,
     transports: Mutex<BTreeMap<String, Arc<Transport>>>,
+    conditioning: Mutex<BTreeMap<String, Arc<Conditioning>>>,
 }
 
 impl Scenes {
@@ -32,6 +35,7 @@ impl Scenes {
         Ok(Self {
             scenes,
             transports: Mutex::new(BTreeMap::new()),
+            conditioning: Mutex::new(BTreeMap::new()),
         })
     }
 
@@ -62,6 +66,30 @@ impl Scenes {
                 m.insert(name.to_string(), t.clone());
             }
             t
+        }))
+    }
+
+    /// Singular values and kappa of a scene's `T`, computed on first use
+    /// (an SVD: call from a blocking task). Errors are returned as text.
+    pub fn conditioning(&self, name: &str) -> Option<Result<Arc<Conditioning>, String>> {
+        if let Some(c) = self
+            .conditioning
+            .lock()
+            .ok()
+            .and_then(|m| m.get(name).cloned())
+        {
+            return Some(Ok(c));
+        }
+        let t = match self.transport(name)? {
+            Ok(t) => t,
+            Err(e) => return Some(Err(e.to_string())),
+        };
+        Some(condition(&t).map_err(|e| e.to_string()).map(|c| {
+            let c = Arc::new(c);
+            if let Ok(mut m) = self.conditioning.lock() {
+                m.insert(name.to_string(), c.clone());
+            }
+            c
         }))
     }
 }
