@@ -173,6 +173,19 @@ fn simulate_then_reconstruct_through_files() {
         8
     );
 
+    // FISTA-TV minimizes the same objective: same lambda, PSNR within 0.5 dB of ADMM.
+    let fista = d.join("fista");
+    ok(&args("fista-tv", &fista));
+    let f: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(fista.join("report.json")).unwrap()).unwrap();
+    assert_eq!(f["solver"]["solver"], "fista-tv");
+    assert_eq!(f["solver"]["lambda"], r["solver"]["lambda"]);
+    let fpsnr = f["metrics"]["psnr_db"].as_f64().unwrap();
+    assert!(
+        (fpsnr - psnr).abs() < 0.5,
+        "FISTA {fpsnr} dB vs ADMM {psnr} dB"
+    );
+
     // lambda from the noise level of the simulation.
     let auto = d.join("auto");
     ok(&polnlos(&[

@@ -6,12 +6,16 @@ use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::solve::lambda::{admm_tv_discrepancy, NoiseLevel};
 use polnlos::solve::report::Report;
-use polnlos::solve::{admm_tv, condition, least_squares, tikhonov, AdmmSettings};
+use polnlos::solve::{
+    admm_tv, condition, fista_tv, least_squares, tikhonov, AdmmSettings, FistaSettings,
+};
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 enum Solver {
     /// ADMM with isotropic TV and the box 0 <= l <= 1 (MODEL.md Eq. 12).
     AdmmTv,
+    /// FISTA with a TV proximal step and the box (Saunders et al. 2019); same objective.
+    FistaTv,
     /// Tikhonov (ridge) regularization, clipped to [0, 1].
     Tikhonov,
     /// (Truncated) pseudo-inverse, clipped to [0, 1].
@@ -48,10 +52,11 @@ pub struct Args {
     /// ADMM penalty (default: equal to lambda).
     #[arg(long, value_name = "R")]
     rho: Option<f64>,
-    /// ADMM iteration cap.
+    /// ADMM / FISTA iteration cap.
     #[arg(long = "max-iter", value_name = "N", default_value_t = AdmmSettings::default().max_iter)]
     max_iter: usize,
-    /// ADMM relative tolerance on the primal/dual residuals.
+    /// ADMM relative tolerance on the primal/dual residuals (FISTA: on the
+    /// relative change of l between iterations).
     #[arg(long, value_name = "T", default_value_t = AdmmSettings::default().tol)]
     tol: f64,
     /// Relative singular-value cut-off for --solver lsq (default: numerical rank only).
@@ -136,6 +141,19 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             r
         }
         (Solver::AdmmTv, _) => admm_tv(&t, &meas.data, &settings)?,
+        (Solver::FistaTv, Some(LambdaArg::Auto)) => {
+            anyhow::bail!("--lambda auto is for --solver admm-tv")
+        }
+        (Solver::FistaTv, _) => fista_tv(
+            &t,
+            &meas.data,
+            &FistaSettings {
+                lambda: fixed,
+                max_iter: a.max_iter,
+                tol: a.tol,
+                ..FistaSettings::default()
+            },
+        )?,
         (_, Some(LambdaArg::Auto)) => anyhow::bail!("--lambda auto is for --solver admm-tv"),
         (Solver::Tikhonov, _) => tikhonov(&t, &meas.data, fixed)?,
         (Solver::Lsq, _) => least_squares(&t, &meas.data, a.rcond)?,

@@ -9,6 +9,7 @@
 pub mod admm;
 pub mod baseline;
 pub mod conditioning;
+pub mod fista;
 mod gram;
 pub mod lambda;
 pub mod metrics;
@@ -19,6 +20,7 @@ pub mod tv;
 pub use admm::{admm_tv, AdmmSettings};
 pub use baseline::{least_squares, tikhonov};
 pub use conditioning::{condition, Conditioning};
+pub use fista::{fista_tv, FistaSettings};
 
 use crate::transport::Transport;
 
