@@ -1,5 +1,10 @@
 //! Charts for the bench reports, drawn with plotters into PNG and SVG, with
 //! DejaVuSans embedded so no system font (fontconfig/freetype) is needed.
+//!
+//! Every figure is drawn by one generic function over plotters'
+//! `DrawingBackend`, once for the bitmap and once for the SVG. Log axes are
+//! drawn in log10 space with tick labels written back in linear values, so
+//! linear and log charts share one coordinate type.
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -7,6 +12,7 @@ use plotters::prelude::*;
 static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
 
 /// A chart rendered both ways.
+#[derive(Debug)]
 pub struct Chart {
     /// PNG file contents.
     pub png: Vec<u8>,
@@ -32,164 +38,377 @@ fn font() -> Result<(), ChartError> {
         .ok_or_else(|| ChartError("the embedded font could not be registered".into()))
 }
 
-const SIZE: (u32, u32) = (900, 560);
-const PALETTE: [RGBColor; 6] = [
+const PANEL: (u32, u32) = (900, 560);
+const PALETTE: [RGBColor; 8] = [
     RGBColor(31, 119, 180),
     RGBColor(255, 127, 14),
     RGBColor(44, 160, 44),
     RGBColor(214, 39, 40),
     RGBColor(148, 103, 189),
     RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(23, 190, 207),
 ];
 
-/// One named series of (x, y) points.
-pub struct Series {
-    /// Legend label.
-    pub name: String,
-    /// Points; y must be positive for the log axis (others are skipped).
-    pub points: Vec<(f64, f64)>,
+/// Something drawable on any plotters backend.
+trait Figure {
+    /// Pixel size of the whole figure.
+    fn size(&self) -> (u32, u32);
+    /// Draws onto `root`.
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), ChartError>;
 }
 
-fn render(
-    draw: impl Fn(DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), ChartError>,
-    draw_svg: impl Fn(DrawingArea<SVGBackend<'_>, Shift>) -> Result<(), ChartError>,
-) -> Result<Chart, ChartError> {
+fn render(fig: &impl Figure) -> Result<Chart, ChartError> {
     font()?;
-    let mut rgb = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
-    {
-        let root = BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area();
-        draw(root)?;
-    }
-    let img = image::RgbImage::from_raw(SIZE.0, SIZE.1, rgb)
+    let size = fig.size();
+    let mut rgb = vec![0u8; (size.0 * size.1 * 3) as usize];
+    fig.draw(BitMapBackend::with_buffer(&mut rgb, size).into_drawing_area())?;
+    let img = image::RgbImage::from_raw(size.0, size.1, rgb)
         .ok_or_else(|| ChartError("buffer size".into()))?;
     let mut png = std::io::Cursor::new(Vec::new());
     img.write_to(&mut png, image::ImageFormat::Png)
         .map_err(err)?;
     let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, SIZE).into_drawing_area();
-        draw_svg(root)?;
-    }
+    fig.draw(SVGBackend::with_string(&mut svg, size).into_drawing_area())?;
     Ok(Chart {
         png: png.into_inner(),
         svg,
     })
 }
 
-macro_rules! log_lines {
-    ($root:expr, $title:expr, $xlabel:expr, $ylabel:expr, $series:expr, $xlog:expr) => {{
-        let root = $root;
-        root.fill(&WHITE).map_err(err)?;
-        let pts = $series
-            .iter()
-            .flat_map(|s: &Series| s.points.iter().copied())
-            .filter(|p| p.1 > 0.0 && p.1.is_finite());
-        let (mut x0, mut x1, mut y0, mut y1) = (
+/// Marker drawn at each point of a series.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Marker {
+    /// No marker (a line only).
+    None,
+    /// Filled circle.
+    Circle,
+    /// Filled triangle.
+    Triangle,
+    /// Cross.
+    Cross,
+}
+
+/// One named series of (x, y) points.
+#[derive(Debug, Clone)]
+pub struct Series {
+    /// Legend label.
+    pub name: String,
+    /// Points; on a log axis, values that are not positive and finite are skipped.
+    pub points: Vec<(f64, f64)>,
+    /// Optional vertical spread per point (low, high), drawn as a bar.
+    pub spread: Vec<(f64, f64)>,
+    /// Palette index.
+    pub color: usize,
+    /// Marker shape.
+    pub marker: Marker,
+    /// Join the points with a line.
+    pub line: bool,
+    /// Thin (2 px) rather than 3 px line.
+    pub thin: bool,
+}
+
+impl Series {
+    /// A line with circle markers in palette colour `color`.
+    pub fn line(name: impl Into<String>, color: usize, points: Vec<(f64, f64)>) -> Self {
+        Self {
+            name: name.into(),
+            points,
+            spread: Vec::new(),
+            color,
+            marker: Marker::Circle,
+            line: true,
+            thin: false,
+        }
+    }
+}
+
+/// One panel: axes, labels and series.
+#[derive(Debug, Clone)]
+pub struct Plot {
+    /// Caption.
+    pub title: String,
+    /// X axis label.
+    pub x_label: String,
+    /// Y axis label.
+    pub y_label: String,
+    /// Log10 x axis.
+    pub x_log: bool,
+    /// Log10 y axis.
+    pub y_log: bool,
+    /// Series in legend order.
+    pub series: Vec<Series>,
+}
+
+/// Ticks for one axis in drawing space: decades on a log axis, 1-2-5 steps
+/// on a linear one.
+fn ticks(lo: f64, hi: f64, log: bool) -> Vec<f64> {
+    if log {
+        let (a, b) = (lo.floor() as i32, hi.ceil() as i32);
+        let step = ((b - a) / 8 + 1).max(1);
+        return (a..=b)
+            .step_by(step as usize)
+            .map(f64::from)
+            .filter(|v| *v >= lo && *v <= hi)
+            .collect();
+    }
+    let raw = (hi - lo) / 8.0;
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * mag)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * mag);
+    let mut v = (lo / step).ceil() * step;
+    let mut out = Vec::new();
+    while v <= hi + 1e-12 * step {
+        out.push(v);
+        v += step;
+    }
+    out
+}
+
+/// A tick label; on a log axis only decades are labelled.
+fn label(v: f64, log: bool) -> String {
+    if log && (v - v.round()).abs() > 1e-9 {
+        return String::new();
+    }
+    if !log {
+        return format!("{}", (v * 1e6).round() / 1e6);
+    }
+    let x = 10f64.powf(v);
+    if (1e-2..1e4).contains(&x) {
+        format!("{}", (x * 1e4).round() / 1e4)
+    } else {
+        format!("1e{}", v.round() as i32)
+    }
+}
+
+impl Plot {
+    fn transformed(&self, p: (f64, f64)) -> Option<(f64, f64)> {
+        let f = |v: f64, log: bool| {
+            if log {
+                (v > 0.0 && v.is_finite()).then(|| v.log10())
+            } else {
+                v.is_finite().then_some(v)
+            }
+        };
+        Some((f(p.0, self.x_log)?, f(p.1, self.y_log)?))
+    }
+
+    fn axes(&self) -> Option<((f64, f64), (f64, f64))> {
+        let mut b = (
             f64::INFINITY,
             f64::NEG_INFINITY,
             f64::INFINITY,
             f64::NEG_INFINITY,
         );
-        for (x, y) in pts {
-            x0 = x0.min(x);
-            x1 = x1.max(x);
-            y0 = y0.min(y);
-            y1 = y1.max(y);
+        for s in &self.series {
+            let lows = s.spread.iter().map(|r| (0.0, r.0));
+            let highs = s.spread.iter().map(|r| (0.0, r.1));
+            for (k, p) in s.points.iter().enumerate() {
+                let Some((x, y)) = self.transformed(*p) else {
+                    continue;
+                };
+                b = (b.0.min(x), b.1.max(x), b.2.min(y), b.3.max(y));
+                let _ = k;
+            }
+            for (_, y) in lows.chain(highs) {
+                if let Some((_, y)) = self.transformed((1.0, y)) {
+                    b.2 = b.2.min(y);
+                    b.3 = b.3.max(y);
+                }
+            }
         }
-        if !x0.is_finite() {
-            return Err(ChartError("no finite positive value to plot".into()));
+        if !b.0.is_finite() {
+            return None;
         }
-        let mut chart = ChartBuilder::on(&root)
-            .caption($title, ("sans-serif", 24))
+        let pad = |lo: f64, hi: f64, log: bool| {
+            let w = if hi > lo {
+                hi - lo
+            } else if log {
+                1.0
+            } else {
+                lo.abs().max(1.0)
+            };
+            (lo - 0.06 * w, hi + 0.06 * w)
+        };
+        Some((pad(b.0, b.1, self.x_log), pad(b.2, b.3, self.y_log)))
+    }
+
+    fn draw_on<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), ChartError> {
+        let Some(((x0, x1), (y0, y1))) = self.axes() else {
+            return Err(ChartError(format!(
+                "{}: no finite value to plot",
+                self.title
+            )));
+        };
+        let mut chart = ChartBuilder::on(root)
+            .caption(&self.title, ("sans-serif", 22))
             .margin(16)
             .x_label_area_size(48)
             .y_label_area_size(80)
-            .build_cartesian_2d(
-                (x0 * 0.9..x1 * 1.1).log_scale(),
-                (y0 / 2.0..y1 * 2.0).log_scale(),
-            )
+            .build_cartesian_2d(x0..x1, y0..y1)
             .map_err(err)?;
+        let (xl, yl) = (self.x_log, self.y_log);
         chart
             .configure_mesh()
-            .x_desc($xlabel)
-            .y_desc($ylabel)
+            .x_desc(&self.x_label)
+            .y_desc(&self.y_label)
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 16))
-            .y_label_formatter(&|v| format!("{v:.0e}"))
-            .x_label_formatter(&|v| format!("{v:.2}"))
-            .x_labels(8)
+            .x_labels(ticks(x0, x1, xl).len().max(3) * 2)
+            .y_labels(ticks(y0, y1, yl).len().max(3) * 2)
+            .x_label_formatter(&|v| label(*v, xl))
+            .y_label_formatter(&|v| label(*v, yl))
             .draw()
             .map_err(err)?;
-        for (k, s) in $series.iter().enumerate() {
-            let c = PALETTE[k % PALETTE.len()];
-            let style = if s.name.contains("occluder") {
-                c.stroke_width(2)
-            } else {
-                c.stroke_width(3)
-            };
+        for s in &self.series {
+            let c = PALETTE[s.color % PALETTE.len()];
+            let width = if s.thin { 2 } else { 3 };
             let data: Vec<(f64, f64)> = s
                 .points
                 .iter()
-                .copied()
-                .filter(|p| p.1 > 0.0 && p.1.is_finite())
+                .filter_map(|p| self.transformed(*p))
                 .collect();
-            chart
-                .draw_series(LineSeries::new(data.clone(), style))
-                .map_err(err)?
-                .label(s.name.clone())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3))
-                });
-            chart
-                .draw_series(data.iter().map(|&p| Circle::new(p, 4, c.filled())))
-                .map_err(err)?;
+            for (p, (lo, hi)) in s.points.iter().zip(&s.spread) {
+                if let (Some(a), Some(b)) =
+                    (self.transformed((p.0, *lo)), self.transformed((p.0, *hi)))
+                {
+                    chart
+                        .draw_series(std::iter::once(PathElement::new(
+                            vec![a, b],
+                            c.stroke_width(1),
+                        )))
+                        .map_err(err)?;
+                }
+            }
+            let anno = if s.line {
+                chart
+                    .draw_series(LineSeries::new(data.clone(), c.stroke_width(width)))
+                    .map_err(err)?
+            } else {
+                chart
+                    .draw_series(std::iter::empty::<PathElement<(f64, f64)>>())
+                    .map_err(err)?
+            };
+            let marker = s.marker;
+            anno.label(s.name.clone()).legend(
+                move |(x, y)| -> DynElement<'static, DB, (i32, i32)> {
+                    match marker {
+                        Marker::None | Marker::Circle => {
+                            PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3))
+                                .into_dyn()
+                        }
+                        Marker::Triangle => {
+                            TriangleMarker::new((x + 10, y), 6, c.filled()).into_dyn()
+                        }
+                        Marker::Cross => Cross::new((x + 10, y), 5, c.stroke_width(2)).into_dyn(),
+                    }
+                },
+            );
+            match marker {
+                Marker::None => {}
+                Marker::Circle => {
+                    chart
+                        .draw_series(data.iter().map(|&p| Circle::new(p, 4, c.filled())))
+                        .map_err(err)?;
+                }
+                Marker::Triangle => {
+                    chart
+                        .draw_series(data.iter().map(|&p| TriangleMarker::new(p, 6, c.filled())))
+                        .map_err(err)?;
+                }
+                Marker::Cross => {
+                    chart
+                        .draw_series(data.iter().map(|&p| Cross::new(p, 5, c.stroke_width(2))))
+                        .map_err(err)?;
+                }
+            }
         }
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
-            .label_font(("sans-serif", 14))
+            .label_font(("sans-serif", 13))
             .position(SeriesLabelPosition::UpperLeft)
             .draw()
             .map_err(err)?;
-        root.present().map_err(err)?;
-        let _ = $xlog;
         Ok(())
-    }};
+    }
 }
 
-/// A log-log line chart (e.g. kappa against roughness).
+/// Panels side by side.
+struct Panels<'a>(&'a [Plot]);
+
+impl Figure for Panels<'_> {
+    fn size(&self) -> (u32, u32) {
+        (PANEL.0 * self.0.len().max(1) as u32, PANEL.1)
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), ChartError> {
+        root.fill(&WHITE).map_err(err)?;
+        let areas = root.split_evenly((1, self.0.len().max(1)));
+        for (plot, area) in self.0.iter().zip(&areas) {
+            plot.draw_on(area)?;
+        }
+        root.present().map_err(err)
+    }
+}
+
+/// One or more line/scatter panels side by side, e.g. kappa against
+/// roughness (log-log) or PSNR against wall time (log x).
+pub fn panels(plots: &[Plot]) -> Result<Chart, ChartError> {
+    render(&Panels(plots))
+}
+
+/// A log-log line chart with one circle-marked line per series.
 pub fn log_lines(
     title: &str,
     x_label: &str,
     y_label: &str,
-    series: &[Series],
+    series: Vec<Series>,
 ) -> Result<Chart, ChartError> {
-    render(
-        |root| log_lines!(root, title, x_label, y_label, series, true),
-        |root| log_lines!(root, title, x_label, y_label, series, true),
-    )
+    panels(&[Plot {
+        title: title.into(),
+        x_label: x_label.into(),
+        y_label: y_label.into(),
+        x_log: true,
+        y_log: true,
+        series,
+    }])
 }
 
-macro_rules! bars {
-    ($root:expr, $title:expr, $ylabel:expr, $series:expr, $groups:expr) => {{
-        let root = $root;
+/// Grouped bars on a log axis.
+struct Bars<'a> {
+    title: &'a str,
+    y_label: &'a str,
+    series: &'a [&'a str],
+    groups: &'a [(String, Vec<f64>)],
+}
+
+impl Figure for Bars<'_> {
+    fn size(&self) -> (u32, u32) {
+        PANEL
+    }
+
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), ChartError> {
         root.fill(&WHITE).map_err(err)?;
-        let k_series = $series.len();
-        let width = (k_series + 1) as f64;
+        let width = (self.series.len() + 1) as f64;
         let finite = |v: f64| v.is_finite() && v > 0.0;
-        let top = $groups
+        let top = self
+            .groups
             .iter()
-            .flat_map(|g: &(String, Vec<f64>)| g.1.iter().copied())
+            .flat_map(|g| g.1.iter().copied())
             .filter(|v| finite(*v))
             .fold(1.0, f64::max);
         let mut chart = ChartBuilder::on(&root)
-            .caption($title, ("sans-serif", 24))
+            .caption(self.title, ("sans-serif", 24))
             .margin(16)
             .x_label_area_size(20)
             .y_label_area_size(80)
             .build_cartesian_2d(
-                -1.0..width * $groups.len() as f64 - 1.0,
+                -1.0..width * self.groups.len() as f64 - 1.0,
                 (1.0..top * 30.0).log_scale(),
             )
             .map_err(err)?;
@@ -197,15 +416,16 @@ macro_rules! bars {
             .configure_mesh()
             .disable_x_mesh()
             .x_labels(0)
-            .y_desc($ylabel)
+            .y_desc(self.y_label)
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 16))
             .y_label_formatter(&|v| format!("{v:.0e}"))
             .draw()
             .map_err(err)?;
-        for (k, name) in $series.iter().enumerate() {
+        for (k, name) in self.series.iter().enumerate() {
             let c = PALETTE[k % PALETTE.len()];
-            let rects: Vec<Rectangle<(f64, f64)>> = $groups
+            let rects: Vec<Rectangle<(f64, f64)>> = self
+                .groups
                 .iter()
                 .enumerate()
                 .filter_map(|(g, (_, vals))| {
@@ -220,7 +440,7 @@ macro_rules! bars {
                 .label(name.to_string())
                 .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], c.filled()));
         }
-        for (g, (label, _)) in $groups.iter().enumerate() {
+        for (g, (label, _)) in self.groups.iter().enumerate() {
             let x = g as f64 * width - 0.4;
             chart
                 .draw_series(std::iter::once(Text::new(
@@ -238,9 +458,8 @@ macro_rules! bars {
             .position(SeriesLabelPosition::MiddleRight)
             .draw()
             .map_err(err)?;
-        root.present().map_err(err)?;
-        Ok(())
-    }};
+        root.present().map_err(err)
+    }
 }
 
 /// Grouped bars on a log axis: one colour per series (e.g. polarizer
@@ -252,8 +471,95 @@ pub fn log_bars(
     series: &[&str],
     groups: &[(String, Vec<f64>)],
 ) -> Result<Chart, ChartError> {
-    render(
-        |root| bars!(root, title, y_label, series, groups),
-        |root| bars!(root, title, y_label, series, groups),
-    )
+    render(&Bars {
+        title,
+        y_label,
+        series,
+        groups,
+    })
+}
+
+/// Indices of the points on the Pareto front of "less time, more quality":
+/// a point is kept when no other point is at least as fast and strictly
+/// better, or strictly faster and at least as good. Sorted by time.
+pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
+    let mut idx: Vec<usize> = (0..points.len())
+        .filter(|&k| points[k].0.is_finite() && points[k].1.is_finite())
+        .collect();
+    idx.sort_by(|&a, &b| {
+        points[a]
+            .0
+            .total_cmp(&points[b].0)
+            .then(points[b].1.total_cmp(&points[a].1))
+    });
+    let mut best = f64::NEG_INFINITY;
+    idx.into_iter()
+        .filter(|&k| {
+            let keep = points[k].1 > best;
+            if keep {
+                best = points[k].1;
+            }
+            keep
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pareto_front_keeps_only_undominated_points() {
+        let p = [
+            (1.0, 10.0),
+            (2.0, 9.0),
+            (3.0, 12.0),
+            (0.5, 5.0),
+            (3.0, 11.0),
+        ];
+        assert_eq!(pareto_front(&p), vec![3, 0, 2]);
+    }
+
+    #[test]
+    fn ticks_are_decades_on_log_axes_and_round_on_linear() {
+        assert_eq!(ticks(-2.3, 1.2, true), vec![-2.0, -1.0, 0.0, 1.0]);
+        assert_eq!(
+            ticks(0.0, 16.0, false),
+            vec![0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0]
+        );
+        assert_eq!(label(-2.0, true), "0.01");
+        assert_eq!(label(6.0, true), "1e6");
+        assert_eq!(label(0.5, true), "");
+    }
+
+    #[test]
+    fn a_chart_renders_as_png_and_svg() {
+        let c = panels(&[Plot {
+            title: "t".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            x_log: true,
+            y_log: false,
+            series: vec![Series::line(
+                "a",
+                0,
+                vec![(0.1, 1.0), (1.0, 2.0), (-1.0, 3.0)],
+            )],
+        }])
+        .unwrap();
+        assert_eq!(&c.png[1..4], b"PNG");
+        assert!(c.svg.contains("<svg"));
+        let none = Plot {
+            title: "empty".into(),
+            x_label: String::new(),
+            y_label: String::new(),
+            x_log: true,
+            y_log: true,
+            series: vec![Series::line("a", 0, vec![(0.0, -1.0)])],
+        };
+        assert!(panels(&[none])
+            .unwrap_err()
+            .to_string()
+            .contains("no finite value"));
+    }
 }

@@ -204,13 +204,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     for occ in [false, true] {
         for config in ["nopol", "crossed", "multi"] {
             series.push(charts::Series {
-                name: format!("{config}{}", if occ { " + occluder" } else { "" }),
-                points: out
-                    .roughness
-                    .iter()
-                    .filter(|r| r.occluder == occ && r.config == config)
-                    .map(|r| (r.roughness, r.kappa))
-                    .collect(),
+                thin: occ,
+                ..charts::Series::line(
+                    format!("{config}{}", if occ { " + occluder" } else { "" }),
+                    series.len(),
+                    out.roughness
+                        .iter()
+                        .filter(|r| r.occluder == occ && r.config == config)
+                        .map(|r| (r.roughness, r.kappa))
+                        .collect(),
+                )
             });
         }
     }
@@ -219,7 +222,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         &format!("kappa(T) against wall roughness ({grid}x{grid} scene)"),
         "GGX roughness alpha",
         "kappa(T)",
-        &series,
+        series,
     )?;
     write_atomic(&a.out.join("roughness.png"), &c.png)?;
     write_atomic(&a.out.join("roughness.svg"), c.svg.as_bytes())?;
