@@ -307,6 +307,8 @@ fn bench_quick_writes_its_reports() {
         "conditioning.svg",
         "roughness.png",
         "roughness.svg",
+        "speed-accuracy-S.png",
+        "speed-accuracy-S.svg",
     ] {
         assert!(dir.path().join(f).metadata().unwrap().len() > 100, "{f}");
     }
@@ -331,6 +333,35 @@ fn bench_quick_writes_its_reports() {
         .starts_with("<svg"));
     let png = image::read_gray(&dir.path().join("conditioning.png")).unwrap();
     assert_eq!((png.width, png.height), (900, 560));
+
+    // Speed against accuracy: 2 exposures x (lsq, tikhonov, 3 ADMM + 3 FISTA
+    // budgets, 3 tolerances, the unpolarized reference).
+    let speed = v["speed"].as_array().unwrap();
+    assert_eq!(speed.len(), 2 * 12);
+    let get = |exposure: &str, solver: &str, budget: &str| {
+        speed
+            .iter()
+            .find(|r| r["exposure"] == exposure && r["solver"] == solver && r["budget"] == budget)
+            .unwrap_or_else(|| panic!("{exposure} {solver} {budget} missing"))
+    };
+    for exposure in ["equal exposure", "equal photon budget"] {
+        let lsq = get(exposure, "lsq", "-")["psnr_db"].as_f64().unwrap();
+        let admm = get(exposure, "admm-tv", "200")["psnr_db"].as_f64().unwrap();
+        let fista = get(exposure, "fista-tv", "200")["psnr_db"]
+            .as_f64()
+            .unwrap();
+        assert!(admm > lsq + 5.0, "{exposure}: ADMM {admm} vs LSQ {lsq}");
+        assert!(
+            (admm - fista).abs() < 1.0,
+            "{exposure}: ADMM {admm} vs FISTA {fista}"
+        );
+        assert!(speed
+            .iter()
+            .any(|r| r["exposure"] == exposure && r["pareto"] == true));
+    }
+    let png = image::read_gray(&dir.path().join("speed-accuracy-S.png")).unwrap();
+    assert_eq!((png.width, png.height), (1800, 1120));
+    assert!(md.contains("## Speed against accuracy"));
 }
 
 #[test]

@@ -140,47 +140,42 @@ pub struct Plot {
     pub series: Vec<Series>,
 }
 
-/// Ticks for one axis in drawing space: decades on a log axis, 1-2-5 steps
-/// on a linear one.
-fn ticks(lo: f64, hi: f64, log: bool) -> Vec<f64> {
-    if log {
-        let (a, b) = (lo.floor() as i32, hi.ceil() as i32);
-        let step = ((b - a) / 8 + 1).max(1);
-        return (a..=b)
-            .step_by(step as usize)
-            .map(f64::from)
-            .filter(|v| *v >= lo && *v <= hi)
-            .collect();
-    }
-    let raw = (hi - lo) / 8.0;
-    let mag = 10f64.powf(raw.log10().floor());
-    let step = [1.0, 2.0, 5.0, 10.0]
-        .iter()
-        .map(|m| m * mag)
-        .find(|s| *s >= raw)
-        .unwrap_or(10.0 * mag);
-    let mut v = (lo / step).ceil() * step;
-    let mut out = Vec::new();
-    while v <= hi + 1e-12 * step {
-        out.push(v);
-        v += step;
-    }
-    out
-}
-
-/// A tick label; on a log axis only decades are labelled.
+/// A tick label. On a log axis (`v` is log10 of the value) only values whose
+/// mantissa is 1, 2 or 5 are labelled, so the labels read 1e-3, 0.002, 0.005.
 fn label(v: f64, log: bool) -> String {
-    if log && (v - v.round()).abs() > 1e-9 {
-        return String::new();
-    }
     if !log {
         return format!("{}", (v * 1e6).round() / 1e6);
     }
     let x = 10f64.powf(v);
+    let decade = 10f64.powf(v.floor());
+    let m = x / decade;
+    let Some(&nice) = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .find(|&&n| (m / n - 1.0).abs() < 0.015)
+    else {
+        return String::new();
+    };
+    let x = nice * decade;
     if (1e-2..1e4).contains(&x) {
         format!("{}", (x * 1e4).round() / 1e4)
     } else {
-        format!("1e{}", v.round() as i32)
+        let e = x.log10().floor();
+        let mant = (x / 10f64.powf(e)).round();
+        if mant == 1.0 {
+            format!("1e{}", e as i32)
+        } else {
+            format!("{mant}e{}", e as i32)
+        }
+    }
+}
+
+/// How many key points to ask plotters for: on a log axis enough that
+/// short ranges get 0.1-decade steps (so 2 and 5 appear), else about 10.
+fn label_count(lo: f64, hi: f64, log: bool) -> usize {
+    if log {
+        ((hi - lo) * 10.0).ceil().clamp(4.0, 24.0) as usize
+    } else {
+        10
     }
 }
 
@@ -204,16 +199,12 @@ impl Plot {
             f64::NEG_INFINITY,
         );
         for s in &self.series {
-            let lows = s.spread.iter().map(|r| (0.0, r.0));
-            let highs = s.spread.iter().map(|r| (0.0, r.1));
-            for (k, p) in s.points.iter().enumerate() {
-                let Some((x, y)) = self.transformed(*p) else {
-                    continue;
-                };
-                b = (b.0.min(x), b.1.max(x), b.2.min(y), b.3.max(y));
-                let _ = k;
+            for p in &s.points {
+                if let Some((x, y)) = self.transformed(*p) {
+                    b = (b.0.min(x), b.1.max(x), b.2.min(y), b.3.max(y));
+                }
             }
-            for (_, y) in lows.chain(highs) {
+            for y in s.spread.iter().flat_map(|r| [r.0, r.1]) {
                 if let Some((_, y)) = self.transformed((1.0, y)) {
                     b.2 = b.2.min(y);
                     b.3 = b.3.max(y);
@@ -233,7 +224,10 @@ impl Plot {
             };
             (lo - 0.06 * w, hi + 0.06 * w)
         };
-        Some((pad(b.0, b.1, self.x_log), pad(b.2, b.3, self.y_log)))
+        let (y0, y1) = pad(b.2, b.3, self.y_log);
+        // Room above the data for the legend (upper left).
+        let legend = 0.06 * (self.series.len() as f64 + 1.0) * (y1 - y0);
+        Some((pad(b.0, b.1, self.x_log), (y0, y1 + legend)))
     }
 
     fn draw_on<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), ChartError> {
@@ -257,8 +251,8 @@ impl Plot {
             .y_desc(&self.y_label)
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 16))
-            .x_labels(ticks(x0, x1, xl).len().max(3) * 2)
-            .y_labels(ticks(y0, y1, yl).len().max(3) * 2)
+            .x_labels(label_count(x0, x1, xl))
+            .y_labels(label_count(y0, y1, yl))
             .x_label_formatter(&|v| label(*v, xl))
             .y_label_formatter(&|v| label(*v, yl))
             .draw()
@@ -338,17 +332,25 @@ impl Plot {
     }
 }
 
-/// Panels side by side.
-struct Panels<'a>(&'a [Plot]);
+/// Panels on a grid, row by row, `.1` columns.
+struct Panels<'a>(&'a [Plot], usize);
+
+impl Panels<'_> {
+    fn shape(&self) -> (usize, usize) {
+        let cols = self.1.clamp(1, self.0.len().max(1));
+        (self.0.len().div_ceil(cols).max(1), cols)
+    }
+}
 
 impl Figure for Panels<'_> {
     fn size(&self) -> (u32, u32) {
-        (PANEL.0 * self.0.len().max(1) as u32, PANEL.1)
+        let (rows, cols) = self.shape();
+        (PANEL.0 * cols as u32, PANEL.1 * rows as u32)
     }
 
     fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), ChartError> {
         root.fill(&WHITE).map_err(err)?;
-        let areas = root.split_evenly((1, self.0.len().max(1)));
+        let areas = root.split_evenly(self.shape());
         for (plot, area) in self.0.iter().zip(&areas) {
             plot.draw_on(area)?;
         }
@@ -359,7 +361,12 @@ impl Figure for Panels<'_> {
 /// One or more line/scatter panels side by side, e.g. kappa against
 /// roughness (log-log) or PSNR against wall time (log x).
 pub fn panels(plots: &[Plot]) -> Result<Chart, ChartError> {
-    render(&Panels(plots))
+    render(&Panels(plots, plots.len()))
+}
+
+/// Panels on a grid of `cols` columns, filled row by row.
+pub fn panel_grid(plots: &[Plot], cols: usize) -> Result<Chart, ChartError> {
+    render(&Panels(plots, cols))
 }
 
 /// A log-log line chart with one circle-marked line per series.
@@ -521,13 +528,12 @@ mod tests {
     }
 
     #[test]
-    fn ticks_are_decades_on_log_axes_and_round_on_linear() {
-        assert_eq!(ticks(-2.3, 1.2, true), vec![-2.0, -1.0, 0.0, 1.0]);
-        assert_eq!(
-            ticks(0.0, 16.0, false),
-            vec![0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0]
-        );
+    fn log_labels_only_at_one_two_five() {
         assert_eq!(label(-2.0, true), "0.01");
+        assert_eq!(label(2f64.log10() - 4.0, true), "2e-4");
+        assert_eq!(label(5f64.log10(), true), "5");
+        assert_eq!(label(-3.4, true), "");
+        assert_eq!(label(2.5, false), "2.5");
         assert_eq!(label(6.0, true), "1e6");
         assert_eq!(label(0.5, true), "");
     }

@@ -4,6 +4,7 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
+use polnlos::bench::speed::{self, SpeedRow, SpeedSummary};
 use polnlos::bench::stability::{stability_table, StabilityRow, CASES};
 use polnlos::bench::{self, charts, CondRow, RoughRow};
 use polnlos::files::{json, write_atomic};
@@ -28,6 +29,9 @@ struct Output {
     conditioning: Vec<CondRow>,
     roughness: Vec<RoughRow>,
     stability: Vec<StabilityRow>,
+    speed_seeds: u64,
+    speed: Vec<SpeedSummary>,
+    speed_runs: Vec<SpeedRow>,
     seconds: f64,
 }
 
@@ -149,6 +153,8 @@ fn markdown(o: &Output) -> String {
             }
         );
     }
+    md.push_str("\n## Speed against accuracy\n\n");
+    md.push_str(&speed::markdown(&o.speed, o.speed_seeds));
     let _ = writeln!(
         md,
         "\nRun time: {:.1} s{}.",
@@ -162,21 +168,37 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     super::out_dir(&a.out)?;
     let start = std::time::Instant::now();
     let grids: &[usize] = if a.quick { &[3] } else { &[3, 8] };
+    let (sizes, seeds, budgets): (&[speed::Size], u64, &[usize]) = if a.quick {
+        (&speed::SIZES[..1], 1, &[10, 50, 200])
+    } else {
+        (&speed::SIZES, 3, &speed::BUDGETS)
+    };
     let pb = super::progress::bar(
-        bench::conditioning_len(grids) + bench::roughness_len() + CASES,
+        bench::conditioning_len(grids)
+            + bench::roughness_len()
+            + CASES
+            + sizes.len() * seeds as usize,
         "bench",
     );
     let conditioning = bench::conditioning_table(grids, &mut || pb.inc(1))?;
     let roughness = bench::roughness_sweep(*grids.last().unwrap_or(&3), &mut || pb.inc(1))?;
     let stability = stability_table(&mut || pb.inc(1))?;
+    let speed_runs = speed::speed_sweep(sizes, seeds, budgets, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     let out = Output {
         quick: a.quick,
         conditioning,
         roughness,
         stability,
+        speed_seeds: seeds,
+        speed: speed::summarize(&speed_runs),
+        speed_runs,
         seconds: start.elapsed().as_secs_f64(),
     };
+    for (name, c) in speed::charts(&out.speed)? {
+        write_atomic(&a.out.join(format!("{name}.png")), &c.png)?;
+        write_atomic(&a.out.join(format!("{name}.svg")), c.svg.as_bytes())?;
+    }
 
     let mut groups: Vec<(String, Vec<f64>)> = Vec::new();
     for r in &out.conditioning {

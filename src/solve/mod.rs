@@ -10,7 +10,7 @@ pub mod admm;
 pub mod baseline;
 pub mod conditioning;
 pub mod fista;
-mod gram;
+pub mod gram;
 pub mod lambda;
 pub mod metrics;
 pub mod plan;
