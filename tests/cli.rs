@@ -72,6 +72,33 @@ fn transport_writes_a_standard_npy() {
     ]));
     let b = npy::read(&out).unwrap();
     assert!((b.data[1500 * 9 + 7] / t.get(1500, 7) - 1.0).abs() < 1e-6);
+
+    // Adaptive supersampling: same shape, reports its levels, differs from m = 1.
+    let o = polnlos(&[
+        "transport",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--adaptive",
+        "1e-3",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("adaptive supersampling: wall elements"),
+        "{err}"
+    );
+    let c = npy::read(&out).unwrap();
+    assert_eq!(c.shape, vec![4096, 9]);
+    assert!(c.data.iter().zip(&a.data).any(|(x, y)| x != y));
+    let msg = fails(&polnlos(&[
+        "transport",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--adaptive=0",
+    ]));
+    assert!(msg.contains("tolerance = 0"), "{msg}");
 }
 
 #[test]
@@ -309,6 +336,8 @@ fn bench_quick_writes_its_reports() {
         "roughness.svg",
         "speed-accuracy-S.png",
         "speed-accuracy-S.svg",
+        "sampling.png",
+        "sampling.svg",
     ] {
         assert!(dir.path().join(f).metadata().unwrap().len() > 100, "{f}");
     }
@@ -362,6 +391,22 @@ fn bench_quick_writes_its_reports() {
     let png = image::read_gray(&dir.path().join("speed-accuracy-S.png")).unwrap();
     assert_eq!((png.width, png.height), (1800, 1120));
     assert!(md.contains("## Speed against accuracy"));
+
+    // Transport accuracy: 2 cases x (6 uniform + 5 adaptive); error falls with m.
+    let sampling = v["sampling"].as_array().unwrap();
+    assert_eq!(sampling.len(), 22);
+    for case in ["glossy wall (alpha 0.05)", "occluder (alpha 0.3)"] {
+        let err = |method: &str, setting: f64| {
+            sampling
+                .iter()
+                .find(|r| r["case"] == case && r["method"] == method && r["setting"] == setting)
+                .unwrap()["error"]
+                .as_f64()
+                .unwrap()
+        };
+        assert!(err("uniform", 4.0) < 0.5 * err("uniform", 1.0), "{case}");
+        assert!(err("adaptive", 1e-2) < 0.5 * err("uniform", 1.0), "{case}");
+    }
 }
 
 #[test]

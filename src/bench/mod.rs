@@ -6,6 +6,7 @@
 //! JSON, Markdown and charts ([`charts`]).
 
 pub mod charts;
+pub mod sampling;
 pub mod speed;
 pub mod stability;
 

@@ -4,6 +4,7 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
+use polnlos::bench::sampling::{self, SamplingRow};
 use polnlos::bench::speed::{self, SpeedRow, SpeedSummary};
 use polnlos::bench::stability::{stability_table, StabilityRow, CASES};
 use polnlos::bench::{self, charts, CondRow, RoughRow};
@@ -32,6 +33,8 @@ struct Output {
     speed_seeds: u64,
     speed: Vec<SpeedSummary>,
     speed_runs: Vec<SpeedRow>,
+    sampling_reference_m: usize,
+    sampling: Vec<SamplingRow>,
     seconds: f64,
 }
 
@@ -153,6 +156,26 @@ fn markdown(o: &Output) -> String {
             }
         );
     }
+    let _ = writeln!(
+        md,
+        "\n## Transport accuracy against build time\n\nError of T against uniform m = {} (relative Frobenius), median build time of 3 runs.\n\n![sampling](sampling.png)\n\n| case | method | m or tol | seconds | samples per element | error | estimated |\n|---|---|---|---|---|---|---|",
+        o.sampling_reference_m
+    );
+    for r in &o.sampling {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {:.4} | {:.1} | {:.2e} | {} |",
+            r.case,
+            r.method,
+            r.setting,
+            r.seconds,
+            r.samples_per_element,
+            r.error,
+            r.estimated_error
+                .map(|e| format!("{e:.2e}"))
+                .unwrap_or_else(|| "-".into())
+        );
+    }
     md.push_str("\n## Speed against accuracy\n\n");
     md.push_str(&speed::markdown(&o.speed, o.speed_seeds));
     let _ = writeln!(
@@ -177,13 +200,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         bench::conditioning_len(grids)
             + bench::roughness_len()
             + CASES
-            + sizes.len() * seeds as usize,
+            + sizes.len() * seeds as usize
+            + 2,
         "bench",
     );
     let conditioning = bench::conditioning_table(grids, &mut || pb.inc(1))?;
     let roughness = bench::roughness_sweep(*grids.last().unwrap_or(&3), &mut || pb.inc(1))?;
     let stability = stability_table(&mut || pb.inc(1))?;
     let speed_runs = speed::speed_sweep(sizes, seeds, budgets, &mut || pb.inc(1))?;
+    let (sgrid, reference_m) = if a.quick { (3, 12) } else { (8, 24) };
+    let sampling = sampling::sampling_sweep(sgrid, reference_m, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     let out = Output {
         quick: a.quick,
@@ -193,8 +219,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         speed_seeds: seeds,
         speed: speed::summarize(&speed_runs),
         speed_runs,
+        sampling_reference_m: reference_m,
+        sampling,
         seconds: start.elapsed().as_secs_f64(),
     };
+    let c = sampling::chart(&out.sampling, reference_m)?;
+    write_atomic(&a.out.join("sampling.png"), &c.png)?;
+    write_atomic(&a.out.join("sampling.svg"), c.svg.as_bytes())?;
     for (name, c) in speed::charts(&out.speed)? {
         write_atomic(&a.out.join(format!("{name}.png")), &c.png)?;
         write_atomic(&a.out.join(format!("{name}.svg")), c.svg.as_bytes())?;

@@ -75,7 +75,56 @@ pub fn build_with_progress(
     scene: &Scene,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Transport, TransportError> {
-    let rows = scene.rows();
+    let plane = &scene.wall.plane;
+    let data = build_rows(
+        scene,
+        plane.sample_points(),
+        plane.grid.count(),
+        plane.samples_per_element(),
+        progress,
+    )?;
+    Ok(Transport::from_col_major(
+        scene.rows(),
+        scene.cols(),
+        data,
+        blocks_of(scene),
+        plane.grid,
+        scene.scene.plane.grid,
+    ))
+}
+
+/// The row blocks of a scene's `T`, in stacking order (pose, then angle).
+pub(super) fn blocks_of(scene: &Scene) -> Vec<Block> {
+    let mut blocks = Vec::with_capacity(scene.block_count());
+    for pose in &scene.poses {
+        if pose.analyzers.is_empty() {
+            blocks.push(Block {
+                pose: pose.name.clone(),
+                polarizer_deg: None,
+            });
+        }
+        for a in &pose.analyzers {
+            blocks.push(Block {
+                pose: pose.name.clone(),
+                polarizer_deg: Some(a.angle_deg),
+            });
+        }
+    }
+    blocks
+}
+
+/// Column-major entries of `T` restricted to `n_wall` wall elements whose
+/// samples are `wall_pts`, element-major with `mw` consecutive samples per
+/// element (row `j` of a block averages samples `j mw .. (j + 1) mw`).
+/// Rows are `blocks x n_wall`; the uniform build passes the whole wall.
+pub(super) fn build_rows(
+    scene: &Scene,
+    wall_pts: Vec<Vec3>,
+    n_wall: usize,
+    mw: usize,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Vec<f64>, TransportError> {
+    let rows = n_wall * scene.block_count();
     let cols = scene.cols();
     let bytes = rows as f64 * cols as f64 * 8.0;
     if bytes > LIMIT_BYTES {
@@ -90,13 +139,10 @@ pub fn build_with_progress(
     let wall = &scene.wall;
     let brdf = wall.brdf;
     let n = wall.plane.normal;
-    let wall_pts = wall.plane.sample_points();
     let wall_soa = Soa::from_vecs(wall_pts.iter().copied());
-    let mw = wall.plane.samples_per_element();
-    let n_wall = wall.plane.grid.count();
     let n_samples = wall_pts.len();
 
-    let mut blocks = Vec::with_capacity(scene.block_count());
+    let mut n_blocks = 0;
     let mut views = Vec::with_capacity(scene.poses.len());
     for pose in &scene.poses {
         let dirs: Vec<Vec3> = wall_pts
@@ -108,19 +154,10 @@ pub fn build_with_progress(
             .iter()
             .map(|&c| ggx::smith_g1(c, brdf.alpha))
             .collect();
-        let first_block = blocks.len();
+        let first_block = n_blocks;
+        n_blocks += pose.block_count();
         let mut analyzers = Vec::with_capacity(pose.analyzers.len());
-        if pose.analyzers.is_empty() {
-            blocks.push(Block {
-                pose: pose.name.clone(),
-                polarizer_deg: None,
-            });
-        }
         for a in &pose.analyzers {
-            blocks.push(Block {
-                pose: pose.name.clone(),
-                polarizer_deg: Some(a.angle_deg),
-            });
             // A polarizer facing the wall never sees a ray along its axis;
             // should it, the ray passes no light (t = 0).
             let t: Vec<Vec3> = dirs
@@ -174,14 +211,7 @@ pub fn build_with_progress(
         },
     );
 
-    Ok(Transport::from_col_major(
-        rows,
-        cols,
-        data,
-        blocks,
-        wall.plane.grid,
-        hidden.plane.grid,
-    ))
+    Ok(data)
 }
 
 /// Everything a column needs, shared read-only by all tasks.

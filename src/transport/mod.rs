@@ -4,8 +4,10 @@
 //! Row order: pose order, then angle order; within a block, wall elements
 //! row-major (v outer, u inner). Column order: scene elements row-major.
 
+pub mod adaptive;
 mod build;
 
+pub use adaptive::{build_adaptive, AdaptiveStats};
 pub use build::{build, build_with_progress};
 
 use faer::MatRef;
@@ -60,6 +62,16 @@ pub enum TransportError {
         gib: f64,
         /// Limit in GiB.
         limit_gib: f64,
+    },
+    /// A build option is out of range.
+    #[error("{name} = {value}: {reason}")]
+    Parameter {
+        /// Option name, as on the command line.
+        name: &'static str,
+        /// Given value.
+        value: f64,
+        /// Acceptable range.
+        reason: &'static str,
     },
 }
 

@@ -1,0 +1,167 @@
+//! Transport accuracy against build time: the error of `T` against a heavily
+//! supersampled reference, for uniform wall supersampling `m = 1..4` (and 6,
+//! 8) and for adaptive supersampling at several tolerances, on the two cases
+//! where one sample per element is not enough: a glossy wall (narrow
+//! specular lobe) and the occluder's shadow edges.
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
+use super::BenchError;
+use crate::scene::Scene;
+use crate::transport::adaptive::relative_error;
+use crate::transport::{build, build_adaptive, Transport};
+
+/// Uniform sub-sampling per side compared.
+pub const UNIFORM: [usize; 6] = [1, 2, 3, 4, 6, 8];
+
+/// Adaptive tolerances compared (relative Frobenius error).
+pub const TOLERANCES: [f64; 5] = [1e-1, 3e-2, 1e-2, 3e-3, 1e-3];
+
+/// Largest adaptive level.
+pub const MAX_M: usize = 16;
+
+/// One build.
+#[derive(Debug, Clone, Serialize)]
+pub struct SamplingRow {
+    /// Case label.
+    pub case: String,
+    /// `uniform` or `adaptive`.
+    pub method: &'static str,
+    /// Uniform `m`, or the adaptive tolerance.
+    pub setting: f64,
+    /// Median build seconds over 3 runs.
+    pub seconds: f64,
+    /// Wall samples evaluated per wall element.
+    pub samples_per_element: f64,
+    /// `||T - T_ref||_F / ||T_ref||_F`.
+    pub error: f64,
+    /// The adaptive build's own error estimate.
+    pub estimated_error: Option<f64>,
+}
+
+fn timed<T>(mut f: impl FnMut() -> Result<T, BenchError>) -> Result<(T, f64), BenchError> {
+    let mut times = Vec::new();
+    let mut last = None;
+    for _ in 0..3 {
+        let start = Instant::now();
+        last = Some(f()?);
+        times.push(start.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    let out = last.ok_or_else(|| BenchError::Scene {
+        name: "sampling".into(),
+        reason: "no run".into(),
+    })?;
+    Ok((out, times[1]))
+}
+
+fn case(name: &str, alpha: Option<f64>) -> Result<Scene, BenchError> {
+    let mut s = Scene::builtin(name)
+        .ok_or_else(|| BenchError::Scene {
+            name: name.into(),
+            reason: "not built in".into(),
+        })?
+        .map_err(|e| BenchError::Scene {
+            name: name.into(),
+            reason: e.to_string(),
+        })?;
+    if let Some(a) = alpha {
+        s.wall.brdf.alpha = a;
+    }
+    Ok(s)
+}
+
+/// The sweep: `grid` is the scene grid side (3 or 8), `reference_m` the
+/// reference's sub-sampling per side. `step()` after each case.
+pub fn sampling_sweep(
+    grid: usize,
+    reference_m: usize,
+    step: &mut dyn FnMut(),
+) -> Result<Vec<SamplingRow>, BenchError> {
+    let suffix = if grid == 3 { "-3x3" } else { "" };
+    let cases = [
+        (
+            "glossy wall (alpha 0.05)",
+            case(&format!("brewster-crossed{suffix}"), Some(0.05))?,
+        ),
+        (
+            "occluder (alpha 0.3)",
+            case(&format!("occluder-crossed{suffix}"), None)?,
+        ),
+    ];
+    let mut rows = Vec::new();
+    for (label, scene) in cases {
+        let uniform = |m: usize| -> Result<Transport, BenchError> {
+            let mut s = scene.clone();
+            s.wall.plane.supersample = m;
+            Ok(build(&s)?)
+        };
+        let reference = uniform(reference_m)?;
+        for m in UNIFORM {
+            let (t, secs) = timed(|| uniform(m))?;
+            rows.push(SamplingRow {
+                case: label.into(),
+                method: "uniform",
+                setting: m as f64,
+                seconds: secs,
+                samples_per_element: (m * m) as f64,
+                error: relative_error(&t, &reference),
+                estimated_error: None,
+            });
+        }
+        let n_wall = scene.wall.plane.grid.count() as f64;
+        for tol in TOLERANCES {
+            let ((t, st), secs) = timed(|| Ok(build_adaptive(&scene, tol, MAX_M)?))?;
+            rows.push(SamplingRow {
+                case: label.into(),
+                method: "adaptive",
+                setting: tol,
+                seconds: secs,
+                samples_per_element: st.samples as f64 / n_wall,
+                error: relative_error(&t, &reference),
+                estimated_error: Some(st.estimated_error),
+            });
+        }
+        step();
+    }
+    Ok(rows)
+}
+
+/// Error against build time, one panel per case, log-log.
+pub fn chart(rows: &[SamplingRow], reference_m: usize) -> Result<Chart, ChartError> {
+    let mut cases: Vec<&str> = rows.iter().map(|r| r.case.as_str()).collect();
+    cases.dedup();
+    let plots: Vec<Plot> = cases
+        .iter()
+        .map(|case| {
+            let pts = |method: &str| -> Vec<(f64, f64)> {
+                rows.iter()
+                    .filter(|r| r.case == *case && r.method == method)
+                    .map(|r| (r.seconds, r.error))
+                    .collect()
+            };
+            Plot {
+                title: format!("{case}: error of T against m = {reference_m}"),
+                x_label: "build time, s".into(),
+                y_label: "||T - T_ref||_F / ||T_ref||_F".into(),
+                x_log: true,
+                y_log: true,
+                series: vec![
+                    Series::line("uniform m = 1, 2, 3, 4, 6, 8", 0, pts("uniform")),
+                    Series {
+                        marker: Marker::Triangle,
+                        ..Series::line(
+                            "adaptive, tol 1e-1 .. 1e-3 (max m = 16)",
+                            1,
+                            pts("adaptive"),
+                        )
+                    },
+                ],
+            }
+        })
+        .collect();
+    panels(&plots)
+}
