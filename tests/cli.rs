@@ -338,6 +338,8 @@ fn bench_quick_writes_its_reports() {
         "speed-accuracy-S.svg",
         "sampling.png",
         "sampling.svg",
+        "active.png",
+        "active.svg",
     ] {
         assert!(dir.path().join(f).metadata().unwrap().len() > 100, "{f}");
     }
@@ -407,6 +409,19 @@ fn bench_quick_writes_its_reports() {
         assert!(err("uniform", 4.0) < 0.5 * err("uniform", 1.0), "{case}");
         assert!(err("adaptive", 1e-2) < 0.5 * err("uniform", 1.0), "{case}");
     }
+
+    // Active NLOS: 2 configs x (2 grids + 7 roughness values).
+    let act = v["active"].as_array().unwrap();
+    assert_eq!(act.len(), 18);
+    let k = |config: &str, field: &str| {
+        act.iter()
+            .find(|r| r["sweep"] == "resolution" && r["config"] == config && r["grid"] == 3)
+            .unwrap()[field]
+            .as_f64()
+            .unwrap()
+    };
+    assert!(k("crossed", "kappa_active") < k("nopol", "kappa_active"));
+    assert!(k("nopol", "kappa_active") < k("nopol", "kappa_passive"));
 }
 
 #[test]

@@ -5,6 +5,7 @@
 //! Pure computations returning typed rows; `polnlos bench` writes them as
 //! JSON, Markdown and charts ([`charts`]).
 
+pub mod active;
 pub mod charts;
 pub mod sampling;
 pub mod speed;

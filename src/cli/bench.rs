@@ -4,6 +4,7 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
+use polnlos::bench::active::{self, ActiveRow};
 use polnlos::bench::sampling::{self, SamplingRow};
 use polnlos::bench::speed::{self, SpeedRow, SpeedSummary};
 use polnlos::bench::stability::{stability_table, StabilityRow, CASES};
@@ -35,6 +36,7 @@ struct Output {
     speed_runs: Vec<SpeedRow>,
     sampling_reference_m: usize,
     sampling: Vec<SamplingRow>,
+    active: Vec<ActiveRow>,
     seconds: f64,
 }
 
@@ -176,6 +178,20 @@ fn markdown(o: &Output) -> String {
                 .unwrap_or_else(|| "-".into())
         );
     }
+    md.push_str("\n## Active NLOS (the paper's appendix, time-resolved T)\n\nLaser and detector at pose A, spot at the wall centre, 1 cm path-length bins (33 ps); voxels on the scene grid. The passive column is the steady-state T of the same scene.\n\n![active](active.png)\n\n| sweep | config | voxel grid | alpha | bins | kappa active | kappa passive |\n|---|---|---|---|---|---|---|\n");
+    for r in &o.active {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {} |",
+            r.sweep,
+            r.config,
+            r.grid,
+            r.roughness,
+            r.bins,
+            fmt_kappa(r.kappa_active),
+            fmt_kappa(r.kappa_passive)
+        );
+    }
     md.push_str("\n## Speed against accuracy\n\n");
     md.push_str(&speed::markdown(&o.speed, o.speed_seeds));
     let _ = writeln!(
@@ -191,6 +207,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     super::out_dir(&a.out)?;
     let start = std::time::Instant::now();
     let grids: &[usize] = if a.quick { &[3] } else { &[3, 8] };
+    let (active_grids, active_rough): (&[usize], usize) = if a.quick {
+        (&[2, 3], 3)
+    } else {
+        (&[2, 3, 4, 6, 8], 6)
+    };
     let (sizes, seeds, budgets): (&[speed::Size], u64, &[usize]) = if a.quick {
         (&speed::SIZES[..1], 1, &[10, 50, 200])
     } else {
@@ -201,7 +222,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             + bench::roughness_len()
             + CASES
             + sizes.len() * seeds as usize
-            + 2,
+            + 2
+            + active::active_len(active_grids),
         "bench",
     );
     let conditioning = bench::conditioning_table(grids, &mut || pb.inc(1))?;
@@ -210,6 +232,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let speed_runs = speed::speed_sweep(sizes, seeds, budgets, &mut || pb.inc(1))?;
     let (sgrid, reference_m) = if a.quick { (3, 12) } else { (8, 24) };
     let sampling = sampling::sampling_sweep(sgrid, reference_m, &mut || pb.inc(1))?;
+    let active = active::active_sweep(active_grids, active_rough, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     let out = Output {
         quick: a.quick,
@@ -221,8 +244,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         speed_runs,
         sampling_reference_m: reference_m,
         sampling,
+        active,
         seconds: start.elapsed().as_secs_f64(),
     };
+    let c = active::chart(&out.active)?;
+    write_atomic(&a.out.join("active.png"), &c.png)?;
+    write_atomic(&a.out.join("active.svg"), c.svg.as_bytes())?;
     let c = sampling::chart(&out.sampling, reference_m)?;
     write_atomic(&a.out.join("sampling.png"), &c.png)?;
     write_atomic(&a.out.join("sampling.svg"), c.svg.as_bytes())?;

@@ -4,6 +4,7 @@
 //! Row order: pose order, then angle order; within a block, wall elements
 //! row-major (v outer, u inner). Column order: scene elements row-major.
 
+pub mod active;
 pub mod adaptive;
 mod build;
 

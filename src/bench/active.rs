@@ -1,0 +1,156 @@
+//! Active NLOS (the paper's appendix, Fig. 10): the condition number of the
+//! time-resolved `T` ([`crate::transport::active`]) with and without the
+//! crossed polarizer, against the voxel grid and the wall roughness, beside
+//! the passive (steady-state) `T` of the same scene.
+
+use serde::Serialize;
+
+use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
+use super::{BenchError, ROUGHNESS};
+use crate::scene::{Grid, Scene};
+use crate::solve::condition;
+use crate::transport::active::{build_active, ActiveSetup};
+use crate::transport::build;
+
+/// One point of the active sweep.
+#[derive(Debug, Clone, Serialize)]
+pub struct ActiveRow {
+    /// `resolution` or `roughness`.
+    pub sweep: &'static str,
+    /// `nopol` or `crossed` (pose A).
+    pub config: &'static str,
+    /// Voxel grid side.
+    pub grid: usize,
+    /// GGX alpha.
+    pub roughness: f64,
+    /// Time bins of the active `T`.
+    pub bins: usize,
+    /// kappa of the time-resolved `T`.
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub kappa_active: f64,
+    /// kappa of the steady-state `T` of the same scene.
+    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    pub kappa_passive: f64,
+}
+
+fn point(
+    sweep: &'static str,
+    config: &'static str,
+    grid: usize,
+    roughness: f64,
+) -> Result<ActiveRow, BenchError> {
+    let name = format!("brewster-{config}");
+    let mut s: Scene = Scene::builtin(&name)
+        .ok_or_else(|| BenchError::Scene {
+            name: name.clone(),
+            reason: "not built in".into(),
+        })?
+        .map_err(|e| BenchError::Scene {
+            name: name.clone(),
+            reason: e.to_string(),
+        })?;
+    s.scene.plane.grid = Grid { nu: grid, nv: grid };
+    s.wall.brdf.alpha = roughness;
+    let a = build_active(&s, &ActiveSetup::default())?;
+    Ok(ActiveRow {
+        sweep,
+        config,
+        grid,
+        roughness,
+        bins: a.bins,
+        kappa_active: condition(&a.t)?.kappa,
+        kappa_passive: condition(&build(&s)?)?.kappa,
+    })
+}
+
+/// Voxel grids of the resolution sweep (alpha 0.3), and the grid of the
+/// roughness sweep.
+pub fn active_sweep(
+    grids: &[usize],
+    rough_grid: usize,
+    step: &mut dyn FnMut(),
+) -> Result<Vec<ActiveRow>, BenchError> {
+    let mut rows = Vec::new();
+    for config in ["nopol", "crossed"] {
+        for &g in grids {
+            rows.push(point("resolution", config, g, 0.3)?);
+            step();
+        }
+        for &a in &ROUGHNESS {
+            rows.push(point("roughness", config, rough_grid, a)?);
+            step();
+        }
+    }
+    Ok(rows)
+}
+
+/// Points [`active_sweep`] computes.
+pub fn active_len(grids: &[usize]) -> usize {
+    2 * (grids.len() + ROUGHNESS.len())
+}
+
+/// kappa against voxel grid (left) and roughness (right).
+pub fn chart(rows: &[ActiveRow]) -> Result<Chart, ChartError> {
+    let plot = |sweep: &str, title: String, x_label: &str, x_log: bool| {
+        let mut series = Vec::new();
+        for (c, config) in ["nopol", "crossed"].into_iter().enumerate() {
+            let pts = |active: bool| -> Vec<(f64, f64)> {
+                rows.iter()
+                    .filter(|r| r.sweep == sweep && r.config == config)
+                    .map(|r| {
+                        let x = if sweep == "resolution" {
+                            r.grid as f64
+                        } else {
+                            r.roughness
+                        };
+                        (
+                            x,
+                            if active {
+                                r.kappa_active
+                            } else {
+                                r.kappa_passive
+                            },
+                        )
+                    })
+                    .collect()
+            };
+            series.push(Series::line(
+                format!("active (time-resolved), {config}"),
+                c,
+                pts(true),
+            ));
+            series.push(Series {
+                marker: Marker::Cross,
+                thin: true,
+                ..Series::line(format!("passive, {config}"), c, pts(false))
+            });
+        }
+        Plot {
+            title,
+            x_label: x_label.into(),
+            y_label: "kappa(T)".into(),
+            x_log,
+            y_log: true,
+            series,
+        }
+    };
+    let rough_grid = rows
+        .iter()
+        .find(|r| r.sweep == "roughness")
+        .map(|r| r.grid)
+        .unwrap_or(0);
+    panels(&[
+        plot(
+            "resolution",
+            "kappa against voxel grid (alpha 0.3)".into(),
+            "voxel grid side",
+            false,
+        ),
+        plot(
+            "roughness",
+            format!("kappa against roughness ({rough_grid}x{rough_grid} voxels)"),
+            "GGX roughness alpha",
+            true,
+        ),
+    ])
+}

@@ -1,0 +1,295 @@
+//! Time-resolved (active) NLOS transport, the paper's appendix (Eqs. 13-15,
+//! Fig. 10): a pulsed laser lights one wall spot `p`, light bounces off a
+//! hidden voxel of albedo `rho_k` back to wall patch `c`, and a time-resolved
+//! detector at the camera bins the photons by path length.
+//!
+//! MODEL.md does not fix this model; our reading, written out here so an
+//! independent implementation can match it:
+//!
+//! ```text
+//! T[(block, j, b), k] = a_k / pi
+//!     * f(p; w_l -> w_px) (n.w_px) / |x - p|^2        first bounce, laser side
+//!     * (n.w_cx) / |x - c|^2                            voxel to patch
+//!     * f(c; w_cx -> w_co, polarizer of the block)      camera-side bounce
+//!     * V(p, x) V(x, c)
+//!     * [ b = floor((|p - x| + |x - c| - d0) / width) ]
+//! ```
+//!
+//! with `x` the voxel (a scene element centre, area `a_k`, scattering
+//! isotropically), `w_l` the direction from `p` to the laser (co-located
+//! with the pose's camera), `f` the wall BRDF of MODEL.md (the first bounce
+//! without a polarizer: the laser is taken as unpolarized), unit laser power
+//! into the spot, and `d0` the shortest `|p - x| + |x - c|` of the scene. The
+//! known legs laser-to-`p` and `c`-to-camera are subtracted, as usual. Rows:
+//! blocks in scene order, then wall elements, then time bins; columns: voxels.
+
+use rayon::prelude::*;
+
+use super::build::blocks_of;
+use super::{Transport, TransportError};
+use crate::optics::polarizer::effective_axis;
+use crate::optics::{Polarization, Vec3};
+use crate::scene::{Grid, Scene};
+
+/// The active measurement set-up.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ActiveSetup {
+    /// Laser spot `p` in wall coordinates (metres from the wall centre, u, v).
+    pub spot: (f64, f64),
+    /// Path-length width of one time bin, metres (1 cm is 33 ps).
+    pub bin_width: f64,
+}
+
+impl Default for ActiveSetup {
+    fn default() -> Self {
+        Self {
+            spot: (0.0, 0.0),
+            bin_width: 0.01,
+        }
+    }
+}
+
+/// A time-resolved `T` and its time axis.
+#[derive(Debug, Clone)]
+pub struct ActiveTransport {
+    /// The matrix; its `wall_grid` is `(bins, wall elements)`: within a block,
+    /// row `j * bins + b` is wall element `j`, time bin `b`.
+    pub t: Transport,
+    /// Number of time bins.
+    pub bins: usize,
+    /// Path length `d0` at the start of bin 0, metres.
+    pub d0: f64,
+}
+
+/// Builds the time-resolved transport of `scene` (wall, voxels on the scene
+/// grid, poses as laser + detector positions, occluders).
+pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTransport, TransportError> {
+    if !(setup.bin_width > 0.0 && setup.bin_width.is_finite()) {
+        return Err(TransportError::Parameter {
+            name: "bin-width",
+            value: setup.bin_width,
+            reason: "must be a positive path length in metres",
+        });
+    }
+    let wall = &scene.wall.plane;
+    let (hu, hv) = (0.5 * wall.size[0], 0.5 * wall.size[1]);
+    if setup.spot.0.abs() > hu || setup.spot.1.abs() > hv {
+        return Err(TransportError::Parameter {
+            name: "spot",
+            value: setup.spot.0.abs().max(setup.spot.1.abs()),
+            reason: "the laser spot must lie on the wall",
+        });
+    }
+    let n = wall.normal;
+    let brdf = scene.wall.brdf;
+    let p = wall.point(setup.spot.0, setup.spot.1);
+    let patches: Vec<Vec3> = {
+        let mut c = wall.clone();
+        c.supersample = 1;
+        c.sample_points()
+    };
+    let voxels: Vec<Vec3> = {
+        let mut s = scene.scene.plane.clone();
+        s.supersample = 1;
+        s.sample_points()
+    };
+    let area = scene.scene.plane.element_area();
+    let n_wall = patches.len();
+    let n_vox = voxels.len();
+
+    let path = |x: &Vec3, c: &Vec3| (x - p).norm() + (x - c).norm();
+    let (mut d0, mut d1) = (f64::INFINITY, f64::NEG_INFINITY);
+    for x in &voxels {
+        for c in &patches {
+            let d = path(x, c);
+            d0 = d0.min(d);
+            d1 = d1.max(d);
+        }
+    }
+    let bins = ((d1 - d0) / setup.bin_width).floor() as usize + 1;
+    let blocks = blocks_of(scene);
+    let per_block = n_wall * bins;
+    let rows = per_block * blocks.len();
+    let bytes = rows as f64 * n_vox as f64 * 8.0;
+    if bytes > 4.0 * (1u64 << 30) as f64 {
+        return Err(TransportError::TooLarge {
+            rows,
+            cols: n_vox,
+            gib: bytes / (1u64 << 30) as f64,
+            limit_gib: 4.0,
+        });
+    }
+
+    // Per block: camera position and the analyzer axis (None: no polarizer).
+    let views: Vec<(Vec3, Option<Vec3>)> = scene
+        .poses
+        .iter()
+        .flat_map(|pose| {
+            let axes: Vec<Option<Vec3>> = if pose.analyzers.is_empty() {
+                vec![None]
+            } else {
+                pose.analyzers.iter().map(|a| Some(a.axis)).collect()
+            };
+            axes.into_iter().map(move |q| (pose.camera, q))
+        })
+        .collect();
+
+    let mut data = vec![0.0; rows * n_vox];
+    data.par_chunks_mut(rows.max(1))
+        .enumerate()
+        .for_each(|(k, col)| {
+            let x = voxels[k];
+            let to_x = x - p;
+            let r_px = to_x.norm();
+            let w_px = to_x / r_px;
+            if n.dot(&w_px) <= 0.0 || scene.occluders.iter().any(|o| o.blocks(&x, &p)) {
+                return;
+            }
+            for (blk, (cam, q)) in views.iter().enumerate() {
+                let w_l = (cam - p).normalize();
+                let f_p = brdf.eval(
+                    &n,
+                    &w_l,
+                    &w_px,
+                    Polarization {
+                        analyzer: None,
+                        source: None,
+                    },
+                );
+                let first = area / std::f64::consts::PI * f_p * n.dot(&w_px) / (r_px * r_px);
+                if first == 0.0 {
+                    continue;
+                }
+                for (j, c) in patches.iter().enumerate() {
+                    let to_x = x - c;
+                    let r = to_x.norm();
+                    let w_cx = to_x / r;
+                    let cos = n.dot(&w_cx);
+                    if cos <= 0.0 || scene.occluders.iter().any(|o| o.blocks(&x, c)) {
+                        continue;
+                    }
+                    let w_co = (cam - c).normalize();
+                    let t = q
+                        .as_ref()
+                        .map(|q| effective_axis(q, &w_co).unwrap_or_else(Vec3::zeros));
+                    let f_c = brdf.eval(
+                        &n,
+                        &w_cx,
+                        &w_co,
+                        Polarization {
+                            analyzer: t.as_ref(),
+                            source: None,
+                        },
+                    );
+                    let b = (((r_px + r - d0) / setup.bin_width).floor() as usize).min(bins - 1);
+                    col[blk * per_block + j * bins + b] += first * cos / (r * r) * f_c;
+                }
+            }
+        });
+    Ok(ActiveTransport {
+        t: Transport::from_col_major(
+            rows,
+            n_vox,
+            data,
+            blocks,
+            Grid {
+                nu: bins,
+                nv: n_wall,
+            },
+            scene.scene.plane.grid,
+        ),
+        bins,
+        d0,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene(name: &str) -> Scene {
+        Scene::builtin(name).unwrap().unwrap()
+    }
+
+    #[test]
+    fn one_entry_matches_the_formula_written_out() {
+        let s = scene("brewster-nopol-3x3");
+        let a = build_active(&s, &ActiveSetup::default()).unwrap();
+        let wall = &s.wall.plane;
+        let (j, k) = (wall.grid.index(20, 9), 4);
+        let c = wall.point(wall.local(20, 9, 0, 0).0, wall.local(20, 9, 0, 0).1);
+        let sp = &s.scene.plane;
+        let (iu, iv) = sp.grid.coords(k);
+        let (u, v) = sp.local(iu, iv, 0, 0);
+        let x = sp.point(u, v);
+        let p = wall.center;
+        let o = s.poses[0].camera;
+        let n = wall.normal;
+        let no = Polarization {
+            analyzer: None,
+            source: None,
+        };
+        let (wl, wpx, wcx, wco) = (
+            (o - p).normalize(),
+            (x - p).normalize(),
+            (x - c).normalize(),
+            (o - c).normalize(),
+        );
+        let expect = sp.element_area() / std::f64::consts::PI
+            * s.wall.brdf.eval(&n, &wl, &wpx, no)
+            * n.dot(&wpx)
+            / (x - p).norm_squared()
+            * n.dot(&wcx)
+            / (x - c).norm_squared()
+            * s.wall.brdf.eval(&n, &wcx, &wco, no);
+        let b = (((x - p).norm() + (x - c).norm() - a.d0) / 0.01).floor() as usize;
+        let got = a.t.get(j * a.bins + b, k);
+        assert!((got / expect - 1.0).abs() < 1e-12, "{got} vs {expect}");
+        // Every other bin of that (patch, voxel) is empty.
+        for bb in (0..a.bins).filter(|&bb| bb != b) {
+            assert_eq!(a.t.get(j * a.bins + bb, k), 0.0);
+        }
+    }
+
+    #[test]
+    fn the_crossed_polarizer_only_removes_light_and_time_covers_the_paths() {
+        let open = build_active(&scene("brewster-nopol-3x3"), &ActiveSetup::default()).unwrap();
+        let crossed =
+            build_active(&scene("brewster-crossed-3x3"), &ActiveSetup::default()).unwrap();
+        assert_eq!(open.t.rows(), crossed.t.rows());
+        let mut fewer = 0;
+        for (a, b) in crossed.t.col_major().iter().zip(open.t.col_major()) {
+            assert!(*a <= *b * (1.0 + 1e-12));
+            if *a < 0.5 * *b {
+                fewer += 1;
+            }
+        }
+        assert!(fewer > 0);
+        // Path lengths on the bench span about 0.17 m (the wall is 0.30 m wide).
+        assert!((10..40).contains(&open.bins), "{}", open.bins);
+        assert!(open.d0 > 0.6 && open.d0 < 1.0, "{}", open.d0);
+    }
+
+    #[test]
+    fn bad_setups_are_named() {
+        let s = scene("brewster-nopol-3x3");
+        let e = build_active(
+            &s,
+            &ActiveSetup {
+                bin_width: 0.0,
+                ..ActiveSetup::default()
+            },
+        )
+        .unwrap_err();
+        assert!(e.to_string().starts_with("bin-width = 0"), "{e}");
+        let e = build_active(
+            &s,
+            &ActiveSetup {
+                spot: (0.5, 0.0),
+                ..ActiveSetup::default()
+            },
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("spot"), "{e}");
+    }
+}
