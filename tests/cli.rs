@@ -422,6 +422,20 @@ fn bench_quick_writes_its_reports() {
     };
     assert!(k("crossed", "kappa_active") < k("nopol", "kappa_active"));
     assert!(k("nopol", "kappa_active") < k("nopol", "kappa_passive"));
+
+    // The NumPy peer (CI installs python3-numpy): same T, same recovery.
+    let peer = &v["peer"];
+    assert!(
+        peer["skipped"].is_null(),
+        "peer skipped: {}",
+        peer["skipped"]
+    );
+    assert!(peer["t_difference"].as_f64().unwrap() < 1e-9, "{peer}");
+    assert!(
+        peer["recovery_difference"].as_f64().unwrap() < 1e-6,
+        "{peer}"
+    );
+    assert!(md.contains("## Against a NumPy peer"));
 }
 
 #[test]

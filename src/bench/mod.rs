@@ -7,6 +7,7 @@
 
 pub mod active;
 pub mod charts;
+pub mod peer;
 pub mod sampling;
 pub mod speed;
 pub mod stability;

@@ -5,6 +5,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use polnlos::bench::active::{self, ActiveRow};
+use polnlos::bench::peer::{self, PeerReport};
 use polnlos::bench::sampling::{self, SamplingRow};
 use polnlos::bench::speed::{self, SpeedRow, SpeedSummary};
 use polnlos::bench::stability::{stability_table, StabilityRow, CASES};
@@ -37,6 +38,7 @@ struct Output {
     sampling_reference_m: usize,
     sampling: Vec<SamplingRow>,
     active: Vec<ActiveRow>,
+    peer: PeerReport,
     seconds: f64,
 }
 
@@ -192,6 +194,7 @@ fn markdown(o: &Output) -> String {
             fmt_kappa(r.kappa_passive)
         );
     }
+    md.push_str(&peer_markdown(&o.peer));
     md.push_str("\n## Speed against accuracy\n\n");
     md.push_str(&speed::markdown(&o.speed, o.speed_seeds));
     let _ = writeln!(
@@ -199,6 +202,41 @@ fn markdown(o: &Output) -> String {
         "\nRun time: {:.1} s{}.",
         o.seconds,
         if o.quick { " (--quick: 3x3 grids)" } else { "" }
+    );
+    md
+}
+
+fn peer_markdown(p: &PeerReport) -> String {
+    let mut md = format!(
+        "\n## Against a NumPy peer\n\nScene {0}, wall {1}x{1}, scene {2}x{2} (T {3} x {4}); `benches/peer/peer.py`, same scene file and measurement.\n\n",
+        p.scene,
+        p.wall,
+        p.scene_grid,
+        p.wall * p.wall * 2,
+        p.scene_grid * p.scene_grid
+    );
+    if let Some(why) = &p.skipped {
+        let _ = writeln!(md, "Peer skipped: {why}. polnlos alone: build {:.3} s, T^T T {:.3} s, factorization + {} ADMM iterations {:.3} s.", p.polnlos_build_seconds, p.polnlos_gram_seconds, peer::ITERATIONS, p.polnlos_solve_seconds);
+        return md;
+    }
+    let _ = writeln!(
+        md,
+        "| step | polnlos s | NumPy {} s | speed-up |\n|---|---|---|---|\n| build T | {:.3} | {:.3} | {:.1}x |\n| T^T T (dense product; NumPy: OpenBLAS syrk) | {:.3} | {:.3} | {:.1}x |\n| factorization + {} ADMM iterations | {:.3} | {:.3} | {:.1}x |\n\nSame T: max |T_numpy - T| / max |T| = {:.1e}. Same recovery: max |l_numpy - l| = {:.1e}; PSNR {:.2} dB (polnlos) and {:.2} dB (NumPy).",
+        p.numpy.as_deref().unwrap_or("?"),
+        p.polnlos_build_seconds,
+        p.peer_build_seconds,
+        p.build_speedup,
+        p.polnlos_gram_seconds,
+        p.peer_gram_seconds,
+        p.gram_speedup,
+        peer::ITERATIONS,
+        p.polnlos_solve_seconds,
+        p.peer_solve_seconds,
+        p.solve_speedup,
+        p.t_difference,
+        p.recovery_difference,
+        p.polnlos_psnr_db,
+        p.peer_psnr_db
     );
     md
 }
@@ -223,7 +261,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             + CASES
             + sizes.len() * seeds as usize
             + 2
-            + active::active_len(active_grids),
+            + active::active_len(active_grids)
+            + 1,
         "bench",
     );
     let conditioning = bench::conditioning_table(grids, &mut || pb.inc(1))?;
@@ -233,6 +272,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let (sgrid, reference_m) = if a.quick { (3, 12) } else { (8, 24) };
     let sampling = sampling::sampling_sweep(sgrid, reference_m, &mut || pb.inc(1))?;
     let active = active::active_sweep(active_grids, active_rough, &mut || pb.inc(1))?;
+    let (pw, ps) = if a.quick { (32, 8) } else { (64, 32) };
+    let work = std::env::temp_dir().join(format!("polnlos-peer-{}", std::process::id()));
+    let peer = peer::compare("brewster-multi", pw, ps, &work);
+    let _ = std::fs::remove_dir_all(&work);
+    let peer = peer?;
+    pb.inc(1);
     pb.finish_and_clear();
     let out = Output {
         quick: a.quick,
@@ -245,6 +290,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         sampling_reference_m: reference_m,
         sampling,
         active,
+        peer,
         seconds: start.elapsed().as_secs_f64(),
     };
     let c = active::chart(&out.active)?;

@@ -1,0 +1,238 @@
+//! polnlos against a straightforward vectorized NumPy implementation of the
+//! same model and ADMM (`benches/peer/peer.py`, embedded here), run on the
+//! same scene and measurement when `python3` with NumPy is on the PATH.
+//!
+//! Reports both speeds and checks that both give the same `T` and the same
+//! recovery.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::BenchError;
+use crate::files::npy;
+use crate::scene::{builtin::BUILT_IN, Grid, Scene};
+use crate::simulate::patterns::Pattern;
+use crate::simulate::{unpolarized_peak, NoiseModel};
+use crate::solve::{admm_tv, metrics, AdmmSettings};
+use crate::transport::build;
+
+static SCRIPT: &str = include_str!("../../benches/peer/peer.py");
+
+/// ADMM iterations timed on both sides.
+pub const ITERATIONS: usize = 200;
+
+/// The comparison, or why it did not run.
+#[derive(Debug, Clone, Serialize)]
+pub struct PeerReport {
+    /// Built-in scene used.
+    pub scene: String,
+    /// Wall grid side.
+    pub wall: usize,
+    /// Scene grid side.
+    pub scene_grid: usize,
+    /// Why the peer did not run (no python3 / NumPy), if it did not.
+    pub skipped: Option<String>,
+    /// NumPy version.
+    pub numpy: Option<String>,
+    /// polnlos: median seconds to build `T` (3 runs).
+    pub polnlos_build_seconds: f64,
+    /// polnlos: median seconds for `T^T T` (3 runs).
+    pub polnlos_gram_seconds: f64,
+    /// polnlos: median seconds for the Cholesky factor and 200 ADMM iterations (3 runs).
+    pub polnlos_solve_seconds: f64,
+    /// NumPy: seconds to build `T`.
+    pub peer_build_seconds: f64,
+    /// NumPy: seconds for `T^T T` (and `T^T i`).
+    pub peer_gram_seconds: f64,
+    /// NumPy: seconds for the factor (Cholesky, its inverse, `D^T D`) and 200 iterations.
+    pub peer_solve_seconds: f64,
+    /// `peer / polnlos` for the build.
+    pub build_speedup: f64,
+    /// `peer / polnlos` for `T^T T`.
+    pub gram_speedup: f64,
+    /// `peer / polnlos` for factor + 200 iterations.
+    pub solve_speedup: f64,
+    /// `max |T_peer - T| / max |T|`.
+    pub t_difference: f64,
+    /// `max |l_peer - l|` of the recovered images.
+    pub recovery_difference: f64,
+    /// PSNR of polnlos's recovery, dB.
+    pub polnlos_psnr_db: f64,
+    /// PSNR of the peer's recovery, dB.
+    pub peer_psnr_db: f64,
+}
+
+fn io(what: &str, e: impl std::fmt::Display) -> BenchError {
+    BenchError::Scene {
+        name: "numpy peer".into(),
+        reason: format!("{what}: {e}"),
+    }
+}
+
+fn median3(mut f: impl FnMut() -> Result<f64, BenchError>) -> Result<f64, BenchError> {
+    Ok(median(vec![f()?, f()?, f()?]))
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Whether `python3` with NumPy runs here; the reason if not.
+fn numpy_available() -> Result<String, String> {
+    let out = Command::new("python3")
+        .args(["-c", "import numpy; print(numpy.__version__)"])
+        .output()
+        .map_err(|e| format!("python3 not found ({e})"))?;
+    if !out.status.success() {
+        return Err(format!(
+            "python3 has no NumPy ({}); pip install numpy",
+            String::from_utf8_lossy(&out.stderr).trim()
+        ));
+    }
+    Ok(String::from_utf8_lossy(&out.stdout).trim().to_string())
+}
+
+/// Runs polnlos and the peer on `name` at the given grids, in `work`.
+pub fn compare(
+    name: &str,
+    wall: usize,
+    scene_grid: usize,
+    work: &Path,
+) -> Result<PeerReport, BenchError> {
+    let text = BUILT_IN
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, t)| *t)
+        .ok_or_else(|| io("scene", format!("{name} is not built in")))?;
+    let mut scene = Scene::from_toml_str(text)?;
+    scene.wall.plane.grid = Grid { nu: wall, nv: wall };
+    scene.scene.plane.grid = Grid {
+        nu: scene_grid,
+        nv: scene_grid,
+    };
+    let mut report = PeerReport {
+        scene: name.into(),
+        wall,
+        scene_grid,
+        skipped: None,
+        numpy: None,
+        polnlos_build_seconds: f64::NAN,
+        polnlos_gram_seconds: f64::NAN,
+        polnlos_solve_seconds: f64::NAN,
+        peer_build_seconds: f64::NAN,
+        peer_gram_seconds: f64::NAN,
+        peer_solve_seconds: f64::NAN,
+        build_speedup: f64::NAN,
+        gram_speedup: f64::NAN,
+        solve_speedup: f64::NAN,
+        t_difference: f64::NAN,
+        recovery_difference: f64::NAN,
+        polnlos_psnr_db: f64::NAN,
+        peer_psnr_db: f64::NAN,
+    };
+    report.polnlos_build_seconds = median3(|| {
+        let start = Instant::now();
+        build(&scene)?;
+        Ok(start.elapsed().as_secs_f64())
+    })?;
+    let t = build(&scene)?;
+    let truth = Pattern::Letter.render(t.scene_grid);
+    let peak = unpolarized_peak(&scene, &t, &truth)?;
+    let sim = NoiseModel {
+        photons: 2e4,
+        ..NoiseModel::default()
+    }
+    .apply(t.apply(&truth), peak)
+    .map_err(|e| io("simulation", e))?;
+    let settings = AdmmSettings {
+        max_iter: ITERATIONS,
+        tol: 1e-300,
+        ..AdmmSettings::default()
+    };
+    let mut runs = Vec::new();
+    for _ in 0..3 {
+        let s = admm_tv(&t, &sim.measurement, &settings)?.stats;
+        runs.push((s.gram_seconds, s.factor_seconds + s.iterate_seconds));
+    }
+    report.polnlos_gram_seconds = median(runs.iter().map(|r| r.0).collect());
+    report.polnlos_solve_seconds = median(runs.iter().map(|r| r.1).collect());
+    let ours = admm_tv(&t, &sim.measurement, &settings)?;
+    report.polnlos_psnr_db = metrics::psnr(&truth, &ours.image);
+
+    let version = match numpy_available() {
+        Ok(v) => v,
+        Err(reason) => {
+            report.skipped = Some(reason);
+            return Ok(report);
+        }
+    };
+    report.numpy = Some(version);
+    std::fs::create_dir_all(work).map_err(|e| io(&work.display().to_string(), e))?;
+    let (script, scene_file, meas) = (
+        work.join("peer.py"),
+        work.join("scene.toml"),
+        work.join("measurement.npy"),
+    );
+    std::fs::write(&script, SCRIPT).map_err(|e| io("peer.py", e))?;
+    std::fs::write(&scene_file, text).map_err(|e| io("scene.toml", e))?;
+    npy::write_f64(&meas, &[sim.measurement.len()], &sim.measurement)
+        .map_err(|e| io("measurement.npy", e))?;
+    let out = Command::new("python3")
+        .arg(&script)
+        .arg(&scene_file)
+        .args(["--wall", &wall.to_string()])
+        .args(["--scene-grid", &scene_grid.to_string()])
+        .arg("--measurement")
+        .arg(&meas)
+        .arg("--out")
+        .arg(work)
+        .output()
+        .map_err(|e| io("python3", e))?;
+    if !out.status.success() {
+        return Err(io(
+            "the NumPy peer failed",
+            String::from_utf8_lossy(&out.stderr),
+        ));
+    }
+    let json: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(work.join("peer.json")).map_err(|e| io("peer.json", e))?,
+    )
+    .map_err(|e| io("peer.json", e))?;
+    let secs = |k: &str| json[k].as_f64().unwrap_or(f64::NAN);
+    report.peer_build_seconds = secs("build_seconds");
+    report.peer_gram_seconds = secs("gram_seconds");
+    report.peer_solve_seconds = secs("factor_seconds") + secs("iterate_seconds");
+    report.build_speedup = report.peer_build_seconds / report.polnlos_build_seconds;
+    report.gram_speedup = report.peer_gram_seconds / report.polnlos_gram_seconds;
+    report.solve_speedup = report.peer_solve_seconds / report.polnlos_solve_seconds;
+
+    let pt = npy::read(&work.join("T.npy")).map_err(|e| io("T.npy", e))?;
+    if pt.shape != [t.rows(), t.cols()] {
+        return Err(io(
+            "T.npy",
+            format!("shape {:?}, expected {}x{}", pt.shape, t.rows(), t.cols()),
+        ));
+    }
+    let ours_rm = t.to_row_major();
+    let scale = ours_rm.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    report.t_difference = pt
+        .data
+        .iter()
+        .zip(&ours_rm)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max)
+        / scale;
+    let rec = npy::read(&work.join("recovered.npy")).map_err(|e| io("recovered.npy", e))?;
+    report.recovery_difference = rec
+        .data
+        .iter()
+        .zip(&ours.image)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    report.peer_psnr_db = metrics::psnr(&truth, &rec.data);
+    Ok(report)
+}
