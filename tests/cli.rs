@@ -222,19 +222,23 @@ fn simulate_then_reconstruct_through_files() {
         sim.join("measurement.npy").to_str().unwrap(),
         "--out",
         auto.to_str().unwrap(),
-        "--lambda",
-        "auto",
         "--noise-from",
         sim.join("simulate.json").to_str().unwrap(),
     ]));
     let a: serde_json::Value =
         serde_json::from_slice(&std::fs::read(auto.join("report.json")).unwrap()).unwrap();
     let c = &a["lambda_choice"];
-    assert_eq!(c["rule"], "discrepancy");
-    assert!(
-        (c["misfit"].as_f64().unwrap() / c["target"].as_f64().unwrap() - 1.0).abs() < 0.01,
-        "{c}"
+    assert_eq!(
+        c["rule"], "resolved-discrepancy",
+        "no --lambda + noise = auto"
     );
+    let (misfit, target, floor) = (
+        c["misfit"].as_f64().unwrap(),
+        c["target"].as_f64().unwrap(),
+        c["floor"].as_f64().unwrap(),
+    );
+    assert!(floor < target && misfit <= target, "{c}");
+    assert!(c["resolved"].as_u64().unwrap() >= 1);
     assert_eq!(a["solver"]["lambda"], c["lambda"]);
     let err = fails(&polnlos(&[
         "reconstruct",

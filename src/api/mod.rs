@@ -53,6 +53,7 @@ pub fn router(d: Arc<Daemon>) -> Router {
         .route("/jobs/{id}", get(routes::get_job))
         .route("/events", get(routes::events))
         .route("/scenes", get(routes::scenes))
+        .route("/scenes/{name}/exposure", get(routes::scene_exposure))
         .route("/openapi.json", get(openapi::spec))
         .fallback(routes::not_found)
         .layer(middleware::from_fn_with_state(d.clone(), auth))

@@ -30,6 +30,7 @@ use super::routes;
         routes::get_job,
         routes::events,
         routes::scenes,
+        routes::scene_exposure,
     ),
     components(schemas(
         crate::daemon::CaptureBody,
@@ -38,6 +39,8 @@ use super::routes;
         crate::store::CaptureRecord,
         crate::store::ReconstructionRecord,
         crate::store::JobState,
+        crate::measure::exposure::ExposureTarget,
+        crate::measure::exposure::BlockExposure,
     ))
 )]
 struct Doc;

@@ -19,8 +19,10 @@ use super::ApiError;
 use crate::camera::CameraSettings;
 use crate::daemon::metrics::{Metrics, Sample};
 use crate::daemon::{
-    validate_capture, validate_reconstruction, CaptureBody, Daemon, ReconstructionBody,
+    exposure_plan, validate_capture, validate_reconstruction, CaptureBody, Daemon,
+    ReconstructionBody,
 };
+use crate::measure::exposure::{BlockExposure, ExposureTarget};
 use crate::store::{CaptureFiles, CaptureRecord, ReconstructionRecord};
 
 type St = State<Arc<Daemon>>;
@@ -212,12 +214,17 @@ pub async fn camera_settings(
     }
 }
 
-fn accepted(kind: &str, id: i64) -> Response {
+fn accepted(kind: &str, id: i64, extra: serde_json::Value) -> Response {
     let location = format!("/{kind}s/{id}");
+    let mut body =
+        serde_json::json!({ "id": id, "state": "queued", "job": format!("{kind}-{id}") });
+    if let (Some(b), serde_json::Value::Object(e)) = (body.as_object_mut(), extra) {
+        b.extend(e);
+    }
     (
         StatusCode::ACCEPTED,
         [(header::LOCATION, location)],
-        Json(serde_json::json!({ "id": id, "state": "queued", "job": format!("{kind}-{id}") })),
+        Json(body),
     )
         .into_response()
 }
@@ -241,7 +248,11 @@ pub async fn post_capture(
     })?;
     let id = d.store.insert_capture(&req)?;
     permit.send(id);
-    Ok(accepted("capture", id))
+    Ok(accepted(
+        "capture",
+        id,
+        serde_json::json!({ "exposure_us": req.exposure_us, "frames": req.frames }),
+    ))
 }
 
 /// Captures, newest first.
@@ -329,7 +340,7 @@ pub async fn post_reconstruction(
     })?;
     let id = d.store.insert_reconstruction(&req)?;
     permit.send(id);
-    Ok(accepted("reconstruction", id))
+    Ok(accepted("reconstruction", id, serde_json::Value::Null))
 }
 
 /// Reconstructions, newest first.
@@ -424,6 +435,36 @@ pub async fn events(State(d): St) -> Sse<impl Stream<Item = Result<SseEvent, Inf
 #[utoipa::path(get, path = "/scenes", responses((status = 200, description = "Scene names")))]
 pub async fn scenes(State(d): St) -> Json<Vec<String>> {
     Json(d.scenes.names())
+}
+
+/// Target of an exposure plan (query of `GET /scenes/{name}/exposure`).
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+pub struct TargetQuery {
+    /// Brightest admissible wall element as a fraction of full scale (default 0.8).
+    peak_fraction: Option<f64>,
+    /// SNR wanted there after averaging (default 100).
+    snr: Option<f64>,
+}
+
+/// The planned exposure and frame count of every (pose, angle) block of a scene.
+#[utoipa::path(get, path = "/scenes/{name}/exposure", params(("name" = String, Path, description = "Scene name"), TargetQuery), responses((status = 200, body = [BlockExposure]), (status = 404, description = "Unknown scene"), (status = 422, description = "No calibration, or a target out of range")))]
+pub async fn scene_exposure(
+    State(d): St,
+    Path(name): Path<String>,
+    Query(q): Query<TargetQuery>,
+) -> Result<Json<Vec<BlockExposure>>, ApiError> {
+    let mut target = ExposureTarget::default();
+    if let Some(f) = q.peak_fraction {
+        target.peak_fraction = f;
+    }
+    if let Some(s) = q.snr {
+        target.snr = s;
+    }
+    let d2 = d.clone();
+    let plan = tokio::task::spawn_blocking(move || exposure_plan(&d2, &name, &target))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))??;
+    Ok(Json(plan))
 }
 
 /// Unknown path.

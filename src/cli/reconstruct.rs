@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
-use polnlos::solve::lambda::{admm_tv_discrepancy, NoiseLevel};
+use polnlos::solve::lambda::{admm_tv_resolved, NoiseLevel};
 use polnlos::solve::report::Report;
 use polnlos::solve::{
     admm_tv, condition, fista_tv, least_squares, tikhonov, AdmmSettings, FistaSettings,
@@ -40,8 +40,9 @@ pub struct Args {
     /// Solver.
     #[arg(long, value_enum, default_value = "admm-tv")]
     solver: Solver,
-    /// Regularization weight in MODEL.md units, or `auto` (admm-tv: discrepancy
-    /// principle, needs --noise-from). Default: 1e-2 x mean diagonal of T^T T
+    /// Regularization weight in MODEL.md units, or `auto` (admm-tv: from the
+    /// noise level of --noise-from, the resolved-discrepancy rule). Default:
+    /// `auto` when --noise-from is given, else 1e-2 x mean diagonal of T^T T
     /// for admm-tv, 1e-3 x for tikhonov.
     #[arg(long, value_name = "L|auto")]
     lambda: Option<LambdaArg>,
@@ -129,14 +130,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         tol: a.tol,
     };
     let mut lambda_choice = None;
-    let rec = match (a.solver, a.lambda) {
+    let cond = condition(&t)?;
+    // No --lambda but a noise level: choose lambda from it.
+    let lambda_arg = match (a.lambda, &a.noise_from, a.solver) {
+        (None, Some(_), Solver::AdmmTv) => Some(LambdaArg::Auto),
+        (l, _, _) => l,
+    };
+    let rec = match (a.solver, lambda_arg) {
         (Solver::AdmmTv, Some(LambdaArg::Auto)) => {
             let path = a
                 .noise_from
                 .as_ref()
                 .context("--lambda auto needs --noise-from simulate.json (the noise level)")?;
             let noise = noise_from(path, &meas.data)?;
-            let (r, choice) = admm_tv_discrepancy(&t, &meas.data, &noise, &settings)?;
+            let (r, choice) =
+                admm_tv_resolved(&t, &meas.data, &noise, &cond.singular_values, &settings)?;
             lambda_choice = Some(choice);
             r
         }
@@ -158,7 +166,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         (Solver::Tikhonov, _) => tikhonov(&t, &meas.data, fixed)?,
         (Solver::Lsq, _) => least_squares(&t, &meas.data, a.rcond)?,
     };
-    let cond = condition(&t)?;
     let image = rec.image.clone();
     let report = Report::new(
         super::scene_name(&a.scene),

@@ -48,6 +48,20 @@ pub struct CameraConfig {
     pub address: Option<String>,
     /// Aravis device id to open the camera by.
     pub id: Option<String>,
+    /// Full-well capacity in electrons (the datasheet's), for exposure planning.
+    #[serde(default = "full_well")]
+    pub full_well_e: f64,
+    /// Read noise in electrons RMS (the datasheet's), for exposure planning.
+    #[serde(default = "read_noise")]
+    pub read_noise_e: f64,
+}
+
+fn full_well() -> f64 {
+    10_000.0
+}
+
+fn read_noise() -> f64 {
+    5.0
 }
 
 /// The fake camera's hidden scene.
@@ -154,6 +168,17 @@ impl Config {
             return Err(ConfigError::Invalid(
                 "[camera] fake = true needs a loopback address (127.x.y.z)".into(),
             ));
+        }
+        let c = &self.camera;
+        let sensor_ok = c.full_well_e > 0.0
+            && c.full_well_e.is_finite()
+            && c.read_noise_e >= 0.0
+            && c.read_noise_e.is_finite();
+        if !sensor_ok {
+            return Err(ConfigError::Invalid(format!(
+                "[camera] full_well_e = {} and read_noise_e = {}: need a positive full well and a read noise >= 0 (electrons, from the camera's datasheet)",
+                c.full_well_e, c.read_noise_e
+            )));
         }
         let q = &self.queue;
         if q.captures == 0

@@ -11,7 +11,9 @@ use super::{Daemon, Event};
 use crate::camera::settings::EXPOSURE_RANGE_US;
 use crate::camera::{CameraSettings, PixelFormat, TriggerMode};
 use crate::files::{image, json, npy};
+use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
 use crate::measure::sample_wall;
+use crate::solve::lambda::{admm_tv_resolved, NoiseLevel};
 use crate::solve::report::Report;
 use crate::solve::{admm_tv, least_squares, tikhonov, AdmmSettings};
 use crate::store::{
@@ -28,14 +30,19 @@ pub struct CaptureBody {
     pub pose: String,
     /// Polarizer angle of the pose, degrees (omit or null for a pose without polarizer).
     pub polarizer_deg: Option<f64>,
-    /// Exposure per frame, microseconds.
-    pub exposure_us: f64,
+    /// Exposure per frame, microseconds; omit it and give `"exposure": "auto"`
+    /// to have it planned (see `GET /scenes/{name}/exposure`).
+    pub exposure_us: Option<f64>,
+    /// `"auto"`: plan the exposure (and, unless `frames` is given, the frame
+    /// count) from the scene, the radiometric calibration and the camera limits.
+    pub exposure: Option<AutoExposure>,
+    /// Target of an automatic exposure (default: peak at 0.8 of full scale, SNR 100).
+    pub target: Option<ExposureTarget>,
     /// Gain (camera units).
     #[serde(default)]
     pub gain: f64,
-    /// Frames to average (1-1000).
-    #[serde(default = "one")]
-    pub frames: usize,
+    /// Frames to average (1-1000); default 1, or the plan's with `"exposure": "auto"`.
+    pub frames: Option<usize>,
     /// Dark frames with the scene off, averaged and subtracted (0-1000).
     #[serde(default)]
     pub dark_frames: usize,
@@ -43,8 +50,56 @@ pub struct CaptureBody {
     pub pixel_format: Option<PixelFormat>,
 }
 
-fn one() -> usize {
-    1
+/// ADMM iteration cap of an automatic-lambda reconstruction unless the request sets one.
+const AUTO_MAX_ITER: usize = 5000;
+
+/// The only automatic exposure mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum AutoExposure {
+    /// Plan from the scene (see [`crate::measure::exposure`]).
+    Auto,
+}
+
+/// The camera limits exposure planning works with: the camera's exposure
+/// range when connected, the configured sensor noise, 1000 frames.
+pub fn camera_limits(d: &Daemon) -> CameraLimits {
+    let (mut lo, mut hi) = EXPOSURE_RANGE_US;
+    if let Some(i) = &d.camera.status().info {
+        lo = lo.max(i.exposure_us.0);
+        hi = hi.min(i.exposure_us.1);
+    }
+    CameraLimits {
+        exposure_us: (lo, hi),
+        max_frames: 1000,
+        full_well_e: d.config.camera.full_well_e,
+        read_noise_e: d.config.camera.read_noise_e,
+    }
+}
+
+/// The exposure plan of every block of a scene.
+pub fn exposure_plan(
+    d: &Daemon,
+    scene: &str,
+    target: &ExposureTarget,
+) -> Result<Vec<BlockExposure>, RequestError> {
+    let t = d
+        .scenes
+        .transport(scene)
+        .ok_or_else(|| {
+            RequestError::NotFound(format!(
+                "unknown scene {scene:?}; known: {}",
+                d.scenes.names().join(", ")
+            ))
+        })?
+        .map_err(|e| RequestError::Invalid(format!("scene {scene:?}: {e}")))?;
+    let cal = d.calibration.get(scene).copied().ok_or_else(|| {
+        RequestError::Invalid(format!(
+            "no radiometric calibration for scene {scene:?}, so exposures cannot be planned: add `{scene} = <fraction of full scale per microsecond per unit of T l>` under [calibration] in the config, or give exposure_us"
+        ))
+    })?;
+    plan_exposure(&t, cal, &camera_limits(d), target)
+        .map_err(|e| RequestError::Invalid(e.to_string()))
 }
 
 /// `POST /reconstructions` body.
@@ -58,7 +113,10 @@ pub struct ReconstructionBody {
     /// `admm-tv` (default), `tikhonov` or `lsq`.
     #[serde(default = "admm")]
     pub solver: String,
-    /// Regularization weight (MODEL.md units); default as `polnlos reconstruct`.
+    /// Regularization weight (MODEL.md units). Default: chosen from the
+    /// frame-to-frame noise of the captures (resolved-discrepancy rule, see
+    /// `lambda_choice` in the report) when every capture has 2 frames or
+    /// more, else as `polnlos reconstruct`.
     pub lambda: Option<f64>,
     /// ADMM penalty.
     pub rho: Option<f64>,
@@ -131,18 +189,56 @@ pub fn validate_capture(d: &Daemon, b: &CaptureBody) -> Result<CaptureRequest, R
             )))
         }
     }
-    let (mut lo, mut hi) = EXPOSURE_RANGE_US;
+    let (lo, hi) = camera_limits(d).exposure_us;
     let info = d.camera.status().info;
-    if let Some(i) = &info {
-        lo = lo.max(i.exposure_us.0);
-        hi = hi.min(i.exposure_us.1);
-    }
-    if !(b.exposure_us >= lo && b.exposure_us <= hi) {
+    let (exposure_us, planned) = match (b.exposure_us, b.exposure) {
+        (Some(_), Some(_)) => {
+            return Err(RequestError::Invalid(
+                "give either exposure_us or \"exposure\": \"auto\", not both".into(),
+            ))
+        }
+        (None, None) => {
+            return Err(RequestError::Invalid(
+                "exposure_us is missing: give it in microseconds, or \"exposure\": \"auto\"".into(),
+            ))
+        }
+        (Some(e), None) => {
+            if b.target.is_some() {
+                return Err(RequestError::Invalid(
+                    "target is only for \"exposure\": \"auto\"".into(),
+                ));
+            }
+            (e, None)
+        }
+        (None, Some(AutoExposure::Auto)) => {
+            let plan = exposure_plan(d, &b.scene, &b.target.unwrap_or_default())?;
+            let block = plan
+                .into_iter()
+                .find(|p| {
+                    p.pose == b.pose
+                        && match (p.polarizer_deg, b.polarizer_deg) {
+                            (None, None) => true,
+                            (Some(x), Some(y)) => (x - y).abs() < 1e-6,
+                            _ => false,
+                        }
+                })
+                .ok_or_else(|| {
+                    RequestError::Invalid(format!(
+                        "no block ({}, {:?}) in scene {:?}",
+                        b.pose, b.polarizer_deg, b.scene
+                    ))
+                })?;
+            (block.exposure_us, Some(block))
+        }
+    };
+    if !(exposure_us >= lo && exposure_us <= hi) {
         return Err(RequestError::Invalid(format!(
-            "exposure_us = {}: must be from {lo} to {hi} microseconds",
-            b.exposure_us
+            "exposure_us = {exposure_us}: must be from {lo} to {hi} microseconds"
         )));
     }
+    let frames = b
+        .frames
+        .unwrap_or_else(|| planned.as_ref().map(|p| p.frames).unwrap_or(1));
     let (glo, ghi) = info.as_ref().map(|i| i.gain).unwrap_or((0.0, f64::MAX));
     if !(b.gain >= glo && b.gain <= ghi) {
         return Err(RequestError::Invalid(format!(
@@ -150,10 +246,9 @@ pub fn validate_capture(d: &Daemon, b: &CaptureBody) -> Result<CaptureRequest, R
             b.gain
         )));
     }
-    if !(1..=1000).contains(&b.frames) {
+    if !(1..=1000).contains(&frames) {
         return Err(RequestError::Invalid(format!(
-            "frames = {}: must be from 1 to 1000",
-            b.frames
+            "frames = {frames}: must be from 1 to 1000"
         )));
     }
     if b.dark_frames > 1000 {
@@ -166,9 +261,9 @@ pub fn validate_capture(d: &Daemon, b: &CaptureBody) -> Result<CaptureRequest, R
         scene: b.scene.clone(),
         pose: b.pose.clone(),
         polarizer_deg: b.polarizer_deg,
-        exposure_us: b.exposure_us,
+        exposure_us,
         gain: b.gain,
-        frames: b.frames,
+        frames,
         dark_frames: b.dark_frames,
         pixel_format: b.pixel_format.unwrap_or(PixelFormat::Mono16),
     })
@@ -563,32 +658,52 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
     }
     let p = &rec.params;
     let lambda = p.get("lambda").and_then(|v| v.as_f64());
-    let r = match rec.solver.as_str() {
-        "tikhonov" => tikhonov(&t, &i, lambda),
-        "lsq" => least_squares(&t, &i, None),
-        _ => admm_tv(
-            &t,
-            &i,
-            &AdmmSettings {
-                lambda,
-                rho: p.get("rho").and_then(|v| v.as_f64()),
-                max_iter: p
-                    .get("max_iter")
-                    .and_then(|v| v.as_u64())
-                    .map(|v| v as usize)
-                    .unwrap_or(AdmmSettings::default().max_iter),
-                tol: p
-                    .get("tol")
-                    .and_then(|v| v.as_f64())
-                    .unwrap_or(AdmmSettings::default().tol),
-            },
-        ),
-    }
-    .map_err(|e| e.to_string())?;
     let cond = d
         .scenes
         .conditioning(&rec.scene)
         .ok_or("scene vanished")??;
+    let settings = AdmmSettings {
+        lambda,
+        rho: p.get("rho").and_then(|v| v.as_f64()),
+        max_iter: p
+            .get("max_iter")
+            .and_then(|v| v.as_u64())
+            .map(|v| v as usize)
+            .unwrap_or(AdmmSettings::default().max_iter),
+        tol: p
+            .get("tol")
+            .and_then(|v| v.as_f64())
+            .unwrap_or(AdmmSettings::default().tol),
+    };
+    let mut lambda_choice = None;
+    let r = match (rec.solver.as_str(), lambda, &var) {
+        ("tikhonov", _, _) => tikhonov(&t, &i, lambda),
+        ("lsq", _, _) => least_squares(&t, &i, None),
+        // No lambda given and a noise level from the frames: choose it from the noise.
+        (_, None, Some(v)) => admm_tv_resolved(
+            &t,
+            &i,
+            &NoiseLevel {
+                variance: v.clone(),
+            },
+            &cond.singular_values,
+            &AdmmSettings {
+                // Low-noise captures lead to small lambdas, which converge slowly.
+                max_iter: p
+                    .get("max_iter")
+                    .and_then(|v| v.as_u64())
+                    .map(|v| v as usize)
+                    .unwrap_or(AUTO_MAX_ITER),
+                ..settings
+            },
+        )
+        .map(|(r, c)| {
+            lambda_choice = Some(c);
+            r
+        }),
+        _ => admm_tv(&t, &i, &settings),
+    }
+    .map_err(|e| e.to_string())?;
     let grid = t.scene_grid;
     if let Some(v) = &var {
         // The least-squares error the noise implies (see `polnlos plan`).
@@ -625,7 +740,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
         &cond,
         r,
         truth.as_deref(),
-        None,
+        lambda_choice,
     );
     report.warnings.splice(0..0, warnings);
     let dir = d.store.reconstruction_dir(id);

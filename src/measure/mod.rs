@@ -2,6 +2,8 @@
 //! camera frames to i"): sampling frames through a pose's homography, and
 //! rendering the frame a wall image implies (for simulation and the fake camera).
 
+pub mod exposure;
+
 use crate::camera::Frame;
 use crate::scene::{Homography, Plane};
 

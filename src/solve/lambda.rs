@@ -51,8 +51,12 @@ impl NoiseLevel {
 /// How the automatic lambda was found (the `lambda_choice` of a report).
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct LambdaChoice {
-    /// `discrepancy`.
+    /// `resolved-discrepancy` (the default) or `discrepancy` (Morozov).
     pub rule: &'static str,
+    /// Best attainable misfit (smallest over the scan); resolved rule only.
+    pub floor: Option<f64>,
+    /// Components of the scene the measurement resolves; resolved rule only.
+    pub resolved: Option<usize>,
     /// Misfit aimed at, `sum sigma^2`.
     pub target: f64,
     /// Misfit reached.
@@ -70,14 +74,122 @@ const RHO_FLOOR_REL: f64 = 1e-3;
 /// Bisection steps in log10(lambda): 8 decades / 2^14 = 5e-4 decade.
 const STEPS: usize = 14;
 
-/// ADMM-TV with lambda chosen by the discrepancy principle.
-pub fn admm_tv_discrepancy(
+/// Per-component error, in units of the radiance range, below which a scene
+/// component counts as resolved: the tolerance of [`super::plan`].
+pub const RESOLVED_TOLERANCE: f64 = 0.1;
+
+/// ADMM-TV with lambda from the noise, the *resolved discrepancy* rule.
+///
+/// Morozov's rule aims the misfit at `sum sigma^2`, but with a box constraint
+/// and an ill-conditioned `T` the best attainable misfit (the floor `F`) is
+/// not `sum sigma^2`, and the whole range of useful lambdas sits within a few
+/// `sigma^2` of `F` (on the Brewster bench Morozov's target lies at the knee,
+/// 5-10x too much smoothing, or below the floor). This rule lets the
+/// regularizer cost as much misfit as the noise carries in the components of
+/// the scene that the measurement resolves: target `F + p mean(sigma^2)` with
+/// `p` the number of singular values of `T` above `mean(sigma) / 0.1` (the
+/// same 0.1-of-range criterion as `polnlos plan`), and picks the largest
+/// lambda that meets it. `F` is the smallest misfit of a half-decade scan.
+pub fn admm_tv_resolved(
     t: &Transport,
     i: &[f64],
     noise: &NoiseLevel,
+    singular_values: &[f64],
     settings: &AdmmSettings,
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
     check_measurement(t, i)?;
+    check_noise(noise, i)?;
+    let normal = Normal::new(t.as_mat(), i);
+    let unit = normal.unit();
+    let mean_var = noise.total() / i.len().max(1) as f64;
+    let sigma = mean_var.sqrt();
+    let resolved = singular_values
+        .iter()
+        .filter(|&&s| s * RESOLVED_TOLERANCE >= sigma)
+        .count()
+        .max(1);
+    let mut trials = Vec::new();
+    let mut solve = |lambda: f64| -> Result<Reconstruction, SolveError> {
+        let rho = settings.rho.unwrap_or(lambda.max(RHO_FLOOR_REL * unit));
+        let r = admm_tv_prepared(
+            t,
+            i,
+            &normal,
+            &AdmmSettings {
+                lambda: Some(lambda),
+                rho: Some(rho),
+                ..*settings
+            },
+        )?;
+        trials.push((lambda, r.stats.data_misfit));
+        Ok(r)
+    };
+    // Half-decade scan over SCAN_REL: the floor and a bracket.
+    let scan: Vec<f64> = (0..=SCAN_STEPS)
+        .map(|k| SCAN_REL.0 + (SCAN_REL.1 - SCAN_REL.0) * k as f64 / SCAN_STEPS as f64)
+        .map(|e| unit * 10f64.powf(e))
+        .collect();
+    let mut results = Vec::with_capacity(scan.len());
+    for &l in &scan {
+        results.push(solve(l)?);
+    }
+    let (argmin, floor) = results
+        .iter()
+        .enumerate()
+        .map(|(k, r)| (k, r.stats.data_misfit))
+        .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
+    let target = floor + resolved as f64 * mean_var;
+    // Largest scanned lambda at or above the floor's that meets the target.
+    let mut k = argmin;
+    while k + 1 < results.len() && results[k + 1].stats.data_misfit <= target {
+        k += 1;
+    }
+    let mut best = results.swap_remove(k);
+    if k + 1 < scan.len() {
+        let (mut lo, mut hi) = (scan[k].log10(), scan[k + 1].log10());
+        for _ in 0..BISECT_STEPS {
+            let mid = 0.5 * (lo + hi);
+            let r = solve(10f64.powf(mid))?;
+            if r.stats.data_misfit > target {
+                hi = mid;
+            } else {
+                lo = mid;
+                best = r;
+            }
+        }
+    } else {
+        best.stats.warnings.push("even the strongest regularization tried stays within the noise of the resolved components: the measurement carries almost no information about the scene".into());
+    }
+    if resolved == 1
+        && singular_values
+            .first()
+            .is_none_or(|&s| s * RESOLVED_TOLERANCE < sigma)
+    {
+        best.stats.warnings.push(format!(
+            "no scene component is resolved to {RESOLVED_TOLERANCE} of the range at this noise level (largest singular value {:.3e}, noise {sigma:.3e}): expect a nearly flat result",
+            singular_values.first().copied().unwrap_or(0.0)
+        ));
+    }
+    let choice = LambdaChoice {
+        rule: "resolved-discrepancy",
+        floor: Some(floor),
+        resolved: Some(resolved),
+        target,
+        misfit: best.stats.data_misfit,
+        lambda: best.stats.lambda.unwrap_or(0.0),
+        trials,
+    };
+    Ok((best, choice))
+}
+
+/// Scan range of [`admm_tv_resolved`], log10 of lambda relative to `mean(diag(T^T T))`.
+const SCAN_REL: (f64, f64) = (-6.0, 0.0);
+/// Half-decade steps over the scan range.
+const SCAN_STEPS: usize = 12;
+/// Bisection steps inside the bracketing half decade (0.5 / 2^6 = 0.008 decade).
+const BISECT_STEPS: usize = 6;
+
+fn check_noise(noise: &NoiseLevel, i: &[f64]) -> Result<(), SolveError> {
     if noise.variance.len() != i.len()
         || noise.variance.iter().any(|v| !(v.is_finite() && *v >= 0.0))
     {
@@ -87,6 +199,19 @@ pub fn admm_tv_discrepancy(
             reason: "needs one finite variance >= 0 per measurement",
         });
     }
+    Ok(())
+}
+
+/// ADMM-TV with lambda chosen by Morozov's discrepancy principle (kept for
+/// comparison; see [`admm_tv_resolved`] for the default rule).
+pub fn admm_tv_discrepancy(
+    t: &Transport,
+    i: &[f64],
+    noise: &NoiseLevel,
+    settings: &AdmmSettings,
+) -> Result<(Reconstruction, LambdaChoice), SolveError> {
+    check_measurement(t, i)?;
+    check_noise(noise, i)?;
     let normal = Normal::new(t.as_mat(), i);
     let unit = normal.unit();
     let target = noise.total();
@@ -142,6 +267,8 @@ pub fn admm_tv_discrepancy(
     }
     let choice = LambdaChoice {
         rule: "discrepancy",
+        floor: None,
+        resolved: None,
         target,
         misfit: best.stats.data_misfit,
         lambda: best.stats.lambda.unwrap_or(0.0),
