@@ -251,6 +251,7 @@ impl Plot {
             .y_desc(&self.y_label)
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 16))
+            .max_light_lines(2)
             .x_labels(label_count(x0, x1, xl))
             .y_labels(label_count(y0, y1, yl))
             .x_label_formatter(&|v| label(*v, xl))
