@@ -6,8 +6,8 @@
 use serde::Serialize;
 
 use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
-use super::{BenchError, ROUGHNESS};
-use crate::scene::{Grid, Scene};
+use super::{builtin, BenchError, ROUGHNESS};
+use crate::scene::Grid;
 use crate::solve::condition;
 use crate::transport::active::{build_active, ActiveSetup};
 use crate::transport::build;
@@ -39,16 +39,7 @@ fn point(
     grid: usize,
     roughness: f64,
 ) -> Result<ActiveRow, BenchError> {
-    let name = format!("brewster-{config}");
-    let mut s: Scene = Scene::builtin(&name)
-        .ok_or_else(|| BenchError::Scene {
-            name: name.clone(),
-            reason: "not built in".into(),
-        })?
-        .map_err(|e| BenchError::Scene {
-            name: name.clone(),
-            reason: e.to_string(),
-        })?;
+    let mut s = builtin(&format!("brewster-{config}"))?;
     s.scene.plane.grid = Grid { nu: grid, nv: grid };
     s.wall.brdf.alpha = roughness;
     let a = build_active(&s, &ActiveSetup::default())?;

@@ -73,7 +73,8 @@ pub fn scene_name(config: &str, occluder: bool, grid: usize) -> String {
     }
 }
 
-fn builtin(name: &str) -> Result<Scene, BenchError> {
+/// A built-in scene, or a bench error naming it.
+pub(crate) fn builtin(name: &str) -> Result<Scene, BenchError> {
     match Scene::builtin(name) {
         Some(Ok(s)) => Ok(s),
         Some(Err(e)) => Err(BenchError::Scene {

@@ -9,7 +9,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
-use super::BenchError;
+use super::{builtin, BenchError};
 use crate::scene::Scene;
 use crate::transport::adaptive::relative_error;
 use crate::transport::{build, build_adaptive, Transport};
@@ -59,15 +59,7 @@ fn timed<T>(mut f: impl FnMut() -> Result<T, BenchError>) -> Result<(T, f64), Be
 }
 
 fn case(name: &str, alpha: Option<f64>) -> Result<Scene, BenchError> {
-    let mut s = Scene::builtin(name)
-        .ok_or_else(|| BenchError::Scene {
-            name: name.into(),
-            reason: "not built in".into(),
-        })?
-        .map_err(|e| BenchError::Scene {
-            name: name.into(),
-            reason: e.to_string(),
-        })?;
+    let mut s = builtin(name)?;
     if let Some(a) = alpha {
         s.wall.brdf.alpha = a;
     }

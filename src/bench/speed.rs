@@ -16,7 +16,7 @@ use serde::Serialize;
 
 use super::charts::{panel_grid, Chart, ChartError, Marker, Plot, Series};
 
-use super::BenchError;
+use super::{builtin, BenchError};
 use crate::scene::{Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::NoiseModel;
@@ -123,20 +123,6 @@ pub struct SpeedSummary {
     /// On the Pareto front of (median seconds, median PSNR) for its size and
     /// exposure (the no-polarizer reference is left out of the front).
     pub pareto: bool,
-}
-
-fn builtin(name: &str) -> Result<Scene, BenchError> {
-    match Scene::builtin(name) {
-        Some(Ok(s)) => Ok(s),
-        Some(Err(e)) => Err(BenchError::Scene {
-            name: name.into(),
-            reason: e.to_string(),
-        }),
-        None => Err(BenchError::Scene {
-            name: name.into(),
-            reason: "not a built-in scene".into(),
-        }),
-    }
 }
 
 /// The Brewster bench at `size`: crossed polarizer on poses A; B, C; or A, B, C.

@@ -5,7 +5,7 @@
 
 use serde::Serialize;
 
-use super::BenchError;
+use super::{builtin, BenchError};
 use crate::scene::Scene;
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
@@ -47,20 +47,8 @@ struct Case {
     lambda_rel: Option<f64>,
 }
 
-fn base(name: &str) -> Result<Scene, BenchError> {
-    Scene::builtin(name)
-        .ok_or_else(|| BenchError::Scene {
-            name: name.into(),
-            reason: "not built in".into(),
-        })?
-        .map_err(|e| BenchError::Scene {
-            name: name.into(),
-            reason: e.to_string(),
-        })
-}
-
 fn cases() -> Result<Vec<Case>, BenchError> {
-    let crossed = base("brewster-crossed")?;
+    let crossed = builtin("brewster-crossed")?;
     let with = |f: &dyn Fn(&mut Scene)| {
         let mut s = crossed.clone();
         f(&mut s);

@@ -241,6 +241,13 @@ fn peer_markdown(p: &PeerReport) -> String {
     md
 }
 
+/// Writes `DIR/NAME.png` and `DIR/NAME.svg`.
+fn write_chart(dir: &std::path::Path, name: &str, c: &charts::Chart) -> anyhow::Result<()> {
+    write_atomic(&dir.join(format!("{name}.png")), &c.png)?;
+    write_atomic(&dir.join(format!("{name}.svg")), c.svg.as_bytes())?;
+    Ok(())
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     super::out_dir(&a.out)?;
     let start = std::time::Instant::now();
@@ -294,14 +301,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         seconds: start.elapsed().as_secs_f64(),
     };
     let c = active::chart(&out.active)?;
-    write_atomic(&a.out.join("active.png"), &c.png)?;
-    write_atomic(&a.out.join("active.svg"), c.svg.as_bytes())?;
+    write_chart(&a.out, "active", &c)?;
     let c = sampling::chart(&out.sampling, reference_m)?;
-    write_atomic(&a.out.join("sampling.png"), &c.png)?;
-    write_atomic(&a.out.join("sampling.svg"), c.svg.as_bytes())?;
+    write_chart(&a.out, "sampling", &c)?;
     for (name, c) in speed::charts(&out.speed)? {
-        write_atomic(&a.out.join(format!("{name}.png")), &c.png)?;
-        write_atomic(&a.out.join(format!("{name}.svg")), c.svg.as_bytes())?;
+        write_chart(&a.out, &name, &c)?;
     }
 
     let mut groups: Vec<(String, Vec<f64>)> = Vec::new();
@@ -323,8 +327,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         &bench::CONFIGS,
         &groups,
     )?;
-    write_atomic(&a.out.join("conditioning.png"), &c.png)?;
-    write_atomic(&a.out.join("conditioning.svg"), c.svg.as_bytes())?;
+    write_chart(&a.out, "conditioning", &c)?;
 
     let mut series = Vec::new();
     for occ in [false, true] {
@@ -350,8 +353,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "kappa(T)",
         series,
     )?;
-    write_atomic(&a.out.join("roughness.png"), &c.png)?;
-    write_atomic(&a.out.join("roughness.svg"), c.svg.as_bytes())?;
+    write_chart(&a.out, "roughness", &c)?;
 
     json::write(&a.out.join("bench.json"), &out)?;
     write_atomic(&a.out.join("bench.md"), markdown(&out).as_bytes())?;

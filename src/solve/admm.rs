@@ -16,7 +16,7 @@ use faer::{MatMut, Par, Side};
 
 use super::gram::Normal;
 use super::tv::{add_divergence_adjoint, add_laplacian_lower, gradient, total_variation};
-use super::{check_measurement, Reconstruction, SolveError, SolveStats};
+use super::{check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats};
 use crate::transport::Transport;
 
 /// Parameters of an ADMM-TV solve; `None` picks a default scaled to `T`.
@@ -67,13 +67,7 @@ pub fn admm_tv_prepared(
     normal: &Normal,
     settings: &AdmmSettings,
 ) -> Result<Reconstruction, SolveError> {
-    if !(settings.tol > 0.0 && settings.tol.is_finite()) {
-        return Err(SolveError::Parameter {
-            name: "tol",
-            value: settings.tol,
-            reason: "must be a positive number",
-        });
-    }
+    check_tol(settings.tol)?;
     let start = Instant::now();
     let grid = t.scene_grid;
     let n = t.cols();
@@ -91,13 +85,7 @@ pub fn admm_tv_prepared(
     } else {
         LAMBDA_REL * unit
     });
-    if !(lambda >= 0.0 && lambda.is_finite()) {
-        return Err(SolveError::Parameter {
-            name: "lambda",
-            value: lambda,
-            reason: "must be a finite number >= 0",
-        });
-    }
+    check_lambda(lambda)?;
     if !(rho > 0.0 && rho.is_finite()) {
         return Err(SolveError::Parameter {
             name: "rho",

@@ -16,7 +16,7 @@ use faer::Mat;
 use super::admm::{objective_of, LAMBDA_REL};
 use super::gram::Normal;
 use super::tv::{add_divergence_adjoint, gradient};
-use super::{check_measurement, Reconstruction, SolveError, SolveStats};
+use super::{check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats};
 use crate::scene::Grid;
 use crate::transport::Transport;
 
@@ -173,13 +173,7 @@ pub fn fista_tv_prepared(
     normal: &Normal,
     settings: &FistaSettings,
 ) -> Result<Reconstruction, SolveError> {
-    if !(settings.tol > 0.0 && settings.tol.is_finite()) {
-        return Err(SolveError::Parameter {
-            name: "tol",
-            value: settings.tol,
-            reason: "must be a positive number",
-        });
-    }
+    check_tol(settings.tol)?;
     if settings.inner == 0 {
         return Err(SolveError::Parameter {
             name: "inner",
@@ -190,13 +184,7 @@ pub fn fista_tv_prepared(
     let start = Instant::now();
     let n = t.cols();
     let lambda = settings.lambda.unwrap_or(LAMBDA_REL * normal.unit());
-    if !(lambda >= 0.0 && lambda.is_finite()) {
-        return Err(SolveError::Parameter {
-            name: "lambda",
-            value: lambda,
-            reason: "must be a finite number >= 0",
-        });
-    }
+    check_lambda(lambda)?;
     let mut warnings = Vec::new();
     let g = symmetric(&normal.gram);
     let lip = largest_eigenvalue(&g) * 1.01;

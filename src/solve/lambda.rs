@@ -109,21 +109,7 @@ pub fn admm_tv_resolved(
         .count()
         .max(1);
     let mut trials = Vec::new();
-    let mut solve = |lambda: f64| -> Result<Reconstruction, SolveError> {
-        let rho = settings.rho.unwrap_or(lambda.max(RHO_FLOOR_REL * unit));
-        let r = admm_tv_prepared(
-            t,
-            i,
-            &normal,
-            &AdmmSettings {
-                lambda: Some(lambda),
-                rho: Some(rho),
-                ..*settings
-            },
-        )?;
-        trials.push((lambda, r.stats.data_misfit));
-        Ok(r)
-    };
+    let mut solve = |lambda: f64| trial(t, i, &normal, settings, lambda, &mut trials);
     // Half-decade scan over SCAN_REL: the floor and a bracket.
     let scan: Vec<f64> = (0..=SCAN_STEPS)
         .map(|k| SCAN_REL.0 + (SCAN_REL.1 - SCAN_REL.0) * k as f64 / SCAN_STEPS as f64)
@@ -146,17 +132,13 @@ pub fn admm_tv_resolved(
     }
     let mut best = results.swap_remove(k);
     if k + 1 < scan.len() {
-        let (mut lo, mut hi) = (scan[k].log10(), scan[k + 1].log10());
-        for _ in 0..BISECT_STEPS {
-            let mid = 0.5 * (lo + hi);
-            let r = solve(10f64.powf(mid))?;
-            if r.stats.data_misfit > target {
-                hi = mid;
-            } else {
-                lo = mid;
-                best = r;
-            }
-        }
+        best = bisect(
+            (scan[k].log10(), scan[k + 1].log10()),
+            BISECT_STEPS,
+            target,
+            best,
+            &mut solve,
+        )?;
     } else {
         best.stats.warnings.push("even the strongest regularization tried stays within the noise of the resolved components: the measurement carries almost no information about the scene".into());
     }
@@ -180,6 +162,56 @@ pub fn admm_tv_resolved(
         trials,
     };
     Ok((best, choice))
+}
+
+/// Bisection in log10(lambda) over `(lo, hi)` for the largest lambda whose
+/// misfit stays at or below `target`; `keep` is the best so far (at `lo`).
+fn bisect(
+    (mut lo, mut hi): (f64, f64),
+    steps: usize,
+    target: f64,
+    mut keep: Reconstruction,
+    solve: &mut impl FnMut(f64) -> Result<Reconstruction, SolveError>,
+) -> Result<Reconstruction, SolveError> {
+    for _ in 0..steps {
+        let mid = 0.5 * (lo + hi);
+        let r = solve(10f64.powf(mid))?;
+        if r.stats.data_misfit > target {
+            hi = mid;
+        } else {
+            lo = mid;
+            keep = r;
+        }
+    }
+    Ok(keep)
+}
+
+/// One ADMM-TV solve at `lambda`, recorded in `trials` as (lambda, misfit).
+/// `rho = lambda` converges fastest, but below `RHO_FLOOR_REL` the system
+/// `T^T T + rho (D^T D + I)` inherits `kappa(T)^2` and ADMM stalls.
+fn trial(
+    t: &Transport,
+    i: &[f64],
+    normal: &Normal,
+    settings: &AdmmSettings,
+    lambda: f64,
+    trials: &mut Vec<(f64, f64)>,
+) -> Result<Reconstruction, SolveError> {
+    let rho = settings
+        .rho
+        .unwrap_or(lambda.max(RHO_FLOOR_REL * normal.unit()));
+    let r = admm_tv_prepared(
+        t,
+        i,
+        normal,
+        &AdmmSettings {
+            lambda: Some(lambda),
+            rho: Some(rho),
+            ..*settings
+        },
+    )?;
+    trials.push((lambda, r.stats.data_misfit));
+    Ok(r)
 }
 
 /// Scan range of [`admm_tv_resolved`], log10 of lambda relative to `mean(diag(T^T T))`.
@@ -216,24 +248,8 @@ pub fn admm_tv_discrepancy(
     let unit = normal.unit();
     let target = noise.total();
     let mut trials = Vec::new();
-    let mut solve = |lambda: f64| -> Result<Reconstruction, SolveError> {
-        // rho = lambda converges fastest, but below RHO_FLOOR_REL the system
-        // T^T T + rho (D^T D + I) inherits kappa(T)^2 and ADMM stalls.
-        let rho = settings.rho.unwrap_or(lambda.max(RHO_FLOOR_REL * unit));
-        let r = admm_tv_prepared(
-            t,
-            i,
-            &normal,
-            &AdmmSettings {
-                lambda: Some(lambda),
-                rho: Some(rho),
-                ..*settings
-            },
-        )?;
-        trials.push((lambda, r.stats.data_misfit));
-        Ok(r)
-    };
-    let (mut lo, mut hi) = ((RANGE_REL.0 * unit).log10(), (RANGE_REL.1 * unit).log10());
+    let mut solve = |lambda: f64| trial(t, i, &normal, settings, lambda, &mut trials);
+    let (lo, hi) = ((RANGE_REL.0 * unit).log10(), (RANGE_REL.1 * unit).log10());
     let at_hi = solve(10f64.powf(hi))?;
     let mut warning = None;
     let mut best = if at_hi.stats.data_misfit <= target {
@@ -248,18 +264,7 @@ pub fn admm_tv_discrepancy(
             ));
             at_lo
         } else {
-            let mut keep = at_lo;
-            for _ in 0..STEPS {
-                let mid = 0.5 * (lo + hi);
-                let r = solve(10f64.powf(mid))?;
-                if r.stats.data_misfit > target {
-                    hi = mid;
-                } else {
-                    lo = mid;
-                    keep = r;
-                }
-            }
-            keep
+            bisect((lo, hi), STEPS, target, at_lo, &mut solve)?
         }
     };
     if let Some(w) = warning {

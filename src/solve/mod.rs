@@ -105,6 +105,32 @@ pub struct SolveStats {
     pub warnings: Vec<String>,
 }
 
+/// Checks an iterative solver's tolerance (`> 0`, finite).
+pub(crate) fn check_tol(tol: f64) -> Result<(), SolveError> {
+    if tol > 0.0 && tol.is_finite() {
+        Ok(())
+    } else {
+        Err(SolveError::Parameter {
+            name: "tol",
+            value: tol,
+            reason: "must be a positive number",
+        })
+    }
+}
+
+/// Checks a regularization weight (`>= 0`, finite).
+pub(crate) fn check_lambda(lambda: f64) -> Result<(), SolveError> {
+    if lambda >= 0.0 && lambda.is_finite() {
+        Ok(())
+    } else {
+        Err(SolveError::Parameter {
+            name: "lambda",
+            value: lambda,
+            reason: "must be a finite number >= 0",
+        })
+    }
+}
+
 /// Checks a measurement against `T` before a solve.
 pub fn check_measurement(t: &Transport, i: &[f64]) -> Result<(), SolveError> {
     if i.len() != t.rows() {
