@@ -7,6 +7,7 @@
 
 use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
+use polnlos::solve::admm::LAMBDA_REL;
 use polnlos::solve::{admm_tv, AdmmSettings};
 use polnlos::transport::build;
 
@@ -36,10 +37,14 @@ fn gram_cholesky_admm200_64x64_32x32_2poses(bencher: divan::Bencher) {
     let s = scene();
     let t = build(&s).expect("T");
     let i = t.apply(&Pattern::Letter.render(t.scene_grid));
+    // Fixed rho (no residual balancing): the cost of exactly one factorization
+    // and 200 iterations.
+    let unit = t.col_major().iter().map(|v| v * v).sum::<f64>() / t.cols() as f64;
     let settings = AdmmSettings {
+        lambda: Some(LAMBDA_REL * unit),
+        rho: Some(LAMBDA_REL * unit),
         max_iter: 200,
         tol: 1e-30,
-        ..Default::default()
     };
     bencher.bench(|| {
         let r = admm_tv(&t, divan::black_box(&i), &settings).expect("ADMM");

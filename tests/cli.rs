@@ -369,6 +369,15 @@ fn bench_quick_writes_its_reports() {
     let png = image::read_gray(&dir.path().join("conditioning.png")).unwrap();
     assert_eq!((png.width, png.height), (900, 560));
 
+    // Stability: the measurement that is mostly noise says so.
+    let dim = v["stability"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["case"] == "1e2 photons at full scale")
+        .unwrap();
+    assert!(dim["warnings"].to_string().contains("mean SNR"), "{dim}");
+
     // Speed against accuracy: 2 exposures x (lsq, tikhonov, 3 ADMM + 3 FISTA
     // budgets, 3 tolerances, the unpolarized reference).
     let speed = v["speed"].as_array().unwrap();

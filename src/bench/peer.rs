@@ -16,6 +16,7 @@ use crate::files::npy;
 use crate::scene::{builtin::BUILT_IN, Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
+use crate::solve::admm::LAMBDA_REL;
 use crate::solve::{admm_tv, metrics, AdmmSettings};
 use crate::transport::build;
 
@@ -148,10 +149,14 @@ pub fn compare(
     }
     .apply(t.apply(&truth), peak)
     .map_err(|e| io("simulation", e))?;
+    // The peer's algorithm: lambda = rho = 1e-2 mean(diag(T^T T)), fixed
+    // (no residual balancing), 200 iterations.
+    let unit = t.col_major().iter().map(|v| v * v).sum::<f64>() / t.cols() as f64;
     let settings = AdmmSettings {
+        lambda: Some(LAMBDA_REL * unit),
+        rho: Some(LAMBDA_REL * unit),
         max_iter: ITERATIONS,
         tol: 1e-300,
-        ..AdmmSettings::default()
     };
     let mut runs = Vec::new();
     for _ in 0..3 {

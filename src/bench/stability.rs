@@ -9,7 +9,7 @@ use super::{builtin, BenchError};
 use crate::scene::Scene;
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
-use crate::solve::report::conditioning_warnings;
+use crate::solve::report::{conditioning_warnings, snr_warnings};
 use crate::solve::{admm_tv, condition, metrics, AdmmSettings};
 use crate::transport::build;
 
@@ -179,6 +179,7 @@ pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, Benc
         let r = admm_tv(&t, &sim.measurement, &settings)?;
         let cond = condition(&t)?;
         let mut warnings = conditioning_warnings(&cond);
+        warnings.extend(snr_warnings(snr));
         warnings.extend(r.stats.warnings.iter().cloned());
         rows.push(StabilityRow {
             case: c.name,

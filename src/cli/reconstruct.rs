@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::solve::lambda::{admm_tv_resolved, NoiseLevel};
-use polnlos::solve::report::Report;
+use polnlos::solve::report::{mean_snr, snr_warnings, Report};
 use polnlos::solve::{
     admm_tv, condition, fista_tv, least_squares, tikhonov, AdmmSettings, FistaSettings,
 };
@@ -136,15 +136,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         (None, Some(_), Solver::AdmmTv) => Some(LambdaArg::Auto),
         (l, _, _) => l,
     };
+    let noise = a
+        .noise_from
+        .as_ref()
+        .map(|p| noise_from(p, &meas.data))
+        .transpose()?;
     let rec = match (a.solver, lambda_arg) {
         (Solver::AdmmTv, Some(LambdaArg::Auto)) => {
-            let path = a
-                .noise_from
+            let noise = noise
                 .as_ref()
                 .context("--lambda auto needs --noise-from simulate.json (the noise level)")?;
-            let noise = noise_from(path, &meas.data)?;
             let (r, choice) =
-                admm_tv_resolved(&t, &meas.data, &noise, &cond.singular_values, &settings)?;
+                admm_tv_resolved(&t, &meas.data, noise, &cond.singular_values, &settings)?;
             lambda_choice = Some(choice);
             r
         }
@@ -167,7 +170,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         (Solver::Lsq, _) => least_squares(&t, &meas.data, a.rcond)?,
     };
     let image = rec.image.clone();
-    let report = Report::new(
+    let mut report = Report::new(
         super::scene_name(&a.scene),
         &t,
         transport_seconds,
@@ -176,6 +179,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         truth.as_deref(),
         lambda_choice,
     );
+    if let Some(n) = &noise {
+        report
+            .warnings
+            .extend(snr_warnings(mean_snr(&meas.data, &n.variance)));
+    }
     npy::write_f64(&a.out.join("recovered.npy"), &[sgrid.nv, sgrid.nu], &image)?;
     image::write_png16(
         &a.out.join("recovered.png"),

@@ -15,6 +15,7 @@ use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, Expos
 use crate::measure::sample_wall;
 use crate::solve::lambda::{admm_tv_resolved, NoiseLevel};
 use crate::solve::report::Report;
+use crate::solve::report::{mean_snr, snr_warnings};
 use crate::solve::{admm_tv, least_squares, tikhonov, AdmmSettings};
 use crate::store::{
     read_mean, write_capture_files, CaptureRequest, FrameMeta, JobState, ReconstructionRequest,
@@ -706,6 +707,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
     .map_err(|e| e.to_string())?;
     let grid = t.scene_grid;
     if let Some(v) = &var {
+        warnings.extend(snr_warnings(mean_snr(&i, v)));
         // The least-squares error the noise implies (see `polnlos plan`).
         let sigma = (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt();
         let amp = if cond.is_rank_deficient() {

@@ -24,9 +24,11 @@ use crate::transport::Transport;
 pub struct AdmmSettings {
     /// TV weight in MODEL.md units; default `1e-2 * mean(diag(T^T T))`.
     pub lambda: Option<f64>,
-    /// Penalty; default `lambda` (or `1e-2 * mean(diag(T^T T))` when `lambda = 0`):
-    /// on the Brewster bench this converges in a few hundred iterations where
-    /// `rho = mean(diag(T^T T))` needs thousands.
+    /// Penalty, fixed when given. Default: start at `max(lambda, 1e-3
+    /// mean(diag(T^T T)))` (or `1e-2 mean(diag)` when `lambda = 0`; on the
+    /// Brewster bench this converges in a few hundred iterations where `rho =
+    /// mean(diag(T^T T))` needs thousands) and balance the primal and dual
+    /// residuals (Boyd et al. 2011, §3.4.1), refactorizing when rho changes.
     pub rho: Option<f64>,
     /// Iteration cap.
     pub max_iter: usize,
@@ -48,6 +50,33 @@ impl Default for AdmmSettings {
 /// Default relative TV weight, `lambda = LAMBDA_REL * mean(diag(T^T T))`: the
 /// best of 1e-3..1 on the 16x16 Brewster bench at 2e4 photons (see tests/roundtrip.rs).
 pub const LAMBDA_REL: f64 = 1e-2;
+
+/// Smallest default starting penalty, relative to `mean(diag(T^T T))`: below
+/// it `T^T T + rho (D^T D + I)` inherits `kappa(T)^2` and ADMM stalls.
+pub const RHO_FLOOR_REL: f64 = 1e-3;
+/// Residual balancing: check every this many iterations ...
+const BALANCE_EVERY: usize = 10;
+/// ... change rho by this factor when one scaled residual exceeds the other
+/// by `BALANCE_MU` ...
+const BALANCE_TAU: f64 = 2.0;
+const BALANCE_MU: f64 = 10.0;
+/// ... at most this many times per solve (each costs a Cholesky).
+const MAX_REFACTOR: usize = 20;
+
+/// Cholesky factor of `T^T T + rho (D^T D + I)`.
+fn factorize(
+    normal: &Normal,
+    grid: crate::scene::Grid,
+    rho: f64,
+) -> Result<faer::linalg::solvers::Llt<f64>, SolveError> {
+    let n = normal.gram.nrows();
+    let mut a = normal.gram.clone();
+    for k in 0..n {
+        a[(k, k)] += rho;
+    }
+    add_laplacian_lower(grid, rho, |r, c, v| a[(r, c)] += v);
+    a.llt(Side::Lower).map_err(|e| SolveError::Factorization(format!("Cholesky of T^T T + rho (D^T D + I) failed ({e:?}); rho = {rho} may be too small against the entries of T")))
+}
 
 /// Runs ADMM-TV on a measurement `i` of the scene seen through `t`.
 pub fn admm_tv(
@@ -80,8 +109,9 @@ pub fn admm_tv_prepared(
     }
     let unit = normal.unit();
     let lambda = settings.lambda.unwrap_or(LAMBDA_REL * unit);
-    let rho = settings.rho.unwrap_or(if lambda > 0.0 {
-        lambda
+    let adaptive = settings.rho.is_none();
+    let mut rho = settings.rho.unwrap_or(if lambda > 0.0 {
+        lambda.max(RHO_FLOOR_REL * unit)
     } else {
         LAMBDA_REL * unit
     });
@@ -100,22 +130,16 @@ pub fn admm_tv_prepared(
         );
     }
 
-    // System matrix T^T T + rho (D^T D + I), lower triangle, factorized once.
+    // System matrix T^T T + rho (D^T D + I), lower triangle, factorized
+    // once (again only when residual balancing changes rho).
     let t0 = Instant::now();
-    let mut a = normal.gram.clone();
-    for k in 0..n {
-        a[(k, k)] += rho;
-    }
-    add_laplacian_lower(grid, rho, |r, c, v| a[(r, c)] += v);
-    let llt = a
-        .llt(Side::Lower)
-        .map_err(|e| SolveError::Factorization(format!("Cholesky of T^T T + rho (D^T D + I) failed ({e:?}); rho = {rho} may be too small against the entries of T")))?;
-    let l_factor = llt.L();
-    let factor_seconds = t0.elapsed().as_secs_f64();
+    let mut llt = factorize(normal, grid, rho)?;
+    let mut factor_seconds = t0.elapsed().as_secs_f64();
+    let mut refactorizations = 0;
 
     // Iterate without allocating: every buffer is sized once here.
     let t1 = Instant::now();
-    let kappa_tv = 0.5 * lambda / rho;
+    let mut kappa_tv = 0.5 * lambda / rho;
     let eps_rel = settings.tol;
     let eps_abs = settings.tol * 1e-2;
     let sqrt_p = ((3 * n) as f64).sqrt();
@@ -144,6 +168,7 @@ pub fn admm_tv_prepared(
             rhs[k] = ti[k] + rho * (rhs[k] + z2[k] - u2[k]);
         }
         let mut x = MatMut::from_column_major_slice_mut(&mut rhs, n, 1);
+        let l_factor = llt.L();
         solve_lower_triangular_in_place(l_factor, x.as_mut(), Par::Seq);
         solve_upper_triangular_in_place(l_factor.transpose(), x.as_mut(), Par::Seq);
         l.copy_from_slice(&rhs);
@@ -207,6 +232,30 @@ pub fn admm_tv_prepared(
         if r_norm <= eps_pri && s_norm <= eps_dual {
             converged = true;
             break;
+        }
+        // Residual balancing, on residuals relative to their tolerances.
+        if adaptive && iterations % BALANCE_EVERY == 0 && refactorizations < MAX_REFACTOR {
+            let (rp, rd) = (r_norm / eps_pri, s_norm / eps_dual);
+            let factor = if rp > BALANCE_MU * rd {
+                BALANCE_TAU
+            } else if rd > BALANCE_MU * rp {
+                1.0 / BALANCE_TAU
+            } else {
+                1.0
+            };
+            if factor != 1.0 {
+                let t2 = Instant::now();
+                if let Ok(f) = factorize(normal, grid, rho * factor) {
+                    llt = f;
+                    rho *= factor;
+                    kappa_tv = 0.5 * lambda / rho;
+                    u1.iter_mut()
+                        .chain(u2.iter_mut())
+                        .for_each(|u| *u /= factor);
+                    refactorizations += 1;
+                }
+                factor_seconds += t2.elapsed().as_secs_f64();
+            }
         }
     }
     let iterate_seconds = t1.elapsed().as_secs_f64();

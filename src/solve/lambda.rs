@@ -69,8 +69,6 @@ pub struct LambdaChoice {
 
 /// Lambda range searched, relative to `mean(diag(T^T T))`.
 const RANGE_REL: (f64, f64) = (1e-7, 1e1);
-/// Smallest penalty used, relative to `mean(diag(T^T T))`.
-const RHO_FLOOR_REL: f64 = 1e-3;
 /// Bisection steps in log10(lambda): 8 decades / 2^14 = 5e-4 decade.
 const STEPS: usize = 14;
 
@@ -187,8 +185,6 @@ fn bisect(
 }
 
 /// One ADMM-TV solve at `lambda`, recorded in `trials` as (lambda, misfit).
-/// `rho = lambda` converges fastest, but below `RHO_FLOOR_REL` the system
-/// `T^T T + rho (D^T D + I)` inherits `kappa(T)^2` and ADMM stalls.
 fn trial(
     t: &Transport,
     i: &[f64],
@@ -197,16 +193,12 @@ fn trial(
     lambda: f64,
     trials: &mut Vec<(f64, f64)>,
 ) -> Result<Reconstruction, SolveError> {
-    let rho = settings
-        .rho
-        .unwrap_or(lambda.max(RHO_FLOOR_REL * normal.unit()));
     let r = admm_tv_prepared(
         t,
         i,
         normal,
         &AdmmSettings {
             lambda: Some(lambda),
-            rho: Some(rho),
             ..*settings
         },
     )?;

@@ -111,3 +111,49 @@ pub fn conditioning_warnings(c: &Conditioning) -> Vec<String> {
         Vec::new()
     }
 }
+
+/// Mean SNR below which a measurement is mostly noise.
+pub const SNR_WARN: f64 = 1.0;
+
+/// Mean per-element SNR of a measurement, `mean_j max(i_j, 0) / sigma_j`
+/// (elements with zero variance are left out).
+pub fn mean_snr(i: &[f64], variance: &[f64]) -> f64 {
+    let (sum, n) = i
+        .iter()
+        .zip(variance)
+        .filter(|(_, v)| **v > 0.0)
+        .fold((0.0, 0usize), |(s, n), (x, v)| {
+            (s + x.max(0.0) / v.sqrt(), n + 1)
+        });
+    if n == 0 {
+        f64::INFINITY
+    } else {
+        sum / n as f64
+    }
+}
+
+/// The warning a measurement of mean SNR `snr` deserves, if any.
+pub fn snr_warnings(snr: f64) -> Vec<String> {
+    if snr < SNR_WARN {
+        vec![format!(
+            "the mean SNR of the measurement is {snr:.2} (< {SNR_WARN}): it is mostly noise, so the result shows the regularizer more than the scene; expose longer or average more frames"
+        )]
+    } else {
+        Vec::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mean_snr_and_its_warning() {
+        // 100 / 10 and 4 / 2: mean SNR 6; zero-variance elements are left out.
+        assert_eq!(mean_snr(&[100.0, 4.0, 7.0], &[100.0, 4.0, 0.0]), 6.0);
+        assert_eq!(mean_snr(&[-1.0, 1.0], &[1.0, 4.0]), 0.25);
+        assert!(snr_warnings(6.0).is_empty());
+        assert!(snr_warnings(0.25)[0].contains("mean SNR of the measurement is 0.25"));
+        assert_eq!(mean_snr(&[1.0], &[0.0]), f64::INFINITY);
+    }
+}
