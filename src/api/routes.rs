@@ -236,7 +236,11 @@ pub async fn post_capture(
     body: Result<Json<CaptureBody>, JsonRejection>,
 ) -> Result<Response, ApiError> {
     let Json(b) = body?;
-    let req = validate_capture(&d, &b)?;
+    // Validation may build the scene's T (for "exposure": "auto"): off the runtime.
+    let d2 = d.clone();
+    let req = tokio::task::spawn_blocking(move || validate_capture(&d2, &b))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))??;
     let permit = d.captures.try_reserve().map_err(|_| {
         d.metrics
             .rejected_full
