@@ -99,6 +99,37 @@ fn transport_writes_a_standard_npy() {
         "--adaptive=0",
     ]));
     assert!(msg.contains("tolerance = 0"), "{msg}");
+
+    // The time-resolved T: rows are block x wall element x time bin.
+    let o = polnlos(&[
+        "transport",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--active",
+        "--bin-width",
+        "0.02",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{err}");
+    let d = npy::read(&out).unwrap();
+    let bins = d.shape[0] / (4 * 1024);
+    assert_eq!(d.shape, vec![4 * 1024 * bins, 9], "{err}");
+    assert!((5..20).contains(&bins), "{err}");
+    assert!(
+        err.contains(&format!("{bins} time bins of 0.02 m")),
+        "{err}"
+    );
+    let msg = fails(&polnlos(&[
+        "transport",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--active",
+        "--spot",
+        "0.5,0",
+    ]));
+    assert!(msg.contains("spot"), "{msg}");
 }
 
 #[test]
