@@ -41,6 +41,17 @@ pub enum BenchError {
     /// The SVD failed.
     #[error(transparent)]
     Solve(#[from] SolveError),
+    /// A simulated measurement could not be made.
+    #[error("{case}: {source}")]
+    Simulate {
+        /// Which case or sweep.
+        case: String,
+        /// Why.
+        source: crate::simulate::SimulateError,
+    },
+    /// The NumPy peer could not be run or read back.
+    #[error("NumPy peer: {0}")]
+    Peer(String),
 }
 
 /// One row of the conditioning table.

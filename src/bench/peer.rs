@@ -67,10 +67,7 @@ pub struct PeerReport {
 }
 
 fn io(what: &str, e: impl std::fmt::Display) -> BenchError {
-    BenchError::Scene {
-        name: "numpy peer".into(),
-        reason: format!("{what}: {e}"),
-    }
+    BenchError::Peer(format!("{what}: {e}"))
 }
 
 fn median3(mut f: impl FnMut() -> Result<f64, BenchError>) -> Result<f64, BenchError> {

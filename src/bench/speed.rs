@@ -291,20 +291,21 @@ pub fn speed_sweep(
                     exposure,
                     seed,
                 };
-                let sim = model
-                    .apply(clean.clone(), peak)
-                    .map_err(|e| BenchError::Scene {
-                        name: format!("speed sweep {}", size.label),
-                        reason: e.to_string(),
-                    })?;
+                let sim =
+                    model
+                        .apply(clean.clone(), peak)
+                        .map_err(|source| BenchError::Simulate {
+                            case: format!("speed sweep {}", size.label),
+                            source,
+                        })?;
                 run_solvers(&p, ctx, &sim.measurement, budgets, &mut rows)?;
                 // The unpolarized capture at the same exposure, ADMM-TV at its default budget.
-                let sim = model.apply(clean_nopol.clone(), peak_nopol).map_err(|e| {
-                    BenchError::Scene {
-                        name: format!("speed sweep {}", size.label),
-                        reason: e.to_string(),
-                    }
-                })?;
+                let sim = model
+                    .apply(clean_nopol.clone(), peak_nopol)
+                    .map_err(|source| BenchError::Simulate {
+                        case: format!("speed sweep {}", size.label),
+                        source,
+                    })?;
                 let start = Instant::now();
                 let r = crate::solve::admm_tv(&nopol.t, &sim.measurement, &AdmmSettings::default())
                     .map_err(solve_err)?;

@@ -151,15 +151,12 @@ pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, Benc
             seed: 17,
         };
         let peak = unpolarized_peak(&c.scene, &t, &truth)?;
-        let sim = match model.apply(t.apply(&truth), peak) {
-            Ok(s) => s,
-            Err(e) => {
-                return Err(BenchError::Scene {
-                    name: c.name,
-                    reason: e.to_string(),
-                })
-            }
-        };
+        let sim = model
+            .apply(t.apply(&truth), peak)
+            .map_err(|source| BenchError::Simulate {
+                case: c.name.clone(),
+                source,
+            })?;
         let snr = {
             let e: Vec<f64> = sim
                 .clean
