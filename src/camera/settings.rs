@@ -31,6 +31,18 @@ impl PixelFormat {
             PixelFormat::Mono16 => 16,
         }
     }
+
+    /// The format of a GenICam name (as [`PixelFormat::name`] writes it).
+    pub fn from_name(name: &str) -> Option<Self> {
+        [PixelFormat::Mono8, PixelFormat::Mono12, PixelFormat::Mono16]
+            .into_iter()
+            .find(|f| f.name() == name)
+    }
+
+    /// Largest digital number, `2^bits - 1`.
+    pub fn full_scale(self) -> f64 {
+        f64::from((1u32 << self.bits()) - 1)
+    }
 }
 
 /// Free running or one frame per software trigger.
@@ -75,3 +87,19 @@ impl Default for CameraSettings {
 
 /// Exposure polnlos accepts at all: 10 us to one hour.
 pub const EXPOSURE_RANGE_US: (f64, f64) = (10.0, 3.6e9);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_and_full_scale_follows_the_bits() {
+        for f in [PixelFormat::Mono8, PixelFormat::Mono12, PixelFormat::Mono16] {
+            assert_eq!(PixelFormat::from_name(f.name()), Some(f));
+        }
+        assert_eq!(PixelFormat::from_name("RGB8"), None);
+        assert_eq!(PixelFormat::Mono8.full_scale(), 255.0);
+        assert_eq!(PixelFormat::Mono12.full_scale(), 4095.0);
+        assert_eq!(PixelFormat::Mono16.full_scale(), 65535.0);
+    }
+}

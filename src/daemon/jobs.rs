@@ -436,11 +436,7 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
     let c = d.store.capture(id).map_err(|e| e.to_string())?;
     d.store.capture_running(id).map_err(|e| e.to_string())?;
     job_event(d, format!("capture-{id}"), JobState::Running, None);
-    let pixel_format = match c.pixel_format.as_str() {
-        "Mono8" => PixelFormat::Mono8,
-        "Mono12" => PixelFormat::Mono12,
-        _ => PixelFormat::Mono16,
-    };
+    let pixel_format = PixelFormat::from_name(&c.pixel_format).unwrap_or(PixelFormat::Mono16);
     let settings = CameraSettings {
         exposure_us: c.exposure_us,
         gain: c.gain,
@@ -605,11 +601,9 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
         })?;
         let wall = sample_wall(&mean, h, &scene.wall.plane, &pose.name)
             .map_err(|e| format!("capture {}: {e}", cap.id))?;
-        let full = match cap.pixel_format.as_str() {
-            "Mono8" => 255.0,
-            "Mono12" => 4095.0,
-            _ => 65535.0,
-        };
+        let full = PixelFormat::from_name(&cap.pixel_format)
+            .unwrap_or(PixelFormat::Mono16)
+            .full_scale();
         // Fraction of full scale per microsecond: captures of different exposures compare.
         let to_units = 1.0 / full / cap.exposure_us;
         for (dst, v) in i[t.block_rows(b)].iter_mut().zip(wall) {
