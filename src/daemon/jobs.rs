@@ -1,6 +1,7 @@
 //! Capture and reconstruction jobs: request validation (so that a bad request
 //! is refused before it is queued) and the workers that run them.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -402,33 +403,43 @@ fn job_event(d: &Daemon, job: String, state: JobState, error: Option<String>) {
 }
 
 /// Runs captures one at a time (one camera).
+/// Records how a job ended: its time and done/failed counters, the failure
+/// in the store, and the job event.
+fn finish_job(
+    d: &Daemon,
+    job: String,
+    start: Instant,
+    result: Result<(), String>,
+    (done, failed, micros): (&AtomicU64, &AtomicU64, &AtomicU64),
+    store_failure: impl FnOnce(&str) -> Result<(), crate::store::StoreError>,
+) {
+    micros.fetch_add(start.elapsed().as_micros() as u64, Ordering::Relaxed);
+    match result {
+        Ok(()) => {
+            done.fetch_add(1, Ordering::Relaxed);
+            job_event(d, job, JobState::Done, None);
+        }
+        Err(e) => {
+            tracing::warn!("{job} failed: {e}");
+            failed.fetch_add(1, Ordering::Relaxed);
+            if let Err(se) = store_failure(&e) {
+                tracing::error!("cannot record the failure of {job}: {se}");
+            }
+            job_event(d, job, JobState::Failed, Some(e));
+        }
+    }
+}
+
 pub(super) async fn capture_worker(d: Arc<Daemon>, mut rx: mpsc::Receiver<i64>) {
     while let Some(id) = rx.recv().await {
         let job = format!("capture-{id}");
         let start = Instant::now();
         let result = run_capture(&d, id).await;
-        d.metrics.capture_micros.fetch_add(
-            start.elapsed().as_micros() as u64,
-            std::sync::atomic::Ordering::Relaxed,
-        );
-        match result {
-            Ok(()) => {
-                d.metrics
-                    .captures_done
-                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                job_event(&d, job, JobState::Done, None);
-            }
-            Err(e) => {
-                tracing::warn!("{job} failed: {e}");
-                d.metrics
-                    .captures_failed
-                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                if let Err(se) = d.store.capture_failed(id, &e) {
-                    tracing::error!("cannot record the failure of {job}: {se}");
-                }
-                job_event(&d, job, JobState::Failed, Some(e));
-            }
-        }
+        let m = &d.metrics;
+        let counters = (&m.captures_done, &m.captures_failed, &m.capture_micros);
+        finish_job(&d, job, start, result, counters, |e| {
+            d.store.capture_failed(id, e)
+        });
     }
 }
 
@@ -539,28 +550,15 @@ pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Re
             .await
             .map_err(|e| e.to_string())
             .and_then(|r| r);
-        d.metrics.reconstruction_micros.fetch_add(
-            start.elapsed().as_micros() as u64,
-            std::sync::atomic::Ordering::Relaxed,
+        let m = &d.metrics;
+        let counters = (
+            &m.reconstructions_done,
+            &m.reconstructions_failed,
+            &m.reconstruction_micros,
         );
-        match r {
-            Ok(()) => {
-                d.metrics
-                    .reconstructions_done
-                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                job_event(&d, job, JobState::Done, None);
-            }
-            Err(e) => {
-                tracing::warn!("{job} failed: {e}");
-                d.metrics
-                    .reconstructions_failed
-                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                if let Err(se) = d.store.reconstruction_failed(id, &e) {
-                    tracing::error!("cannot record the failure of {job}: {se}");
-                }
-                job_event(&d, job, JobState::Failed, Some(e));
-            }
-        }
+        finish_job(&d, job, start, r, counters, |e| {
+            d.store.reconstruction_failed(id, e)
+        });
     }
 }
 
