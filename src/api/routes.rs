@@ -19,7 +19,7 @@ use super::ApiError;
 use crate::camera::CameraSettings;
 use crate::daemon::metrics::{Metrics, Sample};
 use crate::daemon::{
-    exposure_plan, validate_capture, validate_reconstruction, CaptureBody, Daemon,
+    camera_limits, exposure_plan, validate_capture, validate_reconstruction, CaptureBody, Daemon,
     ReconstructionBody,
 };
 use crate::measure::exposure::{BlockExposure, ExposureTarget};
@@ -465,9 +465,12 @@ pub async fn scene_exposure(
         target.snr = s;
     }
     let d2 = d.clone();
-    let plan = tokio::task::spawn_blocking(move || exposure_plan(&d2, &name, &target))
-        .await
-        .map_err(|e| ApiError::internal(e.to_string()))??;
+    let plan = tokio::task::spawn_blocking(move || {
+        let limits = camera_limits(&d2, d2.camera.status().info.as_ref());
+        exposure_plan(&d2, &name, &target, &limits)
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(plan))
 }
 

@@ -10,7 +10,7 @@ use tokio::sync::{mpsc, Mutex};
 
 use super::{Daemon, Event};
 use crate::camera::settings::EXPOSURE_RANGE_US;
-use crate::camera::{CameraSettings, PixelFormat, TriggerMode};
+use crate::camera::{CameraInfo, CameraSettings, PixelFormat, TriggerMode};
 use crate::files::{image, json, npy};
 use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
 use crate::measure::sample_wall;
@@ -64,10 +64,11 @@ pub enum AutoExposure {
 }
 
 /// The camera limits exposure planning works with: the camera's exposure
-/// range when connected, the configured sensor noise, 1000 frames.
-pub fn camera_limits(d: &Daemon) -> CameraLimits {
+/// range when connected (`info`, from one status read), the configured
+/// sensor noise, 1000 frames.
+pub fn camera_limits(d: &Daemon, info: Option<&CameraInfo>) -> CameraLimits {
     let (mut lo, mut hi) = EXPOSURE_RANGE_US;
-    if let Some(i) = &d.camera.status().info {
+    if let Some(i) = info {
         lo = lo.max(i.exposure_us.0);
         hi = hi.min(i.exposure_us.1);
     }
@@ -79,11 +80,12 @@ pub fn camera_limits(d: &Daemon) -> CameraLimits {
     }
 }
 
-/// The exposure plan of every block of a scene.
+/// The exposure plan of every block of a scene under `limits` (see [`camera_limits`]).
 pub fn exposure_plan(
     d: &Daemon,
     scene: &str,
     target: &ExposureTarget,
+    limits: &CameraLimits,
 ) -> Result<Vec<BlockExposure>, RequestError> {
     let t = d
         .scenes
@@ -100,8 +102,7 @@ pub fn exposure_plan(
             "no radiometric calibration for scene {scene:?}, so exposures cannot be planned: add `{scene} = <fraction of full scale per microsecond per unit of T l>` under [calibration] in the config, or give exposure_us"
         ))
     })?;
-    plan_exposure(&t, cal, &camera_limits(d), target)
-        .map_err(|e| RequestError::Invalid(e.to_string()))
+    plan_exposure(&t, cal, limits, target).map_err(|e| RequestError::Invalid(e.to_string()))
 }
 
 /// `POST /reconstructions` body.
@@ -191,8 +192,9 @@ pub fn validate_capture(d: &Daemon, b: &CaptureBody) -> Result<CaptureRequest, R
             )))
         }
     }
-    let (lo, hi) = camera_limits(d).exposure_us;
     let info = d.camera.status().info;
+    let limits = camera_limits(d, info.as_ref());
+    let (lo, hi) = limits.exposure_us;
     let (exposure_us, planned) = match (b.exposure_us, b.exposure) {
         (Some(_), Some(_)) => {
             return Err(RequestError::Invalid(
@@ -213,7 +215,7 @@ pub fn validate_capture(d: &Daemon, b: &CaptureBody) -> Result<CaptureRequest, R
             (e, None)
         }
         (None, Some(AutoExposure::Auto)) => {
-            let plan = exposure_plan(d, &b.scene, &b.target.unwrap_or_default())?;
+            let plan = exposure_plan(d, &b.scene, &b.target.unwrap_or_default(), &limits)?;
             let block = plan
                 .into_iter()
                 .find(|p| {

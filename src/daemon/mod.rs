@@ -20,8 +20,8 @@ use tokio::sync::{broadcast, mpsc, Mutex};
 pub use config::Config;
 pub use events::Event;
 pub use jobs::{
-    exposure_plan, validate_capture, validate_reconstruction, CaptureBody, ReconstructionBody,
-    RequestError,
+    camera_limits, exposure_plan, validate_capture, validate_reconstruction, CaptureBody,
+    ReconstructionBody, RequestError,
 };
 
 use crate::camera::aravis::AravisCamera;
