@@ -39,7 +39,7 @@ fn gram_cholesky_admm200_64x64_32x32_2poses(bencher: divan::Bencher) {
     let i = t.apply(&Pattern::Letter.render(t.scene_grid));
     // Fixed rho (no residual balancing): the cost of exactly one factorization
     // and 200 iterations.
-    let unit = t.col_major().iter().map(|v| v * v).sum::<f64>() / t.cols() as f64;
+    let unit = t.mean_column_norm2();
     let settings = AdmmSettings {
         lambda: Some(LAMBDA_REL * unit),
         rho: Some(LAMBDA_REL * unit),

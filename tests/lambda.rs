@@ -34,7 +34,7 @@ fn automatic_lambda_lands_within_1_db_of_the_best() {
         let s = scene(name);
         let t = build(&s).unwrap();
         let sv = condition(&t).unwrap().singular_values;
-        let unit = t.col_major().iter().map(|v| v * v).sum::<f64>() / t.cols() as f64;
+        let unit = t.mean_column_norm2();
         for (p, (photons, seed)) in Pattern::ALL
             .into_iter()
             .flat_map(|p| PHOTONS_SEEDS.into_iter().map(move |n| (p, n)))

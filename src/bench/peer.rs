@@ -148,7 +148,7 @@ pub fn compare(
     .map_err(|e| io("simulation", e))?;
     // The peer's algorithm: lambda = rho = 1e-2 mean(diag(T^T T)), fixed
     // (no residual balancing), 200 iterations.
-    let unit = t.col_major().iter().map(|v| v * v).sum::<f64>() / t.cols() as f64;
+    let unit = t.mean_column_norm2();
     let settings = AdmmSettings {
         lambda: Some(LAMBDA_REL * unit),
         rho: Some(LAMBDA_REL * unit),

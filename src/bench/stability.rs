@@ -168,7 +168,7 @@ pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, Benc
                 .sum::<f64>()
                 / e.len().max(1) as f64
         };
-        let unit = t.col_major().iter().map(|v| v * v).sum::<f64>() / t.cols().max(1) as f64;
+        let unit = t.mean_column_norm2();
         let settings = AdmmSettings {
             lambda: c.lambda_rel.map(|r| r * unit),
             ..AdmmSettings::default()

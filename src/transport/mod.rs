@@ -101,6 +101,15 @@ impl Transport {
         }
     }
 
+    /// `mean(diag(T^T T))`, the mean squared column norm: the unit in which
+    /// the solvers' default lambda and rho are given.
+    pub fn mean_column_norm2(&self) -> f64 {
+        if self.cols == 0 {
+            return 0.0;
+        }
+        self.data.iter().map(|v| v * v).sum::<f64>() / self.cols as f64
+    }
+
     /// Number of rows (measurements).
     pub fn rows(&self) -> usize {
         self.rows
@@ -160,5 +169,24 @@ impl Transport {
             }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mean_column_norm2_is_the_mean_diagonal_of_the_gram_matrix() {
+        // Columns (3, 4) and (0, 2): squared norms 25 and 4.
+        let t = Transport::from_col_major(
+            2,
+            2,
+            vec![3.0, 4.0, 0.0, 2.0],
+            vec![],
+            Grid { nu: 2, nv: 1 },
+            Grid { nu: 2, nv: 1 },
+        );
+        assert_eq!(t.mean_column_norm2(), 14.5);
     }
 }
