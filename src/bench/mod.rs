@@ -84,6 +84,37 @@ pub fn scene_name(config: &str, occluder: bool, grid: usize) -> String {
     }
 }
 
+/// Median of `v` (mean of the middle two for an even count; NaN when empty).
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Runs `f` three times; returns the last result and the median wall time.
+pub(crate) fn timed3<T>(
+    mut f: impl FnMut() -> Result<T, BenchError>,
+) -> Result<(T, f64), BenchError> {
+    let mut times = Vec::with_capacity(3);
+    let mut run = || -> Result<T, BenchError> {
+        let start = std::time::Instant::now();
+        let out = f()?;
+        times.push(start.elapsed().as_secs_f64());
+        Ok(out)
+    };
+    run()?;
+    run()?;
+    let out = run()?;
+    Ok((out, median(times)))
+}
+
 /// A built-in scene, or a bench error naming it.
 pub(crate) fn builtin(name: &str) -> Result<Scene, BenchError> {
     match Scene::builtin(name) {

@@ -7,11 +7,10 @@
 
 use std::path::Path;
 use std::process::Command;
-use std::time::Instant;
 
 use serde::Serialize;
 
-use super::BenchError;
+use super::{median, timed3, BenchError};
 use crate::files::npy;
 use crate::scene::{builtin::BUILT_IN, Grid, Scene};
 use crate::simulate::patterns::Pattern;
@@ -70,15 +69,6 @@ fn io(what: &str, e: impl std::fmt::Display) -> BenchError {
     BenchError::Peer(format!("{what}: {e}"))
 }
 
-fn median3(mut f: impl FnMut() -> Result<f64, BenchError>) -> Result<f64, BenchError> {
-    Ok(median(vec![f()?, f()?, f()?]))
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 /// Whether `python3` with NumPy runs here; the reason if not.
 fn numpy_available() -> Result<String, String> {
     let out = Command::new("python3")
@@ -132,12 +122,8 @@ pub fn compare(
         polnlos_psnr_db: f64::NAN,
         peer_psnr_db: f64::NAN,
     };
-    report.polnlos_build_seconds = median3(|| {
-        let start = Instant::now();
-        build(&scene)?;
-        Ok(start.elapsed().as_secs_f64())
-    })?;
-    let t = build(&scene)?;
+    let (t, build_seconds) = timed3(|| Ok(build(&scene)?))?;
+    report.polnlos_build_seconds = build_seconds;
     let truth = Pattern::Letter.render(t.scene_grid);
     let peak = unpolarized_peak(&scene, &t, &truth)?;
     let sim = NoiseModel {

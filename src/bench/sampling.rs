@@ -4,12 +4,10 @@
 //! where one sample per element is not enough: a glossy wall (narrow
 //! specular lobe) and the occluder's shadow edges.
 
-use std::time::Instant;
-
 use serde::Serialize;
 
 use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
-use super::{builtin, BenchError};
+use super::{builtin, timed3, BenchError};
 use crate::scene::Scene;
 use crate::transport::adaptive::relative_error;
 use crate::transport::{build, build_adaptive, Transport};
@@ -40,22 +38,6 @@ pub struct SamplingRow {
     pub error: f64,
     /// The adaptive build's own error estimate.
     pub estimated_error: Option<f64>,
-}
-
-fn timed<T>(mut f: impl FnMut() -> Result<T, BenchError>) -> Result<(T, f64), BenchError> {
-    let mut times = Vec::new();
-    let mut last = None;
-    for _ in 0..3 {
-        let start = Instant::now();
-        last = Some(f()?);
-        times.push(start.elapsed().as_secs_f64());
-    }
-    times.sort_by(f64::total_cmp);
-    let out = last.ok_or_else(|| BenchError::Scene {
-        name: "sampling".into(),
-        reason: "no run".into(),
-    })?;
-    Ok((out, times[1]))
 }
 
 fn case(name: &str, alpha: Option<f64>) -> Result<Scene, BenchError> {
@@ -93,7 +75,7 @@ pub fn sampling_sweep(
         };
         let reference = uniform(reference_m)?;
         for m in UNIFORM {
-            let (t, secs) = timed(|| uniform(m))?;
+            let (t, secs) = timed3(|| uniform(m))?;
             rows.push(SamplingRow {
                 case: label.into(),
                 method: "uniform",
@@ -106,7 +88,7 @@ pub fn sampling_sweep(
         }
         let n_wall = scene.wall.plane.grid.count() as f64;
         for tol in TOLERANCES {
-            let ((t, st), secs) = timed(|| Ok(build_adaptive(&scene, tol, MAX_M)?))?;
+            let ((t, st), secs) = timed3(|| Ok(build_adaptive(&scene, tol, MAX_M)?))?;
             rows.push(SamplingRow {
                 case: label.into(),
                 method: "adaptive",

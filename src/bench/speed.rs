@@ -16,7 +16,7 @@ use serde::Serialize;
 
 use super::charts::{panel_grid, Chart, ChartError, Marker, Plot, Series};
 
-use super::{builtin, BenchError};
+use super::{builtin, median, BenchError};
 use crate::scene::{Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::NoiseModel;
@@ -316,19 +316,6 @@ pub fn speed_sweep(
         }
     }
     Ok(rows)
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 fn range(v: &[f64]) -> (f64, f64) {
