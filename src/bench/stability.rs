@@ -9,7 +9,7 @@ use super::{builtin, BenchError};
 use crate::scene::Scene;
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
-use crate::solve::report::{conditioning_warnings, snr_warnings};
+use crate::solve::report::{conditioning_warnings, mean_snr, snr_warnings};
 use crate::solve::{admm_tv, condition, metrics, AdmmSettings};
 use crate::transport::build;
 
@@ -157,17 +157,17 @@ pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, Benc
                 case: c.name.clone(),
                 source,
             })?;
-        let snr = {
-            let e: Vec<f64> = sim
-                .clean
-                .iter()
-                .map(|v| v * sim.electrons_per_unit)
-                .collect();
-            e.iter()
-                .map(|e| if *e > 0.0 { e / (e + 25.0).sqrt() } else { 0.0 })
-                .sum::<f64>()
-                / e.len().max(1) as f64
-        };
+        // Electrons per element and their shot + read noise variance.
+        let e: Vec<f64> = sim
+            .clean
+            .iter()
+            .map(|v| v * sim.electrons_per_unit)
+            .collect();
+        let var: Vec<f64> = e
+            .iter()
+            .map(|e| e.max(0.0) + model.read_noise * model.read_noise)
+            .collect();
+        let snr = mean_snr(&e, &var);
         let unit = t.mean_column_norm2();
         let settings = AdmmSettings {
             lambda: c.lambda_rel.map(|r| r * unit),
