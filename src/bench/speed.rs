@@ -285,32 +285,31 @@ pub fn speed_sweep(
                 bits: 12,
                 seed,
             };
+            let simulate = |clean: &[f64], peak: f64| {
+                model
+                    .apply(clean.to_vec(), peak)
+                    .map_err(|source| BenchError::Simulate {
+                        case: format!("speed sweep {}", size.label),
+                        source,
+                    })
+            };
+            // The unpolarized capture is the same in both panels (its exposure
+            // is the reference): solved once per seed, ADMM-TV at its defaults.
+            let sim_nopol = simulate(&clean_nopol, peak_nopol)?;
+            let start = Instant::now();
+            let r_nopol =
+                crate::solve::admm_tv(&nopol.t, &sim_nopol.measurement, &AdmmSettings::default())
+                    .map_err(solve_err)?;
+            let secs_nopol = start.elapsed().as_secs_f64();
             for (exposure, peak) in EXPOSURES.into_iter().zip([peak_nopol, peak_crossed]) {
                 let ctx = Ctx {
                     size: size.label,
                     exposure,
                     seed,
                 };
-                let sim =
-                    model
-                        .apply(clean.clone(), peak)
-                        .map_err(|source| BenchError::Simulate {
-                            case: format!("speed sweep {}", size.label),
-                            source,
-                        })?;
+                let sim = simulate(&clean, peak)?;
                 run_solvers(&p, ctx, &sim.measurement, budgets, &mut rows)?;
-                // The unpolarized capture at the same exposure, ADMM-TV at its default budget.
-                let sim = model
-                    .apply(clean_nopol.clone(), peak_nopol)
-                    .map_err(|source| BenchError::Simulate {
-                        case: format!("speed sweep {}", size.label),
-                        source,
-                    })?;
-                let start = Instant::now();
-                let r = crate::solve::admm_tv(&nopol.t, &sim.measurement, &AdmmSettings::default())
-                    .map_err(solve_err)?;
-                let secs = start.elapsed().as_secs_f64();
-                rows.push(nopol.row(ctx, "admm-tv nopol", "500".into(), secs, &r));
+                rows.push(nopol.row(ctx, "admm-tv nopol", "500".into(), secs_nopol, &r_nopol));
             }
             step();
         }
