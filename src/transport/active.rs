@@ -120,8 +120,13 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
         });
     }
 
-    // Per block: camera position and the analyzer axis (None: no polarizer).
-    let views: Vec<(Vec3, Option<Vec3>)> = scene
+    // Per block, computed once: the direction from the spot to the laser and,
+    // per patch, the direction to the camera and the effective analyzer axis.
+    struct BlockView {
+        w_l: Vec3,
+        to_camera: Vec<(Vec3, Option<Vec3>)>,
+    }
+    let views: Vec<BlockView> = scene
         .poses
         .iter()
         .flat_map(|pose| {
@@ -130,7 +135,19 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
             } else {
                 pose.analyzers.iter().map(|a| Some(a.axis)).collect()
             };
-            axes.into_iter().map(move |q| (pose.camera, q))
+            let cam = pose.camera;
+            let patches = &patches;
+            axes.into_iter().map(move |q| BlockView {
+                w_l: (cam - p).normalize(),
+                to_camera: patches
+                    .iter()
+                    .map(|c| {
+                        let w_co = (cam - c).normalize();
+                        let t = q.map(|q| effective_axis(&q, &w_co).unwrap_or_else(Vec3::zeros));
+                        (w_co, t)
+                    })
+                    .collect(),
+            })
         })
         .collect();
 
@@ -145,44 +162,43 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
             if n.dot(&w_px) <= 0.0 || scene.occluders.iter().any(|o| o.blocks(&x, &p)) {
                 return;
             }
-            for (blk, (cam, q)) in views.iter().enumerate() {
-                let w_l = (cam - p).normalize();
-                let f_p = brdf.eval(
-                    &n,
-                    &w_l,
-                    &w_px,
-                    Polarization {
-                        analyzer: None,
-                        source: None,
-                    },
-                );
-                let first = area / std::f64::consts::PI * f_p * n.dot(&w_px) / (r_px * r_px);
-                if first == 0.0 {
+            let no_polarizer = Polarization {
+                analyzer: None,
+                source: None,
+            };
+            let first: Vec<f64> = views
+                .iter()
+                .map(|v| {
+                    area / std::f64::consts::PI
+                        * brdf.eval(&n, &v.w_l, &w_px, no_polarizer)
+                        * n.dot(&w_px)
+                        / (r_px * r_px)
+                })
+                .collect();
+            for (j, c) in patches.iter().enumerate() {
+                let to_x = x - c;
+                let r = to_x.norm();
+                let w_cx = to_x / r;
+                let cos = n.dot(&w_cx);
+                if cos <= 0.0 || scene.occluders.iter().any(|o| o.blocks(&x, c)) {
                     continue;
                 }
-                for (j, c) in patches.iter().enumerate() {
-                    let to_x = x - c;
-                    let r = to_x.norm();
-                    let w_cx = to_x / r;
-                    let cos = n.dot(&w_cx);
-                    if cos <= 0.0 || scene.occluders.iter().any(|o| o.blocks(&x, c)) {
+                let b = (((r_px + r - d0) / setup.bin_width).floor() as usize).min(bins - 1);
+                for (blk, v) in views.iter().enumerate() {
+                    if first[blk] == 0.0 {
                         continue;
                     }
-                    let w_co = (cam - c).normalize();
-                    let t = q
-                        .as_ref()
-                        .map(|q| effective_axis(q, &w_co).unwrap_or_else(Vec3::zeros));
+                    let (w_co, t) = &v.to_camera[j];
                     let f_c = brdf.eval(
                         &n,
                         &w_cx,
-                        &w_co,
+                        w_co,
                         Polarization {
                             analyzer: t.as_ref(),
                             source: None,
                         },
                     );
-                    let b = (((r_px + r - d0) / setup.bin_width).floor() as usize).min(bins - 1);
-                    col[blk * per_block + j * bins + b] += first * cos / (r * r) * f_c;
+                    col[blk * per_block + j * bins + b] += first[blk] * cos / (r * r) * f_c;
                 }
             }
         });
