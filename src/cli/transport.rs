@@ -50,6 +50,22 @@ pub struct Args {
     spot: Option<Vec<f64>>,
 }
 
+/// `T` as a C-order .npy, float32 or float64.
+fn write_t(
+    out: &std::path::Path,
+    t: &polnlos::transport::Transport,
+    f32: bool,
+) -> anyhow::Result<()> {
+    let shape = [t.rows(), t.cols()];
+    let data = t.to_row_major();
+    if f32 {
+        npy::write_f32(out, &shape, &data)?;
+    } else {
+        npy::write_f64(out, &shape, &data)?;
+    }
+    Ok(())
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     if a.active {
@@ -60,13 +76,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         };
         let start = std::time::Instant::now();
         let at = polnlos::transport::active::build_active(&scene, &setup)?;
+        write_t(&a.out, &at.t, a.f32)?;
         let shape = [at.t.rows(), at.t.cols()];
-        let data = at.t.to_row_major();
-        if a.f32 {
-            npy::write_f32(&a.out, &shape, &data)?;
-        } else {
-            npy::write_f64(&a.out, &shape, &data)?;
-        }
         eprintln!(
             "active T: {} x {} ({} blocks x {} wall elements x {} time bins of {} m from path length {:.4} m) built in {:.3} s, written to {}",
             shape[0],
@@ -105,13 +116,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             (t, start.elapsed().as_secs_f64())
         }
     };
-    let shape = [t.rows(), t.cols()];
-    let data = t.to_row_major();
-    if a.f32 {
-        npy::write_f32(&a.out, &shape, &data)?;
-    } else {
-        npy::write_f64(&a.out, &shape, &data)?;
-    }
+    write_t(&a.out, &t, a.f32)?;
     eprintln!(
         "T: {} x {} ({} blocks) built in {:.3} s, written to {}",
         t.rows(),
