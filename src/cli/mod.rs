@@ -64,6 +64,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             .context("cannot start the worker threads")?;
     }
     faer::set_global_parallelism(faer::Par::rayon(0));
+    polnlos::files::space::budget_transport_memory();
     match cli.command {
         Command::Transport(a) => transport::run(a),
         Command::Cond(a) => cond::run(a),

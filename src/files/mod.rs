@@ -1,9 +1,11 @@
 //! Reading and writing the files polnlos exchanges with people and other
-//! tools: `.npy` arrays, 8/16-bit grey PNGs, TIFF frames, JSON reports.
+//! tools: `.npy` arrays, 8/16-bit grey PNGs, TIFF frames, JSON reports; and
+//! how much of them the machine can hold ([`space`]).
 
 pub mod image;
 pub mod json;
 pub mod npy;
+pub mod space;
 
 use std::path::PathBuf;
 

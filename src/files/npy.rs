@@ -48,15 +48,26 @@ pub fn read(path: &Path) -> Result<Array, FileError> {
     decode(&bytes).map_err(|reason| FileError::format(path, reason))
 }
 
-fn decode(bytes: &[u8]) -> Result<Array, String> {
+/// Decodes `.npy` bytes (see [`read`]); a parser any input may reach, so it never panics.
+pub fn decode(bytes: &[u8]) -> Result<Array, String> {
+    // npyz multiplies the shape unchecked: check the header's shape first.
+    let data_len = match header_shape(bytes) {
+        Some((shape, offset)) => {
+            let data_len = bytes.len().saturating_sub(offset);
+            checked_shape(&shape, 1, data_len)?;
+            data_len
+        }
+        None => bytes.len(),
+    };
     let npy = npyz::NpyFile::new(bytes).map_err(|e| format!("not a .npy file ({e})"))?;
-    let shape: Vec<usize> = npy.shape().iter().map(|&s| s as usize).collect();
     let fortran = npy.order() == npyz::Order::Fortran;
     let kind = npy.dtype().descr();
     let code = kind
         .trim_matches(['\'', '"'])
-        .trim_start_matches(['<', '>', '|', '=']);
-    let data: Vec<f64> = match code {
+        .trim_start_matches(['<', '>', '|', '='])
+        .to_string();
+    let shape = checked_shape(npy.shape(), item_size(&code), data_len)?;
+    let data: Vec<f64> = match code.as_str() {
         "f8" => npy.into_vec::<f64>().map_err(|e| e.to_string())?,
         "f4" => npy
             .into_vec::<f32>()
@@ -94,6 +105,12 @@ fn decode(bytes: &[u8]) -> Result<Array, String> {
             ))
         }
     };
+    if data.len() != shape.iter().product::<usize>() {
+        return Err(format!(
+            "the header's shape {shape:?} does not match the {} values in the file",
+            data.len()
+        ));
+    }
     let data = if fortran && shape.len() == 2 {
         let (r, c) = (shape[0], shape[1]);
         let mut out = vec![0.0; data.len()];
@@ -109,6 +126,67 @@ fn decode(bytes: &[u8]) -> Result<Array, String> {
         data
     };
     Ok(Array { shape, data })
+}
+
+/// The `shape` tuple of a `.npy` header as written, and where the data
+/// start (None when the header cannot be found; the full parser then reports
+/// what is wrong).
+fn header_shape(bytes: &[u8]) -> Option<(Vec<u64>, usize)> {
+    let rest = bytes.strip_prefix(b"\x93NUMPY")?;
+    let (&major, rest) = rest.split_first()?;
+    let rest = rest.get(1..)?;
+    let (len, rest, prefix) = if major == 1 {
+        (
+            usize::from(u16::from_le_bytes([*rest.first()?, *rest.get(1)?])),
+            rest.get(2..)?,
+            10,
+        )
+    } else {
+        let b = rest.get(..4)?;
+        (
+            usize::try_from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])).ok()?,
+            rest.get(4..)?,
+            12,
+        )
+    };
+    let text = std::str::from_utf8(rest.get(..len.min(rest.len()))?).ok()?;
+    let after = &text[text.find("shape")?..];
+    let open = after.find('(')?;
+    let close = after[open..].find(')')? + open;
+    let shape = after[open + 1..close]
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(|t| t.trim_end_matches('L').parse::<u64>().ok())
+        .collect::<Option<Vec<_>>>()?;
+    Some((shape, prefix + len))
+}
+
+/// Bytes per value of a dtype code (`f8`, `u2`, ...); 0 when unknown.
+fn item_size(code: &str) -> usize {
+    code.get(1..).and_then(|n| n.parse().ok()).unwrap_or(0)
+}
+
+/// The shape of a header, checked: every dimension fits `usize`, their
+/// product does not overflow, and the values it announces fit in the
+/// `file_len` bytes actually there (so no allocation is sized by a lie).
+fn checked_shape(shape: &[u64], item_size: usize, file_len: usize) -> Result<Vec<usize>, String> {
+    let dims: Vec<usize> = shape
+        .iter()
+        .map(|&d| usize::try_from(d))
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("shape {shape:?} has a dimension too large for this machine"))?;
+    let count = dims
+        .iter()
+        .try_fold(1usize, |acc, &d| acc.checked_mul(d))
+        .ok_or_else(|| format!("shape {shape:?}: the number of values overflows"))?;
+    let needed = count.checked_mul(item_size.max(1));
+    if needed.is_none_or(|n| n > file_len) {
+        return Err(format!(
+            "shape {shape:?} announces {count} values of {item_size} bytes, but the file has only {file_len} bytes; it is truncated or its header is wrong"
+        ));
+    }
+    Ok(dims)
 }
 
 #[cfg(test)]
@@ -128,6 +206,62 @@ mod tests {
         let b = read(&p).unwrap();
         assert_eq!(b.data[2], 3.25);
         assert_eq!(b.data[3], 0.0);
+    }
+
+    /// A valid `.npy` header (version 1.0) for `descr` and `shape`, then `body`.
+    fn with_header(descr: &str, shape: &str, body: &[u8]) -> Vec<u8> {
+        let mut h = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
+        while (10 + h.len() + 1) % 64 != 0 {
+            h.push(' ');
+        }
+        h.push('\n');
+        let mut out = b"\x93NUMPY\x01\x00".to_vec();
+        out.extend_from_slice(&(h.len() as u16).to_le_bytes());
+        out.extend_from_slice(h.as_bytes());
+        out.extend_from_slice(body);
+        out
+    }
+
+    #[test]
+    fn lying_shapes_are_errors_not_panics() {
+        let ok = decode(&with_header("<f8", "(2,)", &[0u8; 16])).unwrap();
+        assert_eq!(ok.shape, vec![2]);
+        for shape in [
+            "(4294967296, 4294967296)",
+            "(18446744073709551615,)",
+            "(3,)",
+            "(1000000, 1000000, 1000000)",
+        ] {
+            let e = decode(&with_header("<f8", shape, &[0u8; 16])).unwrap_err();
+            assert!(e.contains("shape"), "{shape}: {e}");
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 256, rng_seed: proptest::test_runner::RngSeed::Fixed(8), ..Default::default() })]
+        /// Any header and body: a value or a named error, never a panic.
+        #[test]
+        fn any_header_decodes_or_errs(
+            descr in proptest::sample::select(vec!["<f8", ">f4", "<u2", "|u1", "<i4", "<i8", "<c16", "x"]),
+            dims in proptest::collection::vec(0u64..u64::MAX, 0..4),
+            small in proptest::collection::vec(0u64..5, 0..4),
+            use_small: bool,
+            body in proptest::collection::vec(proptest::num::u8::ANY, 0..200),
+        ) {
+            let d = if use_small { small } else { dims };
+            let shape = format!("({})", d.iter().map(|v| format!("{v},")).collect::<String>());
+            if let Ok(a) = decode(&with_header(descr, &shape, &body)) {
+                proptest::prop_assert_eq!(a.data.len(), a.shape.iter().product::<usize>());
+            }
+        }
+
+        /// Arbitrary bytes after the magic: never a panic.
+        #[test]
+        fn any_bytes_decode_or_err(body in proptest::collection::vec(proptest::num::u8::ANY, 0..300)) {
+            let mut b = b"\x93NUMPY\x01\x00".to_vec();
+            b.extend_from_slice(&body);
+            let _ = decode(&b);
+        }
     }
 
     #[test]

@@ -3,8 +3,8 @@
 use serde::Deserialize;
 
 use super::{
-    analyzer_axis, crossed_axis, Analyzer, Emitter, Grid, HiddenScene, Homography, Occluder, Plane,
-    Pose, Scene, SceneError, Wall,
+    analyzer_axis, crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography,
+    Occluder, Plane, Pose, Scene, SceneError, Wall,
 };
 use crate::optics::{Brdf, Vec3};
 
@@ -60,6 +60,8 @@ struct RawPose {
     #[serde(default)]
     polarizer_deg: Vec<f64>,
     homography: Option<[[f64; 3]; 3]>,
+    region: Option<[i64; 4]>,
+    binning: Option<[i64; 2]>,
 }
 
 #[derive(Deserialize)]
@@ -180,6 +182,66 @@ fn plane(
     })
 }
 
+/// Largest refractive index accepted for the wall (germanium, the highest
+/// common optical material, is about 4).
+const MAX_IOR: f64 = 5.0;
+
+/// Largest camera frame side accepted in a pose's region, pixels.
+const MAX_FRAME_SIDE: i64 = 65_536;
+
+/// Whether two linear-polarizer angles (degrees) are the same setting: equal modulo 180.
+fn same_polarizer_setting(a: f64, b: f64) -> bool {
+    let d = (a - b).rem_euclid(180.0);
+    d < 1e-6 || 180.0 - d < 1e-6
+}
+
+/// The camera frame a pose's homography was calibrated at: `region` (and
+/// `binning`, default 1 x 1); both absent means the pose does not say.
+fn camera_frame(
+    key: &dyn Fn(&str) -> String,
+    region: Option<[i64; 4]>,
+    binning: Option<[i64; 2]>,
+) -> Result<Option<CameraFrame>, SceneError> {
+    let Some(r) = region else {
+        if binning.is_some() {
+            return Err(SceneError::invalid(
+                key("binning"),
+                binning,
+                "needs region = [x, y, width, height] too: the frame the homography was calibrated at",
+            ));
+        }
+        return Ok(None);
+    };
+    let [x, y, w, h] = r;
+    if x < 0
+        || y < 0
+        || !(1..=MAX_FRAME_SIDE).contains(&w)
+        || !(1..=MAX_FRAME_SIDE).contains(&h)
+        || x + w > MAX_FRAME_SIDE
+        || y + h > MAX_FRAME_SIDE
+    {
+        return Err(SceneError::invalid(
+            key("region"),
+            r,
+            format!("must be [x, y, width, height] in pixels: offsets >= 0, sizes from 1 and everything within {MAX_FRAME_SIDE}"),
+        ));
+    }
+    let b = binning.unwrap_or([1, 1]);
+    if !b.iter().all(|v| (1..=64).contains(v)) {
+        return Err(SceneError::invalid(
+            key("binning"),
+            b,
+            "must be [x, y] factors from 1 to 64",
+        ));
+    }
+    // The bounds above make every value fit u32.
+    let u = |v: i64| v as u32;
+    Ok(Some(CameraFrame {
+        region: [u(x), u(y), u(w), u(h)],
+        binning: [u(b[0]), u(b[1])],
+    }))
+}
+
 fn validate(raw: RawFile) -> Result<Scene, SceneError> {
     let w = raw.wall;
     let wall_plane = plane(
@@ -198,11 +260,11 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
             "must be in (0, 1]",
         ));
     }
-    if !(w.ior > 1.0 && w.ior.is_finite()) {
+    if !(w.ior > 1.0 && w.ior <= MAX_IOR) {
         return Err(SceneError::invalid(
             "wall.ior",
             w.ior,
-            "must be a refractive index > 1",
+            format!("must be a refractive index in (1, {MAX_IOR}] (paint and plaster about 1.5)"),
         ));
     }
     for (key, k) in [("wall.ks", w.ks), ("wall.kd", w.kd)] {
@@ -296,12 +358,23 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
                     format!("pose {name:?}: the crossed axis is undefined because the camera, the wall centre and the scene centre are collinear"),
                 )
             })?;
-            for &deg in &p.polarizer_deg {
-                if !deg.is_finite() {
+            for (k, &deg) in p.polarizer_deg.iter().enumerate() {
+                if !(-360.0..=360.0).contains(&deg) {
                     return Err(SceneError::invalid(
                         key("polarizer_deg"),
                         &p.polarizer_deg,
-                        "angles must be finite degrees",
+                        "angles must be degrees from -360 to 360",
+                    ));
+                }
+                // A linear polarizer at a and at a + 180 degrees is the same setting.
+                if let Some(&earlier) = p.polarizer_deg[..k]
+                    .iter()
+                    .find(|&&e| same_polarizer_setting(e, deg))
+                {
+                    return Err(SceneError::invalid(
+                        key("polarizer_deg"),
+                        &p.polarizer_deg,
+                        format!("{deg} and {earlier} degrees are the same polarizer setting (angles repeat every 180 degrees); list each setting once"),
                     ));
                 }
                 analyzers.push(Analyzer {
@@ -320,11 +393,13 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
                 )
             })?),
         };
+        let frame = camera_frame(&key, p.region, p.binning)?;
         poses.push(Pose {
             name,
             camera,
             analyzers,
             homography,
+            frame,
         });
     }
 
@@ -458,6 +533,42 @@ polarizer_deg = [0.0, 90.0]
             ("roughness = 0.3", "roughness = 0", "wall.roughness"),
             ("roughness = 0.3", "roughness = 1.5", "wall.roughness"),
             ("ior = 1.5", "ior = 1.0", "wall.ior"),
+            ("ior = 1.5", "ior = 1e308", "wall.ior"),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "polarizer_deg = [1e308]",
+                "pose[0].polarizer_deg",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "polarizer_deg = [0, 0, 360]",
+                "pose[0].polarizer_deg",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "polarizer_deg = [45, 225]",
+                "pose[0].polarizer_deg",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "polarizer_deg = [0.0]\nregion = [-1, 0, 10, 10]",
+                "pose[0].region",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "polarizer_deg = [0.0]\nregion = [0, 0, 0, 10]",
+                "pose[0].region",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "polarizer_deg = [0.0]\nbinning = [2, 2]",
+                "pose[0].binning",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "polarizer_deg = [0.0]\nregion = [0, 0, 512, 512]\nbinning = [0, 1]",
+                "pose[0].binning",
+            ),
             ("grid = [4, 3]", "grid = [0, 3]", "wall.grid"),
             ("grid = [2, 2]", "grid = [2, -1]", "scene.grid"),
             (
@@ -515,6 +626,21 @@ polarizer_deg = [0.0, 90.0]
     }
 
     #[test]
+    fn a_pose_records_the_frame_its_homography_maps_to() {
+        let s = with(
+            "polarizer_deg = [0.0, 90.0]",
+            "polarizer_deg = [0.0, 90.0]\nregion = [8, 0, 512, 256]\nbinning = [2, 2]",
+        )
+        .unwrap();
+        let f = s.poses[0].frame.unwrap();
+        assert_eq!(f.region, [8, 0, 512, 256]);
+        assert_eq!(f.binning, [2, 2]);
+        assert_eq!(parse(BASE).unwrap().poses[0].frame, None);
+        let e = with("polarizer_deg = [0.0, 90.0]", "polarizer_deg = [0, 180]").unwrap_err();
+        assert!(e.to_string().contains("same polarizer setting"), "{e}");
+    }
+
+    #[test]
     fn duplicate_pose_names_are_rejected() {
         let twice = format!("{BASE}\n[[pose]]\nname = \"A\"\ncamera = [0.4, 0.1, 0.3]\n");
         assert_eq!(parse(&twice).unwrap_err().key(), Some("pose[1].name"));
@@ -528,10 +654,11 @@ polarizer_deg = [0.0, 90.0]
 
         #[test]
         fn arbitrary_values_in_a_valid_frame_never_panic(
-            key in proptest::sample::select(vec!["roughness", "ior", "ks", "kd", "supersample", "grid", "size", "normal", "u_axis", "camera", "polarizer_deg", "homography"]),
+            key in proptest::sample::select(vec!["roughness", "ior", "ks", "kd", "supersample", "grid", "size", "normal", "u_axis", "camera", "polarizer_deg", "homography", "region", "binning"]),
             value in proptest::sample::select(vec!["0", "-1", "1e308", "nan", "inf", "[]", "[0,0]", "[1e-300, 0, 0]", "\"x\"", "[[1,2,3],[4,5,6],[7,8,9]]", "[0, 0, 0]", "{ a = 1 }", "9999999999999"]),
         ) {
-            let text = BASE
+            let base = format!("{BASE}region = [0, 0, 64, 64]\nbinning = [1, 1]\n");
+            let text = base
                 .lines()
                 .map(|l| if l.starts_with(&format!("{key} =")) { format!("{key} = {value}") } else { l.to_string() })
                 .collect::<Vec<_>>()

@@ -71,6 +71,19 @@ pub struct Pose {
     pub analyzers: Vec<Analyzer>,
     /// Wall (u, v) metres to image pixels, when the pose has been calibrated.
     pub homography: Option<Homography>,
+    /// The camera frame the homography was calibrated at, when the file says.
+    pub frame: Option<CameraFrame>,
+}
+
+/// A camera frame geometry: region of interest `[x, y, width, height]`
+/// (pixels, after binning) and binning `[x, y]`. A homography maps wall
+/// coordinates to pixels of exactly this frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct CameraFrame {
+    /// Offset and size, pixels.
+    pub region: [u32; 4],
+    /// Binning factors.
+    pub binning: [u32; 2],
 }
 
 impl Pose {

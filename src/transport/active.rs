@@ -110,15 +110,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
     let blocks = blocks_of(scene);
     let per_block = n_wall * bins;
     let rows = per_block * blocks.len();
-    let bytes = rows as f64 * n_vox as f64 * 8.0;
-    if bytes > 4.0 * (1u64 << 30) as f64 {
-        return Err(TransportError::TooLarge {
-            rows,
-            cols: n_vox,
-            gib: bytes / (1u64 << 30) as f64,
-            limit_gib: 4.0,
-        });
-    }
+    super::check_size(rows, n_vox, bins * blocks.len(), 0.0)?;
 
     // Per block, computed once: the direction from the spot to the laser and,
     // per patch, the direction to the camera and the effective analyzer axis.

@@ -20,9 +20,6 @@ use crate::optics::polarizer::{analyzer_factor, effective_axis};
 use crate::optics::{ggx, Polarization, Vec3};
 use crate::scene::{Emitter, Scene};
 
-/// Memory budget for a dense f64 `T`.
-const LIMIT_BYTES: f64 = 12.0 * (1u64 << 30) as f64;
-
 /// Three coordinate arrays, one entry per wall sample.
 #[derive(Default, Clone)]
 struct Soa {
@@ -76,6 +73,14 @@ pub fn build_with_progress(
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Transport, TransportError> {
     let plane = &scene.wall.plane;
+    // The wall samples (points and their structure-of-arrays copy) come first: check them with T.
+    let samples = plane.grid.count() as f64 * plane.samples_per_element() as f64;
+    super::check_size(
+        scene.rows(),
+        scene.cols(),
+        scene.block_count(),
+        samples * 48.0,
+    )?;
     let data = build_rows(
         scene,
         plane.sample_points(),
@@ -126,15 +131,7 @@ pub(super) fn build_rows(
 ) -> Result<Vec<f64>, TransportError> {
     let rows = n_wall * scene.block_count();
     let cols = scene.cols();
-    let bytes = rows as f64 * cols as f64 * 8.0;
-    if bytes > LIMIT_BYTES {
-        return Err(TransportError::TooLarge {
-            rows,
-            cols,
-            gib: bytes / (1u64 << 30) as f64,
-            limit_gib: LIMIT_BYTES / (1u64 << 30) as f64,
-        });
-    }
+    super::check_size(rows, cols, scene.block_count(), 0.0)?;
 
     let wall = &scene.wall;
     let brdf = wall.brdf;

@@ -53,7 +53,7 @@ pub struct Transport {
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
     /// The matrix would not fit in the memory budget.
-    #[error("T would be {rows} x {cols} ({gib:.1} GiB in f64), over the {limit_gib:.1} GiB limit; reduce wall.grid, scene.grid or the number of poses/angles")]
+    #[error("T would be {rows} x {cols} ({gib:.1} GiB in f64), over the {limit_gib:.1} GiB this machine can spare (half of its available memory); reduce wall.grid to at most {max_wall_side}x{max_wall_side} elements, or scene.grid, or the number of poses/angles")]
     TooLarge {
         /// Rows asked for.
         rows: usize,
@@ -63,6 +63,8 @@ pub enum TransportError {
         gib: f64,
         /// Limit in GiB.
         limit_gib: f64,
+        /// Largest square wall grid side that would fit with the same columns and blocks.
+        max_wall_side: usize,
     },
     /// A build option is out of range.
     #[error("{name} = {value}: {reason}")]
@@ -74,6 +76,46 @@ pub enum TransportError {
         /// Acceptable range.
         reason: &'static str,
     },
+}
+
+/// Bytes a dense `T` may take, set by the front ends from the machine's
+/// available memory ([`set_memory_limit`]); 12 GiB until one does.
+static MEMORY_LIMIT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(12 << 30);
+
+/// Sets the memory budget for `T` (bytes). Front ends call it with half of
+/// the available memory, so that `T`, its Gram matrix and the solver fit.
+pub fn set_memory_limit(bytes: u64) {
+    MEMORY_LIMIT.store(bytes.max(1 << 20), std::sync::atomic::Ordering::Relaxed);
+}
+
+/// The memory budget for `T` in bytes (see [`set_memory_limit`]).
+pub fn memory_limit() -> u64 {
+    MEMORY_LIMIT.load(std::sync::atomic::Ordering::Relaxed)
+}
+
+/// Refuses a `rows x cols` f64 matrix (plus `extra_bytes` of working
+/// memory) over the budget, naming what to reduce; each wall element
+/// contributes `rows_per_wall_element` rows.
+pub(crate) fn check_size(
+    rows: usize,
+    cols: usize,
+    rows_per_wall_element: usize,
+    extra_bytes: f64,
+) -> Result<(), TransportError> {
+    let limit = memory_limit() as f64;
+    let bytes = rows as f64 * cols as f64 * 8.0 + extra_bytes;
+    if bytes <= limit {
+        return Ok(());
+    }
+    let per_element = (rows_per_wall_element.max(1) * cols.max(1) * 8) as f64;
+    let gib = |b: f64| b / (1u64 << 30) as f64;
+    Err(TransportError::TooLarge {
+        rows,
+        cols,
+        gib: gib(bytes),
+        limit_gib: gib(limit),
+        max_wall_side: (limit / per_element).sqrt().floor() as usize,
+    })
 }
 
 impl Transport {
