@@ -73,25 +73,25 @@ fn frames_show_the_selected_block_and_scale_with_exposure() {
     let info = rt().block_on(cam.describe()).unwrap();
     assert_eq!(info.exposure_feature, "ExposureTimeAbs");
     assert_eq!(info.gain_feature, "GainRaw");
-    let seen = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
-    let s2 = seen.clone();
+    // The camera opens at its own region (the fake's 512 x 512 of a 2048 sensor).
+    assert_eq!(info.settings.region, Some([0, 0, 512, 512]));
+    assert_eq!(info.limits.sensor, [2048, 2048]);
+    assert!(info.id.starts_with("Aravis-"), "GenICam id: {}", info.id);
+    assert!(
+        info.id.ends_with("-POLNLOS-TEST"),
+        "GenICam id: {}",
+        info.id
+    );
     let settings = CameraSettings {
         exposure_us: 20_000.0,
         ..CameraSettings::default()
     };
-    let frames = rt()
-        .block_on(cam.acquire(
-            settings.clone(),
-            3,
-            Box::new(move |k| s2.store(k, std::sync::atomic::Ordering::SeqCst)),
-        ))
-        .unwrap();
+    // Frames arrive one by one through a bounded channel.
+    let (tx, rx) = std::sync::mpsc::sync_channel(1);
+    let reader = std::thread::spawn(move || rx.iter().collect::<Vec<_>>());
+    rt().block_on(cam.acquire(settings.clone(), 3, tx)).unwrap();
+    let frames = reader.join().unwrap();
     assert_eq!(frames.len(), 3);
-    assert_eq!(
-        seen.load(std::sync::atomic::Ordering::SeqCst),
-        3,
-        "progress reported per frame"
-    );
     let f = &frames[0];
     assert_eq!((f.width, f.height, f.bits), (512, 512, 16));
     // Pixel x shows (0.01 + 0.5 x/512) of full scale at the reference exposure.
@@ -107,13 +107,12 @@ fn frames_show_the_selected_block_and_scale_with_exposure() {
     }
     // Half the exposure, half the signal.
     let half = rt()
-        .block_on(cam.acquire(
+        .block_on(cam.collect(
             CameraSettings {
                 exposure_us: 10_000.0,
                 ..settings
             },
             1,
-            Box::new(|_| {}),
         ))
         .unwrap();
     assert!((at(&half[0], 400) - expect(400, 0.5)).abs() <= 1.0);
@@ -133,9 +132,7 @@ fn a_two_second_exposure_does_not_time_out() {
         pixel_format: PixelFormat::Mono8,
         ..CameraSettings::default()
     };
-    let frames = rt()
-        .block_on(cam.acquire(settings, 3, Box::new(|_| {})))
-        .unwrap();
+    let frames = rt().block_on(cam.collect(settings, 3)).unwrap();
     assert_eq!(frames.len(), 3);
     assert_eq!(frames[0].bits, 8);
     // The fake camera aligns frames to multiples of its period on the wall
@@ -193,7 +190,7 @@ fn a_camera_that_vanishes_mid_capture_fails_the_capture_and_comes_back() {
         std::thread::sleep(Duration::from_millis(500));
         drop(fake);
     });
-    let r = rt().block_on(cam.acquire(settings.clone(), 20, Box::new(|_| {})));
+    let r = rt().block_on(cam.collect(settings.clone(), 20));
     killer.join().unwrap();
     let e = r.unwrap_err();
     assert!(e.is_connection_loss(), "{e}");
@@ -206,11 +203,106 @@ fn a_camera_that_vanishes_mid_capture_fails_the_capture_and_comes_back() {
         "{:?}",
         cam.status()
     );
-    let frames = rt()
-        .block_on(cam.acquire(settings, 2, Box::new(|_| {})))
-        .unwrap();
+    let frames = rt().block_on(cam.collect(settings, 2)).unwrap();
     assert_eq!(frames.len(), 2);
     cam.shutdown();
+}
+
+#[test]
+fn regions_beyond_the_sensor_are_refused_before_aravis_and_the_camera_reads_back() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    let fake = bench();
+    fake.select("A", Some(0.0));
+    let mut cam = AravisCamera::open(ADDR).unwrap();
+    // The region sizes of the bug report: each is refused with the limit named.
+    for (region, binning) in [
+        (Some([0, 0, 100_000, 100_000]), None),
+        (Some([2_147_483_647, 0, 16, 16]), None),
+        (Some([0, 0, 0, 0]), None),
+        (None, Some([100_000, 100_000])),
+    ] {
+        let e = cam
+            .configure(&CameraSettings {
+                region,
+                binning,
+                ..CameraSettings::default()
+            })
+            .unwrap_err();
+        assert!(
+            matches!(e, CameraError::Geometry(_)),
+            "{region:?} {binning:?}: {e}"
+        );
+    }
+    // A real change is applied and read back from the camera's features.
+    cam.configure(&CameraSettings {
+        exposure_us: 7_000.0,
+        gain: 3.0,
+        region: Some([64, 32, 256, 128]),
+        binning: Some([2, 2]),
+        ..CameraSettings::default()
+    })
+    .unwrap();
+    let s = cam.describe().unwrap().settings;
+    assert_eq!(s.region, Some([64, 32, 256, 128]));
+    assert_eq!(s.binning, Some([2, 2]));
+    assert_eq!((s.exposure_us, s.gain), (7_000.0, 3.0));
+    let mut frames = Vec::new();
+    cam.acquire(2, &mut |f| {
+        frames.push(f);
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!((frames[0].width, frames[0].height), (256, 128));
+    // A receiver that stops ends the acquisition with its reason.
+    let e = cam
+        .acquire(5, &mut |_| Err("disk full".into()))
+        .unwrap_err();
+    assert!(
+        matches!(&e, CameraError::Stopped(w) if w == "disk full"),
+        "{e}"
+    );
+}
+
+#[test]
+fn the_fill_callback_never_writes_past_its_buffer_whatever_the_registers_say() {
+    use aravis::prelude::*;
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    let fake = bench();
+    fake.select("A", Some(0.0));
+    // A client that bypasses polnlos (arv-tool, another program) writes a
+    // region whose byte count wraps Aravis's 32-bit payload; before the bound
+    // in the callback this aborted the process (munmap_chunk / SIGSEGV).
+    let cam = aravis::Camera::new(Some(ADDR)).unwrap();
+    let dev = cam.device().unwrap();
+    for (w, h) in [(100_000, 100_000), (65_536, 65_536), (2048, 2048)] {
+        let _ = dev.set_integer_feature_value("Width", w);
+        let _ = dev.set_integer_feature_value("Height", h);
+        cam.set_pixel_format_from_string("Mono16").unwrap();
+        let payload = cam.payload().unwrap() as usize;
+        let stream = cam.create_stream().unwrap();
+        for _ in 0..2 {
+            stream.push_buffer(aravis::Buffer::new_allocate(payload.clamp(1, 16 << 20)));
+        }
+        cam.start_acquisition().unwrap();
+        let got = stream.timeout_pop_buffer(2_000_000);
+        cam.stop_acquisition().unwrap();
+        if let Some(b) = got {
+            // Whatever arrived fits what was allocated.
+            assert!(b.image_data().len() <= payload.clamp(1, 16 << 20));
+        }
+    }
+    // Still alive, and the camera still delivers full frames at a sane size.
+    dev.set_integer_feature_value("Width", 512).unwrap();
+    dev.set_integer_feature_value("Height", 512).unwrap();
+    let payload = cam.payload().unwrap() as usize;
+    assert_eq!(payload, 512 * 512 * 2);
+    let stream = cam.create_stream().unwrap();
+    stream.push_buffer(aravis::Buffer::new_allocate(payload));
+    cam.start_acquisition().unwrap();
+    let b = stream.timeout_pop_buffer(2_000_000).expect("a frame");
+    cam.stop_acquisition().unwrap();
+    assert_eq!(b.status(), aravis::BufferStatus::Success);
+    assert_eq!(b.image_data().len(), payload);
 }
 
 #[test]
@@ -235,7 +327,12 @@ fn software_trigger_delivers_one_frame_per_trigger() {
     cam.configure(&settings).unwrap();
     assert_eq!(cam.string_feature("TriggerMode").unwrap(), "On");
     assert_eq!(cam.string_feature("TriggerSource").unwrap(), "Software");
-    let frames = cam.acquire(3, &mut |_| {}).unwrap();
+    let mut frames = Vec::new();
+    cam.acquire(3, &mut |f| {
+        frames.push(f);
+        Ok(())
+    })
+    .unwrap();
     assert_eq!(frames.len(), 3);
     cam.configure(&CameraSettings::default()).unwrap();
     assert_eq!(cam.string_feature("TriggerMode").unwrap(), "Off");

@@ -128,20 +128,36 @@ fn sigkill_during_a_capture_loses_nothing_completed() {
     assert_eq!(again["id"], 3);
 }
 
+/// Whether this process may make a private mount namespace (root, as in CI).
+fn can_unshare_mounts() -> bool {
+    Command::new("unshare")
+        .args(["-m", "true"])
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false)
+}
+
 #[test]
 fn a_full_disk_fails_the_job_clearly_and_keeps_earlier_data() {
+    if !can_unshare_mounts() {
+        println!("skipped: `unshare -m` is not permitted here (needs root, as in CI), so no private tmpfs can stand in for a full disk");
+        return;
+    }
     let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     std::fs::create_dir_all(&data).unwrap();
-    let cfg = config(dir.path(), &[]);
-    // A private mount namespace with a 3 MiB tmpfs as the data directory.
+    let cfg = config(
+        dir.path(),
+        &[("reserve_free_mib = 64", "reserve_free_mib = 0")],
+    );
+    // A private mount namespace with a 24 MiB tmpfs as the data directory.
     let mut cmd = Command::new("unshare");
     cmd.args([
         "-m",
         "sh",
         "-c",
-        "mount -t tmpfs -o size=3m tmpfs \"$POLNLOS_TMPFS\" && exec \"$0\" \"$@\"",
+        "mount -t tmpfs -o size=24m tmpfs \"$POLNLOS_TMPFS\" && exec \"$0\" \"$@\"",
         env!("CARGO_BIN_EXE_polnlos"),
     ])
     .env("POLNLOS_TMPFS", &data);
@@ -149,15 +165,29 @@ fn a_full_disk_fails_the_job_clearly_and_keeps_earlier_data() {
     let small = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "pixel_format": "Mono8"}"#, Duration::from_secs(20));
     assert_eq!(small["state"], "done", "{small}");
     let (_, mean) = d.get_bytes("/captures/1/mean.tiff");
-    // 8 frames of 512 x 512 x 16 bit do not fit in what is left.
-    let big = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 8}"#, Duration::from_secs(20));
-    assert_eq!(big["state"], "failed", "{big}");
+    // A capture whose files cannot fit is refused before it is queued.
+    let (s, b, _) = d.post("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 200}"#);
+    assert_eq!(s, 507, "{b}");
     assert!(
-        big["error"]
-            .as_str()
-            .unwrap()
-            .contains("No space left on device"),
-        "{big}"
+        b.contains("needs 104.3 MiB") && b.contains("MiB free"),
+        "{b}"
+    );
+    // One that fits is admitted; then something else fills the disk while
+    // it runs (written into the daemon's tmpfs through /proc/PID/root).
+    let (s, b, loc) = d.post("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 100000, "frames": 20}"#);
+    assert_eq!(s, 202, "{b}");
+    let filler = format!("/proc/{}/root{}/filler", d.pid(), data.display());
+    let mut f = std::fs::File::create(&filler).unwrap();
+    let chunk = vec![0u8; 1 << 20];
+    while std::io::Write::write_all(&mut f, &chunk).is_ok() {}
+    drop(f);
+    let big = d.wait(&loc.unwrap(), Duration::from_secs(30));
+    assert_eq!(big["state"], "failed", "{big}");
+    let error = big["error"].as_str().unwrap();
+    assert!(error.contains("No space left on device"), "{big}");
+    assert!(
+        !error.contains(&data.display().to_string()),
+        "no absolute path: {error}"
     );
     assert_eq!(d.get("/health").0, 200);
     assert_eq!(d.json("/captures/1")["state"], "done");
@@ -171,6 +201,14 @@ fn a_full_disk_fails_the_job_clearly_and_keeps_earlier_data() {
         404,
         "no half-written file is served"
     );
+    let left: Vec<_> = std::fs::read_dir(format!(
+        "/proc/{}/root{}/captures/2",
+        d.pid(),
+        data.display()
+    ))
+    .map(|r| r.flatten().map(|e| e.file_name()).collect())
+    .unwrap_or_default();
+    assert!(left.is_empty(), "nothing half-written is kept: {left:?}");
 }
 
 #[test]

@@ -58,6 +58,18 @@ impl ApiError {
     pub fn internal(detail: impl Into<String>) -> Self {
         Self::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", detail)
     }
+    /// 409: the request conflicts with what the daemon is doing.
+    pub fn busy(detail: impl Into<String>) -> Self {
+        Self::new(StatusCode::CONFLICT, "busy", detail)
+    }
+    /// 400: a query string or path that cannot be read.
+    pub fn bad_request(detail: impl Into<String>) -> Self {
+        Self::new(StatusCode::BAD_REQUEST, "bad_request", detail)
+    }
+    /// 403: a request addressed to a host name or from an origin not allowed.
+    pub fn forbidden(detail: impl Into<String>) -> Self {
+        Self::new(StatusCode::FORBIDDEN, "forbidden", detail)
+    }
 }
 
 impl From<crate::store::StoreError> for ApiError {
@@ -74,7 +86,56 @@ impl From<crate::daemon::RequestError> for ApiError {
         match e {
             crate::daemon::RequestError::NotFound(m) => Self::not_found(m),
             crate::daemon::RequestError::Invalid(m) => Self::invalid(m),
+            crate::daemon::RequestError::Unavailable(m) => Self::unavailable(m),
         }
+    }
+}
+
+impl From<crate::daemon::SubmitError> for ApiError {
+    fn from(e: crate::daemon::SubmitError) -> Self {
+        use crate::daemon::SubmitError;
+        match e {
+            SubmitError::Disk { .. } => Self::new(
+                StatusCode::INSUFFICIENT_STORAGE,
+                "insufficient_storage",
+                e.to_string(),
+            ),
+            SubmitError::QueueFull { retry_after } => Self::queue_full("capture", retry_after),
+            SubmitError::Store(m) => Self::internal(m),
+        }
+    }
+}
+
+impl From<crate::daemon::SettingsError> for ApiError {
+    fn from(e: crate::daemon::SettingsError) -> Self {
+        use crate::camera::CameraError;
+        use crate::daemon::SettingsError;
+        match e {
+            SettingsError::Busy => Self::busy(e.to_string()),
+            SettingsError::Geometry(_)
+            | SettingsError::Camera(
+                CameraError::OutOfRange { .. }
+                | CameraError::Feature { .. }
+                | CameraError::Geometry(_),
+            ) => Self::invalid(e.to_string()),
+            SettingsError::Camera(_) => Self::unavailable(e.to_string()),
+        }
+    }
+}
+
+impl From<axum::extract::rejection::QueryRejection> for ApiError {
+    fn from(r: axum::extract::rejection::QueryRejection) -> Self {
+        Self::bad_request(format!(
+            "query string: {}",
+            r.body_text()
+                .trim_start_matches("Failed to deserialize query string: ")
+        ))
+    }
+}
+
+impl From<axum::extract::rejection::PathRejection> for ApiError {
+    fn from(r: axum::extract::rejection::PathRejection) -> Self {
+        Self::bad_request(format!("path: {}", r.body_text()))
     }
 }
 
@@ -87,7 +148,14 @@ impl From<axum::extract::rejection::JsonRejection> for ApiError {
             StatusCode::UNPROCESSABLE_ENTITY => "invalid_request",
             _ => "malformed_json",
         };
-        Self::new(status, code, r.body_text())
+        // serde's text names the field and the expected type; axum's prefix is noise.
+        let text = r.body_text();
+        let detail = text
+            .split_once(": ")
+            .filter(|(head, _)| head.starts_with("Failed to"))
+            .map_or(text.as_str(), |(_, rest)| rest)
+            .to_string();
+        Self::new(status, code, detail)
     }
 }
 

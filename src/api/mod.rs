@@ -1,29 +1,35 @@
 //! The HTTP API: axum routes over the daemon's typed state, nothing else.
 //!
-//! Errors are JSON `{ "error": code, "detail": text }` with the right status;
-//! jobs answer 202 with a `Location`. Mutating requests need the bearer token
-//! when one is set. Request bodies are size-limited.
+//! Errors are JSON `{ "error": code, "detail": text }` with the right status,
+//! whatever went wrong (a bad query string, a wrong method, an oversized
+//! header); jobs answer 202 with a `Location`. Every request passes
+//! [`guard`]: size limits, the `Host`/`Origin` checks, and the bearer token
+//! when one is set. Request bodies are size- and time-limited; [`serve`] caps
+//! connections and header time.
 
 mod error;
+mod extract;
+mod guard;
 mod openapi;
 mod routes;
+pub mod serve;
 
 use std::sync::Arc;
+use std::time::Duration;
 
-use axum::extract::{Request, State};
-use axum::http::Method;
-use axum::middleware::{self, Next};
-use axum::response::Response;
+use axum::middleware;
 use axum::routing::{get, post, put};
 use axum::Router;
 
 pub use error::ApiError;
+pub use serve::{serve, Limits};
 
 use crate::daemon::Daemon;
 
 /// The router for a running daemon.
 pub fn router(d: Arc<Daemon>) -> Router {
     let limit = d.config.queue.max_body_bytes;
+    let body_timeout = Duration::from_secs_f64(d.config.http.body_timeout_s);
     Router::new()
         .route("/health", get(routes::health))
         .route("/metrics", get(routes::metrics))
@@ -56,31 +62,11 @@ pub fn router(d: Arc<Daemon>) -> Router {
         .route("/scenes/{name}/exposure", get(routes::scene_exposure))
         .route("/openapi.json", get(openapi::spec))
         .fallback(routes::not_found)
-        .layer(middleware::from_fn_with_state(d.clone(), auth))
+        .method_not_allowed_fallback(routes::method_not_allowed)
+        .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
+            body_timeout,
+        ))
         .layer(axum::extract::DefaultBodyLimit::max(limit))
+        .layer(middleware::from_fn_with_state(d.clone(), guard::guard))
         .with_state(d)
-}
-
-/// Requires `Authorization: Bearer <token>` on mutating requests when a token is set.
-async fn auth(
-    State(d): State<Arc<Daemon>>,
-    req: Request,
-    next: Next,
-) -> Result<Response, ApiError> {
-    let mutating = !matches!(*req.method(), Method::GET | Method::HEAD | Method::OPTIONS);
-    if mutating && !d.token.is_empty() {
-        let given = req
-            .headers()
-            .get(axum::http::header::AUTHORIZATION)
-            .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
-        if !given.is_some_and(|t| constant_time_eq(t.as_bytes(), d.token.as_bytes())) {
-            return Err(ApiError::unauthorized());
-        }
-    }
-    Ok(next.run(req).await)
-}
-
-fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use axum::body::Body;
 use axum::extract::rejection::JsonRejection;
-use axum::extract::{Path, Query, State};
+use axum::extract::State;
 use axum::http::{header, StatusCode};
 use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
@@ -15,6 +15,7 @@ use serde::Deserialize;
 use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::StreamExt;
 
+use super::extract::{ApiPath as Path, ApiQuery as Query};
 use super::ApiError;
 use crate::camera::CameraSettings;
 use crate::daemon::metrics::{Metrics, Sample};
@@ -29,11 +30,12 @@ type St = State<Arc<Daemon>>;
 
 /// Paging of list endpoints.
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
 pub struct Page {
     /// At most this many (1-1000, default 100).
-    limit: Option<usize>,
-    /// Skip this many.
-    offset: Option<usize>,
+    limit: Option<u64>,
+    /// Skip this many (0 to 2^63 - 1).
+    offset: Option<u64>,
 }
 
 impl Page {
@@ -44,7 +46,15 @@ impl Page {
                 "limit = {limit}: must be from 1 to 1000"
             )));
         }
-        Ok((limit, self.offset.unwrap_or(0)))
+        let offset = self.offset.unwrap_or(0);
+        // SQLite's OFFSET is a signed 64-bit integer: beyond it, refuse rather than wrap.
+        let offset = i64::try_from(offset)
+            .ok()
+            .and_then(|o| usize::try_from(o).ok())
+            .ok_or_else(|| {
+                ApiError::invalid(format!("offset = {offset}: must be from 0 to {}", i64::MAX))
+            })?;
+        Ok((limit as usize, offset))
     }
 }
 
@@ -181,6 +191,18 @@ pub async fn metrics(State(d): St) -> Response {
             help: "Requests answered 429",
             value: Metrics::get(&m.rejected_full),
         },
+        Sample {
+            name: "polnlos_http_connections_open",
+            kind: "gauge",
+            help: "HTTP connections open",
+            value: Metrics::get(&super::serve::CONNECTIONS_OPEN),
+        },
+        Sample {
+            name: "polnlos_http_connections_refused_total",
+            kind: "counter",
+            help: "HTTP connections closed at once because max_connections were open",
+            value: Metrics::get(&super::serve::CONNECTIONS_REFUSED),
+        },
     ];
     (
         [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
@@ -189,29 +211,29 @@ pub async fn metrics(State(d): St) -> Response {
         .into_response()
 }
 
-/// Camera identity, ranges, counters and connection state.
+/// Camera identity, ranges, counters, connection state, and its settings as
+/// read back from it now (during a capture: as that capture set them, with
+/// `busy` naming the capture).
 #[utoipa::path(get, path = "/camera", responses((status = 200, description = "Camera state")))]
-pub async fn camera(State(d): St) -> Json<crate::camera::worker::CameraStatus> {
-    Json(d.camera.status())
+pub async fn camera(State(d): St) -> Json<serde_json::Value> {
+    let (status, busy) = d.camera_now().await;
+    let mut v = serde_json::to_value(status).unwrap_or_default();
+    v["busy"] = busy.map_or(serde_json::Value::Null, serde_json::Value::String);
+    v["capture_defaults"] =
+        serde_json::to_value(d.capture_defaults(d.camera.status().info.as_ref()))
+            .unwrap_or_default();
+    Json(v)
 }
 
-/// Applies camera settings now (validated against the camera's ranges).
-#[utoipa::path(put, path = "/camera/settings", request_body = CameraSettings, responses((status = 200, description = "Applied"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
+/// Applies camera settings now and makes them the defaults of later captures
+/// (queued captures keep their own). 409 while a capture has the camera.
+#[utoipa::path(put, path = "/camera/settings", request_body = CameraSettings, responses((status = 200, description = "Applied; the camera's description with its settings read back"), (status = 409, description = "A capture is running"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
 pub async fn camera_settings(
     State(d): St,
     body: Result<Json<CameraSettings>, JsonRejection>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+) -> Result<Json<crate::camera::CameraInfo>, ApiError> {
     let Json(s) = body?;
-    match d.camera.configure(s).await {
-        Ok(()) => Ok(Json(
-            serde_json::to_value(d.camera.describe().await.ok()).unwrap_or_default(),
-        )),
-        Err(
-            e @ (crate::camera::CameraError::OutOfRange { .. }
-            | crate::camera::CameraError::Feature { .. }),
-        ) => Err(ApiError::invalid(e.to_string())),
-        Err(e) => Err(ApiError::unavailable(e.to_string())),
-    }
+    Ok(Json(d.put_camera_settings(s).await?))
 }
 
 fn accepted(kind: &str, id: i64, extra: serde_json::Value) -> Response {
@@ -230,7 +252,7 @@ fn accepted(kind: &str, id: i64, extra: serde_json::Value) -> Response {
 }
 
 /// Queues a capture.
-#[utoipa::path(post, path = "/captures", request_body = CaptureBody, responses((status = 202, description = "Queued; Location names the capture"), (status = 404, description = "Unknown scene"), (status = 422, description = "Out of range"), (status = 429, description = "Queue full")))]
+#[utoipa::path(post, path = "/captures", request_body = CaptureBody, responses((status = 202, description = "Queued; Location names the capture; the body echoes every setting it will use"), (status = 404, description = "Unknown scene"), (status = 422, description = "Out of range"), (status = 429, description = "Queue full"), (status = 507, description = "Its files would not fit on the disk")))]
 pub async fn post_capture(
     State(d): St,
     body: Result<Json<CaptureBody>, JsonRejection>,
@@ -241,21 +263,15 @@ pub async fn post_capture(
     let req = tokio::task::spawn_blocking(move || validate_capture(&d2, &b))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))??;
-    let permit = d.captures.try_reserve().map_err(|_| {
-        d.metrics
-            .rejected_full
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        ApiError::queue_full(
-            "capture",
-            (req.exposure_us * 1e-6 * req.frames as f64).ceil().max(1.0) as u64,
-        )
-    })?;
-    let id = d.store.insert_capture(&req)?;
-    permit.send(id);
+    let id = d.submit_capture(&req)?;
     Ok(accepted(
         "capture",
         id,
-        serde_json::json!({ "exposure_us": req.exposure_us, "frames": req.frames }),
+        serde_json::json!({
+            "kind": req.kind, "exposure_us": req.exposure_us, "gain": req.gain, "frames": req.frames,
+            "dark_frames": req.dark_frames, "dark_capture": req.dark_capture,
+            "pixel_format": req.pixel_format, "region": req.region, "binning": req.binning, "trigger": req.trigger,
+        }),
     ))
 }
 
@@ -290,7 +306,9 @@ async fn file(
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(ApiError::not_found(format!(
             "{what} has no such file yet (is it done?)"
         ))),
-        Err(e) => Err(ApiError::internal(format!("{}: {e}", path.display()))),
+        Err(e) => Err(ApiError::internal(format!(
+            "{what}: cannot read its file ({e})"
+        ))),
     }
 }
 
@@ -414,7 +432,7 @@ pub async fn get_job(
         ))
     };
     let (kind, n) = id.split_once('-').ok_or_else(bad)?;
-    let n = n.parse::<i64>().map_err(|_| bad())?;
+    let n = n.parse::<i64>().ok().filter(|n| *n > 0).ok_or_else(bad)?;
     let v = match kind {
         "capture" => serde_json::to_value(d.store.capture(n)?),
         "reconstruction" => serde_json::to_value(d.store.reconstruction(n)?),
@@ -476,5 +494,16 @@ pub async fn scene_exposure(
 
 /// Unknown path.
 pub async fn not_found(uri: axum::http::Uri) -> ApiError {
-    ApiError::not_found(format!("no route {uri}; see /openapi.json"))
+    let path: String = uri.path().chars().take(200).collect();
+    ApiError::not_found(format!("no route {path}; see /openapi.json"))
+}
+
+/// A known path with a method it does not have.
+pub async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) -> ApiError {
+    let path: String = uri.path().chars().take(200).collect();
+    ApiError::new(
+        axum::http::StatusCode::METHOD_NOT_ALLOWED,
+        "method_not_allowed",
+        format!("{path} does not take {method}; see /openapi.json"),
+    )
 }

@@ -11,8 +11,8 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use aravis::prelude::*;
 use aravis::{AcquisitionMode, BufferStatus, Camera};
 
-use super::device::{CameraDevice, CameraError, CameraInfo, Counters, RawFrame};
-use super::settings::{CameraSettings, PixelFormat, TriggerMode};
+use super::device::{CameraDevice, CameraError, CameraInfo, Counters, FrameSink, RawFrame};
+use super::settings::{CameraSettings, PixelFormat, SensorLimits, TriggerMode};
 
 /// Buffers queued on the stream at most.
 const MAX_BUFFERS: usize = 16;
@@ -25,6 +25,8 @@ pub struct AravisCamera {
     gain_feature: &'static str,
     gain_is_integer: bool,
     frame_rate_feature: Option<&'static str>,
+    limits: SensorLimits,
+    /// Settings read back after the last configure (what the camera has).
     settings: CameraSettings,
     counters: Counters,
     /// Frame period of the previous acquisition: the first frame after a
@@ -74,6 +76,7 @@ impl AravisCamera {
         let frame_rate_feature = ["AcquisitionFrameRate", "AcquisitionFrameRateAbs"]
             .into_iter()
             .find(|n| available(n));
+        let limits = read_limits(&camera)?;
         let mut cam = Self {
             id: id.to_string(),
             camera,
@@ -81,6 +84,7 @@ impl AravisCamera {
             gain_feature,
             gain_is_integer,
             frame_rate_feature,
+            limits,
             settings: CameraSettings::default(),
             counters: Counters {
                 connects: 1,
@@ -88,8 +92,82 @@ impl AravisCamera {
             },
             last_period_s: 1.0,
         };
-        cam.configure(&CameraSettings::default())?;
+        // Keep the camera's own region and binning (the pose homographies are
+        // calibrated on them); everything else from the defaults.
+        let (x, y, w, h) = cam
+            .camera
+            .region()
+            .map_err(feature_err("OffsetX/OffsetY/Width/Height"))?;
+        let binning = match cam.camera.is_binning_available() {
+            Ok(true) => cam
+                .camera
+                .binning()
+                .map(|(bx, by)| [to_u32(bx), to_u32(by)])
+                .map_err(feature_err("BinningHorizontal/BinningVertical"))?,
+            _ => [1, 1],
+        };
+        let current = CameraSettings {
+            region: Some([to_u32(x), to_u32(y), to_u32(w), to_u32(h)]),
+            binning: Some(binning),
+            ..CameraSettings::default()
+        };
+        cam.configure(&current)?;
         Ok(cam)
+    }
+
+    /// What the camera has now: every setting read back from its features.
+    fn read_settings(&self) -> Result<CameraSettings, CameraError> {
+        let c = &self.camera;
+        let d = self.device()?;
+        let exposure_us = d
+            .float_feature_value(self.exposure_feature)
+            .map_err(feature_err(self.exposure_feature))?;
+        let gain = if self.gain_is_integer {
+            d.integer_feature_value(self.gain_feature)
+                .map_err(feature_err(self.gain_feature))? as f64
+        } else {
+            d.float_feature_value(self.gain_feature)
+                .map_err(feature_err(self.gain_feature))?
+        };
+        let format = c
+            .pixel_format_as_string()
+            .map_err(feature_err("PixelFormat"))?;
+        let pixel_format =
+            PixelFormat::from_name(format.as_str()).ok_or_else(|| CameraError::Feature {
+                feature: "PixelFormat".into(),
+                reason: format!("{format} is not a format polnlos reads (Mono8, Mono12, Mono16)"),
+            })?;
+        let (x, y, w, h) = c
+            .region()
+            .map_err(feature_err("OffsetX/OffsetY/Width/Height"))?;
+        let binning = if c.is_binning_available().unwrap_or(false) {
+            let (bx, by) = c
+                .binning()
+                .map_err(feature_err("BinningHorizontal/BinningVertical"))?;
+            [to_u32(bx), to_u32(by)]
+        } else {
+            [1, 1]
+        };
+        let trigger_on = d.is_feature_available("TriggerMode").unwrap_or(false)
+            && d.string_feature_value("TriggerMode")
+                .map(|v| v.as_str() == "On")
+                .unwrap_or(false);
+        let software = trigger_on
+            && c.trigger_source()
+                .map(|v| v.as_str() == "Software")
+                .unwrap_or(false);
+        Ok(CameraSettings {
+            exposure_us,
+            gain,
+            pixel_format,
+            region: Some([to_u32(x), to_u32(y), to_u32(w), to_u32(h)]),
+            binning: Some(binning),
+            trigger: if software {
+                TriggerMode::Software
+            } else {
+                TriggerMode::Free
+            },
+        })
     }
 
     /// The current value of a string or enumeration feature (for diagnostics).
@@ -157,17 +235,62 @@ impl AravisCamera {
     }
 }
 
+/// A feature value Aravis reports as `i32` that cannot be negative (0 if it is).
+fn to_u32(v: i32) -> u32 {
+    u32::try_from(v).unwrap_or(0)
+}
+
+/// Region and binning limits from the feature nodes. Minimum sizes and
+/// increments do not depend on the current region; the sensor size is the
+/// unbinned one.
+fn read_limits(c: &Camera) -> Result<SensorLimits, CameraError> {
+    let (sw, sh) = c
+        .sensor_size()
+        .map_err(feature_err("SensorWidth/SensorHeight"))?;
+    let inc = |r: Result<i32, aravis::glib::Error>| r.map(to_u32).unwrap_or(1).max(1);
+    let binning = if c.is_binning_available().unwrap_or(false) {
+        let bx = c.x_binning_bounds().map(|b| to_u32(b.1)).unwrap_or(1);
+        let by = c.y_binning_bounds().map(|b| to_u32(b.1)).unwrap_or(1);
+        [bx.max(1), by.max(1)]
+    } else {
+        [1, 1]
+    };
+    let limits = SensorLimits {
+        sensor: [to_u32(sw), to_u32(sh)],
+        min_size: [
+            c.width_bounds().map(|b| to_u32(b.0)).unwrap_or(1).max(1),
+            c.height_bounds().map(|b| to_u32(b.0)).unwrap_or(1).max(1),
+        ],
+        size_increment: [inc(c.width_increment()), inc(c.height_increment())],
+        offset_increment: [inc(c.x_offset_increment()), inc(c.y_offset_increment())],
+        max_binning: binning,
+    };
+    if limits.sensor[0] == 0 || limits.sensor[1] == 0 {
+        return Err(CameraError::Feature {
+            feature: "SensorWidth/SensorHeight".into(),
+            reason: format!("the camera reports a {sw} x {sh} sensor"),
+        });
+    }
+    Ok(limits)
+}
+
 impl CameraDevice for AravisCamera {
     fn describe(&mut self) -> Result<CameraInfo, CameraError> {
         let c = &self.camera;
         let s = |r: Result<aravis::glib::GString, aravis::glib::Error>| {
             r.map(|g| g.to_string()).unwrap_or_default()
         };
+        let (vendor, model, serial) = (
+            s(c.vendor_name()),
+            s(c.model_name()),
+            s(c.device_serial_number()),
+        );
         Ok(CameraInfo {
-            id: self.id.clone(),
-            vendor: s(c.vendor_name()),
-            model: s(c.model_name()),
-            serial: s(c.device_serial_number()),
+            id: format!("{vendor}-{model}-{serial}"),
+            address: self.id.clone(),
+            vendor,
+            model,
+            serial,
             sensor: c.sensor_size().map_err(driver)?,
             exposure_us: self.float_bounds(self.exposure_feature)?,
             exposure_feature: self.exposure_feature.into(),
@@ -180,11 +303,22 @@ impl CameraDevice for AravisCamera {
                 .dup_available_pixel_formats_as_strings()
                 .map(|v| v.into_iter().map(|g| g.to_string()).collect())
                 .unwrap_or_default(),
-            settings: self.settings.clone(),
+            limits: self.limits,
+            settings: self.read_settings()?,
         })
     }
 
     fn configure(&mut self, s: &CameraSettings) -> Result<(), CameraError> {
+        // Region and binning are checked against the sensor before Aravis sees
+        // them; an absent one is the camera's current one.
+        let binning = s.binning.or(self.settings.binning).unwrap_or([1, 1]);
+        let region = s.region.or(self.settings.region).unwrap_or([
+            0,
+            0,
+            self.limits.sensor[0] / binning[0].max(1),
+            self.limits.sensor[1] / binning[1].max(1),
+        ]);
+        self.limits.check(region, binning)?;
         let d = self.device()?;
         let eb = self.float_bounds(self.exposure_feature)?;
         Self::check(self.exposure_feature, s.exposure_us, eb)?;
@@ -193,15 +327,15 @@ impl CameraDevice for AravisCamera {
         let c = &self.camera;
         c.set_pixel_format_from_string(s.pixel_format.name())
             .map_err(feature_err("PixelFormat"))?;
-        if let Some([bx, by]) = s.binning {
-            c.set_binning(bx, by)
+        // Checked above: every value is at most the sensor size, so it fits i32.
+        let i = |v: u32| i32::try_from(v).unwrap_or(i32::MAX);
+        if c.is_binning_available().unwrap_or(false) {
+            c.set_binning(i(binning[0]), i(binning[1]))
                 .map_err(feature_err("BinningHorizontal/BinningVertical"))?;
         }
-        // No region: keep the camera's own (the pose homographies are calibrated on it).
-        if let Some([x, y, w, h]) = s.region {
-            c.set_region(x, y, w, h)
-                .map_err(feature_err("OffsetX/OffsetY/Width/Height"))?;
-        }
+        let [x, y, w, h] = region;
+        c.set_region(i(x), i(y), i(w), i(h))
+            .map_err(feature_err("OffsetX/OffsetY/Width/Height"))?;
         d.set_float_feature_value(self.exposure_feature, s.exposure_us)
             .map_err(feature_err(self.exposure_feature))?;
         if self.gain_is_integer {
@@ -222,15 +356,20 @@ impl CameraDevice for AravisCamera {
                 .set_trigger("Software")
                 .map_err(feature_err("TriggerMode/TriggerSource"))?,
         }
-        self.settings = s.clone();
+        self.settings = self.read_settings()?;
+        if (self.settings.region, self.settings.binning) != (Some(region), Some(binning)) {
+            return Err(CameraError::Feature {
+                feature: "OffsetX/OffsetY/Width/Height".into(),
+                reason: format!(
+                    "asked for region {region:?} at binning {binning:?}, the camera has {:?} at {:?}",
+                    self.settings.region, self.settings.binning
+                ),
+            });
+        }
         Ok(())
     }
 
-    fn acquire(
-        &mut self,
-        n: usize,
-        on_frame: &mut dyn FnMut(usize),
-    ) -> Result<Vec<RawFrame>, CameraError> {
+    fn acquire(&mut self, n: usize, sink: &mut FrameSink<'_>) -> Result<(), CameraError> {
         let period = self.match_frame_rate()?;
         let exposure_s = self.settings.exposure_us * 1e-6;
         // Long exposures must not time out; the first frame after a period change
@@ -250,10 +389,10 @@ impl CameraDevice for AravisCamera {
             .map_err(feature_err("AcquisitionStart"))?;
         let software = self.settings.trigger == TriggerMode::Software;
         let bits = self.settings.pixel_format.bits();
-        let mut frames = Vec::with_capacity(n);
+        let mut taken = 0;
         let mut failures = 0;
         let result = loop {
-            if frames.len() == n {
+            if taken == n {
                 break Ok(());
             }
             if software {
@@ -261,16 +400,12 @@ impl CameraDevice for AravisCamera {
                     break Err(feature_err("TriggerSoftware")(e));
                 }
             }
-            let wait = if frames.is_empty() {
-                first_timeout
-            } else {
-                timeout
-            };
+            let wait = if taken == 0 { first_timeout } else { timeout };
             let Some(buffer) = stream.timeout_pop_buffer(wait.as_micros() as u64) else {
                 self.counters.timeouts += 1;
                 break Err(CameraError::Timeout {
                     timeout_ms: wait.as_millis() as u64,
-                    got: frames.len(),
+                    got: taken,
                     wanted: n,
                 });
             };
@@ -307,16 +442,19 @@ impl CameraDevice for AravisCamera {
                 .duration_since(UNIX_EPOCH)
                 .map(|d| d.as_nanos() as u64)
                 .unwrap_or(0);
-            frames.push(RawFrame {
+            self.counters.completed += 1;
+            taken += 1;
+            let frame = RawFrame {
                 width: w,
                 height: h,
                 bits,
                 pixels,
                 frame_id,
                 system_timestamp_ns: now,
-            });
-            self.counters.completed += 1;
-            on_frame(frames.len());
+            };
+            if let Err(why) = sink(frame) {
+                break Err(CameraError::Stopped(why));
+            }
         };
         let _ = c.stop_acquisition();
         let (_, _, underruns) = stream.statistics();
@@ -324,7 +462,7 @@ impl CameraDevice for AravisCamera {
         self.counters.missing_packets += stream.info_uint64_by_name("n_missing_packets");
         self.counters.resent_packets += stream.info_uint64_by_name("n_resent_packets");
         self.last_period_s = period;
-        result.map(|()| frames)
+        result
     }
 
     fn counters(&self) -> Counters {

@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use super::settings::CameraSettings;
+use super::settings::{CameraSettings, GeometryError, SensorLimits};
 
 /// One frame as the sensor delivered it (no arithmetic done yet).
 #[derive(Debug, Clone)]
@@ -43,8 +43,10 @@ pub struct Counters {
 /// What the camera is and what it can do.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct CameraInfo {
-    /// Device id (as used to open it).
+    /// GenICam identity, `vendor-model-serial`.
     pub id: String,
+    /// Id or address the camera was opened by (from the config).
+    pub address: String,
     /// Vendor name.
     pub vendor: String,
     /// Model name.
@@ -65,7 +67,9 @@ pub struct CameraInfo {
     pub frame_rate: Option<(f64, f64)>,
     /// Pixel formats the camera offers.
     pub pixel_formats: Vec<String>,
-    /// Current settings.
+    /// Region and binning limits, read from the feature nodes.
+    pub limits: SensorLimits,
+    /// Settings read back from the camera (not what was asked for).
     pub settings: CameraSettings,
 }
 
@@ -121,6 +125,12 @@ pub enum CameraError {
     /// The camera is not connected (lost, or never opened).
     #[error("camera is not connected ({0}); it is reconnected automatically when it comes back")]
     Disconnected(String),
+    /// A region or binning the sensor cannot deliver (checked before Aravis sees it).
+    #[error(transparent)]
+    Geometry(#[from] GeometryError),
+    /// The receiver of the frames stopped the acquisition (its reason).
+    #[error("acquisition stopped: {0}")]
+    Stopped(String),
     /// Anything else from the driver.
     #[error("camera error: {0}")]
     Driver(String),
@@ -136,18 +146,19 @@ impl CameraError {
     }
 }
 
+/// Where acquired frames go, one at a time; `Err(reason)` stops the acquisition.
+pub type FrameSink<'a> = dyn FnMut(RawFrame) -> Result<(), String> + 'a;
+
 /// A camera as the daemon uses it. Implementations are owned by one thread.
 pub trait CameraDevice: Send {
     /// Identity, ranges and current settings.
     fn describe(&mut self) -> Result<CameraInfo, CameraError>;
     /// Applies settings (validated against the camera's ranges).
     fn configure(&mut self, settings: &CameraSettings) -> Result<(), CameraError>;
-    /// Acquires `n` frames with the current settings; `on_frame(k)` after each.
-    fn acquire(
-        &mut self,
-        n: usize,
-        on_frame: &mut dyn FnMut(usize),
-    ) -> Result<Vec<RawFrame>, CameraError>;
+    /// Acquires `n` frames with the current settings, handing each to `sink`
+    /// as it arrives (nothing is kept here); an `Err` from the sink stops the
+    /// acquisition with [`CameraError::Stopped`].
+    fn acquire(&mut self, n: usize, sink: &mut FrameSink<'_>) -> Result<(), CameraError>;
     /// Counters since the camera was opened.
     fn counters(&self) -> Counters;
 }

@@ -21,6 +21,9 @@ pub trait Bench: Send + Sync {
     fn select(&self, pose: &str, polarizer_deg: Option<f64>);
     /// Turns the hidden scene on (captures) or off (dark frames).
     fn scene_on(&self, on: bool);
+    /// Whether [`Bench::scene_on`] really switches the scene (a motorized
+    /// shutter, the fake camera); when not, dark frames need the user.
+    fn switches_scene(&self) -> bool;
 }
 
 /// A bench set by hand: polnlos logs what the operator should have done.
@@ -41,6 +44,9 @@ impl Bench for ManualBench {
             if on { "on" } else { "off" }
         );
     }
+    fn switches_scene(&self) -> bool {
+        false
+    }
 }
 
 /// Key of a block: pose name and polarizer angle in millidegrees (None: no polarizer).
@@ -60,7 +66,17 @@ struct Shared {
     reference_exposure_us: f64,
     dark_level: f64,
     counter: AtomicU64,
+    /// The `ArvFakeCamera` whose buffers the callback fills (owned by the
+    /// `GvFakeCamera`, alive until [`FakeBench`]'s drop clears the callback).
+    camera: *mut aravis_sys::ArvFakeCamera,
 }
+
+// SAFETY: `camera` is only passed to `arv_fake_camera_get_payload`, which
+// reads registers and may be called from any thread; everything else in
+// `Shared` is Sync.
+unsafe impl Sync for Shared {}
+// SAFETY: as above; the pointer does not own anything.
+unsafe impl Send for Shared {}
 
 /// Aravis's GigE Vision fake camera on a loopback address, showing a scene.
 pub struct FakeBench {
@@ -69,9 +85,11 @@ pub struct FakeBench {
     address: String,
 }
 
-// The GvFakeCamera runs its own threads; the object itself is only started and
-// stopped from the owner. `shared` is an `Arc` kept alive until drop.
+// SAFETY: the GvFakeCamera runs its own threads; the object itself is only
+// started and stopped from the owner. `shared` is an `Arc` of a Sync type kept
+// alive until drop, and only read through `&`.
 unsafe impl Send for FakeBench {}
+// SAFETY: as above.
 unsafe impl Sync for FakeBench {}
 
 /// Why the fake camera could not start.
@@ -92,6 +110,12 @@ impl FakeBench {
         frames: Vec<(String, Option<f64>, Frame)>,
         reference_exposure_us: f64,
     ) -> Result<Self, FakeError> {
+        let gv = aravis::GvFakeCamera::new(Some(address), Some(serial));
+        let fake = gv
+            .fake_camera()
+            .ok_or_else(|| FakeError::NotRunning(address.to_string()))?;
+        let camera: *mut aravis_sys::ArvFakeCamera =
+            aravis::glib::translate::ToGlibPtr::to_glib_none(&fake).0;
         let shared = Arc::new(Shared {
             frames: frames
                 .into_iter()
@@ -102,23 +126,22 @@ impl FakeBench {
             reference_exposure_us,
             dark_level: 0.01,
             counter: AtomicU64::new(0),
+            camera,
         });
-        let gv = aravis::GvFakeCamera::new(Some(address), Some(serial));
-        let fake = gv
-            .fake_camera()
-            .ok_or_else(|| FakeError::NotRunning(address.to_string()))?;
         let ptr = Arc::into_raw(shared);
-        // SAFETY: `ptr` stays valid until `Drop`, which clears the pattern first.
+        // SAFETY: `camera` is the live fake camera of `gv`; `ptr` stays valid
+        // until `Drop`, which restores Aravis's own pattern (under Aravis's
+        // fill mutex, so no callback is running) before freeing it.
         unsafe {
-            aravis_sys::arv_fake_camera_set_fill_pattern(
-                aravis::glib::translate::ToGlibPtr::to_glib_none(&fake).0,
-                Some(fill),
-                ptr as *mut c_void,
-            );
+            aravis_sys::arv_fake_camera_set_fill_pattern(camera, Some(fill), ptr as *mut c_void);
         }
         std::thread::sleep(std::time::Duration::from_millis(50));
         if !gv.is_running() {
-            // SAFETY: the pattern was set with this pointer; reclaim it.
+            // SAFETY: restore Aravis's pattern (no call with `ptr` runs after
+            // this returns), then reclaim the Arc made by `into_raw` above.
+            unsafe {
+                aravis_sys::arv_fake_camera_set_fill_pattern(camera, None, std::ptr::null_mut());
+            }
             drop(unsafe { Arc::from_raw(ptr) });
             return Err(FakeError::NotRunning(address.to_string()));
         }
@@ -135,7 +158,8 @@ impl FakeBench {
     }
 
     fn shared(&self) -> &Shared {
-        // SAFETY: valid until drop.
+        // SAFETY: `shared` came from `Arc::into_raw` in `start` and is freed
+        // only in drop, after which `self` is gone.
         unsafe { &*self.shared }
     }
 }
@@ -149,12 +173,17 @@ impl Bench for FakeBench {
     fn scene_on(&self, on: bool) {
         self.shared().scene_on.store(on, Ordering::SeqCst);
     }
+    fn switches_scene(&self) -> bool {
+        true
+    }
 }
 
 impl Drop for FakeBench {
     fn drop(&mut self) {
         if let Some(fake) = self.gv.as_ref().and_then(|g| g.fake_camera()) {
-            // SAFETY: restores Aravis's own pattern before the data is freed.
+            // SAFETY: restores Aravis's own pattern before the data is freed;
+            // Aravis swaps it under the mutex it holds while calling `fill`,
+            // so no call with the old data is running when this returns.
             unsafe {
                 aravis_sys::arv_fake_camera_set_fill_pattern(
                     aravis::glib::translate::ToGlibPtr::to_glib_none(&fake).0,
@@ -171,6 +200,10 @@ impl Drop for FakeBench {
 }
 
 /// Aravis fill-pattern callback: writes the selected block's wall image.
+///
+/// # Safety
+/// Called by Aravis only, with the `Shared` registered in [`FakeBench::start`]
+/// as `data` and a buffer of at least `arv_fake_camera_get_payload` bytes.
 unsafe extern "C" fn fill(
     buffer: *mut aravis_sys::ArvBuffer,
     data: *mut c_void,
@@ -178,23 +211,77 @@ unsafe extern "C" fn fill(
     gain: u32,
     format: aravis_sys::ArvPixelFormat,
 ) {
-    let shared = &*(data as *const Shared);
-    let w = aravis_sys::arv_buffer_get_image_width(buffer).max(0) as usize;
-    let h = aravis_sys::arv_buffer_get_image_height(buffer).max(0) as usize;
-    let ox = aravis_sys::arv_buffer_get_image_x(buffer).max(0) as usize;
-    let oy = aravis_sys::arv_buffer_get_image_y(buffer).max(0) as usize;
-    let mut size = 0usize;
-    let ptr = aravis_sys::arv_buffer_get_data(buffer, &mut size);
-    if ptr.is_null() || w == 0 || h == 0 {
+    if buffer.is_null() || data.is_null() {
         return;
     }
+    // SAFETY: `data` is the `Shared` registered with this callback, alive
+    // until the callback is unregistered (see `FakeBench`'s drop).
+    let shared = unsafe { &*(data as *const Shared) };
+    // SAFETY: `buffer` is the non-null buffer Aravis is filling; these getters only read it.
+    let (w, h, ox, oy) = unsafe {
+        (
+            aravis_sys::arv_buffer_get_image_width(buffer),
+            aravis_sys::arv_buffer_get_image_height(buffer),
+            aravis_sys::arv_buffer_get_image_x(buffer),
+            aravis_sys::arv_buffer_get_image_y(buffer),
+        )
+    };
+    let mut received = 0usize;
+    // SAFETY: as above; `received` is a valid place for the size.
+    let ptr = unsafe { aravis_sys::arv_buffer_get_data(buffer, &mut received) };
+    // The bound on what may be written: Aravis 0.8 sets the received size only
+    // after this callback (0 now), and has checked just before calling that the
+    // buffer holds at least the payload it computes from the Width, Height and
+    // PixelFormat registers (in 32-bit arithmetic, which can wrap for a huge
+    // region: then the payload is small and nothing is written).
+    // SAFETY: `camera` is the live fake camera that owns this callback.
+    let payload = unsafe { aravis_sys::arv_fake_camera_get_payload(shared.camera) };
+    let capacity = if received > 0 {
+        received.min(payload)
+    } else {
+        payload
+    };
     // Bits per pixel are bits 16-23 of a GenICam pixel-format code (Mono8 0x01080001).
-    let bpp = if ((format >> 16) & 0xff) > 8 { 2 } else { 1 };
-    // `size` here is the received size, which Aravis 0.8 only sets after this
-    // callback (0 now). The fake camera has already checked that the buffer
-    // holds the full payload (width x height x bytes per pixel) before calling.
-    let size = w * h * bpp;
-    let bytes = std::slice::from_raw_parts_mut(ptr, size);
+    let bpp: usize = if ((format >> 16) & 0xff) > 8 { 2 } else { 1 };
+    let dims = (
+        usize::try_from(w),
+        usize::try_from(h),
+        usize::try_from(ox),
+        usize::try_from(oy),
+    );
+    let (Ok(w), Ok(h), Ok(ox), Ok(oy)) = dims else {
+        return;
+    };
+    let needed = w.checked_mul(h).and_then(|p| p.checked_mul(bpp));
+    let Some(needed) = needed.filter(|&n| n > 0 && n <= capacity) else {
+        return;
+    };
+    if ptr.is_null() {
+        return;
+    }
+    // SAFETY: `ptr` is the buffer's data and `needed <= capacity`, the number
+    // of bytes Aravis guarantees it holds; the slice lives only for this call,
+    // during which Aravis does not touch the buffer.
+    let bytes = unsafe { std::slice::from_raw_parts_mut(ptr, needed) };
+    // A panic must not unwind into C: it would abort the daemon.
+    let filled = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        render(shared, bytes, (w, h, ox, oy), bpp, exposure_us, gain)
+    }));
+    if filled.is_err() {
+        bytes.fill(0);
+    }
+}
+
+/// Writes the selected block's image (or the dark level) into `bytes`, which
+/// holds exactly `w * h * bpp` bytes.
+fn render(
+    shared: &Shared,
+    bytes: &mut [u8],
+    (w, h, ox, oy): (usize, usize, usize, usize),
+    bpp: usize,
+    exposure_us: u32,
+    gain: u32,
+) {
     let full = if bpp == 2 { 65535.0 } else { 255.0 };
     let scale =
         f64::from(exposure_us) / shared.reference_exposure_us * (1.0 + 0.1 * f64::from(gain));
@@ -213,8 +300,11 @@ unsafe extern "C" fn fill(
         for x in 0..w {
             let signal = frame
                 .and_then(|f| {
-                    (x + ox < f.width && y + oy < f.height)
-                        .then(|| f64::from(f.pixels[(y + oy) * f.width + x + ox]))
+                    let (fx, fy) = (x.checked_add(ox)?, y.checked_add(oy)?);
+                    (fx < f.width && fy < f.height)
+                        .then(|| f.pixels.get(fy * f.width + fx))
+                        .flatten()
+                        .map(|&p| f64::from(p))
                 })
                 .unwrap_or(0.0);
             // xorshift dither of +-0.5 DN so that averaging frames means something.
@@ -227,13 +317,11 @@ unsafe extern "C" fn fill(
                 .clamp(0.0, full);
             let i = y * w + x;
             if bpp == 2 {
-                let b = (v as u16).to_le_bytes();
-                if 2 * i + 1 < size {
-                    bytes[2 * i] = b[0];
-                    bytes[2 * i + 1] = b[1];
+                if let Some(px) = bytes.get_mut(2 * i..2 * i + 2) {
+                    px.copy_from_slice(&(v as u16).to_le_bytes());
                 }
-            } else if i < size {
-                bytes[i] = v as u8;
+            } else if let Some(px) = bytes.get_mut(i) {
+                *px = v as u8;
             }
         }
     }

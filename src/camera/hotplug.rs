@@ -23,7 +23,10 @@ unsafe impl Send for Ctx {}
 type Notify = Box<dyn Fn() + Send + Sync>;
 
 fn is_usb3_vision(dev: *mut usb::libusb_device) -> bool {
-    // SAFETY: `dev` comes from libusb for the duration of the callback.
+    // SAFETY: `dev` comes from libusb for the duration of the callback. The
+    // descriptor is libusb's own: `interface` holds `bNumInterfaces` entries
+    // and each `altsetting` holds `num_altsetting` (both pointers checked for
+    // null before use); it is freed once, after the last read.
     unsafe {
         let mut cfg: *const usb::libusb_config_descriptor = std::ptr::null();
         if usb::libusb_get_active_config_descriptor(dev, &mut cfg) != 0 || cfg.is_null() {
@@ -31,8 +34,16 @@ fn is_usb3_vision(dev: *mut usb::libusb_device) -> bool {
         }
         let c = &*cfg;
         let mut found = false;
-        for i in 0..c.bNumInterfaces as usize {
+        let interfaces = if c.interface.is_null() {
+            0
+        } else {
+            c.bNumInterfaces as usize
+        };
+        for i in 0..interfaces {
             let iface = &*c.interface.add(i);
+            if iface.altsetting.is_null() {
+                continue;
+            }
             for a in 0..iface.num_altsetting.max(0) as usize {
                 let alt = &*iface.altsetting.add(a);
                 found |= alt.bInterfaceClass == 0xEF && alt.bInterfaceSubClass == 0x05;

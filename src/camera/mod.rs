@@ -15,6 +15,6 @@ pub mod hotplug;
 pub mod settings;
 pub mod worker;
 
-pub use device::{CameraDevice, CameraError, CameraInfo, Counters, RawFrame};
+pub use device::{CameraDevice, CameraError, CameraInfo, Counters, FrameSink, RawFrame};
 pub use frame::Frame;
-pub use settings::{CameraSettings, PixelFormat, TriggerMode};
+pub use settings::{CameraSettings, GeometryError, PixelFormat, SensorLimits, TriggerMode};

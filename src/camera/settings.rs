@@ -57,6 +57,7 @@ pub enum TriggerMode {
 
 /// Everything a capture sets on the camera.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct CameraSettings {
     /// Exposure, microseconds.
     pub exposure_us: f64,
@@ -64,10 +65,11 @@ pub struct CameraSettings {
     pub gain: f64,
     /// Pixel format.
     pub pixel_format: PixelFormat,
-    /// Region of interest `[x, y, width, height]`; the camera's current one when absent.
-    pub region: Option<[i32; 4]>,
-    /// Binning `[x, y]`, none when absent.
-    pub binning: Option<[i32; 2]>,
+    /// Region of interest `[x, y, width, height]` in (binned) pixels; the
+    /// camera's current one when absent.
+    pub region: Option<[u32; 4]>,
+    /// Binning `[x, y]`; the camera's current one when absent.
+    pub binning: Option<[u32; 2]>,
     /// Trigger mode.
     pub trigger: TriggerMode,
 }
@@ -88,9 +90,205 @@ impl Default for CameraSettings {
 /// Exposure polnlos accepts at all: 10 us to one hour.
 pub const EXPOSURE_RANGE_US: (f64, f64) = (10.0, 3.6e9);
 
+/// What the sensor allows for region and binning, read from the camera's
+/// feature nodes when it is opened (SensorWidth/Height, Width/Height minimum
+/// and increment, OffsetX/Y increment, BinningHorizontal/Vertical maximum).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct SensorLimits {
+    /// Sensor width and height, unbinned pixels.
+    pub sensor: [u32; 2],
+    /// Smallest region width and height.
+    pub min_size: [u32; 2],
+    /// Region width and height must be multiples of these.
+    pub size_increment: [u32; 2],
+    /// Region offsets must be multiples of these.
+    pub offset_increment: [u32; 2],
+    /// Largest binning factors (1 when the camera cannot bin).
+    pub max_binning: [u32; 2],
+}
+
+impl Default for SensorLimits {
+    fn default() -> Self {
+        Self {
+            sensor: [0, 0],
+            min_size: [1, 1],
+            size_increment: [1, 1],
+            offset_increment: [1, 1],
+            max_binning: [1, 1],
+        }
+    }
+}
+
+/// A region or binning the sensor cannot deliver, naming the limit.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GeometryError {
+    /// A binning factor outside `1..=max`.
+    #[error("binning = {given:?}: each factor must be from 1 to {max:?} (BinningHorizontal, BinningVertical)")]
+    Binning {
+        /// As asked.
+        given: [u32; 2],
+        /// The camera's maximum.
+        max: [u32; 2],
+    },
+    /// A region that does not fit the (binned) sensor.
+    #[error("region = {given:?}: must fit the {binned:?}-pixel sensor at binning {binning:?} (x + width <= {}, y + height <= {}), with width and height at least {min_size:?}", binned[0], binned[1])]
+    Outside {
+        /// As asked.
+        given: [u32; 4],
+        /// Binning in force.
+        binning: [u32; 2],
+        /// Sensor size after binning.
+        binned: [u32; 2],
+        /// Smallest width and height.
+        min_size: [u32; 2],
+    },
+    /// A region size or offset that is not a multiple of the camera's increment.
+    #[error("region = {given:?}: {what} must be multiples of {increment:?}")]
+    Increment {
+        /// As asked.
+        given: [u32; 4],
+        /// "width and height" or "x and y".
+        what: &'static str,
+        /// The camera's increments.
+        increment: [u32; 2],
+    },
+}
+
+impl SensorLimits {
+    /// Checks a region (in binned pixels) and binning against these limits,
+    /// before anything reaches the camera; a region or binning absent from
+    /// the request is the camera's `current` one.
+    pub fn check(&self, region: [u32; 4], binning: [u32; 2]) -> Result<(), GeometryError> {
+        if binning
+            .iter()
+            .zip(&self.max_binning)
+            .any(|(&b, &m)| b < 1 || b > m)
+        {
+            return Err(GeometryError::Binning {
+                given: binning,
+                max: self.max_binning,
+            });
+        }
+        let binned = [self.sensor[0] / binning[0], self.sensor[1] / binning[1]];
+        let [x, y, w, h] = region;
+        let fits = |o: u32, s: u32, max: u32, min: u32| {
+            s >= min.max(1) && o.checked_add(s).is_some_and(|e| e <= max)
+        };
+        if !(fits(x, w, binned[0], self.min_size[0]) && fits(y, h, binned[1], self.min_size[1])) {
+            return Err(GeometryError::Outside {
+                given: region,
+                binning,
+                binned,
+                min_size: self.min_size,
+            });
+        }
+        let multiple = |v: u32, inc: u32| v % inc.max(1) == 0;
+        if !(multiple(w, self.size_increment[0]) && multiple(h, self.size_increment[1])) {
+            return Err(GeometryError::Increment {
+                given: region,
+                what: "width and height",
+                increment: self.size_increment,
+            });
+        }
+        if !(multiple(x, self.offset_increment[0]) && multiple(y, self.offset_increment[1])) {
+            return Err(GeometryError::Increment {
+                given: region,
+                what: "x and y",
+                increment: self.offset_increment,
+            });
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Aravis's fake camera: 2048 x 2048, sizes and offsets by 1, binning to 16.
+    const FAKE: SensorLimits = SensorLimits {
+        sensor: [2048, 2048],
+        min_size: [1, 1],
+        size_increment: [1, 1],
+        offset_increment: [1, 1],
+        max_binning: [16, 16],
+    };
+
+    #[test]
+    fn geometry_inside_the_sensor_passes_and_outside_names_the_limit() {
+        FAKE.check([0, 0, 512, 512], [1, 1]).unwrap();
+        FAKE.check([0, 0, 2048, 2048], [1, 1]).unwrap();
+        FAKE.check([0, 0, 1024, 1024], [2, 2]).unwrap();
+        let cases = [
+            ([0, 0, 100_000, 100_000], [1, 1], "2048"),
+            ([2_147_483_647, 0, 10, 10], [1, 1], "x + width"),
+            (
+                [u32::MAX, u32::MAX, u32::MAX, u32::MAX],
+                [1, 1],
+                "x + width",
+            ),
+            ([0, 0, 0, 0], [1, 1], "at least"),
+            ([0, 0, 1025, 1024], [2, 2], "1024"),
+            ([0, 0, 10, 10], [100_000, 100_000], "from 1 to [16, 16]"),
+            ([0, 0, 10, 10], [0, 1], "from 1 to"),
+        ];
+        for (region, binning, says) in cases {
+            let e = FAKE.check(region, binning).unwrap_err().to_string();
+            assert!(e.contains(says), "{region:?} {binning:?}: {e}");
+        }
+        let coarse = SensorLimits {
+            size_increment: [16, 2],
+            offset_increment: [8, 8],
+            min_size: [64, 64],
+            ..FAKE
+        };
+        coarse.check([8, 8, 64, 64], [1, 1]).unwrap();
+        assert!(matches!(
+            coarse.check([8, 8, 72, 64], [1, 1]),
+            Err(GeometryError::Increment { .. })
+        ));
+        assert!(matches!(
+            coarse.check([4, 8, 64, 64], [1, 1]),
+            Err(GeometryError::Increment { .. })
+        ));
+        assert!(matches!(
+            coarse.check([0, 0, 32, 64], [1, 1]),
+            Err(GeometryError::Outside { .. })
+        ));
+    }
+
+    #[test]
+    fn settings_refuse_negative_regions_and_unknown_fields() {
+        let ok = r#"{"exposure_us": 1000, "gain": 0, "pixel_format": "Mono16", "trigger": "free", "region": [0, 0, 64, 64], "binning": [1, 1]}"#;
+        serde_json::from_str::<CameraSettings>(ok).unwrap();
+        for bad in [
+            ok.replace("[0, 0, 64, 64]", "[-1, -1, 10, 10]"),
+            ok.replace("[1, 1]", "[1, 1], \"colour\": true"),
+            ok.replace("[0, 0, 64, 64]", "[0, 0, 64]"),
+        ] {
+            assert!(
+                serde_json::from_str::<CameraSettings>(&bad).is_err(),
+                "{bad}"
+            );
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 512, rng_seed: proptest::test_runner::RngSeed::Fixed(8), ..Default::default() })]
+        /// Whatever is asked, an accepted geometry fits the sensor, so the
+        /// frame's byte count (16-bit) cannot overflow the camera's u32 payload.
+        #[test]
+        fn accepted_geometry_fits_the_sensor(
+            region in proptest::array::uniform4(proptest::prop_oneof![0u32..4096, proptest::num::u32::ANY]),
+            binning in proptest::array::uniform2(proptest::prop_oneof![0u32..20, proptest::num::u32::ANY]),
+        ) {
+            if FAKE.check(region, binning).is_ok() {
+                proptest::prop_assert!(region[0] + region[2] <= 2048 / binning[0]);
+                proptest::prop_assert!(region[1] + region[3] <= 2048 / binning[1]);
+                proptest::prop_assert!(u64::from(region[2]) * u64::from(region[3]) * 2 <= u64::from(u32::MAX));
+            }
+        }
+    }
 
     #[test]
     fn names_round_trip_and_full_scale_follows_the_bits() {

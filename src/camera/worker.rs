@@ -15,17 +15,14 @@ use super::settings::CameraSettings;
 /// Opens the camera (again): the worker calls it at start and after a loss.
 pub type Opener = Box<dyn Fn() -> Result<Box<dyn CameraDevice>, CameraError> + Send>;
 
-/// Called with the number of frames received so far.
-pub type FrameProgress = Box<dyn FnMut(usize) + Send>;
-
 enum Request {
     Describe(oneshot::Sender<Result<CameraInfo, CameraError>>),
     Configure(CameraSettings, oneshot::Sender<Result<(), CameraError>>),
     Acquire {
         settings: CameraSettings,
         n: usize,
-        progress: FrameProgress,
-        reply: oneshot::Sender<Result<Vec<RawFrame>, CameraError>>,
+        sink: mpsc::SyncSender<RawFrame>,
+        reply: oneshot::Sender<Result<(), CameraError>>,
     },
     Rescan,
     Shutdown,
@@ -42,7 +39,8 @@ pub struct CameraStatus {
     pub counters: Counters,
     /// Reconnection attempts that failed.
     pub reconnect_failures: u64,
-    /// The camera's description at the last (re)connection.
+    /// The camera's description, with its settings as read back after the
+    /// last (re)connection, configuration or acquisition.
     pub info: Option<CameraInfo>,
 }
 
@@ -80,7 +78,8 @@ impl CameraHandle {
         self.status.lock().map(|s| s.clone()).unwrap_or_default()
     }
 
-    /// Identity, ranges and settings of the open camera.
+    /// Identity, ranges and settings of the open camera, read from it now
+    /// (waits while an acquisition runs).
     pub async fn describe(&self) -> Result<CameraInfo, CameraError> {
         let (reply, rx) = oneshot::channel();
         self.tx
@@ -98,23 +97,38 @@ impl CameraHandle {
         rx.await.map_err(|_| Self::gone())?
     }
 
-    /// Configures and acquires `n` frames.
+    /// Configures and acquires `n` frames, sending each into `sink` as it
+    /// arrives. The sink is bounded: a slow receiver holds the camera thread
+    /// back (the camera's own buffers absorb it) instead of piling frames up
+    /// in memory; a dropped receiver stops the acquisition.
     pub async fn acquire(
         &self,
         settings: CameraSettings,
         n: usize,
-        progress: FrameProgress,
-    ) -> Result<Vec<RawFrame>, CameraError> {
+        sink: mpsc::SyncSender<RawFrame>,
+    ) -> Result<(), CameraError> {
         let (reply, rx) = oneshot::channel();
         self.tx
             .send(Request::Acquire {
                 settings,
                 n,
-                progress,
+                sink,
                 reply,
             })
             .map_err(|_| Self::gone())?;
         rx.await.map_err(|_| Self::gone())?
+    }
+
+    /// Acquires `n` frames and returns them all (holds every frame in
+    /// memory: for tests and a few frames, not for captures).
+    pub async fn collect(
+        &self,
+        settings: CameraSettings,
+        n: usize,
+    ) -> Result<Vec<RawFrame>, CameraError> {
+        let (tx, rx) = mpsc::sync_channel(n.max(1));
+        self.acquire(settings, n, tx).await?;
+        Ok(rx.try_iter().collect())
     }
 
     /// Asks the thread to try reopening a lost camera now.
@@ -190,25 +204,37 @@ fn run(opener: Opener, rx: mpsc::Receiver<Request>, status: Arc<Mutex<CameraStat
                 let r = camera
                     .as_mut()
                     .map_or_else(|| Err(not_connected()), |c| c.describe());
+                if let Ok(info) = &r {
+                    update(&mut |s| s.info = Some(info.clone()));
+                }
                 let _ = reply.send(r);
             }
             Request::Configure(settings, reply) => {
                 let r = camera
                     .as_mut()
                     .map_or_else(|| Err(not_connected()), |c| c.configure(&settings));
+                if let Some(info) = camera.as_mut().and_then(|c| c.describe().ok()) {
+                    update(&mut |s| s.info = Some(info.clone()));
+                }
                 let _ = reply.send(r);
             }
             Request::Acquire {
                 settings,
                 n,
-                mut progress,
+                sink,
                 reply,
             } => {
                 let r = match camera.as_mut() {
                     None => Err(not_connected()),
-                    Some(c) => c
-                        .configure(&settings)
-                        .and_then(|()| c.acquire(n, &mut *progress)),
+                    Some(c) => c.configure(&settings).and_then(|()| {
+                        if let Ok(info) = c.describe() {
+                            update(&mut |s| s.info = Some(info.clone()));
+                        }
+                        c.acquire(n, &mut |f| {
+                            sink.send(f)
+                                .map_err(|_| "the frame writer stopped".to_string())
+                        })
+                    }),
                 };
                 if let Some(c) = camera.as_ref() {
                     let k = c.counters();

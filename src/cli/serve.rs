@@ -25,10 +25,13 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    use std::io::IsTerminal;
+    // Colour only on a terminal: not into log files or journald.
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
+        .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr)
         .init();
     let mut config = match &a.config {
@@ -52,17 +55,22 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
 async fn serve(config: Config) -> anyhow::Result<()> {
     let bind = config.bind;
-    let daemon = Daemon::start(config).await?;
+    // The port first: a second daemon fails here, or on the data directory's
+    // lock, before it touches anything of the first one's.
     let listener = tokio::net::TcpListener::bind(bind)
         .await
         .with_context(|| format!("cannot listen on {bind}"))?;
+    let limits = polnlos::api::Limits {
+        max_connections: config.http.max_connections,
+        header_timeout: std::time::Duration::from_secs_f64(config.http.header_timeout_s),
+    };
+    polnlos::files::space::budget_transport_memory();
+    let daemon = Daemon::start(config).await?;
     tracing::info!("polnlos API on http://{}", listener.local_addr()?);
     notify(&[sd_notify::NotifyState::Ready]);
     let watchdog = watchdog();
     let app = polnlos::api::router(daemon.clone());
-    let result = axum::serve(listener, app)
-        .with_graceful_shutdown(shutdown_signal())
-        .await;
+    let result = polnlos::api::serve(listener, app, limits, shutdown_signal()).await;
     notify(&[sd_notify::NotifyState::Stopping]);
     if let Some(w) = watchdog {
         w.abort();

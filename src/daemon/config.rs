@@ -32,6 +32,9 @@ pub struct Config {
     pub demo: DemoConfig,
     /// Queue limits.
     pub queue: QueueConfig,
+    /// HTTP limits and who may talk to the daemon.
+    #[serde(default)]
+    pub http: HttpConfig,
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
     #[serde(default)]
     pub calibration: BTreeMap<String, f64>,
@@ -86,6 +89,48 @@ pub struct QueueConfig {
     pub reconstruction_workers: usize,
     /// Largest request body, bytes.
     pub max_body_bytes: usize,
+    /// Frames (light + dark) one capture may take.
+    #[serde(default = "max_frames")]
+    pub max_frames_per_capture: usize,
+    /// Disk space captures must leave free, MiB.
+    #[serde(default = "reserve_free")]
+    pub reserve_free_mib: u64,
+}
+
+fn max_frames() -> usize {
+    1000
+}
+
+fn reserve_free() -> u64 {
+    64
+}
+
+/// HTTP limits and who may talk to the daemon.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HttpConfig {
+    /// Connections served at once.
+    pub max_connections: usize,
+    /// Seconds to send a request's headers.
+    pub header_timeout_s: f64,
+    /// Seconds to send a request's body.
+    pub body_timeout_s: f64,
+    /// Host names requests may be addressed to, besides the bound address and loopback names.
+    pub allowed_hosts: Vec<String>,
+    /// With a token, GET requests need none.
+    pub public_reads: bool,
+}
+
+impl Default for HttpConfig {
+    fn default() -> Self {
+        Self {
+            max_connections: 256,
+            header_timeout_s: 10.0,
+            body_timeout_s: 30.0,
+            allowed_hosts: Vec::new(),
+            public_reads: false,
+        }
+    }
 }
 
 /// A configuration that cannot be used.
@@ -130,15 +175,30 @@ impl Config {
         })
     }
 
-    /// The token in force ("" for none): `token`, or the contents of `token_file`.
+    /// The token in force ("" for none): `token`, or the contents of
+    /// `token_file` (trimmed; an empty or whitespace-only file is an error,
+    /// not "no token").
     pub fn resolved_token(&self) -> Result<String, ConfigError> {
+        if self.token.trim() != self.token {
+            return Err(ConfigError::Invalid(
+                "token has leading or trailing whitespace; remove it".into(),
+            ));
+        }
         match &self.token_file {
-            Some(p) if self.token.is_empty() => std::fs::read_to_string(p)
-                .map(|t| t.trim().to_string())
-                .map_err(|source| ConfigError::Read {
+            Some(p) if self.token.is_empty() => {
+                let t = std::fs::read_to_string(p).map_err(|source| ConfigError::Read {
                     path: p.clone(),
                     source,
-                }),
+                })?;
+                let t = t.trim();
+                if t.is_empty() {
+                    return Err(ConfigError::Invalid(format!(
+                        "token_file {} is empty or only whitespace; write the token into it, or remove token_file",
+                        p.display()
+                    )));
+                }
+                Ok(t.to_string())
+            }
             _ => Ok(self.token.clone()),
         }
     }
@@ -185,10 +245,19 @@ impl Config {
             || q.reconstructions == 0
             || q.reconstruction_workers == 0
             || q.max_body_bytes < 1024
+            || q.max_frames_per_capture == 0
         {
             return Err(ConfigError::Invalid(
                 "[queue] sizes must be at least 1 (max_body_bytes at least 1024)".into(),
             ));
+        }
+        let h = &self.http;
+        let seconds = |v: f64| v > 0.0 && v <= 3600.0;
+        if h.max_connections == 0 || !seconds(h.header_timeout_s) || !seconds(h.body_timeout_s) {
+            return Err(ConfigError::Invalid(format!(
+                "[http] max_connections = {}, header_timeout_s = {}, body_timeout_s = {}: need at least 1 connection and timeouts from 0 to 3600 s",
+                h.max_connections, h.header_timeout_s, h.body_timeout_s
+            )));
         }
         Ok(())
     }
@@ -204,6 +273,24 @@ mod tests {
         c.validate().unwrap();
         assert!(c.bind.ip().is_loopback());
         assert!(c.camera.fake);
+    }
+
+    #[test]
+    fn a_whitespace_token_file_is_an_error_not_no_token() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("token");
+        std::fs::write(&p, " \n\t\n").unwrap();
+        let mut c = Config::embedded();
+        c.token_file = Some(p.clone());
+        assert!(c
+            .resolved_token()
+            .unwrap_err()
+            .to_string()
+            .contains("whitespace"));
+        std::fs::write(&p, "s3cret\n").unwrap();
+        assert_eq!(c.resolved_token().unwrap(), "s3cret");
+        c.token = " padded".into();
+        assert!(c.resolved_token().is_err());
     }
 
     #[test]

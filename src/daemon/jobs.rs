@@ -1,5 +1,6 @@
-//! Capture and reconstruction jobs: request validation (so that a bad request
-//! is refused before it is queued) and the workers that run them.
+//! Reconstruction jobs (request validation, so that a bad request is refused
+//! before it is queued, and the worker), and what the capture jobs share with
+//! them: exposure planning, job events and bookkeeping.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
@@ -10,7 +11,7 @@ use tokio::sync::{mpsc, Mutex};
 
 use super::{Daemon, Event};
 use crate::camera::settings::EXPOSURE_RANGE_US;
-use crate::camera::{CameraInfo, CameraSettings, PixelFormat, TriggerMode};
+use crate::camera::{CameraInfo, PixelFormat};
 use crate::files::{image, json, npy};
 use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
 use crate::measure::sample_wall;
@@ -18,50 +19,10 @@ use crate::solve::lambda::{admm_tv_resolved, NoiseLevel};
 use crate::solve::report::Report;
 use crate::solve::report::{mean_snr, snr_warnings};
 use crate::solve::{admm_tv, least_squares, tikhonov, AdmmSettings};
-use crate::store::{
-    read_mean, write_capture_files, CaptureRequest, FrameMeta, JobState, ReconstructionRequest,
-};
-
-/// `POST /captures` body.
-#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct CaptureBody {
-    /// Scene name.
-    pub scene: String,
-    /// Pose name in the scene.
-    pub pose: String,
-    /// Polarizer angle of the pose, degrees (omit or null for a pose without polarizer).
-    pub polarizer_deg: Option<f64>,
-    /// Exposure per frame, microseconds; omit it and give `"exposure": "auto"`
-    /// to have it planned (see `GET /scenes/{name}/exposure`).
-    pub exposure_us: Option<f64>,
-    /// `"auto"`: plan the exposure (and, unless `frames` is given, the frame
-    /// count) from the scene, the radiometric calibration and the camera limits.
-    pub exposure: Option<AutoExposure>,
-    /// Target of an automatic exposure (default: peak at 0.8 of full scale, SNR 100).
-    pub target: Option<ExposureTarget>,
-    /// Gain (camera units).
-    #[serde(default)]
-    pub gain: f64,
-    /// Frames to average (1-1000); default 1, or the plan's with `"exposure": "auto"`.
-    pub frames: Option<usize>,
-    /// Dark frames with the scene off, averaged and subtracted (0-1000).
-    #[serde(default)]
-    pub dark_frames: usize,
-    /// Pixel format (default Mono16).
-    pub pixel_format: Option<PixelFormat>,
-}
+use crate::store::{read_mean, JobState, ReconstructionRequest};
 
 /// ADMM iteration cap of an automatic-lambda reconstruction unless the request sets one.
 const AUTO_MAX_ITER: usize = 5000;
-
-/// The only automatic exposure mode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, utoipa::ToSchema)]
-#[serde(rename_all = "lowercase")]
-pub enum AutoExposure {
-    /// Plan from the scene (see [`crate::measure::exposure`]).
-    Auto,
-}
 
 /// The camera limits exposure planning works with: the camera's exposure
 /// range when connected (`info`, from one status read), the configured
@@ -145,132 +106,9 @@ pub enum RequestError {
     /// A value is out of range or inconsistent.
     #[error("{0}")]
     Invalid(String),
-}
-
-/// Checks a capture request against the scene and the camera's ranges.
-pub fn validate_capture(d: &Daemon, b: &CaptureBody) -> Result<CaptureRequest, RequestError> {
-    let scene = d.scenes.get(&b.scene).ok_or_else(|| {
-        RequestError::NotFound(format!(
-            "unknown scene {:?}; known: {}",
-            b.scene,
-            d.scenes.names().join(", ")
-        ))
-    })?;
-    let pose = scene.pose(&b.pose).ok_or_else(|| {
-        RequestError::Invalid(format!(
-            "scene {:?} has no pose {:?}; its poses: {}",
-            b.scene,
-            b.pose,
-            scene
-                .poses
-                .iter()
-                .map(|p| p.name.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ))
-    })?;
-    let angles: Vec<f64> = pose.analyzers.iter().map(|a| a.angle_deg).collect();
-    match (b.polarizer_deg, angles.is_empty()) {
-        (None, true) => {}
-        (Some(a), false) if angles.iter().any(|x| (x - a).abs() < 1e-6) => {}
-        (None, false) => {
-            return Err(RequestError::Invalid(format!(
-                "pose {:?} of scene {:?} has a polarizer: give polarizer_deg, one of {angles:?}",
-                b.pose, b.scene
-            )))
-        }
-        (Some(a), true) => {
-            return Err(RequestError::Invalid(format!(
-                "pose {:?} of scene {:?} has no polarizer, but polarizer_deg = {a} was given",
-                b.pose, b.scene
-            )))
-        }
-        (Some(a), false) => {
-            return Err(RequestError::Invalid(format!(
-                "polarizer_deg = {a} is not an angle of pose {:?} (scene {:?}): {angles:?}",
-                b.pose, b.scene
-            )))
-        }
-    }
-    let info = d.camera.status().info;
-    let limits = camera_limits(d, info.as_ref());
-    let (lo, hi) = limits.exposure_us;
-    let (exposure_us, planned) = match (b.exposure_us, b.exposure) {
-        (Some(_), Some(_)) => {
-            return Err(RequestError::Invalid(
-                "give either exposure_us or \"exposure\": \"auto\", not both".into(),
-            ))
-        }
-        (None, None) => {
-            return Err(RequestError::Invalid(
-                "exposure_us is missing: give it in microseconds, or \"exposure\": \"auto\"".into(),
-            ))
-        }
-        (Some(e), None) => {
-            if b.target.is_some() {
-                return Err(RequestError::Invalid(
-                    "target is only for \"exposure\": \"auto\"".into(),
-                ));
-            }
-            (e, None)
-        }
-        (None, Some(AutoExposure::Auto)) => {
-            let plan = exposure_plan(d, &b.scene, &b.target.unwrap_or_default(), &limits)?;
-            let block = plan
-                .into_iter()
-                .find(|p| {
-                    p.pose == b.pose
-                        && match (p.polarizer_deg, b.polarizer_deg) {
-                            (None, None) => true,
-                            (Some(x), Some(y)) => (x - y).abs() < 1e-6,
-                            _ => false,
-                        }
-                })
-                .ok_or_else(|| {
-                    RequestError::Invalid(format!(
-                        "no block ({}, {:?}) in scene {:?}",
-                        b.pose, b.polarizer_deg, b.scene
-                    ))
-                })?;
-            (block.exposure_us, Some(block))
-        }
-    };
-    if !(exposure_us >= lo && exposure_us <= hi) {
-        return Err(RequestError::Invalid(format!(
-            "exposure_us = {exposure_us}: must be from {lo} to {hi} microseconds"
-        )));
-    }
-    let frames = b
-        .frames
-        .unwrap_or_else(|| planned.as_ref().map(|p| p.frames).unwrap_or(1));
-    let (glo, ghi) = info.as_ref().map(|i| i.gain).unwrap_or((0.0, f64::MAX));
-    if !(b.gain >= glo && b.gain <= ghi) {
-        return Err(RequestError::Invalid(format!(
-            "gain = {}: must be from {glo} to {ghi}",
-            b.gain
-        )));
-    }
-    if !(1..=1000).contains(&frames) {
-        return Err(RequestError::Invalid(format!(
-            "frames = {frames}: must be from 1 to 1000"
-        )));
-    }
-    if b.dark_frames > 1000 {
-        return Err(RequestError::Invalid(format!(
-            "dark_frames = {}: must be from 0 to 1000",
-            b.dark_frames
-        )));
-    }
-    Ok(CaptureRequest {
-        scene: b.scene.clone(),
-        pose: b.pose.clone(),
-        polarizer_deg: b.polarizer_deg,
-        exposure_us,
-        gain: b.gain,
-        frames,
-        dark_frames: b.dark_frames,
-        pixel_format: b.pixel_format.unwrap_or(PixelFormat::Mono16),
-    })
+    /// The camera cannot answer what the request needs yet (503).
+    #[error("{0}")]
+    Unavailable(String),
 }
 
 /// Checks a reconstruction request: solver parameters, and one finished
@@ -335,9 +173,14 @@ pub fn validate_reconstruction(
     }
     if b.captures.len() != blocks.len() {
         return Err(RequestError::Invalid(format!(
-            "scene {:?} has {} (pose, polarizer) blocks {blocks:?}; give exactly one capture for each ({} given)",
+            "scene {:?} has {} (pose, polarizer) blocks ({}); give exactly one capture for each ({} given)",
             b.scene,
             blocks.len(),
+            blocks
+                .iter()
+                .map(|(p, a)| block_label(p, *a))
+                .collect::<Vec<_>>()
+                .join("; "),
             b.captures.len()
         )));
     }
@@ -349,8 +192,13 @@ pub fn validate_reconstruction(
             .map_err(|_| RequestError::NotFound(format!("no capture with id {id}")))?;
         if c.state != JobState::Done {
             return Err(RequestError::Invalid(format!(
-                "capture {id} is {:?}, not done",
-                c.state
+                "capture {id} is {}, not done",
+                c.state.name()
+            )));
+        }
+        if c.is_dark() {
+            return Err(RequestError::Invalid(format!(
+                "capture {id} is a dark capture; give light captures (subtract darks with dark_capture when capturing)"
             )));
         }
         if c.scene != b.scene {
@@ -364,15 +212,28 @@ pub fn validate_reconstruction(
             .position(|(p, a)| *p == c.pose && same_angle(*a, c.polarizer_deg))
             .ok_or_else(|| {
                 RequestError::Invalid(format!(
-                    "capture {id} (pose {:?}, polarizer {:?}) is not a block of scene {:?}",
-                    c.pose, c.polarizer_deg, b.scene
+                    "capture {id} ({}) is not a block of scene {:?}",
+                    block_label(&c.pose, c.polarizer_deg),
+                    b.scene
                 ))
             })?;
         if covered[k] {
             return Err(RequestError::Invalid(format!(
-                "two captures for block {:?}; give one per block",
-                blocks[k]
+                "two captures for block {}; give one per block",
+                block_label(&blocks[k].0, blocks[k].1)
             )));
+        }
+        if let Some(frame) = scene.pose(&c.pose).and_then(|p| p.frame) {
+            if (c.region, c.binning) != (Some(frame.region), Some(frame.binning)) {
+                return Err(RequestError::Invalid(format!(
+                    "capture {id} was taken at region {} binning {}, but pose {:?}'s homography maps the wall into region {:?} binning {:?} (scene file keys region and binning): sampling it would read the wrong pixels; capture again with that region and binning, or calibrate the pose for this frame",
+                    c.region.map_or("unknown".into(), |r| format!("{r:?}")),
+                    c.binning.map_or("unknown".into(), |r| format!("{r:?}")),
+                    c.pose,
+                    frame.region,
+                    frame.binning
+                )));
+            }
         }
         covered[k] = true;
     }
@@ -384,8 +245,16 @@ pub fn validate_reconstruction(
     })
 }
 
+/// A block as people read it: `pose A at 0°` or `pose A without polarizer`.
+fn block_label(pose: &str, deg: Option<f64>) -> String {
+    match deg {
+        Some(a) => format!("pose {pose} at {a}°"),
+        None => format!("pose {pose} without polarizer"),
+    }
+}
+
 /// Whether two polarizer settings are the same block (both absent, or equal angles).
-fn same_angle(a: Option<f64>, b: Option<f64>) -> bool {
+pub(super) fn same_angle(a: Option<f64>, b: Option<f64>) -> bool {
     match (a, b) {
         (None, None) => true,
         (Some(x), Some(y)) => (x - y).abs() < 1e-6,
@@ -397,17 +266,13 @@ fn same_angle(a: Option<f64>, b: Option<f64>) -> bool {
 /// reconstruction warns that its grid is too fine (as `polnlos plan`).
 const PLAN_TOLERANCE: f64 = 0.1;
 
-/// How long a capture waits for a camera that is not connected.
-const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
-
-fn job_event(d: &Daemon, job: String, state: JobState, error: Option<String>) {
+pub(super) fn job_event(d: &Daemon, job: String, state: JobState, error: Option<String>) {
     d.emit(Event::Job { job, state, error });
 }
 
-/// Runs captures one at a time (one camera).
 /// Records how a job ended: its time and done/failed counters, the failure
 /// in the store, and the job event.
-fn finish_job(
+pub(super) fn finish_job(
     d: &Daemon,
     job: String,
     start: Instant,
@@ -430,108 +295,6 @@ fn finish_job(
             job_event(d, job, JobState::Failed, Some(e));
         }
     }
-}
-
-pub(super) async fn capture_worker(d: Arc<Daemon>, mut rx: mpsc::Receiver<i64>) {
-    while let Some(id) = rx.recv().await {
-        let job = format!("capture-{id}");
-        let start = Instant::now();
-        let result = run_capture(&d, id).await;
-        let m = &d.metrics;
-        let counters = (&m.captures_done, &m.captures_failed, &m.capture_micros);
-        finish_job(&d, job, start, result, counters, |e| {
-            d.store.capture_failed(id, e)
-        });
-    }
-}
-
-async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
-    let c = d.store.capture(id).map_err(|e| e.to_string())?;
-    d.store.capture_running(id).map_err(|e| e.to_string())?;
-    job_event(d, format!("capture-{id}"), JobState::Running, None);
-    let pixel_format = PixelFormat::from_name(&c.pixel_format).unwrap_or(PixelFormat::Mono16);
-    let settings = CameraSettings {
-        exposure_us: c.exposure_us,
-        gain: c.gain,
-        pixel_format,
-        region: None,
-        binning: None,
-        trigger: TriggerMode::Free,
-    };
-    let total = (c.frames + c.dark_frames) as usize;
-    // The camera thread only sends a number; the store write and the event
-    // happen here, off the thread that pops buffers.
-    let (tx, mut rx) = mpsc::unbounded_channel::<usize>();
-    let d2 = d.clone();
-    let progress_task = tokio::spawn(async move {
-        while let Some(taken) = rx.recv().await {
-            d2.emit(Event::Frame {
-                job: format!("capture-{id}"),
-                taken,
-                total,
-            });
-            let store = d2.store.clone();
-            let _ = tokio::task::spawn_blocking(move || store.capture_progress(id, taken)).await;
-        }
-    });
-    let progress = |offset: usize| {
-        let tx = tx.clone();
-        Box::new(move |k: usize| {
-            let _ = tx.send(offset + k);
-        }) as Box<dyn FnMut(usize) + Send>
-    };
-    // A camera that is (re)connecting gets a short grace period before the capture fails.
-    let grace = Instant::now();
-    while !d.camera.status().connected && grace.elapsed() < CAMERA_GRACE {
-        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
-    }
-    d.bench.select(&c.pose, c.polarizer_deg);
-    let mut dark = Vec::new();
-    if c.dark_frames > 0 {
-        d.bench.scene_on(false);
-        let r = d
-            .camera
-            .acquire(settings.clone(), c.dark_frames as usize, progress(0))
-            .await;
-        d.bench.scene_on(true);
-        dark = r.map_err(|e| format!("dark frames: {e}"))?;
-    }
-    let frames = d
-        .camera
-        .acquire(
-            settings,
-            c.frames as usize,
-            progress(c.dark_frames as usize),
-        )
-        .await;
-    drop(tx);
-    let _ = progress_task.await;
-    let frames = frames.map_err(|e| e.to_string())?;
-    let status = d.camera.status();
-    let camera_id = status
-        .info
-        .as_ref()
-        .map(|i| i.id.clone())
-        .unwrap_or_default();
-    let meta = FrameMeta {
-        capture: id,
-        scene: c.scene.clone(),
-        pose: c.pose.clone(),
-        polarizer_deg: c.polarizer_deg,
-        exposure_us: c.exposure_us,
-        gain: c.gain,
-        camera_id: camera_id.clone(),
-        counters: status.counters,
-    };
-    let dir = d.store.capture_dir(id);
-    tokio::task::spawn_blocking(move || write_capture_files(&dir, &frames, &dark, &meta))
-        .await
-        .map_err(|e| e.to_string())?
-        .map_err(|e| e.to_string())?;
-    let counters = serde_json::to_string(&status.counters).unwrap_or_default();
-    d.store
-        .capture_done(id, &camera_id, &counters)
-        .map_err(|e| e.to_string())
 }
 
 /// Takes reconstructions from the shared queue.
@@ -583,6 +346,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
     // at least two frames per capture.
     let mut i = vec![0.0; t.rows()];
     let mut var = Some(vec![0.0; t.rows()]);
+    let mut frame_warnings = Vec::new();
     for (b, block) in t.blocks.iter().enumerate() {
         let cap = rec
             .captures
@@ -592,7 +356,23 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             .ok_or_else(|| format!("no capture for block {}", block.label()))?;
         let pose = scene.pose(&block.pose).ok_or("pose vanished")?;
         let mean = read_mean(&d.store.capture_dir(cap.id))
-            .map_err(|e| format!("capture {}: {e}", cap.id))?;
+            .map_err(|e| format!("capture {}: {}", cap.id, d.store.describe(&e)))?;
+        if let Some([_, _, w, h]) = cap.region {
+            if (mean.width, mean.height) != (w as usize, h as usize) {
+                return Err(format!(
+                    "capture {}: its mean frame is {}x{}, but the capture recorded a {w}x{h} region; the files do not belong to this row",
+                    cap.id, mean.width, mean.height
+                ));
+            }
+        }
+        if pose.frame.is_none() {
+            frame_warnings.push(format!(
+                "pose {:?} does not say which camera frame its homography maps to (scene file keys region and binning), so capture {}'s frame ({}) could not be checked against it",
+                pose.name,
+                cap.id,
+                cap.region.map_or("unknown region".into(), |r| format!("region {r:?}"))
+            ));
+        }
         let h = pose.homography.as_ref().ok_or_else(|| {
             crate::measure::MeasureError::NoHomography {
                 pose: pose.name.clone(),
@@ -610,7 +390,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             *dst = v * to_units;
         }
         let frame_var = crate::store::read_mean_variance(&d.store.capture_dir(cap.id))
-            .map_err(|e| format!("capture {}: {e}", cap.id))?;
+            .map_err(|e| format!("capture {}: {}", cap.id, d.store.describe(&e)))?;
         match (frame_var, var.as_mut()) {
             (Some(fv), Some(acc)) => {
                 let wall_var = sample_wall(&fv, h, &scene.wall.plane, &pose.name)
@@ -622,7 +402,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             _ => var = None,
         }
     }
-    let mut warnings = Vec::new();
+    let mut warnings = frame_warnings;
     match d.calibration.get(&rec.scene) {
         Some(&c) if c > 0.0 => {
             i.iter_mut().for_each(|v| *v /= c);

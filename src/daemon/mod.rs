@@ -6,6 +6,7 @@
 //! queue for a small worker pool and run their maths on blocking threads. Both
 //! queues are bounded: a full queue is refused at once (HTTP 429), never waited on.
 
+mod capture;
 pub mod config;
 pub mod events;
 mod jobs;
@@ -17,21 +18,21 @@ use std::sync::Arc;
 
 use tokio::sync::{broadcast, mpsc, Mutex};
 
+pub use capture::{validate_capture, AutoExposure, CaptureBody};
 pub use config::Config;
 pub use events::Event;
 pub use jobs::{
-    camera_limits, exposure_plan, validate_capture, validate_reconstruction, CaptureBody,
-    ReconstructionBody, RequestError,
+    camera_limits, exposure_plan, validate_reconstruction, ReconstructionBody, RequestError,
 };
 
 use crate::camera::aravis::AravisCamera;
 use crate::camera::fake::{Bench, FakeBench, ManualBench};
 use crate::camera::hotplug::Hotplug;
 use crate::camera::worker::CameraHandle;
-use crate::camera::{CameraDevice, Frame};
+use crate::camera::{CameraDevice, CameraInfo, CameraSettings, Frame};
 use crate::measure::render_wall;
 use crate::simulate::patterns::Pattern;
-use crate::store::Store;
+use crate::store::{CaptureRequest, Store};
 use metrics::Metrics;
 use scenes::Scenes;
 
@@ -84,6 +85,14 @@ pub struct Daemon {
     pub metrics: Metrics,
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
     pub calibration: BTreeMap<String, f64>,
+    /// Held by the capture worker for a whole capture: a settings change
+    /// that cannot have the camera answers 409 instead of waiting.
+    camera_gate: tokio::sync::Mutex<()>,
+    /// Settings from the last `PUT /camera/settings`, inherited by captures
+    /// that do not state their own (None: the camera's read-back ones).
+    defaults: std::sync::Mutex<Option<CameraSettings>>,
+    /// Disk bytes reserved by queued and running captures, by capture id.
+    reserved: std::sync::Mutex<BTreeMap<i64, u64>>,
     _hotplug: Option<Hotplug>,
     _fake: Option<Arc<FakeBench>>,
 }
@@ -156,16 +165,121 @@ impl Daemon {
             events,
             metrics: Metrics::default(),
             calibration,
+            camera_gate: tokio::sync::Mutex::new(()),
+            defaults: std::sync::Mutex::new(None),
+            reserved: std::sync::Mutex::new(BTreeMap::new()),
             _hotplug: hotplug,
             _fake: fake,
         });
-        tokio::spawn(jobs::capture_worker(daemon.clone(), capture_rx));
+        tokio::spawn(capture::capture_worker(daemon.clone(), capture_rx));
         let shared = Arc::new(Mutex::new(recon_rx));
         for _ in 0..workers {
             tokio::spawn(jobs::reconstruction_worker(daemon.clone(), shared.clone()));
         }
         tokio::spawn(watch_camera(daemon.clone()));
         Ok(daemon)
+    }
+
+    /// The settings a capture inherits for what it does not state: the last
+    /// `PUT /camera/settings`, else what the camera reported (`info`).
+    pub fn capture_defaults(&self, info: Option<&CameraInfo>) -> CameraSettings {
+        let put = self.defaults.lock().map(|g| g.clone()).unwrap_or(None);
+        let camera = info.map(|i| i.settings.clone());
+        match (put, camera) {
+            (Some(mut p), Some(c)) => {
+                p.region = p.region.or(c.region);
+                p.binning = p.binning.or(c.binning);
+                p
+            }
+            (Some(p), None) => p,
+            (None, Some(c)) => c,
+            (None, None) => CameraSettings::default(),
+        }
+    }
+
+    /// Applies camera settings now and makes them the defaults later
+    /// captures inherit. Refused (not waited for) while a capture has the camera.
+    pub async fn put_camera_settings(
+        &self,
+        s: CameraSettings,
+    ) -> Result<CameraInfo, SettingsError> {
+        let Ok(_camera) = self.camera_gate.try_lock() else {
+            return Err(SettingsError::Busy);
+        };
+        if let Some(info) = self.camera.status().info {
+            let binning = s.binning.or(info.settings.binning).unwrap_or([1, 1]);
+            if let Some(region) = s.region.or(info.settings.region) {
+                info.limits.check(region, binning)?;
+            }
+        }
+        self.camera.configure(s.clone()).await?;
+        let info = self.camera.describe().await?;
+        if let Ok(mut d) = self.defaults.lock() {
+            *d = Some(info.settings.clone());
+        }
+        Ok(info)
+    }
+
+    /// The camera as it is now: read from it when no capture has it, else the
+    /// settings read back when that capture configured it, and the capture's job.
+    pub async fn camera_now(&self) -> (crate::camera::worker::CameraStatus, Option<String>) {
+        if let Ok(_camera) = self.camera_gate.try_lock() {
+            if self.camera.status().connected {
+                let _ =
+                    tokio::time::timeout(std::time::Duration::from_secs(2), self.camera.describe())
+                        .await;
+            }
+            return (self.camera.status(), None);
+        }
+        let running = self.store.running_capture().ok().flatten();
+        (
+            self.camera.status(),
+            running.map(|id| format!("capture-{id}")),
+        )
+    }
+
+    /// Admits a validated capture: room in the queue and on the disk (its
+    /// files, plus what queued captures reserved, plus the configured
+    /// reserve), then records and queues it.
+    pub fn submit_capture(&self, req: &CaptureRequest) -> Result<i64, SubmitError> {
+        let need = capture::request_bytes(req);
+        let free = crate::files::space::free_disk_bytes(self.store.dir())
+            .map_err(|e| SubmitError::Store(self.store.describe_io(self.store.dir(), &e)))?;
+        let mut reserved = self.reserved.lock().unwrap_or_else(|e| e.into_inner());
+        let held: u64 = reserved.values().sum();
+        let keep = self.config.queue.reserve_free_mib << 20;
+        if need.saturating_add(held).saturating_add(keep) > free {
+            return Err(SubmitError::Disk {
+                need,
+                free,
+                held,
+                keep,
+            });
+        }
+        let permit = self.captures.try_reserve().map_err(|_| {
+            self.metrics
+                .rejected_full
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            SubmitError::QueueFull {
+                retry_after: (req.exposure_us * 1e-6 * (req.frames + req.dark_frames) as f64)
+                    .ceil()
+                    .max(1.0) as u64,
+            }
+        })?;
+        let id = self
+            .store
+            .insert_capture(req)
+            .map_err(|e| SubmitError::Store(self.store.describe(&e)))?;
+        reserved.insert(id, need);
+        permit.send(id);
+        Ok(id)
+    }
+
+    /// Frees the disk reservation of a capture that ended.
+    fn release_capture(&self, id: i64) {
+        if let Ok(mut r) = self.reserved.lock() {
+            r.remove(&id);
+        }
     }
 
     /// Publishes an event (nobody listening is fine).
@@ -177,6 +291,50 @@ impl Daemon {
     pub fn shutdown(&self) {
         self.camera.shutdown();
     }
+}
+
+/// Why a settings change was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum SettingsError {
+    /// A capture has the camera (HTTP 409).
+    #[error("a capture is using the camera; settings are not changed during a capture (give them in the capture request instead, or retry when it ends)")]
+    Busy,
+    /// A region or binning the sensor cannot deliver (422).
+    #[error(transparent)]
+    Geometry(#[from] crate::camera::GeometryError),
+    /// The camera refused or is gone.
+    #[error(transparent)]
+    Camera(#[from] crate::camera::CameraError),
+}
+
+/// Why a capture was not admitted.
+#[derive(Debug, thiserror::Error)]
+pub enum SubmitError {
+    /// Its files would not fit on the disk (HTTP 507).
+    #[error("this capture needs {} MiB of disk, but the data directory has {} MiB free, of which queued captures reserve {} MiB and {} MiB are kept free ([queue] reserve_free_mib); take fewer frames or a smaller region, or free disk space", mib(*.need), mib(*.free), mib(*.held), mib(*.keep))]
+    Disk {
+        /// Bytes its files take at most.
+        need: u64,
+        /// Bytes free now.
+        free: u64,
+        /// Bytes reserved by queued captures.
+        held: u64,
+        /// Bytes kept free.
+        keep: u64,
+    },
+    /// The queue is full (HTTP 429).
+    #[error("the capture queue is full; retry after {retry_after} s")]
+    QueueFull {
+        /// Seconds to wait.
+        retry_after: u64,
+    },
+    /// The catalogue could not record it.
+    #[error("{0}")]
+    Store(String),
+}
+
+fn mib(bytes: u64) -> String {
+    format!("{:.1}", bytes as f64 / (1u64 << 20) as f64)
 }
 
 /// Emits camera connect/lose events.

@@ -1,6 +1,7 @@
 //! The files of a capture: raw frames and dark frames as multi-page 16-bit
-//! TIFF with JSON metadata in each page's ImageDescription, the mean
-//! (dark-subtracted) frame as 32-bit float TIFF, and a PNG preview.
+//! TIFF with JSON metadata in each page's ImageDescription (written page by
+//! page as frames arrive), the mean (dark-subtracted) frame and the variance
+//! of the mean as 32-bit float TIFF, and a PNG preview.
 
 use std::io::Cursor;
 use std::path::Path;
@@ -9,15 +10,18 @@ use serde::Serialize;
 use tiff::encoder::{colortype, TiffEncoder};
 use tiff::tags::Tag;
 
-use super::StoreError;
+use super::{CaptureKind, StoreError};
 use crate::camera::{Frame, RawFrame};
 use crate::files::{image, write_atomic, FileError};
 
-/// Metadata written into every page of a capture's TIFF files.
+/// Metadata written into every page of a capture's TIFF files: everything
+/// the camera was set to, so a file says how it was taken on its own.
 #[derive(Debug, Clone, Serialize)]
 pub struct FrameMeta {
     /// Capture id.
     pub capture: i64,
+    /// `light` (scene on) or `dark` (scene off).
+    pub kind: CaptureKind,
     /// Scene name.
     pub scene: String,
     /// Pose name.
@@ -28,10 +32,18 @@ pub struct FrameMeta {
     pub exposure_us: f64,
     /// Gain.
     pub gain: f64,
-    /// Camera id.
+    /// Pixel format.
+    pub pixel_format: String,
+    /// Region of interest `[x, y, width, height]`.
+    pub region: [u32; 4],
+    /// Binning `[x, y]`.
+    pub binning: [u32; 2],
+    /// `free` or `software`.
+    pub trigger: String,
+    /// The dark capture subtracted from this one, if any.
+    pub dark_capture: Option<i64>,
+    /// Camera id (GenICam vendor-model-serial).
     pub camera_id: String,
-    /// Camera counters after the capture.
-    pub counters: crate::camera::Counters,
 }
 
 /// File names inside a capture folder.
@@ -44,8 +56,21 @@ impl CaptureFiles {
     pub const DARK: &'static str = "dark.tiff";
     /// Mean frame minus mean dark, 32-bit float.
     pub const MEAN: &'static str = "mean.tiff";
+    /// Per-pixel variance of the mean of the frames, 32-bit float (2+ frames).
+    pub const VARIANCE: &'static str = "variance.tiff";
     /// 16-bit PNG preview of the mean, scaled to its maximum.
     pub const PREVIEW: &'static str = "preview.png";
+}
+
+/// Bytes the files of a capture take at most: raw pages, mean, variance and
+/// preview, plus a little for headers and metadata.
+pub fn capture_bytes(width: u32, height: u32, frames: usize, dark_frames: usize) -> u64 {
+    let px = u64::from(width) * u64::from(height);
+    let pages = (frames + dark_frames) as u64;
+    px.saturating_mul(2)
+        .saturating_mul(pages)
+        .saturating_add(px.saturating_mul(4 + 4 + 2))
+        .saturating_add(pages.saturating_mul(4096).saturating_add(1 << 20))
 }
 
 fn tiff_err(path: &Path, e: tiff::TiffError) -> StoreError {
@@ -55,69 +80,221 @@ fn tiff_err(path: &Path, e: tiff::TiffError) -> StoreError {
     })
 }
 
-fn encode_pages(
-    path: &Path,
-    frames: &[RawFrame],
-    meta: &FrameMeta,
-    kind: &str,
-) -> Result<Vec<u8>, StoreError> {
-    let mut buf = Cursor::new(Vec::new());
-    {
-        let mut enc = TiffEncoder::new(&mut buf).map_err(|e| tiff_err(path, e))?;
-        for (i, f) in frames.iter().enumerate() {
-            let desc = serde_json::json!({
-                "polnlos": kind, "page": i, "frame_id": f.frame_id, "system_timestamp_ns": f.system_timestamp_ns,
-                "bits": f.bits, "meta": meta,
-            })
-            .to_string();
-            let mut img = enc
-                .new_image::<colortype::Gray16>(f.width as u32, f.height as u32)
-                .map_err(|e| tiff_err(path, e))?;
-            img.encoder()
-                .write_tag(Tag::ImageDescription, desc.as_str())
-                .map_err(|e| tiff_err(path, e))?;
-            img.encoder()
-                .write_tag(Tag::Software, "polnlos")
-                .map_err(|e| tiff_err(path, e))?;
-            img.write_data(&f.pixels).map_err(|e| tiff_err(path, e))?;
-        }
-    }
-    Ok(buf.into_inner())
+/// The running mean and variance of a stack of equal-size frames (Welford),
+/// so that a capture of any length holds two images in memory, not its frames.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameStack {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Frames seen.
+    pub count: usize,
+    /// Per-pixel mean, DN.
+    pub mean: Vec<f64>,
+    m2: Vec<f64>,
 }
 
-/// Writes every file of a capture into `dir` (created if needed), each
-/// atomically; returns the mean dark-subtracted frame.
-pub fn write_capture_files(
-    dir: &Path,
-    frames: &[RawFrame],
-    dark: &[RawFrame],
-    meta: &FrameMeta,
-) -> Result<Frame, StoreError> {
-    std::fs::create_dir_all(dir).map_err(|source| StoreError::DataDir {
-        path: dir.to_path_buf(),
-        source,
-    })?;
-    let mean = mean_frame(frames, dark);
-    let p = dir.join(CaptureFiles::FRAMES);
-    write_atomic(&p, &encode_pages(&p, frames, meta, "frames")?)?;
-    if !dark.is_empty() {
-        let p = dir.join(CaptureFiles::DARK);
-        write_atomic(&p, &encode_pages(&p, dark, meta, "dark")?)?;
+impl FrameStack {
+    fn new(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            count: 0,
+            mean: vec![0.0; width * height],
+            m2: vec![0.0; width * height],
+        }
     }
-    let p = dir.join(CaptureFiles::MEAN);
-    let mut buf = Cursor::new(Vec::new());
-    {
-        let mut enc = TiffEncoder::new(&mut buf).map_err(|e| tiff_err(&p, e))?;
+
+    fn push(&mut self, pixels: &[u16]) {
+        self.count += 1;
+        let n = self.count as f64;
+        for ((m, m2), &p) in self.mean.iter_mut().zip(self.m2.iter_mut()).zip(pixels) {
+            let x = f64::from(p);
+            let d = x - *m;
+            *m += d / n;
+            *m2 += d * (x - *m);
+        }
+    }
+
+    /// Per-pixel variance of the mean (sample variance / count); None under two frames.
+    pub fn variance_of_mean(&self) -> Option<Vec<f64>> {
+        (self.count >= 2).then(|| {
+            let n = self.count as f64;
+            self.m2
+                .iter()
+                .map(|m2| (m2 / (n - 1.0)).max(0.0) / n)
+                .collect()
+        })
+    }
+}
+
+/// Writes `expected` frames from `frames` as pages of a 16-bit TIFF at `path`
+/// while they arrive (temporary name, fsync, rename: a capture that stops
+/// early leaves no file), calling `on_frame(k)` after page k; returns their
+/// running mean and variance. Stops at the first frame of another size.
+pub fn write_frames(
+    path: &Path,
+    kind: &str,
+    meta: &FrameMeta,
+    expected: usize,
+    frames: impl IntoIterator<Item = RawFrame>,
+    on_frame: &mut dyn FnMut(usize),
+) -> Result<FrameStack, StoreError> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}{TMP_MARK}{}", std::process::id()));
+    let result = write_pages(&tmp, kind, meta, expected, frames, on_frame).and_then(|stack| {
+        std::fs::rename(&tmp, path).map_err(|e| StoreError::File(FileError::write(path, e)))?;
+        if let Some(dir) = path.parent() {
+            if let Ok(d) = std::fs::File::open(dir) {
+                let _ = d.sync_all();
+            }
+        }
+        Ok(stack)
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// The marker in the names of files being written (`.<name>.tmp-<pid>`),
+/// which a restart may remove.
+pub const TMP_MARK: &str = ".tmp-";
+
+fn write_pages(
+    tmp: &Path,
+    kind: &str,
+    meta: &FrameMeta,
+    expected: usize,
+    frames: impl IntoIterator<Item = RawFrame>,
+    on_frame: &mut dyn FnMut(usize),
+) -> Result<FrameStack, StoreError> {
+    let file =
+        std::fs::File::create(tmp).map_err(|e| StoreError::File(FileError::write(tmp, e)))?;
+    let mut out = std::io::BufWriter::new(file);
+    let [w, h] = [meta.region[2], meta.region[3]];
+    // Classic TIFF addresses 4 GiB; longer captures are written as BigTIFF.
+    let big = capture_bytes(w, h, expected, 0) > (3u64 << 30);
+    let stack = if big {
+        let enc = TiffEncoder::new_big(&mut out).map_err(|e| tiff_err(tmp, e))?;
+        encode_stream(enc, tmp, kind, meta, expected, frames, on_frame)?
+    } else {
+        let enc = TiffEncoder::new(&mut out).map_err(|e| tiff_err(tmp, e))?;
+        encode_stream(enc, tmp, kind, meta, expected, frames, on_frame)?
+    };
+    let file = out
+        .into_inner()
+        .map_err(|e| StoreError::File(FileError::write(tmp, e.into_error())))?;
+    file.sync_all()
+        .map_err(|e| StoreError::File(FileError::write(tmp, e)))?;
+    Ok(stack)
+}
+
+fn encode_stream<W: std::io::Write + std::io::Seek, K: tiff::encoder::TiffKind>(
+    mut enc: TiffEncoder<W, K>,
+    path: &Path,
+    kind: &str,
+    meta: &FrameMeta,
+    expected: usize,
+    frames: impl IntoIterator<Item = RawFrame>,
+    on_frame: &mut dyn FnMut(usize),
+) -> Result<FrameStack, StoreError> {
+    let mut stack: Option<FrameStack> = None;
+    for (i, f) in frames.into_iter().enumerate() {
+        let st = stack.get_or_insert_with(|| FrameStack::new(f.width, f.height));
+        if (f.width, f.height) != (st.width, st.height) || f.pixels.len() != f.width * f.height {
+            return Err(StoreError::File(FileError::format(
+                path,
+                format!(
+                    "frame {i} is {}x{} ({} values), the capture's first was {}x{}",
+                    f.width,
+                    f.height,
+                    f.pixels.len(),
+                    st.width,
+                    st.height
+                ),
+            )));
+        }
+        let desc = serde_json::json!({
+            "polnlos": kind, "page": i, "frame_id": f.frame_id, "system_timestamp_ns": f.system_timestamp_ns,
+            "bits": f.bits, "meta": meta,
+        })
+        .to_string();
+        let (w, h) = (
+            u32::try_from(f.width).unwrap_or(u32::MAX),
+            u32::try_from(f.height).unwrap_or(u32::MAX),
+        );
         let mut img = enc
-            .new_image::<colortype::Gray32Float>(mean.width as u32, mean.height as u32)
-            .map_err(|e| tiff_err(&p, e))?;
-        let desc = serde_json::json!({"polnlos": "mean", "frames": frames.len(), "dark_frames": dark.len(), "meta": meta}).to_string();
+            .new_image::<colortype::Gray16>(w, h)
+            .map_err(|e| tiff_err(path, e))?;
         img.encoder()
             .write_tag(Tag::ImageDescription, desc.as_str())
-            .map_err(|e| tiff_err(&p, e))?;
-        img.write_data(&mean.pixels).map_err(|e| tiff_err(&p, e))?;
+            .map_err(|e| tiff_err(path, e))?;
+        img.encoder()
+            .write_tag(Tag::Software, "polnlos")
+            .map_err(|e| tiff_err(path, e))?;
+        img.write_data(&f.pixels).map_err(|e| tiff_err(path, e))?;
+        st.push(&f.pixels);
+        on_frame(i + 1);
     }
-    write_atomic(&p, &buf.into_inner())?;
+    match stack {
+        Some(st) if st.count == expected => Ok(st),
+        other => Err(StoreError::Incomplete {
+            path: path.to_path_buf(),
+            got: other.map_or(0, |s| s.count),
+            wanted: expected,
+        }),
+    }
+}
+
+/// Writes a capture's mean (minus `dark`, the mean dark frame, when given),
+/// the variance of the mean and the preview, each atomically; returns the
+/// mean. `frames` is the stack of the capture's frames.
+pub fn write_summary(
+    dir: &Path,
+    frames: &FrameStack,
+    dark: Option<&Frame>,
+    meta: &FrameMeta,
+) -> Result<Frame, StoreError> {
+    let mut mean = Frame {
+        width: frames.width,
+        height: frames.height,
+        pixels: frames.mean.iter().map(|&v| v as f32).collect(),
+    };
+    if let Some(d) = dark {
+        if (d.width, d.height) != (mean.width, mean.height) {
+            return Err(StoreError::File(FileError::format(
+                &dir.join(CaptureFiles::MEAN),
+                format!(
+                    "the dark frame is {}x{}, the frames {}x{}",
+                    d.width, d.height, mean.width, mean.height
+                ),
+            )));
+        }
+        for (m, (&f, &k)) in mean
+            .pixels
+            .iter_mut()
+            .zip(frames.mean.iter().zip(&d.pixels))
+        {
+            *m = (f - f64::from(k)) as f32;
+        }
+    }
+    let desc =
+        serde_json::json!({"polnlos": "mean", "frames": frames.count, "meta": meta}).to_string();
+    write_float_tiff(&dir.join(CaptureFiles::MEAN), &mean, &desc)?;
+    if let Some(v) = frames.variance_of_mean() {
+        let var = Frame {
+            width: frames.width,
+            height: frames.height,
+            pixels: v.iter().map(|&x| x as f32).collect(),
+        };
+        let desc = serde_json::json!({"polnlos": "variance of the mean", "frames": frames.count, "meta": meta}).to_string();
+        write_float_tiff(&dir.join(CaptureFiles::VARIANCE), &var, &desc)?;
+    }
     let values: Vec<f64> = mean.pixels.iter().map(|&v| f64::from(v)).collect();
     image::write_png16(
         &dir.join(CaptureFiles::PREVIEW),
@@ -128,32 +305,20 @@ pub fn write_capture_files(
     Ok(mean)
 }
 
-/// Mean of the frames minus the mean of the dark frames (DN, f32).
-pub fn mean_frame(frames: &[RawFrame], dark: &[RawFrame]) -> Frame {
-    let avg = |fs: &[RawFrame]| -> Option<Vec<f64>> {
-        let first = fs.first()?;
-        let mut acc = vec![0.0f64; first.pixels.len()];
-        for f in fs {
-            for (a, &p) in acc.iter_mut().zip(&f.pixels) {
-                *a += f64::from(p);
-            }
-        }
-        acc.iter_mut().for_each(|a| *a /= fs.len() as f64);
-        Some(acc)
-    };
-    let (w, h) = frames
-        .first()
-        .map(|f| (f.width, f.height))
-        .unwrap_or((0, 0));
-    let mut m = avg(frames).unwrap_or_default();
-    if let Some(d) = avg(dark).filter(|d| d.len() == m.len()) {
-        m.iter_mut().zip(d).for_each(|(a, b)| *a -= b);
+fn write_float_tiff(path: &Path, frame: &Frame, desc: &str) -> Result<(), StoreError> {
+    let mut buf = Cursor::new(Vec::new());
+    {
+        let mut enc = TiffEncoder::new(&mut buf).map_err(|e| tiff_err(path, e))?;
+        let mut img = enc
+            .new_image::<colortype::Gray32Float>(frame.width as u32, frame.height as u32)
+            .map_err(|e| tiff_err(path, e))?;
+        img.encoder()
+            .write_tag(Tag::ImageDescription, desc)
+            .map_err(|e| tiff_err(path, e))?;
+        img.write_data(&frame.pixels)
+            .map_err(|e| tiff_err(path, e))?;
     }
-    Frame {
-        width: w,
-        height: h,
-        pixels: m.into_iter().map(|v| v as f32).collect(),
-    }
+    Ok(write_atomic(path, &buf.into_inner())?)
 }
 
 type TiffReader = tiff::decoder::Decoder<std::io::BufReader<std::fs::File>>;
@@ -175,6 +340,19 @@ fn open_tiff(path: &Path) -> Result<TiffReader, StoreError> {
 /// sample variance across frames divided by their number. `None` with fewer
 /// than two frames. Used to estimate the noise of a measurement.
 pub fn read_mean_variance(dir: &Path) -> Result<Option<Frame>, StoreError> {
+    let v = dir.join(CaptureFiles::VARIANCE);
+    if v.exists() {
+        return read_float_tiff(&v).map(Some);
+    }
+    if !dir.join(CaptureFiles::MEAN).exists() || dir.join(CaptureFiles::FRAMES).exists() {
+        return variance_from_pages(dir);
+    }
+    Ok(None)
+}
+
+/// The variance of the mean from the raw pages (captures written before
+/// `variance.tiff` existed).
+fn variance_from_pages(dir: &Path) -> Result<Option<Frame>, StoreError> {
     let p = dir.join(CaptureFiles::FRAMES);
     let bad = |e: tiff::TiffError| decode_error(&p, e);
     let mut dec = open_tiff(&p)?;
@@ -213,7 +391,12 @@ pub fn read_mean_variance(dir: &Path) -> Result<Option<Frame>, StoreError> {
 
 /// Reads a capture's mean frame back.
 pub fn read_mean(dir: &Path) -> Result<Frame, StoreError> {
-    let p = dir.join(CaptureFiles::MEAN);
+    read_float_tiff(&dir.join(CaptureFiles::MEAN))
+}
+
+/// Reads a single-page 32-bit float TIFF.
+fn read_float_tiff(path: &Path) -> Result<Frame, StoreError> {
+    let p = path.to_path_buf();
     let bad = |e: tiff::TiffError| decode_error(&p, e);
     let mut dec = open_tiff(&p)?;
     let (w, h) = dec.dimensions().map_err(bad)?;
@@ -225,7 +408,7 @@ pub fn read_mean(dir: &Path) -> Result<Frame, StoreError> {
         }),
         _ => Err(StoreError::File(FileError::Format {
             path: p.clone(),
-            reason: "mean frame is not 32-bit float".into(),
+            reason: "not a 32-bit float image".into(),
         })),
     }
 }
@@ -245,36 +428,100 @@ mod tests {
         }
     }
 
-    #[test]
-    fn mean_subtracts_dark_and_round_trips_through_tiff() {
-        let dir = tempfile::tempdir().unwrap();
-        let meta = FrameMeta {
+    fn meta() -> FrameMeta {
+        FrameMeta {
             capture: 1,
+            kind: CaptureKind::Light,
             scene: "s".into(),
             pose: "A".into(),
             polarizer_deg: Some(0.0),
             exposure_us: 1000.0,
             gain: 0.0,
+            pixel_format: "Mono16".into(),
+            region: [0, 0, 3, 2],
+            binning: [1, 1],
+            trigger: "free".into(),
+            dark_capture: None,
             camera_id: "cam".into(),
-            counters: Default::default(),
+        }
+    }
+
+    #[test]
+    fn streamed_frames_give_mean_variance_and_subtract_the_dark() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut seen = Vec::new();
+        let stack = write_frames(
+            &dir.path().join(CaptureFiles::FRAMES),
+            "frames",
+            &meta(),
+            2,
+            [raw(100), raw(110)],
+            &mut |k| seen.push(k),
+        )
+        .unwrap();
+        assert_eq!(seen, vec![1, 2]);
+        assert_eq!(stack.mean, vec![105.0; 6]);
+        // Sample variance 50, of the mean 25.
+        assert_eq!(stack.variance_of_mean().unwrap(), vec![25.0; 6]);
+        let dark = Frame {
+            width: 3,
+            height: 2,
+            pixels: vec![6.0; 6],
         };
-        let m = write_capture_files(dir.path(), &[raw(100), raw(110)], &[raw(5), raw(7)], &meta)
-            .unwrap();
+        let m = write_summary(dir.path(), &stack, Some(&dark), &meta()).unwrap();
         assert_eq!(m.pixels, vec![99.0; 6]);
         assert_eq!(read_mean(dir.path()).unwrap(), m);
-        for f in [
-            CaptureFiles::FRAMES,
-            CaptureFiles::DARK,
-            CaptureFiles::PREVIEW,
-        ] {
-            assert!(dir.path().join(f).exists(), "{f}");
-        }
+        assert_eq!(
+            read_mean_variance(dir.path()).unwrap().unwrap().pixels,
+            vec![25.0; 6]
+        );
+        assert_eq!(
+            variance_from_pages(dir.path()).unwrap().unwrap().pixels,
+            vec![25.0; 6]
+        );
         let mut dec = tiff::decoder::Decoder::new(
             std::fs::File::open(dir.path().join(CaptureFiles::FRAMES)).unwrap(),
         )
         .unwrap();
         let desc = dec.get_tag_ascii_string(Tag::ImageDescription).unwrap();
-        assert!(desc.contains("\"pose\":\"A\""), "{desc}");
+        for key in [
+            "\"pose\":\"A\"",
+            "\"region\":[0,0,3,2]",
+            "\"binning\":[1,1]",
+            "\"trigger\":\"free\"",
+        ] {
+            assert!(desc.contains(key), "{key}: {desc}");
+        }
         assert!(dec.more_images());
+    }
+
+    #[test]
+    fn a_capture_that_stops_early_or_changes_size_leaves_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join(CaptureFiles::FRAMES);
+        let e = write_frames(&p, "frames", &meta(), 3, [raw(1), raw(2)], &mut |_| {}).unwrap_err();
+        assert!(e.to_string().contains("2 of 3"), "{e}");
+        let mut odd = raw(3);
+        odd.width = 2;
+        odd.pixels.truncate(4);
+        let e = write_frames(&p, "frames", &meta(), 2, [raw(1), odd], &mut |_| {}).unwrap_err();
+        assert!(e.to_string().contains("2x2"), "{e}");
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            0,
+            "no file, no temporary"
+        );
+    }
+
+    #[test]
+    fn capture_bytes_counts_pages_and_summaries() {
+        assert_eq!(
+            capture_bytes(512, 512, 4, 2),
+            512 * 512 * (2 * 6 + 10) + 6 * 4096 + (1 << 20)
+        );
+        assert_eq!(
+            capture_bytes(u32::MAX, u32::MAX, usize::MAX / 2, 0),
+            u64::MAX
+        );
     }
 }

@@ -6,6 +6,7 @@
 //! running when the daemon stopped are marked `interrupted`.
 
 mod files;
+mod lock;
 mod records;
 
 use std::path::{Path, PathBuf};
@@ -14,10 +15,13 @@ use std::sync::Mutex;
 use rusqlite::{params, Connection, OptionalExtension};
 
 pub use files::{
-    mean_frame, read_mean, read_mean_variance, write_capture_files, CaptureFiles, FrameMeta,
+    capture_bytes, read_mean, read_mean_variance, write_frames, write_summary, CaptureFiles,
+    FrameMeta, FrameStack, TMP_MARK,
 };
+pub use lock::{remove_orphans, DirLock, LOCK_FILE};
 pub use records::{
-    CaptureRecord, CaptureRequest, JobState, ReconstructionRecord, ReconstructionRequest,
+    CaptureKind, CaptureRecord, CaptureRequest, JobState, ReconstructionRecord,
+    ReconstructionRequest,
 };
 
 /// What can go wrong with the store, naming the path or the row.
@@ -42,6 +46,24 @@ pub enum StoreError {
         /// Underlying error.
         source: std::io::Error,
     },
+    /// A frame stream ended before all its frames were written.
+    #[error("{path}: only {got} of {wanted} frames arrived; nothing was kept")]
+    Incomplete {
+        /// The file that was being written.
+        path: PathBuf,
+        /// Frames written.
+        got: usize,
+        /// Frames expected.
+        wanted: usize,
+    },
+    /// Another process holds the data directory.
+    #[error("data directory {dir} is in use by another polnlos (pid {}); stop it, or give this one another --data-dir", holder.map_or_else(|| "unknown".to_string(), |p| p.to_string()))]
+    Locked {
+        /// The data directory.
+        dir: PathBuf,
+        /// The lock holder's PID, as it wrote it.
+        holder: Option<u32>,
+    },
     /// No such row.
     #[error("no {kind} with id {id}")]
     NotFound {
@@ -56,7 +78,9 @@ pub enum StoreError {
 pub struct Store {
     dir: PathBuf,
     db_path: PathBuf,
+    ballast: PathBuf,
     conn: Mutex<Connection>,
+    _lock: DirLock,
 }
 
 const SCHEMA: &str = "
@@ -95,6 +119,59 @@ CREATE TABLE IF NOT EXISTS reconstructions (
 );
 ";
 
+/// Columns added after the first release: (table, column, declaration).
+const ADDED_COLUMNS: [(&str, &str, &str); 5] = [
+    ("captures", "kind", "TEXT NOT NULL DEFAULT 'light'"),
+    ("captures", "region", "TEXT"),
+    ("captures", "binning", "TEXT"),
+    ("captures", "trigger", "TEXT"),
+    ("captures", "dark_capture", "INTEGER"),
+];
+
+/// Adds the columns a catalogue from an older polnlos lacks (rows kept).
+fn migrate(conn: &Connection) -> rusqlite::Result<()> {
+    for (table, column, decl) in ADDED_COLUMNS {
+        let mut st = conn.prepare(&format!("PRAGMA table_info({table})"))?;
+        let has = st
+            .query_map([], |r| r.get::<_, String>(1))?
+            .collect::<rusqlite::Result<Vec<_>>>()?
+            .iter()
+            .any(|c| c == column);
+        if !has {
+            conn.execute_batch(&format!("ALTER TABLE {table} ADD COLUMN {column} {decl}"))?;
+        }
+    }
+    Ok(())
+}
+
+/// A file of zeros kept in the data directory and given up when the disk is
+/// full, so that the catalogue can still record that jobs failed.
+const BALLAST_FILE: &str = "catalogue.reserve";
+const BALLAST_BYTES: u64 = 4 << 20;
+
+fn lay_ballast(path: &Path) -> std::io::Result<()> {
+    if std::fs::metadata(path).is_ok_and(|m| m.len() == BALLAST_BYTES) {
+        return Ok(());
+    }
+    let result = (|| {
+        use std::io::Write;
+        let mut f = std::fs::File::create(path)?;
+        let zeros = vec![0u8; 1 << 20];
+        for _ in 0..(BALLAST_BYTES >> 20) {
+            f.write_all(&zeros)?;
+        }
+        f.sync_all()
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(path);
+    }
+    result
+}
+
+fn is_disk_full<T>(r: &rusqlite::Result<T>) -> bool {
+    matches!(r, Err(rusqlite::Error::SqliteFailure(e, _)) if e.code == rusqlite::ErrorCode::DiskFull)
+}
+
 /// Current UTC time, RFC 3339.
 pub fn now() -> String {
     let d = std::time::SystemTime::now()
@@ -122,14 +199,31 @@ pub fn now() -> String {
 }
 
 impl Store {
-    /// Opens (creating if needed) the catalogue under `dir` and marks jobs left
+    /// Opens (creating if needed) the catalogue under `dir`: takes the data
+    /// directory's lock first (a second daemon is refused before it touches
+    /// anything), removes temporaries a killed run left, and marks jobs left
     /// queued or running by a previous run as interrupted.
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
-        for sub in ["", "captures", "reconstructions"] {
+        std::fs::create_dir_all(dir).map_err(|source| StoreError::DataDir {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let lock = DirLock::acquire(dir)?;
+        for sub in ["captures", "reconstructions"] {
             std::fs::create_dir_all(dir.join(sub)).map_err(|source| StoreError::DataDir {
                 path: dir.join(sub),
                 source,
             })?;
+        }
+        for p in remove_orphans(dir) {
+            tracing::info!(
+                "removed {}, left by a run that was stopped mid-write",
+                p.display()
+            );
+        }
+        let ballast = dir.join(BALLAST_FILE);
+        if let Err(e) = lay_ballast(&ballast) {
+            tracing::warn!("cannot reserve {} MiB for the catalogue ({e}); on a full disk job states may not be recorded", BALLAST_BYTES >> 20);
         }
         let db_path = dir.join("catalogue.sqlite");
         let db = |source| StoreError::Database {
@@ -144,6 +238,7 @@ impl Store {
         conn.busy_timeout(std::time::Duration::from_secs(5))
             .map_err(db)?;
         conn.execute_batch(SCHEMA).map_err(db)?;
+        migrate(&conn).map_err(db)?;
         let why = "the daemon stopped before this job finished; submit it again";
         for table in ["captures", "reconstructions"] {
             conn.execute(
@@ -155,13 +250,42 @@ impl Store {
         Ok(Self {
             dir: dir.to_path_buf(),
             db_path,
+            ballast,
             conn: Mutex::new(conn),
+            _lock: lock,
         })
     }
 
     /// The data directory.
     pub fn dir(&self) -> &Path {
         &self.dir
+    }
+
+    /// An error as a job or an HTTP client should read it: paths inside the
+    /// data directory relative to it, never absolute.
+    pub fn describe(&self, e: &StoreError) -> String {
+        self.relative(&e.to_string())
+    }
+
+    /// An I/O error on `path` (inside the data directory), described as [`Store::describe`] does.
+    pub fn describe_io(&self, path: &Path, e: &std::io::Error) -> String {
+        self.relative(&format!("{}: {e}", path.display()))
+    }
+
+    fn relative(&self, text: &str) -> String {
+        let base = self.dir.display().to_string();
+        let abs = std::fs::canonicalize(&self.dir)
+            .map(|p| p.display().to_string())
+            .unwrap_or_default();
+        let mut out = text.to_string();
+        for prefix in [abs, base] {
+            if !prefix.is_empty() {
+                out = out
+                    .replace(&format!("{prefix}/"), "")
+                    .replace(&prefix, "data directory");
+            }
+        }
+        out
     }
 
     /// Folder of capture `id`.
@@ -174,9 +298,18 @@ impl Store {
         self.dir.join("reconstructions").join(id.to_string())
     }
 
-    fn with<T>(&self, f: impl FnOnce(&Connection) -> rusqlite::Result<T>) -> Result<T, StoreError> {
+    fn with<T>(&self, f: impl Fn(&Connection) -> rusqlite::Result<T>) -> Result<T, StoreError> {
         let conn = self.conn.lock().unwrap_or_else(|e| e.into_inner());
-        f(&conn).map_err(|source| StoreError::Database {
+        let mut result = f(&conn);
+        // A full disk: give up the ballast so that job states can still be recorded.
+        if is_disk_full(&result) && std::fs::remove_file(&self.ballast).is_ok() {
+            tracing::warn!(
+                "the data directory's disk is full: released the catalogue's {} MiB reserve to record job states; free space and restart to lay it again",
+                BALLAST_BYTES >> 20
+            );
+            result = f(&conn);
+        }
+        result.map_err(|source| StoreError::Database {
             path: self.db_path.clone(),
             source,
         })
@@ -186,9 +319,10 @@ impl Store {
     pub fn insert_capture(&self, r: &CaptureRequest) -> Result<i64, StoreError> {
         self.with(|c| {
             c.execute(
-                "INSERT INTO captures (scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, 'queued', ?9)",
-                params![r.scene, r.pose, r.polarizer_deg, r.exposure_us, r.gain, r.frames as i64, r.dark_frames as i64, r.pixel_format.name(), now()],
+                "INSERT INTO captures (scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at, kind, region, binning, trigger, dark_capture)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, 'queued', ?9, ?10, ?11, ?12, ?13, ?14)",
+                params![r.scene, r.pose, r.polarizer_deg, r.exposure_us, r.gain, r.frames as i64, r.dark_frames as i64, r.pixel_format.name(), now(),
+                    r.kind.name(), serde_json::to_string(&r.region).unwrap_or_default(), serde_json::to_string(&r.binning).unwrap_or_default(), r.trigger.name(), r.dark_capture],
             )?;
             Ok(c.last_insert_rowid())
         })
@@ -251,6 +385,18 @@ impl Store {
         .ok_or(StoreError::NotFound {
             kind: "capture",
             id,
+        })
+    }
+
+    /// The capture running now, if any.
+    pub fn running_capture(&self) -> Result<Option<i64>, StoreError> {
+        self.with(|c| {
+            c.query_row(
+                "SELECT id FROM captures WHERE state = 'running' ORDER BY id DESC LIMIT 1",
+                [],
+                |r| r.get(0),
+            )
+            .optional()
         })
     }
 

@@ -3,7 +3,38 @@
 use rusqlite::Row;
 use serde::{Deserialize, Serialize};
 
-use crate::camera::PixelFormat;
+use crate::camera::{PixelFormat, TriggerMode};
+
+/// Whether a capture shows the hidden scene or is a dark capture taken with
+/// the scene switched off (to be subtracted from light captures).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum CaptureKind {
+    /// The hidden scene on.
+    Light,
+    /// The hidden scene off (the user switched it off, or the bench did).
+    Dark,
+}
+
+impl CaptureKind {
+    /// The name stored and shown.
+    pub fn name(self) -> &'static str {
+        match self {
+            CaptureKind::Light => "light",
+            CaptureKind::Dark => "dark",
+        }
+    }
+}
+
+impl TriggerMode {
+    /// The name stored and shown.
+    pub fn name(self) -> &'static str {
+        match self {
+            TriggerMode::Free => "free",
+            TriggerMode::Software => "software",
+        }
+    }
+}
 
 /// Life of a job.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -22,6 +53,17 @@ pub enum JobState {
 }
 
 impl JobState {
+    /// The name stored and shown.
+    pub fn name(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Done => "done",
+            JobState::Failed => "failed",
+            JobState::Interrupted => "interrupted",
+        }
+    }
+
     fn parse(s: &str) -> Self {
         match s {
             "queued" => JobState::Queued,
@@ -33,9 +75,12 @@ impl JobState {
     }
 }
 
-/// A validated capture request.
+/// A validated capture request: every camera setting it uses is its own,
+/// stated in the request or inherited when it was accepted.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CaptureRequest {
+    /// Light or dark.
+    pub kind: CaptureKind,
     /// Scene name.
     pub scene: String,
     /// Pose name in that scene.
@@ -52,6 +97,14 @@ pub struct CaptureRequest {
     pub dark_frames: usize,
     /// Pixel format.
     pub pixel_format: PixelFormat,
+    /// Region of interest `[x, y, width, height]`.
+    pub region: [u32; 4],
+    /// Binning `[x, y]`.
+    pub binning: [u32; 2],
+    /// Trigger mode.
+    pub trigger: TriggerMode,
+    /// A done dark capture whose mean is subtracted from this one.
+    pub dark_capture: Option<i64>,
 }
 
 /// A capture as the API shows it.
@@ -75,6 +128,17 @@ pub struct CaptureRecord {
     pub dark_frames: i64,
     /// Pixel format.
     pub pixel_format: String,
+    /// `light` or `dark`.
+    pub kind: String,
+    /// Region of interest `[x, y, width, height]` (null for captures made
+    /// before it was recorded).
+    pub region: Option<[u32; 4]>,
+    /// Binning `[x, y]`.
+    pub binning: Option<[u32; 2]>,
+    /// `free` or `software`.
+    pub trigger: Option<String>,
+    /// The dark capture subtracted from this one.
+    pub dark_capture: Option<i64>,
     /// Job state.
     pub state: JobState,
     /// Why it failed or was interrupted.
@@ -95,7 +159,7 @@ pub struct CaptureRecord {
     pub frames_taken: i64,
 }
 
-pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken FROM captures";
+pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, region, binning, trigger, dark_capture FROM captures";
 
 pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
     Ok(CaptureRecord {
@@ -118,7 +182,23 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
             .get::<_, Option<String>>(15)?
             .and_then(|s| serde_json::from_str(&s).ok()),
         frames_taken: r.get(16)?,
+        kind: r.get(17)?,
+        region: r
+            .get::<_, Option<String>>(18)?
+            .and_then(|s| serde_json::from_str(&s).ok()),
+        binning: r
+            .get::<_, Option<String>>(19)?
+            .and_then(|s| serde_json::from_str(&s).ok()),
+        trigger: r.get(20)?,
+        dark_capture: r.get(21)?,
     })
+}
+
+impl CaptureRecord {
+    /// Whether this is a dark capture.
+    pub fn is_dark(&self) -> bool {
+        self.kind == CaptureKind::Dark.name()
+    }
 }
 
 /// A validated reconstruction request.

@@ -95,7 +95,11 @@ impl Daemon {
     }
 
     pub fn get(&self, path: &str) -> (u16, String) {
-        match self.agent.get(format!("{}{path}", self.base)).call() {
+        let mut req = self.agent.get(format!("{}{path}", self.base));
+        if let Some(t) = &self.token {
+            req = req.header("authorization", format!("Bearer {t}"));
+        }
+        match req.call() {
             Ok(mut r) => (
                 r.status().as_u16(),
                 r.body_mut().read_to_string().unwrap_or_default(),
@@ -105,11 +109,11 @@ impl Daemon {
     }
 
     pub fn get_bytes(&self, path: &str) -> (u16, Vec<u8>) {
-        let mut r = self
-            .agent
-            .get(format!("{}{path}", self.base))
-            .call()
-            .unwrap();
+        let mut req = self.agent.get(format!("{}{path}", self.base));
+        if let Some(t) = &self.token {
+            req = req.header("authorization", format!("Bearer {t}"));
+        }
+        let mut r = req.call().unwrap();
         (
             r.status().as_u16(),
             r.body_mut()

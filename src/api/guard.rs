@@ -1,0 +1,213 @@
+//! What every request passes before a handler sees it: size limits on the
+//! target and headers (JSON 414/431 instead of hyper's empty answers), the
+//! `Host` and `Origin` checks against DNS rebinding, and the bearer token.
+
+use std::sync::Arc;
+
+use axum::extract::{Request, State};
+use axum::http::{header, HeaderMap, Method, StatusCode};
+use axum::middleware::Next;
+use axum::response::Response;
+use sha2::{Digest, Sha256};
+
+use super::ApiError;
+use crate::daemon::Daemon;
+
+/// Longest request target accepted, bytes.
+pub const MAX_URI_BYTES: usize = 8 * 1024;
+/// Most header bytes (names and values) accepted.
+pub const MAX_HEADER_BYTES: usize = 16 * 1024;
+/// Most header lines accepted.
+pub const MAX_HEADERS: usize = 64;
+
+/// Who may send this request, and whether it is small enough to read.
+pub async fn guard(
+    State(d): State<Arc<Daemon>>,
+    req: Request,
+    next: Next,
+) -> Result<Response, ApiError> {
+    let uri_len = req.uri().to_string().len();
+    if uri_len > MAX_URI_BYTES {
+        return Err(ApiError::new(
+            StatusCode::URI_TOO_LONG,
+            "uri_too_long",
+            format!("the request target is {uri_len} bytes; at most {MAX_URI_BYTES}"),
+        ));
+    }
+    let headers = req.headers();
+    let header_bytes: usize = headers
+        .iter()
+        .map(|(k, v)| k.as_str().len() + v.len())
+        .sum();
+    if header_bytes > MAX_HEADER_BYTES || headers.len() > MAX_HEADERS {
+        return Err(ApiError::new(
+            StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE,
+            "headers_too_large",
+            format!(
+                "{} header lines, {header_bytes} bytes; at most {MAX_HEADERS} lines and {MAX_HEADER_BYTES} bytes",
+                headers.len()
+            ),
+        ));
+    }
+    let allowed = allowed_hosts(&d);
+    check_host(headers, &allowed)?;
+    let mutating = !matches!(*req.method(), Method::GET | Method::HEAD | Method::OPTIONS);
+    if mutating {
+        check_origin(headers, &allowed)?;
+    }
+    let public = req.uri().path() == "/health" || (!mutating && d.config.http.public_reads);
+    if !d.token.is_empty() && !public && !token_matches(headers, &d.token) {
+        return Err(ApiError::unauthorized());
+    }
+    Ok(next.run(req).await)
+}
+
+/// Host names the daemon answers to: the bound address, the loopback names,
+/// and `[http] allowed_hosts`.
+fn allowed_hosts(d: &Daemon) -> Vec<String> {
+    let mut names: Vec<String> = ["localhost", "127.0.0.1", "::1"]
+        .into_iter()
+        .map(String::from)
+        .collect();
+    names.push(d.config.bind.ip().to_string());
+    names.extend(
+        d.config
+            .http
+            .allowed_hosts
+            .iter()
+            .map(|h| h.to_ascii_lowercase()),
+    );
+    names
+}
+
+/// The host part of a `Host` value or an origin's authority, lower case,
+/// without port or IPv6 brackets.
+fn host_name(authority: &str) -> String {
+    let a = authority.trim().to_ascii_lowercase();
+    if let Some(rest) = a.strip_prefix('[') {
+        return rest.split(']').next().unwrap_or_default().to_string();
+    }
+    a.rsplit_once(':')
+        .filter(|(_, port)| port.chars().all(|c| c.is_ascii_digit()))
+        .map_or(a.clone(), |(h, _)| h.to_string())
+}
+
+fn check_host(headers: &HeaderMap, allowed: &[String]) -> Result<(), ApiError> {
+    // HTTP/1.0 clients may send no Host; a browser always does.
+    let Some(host) = headers.get(header::HOST) else {
+        return Ok(());
+    };
+    let name = host.to_str().map(host_name).unwrap_or_default();
+    if allowed.contains(&name) {
+        return Ok(());
+    }
+    Err(ApiError::forbidden(format!(
+        "this daemon does not answer to host {name:?}; use its address, or add the name to [http] allowed_hosts"
+    )))
+}
+
+fn check_origin(headers: &HeaderMap, allowed: &[String]) -> Result<(), ApiError> {
+    let Some(origin) = headers.get(header::ORIGIN) else {
+        return Ok(());
+    };
+    let text = origin.to_str().unwrap_or_default();
+    let authority = text
+        .strip_prefix("http://")
+        .or_else(|| text.strip_prefix("https://"))
+        .unwrap_or("");
+    let name = host_name(authority);
+    if !name.is_empty() && allowed.contains(&name) {
+        return Ok(());
+    }
+    Err(ApiError::forbidden(format!(
+        "requests that change state are not accepted from origin {text:?}; add its host to [http] allowed_hosts if it is yours"
+    )))
+}
+
+/// Whether `Authorization: Bearer <token>` carries the token. The scheme is
+/// case-insensitive (RFC 7235); the compare is on SHA-256 digests, so its
+/// time depends on neither the token's length nor where they differ.
+fn token_matches(headers: &HeaderMap, token: &str) -> bool {
+    let Some(value) = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+    else {
+        return false;
+    };
+    let Some((scheme, given)) = value.trim().split_once(' ') else {
+        return false;
+    };
+    if !scheme.eq_ignore_ascii_case("bearer") {
+        return false;
+    }
+    let (a, b) = (
+        Sha256::digest(given.trim().as_bytes()),
+        Sha256::digest(token.as_bytes()),
+    );
+    a.iter()
+        .zip(b.iter())
+        .fold(0u8, |acc, (x, y)| acc | (x ^ y))
+        == 0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn with(name: header::HeaderName, value: &str) -> HeaderMap {
+        let mut h = HeaderMap::new();
+        h.insert(name, value.parse().unwrap());
+        h
+    }
+
+    #[test]
+    fn host_names_drop_ports_and_brackets() {
+        assert_eq!(host_name("127.0.0.1:8470"), "127.0.0.1");
+        assert_eq!(host_name("LocalHost"), "localhost");
+        assert_eq!(host_name("[::1]:8470"), "::1");
+        assert_eq!(host_name("evil.example:80"), "evil.example");
+    }
+
+    #[test]
+    fn rebinding_hosts_and_foreign_origins_are_refused() {
+        let allowed: Vec<String> = vec!["localhost".into(), "127.0.0.1".into(), "::1".into()];
+        assert!(check_host(&with(header::HOST, "127.0.0.1:8470"), &allowed).is_ok());
+        assert!(check_host(&with(header::HOST, "[::1]:1"), &allowed).is_ok());
+        assert!(check_host(&HeaderMap::new(), &allowed).is_ok());
+        assert!(check_host(&with(header::HOST, "attacker.example:8470"), &allowed).is_err());
+        assert!(check_origin(&with(header::ORIGIN, "http://localhost:8470"), &allowed).is_ok());
+        assert!(check_origin(&with(header::ORIGIN, "http://attacker.example"), &allowed).is_err());
+        assert!(check_origin(&with(header::ORIGIN, "null"), &allowed).is_err());
+    }
+
+    #[test]
+    fn bearer_is_case_insensitive_and_exact() {
+        let t = "s3cret";
+        assert!(token_matches(
+            &with(header::AUTHORIZATION, "Bearer s3cret"),
+            t
+        ));
+        assert!(token_matches(
+            &with(header::AUTHORIZATION, "bearer s3cret"),
+            t
+        ));
+        assert!(token_matches(
+            &with(header::AUTHORIZATION, "BEARER  s3cret "),
+            t
+        ));
+        assert!(!token_matches(
+            &with(header::AUTHORIZATION, "Bearer s3cre"),
+            t
+        ));
+        assert!(!token_matches(
+            &with(header::AUTHORIZATION, "Bearer s3cretx"),
+            t
+        ));
+        assert!(!token_matches(
+            &with(header::AUTHORIZATION, "Basic s3cret"),
+            t
+        ));
+        assert!(!token_matches(&with(header::AUTHORIZATION, "s3cret"), t));
+        assert!(!token_matches(&HeaderMap::new(), t));
+    }
+}
