@@ -5,10 +5,22 @@
 //! the hidden radiance, `i = T l` (MODEL.md Eq. 2); polnlos builds `T` from a
 //! scene file and recovers `l` with ADMM-TV (Eq. 12).
 //!
-//! Rooms: [`optics`] (pure physics), [`scene`] (files and geometry),
-//! [`transport`] (building `T`), [`solve`] (reconstruction, conditioning,
-//! metrics), [`simulate`] (noise model), [`measure`] (frames to `i`),
-//! [`camera`] (frames), [`files`] (npy, png, json).
+//! # Layout
+//!
+//! In layers, each using only the ones above it:
+//!
+//! - **Core** (pure maths, no I/O): [`optics`] (Fresnel, GGX, polarizer
+//!   axis), [`scene`] (scene files, geometry, validation), [`transport`]
+//!   (building `T`), [`solve`] (reconstruction, conditioning, metrics, λ),
+//!   [`simulate`] (noise model, patterns), [`measure`] (frames to `i`,
+//!   exposure planning).
+//! - **I/O**: [`files`] (npy, PNG/TIFF, JSON, atomic writes, free disk and
+//!   memory), [`camera`] (the camera trait, settings and sensor limits, the
+//!   Aravis driver and its thread, the fake bench), [`store`] (the catalogue
+//!   and capture files).
+//! - **Service**: [`daemon`] (jobs, queues, admission, lifecycle) and [`api`]
+//!   (the HTTP routes, guard and server loop).
+//! - **Reports**: [`bench`] (the reports of `polnlos bench`).
 
 pub mod api;
 pub mod bench;

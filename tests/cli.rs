@@ -353,6 +353,73 @@ fn bad_input_gets_a_clear_error() {
     assert!(err.contains("bits = 20: must be from 1 to 16"), "{err}");
 }
 
+/// A scene file with some text replaced, written into `dir`.
+fn edited_scene(dir: &std::path::Path, name: &str, edits: &[(&str, &str)]) -> PathBuf {
+    let mut text = std::fs::read_to_string(scene("brewster-crossed")).unwrap();
+    for (from, to) in edits {
+        assert!(text.contains(from), "{from}");
+        text = text.replacen(from, to, 1);
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn hostile_files_get_a_named_error_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // An .npy header announcing 2^64 values (exit 101 before: index out of bounds).
+    let mut header =
+        "{'descr': '<f8', 'fortran_order': True, 'shape': (4294967296, 4294967296), }".to_string();
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    bytes.extend_from_slice(&[0u8; 64]);
+    let m = d.join("huge.npy");
+    std::fs::write(&m, bytes).unwrap();
+    let err = fails(&polnlos(&[
+        "reconstruct",
+        scene("brewster-crossed-3x3").to_str().unwrap(),
+        "--measurement",
+        m.to_str().unwrap(),
+        "--out",
+        d.join("o").to_str().unwrap(),
+    ]));
+    assert!(err.contains("huge.npy") && err.contains("shape"), "{err}");
+    // Values that used to pass validation: all-NaN T, a meaningless angle, a
+    // block listed twice (the daemon could never reconstruct that scene).
+    for (from, to, key) in [
+        ("ior = 1.5", "ior = 1e308", "wall.ior"),
+        (
+            "polarizer_deg = [0.0]",
+            "polarizer_deg = [1e308]",
+            "polarizer_deg",
+        ),
+        (
+            "polarizer_deg = [0.0]",
+            "polarizer_deg = [0, 0, 360]",
+            "same polarizer setting",
+        ),
+    ] {
+        let p = edited_scene(d, "bad.toml", &[(from, to)]);
+        let err = fails(&polnlos(&["cond", p.to_str().unwrap()]));
+        assert!(err.contains(key), "{to}: {err}");
+    }
+    // A 4096^2 wall is refused before it allocates, with what to reduce.
+    let p = edited_scene(
+        d,
+        "huge-wall.toml",
+        &[("grid = [32, 32]", "grid = [4096, 4096]")],
+    );
+    let err = fails(&polnlos(&["cond", p.to_str().unwrap()]));
+    assert!(err.contains("reduce wall.grid to at most"), "{err}");
+}
+
 #[test]
 fn bench_quick_writes_its_reports() {
     let dir = tempfile::tempdir().unwrap();

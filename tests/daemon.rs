@@ -239,7 +239,7 @@ fn a_token_guards_every_mutating_request() {
     assert_eq!(d.post("/captures", body).0, 202);
     assert_eq!(d.get("/captures").0, 200);
     // The scheme is case-insensitive (RFC 7235).
-    let (s, _) = raw(&d, "GET /captures HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: bearer s3cret\r\nConnection: close\r\n\r\n");
+    let (s, _) = d.raw(b"GET /captures HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: bearer s3cret\r\nConnection: close\r\n\r\n");
     assert_eq!(s, 200);
     drop(d);
     // public_reads lets GETs through without it; writes still need it.
@@ -253,28 +253,6 @@ fn a_token_guards_every_mutating_request() {
     let d = Daemon::start(&cfg, &dir.path().join("data2"));
     assert_eq!(d.get("/captures").0, 200);
     assert_eq!(d.post("/captures", body).0, 401);
-}
-
-/// Sends raw bytes on a fresh connection and returns the status and body.
-fn raw(d: &Daemon, request: &str) -> (u16, String) {
-    use std::io::{Read, Write};
-    let addr = d.base.trim_start_matches("http://");
-    let mut s = std::net::TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    s.write_all(request.as_bytes()).unwrap();
-    let mut out = Vec::new();
-    let _ = s.read_to_end(&mut out);
-    let text = String::from_utf8_lossy(&out).into_owned();
-    let status = text
-        .split_whitespace()
-        .nth(1)
-        .and_then(|c| c.parse().ok())
-        .unwrap_or(0);
-    let body = text
-        .split_once("\r\n\r\n")
-        .map(|x| x.1.to_string())
-        .unwrap_or_default();
-    (status, body)
 }
 
 #[test]

@@ -76,7 +76,13 @@ impl From<crate::store::StoreError> for ApiError {
     fn from(e: crate::store::StoreError) -> Self {
         match e {
             crate::store::StoreError::NotFound { .. } => Self::not_found(e.to_string()),
-            e => Self::internal(e.to_string()),
+            // The full text names files on the server: the log has it, the client a summary.
+            e => {
+                tracing::error!("catalogue: {e}");
+                Self::internal(
+                    "the catalogue could not be read or written (a full or read-only disk?); the daemon's log has the details",
+                )
+            }
         }
     }
 }
@@ -136,26 +142,6 @@ impl From<axum::extract::rejection::QueryRejection> for ApiError {
 impl From<axum::extract::rejection::PathRejection> for ApiError {
     fn from(r: axum::extract::rejection::PathRejection) -> Self {
         Self::bad_request(format!("path: {}", r.body_text()))
-    }
-}
-
-impl From<axum::extract::rejection::JsonRejection> for ApiError {
-    fn from(r: axum::extract::rejection::JsonRejection) -> Self {
-        let status = r.status();
-        let code = match status {
-            StatusCode::PAYLOAD_TOO_LARGE => "body_too_large",
-            StatusCode::UNSUPPORTED_MEDIA_TYPE => "unsupported_media_type",
-            StatusCode::UNPROCESSABLE_ENTITY => "invalid_request",
-            _ => "malformed_json",
-        };
-        // serde's text names the field and the expected type; axum's prefix is noise.
-        let text = r.body_text();
-        let detail = text
-            .split_once(": ")
-            .filter(|(head, _)| head.starts_with("Failed to"))
-            .map_or(text.as_str(), |(_, rest)| rest)
-            .to_string();
-        Self::new(status, code, detail)
     }
 }
 

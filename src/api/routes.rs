@@ -4,7 +4,6 @@ use std::convert::Infallible;
 use std::sync::Arc;
 
 use axum::body::Body;
-use axum::extract::rejection::JsonRejection;
 use axum::extract::State;
 use axum::http::{header, StatusCode};
 use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
@@ -15,7 +14,7 @@ use serde::Deserialize;
 use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::StreamExt;
 
-use super::extract::{ApiPath as Path, ApiQuery as Query};
+use super::extract::{ApiJson, ApiPath as Path, ApiQuery as Query};
 use super::ApiError;
 use crate::camera::CameraSettings;
 use crate::daemon::metrics::{Metrics, Sample};
@@ -230,9 +229,8 @@ pub async fn camera(State(d): St) -> Json<serde_json::Value> {
 #[utoipa::path(put, path = "/camera/settings", request_body = CameraSettings, responses((status = 200, description = "Applied; the camera's description with its settings read back"), (status = 409, description = "A capture is running"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
 pub async fn camera_settings(
     State(d): St,
-    body: Result<Json<CameraSettings>, JsonRejection>,
+    ApiJson(s): ApiJson<CameraSettings>,
 ) -> Result<Json<crate::camera::CameraInfo>, ApiError> {
-    let Json(s) = body?;
     Ok(Json(d.put_camera_settings(s).await?))
 }
 
@@ -255,9 +253,8 @@ fn accepted(kind: &str, id: i64, extra: serde_json::Value) -> Response {
 #[utoipa::path(post, path = "/captures", request_body = CaptureBody, responses((status = 202, description = "Queued; Location names the capture; the body echoes every setting it will use"), (status = 404, description = "Unknown scene"), (status = 422, description = "Out of range"), (status = 429, description = "Queue full"), (status = 507, description = "Its files would not fit on the disk")))]
 pub async fn post_capture(
     State(d): St,
-    body: Result<Json<CaptureBody>, JsonRejection>,
+    ApiJson(b): ApiJson<CaptureBody>,
 ) -> Result<Response, ApiError> {
-    let Json(b) = body?;
     // Validation may build the scene's T (for "exposure": "auto"): off the runtime.
     let d2 = d.clone();
     let req = tokio::task::spawn_blocking(move || validate_capture(&d2, &b))
@@ -350,9 +347,8 @@ pub async fn capture_preview(State(d): St, Path(id): Path<String>) -> Result<Res
 #[utoipa::path(post, path = "/reconstructions", request_body = ReconstructionBody, responses((status = 202, description = "Queued"), (status = 404, description = "Unknown scene or capture"), (status = 422, description = "Invalid"), (status = 429, description = "Queue full")))]
 pub async fn post_reconstruction(
     State(d): St,
-    body: Result<Json<ReconstructionBody>, JsonRejection>,
+    ApiJson(b): ApiJson<ReconstructionBody>,
 ) -> Result<Response, ApiError> {
-    let Json(b) = body?;
     let req = validate_reconstruction(&d, &b)?;
     let permit = d.reconstructions.try_reserve().map_err(|_| {
         d.metrics

@@ -83,6 +83,7 @@ pub struct FakeBench {
     gv: Option<aravis::GvFakeCamera>,
     shared: *const Shared,
     address: String,
+    switches_scene: bool,
 }
 
 // SAFETY: the GvFakeCamera runs its own threads; the object itself is only
@@ -149,7 +150,16 @@ impl FakeBench {
             gv: Some(gv),
             shared: ptr,
             address: address.to_string(),
+            switches_scene: true,
         })
+    }
+
+    /// Plays a bench whose hidden scene an operator switches by hand: dark
+    /// frames then need an explicit dark capture (the scene stays lit unless
+    /// a dark capture asks for it).
+    pub fn operated_by_hand(mut self) -> Self {
+        self.switches_scene = false;
+        self
     }
 
     /// The address to open the camera at.
@@ -174,7 +184,7 @@ impl Bench for FakeBench {
         self.shared().scene_on.store(on, Ordering::SeqCst);
     }
     fn switches_scene(&self) -> bool {
-        true
+        self.switches_scene
     }
 }
 

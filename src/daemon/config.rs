@@ -75,6 +75,14 @@ pub struct DemoConfig {
     pub scene: String,
     /// `disk`, `bars` or `letter`.
     pub pattern: String,
+    /// Whether the fake bench switches the hidden scene off for dark frames
+    /// by itself (false: it plays a bench switched by hand).
+    #[serde(default = "yes")]
+    pub bench_switches_scene: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// Queue limits.

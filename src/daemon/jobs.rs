@@ -288,6 +288,8 @@ pub(super) fn finish_job(
         }
         Err(e) => {
             tracing::warn!("{job} failed: {e}");
+            // What clients read says where inside the data directory, not where it is.
+            let e = d.store.redact_paths(&e);
             failed.fetch_add(1, Ordering::Relaxed);
             if let Err(se) = store_failure(&e) {
                 tracing::error!("cannot record the failure of {job}: {se}");

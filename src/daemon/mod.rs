@@ -120,12 +120,12 @@ impl Daemon {
             for name in scenes.names() {
                 calibration.entry(name).or_insert(c);
             }
-            let fake = Arc::new(FakeBench::start(
-                &address,
-                "POLNLOS-DEMO",
-                frames,
-                DEMO_REFERENCE_EXPOSURE_US,
-            )?);
+            let mut fake =
+                FakeBench::start(&address, "POLNLOS-DEMO", frames, DEMO_REFERENCE_EXPOSURE_US)?;
+            if !config.demo.bench_switches_scene {
+                fake = fake.operated_by_hand();
+            }
+            let fake = Arc::new(fake);
             tracing::info!(
                 address,
                 "Aravis GigE Vision fake camera started (demo scene {:?}, pattern {:?})",

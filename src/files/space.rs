@@ -36,11 +36,13 @@ fn parse_mem_available(meminfo: &str) -> Option<u64> {
     kib.checked_mul(1024)
 }
 
-/// Sets the transport matrix's memory budget to half of the available
-/// memory (T, its Gram matrix and the solver's copies must fit beside it).
+/// Sets the transport matrix's memory budget to a quarter of the available
+/// memory: what follows T (an SVD or a solver's working copy of it, the wall
+/// samples, the Gram matrix) takes about as much again, and the daemon keeps
+/// T cached.
 pub fn budget_transport_memory() {
     if let Some(m) = available_memory_bytes() {
-        crate::transport::set_memory_limit(m / 2);
+        crate::transport::set_memory_limit(m / 4);
     }
 }
 

@@ -264,15 +264,16 @@ impl Store {
     /// An error as a job or an HTTP client should read it: paths inside the
     /// data directory relative to it, never absolute.
     pub fn describe(&self, e: &StoreError) -> String {
-        self.relative(&e.to_string())
+        self.redact_paths(&e.to_string())
     }
 
     /// An I/O error on `path` (inside the data directory), described as [`Store::describe`] does.
     pub fn describe_io(&self, path: &Path, e: &std::io::Error) -> String {
-        self.relative(&format!("{}: {e}", path.display()))
+        self.redact_paths(&format!("{}: {e}", path.display()))
     }
 
-    fn relative(&self, text: &str) -> String {
+    /// `text` with the data directory's path taken out of the paths in it.
+    pub fn redact_paths(&self, text: &str) -> String {
         let base = self.dir.display().to_string();
         let abs = std::fs::canonicalize(&self.dir)
             .map(|p| p.display().to_string())

@@ -53,7 +53,7 @@ pub struct Transport {
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
     /// The matrix would not fit in the memory budget.
-    #[error("T would be {rows} x {cols} ({gib:.1} GiB in f64), over the {limit_gib:.1} GiB this machine can spare (half of its available memory); reduce wall.grid to at most {max_wall_side}x{max_wall_side} elements, or scene.grid, or the number of poses/angles")]
+    #[error("T would be {rows} x {cols} ({gib:.1} GiB in f64), over the {limit_gib:.1} GiB this machine can spare (a quarter of its available memory); reduce wall.grid to at most {max_wall_side}x{max_wall_side} elements, or scene.grid, or the number of poses/angles")]
     TooLarge {
         /// Rows asked for.
         rows: usize,
@@ -82,8 +82,8 @@ pub enum TransportError {
 /// available memory ([`set_memory_limit`]); 12 GiB until one does.
 static MEMORY_LIMIT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(12 << 30);
 
-/// Sets the memory budget for `T` (bytes). Front ends call it with half of
-/// the available memory, so that `T`, its Gram matrix and the solver fit.
+/// Sets the memory budget for `T` (bytes). Front ends call it with a quarter
+/// of the available memory, so that `T`, its copies and the solver fit.
 pub fn set_memory_limit(bytes: u64) {
     MEMORY_LIMIT.store(bytes.max(1 << 20), std::sync::atomic::Ordering::Relaxed);
 }

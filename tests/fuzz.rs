@@ -1,0 +1,104 @@
+//! The fuzz targets of `fuzz/` on stable, in the ordinary test suite: every
+//! corpus file, then a fixed-seed batch of mutations of each (byte flips,
+//! insertions, truncations, splices of interesting tokens). A panic here is a
+//! crash a client or a file could cause. Longer, coverage-guided runs:
+//! `cargo fuzz run <target>` in `fuzz/` (see the README).
+
+#[path = "../fuzz/fuzz_targets/parsers.rs"]
+mod parsers;
+
+use rand::{Rng, SeedableRng};
+
+type Target = fn(&[u8]);
+
+const TARGETS: [(&str, Target); 6] = [
+    ("scene_toml", parsers::scene_toml),
+    ("npy", parsers::npy),
+    ("capture_json", parsers::capture_json),
+    ("reconstruction_json", parsers::reconstruction_json),
+    ("settings_json", parsers::settings_json),
+    ("config_toml", parsers::config_toml),
+];
+
+/// Tokens that reach edge cases of these formats.
+const TOKENS: [&[u8]; 16] = [
+    b"1e308",
+    b"-1",
+    b"4294967296",
+    b"18446744073709551615",
+    b"nan",
+    b"inf",
+    b"[]",
+    b"{}",
+    b"\"",
+    b"\\u0000",
+    b"(",
+    b")",
+    b",",
+    b"null",
+    b"[[",
+    b"\x93NUMPY\x02\x00",
+];
+
+fn mutate(rng: &mut rand_chacha::ChaCha8Rng, seed: &[u8]) -> Vec<u8> {
+    let mut b = seed.to_vec();
+    for _ in 0..rng.random_range(1..6) {
+        let at = if b.is_empty() {
+            0
+        } else {
+            rng.random_range(0..b.len())
+        };
+        match rng.random_range(0..5) {
+            0 if !b.is_empty() => b[at] = rng.random(),
+            1 => b.truncate(at),
+            2 => {
+                let t = TOKENS[rng.random_range(0..TOKENS.len())];
+                b.splice(at..at, t.iter().copied());
+            }
+            3 if !b.is_empty() => {
+                let end = (at + rng.random_range(1..16)).min(b.len());
+                b.drain(at..end);
+            }
+            _ => {
+                // Replace a run of digits with a huge number.
+                let end = (at..b.len())
+                    .find(|&i| !b[i].is_ascii_digit())
+                    .unwrap_or(b.len());
+                b.splice(at..end, b"99999999999999999999".iter().copied());
+            }
+        }
+    }
+    b
+}
+
+#[test]
+fn every_parser_survives_its_corpus_and_mutations() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus");
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+    for (name, target) in TARGETS {
+        let seeds: Vec<Vec<u8>> = std::fs::read_dir(root.join(name))
+            .unwrap_or_else(|e| panic!("fuzz/corpus/{name}: {e}"))
+            .flatten()
+            .map(|e| std::fs::read(e.path()).unwrap())
+            .collect();
+        assert!(!seeds.is_empty(), "fuzz/corpus/{name} is empty");
+        let mut runs = 0;
+        for seed in &seeds {
+            target(seed);
+            for _ in 0..1500 {
+                target(&mutate(&mut rng, seed));
+                runs += 1;
+            }
+        }
+        for _ in 0..500 {
+            let n = rng.random_range(0..256);
+            let bytes: Vec<u8> = (0..n).map(|_| rng.random()).collect();
+            target(&bytes);
+            runs += 1;
+        }
+        println!(
+            "{name}: {} corpus files, {runs} mutated and random inputs",
+            seeds.len()
+        );
+    }
+}
