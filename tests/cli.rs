@@ -271,17 +271,43 @@ fn simulate_then_reconstruct_through_files() {
     assert!(floor < target && misfit <= target, "{c}");
     assert!(c["resolved"].as_u64().unwrap() >= 1);
     assert_eq!(a["solver"]["lambda"], c["lambda"]);
+    assert_eq!(c["noise"], "camera-model");
+    // Without a noise level, the measurement's own residual gives it.
+    let alone = d.join("alone");
+    let out = ok(&polnlos(&[
+        "reconstruct",
+        s.to_str().unwrap(),
+        "--measurement",
+        sim.join("measurement.npy").to_str().unwrap(),
+        "--out",
+        alone.to_str().unwrap(),
+        "--lambda",
+        "auto",
+    ]));
+    assert!(
+        out.contains("noise from residual"),
+        "results on stdout: {out}"
+    );
+    let b: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(alone.join("report.json")).unwrap()).unwrap();
+    assert_eq!(b["lambda_choice"]["noise"], "residual");
+    // The residual's variance is the camera model's to within 25 %.
+    let ratio = b["lambda_choice"]["noise_variance"].as_f64().unwrap()
+        / c["noise_variance"].as_f64().unwrap();
+    assert!((0.75..1.25).contains(&ratio), "{ratio}");
     let err = fails(&polnlos(&[
         "reconstruct",
         s.to_str().unwrap(),
         "--measurement",
         sim.join("measurement.npy").to_str().unwrap(),
         "--out",
-        auto.to_str().unwrap(),
+        alone.to_str().unwrap(),
+        "--solver",
+        "tikhonov",
         "--lambda",
         "auto",
     ]));
-    assert!(err.contains("--noise-from"), "{err}");
+    assert!(err.contains("TV solvers"), "{err}");
 
     let rec_lsq = d.join("lsq");
     ok(&args("lsq", &rec_lsq));

@@ -49,7 +49,10 @@ fn regions_beyond_the_sensor_are_422_before_the_camera_and_captures_still_work()
         (r#", "region": [2147483647, 0, 16, 16]"#, "x + width"),
         (r#", "region": [0, 0, 0, 0]"#, "at least"),
         (r#", "binning": [100000, 100000]"#, "BinningHorizontal"),
-        (r#", "region": [-1, -1, 10, 10]"#, "region[0]: invalid value: integer `-1`"),
+        (
+            r#", "region": [-1, -1, 10, 10]"#,
+            "region[0]: invalid value: integer `-1`",
+        ),
         (r#", "colour": true"#, "unknown field"),
     ] {
         let (s, b) = put(extra);

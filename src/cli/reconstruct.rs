@@ -4,23 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
-use polnlos::solve::lambda::{admm_tv_resolved, NoiseLevel};
-use polnlos::solve::report::{mean_snr, snr_warnings, Report};
-use polnlos::solve::{
-    admm_tv, condition, fista_tv, least_squares, tikhonov, AdmmSettings, FistaSettings,
-};
-
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum Solver {
-    /// ADMM with isotropic TV and the box 0 <= l <= 1 (MODEL.md Eq. 12).
-    AdmmTv,
-    /// FISTA with a TV proximal step and the box (Saunders et al. 2019); same objective.
-    FistaTv,
-    /// Tikhonov (ridge) regularization, clipped to [0, 1].
-    Tikhonov,
-    /// (Truncated) pseudo-inverse, clipped to [0, 1].
-    Lsq,
-}
+use polnlos::solve::lambda::NoiseLevel;
+use polnlos::solve::reconstruct::{self as rec, SolveRequest, Solver};
+use polnlos::solve::{condition, AdmmSettings};
 
 /// Recover the hidden scene from a measurement.
 #[derive(Debug, clap::Args)]
@@ -40,22 +26,23 @@ pub struct Args {
     /// Solver.
     #[arg(long, value_enum, default_value = "admm-tv")]
     solver: Solver,
-    /// Regularization weight in MODEL.md units, or `auto` (admm-tv: from the
-    /// noise level of --noise-from, the resolved-discrepancy rule). Default:
-    /// `auto` when --noise-from is given, else 1e-2 x mean diagonal of T^T T
-    /// for admm-tv, 1e-3 x for tikhonov.
+    /// Regularization weight in MODEL.md units, or `auto` (the default for
+    /// admm-tv and fista-tv): chosen from the noise by the resolved-discrepancy
+    /// rule, the noise of --noise-from when given, else estimated from the
+    /// measurement's residual outside range(T). Tikhonov's default is 1e-3 x
+    /// mean diagonal of T^T T.
     #[arg(long, value_name = "L|auto")]
     lambda: Option<LambdaArg>,
     /// simulate.json whose camera model (photons, read noise, bits) gives the
-    /// noise level for --lambda auto.
+    /// noise level for the automatic lambda.
     #[arg(long = "noise-from", value_name = "FILE")]
     noise_from: Option<PathBuf>,
-    /// ADMM penalty (default: equal to lambda).
+    /// ADMM penalty (default: balanced automatically).
     #[arg(long, value_name = "R")]
     rho: Option<f64>,
-    /// ADMM / FISTA iteration cap.
-    #[arg(long = "max-iter", value_name = "N", default_value_t = AdmmSettings::default().max_iter)]
-    max_iter: usize,
+    /// ADMM / FISTA iteration cap (default 500; 5000 with an automatic lambda).
+    #[arg(long = "max-iter", value_name = "N")]
+    max_iter: Option<usize>,
     /// ADMM relative tolerance on the primal/dual residuals (FISTA: on the
     /// relative change of l between iterations).
     #[arg(long, value_name = "T", default_value_t = AdmmSettings::default().tol)]
@@ -116,74 +103,44 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .as_ref()
         .map(|p| load_grid_image(p, sgrid))
         .transpose()?;
-    super::out_dir(&a.out)?;
-
-    let (t, transport_seconds) = super::progress::build_transport(&scene)?;
-    let fixed = match a.lambda {
-        Some(LambdaArg::Value(l)) => Some(l),
-        _ => None,
-    };
-    let settings = AdmmSettings {
-        lambda: fixed,
+    let tv = matches!(a.solver, Solver::AdmmTv | Solver::FistaTv);
+    if matches!(a.lambda, Some(LambdaArg::Auto)) && !tv {
+        anyhow::bail!("--lambda auto is for the TV solvers (admm-tv, fista-tv)");
+    }
+    let req = SolveRequest {
+        solver: a.solver,
+        lambda: match a.lambda {
+            Some(LambdaArg::Value(l)) => Some(l),
+            _ => None,
+        },
         rho: a.rho,
         max_iter: a.max_iter,
-        tol: a.tol,
+        tol: Some(a.tol),
+        rcond: a.rcond,
     };
-    let mut lambda_choice = None;
-    let cond = condition(&t)?;
-    // No --lambda but a noise level: choose lambda from it.
-    let lambda_arg = match (a.lambda, &a.noise_from, a.solver) {
-        (None, Some(_), Solver::AdmmTv) => Some(LambdaArg::Auto),
-        (l, _, _) => l,
-    };
+    req.check()?;
     let noise = a
         .noise_from
         .as_ref()
         .map(|p| noise_from(p, &meas.data))
         .transpose()?;
-    let rec = match (a.solver, lambda_arg) {
-        (Solver::AdmmTv, Some(LambdaArg::Auto)) => {
-            let noise = noise
-                .as_ref()
-                .context("--lambda auto needs --noise-from simulate.json (the noise level)")?;
-            let (r, choice) =
-                admm_tv_resolved(&t, &meas.data, noise, &cond.singular_values, &settings)?;
-            lambda_choice = Some(choice);
-            r
-        }
-        (Solver::AdmmTv, _) => admm_tv(&t, &meas.data, &settings)?,
-        (Solver::FistaTv, Some(LambdaArg::Auto)) => {
-            anyhow::bail!("--lambda auto is for --solver admm-tv")
-        }
-        (Solver::FistaTv, _) => fista_tv(
-            &t,
-            &meas.data,
-            &FistaSettings {
-                lambda: fixed,
-                max_iter: a.max_iter,
-                tol: a.tol,
-                ..FistaSettings::default()
-            },
-        )?,
-        (_, Some(LambdaArg::Auto)) => anyhow::bail!("--lambda auto is for --solver admm-tv"),
-        (Solver::Tikhonov, _) => tikhonov(&t, &meas.data, fixed)?,
-        (Solver::Lsq, _) => least_squares(&t, &meas.data, a.rcond)?,
-    };
-    let image = rec.image.clone();
-    let mut report = Report::new(
-        super::scene_name(&a.scene),
+    super::out_dir(&a.out)?;
+
+    let (t, transport_seconds) = super::progress::build_transport(&scene)?;
+    let cond = condition(&t)?;
+    let solved = rec::reconstruct(
         &t,
-        transport_seconds,
+        &meas.data,
+        noise,
         &cond,
-        rec,
-        truth.as_deref(),
-        lambda_choice,
-    );
-    if let Some(n) = &noise {
-        report
-            .warnings
-            .extend(snr_warnings(mean_snr(&meas.data, &n.variance)));
-    }
+        &req,
+        rec::Context {
+            scene: super::scene_name(&a.scene),
+            transport_seconds,
+            truth: truth.as_deref(),
+        },
+    )?;
+    let (image, report) = (solved.image, solved.report);
     npy::write_f64(&a.out.join("recovered.npy"), &[sgrid.nv, sgrid.nu], &image)?;
     image::write_png16(
         &a.out.join("recovered.png"),
@@ -192,16 +149,28 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         &image::unit_to_u16(&image),
     )?;
     json::write(&a.out.join("report.json"), &report)?;
+    // Diagnostics to stderr, results to stdout.
     for w in &report.warnings {
         eprintln!("warning: {w}");
     }
+    if let Some(c) = &report.lambda_choice {
+        println!(
+            "lambda {:.3e} (resolved-discrepancy rule, noise from {}, variance {:.3e})",
+            c.lambda,
+            serde_json::to_value(c.noise)
+                .ok()
+                .and_then(|v| v.as_str().map(String::from))
+                .unwrap_or_default(),
+            c.noise_variance
+        );
+    }
     if let Some(m) = &report.metrics {
-        eprintln!(
+        println!(
             "PSNR {:.2} dB, ZNCC {:.4}, SSIM {:.4}",
             m.psnr_db, m.zncc, m.ssim
         );
     }
-    eprintln!(
+    println!(
         "recovered {}x{} scene into {}",
         sgrid.nu,
         sgrid.nv,

@@ -15,14 +15,10 @@ use crate::camera::{CameraInfo, PixelFormat};
 use crate::files::{image, json, npy};
 use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
 use crate::measure::sample_wall;
-use crate::solve::lambda::{admm_tv_resolved, NoiseLevel};
-use crate::solve::report::Report;
-use crate::solve::report::{mean_snr, snr_warnings};
-use crate::solve::{admm_tv, least_squares, tikhonov, AdmmSettings};
+use crate::solve::lambda::NoiseLevel;
+use crate::solve::reconstruct::Context;
+use crate::solve::{reconstruct, tikhonov, SolveRequest, Solver};
 use crate::store::{read_mean, JobState, ReconstructionRequest};
-
-/// ADMM iteration cap of an automatic-lambda reconstruction unless the request sets one.
-const AUTO_MAX_ITER: usize = 5000;
 
 /// The camera limits exposure planning works with: the camera's exposure
 /// range when connected (`info`, from one status read), the configured
@@ -74,27 +70,39 @@ pub struct ReconstructionBody {
     pub scene: String,
     /// One finished capture per (pose, polarizer angle) block of the scene.
     pub captures: Vec<i64>,
-    /// `admm-tv` (default), `tikhonov` or `lsq`.
-    #[serde(default = "admm")]
-    pub solver: String,
-    /// Regularization weight (MODEL.md units). Default: chosen from the
-    /// frame-to-frame noise of the captures (resolved-discrepancy rule, see
-    /// `lambda_choice` in the report) when every capture has 2 frames or
-    /// more, else as `polnlos reconstruct`.
+    /// `admm-tv` (default), `fista-tv`, `tikhonov` or `lsq`.
+    #[serde(default)]
+    pub solver: Solver,
+    /// Regularization weight (MODEL.md units). Default for the TV solvers:
+    /// chosen from the noise (resolved-discrepancy rule; `lambda_choice` in
+    /// the report says how), the frame-to-frame noise when every capture has
+    /// 2 frames or more, else the noise in the measurement's residual.
     pub lambda: Option<f64>,
     /// ADMM penalty.
     pub rho: Option<f64>,
-    /// ADMM iteration cap (1-100000).
+    /// Iteration cap (1-100000).
     pub max_iter: Option<usize>,
-    /// ADMM tolerance.
+    /// Tolerance in (0, 1).
     pub tol: Option<f64>,
+    /// Relative singular-value cut-off of `lsq`.
+    pub rcond: Option<f64>,
     /// Known truth, as a test pattern name (`disk`, `bars`, `letter`): the
     /// report then carries PSNR, ZNCC and SSIM (e.g. against the fake camera's demo scene).
     pub truth: Option<String>,
 }
 
-fn admm() -> String {
-    "admm-tv".into()
+impl ReconstructionBody {
+    /// The solver part of the request.
+    pub fn solve_request(&self) -> SolveRequest {
+        SolveRequest {
+            solver: self.solver,
+            lambda: self.lambda,
+            rho: self.rho,
+            max_iter: self.max_iter,
+            tol: self.tol,
+            rcond: self.rcond,
+        }
+    }
 }
 
 /// A request that cannot be accepted: status 404 (unknown thing) or 422.
@@ -121,40 +129,10 @@ pub fn validate_reconstruction(
         .scenes
         .get(&b.scene)
         .ok_or_else(|| RequestError::NotFound(format!("unknown scene {:?}", b.scene)))?;
-    if !["admm-tv", "tikhonov", "lsq"].contains(&b.solver.as_str()) {
-        return Err(RequestError::Invalid(format!(
-            "solver = {:?}: must be admm-tv, tikhonov or lsq",
-            b.solver
-        )));
-    }
-    if let Some(l) = b.lambda {
-        if !(l >= 0.0 && l.is_finite()) {
-            return Err(RequestError::Invalid(format!(
-                "lambda = {l}: must be a finite number >= 0"
-            )));
-        }
-    }
-    if let Some(r) = b.rho {
-        if !(r > 0.0 && r.is_finite()) {
-            return Err(RequestError::Invalid(format!(
-                "rho = {r}: must be a finite number > 0"
-            )));
-        }
-    }
-    if let Some(m) = b.max_iter {
-        if !(1..=100_000).contains(&m) {
-            return Err(RequestError::Invalid(format!(
-                "max_iter = {m}: must be from 1 to 100000"
-            )));
-        }
-    }
-    if let Some(t) = b.tol {
-        if !(t > 0.0 && t < 1.0) {
-            return Err(RequestError::Invalid(format!(
-                "tol = {t}: must be in (0, 1)"
-            )));
-        }
-    }
+    let solve = b.solve_request();
+    solve
+        .check()
+        .map_err(|e| RequestError::Invalid(e.to_string()))?;
     if let Some(t) = &b.truth {
         if crate::simulate::patterns::Pattern::from_name(t).is_none() {
             return Err(RequestError::Invalid(format!(
@@ -240,8 +218,12 @@ pub fn validate_reconstruction(
     Ok(ReconstructionRequest {
         scene: b.scene.clone(),
         captures: b.captures.clone(),
-        solver: b.solver.clone(),
-        params: serde_json::json!({ "lambda": b.lambda, "rho": b.rho, "max_iter": b.max_iter, "tol": b.tol, "truth": b.truth }),
+        solver: b.solver.name().to_string(),
+        params: {
+            let mut p = serde_json::to_value(&solve).unwrap_or_default();
+            p["truth"] = serde_json::to_value(&b.truth).unwrap_or_default();
+            p
+        },
     })
 }
 
@@ -261,10 +243,6 @@ pub(super) fn same_angle(a: Option<f64>, b: Option<f64>) -> bool {
         _ => false,
     }
 }
-
-/// Largest least-squares RMS error (fraction of the radiance range) before a
-/// reconstruction warns that its grid is too fine (as `polnlos plan`).
-const PLAN_TOLERANCE: f64 = 0.1;
 
 pub(super) fn job_event(d: &Daemon, job: String, state: JobState, error: Option<String>) {
     d.emit(Event::Job { job, state, error });
@@ -367,6 +345,12 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
                 ));
             }
         }
+        if cap.dark_frames == 0 && cap.dark_capture.is_none() {
+            frame_warnings.push(format!(
+                "capture {} has no dark subtraction: the camera's dark level is an offset that T cannot explain, and it can dominate the result; take dark_frames, or a dark capture named in dark_capture",
+                cap.id
+            ));
+        }
         if pose.frame.is_none() {
             frame_warnings.push(format!(
                 "pose {:?} does not say which camera frame its homography maps to (scene file keys region and binning), so capture {}'s frame ({}) could not be checked against it",
@@ -433,93 +417,38 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             warnings.push("no radiometric calibration for this scene: the measurement was scaled so that the brightest element is about 1".to_string());
         }
     }
-    let p = &rec.params;
-    let lambda = p.get("lambda").and_then(|v| v.as_f64());
     let cond = d
         .scenes
         .conditioning(&rec.scene)
         .ok_or("scene vanished")??;
-    let settings = AdmmSettings {
-        lambda,
-        rho: p.get("rho").and_then(|v| v.as_f64()),
-        max_iter: p
-            .get("max_iter")
-            .and_then(|v| v.as_u64())
-            .map(|v| v as usize)
-            .unwrap_or(AdmmSettings::default().max_iter),
-        tol: p
-            .get("tol")
-            .and_then(|v| v.as_f64())
-            .unwrap_or(AdmmSettings::default().tol),
-    };
-    let mut lambda_choice = None;
-    let r = match (rec.solver.as_str(), lambda, &var) {
-        ("tikhonov", _, _) => tikhonov(&t, &i, lambda),
-        ("lsq", _, _) => least_squares(&t, &i, None),
-        // No lambda given and a noise level from the frames: choose it from the noise.
-        (_, None, Some(v)) => admm_tv_resolved(
-            &t,
-            &i,
-            &NoiseLevel {
-                variance: v.clone(),
-            },
-            &cond.singular_values,
-            &AdmmSettings {
-                // Low-noise captures lead to small lambdas, which converge slowly.
-                max_iter: p
-                    .get("max_iter")
-                    .and_then(|v| v.as_u64())
-                    .map(|v| v as usize)
-                    .unwrap_or(AUTO_MAX_ITER),
-                ..settings
-            },
-        )
-        .map(|(r, c)| {
-            lambda_choice = Some(c);
-            r
-        }),
-        _ => admm_tv(&t, &i, &settings),
-    }
-    .map_err(|e| e.to_string())?;
+    // The stored request (older rows: the same keys, solver in its own column).
+    let mut solve: SolveRequest = serde_json::from_value(rec.params.clone()).unwrap_or_default();
+    solve.solver = serde_json::from_value(serde_json::Value::String(rec.solver.clone()))
+        .map_err(|_| format!("solver {:?} is not one polnlos knows", rec.solver))?;
     let grid = t.scene_grid;
-    if let Some(v) = &var {
-        warnings.extend(snr_warnings(mean_snr(&i, v)));
-        // The least-squares error the noise implies (see `polnlos plan`).
-        let sigma = (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt();
-        let amp = if cond.is_rank_deficient() {
-            f64::INFINITY
-        } else {
-            sigma
-                * (cond
-                    .singular_values
-                    .iter()
-                    .map(|s| 1.0 / (s * s))
-                    .sum::<f64>()
-                    / t.cols() as f64)
-                    .sqrt()
-        };
-        if amp > PLAN_TOLERANCE {
-            warnings.push(format!(
-                "the {}x{} scene grid is finer than this measurement supports: the frame-to-frame noise alone gives a least-squares RMS error of {amp:.2e} of the radiance range (> {PLAN_TOLERANCE}); `polnlos plan` suggests a coarser grid, or take more frames",
-                grid.nu, grid.nv
-            ));
-        }
-    }
-    let truth = p
+    let truth = rec
+        .params
         .get("truth")
         .and_then(|v| v.as_str())
         .and_then(crate::simulate::patterns::Pattern::from_name)
         .map(|pat| pat.render(grid));
-    let image = r.image.clone();
-    let mut report = Report::new(
-        rec.scene.clone(),
+    // Frame-to-frame noise when every capture has it; else reconstruct
+    // estimates it from the measurement itself.
+    let noise = var.map(NoiseLevel::measured);
+    let solved = reconstruct(
         &t,
-        transport_seconds,
+        &i,
+        noise,
         &cond,
-        r,
-        truth.as_deref(),
-        lambda_choice,
-    );
+        &solve,
+        Context {
+            scene: rec.scene.clone(),
+            transport_seconds,
+            truth: truth.as_deref(),
+        },
+    )
+    .map_err(|e| e.to_string())?;
+    let (image, mut report) = (solved.image, solved.report);
     report.warnings.splice(0..0, warnings);
     let dir = d.store.reconstruction_dir(id);
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;

@@ -17,9 +17,61 @@ use crate::transport::Transport;
 pub struct NoiseLevel {
     /// `sigma_j^2` for every row of `T`.
     pub variance: Vec<f64>,
+    /// Where the estimate came from.
+    pub source: NoiseSource,
 }
 
+/// Where a noise estimate came from (reported in `lambda_choice.noise`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum NoiseSource {
+    /// A camera model: photons, read noise and bits ([`NoiseLevel::from_camera`]).
+    CameraModel,
+    /// The frame-to-frame variance of the captures' mean.
+    FrameVariance,
+    /// The measurement alone: its least-squares residual outside range(T)
+    /// ([`NoiseLevel::from_residual`]).
+    Residual,
+}
+
+/// Fewest residual degrees of freedom (rows minus columns) for
+/// [`NoiseLevel::from_residual`]: below it the estimate is too noisy to use.
+pub const MIN_RESIDUAL_DOF: usize = 16;
+
 impl NoiseLevel {
+    /// Per-row variances measured by the caller (e.g. frame-to-frame).
+    pub fn measured(variance: Vec<f64>) -> Self {
+        Self {
+            variance,
+            source: NoiseSource::FrameVariance,
+        }
+    }
+
+    /// The noise of one measurement from the measurement alone: the part of
+    /// `i` outside range(T) is noise only, so with `M` rows and `N` columns
+    /// `sigma^2 = ||i - Q Q^T i||^2 / (M - N)`, `Q` the thin orthonormal
+    /// factor of a Householder QR of `T` (its span holds range(T) and has `N`
+    /// dimensions even when `T` is rank-deficient, where a least-squares
+    /// solve would divide by zero). The same variance for every row. `None`
+    /// when `M - N < MIN_RESIDUAL_DOF` or `i` does not fit `T`. Model error
+    /// counts as noise here, so a mismatched model gets more smoothing, not less.
+    pub fn from_residual(t: &Transport, i: &[f64]) -> Option<Self> {
+        let (m, n) = (t.rows(), t.cols());
+        if i.len() != m || m < n + MIN_RESIDUAL_DOF || i.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        let q = t.as_mat().qr().compute_thin_Q();
+        let b = faer::Mat::<f64>::from_fn(m, 1, |r, _| i[r]);
+        let c = q.transpose() * &b;
+        let fit = &q * &c;
+        let rss: f64 = (0..m).map(|r| (i[r] - fit[(r, 0)]).powi(2)).sum();
+        let var = rss / (m - n) as f64;
+        var.is_finite().then(|| Self {
+            variance: vec![var; m],
+            source: NoiseSource::Residual,
+        })
+    }
+
     /// The noise of a simulated camera (see [`crate::simulate::NoiseModel`]):
     /// shot noise from the measured signal, read noise and quantization,
     /// `sigma_j^2 = (max(i_j, 0) e + r^2)/e^2 + q^2/12` with `e` electrons per
@@ -39,6 +91,7 @@ impl NoiseLevel {
                         + units_per_dn * units_per_dn / 12.0
                 })
                 .collect(),
+            source: NoiseSource::CameraModel,
         }
     }
 
@@ -53,6 +106,10 @@ impl NoiseLevel {
 pub struct LambdaChoice {
     /// `resolved-discrepancy` (the default) or `discrepancy` (Morozov).
     pub rule: &'static str,
+    /// Where the noise level came from.
+    pub noise: NoiseSource,
+    /// Mean noise variance per measurement, units of `T l` squared.
+    pub noise_variance: f64,
     /// Best attainable misfit (smallest over the scan); resolved rule only.
     pub floor: Option<f64>,
     /// Components of the scene the measurement resolves; resolved rule only.
@@ -152,6 +209,8 @@ pub fn admm_tv_resolved(
     }
     let choice = LambdaChoice {
         rule: "resolved-discrepancy",
+        noise: noise.source,
+        noise_variance: mean_var,
         floor: Some(floor),
         resolved: Some(resolved),
         target,
@@ -264,6 +323,8 @@ pub fn admm_tv_discrepancy(
     }
     let choice = LambdaChoice {
         rule: "discrepancy",
+        noise: noise.source,
+        noise_variance: noise.total() / i.len().max(1) as f64,
         floor: None,
         resolved: None,
         target,

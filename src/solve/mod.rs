@@ -14,6 +14,7 @@ pub mod gram;
 pub mod lambda;
 pub mod metrics;
 pub mod plan;
+pub mod reconstruct;
 pub mod report;
 pub mod tv;
 
@@ -21,6 +22,7 @@ pub use admm::{admm_tv, AdmmSettings};
 pub use baseline::{least_squares, tikhonov};
 pub use conditioning::{condition, Conditioning};
 pub use fista::{fista_tv, FistaSettings};
+pub use reconstruct::{reconstruct, SolveRequest, Solver};
 
 use crate::transport::Transport;
 
