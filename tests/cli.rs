@@ -133,6 +133,24 @@ fn transport_writes_a_standard_npy() {
 }
 
 #[test]
+fn builtin_scene_names_work_like_files() {
+    let by_name = ok(&polnlos(&["cond", "brewster-crossed-3x3", "--json"]));
+    let by_file = ok(&polnlos(&[
+        "cond",
+        scene("brewster-crossed-3x3").to_str().unwrap(),
+        "--json",
+    ]));
+    let kappa = |t: &str| serde_json::from_str::<serde_json::Value>(t).unwrap()["kappa"].clone();
+    assert_eq!(kappa(&by_name), kappa(&by_file));
+    assert_eq!(
+        serde_json::from_str::<serde_json::Value>(&by_name).unwrap()["scene"],
+        "brewster-crossed-3x3"
+    );
+    let err = fails(&polnlos(&["cond", "brewster-nothing"]));
+    assert!(err.contains("cannot read scene file"), "{err}");
+}
+
+#[test]
 fn cond_json_reports_kappa_and_rank() {
     let text = ok(&polnlos(&[
         "cond",

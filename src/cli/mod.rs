@@ -77,8 +77,19 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
-/// Loads a scene file; the error names the file, the key and the reason.
+/// Loads a scene file, or a built-in scene by name (`brewster-crossed-3x3`,
+/// as the daemon knows them) when no such file exists; the error names the
+/// file, the key and the reason.
 fn load_scene(path: &Path) -> anyhow::Result<Scene> {
+    if !path.exists() {
+        let name = path.to_string_lossy();
+        if let Some((_, text)) = polnlos::scene::builtin::BUILT_IN
+            .iter()
+            .find(|(n, _)| *n == name)
+        {
+            return Ok(Scene::from_toml_str(text)?);
+        }
+    }
     Ok(Scene::load(path)?)
 }
 

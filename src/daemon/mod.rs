@@ -7,10 +7,13 @@
 //! queues are bounded: a full queue is refused at once (HTTP 429), never waited on.
 
 mod capture;
+mod capture_request;
 pub mod config;
+mod demo;
 pub mod events;
 mod jobs;
 pub mod metrics;
+mod reconstruction;
 pub mod scenes;
 
 use std::collections::BTreeMap;
@@ -18,20 +21,17 @@ use std::sync::Arc;
 
 use tokio::sync::{broadcast, mpsc, Mutex};
 
-pub use capture::{validate_capture, AutoExposure, CaptureBody};
+pub use capture_request::{validate_capture, AutoExposure, CaptureBody};
 pub use config::Config;
 pub use events::Event;
-pub use jobs::{
-    camera_limits, exposure_plan, validate_reconstruction, ReconstructionBody, RequestError,
-};
+pub use jobs::{camera_limits, exposure_plan, RequestError};
+pub use reconstruction::{validate_reconstruction, ReconstructionBody};
 
 use crate::camera::aravis::AravisCamera;
 use crate::camera::fake::{Bench, FakeBench, ManualBench};
 use crate::camera::hotplug::Hotplug;
 use crate::camera::worker::CameraHandle;
-use crate::camera::{CameraDevice, CameraInfo, CameraSettings, Frame};
-use crate::measure::render_wall;
-use crate::simulate::patterns::Pattern;
+use crate::camera::{CameraDevice, CameraInfo, CameraSettings};
 use crate::store::{CaptureRequest, Store};
 use metrics::Metrics;
 use scenes::Scenes;
@@ -114,7 +114,7 @@ impl Daemon {
                 .unwrap_or_else(|| "127.0.0.1".into());
             let scenes2 = scenes.clone();
             let demo = config.demo.clone();
-            let (frames, c) = tokio::task::spawn_blocking(move || demo_frames(&scenes2, &demo))
+            let (frames, c) = tokio::task::spawn_blocking(move || demo::frames(&scenes2, &demo))
                 .await
                 .map_err(|e| DaemonError::Demo(e.to_string()))??;
             for name in scenes.names() {
@@ -174,7 +174,10 @@ impl Daemon {
         tokio::spawn(capture::capture_worker(daemon.clone(), capture_rx));
         let shared = Arc::new(Mutex::new(recon_rx));
         for _ in 0..workers {
-            tokio::spawn(jobs::reconstruction_worker(daemon.clone(), shared.clone()));
+            tokio::spawn(reconstruction::reconstruction_worker(
+                daemon.clone(),
+                shared.clone(),
+            ));
         }
         tokio::spawn(watch_camera(daemon.clone()));
         Ok(daemon)
@@ -242,7 +245,7 @@ impl Daemon {
     /// files, plus what queued captures reserved, plus the configured
     /// reserve), then records and queues it.
     pub fn submit_capture(&self, req: &CaptureRequest) -> Result<i64, SubmitError> {
-        let need = capture::request_bytes(req);
+        let need = capture_request::request_bytes(req);
         let free = crate::files::space::free_disk_bytes(self.store.dir())
             .map_err(|e| SubmitError::Store(self.store.describe_io(self.store.dir(), &e)))?;
         let mut reserved = self.reserved.lock().unwrap_or_else(|e| e.into_inner());
@@ -351,81 +354,4 @@ async fn watch_camera(d: Arc<Daemon>) {
         }
         tokio::time::sleep(std::time::Duration::from_millis(250)).await;
     }
-}
-
-type DemoFrames = Vec<(String, Option<f64>, Frame)>;
-
-/// Renders the fake camera's frame for every block of the demo scene (and of
-/// every other scene on the same bench with poses of their own), normalized so
-/// that the unpolarized peak is 80 % of full scale at the reference exposure.
-/// Returns the frames and the calibration they imply (fraction of full scale
-/// per microsecond per unit of T l).
-fn demo_frames(
-    scenes: &Scenes,
-    demo: &config::DemoConfig,
-) -> Result<(DemoFrames, f64), DaemonError> {
-    let err = |m: String| DaemonError::Demo(m);
-    let pattern = Pattern::from_name(&demo.pattern).ok_or_else(|| {
-        err(format!(
-            "pattern {:?} is not disk, bars or letter",
-            demo.pattern
-        ))
-    })?;
-    let scene = scenes
-        .get(&demo.scene)
-        .ok_or_else(|| err(format!("no scene {:?}", demo.scene)))?;
-    let t = scenes
-        .transport(&demo.scene)
-        .ok_or_else(|| err("no scene".into()))?
-        .map_err(|e| err(e.to_string()))?;
-    let l = pattern.render(t.scene_grid);
-    let peak = crate::simulate::unpolarized_peak(&scene, &t, &l).map_err(|e| err(e.to_string()))?;
-    if peak <= 0.0 {
-        return Err(err("the demo scene lights no wall element".into()));
-    }
-    let norm = DEMO_PEAK_FRACTION / peak;
-    let mut frames: DemoFrames = Vec::new();
-    // The demo scene first; then same-bench scenes add blocks it lacks (B, C, angles).
-    let mut names = vec![demo.scene.clone()];
-    names.extend(scenes.names().into_iter().filter(|n| {
-        n != &demo.scene && same_bench(&scene, &scenes.get(n).unwrap_or_else(|| scene.clone()))
-    }));
-    for name in names {
-        let (Some(s), Some(Ok(t))) = (scenes.get(&name), scenes.transport(&name)) else {
-            continue;
-        };
-        let l = pattern.render(t.scene_grid);
-        let i = t.apply(&l);
-        for (b, block) in t.blocks.iter().enumerate() {
-            if frames
-                .iter()
-                .any(|(p, a, _)| p == &block.pose && *a == block.polarizer_deg)
-            {
-                continue;
-            }
-            let Some(h) = s.pose(&block.pose).and_then(|p| p.homography) else {
-                continue;
-            };
-            let values: Vec<f64> = i[t.block_rows(b)].iter().map(|v| v * norm).collect();
-            frames.push((
-                block.pose.clone(),
-                block.polarizer_deg,
-                render_wall(&values, &h, &s.wall.plane, 512, 512, 0.0),
-            ));
-        }
-    }
-    // Frame value v = norm T l at the reference exposure, as a fraction of full scale.
-    let c = norm / DEMO_REFERENCE_EXPOSURE_US;
-    Ok((frames, c))
-}
-
-/// Same wall, same hidden-scene plane, no occluder difference: frames can be shared.
-fn same_bench(a: &crate::scene::Scene, b: &crate::scene::Scene) -> bool {
-    a.wall.plane.center == b.wall.plane.center
-        && a.wall.plane.size == b.wall.plane.size
-        && a.wall.plane.grid == b.wall.plane.grid
-        && a.wall.brdf == b.wall.brdf
-        && a.scene.plane.center == b.scene.plane.center
-        && a.scene.plane.size == b.scene.plane.size
-        && a.occluders == b.occluders
 }

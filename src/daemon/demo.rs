@@ -1,0 +1,86 @@
+//! The fake camera's demo: the wall image of a test pattern behind every
+//! (pose, angle) block of the demo scene and of the scenes on the same bench,
+//! rendered by the numeric core through each pose's homography.
+
+use super::scenes::Scenes;
+use super::{config, DaemonError, DEMO_PEAK_FRACTION, DEMO_REFERENCE_EXPOSURE_US};
+use crate::camera::Frame;
+use crate::measure::render_wall;
+use crate::simulate::patterns::Pattern;
+
+type DemoFrames = Vec<(String, Option<f64>, Frame)>;
+
+/// Renders the fake camera's frame for every block of the demo scene (and of
+/// every other scene on the same bench with poses of their own), normalized so
+/// that the unpolarized peak is 80 % of full scale at the reference exposure.
+/// Returns the frames and the calibration they imply (fraction of full scale
+/// per microsecond per unit of T l).
+pub(super) fn frames(
+    scenes: &Scenes,
+    demo: &config::DemoConfig,
+) -> Result<(DemoFrames, f64), DaemonError> {
+    let err = |m: String| DaemonError::Demo(m);
+    let pattern = Pattern::from_name(&demo.pattern).ok_or_else(|| {
+        err(format!(
+            "pattern {:?} is not disk, bars or letter",
+            demo.pattern
+        ))
+    })?;
+    let scene = scenes
+        .get(&demo.scene)
+        .ok_or_else(|| err(format!("no scene {:?}", demo.scene)))?;
+    let t = scenes
+        .transport(&demo.scene)
+        .ok_or_else(|| err("no scene".into()))?
+        .map_err(|e| err(e.to_string()))?;
+    let l = pattern.render(t.scene_grid);
+    let peak = crate::simulate::unpolarized_peak(&scene, &t, &l).map_err(|e| err(e.to_string()))?;
+    if peak <= 0.0 {
+        return Err(err("the demo scene lights no wall element".into()));
+    }
+    let norm = DEMO_PEAK_FRACTION / peak;
+    let mut frames: DemoFrames = Vec::new();
+    // The demo scene first; then same-bench scenes add blocks it lacks (B, C, angles).
+    let mut names = vec![demo.scene.clone()];
+    names.extend(scenes.names().into_iter().filter(|n| {
+        n != &demo.scene && same_bench(&scene, &scenes.get(n).unwrap_or_else(|| scene.clone()))
+    }));
+    for name in names {
+        let (Some(s), Some(Ok(t))) = (scenes.get(&name), scenes.transport(&name)) else {
+            continue;
+        };
+        let l = pattern.render(t.scene_grid);
+        let i = t.apply(&l);
+        for (b, block) in t.blocks.iter().enumerate() {
+            if frames
+                .iter()
+                .any(|(p, a, _)| p == &block.pose && *a == block.polarizer_deg)
+            {
+                continue;
+            }
+            let Some(h) = s.pose(&block.pose).and_then(|p| p.homography) else {
+                continue;
+            };
+            let values: Vec<f64> = i[t.block_rows(b)].iter().map(|v| v * norm).collect();
+            frames.push((
+                block.pose.clone(),
+                block.polarizer_deg,
+                render_wall(&values, &h, &s.wall.plane, 512, 512, 0.0),
+            ));
+        }
+    }
+    // Frame value v = norm T l at the reference exposure, as a fraction of full scale.
+    let c = norm / DEMO_REFERENCE_EXPOSURE_US;
+    Ok((frames, c))
+}
+
+/// Same wall, same hidden-scene plane, no occluder difference: frames can be shared.
+fn same_bench(a: &crate::scene::Scene, b: &crate::scene::Scene) -> bool {
+    a.wall.plane.center == b.wall.plane.center
+        && a.wall.plane.size == b.wall.plane.size
+        && a.wall.plane.grid == b.wall.plane.grid
+        && a.wall.brdf == b.wall.brdf
+        && a.scene.plane.center == b.scene.plane.center
+        && a.scene.plane.size == b.scene.plane.size
+        && a.occluders == b.occluders
+}
