@@ -356,6 +356,11 @@ fn bad_input_gets_a_clear_error() {
     // A missing file.
     let err = fails(&polnlos(&["cond", d.join("nope.toml").to_str().unwrap()]));
     assert!(err.contains("cannot read scene file"), "{err}");
+    assert_eq!(
+        err.matches("os error 2").count(),
+        1,
+        "the OS error once: {err}"
+    );
     // A measurement of the wrong length.
     let m = d.join("short.npy");
     npy::write_f64(&m, &[10], &[0.5; 10]).unwrap();

@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use tokio::sync::mpsc;
 
-use super::jobs::{finish_job, job_event};
+use super::jobs::{finish_job, job_event, JobError};
 use super::{Daemon, Event};
 use crate::camera::{CameraError, CameraSettings, Frame, PixelFormat, RawFrame, TriggerMode};
 use crate::store::{
@@ -46,12 +46,16 @@ pub(super) async fn capture_worker(d: Arc<Daemon>, mut rx: mpsc::Receiver<i64>) 
     }
 }
 
-async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
-    let c = d.store.capture(id).map_err(|e| e.to_string())?;
-    d.store.capture_running(id).map_err(|e| e.to_string())?;
+async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), JobError> {
+    let store_err = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
+    let c = d.store.capture(id).map_err(store_err)?;
+    d.store.capture_running(id).map_err(store_err)?;
     job_event(d, format!("capture-{id}"), JobState::Running, None);
     let (Some(region), Some(binning)) = (c.region, c.binning) else {
-        return Err(format!("capture {id} records no region or binning"));
+        return Err(JobError::Capture {
+            id,
+            reason: "records no region or binning".into(),
+        });
     };
     let settings = CameraSettings {
         exposure_us: c.exposure_us,
@@ -92,7 +96,7 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
         camera_id: camera_id.clone(),
     };
     let dir = d.store.capture_dir(id);
-    std::fs::create_dir_all(&dir).map_err(|e| d.store.describe_io(&dir, &e))?;
+    std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
     d.bench.select(&c.pose, c.polarizer_deg);
     let total = (c.frames + c.dark_frames) as usize;
     let stream = Stream {
@@ -111,7 +115,10 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
             .take(CaptureFiles::DARK, "dark", c.dark_frames as usize, 0)
             .await;
         d.bench.scene_on(true);
-        let st = r.map_err(|e| format!("dark frames: {e}"))?;
+        let st = r.map_err(|e| JobError::Capture {
+            id,
+            reason: format!("dark frames: {e}"),
+        })?;
         dark = Some(Frame {
             width: st.width,
             height: st.height,
@@ -120,8 +127,10 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
     }
     if let Some(dc) = c.dark_capture {
         dark = Some(
-            read_mean(&d.store.capture_dir(dc))
-                .map_err(|e| format!("dark capture {dc}: {}", d.store.describe(&e)))?,
+            read_mean(&d.store.capture_dir(dc)).map_err(|e| JobError::Capture {
+                id: dc,
+                reason: d.store.describe(&e),
+            })?,
         );
     }
     let scene_off = kind == CaptureKind::Dark && d.bench.switches_scene();
@@ -143,15 +152,15 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), String> {
     let store = d.store.clone();
     let dir2 = dir.clone();
     tokio::task::spawn_blocking(move || {
-        write_summary(&dir2, &frames, dark.as_ref(), &meta).map_err(|e| store.describe(&e))
+        write_summary(&dir2, &frames, dark.as_ref(), &meta)
+            .map_err(|e| JobError::Store(store.describe(&e)))
     })
-    .await
-    .map_err(|e| e.to_string())??;
+    .await??;
     let status = d.camera.status();
     let counters = serde_json::to_string(&status.counters).unwrap_or_default();
     d.store
         .capture_done(id, &camera_id, &counters)
-        .map_err(|e| e.to_string())
+        .map_err(store_err)
 }
 
 /// One acquisition of a capture, streamed to one file.
@@ -173,7 +182,7 @@ impl Stream<'_> {
         kind: &'static str,
         n: usize,
         offset: usize,
-    ) -> Result<FrameStack, String> {
+    ) -> Result<FrameStack, JobError> {
         let (id, total, d) = (self.id, self.total, self.d);
         let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<RawFrame>(FRAME_QUEUE);
         let (progress_tx, mut progress_rx) = mpsc::unbounded_channel::<usize>();
@@ -184,7 +193,7 @@ impl Stream<'_> {
             write_frames(&path, kind, &meta, n, frame_rx, &mut |k| {
                 let _ = progress_tx.send(offset + k);
             })
-            .map_err(|e| store.describe(&e))
+            .map_err(|e| JobError::Store(store.describe(&e)))
         });
         let d2 = d.clone();
         let progress = tokio::spawn(async move {
@@ -200,13 +209,13 @@ impl Stream<'_> {
             }
         });
         let acquired = d.camera.acquire(self.settings.clone(), n, frame_tx).await;
-        let written = writer.await.map_err(|e| e.to_string()).and_then(|r| r);
+        let written = writer.await.map_err(JobError::from).and_then(|r| r);
         let _ = progress.await;
         match (acquired, written) {
             (Ok(()), Ok(stack)) => Ok(stack),
             // The writer stopped first (a full disk): its reason is the one that matters.
             (Err(CameraError::Stopped(_)), Err(w)) | (Ok(()), Err(w)) => Err(w),
-            (Err(e), _) => Err(e.to_string()),
+            (Err(e), _) => Err(e.into()),
         }
     }
 }

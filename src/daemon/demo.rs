@@ -31,7 +31,6 @@ pub(super) fn frames(
         .ok_or_else(|| err(format!("no scene {:?}", demo.scene)))?;
     let t = scenes
         .transport(&demo.scene)
-        .ok_or_else(|| err("no scene".into()))?
         .map_err(|e| err(e.to_string()))?;
     let l = pattern.render(t.scene_grid);
     let peak = crate::simulate::unpolarized_peak(&scene, &t, &l).map_err(|e| err(e.to_string()))?;
@@ -46,7 +45,7 @@ pub(super) fn frames(
         n != &demo.scene && same_bench(&scene, &scenes.get(n).unwrap_or_else(|| scene.clone()))
     }));
     for name in names {
-        let (Some(s), Some(Ok(t))) = (scenes.get(&name), scenes.transport(&name)) else {
+        let (Some(s), Ok(t)) = (scenes.get(&name), scenes.transport(&name)) else {
             continue;
         };
         let l = pattern.render(t.scene_grid);

@@ -4,6 +4,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
+use super::scenes::ScenesError;
 use super::{Daemon, Event};
 use crate::camera::settings::EXPOSURE_RANGE_US;
 use crate::camera::CameraInfo;
@@ -34,22 +35,59 @@ pub fn exposure_plan(
     target: &ExposureTarget,
     limits: &CameraLimits,
 ) -> Result<Vec<BlockExposure>, RequestError> {
-    let t = d
-        .scenes
-        .transport(scene)
-        .ok_or_else(|| {
-            RequestError::NotFound(format!(
-                "unknown scene {scene:?}; known: {}",
-                d.scenes.names().join(", ")
-            ))
-        })?
-        .map_err(|e| RequestError::Invalid(format!("scene {scene:?}: {e}")))?;
+    let t = d.scenes.transport(scene)?;
     let cal = d.calibration.get(scene).copied().ok_or_else(|| {
         RequestError::Invalid(format!(
             "no radiometric calibration for scene {scene:?}, so exposures cannot be planned: add `{scene} = <fraction of full scale per microsecond per unit of T l>` under [calibration] in the config, or give exposure_us"
         ))
     })?;
     plan_exposure(&t, cal, limits, target).map_err(|e| RequestError::Invalid(e.to_string()))
+}
+
+impl From<ScenesError> for RequestError {
+    fn from(e: ScenesError) -> Self {
+        match e {
+            ScenesError::Unknown { .. } => RequestError::NotFound(e.to_string()),
+            e => RequestError::Invalid(e.to_string()),
+        }
+    }
+}
+
+/// Why a capture or reconstruction job failed: what the job's `error` says.
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    /// The catalogue or a capture's files (the text has no absolute paths).
+    #[error("{0}")]
+    Store(String),
+    /// The camera.
+    #[error(transparent)]
+    Camera(#[from] crate::camera::CameraError),
+    /// The scene's `T` or its conditioning.
+    #[error(transparent)]
+    Scene(#[from] ScenesError),
+    /// Frames to wall measurements.
+    #[error(transparent)]
+    Measure(#[from] crate::measure::MeasureError),
+    /// The solver.
+    #[error(transparent)]
+    Solve(#[from] crate::solve::SolveError),
+    /// A capture cannot serve this reconstruction (its frame, its files).
+    #[error("capture {id}: {reason}")]
+    Capture {
+        /// The capture.
+        id: i64,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A blocking task did not finish (it panicked or was cancelled).
+    #[error("internal: {0}")]
+    Task(String),
+}
+
+impl From<tokio::task::JoinError> for JobError {
+    fn from(e: tokio::task::JoinError) -> Self {
+        JobError::Task(e.to_string())
+    }
 }
 
 /// A request that cannot be accepted: status 404 (unknown thing) or 422.
@@ -93,7 +131,7 @@ pub(super) fn finish_job(
     d: &Daemon,
     job: String,
     start: Instant,
-    result: Result<(), String>,
+    result: Result<(), JobError>,
     (done, failed, micros): (&AtomicU64, &AtomicU64, &AtomicU64),
     store_failure: impl FnOnce(&str) -> Result<(), crate::store::StoreError>,
 ) {
@@ -106,7 +144,7 @@ pub(super) fn finish_job(
         Err(e) => {
             tracing::warn!("{job} failed: {e}");
             // What clients read says where inside the data directory, not where it is.
-            let e = d.store.redact_paths(&e);
+            let e = d.store.redact_paths(&e.to_string());
             failed.fetch_add(1, Ordering::Relaxed);
             if let Err(se) = store_failure(&e) {
                 tracing::error!("cannot record the failure of {job}: {se}");

@@ -53,3 +53,124 @@ impl Metrics {
         c.load(Ordering::Relaxed) as f64
     }
 }
+
+impl super::Daemon {
+    /// The camera, queue and job samples of `GET /metrics`.
+    pub fn metric_samples(&self) -> Vec<Sample<'static>> {
+        let d = self;
+        let s = d.camera.status();
+        let c = s.counters;
+        let m = &d.metrics;
+        let depth = |tx: &tokio::sync::mpsc::Sender<i64>| (tx.max_capacity() - tx.capacity()) as f64;
+    vec![
+            Sample {
+                name: "polnlos_camera_connected",
+                kind: "gauge",
+                help: "1 when a camera is open",
+                value: f64::from(u8::from(s.connected)),
+            },
+            Sample {
+                name: "polnlos_camera_frames_completed_total",
+                kind: "counter",
+                help: "Frames received",
+                value: c.completed as f64,
+            },
+            Sample {
+                name: "polnlos_camera_frames_failed_total",
+                kind: "counter",
+                help: "Broken buffers",
+                value: c.failed as f64,
+            },
+            Sample {
+                name: "polnlos_camera_timeouts_total",
+                kind: "counter",
+                help: "Buffer pops that timed out",
+                value: c.timeouts as f64,
+            },
+            Sample {
+                name: "polnlos_camera_underruns_total",
+                kind: "counter",
+                help: "Frames dropped for lack of buffers",
+                value: c.underruns as f64,
+            },
+            Sample {
+                name: "polnlos_camera_missing_packets_total",
+                kind: "counter",
+                help: "GigE Vision packets missing",
+                value: c.missing_packets as f64,
+            },
+            Sample {
+                name: "polnlos_camera_resent_packets_total",
+                kind: "counter",
+                help: "GigE Vision packets resent",
+                value: c.resent_packets as f64,
+            },
+            Sample {
+                name: "polnlos_camera_connects_total",
+                kind: "counter",
+                help: "Camera (re)connections",
+                value: c.connects as f64,
+            },
+            Sample {
+                name: "polnlos_camera_reconnect_failures_total",
+                kind: "counter",
+                help: "Failed reconnection attempts",
+                value: s.reconnect_failures as f64,
+            },
+            Sample {
+                name: "polnlos_capture_queue_depth",
+                kind: "gauge",
+                help: "Captures waiting",
+                value: depth(&d.captures),
+            },
+            Sample {
+                name: "polnlos_reconstruction_queue_depth",
+                kind: "gauge",
+                help: "Reconstructions waiting",
+                value: depth(&d.reconstructions),
+            },
+            Sample {
+                name: "polnlos_captures_done_total",
+                kind: "counter",
+                help: "Captures finished",
+                value: Metrics::get(&m.captures_done),
+            },
+            Sample {
+                name: "polnlos_captures_failed_total",
+                kind: "counter",
+                help: "Captures failed",
+                value: Metrics::get(&m.captures_failed),
+            },
+            Sample {
+                name: "polnlos_capture_seconds_total",
+                kind: "counter",
+                help: "Time spent capturing",
+                value: Metrics::get(&m.capture_micros) * 1e-6,
+            },
+            Sample {
+                name: "polnlos_reconstructions_done_total",
+                kind: "counter",
+                help: "Reconstructions finished",
+                value: Metrics::get(&m.reconstructions_done),
+            },
+            Sample {
+                name: "polnlos_reconstructions_failed_total",
+                kind: "counter",
+                help: "Reconstructions failed",
+                value: Metrics::get(&m.reconstructions_failed),
+            },
+            Sample {
+                name: "polnlos_reconstruction_seconds_total",
+                kind: "counter",
+                help: "Time spent reconstructing",
+                value: Metrics::get(&m.reconstruction_micros) * 1e-6,
+            },
+            Sample {
+                name: "polnlos_requests_rejected_queue_full_total",
+                kind: "counter",
+                help: "Requests answered 429",
+                value: Metrics::get(&m.rejected_full),
+            },
+        ]
+    }
+}

@@ -9,7 +9,7 @@ use std::time::Instant;
 use serde::Deserialize;
 use tokio::sync::{mpsc, Mutex};
 
-use super::jobs::{block_label, finish_job, job_event, same_angle};
+use super::jobs::{block_label, finish_job, job_event, same_angle, JobError};
 use super::{Daemon, RequestError};
 use crate::camera::PixelFormat;
 use crate::files::{image, json, npy};
@@ -186,7 +186,7 @@ pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Re
         let d2 = d.clone();
         let r = tokio::task::spawn_blocking(move || run_reconstruction(&d2, id))
             .await
-            .map_err(|e| e.to_string())
+            .map_err(JobError::from)
             .and_then(|r| r);
         let m = &d.metrics;
         let counters = (
@@ -201,19 +201,87 @@ pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Re
 }
 
 /// Frames to `i` through the homographies, the solve, and the files.
-fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
-    let rec = d.store.reconstruction(id).map_err(|e| e.to_string())?;
-    let scene = d
-        .scenes
-        .get(&rec.scene)
-        .ok_or_else(|| format!("scene {:?} is no longer configured", rec.scene))?;
+fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), JobError> {
+    let store = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
+    let rec = d.store.reconstruction(id).map_err(store)?;
+    let scene = d.scenes.scene(&rec.scene)?;
     let t0 = Instant::now();
-    let t = d
-        .scenes
-        .transport(&rec.scene)
-        .ok_or("scene vanished")?
-        .map_err(|e| e.to_string())?;
+    let t = d.scenes.transport(&rec.scene)?;
     let transport_seconds = t0.elapsed().as_secs_f64();
+    let Stacked {
+        mut i,
+        mut var,
+        mut warnings,
+    } = stack_captures(d, &rec, &scene, &t)?;
+    if let Some(w) = scale(d, &rec.scene, &t, &mut i, &mut var)? {
+        warnings.push(w);
+    }
+    let cond = d.scenes.conditioning(&rec.scene)?;
+    // The stored request (older rows: the same keys, solver in its own column).
+    let mut solve: SolveRequest = serde_json::from_value(rec.params.clone()).unwrap_or_default();
+    solve.solver =
+        serde_json::from_value(serde_json::Value::String(rec.solver.clone())).map_err(|_| {
+            JobError::Store(format!("solver {:?} is not one polnlos knows", rec.solver))
+        })?;
+    let truth = rec
+        .params
+        .get("truth")
+        .and_then(|v| v.as_str())
+        .and_then(crate::simulate::patterns::Pattern::from_name)
+        .map(|pat| pat.render(t.scene_grid));
+    // Frame-to-frame noise when every capture has it; else reconstruct
+    // estimates it from the measurement itself.
+    let context = Context {
+        scene: rec.scene.clone(),
+        transport_seconds,
+        truth: truth.as_deref(),
+    };
+    let solved = reconstruct(
+        &t,
+        &i,
+        var.map(NoiseLevel::measured),
+        &cond,
+        &solve,
+        context,
+    )?;
+    let (image, mut report) = (solved.image, solved.report);
+    report.warnings.splice(0..0, warnings);
+    let grid = t.scene_grid;
+    let dir = d.store.reconstruction_dir(id);
+    std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
+    let file = |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
+    npy::write_f64(&dir.join("recovered.npy"), &[grid.nv, grid.nu], &image).map_err(file)?;
+    image::write_png16(
+        &dir.join("image.png"),
+        grid.nu,
+        grid.nv,
+        &image::unit_to_u16(&image),
+    )
+    .map_err(file)?;
+    json::write(&dir.join("report.json"), &report).map_err(file)?;
+    let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
+    d.store
+        .reconstruction_done(id, cond.kappa, &text)
+        .map_err(store)
+}
+
+/// A reconstruction's measurement: the captures stacked in block order, the
+/// variance of each element when every capture has it, and what the user
+/// should know about the captures.
+struct Stacked {
+    i: Vec<f64>,
+    var: Option<Vec<f64>>,
+    warnings: Vec<String>,
+}
+
+/// Samples each capture's mean frame at the wall elements through its pose's
+/// homography, in MODEL.md row order, in fractions of full scale per µs.
+fn stack_captures(
+    d: &Daemon,
+    rec: &crate::store::ReconstructionRecord,
+    scene: &crate::scene::Scene,
+    t: &crate::transport::Transport,
+) -> Result<Stacked, JobError> {
     // Stack the captures in block order: MODEL.md row order. The frame-to-frame
     // variance of each capture gives the measurement's noise, when there are
     // at least two frames per capture.
@@ -226,16 +294,19 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             .iter()
             .filter_map(|&cid| d.store.capture(cid).ok())
             .find(|c| c.pose == block.pose && same_angle(c.polarizer_deg, block.polarizer_deg))
-            .ok_or_else(|| format!("no capture for block {}", block.label()))?;
-        let pose = scene.pose(&block.pose).ok_or("pose vanished")?;
-        let mean = read_mean(&d.store.capture_dir(cap.id))
-            .map_err(|e| format!("capture {}: {}", cap.id, d.store.describe(&e)))?;
+            .ok_or_else(|| JobError::Store(format!("no capture for block {}", block.label())))?;
+        let capture = |reason: String| JobError::Capture { id: cap.id, reason };
+        let pose = scene
+            .pose(&block.pose)
+            .ok_or_else(|| capture(format!("scene has no pose {:?} any more", block.pose)))?;
+        let mean =
+            read_mean(&d.store.capture_dir(cap.id)).map_err(|e| capture(d.store.describe(&e)))?;
         if let Some([_, _, w, h]) = cap.region {
             if (mean.width, mean.height) != (w as usize, h as usize) {
-                return Err(format!(
-                    "capture {}: its mean frame is {}x{}, but the capture recorded a {w}x{h} region; the files do not belong to this row",
-                    cap.id, mean.width, mean.height
-                ));
+                return Err(capture(format!(
+                    "its mean frame is {}x{}, but the capture recorded a {w}x{h} region; the files do not belong to this row",
+                    mean.width, mean.height
+                )));
             }
         }
         if cap.dark_frames == 0 && cap.dark_capture.is_none() {
@@ -252,14 +323,14 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
                 cap.region.map_or("unknown region".into(), |r| format!("region {r:?}"))
             ));
         }
-        let h = pose.homography.as_ref().ok_or_else(|| {
-            crate::measure::MeasureError::NoHomography {
-                pose: pose.name.clone(),
-            }
-            .to_string()
-        })?;
+        let h =
+            pose.homography
+                .as_ref()
+                .ok_or_else(|| crate::measure::MeasureError::NoHomography {
+                    pose: pose.name.clone(),
+                })?;
         let wall = sample_wall(&mean, h, &scene.wall.plane, &pose.name)
-            .map_err(|e| format!("capture {}: {e}", cap.id))?;
+            .map_err(|e| capture(e.to_string()))?;
         let full = PixelFormat::from_name(&cap.pixel_format)
             .unwrap_or(PixelFormat::Mono16)
             .full_scale();
@@ -269,11 +340,11 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             *dst = v * to_units;
         }
         let frame_var = crate::store::read_mean_variance(&d.store.capture_dir(cap.id))
-            .map_err(|e| format!("capture {}: {}", cap.id, d.store.describe(&e)))?;
+            .map_err(|e| capture(d.store.describe(&e)))?;
         match (frame_var, var.as_mut()) {
             (Some(fv), Some(acc)) => {
                 let wall_var = sample_wall(&fv, h, &scene.wall.plane, &pose.name)
-                    .map_err(|e| format!("capture {}: {e}", cap.id))?;
+                    .map_err(|e| capture(e.to_string()))?;
                 for (dst, v) in acc[t.block_rows(b)].iter_mut().zip(wall_var) {
                     *dst = v * to_units * to_units;
                 }
@@ -281,82 +352,41 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), String> {
             _ => var = None,
         }
     }
-    let mut warnings = frame_warnings;
-    match d.calibration.get(&rec.scene) {
-        Some(&c) if c > 0.0 => {
-            i.iter_mut().for_each(|v| *v /= c);
-            var.iter_mut().flatten().for_each(|v| *v /= c * c);
-        }
-        _ => {
-            // No calibration: scale so that the brightest element of a Tikhonov
-            // solution is 1 (the box constraint needs some scale).
-            let probe = tikhonov(&t, &i, None).map_err(|e| e.to_string())?;
-            let unclipped_max = probe.image.iter().copied().fold(0.0, f64::max).max(1e-300);
-            let lsq_scale = t
-                .apply(&probe.image)
-                .iter()
-                .zip(&i)
-                .map(|(a, b)| a * b)
-                .sum::<f64>()
-                .max(1e-300)
-                / t.apply(&probe.image)
-                    .iter()
-                    .map(|a| a * a)
-                    .sum::<f64>()
-                    .max(1e-300);
-            let s = lsq_scale * unclipped_max;
-            i.iter_mut().for_each(|v| *v /= s);
-            var.iter_mut().flatten().for_each(|v| *v /= s * s);
-            warnings.push("no radiometric calibration for this scene: the measurement was scaled so that the brightest element is about 1".to_string());
-        }
+    Ok(Stacked {
+        i,
+        var,
+        warnings: frame_warnings,
+    })
+}
+
+/// Puts the measurement (and its variance) in units of `T l`: by the
+/// radiometric calibration, or, without one, so that the brightest element of
+/// a Tikhonov solution is 1 (the box constraint needs some scale), which the
+/// returned warning says.
+fn scale(
+    d: &Daemon,
+    scene: &str,
+    t: &crate::transport::Transport,
+    i: &mut [f64],
+    var: &mut Option<Vec<f64>>,
+) -> Result<Option<String>, JobError> {
+    if let Some(&c) = d.calibration.get(scene).filter(|c| **c > 0.0) {
+        i.iter_mut().for_each(|v| *v /= c);
+        var.iter_mut().flatten().for_each(|v| *v /= c * c);
+        return Ok(None);
     }
-    let cond = d
-        .scenes
-        .conditioning(&rec.scene)
-        .ok_or("scene vanished")??;
-    // The stored request (older rows: the same keys, solver in its own column).
-    let mut solve: SolveRequest = serde_json::from_value(rec.params.clone()).unwrap_or_default();
-    solve.solver = serde_json::from_value(serde_json::Value::String(rec.solver.clone()))
-        .map_err(|_| format!("solver {:?} is not one polnlos knows", rec.solver))?;
-    let grid = t.scene_grid;
-    let truth = rec
-        .params
-        .get("truth")
-        .and_then(|v| v.as_str())
-        .and_then(crate::simulate::patterns::Pattern::from_name)
-        .map(|pat| pat.render(grid));
-    // Frame-to-frame noise when every capture has it; else reconstruct
-    // estimates it from the measurement itself.
-    let noise = var.map(NoiseLevel::measured);
-    let solved = reconstruct(
-        &t,
-        &i,
-        noise,
-        &cond,
-        &solve,
-        Context {
-            scene: rec.scene.clone(),
-            transport_seconds,
-            truth: truth.as_deref(),
-        },
-    )
-    .map_err(|e| e.to_string())?;
-    let (image, mut report) = (solved.image, solved.report);
-    report.warnings.splice(0..0, warnings);
-    let dir = d.store.reconstruction_dir(id);
-    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    npy::write_f64(&dir.join("recovered.npy"), &[grid.nv, grid.nu], &image)
-        .map_err(|e| e.to_string())?;
-    image::write_png16(
-        &dir.join("image.png"),
-        grid.nu,
-        grid.nv,
-        &image::unit_to_u16(&image),
-    )
-    .map_err(|e| e.to_string())?;
-    json::write(&dir.join("report.json"), &report).map_err(|e| e.to_string())?;
-    let text = serde_json::to_string(&report).map_err(|e| e.to_string())?;
-    d.store
-        .reconstruction_done(id, cond.kappa, &text)
-        .map_err(|e| e.to_string())
+    let probe = tikhonov(t, i, None)?;
+    let unclipped_max = probe.image.iter().copied().fold(0.0, f64::max).max(1e-300);
+    let fit = t.apply(&probe.image);
+    let lsq_scale = fit
+        .iter()
+        .zip(i.iter())
+        .map(|(a, b)| a * b)
+        .sum::<f64>()
+        .max(1e-300)
+        / fit.iter().map(|a| a * a).sum::<f64>().max(1e-300);
+    let s = lsq_scale * unclipped_max;
+    i.iter_mut().for_each(|v| *v /= s);
+    var.iter_mut().flatten().for_each(|v| *v /= s * s);
+    Ok(Some("no radiometric calibration for this scene: the measurement was scaled so that the brightest element is about 1".to_string()))
 }

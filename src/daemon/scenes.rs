@@ -7,8 +7,37 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use crate::scene::{Scene, SceneError};
-use crate::solve::{condition, Conditioning};
+use crate::solve::{condition, Conditioning, SolveError};
 use crate::transport::{build, Transport, TransportError};
+
+/// Why a scene's `T` or conditioning is not available.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenesError {
+    /// No scene by that name.
+    #[error("unknown scene {name:?}; known: {}", known.join(", "))]
+    Unknown {
+        /// The name asked for.
+        name: String,
+        /// Every name the daemon knows.
+        known: Vec<String>,
+    },
+    /// `T` could not be built (too large for the memory budget, ...).
+    #[error("scene {name:?}: {source}")]
+    Transport {
+        /// The scene.
+        name: String,
+        /// Why.
+        source: TransportError,
+    },
+    /// The SVD of `T` failed.
+    #[error("scene {name:?}: conditioning: {source}")]
+    Conditioning {
+        /// The scene.
+        name: String,
+        /// Why.
+        source: SolveError,
+    },
+}
 
 /// Scenes by name, with a cache of their `T`.
 pub struct Scenes {
@@ -49,47 +78,54 @@ impl Scenes {
         self.scenes.keys().cloned().collect()
     }
 
+    /// The scene with this name, or the error that lists the known ones.
+    pub fn scene(&self, name: &str) -> Result<Arc<Scene>, ScenesError> {
+        self.get(name).ok_or_else(|| ScenesError::Unknown {
+            name: name.to_string(),
+            known: self.names(),
+        })
+    }
+
     /// `T` of a scene, built on first use (CPU-heavy: call from a blocking task).
-    pub fn transport(&self, name: &str) -> Option<Result<Arc<Transport>, TransportError>> {
-        let scene = self.get(name)?;
+    pub fn transport(&self, name: &str) -> Result<Arc<Transport>, ScenesError> {
+        let scene = self.scene(name)?;
         if let Some(t) = self
             .transports
             .lock()
             .ok()
             .and_then(|m| m.get(name).cloned())
         {
-            return Some(Ok(t));
+            return Ok(t);
         }
-        Some(build(&scene).map(|t| {
-            let t = Arc::new(t);
-            if let Ok(mut m) = self.transports.lock() {
-                m.insert(name.to_string(), t.clone());
-            }
-            t
-        }))
+        let t = Arc::new(build(&scene).map_err(|source| ScenesError::Transport {
+            name: name.to_string(),
+            source,
+        })?);
+        if let Ok(mut m) = self.transports.lock() {
+            m.insert(name.to_string(), t.clone());
+        }
+        Ok(t)
     }
 
     /// Singular values and kappa of a scene's `T`, computed on first use
-    /// (an SVD: call from a blocking task). Errors are returned as text.
-    pub fn conditioning(&self, name: &str) -> Option<Result<Arc<Conditioning>, String>> {
+    /// (an SVD: call from a blocking task).
+    pub fn conditioning(&self, name: &str) -> Result<Arc<Conditioning>, ScenesError> {
         if let Some(c) = self
             .conditioning
             .lock()
             .ok()
             .and_then(|m| m.get(name).cloned())
         {
-            return Some(Ok(c));
+            return Ok(c);
         }
-        let t = match self.transport(name)? {
-            Ok(t) => t,
-            Err(e) => return Some(Err(e.to_string())),
-        };
-        Some(condition(&t).map_err(|e| e.to_string()).map(|c| {
-            let c = Arc::new(c);
-            if let Ok(mut m) = self.conditioning.lock() {
-                m.insert(name.to_string(), c.clone());
-            }
-            c
-        }))
+        let t = self.transport(name)?;
+        let c = Arc::new(condition(&t).map_err(|source| ScenesError::Conditioning {
+            name: name.to_string(),
+            source,
+        })?);
+        if let Ok(mut m) = self.conditioning.lock() {
+            m.insert(name.to_string(), c.clone());
+        }
+        Ok(c)
     }
 }
