@@ -61,8 +61,9 @@ impl super::Daemon {
         let s = d.camera.status();
         let c = s.counters;
         let m = &d.metrics;
-        let depth = |tx: &tokio::sync::mpsc::Sender<i64>| (tx.max_capacity() - tx.capacity()) as f64;
-    vec![
+        let depth =
+            |tx: &tokio::sync::mpsc::Sender<i64>| (tx.max_capacity() - tx.capacity()) as f64;
+        vec![
             Sample {
                 name: "polnlos_camera_connected",
                 kind: "gauge",
