@@ -459,6 +459,17 @@ fn hostile_files_get_a_named_error_not_a_panic() {
         let err = fails(&polnlos(&["cond", p.to_str().unwrap()]));
         assert!(err.contains(key), "{to}: {err}");
     }
+    // --spot is one argument U,V, as its help and the README say.
+    let err = fails(&polnlos(&[
+        "transport",
+        "brewster-crossed-3x3",
+        "--active",
+        "--spot",
+        "0.05",
+        "--out",
+        d.join("a.npy").to_str().unwrap(),
+    ]));
+    assert!(err.contains("is not U,V"), "{err}");
     // A 4096^2 wall is refused before it allocates, with what to reduce.
     let p = edited_scene(
         d,

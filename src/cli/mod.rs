@@ -48,7 +48,9 @@ enum Command {
     Pattern(pattern::Args),
     /// Recommend the finest scene grid the measurement supports.
     Plan(plan::Args),
-    /// Write conditioning and roughness reports (JSON, Markdown, charts).
+    /// Write the bench reports: Table 1 and Fig. 6, stability, speed against
+    /// accuracy, transport sampling, active NLOS, the NumPy peer (JSON,
+    /// Markdown, charts).
     Bench(bench::Args),
     /// Run the acquisition daemon: camera, capture and reconstruction queues, HTTP API.
     Serve(serve::Args),

@@ -39,15 +39,24 @@ pub struct Args {
         requires = "active"
     )]
     bin_width: f64,
-    /// Active: laser spot in wall coordinates, metres from the wall centre.
-    #[arg(
-        long,
-        value_name = "U,V",
-        value_delimiter = ',',
-        num_args = 2,
-        requires = "active"
-    )]
-    spot: Option<Vec<f64>>,
+    /// Active: laser spot in wall coordinates, metres from the wall centre
+    /// (default 0,0).
+    #[arg(long, value_name = "U,V", requires = "active")]
+    spot: Option<Spot>,
+}
+
+/// `--spot U,V`: two numbers, one argument.
+#[derive(Debug, Clone, Copy)]
+struct Spot(f64, f64);
+
+impl std::str::FromStr for Spot {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || format!("{s:?} is not U,V (two numbers in metres, e.g. 0.05,0)");
+        let (u, v) = s.split_once(',').ok_or_else(bad)?;
+        let num = |t: &str| t.trim().parse::<f64>().map_err(|_| bad());
+        Ok(Spot(num(u)?, num(v)?))
+    }
 }
 
 /// `T` as a C-order .npy, float32 or float64.
@@ -69,9 +78,9 @@ fn write_t(
 pub fn run(a: Args) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     if a.active {
-        let spot = a.spot.as_deref().unwrap_or(&[0.0, 0.0]);
+        let Spot(u, v) = a.spot.unwrap_or(Spot(0.0, 0.0));
         let setup = polnlos::transport::active::ActiveSetup {
-            spot: (spot[0], spot[1]),
+            spot: (u, v),
             bin_width: a.bin_width,
         };
         let start = std::time::Instant::now();
