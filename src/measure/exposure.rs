@@ -152,7 +152,8 @@ pub fn plan_exposure(
                     rate * lo
                 ));
             }
-            want.clamp(lo, hi)
+            // A camera sets exposures in steps far coarser than f64: 0.1 us.
+            ((want * 10.0).round() / 10.0).clamp(lo, hi)
         } else {
             limited_by = Some("no scene element lights this block's wall image".into());
             hi
@@ -220,7 +221,9 @@ mod tests {
         assert_eq!(plan.len(), 4);
         assert!((plan[0].exposure_us - 1600.0).abs() < 1e-6, "{:?}", plan[0]);
         for p in &plan {
-            assert!((p.peak_fraction - 0.8).abs() < 1e-12);
+            // Exposures come in 0.1 us steps: the peak is 0.8 to half a step.
+            assert!((p.peak_fraction - 0.8).abs() <= 0.8 * 0.05 / p.exposure_us + 1e-12);
+            assert_eq!((p.exposure_us * 10.0).round(), p.exposure_us * 10.0);
             assert!(p.limited_by.is_none());
             // 8000 e- per frame: SNR 89.4 per frame, 2 frames for 100.
             assert_eq!(p.frames, 2);
