@@ -53,6 +53,17 @@ impl Conditioning {
     pub fn is_rank_deficient(&self) -> bool {
         self.kappa.is_infinite()
     }
+
+    /// The per-element RMS error of the least-squares solution under white
+    /// noise of standard deviation `sigma`: `sigma sqrt(mean_i 1/s_i^2)`
+    /// (infinite when rank-deficient). The `polnlos plan` criterion.
+    pub fn noise_amplification(&self, sigma: f64) -> f64 {
+        if self.is_rank_deficient() {
+            return f64::INFINITY;
+        }
+        let inv: f64 = self.singular_values.iter().map(|s| 1.0 / (s * s)).sum();
+        sigma * (inv / self.cols as f64).sqrt()
+    }
 }
 
 /// Computes the singular values of `T` with faer.

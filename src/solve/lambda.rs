@@ -99,6 +99,11 @@ impl NoiseLevel {
     pub fn total(&self) -> f64 {
         self.variance.iter().sum()
     }
+
+    /// `mean_j sigma_j^2`.
+    pub fn mean_variance(&self) -> f64 {
+        self.total() / self.variance.len().max(1) as f64
+    }
 }
 
 /// How the automatic lambda was found (the `lambda_choice` of a report).
@@ -156,7 +161,7 @@ pub fn admm_tv_resolved(
     check_noise(noise, i)?;
     let normal = Normal::new(t.as_mat(), i);
     let unit = normal.unit();
-    let mean_var = noise.total() / i.len().max(1) as f64;
+    let mean_var = noise.mean_variance();
     let sigma = mean_var.sqrt();
     let resolved = singular_values
         .iter()
@@ -324,7 +329,7 @@ pub fn admm_tv_discrepancy(
     let choice = LambdaChoice {
         rule: "discrepancy",
         noise: noise.source,
-        noise_variance: noise.total() / i.len().max(1) as f64,
+        noise_variance: noise.mean_variance(),
         floor: None,
         resolved: None,
         target,

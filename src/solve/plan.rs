@@ -88,14 +88,8 @@ pub fn plan(
         let grey = t.apply(&vec![0.5; t.cols()]);
         let level =
             NoiseLevel::from_camera(&grey, epu, noise.read_noise, noise.photons / full / epu);
-        sigma = (level.total() / level.variance.len().max(1) as f64).sqrt();
-        let amp = if c.is_rank_deficient() {
-            f64::INFINITY
-        } else {
-            sigma
-                * (c.singular_values.iter().map(|s| 1.0 / (s * s)).sum::<f64>() / t.cols() as f64)
-                    .sqrt()
-        };
+        sigma = level.mean_variance().sqrt();
+        let amp = c.noise_amplification(sigma);
         rows.push(PlanRow {
             grid: g,
             shape: (t.rows(), t.cols()),

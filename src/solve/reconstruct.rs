@@ -238,20 +238,7 @@ pub fn reconstruct(
 /// least-squares RMS error `sigma sqrt(mean 1/s_i^2)` over the `PLAN_TOLERANCE`
 /// (the `polnlos plan` rule).
 fn grid_warning(t: &Transport, cond: &Conditioning, noise: &NoiseLevel) -> Option<String> {
-    let v = &noise.variance;
-    let sigma = (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt();
-    let amp = if cond.is_rank_deficient() {
-        f64::INFINITY
-    } else {
-        sigma
-            * (cond
-                .singular_values
-                .iter()
-                .map(|s| 1.0 / (s * s))
-                .sum::<f64>()
-                / t.cols() as f64)
-                .sqrt()
-    };
+    let amp = cond.noise_amplification(noise.mean_variance().sqrt());
     (amp > PLAN_TOLERANCE).then(|| {
         format!(
             "the {}x{} scene grid is finer than this measurement supports: its noise alone gives a least-squares RMS error of {amp:.2e} of the radiance range (> {PLAN_TOLERANCE}); `polnlos plan` suggests a coarser grid, or take more frames",
