@@ -55,6 +55,23 @@ pub enum TriggerMode {
     Software,
 }
 
+impl TriggerMode {
+    /// The name in requests, rows and files (`free`, `software`).
+    pub fn name(self) -> &'static str {
+        match self {
+            TriggerMode::Free => "free",
+            TriggerMode::Software => "software",
+        }
+    }
+
+    /// The mode of a name (as [`TriggerMode::name`] writes it).
+    pub fn from_name(name: &str) -> Option<Self> {
+        [TriggerMode::Free, TriggerMode::Software]
+            .into_iter()
+            .find(|t| t.name() == name)
+    }
+}
+
 /// Everything a capture sets on the camera.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
@@ -296,6 +313,10 @@ mod tests {
             assert_eq!(PixelFormat::from_name(f.name()), Some(f));
         }
         assert_eq!(PixelFormat::from_name("RGB8"), None);
+        for t in [TriggerMode::Free, TriggerMode::Software] {
+            assert_eq!(TriggerMode::from_name(t.name()), Some(t));
+            assert_eq!(serde_json::to_value(t).unwrap(), t.name());
+        }
         assert_eq!(PixelFormat::Mono8.full_scale(), 255.0);
         assert_eq!(PixelFormat::Mono12.full_scale(), 4095.0);
         assert_eq!(PixelFormat::Mono16.full_scale(), 65535.0);

@@ -63,11 +63,11 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), JobError> {
         pixel_format: PixelFormat::from_name(&c.pixel_format).unwrap_or(PixelFormat::Mono16),
         region: Some(region),
         binning: Some(binning),
-        trigger: if c.trigger.as_deref() == Some(TriggerMode::Software.name()) {
-            TriggerMode::Software
-        } else {
-            TriggerMode::Free
-        },
+        trigger: c
+            .trigger
+            .as_deref()
+            .and_then(TriggerMode::from_name)
+            .unwrap_or(TriggerMode::Free),
     };
     // A camera that is (re)connecting gets a short grace period before the capture fails.
     let grace = Instant::now();

@@ -26,16 +26,6 @@ impl CaptureKind {
     }
 }
 
-impl TriggerMode {
-    /// The name stored and shown.
-    pub fn name(self) -> &'static str {
-        match self {
-            TriggerMode::Free => "free",
-            TriggerMode::Software => "software",
-        }
-    }
-}
-
 /// Life of a job.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
