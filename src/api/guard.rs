@@ -20,13 +20,28 @@ pub const MAX_HEADER_BYTES: usize = 16 * 1024;
 /// Most header lines accepted.
 pub const MAX_HEADERS: usize = 64;
 
+/// What the guard checks against, fixed when the router is built.
+#[derive(Clone)]
+pub struct Guard {
+    daemon: Arc<Daemon>,
+    /// Host names the daemon answers to (see [`allowed_hosts`]).
+    hosts: Arc<[String]>,
+}
+
+impl Guard {
+    /// The guard of a daemon: its token, its bound address and allowed names.
+    pub fn new(daemon: Arc<Daemon>) -> Self {
+        let hosts = allowed_hosts(&daemon).into();
+        Self { daemon, hosts }
+    }
+}
+
 /// Who may send this request, and whether it is small enough to read.
-pub async fn guard(
-    State(d): State<Arc<Daemon>>,
-    req: Request,
-    next: Next,
-) -> Result<Response, ApiError> {
-    let uri_len = req.uri().to_string().len();
+pub async fn guard(State(g): State<Guard>, req: Request, next: Next) -> Result<Response, ApiError> {
+    let d = &g.daemon;
+    let uri = req.uri();
+    let uri_len = uri.path_and_query().map_or(0, |p| p.as_str().len())
+        + uri.authority().map_or(0, |a| a.as_str().len());
     if uri_len > MAX_URI_BYTES {
         return Err(ApiError::new(
             StatusCode::URI_TOO_LONG,
@@ -49,11 +64,10 @@ pub async fn guard(
             ),
         ));
     }
-    let allowed = allowed_hosts(&d);
-    check_host(headers, &allowed)?;
+    check_host(headers, &g.hosts)?;
     let mutating = !matches!(*req.method(), Method::GET | Method::HEAD | Method::OPTIONS);
     if mutating {
-        check_origin(headers, &allowed)?;
+        check_origin(headers, &g.hosts)?;
     }
     let public = req.uri().path() == "/health" || (!mutating && d.config.http.public_reads);
     if !d.token.is_empty() && !public && !token_matches(headers, &d.token) {

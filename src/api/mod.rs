@@ -67,6 +67,9 @@ pub fn router(d: Arc<Daemon>) -> Router {
             body_timeout,
         ))
         .layer(axum::extract::DefaultBodyLimit::max(limit))
-        .layer(middleware::from_fn_with_state(d.clone(), guard::guard))
+        .layer(middleware::from_fn_with_state(
+            guard::Guard::new(d.clone()),
+            guard::guard,
+        ))
         .with_state(d)
 }
