@@ -7,6 +7,9 @@
 #![allow(dead_code)]
 
 use polnlos::camera::{CameraSettings, SensorLimits};
+use polnlos::daemon::validate::{self, CameraContext};
+use polnlos::measure::exposure::CameraLimits;
+use polnlos::scene::Scene;
 
 /// Aravis's fake camera: the limits region and binning are checked against.
 const LIMITS: SensorLimits = SensorLimits {
@@ -34,19 +37,50 @@ pub fn npy(data: &[u8]) {
     }
 }
 
-/// A `POST /captures` body, and the geometry check it reaches.
+/// The scene bodies are checked against (the reference bench, two poses).
+fn scene() -> &'static Scene {
+    static SCENE: std::sync::OnceLock<Scene> = std::sync::OnceLock::new();
+    SCENE.get_or_init(|| match Scene::builtin("brewster-multi-3x3") {
+        Some(Ok(s)) => s,
+        _ => panic!("the built-in scene brewster-multi-3x3 must parse"),
+    })
+}
+
+/// A `POST /captures` body, through the whole validation the daemon runs
+/// (against a connected camera with the fake camera's limits).
 pub fn capture_json(data: &[u8]) {
-    if let Ok(b) = serde_json::from_slice::<polnlos::daemon::CaptureBody>(data) {
-        let _ = LIMITS.check(
-            b.region.unwrap_or([0, 0, 512, 512]),
-            b.binning.unwrap_or([1, 1]),
-        );
+    if let Ok(b) = serde_json::from_slice::<polnlos::api::bodies::CaptureBody>(data) {
+        let cam = CameraContext {
+            limits: CameraLimits {
+                exposure_us: (10.0, 1e7),
+                max_frames: 1000,
+                full_well_e: 1e4,
+                read_noise_e: 5.0,
+            },
+            gain: Some((0.0, 10.0)),
+            sensor: Some(LIMITS),
+            defaults: CameraSettings {
+                region: Some([0, 0, 512, 512]),
+                ..CameraSettings::default()
+            },
+            bench_switches_scene: true,
+            max_frames: 1000,
+        };
+        let plan = || Ok(Vec::new());
+        if let Ok(r) = validate::capture(&b, scene(), &cam, plan, |_| None) {
+            // What is accepted fits the sensor and the frame cap.
+            assert!(LIMITS.check(r.region, r.binning).is_ok());
+            assert!(r.frames >= 1 && r.frames + r.dark_frames <= 1000);
+        }
     }
 }
 
-/// A `POST /reconstructions` body.
+/// A `POST /reconstructions` body, through the daemon's validation (no
+/// capture exists, so the solver checks and block counting are what it reaches).
 pub fn reconstruction_json(data: &[u8]) {
-    let _ = serde_json::from_slice::<polnlos::daemon::ReconstructionBody>(data);
+    if let Ok(b) = serde_json::from_slice::<polnlos::api::bodies::ReconstructionBody>(data) {
+        let _ = validate::reconstruction(&b, scene(), |_| None);
+    }
 }
 
 /// A `PUT /camera/settings` body, and the geometry check it reaches.

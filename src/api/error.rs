@@ -106,8 +106,9 @@ impl From<crate::daemon::SubmitError> for ApiError {
                 "insufficient_storage",
                 e.to_string(),
             ),
-            SubmitError::QueueFull { retry_after } => Self::queue_full("capture", retry_after),
-            SubmitError::Store(m) => Self::internal(m),
+            SubmitError::QueueFull { queue, retry_after } => Self::queue_full(queue, retry_after),
+            SubmitError::Request(r) => r.into(),
+            SubmitError::Internal(m) => Self::internal(m),
         }
     }
 }

@@ -69,8 +69,8 @@ pub async fn guard(State(g): State<Guard>, req: Request, next: Next) -> Result<R
     if mutating {
         check_origin(headers, &g.hosts)?;
     }
-    let public = req.uri().path() == "/health" || (!mutating && d.config.http.public_reads);
-    if !d.token.is_empty() && !public && !token_matches(headers, &d.token) {
+    let public = req.uri().path() == "/health" || (!mutating && d.config().http.public_reads);
+    if !d.token().is_empty() && !public && !token_matches(headers, d.token()) {
         return Err(ApiError::unauthorized());
     }
     Ok(next.run(req).await)
@@ -83,9 +83,9 @@ fn allowed_hosts(d: &Daemon) -> Vec<String> {
         .into_iter()
         .map(String::from)
         .collect();
-    names.push(d.config.bind.ip().to_string());
+    names.push(d.config().bind.ip().to_string());
     names.extend(
-        d.config
+        d.config()
             .http
             .allowed_hosts
             .iter()

@@ -7,6 +7,7 @@
 //! when one is set. Request bodies are size- and time-limited; [`serve`] caps
 //! connections and header time.
 
+pub mod bodies;
 mod error;
 mod extract;
 mod guard;
@@ -28,8 +29,8 @@ use crate::daemon::Daemon;
 
 /// The router for a running daemon.
 pub fn router(d: Arc<Daemon>) -> Router {
-    let limit = d.config.queue.max_body_bytes;
-    let body_timeout = Duration::from_secs_f64(d.config.http.body_timeout_s);
+    let limit = d.config().queue.max_body_bytes;
+    let body_timeout = Duration::from_secs_f64(d.config().http.body_timeout_s);
     Router::new()
         .route("/health", get(routes::health))
         .route("/metrics", get(routes::metrics))

@@ -10,52 +10,21 @@ use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use futures_util::Stream;
-use serde::Deserialize;
 use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::StreamExt;
 
+use super::bodies::{
+    Accepted, CaptureAccepted, CaptureBody, Health, Page, ReconstructionBody, TargetQuery,
+};
 use super::extract::{ApiJson, ApiPath as Path, ApiQuery as Query};
 use super::ApiError;
 use crate::camera::CameraSettings;
-use crate::daemon::metrics::{Metrics, Sample};
-use crate::daemon::{
-    camera_limits, exposure_plan, validate_capture, validate_reconstruction, CaptureBody, Daemon,
-    ReconstructionBody,
-};
-use crate::measure::exposure::{BlockExposure, ExposureTarget};
+use crate::daemon::metrics::{counter, gauge, Metrics};
+use crate::daemon::Daemon;
+use crate::measure::exposure::BlockExposure;
 use crate::store::{CaptureFiles, CaptureRecord, ReconstructionRecord};
 
 type St = State<Arc<Daemon>>;
-
-/// Paging of list endpoints.
-#[derive(Debug, Deserialize, utoipa::IntoParams)]
-#[serde(deny_unknown_fields)]
-pub struct Page {
-    /// At most this many (1-1000, default 100).
-    limit: Option<u64>,
-    /// Skip this many (0 to 2^63 - 1).
-    offset: Option<u64>,
-}
-
-impl Page {
-    fn get(&self) -> Result<(usize, usize), ApiError> {
-        let limit = self.limit.unwrap_or(100);
-        if !(1..=1000).contains(&limit) {
-            return Err(ApiError::invalid(format!(
-                "limit = {limit}: must be from 1 to 1000"
-            )));
-        }
-        let offset = self.offset.unwrap_or(0);
-        // SQLite's OFFSET is a signed 64-bit integer: beyond it, refuse rather than wrap.
-        let offset = i64::try_from(offset)
-            .ok()
-            .and_then(|o| usize::try_from(o).ok())
-            .ok_or_else(|| {
-                ApiError::invalid(format!("offset = {offset}: must be from 0 to {}", i64::MAX))
-            })?;
-        Ok((limit as usize, offset))
-    }
-}
 
 fn parse_id(raw: &str, kind: &str) -> Result<i64, ApiError> {
     raw.parse::<i64>().ok().filter(|v| *v > 0).ok_or_else(|| {
@@ -66,12 +35,13 @@ fn parse_id(raw: &str, kind: &str) -> Result<i64, ApiError> {
 }
 
 /// Liveness and camera connection.
-#[utoipa::path(get, path = "/health", responses((status = 200, description = "The daemon is up")))]
-pub async fn health(State(d): St) -> Json<serde_json::Value> {
-    let s = d.camera.status();
-    Json(
-        serde_json::json!({ "status": "ok", "camera_connected": s.connected, "version": env!("CARGO_PKG_VERSION") }),
-    )
+#[utoipa::path(get, path = "/health", responses((status = 200, body = Health, description = "The daemon is up")))]
+pub async fn health(State(d): St) -> Json<Health> {
+    Json(Health {
+        status: "ok",
+        camera_connected: d.camera_connected(),
+        version: env!("CARGO_PKG_VERSION"),
+    })
 }
 
 /// Prometheus metrics.
@@ -79,18 +49,16 @@ pub async fn health(State(d): St) -> Json<serde_json::Value> {
 pub async fn metrics(State(d): St) -> Response {
     let mut samples = d.metric_samples();
     samples.extend([
-        Sample {
-            name: "polnlos_http_connections_open",
-            kind: "gauge",
-            help: "HTTP connections open",
-            value: Metrics::get(&super::serve::CONNECTIONS_OPEN),
-        },
-        Sample {
-            name: "polnlos_http_connections_refused_total",
-            kind: "counter",
-            help: "HTTP connections closed at once because max_connections were open",
-            value: Metrics::get(&super::serve::CONNECTIONS_REFUSED),
-        },
+        gauge(
+            "polnlos_http_connections_open",
+            "HTTP connections open",
+            Metrics::get(&super::serve::CONNECTIONS_OPEN),
+        ),
+        counter(
+            "polnlos_http_connections_refused_total",
+            "HTTP connections closed at once because max_connections were open",
+            Metrics::get(&super::serve::CONNECTIONS_REFUSED),
+        ),
     ]);
     (
         [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
@@ -103,14 +71,8 @@ pub async fn metrics(State(d): St) -> Response {
 /// read back from it now (during a capture: as that capture set them, with
 /// `busy` naming the capture).
 #[utoipa::path(get, path = "/camera", responses((status = 200, description = "Camera state")))]
-pub async fn camera(State(d): St) -> Json<serde_json::Value> {
-    let (status, busy) = d.camera_now().await;
-    let mut v = serde_json::to_value(status).unwrap_or_default();
-    v["busy"] = busy.map_or(serde_json::Value::Null, serde_json::Value::String);
-    v["capture_defaults"] =
-        serde_json::to_value(d.capture_defaults(d.camera.status().info.as_ref()))
-            .unwrap_or_default();
-    Json(v)
+pub async fn camera(State(d): St) -> Json<crate::daemon::CameraView> {
+    Json(d.camera_now().await)
 }
 
 /// Applies camera settings now and makes them the defaults of later captures
@@ -123,42 +85,25 @@ pub async fn camera_settings(
     Ok(Json(d.put_camera_settings(s).await?))
 }
 
-fn accepted(kind: &str, id: i64, extra: serde_json::Value) -> Response {
-    let location = format!("/{kind}s/{id}");
-    let mut body =
-        serde_json::json!({ "id": id, "state": "queued", "job": format!("{kind}-{id}") });
-    if let (Some(b), serde_json::Value::Object(e)) = (body.as_object_mut(), extra) {
-        b.extend(e);
-    }
-    (
-        StatusCode::ACCEPTED,
-        [(header::LOCATION, location)],
-        Json(body),
-    )
-        .into_response()
-}
-
 /// Queues a capture.
 #[utoipa::path(post, path = "/captures", request_body = CaptureBody, responses((status = 202, description = "Queued; Location names the capture; the body echoes every setting it will use"), (status = 404, description = "Unknown scene"), (status = 422, description = "Out of range"), (status = 429, description = "Queue full"), (status = 507, description = "Its files would not fit on the disk")))]
 pub async fn post_capture(
     State(d): St,
     ApiJson(b): ApiJson<CaptureBody>,
 ) -> Result<Response, ApiError> {
-    // Validation may build the scene's T (for "exposure": "auto"): off the runtime.
-    let d2 = d.clone();
-    let req = tokio::task::spawn_blocking(move || validate_capture(&d2, &b))
-        .await
-        .map_err(|e| ApiError::internal(e.to_string()))??;
-    let id = d.submit_capture(&req)?;
-    Ok(accepted(
-        "capture",
-        id,
-        serde_json::json!({
-            "kind": req.kind, "exposure_us": req.exposure_us, "gain": req.gain, "frames": req.frames,
-            "dark_frames": req.dark_frames, "dark_capture": req.dark_capture,
-            "pixel_format": req.pixel_format, "region": req.region, "binning": req.binning, "trigger": req.trigger,
-        }),
-    ))
+    let (id, req) = d.submit_capture(b).await?;
+    Ok(accepted("capture", id, CaptureAccepted::new(id, &req)))
+}
+
+/// 202 with the job's `Location`.
+fn accepted(kind: &str, id: i64, body: impl serde::Serialize) -> Response {
+    let location = format!("/{kind}s/{id}");
+    (
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, location)],
+        Json(body),
+    )
+        .into_response()
 }
 
 /// Captures, newest first.
@@ -168,7 +113,7 @@ pub async fn list_captures(
     Query(p): Query<Page>,
 ) -> Result<Json<Vec<CaptureRecord>>, ApiError> {
     let (limit, offset) = p.get()?;
-    Ok(Json(d.store.captures(limit, offset)?))
+    Ok(Json(d.store().captures(limit, offset)?))
 }
 
 /// One capture.
@@ -177,7 +122,7 @@ pub async fn get_capture(
     State(d): St,
     Path(id): Path<String>,
 ) -> Result<Json<CaptureRecord>, ApiError> {
-    Ok(Json(d.store.capture(parse_id(&id, "capture")?)?))
+    Ok(Json(d.store().capture(parse_id(&id, "capture")?)?))
 }
 
 async fn file(
@@ -205,9 +150,9 @@ async fn capture_file(
     ct: &'static str,
 ) -> Result<Response, ApiError> {
     let id = parse_id(id, "capture")?;
-    d.store.capture(id)?;
+    d.store().capture(id)?;
     file(
-        d.store.capture_dir(id).join(name),
+        d.store().capture_dir(id).join(name),
         ct,
         format!("capture {id}"),
     )
@@ -238,16 +183,12 @@ pub async fn post_reconstruction(
     State(d): St,
     ApiJson(b): ApiJson<ReconstructionBody>,
 ) -> Result<Response, ApiError> {
-    let req = validate_reconstruction(&d, &b)?;
-    let permit = d.reconstructions.try_reserve().map_err(|_| {
-        d.metrics
-            .rejected_full
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        ApiError::queue_full("reconstruction", 5)
-    })?;
-    let id = d.store.insert_reconstruction(&req)?;
-    permit.send(id);
-    Ok(accepted("reconstruction", id, serde_json::Value::Null))
+    let id = d.submit_reconstruction(&b)?;
+    Ok(accepted(
+        "reconstruction",
+        id,
+        Accepted::queued("reconstruction", id),
+    ))
 }
 
 /// Reconstructions, newest first.
@@ -257,7 +198,7 @@ pub async fn list_reconstructions(
     Query(p): Query<Page>,
 ) -> Result<Json<Vec<ReconstructionRecord>>, ApiError> {
     let (limit, offset) = p.get()?;
-    Ok(Json(d.store.reconstructions(limit, offset)?))
+    Ok(Json(d.store().reconstructions(limit, offset)?))
 }
 
 /// One reconstruction, with kappa and the report when done.
@@ -267,7 +208,7 @@ pub async fn get_reconstruction(
     Path(id): Path<String>,
 ) -> Result<Json<ReconstructionRecord>, ApiError> {
     Ok(Json(
-        d.store.reconstruction(parse_id(&id, "reconstruction")?)?,
+        d.store().reconstruction(parse_id(&id, "reconstruction")?)?,
     ))
 }
 
@@ -278,9 +219,9 @@ async fn recon_file(
     ct: &'static str,
 ) -> Result<Response, ApiError> {
     let id = parse_id(id, "reconstruction")?;
-    d.store.reconstruction(id)?;
+    d.store().reconstruction(id)?;
     file(
-        d.store.reconstruction_dir(id).join(name),
+        d.store().reconstruction_dir(id).join(name),
         ct,
         format!("reconstruction {id}"),
     )
@@ -319,8 +260,8 @@ pub async fn get_job(
     let (kind, n) = id.split_once('-').ok_or_else(bad)?;
     let n = n.parse::<i64>().ok().filter(|n| *n > 0).ok_or_else(bad)?;
     let v = match kind {
-        "capture" => serde_json::to_value(d.store.capture(n)?),
-        "reconstruction" => serde_json::to_value(d.store.reconstruction(n)?),
+        "capture" => serde_json::to_value(d.store().capture(n)?),
+        "reconstruction" => serde_json::to_value(d.store().reconstruction(n)?),
         _ => return Err(bad()),
     };
     let mut v = v.map_err(|e| ApiError::internal(e.to_string()))?;
@@ -331,7 +272,7 @@ pub async fn get_job(
 /// Server-sent events: job progress, frames taken, camera state changes.
 #[utoipa::path(get, path = "/events", responses((status = 200, content_type = "text/event-stream", description = "Event stream")))]
 pub async fn events(State(d): St) -> Sse<impl Stream<Item = Result<SseEvent, Infallible>>> {
-    let stream = BroadcastStream::new(d.events.subscribe()).filter_map(|e| {
+    let stream = BroadcastStream::new(d.subscribe()).filter_map(|e| {
         let e = e.ok()?;
         SseEvent::default().json_data(&e).ok().map(Ok)
     });
@@ -341,16 +282,7 @@ pub async fn events(State(d): St) -> Sse<impl Stream<Item = Result<SseEvent, Inf
 /// Scene names the daemon knows.
 #[utoipa::path(get, path = "/scenes", responses((status = 200, description = "Scene names")))]
 pub async fn scenes(State(d): St) -> Json<Vec<String>> {
-    Json(d.scenes.names())
-}
-
-/// Target of an exposure plan (query of `GET /scenes/{name}/exposure`).
-#[derive(Debug, Deserialize, utoipa::IntoParams)]
-pub struct TargetQuery {
-    /// Brightest admissible wall element as a fraction of full scale (default 0.8).
-    peak_fraction: Option<f64>,
-    /// SNR wanted there after averaging (default 100).
-    snr: Option<f64>,
+    Json(d.scene_names())
 }
 
 /// The planned exposure and frame count of every (pose, angle) block of a scene.
@@ -360,20 +292,10 @@ pub async fn scene_exposure(
     Path(name): Path<String>,
     Query(q): Query<TargetQuery>,
 ) -> Result<Json<Vec<BlockExposure>>, ApiError> {
-    let mut target = ExposureTarget::default();
-    if let Some(f) = q.peak_fraction {
-        target.peak_fraction = f;
-    }
-    if let Some(s) = q.snr {
-        target.snr = s;
-    }
-    let d2 = d.clone();
-    let plan = tokio::task::spawn_blocking(move || {
-        let limits = camera_limits(&d2, d2.camera.status().info.as_ref());
-        exposure_plan(&d2, &name, &target, &limits)
-    })
-    .await
-    .map_err(|e| ApiError::internal(e.to_string()))??;
+    let target = q.target();
+    let plan = tokio::task::spawn_blocking(move || d.exposure_plan(&name, &target))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(plan))
 }
 

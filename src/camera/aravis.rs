@@ -418,40 +418,15 @@ impl CameraDevice for AravisCamera {
                 }
                 continue;
             }
-            let (w, h) = (
-                buffer.image_width() as usize,
-                buffer.image_height() as usize,
-            );
-            let data = buffer.image_data();
-            let pixels: Vec<u16> = if self.settings.pixel_format == PixelFormat::Mono8 {
-                data.iter().take(w * h).map(|&b| u16::from(b)).collect()
-            } else {
-                data.chunks_exact(2)
-                    .take(w * h)
-                    .map(|p| u16::from_le_bytes([p[0], p[1]]))
-                    .collect()
-            };
-            let frame_id = buffer.frame_id();
+            let frame = decode(&buffer, self.settings.pixel_format, bits);
             stream.push_buffer(buffer);
-            if pixels.len() != w * h {
+            let Some(frame) = frame else {
                 failures += 1;
                 self.counters.failed += 1;
                 continue;
-            }
-            let now = SystemTime::now()
-                .duration_since(UNIX_EPOCH)
-                .map(|d| d.as_nanos() as u64)
-                .unwrap_or(0);
+            };
             self.counters.completed += 1;
             taken += 1;
-            let frame = RawFrame {
-                width: w,
-                height: h,
-                bits,
-                pixels,
-                frame_id,
-                system_timestamp_ns: now,
-            };
             if let Err(why) = sink(frame) {
                 break Err(CameraError::Stopped(why));
             }
@@ -468,4 +443,37 @@ impl CameraDevice for AravisCamera {
     fn counters(&self) -> Counters {
         self.counters
     }
+}
+
+/// A received buffer as a frame: its pixels copied out (Mono8 widened to
+/// 16 bits), or None when it holds fewer bytes than its width x height says.
+fn decode(buffer: &aravis::Buffer, format: PixelFormat, bits: u32) -> Option<RawFrame> {
+    let (w, h) = (
+        buffer.image_width() as usize,
+        buffer.image_height() as usize,
+    );
+    let data = buffer.image_data();
+    let pixels: Vec<u16> = if format == PixelFormat::Mono8 {
+        data.iter().take(w * h).map(|&b| u16::from(b)).collect()
+    } else {
+        data.chunks_exact(2)
+            .take(w * h)
+            .map(|p| u16::from_le_bytes([p[0], p[1]]))
+            .collect()
+    };
+    if pixels.len() != w * h {
+        return None;
+    }
+    let system_timestamp_ns = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0);
+    Some(RawFrame {
+        width: w,
+        height: h,
+        bits,
+        pixels,
+        frame_id: buffer.frame_id(),
+        system_timestamp_ns,
+    })
 }

@@ -8,11 +8,10 @@
 //! fills each frame with the wall image of the selected block, rendered by the
 //! numeric core through the pose's homography.
 
-use std::collections::HashMap;
 use std::ffi::c_void;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
+use super::shown::Shown;
 use super::Frame;
 
 /// What a capture asks of the bench before acquiring.
@@ -49,23 +48,10 @@ impl Bench for ManualBench {
     }
 }
 
-/// Key of a block: pose name and polarizer angle in millidegrees (None: no polarizer).
-fn key(pose: &str, deg: Option<f64>) -> String {
-    match deg {
-        Some(d) => format!("{pose}@{}", (d * 1000.0).round() as i64),
-        None => format!("{pose}@none"),
-    }
-}
-
 /// State shared with the fill callback (which runs on Aravis's thread).
 struct Shared {
-    /// Wall frames per block, in fractions of full scale at the reference exposure.
-    frames: HashMap<String, Frame>,
-    selected: Mutex<Option<String>>,
-    scene_on: AtomicBool,
-    reference_exposure_us: f64,
-    dark_level: f64,
-    counter: AtomicU64,
+    /// What the bench shows.
+    shown: Shown,
     /// The `ArvFakeCamera` whose buffers the callback fills (owned by the
     /// `GvFakeCamera`, alive until [`FakeBench`]'s drop clears the callback).
     camera: *mut aravis_sys::ArvFakeCamera,
@@ -118,15 +104,7 @@ impl FakeBench {
         let camera: *mut aravis_sys::ArvFakeCamera =
             aravis::glib::translate::ToGlibPtr::to_glib_none(&fake).0;
         let shared = Arc::new(Shared {
-            frames: frames
-                .into_iter()
-                .map(|(p, d, f)| (key(&p, d), f))
-                .collect(),
-            selected: Mutex::new(None),
-            scene_on: AtomicBool::new(true),
-            reference_exposure_us,
-            dark_level: 0.01,
-            counter: AtomicU64::new(0),
+            shown: Shown::new(frames, reference_exposure_us),
             camera,
         });
         let ptr = Arc::into_raw(shared);
@@ -176,12 +154,10 @@ impl FakeBench {
 
 impl Bench for FakeBench {
     fn select(&self, pose: &str, polarizer_deg: Option<f64>) {
-        if let Ok(mut s) = self.shared().selected.lock() {
-            *s = Some(key(pose, polarizer_deg));
-        }
+        self.shared().shown.select(pose, polarizer_deg);
     }
     fn scene_on(&self, on: bool) {
-        self.shared().scene_on.store(on, Ordering::SeqCst);
+        self.shared().shown.scene_on(on);
     }
     fn switches_scene(&self) -> bool {
         self.switches_scene
@@ -287,52 +263,22 @@ unsafe extern "C" fn fill(
 fn render(
     shared: &Shared,
     bytes: &mut [u8],
-    (w, h, ox, oy): (usize, usize, usize, usize),
+    geometry: (usize, usize, usize, usize),
     bpp: usize,
     exposure_us: u32,
     gain: u32,
 ) {
     let full = if bpp == 2 { 65535.0 } else { 255.0 };
-    let scale =
-        f64::from(exposure_us) / shared.reference_exposure_us * (1.0 + 0.1 * f64::from(gain));
-    let selected = shared.selected.lock().ok().and_then(|s| s.clone());
-    let frame = if shared.scene_on.load(Ordering::SeqCst) {
-        selected.and_then(|k| shared.frames.get(&k))
-    } else {
-        None
-    };
-    let mut seed = shared
-        .counter
-        .fetch_add(1, Ordering::Relaxed)
-        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        | 1;
-    for y in 0..h {
-        for x in 0..w {
-            let signal = frame
-                .and_then(|f| {
-                    let (fx, fy) = (x.checked_add(ox)?, y.checked_add(oy)?);
-                    (fx < f.width && fy < f.height)
-                        .then(|| f.pixels.get(fy * f.width + fx))
-                        .flatten()
-                        .map(|&p| f64::from(p))
-                })
-                .unwrap_or(0.0);
-            // xorshift dither of +-0.5 DN so that averaging frames means something.
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            let dither = (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
-            let v = ((shared.dark_level + signal) * scale * full + dither)
-                .round()
-                .clamp(0.0, full);
-            let i = y * w + x;
-            if bpp == 2 {
-                if let Some(px) = bytes.get_mut(2 * i..2 * i + 2) {
-                    px.copy_from_slice(&(v as u16).to_le_bytes());
-                }
-            } else if let Some(px) = bytes.get_mut(i) {
-                *px = v as u8;
+    let put = |i: usize, v: f64| {
+        if bpp == 2 {
+            if let Some(px) = bytes.get_mut(2 * i..2 * i + 2) {
+                px.copy_from_slice(&(v as u16).to_le_bytes());
             }
+        } else if let Some(px) = bytes.get_mut(i) {
+            *px = v as u8;
         }
-    }
+    };
+    shared
+        .shown
+        .expose(geometry, full, f64::from(exposure_us), f64::from(gain), put);
 }

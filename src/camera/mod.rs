@@ -13,6 +13,8 @@ pub mod fake;
 mod frame;
 pub mod hotplug;
 pub mod settings;
+mod shown;
+pub mod synthetic;
 pub mod worker;
 
 pub use device::{CameraDevice, CameraError, CameraInfo, Counters, FrameSink, RawFrame};

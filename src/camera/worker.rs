@@ -3,7 +3,7 @@
 //! reopens it with exponential backoff (0.25 s doubling to 10 s), or at once
 //! when told to rescan (USB hot-plug).
 
-use std::sync::mpsc::{self, RecvTimeoutError};
+use std::sync::mpsc::{self, RecvTimeoutError, SyncSender};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -143,79 +143,107 @@ impl CameraHandle {
 }
 
 fn run(opener: Opener, rx: mpsc::Receiver<Request>, status: Arc<Mutex<CameraStatus>>) {
-    let mut camera: Option<Box<dyn CameraDevice>> = None;
-    let mut base = Counters::default();
-    let mut backoff = Duration::ZERO;
-    let update = |f: &mut dyn FnMut(&mut CameraStatus)| {
-        if let Ok(mut s) = status.lock() {
-            f(&mut s);
-        }
+    let mut w = Worker {
+        opener,
+        status,
+        camera: None,
+        base: Counters::default(),
+        backoff: Duration::ZERO,
     };
     loop {
-        if camera.is_none() {
-            match opener() {
-                Ok(mut c) => {
-                    let info = c.describe().ok();
-                    tracing::info!(camera = ?info.as_ref().map(|i| &i.id), "camera connected");
-                    update(&mut |s| {
-                        s.connected = true;
-                        s.last_error = None;
-                        s.counters.connects += 1;
-                        s.info = info.clone();
-                    });
-                    camera = Some(c);
-                    backoff = Duration::ZERO;
-                }
-                Err(e) => {
-                    backoff = (backoff * 2).clamp(BACKOFF_MIN, BACKOFF_MAX);
-                    tracing::warn!("camera not available, retrying in {:?}: {e}", backoff);
-                    update(&mut |s| {
-                        s.connected = false;
-                        s.last_error = Some(e.to_string());
-                        s.reconnect_failures += 1;
-                    });
-                }
-            }
+        if w.camera.is_none() {
+            w.open();
         }
-        let req = if camera.is_some() {
+        let req = if w.camera.is_some() {
             rx.recv().map_err(|_| RecvTimeoutError::Disconnected)
         } else {
-            rx.recv_timeout(backoff)
+            rx.recv_timeout(w.backoff)
         };
-        let req = match req {
-            Ok(r) => r,
-            Err(RecvTimeoutError::Timeout) => continue,
-            Err(RecvTimeoutError::Disconnected) => return,
-        };
-        let not_connected = || {
-            CameraError::Disconnected(
-                status
-                    .lock()
-                    .ok()
-                    .and_then(|s| s.last_error.clone())
-                    .unwrap_or_else(|| "not opened yet".into()),
-            )
-        };
-        let mut lost = None;
         match req {
-            Request::Shutdown => return,
-            Request::Rescan => backoff = Duration::ZERO,
+            Ok(Request::Shutdown) | Err(RecvTimeoutError::Disconnected) => return,
+            Ok(Request::Rescan) => w.backoff = Duration::ZERO,
+            Ok(req) => w.handle(req),
+            Err(RecvTimeoutError::Timeout) => {}
+        }
+    }
+}
+
+/// The camera thread's state: the open camera (if any), counters of cameras
+/// lost before it, and the reconnection backoff.
+struct Worker {
+    opener: Opener,
+    status: Arc<Mutex<CameraStatus>>,
+    camera: Option<Box<dyn CameraDevice>>,
+    base: Counters,
+    backoff: Duration,
+}
+
+impl Worker {
+    fn update(&self, f: impl FnOnce(&mut CameraStatus)) {
+        if let Ok(mut s) = self.status.lock() {
+            f(&mut s);
+        }
+    }
+
+    /// Tries to open the camera; on failure doubles the backoff.
+    fn open(&mut self) {
+        match (self.opener)() {
+            Ok(mut c) => {
+                let info = c.describe().ok();
+                tracing::info!(camera = ?info.as_ref().map(|i| &i.id), "camera connected");
+                self.update(|s| {
+                    s.connected = true;
+                    s.last_error = None;
+                    s.counters.connects += 1;
+                    s.info = info;
+                });
+                self.camera = Some(c);
+                self.backoff = Duration::ZERO;
+            }
+            Err(e) => {
+                self.backoff = (self.backoff * 2).clamp(BACKOFF_MIN, BACKOFF_MAX);
+                tracing::warn!("camera not available, retrying in {:?}: {e}", self.backoff);
+                self.update(|s| {
+                    s.connected = false;
+                    s.last_error = Some(e.to_string());
+                    s.reconnect_failures += 1;
+                });
+            }
+        }
+    }
+
+    fn not_connected(&self) -> CameraError {
+        let last = self.status.lock().ok().and_then(|s| s.last_error.clone());
+        CameraError::Disconnected(last.unwrap_or_else(|| "not opened yet".into()))
+    }
+
+    /// Reads the camera's description into the status.
+    fn refresh(&mut self) {
+        if let Some(info) = self.camera.as_mut().and_then(|c| c.describe().ok()) {
+            self.update(|s| s.info = Some(info));
+        }
+    }
+
+    fn handle(&mut self, req: Request) {
+        match req {
+            Request::Shutdown | Request::Rescan => {}
             Request::Describe(reply) => {
-                let r = camera
-                    .as_mut()
-                    .map_or_else(|| Err(not_connected()), |c| c.describe());
+                let r = match self.camera.as_mut() {
+                    Some(c) => c.describe(),
+                    None => Err(self.not_connected()),
+                };
                 if let Ok(info) = &r {
-                    update(&mut |s| s.info = Some(info.clone()));
+                    let info = info.clone();
+                    self.update(|s| s.info = Some(info));
                 }
                 let _ = reply.send(r);
             }
             Request::Configure(settings, reply) => {
-                let r = camera
-                    .as_mut()
-                    .map_or_else(|| Err(not_connected()), |c| c.configure(&settings));
-                if let Some(info) = camera.as_mut().and_then(|c| c.describe().ok()) {
-                    update(&mut |s| s.info = Some(info.clone()));
-                }
+                let r = match self.camera.as_mut() {
+                    Some(c) => c.configure(&settings),
+                    None => Err(self.not_connected()),
+                };
+                self.refresh();
                 let _ = reply.send(r);
             }
             Request::Acquire {
@@ -224,46 +252,60 @@ fn run(opener: Opener, rx: mpsc::Receiver<Request>, status: Arc<Mutex<CameraStat
                 sink,
                 reply,
             } => {
-                let r = match camera.as_mut() {
-                    None => Err(not_connected()),
-                    Some(c) => c.configure(&settings).and_then(|()| {
-                        if let Ok(info) = c.describe() {
-                            update(&mut |s| s.info = Some(info.clone()));
-                        }
-                        c.acquire(n, &mut |f| {
-                            sink.send(f)
-                                .map_err(|_| "the frame writer stopped".to_string())
-                        })
-                    }),
-                };
-                if let Some(c) = camera.as_ref() {
-                    let k = c.counters();
-                    update(&mut |s| {
-                        s.counters = Counters {
-                            connects: s.counters.connects,
-                            ..add(base, k)
-                        }
-                    });
-                }
+                let r = self.acquire(&settings, n, &sink);
                 if let Err(e) = &r {
                     if e.is_connection_loss() {
-                        lost = Some(e.to_string());
+                        self.lose(e.to_string());
                     }
                 }
                 let _ = reply.send(r);
             }
         }
-        if let Some(why) = lost {
-            if let Some(c) = camera.take() {
-                base = add(base, c.counters());
+    }
+
+    /// Configures, then acquires `n` frames into `sink`; counters follow.
+    fn acquire(
+        &mut self,
+        settings: &CameraSettings,
+        n: usize,
+        sink: &SyncSender<RawFrame>,
+    ) -> Result<(), CameraError> {
+        let Some(c) = self.camera.as_mut() else {
+            return Err(self.not_connected());
+        };
+        let r = c.configure(settings);
+        self.refresh();
+        let Some(c) = self.camera.as_mut() else {
+            return Err(self.not_connected());
+        };
+        let r = r.and_then(|()| {
+            c.acquire(n, &mut |f| {
+                sink.send(f)
+                    .map_err(|_| "the frame writer stopped".to_string())
+            })
+        });
+        let k = c.counters();
+        let base = self.base;
+        self.update(|s| {
+            s.counters = Counters {
+                connects: s.counters.connects,
+                ..add(base, k)
             }
-            tracing::warn!("camera lost: {why}");
-            update(&mut |s| {
-                s.connected = false;
-                s.last_error = Some(why.clone());
-            });
-            backoff = Duration::ZERO;
+        });
+        r
+    }
+
+    /// Drops a camera that was lost; the loop reopens it at once.
+    fn lose(&mut self, why: String) {
+        if let Some(c) = self.camera.take() {
+            self.base = add(self.base, c.counters());
         }
+        tracing::warn!("camera lost: {why}");
+        self.update(|s| {
+            s.connected = false;
+            s.last_error = Some(why);
+        });
+        self.backoff = Duration::ZERO;
     }
 }
 

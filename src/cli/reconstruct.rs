@@ -149,7 +149,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         &image::unit_to_u16(&image),
     )?;
     json::write(&a.out.join("report.json"), &report)?;
-    // Diagnostics to stderr, results to stdout.
+    print_summary(&report);
+    println!(
+        "recovered {}x{} scene into {}",
+        sgrid.nu,
+        sgrid.nv,
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// Diagnostics to stderr, results to stdout.
+fn print_summary(report: &polnlos::solve::report::Report) {
     for w in &report.warnings {
         eprintln!("warning: {w}");
     }
@@ -170,11 +181,4 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             m.psnr_db, m.zncc, m.ssim
         );
     }
-    println!(
-        "recovered {}x{} scene into {}",
-        sgrid.nu,
-        sgrid.nv,
-        a.out.display()
-    );
-    Ok(())
 }

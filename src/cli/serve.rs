@@ -60,22 +60,19 @@ async fn serve(config: Config) -> anyhow::Result<()> {
     let listener = tokio::net::TcpListener::bind(bind)
         .await
         .with_context(|| format!("cannot listen on {bind}"))?;
-    let limits = polnlos::api::Limits {
-        max_connections: config.http.max_connections,
-        header_timeout: std::time::Duration::from_secs_f64(config.http.header_timeout_s),
-    };
     polnlos::files::space::budget_transport_memory();
     let daemon = Daemon::start(config).await?;
     tracing::info!("polnlos API on http://{}", listener.local_addr()?);
     notify(&[sd_notify::NotifyState::Ready]);
     let watchdog = watchdog();
-    let app = polnlos::api::router(daemon.clone());
-    let result = polnlos::api::serve(listener, app, limits, shutdown_signal()).await;
-    notify(&[sd_notify::NotifyState::Stopping]);
+    let result = polnlos::daemon::run(listener, daemon, async {
+        shutdown_signal().await;
+        notify(&[sd_notify::NotifyState::Stopping]);
+    })
+    .await;
     if let Some(w) = watchdog {
         w.abort();
     }
-    daemon.shutdown();
     result.context("HTTP server stopped")
 }
 

@@ -6,7 +6,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::measure::render_wall;
-use polnlos::simulate::{unpolarized_peak, NoiseModel};
+use polnlos::scene::Scene;
+use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};
+use polnlos::transport::Transport;
 
 /// Simulate a measurement of a hidden scene.
 #[derive(Debug, clap::Args)]
@@ -125,50 +127,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let full = f64::from((1u32 << a.bits) - 1);
     let png_scale = 65535.0 / full;
     let wgrid = t.wall_grid;
-    let mut blocks = Vec::new();
-    for (b, block) in t.blocks.iter().enumerate() {
-        let rows = t.block_rows(b);
-        let dn = &sim.dn[rows.clone()];
-        let scaled: Vec<u16> = dn
-            .iter()
-            .map(|&d| (f64::from(d) * png_scale).round() as u16)
-            .collect();
-        let wall_png = format!("wall-{}.png", block.label());
-        image::write_png16(&a.out.join(&wall_png), wgrid.nu, wgrid.nv, &scaled)?;
-        let frame_png = match (
-            frame_size,
-            scene.pose(&block.pose).and_then(|p| p.homography.as_ref()),
-        ) {
-            (Some((w, h)), Some(hom)) => {
-                let values: Vec<f64> = scaled.iter().map(|&v| f64::from(v)).collect();
-                let frame = render_wall(&values, hom, &scene.wall.plane, w, h, 0.0);
-                let px: Vec<u16> = frame.pixels.iter().map(|&v| v.round() as u16).collect();
-                let name = format!("frame-{}.png", block.label());
-                image::write_png16(&a.out.join(&name), w, h, &px)?;
-                Some(name)
-            }
-            _ => None,
-        };
-        let electrons: Vec<f64> = sim.clean[rows]
-            .iter()
-            .map(|c| c * sim.electrons_per_unit)
-            .collect();
-        let n = electrons.len().max(1) as f64;
-        let r2 = a.read_noise * a.read_noise;
-        blocks.push(BlockOut {
-            pose: block.pose.clone(),
-            polarizer_deg: block.polarizer_deg,
-            wall_png,
-            frame_png,
-            mean_electrons: electrons.iter().sum::<f64>() / n,
-            max_electrons: electrons.iter().copied().fold(0.0, f64::max),
-            mean_snr: electrons
-                .iter()
-                .map(|e| if *e > 0.0 { e / (e + r2).sqrt() } else { 0.0 })
-                .sum::<f64>()
-                / n,
-        });
-    }
+    let blocks = (0..t.blocks.len())
+        .map(|b| write_block(&a, &scene, &t, &sim, b, frame_size, png_scale))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let out = Output {
         scene: super::scene_name(&a.scene),
         truth: a.truth.display().to_string(),
@@ -192,4 +153,57 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+/// Writes one block's wall image (and camera frame with `--frames`) and
+/// returns what `simulate.json` says about it.
+fn write_block(
+    a: &Args,
+    scene: &Scene,
+    t: &Transport,
+    sim: &Simulation,
+    b: usize,
+    frame_size: Option<(usize, usize)>,
+    png_scale: f64,
+) -> anyhow::Result<BlockOut> {
+    let block = &t.blocks[b];
+    let rows = t.block_rows(b);
+    let wgrid = t.wall_grid;
+    let scaled: Vec<u16> = sim.dn[rows.clone()]
+        .iter()
+        .map(|&d| (f64::from(d) * png_scale).round() as u16)
+        .collect();
+    let wall_png = format!("wall-{}.png", block.label());
+    image::write_png16(&a.out.join(&wall_png), wgrid.nu, wgrid.nv, &scaled)?;
+    let homography = scene.pose(&block.pose).and_then(|p| p.homography.as_ref());
+    let frame_png = match (frame_size, homography) {
+        (Some((w, h)), Some(hom)) => {
+            let values: Vec<f64> = scaled.iter().map(|&v| f64::from(v)).collect();
+            let frame = render_wall(&values, hom, &scene.wall.plane, w, h, 0.0);
+            let px: Vec<u16> = frame.pixels.iter().map(|&v| v.round() as u16).collect();
+            let name = format!("frame-{}.png", block.label());
+            image::write_png16(&a.out.join(&name), w, h, &px)?;
+            Some(name)
+        }
+        _ => None,
+    };
+    let electrons: Vec<f64> = sim.clean[rows]
+        .iter()
+        .map(|c| c * sim.electrons_per_unit)
+        .collect();
+    let n = electrons.len().max(1) as f64;
+    let r2 = a.read_noise * a.read_noise;
+    Ok(BlockOut {
+        pose: block.pose.clone(),
+        polarizer_deg: block.polarizer_deg,
+        wall_png,
+        frame_png,
+        mean_electrons: electrons.iter().sum::<f64>() / n,
+        max_electrons: electrons.iter().copied().fold(0.0, f64::max),
+        mean_snr: electrons
+            .iter()
+            .map(|e| if *e > 0.0 { e / (e + r2).sqrt() } else { 0.0 })
+            .sum::<f64>()
+            / n,
+    })
 }

@@ -1,6 +1,6 @@
 //! Capture jobs: the worker that runs them one at a time and streams each
-//! frame to disk while it arrives (the request and its validation are in
-//! [`super::capture_request`]).
+//! frame to disk while it arrives (the request is checked in
+//! [`super::validate`] before it is queued).
 //!
 //! Dark frames are never taken silently with the scene lit: a bench that can
 //! switch the hidden scene off itself (the fake bench, a motorized shutter)
@@ -17,8 +17,8 @@ use super::jobs::{finish_job, job_event, JobError};
 use super::{Daemon, Event};
 use crate::camera::{CameraError, CameraSettings, Frame, PixelFormat, RawFrame, TriggerMode};
 use crate::store::{
-    read_mean, write_frames, write_summary, CaptureFiles, CaptureKind, FrameMeta, FrameStack,
-    JobState,
+    read_mean, write_frames, write_summary, CaptureFiles, CaptureKind, CaptureRecord, FrameMeta,
+    FrameStack, JobState,
 };
 
 /// Frames in flight between the camera thread and the writer.
@@ -51,13 +51,52 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), JobError> {
     let c = d.store.capture(id).map_err(store_err)?;
     d.store.capture_running(id).map_err(store_err)?;
     job_event(d, format!("capture-{id}"), JobState::Running, None);
+    let settings = settings_of(&c)?;
+    wait_for_camera(d).await;
+    let camera_id = d.camera.status().info.map(|i| i.id).unwrap_or_default();
+    let meta = meta_of(&c, &settings, &camera_id);
+    let dir = d.store.capture_dir(id);
+    std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
+    d.bench.select(&c.pose, c.polarizer_deg);
+    let stream = Stream {
+        d,
+        id,
+        settings: &settings,
+        meta: &meta,
+        total: (c.frames + c.dark_frames) as usize,
+    };
+    let dark = dark_reference(d, &c, &stream).await?;
+    let scene_off = meta.kind == CaptureKind::Dark && d.bench.switches_scene();
+    if scene_off {
+        d.bench.scene_on(false);
+    }
+    let (n, offset) = (c.frames as usize, c.dark_frames as usize);
+    let frames = stream.take(CaptureFiles::FRAMES, "frames", n, offset).await;
+    if scene_off {
+        d.bench.scene_on(true);
+    }
+    let frames = frames?;
+    let store = d.store.clone();
+    tokio::task::spawn_blocking(move || {
+        write_summary(&dir, &frames, dark.as_ref(), &meta)
+            .map_err(|e| JobError::Store(store.describe(&e)))
+    })
+    .await??;
+    let counters = serde_json::to_string(&d.camera.status().counters).unwrap_or_default();
+    d.store
+        .capture_done(id, &camera_id, &counters)
+        .map_err(store_err)
+}
+
+/// The camera settings a capture recorded when it was accepted.
+fn settings_of(c: &CaptureRecord) -> Result<CameraSettings, JobError> {
     let (Some(region), Some(binning)) = (c.region, c.binning) else {
         return Err(JobError::Capture {
-            id,
+            id: c.id,
             reason: "records no region or binning".into(),
         });
     };
-    let settings = CameraSettings {
+    Ok(CameraSettings {
         exposure_us: c.exposure_us,
         gain: c.gain,
         pixel_format: PixelFormat::from_name(&c.pixel_format).unwrap_or(PixelFormat::Mono16),
@@ -68,20 +107,26 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), JobError> {
             .as_deref()
             .and_then(TriggerMode::from_name)
             .unwrap_or(TriggerMode::Free),
-    };
-    // A camera that is (re)connecting gets a short grace period before the capture fails.
+    })
+}
+
+/// A camera that is (re)connecting gets a short grace period before the capture fails.
+async fn wait_for_camera(d: &Daemon) {
     let grace = Instant::now();
     while !d.camera.status().connected && grace.elapsed() < CAMERA_GRACE {
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     }
-    let camera_id = d.camera.status().info.map(|i| i.id).unwrap_or_default();
+}
+
+/// What every page of the capture's files records about it.
+fn meta_of(c: &CaptureRecord, settings: &CameraSettings, camera_id: &str) -> FrameMeta {
     let kind = if c.is_dark() {
         CaptureKind::Dark
     } else {
         CaptureKind::Light
     };
-    let meta = FrameMeta {
-        capture: id,
+    FrameMeta {
+        capture: c.id,
         kind,
         scene: c.scene.clone(),
         pose: c.pose.clone(),
@@ -89,78 +134,47 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), JobError> {
         exposure_us: c.exposure_us,
         gain: c.gain,
         pixel_format: settings.pixel_format.name().into(),
-        region,
-        binning,
+        region: settings.region.unwrap_or_default(),
+        binning: settings.binning.unwrap_or([1, 1]),
         trigger: settings.trigger.name().into(),
         dark_capture: c.dark_capture,
-        camera_id: camera_id.clone(),
-    };
-    let dir = d.store.capture_dir(id);
-    std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
-    d.bench.select(&c.pose, c.polarizer_deg);
-    let total = (c.frames + c.dark_frames) as usize;
-    let stream = Stream {
-        d,
-        id,
-        settings: &settings,
-        meta: &meta,
-        total,
-    };
-    // Dark frames within the capture: only on a bench that switches the scene
-    // itself (checked when the capture was accepted).
-    let mut dark: Option<Frame> = None;
+        camera_id: camera_id.to_string(),
+    }
+}
+
+/// The dark level to subtract: the mean of dark frames taken now with the
+/// scene switched off (only on a bench that can, checked at acceptance), or
+/// a dark capture's mean frame, or none.
+async fn dark_reference(
+    d: &Daemon,
+    c: &CaptureRecord,
+    stream: &Stream<'_>,
+) -> Result<Option<Frame>, JobError> {
     if c.dark_frames > 0 {
         d.bench.scene_on(false);
-        let r = stream
-            .take(CaptureFiles::DARK, "dark", c.dark_frames as usize, 0)
-            .await;
+        let n = c.dark_frames as usize;
+        let r = stream.take(CaptureFiles::DARK, "dark", n, 0).await;
         d.bench.scene_on(true);
         let st = r.map_err(|e| JobError::Capture {
-            id,
+            id: c.id,
             reason: format!("dark frames: {e}"),
         })?;
-        dark = Some(Frame {
+        return Ok(Some(Frame {
             width: st.width,
             height: st.height,
             pixels: st.mean.iter().map(|&v| v as f32).collect(),
-        });
+        }));
     }
-    if let Some(dc) = c.dark_capture {
-        dark = Some(
-            read_mean(&d.store.capture_dir(dc)).map_err(|e| JobError::Capture {
+    match c.dark_capture {
+        Some(dc) => {
+            let mean = read_mean(&d.store.capture_dir(dc)).map_err(|e| JobError::Capture {
                 id: dc,
                 reason: d.store.describe(&e),
-            })?,
-        );
+            })?;
+            Ok(Some(mean))
+        }
+        None => Ok(None),
     }
-    let scene_off = kind == CaptureKind::Dark && d.bench.switches_scene();
-    if scene_off {
-        d.bench.scene_on(false);
-    }
-    let frames = stream
-        .take(
-            CaptureFiles::FRAMES,
-            "frames",
-            c.frames as usize,
-            c.dark_frames as usize,
-        )
-        .await;
-    if scene_off {
-        d.bench.scene_on(true);
-    }
-    let frames = frames?;
-    let store = d.store.clone();
-    let dir2 = dir.clone();
-    tokio::task::spawn_blocking(move || {
-        write_summary(&dir2, &frames, dark.as_ref(), &meta)
-            .map_err(|e| JobError::Store(store.describe(&e)))
-    })
-    .await??;
-    let status = d.camera.status();
-    let counters = serde_json::to_string(&status.counters).unwrap_or_default();
-    d.store
-        .capture_done(id, &camera_id, &counters)
-        .map_err(store_err)
 }
 
 /// One acquisition of a capture, streamed to one file.

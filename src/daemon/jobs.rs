@@ -1,57 +1,12 @@
-//! What capture and reconstruction jobs share: the request error, exposure
-//! planning, job events and the bookkeeping of a job that ended.
+//! What capture and reconstruction jobs share: the job error, block labels,
+//! job events and the bookkeeping of a job that ended.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use super::scenes::ScenesError;
 use super::{Daemon, Event};
-use crate::camera::settings::EXPOSURE_RANGE_US;
-use crate::camera::CameraInfo;
-use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
 use crate::store::JobState;
-
-/// The camera limits exposure planning works with: the camera's exposure
-/// range when connected (`info`, from one status read), the configured
-/// sensor noise, 1000 frames.
-pub fn camera_limits(d: &Daemon, info: Option<&CameraInfo>) -> CameraLimits {
-    let (mut lo, mut hi) = EXPOSURE_RANGE_US;
-    if let Some(i) = info {
-        lo = lo.max(i.exposure_us.0);
-        hi = hi.min(i.exposure_us.1);
-    }
-    CameraLimits {
-        exposure_us: (lo, hi),
-        max_frames: 1000,
-        full_well_e: d.config.camera.full_well_e,
-        read_noise_e: d.config.camera.read_noise_e,
-    }
-}
-
-/// The exposure plan of every block of a scene under `limits` (see [`camera_limits`]).
-pub fn exposure_plan(
-    d: &Daemon,
-    scene: &str,
-    target: &ExposureTarget,
-    limits: &CameraLimits,
-) -> Result<Vec<BlockExposure>, RequestError> {
-    let t = d.scenes.transport(scene)?;
-    let cal = d.calibration.get(scene).copied().ok_or_else(|| {
-        RequestError::Invalid(format!(
-            "no radiometric calibration for scene {scene:?}, so exposures cannot be planned: add `{scene} = <fraction of full scale per microsecond per unit of T l>` under [calibration] in the config, or give exposure_us"
-        ))
-    })?;
-    plan_exposure(&t, cal, limits, target).map_err(|e| RequestError::Invalid(e.to_string()))
-}
-
-impl From<ScenesError> for RequestError {
-    fn from(e: ScenesError) -> Self {
-        match e {
-            ScenesError::Unknown { .. } => RequestError::NotFound(e.to_string()),
-            e => RequestError::Invalid(e.to_string()),
-        }
-    }
-}
 
 /// Why a capture or reconstruction job failed: what the job's `error` says.
 #[derive(Debug, thiserror::Error)]
@@ -88,20 +43,6 @@ impl From<tokio::task::JoinError> for JobError {
     fn from(e: tokio::task::JoinError) -> Self {
         JobError::Task(e.to_string())
     }
-}
-
-/// A request that cannot be accepted: status 404 (unknown thing) or 422.
-#[derive(Debug, thiserror::Error)]
-pub enum RequestError {
-    /// A referenced thing does not exist.
-    #[error("{0}")]
-    NotFound(String),
-    /// A value is out of range or inconsistent.
-    #[error("{0}")]
-    Invalid(String),
-    /// The camera cannot answer what the request needs yet (503).
-    #[error("{0}")]
-    Unavailable(String),
 }
 
 /// A block as people read it: `pose A at 0°` or `pose A without polarizer`.

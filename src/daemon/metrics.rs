@@ -54,124 +54,56 @@ impl Metrics {
     }
 }
 
+/// A gauge sample.
+pub fn gauge(name: &'static str, help: &'static str, value: f64) -> Sample<'static> {
+    Sample {
+        name,
+        kind: "gauge",
+        help,
+        value,
+    }
+}
+
+/// A counter sample.
+pub fn counter(name: &'static str, help: &'static str, value: f64) -> Sample<'static> {
+    Sample {
+        name,
+        kind: "counter",
+        help,
+        value,
+    }
+}
+
 impl super::Daemon {
     /// The camera, queue and job samples of `GET /metrics`.
+    // A table reads best one sample per line.
+    #[rustfmt::skip]
     pub fn metric_samples(&self) -> Vec<Sample<'static>> {
-        let d = self;
-        let s = d.camera.status();
+        let s = self.camera.status();
         let c = s.counters;
-        let m = &d.metrics;
+        let m = &self.metrics;
         let depth =
             |tx: &tokio::sync::mpsc::Sender<i64>| (tx.max_capacity() - tx.capacity()) as f64;
+        let connected = f64::from(u8::from(s.connected));
         vec![
-            Sample {
-                name: "polnlos_camera_connected",
-                kind: "gauge",
-                help: "1 when a camera is open",
-                value: f64::from(u8::from(s.connected)),
-            },
-            Sample {
-                name: "polnlos_camera_frames_completed_total",
-                kind: "counter",
-                help: "Frames received",
-                value: c.completed as f64,
-            },
-            Sample {
-                name: "polnlos_camera_frames_failed_total",
-                kind: "counter",
-                help: "Broken buffers",
-                value: c.failed as f64,
-            },
-            Sample {
-                name: "polnlos_camera_timeouts_total",
-                kind: "counter",
-                help: "Buffer pops that timed out",
-                value: c.timeouts as f64,
-            },
-            Sample {
-                name: "polnlos_camera_underruns_total",
-                kind: "counter",
-                help: "Frames dropped for lack of buffers",
-                value: c.underruns as f64,
-            },
-            Sample {
-                name: "polnlos_camera_missing_packets_total",
-                kind: "counter",
-                help: "GigE Vision packets missing",
-                value: c.missing_packets as f64,
-            },
-            Sample {
-                name: "polnlos_camera_resent_packets_total",
-                kind: "counter",
-                help: "GigE Vision packets resent",
-                value: c.resent_packets as f64,
-            },
-            Sample {
-                name: "polnlos_camera_connects_total",
-                kind: "counter",
-                help: "Camera (re)connections",
-                value: c.connects as f64,
-            },
-            Sample {
-                name: "polnlos_camera_reconnect_failures_total",
-                kind: "counter",
-                help: "Failed reconnection attempts",
-                value: s.reconnect_failures as f64,
-            },
-            Sample {
-                name: "polnlos_capture_queue_depth",
-                kind: "gauge",
-                help: "Captures waiting",
-                value: depth(&d.captures),
-            },
-            Sample {
-                name: "polnlos_reconstruction_queue_depth",
-                kind: "gauge",
-                help: "Reconstructions waiting",
-                value: depth(&d.reconstructions),
-            },
-            Sample {
-                name: "polnlos_captures_done_total",
-                kind: "counter",
-                help: "Captures finished",
-                value: Metrics::get(&m.captures_done),
-            },
-            Sample {
-                name: "polnlos_captures_failed_total",
-                kind: "counter",
-                help: "Captures failed",
-                value: Metrics::get(&m.captures_failed),
-            },
-            Sample {
-                name: "polnlos_capture_seconds_total",
-                kind: "counter",
-                help: "Time spent capturing",
-                value: Metrics::get(&m.capture_micros) * 1e-6,
-            },
-            Sample {
-                name: "polnlos_reconstructions_done_total",
-                kind: "counter",
-                help: "Reconstructions finished",
-                value: Metrics::get(&m.reconstructions_done),
-            },
-            Sample {
-                name: "polnlos_reconstructions_failed_total",
-                kind: "counter",
-                help: "Reconstructions failed",
-                value: Metrics::get(&m.reconstructions_failed),
-            },
-            Sample {
-                name: "polnlos_reconstruction_seconds_total",
-                kind: "counter",
-                help: "Time spent reconstructing",
-                value: Metrics::get(&m.reconstruction_micros) * 1e-6,
-            },
-            Sample {
-                name: "polnlos_requests_rejected_queue_full_total",
-                kind: "counter",
-                help: "Requests answered 429",
-                value: Metrics::get(&m.rejected_full),
-            },
+            gauge("polnlos_camera_connected", "1 when a camera is open", connected),
+            counter("polnlos_camera_frames_completed_total", "Frames received", c.completed as f64),
+            counter("polnlos_camera_frames_failed_total", "Broken buffers", c.failed as f64),
+            counter("polnlos_camera_timeouts_total", "Buffer pops that timed out", c.timeouts as f64),
+            counter("polnlos_camera_underruns_total", "Frames dropped for lack of buffers", c.underruns as f64),
+            counter("polnlos_camera_missing_packets_total", "GigE Vision packets missing", c.missing_packets as f64),
+            counter("polnlos_camera_resent_packets_total", "GigE Vision packets resent", c.resent_packets as f64),
+            counter("polnlos_camera_connects_total", "Camera (re)connections", c.connects as f64),
+            counter("polnlos_camera_reconnect_failures_total", "Failed reconnection attempts", s.reconnect_failures as f64),
+            gauge("polnlos_capture_queue_depth", "Captures waiting", depth(&self.captures)),
+            gauge("polnlos_reconstruction_queue_depth", "Reconstructions waiting", depth(&self.reconstructions)),
+            counter("polnlos_captures_done_total", "Captures finished", Metrics::get(&m.captures_done)),
+            counter("polnlos_captures_failed_total", "Captures failed", Metrics::get(&m.captures_failed)),
+            counter("polnlos_capture_seconds_total", "Time spent capturing", Metrics::get(&m.capture_micros) * 1e-6),
+            counter("polnlos_reconstructions_done_total", "Reconstructions finished", Metrics::get(&m.reconstructions_done)),
+            counter("polnlos_reconstructions_failed_total", "Reconstructions failed", Metrics::get(&m.reconstructions_failed)),
+            counter("polnlos_reconstruction_seconds_total", "Time spent reconstructing", Metrics::get(&m.reconstruction_micros) * 1e-6),
+            counter("polnlos_requests_rejected_queue_full_total", "Requests answered 429", Metrics::get(&m.rejected_full)),
         ]
     }
 }

@@ -5,9 +5,17 @@
 //! Captures queue for the single camera and run one at a time; reconstructions
 //! queue for a small worker pool and run their maths on blocking threads. Both
 //! queues are bounded: a full queue is refused at once (HTTP 429), never waited on.
+//!
+//! - [`Daemon::start`] opens what the config names; [`Daemon::start_with`]
+//!   takes any camera ([`CameraSetup`]), e.g. the in-process synthetic one.
+//! - [`run`] serves the API on a listener until a shutdown future completes.
+//! - `admission`: requests in (validated by [`validate`], admitted by disk
+//!   space and queue room); `capture`/`reconstruction`: the workers; `camera`:
+//!   settings and what `GET /camera` shows; `metrics`: `/metrics` samples.
 
+mod admission;
+mod camera;
 mod capture;
-mod capture_request;
 pub mod config;
 mod demo;
 pub mod events;
@@ -15,24 +23,27 @@ mod jobs;
 pub mod metrics;
 mod reconstruction;
 pub mod scenes;
+pub mod validate;
 
 use std::collections::BTreeMap;
+use std::future::Future;
 use std::sync::Arc;
 
 use tokio::sync::{broadcast, mpsc, Mutex};
 
-pub use capture_request::{validate_capture, AutoExposure, CaptureBody};
+pub use admission::SubmitError;
+pub use camera::{CameraView, SettingsError};
 pub use config::Config;
 pub use events::Event;
-pub use jobs::{camera_limits, exposure_plan, RequestError};
-pub use reconstruction::{validate_reconstruction, ReconstructionBody};
+pub use validate::RequestError;
 
 use crate::camera::aravis::AravisCamera;
 use crate::camera::fake::{Bench, FakeBench, ManualBench};
 use crate::camera::hotplug::Hotplug;
-use crate::camera::worker::CameraHandle;
-use crate::camera::{CameraDevice, CameraInfo, CameraSettings};
-use crate::store::{CaptureRequest, Store};
+use crate::camera::synthetic::SyntheticBench;
+use crate::camera::worker::{CameraHandle, Opener};
+use crate::camera::{CameraDevice, CameraSettings};
+use crate::store::Store;
 use metrics::Metrics;
 use scenes::Scenes;
 
@@ -61,30 +72,97 @@ pub enum DaemonError {
     Fake(#[from] crate::camera::fake::FakeError),
 }
 
+/// The daemon's camera: how to open it, the bench around it, and the
+/// radiometric calibration a demo bench implies.
+pub struct CameraSetup {
+    /// Opens the camera, and again after it was lost.
+    pub opener: Opener,
+    /// Moves the bench and switches the hidden scene.
+    pub bench: Arc<dyn Bench>,
+    /// Calibration of a demo bench, for scenes the config does not calibrate.
+    pub demo_calibration: Option<f64>,
+    /// Rescan for cameras when a USB device arrives (real cameras only).
+    pub watch_usb: bool,
+}
+
+impl CameraSetup {
+    /// What the config names: an Aravis camera by id or address, and with
+    /// `[camera] fake = true` Aravis's fake camera showing the demo scene.
+    pub async fn configured(config: &Config, scenes: &Arc<Scenes>) -> Result<Self, DaemonError> {
+        let target = config.camera.id.clone().or(config.camera.address.clone());
+        let (bench, demo_calibration): (Arc<dyn Bench>, _) = if config.camera.fake {
+            let address = config
+                .camera
+                .address
+                .clone()
+                .unwrap_or_else(|| "127.0.0.1".into());
+            let (frames, c) = demo_frames(&config.demo, scenes).await?;
+            let mut fake =
+                FakeBench::start(&address, "POLNLOS-DEMO", frames, DEMO_REFERENCE_EXPOSURE_US)?;
+            if !config.demo.bench_switches_scene {
+                fake = fake.operated_by_hand();
+            }
+            tracing::info!(
+                address,
+                "Aravis GigE Vision fake camera started (demo scene {:?}, pattern {:?})",
+                config.demo.scene,
+                config.demo.pattern
+            );
+            (Arc::new(fake), Some(c))
+        } else {
+            (Arc::new(ManualBench), None)
+        };
+        let target = target.unwrap_or_default();
+        Ok(Self {
+            opener: Box::new(move || {
+                AravisCamera::open(&target).map(|c| Box::new(c) as Box<dyn CameraDevice>)
+            }),
+            bench,
+            demo_calibration,
+            watch_usb: true,
+        })
+    }
+
+    /// An in-process camera showing the config's demo scene, no Aravis
+    /// involved (see [`crate::camera::synthetic`]).
+    pub async fn synthetic(config: &Config, scenes: &Arc<Scenes>) -> Result<Self, DaemonError> {
+        let (frames, c) = demo_frames(&config.demo, scenes).await?;
+        let bench = SyntheticBench::new(frames, DEMO_REFERENCE_EXPOSURE_US);
+        Ok(Self {
+            opener: bench.opener(),
+            bench: Arc::new(bench),
+            demo_calibration: Some(c),
+            watch_usb: false,
+        })
+    }
+}
+
+/// The demo scene's wall images, rendered off the async runtime.
+async fn demo_frames(
+    demo: &config::DemoConfig,
+    scenes: &Arc<Scenes>,
+) -> Result<(Vec<(String, Option<f64>, crate::camera::Frame)>, f64), DaemonError> {
+    let (scenes, demo) = (scenes.clone(), demo.clone());
+    tokio::task::spawn_blocking(move || demo::frames(&scenes, &demo))
+        .await
+        .map_err(|e| DaemonError::Demo(e.to_string()))?
+}
+
 /// Everything the routes and the jobs share.
 pub struct Daemon {
-    /// Configuration in force.
-    pub config: Config,
+    config: Config,
     /// Bearer token ("" = none).
-    pub token: String,
-    /// Catalogue.
-    pub store: Arc<Store>,
-    /// Known scenes.
-    pub scenes: Arc<Scenes>,
-    /// The camera thread.
-    pub camera: CameraHandle,
-    /// The bench (pose/polarizer selection, scene on/off).
-    pub bench: Arc<dyn Bench>,
-    /// Capture queue.
-    pub captures: mpsc::Sender<i64>,
-    /// Reconstruction queue.
-    pub reconstructions: mpsc::Sender<i64>,
-    /// Event stream.
-    pub events: broadcast::Sender<Event>,
-    /// Counters.
-    pub metrics: Metrics,
+    token: String,
+    store: Arc<Store>,
+    scenes: Arc<Scenes>,
+    camera: CameraHandle,
+    bench: Arc<dyn Bench>,
+    captures: mpsc::Sender<i64>,
+    reconstructions: mpsc::Sender<i64>,
+    events: broadcast::Sender<Event>,
+    metrics: Metrics,
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
-    pub calibration: BTreeMap<String, f64>,
+    calibration: BTreeMap<String, f64>,
     /// Held by the capture worker for a whole capture: a settings change
     /// that cannot have the camera answers 409 instead of waiting.
     camera_gate: tokio::sync::Mutex<()>,
@@ -94,199 +172,101 @@ pub struct Daemon {
     /// Disk bytes reserved by queued and running captures, by capture id.
     reserved: std::sync::Mutex<BTreeMap<i64, u64>>,
     _hotplug: Option<Hotplug>,
-    _fake: Option<Arc<FakeBench>>,
 }
 
 impl Daemon {
-    /// Starts the camera thread, the fake bench (if configured) and the job workers.
+    /// Starts with the camera the config names (see [`CameraSetup::configured`]).
     pub async fn start(config: Config) -> Result<Arc<Self>, DaemonError> {
+        config.validate()?;
+        let scenes = Arc::new(Scenes::load(&config.scene_files)?);
+        let camera = CameraSetup::configured(&config, &scenes).await?;
+        Self::start_with(config, scenes, camera).await
+    }
+
+    /// Opens the store, starts the camera thread on `camera` and the job workers.
+    pub async fn start_with(
+        config: Config,
+        scenes: Arc<Scenes>,
+        camera: CameraSetup,
+    ) -> Result<Arc<Self>, DaemonError> {
         config.validate()?;
         let token = config.resolved_token()?;
         let store = Arc::new(Store::open(&config.data_dir)?);
-        let scenes = Arc::new(Scenes::load(&config.scene_files)?);
         let mut calibration = config.calibration.clone();
-
-        let (bench, fake): (Arc<dyn Bench>, Option<Arc<FakeBench>>) = if config.camera.fake {
-            let address = config
-                .camera
-                .address
-                .clone()
-                .unwrap_or_else(|| "127.0.0.1".into());
-            let scenes2 = scenes.clone();
-            let demo = config.demo.clone();
-            let (frames, c) = tokio::task::spawn_blocking(move || demo::frames(&scenes2, &demo))
-                .await
-                .map_err(|e| DaemonError::Demo(e.to_string()))??;
+        if let Some(c) = camera.demo_calibration {
             for name in scenes.names() {
                 calibration.entry(name).or_insert(c);
             }
-            let mut fake =
-                FakeBench::start(&address, "POLNLOS-DEMO", frames, DEMO_REFERENCE_EXPOSURE_US)?;
-            if !config.demo.bench_switches_scene {
-                fake = fake.operated_by_hand();
-            }
-            let fake = Arc::new(fake);
-            tracing::info!(
-                address,
-                "Aravis GigE Vision fake camera started (demo scene {:?}, pattern {:?})",
-                config.demo.scene,
-                config.demo.pattern
-            );
-            (fake.clone(), Some(fake))
+        }
+        let handle = CameraHandle::spawn(camera.opener);
+        let hotplug = if camera.watch_usb {
+            let rescan = handle.clone();
+            Hotplug::start(move || rescan.rescan())
         } else {
-            (Arc::new(ManualBench), None)
+            None
         };
-
-        let target = config
-            .camera
-            .id
-            .clone()
-            .or(config.camera.address.clone())
-            .unwrap_or_default();
-        let camera = CameraHandle::spawn(Box::new(move || {
-            AravisCamera::open(&target).map(|c| Box::new(c) as Box<dyn CameraDevice>)
-        }));
-        let rescan = camera.clone();
-        let hotplug = Hotplug::start(move || rescan.rescan());
-
         let (capture_tx, capture_rx) = mpsc::channel(config.queue.captures);
         let (recon_tx, recon_rx) = mpsc::channel(config.queue.reconstructions);
-        let (events, _) = broadcast::channel(1024);
         let workers = config.queue.reconstruction_workers;
         let daemon = Arc::new(Self {
             config,
             token,
             store,
             scenes,
-            camera,
-            bench,
+            camera: handle,
+            bench: camera.bench,
             captures: capture_tx,
             reconstructions: recon_tx,
-            events,
+            events: broadcast::channel(1024).0,
             metrics: Metrics::default(),
             calibration,
             camera_gate: tokio::sync::Mutex::new(()),
             defaults: std::sync::Mutex::new(None),
             reserved: std::sync::Mutex::new(BTreeMap::new()),
             _hotplug: hotplug,
-            _fake: fake,
         });
         tokio::spawn(capture::capture_worker(daemon.clone(), capture_rx));
         let shared = Arc::new(Mutex::new(recon_rx));
         for _ in 0..workers {
-            tokio::spawn(reconstruction::reconstruction_worker(
-                daemon.clone(),
-                shared.clone(),
-            ));
+            let worker = reconstruction::reconstruction_worker(daemon.clone(), shared.clone());
+            tokio::spawn(worker);
         }
         tokio::spawn(watch_camera(daemon.clone()));
         Ok(daemon)
     }
 
-    /// The settings a capture inherits for what it does not state: the last
-    /// `PUT /camera/settings`, else what the camera reported (`info`).
-    pub fn capture_defaults(&self, info: Option<&CameraInfo>) -> CameraSettings {
-        let put = self.defaults.lock().map(|g| g.clone()).unwrap_or(None);
-        let camera = info.map(|i| i.settings.clone());
-        match (put, camera) {
-            (Some(mut p), Some(c)) => {
-                p.region = p.region.or(c.region);
-                p.binning = p.binning.or(c.binning);
-                p
-            }
-            (Some(p), None) => p,
-            (None, Some(c)) => c,
-            (None, None) => CameraSettings::default(),
-        }
+    /// Configuration in force.
+    pub fn config(&self) -> &Config {
+        &self.config
     }
 
-    /// Applies camera settings now and makes them the defaults later
-    /// captures inherit. Refused (not waited for) while a capture has the camera.
-    pub async fn put_camera_settings(
-        &self,
-        s: CameraSettings,
-    ) -> Result<CameraInfo, SettingsError> {
-        let Ok(_camera) = self.camera_gate.try_lock() else {
-            return Err(SettingsError::Busy);
-        };
-        if let Some(info) = self.camera.status().info {
-            let binning = s.binning.or(info.settings.binning).unwrap_or([1, 1]);
-            if let Some(region) = s.region.or(info.settings.region) {
-                info.limits.check(region, binning)?;
-            }
-        }
-        self.camera.configure(s.clone()).await?;
-        let info = self.camera.describe().await?;
-        if let Ok(mut d) = self.defaults.lock() {
-            *d = Some(info.settings.clone());
-        }
-        Ok(info)
+    /// Bearer token clients must send ("" = none).
+    pub fn token(&self) -> &str {
+        &self.token
     }
 
-    /// The camera as it is now: read from it when no capture has it, else the
-    /// settings read back when that capture configured it, and the capture's job.
-    pub async fn camera_now(&self) -> (crate::camera::worker::CameraStatus, Option<String>) {
-        if let Ok(_camera) = self.camera_gate.try_lock() {
-            if self.camera.status().connected {
-                let _ =
-                    tokio::time::timeout(std::time::Duration::from_secs(2), self.camera.describe())
-                        .await;
-            }
-            return (self.camera.status(), None);
-        }
-        let running = self.store.running_capture().ok().flatten();
-        (
-            self.camera.status(),
-            running.map(|id| format!("capture-{id}")),
-        )
+    /// The catalogue of captures and reconstructions.
+    pub fn store(&self) -> &Store {
+        &self.store
     }
 
-    /// Admits a validated capture: room in the queue and on the disk (its
-    /// files, plus what queued captures reserved, plus the configured
-    /// reserve), then records and queues it.
-    pub fn submit_capture(&self, req: &CaptureRequest) -> Result<i64, SubmitError> {
-        let need = capture_request::request_bytes(req);
-        let free = crate::files::space::free_disk_bytes(self.store.dir())
-            .map_err(|e| SubmitError::Store(self.store.describe_io(self.store.dir(), &e)))?;
-        let mut reserved = self.reserved.lock().unwrap_or_else(|e| e.into_inner());
-        let held: u64 = reserved.values().sum();
-        let keep = self.config.queue.reserve_free_mib << 20;
-        if need.saturating_add(held).saturating_add(keep) > free {
-            return Err(SubmitError::Disk {
-                need,
-                free,
-                held,
-                keep,
-            });
-        }
-        let permit = self.captures.try_reserve().map_err(|_| {
-            self.metrics
-                .rejected_full
-                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            SubmitError::QueueFull {
-                retry_after: (req.exposure_us * 1e-6 * (req.frames + req.dark_frames) as f64)
-                    .ceil()
-                    .max(1.0) as u64,
-            }
-        })?;
-        let id = self
-            .store
-            .insert_capture(req)
-            .map_err(|e| SubmitError::Store(self.store.describe(&e)))?;
-        reserved.insert(id, need);
-        permit.send(id);
-        Ok(id)
+    /// Names of the scenes the daemon knows.
+    pub fn scene_names(&self) -> Vec<String> {
+        self.scenes.names()
     }
 
-    /// Frees the disk reservation of a capture that ended.
-    fn release_capture(&self, id: i64) {
-        if let Ok(mut r) = self.reserved.lock() {
-            r.remove(&id);
-        }
+    /// Whether the camera is open now.
+    pub fn camera_connected(&self) -> bool {
+        self.camera.status().connected
+    }
+
+    /// Job, frame and camera events from now on.
+    pub fn subscribe(&self) -> broadcast::Receiver<Event> {
+        self.events.subscribe()
     }
 
     /// Publishes an event (nobody listening is fine).
-    pub fn emit(&self, e: Event) {
+    fn emit(&self, e: Event) {
         let _ = self.events.send(e);
     }
 
@@ -296,48 +276,23 @@ impl Daemon {
     }
 }
 
-/// Why a settings change was refused.
-#[derive(Debug, thiserror::Error)]
-pub enum SettingsError {
-    /// A capture has the camera (HTTP 409).
-    #[error("a capture is using the camera; settings are not changed during a capture (give them in the capture request instead, or retry when it ends)")]
-    Busy,
-    /// A region or binning the sensor cannot deliver (422).
-    #[error(transparent)]
-    Geometry(#[from] crate::camera::GeometryError),
-    /// The camera refused or is gone.
-    #[error(transparent)]
-    Camera(#[from] crate::camera::CameraError),
-}
-
-/// Why a capture was not admitted.
-#[derive(Debug, thiserror::Error)]
-pub enum SubmitError {
-    /// Its files would not fit on the disk (HTTP 507).
-    #[error("this capture needs {} MiB of disk, but the data directory has {} MiB free, of which queued captures reserve {} MiB and {} MiB are kept free ([queue] reserve_free_mib); take fewer frames or a smaller region, or free disk space", mib(*.need), mib(*.free), mib(*.held), mib(*.keep))]
-    Disk {
-        /// Bytes its files take at most.
-        need: u64,
-        /// Bytes free now.
-        free: u64,
-        /// Bytes reserved by queued captures.
-        held: u64,
-        /// Bytes kept free.
-        keep: u64,
-    },
-    /// The queue is full (HTTP 429).
-    #[error("the capture queue is full; retry after {retry_after} s")]
-    QueueFull {
-        /// Seconds to wait.
-        retry_after: u64,
-    },
-    /// The catalogue could not record it.
-    #[error("{0}")]
-    Store(String),
-}
-
-fn mib(bytes: u64) -> String {
-    format!("{:.1}", bytes as f64 / (1u64 << 20) as f64)
+/// Serves the API of `daemon` on `listener` until `shutdown` completes, then
+/// stops the camera: the library's entry point (`polnlos serve` wraps it with
+/// logging, signals and systemd notification).
+pub async fn run(
+    listener: tokio::net::TcpListener,
+    daemon: Arc<Daemon>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    let http = &daemon.config.http;
+    let limits = crate::api::Limits {
+        max_connections: http.max_connections,
+        header_timeout: std::time::Duration::from_secs_f64(http.header_timeout_s),
+    };
+    let app = crate::api::router(daemon.clone());
+    let result = crate::api::serve(listener, app, limits, shutdown).await;
+    daemon.shutdown();
+    result
 }
 
 /// Emits camera connect/lose events.

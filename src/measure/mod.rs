@@ -3,6 +3,9 @@
 //! rendering the frame a wall image implies (for simulation and the fake camera).
 
 pub mod exposure;
+mod stack;
+
+pub use stack::{stack, BlockFrames, Measurement};
 
 use crate::camera::Frame;
 use crate::scene::{Homography, Plane};

@@ -1,0 +1,255 @@
+//! What goes over the wire: request bodies and queries as clients send them,
+//! and the typed answers the routes give back.
+//!
+//! Bodies refuse unknown fields, so a misspelt key is a 422 naming it rather
+//! than a silently ignored setting. Checking a body against a scene and the
+//! camera is [`crate::daemon::validate`]'s job, not theirs.
+
+use serde::{Deserialize, Serialize};
+
+use super::ApiError;
+use crate::camera::{PixelFormat, TriggerMode};
+use crate::measure::exposure::ExposureTarget;
+use crate::solve::{SolveRequest, Solver};
+use crate::store::{CaptureKind, CaptureRequest};
+
+/// `POST /captures` body.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CaptureBody {
+    /// `light` (default: the hidden scene on) or `dark` (the scene switched
+    /// off by the user; subtract it from later captures with `dark_capture`).
+    pub kind: Option<CaptureKind>,
+    /// Scene name.
+    pub scene: String,
+    /// Pose name in the scene.
+    pub pose: String,
+    /// Polarizer angle of the pose, degrees (omit or null for a pose without polarizer).
+    pub polarizer_deg: Option<f64>,
+    /// Exposure per frame, microseconds; omit it and give `"exposure": "auto"`
+    /// to have it planned (see `GET /scenes/{name}/exposure`).
+    pub exposure_us: Option<f64>,
+    /// `"auto"`: plan the exposure (and, unless `frames` is given, the frame
+    /// count) from the scene, the radiometric calibration and the camera limits.
+    pub exposure: Option<AutoExposure>,
+    /// Target of an automatic exposure (default: peak at 0.8 of full scale, SNR 100).
+    pub target: Option<ExposureTarget>,
+    /// Gain (camera units).
+    #[serde(default)]
+    pub gain: f64,
+    /// Frames to average (1 to `max_frames_per_capture`); default 1, or the
+    /// plan's with `"exposure": "auto"`.
+    pub frames: Option<usize>,
+    /// Dark frames taken within this capture with the scene switched off by
+    /// the bench itself (only on a bench that can: the fake camera's). On a
+    /// bench set by hand, take a `"kind": "dark"` capture instead.
+    #[serde(default)]
+    pub dark_frames: usize,
+    /// A done dark capture (same exposure, gain, pixel format, region and
+    /// binning) whose mean is subtracted from this capture's.
+    pub dark_capture: Option<i64>,
+    /// Pixel format (default: the camera's current settings).
+    pub pixel_format: Option<PixelFormat>,
+    /// Region `[x, y, width, height]` (default: the current settings).
+    pub region: Option<[u32; 4]>,
+    /// Binning `[x, y]` (default: the current settings).
+    pub binning: Option<[u32; 2]>,
+    /// `free` or `software` (default: the current settings).
+    pub trigger: Option<TriggerMode>,
+}
+
+/// The only automatic exposure mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum AutoExposure {
+    /// Plan from the scene (see [`crate::measure::exposure`]).
+    Auto,
+}
+
+/// `POST /reconstructions` body.
+#[derive(Debug, Clone, Deserialize, Serialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ReconstructionBody {
+    /// Scene name.
+    pub scene: String,
+    /// One finished capture per (pose, polarizer angle) block of the scene.
+    pub captures: Vec<i64>,
+    /// `admm-tv` (default), `fista-tv`, `tikhonov` or `lsq`.
+    #[serde(default)]
+    pub solver: Solver,
+    /// Regularization weight (MODEL.md units). Default for the TV solvers:
+    /// chosen from the noise (resolved-discrepancy rule; `lambda_choice` in
+    /// the report says how), the frame-to-frame noise when every capture has
+    /// 2 frames or more, else the noise in the measurement's residual.
+    pub lambda: Option<f64>,
+    /// ADMM penalty.
+    pub rho: Option<f64>,
+    /// Iteration cap (1-100000).
+    pub max_iter: Option<usize>,
+    /// Tolerance in (0, 1).
+    pub tol: Option<f64>,
+    /// Relative singular-value cut-off of `lsq`.
+    pub rcond: Option<f64>,
+    /// Known truth, as a test pattern name (`disk`, `bars`, `letter`): the
+    /// report then carries PSNR, ZNCC and SSIM (e.g. against the fake camera's demo scene).
+    pub truth: Option<String>,
+}
+
+impl ReconstructionBody {
+    /// The solver part of the request.
+    pub fn solve_request(&self) -> SolveRequest {
+        SolveRequest {
+            solver: self.solver,
+            lambda: self.lambda,
+            rho: self.rho,
+            max_iter: self.max_iter,
+            tol: self.tol,
+            rcond: self.rcond,
+        }
+    }
+}
+
+/// Paging of list endpoints.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+pub struct Page {
+    /// At most this many (1-1000, default 100).
+    limit: Option<u64>,
+    /// Skip this many (0 to 2^63 - 1).
+    offset: Option<u64>,
+}
+
+impl Page {
+    /// `(limit, offset)`, checked: SQLite's OFFSET is a signed 64-bit
+    /// integer, so a larger one is refused rather than wrapped.
+    pub fn get(&self) -> Result<(usize, usize), ApiError> {
+        let limit = self.limit.unwrap_or(100);
+        if !(1..=1000).contains(&limit) {
+            return Err(ApiError::invalid(format!(
+                "limit = {limit}: must be from 1 to 1000"
+            )));
+        }
+        let offset = self.offset.unwrap_or(0);
+        let offset = i64::try_from(offset)
+            .ok()
+            .and_then(|o| usize::try_from(o).ok())
+            .ok_or_else(|| {
+                ApiError::invalid(format!("offset = {offset}: must be from 0 to {}", i64::MAX))
+            })?;
+        Ok((limit as usize, offset))
+    }
+}
+
+/// Target of an exposure plan (query of `GET /scenes/{name}/exposure`).
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+pub struct TargetQuery {
+    /// Brightest admissible wall element as a fraction of full scale (default 0.8).
+    peak_fraction: Option<f64>,
+    /// SNR wanted there after averaging (default 100).
+    snr: Option<f64>,
+}
+
+impl TargetQuery {
+    /// The target, defaults filled in (its ranges are checked by the planner).
+    pub fn target(&self) -> ExposureTarget {
+        let mut target = ExposureTarget::default();
+        if let Some(f) = self.peak_fraction {
+            target.peak_fraction = f;
+        }
+        if let Some(s) = self.snr {
+            target.snr = s;
+        }
+        target
+    }
+}
+
+/// `GET /health` answer.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct Health {
+    /// Always `ok` when the daemon answers.
+    pub status: &'static str,
+    /// Whether the camera is open now.
+    pub camera_connected: bool,
+    /// polnlos version.
+    pub version: &'static str,
+}
+
+/// 202 answer to `POST /reconstructions`.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct Accepted {
+    /// Id of the new capture or reconstruction.
+    pub id: i64,
+    /// `queued`.
+    pub state: &'static str,
+    /// Job id for `GET /jobs/{id}` and the event stream (`capture-<n>`, `reconstruction-<n>`).
+    pub job: String,
+}
+
+impl Accepted {
+    /// A queued job of this kind (`capture` or `reconstruction`).
+    pub fn queued(kind: &str, id: i64) -> Self {
+        Self {
+            id,
+            state: "queued",
+            job: format!("{kind}-{id}"),
+        }
+    }
+}
+
+/// 202 answer to `POST /captures`: the job, and every setting the capture
+/// will use, whether stated or inherited.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct CaptureAccepted {
+    /// The queued job.
+    #[serde(flatten)]
+    pub job: Accepted,
+    /// Light or dark.
+    pub kind: CaptureKind,
+    /// Exposure per frame, microseconds.
+    pub exposure_us: f64,
+    /// Gain.
+    pub gain: f64,
+    /// Frames to average.
+    pub frames: usize,
+    /// Dark frames within the capture.
+    pub dark_frames: usize,
+    /// Dark capture subtracted.
+    pub dark_capture: Option<i64>,
+    /// Pixel format.
+    pub pixel_format: PixelFormat,
+    /// Region `[x, y, width, height]`.
+    pub region: [u32; 4],
+    /// Binning `[x, y]`.
+    pub binning: [u32; 2],
+    /// Trigger mode.
+    pub trigger: TriggerMode,
+}
+
+impl CaptureAccepted {
+    /// The answer for capture `id`, queued with request `r`.
+    pub fn new(id: i64, r: &CaptureRequest) -> Self {
+        Self {
+            job: Accepted::queued("capture", id),
+            kind: r.kind,
+            exposure_us: r.exposure_us,
+            gain: r.gain,
+            frames: r.frames,
+            dark_frames: r.dark_frames,
+            dark_capture: r.dark_capture,
+            pixel_format: r.pixel_format,
+            region: r.region,
+            binning: r.binning,
+            trigger: r.trigger,
+        }
+    }
+}
+
+/// Every error answer: a stable code and a sentence saying what to do.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct ErrorBody {
+    /// Machine-readable code (`not_found`, `invalid`, `queue_full`, ...).
+    pub error: String,
+    /// What was wrong, with which input, and what to do.
+    pub detail: String,
+}

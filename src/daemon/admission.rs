@@ -1,0 +1,193 @@
+//! Admission: a request body in, a queued job out. The daemon gathers what
+//! [`super::validate`] needs (the scene, the camera's ranges and current
+//! settings, the captures named), then admits the request by queue room and,
+//! for captures, disk space.
+
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+use super::validate::{self, CameraContext, RequestError};
+use super::Daemon;
+use crate::api::bodies::{AutoExposure, CaptureBody, ReconstructionBody};
+use crate::camera::settings::EXPOSURE_RANGE_US;
+use crate::camera::CameraInfo;
+use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
+use crate::store::{capture_bytes, CaptureRequest};
+
+/// Why a request was not queued.
+#[derive(Debug, thiserror::Error)]
+pub enum SubmitError {
+    /// The request itself is wrong (404, 422) or needs the camera (503).
+    #[error(transparent)]
+    Request(#[from] RequestError),
+    /// Its files would not fit on the disk (HTTP 507).
+    #[error("this capture needs {} MiB of disk, but the data directory has {} MiB free, of which queued captures reserve {} MiB and {} MiB are kept free ([queue] reserve_free_mib); take fewer frames or a smaller region, or free disk space", mib(*.need), mib(*.free), mib(*.held), mib(*.keep))]
+    Disk {
+        /// Bytes its files take at most.
+        need: u64,
+        /// Bytes free now.
+        free: u64,
+        /// Bytes reserved by queued captures.
+        held: u64,
+        /// Bytes kept free.
+        keep: u64,
+    },
+    /// The queue is full (HTTP 429).
+    #[error("the {queue} queue is full; retry after {retry_after} s")]
+    QueueFull {
+        /// `capture` or `reconstruction`.
+        queue: &'static str,
+        /// Seconds to wait.
+        retry_after: u64,
+    },
+    /// The catalogue could not record it, or validation did not finish.
+    #[error("{0}")]
+    Internal(String),
+}
+
+fn mib(bytes: u64) -> String {
+    format!("{:.1}", bytes as f64 / (1u64 << 20) as f64)
+}
+
+impl Daemon {
+    /// The camera limits exposure planning works with: the camera's exposure
+    /// range when connected (`info`), the configured sensor noise, the frame cap.
+    pub fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
+        let (mut lo, mut hi) = EXPOSURE_RANGE_US;
+        if let Some(i) = info {
+            lo = lo.max(i.exposure_us.0);
+            hi = hi.min(i.exposure_us.1);
+        }
+        CameraLimits {
+            exposure_us: (lo, hi),
+            max_frames: self.config.queue.max_frames_per_capture,
+            full_well_e: self.config.camera.full_well_e,
+            read_noise_e: self.config.camera.read_noise_e,
+        }
+    }
+
+    /// The exposure plan of every block of a scene for the camera as it is
+    /// now. Builds the scene's `T` on first use: call it off the async runtime.
+    pub fn exposure_plan(
+        &self,
+        scene: &str,
+        target: &ExposureTarget,
+    ) -> Result<Vec<BlockExposure>, RequestError> {
+        let limits = self.camera_limits(self.camera.status().info.as_ref());
+        self.plan_with(scene, target, &limits)
+    }
+
+    fn plan_with(
+        &self,
+        scene: &str,
+        target: &ExposureTarget,
+        limits: &CameraLimits,
+    ) -> Result<Vec<BlockExposure>, RequestError> {
+        let t = self.scenes.transport(scene)?;
+        let cal = self.calibration.get(scene).copied().ok_or_else(|| {
+            RequestError::Invalid(format!(
+                "no radiometric calibration for scene {scene:?}, so exposures cannot be planned: add `{scene} = <fraction of full scale per microsecond per unit of T l>` under [calibration] in the config, or give exposure_us"
+            ))
+        })?;
+        plan_exposure(&t, cal, limits, target).map_err(|e| RequestError::Invalid(e.to_string()))
+    }
+
+    /// What a capture is checked against now.
+    fn camera_context(&self, info: Option<&CameraInfo>) -> CameraContext {
+        CameraContext {
+            limits: self.camera_limits(info),
+            gain: info.map(|i| i.gain),
+            sensor: info.map(|i| i.limits),
+            defaults: self.capture_defaults(info),
+            bench_switches_scene: self.bench.switches_scene(),
+            max_frames: self.config.queue.max_frames_per_capture,
+        }
+    }
+
+    /// Validates a capture body (planning its exposure when asked, which may
+    /// build the scene's `T`, off the runtime) and admits it.
+    pub async fn submit_capture(
+        self: &Arc<Self>,
+        body: CaptureBody,
+    ) -> Result<(i64, CaptureRequest), SubmitError> {
+        let d = self.clone();
+        let request = tokio::task::spawn_blocking(move || d.check_capture(&body))
+            .await
+            .map_err(|e| SubmitError::Internal(format!("capture validation: {e}")))??;
+        let id = self.admit_capture(&request)?;
+        Ok((id, request))
+    }
+
+    fn check_capture(&self, b: &CaptureBody) -> Result<CaptureRequest, RequestError> {
+        let scene = self.scenes.scene(&b.scene)?;
+        let info = self.camera.status().info;
+        let cam = self.camera_context(info.as_ref());
+        let plan = || match b.exposure {
+            Some(AutoExposure::Auto) => {
+                self.plan_with(&b.scene, &b.target.unwrap_or_default(), &cam.limits)
+            }
+            None => Ok(Vec::new()),
+        };
+        validate::capture(b, &scene, &cam, plan, |id| self.store.capture(id).ok())
+    }
+
+    /// Admits a validated capture: room in the queue and on the disk (its
+    /// files, plus what queued captures reserved, plus the configured
+    /// reserve), then records and queues it.
+    fn admit_capture(&self, req: &CaptureRequest) -> Result<i64, SubmitError> {
+        let need = capture_bytes(req.region[2], req.region[3], req.frames, req.dark_frames);
+        let free = crate::files::space::free_disk_bytes(self.store.dir())
+            .map_err(|e| SubmitError::Internal(self.store.describe_io(self.store.dir(), &e)))?;
+        let mut reserved = self.reserved.lock().unwrap_or_else(|e| e.into_inner());
+        let held: u64 = reserved.values().sum();
+        let keep = self.config.queue.reserve_free_mib << 20;
+        if need.saturating_add(held).saturating_add(keep) > free {
+            return Err(SubmitError::Disk {
+                need,
+                free,
+                held,
+                keep,
+            });
+        }
+        let seconds = req.exposure_us * 1e-6 * (req.frames + req.dark_frames) as f64;
+        let permit = self
+            .captures
+            .try_reserve()
+            .map_err(|_| self.queue_full("capture", seconds.ceil().max(1.0) as u64))?;
+        let id = self
+            .store
+            .insert_capture(req)
+            .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?;
+        reserved.insert(id, need);
+        permit.send(id);
+        Ok(id)
+    }
+
+    /// Validates a reconstruction body against its scene and captures and queues it.
+    pub fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
+        let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
+        let request = validate::reconstruction(b, &scene, |id| self.store.capture(id).ok())?;
+        let permit = self
+            .reconstructions
+            .try_reserve()
+            .map_err(|_| self.queue_full("reconstruction", 5))?;
+        let id = self
+            .store
+            .insert_reconstruction(&request)
+            .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?;
+        permit.send(id);
+        Ok(id)
+    }
+
+    fn queue_full(&self, queue: &'static str, retry_after: u64) -> SubmitError {
+        self.metrics.rejected_full.fetch_add(1, Ordering::Relaxed);
+        SubmitError::QueueFull { queue, retry_after }
+    }
+
+    /// Frees the disk reservation of a capture that ended.
+    pub(super) fn release_capture(&self, id: i64) {
+        if let Ok(mut r) = self.reserved.lock() {
+            r.remove(&id);
+        }
+    }
+}

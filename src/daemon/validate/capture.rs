@@ -1,0 +1,371 @@
+//! Checking a capture request against its scene, the camera and the bench.
+
+use super::{invalid, CameraContext, RequestError};
+use crate::api::bodies::{AutoExposure, CaptureBody};
+use crate::daemon::jobs::same_angle;
+use crate::measure::exposure::BlockExposure;
+use crate::scene::{Pose, Scene};
+use crate::store::{CaptureKind, CaptureRecord, CaptureRequest, JobState};
+
+/// Checks a capture request against its scene, the camera and the bench,
+/// and resolves every camera setting it will use. `plan` is called only for
+/// `"exposure": "auto"`; `capture` looks up the `dark_capture`.
+pub fn capture(
+    b: &CaptureBody,
+    scene: &Scene,
+    cam: &CameraContext,
+    plan: impl FnOnce() -> Result<Vec<BlockExposure>, RequestError>,
+    capture: impl Fn(i64) -> Option<CaptureRecord>,
+) -> Result<CaptureRequest, RequestError> {
+    let pose = pose_of(&b.scene, scene, &b.pose)?;
+    check_block(&b.scene, pose, b.polarizer_deg)?;
+    let kind = b.kind.unwrap_or(CaptureKind::Light);
+    let (exposure_us, planned) = exposure(b, cam, plan)?;
+    let frames = b
+        .frames
+        .unwrap_or_else(|| planned.as_ref().map_or(1, |p| p.frames));
+    if let Some((lo, hi)) = cam.gain {
+        if !(b.gain >= lo && b.gain <= hi) {
+            return Err(invalid(format!(
+                "gain = {}: must be from {lo} to {hi}",
+                b.gain
+            )));
+        }
+    }
+    check_frames(b, kind, frames, cam)?;
+    let (region, binning) = geometry(b, cam)?;
+    let request = CaptureRequest {
+        kind,
+        scene: b.scene.clone(),
+        pose: b.pose.clone(),
+        polarizer_deg: b.polarizer_deg,
+        exposure_us,
+        gain: b.gain,
+        frames,
+        dark_frames: b.dark_frames,
+        pixel_format: b.pixel_format.unwrap_or(cam.defaults.pixel_format),
+        region,
+        binning,
+        trigger: b.trigger.unwrap_or(cam.defaults.trigger),
+        dark_capture: b.dark_capture,
+    };
+    if let Some(id) = b.dark_capture {
+        let record = capture(id).ok_or_else(|| {
+            RequestError::NotFound(format!("dark_capture {id}: no capture with that id"))
+        })?;
+        check_dark_capture(&record, &request)?;
+    }
+    Ok(request)
+}
+
+/// The pose a request names, or an error listing the scene's poses.
+fn pose_of<'a>(scene_name: &str, scene: &'a Scene, pose: &str) -> Result<&'a Pose, RequestError> {
+    scene.pose(pose).ok_or_else(|| {
+        let names: Vec<&str> = scene.poses.iter().map(|p| p.name.as_str()).collect();
+        invalid(format!(
+            "scene {scene_name:?} has no pose {pose:?}; its poses: {}",
+            names.join(", ")
+        ))
+    })
+}
+
+/// Checks that `polarizer_deg` is a setting of the pose (or absent for a pose without polarizer).
+fn check_block(
+    scene_name: &str,
+    pose: &Pose,
+    polarizer_deg: Option<f64>,
+) -> Result<(), RequestError> {
+    let angles: Vec<f64> = pose.analyzers.iter().map(|a| a.angle_deg).collect();
+    let list = || {
+        let a: Vec<String> = angles.iter().map(|a| a.to_string()).collect();
+        a.join(", ")
+    };
+    match (polarizer_deg, angles.is_empty()) {
+        (None, true) => Ok(()),
+        (Some(a), false) if angles.iter().any(|x| same_angle(Some(*x), Some(a))) => Ok(()),
+        (None, false) => Err(invalid(format!(
+            "pose {:?} of scene {scene_name:?} has a polarizer: give polarizer_deg, one of {}",
+            pose.name,
+            list()
+        ))),
+        (Some(a), true) => Err(invalid(format!(
+            "pose {:?} of scene {scene_name:?} has no polarizer, but polarizer_deg = {a} was given",
+            pose.name
+        ))),
+        (Some(a), false) => Err(invalid(format!(
+            "polarizer_deg = {a} is not an angle of pose {:?} (scene {scene_name:?}): {}",
+            pose.name,
+            list()
+        ))),
+    }
+}
+
+/// The exposure a capture uses, stated or planned, within the camera's
+/// range; with the plan's block when planned.
+fn exposure(
+    b: &CaptureBody,
+    cam: &CameraContext,
+    plan: impl FnOnce() -> Result<Vec<BlockExposure>, RequestError>,
+) -> Result<(f64, Option<BlockExposure>), RequestError> {
+    let (exposure_us, planned) = match (b.exposure_us, b.exposure) {
+        (Some(_), Some(_)) => {
+            return Err(invalid(
+                "give either exposure_us or \"exposure\": \"auto\", not both",
+            ))
+        }
+        (None, None) => {
+            return Err(invalid(
+                "exposure_us is missing: give it in microseconds, or \"exposure\": \"auto\"",
+            ))
+        }
+        (Some(_), None) if b.target.is_some() => {
+            return Err(invalid("target is only for \"exposure\": \"auto\""))
+        }
+        (Some(e), None) => (e, None),
+        (None, Some(AutoExposure::Auto)) => {
+            let block = plan()?
+                .into_iter()
+                .find(|p| p.pose == b.pose && same_angle(p.polarizer_deg, b.polarizer_deg))
+                .ok_or_else(|| {
+                    invalid(format!(
+                        "the exposure plan of scene {:?} has no block for pose {:?}",
+                        b.scene, b.pose
+                    ))
+                })?;
+            (block.exposure_us, Some(block))
+        }
+    };
+    let (lo, hi) = cam.limits.exposure_us;
+    if !(exposure_us >= lo && exposure_us <= hi) {
+        return Err(invalid(format!(
+            "exposure_us = {exposure_us}: must be from {lo} to {hi} microseconds"
+        )));
+    }
+    Ok((exposure_us, planned))
+}
+
+/// Frame counts within the cap; dark frames only where the bench can take them.
+fn check_frames(
+    b: &CaptureBody,
+    kind: CaptureKind,
+    frames: usize,
+    cam: &CameraContext,
+) -> Result<(), RequestError> {
+    let max = cam.max_frames;
+    if frames == 0 || frames.saturating_add(b.dark_frames) > max {
+        return Err(invalid(format!(
+            "frames = {frames}, dark_frames = {}: need at least 1 frame and at most {max} in all ([queue] max_frames_per_capture)",
+            b.dark_frames
+        )));
+    }
+    if b.dark_frames > 0 && !cam.bench_switches_scene {
+        return Err(invalid(
+            "this bench cannot switch the hidden scene off by itself, so dark frames cannot be taken within a capture: switch the scene off, POST a capture with \"kind\": \"dark\", switch it back on, and give that capture's id as dark_capture",
+        ));
+    }
+    if kind == CaptureKind::Dark && (b.dark_frames > 0 || b.dark_capture.is_some()) {
+        return Err(invalid(
+            "a dark capture takes no dark_frames and no dark_capture of its own",
+        ));
+    }
+    if b.dark_frames > 0 && b.dark_capture.is_some() {
+        return Err(invalid("give dark_frames or dark_capture, not both"));
+    }
+    Ok(())
+}
+
+/// Region and binning, stated or inherited, within the sensor's limits.
+fn geometry(b: &CaptureBody, cam: &CameraContext) -> Result<([u32; 4], [u32; 2]), RequestError> {
+    let binning = b.binning.or(cam.defaults.binning).unwrap_or([1, 1]);
+    let region = b.region.or(cam.defaults.region).ok_or_else(|| {
+        RequestError::Unavailable(
+            "the camera has not reported its region yet: give region = [x, y, width, height], or retry when GET /camera shows it connected".into(),
+        )
+    })?;
+    if let Some(limits) = &cam.sensor {
+        limits
+            .check(region, binning)
+            .map_err(|e| invalid(e.to_string()))?;
+    }
+    Ok((region, binning))
+}
+
+/// A dark capture fits a light one when it is done, dark, and taken with the
+/// same exposure, gain, pixel format, region and binning.
+fn check_dark_capture(c: &CaptureRecord, r: &CaptureRequest) -> Result<(), RequestError> {
+    let id = c.id;
+    if !c.is_dark() || c.state != JobState::Done {
+        return Err(invalid(format!(
+            "dark_capture {id} is a {} capture in state {}; it must be a done dark capture",
+            c.kind,
+            c.state.name()
+        )));
+    }
+    let same = c.exposure_us == r.exposure_us
+        && c.gain == r.gain
+        && c.pixel_format == r.pixel_format.name()
+        && c.region == Some(r.region)
+        && c.binning == Some(r.binning);
+    if !same {
+        return Err(invalid(format!(
+            "dark_capture {id} was taken at exposure_us {}, gain {}, {}, region {:?}, binning {:?}; this capture asks for {}, {}, {}, {:?}, {:?}: take a dark capture with the same settings",
+            c.exposure_us, c.gain, c.pixel_format, c.region, c.binning,
+            r.exposure_us, r.gain, r.pixel_format.name(), r.region, r.binning
+        )));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::fixtures::{record, scene};
+    use super::*;
+    use crate::camera::{CameraSettings, PixelFormat, SensorLimits, TriggerMode};
+    use crate::measure::exposure::CameraLimits;
+
+    fn cam() -> CameraContext {
+        CameraContext {
+            limits: CameraLimits {
+                exposure_us: (10.0, 1e6),
+                max_frames: 100,
+                full_well_e: 1e4,
+                read_noise_e: 5.0,
+            },
+            gain: Some((0.0, 10.0)),
+            sensor: Some(SensorLimits {
+                sensor: [512, 512],
+                ..SensorLimits::default()
+            }),
+            defaults: CameraSettings {
+                region: Some([0, 0, 512, 512]),
+                binning: Some([1, 1]),
+                pixel_format: PixelFormat::Mono16,
+                ..CameraSettings::default()
+            },
+            bench_switches_scene: false,
+            max_frames: 100,
+        }
+    }
+
+    fn body(json: serde_json::Value) -> CaptureBody {
+        serde_json::from_value(json).expect("a well-formed body")
+    }
+
+    fn no_plan() -> Result<Vec<BlockExposure>, RequestError> {
+        panic!("the plan is built only for \"exposure\": \"auto\"")
+    }
+
+    fn check(json: serde_json::Value) -> Result<CaptureRequest, RequestError> {
+        capture(&body(json), &scene(), &cam(), no_plan, |_| None)
+    }
+
+    fn message(r: Result<CaptureRequest, RequestError>) -> String {
+        match r {
+            Err(RequestError::Invalid(m)) => m,
+            other => panic!("expected a 422, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_capture_inherits_every_setting_it_does_not_state() {
+        let r = check(serde_json::json!({
+            "scene": "brewster-multi-3x3", "pose": "B", "polarizer_deg": 0.0,
+            "exposure_us": 5000.0, "frames": 3, "region": [0, 0, 256, 128]
+        }))
+        .expect("accepted");
+        assert_eq!(r.kind, CaptureKind::Light);
+        assert_eq!((r.exposure_us, r.frames), (5000.0, 3));
+        assert_eq!(r.region, [0, 0, 256, 128]);
+        assert_eq!(r.binning, [1, 1]);
+        assert_eq!(r.pixel_format, PixelFormat::Mono16);
+        assert_eq!(r.trigger, TriggerMode::Free);
+    }
+
+    #[test]
+    fn the_block_must_be_one_of_the_pose() {
+        let base = |pose: &str, deg: Option<f64>| {
+            serde_json::json!({ "scene": "brewster-multi-3x3", "pose": pose,
+                "polarizer_deg": deg, "exposure_us": 5000.0 })
+        };
+        assert!(message(check(base("Z", None))).contains("its poses: B, C"));
+        assert!(message(check(base("B", None))).contains("give polarizer_deg, one of 0"));
+        assert!(message(check(base("B", Some(45.0)))).contains("not an angle of pose \"B\""));
+        assert!(check(base("C", Some(0.0))).is_ok());
+    }
+
+    #[test]
+    fn exposure_gain_and_frames_are_held_to_the_camera_and_the_cap() {
+        let with = |extra: serde_json::Value| {
+            let mut v = serde_json::json!({ "scene": "brewster-multi-3x3", "pose": "B",
+                "polarizer_deg": 0.0, "exposure_us": 5000.0 });
+            if let (Some(o), serde_json::Value::Object(e)) = (v.as_object_mut(), extra) {
+                o.extend(e);
+            }
+            check(v)
+        };
+        assert!(message(with(serde_json::json!({ "exposure_us": 5.0 })))
+            .contains("must be from 10 to 1000000"));
+        assert!(message(with(serde_json::json!({ "exposure_us": null })))
+            .contains("exposure_us is missing"));
+        assert!(message(with(serde_json::json!({ "exposure": "auto" }))).contains("not both"));
+        assert!(message(with(serde_json::json!({ "gain": 11.0 }))).contains("gain = 11"));
+        assert!(message(with(serde_json::json!({ "frames": 0 }))).contains("at least 1 frame"));
+        assert!(message(with(serde_json::json!({ "frames": 101 }))).contains("at most 100"));
+        // This bench is set by hand: no dark frames within a capture.
+        assert!(
+            message(with(serde_json::json!({ "dark_frames": 2 }))).contains("\"kind\": \"dark\"")
+        );
+        assert!(message(with(serde_json::json!({ "region": [0, 0, 600, 16] }))).contains("600"));
+    }
+
+    #[test]
+    fn an_automatic_exposure_takes_the_plan_of_its_block() {
+        let b = body(
+            serde_json::json!({ "scene": "brewster-multi-3x3", "pose": "C",
+            "polarizer_deg": 0.0, "exposure": "auto" }),
+        );
+        let block = |pose: &str, exposure_us: f64, frames: usize| BlockExposure {
+            pose: pose.into(),
+            polarizer_deg: Some(0.0),
+            peak_rate_per_us: 1e-4,
+            exposure_us,
+            frames,
+            peak_fraction: 0.8,
+            snr: 100.0,
+            limited_by: None,
+        };
+        let plan = || Ok(vec![block("B", 1000.0, 4), block("C", 2500.0, 7)]);
+        let r = capture(&b, &scene(), &cam(), plan, |_| None).expect("accepted");
+        assert_eq!((r.exposure_us, r.frames), (2500.0, 7));
+    }
+
+    #[test]
+    fn a_camera_that_has_not_reported_its_region_makes_the_request_wait() {
+        let mut c = cam();
+        c.defaults.region = None;
+        let b = body(
+            serde_json::json!({ "scene": "brewster-multi-3x3", "pose": "B",
+            "polarizer_deg": 0.0, "exposure_us": 5000.0 }),
+        );
+        let r = capture(&b, &scene(), &c, no_plan, |_| None);
+        assert!(matches!(r, Err(RequestError::Unavailable(_))), "{r:?}");
+    }
+
+    #[test]
+    fn a_dark_capture_must_exist_and_match() {
+        let b = body(
+            serde_json::json!({ "scene": "brewster-multi-3x3", "pose": "B",
+            "polarizer_deg": 0.0, "exposure_us": 5000.0, "dark_capture": 7 }),
+        );
+        let r = capture(&b, &scene(), &cam(), no_plan, |_| None);
+        assert!(matches!(r, Err(RequestError::NotFound(_))), "{r:?}");
+        let dark = |exposure_us: f64| record(7, "dark", exposure_us, JobState::Done);
+        let r = capture(&b, &scene(), &cam(), no_plan, |_| Some(dark(5000.0)));
+        assert_eq!(r.expect("a matching dark").dark_capture, Some(7));
+        let r = capture(&b, &scene(), &cam(), no_plan, |_| Some(dark(4000.0)));
+        assert!(message(r).contains("take a dark capture with the same settings"));
+        let light = record(7, "light", 5000.0, JobState::Done);
+        let r = capture(&b, &scene(), &cam(), no_plan, |_| Some(light.clone()));
+        assert!(message(r).contains("must be a done dark capture"));
+    }
+}

@@ -1,0 +1,105 @@
+//! Checking requests: pure functions from a request body, the scene it names
+//! and what the camera allows, to a request the daemon can queue.
+//!
+//! Nothing here reads the camera, the store or the clock: the daemon gathers
+//! what a check needs ([`CameraContext`], a capture lookup, a lazily built
+//! exposure plan) and these functions decide, so every rule has a unit test.
+//! Every setting a capture uses is resolved here and recorded with it, so a
+//! later `PUT /camera/settings` cannot change a queued capture.
+
+mod capture;
+mod reconstruction;
+
+pub use capture::capture;
+pub use reconstruction::reconstruction;
+
+use crate::camera::{CameraSettings, SensorLimits};
+use crate::measure::exposure::CameraLimits;
+
+/// A request that cannot be accepted: status 404 (unknown thing), 422, or 503.
+#[derive(Debug, thiserror::Error)]
+pub enum RequestError {
+    /// A referenced thing does not exist.
+    #[error("{0}")]
+    NotFound(String),
+    /// A value is out of range or inconsistent.
+    #[error("{0}")]
+    Invalid(String),
+    /// The camera cannot answer what the request needs yet (503).
+    #[error("{0}")]
+    Unavailable(String),
+}
+
+impl From<super::scenes::ScenesError> for RequestError {
+    fn from(e: super::scenes::ScenesError) -> Self {
+        match e {
+            super::scenes::ScenesError::Unknown { .. } => RequestError::NotFound(e.to_string()),
+            e => RequestError::Invalid(e.to_string()),
+        }
+    }
+}
+
+fn invalid(m: impl Into<String>) -> RequestError {
+    RequestError::Invalid(m.into())
+}
+
+/// What a capture is checked against besides its scene: the camera's ranges
+/// and current settings, the bench, and the configured frame cap.
+#[derive(Debug, Clone)]
+pub struct CameraContext {
+    /// Exposure range and noise (see [`super::Daemon::camera_limits`]).
+    pub limits: CameraLimits,
+    /// Gain range, when the camera has reported it.
+    pub gain: Option<(f64, f64)>,
+    /// Region and binning limits, when the camera has reported them.
+    pub sensor: Option<SensorLimits>,
+    /// What a capture inherits for a setting it does not state.
+    pub defaults: CameraSettings,
+    /// Whether the bench can switch the hidden scene off by itself.
+    pub bench_switches_scene: bool,
+    /// Frames plus dark frames a capture may take (`[queue] max_frames_per_capture`).
+    pub max_frames: usize,
+}
+
+#[cfg(test)]
+pub(crate) mod fixtures {
+    //! What the tests of both checks share.
+    use crate::scene::Scene;
+    use crate::store::{CaptureRecord, JobState};
+
+    /// The reference bench with poses B and C, crossed polarizer each.
+    pub fn scene() -> Scene {
+        match Scene::builtin("brewster-multi-3x3") {
+            Some(Ok(s)) => s,
+            _ => panic!("built-in scene"),
+        }
+    }
+
+    /// A capture of pose B at 0° of that scene, full frame.
+    pub fn record(id: i64, kind: &str, exposure_us: f64, state: JobState) -> CaptureRecord {
+        CaptureRecord {
+            id,
+            scene: "brewster-multi-3x3".into(),
+            pose: "B".into(),
+            polarizer_deg: Some(0.0),
+            exposure_us,
+            gain: 0.0,
+            frames: 1,
+            dark_frames: 0,
+            pixel_format: "Mono16".into(),
+            kind: kind.into(),
+            region: Some([0, 0, 512, 512]),
+            binning: Some([1, 1]),
+            trigger: Some("free".into()),
+            dark_capture: None,
+            state,
+            error: None,
+            created_at: String::new(),
+            started_at: None,
+            finished_at: None,
+            camera_id: None,
+            counters: None,
+            frames_taken: 1,
+        }
+    }
+}

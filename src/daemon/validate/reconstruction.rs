@@ -1,0 +1,190 @@
+//! Checking a reconstruction request against its scene and captures.
+
+use super::{invalid, RequestError};
+use crate::api::bodies::ReconstructionBody;
+use crate::daemon::jobs::{block_label, same_angle};
+use crate::scene::Scene;
+use crate::store::{CaptureRecord, JobState, ReconstructionRequest};
+
+/// The (pose, polarizer angle) blocks of a scene in MODEL.md row order.
+fn blocks(scene: &Scene) -> Vec<(String, Option<f64>)> {
+    let mut blocks = Vec::new();
+    for p in &scene.poses {
+        if p.analyzers.is_empty() {
+            blocks.push((p.name.clone(), None));
+        }
+        for a in &p.analyzers {
+            blocks.push((p.name.clone(), Some(a.angle_deg)));
+        }
+    }
+    blocks
+}
+
+/// Checks a reconstruction request: solver parameters, the truth's name, and
+/// one done light capture of this scene for every (pose, angle) block, taken
+/// at the frame the pose's homography maps to. `capture` looks captures up.
+pub fn reconstruction(
+    b: &ReconstructionBody,
+    scene: &Scene,
+    capture: impl Fn(i64) -> Option<CaptureRecord>,
+) -> Result<ReconstructionRequest, RequestError> {
+    let solve = b.solve_request();
+    solve.check().map_err(|e| invalid(e.to_string()))?;
+    if let Some(t) = &b.truth {
+        if crate::simulate::patterns::Pattern::from_name(t).is_none() {
+            return Err(invalid(format!(
+                "truth = {t:?}: must be a test pattern name (disk, bars, letter)"
+            )));
+        }
+    }
+    let blocks = blocks(scene);
+    if b.captures.len() != blocks.len() {
+        let labels: Vec<String> = blocks.iter().map(|(p, a)| block_label(p, *a)).collect();
+        return Err(invalid(format!(
+            "scene {:?} has {} (pose, polarizer) blocks ({}); give exactly one capture for each ({} given)",
+            b.scene,
+            blocks.len(),
+            labels.join("; "),
+            b.captures.len()
+        )));
+    }
+    let mut covered = vec![false; blocks.len()];
+    for &id in &b.captures {
+        let c = capture(id)
+            .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))?;
+        let k = block_of(&c, &b.scene, scene, &blocks)?;
+        if covered[k] {
+            return Err(invalid(format!(
+                "two captures for block {}; give one per block",
+                block_label(&blocks[k].0, blocks[k].1)
+            )));
+        }
+        covered[k] = true;
+    }
+    let mut params = serde_json::to_value(&solve).map_err(|e| invalid(e.to_string()))?;
+    params["truth"] = serde_json::to_value(&b.truth).map_err(|e| invalid(e.to_string()))?;
+    Ok(ReconstructionRequest {
+        scene: b.scene.clone(),
+        captures: b.captures.clone(),
+        solver: b.solver.name().to_string(),
+        params,
+    })
+}
+
+/// The block a capture serves, after checking it can serve one: done, light,
+/// of this scene, at the pose's camera frame.
+fn block_of(
+    c: &CaptureRecord,
+    scene_name: &str,
+    scene: &Scene,
+    blocks: &[(String, Option<f64>)],
+) -> Result<usize, RequestError> {
+    let id = c.id;
+    if c.state != JobState::Done {
+        return Err(invalid(format!(
+            "capture {id} is {}, not done",
+            c.state.name()
+        )));
+    }
+    if c.is_dark() {
+        return Err(invalid(format!(
+            "capture {id} is a dark capture; give light captures (subtract darks with dark_capture when capturing)"
+        )));
+    }
+    if c.scene != scene_name {
+        return Err(invalid(format!(
+            "capture {id} belongs to scene {:?}, not {scene_name:?}",
+            c.scene
+        )));
+    }
+    let k = blocks
+        .iter()
+        .position(|(p, a)| *p == c.pose && same_angle(*a, c.polarizer_deg))
+        .ok_or_else(|| {
+            invalid(format!(
+                "capture {id} ({}) is not a block of scene {scene_name:?}",
+                block_label(&c.pose, c.polarizer_deg)
+            ))
+        })?;
+    if let Some(frame) = scene.pose(&c.pose).and_then(|p| p.frame) {
+        if (c.region, c.binning) != (Some(frame.region), Some(frame.binning)) {
+            return Err(invalid(format!(
+                "capture {id} was taken at region {} binning {}, but pose {:?}'s homography maps the wall into region {:?} binning {:?} (scene file keys region and binning): sampling it would read the wrong pixels; capture again with that region and binning, or calibrate the pose for this frame",
+                c.region.map_or("unknown".into(), |r| format!("{r:?}")),
+                c.binning.map_or("unknown".into(), |r| format!("{r:?}")),
+                c.pose,
+                frame.region,
+                frame.binning
+            )));
+        }
+    }
+    Ok(k)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::fixtures::{record, scene};
+    use super::*;
+    use crate::solve::Solver;
+
+    fn reconstruction_body(captures: &[i64]) -> ReconstructionBody {
+        serde_json::from_value(serde_json::json!({
+            "scene": "brewster-multi-3x3", "captures": captures
+        }))
+        .expect("a well-formed body")
+    }
+
+    #[test]
+    fn a_reconstruction_needs_one_done_light_capture_per_block() {
+        let mut c = record(2, "light", 5000.0, JobState::Done);
+        c.pose = "C".into();
+        let captures = [record(1, "light", 5000.0, JobState::Done), c];
+        let lookup = |id: i64| captures.iter().find(|c| c.id == id).cloned();
+        let s = scene();
+        let r = reconstruction(&reconstruction_body(&[1, 2]), &s, lookup).expect("accepted");
+        assert_eq!(r.solver, Solver::AdmmTv.name());
+        assert_eq!(r.captures, vec![1, 2]);
+        let err = |ids: &[i64]| match reconstruction(&reconstruction_body(ids), &s, lookup) {
+            Err(RequestError::Invalid(m)) | Err(RequestError::NotFound(m)) => m,
+            Ok(_) => panic!("{ids:?} accepted"),
+            Err(e) => panic!("{e:?}"),
+        };
+        assert!(err(&[1]).contains("2 (pose, polarizer) blocks (pose B at 0°; pose C at 0°)"));
+        assert!(err(&[1, 1]).contains("two captures for block pose B at 0°"));
+        assert!(err(&[1, 9]).contains("no capture with id 9"));
+    }
+
+    #[test]
+    fn a_capture_at_another_frame_or_state_cannot_serve_a_block() {
+        let s = scene();
+        let mut cropped = record(1, "light", 5000.0, JobState::Done);
+        cropped.region = Some([0, 0, 256, 256]);
+        let blocks = blocks(&s);
+        let m =
+            block_of(&cropped, "brewster-multi-3x3", &s, &blocks).expect_err("a cropped capture");
+        assert!(m.to_string().contains("region [0, 0, 256, 256]"), "{m}");
+        let running = record(1, "light", 5000.0, JobState::Running);
+        let m = block_of(&running, "brewster-multi-3x3", &s, &blocks).expect_err("running");
+        assert!(m.to_string().contains("is running, not done"), "{m}");
+        let dark = record(1, "dark", 5000.0, JobState::Done);
+        let m = block_of(&dark, "brewster-multi-3x3", &s, &blocks).expect_err("dark");
+        assert!(m.to_string().contains("is a dark capture"), "{m}");
+        let m = block_of(&dark, "brewster-crossed-3x3", &s, &blocks).expect_err("scene");
+        assert!(m.to_string().contains("dark capture"), "{m}");
+    }
+
+    #[test]
+    fn solver_parameters_and_truth_names_are_checked() {
+        let s = scene();
+        let mut b = reconstruction_body(&[]);
+        b.truth = Some("cat".into());
+        let r = reconstruction(&b, &s, |_| None);
+        assert!(matches!(r, Err(RequestError::Invalid(m)) if m.contains("truth = \"cat\"")));
+        let mut b = reconstruction_body(&[]);
+        b.tol = Some(2.0);
+        assert!(matches!(
+            reconstruction(&b, &s, |_| None),
+            Err(RequestError::Invalid(_))
+        ));
+    }
+}
