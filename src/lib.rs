@@ -20,9 +20,11 @@
 //!   and capture files).
 //! - **Service**: [`daemon`] (jobs, queues, admission, lifecycle) and [`api`]
 //!   (the HTTP routes, guard and server loop).
-//! - **Reports**: [`bench`] (the reports of `polnlos bench`).
+//! - **Reports**: `bench` (the reports of `polnlos bench`; cargo feature
+//!   `bench`, on by default, off the daemon's path).
 
 pub mod api;
+#[cfg(feature = "bench")]
 pub mod bench;
 pub mod camera;
 pub mod daemon;

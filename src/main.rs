@@ -23,13 +23,86 @@ fn message(e: &anyhow::Error) -> String {
     out
 }
 
+/// Exit status of a command that finished its work.
+const DONE: u8 = 0;
+/// The input was fine but the work could not be finished: a camera lost, a
+/// solver that failed, a disk that filled while writing results.
+const FAILED: u8 = 1;
+/// The command line is wrong (clap's own code), or it asks for something
+/// another process already holds (a data directory served by another daemon).
+const USAGE: u8 = 2;
+/// A file the user named is wrong: a scene, a measurement, an image, the
+/// config or the data directory is missing, unreadable, malformed or out of
+/// range (including a scene too large for this machine's memory).
+const INPUT: u8 = 3;
+
+/// The exit status of an error, from the first cause that says whose it is.
+fn exit_code(e: &anyhow::Error) -> u8 {
+    use polnlos::daemon::DaemonError;
+    use polnlos::files::FileError;
+    use polnlos::solve::SolveError;
+    use polnlos::store::StoreError;
+    use polnlos::transport::TransportError;
+    for cause in e.chain() {
+        // DaemonError is transparent over these: its source skips them.
+        let store = match cause.downcast_ref::<polnlos::daemon::DaemonError>() {
+            Some(DaemonError::Store(s)) => Some(s),
+            Some(DaemonError::Config(_) | DaemonError::Scene(_)) => return INPUT,
+            Some(DaemonError::Demo(_) | DaemonError::Fake(_)) => return FAILED,
+            None => cause.downcast_ref::<StoreError>(),
+        };
+        if let Some(s) = store {
+            return match s {
+                StoreError::Locked { .. } => USAGE,
+                StoreError::DataDir { .. } | StoreError::Database { .. } => INPUT,
+                _ => FAILED,
+            };
+        }
+        if let Some(f) = cause.downcast_ref::<FileError>() {
+            return match f {
+                FileError::Format { .. } => INPUT,
+                FileError::Io { action, .. } if action.starts_with("cannot read") => INPUT,
+                FileError::Io { .. } => FAILED,
+            };
+        }
+        if let Some(t) = cause.downcast_ref::<TransportError>() {
+            return match t {
+                TransportError::Parameter { .. } => USAGE,
+                TransportError::TooLarge { .. } => INPUT,
+            };
+        }
+        if let Some(s) = cause.downcast_ref::<SolveError>() {
+            return match s {
+                SolveError::Parameter { .. } => USAGE,
+                SolveError::Length { .. } | SolveError::NonFinite { .. } => INPUT,
+                _ => FAILED,
+            };
+        }
+        if let Some(s) = cause.downcast_ref::<polnlos::simulate::SimulateError>() {
+            return match s {
+                polnlos::simulate::SimulateError::Parameter { .. } => USAGE,
+                polnlos::simulate::SimulateError::Black => INPUT,
+            };
+        }
+        if cause.is::<cli::Usage>() {
+            return USAGE;
+        }
+        if cause.is::<polnlos::scene::SceneError>()
+            || cause.is::<polnlos::daemon::config::ConfigError>()
+        {
+            return INPUT;
+        }
+    }
+    FAILED
+}
+
 fn main() -> ExitCode {
     let args = cli::Cli::parse();
     match cli::run(args) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => ExitCode::from(DONE),
         Err(e) => {
             eprintln!("error: {}", message(&e));
-            ExitCode::from(2)
+            ExitCode::from(exit_code(&e))
         }
     }
 }

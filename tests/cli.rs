@@ -28,14 +28,26 @@ fn ok(out: &Output) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
-fn fails(out: &Output) -> String {
+/// A command that failed with exit status `code` (see `polnlos --help`); its stderr.
+fn fails_with(code: i32, out: &Output) -> String {
     assert_eq!(
         out.status.code(),
-        Some(2),
-        "stdout {}",
-        String::from_utf8_lossy(&out.stdout)
+        Some(code),
+        "stdout {}\nstderr {}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
     );
     String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Exit status 3: a file the user named is wrong.
+fn fails(out: &Output) -> String {
+    fails_with(3, out)
+}
+
+/// Exit status 2: the command line is wrong.
+fn usage(out: &Output) -> String {
+    fails_with(2, out)
 }
 
 #[test]
@@ -91,7 +103,7 @@ fn transport_writes_a_standard_npy() {
     let c = npy::read(&out).unwrap();
     assert_eq!(c.shape, vec![4096, 9]);
     assert!(c.data.iter().zip(&a.data).any(|(x, y)| x != y));
-    let msg = fails(&polnlos(&[
+    let msg = usage(&polnlos(&[
         "transport",
         s.to_str().unwrap(),
         "--out",
@@ -120,7 +132,7 @@ fn transport_writes_a_standard_npy() {
         err.contains(&format!("{bins} time bins of 0.02 m")),
         "{err}"
     );
-    let msg = fails(&polnlos(&[
+    let msg = usage(&polnlos(&[
         "transport",
         s.to_str().unwrap(),
         "--out",
@@ -313,7 +325,7 @@ fn simulate_then_reconstruct_through_files() {
     let ratio = b["lambda_choice"]["noise_variance"].as_f64().unwrap()
         / c["noise_variance"].as_f64().unwrap();
     assert!((0.75..1.25).contains(&ratio), "{ratio}");
-    let err = fails(&polnlos(&[
+    let err = usage(&polnlos(&[
         "reconstruct",
         s.to_str().unwrap(),
         "--measurement",
@@ -389,7 +401,7 @@ fn bad_input_gets_a_clear_error() {
     ]));
     assert!(err.contains("junk.png"), "{err}");
     // Out-of-range noise parameters.
-    let err = fails(&polnlos(&[
+    let err = usage(&polnlos(&[
         "simulate",
         scene("brewster-crossed").to_str().unwrap(),
         "--truth",
@@ -460,7 +472,7 @@ fn hostile_files_get_a_named_error_not_a_panic() {
         assert!(err.contains(key), "{to}: {err}");
     }
     // --spot is one argument U,V, as its help and the README say.
-    let err = fails(&polnlos(&[
+    let err = usage(&polnlos(&[
         "transport",
         "brewster-crossed-3x3",
         "--active",
@@ -481,6 +493,7 @@ fn hostile_files_get_a_named_error_not_a_panic() {
 }
 
 #[test]
+#[cfg(feature = "bench")]
 fn bench_quick_writes_its_reports() {
     let dir = tempfile::tempdir().unwrap();
     ok(&polnlos(&[
@@ -638,5 +651,38 @@ fn plan_recommends_a_grid_and_more_light_allows_a_finer_one() {
     assert!(
         text.contains("recommended") || text.contains("no candidate"),
         "{text}"
+    );
+}
+
+#[test]
+fn exit_status_says_whose_the_error_is() {
+    let d = tempfile::tempdir().unwrap();
+    // 2: the command line (clap's own, and ranges polnlos checks itself).
+    usage(&polnlos(&["pattern", "circle"]));
+    usage(&polnlos(&[
+        "pattern", "disk", "--size", "0", "--out", "x.png",
+    ]));
+    // 3: a file the user named.
+    fails(&polnlos(&[
+        "cond",
+        d.path().join("none.toml").to_str().unwrap(),
+    ]));
+    // 1: the input was fine, the work failed (here: the result cannot be written).
+    let blocked = d.path().join("file");
+    std::fs::write(&blocked, b"x").unwrap();
+    let err = fails_with(
+        1,
+        &polnlos(&[
+            "pattern",
+            "disk",
+            "--out",
+            blocked.join("disk.png").to_str().unwrap(),
+        ]),
+    );
+    assert!(err.contains("disk.png"), "{err}");
+    let help = ok(&polnlos(&["--help"]));
+    assert!(
+        help.contains("Exit status: 0 done; 1 the work failed"),
+        "{help}"
     );
 }

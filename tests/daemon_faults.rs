@@ -224,7 +224,8 @@ fn an_unusable_data_directory_is_a_clear_startup_error() {
         .arg(file.join("data"))
         .output()
         .unwrap();
-    assert_eq!(out.status.code(), Some(2));
+    // Exit status 3: a path the user named (the data directory) is unusable.
+    assert_eq!(out.status.code(), Some(3));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         err.contains("data directory") && err.contains("not-a-dir"),

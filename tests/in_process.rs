@@ -10,6 +10,7 @@ use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use polnlos::daemon::scenes::Scenes;
 use polnlos::daemon::{CameraSetup, Config, Daemon};
+use polnlos::store::Store;
 use tower::ServiceExt;
 
 async fn daemon(dir: &std::path::Path) -> Arc<Daemon> {
@@ -18,11 +19,12 @@ async fn daemon(dir: &std::path::Path) -> Arc<Daemon> {
     config.camera.fake = false;
     config.demo.scene = "brewster-crossed-3x3".into();
     config.demo.pattern = "disk".into();
+    let store = Store::open(&config.data_dir).expect("data directory");
     let scenes = Arc::new(Scenes::load(&config.scene_files).expect("built-in scenes"));
     let camera = CameraSetup::synthetic(&config, &scenes)
         .await
         .expect("synthetic camera");
-    Daemon::start_with(config, scenes, camera)
+    Daemon::start_with(config, store, scenes, camera)
         .await
         .expect("daemon starts")
 }

@@ -136,13 +136,17 @@ pub struct Plot {
     pub x_log: bool,
     /// Log10 y axis.
     pub y_log: bool,
+    /// X takes whole numbers only (a grid side): ticks only at integers.
+    pub x_integer: bool,
     /// Series in legend order.
     pub series: Vec<Series>,
 }
 
 /// A tick label. On a log axis (`v` is log10 of the value) only values whose
-/// mantissa is 1, 2 or 5 are labelled, so the labels read 1e-3, 0.002, 0.005.
-fn label(v: f64, log: bool) -> String {
+/// mantissa is 1, 2 or 5 are labelled, so the labels read 1e-3, 2e-3, 5e-3;
+/// `sci` says whether the whole axis is written in exponent form (any tick
+/// outside 0.01 to 10^4) or in decimals, so one axis never mixes the two.
+fn label(v: f64, log: bool, sci: bool) -> String {
     if !log {
         return format!("{}", (v * 1e6).round() / 1e6);
     }
@@ -155,17 +159,32 @@ fn label(v: f64, log: bool) -> String {
     else {
         return String::new();
     };
-    let x = nice * decade;
-    if (1e-2..1e4).contains(&x) {
-        format!("{}", (x * 1e4).round() / 1e4)
+    if !sci {
+        return format!("{}", (nice * decade * 1e4).round() / 1e4);
+    }
+    let (mant, e) = if nice == 10.0 {
+        (1.0, v.floor() + 1.0)
     } else {
-        let e = x.log10().floor();
-        let mant = (x / 10f64.powf(e)).round();
-        if mant == 1.0 {
-            format!("1e{}", e as i32)
-        } else {
-            format!("{mant}e{}", e as i32)
-        }
+        (nice, v.floor())
+    };
+    if mant == 1.0 {
+        format!("1e{}", e as i32)
+    } else {
+        format!("{mant}e{}", e as i32)
+    }
+}
+
+/// Whether a log axis from 10^lo to 10^hi needs exponent labels.
+fn needs_sci(lo: f64, hi: f64) -> bool {
+    lo < -2.0 || hi >= 4.0
+}
+
+/// A tick label on an axis of whole numbers: integers only.
+fn integer_label(v: f64) -> String {
+    if (v - v.round()).abs() < 1e-6 {
+        format!("{}", v.round())
+    } else {
+        String::new()
     }
 }
 
@@ -245,6 +264,20 @@ impl Plot {
             .build_cartesian_2d(x0..x1, y0..y1)
             .map_err(err)?;
         let (xl, yl) = (self.x_log, self.y_log);
+        let (xs, ys) = (xl && needs_sci(x0, x1), yl && needs_sci(y0, y1));
+        let integer = self.x_integer && !xl;
+        let x_labels = if integer {
+            ((x1 - x0).ceil() as usize + 1).clamp(2, 24)
+        } else {
+            label_count(x0, x1, xl)
+        };
+        let x_format = |v: &f64| {
+            if integer {
+                integer_label(*v)
+            } else {
+                label(*v, xl, xs)
+            }
+        };
         chart
             .configure_mesh()
             .x_desc(&self.x_label)
@@ -252,10 +285,10 @@ impl Plot {
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 16))
             .max_light_lines(2)
-            .x_labels(label_count(x0, x1, xl))
+            .x_labels(x_labels)
             .y_labels(label_count(y0, y1, yl))
-            .x_label_formatter(&|v| label(*v, xl))
-            .y_label_formatter(&|v| label(*v, yl))
+            .x_label_formatter(&x_format)
+            .y_label_formatter(&|v| label(*v, yl, ys))
             .draw()
             .map_err(err)?;
         for s in &self.series {
@@ -383,6 +416,7 @@ pub fn log_lines(
         y_label: y_label.into(),
         x_log: true,
         y_log: true,
+        x_integer: false,
         series,
     }])
 }
@@ -530,13 +564,26 @@ mod tests {
 
     #[test]
     fn log_labels_only_at_one_two_five() {
-        assert_eq!(label(-2.0, true), "0.01");
-        assert_eq!(label(2f64.log10() - 4.0, true), "2e-4");
-        assert_eq!(label(5f64.log10(), true), "5");
-        assert_eq!(label(-3.4, true), "");
-        assert_eq!(label(2.5, false), "2.5");
-        assert_eq!(label(6.0, true), "1e6");
-        assert_eq!(label(0.5, true), "");
+        assert_eq!(label(-2.0, true, false), "0.01");
+        assert_eq!(label(2f64.log10() - 4.0, true, true), "2e-4");
+        assert_eq!(label(5f64.log10(), true, false), "5");
+        assert_eq!(label(-3.4, true, true), "");
+        assert_eq!(label(2.5, false, false), "2.5");
+        assert_eq!(label(6.0, true, true), "1e6");
+        assert_eq!(label(0.5, true, false), "");
+        // One axis, one format: 5000 and 10000 on an axis that reaches 1e5
+        // read 5e3 and 1e4, not 5000 next to 1e4.
+        assert!(needs_sci(3.0, 5.0) && !needs_sci(-2.0, 3.9));
+        assert_eq!(label(5000f64.log10(), true, true), "5e3");
+        assert_eq!(label(4.0 - 1e-9, true, true), "1e4");
+        assert_eq!(label(5000f64.log10(), true, false), "5000");
+    }
+
+    #[test]
+    fn an_integer_axis_labels_whole_numbers_only() {
+        assert_eq!(integer_label(3.0), "3");
+        assert_eq!(integer_label(2.5), "");
+        assert_eq!(integer_label(4.0000001), "4");
     }
 
     #[test]
@@ -547,6 +594,7 @@ mod tests {
             y_label: "y".into(),
             x_log: true,
             y_log: false,
+            x_integer: false,
             series: vec![Series::line(
                 "a",
                 0,
@@ -562,6 +610,7 @@ mod tests {
             y_label: String::new(),
             x_log: true,
             y_log: true,
+            x_integer: false,
             series: vec![Series::line("a", 0, vec![(0.0, -1.0)])],
         };
         assert!(panels(&[none])

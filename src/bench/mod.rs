@@ -8,9 +8,14 @@
 pub mod active;
 pub mod charts;
 pub mod peer;
+pub mod report;
 pub mod sampling;
 pub mod speed;
 pub mod stability;
+mod tables;
+
+pub use report::{BenchPlan, Report};
+pub use tables::{Conditioning, Roughness};
 
 use serde::Serialize;
 
@@ -95,6 +100,28 @@ pub(crate) fn median(mut v: Vec<f64>) -> f64 {
         v[n / 2]
     } else {
         0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// A condition number as the tables print it (`inf` when rank-deficient).
+pub(crate) fn fmt_kappa(k: f64) -> String {
+    if k.is_finite() {
+        format!("{k:.3e}")
+    } else {
+        "inf".into()
+    }
+}
+
+/// A duration with three significant digits in a unit that fits: `1.23 s`,
+/// `45.6 ms`, `789 us` (never `0.000 s`).
+pub(crate) fn fmt_seconds(s: f64) -> String {
+    match s {
+        s if !s.is_finite() || s < 0.0 => "-".into(),
+        s if s >= 1.0 => format!("{s:.2} s"),
+        s if s >= 0.1 => format!("{:.0} ms", s * 1e3),
+        s if s >= 0.01 => format!("{:.1} ms", s * 1e3),
+        s if s >= 1e-3 => format!("{:.2} ms", s * 1e3),
+        s => format!("{:.0} us", s * 1e6),
     }
 }
 
@@ -226,6 +253,16 @@ impl From<SceneError> for BenchError {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn durations_keep_three_digits_and_never_print_zero() {
+        assert_eq!(fmt_seconds(12.345), "12.35 s");
+        assert_eq!(fmt_seconds(0.1234), "123 ms");
+        assert_eq!(fmt_seconds(0.04567), "45.7 ms");
+        assert_eq!(fmt_seconds(0.001234), "1.23 ms");
+        assert_eq!(fmt_seconds(0.000_345), "345 us");
+        assert_eq!(fmt_seconds(f64::NAN), "-");
+    }
 
     #[test]
     fn names_match_the_shipped_files() {

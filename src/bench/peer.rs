@@ -224,3 +224,56 @@ pub fn compare(
     report.peer_psnr_db = metrics::psnr(&truth, &rec.data);
     Ok(report)
 }
+
+impl super::Report for PeerReport {
+    fn json(&self) -> serde_json::Map<String, serde_json::Value> {
+        super::report::fields(vec![("peer", serde_json::to_value(self))])
+    }
+
+    fn charts(&self) -> Result<Vec<(String, super::charts::Chart)>, super::charts::ChartError> {
+        Ok(Vec::new())
+    }
+
+    fn markdown(&self) -> String {
+        use super::fmt_seconds as t;
+        use std::fmt::Write as _;
+        let p = self;
+        let mut md = format!(
+            "## Against a NumPy peer\n\nScene {0}, wall {1}x{1}, scene {2}x{2} (T {3} x {4}); `benches/peer/peer.py`, same scene file and measurement.\n\n",
+            p.scene,
+            p.wall,
+            p.scene_grid,
+            p.wall * p.wall * 2,
+            p.scene_grid * p.scene_grid
+        );
+        if let Some(why) = &p.skipped {
+            let _ = writeln!(
+                md,
+                "Peer skipped: {why}. polnlos alone: build {}, T^T T {}, factorization + {ITERATIONS} ADMM iterations {}.\n",
+                t(p.polnlos_build_seconds),
+                t(p.polnlos_gram_seconds),
+                t(p.polnlos_solve_seconds)
+            );
+            return md;
+        }
+        let _ = writeln!(
+            md,
+            "| step | polnlos | NumPy {} | speed-up |\n|---|---|---|---|\n| build T | {} | {} | {:.1}x |\n| T^T T (dense product; NumPy: OpenBLAS syrk) | {} | {} | {:.1}x |\n| factorization + {ITERATIONS} ADMM iterations | {} | {} | {:.1}x |\n\nSame T: max |T_numpy - T| / max |T| = {:.1e}. Same recovery: max |l_numpy - l| = {:.1e}; PSNR {:.2} dB (polnlos) and {:.2} dB (NumPy).\n",
+            p.numpy.as_deref().unwrap_or("?"),
+            t(p.polnlos_build_seconds),
+            t(p.peer_build_seconds),
+            p.build_speedup,
+            t(p.polnlos_gram_seconds),
+            t(p.peer_gram_seconds),
+            p.gram_speedup,
+            t(p.polnlos_solve_seconds),
+            t(p.peer_solve_seconds),
+            p.solve_speedup,
+            p.t_difference,
+            p.recovery_difference,
+            p.polnlos_psnr_db,
+            p.peer_psnr_db
+        );
+        md
+    }
+}

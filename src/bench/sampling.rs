@@ -111,11 +111,16 @@ pub fn chart(rows: &[SamplingRow], reference_m: usize) -> Result<Chart, ChartErr
     let plots: Vec<Plot> = cases
         .iter()
         .map(|case| {
+            // A curve joins its points in order of build time (the adaptive
+            // runs are listed by tolerance, and time need not follow it).
             let pts = |method: &str| -> Vec<(f64, f64)> {
-                rows.iter()
+                let mut p: Vec<(f64, f64)> = rows
+                    .iter()
                     .filter(|r| r.case == *case && r.method == method)
                     .map(|r| (r.seconds, r.error))
-                    .collect()
+                    .collect();
+                p.sort_by(|a, b| a.0.total_cmp(&b.0));
+                p
             };
             Plot {
                 title: format!("{case}: error of T against m = {reference_m}"),
@@ -123,6 +128,7 @@ pub fn chart(rows: &[SamplingRow], reference_m: usize) -> Result<Chart, ChartErr
                 y_label: "||T - T_ref||_F / ||T_ref||_F".into(),
                 x_log: true,
                 y_log: true,
+                x_integer: false,
                 series: vec![
                     Series::line("uniform m = 1, 2, 3, 4, 6, 8", 0, pts("uniform")),
                     Series {
@@ -138,4 +144,55 @@ pub fn chart(rows: &[SamplingRow], reference_m: usize) -> Result<Chart, ChartErr
         })
         .collect();
     panels(&plots)
+}
+
+/// The sampling sweep as a report.
+pub struct Sampling {
+    /// Samples per element side of the reference `T`.
+    pub reference_m: usize,
+    /// The sweep.
+    pub rows: Vec<SamplingRow>,
+}
+
+impl super::Report for Sampling {
+    fn json(&self) -> serde_json::Map<String, serde_json::Value> {
+        super::report::fields(vec![
+            (
+                "sampling_reference_m",
+                serde_json::to_value(self.reference_m),
+            ),
+            ("sampling", serde_json::to_value(&self.rows)),
+        ])
+    }
+
+    fn charts(&self) -> Result<Vec<(String, Chart)>, ChartError> {
+        Ok(vec![(
+            "sampling".into(),
+            chart(&self.rows, self.reference_m)?,
+        )])
+    }
+
+    fn markdown(&self) -> String {
+        use std::fmt::Write as _;
+        let mut md = format!(
+            "## Transport accuracy against build time\n\nError of T against uniform m = {} (relative Frobenius), median build time of 3 runs.\n\n![sampling](sampling.png)\n\n| case | method | m or tol | build time | samples per element | error | estimated |\n|---|---|---|---|---|---|---|\n",
+            self.reference_m
+        );
+        for r in &self.rows {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {:.1} | {:.2e} | {} |",
+                r.case,
+                r.method,
+                r.setting,
+                super::fmt_seconds(r.seconds),
+                r.samples_per_element,
+                r.error,
+                r.estimated_error
+                    .map_or_else(|| "-".into(), |e| format!("{e:.2e}"))
+            );
+        }
+        md.push('\n');
+        md
+    }
 }

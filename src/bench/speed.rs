@@ -501,6 +501,7 @@ pub fn charts(summary: &[SpeedSummary]) -> Result<Vec<(String, Chart)>, ChartErr
                     y_label: if ssim { "SSIM" } else { "PSNR, dB" }.into(),
                     x_log: true,
                     y_log: false,
+                    x_integer: false,
                     series,
                 });
             }
@@ -525,15 +526,15 @@ pub fn markdown(summary: &[SpeedSummary], seeds: u64) -> String {
                 d.scene, d.wall, d.poses
             );
         }
-        md.push_str("| exposure | solver | budget | seconds | PSNR dB [min, max] | SSIM | front |\n|---|---|---|---|---|---|---|\n");
+        md.push_str("| exposure | solver | budget | time | PSNR dB [min, max] | SSIM | front |\n|---|---|---|---|---|---|---|\n");
         for s in summary.iter().filter(|s| s.size == size) {
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {:.4} | {:.2} [{:.2}, {:.2}] | {:.3} | {} |",
+                "| {} | {} | {} | {} | {:.2} [{:.2}, {:.2}] | {:.3} | {} |",
                 s.exposure,
                 s.solver,
                 s.budget,
-                s.seconds,
+                super::fmt_seconds(s.seconds),
                 s.psnr_db,
                 s.psnr_range.0,
                 s.psnr_range.1,
@@ -544,6 +545,37 @@ pub fn markdown(summary: &[SpeedSummary], seeds: u64) -> String {
         md.push('\n');
     }
     md
+}
+
+/// The speed-against-accuracy sweep as a report.
+pub struct Speed {
+    /// Noise seeds per size.
+    pub seeds: u64,
+    /// Medians per (size, exposure, solver, budget).
+    pub summary: Vec<SpeedSummary>,
+    /// Every run.
+    pub runs: Vec<SpeedRow>,
+}
+
+impl super::Report for Speed {
+    fn json(&self) -> serde_json::Map<String, serde_json::Value> {
+        super::report::fields(vec![
+            ("speed_seeds", serde_json::to_value(self.seeds)),
+            ("speed", serde_json::to_value(&self.summary)),
+            ("speed_runs", serde_json::to_value(&self.runs)),
+        ])
+    }
+
+    fn charts(&self) -> Result<Vec<(String, Chart)>, ChartError> {
+        charts(&self.summary)
+    }
+
+    fn markdown(&self) -> String {
+        format!(
+            "## Speed against accuracy\n\n{}",
+            markdown(&self.summary, self.seeds)
+        )
+    }
 }
 
 #[cfg(test)]

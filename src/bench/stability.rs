@@ -194,3 +194,43 @@ pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, Benc
     }
     Ok(rows)
 }
+
+/// The stability table as a report.
+pub struct Stability(pub Vec<StabilityRow>);
+
+impl super::Report for Stability {
+    fn json(&self) -> serde_json::Map<String, serde_json::Value> {
+        super::report::fields(vec![("stability", serde_json::to_value(&self.0))])
+    }
+
+    fn charts(&self) -> Result<Vec<(String, super::charts::Chart)>, super::charts::ChartError> {
+        Ok(Vec::new())
+    }
+
+    fn markdown(&self) -> String {
+        use std::fmt::Write as _;
+        let mut md = String::from("## Stability where methods fail (ADMM-TV, letter pattern, 8x8 scene)\n\n| case | kappa | mean SNR | converged | iterations | primal / dual residual | PSNR dB | finite | warnings |\n|---|---|---|---|---|---|---|---|---|\n");
+        for r in &self.0 {
+            let warnings = if r.warnings.is_empty() {
+                "none".to_string()
+            } else {
+                r.warnings.join("; ")
+            };
+            let _ = writeln!(
+                md,
+                "| {} | {} | {:.1} | {} | {} | {:.1e} / {:.1e} | {:.2} | {} | {warnings} |",
+                r.case,
+                super::fmt_kappa(r.kappa),
+                r.snr,
+                if r.converged { "yes" } else { "no" },
+                r.iterations,
+                r.primal_residual,
+                r.dual_residual,
+                r.psnr_db,
+                if r.finite { "yes" } else { "NO" },
+            );
+        }
+        md.push('\n');
+        md
+    }
+}

@@ -1,6 +1,7 @@
 //! Command-line interface: argument definitions and dispatch to one module per
 //! subcommand. Each subcommand reads files, calls the library and writes files.
 
+#[cfg(feature = "bench")]
 mod bench;
 mod cond;
 mod pattern;
@@ -25,7 +26,14 @@ use polnlos::scene::Scene;
 /// a measurement. Scene files are TOML (see MODEL.md); examples ship in
 /// config/scenes/.
 #[derive(Debug, Parser)]
-#[command(name = "polnlos", version, propagate_version = true)]
+#[command(
+    name = "polnlos",
+    version,
+    propagate_version = true,
+    after_help = "Exit status: 0 done; 1 the work failed (camera, solver, disk while writing);\n\
+2 wrong command line, or a data directory another daemon holds; 3 a file you named\n\
+(scene, measurement, image, config, data directory) is missing, unreadable or wrong."
+)]
 pub struct Cli {
     /// Worker threads for the numeric core (default: all cores).
     #[arg(long, global = true, value_name = "N")]
@@ -51,6 +59,7 @@ enum Command {
     /// Write the bench reports: Table 1 and Fig. 6, stability, speed against
     /// accuracy, transport sampling, active NLOS, the NumPy peer (JSON,
     /// Markdown, charts).
+    #[cfg(feature = "bench")]
     Bench(bench::Args),
     /// Run the acquisition daemon: camera, capture and reconstruction queues, HTTP API.
     Serve(serve::Args),
@@ -74,10 +83,16 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Reconstruct(a) => reconstruct::run(a),
         Command::Pattern(a) => pattern::run(a),
         Command::Serve(a) => serve::run(a),
+        #[cfg(feature = "bench")]
         Command::Bench(a) => bench::run(a),
         Command::Plan(a) => plan::run(a),
     }
 }
+
+/// A command line that asks for something that cannot be (exit status 2).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct Usage(pub String);
 
 /// Loads a scene file, or a built-in scene by name (`brewster-crossed-3x3`,
 /// as the daemon knows them) when no such file exists; the error names the

@@ -23,12 +23,15 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        (1..=4096).contains(&a.size),
-        "--size must be from 1 to 4096 pixels"
-    );
-    let p = Pattern::from_name(&a.name)
-        .ok_or_else(|| anyhow::anyhow!("unknown pattern {:?}", a.name))?;
+    if !(1..=4096).contains(&a.size) {
+        return Err(super::Usage("--size must be from 1 to 4096 pixels".into()).into());
+    }
+    let p = Pattern::from_name(&a.name).ok_or_else(|| {
+        super::Usage(format!(
+            "unknown pattern {:?}: use disk, bars or letter",
+            a.name
+        ))
+    })?;
     let img = p.render(Grid {
         nu: a.size,
         nv: a.size,

@@ -105,7 +105,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .transpose()?;
     let tv = matches!(a.solver, Solver::AdmmTv | Solver::FistaTv);
     if matches!(a.lambda, Some(LambdaArg::Auto)) && !tv {
-        anyhow::bail!("--lambda auto is for the TV solvers (admm-tv, fista-tv)");
+        return Err(
+            super::Usage("--lambda auto is for the TV solvers (admm-tv, fista-tv)".into()).into(),
+        );
     }
     let req = SolveRequest {
         solver: a.solver,

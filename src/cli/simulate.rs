@@ -3,7 +3,6 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::measure::render_wall;
 use polnlos::scene::Scene;
@@ -79,15 +78,20 @@ struct Output {
     blocks: Vec<BlockOut>,
 }
 
-fn parse_size(s: &str) -> anyhow::Result<(usize, usize)> {
-    let (w, h) = s
-        .split_once('x')
-        .context("--frame-size must look like 512x512")?;
-    let (w, h): (usize, usize) = (w.trim().parse()?, h.trim().parse()?);
-    anyhow::ensure!(
-        (1..=16384).contains(&w) && (1..=16384).contains(&h),
-        "--frame-size must be 1..16384 on each side"
-    );
+fn parse_size(s: &str) -> Result<(usize, usize), super::Usage> {
+    let bad = || {
+        super::Usage(format!(
+            "--frame-size {s:?}: give WxH, each side 1 to 16384, e.g. 512x512"
+        ))
+    };
+    let (w, h) = s.split_once('x').ok_or_else(bad)?;
+    let (w, h): (usize, usize) = match (w.trim().parse(), h.trim().parse()) {
+        (Ok(w), Ok(h)) => (w, h),
+        _ => return Err(bad()),
+    };
+    if !((1..=16384).contains(&w) && (1..=16384).contains(&h)) {
+        return Err(bad());
+    }
     Ok((w, h))
 }
 

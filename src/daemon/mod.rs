@@ -176,22 +176,27 @@ pub struct Daemon {
 
 impl Daemon {
     /// Starts with the camera the config names (see [`CameraSetup::configured`]).
+    /// The data directory is opened, and locked, before any camera starts: a
+    /// second daemon on the same directory stops there, touching nothing.
     pub async fn start(config: Config) -> Result<Arc<Self>, DaemonError> {
         config.validate()?;
+        let store = Store::open(&config.data_dir)?;
         let scenes = Arc::new(Scenes::load(&config.scene_files)?);
         let camera = CameraSetup::configured(&config, &scenes).await?;
-        Self::start_with(config, scenes, camera).await
+        Self::start_with(config, store, scenes, camera).await
     }
 
-    /// Opens the store, starts the camera thread on `camera` and the job workers.
+    /// Starts the camera thread on `camera` and the job workers, over an
+    /// open store (`Store::open` of the config's data directory).
     pub async fn start_with(
         config: Config,
+        store: Store,
         scenes: Arc<Scenes>,
         camera: CameraSetup,
     ) -> Result<Arc<Self>, DaemonError> {
         config.validate()?;
         let token = config.resolved_token()?;
-        let store = Arc::new(Store::open(&config.data_dir)?);
+        let store = Arc::new(store);
         let mut calibration = config.calibration.clone();
         if let Some(c) = camera.demo_calibration {
             for name in scenes.names() {

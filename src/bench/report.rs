@@ -1,0 +1,156 @@
+//! The one shape every bench report has: it is run by a [`BenchPlan`], and
+//! gives its rows (for `bench.json`), its charts and its Markdown section.
+
+use serde_json::{Map, Value};
+
+use super::charts::{Chart, ChartError};
+use super::speed;
+use super::BenchError;
+
+/// A report of the bench.
+pub trait Report {
+    /// Its fields in `bench.json` (rows, and what they were measured with).
+    fn json(&self) -> Map<String, Value>;
+    /// Its charts, as (file stem, chart); the Markdown names them `STEM.png`.
+    fn charts(&self) -> Result<Vec<(String, Chart)>, ChartError>;
+    /// Its section of `bench.md`, from the `## ` heading on.
+    fn markdown(&self) -> String;
+}
+
+/// A report's fields as a JSON object under `key`.
+pub(crate) fn fields(pairs: Vec<(&str, Result<Value, serde_json::Error>)>) -> Map<String, Value> {
+    pairs
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v.unwrap_or(Value::Null)))
+        .collect()
+}
+
+/// What a bench run measures: sizes, sweeps and seeds.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct BenchPlan {
+    /// Whether this is the quick plan.
+    pub quick: bool,
+    /// Scene grids of the conditioning table (the last one also for the roughness sweep).
+    pub grids: Vec<usize>,
+    /// Voxel grids of the active-NLOS resolution sweep.
+    pub active_grids: Vec<usize>,
+    /// Voxel grid of the active-NLOS roughness sweep.
+    pub active_roughness_grid: usize,
+    /// Speed sizes (names from [`speed::SIZES`]).
+    pub speed_sizes: Vec<&'static str>,
+    /// Noise seeds per speed size.
+    pub speed_seeds: u64,
+    /// Iteration budgets of the iterative solvers.
+    pub speed_budgets: Vec<usize>,
+    /// Scene grid of the sampling sweep.
+    pub sampling_grid: usize,
+    /// Samples per element side of the sampling sweep's reference `T`.
+    pub sampling_reference_m: usize,
+    /// Wall and scene grid sides of the NumPy peer comparison.
+    pub peer: (usize, usize),
+}
+
+impl BenchPlan {
+    /// About 2 s on 2 cores: 3x3 grids, the S speed size, one seed.
+    pub fn quick() -> Self {
+        Self {
+            quick: true,
+            grids: vec![3],
+            active_grids: vec![2, 3],
+            active_roughness_grid: 3,
+            speed_sizes: vec![speed::SIZES[0].label],
+            speed_seeds: 1,
+            speed_budgets: vec![10, 50, 200],
+            sampling_grid: 3,
+            sampling_reference_m: 12,
+            peer: (32, 8),
+        }
+    }
+
+    /// The full run (about 45 s on 2 cores): adds the 8x8 grids, the M and L
+    /// speed sizes with 3 seeds, finer sweeps, the peer at wall 64 x scene 32.
+    pub fn full() -> Self {
+        Self {
+            quick: false,
+            grids: vec![3, 8],
+            active_grids: vec![2, 3, 4, 6, 8],
+            active_roughness_grid: 6,
+            speed_sizes: speed::SIZES.iter().map(|s| s.label).collect(),
+            speed_seeds: 3,
+            speed_budgets: speed::BUDGETS.to_vec(),
+            sampling_grid: 8,
+            sampling_reference_m: 24,
+            peer: (64, 32),
+        }
+    }
+
+    /// The speed sizes of this plan.
+    fn sizes(&self) -> Vec<speed::Size> {
+        speed::SIZES
+            .iter()
+            .filter(|s| self.speed_sizes.contains(&s.label))
+            .cloned()
+            .collect()
+    }
+
+    /// Steps [`BenchPlan::run`] reports to its progress callback.
+    pub fn steps(&self) -> usize {
+        super::conditioning_len(&self.grids)
+            + super::roughness_len()
+            + super::stability::CASES
+            + self.speed_sizes.len() * self.speed_seeds as usize
+            + 2
+            + super::active::active_len(&self.active_grids)
+            + 1
+    }
+
+    /// Runs every report, calling `step()` as each row is done; the NumPy
+    /// peer works in `work` (created and removed here).
+    pub fn run(
+        &self,
+        work: &std::path::Path,
+        step: &mut dyn FnMut(),
+    ) -> Result<Vec<Box<dyn Report>>, BenchError> {
+        let roughness_grid = *self.grids.last().unwrap_or(&3);
+        let sizes = self.sizes();
+        let runs = speed::speed_sweep(&sizes, self.speed_seeds, &self.speed_budgets, step)?;
+        let reports: Vec<Box<dyn Report>> = vec![
+            Box::new(super::Conditioning(super::conditioning_table(
+                &self.grids,
+                step,
+            )?)),
+            Box::new(super::Roughness(super::roughness_sweep(
+                roughness_grid,
+                step,
+            )?)),
+            Box::new(super::stability::Stability(
+                super::stability::stability_table(step)?,
+            )),
+            Box::new(super::sampling::Sampling {
+                reference_m: self.sampling_reference_m,
+                rows: super::sampling::sampling_sweep(
+                    self.sampling_grid,
+                    self.sampling_reference_m,
+                    step,
+                )?,
+            }),
+            Box::new(super::active::Active(super::active::active_sweep(
+                &self.active_grids,
+                self.active_roughness_grid,
+                step,
+            )?)),
+            Box::new({
+                let peer = super::peer::compare("brewster-multi", self.peer.0, self.peer.1, work);
+                let _ = std::fs::remove_dir_all(work);
+                step();
+                peer?
+            }),
+            Box::new(speed::Speed {
+                seeds: self.speed_seeds,
+                summary: speed::summarize(&runs),
+                runs,
+            }),
+        ];
+        Ok(reports)
+    }
+}
