@@ -3,7 +3,7 @@
 
 mod common;
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use common::{config, lock, Daemon};
 use polnlos::scene::Scene;
@@ -149,6 +149,56 @@ fn capture_every_block_reconstruct_and_fetch() {
     let spec = d.json("/openapi.json");
     assert!(spec["paths"]["/captures"]["post"].is_object());
     assert!(spec["components"]["schemas"]["CaptureBody"].is_object());
+    openapi_is_complete(&spec);
+}
+
+/// Every route the router serves is documented, with its errors as
+/// `ErrorBody` and the bearer scheme.
+fn openapi_is_complete(spec: &serde_json::Value) {
+    assert_eq!(
+        spec["components"]["securitySchemes"]["bearer"]["scheme"], "bearer",
+        "{}",
+        spec["components"]
+    );
+    let routes = [
+        ("get", "/health"),
+        ("get", "/metrics"),
+        ("get", "/camera"),
+        ("put", "/camera/settings"),
+        ("get", "/camera/frame.png"),
+        ("post", "/captures"),
+        ("get", "/captures"),
+        ("get", "/captures/{id}"),
+        ("get", "/captures/{id}/frame.tiff"),
+        ("get", "/captures/{id}/mean.tiff"),
+        ("get", "/captures/{id}/preview.png"),
+        ("get", "/captures/{id}/progressive.png"),
+        ("get", "/captures/{id}/progressive.json"),
+        ("post", "/reconstructions"),
+        ("get", "/reconstructions"),
+        ("get", "/reconstructions/{id}"),
+        ("get", "/reconstructions/{id}/image.png"),
+        ("get", "/reconstructions/{id}/recovered.npy"),
+        ("get", "/jobs/{id}"),
+        ("delete", "/jobs/{id}"),
+        ("get", "/events"),
+        ("get", "/scenes"),
+        ("get", "/scenes/{name}/exposure"),
+    ];
+    for (method, path) in routes {
+        let op = &spec["paths"][path][method];
+        assert!(op.is_object(), "{method} {path} is not documented");
+        for code in ["401", "403", "500"] {
+            let schema = &op["responses"][code]["content"]["application/json"]["schema"]["$ref"];
+            assert_eq!(
+                schema, "#/components/schemas/ErrorBody",
+                "{method} {path} {code}"
+            );
+        }
+    }
+    let accepted = &spec["paths"]["/captures"]["post"]["responses"]["202"]["content"]
+        ["application/json"]["schema"]["$ref"];
+    assert_eq!(accepted, "#/components/schemas/CaptureAccepted");
 }
 
 #[test]
@@ -539,4 +589,72 @@ fn one_reconstruction_path_fista_and_lambda_from_a_single_frame() {
     );
     assert_eq!(s, 422, "{b}");
     assert!(b.contains("fista-tv"), "the error lists the solvers: {b}");
+}
+
+#[test]
+fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let data = dir.path().join("data");
+    let d = Daemon::start(&cfg, &data);
+    // 150 frames of 20 ms through Aravis's fake camera (3 s), and one queued behind it.
+    let long = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 150}"#;
+    let (s, b, running) = d.post("/captures", long);
+    assert_eq!(s, 202, "{b}");
+    let (s, b, queued) = d.post("/captures", long);
+    assert_eq!(s, 202, "{b}");
+    let (running, queued) = (running.unwrap(), queued.unwrap());
+    let t = Instant::now();
+    while d.json(&running)["frames_taken"].as_i64().unwrap_or(0) < 5 {
+        assert!(t.elapsed() < Duration::from_secs(20), "no frames");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+
+    // The queued one is cancelled at once and never runs.
+    let (s, b) = d.delete("/jobs/capture-2");
+    assert_eq!(s, 200, "{b}");
+    assert_eq!(
+        serde_json::from_str::<serde_json::Value>(&b).unwrap()["state"],
+        "cancelled"
+    );
+
+    // The running one stops within a frame or two, not after 150.
+    let t = Instant::now();
+    let (s, b) = d.delete("/jobs/capture-1");
+    let took = t.elapsed();
+    assert_eq!(s, 200, "{b}");
+    let c: serde_json::Value = serde_json::from_str(&b).unwrap();
+    assert_eq!(c["state"], "cancelled", "{c}");
+    let taken = c["frames_taken"].as_i64().unwrap();
+    println!("cancelled after {taken} of 150 frames; DELETE answered in {took:?}");
+    assert!(taken < 100, "{c}");
+    assert!(took < Duration::from_millis(1500), "{took:?}");
+    // Nothing half-written is kept: no frame file, no temporary file.
+    let files: Vec<String> = std::fs::read_dir(data.join("captures/1"))
+        .map(|r| {
+            r.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    assert!(files.is_empty(), "{files:?}");
+    assert_eq!(d.get("/captures/1/frame.tiff").0, 404);
+    assert_eq!(d.json(&queued)["state"], "cancelled");
+    assert_eq!(d.json(&queued)["started_at"], serde_json::Value::Null);
+
+    // An ended job cannot be cancelled; an unknown one is not found.
+    let (s, b) = d.delete("/jobs/capture-1");
+    assert_eq!(s, 409, "{b}");
+    assert!(b.contains("is cancelled; only queued or running"), "{b}");
+    assert_eq!(d.delete("/jobs/capture-99").0, 404);
+    assert_eq!(d.delete("/jobs/frame-1").0, 404);
+
+    // The camera is free and works; the cancellations are counted.
+    let c = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 2}"#, Duration::from_secs(20));
+    assert_eq!(c["state"], "done", "{c}");
+    let (_, metrics) = d.get("/metrics");
+    assert!(
+        metrics.contains("polnlos_jobs_cancelled_total 2"),
+        "{metrics}"
+    );
 }

@@ -13,20 +13,35 @@ use polnlos::daemon::{CameraSetup, Config, Daemon};
 use polnlos::store::Store;
 use tower::ServiceExt;
 
-async fn daemon(dir: &std::path::Path) -> Arc<Daemon> {
+/// A daemon on the synthetic camera showing `scene`'s `pattern`, its camera connected.
+async fn daemon_showing(dir: &std::path::Path, scene: &str, pattern: &str) -> Arc<Daemon> {
     let mut config = Config::embedded();
     config.data_dir = dir.join("data");
     config.camera.fake = false;
-    config.demo.scene = "brewster-crossed-3x3".into();
-    config.demo.pattern = "disk".into();
+    config.queue.reconstruction_workers = 1;
+    config.demo.scene = scene.into();
+    config.demo.pattern = pattern.into();
     let store = Store::open(&config.data_dir).expect("data directory");
     let scenes = Arc::new(Scenes::load(&config.scene_files).expect("built-in scenes"));
     let camera = CameraSetup::synthetic(&config, &scenes)
         .await
         .expect("synthetic camera");
-    Daemon::start_with(config, store, scenes, camera)
+    let d = Daemon::start_with(config, store, scenes, camera)
         .await
-        .expect("daemon starts")
+        .expect("daemon starts");
+    let start = Instant::now();
+    while !d.camera_connected() {
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "camera did not connect"
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    d
+}
+
+async fn daemon(dir: &std::path::Path) -> Arc<Daemon> {
+    daemon_showing(dir, "brewster-crossed-3x3", "disk").await
 }
 
 /// One request through the router, as a client on the loopback would send it.
@@ -60,7 +75,9 @@ async fn wait_done(d: &Arc<Daemon>, job: &str, within: Duration) -> serde_json::
     let start = Instant::now();
     loop {
         let (_, v) = call(d, "GET", &format!("/jobs/{job}"), None).await;
-        if matches!(v["state"].as_str(), Some("done" | "failed")) || start.elapsed() > within {
+        if matches!(v["state"].as_str(), Some("done" | "failed" | "cancelled"))
+            || start.elapsed() > within
+        {
             return v;
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
@@ -71,10 +88,6 @@ async fn wait_done(d: &Arc<Daemon>, job: &str, within: Duration) -> serde_json::
 async fn capture_and_reconstruct_through_the_router_on_the_synthetic_camera() {
     let dir = tempfile::tempdir().expect("temp dir");
     let d = daemon(dir.path()).await;
-    let start = Instant::now();
-    while !d.camera_connected() && start.elapsed() < Duration::from_secs(5) {
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
     let (s, cam) = call(&d, "GET", "/camera", None).await;
     assert_eq!(s, StatusCode::OK);
     assert_eq!(cam["connected"], true, "{cam}");
@@ -122,5 +135,106 @@ async fn capture_and_reconstruct_through_the_router_on_the_synthetic_camera() {
             .contains("exposure_us = 1"),
         "{e}"
     );
+    d.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cancel_a_queued_and_a_running_reconstruction() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = daemon(dir.path()).await;
+    let capture = serde_json::json!({ "scene": "brewster-crossed", "pose": "A",
+        "polarizer_deg": 0, "exposure_us": 2000, "frames": 2, "dark_frames": 1 });
+    let (s, a) = call(&d, "POST", "/captures", Some(capture)).await;
+    assert_eq!(s, StatusCode::ACCEPTED, "{a}");
+    let c = wait_done(&d, "capture-1", Duration::from_secs(30)).await;
+    assert_eq!(c["state"], "done", "{c}");
+    // A long solve (tolerance far below what it reaches) and one queued behind it.
+    let slow = serde_json::json!({ "scene": "brewster-crossed", "captures": [1],
+        "lambda": 1e-3, "max_iter": 100000, "tol": 1e-15 });
+    for _ in 0..2 {
+        let (s, a) = call(&d, "POST", "/reconstructions", Some(slow.clone())).await;
+        assert_eq!(s, StatusCode::ACCEPTED, "{a}");
+    }
+    let start = Instant::now();
+    while call(&d, "GET", "/jobs/reconstruction-1", None).await.1["state"] != "running" {
+        assert!(start.elapsed() < Duration::from_secs(10));
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let (s, r) = call(&d, "DELETE", "/jobs/reconstruction-2", None).await;
+    assert_eq!(
+        (s, r["state"].as_str()),
+        (StatusCode::OK, Some("cancelled")),
+        "{r}"
+    );
+    let (s, r) = call(&d, "DELETE", "/jobs/reconstruction-1", None).await;
+    assert!(s == StatusCode::OK || s == StatusCode::ACCEPTED, "{s} {r}");
+    let r = wait_done(&d, "reconstruction-1", Duration::from_secs(60)).await;
+    assert_eq!(r["state"], "cancelled", "{r}");
+    // Nothing was written for either.
+    for id in [1, 2] {
+        let dir = d.store().reconstruction_dir(id);
+        assert!(!dir.join("report.json").exists() && !dir.join("image.png").exists());
+    }
+    d.shutdown();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn progressive_reconstruction_converges_while_frames_arrive() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = daemon_showing(dir.path(), "brewster-crossed", "disk").await;
+    // Mono8 at 1/5 of the reference exposure: the peak is about 40 DN, so
+    // the +-0.5 DN dither of every frame is noise that averaging reduces.
+    let capture = serde_json::json!({ "scene": "brewster-crossed", "pose": "A",
+        "polarizer_deg": 0, "exposure_us": 4000, "frames": 60, "dark_frames": 8,
+        "pixel_format": "Mono8",
+        "progressive": { "every": 5, "truth": "disk" } });
+    let mut events = d.subscribe();
+    let (s, a) = call(&d, "POST", "/captures", Some(capture)).await;
+    assert_eq!(s, StatusCode::ACCEPTED, "{a}");
+    let c = wait_done(&d, "capture-1", Duration::from_secs(60)).await;
+    assert_eq!(c["state"], "done", "{c}");
+    let dir = d.store().capture_dir(1);
+    let steps: Vec<serde_json::Value> =
+        serde_json::from_slice(&std::fs::read(dir.join("progressive.json")).expect("steps"))
+            .expect("json");
+    let last = steps.last().expect("a step");
+    assert_eq!(last["frames"], 60, "the final mean always gets its step");
+    let final_psnr = last["psnr_db"].as_f64().expect("psnr");
+    println!("frames | iterations | change | PSNR dB");
+    for s in &steps {
+        println!(
+            "{:>6} | {:>10} | {:>6} | {:.2}",
+            s["frames"],
+            s["iterations"],
+            s["change"]
+                .as_f64()
+                .map_or("-".into(), |c| format!("{c:.3}")),
+            s["psnr_db"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    let first_within = steps
+        .iter()
+        .find(|s| (s["psnr_db"].as_f64().unwrap_or(f64::NAN) - final_psnr).abs() <= 1.0)
+        .map(|s| s["frames"].as_i64().unwrap_or(0))
+        .unwrap_or(0);
+    println!("within 1 dB of the final {final_psnr:.2} dB from {first_within} of 60 frames");
+    assert!(steps.len() >= 3, "{steps:?}");
+    assert!(final_psnr > 15.0, "{final_psnr}");
+    // Warm starts: a later step needs fewer iterations than the first.
+    let iters: Vec<i64> = steps
+        .iter()
+        .map(|s| s["iterations"].as_i64().unwrap_or(0))
+        .collect();
+    assert!(iters[1..].iter().any(|&k| k < iters[0]), "{iters:?}");
+    // The image route serves the latest, and the steps were events.
+    let png = std::fs::read(dir.join("progressive.png")).expect("image");
+    assert_eq!(&png[1..4], b"PNG");
+    let mut seen = 0;
+    while let Ok(e) = events.try_recv() {
+        if matches!(e, polnlos::daemon::Event::Progressive { .. }) {
+            seen += 1;
+        }
+    }
+    assert_eq!(seen, steps.len());
     d.shutdown();
 }

@@ -56,6 +56,31 @@ pub struct CaptureBody {
     pub binning: Option<[u32; 2]>,
     /// `free` or `software` (default: the current settings).
     pub trigger: Option<TriggerMode>,
+    /// Re-solve the scene from the running mean while frames accumulate, and
+    /// publish each intermediate result (event `progressive`,
+    /// `/captures/{id}/progressive.png` and `.json`).
+    pub progressive: Option<ProgressiveBody>,
+}
+
+/// Progressive reconstruction during a capture: ADMM-TV on the running mean
+/// (dark-subtracted), warm-started from the previous result with its
+/// factorization kept, so each step costs a few iterations.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ProgressiveBody {
+    /// Re-solve after every this many frames (default: a tenth of the frames, at least 1).
+    pub every: Option<usize>,
+    /// Done light captures of the scene's other (pose, angle) blocks (none
+    /// for a scene with one block, such as `brewster-crossed`).
+    #[serde(default)]
+    pub captures: Vec<i64>,
+    /// TV weight, MODEL.md units (default `1e-2 mean(diag(T^T T))`); the
+    /// same at every step, so the steps compare.
+    pub lambda: Option<f64>,
+    /// Iteration cap of each step (1-100000, default 500).
+    pub max_iter: Option<usize>,
+    /// Known truth, as a test pattern name: each step then has its PSNR.
+    pub truth: Option<String>,
 }
 
 /// The only automatic exposure mode.

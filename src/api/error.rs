@@ -113,6 +113,17 @@ impl From<crate::daemon::SubmitError> for ApiError {
     }
 }
 
+impl From<crate::daemon::CancelError> for ApiError {
+    fn from(e: crate::daemon::CancelError) -> Self {
+        use crate::daemon::CancelError;
+        match e {
+            CancelError::NotFound { .. } => Self::not_found(e.to_string()),
+            CancelError::Ended { .. } => Self::new(StatusCode::CONFLICT, "ended", e.to_string()),
+            CancelError::Store(m) => Self::internal(m),
+        }
+    }
+}
+
 impl From<crate::daemon::SettingsError> for ApiError {
     fn from(e: crate::daemon::SettingsError) -> Self {
         use crate::camera::CameraError;

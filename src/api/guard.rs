@@ -69,7 +69,9 @@ pub async fn guard(State(g): State<Guard>, req: Request, next: Next) -> Result<R
     if mutating {
         check_origin(headers, &g.hosts)?;
     }
-    let public = req.uri().path() == "/health" || (!mutating && d.config().http.public_reads);
+    let path = req.uri().path();
+    let public = path == "/health"
+        || (!mutating && (d.config().http.public_reads || super::web::is_static(path)));
     if !d.token().is_empty() && !public && !token_matches(headers, d.token()) {
         return Err(ApiError::unauthorized());
     }

@@ -14,6 +14,7 @@ mod guard;
 mod openapi;
 mod routes;
 pub mod serve;
+mod web;
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -32,6 +33,13 @@ pub fn router(d: Arc<Daemon>) -> Router {
     let limit = d.config().queue.max_body_bytes;
     let body_timeout = Duration::from_secs_f64(d.config().http.body_timeout_s);
     Router::new()
+        .route("/", get(web::index))
+        .route("/app.js", get(web::app))
+        .route("/style.css", get(web::style))
+        .route("/api", get(web::api))
+        .route("/api.js", get(web::api_js))
+        .route("/bench/{name}", get(web::chart))
+        .route("/camera/frame.png", get(routes::camera_frame))
         .route("/health", get(routes::health))
         .route("/metrics", get(routes::metrics))
         .route("/camera", get(routes::camera))
@@ -45,6 +53,14 @@ pub fn router(d: Arc<Daemon>) -> Router {
         .route("/captures/{id}/mean.tiff", get(routes::capture_mean))
         .route("/captures/{id}/preview.png", get(routes::capture_preview))
         .route(
+            "/captures/{id}/progressive.png",
+            get(routes::capture_progressive_image),
+        )
+        .route(
+            "/captures/{id}/progressive.json",
+            get(routes::capture_progressive_steps),
+        )
+        .route(
             "/reconstructions",
             post(routes::post_reconstruction).get(routes::list_reconstructions),
         )
@@ -57,7 +73,10 @@ pub fn router(d: Arc<Daemon>) -> Router {
             "/reconstructions/{id}/recovered.npy",
             get(routes::reconstruction_npy),
         )
-        .route("/jobs/{id}", get(routes::get_job))
+        .route(
+            "/jobs/{id}",
+            get(routes::get_job).delete(routes::cancel_job),
+        )
         .route("/events", get(routes::events))
         .route("/scenes", get(routes::scenes))
         .route("/scenes/{name}/exposure", get(routes::scene_exposure))

@@ -14,15 +14,16 @@ use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::StreamExt;
 
 use super::bodies::{
-    Accepted, CaptureAccepted, CaptureBody, Health, Page, ReconstructionBody, TargetQuery,
+    Accepted, CaptureAccepted, CaptureBody, ErrorBody, Health, Page, ReconstructionBody,
+    TargetQuery,
 };
 use super::extract::{ApiJson, ApiPath as Path, ApiQuery as Query};
 use super::ApiError;
 use crate::camera::CameraSettings;
 use crate::daemon::metrics::{counter, gauge, Metrics};
-use crate::daemon::Daemon;
+use crate::daemon::{Daemon, JobKind};
 use crate::measure::exposure::BlockExposure;
-use crate::store::{CaptureFiles, CaptureRecord, ReconstructionRecord};
+use crate::store::{CaptureFiles, CaptureRecord, JobState, ReconstructionRecord};
 
 type St = State<Arc<Daemon>>;
 
@@ -70,14 +71,36 @@ pub async fn metrics(State(d): St) -> Response {
 /// Camera identity, ranges, counters, connection state, and its settings as
 /// read back from it now (during a capture: as that capture set them, with
 /// `busy` naming the capture).
-#[utoipa::path(get, path = "/camera", responses((status = 200, description = "Camera state")))]
+#[utoipa::path(get, path = "/camera", responses((status = 200, body = crate::daemon::CameraView, description = "Camera state")))]
 pub async fn camera(State(d): St) -> Json<crate::daemon::CameraView> {
     Json(d.camera_now().await)
 }
 
+/// The latest frame the camera delivered (during or after a capture), as a
+/// 16-bit PNG scaled to the pixel format's full scale: the page's live view.
+#[utoipa::path(get, path = "/camera/frame.png", responses((status = 200, content_type = "image/png", description = "Latest frame"), (status = 404, body = ErrorBody, description = "No frame since the daemon started")))]
+pub async fn camera_frame(State(d): St) -> Result<Response, ApiError> {
+    let frame = d.latest_frame().ok_or_else(|| {
+        ApiError::not_found("no frame yet: the live view shows the frames of captures")
+    })?;
+    let png = tokio::task::spawn_blocking(move || {
+        let full = ((1u32 << frame.bits.clamp(1, 16)) - 1) as f64;
+        let scaled: Vec<u16> = frame
+            .pixels
+            .iter()
+            .map(|&p| (f64::from(p) / full * 65535.0).round().min(65535.0) as u16)
+            .collect();
+        crate::files::image::encode_png16(frame.width, frame.height, &scaled)
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))?
+    .map_err(ApiError::internal)?;
+    Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
+}
+
 /// Applies camera settings now and makes them the defaults of later captures
 /// (queued captures keep their own). 409 while a capture has the camera.
-#[utoipa::path(put, path = "/camera/settings", request_body = CameraSettings, responses((status = 200, description = "Applied; the camera's description with its settings read back"), (status = 409, description = "A capture is running"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
+#[utoipa::path(put, path = "/camera/settings", request_body = CameraSettings, responses((status = 200, body = crate::camera::CameraInfo, description = "Applied; the camera's description with its settings read back"), (status = 409, description = "A capture is running"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
 pub async fn camera_settings(
     State(d): St,
     ApiJson(s): ApiJson<CameraSettings>,
@@ -86,7 +109,7 @@ pub async fn camera_settings(
 }
 
 /// Queues a capture.
-#[utoipa::path(post, path = "/captures", request_body = CaptureBody, responses((status = 202, description = "Queued; Location names the capture; the body echoes every setting it will use"), (status = 404, description = "Unknown scene"), (status = 422, description = "Out of range"), (status = 429, description = "Queue full"), (status = 507, description = "Its files would not fit on the disk")))]
+#[utoipa::path(post, path = "/captures", request_body = CaptureBody, responses((status = 202, body = CaptureAccepted, description = "Queued; Location names the capture; the body echoes every setting it will use"), (status = 404, description = "Unknown scene"), (status = 422, description = "Out of range"), (status = 429, description = "Queue full"), (status = 507, description = "Its files would not fit on the disk")))]
 pub async fn post_capture(
     State(d): St,
     ApiJson(b): ApiJson<CaptureBody>,
@@ -117,7 +140,7 @@ pub async fn list_captures(
 }
 
 /// One capture.
-#[utoipa::path(get, path = "/captures/{id}", responses((status = 200, body = CaptureRecord), (status = 404, description = "No such capture")))]
+#[utoipa::path(get, path = "/captures/{id}", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, body = CaptureRecord), (status = 404, description = "No such capture")))]
 pub async fn get_capture(
     State(d): St,
     Path(id): Path<String>,
@@ -160,25 +183,51 @@ async fn capture_file(
 }
 
 /// Raw frames, multi-page 16-bit TIFF with metadata.
-#[utoipa::path(get, path = "/captures/{id}/frame.tiff", responses((status = 200, content_type = "image/tiff", description = "Raw frames")))]
+#[utoipa::path(get, path = "/captures/{id}/frame.tiff", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, content_type = "image/tiff", description = "Raw frames"), (status = 404, body = ErrorBody, description = "No such capture, or its file is not written yet")))]
 pub async fn capture_frames(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
     capture_file(&d, &id, CaptureFiles::FRAMES, "image/tiff").await
 }
 
 /// Mean dark-subtracted frame, 32-bit float TIFF.
-#[utoipa::path(get, path = "/captures/{id}/mean.tiff", responses((status = 200, content_type = "image/tiff", description = "Mean frame")))]
+#[utoipa::path(get, path = "/captures/{id}/mean.tiff", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, content_type = "image/tiff", description = "Mean frame"), (status = 404, body = ErrorBody, description = "No such capture, or its file is not written yet")))]
 pub async fn capture_mean(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
     capture_file(&d, &id, CaptureFiles::MEAN, "image/tiff").await
 }
 
 /// 16-bit PNG preview of the mean frame.
-#[utoipa::path(get, path = "/captures/{id}/preview.png", responses((status = 200, content_type = "image/png", description = "Preview")))]
+#[utoipa::path(get, path = "/captures/{id}/preview.png", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, content_type = "image/png", description = "Preview"), (status = 404, body = ErrorBody, description = "No such capture, or its file is not written yet")))]
 pub async fn capture_preview(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
     capture_file(&d, &id, CaptureFiles::PREVIEW, "image/png").await
 }
 
+/// The latest progressive reconstruction of a capture that asked for one,
+/// 16-bit PNG on the scene grid (updated while frames arrive).
+#[utoipa::path(get, path = "/captures/{id}/progressive.png", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, content_type = "image/png", description = "Latest progressive image"), (status = 404, body = ErrorBody, description = "No such capture, or no progressive step yet")))]
+pub async fn capture_progressive_image(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    capture_file(&d, &id, crate::daemon::PROGRESSIVE_IMAGE, "image/png").await
+}
+
+/// Every progressive step of a capture so far: frames, iterations, change
+/// from the previous step, PSNR when a truth was given.
+#[utoipa::path(get, path = "/captures/{id}/progressive.json", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, body = [crate::daemon::ProgressiveStep], description = "Progressive steps"), (status = 404, body = ErrorBody, description = "No such capture, or no progressive step yet")))]
+pub async fn capture_progressive_steps(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    capture_file(
+        &d,
+        &id,
+        crate::daemon::PROGRESSIVE_STEPS,
+        "application/json",
+    )
+    .await
+}
+
 /// Queues a reconstruction.
-#[utoipa::path(post, path = "/reconstructions", request_body = ReconstructionBody, responses((status = 202, description = "Queued"), (status = 404, description = "Unknown scene or capture"), (status = 422, description = "Invalid"), (status = 429, description = "Queue full")))]
+#[utoipa::path(post, path = "/reconstructions", request_body = ReconstructionBody, responses((status = 202, body = Accepted, description = "Queued; Location names the reconstruction"), (status = 404, description = "Unknown scene or capture"), (status = 422, description = "Invalid"), (status = 429, description = "Queue full")))]
 pub async fn post_reconstruction(
     State(d): St,
     ApiJson(b): ApiJson<ReconstructionBody>,
@@ -202,7 +251,7 @@ pub async fn list_reconstructions(
 }
 
 /// One reconstruction, with kappa and the report when done.
-#[utoipa::path(get, path = "/reconstructions/{id}", responses((status = 200, body = ReconstructionRecord), (status = 404, description = "No such reconstruction")))]
+#[utoipa::path(get, path = "/reconstructions/{id}", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number")), responses((status = 200, body = ReconstructionRecord), (status = 404, description = "No such reconstruction")))]
 pub async fn get_reconstruction(
     State(d): St,
     Path(id): Path<String>,
@@ -229,7 +278,7 @@ async fn recon_file(
 }
 
 /// Recovered image, 16-bit PNG.
-#[utoipa::path(get, path = "/reconstructions/{id}/image.png", responses((status = 200, content_type = "image/png", description = "Recovered image")))]
+#[utoipa::path(get, path = "/reconstructions/{id}/image.png", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number")), responses((status = 200, content_type = "image/png", description = "Recovered image"), (status = 404, body = ErrorBody, description = "No such reconstruction, or its file is not written yet")))]
 pub async fn reconstruction_image(
     State(d): St,
     Path(id): Path<String>,
@@ -238,7 +287,7 @@ pub async fn reconstruction_image(
 }
 
 /// Recovered image, .npy (float64, scene grid).
-#[utoipa::path(get, path = "/reconstructions/{id}/recovered.npy", responses((status = 200, content_type = "application/octet-stream", description = "Recovered image")))]
+#[utoipa::path(get, path = "/reconstructions/{id}/recovered.npy", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number")), responses((status = 200, content_type = "application/octet-stream", description = "Recovered image"), (status = 404, body = ErrorBody, description = "No such reconstruction, or its file is not written yet")))]
 pub async fn reconstruction_npy(
     State(d): St,
     Path(id): Path<String>,
@@ -246,12 +295,8 @@ pub async fn reconstruction_npy(
     recon_file(&d, &id, "recovered.npy", "application/octet-stream").await
 }
 
-/// A job by id: `capture-<n>` or `reconstruction-<n>`.
-#[utoipa::path(get, path = "/jobs/{id}", responses((status = 200, description = "The capture or reconstruction"), (status = 404, description = "No such job")))]
-pub async fn get_job(
-    State(d): St,
-    Path(id): Path<String>,
-) -> Result<Json<serde_json::Value>, ApiError> {
+/// A job id `capture-<n>` or `reconstruction-<n>`, parsed.
+fn parse_job(id: &str) -> Result<(JobKind, i64), ApiError> {
     let bad = || {
         ApiError::not_found(format!(
             "{id:?} is not a job id; jobs are capture-<n> or reconstruction-<n>"
@@ -259,14 +304,48 @@ pub async fn get_job(
     };
     let (kind, n) = id.split_once('-').ok_or_else(bad)?;
     let n = n.parse::<i64>().ok().filter(|n| *n > 0).ok_or_else(bad)?;
+    match kind {
+        "capture" => Ok((JobKind::Capture, n)),
+        "reconstruction" => Ok((JobKind::Reconstruction, n)),
+        _ => Err(bad()),
+    }
+}
+
+/// The record of a job, with its `job` id.
+fn job_record(d: &Daemon, kind: JobKind, n: i64) -> Result<serde_json::Value, ApiError> {
     let v = match kind {
-        "capture" => serde_json::to_value(d.store().capture(n)?),
-        "reconstruction" => serde_json::to_value(d.store().reconstruction(n)?),
-        _ => return Err(bad()),
+        JobKind::Capture => serde_json::to_value(d.store().capture(n)?),
+        JobKind::Reconstruction => serde_json::to_value(d.store().reconstruction(n)?),
     };
     let mut v = v.map_err(|e| ApiError::internal(e.to_string()))?;
-    v["job"] = serde_json::Value::String(id.clone());
-    Ok(Json(v))
+    v["job"] = serde_json::Value::String(format!("{}-{n}", kind.name()));
+    Ok(v)
+}
+
+/// A job by id: `capture-<n>` or `reconstruction-<n>`.
+#[utoipa::path(get, path = "/jobs/{id}", params(("id" = String, Path, description = "capture-<n> or reconstruction-<n>")), responses((status = 200, description = "The capture or reconstruction"), (status = 404, body = ErrorBody, description = "No such job")))]
+pub async fn get_job(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let (kind, n) = parse_job(&id)?;
+    Ok(Json(job_record(&d, kind, n)?))
+}
+
+/// Cancels a queued or running job. A running capture stops at its next
+/// frame and keeps no file of it; a running reconstruction stops between
+/// its stages. 200 with the record once it is `cancelled`; 202 if it is
+/// still stopping after 5 s.
+#[utoipa::path(delete, path = "/jobs/{id}", params(("id" = String, Path, description = "capture-<n> or reconstruction-<n>")), responses((status = 200, description = "Cancelled: the job's record"), (status = 202, description = "Still stopping: the job's record"), (status = 404, body = ErrorBody, description = "No such job"), (status = 409, body = ErrorBody, description = "The job already ended")))]
+pub async fn cancel_job(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
+    let (kind, n) = parse_job(&id)?;
+    let state = d.cancel_job(kind, n).await?;
+    let status = if state == JobState::Running {
+        StatusCode::ACCEPTED
+    } else {
+        StatusCode::OK
+    };
+    Ok((status, Json(job_record(&d, kind, n)?)).into_response())
 }
 
 /// Server-sent events: job progress, frames taken, camera state changes.
@@ -280,7 +359,7 @@ pub async fn events(State(d): St) -> Sse<impl Stream<Item = Result<SseEvent, Inf
 }
 
 /// Scene names the daemon knows.
-#[utoipa::path(get, path = "/scenes", responses((status = 200, description = "Scene names")))]
+#[utoipa::path(get, path = "/scenes", responses((status = 200, body = [String], description = "Scene names")))]
 pub async fn scenes(State(d): St) -> Json<Vec<String>> {
     Json(d.scene_names())
 }

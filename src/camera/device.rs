@@ -22,7 +22,7 @@ pub struct RawFrame {
 }
 
 /// Acquisition counters, as areaDetector's ADAravis reports them.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, utoipa::ToSchema)]
 pub struct Counters {
     /// Buffers completed successfully.
     pub completed: u64,
@@ -41,7 +41,7 @@ pub struct Counters {
 }
 
 /// What the camera is and what it can do.
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, utoipa::ToSchema)]
 pub struct CameraInfo {
     /// GenICam identity, `vendor-model-serial`.
     pub id: String,

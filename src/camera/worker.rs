@@ -29,7 +29,7 @@ enum Request {
 }
 
 /// Connection state and counters, readable without asking the camera thread.
-#[derive(Debug, Clone, Default, serde::Serialize)]
+#[derive(Debug, Clone, Default, serde::Serialize, utoipa::ToSchema)]
 pub struct CameraStatus {
     /// Whether a camera is open.
     pub connected: bool,

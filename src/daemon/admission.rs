@@ -6,7 +6,7 @@
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
-use super::validate::{self, CameraContext, RequestError};
+use super::validate::{self, CameraContext, ProgressiveSpec, RequestError};
 use super::Daemon;
 use crate::api::bodies::{AutoExposure, CaptureBody, ReconstructionBody};
 use crate::camera::settings::EXPOSURE_RANGE_US;
@@ -111,14 +111,24 @@ impl Daemon {
         body: CaptureBody,
     ) -> Result<(i64, CaptureRequest), SubmitError> {
         let d = self.clone();
-        let request = tokio::task::spawn_blocking(move || d.check_capture(&body))
+        let (request, progressive) = tokio::task::spawn_blocking(move || d.check_capture(&body))
             .await
             .map_err(|e| SubmitError::Internal(format!("capture validation: {e}")))??;
-        let id = self.admit_capture(&request)?;
+        if progressive.is_some() && !self.calibration.contains_key(&request.scene) {
+            return Err(RequestError::Invalid(format!(
+                "progressive reconstruction needs the radiometric calibration of scene {:?}: add it under [calibration] in the config",
+                request.scene
+            ))
+            .into());
+        }
+        let id = self.admit_capture(&request, progressive)?;
         Ok((id, request))
     }
 
-    fn check_capture(&self, b: &CaptureBody) -> Result<CaptureRequest, RequestError> {
+    fn check_capture(
+        &self,
+        b: &CaptureBody,
+    ) -> Result<(CaptureRequest, Option<ProgressiveSpec>), RequestError> {
         let scene = self.scenes.scene(&b.scene)?;
         let info = self.camera.status().info;
         let cam = self.camera_context(info.as_ref());
@@ -128,13 +138,23 @@ impl Daemon {
             }
             None => Ok(Vec::new()),
         };
-        validate::capture(b, &scene, &cam, plan, |id| self.store.capture(id).ok())
+        let lookup = |id| self.store.capture(id).ok();
+        let request = validate::capture(b, &scene, &cam, plan, lookup)?;
+        let progressive = match &b.progressive {
+            Some(p) => Some(validate::progressive(p, &request, &scene, lookup)?),
+            None => None,
+        };
+        Ok((request, progressive))
     }
 
     /// Admits a validated capture: room in the queue and on the disk (its
     /// files, plus what queued captures reserved, plus the configured
     /// reserve), then records and queues it.
-    fn admit_capture(&self, req: &CaptureRequest) -> Result<i64, SubmitError> {
+    fn admit_capture(
+        &self,
+        req: &CaptureRequest,
+        progressive: Option<ProgressiveSpec>,
+    ) -> Result<i64, SubmitError> {
         let need = capture_bytes(req.region[2], req.region[3], req.frames, req.dark_frames);
         let free = crate::files::space::free_disk_bytes(self.store.dir())
             .map_err(|e| SubmitError::Internal(self.store.describe_io(self.store.dir(), &e)))?;
@@ -159,6 +179,10 @@ impl Daemon {
             .insert_capture(req)
             .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?;
         reserved.insert(id, need);
+        if let Some(p) = progressive {
+            let mut specs = self.progressive.lock().unwrap_or_else(|e| e.into_inner());
+            specs.insert(id, p);
+        }
         permit.send(id);
         Ok(id)
     }

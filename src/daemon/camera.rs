@@ -21,7 +21,7 @@ pub enum SettingsError {
 }
 
 /// The camera now, as `GET /camera` shows it.
-#[derive(Debug, serde::Serialize)]
+#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
 pub struct CameraView {
     /// Connection, identity, ranges, settings read back, counters.
     #[serde(flatten)]

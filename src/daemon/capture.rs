@@ -8,12 +8,14 @@
 //! switches the scene off and asks for a `"kind": "dark"` capture, then names
 //! it in later captures as `dark_capture`.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
 use tokio::sync::mpsc;
 
-use super::jobs::{finish_job, job_event, JobError};
+use super::jobs::{finish_job, job_event, Ending, JobError};
+use super::progressive;
 use super::{Daemon, Event};
 use crate::camera::{CameraError, CameraSettings, Frame, PixelFormat, RawFrame, TriggerMode};
 use crate::store::{
@@ -32,24 +34,32 @@ pub(super) async fn capture_worker(d: Arc<Daemon>, mut rx: mpsc::Receiver<i64>) 
     while let Some(id) = rx.recv().await {
         let job = format!("capture-{id}");
         let start = Instant::now();
-        let result = {
-            // Held for the whole capture: settings changes answer 409 meanwhile.
-            let _camera = d.camera_gate.lock().await;
-            run_capture(&d, id).await
+        // Held for the whole capture: settings changes answer 409 meanwhile.
+        let camera = d.camera_gate.lock().await;
+        let result = match d.store.capture_running(id) {
+            // Cancelled while it waited in the queue.
+            Ok(false) => {
+                d.release_capture(id);
+                d.forget_cancel(&job);
+                continue;
+            }
+            Ok(true) => run_capture(&d, id, &d.cancel_flag(&job)).await,
+            Err(e) => Err(JobError::Store(d.store.describe(&e))),
         };
+        drop(camera);
         d.release_capture(id);
         let m = &d.metrics;
         let counters = (&m.captures_done, &m.captures_failed, &m.capture_micros);
-        finish_job(&d, job, start, result, counters, |e| {
-            d.store.capture_failed(id, e)
+        finish_job(&d, job, start, result, counters, |end| match end {
+            Ending::Failed(e) => d.store.capture_failed(id, e),
+            Ending::Cancelled => d.store.capture_cancelled(id).map(|_| ()),
         });
     }
 }
 
-async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), JobError> {
+async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
     let store_err = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
     let c = d.store.capture(id).map_err(store_err)?;
-    d.store.capture_running(id).map_err(store_err)?;
     job_event(d, format!("capture-{id}"), JobState::Running, None);
     let settings = settings_of(&c)?;
     wait_for_camera(d).await;
@@ -64,16 +74,31 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), JobError> {
         settings: &settings,
         meta: &meta,
         total: (c.frames + c.dark_frames) as usize,
+        cancel,
     };
+    let spec = d
+        .progressive
+        .lock()
+        .map(|mut m| m.remove(&id))
+        .unwrap_or(None);
     let dark = dark_reference(d, &c, &stream).await?;
     let scene_off = meta.kind == CaptureKind::Dark && d.bench.switches_scene();
     if scene_off {
         d.bench.scene_on(false);
     }
     let (n, offset) = (c.frames as usize, c.dark_frames as usize);
-    let frames = stream.take(CaptureFiles::FRAMES, "frames", n, offset).await;
+    let progressive = spec.map(|s| (progressive::start(d, c.clone(), &s, dark.clone()), s.every));
+    let snapshots = progressive
+        .as_ref()
+        .map(|((tx, _), every)| (tx.clone(), *every));
+    let frames = stream
+        .take(CaptureFiles::FRAMES, "frames", n, offset, snapshots)
+        .await;
     if scene_off {
         d.bench.scene_on(true);
+    }
+    if let Some(((tx, steps), _)) = progressive {
+        finish_progressive(d, id, frames.as_ref().ok(), tx, steps).await;
     }
     let frames = frames?;
     let store = d.store.clone();
@@ -86,6 +111,34 @@ async fn run_capture(d: &Arc<Daemon>, id: i64) -> Result<(), JobError> {
     d.store
         .capture_done(id, &camera_id, &counters)
         .map_err(store_err)
+}
+
+/// Gives the progressive solver the final mean (so the last step is always
+/// solved) and waits for it; a capture that did not finish keeps none of its
+/// progressive files.
+async fn finish_progressive(
+    d: &Daemon,
+    id: i64,
+    frames: Option<&FrameStack>,
+    tx: std::sync::mpsc::SyncSender<progressive::Snapshot>,
+    steps: tokio::task::JoinHandle<Vec<progressive::Step>>,
+) {
+    if let Some(st) = frames {
+        let last = progressive::Snapshot {
+            frames: st.count,
+            mean: st.mean.clone(),
+            width: st.width,
+            height: st.height,
+        };
+        let _ = tokio::task::spawn_blocking(move || tx.send(last)).await;
+    } else {
+        drop(tx);
+    }
+    let steps = steps.await.unwrap_or_default();
+    tracing::info!("capture-{id}: {} progressive steps", steps.len());
+    if frames.is_none() {
+        progressive::remove_files(d, id);
+    }
 }
 
 /// The camera settings a capture recorded when it was accepted.
@@ -153,11 +206,14 @@ async fn dark_reference(
     if c.dark_frames > 0 {
         d.bench.scene_on(false);
         let n = c.dark_frames as usize;
-        let r = stream.take(CaptureFiles::DARK, "dark", n, 0).await;
+        let r = stream.take(CaptureFiles::DARK, "dark", n, 0, None).await;
         d.bench.scene_on(true);
-        let st = r.map_err(|e| JobError::Capture {
-            id: c.id,
-            reason: format!("dark frames: {e}"),
+        let st = r.map_err(|e| match e {
+            JobError::Cancelled => JobError::Cancelled,
+            e => JobError::Capture {
+                id: c.id,
+                reason: format!("dark frames: {e}"),
+            },
         })?;
         return Ok(Some(Frame {
             width: st.width,
@@ -184,6 +240,8 @@ struct Stream<'a> {
     settings: &'a CameraSettings,
     meta: &'a FrameMeta,
     total: usize,
+    /// Set by `DELETE /jobs/capture-<id>`: the writer stops at the next frame.
+    cancel: &'a AtomicBool,
 }
 
 impl Stream<'_> {
@@ -196,16 +254,46 @@ impl Stream<'_> {
         kind: &'static str,
         n: usize,
         offset: usize,
+        snapshots: Option<(std::sync::mpsc::SyncSender<progressive::Snapshot>, usize)>,
     ) -> Result<FrameStack, JobError> {
         let (id, total, d) = (self.id, self.total, self.d);
+        if self.cancel.load(Ordering::SeqCst) {
+            return Err(JobError::Cancelled);
+        }
         let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<RawFrame>(FRAME_QUEUE);
         let (progress_tx, mut progress_rx) = mpsc::unbounded_channel::<usize>();
         let path = d.store.capture_dir(id).join(name);
         let meta = self.meta.clone();
         let store = d.store.clone();
+        let cancel = d.cancel_flag(&format!("capture-{id}"));
+        let live = d.clone();
         let writer = tokio::task::spawn_blocking(move || {
-            write_frames(&path, kind, &meta, n, frame_rx, &mut |k| {
-                let _ = progress_tx.send(offset + k);
+            // A cancelled capture ends its stream at the next frame: the file
+            // is incomplete, so it is removed, and the camera stops when its
+            // next frame finds the channel closed.
+            let frames = frame_rx
+                .into_iter()
+                .take_while(|_| !cancel.load(Ordering::SeqCst))
+                .inspect(|f| {
+                    if let Ok(mut latest) = live.latest_frame.lock() {
+                        *latest = Some(Arc::new(f.clone()));
+                    }
+                });
+            write_frames(&path, kind, &meta, n, frames, &mut |st: &FrameStack| {
+                let _ = progress_tx.send(offset + st.count);
+                if let Some((tx, every)) = &snapshots {
+                    if st.count % every == 0 && st.count < n {
+                        progressive::offer(
+                            tx,
+                            progressive::Snapshot {
+                                frames: st.count,
+                                mean: st.mean.clone(),
+                                width: st.width,
+                                height: st.height,
+                            },
+                        );
+                    }
+                }
             })
             .map_err(|e| JobError::Store(store.describe(&e)))
         });
@@ -225,6 +313,9 @@ impl Stream<'_> {
         let acquired = d.camera.acquire(self.settings.clone(), n, frame_tx).await;
         let written = writer.await.map_err(JobError::from).and_then(|r| r);
         let _ = progress.await;
+        if self.cancel.load(Ordering::SeqCst) && written.is_err() {
+            return Err(JobError::Cancelled);
+        }
         match (acquired, written) {
             (Ok(()), Ok(stack)) => Ok(stack),
             // The writer stopped first (a full disk): its reason is the one that matters.

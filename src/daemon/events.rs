@@ -25,6 +25,14 @@ pub enum Event {
         /// Frames in all.
         total: usize,
     },
+    /// A progressive reconstruction step finished (see `/captures/{id}/progressive.json`).
+    Progressive {
+        /// `capture-<id>`.
+        job: String,
+        /// The step's numbers.
+        #[serde(flatten)]
+        step: super::progressive::Step,
+    },
     /// The camera connected or was lost.
     Camera {
         /// Whether a camera is open.

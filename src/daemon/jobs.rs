@@ -37,6 +37,9 @@ pub enum JobError {
     /// A blocking task did not finish (it panicked or was cancelled).
     #[error("internal: {0}")]
     Task(String),
+    /// A client cancelled the job while it ran (`DELETE /jobs/{id}`).
+    #[error("cancelled")]
+    Cancelled,
 }
 
 impl From<tokio::task::JoinError> for JobError {
@@ -66,28 +69,45 @@ pub(super) fn job_event(d: &Daemon, job: String, state: JobState, error: Option<
     d.emit(Event::Job { job, state, error });
 }
 
+/// How a job that did not finish ended, for the store.
+pub(super) enum Ending<'a> {
+    /// With this error (paths redacted).
+    Failed(&'a str),
+    /// Cancelled by a client while it ran.
+    Cancelled,
+}
+
 /// Records how a job ended: its time and done/failed counters, the failure
-/// in the store, and the job event.
+/// or cancellation in the store (`record`), and the job event.
 pub(super) fn finish_job(
     d: &Daemon,
     job: String,
     start: Instant,
     result: Result<(), JobError>,
     (done, failed, micros): (&AtomicU64, &AtomicU64, &AtomicU64),
-    store_failure: impl FnOnce(&str) -> Result<(), crate::store::StoreError>,
+    record: impl FnOnce(Ending<'_>) -> Result<(), crate::store::StoreError>,
 ) {
     micros.fetch_add(start.elapsed().as_micros() as u64, Ordering::Relaxed);
+    d.forget_cancel(&job);
     match result {
         Ok(()) => {
             done.fetch_add(1, Ordering::Relaxed);
             job_event(d, job, JobState::Done, None);
+        }
+        Err(JobError::Cancelled) => {
+            tracing::info!("{job} cancelled");
+            d.metrics.jobs_cancelled.fetch_add(1, Ordering::Relaxed);
+            if let Err(se) = record(Ending::Cancelled) {
+                tracing::error!("cannot record the cancellation of {job}: {se}");
+            }
+            job_event(d, job, JobState::Cancelled, None);
         }
         Err(e) => {
             tracing::warn!("{job} failed: {e}");
             // What clients read says where inside the data directory, not where it is.
             let e = d.store.redact_paths(&e.to_string());
             failed.fetch_add(1, Ordering::Relaxed);
-            if let Err(se) = store_failure(&e) {
+            if let Err(se) = record(Ending::Failed(&e)) {
                 tracing::error!("cannot record the failure of {job}: {se}");
             }
             job_event(d, job, JobState::Failed, Some(e));

@@ -20,6 +20,8 @@ pub struct Metrics {
     pub reconstruction_micros: AtomicU64,
     /// Requests refused because a queue was full.
     pub rejected_full: AtomicU64,
+    /// Jobs cancelled by clients (queued or running).
+    pub jobs_cancelled: AtomicU64,
 }
 
 /// A gauge or counter line set for rendering.
@@ -104,6 +106,7 @@ impl super::Daemon {
             counter("polnlos_reconstructions_failed_total", "Reconstructions failed", Metrics::get(&m.reconstructions_failed)),
             counter("polnlos_reconstruction_seconds_total", "Time spent reconstructing", Metrics::get(&m.reconstruction_micros) * 1e-6),
             counter("polnlos_requests_rejected_queue_full_total", "Requests answered 429", Metrics::get(&m.rejected_full)),
+            counter("polnlos_jobs_cancelled_total", "Jobs cancelled by clients", Metrics::get(&m.jobs_cancelled)),
         ]
     }
 }

@@ -15,12 +15,14 @@
 
 mod admission;
 mod camera;
+mod cancel;
 mod capture;
 pub mod config;
 mod demo;
 pub mod events;
 mod jobs;
 pub mod metrics;
+mod progressive;
 mod reconstruction;
 pub mod scenes;
 pub mod validate;
@@ -33,8 +35,12 @@ use tokio::sync::{broadcast, mpsc, Mutex};
 
 pub use admission::SubmitError;
 pub use camera::{CameraView, SettingsError};
+pub use cancel::{CancelError, JobKind};
 pub use config::Config;
 pub use events::Event;
+pub use progressive::{
+    Step as ProgressiveStep, IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS,
+};
 pub use validate::RequestError;
 
 use crate::camera::aravis::AravisCamera;
@@ -171,6 +177,12 @@ pub struct Daemon {
     defaults: std::sync::Mutex<Option<CameraSettings>>,
     /// Disk bytes reserved by queued and running captures, by capture id.
     reserved: std::sync::Mutex<BTreeMap<i64, u64>>,
+    /// Progressive reconstructions asked for with queued captures, by capture id.
+    progressive: std::sync::Mutex<BTreeMap<i64, validate::ProgressiveSpec>>,
+    /// The latest frame a capture received (the page's live view).
+    latest_frame: std::sync::Mutex<Option<Arc<crate::camera::RawFrame>>>,
+    /// Cancel flags of running (or just cancelled) jobs, by job id.
+    cancels: std::sync::Mutex<BTreeMap<String, Arc<std::sync::atomic::AtomicBool>>>,
     _hotplug: Option<Hotplug>,
 }
 
@@ -228,6 +240,9 @@ impl Daemon {
             camera_gate: tokio::sync::Mutex::new(()),
             defaults: std::sync::Mutex::new(None),
             reserved: std::sync::Mutex::new(BTreeMap::new()),
+            progressive: std::sync::Mutex::new(BTreeMap::new()),
+            latest_frame: std::sync::Mutex::new(None),
+            cancels: std::sync::Mutex::new(BTreeMap::new()),
             _hotplug: hotplug,
         });
         tokio::spawn(capture::capture_worker(daemon.clone(), capture_rx));
@@ -263,6 +278,11 @@ impl Daemon {
     /// Whether the camera is open now.
     pub fn camera_connected(&self) -> bool {
         self.camera.status().connected
+    }
+
+    /// The latest frame a capture received, if any.
+    pub fn latest_frame(&self) -> Option<Arc<crate::camera::RawFrame>> {
+        self.latest_frame.lock().ok().and_then(|f| f.clone())
     }
 
     /// Job, frame and camera events from now on.

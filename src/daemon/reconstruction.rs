@@ -3,12 +3,13 @@
 //! pose's homography, stacked in MODEL.md row order, in units of `T l`) and
 //! runs [`crate::solve::reconstruct`] on it.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
 use tokio::sync::{mpsc, Mutex};
 
-use super::jobs::{finish_job, job_event, same_angle, JobError};
+use super::jobs::{finish_job, job_event, same_angle, Ending, JobError};
 use super::Daemon;
 use crate::camera::Frame;
 use crate::camera::PixelFormat;
@@ -27,13 +28,21 @@ pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Re
         };
         let job = format!("reconstruction-{id}");
         let start = Instant::now();
-        if let Err(e) = d.store.reconstruction_running(id) {
-            tracing::error!("{job}: {e}");
-            continue;
+        match d.store.reconstruction_running(id) {
+            Ok(true) => {}
+            // Cancelled while it waited in the queue.
+            Ok(false) => {
+                d.forget_cancel(&job);
+                continue;
+            }
+            Err(e) => {
+                tracing::error!("{job}: {e}");
+                continue;
+            }
         }
         job_event(&d, job.clone(), JobState::Running, None);
-        let d2 = d.clone();
-        let r = tokio::task::spawn_blocking(move || run_reconstruction(&d2, id))
+        let (d2, cancel) = (d.clone(), d.cancel_flag(&job));
+        let r = tokio::task::spawn_blocking(move || run_reconstruction(&d2, id, &cancel))
             .await
             .map_err(JobError::from)
             .and_then(|r| r);
@@ -43,20 +52,33 @@ pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Re
             &m.reconstructions_failed,
             &m.reconstruction_micros,
         );
-        finish_job(&d, job, start, r, counters, |e| {
-            d.store.reconstruction_failed(id, e)
+        finish_job(&d, job, start, r, counters, |end| match end {
+            Ending::Failed(e) => d.store.reconstruction_failed(id, e),
+            Ending::Cancelled => d.store.reconstruction_cancelled(id).map(|_| ()),
         });
     }
 }
 
-/// Frames to `i` through the homographies, the solve, and the files.
-fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), JobError> {
+/// `Err(Cancelled)` once a client has cancelled the job.
+fn check(cancel: &AtomicBool) -> Result<(), JobError> {
+    if cancel.load(Ordering::SeqCst) {
+        Err(JobError::Cancelled)
+    } else {
+        Ok(())
+    }
+}
+
+/// Frames to `i` through the homographies, the solve, and the files; a
+/// cancellation is noticed between these stages (the solve itself runs to
+/// its end), and nothing is written after it.
+fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
     let store = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
     let rec = d.store.reconstruction(id).map_err(store)?;
     let scene = d.scenes.scene(&rec.scene)?;
     let t0 = Instant::now();
     let t = d.scenes.transport(&rec.scene)?;
     let transport_seconds = t0.elapsed().as_secs_f64();
+    check(cancel)?;
     let Stacked {
         mut i,
         mut var,
@@ -66,6 +88,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), JobError> {
         warnings.push(w);
     }
     let cond = d.scenes.conditioning(&rec.scene)?;
+    check(cancel)?;
     // The stored request (older rows: the same keys, solver in its own column).
     let mut solve: SolveRequest = serde_json::from_value(rec.params.clone()).unwrap_or_default();
     solve.solver =
@@ -94,6 +117,7 @@ fn run_reconstruction(d: &Daemon, id: i64) -> Result<(), JobError> {
         context,
     )?;
     let (image, mut report) = (solved.image, solved.report);
+    check(cancel)?;
     report.warnings.splice(0..0, warnings);
     let grid = t.scene_grid;
     let dir = d.store.reconstruction_dir(id);
@@ -143,19 +167,7 @@ fn stack_captures(
             .ok_or_else(|| JobError::Store(format!("no capture for block {}", block.label())))?;
         loaded.push(load_capture(d, cap, scene, &block.pose, &mut warnings)?);
     }
-    let blocks: Vec<BlockFrames<'_>> = loaded
-        .iter()
-        .map(|l| BlockFrames {
-            pose: &l.pose.name,
-            homography: &l.homography,
-            mean: &l.mean,
-            variance: l.variance.as_ref(),
-            full_scale: PixelFormat::from_name(&l.capture.pixel_format)
-                .unwrap_or(PixelFormat::Mono16)
-                .full_scale(),
-            exposure_us: l.capture.exposure_us,
-        })
-        .collect();
+    let blocks: Vec<BlockFrames<'_>> = loaded.iter().map(Loaded::block).collect();
     let m = crate::measure::stack(&blocks, &scene.wall.plane)?;
     Ok(Stacked {
         i: m.i,
@@ -165,7 +177,7 @@ fn stack_captures(
 }
 
 /// A capture's files as a block of the measurement needs them.
-struct Loaded<'a> {
+pub(super) struct Loaded<'a> {
     capture: crate::store::CaptureRecord,
     pose: &'a crate::scene::Pose,
     homography: crate::scene::Homography,
@@ -173,9 +185,25 @@ struct Loaded<'a> {
     variance: Option<Frame>,
 }
 
+impl Loaded<'_> {
+    /// The block as [`crate::measure::stack`] takes it.
+    pub(super) fn block(&self) -> BlockFrames<'_> {
+        BlockFrames {
+            pose: &self.pose.name,
+            homography: &self.homography,
+            mean: &self.mean,
+            variance: self.variance.as_ref(),
+            full_scale: PixelFormat::from_name(&self.capture.pixel_format)
+                .unwrap_or(PixelFormat::Mono16)
+                .full_scale(),
+            exposure_us: self.capture.exposure_us,
+        }
+    }
+}
+
 /// Reads a capture's mean (and variance) frame, checks it is the frame the
 /// capture recorded, and notes what the user should know about it.
-fn load_capture<'a>(
+pub(super) fn load_capture<'a>(
     d: &Daemon,
     cap: crate::store::CaptureRecord,
     scene: &'a crate::scene::Scene,

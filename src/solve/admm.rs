@@ -89,12 +89,56 @@ pub fn admm_tv(
     admm_tv_prepared(t, i, &normal, settings)
 }
 
+/// Where an ADMM-TV solve starts and what it leaves for the next: the
+/// iterate (image, splitting variables, scaled duals) and the Cholesky
+/// factor with its penalty. Solving a sequence of close measurements (the
+/// running mean of a capture) from the previous state needs no new
+/// factorization and few iterations.
+#[derive(Default)]
+pub struct AdmmState {
+    factor: Option<(f64, faer::linalg::solvers::Llt<f64>)>,
+    l: Vec<f64>,
+    z1: Vec<f64>,
+    z2: Vec<f64>,
+    u1: Vec<f64>,
+    u2: Vec<f64>,
+}
+
+impl AdmmState {
+    /// The image of the last solve (empty before the first).
+    pub fn image(&self) -> &[f64] {
+        &self.z2
+    }
+}
+
+/// `v` when it has `len` values (a warm start), else zeros.
+fn warm(v: &mut Vec<f64>, len: usize) -> Vec<f64> {
+    let v = std::mem::take(v);
+    if v.len() == len {
+        v
+    } else {
+        vec![0.0; len]
+    }
+}
+
 /// [`admm_tv`] with `T^T T` and `T^T i` already formed (`i` already checked).
 pub fn admm_tv_prepared(
     t: &Transport,
     i: &[f64],
     normal: &Normal,
     settings: &AdmmSettings,
+) -> Result<Reconstruction, SolveError> {
+    admm_tv_warm(t, i, normal, settings, &mut AdmmState::default())
+}
+
+/// [`admm_tv_prepared`] starting from `state` (its iterate, and its factor
+/// when it has one for this `T`), and leaving the result's there.
+pub fn admm_tv_warm(
+    t: &Transport,
+    i: &[f64],
+    normal: &Normal,
+    settings: &AdmmSettings,
+    state: &mut AdmmState,
 ) -> Result<Reconstruction, SolveError> {
     check_tol(settings.tol)?;
     let start = Instant::now();
@@ -131,9 +175,17 @@ pub fn admm_tv_prepared(
     }
 
     // System matrix T^T T + rho (D^T D + I), lower triangle, factorized
-    // once (again only when residual balancing changes rho).
+    // once (again only when residual balancing changes rho); a warm start
+    // keeps the previous solve's factor and penalty.
     let t0 = Instant::now();
-    let mut llt = factorize(normal, grid, rho)?;
+    let same_shape = state.l.len() == n;
+    let mut llt = match state.factor.take() {
+        Some((r, f)) if same_shape && settings.rho.is_none_or(|x| x == r) => {
+            rho = r;
+            f
+        }
+        _ => factorize(normal, grid, rho)?,
+    };
     let mut factor_seconds = t0.elapsed().as_secs_f64();
     let mut refactorizations = 0;
 
@@ -144,12 +196,12 @@ pub fn admm_tv_prepared(
     let eps_abs = settings.tol * 1e-2;
     let sqrt_p = ((3 * n) as f64).sqrt();
     let sqrt_n = (n as f64).sqrt();
-    let mut l = vec![0.0; n];
+    let mut l = warm(&mut state.l, n);
     let mut dl = vec![0.0; 2 * n];
-    let mut z1 = vec![0.0; 2 * n];
-    let mut z2 = vec![0.0; n];
-    let mut u1 = vec![0.0; 2 * n];
-    let mut u2 = vec![0.0; n];
+    let mut z1 = warm(&mut state.z1, 2 * n);
+    let mut z2 = warm(&mut state.z2, n);
+    let mut u1 = warm(&mut state.u1, 2 * n);
+    let mut u2 = warm(&mut state.u2, n);
     let mut w1 = vec![0.0; 2 * n];
     let mut rhs = vec![0.0; n];
     let mut dual = vec![0.0; n];
@@ -267,7 +319,15 @@ pub fn admm_tv_prepared(
     }
 
     // The returned image is z2: feasible by construction.
-    let image = z2;
+    let image = z2.clone();
+    *state = AdmmState {
+        factor: Some((rho, llt)),
+        l,
+        z1,
+        z2,
+        u1,
+        u2,
+    };
     let (lo, hi) = image
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {

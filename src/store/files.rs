@@ -131,7 +131,8 @@ impl FrameStack {
 
 /// Writes `expected` frames from `frames` as pages of a 16-bit TIFF at `path`
 /// while they arrive (temporary name, fsync, rename: a capture that stops
-/// early leaves no file), calling `on_frame(k)` after page k; returns their
+/// early leaves no file), calling `on_frame` with the running mean after each
+/// page (so a caller can watch the mean converge); returns their
 /// running mean and variance. Stops at the first frame of another size.
 pub fn write_frames(
     path: &Path,
@@ -139,7 +140,7 @@ pub fn write_frames(
     meta: &FrameMeta,
     expected: usize,
     frames: impl IntoIterator<Item = RawFrame>,
-    on_frame: &mut dyn FnMut(usize),
+    on_frame: &mut dyn FnMut(&FrameStack),
 ) -> Result<FrameStack, StoreError> {
     let name = path
         .file_name()
@@ -171,7 +172,7 @@ fn write_pages(
     meta: &FrameMeta,
     expected: usize,
     frames: impl IntoIterator<Item = RawFrame>,
-    on_frame: &mut dyn FnMut(usize),
+    on_frame: &mut dyn FnMut(&FrameStack),
 ) -> Result<FrameStack, StoreError> {
     let file =
         std::fs::File::create(tmp).map_err(|e| StoreError::File(FileError::write(tmp, e)))?;
@@ -201,7 +202,7 @@ fn encode_stream<W: std::io::Write + std::io::Seek, K: tiff::encoder::TiffKind>(
     meta: &FrameMeta,
     expected: usize,
     frames: impl IntoIterator<Item = RawFrame>,
-    on_frame: &mut dyn FnMut(usize),
+    on_frame: &mut dyn FnMut(&FrameStack),
 ) -> Result<FrameStack, StoreError> {
     let mut stack: Option<FrameStack> = None;
     for (i, f) in frames.into_iter().enumerate() {
@@ -239,7 +240,7 @@ fn encode_stream<W: std::io::Write + std::io::Seek, K: tiff::encoder::TiffKind>(
             .map_err(|e| tiff_err(path, e))?;
         img.write_data(&f.pixels).map_err(|e| tiff_err(path, e))?;
         st.push(&f.pixels);
-        on_frame(i + 1);
+        on_frame(st);
     }
     match stack {
         Some(st) if st.count == expected => Ok(st),
@@ -456,10 +457,10 @@ mod tests {
             &meta(),
             2,
             [raw(100), raw(110)],
-            &mut |k| seen.push(k),
+            &mut |st: &FrameStack| seen.push((st.count, st.mean[0])),
         )
         .unwrap();
-        assert_eq!(seen, vec![1, 2]);
+        assert_eq!(seen, vec![(1, 100.0), (2, 105.0)]);
         assert_eq!(stack.mean, vec![105.0; 6]);
         // Sample variance 50, of the mean 25.
         assert_eq!(stack.variance_of_mean().unwrap(), vec![25.0; 6]);
@@ -499,12 +500,28 @@ mod tests {
     fn a_capture_that_stops_early_or_changes_size_leaves_no_file() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join(CaptureFiles::FRAMES);
-        let e = write_frames(&p, "frames", &meta(), 3, [raw(1), raw(2)], &mut |_| {}).unwrap_err();
+        let e = write_frames(
+            &p,
+            "frames",
+            &meta(),
+            3,
+            [raw(1), raw(2)],
+            &mut |_: &FrameStack| {},
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("2 of 3"), "{e}");
         let mut odd = raw(3);
         odd.width = 2;
         odd.pixels.truncate(4);
-        let e = write_frames(&p, "frames", &meta(), 2, [raw(1), odd], &mut |_| {}).unwrap_err();
+        let e = write_frames(
+            &p,
+            "frames",
+            &meta(),
+            2,
+            [raw(1), odd],
+            &mut |_: &FrameStack| {},
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("2x2"), "{e}");
         assert_eq!(
             std::fs::read_dir(dir.path()).unwrap().count(),

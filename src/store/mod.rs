@@ -330,14 +330,54 @@ impl Store {
     }
 
     /// Marks a capture running.
-    pub fn capture_running(&self, id: i64) -> Result<(), StoreError> {
+    /// Returns false (and changes nothing) when it is no longer queued: a
+    /// client cancelled it meanwhile.
+    pub fn capture_running(&self, id: i64) -> Result<bool, StoreError> {
         self.with(|c| {
             c.execute(
-                "UPDATE captures SET state = 'running', started_at = ?2 WHERE id = ?1",
+                "UPDATE captures SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
                 params![id, now()],
             )
-            .map(|_| ())
+            .map(|n| n == 1)
         })
+    }
+
+    /// Marks a queued or running job cancelled; false when it had already
+    /// ended (done, failed, interrupted or cancelled). `table` is
+    /// `captures` or `reconstructions`.
+    fn cancel(&self, table: &str, id: i64, only_queued: bool) -> Result<bool, StoreError> {
+        let states = if only_queued {
+            "('queued')"
+        } else {
+            "('queued', 'running')"
+        };
+        self.with(|c| {
+            c.execute(
+                &format!("UPDATE {table} SET state = 'cancelled', finished_at = ?2 WHERE id = ?1 AND state IN {states}"),
+                params![id, now()],
+            )
+            .map(|n| n == 1)
+        })
+    }
+
+    /// Cancels a capture that is still queued; false when it is not queued.
+    pub fn cancel_queued_capture(&self, id: i64) -> Result<bool, StoreError> {
+        self.cancel("captures", id, true)
+    }
+
+    /// Records that a running capture stopped because it was cancelled.
+    pub fn capture_cancelled(&self, id: i64) -> Result<bool, StoreError> {
+        self.cancel("captures", id, false)
+    }
+
+    /// Cancels a reconstruction that is still queued; false when it is not queued.
+    pub fn cancel_queued_reconstruction(&self, id: i64) -> Result<bool, StoreError> {
+        self.cancel("reconstructions", id, true)
+    }
+
+    /// Records that a running reconstruction stopped because it was cancelled.
+    pub fn reconstruction_cancelled(&self, id: i64) -> Result<bool, StoreError> {
+        self.cancel("reconstructions", id, false)
     }
 
     /// Records progress (frames taken so far).
@@ -427,13 +467,15 @@ impl Store {
     }
 
     /// Marks a reconstruction running.
-    pub fn reconstruction_running(&self, id: i64) -> Result<(), StoreError> {
+    /// Returns false (and changes nothing) when it is no longer queued: a
+    /// client cancelled it meanwhile.
+    pub fn reconstruction_running(&self, id: i64) -> Result<bool, StoreError> {
         self.with(|c| {
             c.execute(
-                "UPDATE reconstructions SET state = 'running', started_at = ?2 WHERE id = ?1",
+                "UPDATE reconstructions SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
                 params![id, now()],
             )
-            .map(|_| ())
+            .map(|n| n == 1)
         })
     }
 

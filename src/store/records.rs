@@ -40,6 +40,8 @@ pub enum JobState {
     Failed,
     /// The daemon stopped while it was queued or running.
     Interrupted,
+    /// Cancelled by a client (`DELETE /jobs/{id}`); nothing half-written is kept.
+    Cancelled,
 }
 
 impl JobState {
@@ -51,6 +53,7 @@ impl JobState {
             JobState::Done => "done",
             JobState::Failed => "failed",
             JobState::Interrupted => "interrupted",
+            JobState::Cancelled => "cancelled",
         }
     }
 
@@ -60,6 +63,7 @@ impl JobState {
             "running" => JobState::Running,
             "done" => JobState::Done,
             "interrupted" => JobState::Interrupted,
+            "cancelled" => JobState::Cancelled,
             _ => JobState::Failed,
         }
     }

@@ -160,6 +160,18 @@ impl Daemon {
         )
     }
 
+    pub fn delete(&self, path: &str) -> (u16, String) {
+        let mut req = self.agent.delete(format!("{}{path}", self.base));
+        if let Some(t) = &self.token {
+            req = req.header("authorization", format!("Bearer {t}"));
+        }
+        let mut r = req.call().unwrap();
+        (
+            r.status().as_u16(),
+            r.body_mut().read_to_string().unwrap_or_default(),
+        )
+    }
+
     /// Sends raw bytes on a fresh connection; returns the status (0 when the
     /// server closed without answering) and the body.
     pub fn raw(&self, request: &[u8]) -> (u16, String) {

@@ -8,9 +8,11 @@
 //! later `PUT /camera/settings` cannot change a queued capture.
 
 mod capture;
+mod progressive;
 mod reconstruction;
 
 pub use capture::capture;
+pub use progressive::{progressive, ProgressiveSpec};
 pub use reconstruction::reconstruction;
 
 use crate::camera::{CameraSettings, SensorLimits};

@@ -7,7 +7,7 @@ use crate::scene::Scene;
 use crate::store::{CaptureRecord, JobState, ReconstructionRequest};
 
 /// The (pose, polarizer angle) blocks of a scene in MODEL.md row order.
-fn blocks(scene: &Scene) -> Vec<(String, Option<f64>)> {
+pub(super) fn blocks(scene: &Scene) -> Vec<(String, Option<f64>)> {
     let mut blocks = Vec::new();
     for p in &scene.poses {
         if p.analyzers.is_empty() {
@@ -73,7 +73,7 @@ pub fn reconstruction(
 
 /// The block a capture serves, after checking it can serve one: done, light,
 /// of this scene, at the pose's camera frame.
-fn block_of(
+pub(super) fn block_of(
     c: &CaptureRecord,
     scene_name: &str,
     scene: &Scene,

@@ -1,0 +1,300 @@
+//! Progressive reconstruction while a capture accumulates frames: every
+//! `every` frames the running mean (dark-subtracted) is sampled at the wall,
+//! stacked with the other blocks' captures, and solved with ADMM-TV warm-
+//! started from the previous step, its factorization kept ([`AdmmState`]).
+//! Each step is published: a `progressive` event, `progressive.png` (the
+//! latest image) and `progressive.json` (every step) in the capture's folder.
+//!
+//! Steps run on their own thread and never hold the camera up: a snapshot
+//! that arrives while a step is running is dropped; the final mean always
+//! gets its step.
+
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::jobs::JobError;
+use super::reconstruction::load_capture;
+use super::validate::ProgressiveSpec;
+use super::{Daemon, Event};
+use crate::camera::{Frame, PixelFormat};
+use crate::files::{image, json};
+use crate::measure::{stack, BlockFrames};
+use crate::scene::Scene;
+use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
+use crate::solve::gram::{adjoint, Normal};
+use crate::store::CaptureRecord;
+use crate::transport::Transport;
+
+/// File of the latest progressive image, in the capture's folder.
+pub const IMAGE: &str = "progressive.png";
+/// File of every progressive step, in the capture's folder.
+pub const STEPS: &str = "progressive.json";
+
+/// The running mean after some frames.
+pub(super) struct Snapshot {
+    /// Frames averaged.
+    pub frames: usize,
+    /// Per-pixel mean, DN (not dark-subtracted).
+    pub mean: Vec<f64>,
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+}
+
+/// One published step.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct Step {
+    /// Frames in the mean it solved.
+    pub frames: usize,
+    /// ADMM iterations it took (warm-started from the previous step).
+    pub iterations: usize,
+    /// Whether ADMM met its tolerance.
+    pub converged: bool,
+    /// `||l_k - l_{k-1}|| / ||l_k||` against the previous step.
+    pub change: Option<f64>,
+    /// PSNR against the truth, when one was given, dB.
+    pub psnr_db: Option<f64>,
+    /// Seconds the step took.
+    pub seconds: f64,
+}
+
+/// A capture's progressive solver.
+struct Solver {
+    t: Arc<Transport>,
+    scene: Arc<Scene>,
+    capture: CaptureRecord,
+    /// The measurement with the other blocks' rows filled in, in units of `T l`.
+    i: Vec<f64>,
+    /// This capture's block.
+    own: usize,
+    normal: Normal,
+    state: AdmmState,
+    settings: AdmmSettings,
+    calibration: f64,
+    dark: Option<Frame>,
+    truth: Option<Vec<f64>>,
+    previous: Option<Vec<f64>>,
+    steps: Vec<Step>,
+}
+
+impl Solver {
+    fn new(
+        d: &Daemon,
+        capture: CaptureRecord,
+        spec: &ProgressiveSpec,
+        dark: Option<Frame>,
+    ) -> Result<Self, JobError> {
+        let scene = d.scenes.scene(&capture.scene)?;
+        let t = d.scenes.transport(&capture.scene)?;
+        let calibration = d.calibration.get(&capture.scene).copied().ok_or_else(|| {
+            JobError::Capture {
+                id: capture.id,
+                reason: format!("progressive reconstruction needs the radiometric calibration of scene {:?} ([calibration] in the config)", capture.scene),
+            }
+        })?;
+        let mut i = vec![0.0; t.rows()];
+        let mut own = None;
+        let mut warnings = Vec::new();
+        for (b, block) in t.blocks.iter().enumerate() {
+            let same = |c: &CaptureRecord| {
+                c.pose == block.pose
+                    && super::jobs::same_angle(c.polarizer_deg, block.polarizer_deg)
+            };
+            if same(&capture) {
+                own = Some(b);
+                continue;
+            }
+            let other = spec
+                .captures
+                .iter()
+                .filter_map(|&id| d.store.capture(id).ok())
+                .find(same)
+                .ok_or_else(|| {
+                    JobError::Store(format!("no capture for block {}", block.label()))
+                })?;
+            let l = load_capture(d, other, &scene, &block.pose, &mut warnings)?;
+            let rows = stack(&[l.block()], &scene.wall.plane)?.i;
+            for (dst, v) in i[t.block_rows(b)].iter_mut().zip(rows) {
+                *dst = v / calibration;
+            }
+        }
+        let own = own.ok_or_else(|| JobError::Store("the capture's block is not in T".into()))?;
+        let normal = Normal::new(t.as_mat(), &i);
+        let truth = spec
+            .truth
+            .as_deref()
+            .and_then(crate::simulate::patterns::Pattern::from_name)
+            .map(|p| p.render(t.scene_grid));
+        Ok(Self {
+            settings: AdmmSettings {
+                lambda: spec.lambda,
+                max_iter: spec.max_iter,
+                ..AdmmSettings::default()
+            },
+            t,
+            scene,
+            capture,
+            i,
+            own,
+            normal,
+            state: AdmmState::default(),
+            calibration,
+            dark,
+            truth,
+            previous: None,
+            steps: Vec::new(),
+        })
+    }
+
+    /// Solves one snapshot; returns the step and the image.
+    fn step(&mut self, s: &Snapshot) -> Result<(Step, Vec<f64>), JobError> {
+        let start = Instant::now();
+        let pixels = s
+            .mean
+            .iter()
+            .enumerate()
+            .map(|(k, &v)| {
+                let dark = self.dark.as_ref().and_then(|d| d.pixels.get(k)).copied();
+                (v - f64::from(dark.unwrap_or(0.0))) as f32
+            })
+            .collect();
+        let mean = Frame {
+            width: s.width,
+            height: s.height,
+            pixels,
+        };
+        let block = &self.t.blocks[self.own];
+        let pose = self.scene.pose(&block.pose);
+        let homography = pose.and_then(|p| p.homography).ok_or_else(|| {
+            crate::measure::MeasureError::NoHomography {
+                pose: block.pose.clone(),
+            }
+        })?;
+        let frames = BlockFrames {
+            pose: &block.pose,
+            homography: &homography,
+            mean: &mean,
+            variance: None,
+            full_scale: PixelFormat::from_name(&self.capture.pixel_format)
+                .unwrap_or(PixelFormat::Mono16)
+                .full_scale(),
+            exposure_us: self.capture.exposure_us,
+        };
+        let rows = stack(&[frames], &self.scene.wall.plane)?.i;
+        let range = self.t.block_rows(self.own);
+        for (dst, v) in self.i[range].iter_mut().zip(rows) {
+            *dst = v / self.calibration;
+        }
+        self.normal.ti = adjoint(self.t.as_mat(), &self.i);
+        let r = admm_tv_warm(
+            &self.t,
+            &self.i,
+            &self.normal,
+            &self.settings,
+            &mut self.state,
+        )?;
+        let norm = r
+            .image
+            .iter()
+            .map(|v| v * v)
+            .sum::<f64>()
+            .sqrt()
+            .max(1e-300);
+        let change = self.previous.as_ref().map(|p| {
+            p.iter()
+                .zip(&r.image)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+                .sqrt()
+                / norm
+        });
+        let step = Step {
+            frames: s.frames,
+            iterations: r.stats.iterations,
+            converged: r.stats.converged,
+            change,
+            psnr_db: self
+                .truth
+                .as_ref()
+                .map(|t| crate::solve::metrics::psnr(t, &r.image)),
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        self.previous = Some(r.image.clone());
+        self.steps.push(step.clone());
+        Ok((step, r.image))
+    }
+}
+
+/// Starts the progressive solver of capture `capture` (loading the other
+/// blocks' captures and `T` on its own thread): returns where to send
+/// snapshots, and the thread, which ends with every step when the sender is
+/// dropped (or at once, with none, if the solver cannot be set up).
+pub(super) fn start(
+    d: &Arc<Daemon>,
+    capture: CaptureRecord,
+    spec: &ProgressiveSpec,
+    dark: Option<Frame>,
+) -> (SyncSender<Snapshot>, tokio::task::JoinHandle<Vec<Step>>) {
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Snapshot>(1);
+    let (d, spec) = (d.clone(), spec.clone());
+    let handle = tokio::task::spawn_blocking(move || {
+        let id = capture.id;
+        match Solver::new(&d, capture, &spec, dark) {
+            Ok(mut solver) => run(&d, &mut solver, rx),
+            Err(e) => {
+                tracing::warn!("capture-{id}: no progressive reconstruction: {e}");
+                Vec::new()
+            }
+        }
+    });
+    (tx, handle)
+}
+
+fn run(d: &Daemon, solver: &mut Solver, rx: Receiver<Snapshot>) -> Vec<Step> {
+    let id = solver.capture.id;
+    let dir = d.store.capture_dir(id);
+    let grid = solver.t.scene_grid;
+    for snapshot in rx {
+        match solver.step(&snapshot) {
+            Ok((step, img)) => {
+                let png = image::write_png16(
+                    &dir.join(IMAGE),
+                    grid.nu,
+                    grid.nv,
+                    &image::unit_to_u16(&img),
+                );
+                let steps = json::write(&dir.join(STEPS), &solver.steps);
+                if let Err(e) = png.and(steps) {
+                    tracing::warn!("capture-{id}: progressive result not written: {e}");
+                }
+                d.emit(Event::Progressive {
+                    job: format!("capture-{id}"),
+                    step,
+                });
+            }
+            Err(e) => {
+                tracing::warn!("capture-{id}: progressive reconstruction stopped: {e}");
+                break;
+            }
+        }
+    }
+    std::mem::take(&mut solver.steps)
+}
+
+/// Offers a snapshot without waiting: dropped when a step is still running.
+pub(super) fn offer(tx: &SyncSender<Snapshot>, s: Snapshot) {
+    match tx.try_send(s) {
+        Ok(()) | Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {}
+    }
+}
+
+/// Removes a capture's progressive files (when the capture did not finish).
+pub(super) fn remove_files(d: &Daemon, id: i64) {
+    let dir = d.store.capture_dir(id);
+    let _ = std::fs::remove_file(dir.join(IMAGE));
+    let _ = std::fs::remove_file(dir.join(STEPS));
+}

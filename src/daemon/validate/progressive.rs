@@ -1,0 +1,192 @@
+//! Checking a progressive reconstruction asked for with a capture: the
+//! capture and the other captures named must cover every block of the
+//! scene once, at the frames the poses' homographies map to.
+
+use super::reconstruction::{block_of, blocks};
+use super::{invalid, RequestError};
+use crate::api::bodies::ProgressiveBody;
+use crate::daemon::jobs::{block_label, same_angle};
+use crate::scene::Scene;
+use crate::store::{CaptureRecord, CaptureRequest};
+
+/// What a capture's progressive reconstruction will use, resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProgressiveSpec {
+    /// Re-solve after every this many frames.
+    pub every: usize,
+    /// The other blocks' captures.
+    pub captures: Vec<i64>,
+    /// TV weight (None: the default relative to `T`).
+    pub lambda: Option<f64>,
+    /// Iteration cap of each step.
+    pub max_iter: usize,
+    /// Truth pattern name.
+    pub truth: Option<String>,
+}
+
+/// Checks `p` for capture request `r` of `scene`; `capture` looks up the
+/// other captures.
+pub fn progressive(
+    p: &ProgressiveBody,
+    r: &CaptureRequest,
+    scene: &Scene,
+    capture: impl Fn(i64) -> Option<CaptureRecord>,
+) -> Result<ProgressiveSpec, RequestError> {
+    if r.kind == crate::store::CaptureKind::Dark {
+        return Err(invalid(
+            "a dark capture has no scene to reconstruct: progressive is for light captures",
+        ));
+    }
+    let every = p.every.unwrap_or((r.frames / 10).max(1));
+    if every == 0 || every > r.frames {
+        return Err(invalid(format!(
+            "progressive.every = {every}: must be from 1 to frames ({})",
+            r.frames
+        )));
+    }
+    let max_iter = p.max_iter.unwrap_or(500);
+    if !(1..=100_000).contains(&max_iter) {
+        return Err(invalid(format!(
+            "progressive.max_iter = {max_iter}: must be from 1 to 100000"
+        )));
+    }
+    if let Some(l) = p.lambda {
+        if !(l >= 0.0 && l.is_finite()) {
+            return Err(invalid(format!(
+                "progressive.lambda = {l}: must be a finite number >= 0"
+            )));
+        }
+    }
+    if let Some(t) = &p.truth {
+        if crate::simulate::patterns::Pattern::from_name(t).is_none() {
+            return Err(invalid(format!(
+                "progressive.truth = {t:?}: must be a test pattern name (disk, bars, letter)"
+            )));
+        }
+    }
+    let blocks = blocks(scene);
+    let mut covered = vec![false; blocks.len()];
+    let own = blocks
+        .iter()
+        .position(|(pose, a)| *pose == r.pose && same_angle(*a, r.polarizer_deg))
+        .ok_or_else(|| invalid("the capture's block is not one of its scene"))?;
+    covered[own] = true;
+    if let Some(frame) = scene.pose(&r.pose).and_then(|p| p.frame) {
+        if (r.region, r.binning) != (frame.region, frame.binning) {
+            return Err(invalid(format!(
+                "progressive reconstruction samples this capture through pose {:?}'s homography, which maps into region {:?} binning {:?}; this capture uses region {:?} binning {:?}",
+                r.pose, frame.region, frame.binning, r.region, r.binning
+            )));
+        }
+    }
+    for &id in &p.captures {
+        let c = capture(id)
+            .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))?;
+        let k = block_of(&c, &r.scene, scene, &blocks)?;
+        if covered[k] {
+            return Err(invalid(format!(
+                "progressive.captures: two captures for block {}",
+                block_label(&blocks[k].0, blocks[k].1)
+            )));
+        }
+        covered[k] = true;
+    }
+    if covered.iter().any(|c| !c) {
+        let missing: Vec<String> = blocks
+            .iter()
+            .zip(&covered)
+            .filter(|(_, c)| !**c)
+            .map(|((p, a), _)| block_label(p, *a))
+            .collect();
+        return Err(invalid(format!(
+            "progressive reconstruction of scene {:?} needs a done capture of every other block in progressive.captures; missing: {}",
+            r.scene,
+            missing.join("; ")
+        )));
+    }
+    Ok(ProgressiveSpec {
+        every,
+        captures: p.captures.clone(),
+        lambda: p.lambda,
+        max_iter,
+        truth: p.truth.clone(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::fixtures::{record, scene};
+    use super::*;
+    use crate::camera::{PixelFormat, TriggerMode};
+    use crate::store::{CaptureKind, JobState};
+
+    fn request(pose: &str) -> CaptureRequest {
+        CaptureRequest {
+            kind: CaptureKind::Light,
+            scene: "brewster-multi-3x3".into(),
+            pose: pose.into(),
+            polarizer_deg: Some(0.0),
+            exposure_us: 5000.0,
+            gain: 0.0,
+            frames: 40,
+            dark_frames: 2,
+            pixel_format: PixelFormat::Mono16,
+            region: [0, 0, 512, 512],
+            binning: [1, 1],
+            trigger: TriggerMode::Free,
+            dark_capture: None,
+        }
+    }
+
+    fn body(json: serde_json::Value) -> ProgressiveBody {
+        serde_json::from_value(json).expect("a well-formed body")
+    }
+
+    #[test]
+    fn the_other_blocks_must_be_covered_by_done_captures() {
+        let s = scene();
+        let b_done = record(1, "light", 5000.0, JobState::Done);
+        let lookup = |id: i64| (id == 1).then(|| b_done.clone());
+        // Capturing C: B must come from capture 1.
+        let spec = progressive(
+            &body(serde_json::json!({ "captures": [1] })),
+            &request("C"),
+            &s,
+            lookup,
+        )
+        .expect("accepted");
+        assert_eq!((spec.every, spec.max_iter), (4, 500));
+        let e = progressive(&body(serde_json::json!({})), &request("C"), &s, lookup)
+            .expect_err("B missing");
+        assert!(e.to_string().contains("missing: pose B at 0°"), "{e}");
+        // Capturing B with capture 1 (also B): two captures for one block.
+        let e = progressive(
+            &body(serde_json::json!({ "captures": [1] })),
+            &request("B"),
+            &s,
+            lookup,
+        )
+        .expect_err("twice");
+        assert!(
+            e.to_string()
+                .contains("two captures for block pose B at 0°"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn steps_and_truth_are_checked() {
+        let s = scene();
+        let lookup = |_| None;
+        for (json, needle) in [
+            (serde_json::json!({ "every": 0 }), "every = 0"),
+            (serde_json::json!({ "every": 41 }), "every = 41"),
+            (serde_json::json!({ "max_iter": 0 }), "max_iter = 0"),
+            (serde_json::json!({ "lambda": -1.0 }), "lambda = -1"),
+            (serde_json::json!({ "truth": "cat" }), "truth = \"cat\""),
+        ] {
+            let e = progressive(&body(json), &request("C"), &s, lookup).expect_err(needle);
+            assert!(e.to_string().contains(needle), "{e}");
+        }
+    }
+}

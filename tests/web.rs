@@ -1,0 +1,255 @@
+//! The web page at `/` in a real headless browser: Debian's chromium driven
+//! through chromedriver (W3C WebDriver, the `fantoccini` client), against
+//! `polnlos serve` on 127.0.0.1 with Aravis's fake camera. `.ci/run`
+//! installs chromium and chromium-driver.
+
+mod common;
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{config, free_port, lock, Daemon};
+use fantoccini::{Client, ClientBuilder, Locator};
+
+/// chromedriver on a free loopback port, stopped on drop.
+struct Driver {
+    child: Child,
+    url: String,
+}
+
+impl Driver {
+    fn start() -> Self {
+        let port = free_port();
+        let child = Command::new("chromedriver")
+            .arg(format!("--port={port}"))
+            .arg("--allowed-ips=127.0.0.1")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect(
+                "chromedriver must be installed (Debian: chromium chromium-driver; see .ci/run)",
+            );
+        let url = format!("http://127.0.0.1:{port}");
+        let t = Instant::now();
+        while ureq::get(format!("{url}/status")).call().is_err() {
+            assert!(
+                t.elapsed() < Duration::from_secs(20),
+                "chromedriver did not start"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        Self { child, url }
+    }
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+async fn browser(driver: &Driver, profile: &std::path::Path) -> Client {
+    let mut caps = serde_json::Map::new();
+    caps.insert(
+        "goog:chromeOptions".into(),
+        serde_json::json!({
+            "binary": "/usr/bin/chromium",
+            "args": ["--headless=new", "--no-sandbox", "--disable-gpu",
+                     "--disable-dev-shm-usage", "--window-size=1400,1000",
+                     format!("--user-data-dir={}", profile.display())]
+        }),
+    );
+    let connector = hyper_util::client::legacy::connect::HttpConnector::new();
+    ClientBuilder::new(connector)
+        .capabilities(caps)
+        .connect(&driver.url)
+        .await
+        .expect("a chromium session")
+}
+
+/// The text of the first element matching `css`, or "" when there is none.
+async fn text(c: &Client, css: &str) -> String {
+    match c.find(Locator::Css(css)).await {
+        Ok(e) => e.text().await.unwrap_or_default(),
+        Err(_) => String::new(),
+    }
+}
+
+/// Waits until `f` returns Some, polling every 100 ms.
+async fn until<T, F, Fut>(what: &str, within: Duration, mut f: F) -> T
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = Option<T>>,
+{
+    let t = Instant::now();
+    loop {
+        if let Some(v) = f().await {
+            return v;
+        }
+        assert!(t.elapsed() < within, "timed out waiting for {what}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+async fn set(c: &Client, css: &str, value: &str) {
+    let e = c.find(Locator::Css(css)).await.expect(css);
+    e.clear().await.expect("clear");
+    e.send_keys(value).await.expect("type");
+}
+
+/// Chooses `value` in the select matching `css`.
+async fn choose(c: &Client, css: &str, value: &str) {
+    let js = format!("document.querySelector({css:?}).value = {value:?};");
+    c.execute(&js, vec![]).await.expect("select");
+}
+
+/// Whether the image matching `css` has loaded pixels.
+async fn image_loaded(c: &Client, css: &str) -> bool {
+    let js = format!(
+        "const i = document.querySelector({css:?}); return !!i && i.complete && i.naturalWidth > 0;"
+    );
+    c.execute(&js, vec![])
+        .await
+        .ok()
+        .and_then(|v| v.as_bool())
+        .unwrap_or(false)
+}
+
+#[test]
+fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let driver = Driver::start();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let c = browser(&driver, &dir.path().join("profile")).await;
+        c.goto(&format!("{}/", d.base)).await.expect("the page");
+        assert_eq!(c.title().await.unwrap(), "polnlos");
+        let long = Duration::from_secs(60);
+        until("the camera status", long, || async {
+            text(&c, "#camera-status")
+                .await
+                .starts_with("connected")
+                .then_some(())
+        })
+        .await;
+
+        // Start a capture from the page: 24 frames of 20 ms, progressive every 4.
+        set(&c, "#capture-form [name=frames]", "24").await;
+        set(&c, "#capture-form [name=every]", "4").await;
+        choose(&c, "#capture-form select[name=truth]", "letter").await;
+        c.find(Locator::Css("#start-capture"))
+            .await
+            .unwrap()
+            .click()
+            .await
+            .unwrap();
+        until("the capture to be queued", long, || async {
+            text(&c, "#capture-message")
+                .await
+                .contains("queued capture-1")
+                .then_some(())
+        })
+        .await;
+        // Its progress shows while it runs: some frames taken, not all.
+        let mut partial = None;
+        let t = Instant::now();
+        let done = loop {
+            let taken = match c.find(Locator::Css("#capture-1 progress")).await {
+                Ok(e) => e.attr("value").await.ok().flatten(),
+                Err(_) => None,
+            };
+            let taken = taken.and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+            if taken > 0.0 && taken < 26.0 {
+                partial = Some(taken);
+            }
+            let state = text(&c, "#capture-1 .state").await;
+            if state == "done" || state.starts_with("failed") {
+                break state;
+            }
+            assert!(t.elapsed() < long, "the capture did not finish: {state}");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        };
+        assert_eq!(done, "done");
+        println!("progress seen at {partial:?} of 26 frames");
+        assert!(partial.is_some(), "no intermediate progress was shown");
+        until("the live view", long, || async {
+            image_loaded(&c, "#live").await.then_some(())
+        })
+        .await;
+        until("the progressive image", long, || async {
+            image_loaded(&c, "#capture-1 img.progressive")
+                .await
+                .then_some(())
+        })
+        .await;
+
+        // Reconstruct from the page and see the image and its report appear.
+        set(&c, "#reconstruction-form [name=captures]", "1").await;
+        choose(&c, "#reconstruction-form select[name=truth]", "letter").await;
+        c.find(Locator::Css("#start-reconstruction"))
+            .await
+            .unwrap()
+            .click()
+            .await
+            .unwrap();
+        until("the reconstruction to finish", long, || async {
+            (text(&c, "#reconstruction-1 .state").await == "done").then_some(())
+        })
+        .await;
+        until("the result image", long, || async {
+            image_loaded(&c, "#reconstruction-1 img")
+                .await
+                .then_some(())
+        })
+        .await;
+        let report = text(&c, "#reconstruction-1 .report").await;
+        println!("report on the page:\n{report}");
+        assert!(
+            report.contains("kappa") && report.contains("PSNR"),
+            "{report}"
+        );
+
+        // The Cancel button of a long capture cancels it.
+        set(&c, "#capture-form [name=frames]", "400").await;
+        c.find(Locator::Css("#start-capture"))
+            .await
+            .unwrap()
+            .click()
+            .await
+            .unwrap();
+        // The table is redrawn every second: click through the page's own script.
+        until("the cancel button", long, || async {
+            let js = "const b = document.querySelector('#capture-2 button.cancel'); if (b) b.click(); return !!b;";
+            c.execute(js, vec![]).await.ok()?.as_bool()?.then_some(())
+        })
+        .await;
+        until("the cancellation", long, || async {
+            (text(&c, "#capture-2 .state").await == "cancelled").then_some(())
+        })
+        .await;
+
+        // The interactive API reference renders every route and sends requests.
+        c.goto(&format!("{}/api", d.base)).await.expect("the API page");
+        until("the API reference", long, || async {
+            c.find(Locator::Css("section[id='delete-/jobs/{id}']")).await.ok()
+        })
+        .await;
+        let js = "document.querySelector(\"section[id='get-/health'] button\").click(); return true;";
+        c.execute(js, vec![]).await.unwrap();
+        let answer = until("the /health answer", long, || async {
+            let t = text(&c, "section[id='get-/health'] pre.response").await;
+            (!t.is_empty()).then_some(t)
+        })
+        .await;
+        assert!(answer.starts_with("200") && answer.contains("camera_connected"), "{answer}");
+        c.close().await.unwrap();
+    });
+    assert_eq!(d.json("/captures/2")["state"], "cancelled");
+}

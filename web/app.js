@@ -1,0 +1,230 @@
+// polnlos web page: the daemon's own HTTP API, nothing else (no CDN, no
+// framework). Reads are polled every second and refreshed on server-sent
+// events; images are fetched with the token and shown as object URLs.
+"use strict";
+
+const $ = (sel) => document.querySelector(sel);
+const tokenInput = $("#token");
+tokenInput.value = localStorage.getItem("polnlos-token") || "";
+tokenInput.addEventListener("change", () => {
+  localStorage.setItem("polnlos-token", tokenInput.value.trim());
+  refresh();
+});
+
+function headers(json) {
+  const h = {};
+  const t = tokenInput.value.trim();
+  if (t) h["Authorization"] = "Bearer " + t;
+  if (json) h["Content-Type"] = "application/json";
+  return h;
+}
+
+async function api(method, path, body) {
+  const r = await fetch(path, {
+    method,
+    headers: headers(body !== undefined),
+    body: body === undefined ? undefined : JSON.stringify(body),
+  });
+  let json = null;
+  try { json = await r.json(); } catch (_) { /* not JSON */ }
+  return { status: r.status, json };
+}
+
+// Shows `path` in `img` (with the token); false when there is no image (yet).
+const shown = new Map();
+async function showImage(img, path) {
+  const r = await fetch(path, { headers: headers(false), cache: "no-store" });
+  if (!r.ok) return false;
+  const url = URL.createObjectURL(await r.blob());
+  const old = shown.get(img);
+  img.src = url;
+  shown.set(img, url);
+  if (old) URL.revokeObjectURL(old);
+  return true;
+}
+
+function text(el, value) { el.textContent = value; return el; }
+function el(tag, attrs, ...children) {
+  const e = document.createElement(tag);
+  Object.entries(attrs || {}).forEach(([k, v]) => e.setAttribute(k, v));
+  children.forEach((c) => e.append(c));
+  return e;
+}
+const block = (c) => c.polarizer_deg === null ? `${c.pose} (no polarizer)` : `${c.pose} at ${c.polarizer_deg}°`;
+const active = (s) => s === "queued" || s === "running";
+
+async function refreshCamera() {
+  const h = await api("GET", "/health");
+  text($("#health"), h.status === 200 ? (h.json.camera_connected ? "camera connected" : "camera not connected") : "daemon unreachable");
+  const c = await api("GET", "/camera");
+  if (c.status !== 200) { text($("#camera-status"), (c.json && c.json.detail) || `HTTP ${c.status}`); return; }
+  const cam = c.json;
+  text($("#camera-status"), cam.connected ? `connected: ${cam.info.id}` + (cam.busy ? ` (busy: ${cam.busy})` : "") : `not connected: ${cam.last_error || ""}`);
+  const s = (cam.info && cam.info.settings) || {};
+  const k = cam.counters || {};
+  const rows = [
+    ["exposure", s.exposure_us !== undefined ? `${s.exposure_us} µs` : "-"],
+    ["gain", s.gain], ["pixel format", s.pixel_format], ["region", JSON.stringify(s.region)],
+    ["frames received", k.completed], ["broken frames", k.failed],
+    ["dropped frames", k.underruns], ["timeouts", k.timeouts], ["reconnects", k.connects],
+  ];
+  const table = $("#camera-facts");
+  table.replaceChildren(...rows.map(([a, b]) => el("tr", {}, el("th", {}, a), el("td", {}, String(b ?? "-")))));
+  if (await showImage($("#live"), "/camera/frame.png")) text($("#live-caption"), "latest frame");
+}
+
+async function refreshCaptures() {
+  const r = await api("GET", "/captures?limit=20");
+  if (r.status !== 200) return;
+  const body = $("#captures tbody");
+  const rows = [];
+  for (const c of r.json) {
+    const total = c.frames + c.dark_frames;
+    const bar = el("progress", { class: "progress", max: String(total), value: String(c.frames_taken) });
+    const frames = el("td", {}, bar, ` ${c.frames_taken}/${total}`);
+    const prog = el("td", {});
+    const img = el("img", { width: "64", height: "64", alt: "", class: "progressive" });
+    prog.append(img);
+    showImage(img, `/captures/${c.id}/progressive.png`).then((ok) => { if (!ok) img.remove(); });
+    const actions = el("td", {});
+    if (active(c.state)) {
+      const b = el("button", { class: "cancel", "data-job": `capture-${c.id}` }, "Cancel");
+      b.addEventListener("click", () => cancel(`capture-${c.id}`));
+      actions.append(b);
+    }
+    rows.push(el("tr", { id: `capture-${c.id}` },
+      el("td", {}, String(c.id)),
+      el("td", {}, `${c.scene}, ${block(c)}${c.kind === "dark" ? " (dark)" : ""}`),
+      el("td", { class: `state state-${c.state}` }, c.state + (c.error ? `: ${c.error}` : "")),
+      frames, prog, actions));
+  }
+  body.replaceChildren(...rows);
+}
+
+function reportText(r) {
+  const rep = r.report || {};
+  const lines = [`${r.solver}, captures ${r.captures.join(", ")}`];
+  if (r.kappa !== null && r.kappa !== undefined) lines.push(`kappa ${Number(r.kappa).toExponential(3)}`);
+  const l = rep.lambda_choice;
+  if (l) lines.push(`lambda ${l.lambda.toExponential(3)} (${l.rule}, noise from ${l.noise})`);
+  const m = rep.metrics;
+  if (m) lines.push(`PSNR ${m.psnr_db.toFixed(2)} dB, SSIM ${m.ssim.toFixed(3)}`);
+  (rep.warnings || []).forEach((w) => lines.push(`warning: ${w}`));
+  if (r.error) lines.push(`error: ${r.error}`);
+  return lines.join("\n");
+}
+
+async function refreshReconstructions() {
+  const r = await api("GET", "/reconstructions?limit=10");
+  if (r.status !== 200) return;
+  const items = [];
+  for (const x of r.json) {
+    const img = el("img", { alt: `reconstruction ${x.id}` });
+    if (x.state === "done") showImage(img, `/reconstructions/${x.id}/image.png`);
+    const info = el("div", {},
+      el("div", {}, el("strong", {}, `#${x.id} ${x.scene} `), el("span", { class: `state state-${x.state}` }, x.state)),
+      el("pre", { class: "report" }, reportText(x)));
+    if (active(x.state)) {
+      const b = el("button", { class: "cancel" }, "Cancel");
+      b.addEventListener("click", () => cancel(`reconstruction-${x.id}`));
+      info.append(b);
+    }
+    items.push(el("div", { class: "result", id: `reconstruction-${x.id}` }, img, info));
+  }
+  $("#reconstructions").replaceChildren(...items);
+}
+
+async function cancel(job) {
+  const r = await api("DELETE", `/jobs/${job}`);
+  if (r.status >= 400) alert((r.json && r.json.detail) || `HTTP ${r.status}`);
+  refresh();
+}
+
+let busy = false;
+async function refresh() {
+  if (busy) return;
+  busy = true;
+  try {
+    await Promise.all([refreshCamera(), refreshCaptures(), refreshReconstructions()]);
+  } catch (e) {
+    text($("#health"), `error: ${e}`);
+  } finally {
+    busy = false;
+  }
+}
+
+function number(v) { return v === "" ? undefined : Number(v); }
+
+$("#capture-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const body = {
+    scene: f.get("scene"), pose: f.get("pose"),
+    polarizer_deg: f.get("polarizer_deg") === "" ? null : Number(f.get("polarizer_deg")),
+    exposure_us: number(f.get("exposure_us")), frames: number(f.get("frames")),
+    dark_frames: number(f.get("dark_frames")) || 0,
+  };
+  if (f.get("progressive")) {
+    body.progressive = { every: number(f.get("every")) };
+    if (f.get("truth")) body.progressive.truth = f.get("truth");
+  }
+  const r = await api("POST", "/captures", body);
+  const msg = $("#capture-message");
+  msg.className = r.status === 202 ? "message" : "message error";
+  text(msg, r.status === 202 ? `queued ${r.json.job}` : (r.json && r.json.detail) || `HTTP ${r.status}`);
+  refresh();
+});
+
+$("#reconstruction-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const body = {
+    scene: f.get("scene"),
+    captures: String(f.get("captures")).split(/[ ,]+/).filter((s) => s).map(Number),
+    solver: f.get("solver"),
+  };
+  if (f.get("truth")) body.truth = f.get("truth");
+  const r = await api("POST", "/reconstructions", body);
+  const msg = $("#reconstruction-message");
+  msg.className = r.status === 202 ? "message" : "message error";
+  text(msg, r.status === 202 ? `queued ${r.json.job}` : (r.json && r.json.detail) || `HTTP ${r.status}`);
+  refresh();
+});
+
+async function loadScenes() {
+  const r = await api("GET", "/scenes");
+  if (r.status !== 200) return;
+  document.querySelectorAll("select.scenes").forEach((s) => {
+    s.replaceChildren(...r.json.map((n) => el("option", { value: n }, n)));
+    s.value = r.json.includes("brewster-crossed") ? "brewster-crossed" : r.json[0];
+  });
+}
+
+// Server-sent events over fetch (EventSource cannot send the token).
+async function events() {
+  for (;;) {
+    try {
+      const r = await fetch("/events", { headers: headers(false) });
+      const reader = r.body.getReader();
+      const decoder = new TextDecoder();
+      let buf = "";
+      for (;;) {
+        const { value, done } = await reader.read();
+        if (done) break;
+        buf += decoder.decode(value, { stream: true });
+        let cut;
+        while ((cut = buf.indexOf("\n\n")) >= 0) {
+          const chunk = buf.slice(0, cut);
+          buf = buf.slice(cut + 2);
+          if (chunk.split("\n").some((l) => l.startsWith("data:"))) refresh();
+        }
+      }
+    } catch (_) { /* reconnect below */ }
+    await new Promise((res) => setTimeout(res, 2000));
+  }
+}
+
+loadScenes();
+refresh();
+setInterval(refresh, 1000);
+events();
