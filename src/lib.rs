@@ -13,7 +13,7 @@
 //!   axis), [`scene`] (scene files, geometry, validation), [`transport`]
 //!   (building `T`), [`solve`] (reconstruction, conditioning, metrics, λ),
 //!   [`simulate`] (noise model, patterns), [`measure`] (frames to `i`,
-//!   exposure planning).
+//!   exposure planning), [`calibrate`] (homographies from target images).
 //! - **I/O**: [`files`] (npy, PNG/TIFF, JSON, atomic writes, free disk and
 //!   memory), [`camera`] (the camera trait, settings and sensor limits, the
 //!   Aravis driver and its thread, the fake bench), [`store`] (the catalogue
@@ -26,6 +26,7 @@
 pub mod api;
 #[cfg(feature = "bench")]
 pub mod bench;
+pub mod calibrate;
 pub mod camera;
 pub mod daemon;
 pub mod files;

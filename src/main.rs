@@ -84,6 +84,9 @@ fn exit_code(e: &anyhow::Error) -> u8 {
                 polnlos::simulate::SimulateError::Black => INPUT,
             };
         }
+        if cause.is::<polnlos::calibrate::geometry::CalibrationError>() {
+            return INPUT;
+        }
         if cause.is::<cli::Usage>() {
             return USAGE;
         }

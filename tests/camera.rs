@@ -29,7 +29,10 @@ fn bench() -> FakeBench {
     FakeBench::start(
         ADDR,
         "POLNLOS-TEST",
-        vec![("A".into(), Some(0.0), gradient())],
+        polnlos::camera::BenchImages {
+            scene: vec![("A".into(), Some(0.0), gradient())],
+            target: Vec::new(),
+        },
         20_000.0,
     )
     .expect("fake camera")

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::{Command, Output};
 
 use polnlos::files::{image, npy};
-use polnlos::scene::Grid;
+use polnlos::scene::{Grid, Scene};
 use polnlos::simulate::patterns::Pattern;
 
 fn scene(name: &str) -> PathBuf {
@@ -684,5 +684,74 @@ fn exit_status_says_whose_the_error_is() {
     assert!(
         help.contains("Exit status: 0 done; 1 the work failed"),
         "{help}"
+    );
+}
+
+#[test]
+fn calibrate_geometry_recovers_a_pose_from_an_image_of_the_target() {
+    use polnlos::calibrate::geometry::{render, Target};
+    let d = tempfile::tempdir().unwrap();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let target_file = root.join("config/targets/dots-5x5.toml");
+    let target = Target::from_toml_str(&std::fs::read_to_string(&target_file).unwrap()).unwrap();
+    let shipped = Scene::builtin("brewster-crossed").unwrap().unwrap();
+    let h = shipped.pose("A").unwrap().homography.unwrap();
+    let frame = render(&target, &h, 512, 512);
+    let px: Vec<u16> = frame
+        .pixels
+        .iter()
+        .map(|&v| (v * 50000.0 + 4000.0) as u16)
+        .collect();
+    let img = d.path().join("target-A.png");
+    image::write_png16(&img, 512, 512, &px).unwrap();
+    let out = d.path().join("calibrated.toml");
+    let o = polnlos(&[
+        "calibrate",
+        "geometry",
+        img.to_str().unwrap(),
+        "--target",
+        target_file.to_str().unwrap(),
+        "--scene",
+        "brewster-crossed",
+        "--pose",
+        "A",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{err}");
+    println!("{err}");
+    assert!(err.contains("26 dots, reprojection error RMS"), "{err}");
+    let s = Scene::from_toml_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let fitted = s.pose("A").unwrap().homography.unwrap();
+    let worst = target
+        .dots
+        .iter()
+        .map(|p| {
+            let (a, b) = (
+                fitted.apply(p[0], p[1]).unwrap(),
+                h.apply(p[0], p[1]).unwrap(),
+            );
+            ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
+        })
+        .fold(0.0, f64::max);
+    assert!(worst < 0.3, "{worst} px from the shipped homography");
+    // An image without the whole target is a clear input error (status 3).
+    let blank = d.path().join("blank.png");
+    image::write_png16(&blank, 64, 64, &vec![100u16; 64 * 64]).unwrap();
+    let err = fails(&polnlos(&[
+        "calibrate",
+        "geometry",
+        blank.to_str().unwrap(),
+        "--target",
+        target_file.to_str().unwrap(),
+        "--scene",
+        "brewster-crossed",
+        "--pose",
+        "A",
+    ]));
+    assert!(
+        err.contains("found 0 dots in the image but the target has 26"),
+        "{err}"
     );
 }

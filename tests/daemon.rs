@@ -184,6 +184,7 @@ fn openapi_is_complete(spec: &serde_json::Value) {
         ("get", "/events"),
         ("get", "/scenes"),
         ("get", "/scenes/{name}/exposure"),
+        ("post", "/calibrations"),
     ];
     for (method, path) in routes {
         let op = &spec["paths"][path][method];
@@ -657,4 +658,67 @@ fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
         metrics.contains("polnlos_jobs_cancelled_total 2"),
         "{metrics}"
     );
+}
+
+#[test]
+fn a_target_capture_through_aravis_calibrates_the_pose() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let c = d.run_job("/captures", r#"{"kind": "target", "scene": "brewster-multi", "pose": "C", "polarizer_deg": 0, "exposure_us": 20000, "frames": 4, "dark_frames": 2}"#, Duration::from_secs(30));
+    assert_eq!(c["state"], "done", "{c}");
+    let (s, b, _) = d.post("/calibrations", r#"{"capture": 1}"#);
+    assert_eq!(s, 200, "{b}");
+    let cal: serde_json::Value = serde_json::from_str(&b).unwrap();
+    println!(
+        "pose C: {} dots, RMS {:.3} px, largest {:.3} px",
+        cal["dots"], cal["rms_px"], cal["max_px"]
+    );
+    let fitted: [[f64; 3]; 3] = serde_json::from_value(cal["homography"].clone()).unwrap();
+    let fitted = polnlos::scene::Homography::new(fitted).unwrap();
+    let shipped = Scene::builtin("brewster-multi").unwrap().unwrap();
+    let h = shipped.pose("C").unwrap().homography.unwrap();
+    let target = polnlos::calibrate::geometry::Target::default_target();
+    let worst = target
+        .dots
+        .iter()
+        .map(|p| {
+            let (a, b) = (
+                fitted.apply(p[0], p[1]).unwrap(),
+                h.apply(p[0], p[1]).unwrap(),
+            );
+            ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
+        })
+        .fold(0.0, f64::max);
+    println!("largest distance from the shipped homography at the dots: {worst:.3} px");
+    assert!(worst < 0.3, "{worst}");
+    assert!(cal["rms_px"].as_f64().unwrap() < 0.2, "{cal}");
+    // The scene file to review parses and carries the fit.
+    let s = Scene::from_toml_str(cal["scene_toml"].as_str().unwrap()).unwrap();
+    let written = s.pose("C").unwrap().homography.unwrap().matrix();
+    for (a, b) in written
+        .iter()
+        .flatten()
+        .zip(fitted.matrix().iter().flatten())
+    {
+        assert!((a - b).abs() <= 1e-9 * b.abs().max(1.0), "{a} vs {b}");
+    }
+    // A capture of the scene, not of the target, is refused with a reason.
+    let light = d.run_job("/captures", r#"{"scene": "brewster-multi", "pose": "C", "polarizer_deg": 0, "exposure_us": 20000, "frames": 1}"#, Duration::from_secs(30));
+    let (s, b, _) = d.post(
+        "/calibrations",
+        &format!(r#"{{"capture": {}}}"#, light["id"]),
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(
+        b.contains("needs a done \\\"kind\\\": \\\"target\\\" capture"),
+        "{b}"
+    );
+    // A target capture cannot be reconstructed.
+    let (s, b, _) = d.post(
+        "/reconstructions",
+        r#"{"scene": "brewster-multi", "captures": [1, 2]}"#,
+    );
+    assert_eq!(s, 422, "{b}");
 }

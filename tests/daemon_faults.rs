@@ -15,7 +15,10 @@ fn external_fake() -> FakeBench {
     FakeBench::start(
         "127.0.0.1",
         "POLNLOS-EXT",
-        vec![("A".into(), Some(0.0), Frame::zeros(512, 512))],
+        polnlos::camera::BenchImages {
+            scene: vec![("A".into(), Some(0.0), Frame::zeros(512, 512))],
+            target: Vec::new(),
+        },
         20_000.0,
     )
     .unwrap()

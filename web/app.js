@@ -159,12 +159,12 @@ $("#capture-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   const f = new FormData(ev.target);
   const body = {
-    scene: f.get("scene"), pose: f.get("pose"),
+    kind: f.get("kind"), scene: f.get("scene"), pose: f.get("pose"),
     polarizer_deg: f.get("polarizer_deg") === "" ? null : Number(f.get("polarizer_deg")),
     exposure_us: number(f.get("exposure_us")), frames: number(f.get("frames")),
     dark_frames: number(f.get("dark_frames")) || 0,
   };
-  if (f.get("progressive")) {
+  if (f.get("progressive") && body.kind === "light") {
     body.progressive = { every: number(f.get("every")) };
     if (f.get("truth")) body.progressive.truth = f.get("truth");
   }

@@ -134,6 +134,17 @@ impl ReconstructionBody {
     }
 }
 
+/// `POST /calibrations` body.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationBody {
+    /// A done `"kind": "target"` capture of the dot target on the wall.
+    pub capture: i64,
+    /// The target as TOML text (`radius_m`, `dots` in wall metres); default
+    /// the shipped `config/targets/dots-5x5.toml`, which the demo bench shows.
+    pub target: Option<String>,
+}
+
 /// Paging of list endpoints.
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]

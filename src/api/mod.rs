@@ -60,6 +60,7 @@ pub fn router(d: Arc<Daemon>) -> Router {
             "/captures/{id}/progressive.json",
             get(routes::capture_progressive_steps),
         )
+        .route("/calibrations", post(routes::post_calibration))
         .route(
             "/reconstructions",
             post(routes::post_reconstruction).get(routes::list_reconstructions),

@@ -226,6 +226,20 @@ pub async fn capture_progressive_steps(
     .await
 }
 
+/// Fits the pose of a target capture: its homography, reprojection error,
+/// and the scene file rewritten with it.
+#[utoipa::path(post, path = "/calibrations", request_body = crate::api::bodies::CalibrationBody, responses((status = 200, body = crate::daemon::GeometryCalibration, description = "The fitted pose and the scene file to review"), (status = 404, body = ErrorBody, description = "No such capture"), (status = 422, body = ErrorBody, description = "Not a done target capture, or the dots could not be found or identified")))]
+pub async fn post_calibration(
+    State(d): St,
+    ApiJson(b): ApiJson<crate::api::bodies::CalibrationBody>,
+) -> Result<Json<crate::daemon::GeometryCalibration>, ApiError> {
+    let r =
+        tokio::task::spawn_blocking(move || d.calibrate_geometry(b.capture, b.target.as_deref()))
+            .await
+            .map_err(|e| ApiError::internal(e.to_string()))??;
+    Ok(Json(r))
+}
+
 /// Queues a reconstruction.
 #[utoipa::path(post, path = "/reconstructions", request_body = ReconstructionBody, responses((status = 202, body = Accepted, description = "Queued; Location names the reconstruction"), (status = 404, description = "Unknown scene or capture"), (status = 422, description = "Invalid"), (status = 429, description = "Queue full")))]
 pub async fn post_reconstruction(

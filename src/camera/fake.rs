@@ -11,8 +11,7 @@
 use std::ffi::c_void;
 use std::sync::Arc;
 
-use super::shown::Shown;
-use super::Frame;
+use super::shown::{BenchImages, Shown};
 
 /// What a capture asks of the bench before acquiring.
 pub trait Bench: Send + Sync {
@@ -23,6 +22,15 @@ pub trait Bench: Send + Sync {
     /// Whether [`Bench::scene_on`] really switches the scene (a motorized
     /// shutter, the fake camera); when not, dark frames need the user.
     fn switches_scene(&self) -> bool;
+    /// Puts the calibration target on the wall (target captures) or takes
+    /// it away; on a bench set by hand the operator does.
+    fn show_target(&self, on: bool) {
+        tracing::info!(
+            on,
+            "capture expects the calibration target {} the wall",
+            if on { "on" } else { "off" }
+        );
+    }
 }
 
 /// A bench set by hand: polnlos logs what the operator should have done.
@@ -94,7 +102,7 @@ impl FakeBench {
     pub fn start(
         address: &str,
         serial: &str,
-        frames: Vec<(String, Option<f64>, Frame)>,
+        images: BenchImages,
         reference_exposure_us: f64,
     ) -> Result<Self, FakeError> {
         let gv = aravis::GvFakeCamera::new(Some(address), Some(serial));
@@ -104,7 +112,7 @@ impl FakeBench {
         let camera: *mut aravis_sys::ArvFakeCamera =
             aravis::glib::translate::ToGlibPtr::to_glib_none(&fake).0;
         let shared = Arc::new(Shared {
-            shown: Shown::new(frames, reference_exposure_us),
+            shown: Shown::new(images, reference_exposure_us),
             camera,
         });
         let ptr = Arc::into_raw(shared);
@@ -158,6 +166,9 @@ impl Bench for FakeBench {
     }
     fn scene_on(&self, on: bool) {
         self.shared().shown.scene_on(on);
+    }
+    fn show_target(&self, on: bool) {
+        self.shared().shown.show_target(on);
     }
     fn switches_scene(&self) -> bool {
         self.switches_scene

@@ -14,6 +14,7 @@ mod frame;
 pub mod hotplug;
 pub mod settings;
 mod shown;
+pub use shown::BenchImages;
 pub mod synthetic;
 pub mod worker;
 

@@ -17,12 +17,25 @@ fn key(pose: &str, deg: Option<f64>) -> String {
     }
 }
 
+/// What a demo bench can show, per (pose, polarizer angle) block, in
+/// fractions of full scale at the reference exposure.
+#[derive(Debug, Clone, Default)]
+pub struct BenchImages {
+    /// The wall lit by the hidden scene.
+    pub scene: Vec<(String, Option<f64>, Frame)>,
+    /// The calibration target on the wall (for geometry calibration).
+    pub target: Vec<(String, Option<f64>, Frame)>,
+}
+
 /// Wall images per block and the bench's state.
 pub struct Shown {
     /// Wall frames per block, in fractions of full scale at the reference exposure.
     frames: HashMap<String, Frame>,
+    /// The target's image per block.
+    targets: HashMap<String, Frame>,
     selected: Mutex<Option<String>>,
     scene_on: AtomicBool,
+    target_on: AtomicBool,
     reference_exposure_us: f64,
     /// Dark level, fraction of full scale at the reference exposure.
     dark_level: f64,
@@ -30,16 +43,20 @@ pub struct Shown {
 }
 
 impl Shown {
-    /// A bench showing `frames` (per pose and polarizer angle, in fractions of
-    /// full scale at `reference_exposure_us`), lit, nothing selected.
-    pub fn new(frames: Vec<(String, Option<f64>, Frame)>, reference_exposure_us: f64) -> Self {
-        Self {
-            frames: frames
-                .into_iter()
+    /// A bench showing `images` (scaled to `reference_exposure_us`), the
+    /// scene lit, the target away, nothing selected.
+    pub fn new(images: BenchImages, reference_exposure_us: f64) -> Self {
+        let keyed = |v: Vec<(String, Option<f64>, Frame)>| {
+            v.into_iter()
                 .map(|(p, d, f)| (key(&p, d), f))
-                .collect(),
+                .collect::<HashMap<_, _>>()
+        };
+        Self {
+            frames: keyed(images.scene),
+            targets: keyed(images.target),
             selected: Mutex::new(None),
             scene_on: AtomicBool::new(true),
+            target_on: AtomicBool::new(false),
             reference_exposure_us,
             dark_level: 0.01,
             counter: AtomicU64::new(0),
@@ -58,6 +75,11 @@ impl Shown {
         self.scene_on.store(on, Ordering::SeqCst);
     }
 
+    /// Puts the calibration target up (it hides the scene) or takes it down.
+    pub fn show_target(&self, on: bool) {
+        self.target_on.store(on, Ordering::SeqCst);
+    }
+
     /// Exposes one frame of the region `(w, h, ox, oy)`: hands `put` each
     /// pixel's index (row-major in the region) and value in DN, rounded and
     /// clamped to `[0, full]`, with +-0.5 DN of dither so that averaging
@@ -73,7 +95,9 @@ impl Shown {
     ) {
         let scale = exposure_us / self.reference_exposure_us * (1.0 + 0.1 * gain);
         let selected = self.selected.lock().ok().and_then(|s| s.clone());
-        let frame = if self.scene_on.load(Ordering::SeqCst) {
+        let frame = if self.target_on.load(Ordering::SeqCst) {
+            selected.and_then(|k| self.targets.get(&k))
+        } else if self.scene_on.load(Ordering::SeqCst) {
             selected.and_then(|k| self.frames.get(&k))
         } else {
             None
@@ -117,7 +141,11 @@ mod tests {
             height: 2,
             pixels: vec![0.5; 8],
         };
-        Shown::new(vec![("A".into(), Some(0.0), frame)], 1000.0)
+        let images = BenchImages {
+            scene: vec![("A".into(), Some(0.0), frame)],
+            target: Vec::new(),
+        };
+        Shown::new(images, 1000.0)
     }
 
     fn mean(s: &Shown, exposure_us: f64) -> f64 {

@@ -11,9 +11,9 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use super::device::FrameSink;
 use super::fake::Bench;
 use super::settings::{SensorLimits, EXPOSURE_RANGE_US};
-use super::shown::Shown;
+use super::shown::{BenchImages, Shown};
 use super::worker::Opener;
-use super::{CameraDevice, CameraError, CameraInfo, CameraSettings, Counters, Frame, RawFrame};
+use super::{CameraDevice, CameraError, CameraInfo, CameraSettings, Counters, RawFrame};
 
 /// Sensor width and height of the synthetic camera.
 const SENSOR: u32 = 512;
@@ -28,9 +28,9 @@ pub struct SyntheticBench {
 impl SyntheticBench {
     /// A bench showing `frames` (per pose and polarizer angle, in fractions
     /// of full scale at `reference_exposure_us`).
-    pub fn new(frames: Vec<(String, Option<f64>, Frame)>, reference_exposure_us: f64) -> Self {
+    pub fn new(images: BenchImages, reference_exposure_us: f64) -> Self {
         Self {
-            shown: Arc::new(Shown::new(frames, reference_exposure_us)),
+            shown: Arc::new(Shown::new(images, reference_exposure_us)),
             settings: Arc::new(Mutex::new(CameraSettings {
                 region: Some([0, 0, SENSOR, SENSOR]),
                 binning: Some([1, 1]),
@@ -63,6 +63,9 @@ impl Bench for SyntheticBench {
     }
     fn scene_on(&self, on: bool) {
         self.shown.scene_on(on);
+    }
+    fn show_target(&self, on: bool) {
+        self.shown.show_target(on);
     }
     fn switches_scene(&self) -> bool {
         true

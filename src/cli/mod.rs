@@ -3,6 +3,7 @@
 
 #[cfg(feature = "bench")]
 mod bench;
+mod calibrate;
 mod cond;
 mod pattern;
 mod plan;
@@ -61,6 +62,8 @@ enum Command {
     /// Markdown, charts).
     #[cfg(feature = "bench")]
     Bench(bench::Args),
+    /// Calibrate a bench from images (geometry: homographies from a dot target).
+    Calibrate(calibrate::Args),
     /// Run the acquisition daemon: camera, capture and reconstruction queues, HTTP API.
     Serve(serve::Args),
 }
@@ -82,6 +85,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(a) => simulate::run(a),
         Command::Reconstruct(a) => reconstruct::run(a),
         Command::Pattern(a) => pattern::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
         Command::Serve(a) => serve::run(a),
         #[cfg(feature = "bench")]
         Command::Bench(a) => bench::run(a),
@@ -93,6 +97,21 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]
 pub struct Usage(pub String);
+
+/// The text of a scene file, or of a built-in scene by name.
+fn scene_text(path: &Path) -> anyhow::Result<String> {
+    if !path.exists() {
+        let name = path.to_string_lossy();
+        if let Some((_, text)) = polnlos::scene::builtin::BUILT_IN
+            .iter()
+            .find(|(n, _)| *n == name)
+        {
+            return Ok(text.to_string());
+        }
+    }
+    std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read scene file {}", path.display()))
+}
 
 /// Loads a scene file, or a built-in scene by name (`brewster-crossed-3x3`,
 /// as the daemon knows them) when no such file exists; the error names the

@@ -86,6 +86,10 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
     if scene_off {
         d.bench.scene_on(false);
     }
+    let target = meta.kind == CaptureKind::Target;
+    if target {
+        d.bench.show_target(true);
+    }
     let (n, offset) = (c.frames as usize, c.dark_frames as usize);
     let progressive = spec.map(|s| (progressive::start(d, c.clone(), &s, dark.clone()), s.every));
     let snapshots = progressive
@@ -96,6 +100,9 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
         .await;
     if scene_off {
         d.bench.scene_on(true);
+    }
+    if target {
+        d.bench.show_target(false);
     }
     if let Some(((tx, steps), _)) = progressive {
         finish_progressive(d, id, frames.as_ref().ok(), tx, steps).await;
@@ -173,11 +180,7 @@ async fn wait_for_camera(d: &Daemon) {
 
 /// What every page of the capture's files records about it.
 fn meta_of(c: &CaptureRecord, settings: &CameraSettings, camera_id: &str) -> FrameMeta {
-    let kind = if c.is_dark() {
-        CaptureKind::Dark
-    } else {
-        CaptureKind::Light
-    };
+    let kind = c.capture_kind();
     FrameMeta {
         capture: c.id,
         kind,

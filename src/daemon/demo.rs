@@ -4,11 +4,14 @@
 
 use super::scenes::Scenes;
 use super::{config, DaemonError, DEMO_PEAK_FRACTION, DEMO_REFERENCE_EXPOSURE_US};
-use crate::camera::Frame;
 use crate::measure::render_wall;
 use crate::simulate::patterns::Pattern;
 
-type DemoFrames = Vec<(String, Option<f64>, Frame)>;
+type DemoFrames = crate::camera::BenchImages;
+
+/// Brightness of the calibration target's dots, fraction of full scale at the
+/// reference exposure.
+const TARGET_LEVEL: f32 = 0.8;
 
 /// Renders the fake camera's frame for every block of the demo scene (and of
 /// every other scene on the same bench with poses of their own), normalized so
@@ -38,7 +41,8 @@ pub(super) fn frames(
         return Err(err("the demo scene lights no wall element".into()));
     }
     let norm = DEMO_PEAK_FRACTION / peak;
-    let mut frames: DemoFrames = Vec::new();
+    let mut frames: DemoFrames = DemoFrames::default();
+    let target = crate::calibrate::geometry::Target::default_target();
     // The demo scene first; then same-bench scenes add blocks it lacks (B, C, angles).
     let mut names = vec![demo.scene.clone()];
     names.extend(scenes.names().into_iter().filter(|n| {
@@ -52,6 +56,7 @@ pub(super) fn frames(
         let i = t.apply(&l);
         for (b, block) in t.blocks.iter().enumerate() {
             if frames
+                .scene
                 .iter()
                 .any(|(p, a, _)| p == &block.pose && *a == block.polarizer_deg)
             {
@@ -61,11 +66,16 @@ pub(super) fn frames(
                 continue;
             };
             let values: Vec<f64> = i[t.block_rows(b)].iter().map(|v| v * norm).collect();
-            frames.push((
+            frames.scene.push((
                 block.pose.clone(),
                 block.polarizer_deg,
                 render_wall(&values, &h, &s.wall.plane, 512, 512, 0.0),
             ));
+            let mut dots = crate::calibrate::geometry::render(&target, &h, 512, 512);
+            dots.pixels.iter_mut().for_each(|p| *p *= TARGET_LEVEL);
+            frames
+                .target
+                .push((block.pose.clone(), block.polarizer_deg, dots));
         }
     }
     // Frame value v = norm T l at the reference exposure, as a fraction of full scale.

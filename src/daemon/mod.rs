@@ -14,6 +14,7 @@
 //!   settings and what `GET /camera` shows; `metrics`: `/metrics` samples.
 
 mod admission;
+mod calibration;
 mod camera;
 mod cancel;
 mod capture;
@@ -34,6 +35,7 @@ use std::sync::Arc;
 use tokio::sync::{broadcast, mpsc, Mutex};
 
 pub use admission::SubmitError;
+pub use calibration::GeometryCalibration;
 pub use camera::{CameraView, SettingsError};
 pub use cancel::{CancelError, JobKind};
 pub use config::Config;
@@ -147,7 +149,7 @@ impl CameraSetup {
 async fn demo_frames(
     demo: &config::DemoConfig,
     scenes: &Arc<Scenes>,
-) -> Result<(Vec<(String, Option<f64>, crate::camera::Frame)>, f64), DaemonError> {
+) -> Result<(crate::camera::BenchImages, f64), DaemonError> {
     let (scenes, demo) = (scenes.clone(), demo.clone());
     tokio::task::spawn_blocking(move || demo::frames(&scenes, &demo))
         .await

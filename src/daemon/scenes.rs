@@ -42,6 +42,8 @@ pub enum ScenesError {
 /// Scenes by name, with a cache of their `T`.
 pub struct Scenes {
     scenes: BTreeMap<String, Arc<Scene>>,
+    /// Each scene's TOML text, for writing calibrated copies of it.
+    sources: BTreeMap<String, String>,
     transports: Mutex<BTreeMap<String, Arc<Transport>>>,
     conditioning: Mutex<BTreeMap<String, Arc<Conditioning>>>,
 }
@@ -50,8 +52,10 @@ impl Scenes {
     /// Built-in scenes plus these files (a file replaces a built-in of the same name).
     pub fn load(files: &[impl AsRef<Path>]) -> Result<Self, SceneError> {
         let mut scenes = BTreeMap::new();
+        let mut sources = BTreeMap::new();
         for (name, text) in crate::scene::builtin::BUILT_IN {
             scenes.insert(name.to_string(), Arc::new(Scene::from_toml_str(text)?));
+            sources.insert(name.to_string(), text.to_string());
         }
         for f in files {
             let f = f.as_ref();
@@ -59,10 +63,15 @@ impl Scenes {
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            scenes.insert(name, Arc::new(Scene::load(f)?));
+            let scene = Scene::load(f)?;
+            if let Ok(text) = std::fs::read_to_string(f) {
+                sources.insert(name.clone(), text);
+            }
+            scenes.insert(name, Arc::new(scene));
         }
         Ok(Self {
             scenes,
+            sources,
             transports: Mutex::new(BTreeMap::new()),
             conditioning: Mutex::new(BTreeMap::new()),
         })
@@ -71,6 +80,11 @@ impl Scenes {
     /// The scene with this name.
     pub fn get(&self, name: &str) -> Option<Arc<Scene>> {
         self.scenes.get(name).cloned()
+    }
+
+    /// A scene's TOML text as loaded.
+    pub fn source(&self, name: &str) -> Option<&str> {
+        self.sources.get(name).map(String::as_str)
     }
 
     /// Every name.

@@ -5,8 +5,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::{PixelFormat, TriggerMode};
 
-/// Whether a capture shows the hidden scene or is a dark capture taken with
-/// the scene switched off (to be subtracted from light captures).
+/// Whether a capture shows the hidden scene, is a dark capture taken with
+/// the scene switched off (to be subtracted from light captures), or shows
+/// the calibration target on the wall (for `POST /calibrations`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum CaptureKind {
@@ -14,6 +15,8 @@ pub enum CaptureKind {
     Light,
     /// The hidden scene off (the user switched it off, or the bench did).
     Dark,
+    /// The calibration target on the wall, the hidden scene hidden by it.
+    Target,
 }
 
 impl CaptureKind {
@@ -22,6 +25,7 @@ impl CaptureKind {
         match self {
             CaptureKind::Light => "light",
             CaptureKind::Dark => "dark",
+            CaptureKind::Target => "target",
         }
     }
 }
@@ -192,6 +196,20 @@ impl CaptureRecord {
     /// Whether this is a dark capture.
     pub fn is_dark(&self) -> bool {
         self.kind == CaptureKind::Dark.name()
+    }
+
+    /// Whether this is a capture of the hidden scene (not dark, not target).
+    pub fn is_light(&self) -> bool {
+        self.kind == CaptureKind::Light.name()
+    }
+
+    /// Its kind.
+    pub fn capture_kind(&self) -> CaptureKind {
+        match self.kind.as_str() {
+            "dark" => CaptureKind::Dark,
+            "target" => CaptureKind::Target,
+            _ => CaptureKind::Light,
+        }
     }
 }
 

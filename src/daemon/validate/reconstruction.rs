@@ -86,9 +86,10 @@ pub(super) fn block_of(
             c.state.name()
         )));
     }
-    if c.is_dark() {
+    if !c.is_light() {
         return Err(invalid(format!(
-            "capture {id} is a dark capture; give light captures (subtract darks with dark_capture when capturing)"
+            "capture {id} is a {} capture; give light captures (subtract darks with dark_capture when capturing; target captures are for POST /calibrations)",
+            c.kind
         )));
     }
     if c.scene != scene_name {

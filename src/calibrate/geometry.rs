@@ -1,0 +1,671 @@
+//! Geometry calibration: a pose's camera→wall homography from an image of
+//! a dot target on the wall.
+//!
+//! The dots are found as bright connected blobs (intensity-weighted
+//! centroids); they are identified by the convex hull, which a homography
+//! maps onto the detections' hull in the same cyclic order (every rotation
+//! and both directions are tried, and the one whose homography explains all
+//! dots best wins, so the target needs no symmetry); `H` comes from the
+//! normalized DLT (Hartley) on every dot, refined by Levenberg-Marquardt on
+//! the reprojection error in pixels, which is reported.
+
+use nalgebra::{DMatrix, Matrix3, SMatrix, SVector};
+
+use crate::camera::Frame;
+use crate::scene::Homography;
+
+/// A dot target: dot centres in wall coordinates and their radius.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Target {
+    /// Dot radius, metres.
+    pub radius_m: f64,
+    /// Dot centres `[u, v]`, metres from the wall centre.
+    pub dots: Vec<[f64; 2]>,
+}
+
+/// Why a calibration could not be made.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CalibrationError {
+    /// The target file is wrong.
+    #[error("target: {0}")]
+    Target(String),
+    /// Not as many dots in the image as the target has.
+    #[error("found {found} dots in the image but the target has {expected}; check that the whole target is in view, lit, in focus, and not saturated, and that the target file is the one on the wall")]
+    DotCount {
+        /// Blobs found.
+        found: usize,
+        /// Dots in the target.
+        expected: usize,
+    },
+    /// The dots could not be identified (the hulls differ, or no assignment fits).
+    #[error("the dots could not be identified: {0}")]
+    Identification(String),
+}
+
+/// Fewest pixels a blob needs to count as a dot.
+const MIN_BLOB_PIXELS: usize = 4;
+/// Hull vertices turning less than this (radians) are edge points, not corners.
+const HULL_TURN: f64 = 0.1;
+
+/// The shipped target (`config/targets/dots-5x5.toml`): what the demo bench
+/// shows and what `POST /calibrations` assumes when none is given.
+pub const DEFAULT_TARGET: &str = include_str!("../../config/targets/dots-5x5.toml");
+
+impl Target {
+    /// The shipped target, [`DEFAULT_TARGET`].
+    pub fn default_target() -> Self {
+        match Self::from_toml_str(DEFAULT_TARGET) {
+            Ok(t) => t,
+            Err(e) => unreachable!("the shipped target parses (tested): {e}"),
+        }
+    }
+
+    /// Parses a target file (TOML: `radius_m`, `dots`).
+    pub fn from_toml_str(text: &str) -> Result<Self, CalibrationError> {
+        let t: Target =
+            toml::from_str(text).map_err(|e| CalibrationError::Target(e.to_string()))?;
+        if !(t.radius_m > 0.0 && t.radius_m.is_finite()) {
+            return Err(CalibrationError::Target(format!(
+                "radius_m = {}: must be a positive length",
+                t.radius_m
+            )));
+        }
+        if t.dots.len() < 5 || t.dots.len() > 10_000 {
+            return Err(CalibrationError::Target(format!(
+                "{} dots: give 5 to 10000 (4 hull corners and at least one more)",
+                t.dots.len()
+            )));
+        }
+        if t.dots.iter().flatten().any(|x| !x.is_finite()) {
+            return Err(CalibrationError::Target(
+                "a dot coordinate is not a finite number".into(),
+            ));
+        }
+        Ok(t)
+    }
+}
+
+/// A bright blob: centroid in pixels (x right, y down; pixel centres at
+/// integers) and its area.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Blob {
+    /// Centroid x.
+    pub x: f64,
+    /// Centroid y.
+    pub y: f64,
+    /// Pixels above the threshold.
+    pub pixels: usize,
+}
+
+/// A fitted homography and how well it explains the dots.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fit {
+    /// Wall metres → pixels.
+    pub homography: Homography,
+    /// RMS reprojection error, pixels.
+    pub rms_px: f64,
+    /// Largest reprojection error, pixels.
+    pub max_px: f64,
+    /// Dots used.
+    pub dots: usize,
+}
+
+/// The image a camera at `h` sees of the target: 1 on the dots, 0 elsewhere,
+/// each pixel the mean of 4x4 sub-samples (for the fake camera and tests).
+pub fn render(target: &Target, h: &Homography, width: usize, height: usize) -> Frame {
+    const S: usize = 4;
+    let r2 = target.radius_m * target.radius_m;
+    let mut pixels = vec![0f32; width * height];
+    for (k, px) in pixels.iter_mut().enumerate() {
+        let (x0, y0) = ((k % width) as f64, (k / width) as f64);
+        let mut hits = 0;
+        for sy in 0..S {
+            for sx in 0..S {
+                let x = x0 - 0.5 + (sx as f64 + 0.5) / S as f64;
+                let y = y0 - 0.5 + (sy as f64 + 0.5) / S as f64;
+                if let Some((u, v)) = h.invert(x, y) {
+                    let inside = target
+                        .dots
+                        .iter()
+                        .any(|d| (d[0] - u).powi(2) + (d[1] - v).powi(2) <= r2);
+                    hits += usize::from(inside);
+                }
+            }
+        }
+        *px = hits as f32 / (S * S) as f32;
+    }
+    Frame {
+        width,
+        height,
+        pixels,
+    }
+}
+
+/// The bright blobs of `frame`: pixels above the midpoint between the 1st
+/// and 99.9th percentile, 8-connected, weighted by their height above it.
+pub fn detect(frame: &Frame) -> Vec<Blob> {
+    let (w, h) = (frame.width, frame.height);
+    let n = (w * h).min(frame.pixels.len());
+    if n == 0 {
+        return Vec::new();
+    }
+    let mut sorted: Vec<f32> = frame.pixels[..n].to_vec();
+    sorted.sort_by(f32::total_cmp);
+    let lo = f64::from(sorted[n / 100]);
+    let hi = f64::from(sorted[(n - 1) - (n - 1) / 1000]);
+    if hi <= lo {
+        return Vec::new();
+    }
+    let threshold = 0.5 * (lo + hi);
+    let mut seen = vec![false; n];
+    let mut blobs = Vec::new();
+    let mut stack = Vec::new();
+    for start in 0..n {
+        if seen[start] || f64::from(frame.pixels[start]) <= threshold {
+            continue;
+        }
+        seen[start] = true;
+        stack.push(start);
+        let (mut sw, mut sx, mut sy, mut count) = (0.0, 0.0, 0.0, 0);
+        while let Some(k) = stack.pop() {
+            let (x, y) = (k % w, k / w);
+            let weight = f64::from(frame.pixels[k]) - threshold;
+            sw += weight;
+            sx += weight * x as f64;
+            sy += weight * y as f64;
+            count += 1;
+            for dy in -1i64..=1 {
+                for dx in -1i64..=1 {
+                    let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+                    if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
+                        continue;
+                    }
+                    let j = ny as usize * w + nx as usize;
+                    if !seen[j] && f64::from(frame.pixels[j]) > threshold {
+                        seen[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+        if count >= MIN_BLOB_PIXELS && sw > 0.0 {
+            blobs.push(Blob {
+                x: sx / sw,
+                y: sy / sw,
+                pixels: count,
+            });
+        }
+    }
+    blobs
+}
+
+/// Fits the homography wall → pixels from the target and the blobs found.
+pub fn fit(target: &Target, blobs: &[Blob]) -> Result<Fit, CalibrationError> {
+    if blobs.len() != target.dots.len() {
+        return Err(CalibrationError::DotCount {
+            found: blobs.len(),
+            expected: target.dots.len(),
+        });
+    }
+    let image: Vec<[f64; 2]> = blobs.iter().map(|b| [b.x, b.y]).collect();
+    let hull_t = hull_corners(&target.dots);
+    let hull_i = hull_corners(&image);
+    if hull_t.len() != hull_i.len() || hull_t.len() < 4 {
+        return Err(CalibrationError::Identification(format!(
+            "the target's outline has {} corners but the dots in the image outline {}; is a dot hidden, or an extra bright spot in view?",
+            hull_t.len(),
+            hull_i.len()
+        )));
+    }
+    let k = hull_t.len();
+    let mut best: Option<(f64, Vec<usize>)> = None;
+    for reverse in [false, true] {
+        for shift in 0..k {
+            let pairs: Vec<([f64; 2], [f64; 2])> = (0..k)
+                .map(|j| {
+                    let i = if reverse {
+                        (shift + k - j) % k
+                    } else {
+                        (shift + j) % k
+                    };
+                    (target.dots[hull_t[j]], image[hull_i[i]])
+                })
+                .collect();
+            let Some(h) = dlt(&pairs) else { continue };
+            let Some((cost, assignment)) = assign(&h, &target.dots, &image) else {
+                continue;
+            };
+            if best.as_ref().is_none_or(|(c, _)| cost < *c) {
+                best = Some((cost, assignment));
+            }
+        }
+    }
+    let (_, assignment) = best.ok_or_else(|| {
+        CalibrationError::Identification(
+            "no assignment of the outline corners gives a valid homography".into(),
+        )
+    })?;
+    let pairs: Vec<([f64; 2], [f64; 2])> = target
+        .dots
+        .iter()
+        .zip(&assignment)
+        .map(|(d, &i)| (*d, image[i]))
+        .collect();
+    let h0 = dlt(&pairs).ok_or_else(|| {
+        CalibrationError::Identification("the identified dots give a degenerate homography".into())
+    })?;
+    let h = refine(h0, &pairs);
+    let homography = Homography::new(h).ok_or_else(|| {
+        CalibrationError::Identification("the refined homography is singular".into())
+    })?;
+    let errors: Vec<f64> = pairs
+        .iter()
+        .map(|(w, p)| match project(&h, *w) {
+            Some(q) => ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2)).sqrt(),
+            None => f64::INFINITY,
+        })
+        .collect();
+    let rms_px = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+    let max_px = errors.iter().copied().fold(0.0, f64::max);
+    Ok(Fit {
+        homography,
+        rms_px,
+        max_px,
+        dots: pairs.len(),
+    })
+}
+
+/// The scene file `scene_toml` with pose `pose`'s `homography` replaced by
+/// `h` and its camera frame set to `region` (binning 1), for the user to
+/// review; checked to parse as a scene. (The file's comments are not kept.)
+pub fn scene_with_homography(
+    scene_toml: &str,
+    pose: &str,
+    h: &Homography,
+    region: [u32; 4],
+) -> Result<String, CalibrationError> {
+    let bad = |m: String| CalibrationError::Target(m);
+    let mut table: toml::Table =
+        toml::from_str(scene_toml).map_err(|e| bad(format!("scene file: {e}")))?;
+    let poses = table
+        .get_mut("pose")
+        .and_then(|p| p.as_array_mut())
+        .ok_or_else(|| bad("scene file has no [[pose]]".into()))?;
+    let entry = poses
+        .iter_mut()
+        .filter_map(|p| p.as_table_mut())
+        .find(|p| p.get("name").and_then(|n| n.as_str()) == Some(pose))
+        .ok_or_else(|| bad(format!("scene file has no pose {pose:?}")))?;
+    let m = h.matrix();
+    let rows: Vec<toml::Value> = m
+        .iter()
+        .map(|r| toml::Value::Array(r.iter().map(|&x| toml::Value::Float(x)).collect()))
+        .collect();
+    entry.insert("homography".into(), toml::Value::Array(rows));
+    let ints = |v: &[u32]| {
+        toml::Value::Array(
+            v.iter()
+                .map(|&x| toml::Value::Integer(i64::from(x)))
+                .collect(),
+        )
+    };
+    entry.insert("region".into(), ints(&region));
+    entry.insert("binning".into(), ints(&[1, 1]));
+    let text = toml::to_string_pretty(&table).map_err(|e| bad(e.to_string()))?;
+    crate::scene::Scene::from_toml_str(&text)
+        .map_err(|e| bad(format!("the calibrated scene does not validate: {e}")))?;
+    Ok(text)
+}
+
+/// `H [u, v, 1]`, dehomogenized; None at infinity.
+fn project(h: &[[f64; 3]; 3], w: [f64; 2]) -> Option<[f64; 2]> {
+    let z = h[2][0] * w[0] + h[2][1] * w[1] + h[2][2];
+    if z.abs() < 1e-12 {
+        return None;
+    }
+    Some([
+        (h[0][0] * w[0] + h[0][1] * w[1] + h[0][2]) / z,
+        (h[1][0] * w[0] + h[1][1] * w[1] + h[1][2]) / z,
+    ])
+}
+
+/// Matches every target dot to a distinct detection under `h` (nearest
+/// first); the sum of squared distances, or None when a match is ambiguous.
+fn assign(h: &[[f64; 3]; 3], dots: &[[f64; 2]], image: &[[f64; 2]]) -> Option<(f64, Vec<usize>)> {
+    let projected: Vec<[f64; 2]> = dots.iter().map(|d| project(h, *d)).collect::<Option<_>>()?;
+    let mut candidates: Vec<(f64, usize, usize)> = Vec::with_capacity(dots.len() * image.len());
+    for (a, p) in projected.iter().enumerate() {
+        for (b, q) in image.iter().enumerate() {
+            candidates.push(((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2), a, b));
+        }
+    }
+    candidates.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let mut of_dot = vec![usize::MAX; dots.len()];
+    let mut taken = vec![false; image.len()];
+    let mut cost = 0.0;
+    for (d2, a, b) in candidates {
+        if of_dot[a] == usize::MAX && !taken[b] {
+            of_dot[a] = b;
+            taken[b] = true;
+            cost += d2;
+        }
+    }
+    of_dot
+        .iter()
+        .all(|&b| b != usize::MAX)
+        .then_some((cost, of_dot))
+}
+
+/// Indices of the corners of the convex hull, counter-clockwise in the
+/// points' own axes (Andrew's monotone chain), without edge points.
+fn hull_corners(points: &[[f64; 2]]) -> Vec<usize> {
+    let mut idx: Vec<usize> = (0..points.len()).collect();
+    idx.sort_by(|&a, &b| {
+        points[a][0]
+            .total_cmp(&points[b][0])
+            .then(points[a][1].total_cmp(&points[b][1]))
+    });
+    let cross = |o: usize, a: usize, b: usize| {
+        (points[a][0] - points[o][0]) * (points[b][1] - points[o][1])
+            - (points[a][1] - points[o][1]) * (points[b][0] - points[o][0])
+    };
+    let mut hull: Vec<usize> = Vec::new();
+    for pass in 0..2 {
+        let start = hull.len();
+        let order: Vec<usize> = if pass == 0 {
+            idx.clone()
+        } else {
+            idx.iter().rev().copied().collect()
+        };
+        for &p in &order {
+            while hull.len() >= start + 2
+                && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0
+            {
+                hull.pop();
+            }
+            hull.push(p);
+        }
+        hull.pop();
+    }
+    // Drop vertices where the outline barely turns (points along an edge).
+    let n = hull.len();
+    if n < 3 {
+        return hull;
+    }
+    (0..n)
+        .filter(|&k| {
+            let (a, b, c) = (
+                points[hull[(k + n - 1) % n]],
+                points[hull[k]],
+                points[hull[(k + 1) % n]],
+            );
+            let (d1, d2) = ([b[0] - a[0], b[1] - a[1]], [c[0] - b[0], c[1] - b[1]]);
+            let turn = (d1[0] * d2[1] - d1[1] * d2[0]).atan2(d1[0] * d2[0] + d1[1] * d2[1]);
+            turn.abs() > HULL_TURN
+        })
+        .map(|k| hull[k])
+        .collect()
+}
+
+/// Similarity that moves points to their centroid and mean distance sqrt(2).
+fn normalization(points: impl Iterator<Item = [f64; 2]> + Clone) -> Matrix3<f64> {
+    let n = points.clone().count().max(1) as f64;
+    let (cx, cy) = points
+        .clone()
+        .fold((0.0, 0.0), |(x, y), p| (x + p[0] / n, y + p[1] / n));
+    let mean = points
+        .map(|p| ((p[0] - cx).powi(2) + (p[1] - cy).powi(2)).sqrt())
+        .sum::<f64>()
+        / n;
+    let s = if mean > 0.0 { 2f64.sqrt() / mean } else { 1.0 };
+    Matrix3::new(s, 0.0, -s * cx, 0.0, s, -s * cy, 0.0, 0.0, 1.0)
+}
+
+/// Normalized DLT (Hartley & Zisserman, Alg. 4.2) from (wall, pixel) pairs.
+fn dlt(pairs: &[([f64; 2], [f64; 2])]) -> Option<[[f64; 3]; 3]> {
+    if pairs.len() < 4 {
+        return None;
+    }
+    let tw = normalization(pairs.iter().map(|p| p.0));
+    let ti = normalization(pairs.iter().map(|p| p.1));
+    let mut a = DMatrix::<f64>::zeros(2 * pairs.len(), 9);
+    for (k, (w, p)) in pairs.iter().enumerate() {
+        let w = tw * nalgebra::Vector3::new(w[0], w[1], 1.0);
+        let p = ti * nalgebra::Vector3::new(p[0], p[1], 1.0);
+        let (x, y) = (p[0] / p[2], p[1] / p[2]);
+        let row = [w[0], w[1], w[2]];
+        for c in 0..3 {
+            a[(2 * k, 3 + c)] = -row[c];
+            a[(2 * k, 6 + c)] = y * row[c];
+            a[(2 * k + 1, c)] = row[c];
+            a[(2 * k + 1, 6 + c)] = -x * row[c];
+        }
+    }
+    // The null vector of A: the eigenvector of A^T A with the least eigenvalue.
+    let ata = a.transpose() * &a;
+    let eig = ata.symmetric_eigen();
+    let (k, _) = eig
+        .eigenvalues
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))?;
+    let v = eig.eigenvectors.column(k);
+    let hn = Matrix3::from_fn(|r, c| v[3 * r + c]);
+    let h = ti.try_inverse()? * hn * tw;
+    let scale = h[(2, 2)];
+    if !scale.is_finite() || scale.abs() < 1e-300 {
+        return None;
+    }
+    let h = h / scale;
+    Some(std::array::from_fn(|r| std::array::from_fn(|c| h[(r, c)])))
+}
+
+/// Levenberg-Marquardt on the reprojection error in pixels over the 8 free
+/// entries of `H` (`h33 = 1`), from the DLT estimate.
+fn refine(h: [[f64; 3]; 3], pairs: &[([f64; 2], [f64; 2])]) -> [[f64; 3]; 3] {
+    let to_h = |p: &SVector<f64, 8>| -> [[f64; 3]; 3] {
+        [[p[0], p[1], p[2]], [p[3], p[4], p[5]], [p[6], p[7], 1.0]]
+    };
+    let residuals = |p: &SVector<f64, 8>| -> Option<Vec<f64>> {
+        let h = to_h(p);
+        let mut r = Vec::with_capacity(2 * pairs.len());
+        for (w, q) in pairs {
+            let x = project(&h, *w)?;
+            r.push(x[0] - q[0]);
+            r.push(x[1] - q[1]);
+        }
+        Some(r)
+    };
+    let mut p = SVector::<f64, 8>::from_fn(|k, _| h[k / 3][k % 3]);
+    let Some(mut r) = residuals(&p) else { return h };
+    let mut cost: f64 = r.iter().map(|x| x * x).sum();
+    let mut mu = 1e-3;
+    for _ in 0..50 {
+        // Jacobian by central differences (8 columns, cheap next to the solve's needs).
+        let mut jtj = SMatrix::<f64, 8, 8>::zeros();
+        let mut jtr = SVector::<f64, 8>::zeros();
+        let mut columns = Vec::with_capacity(8);
+        for k in 0..8 {
+            let step = 1e-7 * p[k].abs().max(1e-3);
+            let (mut a, mut b) = (p, p);
+            a[k] += step;
+            b[k] -= step;
+            let (Some(ra), Some(rb)) = (residuals(&a), residuals(&b)) else {
+                return to_h(&p);
+            };
+            columns.push(
+                ra.iter()
+                    .zip(&rb)
+                    .map(|(x, y)| (x - y) / (2.0 * step))
+                    .collect::<Vec<f64>>(),
+            );
+        }
+        for a in 0..8 {
+            jtr[a] = columns[a].iter().zip(&r).map(|(j, e)| j * e).sum();
+            for b in 0..8 {
+                jtj[(a, b)] = columns[a].iter().zip(&columns[b]).map(|(x, y)| x * y).sum();
+            }
+        }
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut m = jtj;
+            for d in 0..8 {
+                m[(d, d)] *= 1.0 + mu;
+            }
+            let Some(delta) = m.lu().solve(&(-jtr)) else {
+                break;
+            };
+            let next = p + delta;
+            if let Some(rn) = residuals(&next) {
+                let c: f64 = rn.iter().map(|x| x * x).sum();
+                if c < cost {
+                    (p, r, cost) = (next, rn, c);
+                    mu = (mu * 0.3).max(1e-12);
+                    improved = true;
+                    break;
+                }
+            }
+            mu *= 10.0;
+        }
+        if !improved || cost < 1e-20 {
+            break;
+        }
+    }
+    to_h(&p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn target() -> Target {
+        Target::from_toml_str(include_str!("../../config/targets/dots-5x5.toml")).expect("target")
+    }
+
+    fn shipped(scene: &str, pose: usize) -> Homography {
+        match crate::scene::Scene::builtin(scene) {
+            Some(Ok(s)) => s.poses[pose].homography.expect("homography"),
+            _ => panic!("scene"),
+        }
+    }
+
+    /// Largest distance, over the target's dots, between where two
+    /// homographies put them.
+    fn disagreement(a: &Homography, b: &Homography, t: &Target) -> f64 {
+        t.dots
+            .iter()
+            .map(|d| {
+                let (p, q) = (
+                    a.apply(d[0], d[1]).expect("p"),
+                    b.apply(d[0], d[1]).expect("q"),
+                );
+                ((p.0 - q.0).powi(2) + (p.1 - q.1).powi(2)).sqrt()
+            })
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn dlt_recovers_an_exact_homography_from_its_own_points() {
+        let h = shipped("brewster-crossed", 0);
+        let t = target();
+        let pairs: Vec<_> = t
+            .dots
+            .iter()
+            .map(|d| {
+                let (x, y) = h.apply(d[0], d[1]).expect("in front");
+                (*d, [x, y])
+            })
+            .collect();
+        let m = dlt(&pairs).expect("dlt");
+        let fitted = Homography::new(m).expect("regular");
+        assert!(disagreement(&fitted, &h, &t) < 1e-6);
+    }
+
+    #[test]
+    fn every_shipped_pose_is_recovered_from_an_image_of_the_target() {
+        let t = target();
+        for (scene, pose) in [
+            ("brewster-crossed", 0),
+            ("brewster-multi", 0),
+            ("brewster-multi", 1),
+        ] {
+            let h = shipped(scene, pose);
+            let frame = render(&t, &h, 512, 512);
+            let blobs = detect(&frame);
+            let f = fit(&t, &blobs).expect("fit");
+            let err = disagreement(&f.homography, &h, &t);
+            println!(
+                "{scene} pose {pose}: rms {:.3} px, max {:.3} px, vs shipped {err:.3} px",
+                f.rms_px, f.max_px
+            );
+            assert!(f.rms_px < 0.2, "{scene}/{pose}: {f:?}");
+            assert!(err < 0.3, "{scene}/{pose}: {err}");
+        }
+    }
+
+    #[test]
+    fn a_hidden_dot_or_a_stray_spot_is_a_clear_error() {
+        let t = target();
+        let h = shipped("brewster-crossed", 0);
+        let mut frame = render(&t, &h, 512, 512);
+        let blobs = detect(&frame);
+        let e = fit(&t, &blobs[1..]).expect_err("one dot short");
+        assert!(
+            matches!(
+                e,
+                CalibrationError::DotCount {
+                    found: 25,
+                    expected: 26
+                }
+            ),
+            "{e}"
+        );
+        // A bright spot far from the target: one blob too many.
+        for y in 5..10 {
+            for x in 5..10 {
+                frame.pixels[y * 512 + x] = 1.0;
+            }
+        }
+        let e = fit(&t, &detect(&frame)).expect_err("a stray spot");
+        assert!(e.to_string().contains("found 27 dots"), "{e}");
+    }
+
+    #[test]
+    fn a_noisy_offset_image_still_gives_the_pose_within_a_third_of_a_pixel() {
+        let t = target();
+        let h = shipped("brewster-multi", 1);
+        let mut frame = render(&t, &h, 512, 512);
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
+        for p in frame.pixels.iter_mut() {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            let noise = (seed >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
+            *p = 0.2 + 0.6 * *p + 0.1 * noise;
+        }
+        let f = fit(&t, &detect(&frame)).expect("fit");
+        let err = disagreement(&f.homography, &h, &t);
+        println!("noisy: rms {:.3} px, vs shipped {err:.3} px", f.rms_px);
+        assert!(err < 0.3, "{err}");
+    }
+
+    #[test]
+    fn the_calibrated_scene_file_parses_and_carries_the_fit() {
+        let text = include_str!("../../config/scenes/brewster-multi.toml");
+        let h = shipped("brewster-crossed", 0);
+        let out = scene_with_homography(text, "C", &h, [0, 0, 512, 512]).expect("scene");
+        let s = crate::scene::Scene::from_toml_str(&out).expect("parses");
+        assert_eq!(s.pose("C").and_then(|p| p.homography), Some(h));
+        assert_ne!(s.pose("B").and_then(|p| p.homography), Some(h));
+        let e = scene_with_homography(text, "Z", &h, [0, 0, 512, 512]).expect_err("no pose Z");
+        assert!(e.to_string().contains("no pose \"Z\""), "{e}");
+    }
+
+    #[test]
+    fn a_symmetric_target_file_is_refused_only_when_malformed() {
+        assert!(Target::from_toml_str("radius_m = 0.0\ndots = []").is_err());
+        assert!(Target::from_toml_str("radius_m = 0.01\ndots = [[0, 0]]").is_err());
+        assert!(Target::from_toml_str("radius_m = 0.01\nextra = 1\ndots = []").is_err());
+    }
+}

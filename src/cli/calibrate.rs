@@ -1,0 +1,82 @@
+//! `polnlos calibrate geometry`: a pose's homography from an image of the
+//! dot target on the wall, written into a scene file to review.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use polnlos::calibrate::geometry::{detect, fit, scene_with_homography, Target};
+use polnlos::camera::Frame;
+
+/// Calibrate a bench from images.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    what: What,
+}
+
+#[derive(Debug, clap::Subcommand)]
+enum What {
+    /// Fit a pose's camera→wall homography to an image of a dot target.
+    #[command(
+        after_help = "Example:\n  polnlos calibrate geometry target-A.png --target config/targets/dots-5x5.toml \\\n    --scene brewster-crossed --pose A --out brewster-crossed-calibrated.toml\n\
+Prints the dots found and the reprojection error (RMS and largest, pixels);\n\
+writes the scene with the pose's homography and camera frame replaced."
+    )]
+    Geometry(GeometryArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct GeometryArgs {
+    /// Image of the target as the pose sees it (PNG or TIFF, grey).
+    image: PathBuf,
+    /// Target file (TOML: radius_m, dots).
+    #[arg(long, value_name = "FILE")]
+    target: PathBuf,
+    /// Scene file (or built-in scene name) whose pose to calibrate.
+    #[arg(long, value_name = "SCENE")]
+    scene: PathBuf,
+    /// Pose name in the scene.
+    #[arg(long, value_name = "NAME")]
+    pose: String,
+    /// Write the calibrated scene file here (default: print it).
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    match a.what {
+        What::Geometry(g) => geometry(g),
+    }
+}
+
+fn geometry(a: GeometryArgs) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(&a.target)
+        .with_context(|| format!("cannot read target file {}", a.target.display()))?;
+    let target = Target::from_toml_str(&text)
+        .with_context(|| format!("target file {}", a.target.display()))?;
+    let scene_text = super::scene_text(&a.scene)?;
+    let img = polnlos::files::image::read_gray(&a.image)?;
+    let frame = Frame {
+        width: img.width,
+        height: img.height,
+        pixels: img.data.iter().map(|&v| v as f32).collect(),
+    };
+    let blobs = detect(&frame);
+    let f = fit(&target, &blobs).with_context(|| format!("image {}", a.image.display()))?;
+    let region = [0, 0, img.width as u32, img.height as u32];
+    let out = scene_with_homography(&scene_text, &a.pose, &f.homography, region)?;
+    eprintln!(
+        "pose {}: {} dots, reprojection error RMS {:.3} px, largest {:.3} px",
+        a.pose, f.dots, f.rms_px, f.max_px
+    );
+    let m = f.homography.matrix();
+    eprintln!("homography = {m:?}");
+    match &a.out {
+        Some(p) => {
+            polnlos::files::write_atomic(p, out.as_bytes())?;
+            println!("calibrated scene written to {}", p.display());
+        }
+        None => print!("{out}"),
+    }
+    Ok(())
+}
