@@ -31,7 +31,7 @@ fn bench() -> FakeBench {
         "POLNLOS-TEST",
         polnlos::camera::BenchImages {
             scene: vec![("A".into(), Some(0.0), gradient())],
-            target: Vec::new(),
+            ..Default::default()
         },
         20_000.0,
     )

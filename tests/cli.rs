@@ -755,3 +755,47 @@ fn calibrate_geometry_recovers_a_pose_from_an_image_of_the_target() {
         "{err}"
     );
 }
+
+#[test]
+fn calibrate_wall_fits_a_point_source_measurement_with_uncertainties() {
+    use polnlos::calibrate::wall::{predict, PointSource, WallParams};
+    let d = tempfile::tempdir().unwrap();
+    let scene = Scene::builtin("brewster-rotating").unwrap().unwrap();
+    let source = PointSource { u: 0.03, v: -0.02 };
+    let truth = WallParams {
+        alpha: 0.25,
+        ior: 1.6,
+        kd: 0.04,
+        gain: 3.0,
+    };
+    let i = predict(&scene, &source, &truth).unwrap();
+    let m = d.path().join("source.npy");
+    npy::write_f64(&m, &[i.len()], &i).unwrap();
+    let out = ok(&polnlos(&[
+        "calibrate",
+        "wall",
+        "brewster-rotating",
+        "--measurement",
+        m.to_str().unwrap(),
+        "--source",
+        "0.03,-0.02",
+    ]));
+    println!("{out}");
+    let f: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let p = |k: &str| f["params"][k].as_f64().unwrap();
+    assert!((p("alpha") - 0.25).abs() < 0.01, "{f}");
+    assert!((p("ior") - 1.6).abs() < 0.02, "{f}");
+    assert!((p("kd") - 0.04).abs() < 0.005, "{f}");
+    assert!((p("gain") / 3.0 - 1.0).abs() < 0.02, "{f}");
+    assert!(f["sigma"]["alpha"].as_f64().unwrap().is_finite(), "{f}");
+    // The wrong source position: refused, exit status 3.
+    let err = fails(&polnlos(&[
+        "calibrate",
+        "wall",
+        "brewster-rotating",
+        "--measurement",
+        m.to_str().unwrap(),
+        "--source=-0.06,0.06",
+    ]));
+    assert!(err.contains("do not match the capture"), "{err}");
+}

@@ -185,6 +185,7 @@ fn openapi_is_complete(spec: &serde_json::Value) {
         ("get", "/scenes"),
         ("get", "/scenes/{name}/exposure"),
         ("post", "/calibrations"),
+        ("post", "/calibrations/wall"),
     ];
     for (method, path) in routes {
         let op = &spec["paths"][path][method];
@@ -721,4 +722,41 @@ fn a_target_capture_through_aravis_calibrates_the_pose() {
         r#"{"scene": "brewster-multi", "captures": [1, 2]}"#,
     );
     assert_eq!(s, 422, "{b}");
+}
+
+#[test]
+fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    // The fake bench's point source at [0.03, -0.02], seen from pose A (crossed).
+    let c = d.run_job("/captures", r#"{"kind": "source", "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 32, "dark_frames": 8}"#, Duration::from_secs(30));
+    assert_eq!(c["state"], "done", "{c}");
+    let (s, b, _) = d.post(
+        "/calibrations/wall",
+        r#"{"scene": "brewster-crossed", "captures": [1], "source": [0.03, -0.02]}"#,
+    );
+    assert_eq!(s, 200, "{b}");
+    let v: serde_json::Value = serde_json::from_str(&b).unwrap();
+    println!("{}", serde_json::to_string_pretty(&v["fit"]).unwrap());
+    let p = |k: &str| v["fit"]["params"][k].as_f64().unwrap();
+    let configured = v["configured_gain"].as_f64().unwrap();
+    println!(
+        "gain {} against the demo calibration {configured}",
+        p("gain")
+    );
+    // The demo wall: alpha 0.3, ior 1.5, kd 0; the source has unit radiance,
+    // so its gain is the demo's radiometric calibration.
+    assert!((p("alpha") - 0.3).abs() < 0.03, "{v}");
+    assert!((p("ior") - 1.5).abs() < 0.1, "{v}");
+    assert!(p("kd") < 0.01, "{v}");
+    assert!((p("gain") / configured - 1.0).abs() < 0.05, "{v}");
+    // The wrong source position is refused, not fitted.
+    let (s, b, _) = d.post(
+        "/calibrations/wall",
+        r#"{"scene": "brewster-crossed", "captures": [1], "source": [-0.06, 0.06]}"#,
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("do not match the capture"), "{b}");
 }

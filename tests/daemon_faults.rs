@@ -17,7 +17,7 @@ fn external_fake() -> FakeBench {
         "POLNLOS-EXT",
         polnlos::camera::BenchImages {
             scene: vec![("A".into(), Some(0.0), Frame::zeros(512, 512))],
-            target: Vec::new(),
+            ..Default::default()
         },
         20_000.0,
     )

@@ -145,6 +145,19 @@ pub struct CalibrationBody {
     pub target: Option<String>,
 }
 
+/// `POST /calibrations/wall` body.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct WallCalibrationBody {
+    /// Scene name (its wall, poses and hidden-scene plane).
+    pub scene: String,
+    /// One done `"kind": "source"` capture per (pose, angle) block.
+    pub captures: Vec<i64>,
+    /// Source position `[u, v]`, metres from the hidden-scene plane's centre
+    /// (the fake bench's source is at [0.03, -0.02]).
+    pub source: [f64; 2],
+}
+
 /// Paging of list endpoints.
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]

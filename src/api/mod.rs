@@ -61,6 +61,7 @@ pub fn router(d: Arc<Daemon>) -> Router {
             get(routes::capture_progressive_steps),
         )
         .route("/calibrations", post(routes::post_calibration))
+        .route("/calibrations/wall", post(routes::post_wall_calibration))
         .route(
             "/reconstructions",
             post(routes::post_reconstruction).get(routes::list_reconstructions),

@@ -240,6 +240,24 @@ pub async fn post_calibration(
     Ok(Json(r))
 }
 
+/// Fits the wall (alpha, ior, kd) and the radiometric gain to point-source
+/// captures, with standard errors; refused when the model cannot explain them.
+#[utoipa::path(post, path = "/calibrations/wall", request_body = crate::api::bodies::WallCalibrationBody, responses((status = 200, body = crate::daemon::WallCalibration, description = "The fit"), (status = 404, body = ErrorBody, description = "No such scene or capture"), (status = 422, body = ErrorBody, description = "Not done source captures of every block, or the model leaves the measurement unexplained")))]
+pub async fn post_wall_calibration(
+    State(d): St,
+    ApiJson(b): ApiJson<crate::api::bodies::WallCalibrationBody>,
+) -> Result<Json<crate::daemon::WallCalibration>, ApiError> {
+    if b.source.iter().any(|x| !x.is_finite()) || b.captures.len() > 64 {
+        return Err(ApiError::invalid(
+            "source must be two finite numbers and captures at most 64 ids",
+        ));
+    }
+    let r = tokio::task::spawn_blocking(move || d.calibrate_wall(&b.scene, &b.captures, b.source))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))??;
+    Ok(Json(r))
+}
+
 /// Queues a reconstruction.
 #[utoipa::path(post, path = "/reconstructions", request_body = ReconstructionBody, responses((status = 202, body = Accepted, description = "Queued; Location names the reconstruction"), (status = 404, description = "Unknown scene or capture"), (status = 422, description = "Invalid"), (status = 429, description = "Queue full")))]
 pub async fn post_reconstruction(

@@ -31,6 +31,15 @@ pub trait Bench: Send + Sync {
             if on { "on" } else { "off" }
         );
     }
+    /// Puts the calibration point source in place of the hidden scene, or
+    /// back; on a bench set by hand the operator does.
+    fn show_source(&self, on: bool) {
+        tracing::info!(
+            on,
+            "capture expects the calibration point source {}",
+            if on { "in place" } else { "removed" }
+        );
+    }
 }
 
 /// A bench set by hand: polnlos logs what the operator should have done.
@@ -169,6 +178,9 @@ impl Bench for FakeBench {
     }
     fn show_target(&self, on: bool) {
         self.shared().shown.show_target(on);
+    }
+    fn show_source(&self, on: bool) {
+        self.shared().shown.show_source(on);
     }
     fn switches_scene(&self) -> bool {
         self.switches_scene

@@ -25,6 +25,8 @@ pub struct BenchImages {
     pub scene: Vec<(String, Option<f64>, Frame)>,
     /// The calibration target on the wall (for geometry calibration).
     pub target: Vec<(String, Option<f64>, Frame)>,
+    /// The wall lit by a point source (for wall calibration).
+    pub source: Vec<(String, Option<f64>, Frame)>,
 }
 
 /// Wall images per block and the bench's state.
@@ -33,6 +35,9 @@ pub struct Shown {
     frames: HashMap<String, Frame>,
     /// The target's image per block.
     targets: HashMap<String, Frame>,
+    /// The point source's image per block.
+    sources: HashMap<String, Frame>,
+    source_on: AtomicBool,
     selected: Mutex<Option<String>>,
     scene_on: AtomicBool,
     target_on: AtomicBool,
@@ -54,6 +59,8 @@ impl Shown {
         Self {
             frames: keyed(images.scene),
             targets: keyed(images.target),
+            sources: keyed(images.source),
+            source_on: AtomicBool::new(false),
             selected: Mutex::new(None),
             scene_on: AtomicBool::new(true),
             target_on: AtomicBool::new(false),
@@ -80,6 +87,11 @@ impl Shown {
         self.target_on.store(on, Ordering::SeqCst);
     }
 
+    /// Puts the point source in place of the hidden scene, or back.
+    pub fn show_source(&self, on: bool) {
+        self.source_on.store(on, Ordering::SeqCst);
+    }
+
     /// Exposes one frame of the region `(w, h, ox, oy)`: hands `put` each
     /// pixel's index (row-major in the region) and value in DN, rounded and
     /// clamped to `[0, full]`, with +-0.5 DN of dither so that averaging
@@ -97,6 +109,8 @@ impl Shown {
         let selected = self.selected.lock().ok().and_then(|s| s.clone());
         let frame = if self.target_on.load(Ordering::SeqCst) {
             selected.and_then(|k| self.targets.get(&k))
+        } else if self.source_on.load(Ordering::SeqCst) {
+            selected.and_then(|k| self.sources.get(&k))
         } else if self.scene_on.load(Ordering::SeqCst) {
             selected.and_then(|k| self.frames.get(&k))
         } else {
@@ -143,7 +157,7 @@ mod tests {
         };
         let images = BenchImages {
             scene: vec![("A".into(), Some(0.0), frame)],
-            target: Vec::new(),
+            ..BenchImages::default()
         };
         Shown::new(images, 1000.0)
     }

@@ -67,6 +67,9 @@ impl Bench for SyntheticBench {
     fn show_target(&self, on: bool) {
         self.shown.show_target(on);
     }
+    fn show_source(&self, on: bool) {
+        self.shown.show_source(on);
+    }
     fn switches_scene(&self) -> bool {
         true
     }

@@ -83,3 +83,121 @@ impl Daemon {
         })
     }
 }
+
+/// A wall and radiometric fit from point-source captures.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct WallCalibration {
+    /// The scene.
+    pub scene: String,
+    /// The source captures, in block order.
+    pub captures: Vec<i64>,
+    /// Fitted alpha, ior, kd and gain (fraction of full scale per µs per
+    /// unit of `T l`), with standard errors and the residual.
+    #[schema(value_type = Object)]
+    pub fit: crate::calibrate::wall::WallFit,
+    /// The scene's `[calibration]` value in force now, for comparison.
+    pub configured_gain: Option<f64>,
+}
+
+impl Daemon {
+    /// Fits the wall of `scene` to one done `"kind": "source"` capture per
+    /// (pose, angle) block of a point source at `source` (hidden-plane metres).
+    pub fn calibrate_wall(
+        &self,
+        scene_name: &str,
+        captures: &[i64],
+        source: [f64; 2],
+    ) -> Result<WallCalibration, RequestError> {
+        use crate::calibrate::wall::{fit, predict, PointSource, WallParams};
+        let invalid = RequestError::Invalid;
+        let scene = self.scenes.scene(scene_name)?;
+        let t = self.scenes.transport(scene_name)?;
+        let ordered = self.source_captures(scene_name, &t, captures)?;
+        let mut warnings = Vec::new();
+        let loaded = ordered
+            .iter()
+            .zip(&t.blocks)
+            .map(|(c, b)| {
+                super::reconstruction::load_capture(self, c.clone(), &scene, &b.pose, &mut warnings)
+            })
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| invalid(e.to_string()))?;
+        let blocks: Vec<_> = loaded.iter().map(|l| l.block()).collect();
+        let i = crate::measure::stack(&blocks, &scene.wall.plane)
+            .map_err(|e| invalid(e.to_string()))?
+            .i;
+        let source = PointSource {
+            u: source[0],
+            v: source[1],
+        };
+        // Start from the scene file's material; the gain by linear least squares.
+        let b = scene.wall.brdf;
+        let unit = WallParams {
+            alpha: b.alpha,
+            ior: b.eta,
+            kd: b.kd,
+            gain: 1.0,
+        };
+        let m = predict(&scene, &source, &unit).map_err(|e| invalid(e.to_string()))?;
+        let (dot, nn) = m
+            .iter()
+            .zip(&i)
+            .fold((0.0, 0.0), |(d, n), (a, x)| (d + a * x, n + a * a));
+        let start = WallParams {
+            gain: if nn > 0.0 && dot > 0.0 { dot / nn } else { 1.0 },
+            ..unit
+        };
+        let fit = fit(&scene, &source, &i, start).map_err(|e| invalid(e.to_string()))?;
+        Ok(WallCalibration {
+            scene: scene_name.to_string(),
+            captures: ordered.iter().map(|c| c.id).collect(),
+            fit,
+            configured_gain: self.calibration.get(scene_name).copied(),
+        })
+    }
+
+    /// The captures, one per block of `t` in block order, each a done
+    /// source capture of the scene.
+    fn source_captures(
+        &self,
+        scene_name: &str,
+        t: &crate::transport::Transport,
+        captures: &[i64],
+    ) -> Result<Vec<crate::store::CaptureRecord>, RequestError> {
+        let invalid = RequestError::Invalid;
+        let records: Vec<_> = captures
+            .iter()
+            .map(|&id| {
+                self.store
+                    .capture(id)
+                    .map_err(|_| RequestError::NotFound(format!("no capture with id {id}")))
+            })
+            .collect::<Result<_, _>>()?;
+        let mut ordered = Vec::with_capacity(t.blocks.len());
+        for block in &t.blocks {
+            let c = records
+                .iter()
+                .find(|c| {
+                    c.pose == block.pose
+                        && super::jobs::same_angle(c.polarizer_deg, block.polarizer_deg)
+                })
+                .ok_or_else(|| {
+                    invalid(format!(
+                        "no capture for block {}: give one \"kind\": \"source\" capture per block",
+                        block.label()
+                    ))
+                })?;
+            if c.kind != crate::store::CaptureKind::Source.name()
+                || c.state != JobState::Done
+                || c.scene != scene_name
+            {
+                return Err(invalid(format!(
+                    "capture {} is a {} capture of scene {:?} in state {}; wall calibration needs done \"kind\": \"source\" captures of scene {scene_name:?}",
+                    c.id, c.kind, c.scene, c.state.name()
+                )));
+            }
+            ordered.push(c.clone());
+        }
+        Ok(ordered)
+    }
+}

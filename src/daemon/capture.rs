@@ -90,6 +90,10 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
     if target {
         d.bench.show_target(true);
     }
+    let source = meta.kind == CaptureKind::Source;
+    if source {
+        d.bench.show_source(true);
+    }
     let (n, offset) = (c.frames as usize, c.dark_frames as usize);
     let progressive = spec.map(|s| (progressive::start(d, c.clone(), &s, dark.clone()), s.every));
     let snapshots = progressive
@@ -103,6 +107,9 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
     }
     if target {
         d.bench.show_target(false);
+    }
+    if source {
+        d.bench.show_source(false);
     }
     if let Some(((tx, steps), _)) = progressive {
         finish_progressive(d, id, frames.as_ref().ok(), tx, steps).await;

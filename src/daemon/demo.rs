@@ -13,6 +13,11 @@ type DemoFrames = crate::camera::BenchImages;
 /// reference exposure.
 const TARGET_LEVEL: f32 = 0.8;
 
+/// Where the demo bench's calibration point source sits on the hidden-scene
+/// plane (unit radiance: its fitted gain is the demo calibration).
+pub const DEMO_SOURCE: crate::calibrate::wall::PointSource =
+    crate::calibrate::wall::PointSource { u: 0.03, v: -0.02 };
+
 /// Renders the fake camera's frame for every block of the demo scene (and of
 /// every other scene on the same bench with poses of their own), normalized so
 /// that the unpolarized peak is 80 % of full scale at the reference exposure.
@@ -71,6 +76,14 @@ pub(super) fn frames(
                 block.polarizer_deg,
                 render_wall(&values, &h, &s.wall.plane, 512, 512, 0.0),
             ));
+            let source = crate::calibrate::wall::predict(&s, &DEMO_SOURCE, &material(&s))
+                .map_err(|e| err(e.to_string()))?;
+            let values: Vec<f64> = source[t.block_rows(b)].iter().map(|v| v * norm).collect();
+            frames.source.push((
+                block.pose.clone(),
+                block.polarizer_deg,
+                render_wall(&values, &h, &s.wall.plane, 512, 512, 0.0),
+            ));
             let mut dots = crate::calibrate::geometry::render(&target, &h, 512, 512);
             dots.pixels.iter_mut().for_each(|p| *p *= TARGET_LEVEL);
             frames
@@ -81,6 +94,16 @@ pub(super) fn frames(
     // Frame value v = norm T l at the reference exposure, as a fraction of full scale.
     let c = norm / DEMO_REFERENCE_EXPOSURE_US;
     Ok((frames, c))
+}
+
+/// The scene's wall material as wall calibration fits it, with a unit source.
+fn material(s: &crate::scene::Scene) -> crate::calibrate::wall::WallParams {
+    crate::calibrate::wall::WallParams {
+        alpha: s.wall.brdf.alpha,
+        ior: s.wall.brdf.eta,
+        kd: s.wall.brdf.kd,
+        gain: 1.0,
+    }
 }
 
 /// Same wall, same hidden-scene plane, no occluder difference: frames can be shared.

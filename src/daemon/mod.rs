@@ -35,10 +35,11 @@ use std::sync::Arc;
 use tokio::sync::{broadcast, mpsc, Mutex};
 
 pub use admission::SubmitError;
-pub use calibration::GeometryCalibration;
+pub use calibration::{GeometryCalibration, WallCalibration};
 pub use camera::{CameraView, SettingsError};
 pub use cancel::{CancelError, JobKind};
 pub use config::Config;
+pub use demo::DEMO_SOURCE;
 pub use events::Event;
 pub use progressive::{
     Step as ProgressiveStep, IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS,

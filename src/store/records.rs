@@ -17,6 +17,8 @@ pub enum CaptureKind {
     Dark,
     /// The calibration target on the wall, the hidden scene hidden by it.
     Target,
+    /// A point source at a known place instead of the hidden scene (wall calibration).
+    Source,
 }
 
 impl CaptureKind {
@@ -26,6 +28,7 @@ impl CaptureKind {
             CaptureKind::Light => "light",
             CaptureKind::Dark => "dark",
             CaptureKind::Target => "target",
+            CaptureKind::Source => "source",
         }
     }
 }
@@ -208,6 +211,7 @@ impl CaptureRecord {
         match self.kind.as_str() {
             "dark" => CaptureKind::Dark,
             "target" => CaptureKind::Target,
+            "source" => CaptureKind::Source,
             _ => CaptureKind::Light,
         }
     }

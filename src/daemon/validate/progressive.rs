@@ -37,33 +37,7 @@ pub fn progressive(
             "a dark capture has no scene to reconstruct: progressive is for light captures",
         ));
     }
-    let every = p.every.unwrap_or((r.frames / 10).max(1));
-    if every == 0 || every > r.frames {
-        return Err(invalid(format!(
-            "progressive.every = {every}: must be from 1 to frames ({})",
-            r.frames
-        )));
-    }
-    let max_iter = p.max_iter.unwrap_or(500);
-    if !(1..=100_000).contains(&max_iter) {
-        return Err(invalid(format!(
-            "progressive.max_iter = {max_iter}: must be from 1 to 100000"
-        )));
-    }
-    if let Some(l) = p.lambda {
-        if !(l >= 0.0 && l.is_finite()) {
-            return Err(invalid(format!(
-                "progressive.lambda = {l}: must be a finite number >= 0"
-            )));
-        }
-    }
-    if let Some(t) = &p.truth {
-        if crate::simulate::patterns::Pattern::from_name(t).is_none() {
-            return Err(invalid(format!(
-                "progressive.truth = {t:?}: must be a test pattern name (disk, bars, letter)"
-            )));
-        }
-    }
+    let (every, max_iter) = check_numbers(p, r)?;
     let blocks = blocks(scene);
     let mut covered = vec![false; blocks.len()];
     let own = blocks
@@ -111,6 +85,38 @@ pub fn progressive(
         max_iter,
         truth: p.truth.clone(),
     })
+}
+
+/// The step interval and iteration cap, with lambda and truth checked.
+fn check_numbers(p: &ProgressiveBody, r: &CaptureRequest) -> Result<(usize, usize), RequestError> {
+    let every = p.every.unwrap_or((r.frames / 10).max(1));
+    if every == 0 || every > r.frames {
+        return Err(invalid(format!(
+            "progressive.every = {every}: must be from 1 to frames ({})",
+            r.frames
+        )));
+    }
+    let max_iter = p.max_iter.unwrap_or(500);
+    if !(1..=100_000).contains(&max_iter) {
+        return Err(invalid(format!(
+            "progressive.max_iter = {max_iter}: must be from 1 to 100000"
+        )));
+    }
+    if let Some(l) = p.lambda {
+        if !(l >= 0.0 && l.is_finite()) {
+            return Err(invalid(format!(
+                "progressive.lambda = {l}: must be a finite number >= 0"
+            )));
+        }
+    }
+    if let Some(t) = &p.truth {
+        if crate::simulate::patterns::Pattern::from_name(t).is_none() {
+            return Err(invalid(format!(
+                "progressive.truth = {t:?}: must be a test pattern name (disk, bars, letter)"
+            )));
+        }
+    }
+    Ok((every, max_iter))
 }
 
 #[cfg(test)]
