@@ -150,10 +150,14 @@ pub fn detect(frame: &Frame) -> Vec<Blob> {
     if n == 0 {
         return Vec::new();
     }
-    let mut sorted: Vec<f32> = frame.pixels[..n].to_vec();
-    sorted.sort_by(f32::total_cmp);
-    let lo = f64::from(sorted[n / 100]);
-    let hi = f64::from(sorted[(n - 1) - (n - 1) / 1000]);
+    // Two order statistics, not a full sort.
+    let mut values: Vec<f32> = frame.pixels[..n].to_vec();
+    let lo = f64::from(*values.select_nth_unstable_by(n / 100, f32::total_cmp).1);
+    let hi = f64::from(
+        *values
+            .select_nth_unstable_by((n - 1) - (n - 1) / 1000, f32::total_cmp)
+            .1,
+    );
     if hi <= lo {
         return Vec::new();
     }

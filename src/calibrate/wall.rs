@@ -188,6 +188,29 @@ pub fn fit(
     })
 }
 
+/// [`fit`] from the scene file's own wall material, with the gain that best
+/// scales that material's prediction onto `i` (linear least squares).
+pub fn fit_from_scene(
+    scene: &Scene,
+    source: &PointSource,
+    i: &[f64],
+) -> Result<WallFit, CalibrationError> {
+    let b = scene.wall.brdf;
+    let unit = WallParams {
+        alpha: b.alpha,
+        ior: b.eta,
+        kd: b.kd,
+        gain: 1.0,
+    };
+    let m = predict(scene, source, &unit)?;
+    let (dot, nn) = m
+        .iter()
+        .zip(i)
+        .fold((0.0, 0.0), |(d, n), (a, x)| (d + a * x, n + a * a));
+    let gain = if nn > 0.0 && dot > 0.0 { dot / nn } else { 1.0 };
+    fit(scene, source, i, WallParams { gain, ..unit })
+}
+
 type Model<'a> = dyn Fn(&SVector<f64, 4>) -> Result<Vec<f64>, CalibrationError> + 'a;
 
 /// `J^T J` and the columns of `J` (derivatives of the model) by central

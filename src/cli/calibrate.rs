@@ -82,35 +82,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 }
 
 fn wall(a: WallArgs) -> anyhow::Result<()> {
-    use polnlos::calibrate::wall::{fit, PointSource, WallParams};
+    use polnlos::calibrate::wall::{fit_from_scene, PointSource};
     let scene = super::load_scene(&a.scene)?;
     let i = polnlos::files::npy::read(&a.measurement)?;
     let source = PointSource {
         u: a.source.0,
         v: a.source.1,
     };
-    // Start from the scene file's own material and a unit gain.
-    let b = scene.wall.brdf;
-    let start = WallParams {
-        alpha: b.alpha,
-        ior: b.eta,
-        kd: b.kd,
-        gain: 1.0,
-    };
-    let start = WallParams {
-        gain: {
-            let unit = polnlos::calibrate::wall::predict(&scene, &source, &start)?;
-            let dot: f64 = unit.iter().zip(&i.data).map(|(m, x)| m * x).sum();
-            let nn: f64 = unit.iter().map(|m| m * m).sum();
-            if nn > 0.0 && dot > 0.0 {
-                dot / nn
-            } else {
-                1.0
-            }
-        },
-        ..start
-    };
-    let f = fit(&scene, &source, &i.data, start)
+    // Starts from the scene file's own material.
+    let f = fit_from_scene(&scene, &source, &i.data)
         .with_context(|| format!("measurement {}", a.measurement.display()))?;
     println!("{}", serde_json::to_string_pretty(&f)?);
     Ok(())

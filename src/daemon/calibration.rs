@@ -108,17 +108,15 @@ impl Daemon {
         captures: &[i64],
         source: [f64; 2],
     ) -> Result<WallCalibration, RequestError> {
-        use crate::calibrate::wall::{fit, predict, PointSource, WallParams};
+        use crate::calibrate::wall::{fit_from_scene, PointSource};
         let invalid = RequestError::Invalid;
         let scene = self.scenes.scene(scene_name)?;
-        let t = self.scenes.transport(scene_name)?;
-        let ordered = self.source_captures(scene_name, &t, captures)?;
+        let ordered = self.source_captures(scene_name, &scene, captures)?;
         let mut warnings = Vec::new();
         let loaded = ordered
             .iter()
-            .zip(&t.blocks)
-            .map(|(c, b)| {
-                super::reconstruction::load_capture(self, c.clone(), &scene, &b.pose, &mut warnings)
+            .map(|c| {
+                super::reconstruction::load_capture(self, c.clone(), &scene, &c.pose, &mut warnings)
             })
             .collect::<Result<Vec<_>, _>>()
             .map_err(|e| invalid(e.to_string()))?;
@@ -130,24 +128,7 @@ impl Daemon {
             u: source[0],
             v: source[1],
         };
-        // Start from the scene file's material; the gain by linear least squares.
-        let b = scene.wall.brdf;
-        let unit = WallParams {
-            alpha: b.alpha,
-            ior: b.eta,
-            kd: b.kd,
-            gain: 1.0,
-        };
-        let m = predict(&scene, &source, &unit).map_err(|e| invalid(e.to_string()))?;
-        let (dot, nn) = m
-            .iter()
-            .zip(&i)
-            .fold((0.0, 0.0), |(d, n), (a, x)| (d + a * x, n + a * a));
-        let start = WallParams {
-            gain: if nn > 0.0 && dot > 0.0 { dot / nn } else { 1.0 },
-            ..unit
-        };
-        let fit = fit(&scene, &source, &i, start).map_err(|e| invalid(e.to_string()))?;
+        let fit = fit_from_scene(&scene, &source, &i).map_err(|e| invalid(e.to_string()))?;
         Ok(WallCalibration {
             scene: scene_name.to_string(),
             captures: ordered.iter().map(|c| c.id).collect(),
@@ -156,12 +137,12 @@ impl Daemon {
         })
     }
 
-    /// The captures, one per block of `t` in block order, each a done
-    /// source capture of the scene.
+    /// The captures, one per (pose, angle) block of the scene in MODEL.md
+    /// row order, each a done source capture of the scene.
     fn source_captures(
         &self,
         scene_name: &str,
-        t: &crate::transport::Transport,
+        scene: &crate::scene::Scene,
         captures: &[i64],
     ) -> Result<Vec<crate::store::CaptureRecord>, RequestError> {
         let invalid = RequestError::Invalid;
@@ -173,18 +154,16 @@ impl Daemon {
                     .map_err(|_| RequestError::NotFound(format!("no capture with id {id}")))
             })
             .collect::<Result<_, _>>()?;
-        let mut ordered = Vec::with_capacity(t.blocks.len());
-        for block in &t.blocks {
+        let blocks = super::validate::blocks(scene);
+        let mut ordered = Vec::with_capacity(blocks.len());
+        for (pose, angle) in &blocks {
             let c = records
                 .iter()
-                .find(|c| {
-                    c.pose == block.pose
-                        && super::jobs::same_angle(c.polarizer_deg, block.polarizer_deg)
-                })
+                .find(|c| c.pose == *pose && super::jobs::same_angle(c.polarizer_deg, *angle))
                 .ok_or_else(|| {
                     invalid(format!(
                         "no capture for block {}: give one \"kind\": \"source\" capture per block",
-                        block.label()
+                        super::jobs::block_label(pose, *angle)
                     ))
                 })?;
             if c.kind != crate::store::CaptureKind::Source.name()

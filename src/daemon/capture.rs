@@ -23,6 +23,9 @@ use crate::store::{
     FrameStack, JobState,
 };
 
+/// Least time between two frames kept for the live view (`/camera/frame.png`).
+const LIVE_EVERY: std::time::Duration = std::time::Duration::from_millis(200);
+
 /// Frames in flight between the camera thread and the writer.
 const FRAME_QUEUE: usize = 4;
 
@@ -95,10 +98,8 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
         d.bench.show_source(true);
     }
     let (n, offset) = (c.frames as usize, c.dark_frames as usize);
-    let progressive = spec.map(|s| (progressive::start(d, c.clone(), &s, dark.clone()), s.every));
-    let snapshots = progressive
-        .as_ref()
-        .map(|((tx, _), every)| (tx.clone(), *every));
+    let progressive = spec.map(|s| progressive::start(d, c.clone(), &s, dark.clone()));
+    let snapshots = progressive.as_ref().map(|(tx, _)| tx.clone());
     let frames = stream
         .take(CaptureFiles::FRAMES, "frames", n, offset, snapshots)
         .await;
@@ -111,7 +112,7 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
     if source {
         d.bench.show_source(false);
     }
-    if let Some(((tx, steps), _)) = progressive {
+    if let Some((tx, steps)) = progressive {
         finish_progressive(d, id, frames.as_ref().ok(), tx, steps).await;
     }
     let frames = frames?;
@@ -134,17 +135,11 @@ async fn finish_progressive(
     d: &Daemon,
     id: i64,
     frames: Option<&FrameStack>,
-    tx: std::sync::mpsc::SyncSender<progressive::Snapshot>,
+    tx: progressive::Snapshots,
     steps: tokio::task::JoinHandle<Vec<progressive::Step>>,
 ) {
     if let Some(st) = frames {
-        let last = progressive::Snapshot {
-            frames: st.count,
-            mean: st.mean.clone(),
-            width: st.width,
-            height: st.height,
-        };
-        let _ = tokio::task::spawn_blocking(move || tx.send(last)).await;
+        let _ = tokio::task::spawn_blocking(tx.send_last(st)).await;
     } else {
         drop(tx);
     }
@@ -264,7 +259,7 @@ impl Stream<'_> {
         kind: &'static str,
         n: usize,
         offset: usize,
-        snapshots: Option<(std::sync::mpsc::SyncSender<progressive::Snapshot>, usize)>,
+        snapshots: Option<progressive::Snapshots>,
     ) -> Result<FrameStack, JobError> {
         let (id, total, d) = (self.id, self.total, self.d);
         if self.cancel.load(Ordering::SeqCst) {
@@ -278,6 +273,7 @@ impl Stream<'_> {
         let cancel = d.cancel_flag(&format!("capture-{id}"));
         let live = d.clone();
         let writer = tokio::task::spawn_blocking(move || {
+            let mut shown = None;
             // A cancelled capture ends its stream at the next frame: the file
             // is incomplete, so it is removed, and the camera stops when its
             // next frame finds the channel closed.
@@ -285,24 +281,19 @@ impl Stream<'_> {
                 .into_iter()
                 .take_while(|_| !cancel.load(Ordering::SeqCst))
                 .inspect(|f| {
-                    if let Ok(mut latest) = live.latest_frame.lock() {
-                        *latest = Some(Arc::new(f.clone()));
+                    // The live view polls once a second: copy a frame for it
+                    // at most every LIVE_EVERY, not every frame.
+                    if shown.is_none_or(|t: Instant| t.elapsed() >= LIVE_EVERY) {
+                        shown = Some(Instant::now());
+                        if let Ok(mut latest) = live.latest_frame.lock() {
+                            *latest = Some(Arc::new(f.clone()));
+                        }
                     }
                 });
             write_frames(&path, kind, &meta, n, frames, &mut |st: &FrameStack| {
                 let _ = progress_tx.send(offset + st.count);
-                if let Some((tx, every)) = &snapshots {
-                    if st.count % every == 0 && st.count < n {
-                        progressive::offer(
-                            tx,
-                            progressive::Snapshot {
-                                frames: st.count,
-                                mean: st.mean.clone(),
-                                width: st.width,
-                                height: st.height,
-                            },
-                        );
-                    }
+                if let Some(s) = &snapshots {
+                    s.offer(st, n);
                 }
             })
             .map_err(|e| JobError::Store(store.describe(&e)))

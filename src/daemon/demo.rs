@@ -59,6 +59,9 @@ pub(super) fn frames(
         };
         let l = pattern.render(t.scene_grid);
         let i = t.apply(&l);
+        // The point source's wall image, all blocks at once (a T of one column).
+        let source = crate::calibrate::wall::predict(&s, &DEMO_SOURCE, &material(&s))
+            .map_err(|e| err(e.to_string()))?;
         for (b, block) in t.blocks.iter().enumerate() {
             if frames
                 .scene
@@ -76,8 +79,6 @@ pub(super) fn frames(
                 block.polarizer_deg,
                 render_wall(&values, &h, &s.wall.plane, 512, 512, 0.0),
             ));
-            let source = crate::calibrate::wall::predict(&s, &DEMO_SOURCE, &material(&s))
-                .map_err(|e| err(e.to_string()))?;
             let values: Vec<f64> = source[t.block_rows(b)].iter().map(|v| v * norm).collect();
             frames.source.push((
                 block.pose.clone(),

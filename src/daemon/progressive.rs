@@ -9,7 +9,8 @@
 //! that arrives while a step is running is dropped; the final mean always
 //! gets its step.
 
-use std::sync::mpsc::{Receiver, SyncSender, TrySendError};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -25,7 +26,7 @@ use crate::measure::{stack, BlockFrames};
 use crate::scene::Scene;
 use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};
-use crate::store::CaptureRecord;
+use crate::store::{CaptureRecord, FrameStack};
 use crate::transport::Transport;
 
 /// File of the latest progressive image, in the capture's folder.
@@ -34,15 +35,61 @@ pub const IMAGE: &str = "progressive.png";
 pub const STEPS: &str = "progressive.json";
 
 /// The running mean after some frames.
-pub(super) struct Snapshot {
+struct Snapshot {
     /// Frames averaged.
-    pub frames: usize,
+    frames: usize,
     /// Per-pixel mean, DN (not dark-subtracted).
-    pub mean: Vec<f64>,
+    mean: Vec<f64>,
     /// Columns.
-    pub width: usize,
+    width: usize,
     /// Rows.
-    pub height: usize,
+    height: usize,
+}
+
+impl Snapshot {
+    fn of(st: &FrameStack) -> Self {
+        Self {
+            frames: st.count,
+            mean: st.mean.clone(),
+            width: st.width,
+            height: st.height,
+        }
+    }
+}
+
+/// Where a capture's frame writer hands the running mean to its progressive
+/// solver: every `every` frames, and only when the solver is free (the mean
+/// is copied only then), so the writer never waits.
+#[derive(Clone)]
+pub(super) struct Snapshots {
+    tx: SyncSender<Snapshot>,
+    /// A snapshot is waiting for the solver.
+    pending: Arc<AtomicBool>,
+    every: usize,
+}
+
+impl Snapshots {
+    /// Offers the mean in `st` when it closes a step before frame `last`.
+    pub(super) fn offer(&self, st: &FrameStack, last: usize) {
+        if st.count % self.every != 0
+            || st.count >= last
+            || self.pending.swap(true, Ordering::SeqCst)
+        {
+            return;
+        }
+        if self.tx.try_send(Snapshot::of(st)).is_err() {
+            self.pending.store(false, Ordering::SeqCst);
+        }
+    }
+
+    /// The hand-over of the final mean, to run on a blocking thread: it
+    /// waits for the solver, so the last step is always solved.
+    pub(super) fn send_last(self, st: &FrameStack) -> impl FnOnce() + Send + 'static {
+        let last = Snapshot::of(st);
+        move || {
+            let _ = self.tx.send(last);
+        }
+    }
 }
 
 /// One published step.
@@ -231,34 +278,42 @@ impl Solver {
 
 /// Starts the progressive solver of capture `capture` (loading the other
 /// blocks' captures and `T` on its own thread): returns where to send
-/// snapshots, and the thread, which ends with every step when the sender is
-/// dropped (or at once, with none, if the solver cannot be set up).
+/// snapshots, and the thread, which ends with every step when every
+/// [`Snapshots`] is dropped (or at once, with none, if the solver cannot be
+/// set up).
 pub(super) fn start(
     d: &Arc<Daemon>,
     capture: CaptureRecord,
     spec: &ProgressiveSpec,
     dark: Option<Frame>,
-) -> (SyncSender<Snapshot>, tokio::task::JoinHandle<Vec<Step>>) {
+) -> (Snapshots, tokio::task::JoinHandle<Vec<Step>>) {
     let (tx, rx) = std::sync::mpsc::sync_channel::<Snapshot>(1);
+    let pending = Arc::new(AtomicBool::new(false));
+    let snapshots = Snapshots {
+        tx,
+        pending: pending.clone(),
+        every: spec.every,
+    };
     let (d, spec) = (d.clone(), spec.clone());
     let handle = tokio::task::spawn_blocking(move || {
         let id = capture.id;
         match Solver::new(&d, capture, &spec, dark) {
-            Ok(mut solver) => run(&d, &mut solver, rx),
+            Ok(mut solver) => run(&d, &mut solver, rx, &pending),
             Err(e) => {
                 tracing::warn!("capture-{id}: no progressive reconstruction: {e}");
                 Vec::new()
             }
         }
     });
-    (tx, handle)
+    (snapshots, handle)
 }
 
-fn run(d: &Daemon, solver: &mut Solver, rx: Receiver<Snapshot>) -> Vec<Step> {
+fn run(d: &Daemon, solver: &mut Solver, rx: Receiver<Snapshot>, pending: &AtomicBool) -> Vec<Step> {
     let id = solver.capture.id;
     let dir = d.store.capture_dir(id);
     let grid = solver.t.scene_grid;
     for snapshot in rx {
+        pending.store(false, Ordering::SeqCst);
         match solver.step(&snapshot) {
             Ok((step, img)) => {
                 let png = image::write_png16(
@@ -283,13 +338,6 @@ fn run(d: &Daemon, solver: &mut Solver, rx: Receiver<Snapshot>) -> Vec<Step> {
         }
     }
     std::mem::take(&mut solver.steps)
-}
-
-/// Offers a snapshot without waiting: dropped when a step is still running.
-pub(super) fn offer(tx: &SyncSender<Snapshot>, s: Snapshot) {
-    match tx.try_send(s) {
-        Ok(()) | Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {}
-    }
 }
 
 /// Removes a capture's progressive files (when the capture did not finish).

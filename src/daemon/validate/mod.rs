@@ -13,7 +13,7 @@ mod reconstruction;
 
 pub use capture::capture;
 pub use progressive::{progressive, ProgressiveSpec};
-pub use reconstruction::reconstruction;
+pub use reconstruction::{blocks, reconstruction};
 
 use crate::camera::{CameraSettings, SensorLimits};
 use crate::measure::exposure::CameraLimits;

@@ -7,7 +7,7 @@ use crate::scene::Scene;
 use crate::store::{CaptureRecord, JobState, ReconstructionRequest};
 
 /// The (pose, polarizer angle) blocks of a scene in MODEL.md row order.
-pub(super) fn blocks(scene: &Scene) -> Vec<(String, Option<f64>)> {
+pub fn blocks(scene: &Scene) -> Vec<(String, Option<f64>)> {
     let mut blocks = Vec::new();
     for p in &scene.poses {
         if p.analyzers.is_empty() {
