@@ -724,17 +724,7 @@ fn calibrate_geometry_recovers_a_pose_from_an_image_of_the_target() {
     assert!(err.contains("26 dots, reprojection error RMS"), "{err}");
     let s = Scene::from_toml_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     let fitted = s.pose("A").unwrap().homography.unwrap();
-    let worst = target
-        .dots
-        .iter()
-        .map(|p| {
-            let (a, b) = (
-                fitted.apply(p[0], p[1]).unwrap(),
-                h.apply(p[0], p[1]).unwrap(),
-            );
-            ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
-        })
-        .fold(0.0, f64::max);
+    let worst = polnlos::calibrate::geometry::max_distance(&fitted, &h, &target.dots);
     assert!(worst < 0.3, "{worst} px from the shipped homography");
     // An image without the whole target is a clear input error (status 3).
     let blank = d.path().join("blank.png");

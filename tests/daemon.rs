@@ -681,17 +681,7 @@ fn a_target_capture_through_aravis_calibrates_the_pose() {
     let shipped = Scene::builtin("brewster-multi").unwrap().unwrap();
     let h = shipped.pose("C").unwrap().homography.unwrap();
     let target = polnlos::calibrate::geometry::Target::default_target();
-    let worst = target
-        .dots
-        .iter()
-        .map(|p| {
-            let (a, b) = (
-                fitted.apply(p[0], p[1]).unwrap(),
-                h.apply(p[0], p[1]).unwrap(),
-            );
-            ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
-        })
-        .fold(0.0, f64::max);
+    let worst = polnlos::calibrate::geometry::max_distance(&fitted, &h, &target.dots);
     println!("largest distance from the shipped homography at the dots: {worst:.3} px");
     assert!(worst < 0.3, "{worst}");
     assert!(cal["rms_px"].as_f64().unwrap() < 0.2, "{cal}");

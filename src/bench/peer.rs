@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use super::{median, timed3, BenchError};
 use crate::files::npy;
-use crate::scene::{builtin::BUILT_IN, Grid, Scene};
+use crate::scene::{Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
 use crate::solve::admm::LAMBDA_REL;
@@ -91,10 +91,7 @@ pub fn compare(
     scene_grid: usize,
     work: &Path,
 ) -> Result<PeerReport, BenchError> {
-    let text = BUILT_IN
-        .iter()
-        .find(|(n, _)| *n == name)
-        .map(|(_, t)| *t)
+    let text = crate::scene::builtin::text(name)
         .ok_or_else(|| io("scene", format!("{name} is not built in")))?;
     let mut scene = Scene::from_toml_str(text)?;
     scene.wall.plane.grid = Grid { nu: wall, nv: wall };

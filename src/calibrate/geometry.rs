@@ -280,6 +280,18 @@ pub fn fit(target: &Target, blobs: &[Blob]) -> Result<Fit, CalibrationError> {
     })
 }
 
+/// The largest distance in pixels between where `a` and `b` put the wall
+/// points `at` (e.g. a target's dots): how far apart two calibrations of a
+/// pose are. Infinite when either maps a point to infinity.
+pub fn max_distance(a: &Homography, b: &Homography, at: &[[f64; 2]]) -> f64 {
+    at.iter()
+        .map(|w| match (a.apply(w[0], w[1]), b.apply(w[0], w[1])) {
+            (Some(p), Some(q)) => ((p.0 - q.0).powi(2) + (p.1 - q.1).powi(2)).sqrt(),
+            _ => f64::INFINITY,
+        })
+        .fold(0.0, f64::max)
+}
+
 /// The scene file `scene_toml` with pose `pose`'s `homography` replaced by
 /// `h` and its camera frame set to `region` (binning 1), for the user to
 /// review; checked to parse as a scene. (The file's comments are not kept.)
@@ -554,19 +566,8 @@ mod tests {
         }
     }
 
-    /// Largest distance, over the target's dots, between where two
-    /// homographies put them.
     fn disagreement(a: &Homography, b: &Homography, t: &Target) -> f64 {
-        t.dots
-            .iter()
-            .map(|d| {
-                let (p, q) = (
-                    a.apply(d[0], d[1]).expect("p"),
-                    b.apply(d[0], d[1]).expect("q"),
-                );
-                ((p.0 - q.0).powi(2) + (p.1 - q.1).powi(2)).sqrt()
-            })
-            .fold(0.0, f64::max)
+        max_distance(a, b, &t.dots)
     }
 
     #[test]

@@ -221,18 +221,6 @@ impl AravisCamera {
             .map_err(feature_err(feature))?;
         Ok(1.0 / got.max(1e-6))
     }
-
-    fn check(feature: &str, value: f64, (min, max): (f64, f64)) -> Result<(), CameraError> {
-        if !(value >= min && value <= max) {
-            return Err(CameraError::OutOfRange {
-                feature: feature.to_string(),
-                value,
-                min,
-                max,
-            });
-        }
-        Ok(())
-    }
 }
 
 /// A feature value Aravis reports as `i32` that cannot be negative (0 if it is).
@@ -321,9 +309,9 @@ impl CameraDevice for AravisCamera {
         self.limits.check(region, binning)?;
         let d = self.device()?;
         let eb = self.float_bounds(self.exposure_feature)?;
-        Self::check(self.exposure_feature, s.exposure_us, eb)?;
+        CameraError::check_range(self.exposure_feature, s.exposure_us, eb)?;
         let gb = self.gain_bounds()?;
-        Self::check(self.gain_feature, s.gain, gb)?;
+        CameraError::check_range(self.gain_feature, s.gain, gb)?;
         let c = &self.camera;
         c.set_pixel_format_from_string(s.pixel_format.name())
             .map_err(feature_err("PixelFormat"))?;

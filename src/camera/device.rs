@@ -137,6 +137,21 @@ pub enum CameraError {
 }
 
 impl CameraError {
+    /// `Ok` when `value` is within `(min, max)`, else [`CameraError::OutOfRange`]
+    /// naming the feature.
+    pub fn check_range(feature: &str, value: f64, (min, max): (f64, f64)) -> Result<(), Self> {
+        if value >= min && value <= max {
+            Ok(())
+        } else {
+            Err(CameraError::OutOfRange {
+                feature: feature.to_string(),
+                value,
+                min,
+                max,
+            })
+        }
+    }
+
     /// Whether the error means the camera is gone and must be reopened.
     pub fn is_connection_loss(&self) -> bool {
         matches!(

@@ -15,6 +15,9 @@ use super::shown::{BenchImages, Shown};
 use super::worker::Opener;
 use super::{CameraDevice, CameraError, CameraInfo, CameraSettings, Counters, RawFrame};
 
+/// Gain range of the synthetic camera.
+const GAIN_RANGE: (f64, f64) = (0.0, 10.0);
+
 /// Sensor width and height of the synthetic camera.
 const SENSOR: u32 = 512;
 
@@ -113,7 +116,7 @@ impl CameraDevice for SyntheticCamera {
             sensor: (SENSOR as i32, SENSOR as i32),
             exposure_us: EXPOSURE_RANGE_US,
             exposure_feature: "ExposureTime".into(),
-            gain: (0.0, 10.0),
+            gain: GAIN_RANGE,
             gain_feature: "Gain".into(),
             frame_rate: None,
             pixel_formats: vec!["Mono8".into(), "Mono16".into()],
@@ -131,19 +134,8 @@ impl CameraDevice for SyntheticCamera {
             next.region.unwrap_or([0, 0, SENSOR, SENSOR]),
             next.binning.unwrap_or([1, 1]),
         )?;
-        for (feature, value, (min, max)) in [
-            ("ExposureTime", s.exposure_us, EXPOSURE_RANGE_US),
-            ("Gain", s.gain, (0.0, 10.0)),
-        ] {
-            if !(value >= min && value <= max) {
-                return Err(CameraError::OutOfRange {
-                    feature: feature.into(),
-                    value,
-                    min,
-                    max,
-                });
-            }
-        }
+        CameraError::check_range("ExposureTime", s.exposure_us, EXPOSURE_RANGE_US)?;
+        CameraError::check_range("Gain", s.gain, GAIN_RANGE)?;
         *self.settings.lock().unwrap_or_else(|e| e.into_inner()) = next;
         Ok(())
     }

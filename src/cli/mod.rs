@@ -98,35 +98,31 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 #[error("{0}")]
 pub struct Usage(pub String);
 
+/// The built-in scene named by `path`, when no file of that name exists.
+fn builtin(path: &Path) -> Option<&'static str> {
+    if path.exists() {
+        return None;
+    }
+    polnlos::scene::builtin::text(&path.to_string_lossy())
+}
+
 /// The text of a scene file, or of a built-in scene by name.
 fn scene_text(path: &Path) -> anyhow::Result<String> {
-    if !path.exists() {
-        let name = path.to_string_lossy();
-        if let Some((_, text)) = polnlos::scene::builtin::BUILT_IN
-            .iter()
-            .find(|(n, _)| *n == name)
-        {
-            return Ok(text.to_string());
-        }
+    match builtin(path) {
+        Some(text) => Ok(text.to_string()),
+        None => std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read scene file {}", path.display())),
     }
-    std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read scene file {}", path.display()))
 }
 
 /// Loads a scene file, or a built-in scene by name (`brewster-crossed-3x3`,
 /// as the daemon knows them) when no such file exists; the error names the
 /// file, the key and the reason.
 fn load_scene(path: &Path) -> anyhow::Result<Scene> {
-    if !path.exists() {
-        let name = path.to_string_lossy();
-        if let Some((_, text)) = polnlos::scene::builtin::BUILT_IN
-            .iter()
-            .find(|(n, _)| *n == name)
-        {
-            return Ok(Scene::from_toml_str(text)?);
-        }
+    match builtin(path) {
+        Some(text) => Ok(Scene::from_toml_str(text)?),
+        None => Ok(Scene::load(path)?),
     }
-    Ok(Scene::load(path)?)
 }
 
 /// The scene's name: its file stem.

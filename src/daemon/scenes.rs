@@ -103,43 +103,40 @@ impl Scenes {
     /// `T` of a scene, built on first use (CPU-heavy: call from a blocking task).
     pub fn transport(&self, name: &str) -> Result<Arc<Transport>, ScenesError> {
         let scene = self.scene(name)?;
-        if let Some(t) = self
-            .transports
-            .lock()
-            .ok()
-            .and_then(|m| m.get(name).cloned())
-        {
-            return Ok(t);
-        }
-        let t = Arc::new(build(&scene).map_err(|source| ScenesError::Transport {
-            name: name.to_string(),
-            source,
-        })?);
-        if let Ok(mut m) = self.transports.lock() {
-            m.insert(name.to_string(), t.clone());
-        }
-        Ok(t)
+        cached(&self.transports, name, || {
+            build(&scene).map_err(|source| ScenesError::Transport {
+                name: name.to_string(),
+                source,
+            })
+        })
     }
 
     /// Singular values and kappa of a scene's `T`, computed on first use
     /// (an SVD: call from a blocking task).
     pub fn conditioning(&self, name: &str) -> Result<Arc<Conditioning>, ScenesError> {
-        if let Some(c) = self
-            .conditioning
-            .lock()
-            .ok()
-            .and_then(|m| m.get(name).cloned())
-        {
-            return Ok(c);
-        }
-        let t = self.transport(name)?;
-        let c = Arc::new(condition(&t).map_err(|source| ScenesError::Conditioning {
-            name: name.to_string(),
-            source,
-        })?);
-        if let Ok(mut m) = self.conditioning.lock() {
-            m.insert(name.to_string(), c.clone());
-        }
-        Ok(c)
+        cached(&self.conditioning, name, || {
+            let t = self.transport(name)?;
+            condition(&t).map_err(|source| ScenesError::Conditioning {
+                name: name.to_string(),
+                source,
+            })
+        })
     }
+}
+
+/// The value cached under `name`, or `make`'s, cached (a poisoned lock only
+/// loses the cache, never the value).
+fn cached<T>(
+    cache: &Mutex<BTreeMap<String, Arc<T>>>,
+    name: &str,
+    make: impl FnOnce() -> Result<T, ScenesError>,
+) -> Result<Arc<T>, ScenesError> {
+    if let Some(v) = cache.lock().ok().and_then(|m| m.get(name).cloned()) {
+        return Ok(v);
+    }
+    let v = Arc::new(make()?);
+    if let Ok(mut m) = cache.lock() {
+        m.insert(name.to_string(), v.clone());
+    }
+    Ok(v)
 }

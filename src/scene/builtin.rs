@@ -67,3 +67,8 @@ pub const BUILT_IN: &[(&str, &str)] = &[
         include_str!("../../config/scenes/occluder-rotating.toml"),
     ),
 ];
+
+/// The TOML text of the built-in scene `name`.
+pub fn text(name: &str) -> Option<&'static str> {
+    BUILT_IN.iter().find(|(n, _)| *n == name).map(|(_, t)| *t)
+}

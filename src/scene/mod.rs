@@ -109,10 +109,7 @@ pub struct Scene {
 impl Scene {
     /// A built-in reference scene by name (e.g. `brewster-crossed-3x3`).
     pub fn builtin(name: &str) -> Option<Result<Self, SceneError>> {
-        builtin::BUILT_IN
-            .iter()
-            .find(|(n, _)| *n == name)
-            .map(|(_, text)| Self::from_toml_str(text))
+        builtin::text(name).map(Self::from_toml_str)
     }
 
     /// Parses and validates a scene from TOML text.
