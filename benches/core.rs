@@ -45,6 +45,7 @@ fn gram_cholesky_admm200_64x64_32x32_2poses(bencher: divan::Bencher) {
         rho: Some(LAMBDA_REL * unit),
         max_iter: 200,
         tol: 1e-30,
+        ..Default::default()
     };
     bencher.bench(|| {
         let r = admm_tv(&t, divan::black_box(&i), &settings).expect("ADMM");

@@ -366,7 +366,7 @@ pub async fn get_job(
 
 /// Cancels a queued or running job. A running capture stops at its next
 /// frame and keeps no file of it; a running reconstruction stops between
-/// its stages. 200 with the record once it is `cancelled`; 202 if it is
+/// its stages or within 10 solver iterations. 200 with the record once it is `cancelled`; 202 if it is
 /// still stopping after 5 s.
 #[utoipa::path(delete, path = "/jobs/{id}", params(("id" = String, Path, description = "capture-<n> or reconstruction-<n>")), responses((status = 200, description = "Cancelled: the job's record"), (status = 202, description = "Still stopping: the job's record"), (status = 404, body = ErrorBody, description = "No such job"), (status = 409, body = ErrorBody, description = "The job already ended")))]
 pub async fn cancel_job(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {

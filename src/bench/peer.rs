@@ -137,6 +137,7 @@ pub fn compare(
         rho: Some(LAMBDA_REL * unit),
         max_iter: ITERATIONS,
         tol: 1e-300,
+        ..Default::default()
     };
     let mut runs = Vec::new();
     for _ in 0..3 {

@@ -140,6 +140,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             scene: super::scene_name(&a.scene),
             transport_seconds,
             truth: truth.as_deref(),
+            stop: Default::default(),
         },
     )?;
     let (image, report) = (solved.image, solved.report);

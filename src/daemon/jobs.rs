@@ -25,7 +25,7 @@ pub enum JobError {
     Measure(#[from] crate::measure::MeasureError),
     /// The solver.
     #[error(transparent)]
-    Solve(#[from] crate::solve::SolveError),
+    Solve(crate::solve::SolveError),
     /// A capture cannot serve this reconstruction (its frame, its files).
     #[error("capture {id}: {reason}")]
     Capture {
@@ -40,6 +40,16 @@ pub enum JobError {
     /// A client cancelled the job while it ran (`DELETE /jobs/{id}`).
     #[error("cancelled")]
     Cancelled,
+}
+
+/// A solve stopped by its job's cancel flag is the job's cancellation.
+impl From<crate::solve::SolveError> for JobError {
+    fn from(e: crate::solve::SolveError) -> Self {
+        match e {
+            crate::solve::SolveError::Stopped { .. } => JobError::Cancelled,
+            e => JobError::Solve(e),
+        }
+    }
 }
 
 impl From<tokio::task::JoinError> for JobError {

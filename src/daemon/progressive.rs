@@ -120,7 +120,7 @@ struct Solver {
     own: usize,
     normal: Normal,
     state: AdmmState,
-    settings: AdmmSettings,
+    settings: AdmmSettings<'static>,
     calibration: f64,
     dark: Option<Frame>,
     truth: Option<Vec<f64>>,

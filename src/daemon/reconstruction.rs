@@ -17,7 +17,7 @@ use crate::files::{image, json, npy};
 use crate::measure::BlockFrames;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::reconstruct::Context;
-use crate::solve::{reconstruct, tikhonov, SolveRequest};
+use crate::solve::{reconstruct, tikhonov, SolveRequest, Stop};
 use crate::store::{read_mean, JobState};
 
 /// Takes reconstructions from the shared queue.
@@ -69,8 +69,8 @@ fn check(cancel: &AtomicBool) -> Result<(), JobError> {
 }
 
 /// Frames to `i` through the homographies, the solve, and the files; a
-/// cancellation is noticed between these stages (the solve itself runs to
-/// its end), and nothing is written after it.
+/// cancellation is noticed between these stages and inside the solve (every
+/// [`Stop::EVERY`] iterations), and nothing is written after it.
 fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
     let store = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
     let rec = d.store.reconstruction(id).map_err(store)?;
@@ -107,6 +107,7 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
         scene: rec.scene.clone(),
         transport_seconds,
         truth: truth.as_deref(),
+        stop: Stop::on(cancel),
     };
     let solved = reconstruct(
         &t,

@@ -16,12 +16,14 @@ use faer::{MatMut, Par, Side};
 
 use super::gram::Normal;
 use super::tv::{add_divergence_adjoint, add_laplacian_lower, gradient, total_variation};
-use super::{check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats};
+use super::{
+    check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats, Stop,
+};
 use crate::transport::Transport;
 
 /// Parameters of an ADMM-TV solve; `None` picks a default scaled to `T`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AdmmSettings {
+pub struct AdmmSettings<'a> {
     /// TV weight in MODEL.md units; default `1e-2 * mean(diag(T^T T))`.
     pub lambda: Option<f64>,
     /// Penalty, fixed when given. Default: start at `max(lambda, 1e-3
@@ -34,15 +36,18 @@ pub struct AdmmSettings {
     pub max_iter: usize,
     /// Relative tolerance `eps_rel`; the absolute one is `tol * 1e-2`.
     pub tol: f64,
+    /// Ends the solve early with [`SolveError::Stopped`] when raised.
+    pub stop: Stop<'a>,
 }
 
-impl Default for AdmmSettings {
+impl Default for AdmmSettings<'_> {
     fn default() -> Self {
         Self {
             lambda: None,
             rho: None,
             max_iter: 500,
             tol: 1e-4,
+            stop: Stop::default(),
         }
     }
 }
@@ -209,6 +214,7 @@ pub fn admm_tv_warm(
     let mut iterations = 0;
     let mut converged = false;
     for _ in 0..settings.max_iter {
+        settings.stop.check(iterations)?;
         iterations += 1;
         // l-update.
         for k in 0..2 * n {

@@ -16,13 +16,15 @@ use faer::Mat;
 use super::admm::{objective_of, LAMBDA_REL};
 use super::gram::Normal;
 use super::tv::{add_divergence_adjoint, gradient};
-use super::{check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats};
+use super::{
+    check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats, Stop,
+};
 use crate::scene::Grid;
 use crate::transport::Transport;
 
 /// Parameters of a FISTA-TV solve.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FistaSettings {
+pub struct FistaSettings<'a> {
     /// TV weight in MODEL.md units; default as ADMM's, `1e-2 * mean(diag(T^T T))`.
     pub lambda: Option<f64>,
     /// Outer iteration cap.
@@ -31,15 +33,18 @@ pub struct FistaSettings {
     pub tol: f64,
     /// FGP iterations per proximal step.
     pub inner: usize,
+    /// Ends the solve early with [`SolveError::Stopped`] when raised.
+    pub stop: Stop<'a>,
 }
 
-impl Default for FistaSettings {
+impl Default for FistaSettings<'_> {
     fn default() -> Self {
         Self {
             lambda: None,
             max_iter: 500,
             tol: 1e-5,
             inner: 10,
+            stop: Stop::default(),
         }
     }
 }
@@ -213,6 +218,7 @@ pub fn fista_tv_prepared(
     let mut converged = lip == 0.0;
     let mut change = f64::INFINITY;
     while !converged && iterations < settings.max_iter {
+        settings.stop.check(iterations)?;
         iterations += 1;
         for k in 0..n {
             ym[(k, 0)] = y[k];
@@ -334,6 +340,7 @@ mod tests {
                 max_iter: 3000,
                 tol: 1e-10,
                 inner: 50,
+                ..Default::default()
             },
         )
         .unwrap();
@@ -345,6 +352,7 @@ mod tests {
                 rho: Some(0.1),
                 max_iter: 20000,
                 tol: 1e-9,
+                ..Default::default()
             },
         )
         .unwrap();
@@ -406,5 +414,66 @@ mod tests {
         assert!(!r.stats.converged);
         assert_eq!(r.stats.iterations, 2);
         assert!(r.stats.warnings[0].contains("iteration cap (2)"));
+    }
+
+    #[test]
+    fn a_raised_stop_ends_both_solvers_at_a_checkpoint() {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let grid = Grid { nu: 4, nv: 4 };
+        let t = identity(grid);
+        let i: Vec<f64> = (0..16).map(|k| (k as f64) / 16.0).collect();
+        const CAP: usize = 10_000_000;
+        let flag = AtomicBool::new(true);
+        let stop = Stop::on(&flag);
+        let admm = |stop| {
+            admm_tv(
+                &t,
+                &i,
+                &AdmmSettings {
+                    max_iter: CAP,
+                    tol: 1e-300,
+                    stop,
+                    ..Default::default()
+                },
+            )
+        };
+        let fista = |stop| {
+            fista_tv(
+                &t,
+                &i,
+                &FistaSettings {
+                    max_iter: CAP,
+                    tol: 1e-300,
+                    stop,
+                    ..Default::default()
+                },
+            )
+        };
+        for e in [admm(stop).unwrap_err(), fista(stop).unwrap_err()] {
+            assert!(matches!(e, SolveError::Stopped { iterations: 0 }), "{e}");
+        }
+        // Raised by another thread while the solve runs: it ends at a
+        // checkpoint short of its cap instead of running CAP iterations (seconds).
+        flag.store(false, Ordering::SeqCst);
+        std::thread::scope(|s| {
+            let raise = s.spawn(|| {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+                flag.store(true, Ordering::SeqCst);
+            });
+            match admm(stop) {
+                Err(SolveError::Stopped { iterations }) => {
+                    assert!(iterations > 0 && iterations < CAP && iterations % Stop::EVERY == 0);
+                }
+                other => panic!(
+                    "expected a stop, got {:?}",
+                    other.map(|r| r.stats.iterations)
+                ),
+            }
+            raise.join().unwrap();
+        });
+        // An unraised stop changes nothing.
+        flag.store(false, Ordering::SeqCst);
+        let (a, b) = (fista(stop).unwrap(), fista(Stop::default()).unwrap());
+        assert_eq!(a.image, b.image);
     }
 }

@@ -24,6 +24,8 @@ pub use conditioning::{condition, Conditioning};
 pub use fista::{fista_tv, FistaSettings};
 pub use reconstruct::{reconstruct, SolveRequest, Solver};
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use crate::transport::Transport;
 
 /// Why a reconstruction could not be computed.
@@ -58,6 +60,55 @@ pub enum SolveError {
     /// A dense factorization failed (not positive definite / no convergence).
     #[error("{0}")]
     Factorization(String),
+    /// The caller raised the solve's [`Stop`] flag (a cancelled job).
+    #[error("stopped on request after {iterations} iterations")]
+    Stopped {
+        /// Iterations run before the flag was seen.
+        iterations: usize,
+    },
+}
+
+/// A flag another thread raises to end a solve early.
+///
+/// Why: a daemon job can be cancelled while its solve runs for minutes;
+/// iterative solvers look at the flag every [`Stop::EVERY`] iterations and
+/// return [`SolveError::Stopped`], so a cancel takes effect within
+/// milliseconds instead of after the solve.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Stop<'a>(Option<&'a AtomicBool>);
+
+impl<'a> Stop<'a> {
+    /// Iterations between two looks at the flag.
+    pub const EVERY: usize = 10;
+
+    /// A stop that follows `flag`.
+    pub fn on(flag: &'a AtomicBool) -> Self {
+        Self(Some(flag))
+    }
+
+    /// Whether the flag is raised (never, for the default).
+    pub fn raised(self) -> bool {
+        self.0.is_some_and(|f| f.load(Ordering::Relaxed))
+    }
+
+    /// `Err(Stopped)` when the flag is raised at a checkpoint iteration.
+    pub(crate) fn check(self, iterations: usize) -> Result<(), SolveError> {
+        if iterations % Self::EVERY == 0 && self.raised() {
+            Err(SolveError::Stopped { iterations })
+        } else {
+            Ok(())
+        }
+    }
+}
+
+/// Two stops are equal when they follow the same flag (or none).
+impl PartialEq for Stop<'_> {
+    fn eq(&self, other: &Self) -> bool {
+        match (self.0, other.0) {
+            (Some(a), Some(b)) => std::ptr::eq(a, b),
+            (a, b) => a.is_none() && b.is_none(),
+        }
+    }
 }
 
 /// The recovered scene and how it was obtained.

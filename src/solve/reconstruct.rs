@@ -13,7 +13,9 @@ use serde::{Deserialize, Serialize};
 use super::conditioning::Conditioning;
 use super::lambda::{admm_tv_resolved, LambdaChoice, NoiseLevel, RESOLVED_TOLERANCE};
 use super::report::{mean_snr, snr_warnings, Report};
-use super::{admm_tv, fista_tv, least_squares, tikhonov, AdmmSettings, FistaSettings, SolveError};
+use super::{
+    admm_tv, fista_tv, least_squares, tikhonov, AdmmSettings, FistaSettings, SolveError, Stop,
+};
 use crate::transport::Transport;
 
 /// The solvers polnlos offers.
@@ -121,7 +123,7 @@ impl SolveRequest {
         Ok(())
     }
 
-    fn admm(&self, auto: bool) -> AdmmSettings {
+    fn admm<'a>(&self, auto: bool, stop: Stop<'a>) -> AdmmSettings<'a> {
         let d = AdmmSettings::default();
         AdmmSettings {
             lambda: self.lambda,
@@ -130,11 +132,14 @@ impl SolveRequest {
                 .max_iter
                 .unwrap_or(if auto { AUTO_MAX_ITER } else { d.max_iter }),
             tol: self.tol.unwrap_or(d.tol),
+            stop,
         }
     }
 }
 
-/// Where the result and its report name the scene, and what to compare with.
+/// Where the result and its report name the scene, what to compare with,
+/// and the flag that ends the solve early (a cancelled job).
+#[derive(Default)]
 pub struct Context<'a> {
     /// Scene name (file stem).
     pub scene: String,
@@ -142,6 +147,8 @@ pub struct Context<'a> {
     pub transport_seconds: f64,
     /// Truth on the scene grid, for PSNR, ZNCC and SSIM.
     pub truth: Option<&'a [f64]>,
+    /// Raised by another thread to stop the iterative solvers.
+    pub stop: Stop<'a>,
 }
 
 /// A finished reconstruction: the image on the scene grid and its report.
@@ -181,7 +188,7 @@ pub fn reconstruct(
     if auto {
         match &noise {
             Some(n) => {
-                let (r, choice) = admm_tv_resolved(t, i, n, &cond.singular_values, &req.admm(true))?;
+                let (r, choice) = admm_tv_resolved(t, i, n, &cond.singular_values, &req.admm(true, ctx.stop))?;
                 lambda = Some(choice.lambda);
                 lambda_choice = Some(choice);
                 admm_result = Some(r);
@@ -196,7 +203,7 @@ pub fn reconstruct(
     let rec = match req.solver {
         Solver::AdmmTv => match admm_result {
             Some(r) => r,
-            None => admm_tv(t, i, &req.admm(false))?,
+            None => admm_tv(t, i, &req.admm(false, ctx.stop))?,
         },
         Solver::FistaTv => {
             let d = FistaSettings::default();
@@ -209,6 +216,7 @@ pub fn reconstruct(
                         .max_iter
                         .unwrap_or(if auto { AUTO_MAX_ITER } else { d.max_iter }),
                     tol: req.tol.unwrap_or(d.tol),
+                    stop: ctx.stop,
                     ..d
                 },
             )?
