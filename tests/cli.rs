@@ -515,6 +515,8 @@ fn bench_quick_writes_its_reports() {
         "sampling.svg",
         "active.png",
         "active.svg",
+        "lambda.png",
+        "lambda.svg",
     ] {
         assert!(dir.path().join(f).metadata().unwrap().len() > 100, "{f}");
     }
@@ -539,6 +541,22 @@ fn bench_quick_writes_its_reports() {
         .starts_with("<svg"));
     let png = image::read_gray(&dir.path().join("conditioning.png")).unwrap();
     assert_eq!((png.width, png.height), (900, 560));
+
+    // The automatic λ on the quick plan's 3 cases (3x3, 1e4 e-): the
+    // residual's sigma is the camera model's, the gap is best minus
+    // automatic, and 8 of the 9 components count as resolved.
+    let lambda = v["lambda"].as_array().unwrap();
+    assert_eq!(lambda.len(), 3);
+    for r in lambda {
+        let f = |k: &str| r[k].as_f64().unwrap();
+        assert!((0.85..1.15).contains(&f("noise_ratio")), "{r}");
+        assert!(
+            (f("best_psnr") - f("auto_psnr") - f("gap")).abs() < 1e-9,
+            "{r}"
+        );
+        assert!(f("gap") >= 0.0 && r["resolved"] == 8, "{r}");
+    }
+    assert!(md.contains("## Automatic λ against the best λ"), "{md}");
 
     // Stability: the measurement that is mostly noise says so.
     let dim = v["stability"]

@@ -7,6 +7,7 @@
 
 pub mod active;
 pub mod charts;
+pub mod lambda;
 pub mod peer;
 pub mod report;
 pub mod sampling;

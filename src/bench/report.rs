@@ -48,6 +48,12 @@ pub struct BenchPlan {
     pub sampling_reference_m: usize,
     /// Wall and scene grid sides of the NumPy peer comparison.
     pub peer: (usize, usize),
+    /// Built-in scenes of the automatic-λ sweep ...
+    pub lambda_scenes: Vec<&'static str>,
+    /// ... their hidden-scene grid side ...
+    pub lambda_grid: usize,
+    /// ... and photo-electron levels (3 patterns at each).
+    pub lambda_photons: Vec<f64>,
 }
 
 impl BenchPlan {
@@ -64,11 +70,15 @@ impl BenchPlan {
             sampling_grid: 3,
             sampling_reference_m: 12,
             peer: (32, 8),
+            lambda_scenes: vec!["brewster-crossed"],
+            lambda_grid: 3,
+            lambda_photons: vec![1e4],
         }
     }
 
-    /// The full run (about 45 s on 2 cores): adds the 8x8 grids, the M and L
-    /// speed sizes with 3 seeds, finer sweeps, the peer at wall 64 x scene 32.
+    /// The full run (about 5 min on 2 cores, most of it the λ sweep): adds
+    /// the 8x8 grids, the M and L speed sizes with 3 seeds, finer sweeps, the
+    /// λ sweep on 4 scenes at 16x16, the peer at wall 64 x scene 32.
     pub fn full() -> Self {
         Self {
             quick: false,
@@ -81,6 +91,14 @@ impl BenchPlan {
             sampling_grid: 8,
             sampling_reference_m: 24,
             peer: (64, 32),
+            lambda_scenes: vec![
+                "brewster-nopol",
+                "brewster-crossed",
+                "occluder-crossed",
+                "brewster-multi",
+            ],
+            lambda_grid: 16,
+            lambda_photons: vec![1e3, 1e4, 1e5],
         }
     }
 
@@ -102,6 +120,7 @@ impl BenchPlan {
             + 2
             + super::active::active_len(&self.active_grids)
             + 1
+            + super::lambda::lambda_len(self.lambda_scenes.len(), self.lambda_photons.len())
     }
 
     /// Runs every report, calling `step()` as each row is done; the NumPy
@@ -145,6 +164,12 @@ impl BenchPlan {
                 step();
                 peer?
             }),
+            Box::new(super::lambda::Lambda(super::lambda::lambda_sweep(
+                &self.lambda_scenes,
+                self.lambda_grid,
+                &self.lambda_photons,
+                step,
+            )?)),
             Box::new(speed::Speed {
                 seeds: self.speed_seeds,
                 summary: speed::summarize(&runs),

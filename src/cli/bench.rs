@@ -1,6 +1,6 @@
 //! `polnlos bench`: every report of [`polnlos::bench`] (Table 1, Fig. 6,
-//! stability, transport accuracy against build time, active NLOS, the NumPy
-//! peer, speed against accuracy), each written the same way: its fields in
+//! stability, transport accuracy against build time, active NLOS, the
+//! automatic λ against the best, the NumPy peer, speed against accuracy), each written the same way: its fields in
 //! `bench.json`, its charts as PNG and SVG, its section of `bench.md`.
 
 use std::path::PathBuf;
@@ -12,11 +12,12 @@ use polnlos::files::{json, write_atomic};
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Writes bench.json, bench.md and the charts conditioning, roughness, sampling,\n\
-active and speed-accuracy-<size> (PNG and SVG).\n\
+active, lambda and speed-accuracy-<size> (PNG and SVG).\n\
 Example:\n  polnlos bench --quick --out bench/\n\
-The full run (about 45 s on 2 cores) adds the 8x8 scene grids, the M and L\n\
-speed sizes with 3 seeds, finer active and sampling sweeps, and the NumPy\n\
-peer at wall 64x64 x scene 32x32 (run when python3 has NumPy)."
+The full run (about 5 min on 2 cores, mostly the λ sweep) adds the 8x8 scene grids, the M and L\n\
+speed sizes with 3 seeds, finer active and sampling sweeps, the automatic-λ\n\
+sweep on 4 scenes at 16x16 (1e3, 1e4, 1e5 photo-electrons, 3 patterns), and\n\
+the NumPy peer at wall 64x64 x scene 32x32 (run when python3 has NumPy)."
 )]
 pub struct Args {
     /// Output folder.
