@@ -15,9 +15,11 @@ use super::{builtin, BenchError};
 use crate::scene::{Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
+use crate::solve::admm::{admm_tv_prepared, LAMBDA_REL};
+use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::reconstruct::{Context, AUTO_MAX_ITER};
-use crate::solve::{condition, metrics, reconstruct, Conditioning, SolveRequest};
+use crate::solve::{condition, metrics, reconstruct, AdmmSettings, Conditioning, SolveRequest};
 use crate::transport::{build, Transport};
 
 /// Grid search of the best λ: log10(λ / mean(diag(T^T T))) from -6 to 1.
@@ -81,34 +83,47 @@ fn case(
             source,
         })?;
     let i = &sim.measurement;
-    let camera = NoiseLevel::from_camera(i, sim.electrons_per_unit, 5.0, sim.units_per_dn);
-    let solve = |lambda: Option<f64>| {
-        // The automatic λ's iteration cap for every λ, so that the grid
-        // search is not handicapped at small λs.
-        let req = SolveRequest {
-            lambda,
-            max_iter: Some(AUTO_MAX_ITER),
-            ..Default::default()
-        };
-        let ctx = Context {
+    let camera = NoiseLevel::from_camera(
+        i,
+        sim.electrons_per_unit,
+        model.read_noise,
+        sim.units_per_dn,
+    );
+    // The automatic λ through `reconstruct`, the path users take.
+    let auto = reconstruct(
+        t,
+        i,
+        None,
+        cond,
+        &SolveRequest::default(),
+        Context {
             scene: name.to_string(),
-            truth: Some(&truth),
             ..Default::default()
-        };
-        reconstruct(t, i, None, cond, &req, ctx)
-    };
-    let auto = solve(None)?;
+        },
+    )?;
     let auto_psnr = metrics::psnr(&truth, &auto.image);
     let choice = auto.report.lambda_choice.as_ref();
     let unit = t.mean_column_norm2();
-    let default_psnr = metrics::psnr(
-        &truth,
-        &solve(Some(crate::solve::admm::LAMBDA_REL * unit))?.image,
-    );
-    let mut best = (f64::NAN, auto_psnr);
+    let auto_lambda = choice.map_or(f64::NAN, |c| c.lambda / unit);
+    // Every fixed λ with one T^T T and the automatic λ's iteration cap, so
+    // that the grid search is not handicapped at small λs.
+    let normal = Normal::new(t.as_mat(), i);
+    let psnr_at = |lambda: f64| -> Result<f64, BenchError> {
+        let settings = AdmmSettings {
+            lambda: Some(lambda),
+            max_iter: AUTO_MAX_ITER,
+            ..Default::default()
+        };
+        Ok(metrics::psnr(
+            &truth,
+            &admm_tv_prepared(t, i, &normal, &settings)?.image,
+        ))
+    };
+    let default_psnr = psnr_at(LAMBDA_REL * unit)?;
+    let mut best = (auto_lambda, auto_psnr);
     for k in 0..=SEARCH.2 {
         let e = SEARCH.0 + (SEARCH.1 - SEARCH.0) * k as f64 / SEARCH.2 as f64;
-        let psnr = metrics::psnr(&truth, &solve(Some(unit * 10f64.powf(e)))?.image);
+        let psnr = psnr_at(unit * 10f64.powf(e))?;
         if psnr > best.1 {
             best = (10f64.powf(e), psnr);
         }
@@ -122,14 +137,10 @@ fn case(
             (c.noise_variance / camera.mean_variance()).sqrt()
         }),
         resolved: choice.and_then(|c| c.resolved).unwrap_or(0),
-        auto_lambda: choice.map_or(f64::NAN, |c| c.lambda / unit),
+        auto_lambda,
         auto_psnr,
         default_psnr,
-        best_lambda: if best.0.is_nan() {
-            choice.map_or(f64::NAN, |c| c.lambda / unit)
-        } else {
-            best.0
-        },
+        best_lambda: best.0,
         best_psnr: best.1,
         gap: best.1 - auto_psnr,
     })
