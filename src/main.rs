@@ -84,7 +84,9 @@ fn exit_code(e: &anyhow::Error) -> u8 {
                 polnlos::simulate::SimulateError::Black => INPUT,
             };
         }
-        if cause.is::<polnlos::calibrate::geometry::CalibrationError>() {
+        if cause.is::<polnlos::calibrate::geometry::CalibrationError>()
+            || cause.is::<polnlos::calibrate::wall::WallFitError>()
+        {
             return INPUT;
         }
         if cause.is::<cli::Usage>() {

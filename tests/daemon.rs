@@ -749,4 +749,5 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     );
     assert_eq!(s, 422, "{b}");
     assert!(b.contains("do not match the capture"), "{b}");
+    assert!(!b.contains("dots"), "{b}");
 }

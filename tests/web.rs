@@ -116,6 +116,200 @@ async fn image_loaded(c: &Client, css: &str) -> bool {
         .unwrap_or(false)
 }
 
+/// Clicks the element matching `css`.
+async fn click(c: &Client, css: &str) {
+    c.find(Locator::Css(css))
+        .await
+        .expect(css)
+        .click()
+        .await
+        .expect("click");
+}
+
+/// Starts a capture from the page's form and waits until capture `id` ends.
+async fn capture(c: &Client, id: u32, fields: &[(&str, &str)], within: Duration) -> String {
+    for (name, value) in fields {
+        let css = format!("#capture-form [name={name}]");
+        if *name == "kind" || *name == "scene" {
+            choose(c, &format!("#capture-form select[name={name}]"), value).await;
+        } else {
+            set(c, &css, value).await;
+        }
+    }
+    click(c, "#start-capture").await;
+    until(&format!("capture {id} to end"), within, || async {
+        let state = text(c, &format!("#capture-{id} .state")).await;
+        (state == "done" || state.starts_with("failed")).then_some(state)
+    })
+    .await
+}
+
+/// The value cell of the row headed `key` in the table of `css`.
+async fn cell(c: &Client, css: &str, key: &str) -> String {
+    let js = format!(
+        "for (const r of document.querySelectorAll({css:?} + ' tr')) {{ if (r.cells[0].textContent === {key:?}) return r.cells[1].textContent; }} return '';"
+    );
+    c.execute(&js, vec![])
+        .await
+        .ok()
+        .and_then(|v| v.as_str().map(String::from))
+        .unwrap_or_default()
+}
+
+/// Submits a calibration form and waits for its message to change from "fitting…".
+async fn fit(c: &Client, button: &str, message: &str, within: Duration) -> String {
+    c.execute(
+        &format!("document.querySelector({message:?}).textContent = ''; return true;"),
+        vec![],
+    )
+    .await
+    .expect("clear the message");
+    click(c, button).await;
+    until(&format!("{message} to show the fit"), within, || async {
+        let m = text(c, message).await;
+        (!m.is_empty() && m != "fitting…").then_some(m)
+    })
+    .await
+}
+
+/// The value before " ± " of a fitted parameter's cell.
+fn value(cell: &str) -> f64 {
+    cell.split(" ± ")
+        .next()
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("not a fitted value: {cell:?}"))
+}
+
+#[test]
+fn the_page_calibrates_a_pose_and_the_wall_from_its_captures() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let driver = Driver::start();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let c = browser(&driver, &dir.path().join("profile")).await;
+        c.goto(&format!("{}/", d.base)).await.expect("the page");
+        let long = Duration::from_secs(60);
+        until("the camera status", long, || async {
+            text(&c, "#camera-status")
+                .await
+                .starts_with("connected")
+                .then_some(())
+        })
+        .await;
+
+        // Pose C of the two-pose scene from a target capture taken on the page.
+        let state = capture(
+            &c,
+            1,
+            &[
+                ("kind", "target"),
+                ("scene", "brewster-multi"),
+                ("pose", "C"),
+                ("frames", "4"),
+                ("dark_frames", "2"),
+            ],
+            long,
+        )
+        .await;
+        assert_eq!(state, "done");
+        set(&c, "#pose-form [name=capture]", "1").await;
+        let m = fit(&c, "#fit-pose", "#pose-message", long).await;
+        assert_eq!(m, "fitted", "{}", text(&c, "#pose-result").await);
+        assert_eq!(cell(&c, "#pose-result", "dots").await, "26");
+        let rms = cell(&c, "#pose-result", "reprojection RMS").await;
+        let rms: f64 = rms.trim_end_matches(" px").parse().expect("an RMS in px");
+        println!("pose C on the page: RMS {rms} px");
+        assert!(rms < 0.2, "{rms}");
+        // The scene file to review is on the page and downloadable.
+        let toml = c
+            .execute(
+                "return document.querySelector('#pose-toml').textContent;",
+                vec![],
+            )
+            .await
+            .unwrap();
+        let scene = polnlos::scene::Scene::from_toml_str(toml.as_str().unwrap()).unwrap();
+        assert!(scene.pose("C").unwrap().homography.is_some());
+        let link = c.find(Locator::Css("#pose-download")).await.unwrap();
+        assert_eq!(
+            link.attr("download").await.unwrap().as_deref(),
+            Some("brewster-multi-pose-C.toml")
+        );
+        // A capture that does not exist is an error on the page, not a fit.
+        set(&c, "#pose-form [name=capture]", "99").await;
+        let m = fit(&c, "#fit-pose", "#pose-message", long).await;
+        assert_eq!(m, "no capture with id 99");
+        assert_eq!(
+            text(&c, "#pose-result").await,
+            "",
+            "no numbers beside the error"
+        );
+        assert_eq!(
+            c.find(Locator::Css("#pose-message"))
+                .await
+                .unwrap()
+                .attr("class")
+                .await
+                .unwrap()
+                .as_deref(),
+            Some("message error")
+        );
+
+        // The wall and gain from a point-source capture of pose A.
+        let state = capture(
+            &c,
+            2,
+            &[
+                ("kind", "source"),
+                ("scene", "brewster-crossed"),
+                ("pose", "A"),
+                ("frames", "32"),
+                ("dark_frames", "8"),
+            ],
+            long,
+        )
+        .await;
+        assert_eq!(state, "done");
+        choose(&c, "#wall-form select[name=scene]", "brewster-crossed").await;
+        set(&c, "#wall-form [name=captures]", "2").await;
+        let m = fit(&c, "#fit-wall", "#wall-message", long).await;
+        assert_eq!(m, "fitted", "{}", text(&c, "#wall-result").await);
+        let alpha = value(&cell(&c, "#wall-result", "GGX roughness α").await);
+        let ior = value(&cell(&c, "#wall-result", "refractive index").await);
+        let gain = cell(&c, "#wall-result", "configured gain").await;
+        println!("wall on the page: alpha {alpha}, ior {ior}, {gain}");
+        assert!((alpha - 0.3).abs() < 0.03, "{alpha}");
+        assert!((ior - 1.5).abs() < 0.1, "{ior}");
+        let ratio: f64 = gain
+            .rsplit("fit/configured ")
+            .next()
+            .and_then(|r| r.trim_end_matches(')').parse().ok())
+            .expect("a fit/configured ratio");
+        assert!((ratio - 1.0).abs() < 0.05, "{gain}");
+        // The source at the wrong place is refused with the reason.
+        set(&c, "#wall-form [name=u]", "-0.06").await;
+        set(&c, "#wall-form [name=v]", "0.06").await;
+        let m = fit(&c, "#fit-wall", "#wall-message", long).await;
+        assert!(m.contains("do not match the capture"), "{m}");
+        assert!(
+            !m.contains("dots"),
+            "a wall fit's error speaks of the wall: {m}"
+        );
+        assert_eq!(
+            text(&c, "#wall-result").await,
+            "",
+            "no numbers beside the error"
+        );
+        c.close().await.unwrap();
+    });
+}
+
 #[test]
 fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
     let _g = lock();

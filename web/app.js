@@ -52,6 +52,8 @@ function el(tag, attrs, ...children) {
 }
 const block = (c) => c.polarizer_deg === null ? `${c.pose} (no polarizer)` : `${c.pose} at ${c.polarizer_deg}°`;
 const active = (s) => s === "queued" || s === "running";
+// "2, 3" or "2 3" → [2, 3].
+const ids = (v) => String(v).split(/[ ,]+/).filter((s) => s).map(Number);
 
 async function refreshCamera() {
   const h = await api("GET", "/health");
@@ -180,7 +182,7 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
   const f = new FormData(ev.target);
   const body = {
     scene: f.get("scene"),
-    captures: String(f.get("captures")).split(/[ ,]+/).filter((s) => s).map(Number),
+    captures: ids(f.get("captures")),
     solver: f.get("solver"),
   };
   if (f.get("truth")) body.truth = f.get("truth");
@@ -189,6 +191,75 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
   msg.className = r.status === 202 ? "message" : "message error";
   text(msg, r.status === 202 ? `queued ${r.json.job}` : (r.json && r.json.detail) || `HTTP ${r.status}`);
   refresh();
+});
+
+// Calibration forms: both fits answer synchronously (a few seconds at most).
+const fmt = (x, digits) => (x === null || x === undefined) ? "-" : Number(x).toPrecision(digits);
+function rowsTable(rows) {
+  return el("table", { class: "fit" }, ...rows.map(([a, b]) => el("tr", {}, el("th", {}, a), el("td", {}, String(b)))));
+}
+
+// A failed fit clears the previous result, so that no numbers stand beside the error.
+async function fit(button, message, result, path, body, show) {
+  const msg = $(message);
+  msg.className = "message";
+  text(msg, "fitting…");
+  $(button).disabled = true;
+  try {
+    const r = await api("POST", path, body);
+    if (r.status === 200) { text(msg, "fitted"); show(r.json); }
+    else {
+      msg.className = "message error";
+      text(msg, (r.json && r.json.detail) || `HTTP ${r.status}`);
+      $(result).replaceChildren();
+    }
+  } finally {
+    $(button).disabled = false;
+  }
+}
+
+function showPose(c) {
+  const h = c.homography.map((row) => row.map((x) => fmt(x, 6)).join("  ")).join("\n");
+  const file = new Blob([c.scene_toml], { type: "application/toml" });
+  const link = el("a", { href: URL.createObjectURL(file), download: `${c.scene}-pose-${c.pose}.toml`, id: "pose-download" }, "download the scene file");
+  $("#pose-result").replaceChildren(
+    rowsTable([
+      ["capture", c.capture], ["scene / pose", `${c.scene} / ${c.pose}`], ["dots", c.dots],
+      ["reprojection RMS", `${fmt(c.rms_px, 3)} px`], ["largest", `${fmt(c.max_px, 3)} px`],
+      ["region", c.region.join(", ")],
+    ]),
+    el("div", { class: "fit" }, el("div", {}, "homography (wall m → pixels):"), el("pre", {}, h),
+      el("details", {}, el("summary", {}, "scene file to review"), el("pre", { id: "pose-toml" }, c.scene_toml)),
+      link));
+}
+
+function showWall(w) {
+  const p = w.fit.params, s = w.fit.sigma;
+  const pm = (k, d) => `${fmt(p[k], d)} ± ${fmt(s[k], 2)}`;
+  const rows = [
+    ["scene", w.scene], ["captures", w.captures.join(", ")],
+    ["GGX roughness α", pm("alpha", 4)], ["refractive index", pm("ior", 4)],
+    ["diffuse weight kd", pm("kd", 3)], ["gain", pm("gain", 4)],
+  ];
+  if (w.configured_gain) rows.push(["configured gain", `${fmt(w.configured_gain, 4)} (fit/configured ${fmt(p.gain / w.configured_gain, 4)})`]);
+  rows.push(["residual", `${(100 * w.fit.relative_residual).toFixed(1)} % of the measurement`], ["iterations", w.fit.iterations]);
+  $("#wall-result").replaceChildren(rowsTable(rows));
+}
+
+$("#pose-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const body = { capture: Number(f.get("capture")) };
+  const target = String(f.get("target") || "").trim();
+  if (target) body.target = target;
+  await fit("#fit-pose", "#pose-message", "#pose-result", "/calibrations", body, showPose);
+});
+
+$("#wall-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const body = { scene: f.get("scene"), captures: ids(f.get("captures")), source: [Number(f.get("u")), Number(f.get("v"))] };
+  await fit("#fit-wall", "#wall-message", "#wall-result", "/calibrations/wall", body, showWall);
 });
 
 async function loadScenes() {

@@ -34,6 +34,7 @@ const CHARTS: &[(&str, &[u8])] = &[
         "speed-accuracy-S.png",
         include_bytes!("../../docs/bench/speed-accuracy-S.png"),
     ),
+    ("lambda.png", include_bytes!("../../docs/bench/lambda.png")),
 ];
 
 /// Paths served without the token: the page and its static files.

@@ -12,9 +12,32 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::geometry::CalibrationError;
 use crate::scene::{Grid, Scene};
-use crate::transport::build;
+use crate::transport::{build, TransportError};
+
+/// Why a wall fit could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum WallFitError {
+    /// The point-source transport could not be built for these parameters.
+    #[error("the point-source model of the scene could not be built: {0}")]
+    Model(#[source] TransportError),
+    /// The measurement does not have one value per row of the scene's `T`.
+    #[error("the measurement has {measurement} values but the scene's T has {rows} rows (one per wall element of every pose and polarizer angle, MODEL.md row order)")]
+    Length {
+        /// Values in the measurement.
+        measurement: usize,
+        /// Rows of `T`.
+        rows: usize,
+    },
+    /// The best fit leaves too much of the measurement unexplained.
+    #[error("the point-source model leaves {percent:.0}% of the measurement unexplained (at most {limit:.0}% is accepted): the source position or the poses' homographies do not match the capture, so no wall parameters are reported")]
+    Unexplained {
+        /// `100 ||i - model|| / ||i||`.
+        percent: f64,
+        /// The accepted limit, percent.
+        limit: f64,
+    },
+}
 
 /// Side of the small square that stands for the point source, metres.
 const SOURCE_SIDE_M: f64 = 0.005;
@@ -96,9 +119,8 @@ pub fn predict(
     scene: &Scene,
     source: &PointSource,
     p: &WallParams,
-) -> Result<Vec<f64>, CalibrationError> {
-    let t = build(&point_scene(scene, source, p))
-        .map_err(|e| CalibrationError::Target(format!("point-source transport: {e}")))?;
+) -> Result<Vec<f64>, WallFitError> {
+    let t = build(&point_scene(scene, source, p)).map_err(WallFitError::Model)?;
     Ok(t.apply(&[1.0]).into_iter().map(|v| v * p.gain).collect())
 }
 
@@ -109,15 +131,14 @@ pub fn fit(
     source: &PointSource,
     i: &[f64],
     start: WallParams,
-) -> Result<WallFit, CalibrationError> {
+) -> Result<WallFit, WallFitError> {
     let model = |p: &SVector<f64, 4>| predict(scene, source, &WallParams::from_vec(p));
     let first = model(&start.to_vec())?;
     if first.len() != i.len() {
-        return Err(CalibrationError::Target(format!(
-            "the measurement has {} values but the scene's T has {} rows",
-            i.len(),
-            first.len()
-        )));
+        return Err(WallFitError::Length {
+            measurement: i.len(),
+            rows: first.len(),
+        });
     }
     let residual = |m: &[f64]| -> Vec<f64> { i.iter().zip(m).map(|(a, b)| a - b).collect() };
     let ss = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
@@ -161,11 +182,10 @@ pub fn fit(
     let norm = i.iter().map(|x| x * x).sum::<f64>().sqrt().max(1e-300);
     let relative_residual = cost.sqrt() / norm;
     if relative_residual > MAX_RELATIVE_RESIDUAL {
-        return Err(CalibrationError::Identification(format!(
-            "the point-source model leaves {:.0}% of the measurement unexplained (at most {:.0}% is accepted): the source position or the poses' homographies do not match the capture, so no wall parameters are reported",
-            100.0 * relative_residual,
-            100.0 * MAX_RELATIVE_RESIDUAL
-        )));
+        return Err(WallFitError::Unexplained {
+            percent: 100.0 * relative_residual,
+            limit: 100.0 * MAX_RELATIVE_RESIDUAL,
+        });
     }
     let dof = (i.len() as f64 - 4.0).max(1.0);
     let s2 = cost / dof;
@@ -194,7 +214,7 @@ pub fn fit_from_scene(
     scene: &Scene,
     source: &PointSource,
     i: &[f64],
-) -> Result<WallFit, CalibrationError> {
+) -> Result<WallFit, WallFitError> {
     let b = scene.wall.brdf;
     let unit = WallParams {
         alpha: b.alpha,
@@ -211,14 +231,14 @@ pub fn fit_from_scene(
     fit(scene, source, i, WallParams { gain, ..unit })
 }
 
-type Model<'a> = dyn Fn(&SVector<f64, 4>) -> Result<Vec<f64>, CalibrationError> + 'a;
+type Model<'a> = dyn Fn(&SVector<f64, 4>) -> Result<Vec<f64>, WallFitError> + 'a;
 
 /// `J^T J` and the columns of `J` (derivatives of the model) by central
 /// differences.
 fn jacobian(
     model: &Model<'_>,
     p: &SVector<f64, 4>,
-) -> Result<(SMatrix<f64, 4, 4>, Vec<Vec<f64>>), CalibrationError> {
+) -> Result<(SMatrix<f64, 4, 4>, Vec<Vec<f64>>), WallFitError> {
     let mut cols = Vec::with_capacity(4);
     for k in 0..4 {
         let step = 1e-5 * p[k].abs().max(1e-3);
@@ -306,5 +326,15 @@ mod tests {
         let i = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &truth).expect("model");
         let e = fit(&s, &PointSource { u: -0.06, v: -0.06 }, &i, truth).expect_err("wrong place");
         assert!(e.to_string().contains("do not match the capture"), "{e}");
+        assert!(!e.to_string().contains("dots"), "{e}");
+        let WallFitError::Unexplained { percent, limit } = e else {
+            panic!("{e}")
+        };
+        assert!(percent > limit && limit == 25.0, "{percent} {limit}");
+        let short = fit(&s, &PointSource { u: 0.06, v: 0.06 }, &i[1..], truth).expect_err("short");
+        assert!(
+            matches!(short, WallFitError::Length { measurement, rows } if rows == i.len() && measurement == rows - 1),
+            "{short}"
+        );
     }
 }
