@@ -806,4 +806,43 @@ fn calibrate_wall_fits_a_point_source_measurement_with_uncertainties() {
         "--source=-0.06,0.06",
     ]));
     assert!(err.contains("do not match the capture"), "{err}");
+    // Two positions of the same source, fitted together (one gain).
+    let other = PointSource { u: -0.06, v: 0.05 };
+    let i2 = predict(&scene, &other, &truth).unwrap();
+    let m2 = d.path().join("source-2.npy");
+    npy::write_f64(&m2, &[i2.len()], &i2).unwrap();
+    let out = ok(&polnlos(&[
+        "calibrate",
+        "wall",
+        "brewster-rotating",
+        "--measurement",
+        m.to_str().unwrap(),
+        "--source",
+        "0.03,-0.02",
+        "--measurement",
+        m2.to_str().unwrap(),
+        "--source=-0.06,0.05",
+    ]));
+    let f: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let p = |k: &str| f["params"][k].as_f64().unwrap();
+    assert!((p("ior") - 1.6).abs() < 0.02, "{f}");
+    assert!((p("gain") / 3.0 - 1.0).abs() < 0.02, "{f}");
+    assert_eq!(
+        f["source_residuals"].as_array().map(Vec::len),
+        Some(2),
+        "{f}"
+    );
+    // Positions and measurements must pair up: a usage error (status 2).
+    let err = usage(&polnlos(&[
+        "calibrate",
+        "wall",
+        "brewster-rotating",
+        "--measurement",
+        m.to_str().unwrap(),
+        "--measurement",
+        m2.to_str().unwrap(),
+        "--source",
+        "0.03,-0.02",
+    ]));
+    assert!(err.contains("2 --measurement but 1 --source"), "{err}");
 }

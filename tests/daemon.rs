@@ -750,4 +750,49 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     assert_eq!(s, 422, "{b}");
     assert!(b.contains("do not match the capture"), "{b}");
     assert!(!b.contains("dots"), "{b}");
+    // Two captures of the source, given as two positions (the fake bench has
+    // one): fitted together, each position with its own residual.
+    let c2 = d.run_job("/captures", r#"{"kind": "source", "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 32, "dark_frames": 8}"#, Duration::from_secs(30));
+    assert_eq!(c2["state"], "done", "{c2}");
+    let two = r#"{"scene": "brewster-crossed", "sources": [{"source": [0.03, -0.02], "captures": [1]}, {"source": [0.03, -0.02], "captures": [2]}]}"#;
+    let (s, b, _) = d.post("/calibrations/wall", two);
+    assert_eq!(s, 200, "{b}");
+    let v: serde_json::Value = serde_json::from_str(&b).unwrap();
+    let positions = v["positions"].as_array().unwrap();
+    assert_eq!(positions.len(), 2, "{v}");
+    assert_eq!(positions[1]["captures"], serde_json::json!([2]), "{v}");
+    for p in positions {
+        assert!(p["relative_residual"].as_f64().unwrap() < 0.1, "{v}");
+    }
+    assert_eq!(v["captures"], serde_json::json!([1, 2]), "{v}");
+    assert!((param(&v, "alpha") - 0.3).abs() < 0.03, "{v}");
+    // One misplaced position among two is named.
+    let (s, b, _) = d.post(
+        "/calibrations/wall",
+        &two.replacen(
+            "[0.03, -0.02], \"captures\": [2]",
+            "[-0.06, 0.06], \"captures\": [2]",
+            1,
+        ),
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("source at (-0.06, 0.06) m"), "{b}");
+    // A capture at two positions, and more captures than blocks, are refused.
+    let (s, b, _) = d.post(
+        "/calibrations/wall",
+        r#"{"scene": "brewster-crossed", "sources": [{"source": [0.03, -0.02], "captures": [1]}, {"source": [0.03, -0.02], "captures": [1]}]}"#,
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("capture 1 is given twice"), "{b}");
+    let (s, b, _) = d.post(
+        "/calibrations/wall",
+        r#"{"scene": "brewster-crossed", "captures": [1, 2], "source": [0.03, -0.02]}"#,
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("2 captures for the 1 block of scene"), "{b}");
+}
+
+/// A fitted wall parameter of a `POST /calibrations/wall` answer.
+fn param(v: &serde_json::Value, k: &str) -> f64 {
+    v["fit"]["params"][k].as_f64().unwrap()
 }

@@ -11,13 +11,15 @@ use rand::{Rng, SeedableRng};
 
 type Target = fn(&[u8]);
 
-const TARGETS: [(&str, Target); 6] = [
+const TARGETS: [(&str, Target); 8] = [
     ("scene_toml", parsers::scene_toml),
     ("npy", parsers::npy),
     ("capture_json", parsers::capture_json),
     ("reconstruction_json", parsers::reconstruction_json),
     ("settings_json", parsers::settings_json),
     ("config_toml", parsers::config_toml),
+    ("wall_calibration_json", parsers::wall_calibration_json),
+    ("calibration_json", parsers::calibration_json),
 ];
 
 /// Tokens that reach edge cases of these formats.
@@ -107,7 +109,7 @@ fn every_parser_survives_its_corpus_and_mutations() {
 /// that most generated bodies get past "unknown field" to the values.
 fn json_value() -> impl proptest::strategy::Strategy<Value = serde_json::Value> {
     use proptest::prelude::*;
-    const KEYS: [&str; 20] = [
+    const KEYS: [&str; 24] = [
         "scene",
         "pose",
         "polarizer_deg",
@@ -128,6 +130,10 @@ fn json_value() -> impl proptest::strategy::Strategy<Value = serde_json::Value> 
         "max_iter",
         "tol",
         "truth",
+        "source",
+        "sources",
+        "capture",
+        "target",
     ];
     let leaf = prop_oneof![
         Just(serde_json::Value::Null),
@@ -171,5 +177,7 @@ proptest::proptest! {
         parsers::capture_json(&bytes);
         parsers::reconstruction_json(&bytes);
         parsers::settings_json(&bytes);
+        parsers::wall_calibration_json(&bytes);
+        parsers::calibration_json(&bytes);
     }
 }

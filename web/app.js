@@ -243,6 +243,9 @@ function showWall(w) {
   ];
   if (w.configured_gain) rows.push(["configured gain", `${fmt(w.configured_gain, 4)} (fit/configured ${fmt(p.gain / w.configured_gain, 4)})`]);
   rows.push(["residual", `${(100 * w.fit.relative_residual).toFixed(1)} % of the measurement`], ["iterations", w.fit.iterations]);
+  if (w.positions.length > 1) {
+    w.positions.forEach((p) => rows.push([`source at [${p.source.join(", ")}]`, `captures ${p.captures.join(", ")}, residual ${(100 * p.relative_residual).toFixed(1)} %`]));
+  }
   $("#wall-result").replaceChildren(rowsTable(rows));
 }
 

@@ -109,3 +109,41 @@ pub fn config_toml(data: &[u8]) {
         }
     }
 }
+
+/// A `POST /calibrations/wall` body, through its shape checks.
+pub fn wall_calibration_json(data: &[u8]) {
+    use polnlos::api::bodies::{WallCalibrationBody, MAX_CAPTURES_PER_POSITION};
+    if let Ok(b) = serde_json::from_slice::<WallCalibrationBody>(data) {
+        if let Ok(positions) = b.positions() {
+            // What is accepted is bounded and each capture is of one position.
+            assert!((1..=polnlos::calibrate::wall::MAX_SOURCES).contains(&positions.len()));
+            let mut ids = std::collections::HashSet::new();
+            for p in &positions {
+                assert!(p.source.u.is_finite() && p.source.v.is_finite());
+                assert!((1..=MAX_CAPTURES_PER_POSITION).contains(&p.captures.len()));
+                assert!(p.captures.iter().all(|id| ids.insert(*id)));
+            }
+        }
+    }
+}
+
+/// A `POST /calibrations` body and the dot target it may carry (TOML).
+pub fn calibration_json(data: &[u8]) {
+    if let Ok(b) = serde_json::from_slice::<polnlos::api::bodies::CalibrationBody>(data) {
+        if let Some(text) = b.target {
+            target_toml(text.as_bytes());
+        }
+    }
+    target_toml(data);
+}
+
+/// A dot-target file.
+fn target_toml(data: &[u8]) {
+    if let Ok(text) = std::str::from_utf8(data) {
+        if let Ok(t) = polnlos::calibrate::geometry::Target::from_toml_str(text) {
+            assert!(t.radius_m > 0.0 && t.radius_m.is_finite());
+            assert!((5..=10_000).contains(&t.dots.len()));
+            assert!(t.dots.iter().flatten().all(|x| x.is_finite()));
+        }
+    }
+}

@@ -145,17 +145,100 @@ pub struct CalibrationBody {
     pub target: Option<String>,
 }
 
-/// `POST /calibrations/wall` body.
+/// `POST /calibrations/wall` body: one source position (`source` and
+/// `captures`) or several positions of the same source (`sources`).
 #[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct WallCalibrationBody {
     /// Scene name (its wall, poses and hidden-scene plane).
     pub scene: String,
     /// One done `"kind": "source"` capture per (pose, angle) block.
+    #[serde(default)]
     pub captures: Vec<i64>,
     /// Source position `[u, v]`, metres from the hidden-scene plane's centre
     /// (the fake bench's source is at [0.03, -0.02]).
+    pub source: Option<[f64; 2]>,
+    /// Instead of `source` and `captures`: several positions of the same
+    /// source (its radiance unchanged), fitted together with one gain.
+    #[serde(default)]
+    pub sources: Vec<SourcePositionBody>,
+}
+
+/// One source position of a wall calibration and its captures.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SourcePositionBody {
+    /// `[u, v]`, metres from the hidden-scene plane's centre.
     pub source: [f64; 2],
+    /// One done `"kind": "source"` capture per (pose, angle) block.
+    pub captures: Vec<i64>,
+}
+
+/// Most captures per source position in a wall calibration request.
+pub const MAX_CAPTURES_PER_POSITION: usize = 64;
+
+impl WallCalibrationBody {
+    /// The source positions and their captures: exactly one of the two forms,
+    /// 1 to [`MAX_SOURCES`](crate::calibrate::wall::MAX_SOURCES) positions of
+    /// finite coordinates, each with 1 to [`MAX_CAPTURES_PER_POSITION`]
+    /// captures, and no capture at two positions.
+    pub fn positions(&self) -> Result<Vec<crate::daemon::SourcePosition>, String> {
+        use crate::calibrate::wall::{PointSource, MAX_SOURCES};
+        let given: Vec<([f64; 2], &[i64])> = match (self.source, self.sources.is_empty()) {
+            (Some(source), true) => vec![(source, &self.captures[..])],
+            (None, false) if self.captures.is_empty() => self
+                .sources
+                .iter()
+                .map(|p| (p.source, &p.captures[..]))
+                .collect(),
+            (None, true) => {
+                return Err(
+                    "give \"source\" and \"captures\", or \"sources\" (several positions)".into(),
+                )
+            }
+            _ => {
+                return Err(
+                    "give either \"source\" and \"captures\" or \"sources\", not both".into(),
+                )
+            }
+        };
+        if given.len() > MAX_SOURCES {
+            return Err(format!(
+                "{} source positions; at most {MAX_SOURCES} are fitted together",
+                given.len()
+            ));
+        }
+        let mut seen = std::collections::HashSet::new();
+        given
+            .into_iter()
+            .map(|(source, captures)| {
+                let at = format!("source [{}, {}]", source[0], source[1]);
+                if source.iter().any(|x| !x.is_finite()) {
+                    return Err(format!(
+                        "{at}: the position must be two finite numbers (metres)"
+                    ));
+                }
+                if captures.is_empty() || captures.len() > MAX_CAPTURES_PER_POSITION {
+                    return Err(format!(
+                        "{at}: {} captures; give 1 to {MAX_CAPTURES_PER_POSITION} (one per block)",
+                        captures.len()
+                    ));
+                }
+                if let Some(id) = captures.iter().find(|&&id| !seen.insert(id)) {
+                    return Err(format!(
+                        "capture {id} is given twice: one capture is of one position"
+                    ));
+                }
+                Ok(crate::daemon::SourcePosition {
+                    source: PointSource {
+                        u: source[0],
+                        v: source[1],
+                    },
+                    captures: captures.to_vec(),
+                })
+            })
+            .collect()
+    }
 }
 
 /// Paging of list endpoints.
@@ -301,4 +384,79 @@ pub struct ErrorBody {
     pub error: String,
     /// What was wrong, with which input, and what to do.
     pub detail: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn wall(json: &str) -> Result<Vec<crate::daemon::SourcePosition>, String> {
+        serde_json::from_str::<WallCalibrationBody>(json)
+            .map_err(|e| e.to_string())?
+            .positions()
+    }
+
+    #[test]
+    fn a_wall_calibration_names_one_or_several_positions_but_not_both() {
+        let one = wall(r#"{"scene": "s", "captures": [1, 2], "source": [0.03, -0.02]}"#).unwrap();
+        assert_eq!(one.len(), 1);
+        assert_eq!((one[0].source.u, one[0].source.v), (0.03, -0.02));
+        assert_eq!(one[0].captures, [1, 2]);
+        let two = wall(
+            r#"{"scene": "s", "sources": [{"source": [0.03, -0.02], "captures": [1]}, {"source": [-0.06, 0.05], "captures": [2]}]}"#,
+        )
+        .unwrap();
+        assert_eq!(two.len(), 2);
+        assert_eq!(two[1].captures, [2]);
+        assert_eq!(two[1].source.u, -0.06);
+        for (json, says) in [
+            (r#"{"scene": "s"}"#, "or \"sources\""),
+            (r#"{"scene": "s", "captures": [1]}"#, "or \"sources\""),
+            (
+                r#"{"scene": "s", "captures": [1], "source": [0, 0], "sources": [{"source": [0, 0], "captures": [2]}]}"#,
+                "not both",
+            ),
+            (
+                r#"{"scene": "s", "captures": [1], "sources": [{"source": [0, 0], "captures": [2]}]}"#,
+                "not both",
+            ),
+            (
+                r#"{"scene": "s", "captures": [], "source": [0, 0]}"#,
+                "0 captures",
+            ),
+            (
+                r#"{"scene": "s", "sources": [{"source": [0, 0], "captures": [1]}, {"source": [0.01, 0], "captures": [1]}]}"#,
+                "capture 1 is given twice",
+            ),
+            (
+                r#"{"scene": "s", "captures": [1], "source": [0, 1e400]}"#,
+                "number out of range",
+            ),
+            (
+                r#"{"scene": "s", "captures": [1], "source": [0]}"#,
+                "invalid length 1",
+            ),
+        ] {
+            let e = wall(json).expect_err(json);
+            assert!(e.contains(says), "{json}: {e}");
+        }
+        let many: Vec<String> = (0..=crate::calibrate::wall::MAX_SOURCES)
+            .map(|k| format!(r#"{{"source": [0, 0], "captures": [{k}]}}"#))
+            .collect();
+        let e = wall(&format!(
+            r#"{{"scene": "s", "sources": [{}]}}"#,
+            many.join(",")
+        ))
+        .unwrap_err();
+        assert!(e.contains("at most 16"), "{e}");
+        let ids: Vec<String> = (0..=MAX_CAPTURES_PER_POSITION)
+            .map(|k| k.to_string())
+            .collect();
+        let e = wall(&format!(
+            r#"{{"scene": "s", "captures": [{}], "source": [0, 0]}}"#,
+            ids.join(",")
+        ))
+        .unwrap_err();
+        assert!(e.contains("65 captures"), "{e}");
+    }
 }

@@ -247,12 +247,8 @@ pub async fn post_wall_calibration(
     State(d): St,
     ApiJson(b): ApiJson<crate::api::bodies::WallCalibrationBody>,
 ) -> Result<Json<crate::daemon::WallCalibration>, ApiError> {
-    if b.source.iter().any(|x| !x.is_finite()) || b.captures.len() > 64 {
-        return Err(ApiError::invalid(
-            "source must be two finite numbers and captures at most 64 ids",
-        ));
-    }
-    let r = tokio::task::spawn_blocking(move || d.calibrate_wall(&b.scene, &b.captures, b.source))
+    let positions = b.positions().map_err(ApiError::invalid)?;
+    let r = tokio::task::spawn_blocking(move || d.calibrate_wall(&b.scene, &positions))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(r))

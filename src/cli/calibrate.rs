@@ -40,11 +40,14 @@ struct WallArgs {
     /// Scene file (or built-in scene name): wall, poses and hidden-scene plane.
     scene: PathBuf,
     /// Measurement of the point source, .npy (one value per row of T).
-    #[arg(long, value_name = "FILE")]
-    measurement: PathBuf,
-    /// Source position U,V in metres from the hidden-scene plane's centre.
-    #[arg(long, value_name = "U,V", value_parser = parse_pair)]
-    source: (f64, f64),
+    /// Repeat it, with one --source each in the same order, to fit several
+    /// positions of the same source together.
+    #[arg(long, value_name = "FILE", required = true)]
+    measurement: Vec<PathBuf>,
+    /// Source position U,V in metres from the hidden-scene plane's centre,
+    /// one per --measurement.
+    #[arg(long, value_name = "U,V", value_parser = parse_pair, required = true)]
+    source: Vec<(f64, f64)>,
 }
 
 fn parse_pair(s: &str) -> Result<(f64, f64), String> {
@@ -82,16 +85,39 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 }
 
 fn wall(a: WallArgs) -> anyhow::Result<()> {
-    use polnlos::calibrate::wall::{fit_from_scene, PointSource};
+    use polnlos::calibrate::wall::{fit_sources_from_scene, PointSource, SourceMeasurement};
+    if a.measurement.len() != a.source.len() {
+        return Err(super::Usage(format!(
+            "{} --measurement but {} --source: give one source position per measurement, in the same order",
+            a.measurement.len(),
+            a.source.len()
+        ))
+        .into());
+    }
     let scene = super::load_scene(&a.scene)?;
-    let i = polnlos::files::npy::read(&a.measurement)?;
-    let source = PointSource {
-        u: a.source.0,
-        v: a.source.1,
-    };
+    let measured = a
+        .measurement
+        .iter()
+        .map(|path| polnlos::files::npy::read(path).map(|m| m.data))
+        .collect::<Result<Vec<_>, _>>()?;
+    let sets: Vec<SourceMeasurement> = a
+        .source
+        .iter()
+        .zip(&measured)
+        .map(|(&(u, v), i)| SourceMeasurement {
+            source: PointSource { u, v },
+            i,
+        })
+        .collect();
     // Starts from the scene file's own material.
-    let f = fit_from_scene(&scene, &source, &i.data)
-        .with_context(|| format!("measurement {}", a.measurement.display()))?;
+    let f = fit_sources_from_scene(&scene, &sets).with_context(|| {
+        let files: Vec<String> = a
+            .measurement
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
+        format!("measurement {}", files.join(", "))
+    })?;
     println!("{}", serde_json::to_string_pretty(&f)?);
     Ok(())
 }

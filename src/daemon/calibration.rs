@@ -89,8 +89,11 @@ impl Daemon {
 pub struct WallCalibration {
     /// The scene.
     pub scene: String,
-    /// The source captures, in block order.
+    /// The source captures, in position order and in block order within each.
     pub captures: Vec<i64>,
+    /// Each source position, its captures in block order and how much of
+    /// its measurement the fit leaves unexplained.
+    pub positions: Vec<FittedPosition>,
     /// Fitted alpha, ior, kd and gain (fraction of full scale per µs per
     /// unit of `T l`), with standard errors and the residual.
     #[schema(value_type = Object)]
@@ -99,39 +102,87 @@ pub struct WallCalibration {
     pub configured_gain: Option<f64>,
 }
 
+/// One source position of a wall calibration request: where the source was
+/// and its captures (one per block, any order).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SourcePosition {
+    /// Where the source was.
+    pub source: crate::calibrate::wall::PointSource,
+    /// Its captures.
+    pub captures: Vec<i64>,
+}
+
+/// One source position of a wall fit.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct FittedPosition {
+    /// `[u, v]`, metres from the hidden-scene plane's centre.
+    pub source: [f64; 2],
+    /// Its captures, in block order.
+    pub captures: Vec<i64>,
+    /// `||i - model|| / ||i||` for this position.
+    pub relative_residual: f64,
+}
+
 impl Daemon {
-    /// Fits the wall of `scene` to one done `"kind": "source"` capture per
-    /// (pose, angle) block of a point source at `source` (hidden-plane metres).
+    /// Fits the wall of `scene` to the source captures of every position:
+    /// one done `"kind": "source"` capture per (pose, angle) block of the
+    /// point source at that position (hidden-plane metres), one gain for all.
     pub fn calibrate_wall(
         &self,
         scene_name: &str,
-        captures: &[i64],
-        source: [f64; 2],
+        positions: &[SourcePosition],
     ) -> Result<WallCalibration, RequestError> {
-        use crate::calibrate::wall::{fit_from_scene, PointSource};
+        use crate::calibrate::wall::{fit_sources_from_scene, SourceMeasurement};
         let invalid = RequestError::Invalid;
         let scene = self.scenes.scene(scene_name)?;
-        let ordered = self.source_captures(scene_name, &scene, captures)?;
-        let mut warnings = Vec::new();
-        let loaded = ordered
+        let mut ordered = Vec::with_capacity(positions.len());
+        let mut measured = Vec::with_capacity(positions.len());
+        for p in positions {
+            let captures = self.source_captures(scene_name, &scene, &p.captures)?;
+            let mut warnings = Vec::new();
+            let loaded = captures
+                .iter()
+                .map(|c| {
+                    super::reconstruction::load_capture(
+                        self,
+                        c.clone(),
+                        &scene,
+                        &c.pose,
+                        &mut warnings,
+                    )
+                })
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(|e| invalid(e.to_string()))?;
+            let blocks: Vec<_> = loaded.iter().map(|l| l.block()).collect();
+            let i = crate::measure::stack(&blocks, &scene.wall.plane)
+                .map_err(|e| invalid(e.to_string()))?
+                .i;
+            ordered.push(captures);
+            measured.push(i);
+        }
+        let sets: Vec<SourceMeasurement> = positions
             .iter()
-            .map(|c| {
-                super::reconstruction::load_capture(self, c.clone(), &scene, &c.pose, &mut warnings)
+            .zip(&measured)
+            .map(|(p, i)| SourceMeasurement {
+                source: p.source,
+                i,
             })
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| invalid(e.to_string()))?;
-        let blocks: Vec<_> = loaded.iter().map(|l| l.block()).collect();
-        let i = crate::measure::stack(&blocks, &scene.wall.plane)
-            .map_err(|e| invalid(e.to_string()))?
-            .i;
-        let source = PointSource {
-            u: source[0],
-            v: source[1],
-        };
-        let fit = fit_from_scene(&scene, &source, &i).map_err(|e| invalid(e.to_string()))?;
+            .collect();
+        let fit = fit_sources_from_scene(&scene, &sets).map_err(|e| invalid(e.to_string()))?;
+        let positions = positions
+            .iter()
+            .zip(&ordered)
+            .zip(&fit.source_residuals)
+            .map(|((p, c), &relative_residual)| FittedPosition {
+                source: [p.source.u, p.source.v],
+                captures: c.iter().map(|c| c.id).collect(),
+                relative_residual,
+            })
+            .collect();
         Ok(WallCalibration {
             scene: scene_name.to_string(),
-            captures: ordered.iter().map(|c| c.id).collect(),
+            captures: ordered.iter().flatten().map(|c| c.id).collect(),
+            positions,
             fit,
             configured_gain: self.calibration.get(scene_name).copied(),
         })
@@ -155,6 +206,16 @@ impl Daemon {
             })
             .collect::<Result<_, _>>()?;
         let blocks = super::validate::blocks(scene);
+        if records.len() != blocks.len() {
+            return Err(invalid(format!(
+                "{} captures for the {} of scene {scene_name:?}: give exactly one \"kind\": \"source\" capture per block",
+                records.len(),
+                match blocks.len() {
+                    1 => "1 block".to_string(),
+                    n => format!("{n} blocks"),
+                }
+            )));
+        }
         let mut ordered = Vec::with_capacity(blocks.len());
         for (pose, angle) in &blocks {
             let c = records

@@ -35,7 +35,7 @@ use std::sync::Arc;
 use tokio::sync::{broadcast, mpsc, Mutex};
 
 pub use admission::SubmitError;
-pub use calibration::{GeometryCalibration, WallCalibration};
+pub use calibration::{FittedPosition, GeometryCalibration, SourcePosition, WallCalibration};
 pub use camera::{CameraView, SettingsError};
 pub use cancel::{CancelError, JobKind};
 pub use config::Config;
