@@ -769,64 +769,51 @@ fn calibrate_wall_fits_a_point_source_measurement_with_uncertainties() {
     use polnlos::calibrate::wall::{predict, PointSource, WallParams};
     let d = tempfile::tempdir().unwrap();
     let scene = Scene::builtin("brewster-rotating").unwrap().unwrap();
-    let source = PointSource { u: 0.03, v: -0.02 };
     let truth = WallParams {
         alpha: 0.25,
         ior: 1.6,
         kd: 0.04,
         gain: 3.0,
     };
-    let i = predict(&scene, &source, &truth).unwrap();
-    let m = d.path().join("source.npy");
-    npy::write_f64(&m, &[i.len()], &i).unwrap();
-    let out = ok(&polnlos(&[
-        "calibrate",
-        "wall",
-        "brewster-rotating",
-        "--measurement",
-        m.to_str().unwrap(),
-        "--source",
-        "0.03,-0.02",
-    ]));
+    // The measurement of the source at (u, v), written as .npy.
+    let measured = |file: &str, u: f64, v: f64| {
+        let i = predict(&scene, &PointSource { u, v }, &truth).unwrap();
+        let m = d.path().join(file);
+        npy::write_f64(&m, &[i.len()], &i).unwrap();
+        m.to_str().unwrap().to_string()
+    };
+    // `calibrate wall` with --measurement/--source pairs.
+    let wall = |pairs: &[(&str, &str)]| {
+        let mut args = vec![
+            "calibrate".to_string(),
+            "wall".into(),
+            "brewster-rotating".into(),
+        ];
+        for (m, source) in pairs {
+            args.extend(["--measurement".to_string(), m.to_string()]);
+            args.push(format!("--source={source}"));
+        }
+        polnlos(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let param = |f: &serde_json::Value, k: &str| f["params"][k].as_f64().unwrap();
+    let m = measured("source.npy", 0.03, -0.02);
+    let out = ok(&wall(&[(&m, "0.03,-0.02")]));
     println!("{out}");
     let f: serde_json::Value = serde_json::from_str(&out).unwrap();
-    let p = |k: &str| f["params"][k].as_f64().unwrap();
-    assert!((p("alpha") - 0.25).abs() < 0.01, "{f}");
-    assert!((p("ior") - 1.6).abs() < 0.02, "{f}");
-    assert!((p("kd") - 0.04).abs() < 0.005, "{f}");
-    assert!((p("gain") / 3.0 - 1.0).abs() < 0.02, "{f}");
+    assert!((param(&f, "alpha") - 0.25).abs() < 0.01, "{f}");
+    assert!((param(&f, "ior") - 1.6).abs() < 0.02, "{f}");
+    assert!((param(&f, "kd") - 0.04).abs() < 0.005, "{f}");
+    assert!((param(&f, "gain") / 3.0 - 1.0).abs() < 0.02, "{f}");
     assert!(f["sigma"]["alpha"].as_f64().unwrap().is_finite(), "{f}");
     // The wrong source position: refused, exit status 3.
-    let err = fails(&polnlos(&[
-        "calibrate",
-        "wall",
-        "brewster-rotating",
-        "--measurement",
-        m.to_str().unwrap(),
-        "--source=-0.06,0.06",
-    ]));
+    let err = fails(&wall(&[(&m, "-0.06,0.06")]));
     assert!(err.contains("do not match the capture"), "{err}");
     // Two positions of the same source, fitted together (one gain).
-    let other = PointSource { u: -0.06, v: 0.05 };
-    let i2 = predict(&scene, &other, &truth).unwrap();
-    let m2 = d.path().join("source-2.npy");
-    npy::write_f64(&m2, &[i2.len()], &i2).unwrap();
-    let out = ok(&polnlos(&[
-        "calibrate",
-        "wall",
-        "brewster-rotating",
-        "--measurement",
-        m.to_str().unwrap(),
-        "--source",
-        "0.03,-0.02",
-        "--measurement",
-        m2.to_str().unwrap(),
-        "--source=-0.06,0.05",
-    ]));
+    let m2 = measured("source-2.npy", -0.06, 0.05);
+    let out = ok(&wall(&[(&m, "0.03,-0.02"), (&m2, "-0.06,0.05")]));
     let f: serde_json::Value = serde_json::from_str(&out).unwrap();
-    let p = |k: &str| f["params"][k].as_f64().unwrap();
-    assert!((p("ior") - 1.6).abs() < 0.02, "{f}");
-    assert!((p("gain") / 3.0 - 1.0).abs() < 0.02, "{f}");
+    assert!((param(&f, "ior") - 1.6).abs() < 0.02, "{f}");
+    assert!((param(&f, "gain") / 3.0 - 1.0).abs() < 0.02, "{f}");
     assert_eq!(
         f["source_residuals"].as_array().map(Vec::len),
         Some(2),
@@ -838,9 +825,9 @@ fn calibrate_wall_fits_a_point_source_measurement_with_uncertainties() {
         "wall",
         "brewster-rotating",
         "--measurement",
-        m.to_str().unwrap(),
+        &m,
         "--measurement",
-        m2.to_str().unwrap(),
+        &m2,
         "--source",
         "0.03,-0.02",
     ]));

@@ -116,6 +116,54 @@ async fn image_loaded(c: &Client, css: &str) -> bool {
         .unwrap_or(false)
 }
 
+/// The daemon against Aravis's fake camera, chromedriver and a runtime to
+/// drive them, holding the Aravis lock (one fake camera at a time).
+struct Page {
+    _g: std::sync::MutexGuard<'static, ()>,
+    dir: tempfile::TempDir,
+    d: Daemon,
+    driver: Driver,
+    rt: tokio::runtime::Runtime,
+}
+
+impl Page {
+    fn start() -> Self {
+        let g = lock();
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = config(dir.path(), &[]);
+        let d = Daemon::start(&cfg, &dir.path().join("data"));
+        let driver = Driver::start();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        Self {
+            _g: g,
+            dir,
+            d,
+            driver,
+            rt,
+        }
+    }
+
+    /// A chromium session on the page, once it shows the camera connected.
+    async fn open(&self) -> Client {
+        let c = browser(&self.driver, &self.dir.path().join("profile")).await;
+        c.goto(&format!("{}/", self.d.base))
+            .await
+            .expect("the page");
+        assert_eq!(c.title().await.unwrap(), "polnlos");
+        until("the camera status", Duration::from_secs(60), || async {
+            text(&c, "#camera-status")
+                .await
+                .starts_with("connected")
+                .then_some(())
+        })
+        .await;
+        c
+    }
+}
+
 /// Clicks the element matching `css`.
 async fn click(c: &Client, css: &str) {
     c.find(Locator::Css(css))
@@ -182,26 +230,10 @@ fn value(cell: &str) -> f64 {
 
 #[test]
 fn the_page_calibrates_a_pose_and_the_wall_from_its_captures() {
-    let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = config(dir.path(), &[]);
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
-    let driver = Driver::start();
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let c = browser(&driver, &dir.path().join("profile")).await;
-        c.goto(&format!("{}/", d.base)).await.expect("the page");
+    let page = Page::start();
+    page.rt.block_on(async {
+        let c = page.open().await;
         let long = Duration::from_secs(60);
-        until("the camera status", long, || async {
-            text(&c, "#camera-status")
-                .await
-                .starts_with("connected")
-                .then_some(())
-        })
-        .await;
 
         // Pose C of the two-pose scene from a target capture taken on the page.
         let state = capture(
@@ -312,27 +344,10 @@ fn the_page_calibrates_a_pose_and_the_wall_from_its_captures() {
 
 #[test]
 fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
-    let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = config(dir.path(), &[]);
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
-    let driver = Driver::start();
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let c = browser(&driver, &dir.path().join("profile")).await;
-        c.goto(&format!("{}/", d.base)).await.expect("the page");
-        assert_eq!(c.title().await.unwrap(), "polnlos");
+    let page = Page::start();
+    page.rt.block_on(async {
+        let c = page.open().await;
         let long = Duration::from_secs(60);
-        until("the camera status", long, || async {
-            text(&c, "#camera-status")
-                .await
-                .starts_with("connected")
-                .then_some(())
-        })
-        .await;
 
         // Start a capture from the page: 24 frames of 20 ms, progressive every 4.
         set(&c, "#capture-form [name=frames]", "24").await;
@@ -430,7 +445,9 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
         .await;
 
         // The interactive API reference renders every route and sends requests.
-        c.goto(&format!("{}/api", d.base)).await.expect("the API page");
+        c.goto(&format!("{}/api", page.d.base))
+            .await
+            .expect("the API page");
         until("the API reference", long, || async {
             c.find(Locator::Css("section[id='delete-/jobs/{id}']")).await.ok()
         })
@@ -445,5 +462,5 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
         assert!(answer.starts_with("200") && answer.contains("camera_connected"), "{answer}");
         c.close().await.unwrap();
     });
-    assert_eq!(d.json("/captures/2")["state"], "cancelled");
+    assert_eq!(page.d.json("/captures/2")["state"], "cancelled");
 }

@@ -340,6 +340,21 @@ fn jacobian(
 mod tests {
     use super::*;
 
+    /// The wall the simulated captures come from.
+    const TRUTH: WallParams = WallParams {
+        alpha: 0.3,
+        ior: 1.5,
+        kd: 0.05,
+        gain: 2.0,
+    };
+    /// Where the fits start, away from the truth.
+    const START: WallParams = WallParams {
+        alpha: 0.5,
+        ior: 1.3,
+        kd: 0.0,
+        gain: 1.0,
+    };
+
     fn scene() -> Scene {
         match Scene::builtin("brewster-rotating") {
             Some(Ok(s)) => s,
@@ -366,19 +381,9 @@ mod tests {
     fn simulated_point_source_captures_give_back_the_wall() {
         let s = scene();
         let source = PointSource { u: 0.03, v: -0.02 };
-        let truth = WallParams {
-            alpha: 0.3,
-            ior: 1.5,
-            kd: 0.05,
-            gain: 2.0,
-        };
+        let truth = TRUTH;
         let i = noisy(&predict(&s, &source, &truth).expect("model"), 0.005);
-        let start = WallParams {
-            alpha: 0.5,
-            ior: 1.3,
-            kd: 0.0,
-            gain: 1.0,
-        };
+        let start = START;
         let f = fit(&s, &source, &i, start).expect("fit");
         println!("{f:?}");
         let p = f.params;
@@ -394,12 +399,7 @@ mod tests {
     #[test]
     fn a_capture_of_another_geometry_is_refused_not_fitted() {
         let s = scene();
-        let truth = WallParams {
-            alpha: 0.3,
-            ior: 1.5,
-            kd: 0.05,
-            gain: 2.0,
-        };
+        let truth = TRUTH;
         let i = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &truth).expect("model");
         let e = fit(&s, &PointSource { u: -0.06, v: -0.06 }, &i, truth).expect_err("wrong place");
         assert!(e.to_string().contains("do not match the capture"), "{e}");
@@ -418,18 +418,8 @@ mod tests {
     #[test]
     fn several_source_positions_pin_the_wall_down_better_than_one() {
         let s = scene();
-        let truth = WallParams {
-            alpha: 0.3,
-            ior: 1.5,
-            kd: 0.05,
-            gain: 2.0,
-        };
-        let start = WallParams {
-            alpha: 0.5,
-            ior: 1.3,
-            kd: 0.0,
-            gain: 1.0,
-        };
+        let truth = TRUTH;
+        let start = START;
         let at = [
             PointSource { u: 0.03, v: -0.02 },
             PointSource { u: -0.06, v: 0.05 },
@@ -477,12 +467,7 @@ mod tests {
     #[test]
     fn one_misplaced_source_among_several_is_named() {
         let s = scene();
-        let truth = WallParams {
-            alpha: 0.3,
-            ior: 1.5,
-            kd: 0.05,
-            gain: 2.0,
-        };
+        let truth = TRUTH;
         let a = predict(&s, &PointSource { u: 0.03, v: -0.02 }, &truth).expect("model");
         let b = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &truth).expect("model");
         let wrong = PointSource { u: -0.06, v: -0.06 };
