@@ -324,11 +324,50 @@ fn the_page_calibrates_a_pose_and_the_wall_from_its_captures() {
             .and_then(|r| r.trim_end_matches(')').parse().ok())
             .expect("a fit/configured ratio");
         assert!((ratio - 1.0).abs() < 0.05, "{gain}");
-        // The source at the wrong place is refused with the reason.
+        // A second position (the fake bench's source does not move: a second
+        // capture of it), added with the page's button and fitted together.
+        let state = capture(
+            &c,
+            3,
+            &[
+                ("kind", "source"),
+                ("scene", "brewster-crossed"),
+                ("pose", "A"),
+                ("frames", "32"),
+                ("dark_frames", "8"),
+            ],
+            long,
+        )
+        .await;
+        assert_eq!(state, "done");
+        click(&c, "#add-position").await;
+        let m = fit(&c, "#fit-wall", "#wall-message", long).await;
+        assert_eq!(m, "position 2: give its capture ids and u, v in metres");
+        set(&c, "#positions .position:nth-child(2) [name=captures]", "3").await;
+        set(&c, "#positions .position:nth-child(2) [name=u]", "0.03").await;
+        set(&c, "#positions .position:nth-child(2) [name=v]", "-0.02").await;
+        let m = fit(&c, "#fit-wall", "#wall-message", long).await;
+        assert_eq!(m, "fitted", "{}", text(&c, "#wall-result").await);
+        let rows = c
+            .execute(
+                "return [...document.querySelectorAll('#wall-result tr')].filter((r) => r.cells[0].textContent.startsWith('source at')).map((r) => r.cells[1].textContent);",
+                vec![],
+            )
+            .await
+            .unwrap();
+        println!("two positions on the page: {rows}");
+        let rows: Vec<String> = serde_json::from_value(rows).unwrap();
+        assert_eq!(rows.len(), 2, "{rows:?}");
+        assert!(rows[0].starts_with("captures 2, residual"), "{rows:?}");
+        assert!(rows[1].starts_with("captures 3, residual"), "{rows:?}");
+        let alpha = value(&cell(&c, "#wall-result", "GGX roughness α").await);
+        assert!((alpha - 0.3).abs() < 0.03, "{alpha}");
+        // The source at the wrong place is refused with the reason, naming it.
         set(&c, "#wall-form [name=u]", "-0.06").await;
         set(&c, "#wall-form [name=v]", "0.06").await;
         let m = fit(&c, "#fit-wall", "#wall-message", long).await;
         assert!(m.contains("do not match the capture"), "{m}");
+        assert!(m.contains("source at (-0.06, 0.06) m"), "{m}");
         assert!(
             !m.contains("dots"),
             "a wall fit's error speaks of the wall: {m}"

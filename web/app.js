@@ -258,10 +258,35 @@ $("#pose-form").addEventListener("submit", async (ev) => {
   await fit("#fit-pose", "#pose-message", "#pose-result", "/calibrations", body, showPose);
 });
 
+// Another source position: a copy of the first row, emptied, with a remove button.
+$("#add-position").addEventListener("click", () => {
+  const row = document.querySelector("#positions .position").cloneNode(true);
+  row.querySelectorAll("input").forEach((i) => { i.value = ""; });
+  const remove = el("button", { type: "button", class: "remove" }, "remove");
+  remove.addEventListener("click", () => row.remove());
+  row.append(remove);
+  $("#positions").append(row);
+});
+
 $("#wall-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   const f = new FormData(ev.target);
-  const body = { scene: f.get("scene"), captures: ids(f.get("captures")), source: [Number(f.get("u")), Number(f.get("v"))] };
+  const positions = [...document.querySelectorAll("#positions .position")].map((row) => {
+    const v = (name) => row.querySelector(`[name=${name}]`).value.trim();
+    const n = (name) => v(name) === "" ? NaN : Number(v(name));
+    return { source: [n("u"), n("v")], captures: ids(v("captures")) };
+  });
+  const bad = positions.findIndex((p) => p.source.some((x) => !Number.isFinite(x)) || p.captures.length === 0 || p.captures.some((x) => !Number.isInteger(x)));
+  if (bad >= 0) {
+    const msg = $("#wall-message");
+    msg.className = "message error";
+    text(msg, `position ${bad + 1}: give its capture ids and u, v in metres`);
+    $("#wall-result").replaceChildren();
+    return;
+  }
+  const body = positions.length === 1
+    ? { scene: f.get("scene"), ...positions[0] }
+    : { scene: f.get("scene"), sources: positions };
   await fit("#fit-wall", "#wall-message", "#wall-result", "/calibrations/wall", body, showWall);
 });
 
