@@ -67,7 +67,7 @@ pub fn capture_json(data: &[u8]) {
             max_frames: 1000,
         };
         let plan = || Ok(Vec::new());
-        if let Ok(r) = validate::capture(&b, scene(), &cam, plan, |_| None) {
+        if let Ok(r) = validate::capture(&b, scene(), &cam, plan, |_| Ok(None)) {
             // What is accepted fits the sensor and the frame cap.
             assert!(LIMITS.check(r.region, r.binning).is_ok());
             assert!(r.frames >= 1 && r.frames + r.dark_frames <= 1000);
@@ -79,7 +79,7 @@ pub fn capture_json(data: &[u8]) {
 /// capture exists, so the solver checks and block counting are what it reaches).
 pub fn reconstruction_json(data: &[u8]) {
     if let Ok(b) = serde_json::from_slice::<polnlos::api::bodies::ReconstructionBody>(data) {
-        let _ = validate::reconstruction(&b, scene(), |_| None);
+        let _ = validate::reconstruction(&b, scene(), |_| Ok(None));
     }
 }
 

@@ -50,6 +50,23 @@ fn mib(bytes: u64) -> String {
 }
 
 impl Daemon {
+    /// Capture `id` from the catalogue for a request's checks: `None` when
+    /// there is no such capture; a catalogue that cannot be read is a 503
+    /// with the store's reason, not "no capture".
+    pub(super) fn lookup_capture(
+        &self,
+        id: i64,
+    ) -> Result<Option<crate::store::CaptureRecord>, RequestError> {
+        match self.store.capture(id) {
+            Ok(c) => Ok(Some(c)),
+            Err(crate::store::StoreError::NotFound { .. }) => Ok(None),
+            Err(e) => Err(RequestError::Unavailable(format!(
+                "capture {id}: the catalogue could not be read: {}",
+                self.store.describe(&e)
+            ))),
+        }
+    }
+
     /// The camera limits exposure planning works with: the camera's exposure
     /// range when connected (`info`), the configured sensor noise, the frame cap.
     pub fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
@@ -138,7 +155,7 @@ impl Daemon {
             }
             None => Ok(Vec::new()),
         };
-        let lookup = |id| self.store.capture(id).ok();
+        let lookup = |id| self.lookup_capture(id);
         let request = validate::capture(b, &scene, &cam, plan, lookup)?;
         let progressive = match &b.progressive {
             Some(p) => Some(validate::progressive(p, &request, &scene, lookup)?),
@@ -190,7 +207,7 @@ impl Daemon {
     /// Validates a reconstruction body against its scene and captures and queues it.
     pub fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
         let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
-        let request = validate::reconstruction(b, &scene, |id| self.store.capture(id).ok())?;
+        let request = validate::reconstruction(b, &scene, |id| self.lookup_capture(id))?;
         let permit = self
             .reconstructions
             .try_reserve()

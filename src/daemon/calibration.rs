@@ -42,7 +42,9 @@ impl Daemon {
         target: Option<&str>,
     ) -> Result<GeometryCalibration, RequestError> {
         let invalid = RequestError::Invalid;
-        let c = self.capture_record(capture)?;
+        let c = self
+            .lookup_capture(capture)?
+            .ok_or_else(|| RequestError::NotFound(format!("no capture with id {capture}")))?;
         if c.kind != crate::store::CaptureKind::Target.name() || c.state != JobState::Done {
             return Err(invalid(format!(
                 "capture {capture} is a {} capture in state {}; calibration needs a done \"kind\": \"target\" capture of the dot target on the wall",
@@ -185,20 +187,6 @@ impl Daemon {
         })
     }
 
-    /// Capture `id` from the catalogue: a missing one is a 404, a catalogue
-    /// that cannot be read a 503 with the store's reason (not "no capture").
-    fn capture_record(&self, id: i64) -> Result<crate::store::CaptureRecord, RequestError> {
-        self.store.capture(id).map_err(|e| match e {
-            crate::store::StoreError::NotFound { .. } => {
-                RequestError::NotFound(format!("no capture with id {id}"))
-            }
-            e => RequestError::Unavailable(format!(
-                "capture {id}: the catalogue could not be read: {}",
-                self.store.describe(&e)
-            )),
-        })
-    }
-
     /// The captures, one per (pose, angle) block of the scene in MODEL.md
     /// row order, each a done source capture of the scene.
     fn source_captures(
@@ -210,7 +198,10 @@ impl Daemon {
         let invalid = RequestError::Invalid;
         let records: Vec<_> = captures
             .iter()
-            .map(|&id| self.capture_record(id))
+            .map(|&id| {
+                self.lookup_capture(id)?
+                    .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))
+            })
             .collect::<Result<_, _>>()?;
         let blocks = super::validate::blocks(scene);
         if records.len() != blocks.len() {

@@ -155,14 +155,7 @@ impl Solver {
                 own = Some(b);
                 continue;
             }
-            let other = spec
-                .captures
-                .iter()
-                .filter_map(|&id| d.store.capture(id).ok())
-                .find(same)
-                .ok_or_else(|| {
-                    JobError::Store(format!("no capture for block {}", block.label()))
-                })?;
+            let other = super::reconstruction::capture_for_block(d, &spec.captures, block)?;
             let l = load_capture(d, other, &scene, &block.pose, &mut warnings)?;
             let rows = stack(&[l.block()], &scene.wall.plane)?.i;
             for (dst, v) in i[t.block_rows(b)].iter_mut().zip(rows) {

@@ -160,12 +160,7 @@ fn stack_captures(
     let mut loaded = Vec::with_capacity(t.blocks.len());
     let mut warnings = Vec::new();
     for block in &t.blocks {
-        let cap = rec
-            .captures
-            .iter()
-            .filter_map(|&cid| d.store.capture(cid).ok())
-            .find(|c| c.pose == block.pose && same_angle(c.polarizer_deg, block.polarizer_deg))
-            .ok_or_else(|| JobError::Store(format!("no capture for block {}", block.label())))?;
+        let cap = capture_for_block(d, &rec.captures, block)?;
         loaded.push(load_capture(d, cap, scene, &block.pose, &mut warnings)?);
     }
     let blocks: Vec<BlockFrames<'_>> = loaded.iter().map(Loaded::block).collect();
@@ -175,6 +170,28 @@ fn stack_captures(
         var: m.variance,
         warnings,
     })
+}
+
+/// The capture among `ids` that serves `block` (its pose and angle). A
+/// catalogue that cannot be read is that error, not "no capture".
+pub(super) fn capture_for_block(
+    d: &Daemon,
+    ids: &[i64],
+    block: &crate::transport::Block,
+) -> Result<crate::store::CaptureRecord, JobError> {
+    for &id in ids {
+        let c = d
+            .store
+            .capture(id)
+            .map_err(|e| JobError::Store(format!("capture {id}: {}", d.store.describe(&e))))?;
+        if c.pose == block.pose && same_angle(c.polarizer_deg, block.polarizer_deg) {
+            return Ok(c);
+        }
+    }
+    Err(JobError::Store(format!(
+        "no capture for block {}",
+        block.label()
+    )))
 }
 
 /// A capture's files as a block of the measurement needs them.

@@ -15,7 +15,7 @@ pub fn capture(
     scene: &Scene,
     cam: &CameraContext,
     plan: impl FnOnce() -> Result<Vec<BlockExposure>, RequestError>,
-    capture: impl Fn(i64) -> Option<CaptureRecord>,
+    capture: impl Fn(i64) -> Result<Option<CaptureRecord>, RequestError>,
 ) -> Result<CaptureRequest, RequestError> {
     let pose = pose_of(&b.scene, scene, &b.pose)?;
     check_block(&b.scene, pose, b.polarizer_deg)?;
@@ -50,7 +50,7 @@ pub fn capture(
         dark_capture: b.dark_capture,
     };
     if let Some(id) = b.dark_capture {
-        let record = capture(id).ok_or_else(|| {
+        let record = capture(id)?.ok_or_else(|| {
             RequestError::NotFound(format!("dark_capture {id}: no capture with that id"))
         })?;
         check_dark_capture(&record, &request)?;
@@ -256,7 +256,7 @@ mod tests {
     }
 
     fn check(json: serde_json::Value) -> Result<CaptureRequest, RequestError> {
-        capture(&body(json), &scene(), &cam(), no_plan, |_| None)
+        capture(&body(json), &scene(), &cam(), no_plan, |_| Ok(None))
     }
 
     fn message(r: Result<CaptureRequest, RequestError>) -> String {
@@ -335,7 +335,7 @@ mod tests {
             limited_by: None,
         };
         let plan = || Ok(vec![block("B", 1000.0, 4), block("C", 2500.0, 7)]);
-        let r = capture(&b, &scene(), &cam(), plan, |_| None).expect("accepted");
+        let r = capture(&b, &scene(), &cam(), plan, |_| Ok(None)).expect("accepted");
         assert_eq!((r.exposure_us, r.frames), (2500.0, 7));
     }
 
@@ -347,7 +347,7 @@ mod tests {
             serde_json::json!({ "scene": "brewster-multi-3x3", "pose": "B",
             "polarizer_deg": 0.0, "exposure_us": 5000.0 }),
         );
-        let r = capture(&b, &scene(), &c, no_plan, |_| None);
+        let r = capture(&b, &scene(), &c, no_plan, |_| Ok(None));
         assert!(matches!(r, Err(RequestError::Unavailable(_))), "{r:?}");
     }
 
@@ -357,15 +357,15 @@ mod tests {
             serde_json::json!({ "scene": "brewster-multi-3x3", "pose": "B",
             "polarizer_deg": 0.0, "exposure_us": 5000.0, "dark_capture": 7 }),
         );
-        let r = capture(&b, &scene(), &cam(), no_plan, |_| None);
+        let r = capture(&b, &scene(), &cam(), no_plan, |_| Ok(None));
         assert!(matches!(r, Err(RequestError::NotFound(_))), "{r:?}");
         let dark = |exposure_us: f64| record(7, "dark", exposure_us, JobState::Done);
-        let r = capture(&b, &scene(), &cam(), no_plan, |_| Some(dark(5000.0)));
+        let r = capture(&b, &scene(), &cam(), no_plan, |_| Ok(Some(dark(5000.0))));
         assert_eq!(r.expect("a matching dark").dark_capture, Some(7));
-        let r = capture(&b, &scene(), &cam(), no_plan, |_| Some(dark(4000.0)));
+        let r = capture(&b, &scene(), &cam(), no_plan, |_| Ok(Some(dark(4000.0))));
         assert!(message(r).contains("take a dark capture with the same settings"));
         let light = record(7, "light", 5000.0, JobState::Done);
-        let r = capture(&b, &scene(), &cam(), no_plan, |_| Some(light.clone()));
+        let r = capture(&b, &scene(), &cam(), no_plan, |_| Ok(Some(light.clone())));
         assert!(message(r).contains("must be a done dark capture"));
     }
 }

@@ -30,7 +30,7 @@ pub fn progressive(
     p: &ProgressiveBody,
     r: &CaptureRequest,
     scene: &Scene,
-    capture: impl Fn(i64) -> Option<CaptureRecord>,
+    capture: impl Fn(i64) -> Result<Option<CaptureRecord>, RequestError>,
 ) -> Result<ProgressiveSpec, RequestError> {
     if r.kind == crate::store::CaptureKind::Dark {
         return Err(invalid(
@@ -54,7 +54,7 @@ pub fn progressive(
         }
     }
     for &id in &p.captures {
-        let c = capture(id)
+        let c = capture(id)?
             .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))?;
         let k = block_of(&c, &r.scene, scene, &blocks)?;
         if covered[k] {
@@ -152,7 +152,7 @@ mod tests {
     fn the_other_blocks_must_be_covered_by_done_captures() {
         let s = scene();
         let b_done = record(1, "light", 5000.0, JobState::Done);
-        let lookup = |id: i64| (id == 1).then(|| b_done.clone());
+        let lookup = |id: i64| Ok((id == 1).then(|| b_done.clone()));
         // Capturing C: B must come from capture 1.
         let spec = progressive(
             &body(serde_json::json!({ "captures": [1] })),
@@ -183,7 +183,7 @@ mod tests {
     #[test]
     fn steps_and_truth_are_checked() {
         let s = scene();
-        let lookup = |_| None;
+        let lookup = |_| Ok(None);
         for (json, needle) in [
             (serde_json::json!({ "every": 0 }), "every = 0"),
             (serde_json::json!({ "every": 41 }), "every = 41"),

@@ -26,7 +26,7 @@ pub fn blocks(scene: &Scene) -> Vec<(String, Option<f64>)> {
 pub fn reconstruction(
     b: &ReconstructionBody,
     scene: &Scene,
-    capture: impl Fn(i64) -> Option<CaptureRecord>,
+    capture: impl Fn(i64) -> Result<Option<CaptureRecord>, RequestError>,
 ) -> Result<ReconstructionRequest, RequestError> {
     let solve = b.solve_request();
     solve.check().map_err(|e| invalid(e.to_string()))?;
@@ -50,7 +50,7 @@ pub fn reconstruction(
     }
     let mut covered = vec![false; blocks.len()];
     for &id in &b.captures {
-        let c = capture(id)
+        let c = capture(id)?
             .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))?;
         let k = block_of(&c, &b.scene, scene, &blocks)?;
         if covered[k] {
@@ -140,7 +140,7 @@ mod tests {
         let mut c = record(2, "light", 5000.0, JobState::Done);
         c.pose = "C".into();
         let captures = [record(1, "light", 5000.0, JobState::Done), c];
-        let lookup = |id: i64| captures.iter().find(|c| c.id == id).cloned();
+        let lookup = |id: i64| Ok(captures.iter().find(|c| c.id == id).cloned());
         let s = scene();
         let r = reconstruction(&reconstruction_body(&[1, 2]), &s, lookup).expect("accepted");
         assert_eq!(r.solver, Solver::AdmmTv.name());
@@ -153,6 +153,10 @@ mod tests {
         assert!(err(&[1]).contains("2 (pose, polarizer) blocks (pose B at 0°; pose C at 0°)"));
         assert!(err(&[1, 1]).contains("two captures for block pose B at 0°"));
         assert!(err(&[1, 9]).contains("no capture with id 9"));
+        // A catalogue that cannot be read is passed on, not called a missing capture.
+        let unreadable = |_| Err(RequestError::Unavailable("disk I/O error".into()));
+        let r = reconstruction(&reconstruction_body(&[1, 2]), &s, unreadable);
+        assert!(matches!(r, Err(RequestError::Unavailable(m)) if m == "disk I/O error"));
     }
 
     #[test]
@@ -179,12 +183,12 @@ mod tests {
         let s = scene();
         let mut b = reconstruction_body(&[]);
         b.truth = Some("cat".into());
-        let r = reconstruction(&b, &s, |_| None);
+        let r = reconstruction(&b, &s, |_| Ok(None));
         assert!(matches!(r, Err(RequestError::Invalid(m)) if m.contains("truth = \"cat\"")));
         let mut b = reconstruction_body(&[]);
         b.tol = Some(2.0);
         assert!(matches!(
-            reconstruction(&b, &s, |_| None),
+            reconstruction(&b, &s, |_| Ok(None)),
             Err(RequestError::Invalid(_))
         ));
     }
