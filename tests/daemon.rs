@@ -712,6 +712,39 @@ fn a_target_capture_through_aravis_calibrates_the_pose() {
         r#"{"scene": "brewster-multi", "captures": [1, 2]}"#,
     );
     assert_eq!(s, 422, "{b}");
+    // A catalogue row that cannot be read (a column of the wrong type, written
+    // behind the daemon's back) is a 500 naming the capture, not a 404.
+    let db = rusqlite::Connection::open(dir.path().join("data/catalogue.sqlite")).unwrap();
+    db.execute("UPDATE captures SET frames = 'four' WHERE id = 1", [])
+        .unwrap();
+    let (s, b, _) = d.post("/calibrations", r#"{"capture": 1}"#);
+    println!("unreadable row: {s} {b}");
+    assert_eq!(s, 500, "{b}");
+    assert!(
+        b.contains("capture 1: the catalogue could not be read"),
+        "{b}"
+    );
+    assert!(b.contains("\"error\":\"internal\""), "{b}");
+    let (s, b, _) = d.post(
+        "/reconstructions",
+        r#"{"scene": "brewster-multi", "captures": [1, 2]}"#,
+    );
+    assert_eq!(s, 500, "{b}");
+    assert!(!b.contains("no capture"), "{b}");
+    // The list shows the other captures; the damaged one is logged, not listed.
+    let list = d.json("/captures");
+    let ids: Vec<i64> = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["id"].as_i64().unwrap())
+        .collect();
+    assert_eq!(ids, [2], "{list}");
+    // Mended, the same capture calibrates again.
+    db.execute("UPDATE captures SET frames = 4 WHERE id = 1", [])
+        .unwrap();
+    let (s, b, _) = d.post("/calibrations", r#"{"capture": 1}"#);
+    assert_eq!(s, 200, "{b}");
 }
 
 #[test]

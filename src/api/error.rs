@@ -93,6 +93,7 @@ impl From<crate::daemon::RequestError> for ApiError {
             crate::daemon::RequestError::NotFound(m) => Self::not_found(m),
             crate::daemon::RequestError::Invalid(m) => Self::invalid(m),
             crate::daemon::RequestError::Unavailable(m) => Self::unavailable(m),
+            crate::daemon::RequestError::Store(m) => Self::internal(m),
         }
     }
 }

@@ -51,7 +51,7 @@ fn mib(bytes: u64) -> String {
 
 impl Daemon {
     /// Capture `id` from the catalogue for a request's checks: `None` when
-    /// there is no such capture; a catalogue that cannot be read is a 503
+    /// there is no such capture; a catalogue that cannot be read is a 500
     /// with the store's reason, not "no capture".
     pub(super) fn lookup_capture(
         &self,
@@ -60,7 +60,7 @@ impl Daemon {
         match self.store.capture(id) {
             Ok(c) => Ok(Some(c)),
             Err(crate::store::StoreError::NotFound { .. }) => Ok(None),
-            Err(e) => Err(RequestError::Unavailable(format!(
+            Err(e) => Err(RequestError::Store(format!(
                 "capture {id}: the catalogue could not be read: {}",
                 self.store.describe(&e)
             ))),

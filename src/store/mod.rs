@@ -448,8 +448,10 @@ impl Store {
                 "{} ORDER BY id DESC LIMIT ?1 OFFSET ?2",
                 records::CAPTURE_SELECT
             ))?;
-            let rows = st.query_map(params![limit as i64, offset as i64], records::capture_row)?;
-            rows.collect()
+            let rows = st.query_map(params![limit as i64, offset as i64], |r| {
+                Ok((r.get::<_, i64>(0)?, records::capture_row(r)))
+            })?;
+            readable(rows, "capture")
         })
     }
 
@@ -527,10 +529,32 @@ impl Store {
                 "{} ORDER BY id DESC LIMIT ?1 OFFSET ?2",
                 records::RECON_SELECT
             ))?;
-            let rows = st.query_map(params![limit as i64, offset as i64], records::recon_row)?;
-            rows.collect()
+            let rows = st.query_map(params![limit as i64, offset as i64], |r| {
+                Ok((r.get::<_, i64>(0)?, records::recon_row(r)))
+            })?;
+            readable(rows, "reconstruction")
         })
     }
+}
+
+/// The rows of a list that decode; a row that does not (a column of the
+/// wrong type, written by something else) is logged with its id and left
+/// out, so that one damaged row does not hide the whole catalogue. A failing
+/// query is still an error.
+fn readable<T>(
+    rows: impl Iterator<Item = rusqlite::Result<(i64, rusqlite::Result<T>)>>,
+    kind: &str,
+) -> rusqlite::Result<Vec<T>> {
+    let mut out = Vec::new();
+    for row in rows {
+        match row? {
+            (_, Ok(v)) => out.push(v),
+            (id, Err(e)) => {
+                tracing::error!("catalogue: {kind} {id} cannot be read ({e}); left out of the list")
+            }
+        }
+    }
+    Ok(out)
 }
 
 #[cfg(test)]

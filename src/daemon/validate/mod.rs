@@ -33,6 +33,9 @@ pub enum RequestError {
     /// The camera cannot answer what the request needs yet (503).
     #[error("{0}")]
     Unavailable(String),
+    /// The catalogue could not be read (500; the text has no absolute paths).
+    #[error("{0}")]
+    Store(String),
 }
 
 impl From<super::scenes::ScenesError> for RequestError {

@@ -154,9 +154,9 @@ mod tests {
         assert!(err(&[1, 1]).contains("two captures for block pose B at 0°"));
         assert!(err(&[1, 9]).contains("no capture with id 9"));
         // A catalogue that cannot be read is passed on, not called a missing capture.
-        let unreadable = |_| Err(RequestError::Unavailable("disk I/O error".into()));
+        let unreadable = |_| Err(RequestError::Store("disk I/O error".into()));
         let r = reconstruction(&reconstruction_body(&[1, 2]), &s, unreadable);
-        assert!(matches!(r, Err(RequestError::Unavailable(m)) if m == "disk I/O error"));
+        assert!(matches!(r, Err(RequestError::Store(m)) if m == "disk I/O error"));
     }
 
     #[test]
