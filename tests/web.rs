@@ -174,6 +174,15 @@ async fn click(c: &Client, css: &str) {
         .expect("click");
 }
 
+/// The capture form's fields for a point-source capture of pose A (32 frames).
+const SOURCE_CAPTURE: &[(&str, &str)] = &[
+    ("kind", "source"),
+    ("scene", "brewster-crossed"),
+    ("pose", "A"),
+    ("frames", "32"),
+    ("dark_frames", "8"),
+];
+
 /// Starts a capture from the page's form and waits until capture `id` ends.
 async fn capture(c: &Client, id: u32, fields: &[(&str, &str)], within: Duration) -> String {
     for (name, value) in fields {
@@ -294,20 +303,7 @@ fn the_page_calibrates_a_pose_and_the_wall_from_its_captures() {
         );
 
         // The wall and gain from a point-source capture of pose A.
-        let state = capture(
-            &c,
-            2,
-            &[
-                ("kind", "source"),
-                ("scene", "brewster-crossed"),
-                ("pose", "A"),
-                ("frames", "32"),
-                ("dark_frames", "8"),
-            ],
-            long,
-        )
-        .await;
-        assert_eq!(state, "done");
+        assert_eq!(capture(&c, 2, SOURCE_CAPTURE, long).await, "done");
         choose(&c, "#wall-form select[name=scene]", "brewster-crossed").await;
         set(&c, "#wall-form [name=captures]", "2").await;
         let m = fit(&c, "#fit-wall", "#wall-message", long).await;
@@ -326,20 +322,7 @@ fn the_page_calibrates_a_pose_and_the_wall_from_its_captures() {
         assert!((ratio - 1.0).abs() < 0.05, "{gain}");
         // A second position (the fake bench's source does not move: a second
         // capture of it), added with the page's button and fitted together.
-        let state = capture(
-            &c,
-            3,
-            &[
-                ("kind", "source"),
-                ("scene", "brewster-crossed"),
-                ("pose", "A"),
-                ("frames", "32"),
-                ("dark_frames", "8"),
-            ],
-            long,
-        )
-        .await;
-        assert_eq!(state, "done");
+        assert_eq!(capture(&c, 3, SOURCE_CAPTURE, long).await, "done");
         click(&c, "#add-position").await;
         let m = fit(&c, "#fit-wall", "#wall-message", long).await;
         assert_eq!(m, "position 2: give its capture ids and u, v in metres");

@@ -170,18 +170,41 @@ pub fn fit_sources(
     sets: &[SourceMeasurement<'_>],
     start: WallParams,
 ) -> Result<WallFit, WallFitError> {
+    check_count(sets)?;
+    let first = predict_all(scene, sets, &start)?;
+    levenberg_marquardt(scene, sets, start, first)
+}
+
+/// 1 to [`MAX_SOURCES`] positions.
+fn check_count(sets: &[SourceMeasurement<'_>]) -> Result<(), WallFitError> {
     if sets.is_empty() || sets.len() > MAX_SOURCES {
         return Err(WallFitError::Sources(sets.len()));
     }
-    let model = |p: &SVector<f64, 4>| -> Result<Vec<f64>, WallFitError> {
-        let w = WallParams::from_vec(p);
-        let mut all = Vec::new();
-        for set in sets {
-            all.extend(predict(scene, &set.source, &w)?);
-        }
-        Ok(all)
-    };
-    let first = model(&start.to_vec())?;
+    Ok(())
+}
+
+/// [`predict`] for every position, concatenated in the order given.
+fn predict_all(
+    scene: &Scene,
+    sets: &[SourceMeasurement<'_>],
+    w: &WallParams,
+) -> Result<Vec<f64>, WallFitError> {
+    let mut all = Vec::new();
+    for set in sets {
+        all.extend(predict(scene, &set.source, w)?);
+    }
+    Ok(all)
+}
+
+/// The fit of [`fit_sources`] from `start`, whose prediction `first` the
+/// caller has already made.
+fn levenberg_marquardt(
+    scene: &Scene,
+    sets: &[SourceMeasurement<'_>],
+    start: WallParams,
+    first: Vec<f64>,
+) -> Result<WallFit, WallFitError> {
+    let model = |p: &SVector<f64, 4>| predict_all(scene, sets, &WallParams::from_vec(p));
     let rows = first.len() / sets.len();
     if let Some(bad) = sets.iter().find(|set| set.i.len() != rows) {
         return Err(WallFitError::Length {
@@ -296,16 +319,18 @@ pub fn fit_sources_from_scene(
         kd: b.kd,
         gain: 1.0,
     };
-    let (mut dot, mut nn) = (0.0, 0.0);
-    for set in sets.iter().take(MAX_SOURCES) {
-        let m = predict(scene, &set.source, &unit)?;
-        for (a, x) in m.iter().zip(set.i) {
-            dot += a * x;
-            nn += a * a;
-        }
-    }
+    check_count(sets)?;
+    // The prediction is linear in the gain: the unit-gain one, scaled, is the
+    // fit's first prediction.
+    let mut first = predict_all(scene, sets, &unit)?;
+    let i = sets.iter().flat_map(|set| set.i.iter());
+    let (dot, nn) = first
+        .iter()
+        .zip(i)
+        .fold((0.0, 0.0), |(d, n), (a, x)| (d + a * x, n + a * a));
     let gain = if nn > 0.0 && dot > 0.0 { dot / nn } else { 1.0 };
-    fit_sources(scene, sets, WallParams { gain, ..unit })
+    first.iter_mut().for_each(|v| *v *= gain);
+    levenberg_marquardt(scene, sets, WallParams { gain, ..unit }, first)
 }
 
 type Model<'a> = dyn Fn(&SVector<f64, 4>) -> Result<Vec<f64>, WallFitError> + 'a;

@@ -67,6 +67,15 @@ impl Daemon {
         }
     }
 
+    /// Capture `id`, which the request needs to exist ([`Self::lookup_capture`]).
+    pub(super) fn require_capture(
+        &self,
+        id: i64,
+    ) -> Result<crate::store::CaptureRecord, RequestError> {
+        self.lookup_capture(id)?
+            .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))
+    }
+
     /// The camera limits exposure planning works with: the camera's exposure
     /// range when connected (`info`), the configured sensor noise, the frame cap.
     pub fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {

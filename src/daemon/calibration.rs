@@ -42,9 +42,7 @@ impl Daemon {
         target: Option<&str>,
     ) -> Result<GeometryCalibration, RequestError> {
         let invalid = RequestError::Invalid;
-        let c = self
-            .lookup_capture(capture)?
-            .ok_or_else(|| RequestError::NotFound(format!("no capture with id {capture}")))?;
+        let c = self.require_capture(capture)?;
         if c.kind != crate::store::CaptureKind::Target.name() || c.state != JobState::Done {
             return Err(invalid(format!(
                 "capture {capture} is a {} capture in state {}; calibration needs a done \"kind\": \"target\" capture of the dot target on the wall",
@@ -138,26 +136,10 @@ impl Daemon {
         let mut measured = Vec::with_capacity(positions.len());
         for p in positions {
             let captures = self.source_captures(scene_name, &scene, &p.captures)?;
-            let mut warnings = Vec::new();
-            let loaded = captures
-                .iter()
-                .map(|c| {
-                    super::reconstruction::load_capture(
-                        self,
-                        c.clone(),
-                        &scene,
-                        &c.pose,
-                        &mut warnings,
-                    )
-                })
-                .collect::<Result<Vec<_>, _>>()
+            let stacked = super::reconstruction::stack_records(self, captures.clone(), &scene)
                 .map_err(|e| invalid(e.to_string()))?;
-            let blocks: Vec<_> = loaded.iter().map(|l| l.block()).collect();
-            let i = crate::measure::stack(&blocks, &scene.wall.plane)
-                .map_err(|e| invalid(e.to_string()))?
-                .i;
             ordered.push(captures);
-            measured.push(i);
+            measured.push(stacked.i);
         }
         let sets: Vec<SourceMeasurement> = positions
             .iter()
@@ -198,10 +180,7 @@ impl Daemon {
         let invalid = RequestError::Invalid;
         let records: Vec<_> = captures
             .iter()
-            .map(|&id| {
-                self.lookup_capture(id)?
-                    .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))
-            })
+            .map(|&id| self.require_capture(id))
             .collect::<Result<_, _>>()?;
         let blocks = super::validate::blocks(scene);
         if records.len() != blocks.len() {

@@ -17,7 +17,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::jobs::JobError;
-use super::reconstruction::load_capture;
+use super::reconstruction::{capture_for_block, load_capture, read_captures, serves};
 use super::validate::ProgressiveSpec;
 use super::{Daemon, Event};
 use crate::camera::{Frame, PixelFormat};
@@ -146,16 +146,13 @@ impl Solver {
         let mut i = vec![0.0; t.rows()];
         let mut own = None;
         let mut warnings = Vec::new();
+        let others = read_captures(d, &spec.captures)?;
         for (b, block) in t.blocks.iter().enumerate() {
-            let same = |c: &CaptureRecord| {
-                c.pose == block.pose
-                    && super::jobs::same_angle(c.polarizer_deg, block.polarizer_deg)
-            };
-            if same(&capture) {
+            if serves(&capture, block) {
                 own = Some(b);
                 continue;
             }
-            let other = super::reconstruction::capture_for_block(d, &spec.captures, block)?;
+            let other = capture_for_block(&others, block)?.clone();
             let l = load_capture(d, other, &scene, &block.pose, &mut warnings)?;
             let rows = stack(&[l.block()], &scene.wall.plane)?.i;
             for (dst, v) in i[t.block_rows(b)].iter_mut().zip(rows) {

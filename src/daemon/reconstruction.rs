@@ -142,27 +142,45 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
 /// A reconstruction's measurement: the captures stacked in block order, the
 /// variance of each element when every capture has it, and what the user
 /// should know about the captures.
-struct Stacked {
-    i: Vec<f64>,
-    var: Option<Vec<f64>>,
-    warnings: Vec<String>,
+pub(super) struct Stacked {
+    pub(super) i: Vec<f64>,
+    pub(super) var: Option<Vec<f64>>,
+    pub(super) warnings: Vec<String>,
 }
 
 /// Reads each block's capture (in MODEL.md block order) and stacks them into
-/// the measurement with [`crate::measure::stack`], in fractions of full scale
-/// per µs; the variance comes with it when every capture has 2 frames or more.
+/// the measurement with [`stack_records`].
 fn stack_captures(
     d: &Daemon,
     rec: &crate::store::ReconstructionRecord,
     scene: &crate::scene::Scene,
     t: &crate::transport::Transport,
 ) -> Result<Stacked, JobError> {
-    let mut loaded = Vec::with_capacity(t.blocks.len());
+    let records = read_captures(d, &rec.captures)?;
+    let ordered = t
+        .blocks
+        .iter()
+        .map(|block| capture_for_block(&records, block).cloned())
+        .collect::<Result<Vec<_>, _>>()?;
+    stack_records(d, ordered, scene)
+}
+
+/// Captures in block order (each at its own pose) stacked into the
+/// measurement with [`crate::measure::stack`], in fractions of full scale
+/// per µs; the variance comes with it when every capture has 2 frames or more.
+pub(super) fn stack_records(
+    d: &Daemon,
+    ordered: Vec<crate::store::CaptureRecord>,
+    scene: &crate::scene::Scene,
+) -> Result<Stacked, JobError> {
     let mut warnings = Vec::new();
-    for block in &t.blocks {
-        let cap = capture_for_block(d, &rec.captures, block)?;
-        loaded.push(load_capture(d, cap, scene, &block.pose, &mut warnings)?);
-    }
+    let loaded = ordered
+        .into_iter()
+        .map(|c| {
+            let pose = c.pose.clone();
+            load_capture(d, c, scene, &pose, &mut warnings)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
     let blocks: Vec<BlockFrames<'_>> = loaded.iter().map(Loaded::block).collect();
     let m = crate::measure::stack(&blocks, &scene.wall.plane)?;
     Ok(Stacked {
@@ -172,26 +190,35 @@ fn stack_captures(
     })
 }
 
-/// The capture among `ids` that serves `block` (its pose and angle). A
-/// catalogue that cannot be read is that error, not "no capture".
-pub(super) fn capture_for_block(
+/// The catalogue records of `ids`, each read once. A catalogue that cannot
+/// be read is that error, not "no capture".
+pub(super) fn read_captures(
     d: &Daemon,
     ids: &[i64],
+) -> Result<Vec<crate::store::CaptureRecord>, JobError> {
+    ids.iter()
+        .map(|&id| {
+            d.store
+                .capture(id)
+                .map_err(|e| JobError::Store(format!("capture {id}: {}", d.store.describe(&e))))
+        })
+        .collect()
+}
+
+/// Whether capture `c` was taken at `block`'s pose and polarizer angle.
+pub(super) fn serves(c: &crate::store::CaptureRecord, block: &crate::transport::Block) -> bool {
+    c.pose == block.pose && same_angle(c.polarizer_deg, block.polarizer_deg)
+}
+
+/// The capture among `records` that serves `block`.
+pub(super) fn capture_for_block<'r>(
+    records: &'r [crate::store::CaptureRecord],
     block: &crate::transport::Block,
-) -> Result<crate::store::CaptureRecord, JobError> {
-    for &id in ids {
-        let c = d
-            .store
-            .capture(id)
-            .map_err(|e| JobError::Store(format!("capture {id}: {}", d.store.describe(&e))))?;
-        if c.pose == block.pose && same_angle(c.polarizer_deg, block.polarizer_deg) {
-            return Ok(c);
-        }
-    }
-    Err(JobError::Store(format!(
-        "no capture for block {}",
-        block.label()
-    )))
+) -> Result<&'r crate::store::CaptureRecord, JobError> {
+    records
+        .iter()
+        .find(|c| serves(c, block))
+        .ok_or_else(|| JobError::Store(format!("no capture for block {}", block.label())))
 }
 
 /// A capture's files as a block of the measurement needs them.
