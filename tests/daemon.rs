@@ -775,6 +775,7 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     assert!((p("ior") - 1.5).abs() < 0.1, "{v}");
     assert!(p("kd") < 0.01, "{v}");
     assert!((p("gain") / configured - 1.0).abs() < 0.05, "{v}");
+    assert_eq!(v["warnings"], serde_json::json!([]), "{v}");
     // The wrong source position is refused, not fitted.
     let (s, b, _) = d.post(
         "/calibrations/wall",
@@ -823,6 +824,16 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     );
     assert_eq!(s, 422, "{b}");
     assert!(b.contains("2 captures for the 1 block of scene"), "{b}");
+    // A source capture without dark frames: its offset leaves the fit
+    // refused, and the refusal names the missing dark subtraction.
+    let c3 = d.run_job("/captures", r#"{"kind": "source", "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 8, "dark_frames": 0}"#, Duration::from_secs(30));
+    assert_eq!(c3["state"], "done", "{c3}");
+    let (s, b, _) = d.post(
+        "/calibrations/wall",
+        r#"{"scene": "brewster-crossed", "captures": [3], "source": [0.03, -0.02]}"#,
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("Also: capture 3 has no dark subtraction"), "{b}");
 }
 
 /// A fitted wall parameter of a `POST /calibrations/wall` answer.

@@ -246,6 +246,7 @@ function showWall(w) {
   if (w.positions.length > 1) {
     w.positions.forEach((p) => rows.push([`source at [${p.source.join(", ")}]`, `captures ${p.captures.join(", ")}, residual ${(100 * p.relative_residual).toFixed(1)} %`]));
   }
+  (w.warnings || []).forEach((m) => rows.push(["warning", m]));
   $("#wall-result").replaceChildren(rowsTable(rows));
 }
 

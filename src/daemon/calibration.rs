@@ -97,6 +97,9 @@ pub struct WallCalibration {
     pub fit: crate::calibrate::wall::WallFit,
     /// The scene's `[calibration]` value in force now, for comparison.
     pub configured_gain: Option<f64>,
+    /// What the user should know before trusting the fit, from loading the
+    /// captures (a capture without dark subtraction biases the gain).
+    pub warnings: Vec<String>,
 }
 
 /// One source position of a wall calibration request: where the source was
@@ -134,12 +137,18 @@ impl Daemon {
         let scene = self.scenes.scene(scene_name)?;
         let mut ordered = Vec::with_capacity(positions.len());
         let mut measured = Vec::with_capacity(positions.len());
+        let mut warnings = Vec::new();
         for p in positions {
             let captures = self.source_captures(scene_name, &scene, &p.captures)?;
             let stacked = super::reconstruction::stack_records(self, captures.clone(), &scene)
                 .map_err(|e| invalid(e.to_string()))?;
             ordered.push(captures);
             measured.push(stacked.i);
+            for w in stacked.warnings {
+                if !warnings.contains(&w) {
+                    warnings.push(w);
+                }
+            }
         }
         let sets: Vec<SourceMeasurement> = positions
             .iter()
@@ -149,7 +158,12 @@ impl Daemon {
                 i,
             })
             .collect();
-        let fit = fit_sources_from_scene(&scene, &sets).map_err(|e| invalid(e.to_string()))?;
+        // A refused fit names what loading the captures found too: a missing
+        // dark subtraction is a likelier cause than a misplaced source.
+        let fit = fit_sources_from_scene(&scene, &sets).map_err(|e| match warnings.as_slice() {
+            [] => invalid(e.to_string()),
+            w => invalid(format!("{e}. Also: {}", w.join("; "))),
+        })?;
         let positions = positions
             .iter()
             .zip(&ordered)
@@ -166,6 +180,7 @@ impl Daemon {
             positions,
             fit,
             configured_gain: self.calibration.get(scene_name).copied(),
+            warnings,
         })
     }
 
