@@ -731,7 +731,12 @@ fn a_target_capture_through_aravis_calibrates_the_pose() {
     );
     assert_eq!(s, 500, "{b}");
     assert!(!b.contains("no capture"), "{b}");
-    // The list shows the other captures; the damaged one is logged, not listed.
+    // The list shows the other captures; the damaged one is logged and named
+    // in the answer's header, not listed.
+    assert_eq!(
+        d.get_header("/captures", "polnlos-unreadable").as_deref(),
+        Some("1")
+    );
     let list = d.json("/captures");
     let ids: Vec<i64> = list
         .as_array()
@@ -743,6 +748,7 @@ fn a_target_capture_through_aravis_calibrates_the_pose() {
     // Mended, the same capture calibrates again.
     db.execute("UPDATE captures SET frames = 4 WHERE id = 1", [])
         .unwrap();
+    assert_eq!(d.get_header("/captures", "polnlos-unreadable"), None);
     let (s, b, _) = d.post("/calibrations", r#"{"capture": 1}"#);
     assert_eq!(s, 200, "{b}");
 }

@@ -466,6 +466,41 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
         })
         .await;
 
+        // A catalogue row damaged behind the daemon's back is named on the
+        // page, not silently missing, and the other rows stay listed.
+        let db = rusqlite::Connection::open(page.dir.path().join("data/catalogue.sqlite")).unwrap();
+        let scene: String = db
+            .query_row("SELECT scene FROM reconstructions WHERE id = 1", [], |r| {
+                r.get(0)
+            })
+            .unwrap();
+        db.execute("UPDATE reconstructions SET scene = X'FF' WHERE id = 1", [])
+            .unwrap();
+        let note = until("the unreadable row's note", long, || async {
+            let t = text(&c, "#reconstructions-unreadable").await;
+            (!t.is_empty()).then_some(t)
+        })
+        .await;
+        println!("damaged row on the page: {note}");
+        assert!(
+            note.starts_with("reconstruction 1 could not be read from the catalogue and is left out"),
+            "{note}"
+        );
+        assert!(c.find(Locator::Css("#reconstruction-1")).await.is_err());
+        assert_eq!(text(&c, "#captures-unreadable").await, "");
+        assert_eq!(text(&c, "#capture-1 .state").await, "done");
+        db.execute(
+            "UPDATE reconstructions SET scene = ?1 WHERE id = 1",
+            [&scene],
+        )
+        .unwrap();
+        until("the mended row", long, || async {
+            (text(&c, "#reconstructions-unreadable").await.is_empty()
+                && text(&c, "#reconstruction-1 .state").await == "done")
+                .then_some(())
+        })
+        .await;
+
         // The interactive API reference renders every route and sends requests.
         c.goto(&format!("{}/api", page.d.base))
             .await

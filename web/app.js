@@ -27,7 +27,16 @@ async function api(method, path, body) {
   });
   let json = null;
   try { json = await r.json(); } catch (_) { /* not JSON */ }
-  return { status: r.status, json };
+  return { status: r.status, json, headers: r.headers };
+}
+
+// Says which rows of a list the catalogue could not read (the daemon names
+// them in a header and leaves them out of the list), or nothing.
+function unreadable(r, kind, target) {
+  const ids = r.headers.get("polnlos-unreadable");
+  text(target, ids
+    ? `${kind} ${ids.split(",").join(", ")} could not be read from the catalogue and ${ids.includes(",") ? "are" : "is"} left out of this list; the daemon's log says why.`
+    : "");
 }
 
 // Shows `path` in `img` (with the token); false when there is no image (yet).
@@ -78,6 +87,7 @@ async function refreshCamera() {
 async function refreshCaptures() {
   const r = await api("GET", "/captures?limit=20");
   if (r.status !== 200) return;
+  unreadable(r, "capture", $("#captures-unreadable"));
   const body = $("#captures tbody");
   const rows = [];
   for (const c of r.json) {
@@ -119,6 +129,7 @@ function reportText(r) {
 async function refreshReconstructions() {
   const r = await api("GET", "/reconstructions?limit=10");
   if (r.status !== 200) return;
+  unreadable(r, "reconstruction", $("#reconstructions-unreadable"));
   const items = [];
   for (const x of r.json) {
     const img = el("img", { alt: `reconstruction ${x.id}` });

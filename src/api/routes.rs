@@ -23,9 +23,27 @@ use crate::camera::CameraSettings;
 use crate::daemon::metrics::{counter, gauge, Metrics};
 use crate::daemon::{Daemon, JobKind};
 use crate::measure::exposure::BlockExposure;
-use crate::store::{CaptureFiles, CaptureRecord, JobState, ReconstructionRecord};
+use crate::store::{CaptureFiles, CaptureRecord, JobState, Listing, ReconstructionRecord};
 
 type St = State<Arc<Daemon>>;
+
+/// Header of a list answer naming the rows of the page that the catalogue
+/// could not read (comma-separated ids); absent when every row was read.
+pub const UNREADABLE_HEADER: &str = "polnlos-unreadable";
+
+/// A page of a list as a JSON array; rows that could not be read are named
+/// in [`UNREADABLE_HEADER`], so the array keeps its shape for every client.
+fn listing<T: serde::Serialize>(l: Listing<T>) -> Response {
+    let mut r = Json(l.records).into_response();
+    let ids: Vec<String> = l.unreadable.iter().map(i64::to_string).collect();
+    if let (false, Ok(v)) = (
+        ids.is_empty(),
+        header::HeaderValue::from_str(&ids.join(",")),
+    ) {
+        r.headers_mut().insert(UNREADABLE_HEADER, v);
+    }
+    r
+}
 
 fn parse_id(raw: &str, kind: &str) -> Result<i64, ApiError> {
     raw.parse::<i64>().ok().filter(|v| *v > 0).ok_or_else(|| {
@@ -130,13 +148,10 @@ fn accepted(kind: &str, id: i64, body: impl serde::Serialize) -> Response {
 }
 
 /// Captures, newest first.
-#[utoipa::path(get, path = "/captures", params(Page), responses((status = 200, body = [CaptureRecord])))]
-pub async fn list_captures(
-    State(d): St,
-    Query(p): Query<Page>,
-) -> Result<Json<Vec<CaptureRecord>>, ApiError> {
+#[utoipa::path(get, path = "/captures", params(Page), responses((status = 200, body = [CaptureRecord], headers(("polnlos-unreadable" = String, description = "Ids of this page's rows the catalogue could not read (left out of the array; the daemon's log says why)")))))]
+pub async fn list_captures(State(d): St, Query(p): Query<Page>) -> Result<Response, ApiError> {
     let (limit, offset) = p.get()?;
-    Ok(Json(d.store().captures(limit, offset)?))
+    Ok(listing(d.store().captures(limit, offset)?))
 }
 
 /// One capture.
@@ -269,13 +284,13 @@ pub async fn post_reconstruction(
 }
 
 /// Reconstructions, newest first.
-#[utoipa::path(get, path = "/reconstructions", params(Page), responses((status = 200, body = [ReconstructionRecord])))]
+#[utoipa::path(get, path = "/reconstructions", params(Page), responses((status = 200, body = [ReconstructionRecord], headers(("polnlos-unreadable" = String, description = "Ids of this page's rows the catalogue could not read (left out of the array; the daemon's log says why)")))))]
 pub async fn list_reconstructions(
     State(d): St,
     Query(p): Query<Page>,
-) -> Result<Json<Vec<ReconstructionRecord>>, ApiError> {
+) -> Result<Response, ApiError> {
     let (limit, offset) = p.get()?;
-    Ok(Json(d.store().reconstructions(limit, offset)?))
+    Ok(listing(d.store().reconstructions(limit, offset)?))
 }
 
 /// One reconstruction, with kappa and the report when done.

@@ -442,7 +442,11 @@ impl Store {
     }
 
     /// Captures, newest first.
-    pub fn captures(&self, limit: usize, offset: usize) -> Result<Vec<CaptureRecord>, StoreError> {
+    pub fn captures(
+        &self,
+        limit: usize,
+        offset: usize,
+    ) -> Result<Listing<CaptureRecord>, StoreError> {
         self.with(|c| {
             let mut st = c.prepare(&format!(
                 "{} ORDER BY id DESC LIMIT ?1 OFFSET ?2",
@@ -523,7 +527,7 @@ impl Store {
         &self,
         limit: usize,
         offset: usize,
-    ) -> Result<Vec<ReconstructionRecord>, StoreError> {
+    ) -> Result<Listing<ReconstructionRecord>, StoreError> {
         self.with(|c| {
             let mut st = c.prepare(&format!(
                 "{} ORDER BY id DESC LIMIT ?1 OFFSET ?2",
@@ -537,20 +541,39 @@ impl Store {
     }
 }
 
+/// One page of a list: the rows that could be read, and the ids of those
+/// that could not.
+///
+/// A damaged row is reported, not silently dropped, so that a user who
+/// misses a capture learns it is still in the catalogue.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Listing<T> {
+    /// The rows that decode, in the list's order.
+    pub records: Vec<T>,
+    /// Ids of the rows of this page that do not decode.
+    pub unreadable: Vec<i64>,
+}
+
 /// The rows of a list that decode; a row that does not (a column of the
-/// wrong type, written by something else) is logged with its id and left
-/// out, so that one damaged row does not hide the whole catalogue. A failing
-/// query is still an error.
+/// wrong type, written by something else) is logged with its id and listed
+/// in [`Listing::unreadable`], so that one damaged row does not hide the
+/// whole catalogue. A failing query is still an error.
 fn readable<T>(
     rows: impl Iterator<Item = rusqlite::Result<(i64, rusqlite::Result<T>)>>,
     kind: &str,
-) -> rusqlite::Result<Vec<T>> {
-    let mut out = Vec::new();
+) -> rusqlite::Result<Listing<T>> {
+    let mut out = Listing {
+        records: Vec::new(),
+        unreadable: Vec::new(),
+    };
     for row in rows {
         match row? {
-            (_, Ok(v)) => out.push(v),
+            (_, Ok(v)) => out.records.push(v),
             (id, Err(e)) => {
-                tracing::error!("catalogue: {kind} {id} cannot be read ({e}); left out of the list")
+                tracing::error!(
+                    "catalogue: {kind} {id} cannot be read ({e}); left out of the list"
+                );
+                out.unreadable.push(id);
             }
         }
     }
@@ -560,6 +583,33 @@ fn readable<T>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_row_that_cannot_be_read_is_named_not_hidden() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        let request = ReconstructionRequest {
+            scene: "brewster-crossed".into(),
+            captures: vec![1],
+            solver: "admm-tv".into(),
+            params: serde_json::json!({}),
+        };
+        let ids: Vec<i64> = (0..3)
+            .map(|_| store.insert_reconstruction(&request).unwrap())
+            .collect();
+        let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
+        raw.execute(
+            "UPDATE reconstructions SET scene = X'FF' WHERE id = ?1",
+            [ids[1]],
+        )
+        .unwrap();
+        let page = store.reconstructions(10, 0).unwrap();
+        let listed: Vec<i64> = page.records.iter().map(|r| r.id).collect();
+        assert_eq!(listed, [ids[2], ids[0]]);
+        assert_eq!(page.unreadable, [ids[1]]);
+        // A page that does not reach the damaged row does not name it.
+        assert!(store.reconstructions(1, 0).unwrap().unreadable.is_empty());
+    }
 
     #[test]
     fn timestamps_are_rfc3339() {

@@ -108,6 +108,19 @@ impl Daemon {
         }
     }
 
+    /// The value of header `name` in the answer to `GET path`.
+    pub fn get_header(&self, path: &str, name: &str) -> Option<String> {
+        let mut req = self.agent.get(format!("{}{path}", self.base));
+        if let Some(t) = &self.token {
+            req = req.header("authorization", format!("Bearer {t}"));
+        }
+        let r = req.call().unwrap();
+        r.headers()
+            .get(name)
+            .and_then(|v| v.to_str().ok())
+            .map(String::from)
+    }
+
     pub fn get_bytes(&self, path: &str) -> (u16, Vec<u8>) {
         let mut req = self.agent.get(format!("{}{path}", self.base));
         if let Some(t) = &self.token {
