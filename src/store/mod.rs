@@ -594,21 +594,30 @@ mod tests {
             solver: "admm-tv".into(),
             params: serde_json::json!({}),
         };
-        let ids: Vec<i64> = (0..3)
+        let ids: Vec<i64> = (0..4)
             .map(|_| store.insert_reconstruction(&request).unwrap())
             .collect();
         let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
-        raw.execute(
-            "UPDATE reconstructions SET scene = X'FF' WHERE id = ?1",
-            [ids[1]],
-        )
-        .unwrap();
+        for (sql, id) in [
+            ("UPDATE reconstructions SET scene = X'FF' WHERE id = ?1", ids[1]),
+            ("UPDATE reconstructions SET state = 'finished' WHERE id = ?1", ids[2]),
+            ("UPDATE reconstructions SET report = '{\"psnr\": 1' WHERE id = ?1", ids[3]),
+        ] {
+            raw.execute(sql, [id]).unwrap();
+        }
         let page = store.reconstructions(10, 0).unwrap();
         let listed: Vec<i64> = page.records.iter().map(|r| r.id).collect();
-        assert_eq!(listed, [ids[2], ids[0]]);
-        assert_eq!(page.unreadable, [ids[1]]);
-        // A page that does not reach the damaged row does not name it.
-        assert!(store.reconstructions(1, 0).unwrap().unreadable.is_empty());
+        assert_eq!(listed, [ids[0]]);
+        assert_eq!(page.unreadable, [ids[3], ids[2], ids[1]]);
+        // A page that does not reach a damaged row does not name it.
+        let last = store.reconstructions(1, 3).unwrap();
+        assert!(last.unreadable.is_empty());
+        assert_eq!(last.records[0].state, JobState::Queued);
+        // One by one, each damaged row is an error naming what is wrong.
+        let e = store.reconstruction(ids[2]).unwrap_err().to_string();
+        assert!(e.contains("unknown job state \"finished\""), "{e}");
+        let e = store.reconstruction(ids[3]).unwrap_err().to_string();
+        assert!(e.contains("EOF while parsing"), "{e}");
     }
 
     #[test]

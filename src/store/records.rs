@@ -64,16 +64,45 @@ impl JobState {
         }
     }
 
-    fn parse(s: &str) -> Self {
-        match s {
-            "queued" => JobState::Queued,
-            "running" => JobState::Running,
-            "done" => JobState::Done,
-            "interrupted" => JobState::Interrupted,
-            "cancelled" => JobState::Cancelled,
-            _ => JobState::Failed,
-        }
+    /// The state named `s`; `None` for a name the daemon never writes.
+    fn parse(s: &str) -> Option<Self> {
+        [
+            JobState::Queued,
+            JobState::Running,
+            JobState::Done,
+            JobState::Failed,
+            JobState::Interrupted,
+            JobState::Cancelled,
+        ]
+        .into_iter()
+        .find(|j| j.name() == s)
     }
+}
+
+/// A damaged column of row `r`: the row is unreadable, not quietly defaulted.
+fn damaged(
+    idx: usize,
+    what: impl Into<Box<dyn std::error::Error + Send + Sync>>,
+) -> rusqlite::Error {
+    rusqlite::Error::FromSqlConversionFailure(idx, rusqlite::types::Type::Text, what.into())
+}
+
+/// Column `idx` as a job state; an unknown name makes the row unreadable
+/// (before, it read as `failed`, hiding a done capture behind a wrong state).
+fn state_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<JobState> {
+    let s: String = r.get(idx)?;
+    JobState::parse(&s).ok_or_else(|| damaged(idx, format!("unknown job state {s:?}")))
+}
+
+/// Column `idx` as JSON, `None` when NULL; malformed JSON makes the row
+/// unreadable (before, a damaged region or report read as absent).
+fn json_column<T: serde::de::DeserializeOwned>(
+    r: &Row<'_>,
+    idx: usize,
+) -> rusqlite::Result<Option<T>> {
+    r.get::<_, Option<String>>(idx)?
+        .map(|s| serde_json::from_str(&s).map_err(|e| damaged(idx, e)))
+        .transpose()
 }
 
 /// A validated capture request: every camera setting it uses is its own,
@@ -173,23 +202,17 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         frames: r.get(6)?,
         dark_frames: r.get(7)?,
         pixel_format: r.get(8)?,
-        state: JobState::parse(&r.get::<_, String>(9)?),
+        state: state_column(r, 9)?,
         error: r.get(10)?,
         created_at: r.get(11)?,
         started_at: r.get(12)?,
         finished_at: r.get(13)?,
         camera_id: r.get(14)?,
-        counters: r
-            .get::<_, Option<String>>(15)?
-            .and_then(|s| serde_json::from_str(&s).ok()),
+        counters: json_column(r, 15)?,
         frames_taken: r.get(16)?,
         kind: r.get(17)?,
-        region: r
-            .get::<_, Option<String>>(18)?
-            .and_then(|s| serde_json::from_str(&s).ok()),
-        binning: r
-            .get::<_, Option<String>>(19)?
-            .and_then(|s| serde_json::from_str(&s).ok()),
+        region: json_column(r, 18)?,
+        binning: json_column(r, 19)?,
         trigger: r.get(20)?,
         dark_capture: r.get(21)?,
     })
@@ -270,10 +293,10 @@ pub(super) fn recon_row(r: &Row<'_>) -> rusqlite::Result<ReconstructionRecord> {
     Ok(ReconstructionRecord {
         id: r.get(0)?,
         scene: r.get(1)?,
-        captures: serde_json::from_str(&r.get::<_, String>(2)?).unwrap_or_default(),
+        captures: json_column(r, 2)?.unwrap_or_default(),
         solver: r.get(3)?,
-        params: serde_json::from_str(&r.get::<_, String>(4)?).unwrap_or(serde_json::Value::Null),
-        state: JobState::parse(&r.get::<_, String>(5)?),
+        params: json_column(r, 4)?.unwrap_or(serde_json::Value::Null),
+        state: state_column(r, 5)?,
         error: r.get(6)?,
         created_at: r.get(7)?,
         started_at: r.get(8)?,
@@ -283,8 +306,6 @@ pub(super) fn recon_row(r: &Row<'_>) -> rusqlite::Result<ReconstructionRecord> {
                 .map(serde_json::Value::from)
                 .unwrap_or(serde_json::Value::String(k))
         }),
-        report: r
-            .get::<_, Option<String>>(11)?
-            .and_then(|s| serde_json::from_str(&s).ok()),
+        report: json_column(r, 11)?,
     })
 }
