@@ -759,9 +759,13 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[]);
     let d = Daemon::start(&cfg, &dir.path().join("data"));
-    // The fake bench's point source at [0.03, -0.02], seen from pose A (crossed).
-    let c = d.run_job("/captures", r#"{"kind": "source", "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 32, "dark_frames": 8}"#, Duration::from_secs(30));
-    assert_eq!(c["state"], "done", "{c}");
+    // A done source capture of pose A (crossed), 20 ms per frame.
+    let source_capture = |frames: u32, dark_frames: u32| {
+        let c = d.run_job("/captures", &format!(r#"{{"kind": "source", "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": {frames}, "dark_frames": {dark_frames}}}"#), Duration::from_secs(30));
+        assert_eq!(c["state"], "done", "{c}");
+    };
+    // The fake bench's point source at [0.03, -0.02], seen from pose A.
+    source_capture(32, 8);
     let (s, b, _) = d.post(
         "/calibrations/wall",
         r#"{"scene": "brewster-crossed", "captures": [1], "source": [0.03, -0.02]}"#,
@@ -792,8 +796,7 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     assert!(!b.contains("dots"), "{b}");
     // Two captures of the source, given as two positions (the fake bench has
     // one): fitted together, each position with its own residual.
-    let c2 = d.run_job("/captures", r#"{"kind": "source", "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 32, "dark_frames": 8}"#, Duration::from_secs(30));
-    assert_eq!(c2["state"], "done", "{c2}");
+    source_capture(32, 8);
     let two = r#"{"scene": "brewster-crossed", "sources": [{"source": [0.03, -0.02], "captures": [1]}, {"source": [0.03, -0.02], "captures": [2]}]}"#;
     let (s, b, _) = d.post("/calibrations/wall", two);
     assert_eq!(s, 200, "{b}");
@@ -832,8 +835,7 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     assert!(b.contains("2 captures for the 1 block of scene"), "{b}");
     // A source capture without dark frames: its offset leaves the fit
     // refused, and the refusal names the missing dark subtraction.
-    let c3 = d.run_job("/captures", r#"{"kind": "source", "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 8, "dark_frames": 0}"#, Duration::from_secs(30));
-    assert_eq!(c3["state"], "done", "{c3}");
+    source_capture(8, 0);
     let (s, b, _) = d.post(
         "/calibrations/wall",
         r#"{"scene": "brewster-crossed", "captures": [3], "source": [0.03, -0.02]}"#,

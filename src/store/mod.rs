@@ -599,9 +599,18 @@ mod tests {
             .collect();
         let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
         for (sql, id) in [
-            ("UPDATE reconstructions SET scene = X'FF' WHERE id = ?1", ids[1]),
-            ("UPDATE reconstructions SET state = 'finished' WHERE id = ?1", ids[2]),
-            ("UPDATE reconstructions SET report = '{\"psnr\": 1' WHERE id = ?1", ids[3]),
+            (
+                "UPDATE reconstructions SET scene = X'FF' WHERE id = ?1",
+                ids[1],
+            ),
+            (
+                "UPDATE reconstructions SET state = 'finished' WHERE id = ?1",
+                ids[2],
+            ),
+            (
+                "UPDATE reconstructions SET report = '{\"psnr\": 1' WHERE id = ?1",
+                ids[3],
+            ),
         ] {
             raw.execute(sql, [id]).unwrap();
         }
