@@ -148,6 +148,16 @@ fn capture_every_block_reconstruct_and_fetch() {
     );
     let spec = d.json("/openapi.json");
     assert!(spec["paths"]["/captures"]["post"].is_object());
+    for list in ["/captures", "/reconstructions"] {
+        let header =
+            &spec["paths"][list]["get"]["responses"]["200"]["headers"]["polnlos-unreadable"];
+        assert!(
+            header["description"]
+                .as_str()
+                .is_some_and(|d| d.contains("could not read")),
+            "{list}: {header}"
+        );
+    }
     assert!(spec["components"]["schemas"]["CaptureBody"].is_object());
     openapi_is_complete(&spec);
 }
