@@ -89,12 +89,7 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
     }
     let cond = d.scenes.conditioning(&rec.scene)?;
     check(cancel)?;
-    // The stored request (older rows: the same keys, solver in its own column).
-    let mut solve: SolveRequest = serde_json::from_value(rec.params.clone()).unwrap_or_default();
-    solve.solver =
-        serde_json::from_value(serde_json::Value::String(rec.solver.clone())).map_err(|_| {
-            JobError::Store(format!("solver {:?} is not one polnlos knows", rec.solver))
-        })?;
+    let solve = stored_solve(&rec)?;
     let truth = rec
         .params
         .get("truth")
@@ -163,6 +158,27 @@ fn stack_captures(
         .map(|block| capture_for_block(&records, block).cloned())
         .collect::<Result<Vec<_>, _>>()?;
     stack_records(d, ordered, scene)
+}
+
+/// The solve a reconstruction row asks for: its parameters (the same keys
+/// as [`SolveRequest`]; none stored means the defaults) and its solver
+/// column. Parameters that do not read as a request are an error naming
+/// the row, never silently the defaults: a stored λ must not turn automatic.
+fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest, JobError> {
+    let mut solve: SolveRequest = match &rec.params {
+        serde_json::Value::Null => SolveRequest::default(),
+        p => serde_json::from_value(p.clone()).map_err(|e| {
+            JobError::Store(format!(
+                "reconstruction {}: its stored parameters cannot be read ({e})",
+                rec.id
+            ))
+        })?,
+    };
+    solve.solver =
+        serde_json::from_value(serde_json::Value::String(rec.solver.clone())).map_err(|_| {
+            JobError::Store(format!("solver {:?} is not one polnlos knows", rec.solver))
+        })?;
+    Ok(solve)
 }
 
 /// Captures in block order (each at its own pose) stacked into the
@@ -328,4 +344,51 @@ fn scale(
     i.iter_mut().for_each(|v| *v /= s);
     var.iter_mut().flatten().for_each(|v| *v /= s * s);
     Ok(Some("no radiometric calibration for this scene: the measurement was scaled so that the brightest element is about 1".to_string()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{JobState, ReconstructionRecord};
+
+    fn row(solver: &str, params: serde_json::Value) -> ReconstructionRecord {
+        ReconstructionRecord {
+            id: 7,
+            scene: "brewster-crossed".into(),
+            captures: vec![1],
+            solver: solver.into(),
+            params,
+            state: JobState::Queued,
+            error: None,
+            created_at: String::new(),
+            started_at: None,
+            finished_at: None,
+            kappa: None,
+            report: None,
+        }
+    }
+
+    #[test]
+    fn a_stored_request_is_read_back_or_refused_never_defaulted() {
+        let s = stored_solve(&row(
+            "fista-tv",
+            serde_json::json!({"lambda": 0.25, "max_iter": 40, "truth": "disk"}),
+        ))
+        .unwrap();
+        assert_eq!(s.solver, crate::solve::Solver::FistaTv);
+        assert_eq!((s.lambda, s.max_iter), (Some(0.25), Some(40)));
+        // No parameters stored: the defaults.
+        let s = stored_solve(&row("admm-tv", serde_json::Value::Null)).unwrap();
+        assert_eq!(s.lambda, None);
+        // A damaged λ is an error naming the row, not the automatic λ.
+        let e = stored_solve(&row("admm-tv", serde_json::json!({"lambda": "much"})))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("reconstruction 7: its stored parameters cannot be read"),
+            "{e}"
+        );
+        let e = stored_solve(&row("sgd", serde_json::json!({}))).unwrap_err();
+        assert_eq!(e.to_string(), "solver \"sgd\" is not one polnlos knows");
+    }
 }
