@@ -375,12 +375,7 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
         set(&c, "#capture-form [name=frames]", "24").await;
         set(&c, "#capture-form [name=every]", "4").await;
         choose(&c, "#capture-form select[name=truth]", "letter").await;
-        c.find(Locator::Css("#start-capture"))
-            .await
-            .unwrap()
-            .click()
-            .await
-            .unwrap();
+        click(&c, "#start-capture").await;
         until("the capture to be queued", long, || async {
             text(&c, "#capture-message")
                 .await
@@ -424,12 +419,7 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
         // Reconstruct from the page and see the image and its report appear.
         set(&c, "#reconstruction-form [name=captures]", "1").await;
         choose(&c, "#reconstruction-form select[name=truth]", "letter").await;
-        c.find(Locator::Css("#start-reconstruction"))
-            .await
-            .unwrap()
-            .click()
-            .await
-            .unwrap();
+        click(&c, "#start-reconstruction").await;
         until("the reconstruction to finish", long, || async {
             (text(&c, "#reconstruction-1 .state").await == "done").then_some(())
         })
@@ -449,12 +439,7 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
 
         // The Cancel button of a long capture cancels it.
         set(&c, "#capture-form [name=frames]", "400").await;
-        c.find(Locator::Css("#start-capture"))
-            .await
-            .unwrap()
-            .click()
-            .await
-            .unwrap();
+        click(&c, "#start-capture").await;
         // The table is redrawn every second: click through the page's own script.
         until("the cancel button", long, || async {
             let js = "const b = document.querySelector('#capture-2 button.cancel'); if (b) b.click(); return !!b;";

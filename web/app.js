@@ -210,7 +210,15 @@ function rowsTable(rows) {
   return el("table", { class: "fit" }, ...rows.map(([a, b]) => el("tr", {}, el("th", {}, a), el("td", {}, String(b)))));
 }
 
-// A failed fit clears the previous result, so that no numbers stand beside the error.
+// A refused fit shows why and clears the previous result, so that no
+// numbers stand beside the error.
+function refused(message, result, why) {
+  const msg = $(message);
+  msg.className = "message error";
+  text(msg, why);
+  $(result).replaceChildren();
+}
+
 async function fit(button, message, result, path, body, show) {
   const msg = $(message);
   msg.className = "message";
@@ -219,11 +227,7 @@ async function fit(button, message, result, path, body, show) {
   try {
     const r = await api("POST", path, body);
     if (r.status === 200) { text(msg, "fitted"); show(r.json); }
-    else {
-      msg.className = "message error";
-      text(msg, (r.json && r.json.detail) || `HTTP ${r.status}`);
-      $(result).replaceChildren();
-    }
+    else refused(message, result, (r.json && r.json.detail) || `HTTP ${r.status}`);
   } finally {
     $(button).disabled = false;
   }
@@ -290,10 +294,7 @@ $("#wall-form").addEventListener("submit", async (ev) => {
   });
   const bad = positions.findIndex((p) => p.source.some((x) => !Number.isFinite(x)) || p.captures.length === 0 || p.captures.some((x) => !Number.isInteger(x)));
   if (bad >= 0) {
-    const msg = $("#wall-message");
-    msg.className = "message error";
-    text(msg, `position ${bad + 1}: give its capture ids and u, v in metres`);
-    $("#wall-result").replaceChildren();
+    refused("#wall-message", "#wall-result", `position ${bad + 1}: give its capture ids and u, v in metres`);
     return;
   }
   const body = positions.length === 1

@@ -35,12 +35,11 @@ pub const UNREADABLE_HEADER: &str = "polnlos-unreadable";
 /// in [`UNREADABLE_HEADER`], so the array keeps its shape for every client.
 fn listing<T: serde::Serialize>(l: Listing<T>) -> Response {
     let mut r = Json(l.records).into_response();
-    let ids: Vec<String> = l.unreadable.iter().map(i64::to_string).collect();
-    if let (false, Ok(v)) = (
-        ids.is_empty(),
-        header::HeaderValue::from_str(&ids.join(",")),
-    ) {
-        r.headers_mut().insert(UNREADABLE_HEADER, v);
+    if !l.unreadable.is_empty() {
+        let ids: Vec<String> = l.unreadable.iter().map(i64::to_string).collect();
+        if let Ok(v) = header::HeaderValue::from_str(&ids.join(",")) {
+            r.headers_mut().insert(UNREADABLE_HEADER, v);
+        }
     }
     r
 }

@@ -215,8 +215,8 @@ fn levenberg_marquardt(
     }
     let i: Vec<f64> = sets.iter().flat_map(|set| set.i.iter().copied()).collect();
     let residual = |m: &[f64]| -> Vec<f64> { i.iter().zip(m).map(|(a, b)| a - b).collect() };
-    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     let ss = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
+    let norm = |v: &[f64]| ss(v).sqrt();
     let mut p = start.to_vec();
     let mut r = residual(&first);
     let mut cost = ss(&r);
@@ -406,10 +406,8 @@ mod tests {
     fn simulated_point_source_captures_give_back_the_wall() {
         let s = scene();
         let source = PointSource { u: 0.03, v: -0.02 };
-        let truth = TRUTH;
-        let i = noisy(&predict(&s, &source, &truth).expect("model"), 0.005);
-        let start = START;
-        let f = fit(&s, &source, &i, start).expect("fit");
+        let i = noisy(&predict(&s, &source, &TRUTH).expect("model"), 0.005);
+        let f = fit(&s, &source, &i, START).expect("fit");
         println!("{f:?}");
         let p = f.params;
         assert!((p.alpha - 0.3).abs() < 0.02, "{f:?}");
@@ -424,16 +422,15 @@ mod tests {
     #[test]
     fn a_capture_of_another_geometry_is_refused_not_fitted() {
         let s = scene();
-        let truth = TRUTH;
-        let i = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &truth).expect("model");
-        let e = fit(&s, &PointSource { u: -0.06, v: -0.06 }, &i, truth).expect_err("wrong place");
+        let i = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &TRUTH).expect("model");
+        let e = fit(&s, &PointSource { u: -0.06, v: -0.06 }, &i, TRUTH).expect_err("wrong place");
         assert!(e.to_string().contains("do not match the capture"), "{e}");
         assert!(!e.to_string().contains("dots"), "{e}");
         let WallFitError::Unexplained { percent, limit, .. } = e else {
             panic!("{e}")
         };
         assert!(percent > limit && limit == 25.0, "{percent} {limit}");
-        let short = fit(&s, &PointSource { u: 0.06, v: 0.06 }, &i[1..], truth).expect_err("short");
+        let short = fit(&s, &PointSource { u: 0.06, v: 0.06 }, &i[1..], TRUTH).expect_err("short");
         assert!(
             matches!(short, WallFitError::Length { measurement, rows, .. } if rows == i.len() && measurement == rows - 1),
             "{short}"
@@ -443,8 +440,6 @@ mod tests {
     #[test]
     fn several_source_positions_pin_the_wall_down_better_than_one() {
         let s = scene();
-        let truth = TRUTH;
-        let start = START;
         let at = [
             PointSource { u: 0.03, v: -0.02 },
             PointSource { u: -0.06, v: 0.05 },
@@ -452,15 +447,15 @@ mod tests {
         ];
         let measured: Vec<Vec<f64>> = at
             .iter()
-            .map(|a| noisy(&predict(&s, a, &truth).expect("model"), 0.005))
+            .map(|a| noisy(&predict(&s, a, &TRUTH).expect("model"), 0.005))
             .collect();
         let sets: Vec<SourceMeasurement> = at
             .iter()
             .zip(&measured)
             .map(|(&source, i)| SourceMeasurement { source, i })
             .collect();
-        let one = fit(&s, &at[0], &measured[0], start).expect("one source");
-        let all = fit_sources(&s, &sets, start).expect("three sources");
+        let one = fit(&s, &at[0], &measured[0], START).expect("one source");
+        let all = fit_sources(&s, &sets, START).expect("three sources");
         println!("one: {one:?}\nthree: {all:?}");
         let p = all.params;
         assert!((p.alpha - 0.3).abs() < 0.01, "{all:?}");
@@ -492,9 +487,8 @@ mod tests {
     #[test]
     fn one_misplaced_source_among_several_is_named() {
         let s = scene();
-        let truth = TRUTH;
-        let a = predict(&s, &PointSource { u: 0.03, v: -0.02 }, &truth).expect("model");
-        let b = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &truth).expect("model");
+        let a = predict(&s, &PointSource { u: 0.03, v: -0.02 }, &TRUTH).expect("model");
+        let b = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &TRUTH).expect("model");
         let wrong = PointSource { u: -0.06, v: -0.06 };
         let sets = [
             SourceMeasurement {
@@ -506,7 +500,7 @@ mod tests {
                 i: &b,
             },
         ];
-        let e = fit_sources(&s, &sets, truth).expect_err("one source misplaced");
+        let e = fit_sources(&s, &sets, TRUTH).expect_err("one source misplaced");
         println!("{e}");
         assert!(
             matches!(e, WallFitError::Unexplained { at, .. } if at == wrong),
@@ -514,12 +508,12 @@ mod tests {
         );
         assert!(e.to_string().contains("(-0.06, -0.06) m"), "{e}");
         assert!(matches!(
-            fit_sources(&s, &[], truth),
+            fit_sources(&s, &[], TRUTH),
             Err(WallFitError::Sources(0))
         ));
         let many = vec![sets[0]; MAX_SOURCES + 1];
         assert!(matches!(
-            fit_sources(&s, &many, truth),
+            fit_sources(&s, &many, TRUTH),
             Err(WallFitError::Sources(n)) if n == MAX_SOURCES + 1
         ));
     }

@@ -135,20 +135,17 @@ impl Daemon {
         use crate::calibrate::wall::{fit_sources_from_scene, SourceMeasurement};
         let invalid = RequestError::Invalid;
         let scene = self.scenes.scene(scene_name)?;
-        let mut ordered = Vec::with_capacity(positions.len());
+        // Each position's capture ids in block order, and its measurement.
+        let mut ordered: Vec<Vec<i64>> = Vec::with_capacity(positions.len());
         let mut measured = Vec::with_capacity(positions.len());
         let mut warnings = Vec::new();
         for p in positions {
             let captures = self.source_captures(scene_name, &scene, &p.captures)?;
-            let stacked = super::reconstruction::stack_records(self, captures.clone(), &scene)
+            ordered.push(captures.iter().map(|c| c.id).collect());
+            let stacked = super::reconstruction::stack_records(self, captures, &scene)
                 .map_err(|e| invalid(e.to_string()))?;
-            ordered.push(captures);
             measured.push(stacked.i);
-            for w in stacked.warnings {
-                if !warnings.contains(&w) {
-                    warnings.push(w);
-                }
-            }
+            warnings.extend(stacked.warnings);
         }
         let sets: Vec<SourceMeasurement> = positions
             .iter()
@@ -164,19 +161,20 @@ impl Daemon {
             [] => invalid(e.to_string()),
             w => invalid(format!("{e}. Also: {}", w.join("; "))),
         })?;
+        let captures = ordered.concat();
         let positions = positions
             .iter()
-            .zip(&ordered)
+            .zip(ordered)
             .zip(&fit.source_residuals)
-            .map(|((p, c), &relative_residual)| FittedPosition {
+            .map(|((p, captures), &relative_residual)| FittedPosition {
                 source: [p.source.u, p.source.v],
-                captures: c.iter().map(|c| c.id).collect(),
+                captures,
                 relative_residual,
             })
             .collect();
         Ok(WallCalibration {
             scene: scene_name.to_string(),
-            captures: ordered.iter().flatten().map(|c| c.id).collect(),
+            captures,
             positions,
             fit,
             configured_gain: self.calibration.get(scene_name).copied(),

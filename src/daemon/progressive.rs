@@ -153,7 +153,7 @@ impl Solver {
                 continue;
             }
             let other = capture_for_block(&others, block)?.clone();
-            let l = load_capture(d, other, &scene, &block.pose, &mut warnings)?;
+            let l = load_capture(d, other, &scene, &mut warnings)?;
             let rows = stack(&[l.block()], &scene.wall.plane)?.i;
             for (dst, v) in i[t.block_rows(b)].iter_mut().zip(rows) {
                 *dst = v / calibration;

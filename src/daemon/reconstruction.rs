@@ -192,10 +192,7 @@ pub(super) fn stack_records(
     let mut warnings = Vec::new();
     let loaded = ordered
         .into_iter()
-        .map(|c| {
-            let pose = c.pose.clone();
-            load_capture(d, c, scene, &pose, &mut warnings)
-        })
+        .map(|c| load_capture(d, c, scene, &mut warnings))
         .collect::<Result<Vec<_>, _>>()?;
     let blocks: Vec<BlockFrames<'_>> = loaded.iter().map(Loaded::block).collect();
     let m = crate::measure::stack(&blocks, &scene.wall.plane)?;
@@ -263,19 +260,19 @@ impl Loaded<'_> {
 }
 
 /// Reads a capture's mean (and variance) frame, checks it is the frame the
-/// capture recorded, and notes what the user should know about it.
+/// capture recorded, and notes what the user should know about it; the
+/// homography is that of the capture's own pose in `scene`.
 pub(super) fn load_capture<'a>(
     d: &Daemon,
     cap: crate::store::CaptureRecord,
     scene: &'a crate::scene::Scene,
-    pose_name: &str,
     warnings: &mut Vec<String>,
 ) -> Result<Loaded<'a>, JobError> {
     let id = cap.id;
     let capture = |reason: String| JobError::Capture { id, reason };
     let pose = scene
-        .pose(pose_name)
-        .ok_or_else(|| capture(format!("scene has no pose {pose_name:?} any more")))?;
+        .pose(&cap.pose)
+        .ok_or_else(|| capture(format!("scene has no pose {:?} any more", cap.pose)))?;
     let homography = pose
         .homography
         .ok_or_else(|| crate::measure::MeasureError::NoHomography {

@@ -447,16 +447,13 @@ impl Store {
         limit: usize,
         offset: usize,
     ) -> Result<Listing<CaptureRecord>, StoreError> {
-        self.with(|c| {
-            let mut st = c.prepare(&format!(
-                "{} ORDER BY id DESC LIMIT ?1 OFFSET ?2",
-                records::CAPTURE_SELECT
-            ))?;
-            let rows = st.query_map(params![limit as i64, offset as i64], |r| {
-                Ok((r.get::<_, i64>(0)?, records::capture_row(r)))
-            })?;
-            readable(rows, "capture")
-        })
+        self.page(
+            records::CAPTURE_SELECT,
+            records::capture_row,
+            "capture",
+            limit,
+            offset,
+        )
     }
 
     /// Records a new reconstruction job (state `queued`).
@@ -528,15 +525,49 @@ impl Store {
         limit: usize,
         offset: usize,
     ) -> Result<Listing<ReconstructionRecord>, StoreError> {
+        self.page(
+            records::RECON_SELECT,
+            records::recon_row,
+            "reconstruction",
+            limit,
+            offset,
+        )
+    }
+
+    /// One page of `select`'s rows, newest first, decoded row by row: a row
+    /// that does not decode (a column of the wrong type, written by
+    /// something else) is logged with its id and listed in
+    /// [`Listing::unreadable`], so one damaged row does not hide the whole
+    /// catalogue. A failing query is still an error.
+    fn page<T>(
+        &self,
+        select: &str,
+        row: fn(&rusqlite::Row<'_>) -> rusqlite::Result<T>,
+        kind: &str,
+        limit: usize,
+        offset: usize,
+    ) -> Result<Listing<T>, StoreError> {
         self.with(|c| {
-            let mut st = c.prepare(&format!(
-                "{} ORDER BY id DESC LIMIT ?1 OFFSET ?2",
-                records::RECON_SELECT
-            ))?;
+            let mut st = c.prepare(&format!("{select} ORDER BY id DESC LIMIT ?1 OFFSET ?2"))?;
             let rows = st.query_map(params![limit as i64, offset as i64], |r| {
-                Ok((r.get::<_, i64>(0)?, records::recon_row(r)))
+                Ok((r.get::<_, i64>(0)?, row(r)))
             })?;
-            readable(rows, "reconstruction")
+            let mut out = Listing {
+                records: Vec::new(),
+                unreadable: Vec::new(),
+            };
+            for decoded in rows {
+                match decoded? {
+                    (_, Ok(v)) => out.records.push(v),
+                    (id, Err(e)) => {
+                        tracing::error!(
+                            "catalogue: {kind} {id} cannot be read ({e}); left out of the list"
+                        );
+                        out.unreadable.push(id);
+                    }
+                }
+            }
+            Ok(out)
         })
     }
 }
@@ -552,32 +583,6 @@ pub struct Listing<T> {
     pub records: Vec<T>,
     /// Ids of the rows of this page that do not decode.
     pub unreadable: Vec<i64>,
-}
-
-/// The rows of a list that decode; a row that does not (a column of the
-/// wrong type, written by something else) is logged with its id and listed
-/// in [`Listing::unreadable`], so that one damaged row does not hide the
-/// whole catalogue. A failing query is still an error.
-fn readable<T>(
-    rows: impl Iterator<Item = rusqlite::Result<(i64, rusqlite::Result<T>)>>,
-    kind: &str,
-) -> rusqlite::Result<Listing<T>> {
-    let mut out = Listing {
-        records: Vec::new(),
-        unreadable: Vec::new(),
-    };
-    for row in rows {
-        match row? {
-            (_, Ok(v)) => out.records.push(v),
-            (id, Err(e)) => {
-                tracing::error!(
-                    "catalogue: {kind} {id} cannot be read ({e}); left out of the list"
-                );
-                out.unreadable.push(id);
-            }
-        }
-    }
-    Ok(out)
 }
 
 #[cfg(test)]
