@@ -1,12 +1,15 @@
-//! Golden tests of the transport matrix against MODEL.md: an entry-by-entry
-//! reference written literally from the formulas (trigonometric Fresnel,
-//! explicit half vector and s/p basis), entries computed independently in
-//! Python, the reference scenes' condition numbers, row/column order, occlusion.
+//! Golden tests of the transport matrix against MODEL.md (revision 2): an
+//! entry-by-entry reference written literally from the formulas
+//! (trigonometric Fresnel, explicit half vector, s/p bases, both polarizer
+//! models and both diffuse terms), entries computed independently in Python
+//! (`validation/model_entries.py`), the reference scenes' condition numbers,
+//! row/column order, occlusion.
 
 use std::f64::consts::PI;
 use std::path::PathBuf;
 
 use nalgebra::Vector3;
+use polnlos::optics::{DiffuseModel, PolarizerModel};
 use polnlos::scene::{Emitter, Scene};
 use polnlos::solve::condition;
 use polnlos::transport::{build, Transport};
@@ -19,6 +22,19 @@ fn scenes_dir() -> PathBuf {
 
 fn load(name: &str) -> Scene {
     Scene::load(&scenes_dir().join(format!("{name}.toml"))).unwrap()
+}
+
+/// MODEL.md Eqs. 6-8 in their trigonometric form, with the limit below 1e-7.
+fn fresnel(phi: f64, eta: f64) -> (f64, f64) {
+    if phi < 1e-7 {
+        let r = ((eta - 1.0) / (eta + 1.0)).powi(2);
+        return (r, r);
+    }
+    let pt = (phi.sin() / eta).asin();
+    (
+        ((phi - pt).sin() / (phi + pt).sin()).powi(2),
+        ((phi - pt).tan() / (phi + pt).tan()).powi(2),
+    )
 }
 
 /// MODEL.md "One entry of T", written as literally as possible.
@@ -91,30 +107,42 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                         2.0 * x / (x + (alpha * alpha + (1.0 - alpha * alpha) * x * x).sqrt())
                     };
                     let phi = 0.5 * w_i.dot(&w_o).clamp(-1.0, 1.0).acos();
-                    let (rs, rp) = if phi < 1e-7 {
-                        let r = ((brdf.eta - 1.0) / (brdf.eta + 1.0)).powi(2);
-                        (r, r)
-                    } else {
-                        let pt = (phi.sin() / brdf.eta).asin();
-                        (
-                            ((phi - pt).sin() / (phi + pt).sin()).powi(2),
-                            ((phi - pt).tan() / (phi + pt).tan()).powi(2),
-                        )
-                    };
-                    let (p_spec, p_diff) = match q {
-                        None => ((rs + rp) / 2.0, 1.0),
-                        Some(q) => {
-                            let t = (q - w_o * q.dot(&w_o)).normalize();
+                    let (rs, rp) = fresnel(phi, brdf.eta);
+                    let t = q.map(|q| {
+                        let n_p = (c0 - o).normalize();
+                        match scene.polarizer {
+                            PolarizerModel::Absorbing => w_o.cross(&n_p.cross(&q)).normalize(),
+                            PolarizerModel::Transmitting => (q - w_o * q.dot(&w_o)).normalize(),
+                        }
+                    });
+                    let p_spec = match t {
+                        None => (rs + rp) / 2.0,
+                        Some(t) => {
                             let x = w_i.cross(&w_o);
                             if x.norm() < 1e-12 {
-                                (rs / 2.0, 0.5)
+                                rs / 2.0
                             } else {
                                 let e_s = x.normalize();
                                 let e_p = e_s.cross(&w_o);
-                                (
-                                    (rs * t.dot(&e_s).powi(2) + rp * t.dot(&e_p).powi(2)) / 2.0,
-                                    0.5,
-                                )
+                                (rs * t.dot(&e_s).powi(2) + rp * t.dot(&e_p).powi(2)) / 2.0
+                            }
+                        }
+                    };
+                    let p_diff = match brdf.diffuse {
+                        DiffuseModel::Lambert => t.map_or(1.0, |_| 0.5),
+                        DiffuseModel::Fresnel => {
+                            let (rsi, rpi) = fresnel(n.dot(&w_i).acos(), brdf.eta);
+                            let t_in = 1.0 - (rsi + rpi) / 2.0;
+                            let (rso, rpo) = fresnel(n.dot(&w_o).acos(), brdf.eta);
+                            match t {
+                                None => t_in * (1.0 - (rso + rpo) / 2.0),
+                                Some(t) => {
+                                    let e_so = n.cross(&w_o).normalize();
+                                    let e_po = e_so.cross(&w_o);
+                                    t_in * ((1.0 - rso) * t.dot(&e_so).powi(2)
+                                        + (1.0 - rpo) * t.dot(&e_po).powi(2))
+                                        / 2.0
+                                }
                             }
                         }
                     };
@@ -149,38 +177,137 @@ fn assert_matches_reference(scene: &Scene, t: &Transport, label: &str) {
     }
 }
 
+/// Every shipped scene's name (file stem), sorted.
+fn shipped() -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(scenes_dir())
+        .unwrap()
+        .map(|e| {
+            e.unwrap()
+                .path()
+                .file_stem()
+                .unwrap()
+                .to_string_lossy()
+                .into_owned()
+        })
+        .collect();
+    names.sort();
+    names
+}
+
 #[test]
-fn every_small_reference_scene_matches_the_literal_model() {
+fn every_shipped_scene_matches_the_literal_model() {
+    let names = shipped();
+    assert_eq!(names.len(), 16);
+    for name in names {
+        let scene = load(&name);
+        let t = build(&scene).unwrap();
+        assert_matches_reference(&scene, &t, &name);
+    }
+}
+
+/// A shipped scene's text with a diffuse term, a diffuse model and a polarizer model.
+fn with_keys(name: &str, kd: f64, diffuse: &str, model: &str) -> String {
+    let text = std::fs::read_to_string(scenes_dir().join(format!("{name}.toml"))).unwrap();
+    assert!(text.contains("kd = 0.0"), "{name}");
+    format!(
+        "{}\n[polarizer]\nmodel = \"{model}\"\n",
+        text.replace("kd = 0.0", &format!("kd = {kd}\ndiffuse = \"{diffuse}\""))
+    )
+}
+
+#[test]
+fn the_revision_2_keys_match_the_literal_model() {
     for name in [
-        "brewster-crossed-3x3",
-        "brewster-nopol-3x3",
         "brewster-rotating-3x3",
-        "brewster-multi-3x3",
-        "occluder-crossed-3x3",
+        "brewster-nopol-3x3",
         "occluder-multi-3x3",
     ] {
-        let scene = load(name);
-        let t = build(&scene).unwrap();
-        assert_matches_reference(&scene, &t, name);
+        for model in ["absorbing", "transmitting"] {
+            for diffuse in ["fresnel", "lambert"] {
+                let scene = Scene::from_toml_str(&with_keys(name, 0.1, diffuse, model)).unwrap();
+                assert_eq!(scene.polarizer.name(), model);
+                assert_eq!(scene.wall.brdf.diffuse.name(), diffuse);
+                let t = build(&scene).unwrap();
+                assert_matches_reference(&scene, &t, &format!("{name} {model} {diffuse}"));
+            }
+        }
     }
 }
 
 #[test]
+fn the_two_polarizer_readings_differ_where_the_model_says() {
+    // Both agree for rays in the plane of q and n_p: on the bench's plane of
+    // incidence (v = 0) for the crossed and the 90-degree setting. Elsewhere
+    // the crossed block differs by several percent (MODEL.md: up to ~4 deg of
+    // axis, a 6 % structured error under crossed extinction).
+    let abs = build(
+        &Scene::from_toml_str(&with_keys(
+            "brewster-rotating-3x3",
+            0.0,
+            "fresnel",
+            "absorbing",
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    let tra = build(
+        &Scene::from_toml_str(&with_keys(
+            "brewster-rotating-3x3",
+            0.0,
+            "fresnel",
+            "transmitting",
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    // Largest relative difference over the crossed block, per wall row (v).
+    let grid = abs.wall_grid;
+    let row_worst: Vec<f64> = (0..grid.nv)
+        .map(|iv| {
+            let mut w = 0.0f64;
+            for iu in 0..grid.nu {
+                for k in 0..abs.cols() {
+                    let r = grid.index(iu, iv);
+                    let (a, b) = (abs.get(r, k), tra.get(r, k));
+                    w = w.max((a - b).abs() / a.abs().max(b.abs()).max(1e-300));
+                }
+            }
+            w
+        })
+        .collect();
+    let worst = row_worst.iter().copied().fold(0.0, f64::max);
+    println!("crossed block, worst relative difference per wall row: {row_worst:.4?}");
+    assert!(worst > 0.05, "the readings differ by at most {worst}");
+    // The difference is mirror-symmetric about the plane of incidence (y = 0)
+    // and least in the two rows that straddle it (0.086 against 0.67 here).
+    for iv in 0..grid.nv {
+        let (a, b) = (row_worst[iv], row_worst[grid.nv - 1 - iv]);
+        assert!((a - b).abs() <= 1e-6 * a.max(b), "rows {iv}: {a} vs {b}");
+    }
+    let mid = row_worst[grid.nv / 2];
+    assert!(
+        row_worst.iter().all(|&w| w >= mid) && mid < 0.2 * worst,
+        "rows at the plane {mid}, worst {worst}"
+    );
+}
+
+#[test]
 fn entries_computed_independently_in_python() {
-    // Python's math module, MODEL.md formulas (see the note on issue 2); wall
-    // element (ju, jv) -> row jv*32 + ju, scene element (ku, kv) -> col kv*3 + ku.
+    // Python's math module, MODEL.md revision 2 read literally
+    // (validation/model_entries.py); wall element (ju, jv) -> row jv*32 + ju,
+    // scene element (ku, kv) -> col kv*3 + ku.
     let cases: [(&str, usize, [usize; 4], f64); 9] = [
         (
             "brewster-nopol-3x3",
             0,
             [16, 16, 1, 1],
-            0.002282704138008312,
+            0.0022827041380083122,
         ),
         (
             "brewster-nopol-3x3",
             0,
             [3, 20, 0, 2],
-            0.0004768112271055904,
+            0.0004768112271055905,
         ),
         (
             "brewster-nopol-3x3",
@@ -192,37 +319,37 @@ fn entries_computed_independently_in_python() {
             "brewster-crossed-3x3",
             0,
             [16, 16, 1, 1],
-            5.257392284104868e-07,
+            5.223145830049211e-07,
         ),
         (
             "brewster-crossed-3x3",
             0,
             [3, 20, 0, 2],
-            5.533420281941725e-05,
+            5.714672641629282e-05,
         ),
         (
             "brewster-crossed-3x3",
             0,
             [31, 0, 2, 1],
-            1.1290610324327305e-05,
+            8.846127923164948e-06,
         ),
         (
             "brewster-rotating-3x3",
             1,
             [16, 16, 1, 1],
-            0.0011758940334991581,
+            0.0011759646552972854,
         ),
         (
             "brewster-rotating-3x3",
             1,
             [3, 20, 0, 2],
-            0.0003580275498368275,
+            0.00035679279484037346,
         ),
         (
             "brewster-rotating-3x3",
             1,
             [31, 0, 2, 1],
-            4.270724519592195e-06,
+            5.308422146242907e-06,
         ),
     ];
     for (name, block, [ju, jv, ku, kv], expect) in cases {
@@ -233,42 +360,143 @@ fn entries_computed_independently_in_python() {
             "{name} block {block} ({ju},{jv})x({ku},{kv}): {got:e} vs {expect:e}"
         );
     }
+    // The revision-2 keys (kd 0.1 with either diffuse term; the transmitting
+    // reading, whose crossed entries are revision 1's).
+    let keyed: [(f64, &str, &str, &str, [usize; 4], f64); 12] = [
+        (
+            0.1,
+            "fresnel",
+            "absorbing",
+            "brewster-crossed-3x3",
+            [16, 16, 1, 1],
+            0.00017557787225755923,
+        ),
+        (
+            0.1,
+            "fresnel",
+            "absorbing",
+            "brewster-crossed-3x3",
+            [3, 20, 0, 2],
+            0.0003641192101090146,
+        ),
+        (
+            0.1,
+            "fresnel",
+            "absorbing",
+            "brewster-crossed-3x3",
+            [31, 0, 2, 1],
+            6.966345535285346e-05,
+        ),
+        (
+            0.1,
+            "lambert",
+            "absorbing",
+            "brewster-crossed-3x3",
+            [16, 16, 1, 1],
+            0.00018974791903101477,
+        ),
+        (
+            0.1,
+            "lambert",
+            "absorbing",
+            "brewster-crossed-3x3",
+            [3, 20, 0, 2],
+            0.00038059454020483415,
+        ),
+        (
+            0.1,
+            "lambert",
+            "absorbing",
+            "brewster-crossed-3x3",
+            [31, 0, 2, 1],
+            7.980424492068884e-05,
+        ),
+        (
+            0.1,
+            "fresnel",
+            "absorbing",
+            "brewster-nopol-3x3",
+            [16, 16, 1, 1],
+            0.0026072412292551706,
+        ),
+        (
+            0.1,
+            "fresnel",
+            "absorbing",
+            "brewster-nopol-3x3",
+            [3, 20, 0, 2],
+            0.001030542627817893,
+        ),
+        (
+            0.1,
+            "fresnel",
+            "absorbing",
+            "brewster-nopol-3x3",
+            [31, 0, 2, 1],
+            0.00015941092441624155,
+        ),
+        (
+            0.0,
+            "fresnel",
+            "transmitting",
+            "brewster-crossed-3x3",
+            [16, 16, 1, 1],
+            5.257392284104868e-07,
+        ),
+        (
+            0.0,
+            "fresnel",
+            "transmitting",
+            "brewster-crossed-3x3",
+            [3, 20, 0, 2],
+            5.533420281941725e-05,
+        ),
+        (
+            0.0,
+            "fresnel",
+            "transmitting",
+            "brewster-crossed-3x3",
+            [31, 0, 2, 1],
+            1.1290610324327305e-05,
+        ),
+    ];
+    for (kd, diffuse, model, name, [ju, jv, ku, kv], expect) in keyed {
+        let t =
+            build(&Scene::from_toml_str(&with_keys(name, kd, diffuse, model)).unwrap()).unwrap();
+        let got = t.get(jv * 32 + ju, kv * 3 + ku);
+        assert!(
+            (got - expect).abs() <= 1e-9 * expect,
+            "{name} kd {kd} {diffuse} {model} ({ju},{jv})x({ku},{kv}): {got:e} vs {expect:e}"
+        );
+    }
 }
 
 #[test]
 fn reference_scenes_load_with_their_shapes_and_condition_numbers() {
-    // kappa recorded from this implementation after it matched the reference above;
-    // guards against regressions (SVD precision at kappa 1e9 is about 1e-7 relative).
+    // kappa recorded from this implementation after it matched the reference
+    // above (revision 2: absorbing sheet, fresnel diffuse); guards against
+    // regressions (SVD precision at kappa 1e9 is about 1e-7 relative). The
+    // 3x3 values match the independent implementation of the issue (occluder
+    // multi 24.65 against crossed 24.58).
     let golden: [(&str, f64, usize, usize); 16] = [
-        ("brewster-crossed-3x3", 111.5248909751125, 1024, 9),
-        ("brewster-crossed", 329169898.23320866, 1024, 64),
-        ("brewster-multi-3x3", 76.603432939997, 2048, 9),
-        ("brewster-multi", 98742408.5780309, 2048, 64),
-        ("brewster-nopol-3x3", 202.80504532546388, 1024, 9),
-        ("brewster-nopol", 789269712.2312601, 1024, 64),
-        ("brewster-rotating-3x3", 183.8452955192703, 4096, 9),
-        ("brewster-rotating", 424419162.84107417, 4096, 64),
-        ("occluder-crossed-3x3", 23.559614223505502, 1024, 9),
-        ("occluder-crossed", 280.7795299421214, 1024, 64),
-        ("occluder-multi-3x3", 23.0755067649915, 2048, 9),
-        ("occluder-multi", 270.19465918256356, 2048, 64),
-        ("occluder-nopol-3x3", 27.84484047705011, 1024, 9),
-        ("occluder-nopol", 548.5981293709118, 1024, 64),
-        ("occluder-rotating-3x3", 26.63037625299983, 4096, 9),
-        ("occluder-rotating", 508.4302988998202, 4096, 64),
+        ("brewster-crossed-3x3", 113.5036206092875, 1024, 9),
+        ("brewster-crossed", 316355232.34538597, 1024, 64),
+        ("brewster-multi-3x3", 79.79660374992436, 2048, 9),
+        ("brewster-multi", 102936899.83594474, 2048, 64),
+        ("brewster-nopol-3x3", 202.80504532546627, 1024, 9),
+        ("brewster-nopol", 789269710.9688312, 1024, 64),
+        ("brewster-rotating-3x3", 183.30358290542856, 4096, 9),
+        ("brewster-rotating", 422782744.36853033, 4096, 64),
+        ("occluder-crossed-3x3", 24.580162273452384, 1024, 9),
+        ("occluder-crossed", 306.63853119463965, 1024, 64),
+        ("occluder-multi-3x3", 24.64515506567179, 2048, 9),
+        ("occluder-multi", 304.19015307066576, 2048, 64),
+        ("occluder-nopol-3x3", 27.844840477050194, 1024, 9),
+        ("occluder-nopol", 548.5981293709048, 1024, 64),
+        ("occluder-rotating-3x3", 26.655539181856128, 4096, 9),
+        ("occluder-rotating", 508.7068483632826, 4096, 64),
     ];
-    let mut on_disk: Vec<String> = std::fs::read_dir(scenes_dir())
-        .unwrap()
-        .map(|e| {
-            e.unwrap()
-                .path()
-                .file_stem()
-                .unwrap()
-                .to_string_lossy()
-                .into_owned()
-        })
-        .collect();
-    on_disk.sort();
+    let on_disk = shipped();
     let mut named: Vec<String> = golden.iter().map(|g| g.0.to_string()).collect();
     named.sort();
     assert_eq!(on_disk, named, "every shipped scene has a golden kappa");

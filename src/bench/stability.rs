@@ -63,8 +63,21 @@ fn cases() -> Result<Vec<Case>, BenchError> {
     // Exact Brewster mirror geometry: the camera on the mirror ray at atan(eta).
     let eta: f64 = crossed.wall.brdf.eta;
     let tb = eta.atan();
-    let exact =
-        with(&|s| s.poses[0].camera = nalgebra::Vector3::new(0.5 * tb.sin(), 0.0, 0.5 * tb.cos()));
+    // A moved camera moves its sheet: the crossed setting is recomputed there.
+    let recross = |s: &mut Scene| {
+        if let Some(a) = crate::scene::Analyzer::at(
+            &s.wall.plane.center,
+            &s.scene.plane.center,
+            &s.poses[0].camera,
+            0.0,
+        ) {
+            s.poses[0].analyzers[0] = a;
+        }
+    };
+    let exact = with(&|s| {
+        s.poses[0].camera = nalgebra::Vector3::new(0.5 * tb.sin(), 0.0, 0.5 * tb.cos());
+        recross(s);
+    });
     let mirror30 = with(&|s| {
         // Scene and camera both at 30 deg incidence: far from Brewster.
         let t = 30f64.to_radians();
@@ -72,12 +85,7 @@ fn cases() -> Result<Vec<Case>, BenchError> {
         s.scene.plane.normal = -s.scene.plane.center.normalize();
         s.scene.plane.v = s.scene.plane.normal.cross(&s.scene.plane.u);
         s.poses[0].camera = nalgebra::Vector3::new(0.5 * t.sin(), 0.0, 0.5 * t.cos());
-        s.poses[0].analyzers[0].axis = crate::scene::crossed_axis(
-            &s.wall.plane.center,
-            &s.scene.plane.center,
-            &s.poses[0].camera,
-        )
-        .unwrap_or(s.poses[0].analyzers[0].axis);
+        recross(s);
     });
     let mut fine = crossed.clone();
     fine.scene.plane.grid = crate::scene::Grid { nu: 40, nv: 40 };

@@ -1,6 +1,7 @@
 //! The wall's BRDF as seen through the camera's polarizer (MODEL.md "One entry of T"):
 //!
-//! `f = ks D(h) G2 / (4 (n.w_i)(n.w_o)) P_spec + (kd/pi) P_diff`.
+//! `f = ks D(h) G2 / (4 (n.w_i)(n.w_o)) P_spec + (kd/pi) P_diff`, with
+//! `P_diff` from [`super::diffuse`] (revision 2: `fresnel` by default).
 //!
 //! One implementation serves every caller: [`Brdf::eval`] for a single pair of
 //! directions, [`Brdf::eval_at`] for the transport builder, which already holds
@@ -8,6 +9,7 @@
 
 use std::f64::consts::PI;
 
+use super::diffuse::{self, DiffuseModel};
 use super::fresnel::FresnelAmplitudes;
 use super::ggx;
 use super::polarizer::{analyzer_factor, s_direction, source_field};
@@ -24,6 +26,8 @@ pub struct Brdf {
     pub ks: f64,
     /// Diffuse weight `kd` (MODEL.md default 0).
     pub kd: f64,
+    /// How the diffuse light is polarized (MODEL.md `[wall] diffuse`).
+    pub diffuse: DiffuseModel,
 }
 
 /// The polarization state that the light and the camera impose on one entry.
@@ -67,14 +71,14 @@ impl Brdf {
         if i.cos <= 0.0 || o.cos <= 0.0 {
             return 0.0;
         }
-        self.eval_at(&i, &o, pol)
+        self.eval_at(n, &i, &o, pol)
     }
 
-    /// `f` for two directions already known to be above the wall.
+    /// `f` for two directions already known to be above the wall of normal `n`.
     #[inline]
-    pub fn eval_at(&self, i: &Direction, o: &Direction, pol: Polarization<'_>) -> f64 {
+    pub fn eval_at(&self, n: &Vec3, i: &Direction, o: &Direction, pol: Polarization<'_>) -> f64 {
         let lobe = self.lobe(i, o);
-        self.finish(&lobe, i, o, pol)
+        self.finish(&lobe, n, i, o, pol)
     }
 
     /// The unpolarized part of the specular term for a pair of directions:
@@ -116,6 +120,7 @@ impl Brdf {
     pub fn finish(
         &self,
         lobe: &SpecularLobe,
+        n: &Vec3,
         i: &Direction,
         o: &Direction,
         pol: Polarization<'_>,
@@ -125,10 +130,33 @@ impl Brdf {
             f += lobe.weight * specular_factor(lobe.fresnel, &i.w, &o.w, pol);
         }
         if self.kd != 0.0 {
-            let p_diff = if pol.analyzer.is_some() { 0.5 } else { 1.0 };
-            f += self.kd / PI * p_diff;
+            f += self.kd / PI * self.diffuse_factor(n, i, o, pol);
         }
         f
+    }
+
+    /// `P_diff` (MODEL.md "Diffuse term") for one polarization state.
+    pub fn diffuse_factor(
+        &self,
+        n: &Vec3,
+        i: &Direction,
+        o: &Direction,
+        pol: Polarization<'_>,
+    ) -> f64 {
+        match self.diffuse {
+            DiffuseModel::Lambert => {
+                if pol.analyzer.is_some() {
+                    0.5
+                } else {
+                    1.0
+                }
+            }
+            DiffuseModel::Fresnel => {
+                let e = pol.source.map(|e_src| source_field(e_src, &i.w));
+                diffuse::entry(n, &i.w, i.cos, self.eta, e.as_ref())
+                    * diffuse::exit(n, &o.w, o.cos, self.eta, pol.analyzer)
+            }
+        }
     }
 }
 
@@ -196,8 +224,14 @@ pub fn specular_factor(
 #[cfg(test)]
 mod tests {
     use super::super::fresnel::FresnelHalf;
-    use super::super::polarizer::effective_axis;
+    use super::super::polarizer::PolarizerModel;
     use super::*;
+
+    /// The transmitting reading's effective axis (the tests here are about the
+    /// wall, not the sheet: any axis normal to `w` serves).
+    fn effective_axis(q: &Vec3, w: &Vec3) -> Option<Vec3> {
+        PolarizerModel::Transmitting.effective_axis(q, &-w, w)
+    }
     use proptest::prelude::*;
 
     const N: Vec3 = Vec3::new(0.0, 0.0, 1.0);
@@ -208,6 +242,7 @@ mod tests {
             eta: 1.5,
             ks: 1.0,
             kd: 0.0,
+            diffuse: DiffuseModel::Fresnel,
         }
     }
 
@@ -298,10 +333,11 @@ mod tests {
     }
 
     #[test]
-    fn diffuse_light_is_halved_by_any_polarizer() {
+    fn lambert_diffuse_light_is_halved_by_any_polarizer() {
         let b = Brdf {
             ks: 0.0,
             kd: 0.7,
+            diffuse: DiffuseModel::Lambert,
             ..wall()
         };
         let (i, o) = (dir(0.4, 1.0), dir(0.8, -1.0));
@@ -318,6 +354,40 @@ mod tests {
         );
         assert!((open - 0.7 / PI).abs() < 1e-15);
         assert!((pol - 0.35 / PI).abs() < 1e-15);
+    }
+
+    #[test]
+    fn fresnel_diffuse_light_crosses_both_interfaces() {
+        // Without a polarizer: kd/pi (1 - R(theta_i)) (1 - R(theta_o)), with the
+        // reflectances at the macroscopic angles (not the half angle).
+        let b = Brdf {
+            ks: 0.0,
+            kd: 0.7,
+            ..wall()
+        };
+        let (ti, to) = (0.4, 0.8);
+        let (i, o) = (dir(ti, 1.0), dir(to, -1.0));
+        let r = |t: f64| FresnelHalf::at_angle(t, 1.5).mean();
+        let open = b.eval(&N, &i, &o, Polarization::default());
+        let expect = 0.7 / PI * (1.0 - r(ti)) * (1.0 - r(to));
+        assert!((open - expect).abs() < 1e-15, "{open} vs {expect}");
+        // Through analyzers along the exit plane's s and p directions.
+        let e_so = N.cross(&o).normalize();
+        let e_po = e_so.cross(&o);
+        let f = FresnelHalf::at_angle(to, 1.5);
+        for (t, tr) in [(e_so, 1.0 - f.rs), (e_po, 1.0 - f.rp)] {
+            let got = b.eval(
+                &N,
+                &i,
+                &o,
+                Polarization {
+                    analyzer: Some(&t),
+                    source: None,
+                },
+            );
+            let expect = 0.7 / PI * (1.0 - r(ti)) * tr / 2.0;
+            assert!((got - expect).abs() < 1e-15, "{got} vs {expect}");
+        }
     }
 
     #[test]

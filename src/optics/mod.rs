@@ -1,11 +1,12 @@
-//! Pure optics of the wall: Fresnel reflectance, the GGX microfacet model and
-//! the camera polarizer's action on the specular ray (MODEL.md "One entry of T").
+//! Pure optics of the wall: Fresnel reflectance, the GGX microfacet model, the
+//! diffuse term and the camera polarizer's action on the reflected ray (MODEL.md "One entry of T").
 //!
 //! Everything here is a pure function of unit vectors and material constants,
 //! so it can be unit-tested against limits and symmetries and reused by the
 //! transport builder, the simulator and the benchmarks alike.
 
 pub mod brdf;
+pub mod diffuse;
 pub mod fresnel;
 pub mod ggx;
 pub mod polarizer;
@@ -14,4 +15,6 @@ pub mod polarizer;
 pub type Vec3 = nalgebra::Vector3<f64>;
 
 pub use brdf::{Brdf, Polarization};
+pub use diffuse::DiffuseModel;
 pub use fresnel::{FresnelAmplitudes, FresnelHalf};
+pub use polarizer::PolarizerModel;

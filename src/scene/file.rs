@@ -3,10 +3,10 @@
 use serde::Deserialize;
 
 use super::{
-    analyzer_axis, crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography,
-    Occluder, Plane, Pose, Scene, SceneError, Wall,
+    crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography, Occluder, Plane,
+    Pose, Scene, SceneError, Wall,
 };
-use crate::optics::{Brdf, Vec3};
+use crate::optics::{Brdf, DiffuseModel, PolarizerModel, Vec3};
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -17,6 +17,8 @@ struct RawFile {
     pose: Vec<RawPose>,
     #[serde(default)]
     occluder: Vec<RawOccluder>,
+    /// Read as a table so that an unknown key is an error naming it.
+    polarizer: Option<toml::Table>,
 }
 
 #[derive(Deserialize)]
@@ -35,6 +37,8 @@ struct RawWall {
     ks: f64,
     #[serde(default)]
     kd: f64,
+    /// Read as a value so that a wrong one is an error naming the key.
+    diffuse: Option<toml::Value>,
 }
 
 #[derive(Deserialize)]
@@ -242,7 +246,50 @@ fn camera_frame(
     }))
 }
 
+/// `[wall] diffuse`: `"fresnel"` (default) or `"lambert"`.
+fn diffuse_model(v: Option<toml::Value>) -> Result<DiffuseModel, SceneError> {
+    let Some(v) = v else {
+        return Ok(DiffuseModel::default());
+    };
+    v.as_str()
+        .and_then(DiffuseModel::from_name)
+        .ok_or_else(|| {
+            SceneError::invalid(
+                "wall.diffuse",
+                v.to_string(),
+                "must be \"fresnel\" (both interfaces of the wall, the default) or \"lambert\" (ideal depolarized Lambertian)",
+            )
+        })
+}
+
+/// `[polarizer]`: only `model = "absorbing"` (default) or `"transmitting"`.
+fn polarizer_model(t: Option<toml::Table>) -> Result<PolarizerModel, SceneError> {
+    let Some(t) = t else {
+        return Ok(PolarizerModel::default());
+    };
+    if let Some((key, v)) = t.iter().find(|(k, _)| k.as_str() != "model") {
+        return Err(SceneError::invalid(
+            format!("polarizer.{key}"),
+            v.to_string(),
+            "is not a key of [polarizer]; it takes only model = \"absorbing\" or \"transmitting\"",
+        ));
+    }
+    let Some(v) = t.get("model") else {
+        return Ok(PolarizerModel::default());
+    };
+    v.as_str()
+        .and_then(PolarizerModel::from_name)
+        .ok_or_else(|| {
+            SceneError::invalid(
+                "polarizer.model",
+                v.to_string(),
+                "must be \"absorbing\" (the tilted sheet as measured, the default) or \"transmitting\"",
+            )
+        })
+}
+
 fn validate(raw: RawFile) -> Result<Scene, SceneError> {
+    let polarizer = polarizer_model(raw.polarizer)?;
     let w = raw.wall;
     let wall_plane = plane(
         "wall",
@@ -277,6 +324,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         eta: w.ior,
         ks: w.ks,
         kd: w.kd,
+        diffuse: diffuse_model(w.diffuse)?,
     };
 
     let s = raw.scene;
@@ -351,13 +399,13 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         }
         let mut analyzers = Vec::with_capacity(p.polarizer_deg.len());
         if !p.polarizer_deg.is_empty() {
-            let q0 = crossed_axis(&c0, &s0, &camera).ok_or_else(|| {
-                SceneError::invalid(
+            if crossed_axis(&c0, &s0, &camera).is_none() {
+                return Err(SceneError::invalid(
                     key("polarizer_deg"),
                     &p.polarizer_deg,
                     format!("pose {name:?}: the crossed axis is undefined because the camera, the wall centre and the scene centre are collinear"),
-                )
-            })?;
+                ));
+            }
             for (k, &deg) in p.polarizer_deg.iter().enumerate() {
                 if !(-360.0..=360.0).contains(&deg) {
                     return Err(SceneError::invalid(
@@ -377,10 +425,10 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
                         format!("{deg} and {earlier} degrees are the same polarizer setting (angles repeat every 180 degrees); list each setting once"),
                     ));
                 }
-                analyzers.push(Analyzer {
-                    angle_deg: deg,
-                    axis: analyzer_axis(&q0, &c0, &camera, deg.to_radians()),
-                });
+                // The crossed axis exists (checked above), so every angle has a sheet.
+                if let Some(a) = Analyzer::at(&c0, &s0, &camera, deg) {
+                    analyzers.push(a);
+                }
             }
         }
         let homography = match p.homography {
@@ -464,6 +512,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         },
         poses,
         occluders,
+        polarizer,
     })
 }
 
@@ -508,6 +557,8 @@ polarizer_deg = [0.0, 90.0]
         assert_eq!(s.wall.plane.v, Vec3::y());
         assert_eq!(s.wall.brdf.ks, 1.0);
         assert_eq!(s.wall.brdf.kd, 0.0);
+        assert_eq!(s.wall.brdf.diffuse, DiffuseModel::Fresnel);
+        assert_eq!(s.polarizer, PolarizerModel::Absorbing);
         assert_eq!(s.wall.plane.supersample, 1);
         assert_eq!(s.scene.emitter, Emitter::Lambertian);
         assert!(s.occluders.is_empty());
@@ -612,6 +663,38 @@ polarizer_deg = [0.0, 90.0]
     }
 
     #[test]
+    fn revision_2_keys_are_read_and_wrong_ones_named() {
+        let s = parse(&format!(
+            "{}\n[polarizer]\nmodel = \"transmitting\"\n",
+            BASE.replace("ior = 1.5", "ior = 1.5\ndiffuse = \"lambert\"")
+        ))
+        .unwrap();
+        assert_eq!(s.polarizer, PolarizerModel::Transmitting);
+        assert_eq!(s.wall.brdf.diffuse, DiffuseModel::Lambert);
+        let cases = [
+            ("[polarizer]\nmodel = \"absorbant\"", "polarizer.model"),
+            ("[polarizer]\nmodel = 1", "polarizer.model"),
+            ("[polarizer]\nmodle = \"absorbing\"", "polarizer.modle"),
+            (
+                "[polarizer]\nmodel = \"absorbing\"\nextinction = 1e4",
+                "polarizer.extinction",
+            ),
+        ];
+        for (extra, key) in cases {
+            let e = parse(&format!("{BASE}\n{extra}\n")).unwrap_err();
+            assert_eq!(e.key(), Some(key), "{extra}: {e}");
+        }
+        for bad in ["\"lambertian\"", "0.5", "\"Fresnel\""] {
+            let e = with("ior = 1.5", &format!("ior = 1.5\ndiffuse = {bad}")).unwrap_err();
+            assert_eq!(e.key(), Some("wall.diffuse"), "{bad}: {e}");
+            assert!(e.to_string().contains("lambert"), "{e}");
+        }
+        // An empty [polarizer] table is the default.
+        let s = parse(&format!("{BASE}\n[polarizer]\n")).unwrap();
+        assert_eq!(s.polarizer, PolarizerModel::Absorbing);
+    }
+
+    #[test]
     fn missing_and_unknown_keys_are_parse_errors() {
         let e = with("ior = 1.5\n", "").unwrap_err();
         assert!(e.to_string().contains("ior"), "{e}");
@@ -654,10 +737,13 @@ polarizer_deg = [0.0, 90.0]
 
         #[test]
         fn arbitrary_values_in_a_valid_frame_never_panic(
-            key in proptest::sample::select(vec!["roughness", "ior", "ks", "kd", "supersample", "grid", "size", "normal", "u_axis", "camera", "polarizer_deg", "homography", "region", "binning"]),
+            key in proptest::sample::select(vec!["roughness", "ior", "ks", "kd", "supersample", "grid", "size", "normal", "u_axis", "camera", "polarizer_deg", "homography", "region", "binning", "diffuse", "model"]),
             value in proptest::sample::select(vec!["0", "-1", "1e308", "nan", "inf", "[]", "[0,0]", "[1e-300, 0, 0]", "\"x\"", "[[1,2,3],[4,5,6],[7,8,9]]", "[0, 0, 0]", "{ a = 1 }", "9999999999999"]),
         ) {
-            let base = format!("{BASE}region = [0, 0, 64, 64]\nbinning = [1, 1]\n");
+            let base = format!(
+                "{}region = [0, 0, 64, 64]\nbinning = [1, 1]\n[polarizer]\nmodel = \"absorbing\"\n",
+                BASE.replace("ior = 1.5", "ior = 1.5\ndiffuse = \"fresnel\"")
+            );
             let text = base
                 .lines()
                 .map(|l| if l.starts_with(&format!("{key} =")) { format!("{key} = {value}") } else { l.to_string() })

@@ -19,7 +19,7 @@ pub use homography::Homography;
 pub use occluder::Occluder;
 pub use plane::{Grid, Plane};
 
-use crate::optics::{Brdf, Vec3};
+use crate::optics::{Brdf, PolarizerModel, Vec3};
 
 /// How a hidden-scene element radiates towards the wall (MODEL.md `g_k`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -51,13 +51,44 @@ pub struct HiddenScene {
     pub polarization: Option<Vec3>,
 }
 
-/// One polarizer setting of a pose: the angle the user wrote and the axis it means.
+/// One polarizer setting of a pose: the angle the user wrote and the sheet it means.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Analyzer {
     /// Rotation from the crossed setting, degrees (as in the file).
     pub angle_deg: f64,
     /// Transmission axis `q(psi)` in world coordinates (unit, in the polarizer plane).
     pub axis: Vec3,
+    /// The sheet's normal `n_p = normalize(c0 - o)` (MODEL.md "The crossed polarizer of a pose").
+    pub normal: Vec3,
+}
+
+impl Analyzer {
+    /// The sheet of a pose with its camera at `camera`, set `angle_deg` from
+    /// crossed (MODEL.md "The crossed polarizer of a pose"); `None` when the
+    /// crossed axis is undefined (`w_i0` parallel to `w_o0`).
+    pub fn at(
+        wall_center: &Vec3,
+        scene_center: &Vec3,
+        camera: &Vec3,
+        angle_deg: f64,
+    ) -> Option<Self> {
+        let q0 = crossed_axis(wall_center, scene_center, camera)?;
+        Some(Self {
+            angle_deg,
+            axis: analyzer_axis(&q0, wall_center, camera, angle_deg.to_radians()),
+            normal: (wall_center - camera).normalize(),
+        })
+    }
+
+    /// Effective axis `t` for the ray that reaches the camera along `w_o`
+    /// under `model` (MODEL.md "One entry of T"); zero when the sheet is seen
+    /// edge-on, so that such a ray passes no light.
+    #[inline]
+    pub fn effective_axis(&self, model: PolarizerModel, w_o: &Vec3) -> Vec3 {
+        model
+            .effective_axis(&self.axis, &self.normal, w_o)
+            .unwrap_or_else(Vec3::zeros)
+    }
 }
 
 /// A camera pose: where the camera is and which polarizer angles it captures.
@@ -104,6 +135,8 @@ pub struct Scene {
     pub poses: Vec<Pose>,
     /// Occluders between scene and wall.
     pub occluders: Vec<Occluder>,
+    /// How every pose's polarizer sheet acts on oblique rays (MODEL.md `[polarizer] model`).
+    pub polarizer: PolarizerModel,
 }
 
 impl Scene {
@@ -144,6 +177,15 @@ impl Scene {
     /// The pose with this name.
     pub fn pose(&self, name: &str) -> Option<&Pose> {
         self.poses.iter().find(|p| p.name == name)
+    }
+
+    /// The same scene read under another polarizer model: how a fit tells
+    /// which reading of the sheet its captures support.
+    pub fn with_polarizer_model(&self, model: PolarizerModel) -> Scene {
+        Scene {
+            polarizer: model,
+            ..self.clone()
+        }
     }
 
     /// The same scene with every polarizer removed: the reference for exposure

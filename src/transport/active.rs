@@ -27,7 +27,6 @@ use rayon::prelude::*;
 
 use super::build::blocks_of;
 use super::{Transport, TransportError};
-use crate::optics::polarizer::effective_axis;
 use crate::optics::{Polarization, Vec3};
 use crate::scene::{Grid, Scene};
 
@@ -122,11 +121,12 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
         .poses
         .iter()
         .flat_map(|pose| {
-            let axes: Vec<Option<Vec3>> = if pose.analyzers.is_empty() {
+            let axes: Vec<Option<crate::scene::Analyzer>> = if pose.analyzers.is_empty() {
                 vec![None]
             } else {
-                pose.analyzers.iter().map(|a| Some(a.axis)).collect()
+                pose.analyzers.iter().copied().map(Some).collect()
             };
+            let model = scene.polarizer;
             let cam = pose.camera;
             let patches = &patches;
             axes.into_iter().map(move |q| BlockView {
@@ -135,7 +135,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
                     .iter()
                     .map(|c| {
                         let w_co = (cam - c).normalize();
-                        let t = q.map(|q| effective_axis(&q, &w_co).unwrap_or_else(Vec3::zeros));
+                        let t = q.map(|a| a.effective_axis(model, &w_co));
                         (w_co, t)
                     })
                     .collect(),

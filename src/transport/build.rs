@@ -7,7 +7,10 @@
 //! wall samples that the compiler vectorizes: the incident geometry, then per
 //! pose the specular lobe and per angle the polarizer factor. Only what the
 //! scene turns on runs: occlusion tests with occluders, the Jones path with a
-//! polarized source, the diffuse term with `kd > 0`.
+//! polarized source, the diffuse term with `kd > 0`. The `fresnel` diffuse
+//! term (MODEL.md revision 2) factors into `T_in` of the incident direction
+//! (per scene sample) and an exit factor of the pose and angle (per wall
+//! sample, computed once), so it costs one Fresnel evaluation per entry.
 
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -16,8 +19,8 @@ use rayon::prelude::*;
 
 use super::{Block, Transport, TransportError};
 use crate::optics::brdf::Direction;
-use crate::optics::polarizer::{analyzer_factor, effective_axis};
-use crate::optics::{ggx, Polarization, Vec3};
+use crate::optics::polarizer::analyzer_factor;
+use crate::optics::{diffuse, ggx, DiffuseModel, Polarization, Vec3};
 use crate::scene::{Emitter, Scene};
 
 /// Three coordinate arrays, one entry per wall sample.
@@ -44,10 +47,12 @@ impl Soa {
     }
 }
 
-/// One polarizer angle of a pose: `t` and `b = w_o x t` per wall sample.
+/// One polarizer angle of a pose: `t`, `b = w_o x t` and the diffuse exit
+/// factor per wall sample (empty without a diffuse term).
 struct AnalyzerView {
     t: Soa,
     b: Soa,
+    diffuse_out: Vec<f64>,
 }
 
 /// What one pose contributes, precomputed per wall sample.
@@ -56,6 +61,8 @@ struct PoseView {
     w_o: Soa,
     cos_o: Vec<f64>,
     g1_o: Vec<f64>,
+    /// The diffuse exit factor without a polarizer (empty without a diffuse term).
+    diffuse_open: Vec<f64>,
     /// Analyzers in block order; empty when the pose has no polarizer.
     analyzers: Vec<AnalyzerView>,
     /// Index of this pose's first block.
@@ -138,6 +145,28 @@ pub(super) fn build_rows(
     let n = wall.plane.normal;
     let wall_soa = Soa::from_vecs(wall_pts.iter().copied());
     let n_samples = wall_pts.len();
+    let diffuse_on = brdf.kd != 0.0;
+    // The diffuse exit factor of one block at every wall sample (MODEL.md P_diff
+    // without its T_in): only when the scene has a diffuse term.
+    let exit = |dirs: &[Vec3], cos_o: &[f64], t: Option<&[Vec3]>| -> Vec<f64> {
+        if !diffuse_on {
+            return Vec::new();
+        }
+        (0..dirs.len())
+            .map(|j| match brdf.diffuse {
+                DiffuseModel::Lambert => {
+                    if t.is_some() {
+                        0.5
+                    } else {
+                        1.0
+                    }
+                }
+                DiffuseModel::Fresnel => {
+                    diffuse::exit(&n, &dirs[j], cos_o[j], brdf.eta, t.map(|t| &t[j]))
+                }
+            })
+            .collect()
+    };
 
     let mut n_blocks = 0;
     let mut views = Vec::with_capacity(scene.poses.len());
@@ -159,15 +188,17 @@ pub(super) fn build_rows(
             // should it, the ray passes no light (t = 0).
             let t: Vec<Vec3> = dirs
                 .iter()
-                .map(|w| effective_axis(&a.axis, w).unwrap_or_else(Vec3::zeros))
+                .map(|w| a.effective_axis(scene.polarizer, w))
                 .collect();
             let b = Soa::from_vecs(dirs.iter().zip(&t).map(|(w, t)| w.cross(t)));
             analyzers.push(AnalyzerView {
+                diffuse_out: exit(&dirs, &cos_o, Some(&t)),
                 t: Soa::from_vecs(t.into_iter()),
                 b,
             });
         }
         views.push(PoseView {
+            diffuse_open: exit(&dirs, &cos_o, None),
             w_o: Soa::from_vecs(dirs.into_iter()),
             cos_o,
             g1_o,
@@ -198,6 +229,7 @@ pub(super) fn build_rows(
         weight,
         brdf,
         diffuse: brdf.kd / PI,
+        fresnel_in: diffuse_on && brdf.diffuse == DiffuseModel::Fresnel,
         ks_on: brdf.ks != 0.0,
     };
     data.par_chunks_mut(rows.max(1)).enumerate().for_each_init(
@@ -226,7 +258,10 @@ struct Ctx<'a> {
     lambertian: bool,
     weight: f64,
     brdf: crate::optics::Brdf,
+    /// `kd / pi`; 0 without a diffuse term.
     diffuse: f64,
+    /// Whether `T_in` varies with the incident direction (the `fresnel` diffuse term).
+    fresnel_in: bool,
     ks_on: bool,
 }
 
@@ -244,6 +279,9 @@ fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
             c.brdf.alpha,
             c.weight,
         );
+        if c.fresnel_in {
+            sc.transmittance_in(c.brdf.eta);
+        }
         if !c.scene.occluders.is_empty() {
             for (ws, p) in c.wall_pts.iter().enumerate() {
                 if sc.base[ws] != 0.0 && c.scene.occluders.iter().any(|o| o.blocks(s, p)) {
@@ -253,12 +291,14 @@ fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
         }
         for view in c.views {
             if let Some(e_src) = c.scene.scene.polarization.as_ref() {
-                sc.polarized_source(view, e_src, &c.brdf, col, n_wall, mw);
+                sc.polarized_source(view, e_src, &c.brdf, &c.n, col, n_wall, mw);
                 continue;
             }
             sc.pose(view, &c.brdf, c.ks_on);
             for blk in 0..view.analyzers.len().max(1) {
-                sc.block(view.analyzers.get(blk), c.ks_on, c.diffuse);
+                let a = view.analyzers.get(blk);
+                let out = a.map_or(&view.diffuse_open, |a| &a.diffuse_out);
+                sc.block(a, c.ks_on, c.diffuse, out);
                 let out = &mut col
                     [(view.first_block + blk) * n_wall..(view.first_block + blk + 1) * n_wall];
                 if mw == 1 {
@@ -284,6 +324,8 @@ struct Scratch {
     g1_i: Vec<f64>,
     /// `a_k g (n.w_i) / |s - c|^2` over the sample count; 0 where the entry is 0.
     base: Vec<f64>,
+    /// The diffuse term's `T_in` (MODEL.md): 1 unless the `fresnel` term fills it.
+    t_in: Vec<f64>,
     /// Per pose: `w_i.w_o`-derived specular weight, Fresnel `Rs`, `Rp`, `|w_i x w_o|^2`; 0 weight where `n.w_o <= 0`.
     spec: Vec<f64>,
     rs: Vec<f64>,
@@ -307,6 +349,7 @@ impl Scratch {
             cos_i: z(),
             g1_i: z(),
             base: z(),
+            t_in: vec![1.0; n],
             spec: z(),
             rs: z(),
             rp: z(),
@@ -367,6 +410,17 @@ impl Scratch {
         }
     }
 
+    /// `T_in = 1 - (Rs(θi) + Rp(θi))/2` at every wall sample (MODEL.md "Diffuse term").
+    #[inline(always)]
+    fn transmittance_in(&mut self, eta: f64) {
+        let len = self.base.len();
+        let (ci, t_in) = (&self.cos_i[..len], &mut self.t_in[..len]);
+        for j in 0..len {
+            let (ts, tp) = diffuse::transmittances(ci[j].max(0.0), eta);
+            t_in[j] = 0.5 * (ts + tp);
+        }
+    }
+
     /// The unpolarized specular lobe of one pose.
     #[inline(always)]
     fn pose(&mut self, v: &PoseView, brdf: &crate::optics::Brdf, ks_on: bool) {
@@ -416,15 +470,15 @@ impl Scratch {
         }
     }
 
-    /// `value = base * f` for one block of the current pose (analyzer or none).
+    /// `value = base * f` for one block of the current pose (analyzer or
+    /// none); `out` is the block's diffuse exit factor, empty without one.
     #[inline(always)]
-    fn block(&mut self, a: Option<&AnalyzerView>, ks_on: bool, diffuse: f64) {
+    fn block(&mut self, a: Option<&AnalyzerView>, ks_on: bool, diffuse: f64, out: &[f64]) {
         let len = self.base.len();
-        let p_diff = if a.is_some() { 0.5 } else { 1.0 };
-        let d = diffuse * p_diff;
         let Scratch {
             w_i,
             base,
+            t_in,
             spec,
             rs,
             rp,
@@ -455,7 +509,7 @@ impl Scratch {
                     } else {
                         0.0
                     };
-                    value[j] = base[j] * open[j] * (sp + d);
+                    value[j] = base[j] * open[j] * sp;
                 }
             }
             None => {
@@ -465,18 +519,27 @@ impl Scratch {
                     } else {
                         0.0
                     };
-                    value[j] = base[j] * open[j] * (sp + d);
+                    value[j] = base[j] * open[j] * sp;
                 }
+            }
+        }
+        if !out.is_empty() {
+            // kd/pi T_in(θi) exit(θo, t): MODEL.md's diffuse term.
+            let (t_in, out) = (&t_in[..len], &out[..len]);
+            for j in 0..len {
+                value[j] += base[j] * open[j] * diffuse * t_in[j] * out[j];
             }
         }
     }
 
     /// A linearly polarized scene (MODEL.md Eq. 11): the Jones path, per element.
+    #[allow(clippy::too_many_arguments)]
     fn polarized_source(
         &mut self,
         v: &PoseView,
         e_src: &Vec3,
         brdf: &crate::optics::Brdf,
+        n: &Vec3,
         col: &mut [f64],
         n_wall: usize,
         mw: usize,
@@ -503,7 +566,7 @@ impl Scratch {
                     source: Some(e_src),
                 };
                 col[(v.first_block + blk) * n_wall + j / mw] +=
-                    self.base[j] * brdf.finish(&lobe, &i, &o, pol);
+                    self.base[j] * brdf.finish(&lobe, n, &i, &o, pol);
             }
         }
     }
