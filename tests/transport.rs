@@ -362,7 +362,9 @@ fn entries_computed_independently_in_python() {
     }
     // The revision-2 keys (kd 0.1 with either diffuse term; the transmitting
     // reading, whose crossed entries are revision 1's).
-    let keyed: [(f64, &str, &str, &str, [usize; 4], f64); 12] = [
+    /// kd, diffuse, polarizer model, scene, wall and scene element, entry.
+    type Keyed<'a> = (f64, &'a str, &'a str, &'a str, [usize; 4], f64);
+    let keyed: [Keyed; 12] = [
         (
             0.1,
             "fresnel",

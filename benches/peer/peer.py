@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A straightforward vectorized NumPy peer of polnlos: the same transport
-model (MODEL.md "One entry of T", no occluder, no supersampling, unpolarized
-scene) and the same ADMM-TV (lambda = rho = 1e-2 mean diag(T^T T), 200
+model (MODEL.md revision 2 "One entry of T": either polarizer model, either
+diffuse term; no occluder, no supersampling, unpolarized scene) and the same ADMM-TV (lambda = rho = 1e-2 mean diag(T^T T), 200
 iterations from zero, isotropic TV with forward differences and Neumann
 boundaries, box [0, 1]).
 
@@ -57,6 +57,8 @@ def build(cfg, wall_grid, scene_grid):
     alpha, eta = w["roughness"], w["ior"]
     ks, kd = w.get("ks", 1.0), w.get("kd", 0.0)
     lambert = s.get("emitter", "lambertian") == "lambertian"
+    absorbing = cfg.get("polarizer", {}).get("model", "absorbing") == "absorbing"
+    fresnel_diffuse = w.get("diffuse", "fresnel") == "fresnel"
     c0, s0 = np.asarray(w["center"], float), np.asarray(s["center"], float)
 
     # Per pose and angle: camera and polarizer axis (None: no polarizer).
@@ -65,13 +67,13 @@ def build(cfg, wall_grid, scene_grid):
         o = np.asarray(pose["camera"], float)
         angles = pose.get("polarizer_deg", [])
         if not angles:
-            blocks.append((o, None))
+            blocks.append((o, None, None))
             continue
         es0 = unit(np.cross(unit(s0 - c0), unit(o - c0)))
         n_p = unit(c0 - o)
         q0 = unit(np.cross(es0, n_p))
         for a in angles:
-            blocks.append((o, rotate(q0, n_p, np.radians(a))))
+            blocks.append((o, rotate(q0, n_p, np.radians(a)), n_p))
 
     J, K = len(c), len(sp)
     T = np.zeros((len(blocks) * J, K))
@@ -82,7 +84,8 @@ def build(cfg, wall_grid, scene_grid):
     g = np.maximum(0.0, -(wi @ ns)) if lambert else np.ones_like(cos_i)
     base = np.where(cos_i > 0, area * g * cos_i / r2, 0.0)
     g1i = smith_g1(np.maximum(cos_i, 1e-300), alpha)
-    for b, (o, q) in enumerate(blocks):
+    t_in = 1 - fresnel_mean(np.clip(cos_i, 0.0, 1.0), eta)
+    for b, (o, q, n_p) in enumerate(blocks):
         wo = unit_rows(o - c)  # (J, 3)
         cos_o = wo @ n
         g1o = smith_g1(np.maximum(cos_o, 1e-300), alpha)
@@ -96,10 +99,15 @@ def build(cfg, wall_grid, scene_grid):
         cpt = np.sqrt(1 - sphi2 / eta**2)
         rs = ((cphi - eta * cpt) / (cphi + eta * cpt)) ** 2
         rp = ((eta * cphi - cpt) / (eta * cphi + cpt)) ** 2
+        rso, rpo = fresnel(np.clip(cos_o, 0.0, 1.0), eta)
         if q is None:
-            P, Pd = (rs + rp) / 2, 1.0
+            P = (rs + rp) / 2
+            Pd = t_in * (1 - (rso + rpo) / 2)[:, None] if fresnel_diffuse else 1.0
         else:
-            t = q - (wo @ q)[:, None] * wo
+            if absorbing:
+                t = np.cross(wo, np.cross(n_p, q))
+            else:
+                t = q - (wo @ q)[:, None] * wo
             t /= np.linalg.norm(t, axis=-1, keepdims=True)
             x = np.cross(wi, wo[:, None, :])
             xn = np.linalg.norm(x, axis=-1)
@@ -108,12 +116,30 @@ def build(cfg, wall_grid, scene_grid):
             te_s = np.einsum("jkx,jx->jk", es, t)
             te_p = np.einsum("jkx,jx->jk", ep, t)
             P = np.where(xn < 1e-12, rs / 2, (rs * te_s**2 + rp * te_p**2) / 2)
-            Pd = 0.5
+            if fresnel_diffuse:
+                eso = unit_rows(np.cross(n, wo))
+                epo = np.cross(eso, wo)
+                out = ((1 - rso) * np.einsum("jx,jx->j", t, eso) ** 2
+                       + (1 - rpo) * np.einsum("jx,jx->j", t, epo) ** 2) / 2
+                Pd = t_in * out[:, None]
+            else:
+                Pd = 0.5
         ok = (cos_i > 0) & (cos_o[:, None] > 0)
         spec = ks * D * g1i * g1o[:, None] / (4 * np.maximum(cos_i, 1e-300) * cos_o[:, None]) * P
         f = spec + kd / np.pi * Pd
         T[b * J:(b + 1) * J] = np.where(ok, base * f, 0.0)
     return T
+
+
+def fresnel(c, eta):
+    """(Rs, Rp) at cos(angle) c, cosine form (equal to MODEL.md Eqs. 6-8)."""
+    ct = np.sqrt(1 - (1 - c * c) / eta**2)
+    return ((c - eta * ct) / (c + eta * ct)) ** 2, ((eta * c - ct) / (eta * c + ct)) ** 2
+
+
+def fresnel_mean(c, eta):
+    rs, rp = fresnel(c, eta)
+    return (rs + rp) / 2
 
 
 def unit_rows(v):

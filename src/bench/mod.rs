@@ -9,6 +9,7 @@ pub mod active;
 pub mod charts;
 pub mod lambda;
 pub mod peer;
+pub mod rendered;
 pub mod report;
 pub mod sampling;
 pub mod speed;
@@ -58,6 +59,14 @@ pub enum BenchError {
     /// The NumPy peer could not be run or read back.
     #[error("NumPy peer: {0}")]
     Peer(String),
+    /// A rendered case could not be read.
+    #[error("rendered case {case}: {reason}")]
+    Rendered {
+        /// Its folder.
+        case: String,
+        /// What is wrong.
+        reason: String,
+    },
 }
 
 /// One row of the conditioning table.

@@ -57,15 +57,8 @@ impl NoiseLevel {
     /// counts as noise here, so a mismatched model gets more smoothing, not less.
     pub fn from_residual(t: &Transport, i: &[f64]) -> Option<Self> {
         let (m, n) = (t.rows(), t.cols());
-        if i.len() != m || m < n + MIN_RESIDUAL_DOF || i.iter().any(|v| !v.is_finite()) {
-            return None;
-        }
-        let q = t.as_mat().qr().compute_thin_Q();
-        let b = faer::Mat::<f64>::from_fn(m, 1, |r, _| i[r]);
-        let c = q.transpose() * &b;
-        let fit = &q * &c;
-        let rss: f64 = (0..m).map(|r| (i[r] - fit[(r, 0)]).powi(2)).sum();
-        let var = rss / (m - n) as f64;
+        let r = least_squares_residual(t, i)?;
+        let var = r.iter().map(|x| x * x).sum::<f64>() / (m - n) as f64;
         var.is_finite().then(|| Self {
             variance: vec![var; m],
             source: NoiseSource::Residual,
@@ -104,6 +97,22 @@ impl NoiseLevel {
     pub fn mean_variance(&self) -> f64 {
         self.total() / self.variance.len().max(1) as f64
     }
+}
+
+/// The residual `i - Q Q^T i` of the unconstrained least-squares fit of `i`
+/// by `T` (Householder QR, thin `Q`; see [`NoiseLevel::from_residual`]):
+/// what no scene can explain. `None` when `M - N < MIN_RESIDUAL_DOF` or `i`
+/// does not fit `T`.
+pub fn least_squares_residual(t: &Transport, i: &[f64]) -> Option<Vec<f64>> {
+    let (m, n) = (t.rows(), t.cols());
+    if i.len() != m || m < n + MIN_RESIDUAL_DOF || i.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let q = t.as_mat().qr().compute_thin_Q();
+    let b = faer::Mat::<f64>::from_fn(m, 1, |r, _| i[r]);
+    let c = q.transpose() * &b;
+    let fit = &q * &c;
+    Some((0..m).map(|r| i[r] - fit[(r, 0)]).collect())
 }
 
 /// How the automatic lambda was found (the `lambda_choice` of a report).

@@ -6,6 +6,7 @@
 //! slice; they check both before any arithmetic, so a wrong length or a NaN
 //! becomes a [`SolveError`], never a panic or a NaN image.
 
+pub mod adequacy;
 pub mod admm;
 pub mod baseline;
 pub mod conditioning;

@@ -10,8 +10,12 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::adequacy::Adequacy;
 use super::conditioning::Conditioning;
-use super::lambda::{admm_tv_resolved, LambdaChoice, NoiseLevel, RESOLVED_TOLERANCE};
+use super::lambda::{
+    admm_tv_resolved, least_squares_residual, LambdaChoice, NoiseLevel, NoiseSource,
+    RESOLVED_TOLERANCE,
+};
 use super::report::{mean_snr, snr_warnings, Report};
 use super::{
     admm_tv, fista_tv, least_squares, tikhonov, AdmmSettings, FistaSettings, SolveError, Stop,
@@ -228,6 +232,10 @@ pub fn reconstruct(
         warnings.extend(snr_warnings(mean_snr(i, &n.variance)));
         warnings.extend(grid_warning(t, cond, n));
     }
+    let model_check = noise
+        .as_ref()
+        .and_then(|n| model_check(t, i, n, lambda_choice.as_ref()));
+    warnings.extend(model_check.and_then(|a| a.warning("this measurement")));
     let image = rec.image.clone();
     let mut report = Report::new(
         ctx.scene,
@@ -239,7 +247,30 @@ pub fn reconstruct(
         lambda_choice,
     );
     report.warnings.splice(0..0, warnings);
+    report.model_check = model_check;
     Ok(Solved { image, report })
+}
+
+/// The model check of a reconstruction (see [`super::adequacy`]): the best
+/// attainable misfit against an independent noise level. With an automatic
+/// λ the scan already found that misfit (its floor, box constraint
+/// included, with the resolved components as the fitted numbers); otherwise
+/// the unconstrained least-squares residual. `None` when the noise was
+/// estimated from that same residual, or the measurement has too few rows.
+fn model_check(
+    t: &Transport,
+    i: &[f64],
+    noise: &NoiseLevel,
+    choice: Option<&LambdaChoice>,
+) -> Option<Adequacy> {
+    if noise.source == NoiseSource::Residual {
+        return None;
+    }
+    if let Some((floor, p)) = choice.and_then(|c| Some((c.floor?, c.resolved?))) {
+        return Some(Adequacy::of_misfit(floor, noise.total(), t.rows(), p));
+    }
+    let r = least_squares_residual(t, i)?;
+    Some(Adequacy::of(&r, Some(&noise.variance), t.cols()))
 }
 
 /// The warning when the scene grid is finer than the noise supports: the

@@ -62,6 +62,10 @@ pub struct Report {
     /// How lambda was chosen, when it was chosen automatically.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lambda_choice: Option<super::lambda::LambdaChoice>,
+    /// Whether `T` explains the measurement: the best fit's misfit against
+    /// the noise level; `null` when no independent noise level is known (a
+    /// noise estimated from the same residual cannot tell model from noise).
+    pub model_check: Option<super::adequacy::Adequacy>,
     /// Warnings from every stage (solver, conditioning).
     pub warnings: Vec<String>,
 }
@@ -93,6 +97,7 @@ impl Report {
             metrics: truth.map(|tr| super::metrics::compare(t.scene_grid, tr, &rec.image)),
             solver: rec.stats,
             lambda_choice,
+            model_check: None,
             warnings,
         }
     }
