@@ -1,5 +1,7 @@
-# MODEL.md revision 2, literal, python math only: a few entries of T.
-import math, tomllib, sys
+# MODEL.md revision 2 read literally, Python's math module only: the entries
+# of T that tests/transport.rs holds polnlos to (entries_computed_independently_in_python).
+# Usage: python3 validation/model_entries.py   (from the repository's root)
+import math, os, tomllib, sys
 def sub(a,b): return [a[i]-b[i] for i in range(3)]
 def add(a,b): return [a[i]+b[i] for i in range(3)]
 def mul(a,s): return [x*s for x in a]
@@ -19,8 +21,8 @@ def point(p, iu, iv):
     c,n,u,v,size,grid=p
     fu=(iu+0.5)/grid[0]-0.5; fv=(iv+0.5)/grid[1]-0.5
     return add(add(c, mul(u, fu*size[0])), mul(v, fv*size[1]))
-def entry(path, block, ju, jv, ku, kv):
-    sc=tomllib.load(open(path,'rb'))
+def entry(path, block, ju, jv, ku, kv, text=None):
+    sc=tomllib.loads(text) if text is not None else tomllib.load(open(path,'rb'))
     W=plane(sc['wall']); S=plane(sc['scene'])
     w=sc['wall']; alpha=w['roughness']; eta=w['ior']; ks=w.get('ks',1.0); kd=w.get('kd',0.0)
     diffuse=w.get('diffuse','fresnel'); model=sc.get('polarizer',{}).get('model','absorbing')
@@ -71,6 +73,13 @@ def entry(path, block, ju, jv, ku, kv):
     a_k=S[4][0]/S[5][0]*S[4][1]/S[5][1]
     return a_k*g*ci/dot(sub(s,c),sub(s,c))*f
 if __name__=='__main__':
-    base='/work/main/config/scenes/'
+    base=os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'config', 'scenes') + os.sep
     for name,blk,(ju,jv,ku,kv) in [(n,b,x) for n,b in [('brewster-nopol-3x3',0),('brewster-crossed-3x3',0),('brewster-rotating-3x3',1)] for x in [(16,16,1,1),(3,20,0,2),(31,0,2,1)]]:
         print(name, blk, (ju,jv,ku,kv), repr(entry(base+name+'.toml', blk, ju,jv,ku,kv)))
+    # The revision-2 keys on the 3x3 bench (kd 0.1 with either diffuse term; transmitting).
+    def keyed(name, kd, diffuse, model):
+        text = open(base+name+'.toml').read().replace('kd = 0.0', f'kd = {kd}\ndiffuse = "{diffuse}"')
+        return text + f'\n[polarizer]\nmodel = "{model}"\n'
+    for kd, diffuse, model, name in [(0.1,'fresnel','absorbing','brewster-crossed-3x3'),(0.1,'lambert','absorbing','brewster-crossed-3x3'),(0.1,'fresnel','absorbing','brewster-nopol-3x3'),(0.0,'fresnel','transmitting','brewster-crossed-3x3')]:
+        for x in [(16,16,1,1),(3,20,0,2),(31,0,2,1)]:
+            print(name, kd, diffuse, model, x, repr(entry(None, 0, *x, text=keyed(name, kd, diffuse, model))))

@@ -1,0 +1,362 @@
+#!/usr/bin/env python3
+"""A literal numpy reading of MODEL.md (revision 2): the transport matrix T.
+
+Independent of the Rust crate and of render.py (its own scene-file parsing and
+geometry), so that comparing `T @ truth` with a Mitsuba render tests the
+contract, not shared code.
+
+Covers: both planes with supersampling, lambertian / isotropic emitters,
+occluders (parallelogram and ball), the specular GGX term, the diffuse term
+(`fresnel` default, `lambert`), no polarizer or an ideal sheet per pose angle
+(`absorbing` default, `transmitting`). Not covered: linearly polarized scenes.
+
+Usage as a check against a rendered case:
+
+    python3 validation/mitsuba/model.py tests/data/rendered/crossed \
+        [--scene-supersample 4] [--polarizer-model transmitting] [--diffuse lambert]
+
+prints the least-squares gain of the render against T l, the residual
+RMS(i - T l)/RMS(i), the render's noise RMS(sigma)/RMS(i), per block and in
+total.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+
+# ---------------------------------------------------------------- scene file
+def _unit(x, key):
+    x = np.asarray(x, dtype=float)
+    n = np.linalg.norm(x)
+    if not n > 0:
+        raise ValueError(f"{key}: zero vector")
+    return x / n
+
+
+def _plane(d, key):
+    n = _unit(d["normal"], f"{key}.normal")
+    u = np.asarray(d["u_axis"], dtype=float)
+    u = u - np.dot(u, n) * n
+    u = _unit(u, f"{key}.u_axis")
+    v = np.cross(n, u)
+    return {
+        "c": np.asarray(d["center"], dtype=float),
+        "n": n,
+        "u": u,
+        "v": v,
+        "size": (float(d["size"][0]), float(d["size"][1])),
+        "grid": (int(d["grid"][0]), int(d["grid"][1])),
+        "m": int(d.get("supersample", 1)),
+    }
+
+
+def load(path, scene_supersample=None, wall_supersample=None):
+    with open(path, "rb") as f:
+        raw = tomllib.load(f)
+    w, s = raw["wall"], raw["scene"]
+    sc = {
+        "wall": _plane(w, "wall"),
+        "scene": _plane(s, "scene"),
+        "alpha": float(w["roughness"]),
+        "eta": float(w["ior"]),
+        "ks": float(w.get("ks", 1.0)),
+        "kd": float(w.get("kd", 0.0)),
+        "diffuse": w.get("diffuse", "fresnel"),
+        "polmodel": raw.get("polarizer", {}).get("model", "absorbing"),
+        "emitter": s.get("emitter", "lambertian"),
+        "poses": [],
+        "occluders": [],
+    }
+    if "polarization" in s:
+        raise NotImplementedError("polarized scenes are not covered by this check")
+    if scene_supersample:
+        sc["scene"]["m"] = scene_supersample
+    if wall_supersample:
+        sc["wall"]["m"] = wall_supersample
+    for p in raw["pose"]:
+        sc["poses"].append({
+            "name": p.get("name", ""),
+            "o": np.asarray(p["camera"], dtype=float),
+            "deg": [float(a) for a in p.get("polarizer_deg", [])],
+        })
+    for oc in raw.get("occluder", []):
+        if "rect" in oc:
+            r = oc["rect"]
+            sc["occluders"].append(("rect", np.asarray(r["center"], float),
+                                    np.asarray(r["half_u"], float), np.asarray(r["half_v"], float)))
+        elif "sphere" in oc:
+            r = oc["sphere"]
+            sc["occluders"].append(("sphere", np.asarray(r["center"], float), float(r["radius"])))
+        else:
+            raise ValueError("occluder: neither rect nor sphere")
+    return sc
+
+
+def samples(pl):
+    """Sub-sample points, shape (nv*nu, m*m, 3), element index iv*nu+iu."""
+    nu, nv = pl["grid"]
+    su, sv = pl["size"]
+    m = pl["m"]
+    iu = np.arange(nu)
+    iv = np.arange(nv)
+    a = (np.arange(m) + 0.5) / m
+    # x[iu, a], y[iv, b] in plane coordinates (metres from centre)
+    x = ((iu[:, None] + a[None, :]) / nu - 0.5) * su
+    y = ((iv[:, None] + a[None, :]) / nv - 0.5) * sv
+    X = x[None, :, None, :]            # (1, nu, 1, m)   iv, iu, b, a
+    Y = y[:, None, :, None]            # (nv, 1, m, 1)
+    X, Y = np.broadcast_arrays(X, Y)
+    P = pl["c"] + X[..., None] * pl["u"] + Y[..., None] * pl["v"]
+    return P.reshape(nv * nu, m * m, 3)
+
+
+# ------------------------------------------------------------------- optics
+def fresnel_rs_rp(phi, eta):
+    """Rs, Rp at incidence angle phi (array), MODEL.md Eqs. 6-8 with the limit."""
+    phi = np.asarray(phi, dtype=float)
+    r0 = ((eta - 1.0) / (eta + 1.0)) ** 2
+    small = phi < 1e-7
+    ph = np.where(small, 0.5, phi)
+    pt = np.arcsin(np.sin(ph) / eta)
+    rs = np.sin(ph - pt) ** 2 / np.sin(ph + pt) ** 2
+    rp = np.tan(ph - pt) ** 2 / np.tan(ph + pt) ** 2
+    return np.where(small, r0, rs), np.where(small, r0, rp)
+
+
+def _normalize(x):
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def crossed_axis(sc, o, psi):
+    """n_p and q(psi) of a pose (MODEL.md 'The crossed polarizer of a pose')."""
+    c0 = sc["wall"]["c"]
+    s0 = sc["scene"]["c"]
+    n_p = _normalize(c0 - o)
+    wi0 = _normalize(s0 - c0)
+    wo0 = _normalize(o - c0)
+    es0 = np.cross(wi0, wo0)
+    if np.linalg.norm(es0) < 1e-12:
+        raise ValueError("pose: crossed axis undefined (w_i0 parallel to w_o0)")
+    es0 = _normalize(es0)
+    q0 = _normalize(np.cross(es0, n_p))
+    # Rodrigues by +psi about n_p
+    q = (q0 * math.cos(psi) + np.cross(n_p, q0) * math.sin(psi)
+         + n_p * np.dot(n_p, q0) * (1 - math.cos(psi)))
+    return n_p, q
+
+
+def visible(S, C, occluders):
+    """V for segments S->C (broadcast arrays (..., 3)); open segment vs closed shapes."""
+    V = np.ones(np.broadcast_shapes(S.shape, C.shape)[:-1], dtype=bool)
+    D = C - S
+    for oc in occluders:
+        if oc[0] == "rect":
+            _, ce, hu, hv = oc
+            nrm = np.cross(hu, hv)
+            den = D @ nrm
+            num = (ce - S) @ nrm
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = num / den
+            ok = (np.abs(den) > 1e-300) & (t > 0) & (t < 1)
+            P = S + np.where(ok, t, 0.0)[..., None] * D - ce
+            # coordinates in (hu, hv): solve the 2x2 Gram system
+            g = np.array([[hu @ hu, hu @ hv], [hu @ hv, hv @ hv]])
+            gi = np.linalg.inv(g)
+            b = np.stack([P @ hu, P @ hv], axis=-1)
+            ab = b @ gi.T
+            inside = (np.abs(ab[..., 0]) <= 1) & (np.abs(ab[..., 1]) <= 1)
+            V &= ~(ok & inside)
+        else:
+            _, ce, r = oc
+            # |S + t D - ce|^2 = r^2
+            f = S - ce
+            a = np.sum(D * D, -1)
+            b = 2 * np.sum(f * D, -1)
+            c = np.sum(f * f, -1) - r * r
+            disc = b * b - 4 * a * c
+            sq = np.sqrt(np.maximum(disc, 0))
+            t1 = (-b - sq) / (2 * a)
+            t2 = (-b + sq) / (2 * a)
+            V &= ~((disc >= 0) & (t1 < 1) & (t2 > 0))
+    return V
+
+
+def block(sc, pose, psi=None, polmodel=None, diffuse=None):
+    """T rows of one block: (n_wall, n_scene). psi in radians, None = no polarizer."""
+    W = samples(sc["wall"])            # (J, mw, 3)
+    S = samples(sc["scene"])           # (K, ms, 3)
+    J, mw, _ = W.shape
+    K, ms, _ = S.shape
+    step = max(1, (1 << 21) // (mw * K * ms))   # wall elements per chunk (memory)
+    return np.vstack([_block(sc, pose, psi, polmodel, diffuse, W[j:j + step], S)
+                      for j in range(0, J, step)])
+
+
+def _block(sc, pose, psi, polmodel, diffuse, W, S):
+    polmodel = polmodel or sc["polmodel"]
+    diffuse = diffuse or sc["diffuse"]
+    J, mw, _ = W.shape
+    K, ms, _ = S.shape
+    n = sc["wall"]["n"]
+    ns = sc["scene"]["n"]
+    su, sv = sc["scene"]["size"]
+    nu, nv = sc["scene"]["grid"]
+    a_k = su / nu * sv / nv
+    alpha, eta, ks, kd = sc["alpha"], sc["eta"], sc["ks"], sc["kd"]
+    o = pose["o"]
+    if psi is not None:
+        n_p, q = crossed_axis(sc, o, psi)
+
+    C = W.reshape(J * mw, 3)[:, None, :]        # (Jw, 1, 3)
+    Sp = S.reshape(K * ms, 3)[None, :, :]       # (1, Ks, 3)
+    d = Sp - C
+    r2 = np.sum(d * d, -1)
+    wi = d / np.sqrt(r2)[..., None]
+    wo = _normalize(o - C)                       # (Jw, 1, 3)
+    ni = wi @ n
+    no = (wo @ n)                                # (Jw, 1)
+    if sc["emitter"] == "lambertian":
+        g = np.maximum(0.0, -(wi @ ns))          # n_s . (c - s)/|c - s|
+    else:
+        g = np.ones_like(ni)
+    V = visible(Sp, C, sc["occluders"]) if sc["occluders"] else True
+
+    # specular
+    h = _normalize(wi + wo)
+    nh = h @ n
+    D = alpha ** 2 / (math.pi * (nh ** 2 * (alpha ** 2 - 1) + 1) ** 2)
+
+    def G1(c):
+        c = np.maximum(c, 1e-300)
+        return 2 * c / (c + np.sqrt(alpha ** 2 + (1 - alpha ** 2) * c ** 2))
+
+    G2 = G1(ni) * G1(no)
+    theta_h = 0.5 * np.arccos(np.clip(np.sum(wi * wo, -1), -1, 1))
+    Rs, Rp = fresnel_rs_rp(theta_h, eta)
+
+    if psi is None:
+        Pspec = (Rs + Rp) / 2
+    else:
+        if polmodel == "absorbing":
+            a_ax = np.cross(n_p, q)
+            t = _normalize(np.cross(wo, a_ax))
+        elif polmodel == "transmitting":
+            t = _normalize(q - (wo @ q)[..., None] * wo)
+        else:
+            raise ValueError(f"polarizer.model: {polmodel}")
+        es = np.cross(wi, wo)
+        nes = np.linalg.norm(es, axis=-1)
+        degenerate = nes < 1e-12
+        es = es / np.where(degenerate, 1.0, nes)[..., None]
+        ep = np.cross(es, wo)
+        ts = np.sum(t * es, -1)
+        tp = np.sum(t * ep, -1)
+        Pspec = np.where(degenerate, Rs / 2, (Rs * ts ** 2 + Rp * tp ** 2) / 2)
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fspec = ks * D * G2 / (4 * ni * no) * Pspec
+    f = fspec
+    if kd != 0.0:
+        if diffuse == "fresnel":
+            th_i = np.arccos(np.clip(ni, -1, 1))
+            Rsi, Rpi = fresnel_rs_rp(th_i, eta)
+            T_in = 1 - (Rsi + Rpi) / 2
+            th_o = np.arccos(np.clip(no, -1, 1))
+            Rso, Rpo = fresnel_rs_rp(th_o, eta)
+            if psi is None:
+                Pd = T_in * (1 - (Rso + Rpo) / 2)
+            else:
+                eso = np.cross(n, wo)
+                neso = np.linalg.norm(eso, axis=-1, keepdims=True)
+                eso = np.where(neso < 1e-12, np.cross(n, np.array([1.0, 0, 0])), eso / np.maximum(neso, 1e-300))
+                eso = _normalize(eso)
+                epo = np.cross(eso, wo)
+                Pd = T_in * ((1 - Rso) * np.sum(t * eso, -1) ** 2 + (1 - Rpo) * np.sum(t * epo, -1) ** 2) / 2
+        elif diffuse == "lambert":
+            Pd = 1.0 if psi is None else 0.5
+        else:
+            raise ValueError(f"wall.diffuse: {diffuse}")
+        f = f + kd / math.pi * Pd
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        E = a_k * g * ni / r2 * f * V
+    E = np.where((ni > 0) & (no > 0) & np.isfinite(E), E, 0.0)
+    E = E.reshape(J, mw, K, ms).mean(axis=(1, 3))
+    return E
+
+
+def build(sc, **kw):
+    """Full stacked T and the (pose, deg) list of its blocks."""
+    blocks, labels = [], []
+    for p in sc["poses"]:
+        if not p["deg"]:
+            blocks.append(block(sc, p, None, **kw))
+            labels.append((p["name"], None))
+        for deg in p["deg"]:
+            blocks.append(block(sc, p, math.radians(deg), **kw))
+            labels.append((p["name"], deg))
+    return np.vstack(blocks), labels
+
+
+# ------------------------------------------------------------------ compare
+def compare(case, scene_supersample=None, polmodel=None, diffuse=None, quiet=False, scene=None):
+    case = Path(case)
+    sc = load(scene or case / "scene.toml", scene_supersample=scene_supersample)
+    T, labels = build(sc, polmodel=polmodel, diffuse=diffuse)
+    truth = np.load(case / "truth.npy")
+    i = np.load(case / "i.npy")
+    sig = np.load(case / "sigma.npy")
+    pred = T @ truth.reshape(-1)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))
+    out = {"blocks": []}
+    nb = len(labels)
+    nj = len(i) // nb
+    for b, lab in enumerate(labels + [("all", "all")]):
+        sl = slice(b * nj, (b + 1) * nj) if b < nb else slice(None)
+        ii, pp, ss = i[sl], pred[sl], sig[sl]
+        gain = float(pp @ ii / (pp @ pp))
+        rec = {
+            "block": lab,
+            "gain": gain,
+            "resid_rel": rms(ii - pp) / rms(ii),
+            "resid_rel_after_gain": rms(ii - gain * pp) / rms(ii),
+            "noise_rel": rms(ss) / rms(ii),
+            "chi_rms": rms((ii - pp) / np.where(ss > 0, ss, np.inf)),
+        }
+        out["blocks"].append(rec)
+    if not quiet:
+        for r in out["blocks"]:
+            print(f"  {str(r['block']):>16}: gain {r['gain']:.5f}  resid {100*r['resid_rel']:.3f} %"
+                  f" (after gain {100*r['resid_rel_after_gain']:.3f} %)  noise {100*r['noise_rel']:.3f} %"
+                  f"  resid/sigma rms {r['chi_rms']:.2f}")
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("cases", nargs="+", help="case directories (scene.toml, truth.npy, i.npy, sigma.npy)")
+    ap.add_argument("--scene-supersample", type=int, default=None)
+    ap.add_argument("--polarizer-model", default=None, choices=["absorbing", "transmitting"])
+    ap.add_argument("--diffuse", default=None, choices=["fresnel", "lambert"])
+    ap.add_argument("--scene", default=None, help="scene file (default CASE/scene.toml)")
+    ap.add_argument("--json", action="store_true", help="print JSON instead of text")
+    a = ap.parse_args()
+    res = {}
+    for c in a.cases:
+        if not a.json:
+            print(c)
+        res[c] = compare(c, a.scene_supersample, a.polarizer_model, a.diffuse, quiet=a.json, scene=a.scene)
+    if a.json:
+        json.dump(res, sys.stdout, indent=1, default=str)
+        print()
+
+
+if __name__ == "__main__":
+    main()
