@@ -517,12 +517,27 @@ fn bench_quick_writes_its_reports() {
         "active.svg",
         "lambda.png",
         "lambda.svg",
+        "rendered.png",
+        "rendered.svg",
     ] {
         assert!(dir.path().join(f).metadata().unwrap().len() > 100, "{f}");
     }
     let v: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("bench.json")).unwrap()).unwrap();
     assert_eq!(v["conditioning"].as_array().unwrap().len(), 8);
+    // The Mitsuba renders (cases read from tests/data/rendered): agreement at
+    // the noise under revision 2, far from it under revision 1; the Fig. 9
+    // post-processing question answered at both noises.
+    let rendered = &v["rendered"];
+    assert!(rendered["skipped"].is_null(), "{rendered}");
+    let rows = rendered["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2, "{rendered}");
+    for r in rows {
+        assert!(r["agreement"]["ratio"].as_f64().unwrap() < 1.5, "{r}");
+    }
+    let crossed = rows.iter().find(|r| r["case"] == "crossed").unwrap();
+    assert!(crossed["agreement_revision_1"]["ratio"].as_f64().unwrap() > 10.0);
+    assert_eq!(rendered["post_processing"].as_array().unwrap().len(), 2);
     assert_eq!(v["roughness"].as_array().unwrap().len(), 42);
     let crossed = v["conditioning"]
         .as_array()

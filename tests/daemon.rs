@@ -695,6 +695,25 @@ fn a_target_capture_through_aravis_calibrates_the_pose() {
     println!("largest distance from the shipped homography at the dots: {worst:.3} px");
     assert!(worst < 0.3, "{worst}");
     assert!(cal["rms_px"].as_f64().unwrap() < 0.2, "{cal}");
+    // 4 frames: the centroid noise is known, so the fit says whether the
+    // homography explains the dots to it.
+    println!(
+        "model check: {} warnings: {}",
+        cal["model_check"], cal["warnings"]
+    );
+    assert!(
+        cal["model_check"]["chi2_per_dof"].as_f64().is_some(),
+        "{cal}"
+    );
+    // The fake target is noiseless (centroid noise ~4e-6 px, the digitizer's
+    // rounding), so the centroids' perspective bias (~0.05 px) is far above
+    // it: the answer says so, with the absolute numbers.
+    assert_eq!(cal["model_check"]["explained"], false, "{cal}");
+    let w = cal["warnings"][0].as_str().unwrap();
+    assert!(
+        w.contains("does not explain the dots") && w.contains("reprojection RMS 0.0"),
+        "{w}"
+    );
     // The scene file to review parses and carries the fit.
     let s = Scene::from_toml_str(cal["scene_toml"].as_str().unwrap()).unwrap();
     let written = s.pose("C").unwrap().homography.unwrap().matrix();
@@ -796,6 +815,20 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     assert!(p("kd") < 0.01, "{v}");
     assert!((p("gain") / configured - 1.0).abs() < 0.05, "{v}");
     assert_eq!(v["warnings"], serde_json::json!([]), "{v}");
+    // 32 frames: the model check is against the frame variance, and the
+    // fake bench (rendered with the absorbing sheet) is explained by it,
+    // clearly better than by the transmitting reading.
+    let check = &v["fit"]["model_check"];
+    assert_eq!(check["explained"], true, "{check}");
+    let models = v["fit"]["polarizer_models"].as_array().unwrap();
+    assert_eq!(models[0]["model"], "absorbing", "{v}");
+    assert_eq!(models[0]["used"], true, "{v}");
+    assert_eq!(models[1]["model"], "transmitting", "{v}");
+    assert!(
+        models[1]["relative_residual"].as_f64().unwrap()
+            > models[0]["relative_residual"].as_f64().unwrap(),
+        "{v}"
+    );
     // The wrong source position is refused, not fitted.
     let (s, b, _) = d.post(
         "/calibrations/wall",

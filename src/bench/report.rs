@@ -54,6 +54,10 @@ pub struct BenchPlan {
     pub lambda_grid: usize,
     /// ... and photo-electron levels (3 patterns at each).
     pub lambda_photons: Vec<f64>,
+    /// Folder of the Mitsuba-rendered cases ...
+    pub rendered: std::path::PathBuf,
+    /// ... and the cases of it reconstructed.
+    pub rendered_cases: Vec<&'static str>,
 }
 
 impl BenchPlan {
@@ -73,6 +77,8 @@ impl BenchPlan {
             lambda_scenes: vec!["brewster-crossed"],
             lambda_grid: 3,
             lambda_photons: vec![1e4],
+            rendered: super::rendered::DEFAULT_DIR.into(),
+            rendered_cases: vec!["nopol", "crossed"],
         }
     }
 
@@ -99,6 +105,8 @@ impl BenchPlan {
             ],
             lambda_grid: 16,
             lambda_photons: vec![1e3, 1e4, 1e5],
+            rendered: super::rendered::DEFAULT_DIR.into(),
+            rendered_cases: super::rendered::REPORT_CASES.iter().map(|c| c.0).collect(),
         }
     }
 
@@ -121,6 +129,7 @@ impl BenchPlan {
             + super::active::active_len(&self.active_grids)
             + 1
             + super::lambda::lambda_len(self.lambda_scenes.len(), self.lambda_photons.len())
+            + self.rendered_cases.len()
     }
 
     /// Runs every report, calling `step()` as each row is done; the NumPy
@@ -170,6 +179,11 @@ impl BenchPlan {
                 &self.lambda_photons,
                 step,
             )?)),
+            Box::new(super::rendered::rendered_report(
+                &self.rendered,
+                &self.rendered_cases,
+                step,
+            )?),
             Box::new(speed::Speed {
                 seeds: self.speed_seeds,
                 summary: speed::summarize(&runs),

@@ -96,6 +96,9 @@ pub struct Blob {
     pub y: f64,
     /// Pixels above the threshold.
     pub pixels: usize,
+    /// Variance of the centroid `(x, y)`, pixels squared, from the frame's
+    /// variance: `sum (x_p - x)^2 var_p / (sum w)^2`; `None` without one.
+    pub variance: Option<[f64; 2]>,
 }
 
 /// A fitted homography and how well it explains the dots.
@@ -109,6 +112,9 @@ pub struct Fit {
     pub max_px: f64,
     /// Dots used.
     pub dots: usize,
+    /// Whether the homography explains the dots to their centroid noise
+    /// (chi-square over both coordinates of every dot, 8 numbers fitted).
+    pub model_check: crate::solve::adequacy::Adequacy,
 }
 
 /// The image a camera at `h` sees of the target: 1 on the dots, 0 elsewhere,
@@ -145,6 +151,15 @@ pub fn render(target: &Target, h: &Homography, width: usize, height: usize) -> F
 /// The bright blobs of `frame`: pixels above the midpoint between the 1st
 /// and 99.9th percentile, 8-connected, weighted by their height above it.
 pub fn detect(frame: &Frame) -> Vec<Blob> {
+    detect_with_variance(frame, None)
+}
+
+/// [`detect`], with each centroid's variance from the frame's per-pixel
+/// `variance` (ignored unless it has the frame's size).
+pub fn detect_with_variance(frame: &Frame, variance: Option<&Frame>) -> Vec<Blob> {
+    let variance = variance.filter(|v| {
+        v.width == frame.width && v.height == frame.height && v.pixels.len() == frame.pixels.len()
+    });
     let (w, h) = (frame.width, frame.height);
     let n = (w * h).min(frame.pixels.len());
     if n == 0 {
@@ -172,6 +187,7 @@ pub fn detect(frame: &Frame) -> Vec<Blob> {
         seen[start] = true;
         stack.push(start);
         let (mut sw, mut sx, mut sy, mut count) = (0.0, 0.0, 0.0, 0);
+        let mut members = Vec::new();
         while let Some(k) = stack.pop() {
             let (x, y) = (k % w, k / w);
             let weight = f64::from(frame.pixels[k]) - threshold;
@@ -179,6 +195,9 @@ pub fn detect(frame: &Frame) -> Vec<Blob> {
             sx += weight * x as f64;
             sy += weight * y as f64;
             count += 1;
+            if variance.is_some() {
+                members.push(k);
+            }
             for dy in -1i64..=1 {
                 for dx in -1i64..=1 {
                     let (nx, ny) = (x as i64 + dx, y as i64 + dy);
@@ -194,10 +213,22 @@ pub fn detect(frame: &Frame) -> Vec<Blob> {
             }
         }
         if count >= MIN_BLOB_PIXELS && sw > 0.0 {
+            let (cx, cy) = (sx / sw, sy / sw);
+            // Linear error propagation of the weighted centroid.
+            let variance = variance.map(|v| {
+                let (mut vx, mut vy) = (0.0, 0.0);
+                for &k in &members {
+                    let var = f64::from(v.pixels[k]).max(0.0);
+                    vx += ((k % w) as f64 - cx).powi(2) * var;
+                    vy += ((k / w) as f64 - cy).powi(2) * var;
+                }
+                [vx / (sw * sw), vy / (sw * sw)]
+            });
             blobs.push(Blob {
-                x: sx / sw,
-                y: sy / sw,
+                x: cx,
+                y: cy,
                 pixels: count,
+                variance,
             });
         }
     }
@@ -272,11 +303,25 @@ pub fn fit(target: &Target, blobs: &[Blob]) -> Result<Fit, CalibrationError> {
         .collect();
     let rms_px = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
     let max_px = errors.iter().copied().fold(0.0, f64::max);
+    // Residuals and centroid variances, x and y of every dot.
+    let residual: Vec<f64> = pairs
+        .iter()
+        .flat_map(|(w, p)| {
+            let q = project(&h, *w).unwrap_or([f64::INFINITY; 2]);
+            [q[0] - p[0], q[1] - p[1]]
+        })
+        .collect();
+    let variance: Option<Vec<f64>> = assignment
+        .iter()
+        .map(|&i| blobs[i].variance)
+        .collect::<Option<Vec<[f64; 2]>>>()
+        .map(|v| v.concat());
     Ok(Fit {
         homography,
         rms_px,
         max_px,
         dots: pairs.len(),
+        model_check: crate::solve::adequacy::Adequacy::of(&residual, variance.as_deref(), 8),
     })
 }
 

@@ -5,14 +5,24 @@
 //! The model is MODEL.md's forward model itself: a point source is the
 //! hidden scene shrunk to one small element at the source, so the predicted
 //! measurement is `gain * T(alpha, ior, kd) e` with `T` built by the same
-//! code as always. Levenberg-Marquardt fits the four numbers; their standard
-//! errors come from `s^2 (J^T J)^-1` with `s^2` the residual variance. A fit
-//! whose residual stays large is refused: the geometry (source position,
-//! poses) does not match the capture, and its numbers would mean nothing.
+//! code as always. Levenberg-Marquardt fits the four numbers. A fit whose
+//! residual stays large is refused: the geometry (source position, poses)
+//! does not match the capture, and its numbers would mean nothing.
+//!
+//! Every fit says whether the model explains its captures
+//! ([`crate::solve::adequacy`]): with the captures' frame variance, the
+//! standard errors are those of the noise, `(J^T J)^-1 J^T S J (J^T J)^-1`,
+//! scaled by `sqrt(chi2/dof)` when the misfit exceeds the noise (a model
+//! error is not averaged away by more pixels); without it, `s^2 (J^T J)^-1`
+//! with `s^2` the residual variance. A scene with a polarizer is also fitted
+//! under the other polarizer model, and the answer says which explains the
+//! captures better, and by how much.
 
 use nalgebra::{SMatrix, SVector};
 
+use crate::optics::PolarizerModel;
 use crate::scene::{Grid, Scene};
+use crate::solve::adequacy::Adequacy;
 use crate::transport::{build, TransportError};
 
 /// Why a wall fit could not be made.
@@ -63,6 +73,8 @@ pub struct SourceMeasurement<'a> {
     pub source: PointSource,
     /// The measurement.
     pub i: &'a [f64],
+    /// The variance of each value (from the frame-to-frame variance), when known.
+    pub variance: Option<&'a [f64]>,
 }
 
 /// Where the point source is: metres from the hidden-scene plane's centre
@@ -94,8 +106,20 @@ pub struct WallParams {
 pub struct WallFit {
     /// Best values.
     pub params: WallParams,
-    /// Their standard errors (same fields).
+    /// Their standard errors (same fields), scaled by the misfit when the
+    /// model leaves more than the noise unexplained.
     pub sigma: WallParams,
+    /// The standard errors the noise alone would give, when it is known:
+    /// how far `sigma` was scaled up.
+    pub sigma_from_noise: Option<WallParams>,
+    /// Whether the model explains the captures: chi-square per degree of
+    /// freedom against their frame variance.
+    pub model_check: Adequacy,
+    /// The polarizer model the fit used and, for a scene with a polarizer,
+    /// the other one's best fit beside it.
+    pub polarizer_models: Vec<PolarizerModelFit>,
+    /// What the user should know before trusting the numbers.
+    pub warnings: Vec<String>,
     /// RMS of the residual, in the units of `i`.
     pub residual_rms: f64,
     /// `||i - model|| / ||i||` over all sources.
@@ -104,6 +128,19 @@ pub struct WallFit {
     pub source_residuals: Vec<f64>,
     /// Levenberg-Marquardt iterations.
     pub iterations: usize,
+}
+
+/// How well one polarizer model explains the source captures.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct PolarizerModelFit {
+    /// `absorbing` or `transmitting`.
+    pub model: PolarizerModel,
+    /// Whether the fit's numbers are this model's (the scene file's).
+    pub used: bool,
+    /// `||i - model|| / ||i||` of its best fit.
+    pub relative_residual: f64,
+    /// Its chi-square per degree of freedom, when the noise is known.
+    pub chi2_per_dof: Option<f64>,
 }
 
 impl WallParams {
@@ -155,7 +192,15 @@ pub fn fit(
     i: &[f64],
     start: WallParams,
 ) -> Result<WallFit, WallFitError> {
-    fit_sources(scene, &[SourceMeasurement { source: *source, i }], start)
+    fit_sources(
+        scene,
+        &[SourceMeasurement {
+            source: *source,
+            i,
+            variance: None,
+        }],
+        start,
+    )
 }
 
 /// Fits alpha, ior, kd and one gain to measurements of the same source at
@@ -196,27 +241,28 @@ fn predict_all(
     Ok(all)
 }
 
-/// The fit of [`fit_sources`] from `start`, whose prediction `first` the
-/// caller has already made.
-fn levenberg_marquardt(
+/// A converged Levenberg-Marquardt run, before any verdict on it.
+struct Solution {
+    p: SVector<f64, 4>,
+    /// Residual `i - model`, all positions concatenated.
+    r: Vec<f64>,
+    cost: f64,
+    jac: (SMatrix<f64, 4, 4>, Vec<Vec<f64>>),
+    iterations: usize,
+}
+
+/// Levenberg-Marquardt on the four numbers from `start`, whose prediction
+/// `first` the caller has already made; `i` is every position's measurement.
+fn solve(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
+    i: &[f64],
     start: WallParams,
     first: Vec<f64>,
-) -> Result<WallFit, WallFitError> {
+) -> Result<Solution, WallFitError> {
     let model = |p: &SVector<f64, 4>| predict_all(scene, sets, &WallParams::from_vec(p));
-    let rows = first.len() / sets.len();
-    if let Some(bad) = sets.iter().find(|set| set.i.len() != rows) {
-        return Err(WallFitError::Length {
-            at: bad.source,
-            measurement: bad.i.len(),
-            rows,
-        });
-    }
-    let i: Vec<f64> = sets.iter().flat_map(|set| set.i.iter().copied()).collect();
     let residual = |m: &[f64]| -> Vec<f64> { i.iter().zip(m).map(|(a, b)| a - b).collect() };
     let ss = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
-    let norm = |v: &[f64]| ss(v).sqrt();
     let mut p = start.to_vec();
     let mut r = residual(&first);
     let mut cost = ss(&r);
@@ -254,8 +300,52 @@ fn levenberg_marquardt(
         }
         jac = jacobian(&model, &p)?;
     }
-    let relative_residual = cost.sqrt() / norm(&i).max(1e-300);
-    let source_residuals: Vec<f64> = r
+    Ok(Solution {
+        p,
+        r,
+        cost,
+        jac,
+        iterations,
+    })
+}
+
+/// Every position's measurement and, when all have one, variance, concatenated;
+/// each measurement checked against the rows of `T`.
+fn stack(
+    sets: &[SourceMeasurement<'_>],
+    rows: usize,
+) -> Result<(Vec<f64>, Option<Vec<f64>>), WallFitError> {
+    if let Some(bad) = sets.iter().find(|set| set.i.len() != rows) {
+        return Err(WallFitError::Length {
+            at: bad.source,
+            measurement: bad.i.len(),
+            rows,
+        });
+    }
+    let i: Vec<f64> = sets.iter().flat_map(|set| set.i.iter().copied()).collect();
+    let variance = sets
+        .iter()
+        .map(|set| set.variance.filter(|v| v.len() == rows))
+        .collect::<Option<Vec<_>>>()
+        .map(|v| v.concat());
+    Ok((i, variance))
+}
+
+/// The fit of [`fit_sources`] from `start`, whose prediction `first` the
+/// caller has already made.
+fn levenberg_marquardt(
+    scene: &Scene,
+    sets: &[SourceMeasurement<'_>],
+    start: WallParams,
+    first: Vec<f64>,
+) -> Result<WallFit, WallFitError> {
+    let rows = first.len() / sets.len();
+    let (i, variance) = stack(sets, rows)?;
+    let sol = solve(scene, sets, &i, start, first)?;
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let relative_residual = sol.cost.sqrt() / norm(&i).max(1e-300);
+    let source_residuals: Vec<f64> = sol
+        .r
         .chunks(rows)
         .zip(sets)
         .map(|(rs, set)| norm(rs) / norm(set.i).max(1e-300))
@@ -274,26 +364,113 @@ fn levenberg_marquardt(
             limit: 100.0 * MAX_RELATIVE_RESIDUAL,
         });
     }
-    let dof = (i.len() as f64 - 4.0).max(1.0);
-    let s2 = cost / dof;
-    let cov = jac.0.try_inverse().map(|c| c * s2);
-    let sd = |k: usize| {
-        cov.as_ref()
-            .map_or(f64::INFINITY, |c| c[(k, k)].max(0.0).sqrt())
-    };
-    Ok(WallFit {
-        params: WallParams::from_vec(&p),
-        sigma: WallParams {
+    let check = Adequacy::of(&sol.r, variance.as_deref(), 4);
+    let inv = sol.jac.0.try_inverse();
+    let sd = |cov: Option<SMatrix<f64, 4, 4>>| {
+        let sd = |k: usize| {
+            cov.as_ref()
+                .map_or(f64::INFINITY, |c| c[(k, k)].max(0.0).sqrt())
+        };
+        WallParams {
             alpha: sd(0),
             ior: sd(1),
             kd: sd(2),
             gain: sd(3),
-        },
-        residual_rms: (cost / i.len() as f64).sqrt(),
+        }
+    };
+    // With the noise: the sandwich (J^T J)^-1 J^T S J (J^T J)^-1, scaled by
+    // the misfit; without: the residual variance s^2 (J^T J)^-1.
+    let from_noise = variance.as_ref().and_then(|v| {
+        let cols = &sol.jac.1;
+        let meat = SMatrix::<f64, 4, 4>::from_fn(|a, b| {
+            (0..v.len()).map(|k| cols[a][k] * v[k] * cols[b][k]).sum()
+        });
+        inv.map(|inv| inv * meat * inv)
+    });
+    let (sigma, sigma_from_noise) = match from_noise {
+        Some(cov) => {
+            let scale = check.error_scale();
+            (sd(Some(cov * (scale * scale))), Some(sd(Some(cov))))
+        }
+        None => {
+            let s2 = sol.cost / (i.len() as f64 - 4.0).max(1.0);
+            (sd(inv.map(|c| c * s2)), None)
+        }
+    };
+    let mut warnings: Vec<String> = check.warning("the source captures").into_iter().collect();
+    if check.explained == Some(false) {
+        warnings.push(format!(
+            "the standard errors are scaled by the misfit ({:.1}x those of the noise alone)",
+            check.error_scale()
+        ));
+    }
+    Ok(WallFit {
+        params: WallParams::from_vec(&sol.p),
+        sigma,
+        sigma_from_noise,
+        model_check: check,
+        polarizer_models: Vec::new(),
+        warnings,
+        residual_rms: (sol.cost / i.len() as f64).sqrt(),
         relative_residual,
         source_residuals,
-        iterations,
+        iterations: sol.iterations,
     })
+}
+
+/// Fits the captures under the scene's other polarizer model too (from the
+/// fit's own numbers) and records both, with a warning when the other one
+/// explains the captures clearly better (its residual at most 0.8 of this one's).
+fn compare_polarizer_models(
+    scene: &Scene,
+    sets: &[SourceMeasurement<'_>],
+    fit: &mut WallFit,
+) -> Result<(), WallFitError> {
+    if scene.poses.iter().all(|p| p.analyzers.is_empty()) {
+        return Ok(());
+    }
+    let used = scene.polarizer;
+    let other = PolarizerModel::ALL
+        .into_iter()
+        .find(|m| *m != used)
+        .unwrap_or(used);
+    let alt = scene.with_polarizer_model(other);
+    let first = predict_all(&alt, sets, &fit.params)?;
+    let rows = first.len() / sets.len();
+    let (i, variance) = stack(sets, rows)?;
+    let sol = solve(&alt, sets, &i, fit.params, first)?;
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let alt_fit = PolarizerModelFit {
+        model: other,
+        used: false,
+        relative_residual: sol.cost.sqrt() / norm(&i).max(1e-300),
+        chi2_per_dof: Adequacy::of(&sol.r, variance.as_deref(), 4).chi2_per_dof,
+    };
+    if alt_fit.relative_residual < 0.8 * fit.relative_residual {
+        warnings_push_model(fit, used, &alt_fit);
+    }
+    fit.polarizer_models = vec![
+        PolarizerModelFit {
+            model: used,
+            used: true,
+            relative_residual: fit.relative_residual,
+            chi2_per_dof: fit.model_check.chi2_per_dof,
+        },
+        alt_fit,
+    ];
+    Ok(())
+}
+
+/// The warning that the scene's polarizer model is the worse of the two.
+fn warnings_push_model(fit: &mut WallFit, used: PolarizerModel, alt: &PolarizerModelFit) {
+    fit.warnings.push(format!(
+        "the captures are explained better by [polarizer] model = \"{}\" (residual {:.3}% against {:.3}% with \"{}\", {:.1}x smaller): set it in the scene file and calibrate again",
+        alt.model.name(),
+        100.0 * alt.relative_residual,
+        100.0 * fit.relative_residual,
+        used.name(),
+        fit.relative_residual / alt.relative_residual.max(1e-300)
+    ));
 }
 
 /// [`fit`] from the scene file's own wall material, with the gain that best
@@ -303,7 +480,14 @@ pub fn fit_from_scene(
     source: &PointSource,
     i: &[f64],
 ) -> Result<WallFit, WallFitError> {
-    fit_sources_from_scene(scene, &[SourceMeasurement { source: *source, i }])
+    fit_sources_from_scene(
+        scene,
+        &[SourceMeasurement {
+            source: *source,
+            i,
+            variance: None,
+        }],
+    )
 }
 
 /// [`fit_sources`] from the scene file's own wall material, with the gain
@@ -330,7 +514,9 @@ pub fn fit_sources_from_scene(
         .fold((0.0, 0.0), |(d, n), (a, x)| (d + a * x, n + a * a));
     let gain = if nn > 0.0 && dot > 0.0 { dot / nn } else { 1.0 };
     first.iter_mut().for_each(|v| *v *= gain);
-    levenberg_marquardt(scene, sets, WallParams { gain, ..unit }, first)
+    let mut fit = levenberg_marquardt(scene, sets, WallParams { gain, ..unit }, first)?;
+    compare_polarizer_models(scene, sets, &mut fit)?;
+    Ok(fit)
 }
 
 type Model<'a> = dyn Fn(&SVector<f64, 4>) -> Result<Vec<f64>, WallFitError> + 'a;
@@ -452,7 +638,11 @@ mod tests {
         let sets: Vec<SourceMeasurement> = at
             .iter()
             .zip(&measured)
-            .map(|(&source, i)| SourceMeasurement { source, i })
+            .map(|(&source, i)| SourceMeasurement {
+                source,
+                i,
+                variance: None,
+            })
             .collect();
         let one = fit(&s, &at[0], &measured[0], START).expect("one source");
         let all = fit_sources(&s, &sets, START).expect("three sources");
@@ -494,10 +684,12 @@ mod tests {
             SourceMeasurement {
                 source: PointSource { u: 0.03, v: -0.02 },
                 i: &a,
+                variance: None,
             },
             SourceMeasurement {
                 source: wrong,
                 i: &b,
+                variance: None,
             },
         ];
         let e = fit_sources(&s, &sets, TRUTH).expect_err("one source misplaced");
@@ -516,5 +708,72 @@ mod tests {
             fit_sources(&s, &many, TRUTH),
             Err(WallFitError::Sources(n)) if n == MAX_SOURCES + 1
         ));
+    }
+
+    #[test]
+    fn the_fit_says_whether_the_model_explains_the_captures_and_which_polarizer_model_does() {
+        // Captures made by the absorbing sheet at a noise of 0.1 % of the
+        // peak (uniform: variance level^2 peak^2 / 12).
+        let s = scene();
+        let source = PointSource { u: 0.03, v: -0.02 };
+        let clean = predict(&s, &source, &TRUTH).expect("model");
+        let peak = clean.iter().copied().fold(0.0, f64::max);
+        let i = noisy(&clean, 0.001);
+        let var = vec![(0.001 * peak).powi(2) / 12.0; i.len()];
+        let sets = [SourceMeasurement {
+            source,
+            i: &i,
+            variance: Some(&var),
+        }];
+        let good = fit_sources_from_scene(&s, &sets).expect("fit");
+        let check = good.model_check;
+        println!("absorbing scene: {check:?} {:?}", good.polarizer_models);
+        assert_eq!(check.explained, Some(true), "{good:?}");
+        assert!((check.chi2_per_dof.unwrap() - 1.0).abs() < 0.2, "{check:?}");
+        assert!(good.warnings.is_empty(), "{:?}", good.warnings);
+        let noise_only = good.sigma_from_noise.expect("variance given");
+        assert!(
+            (good.sigma.alpha / noise_only.alpha - 1.0).abs() < 0.2,
+            "{good:?}"
+        );
+        assert!(
+            (good.params.alpha - 0.3).abs() < 5.0 * good.sigma.alpha,
+            "{good:?}"
+        );
+        let [used, other] = good.polarizer_models.as_slice() else {
+            panic!("{:?}", good.polarizer_models)
+        };
+        assert!(used.used && used.model == PolarizerModel::Absorbing);
+        assert!(
+            other.relative_residual > 3.0 * used.relative_residual,
+            "{other:?} {used:?}"
+        );
+
+        // The same captures read with the transmitting sheet: flagged, the
+        // standard errors scaled up by the misfit, the better model named.
+        let wrong = s.with_polarizer_model(PolarizerModel::Transmitting);
+        let bad = fit_sources_from_scene(&wrong, &sets).expect("still within 25 %");
+        let check = bad.model_check;
+        println!("transmitting scene: {check:?} {:?}", bad.warnings);
+        assert_eq!(check.explained, Some(false), "{bad:?}");
+        let scale = check.misfit_to_noise.unwrap();
+        assert!(scale > 3.0, "{check:?}");
+        let noise_only = bad.sigma_from_noise.expect("variance given");
+        assert!(
+            (bad.sigma.ior / noise_only.ior - scale).abs() < 1e-9 * scale,
+            "{bad:?}"
+        );
+        assert!(
+            bad.warnings[0].contains("does not explain the source captures"),
+            "{:?}",
+            bad.warnings
+        );
+        assert!(
+            bad.warnings
+                .iter()
+                .any(|w| w.contains("explained better by [polarizer] model = \"absorbing\"")),
+            "{:?}",
+            bad.warnings
+        );
     }
 }

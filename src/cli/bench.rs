@@ -12,7 +12,7 @@ use polnlos::files::{json, write_atomic};
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Writes bench.json, bench.md and the charts conditioning, roughness, sampling,\n\
-active, lambda and speed-accuracy-<size> (PNG and SVG).\n\
+active, lambda, rendered and speed-accuracy-<size> (PNG and SVG).\n\
 Example:\n  polnlos bench --quick --out bench/\n\
 The full run (about 5 min on 2 cores, mostly the λ sweep) adds the 8x8 scene grids, the M and L\n\
 speed sizes with 3 seeds, finer active and sampling sweeps, the automatic-λ\n\
@@ -26,6 +26,9 @@ pub struct Args {
     /// Small sizes only (about 2 s): 3x3 grids, the S speed size, one seed.
     #[arg(long)]
     quick: bool,
+    /// Folder of the Mitsuba-rendered cases (validation/mitsuba/).
+    #[arg(long, value_name = "DIR", default_value = polnlos::bench::rendered::DEFAULT_DIR)]
+    rendered: PathBuf,
 }
 
 /// Writes `DIR/NAME.png` and `DIR/NAME.svg`.
@@ -38,10 +41,13 @@ fn write_chart(dir: &std::path::Path, name: &str, c: &charts::Chart) -> anyhow::
 pub fn run(a: Args) -> anyhow::Result<()> {
     super::out_dir(&a.out)?;
     let start = std::time::Instant::now();
-    let plan = if a.quick {
-        BenchPlan::quick()
-    } else {
-        BenchPlan::full()
+    let plan = BenchPlan {
+        rendered: a.rendered.clone(),
+        ..if a.quick {
+            BenchPlan::quick()
+        } else {
+            BenchPlan::full()
+        }
     };
     let pb = super::progress::bar(plan.steps(), "bench");
     let work = std::env::temp_dir().join(format!("polnlos-peer-{}", std::process::id()));

@@ -30,7 +30,10 @@ writes the scene with the pose's homography and camera frame replaced."
 The measurement is i (all blocks, MODEL.md row order) of a small source at\n\
 (u, v) metres from the hidden-scene plane's centre. Prints the fitted values\n\
 with standard errors and the residual (JSON); a residual over 25 % of the\n\
-measurement is refused (the source position or the poses do not match)."
+measurement is refused (the source position or the poses do not match).\n\
+With --variance, the model check compares the misfit with the noise and\n\
+scales the standard errors by it; with a polarizer, both polarizer models\n\
+are fitted and compared."
     )]
     Wall(WallArgs),
 }
@@ -48,6 +51,11 @@ struct WallArgs {
     /// one per --measurement.
     #[arg(long, value_name = "U,V", value_parser = parse_pair, required = true)]
     source: Vec<(f64, f64)>,
+    /// Variance of each value of the measurement, .npy (e.g. frame-to-frame
+    /// variance of the mean), one per --measurement: the fit then says
+    /// whether the model explains the data to its noise (chi-square).
+    #[arg(long, value_name = "FILE")]
+    variance: Vec<PathBuf>,
 }
 
 fn parse_pair(s: &str) -> Result<(f64, f64), String> {
@@ -94,19 +102,42 @@ fn wall(a: WallArgs) -> anyhow::Result<()> {
         ))
         .into());
     }
+    if !a.variance.is_empty() && a.variance.len() != a.measurement.len() {
+        return Err(super::Usage(format!(
+            "{} --measurement but {} --variance: give one variance per measurement, in the same order, or none",
+            a.measurement.len(),
+            a.variance.len()
+        ))
+        .into());
+    }
     let scene = super::load_scene(&a.scene)?;
-    let measured = a
-        .measurement
-        .iter()
-        .map(|path| polnlos::files::npy::read(path).map(|m| m.data))
-        .collect::<Result<Vec<_>, _>>()?;
+    let read = |paths: &[PathBuf]| {
+        paths
+            .iter()
+            .map(|path| polnlos::files::npy::read(path).map(|m| m.data))
+            .collect::<Result<Vec<_>, _>>()
+    };
+    let measured = read(&a.measurement)?;
+    let variances = read(&a.variance)?;
+    for (path, (v, i)) in a.variance.iter().zip(variances.iter().zip(&measured)) {
+        if v.len() != i.len() || v.iter().any(|x| !(x.is_finite() && *x >= 0.0)) {
+            return Err(super::Usage(format!(
+                "{}: a variance needs {} finite values >= 0, one per value of its measurement",
+                path.display(),
+                i.len()
+            ))
+            .into());
+        }
+    }
     let sets: Vec<SourceMeasurement> = a
         .source
         .iter()
         .zip(&measured)
-        .map(|(&(u, v), i)| SourceMeasurement {
+        .enumerate()
+        .map(|(k, (&(u, v), i))| SourceMeasurement {
             source: PointSource { u, v },
             i,
+            variance: variances.get(k).map(Vec::as_slice),
         })
         .collect();
     // Starts from the scene file's own material.

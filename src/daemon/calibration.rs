@@ -6,8 +6,9 @@ use serde::Serialize;
 
 use super::validate::RequestError;
 use super::Daemon;
-use crate::calibrate::geometry::{detect, fit, scene_with_homography, Target};
-use crate::store::{read_mean, JobState};
+use crate::calibrate::geometry::{detect_with_variance, fit, scene_with_homography, Target};
+use crate::solve::adequacy::Adequacy;
+use crate::store::{read_mean, read_mean_variance, JobState};
 
 /// A fitted pose.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -28,9 +29,27 @@ pub struct GeometryCalibration {
     pub rms_px: f64,
     /// Largest reprojection error, pixels.
     pub max_px: f64,
+    /// Whether the homography explains the dots to their centroid noise
+    /// (from the capture's frame variance; `explained` is null without one).
+    #[schema(value_type = Object)]
+    pub model_check: Adequacy,
+    /// What the user should know before trusting the homography.
+    pub warnings: Vec<String>,
     /// The scene file with this pose's homography, region and binning
     /// replaced (comments not kept): review it, then load it as a scene file.
     pub scene_toml: String,
+}
+
+/// The width in pixels of a wall element at the wall's centre under `h`
+/// (NaN without the scene).
+fn element_px(h: &crate::scene::Homography, scene: Option<&crate::scene::Scene>) -> f64 {
+    let Some(s) = scene else { return f64::NAN };
+    let p = &s.wall.plane;
+    let du = p.size[0] / p.grid.nu as f64;
+    match (h.apply(0.0, 0.0), h.apply(du, 0.0)) {
+        (Some(a), Some(b)) => (b.0 - a.0).hypot(b.1 - a.1),
+        _ => f64::NAN,
+    }
 }
 
 impl Daemon {
@@ -54,10 +73,40 @@ impl Daemon {
             Some(t) => Target::from_toml_str(t).map_err(|e| invalid(e.to_string()))?,
             None => Target::default_target(),
         };
-        let mean = read_mean(&self.store.capture_dir(capture))
-            .map_err(|e| invalid(format!("capture {capture}: {}", self.store.describe(&e))))?;
-        let f =
-            fit(&target, &detect(&mean)).map_err(|e| invalid(format!("capture {capture}: {e}")))?;
+        let dir = self.store.capture_dir(capture);
+        let unreadable = |e| invalid(format!("capture {capture}: {}", self.store.describe(&e)));
+        let mean = read_mean(&dir).map_err(unreadable)?;
+        // The digitizer's rounding bias counts as noise too (measure::stack).
+        let variance = read_mean_variance(&dir).map_err(unreadable)?.map(|mut v| {
+            let n = c.frames as f64;
+            for p in &mut v.pixels {
+                *p = crate::measure::with_rounding_bias(f64::from(*p), n) as f32;
+            }
+            v
+        });
+        let f = fit(&target, &detect_with_variance(&mean, variance.as_ref()))
+            .map_err(|e| invalid(format!("capture {capture}: {e}")))?;
+        let mut warnings: Vec<String> = f
+            .model_check
+            .warning_with_causes(
+                "the dots of the target capture",
+                "dot centroids biased by blur or perspective, lens distortion, a target that is not flat on the wall or not the target file given",
+            )
+            .map(|w| {
+                format!(
+                    "{w} (reprojection RMS {:.3} px against a centroid noise of {:.1e} px: with a wall element {:.0} px wide, an error well below a pixel still places every element)",
+                    f.rms_px,
+                    f.model_check.noise_rms.unwrap_or(f64::NAN),
+                    element_px(&f.homography, self.scenes.scene(&c.scene).ok().as_deref()),
+                )
+            })
+            .into_iter()
+            .collect();
+        if variance.is_none() {
+            warnings.push(format!(
+                "capture {capture} has a single frame, so the dots' centroid noise is unknown and the fit cannot say whether the homography explains them; capture 2 frames or more"
+            ));
+        }
         let region = c
             .region
             .unwrap_or([0, 0, mean.width as u32, mean.height as u32]);
@@ -76,6 +125,8 @@ impl Daemon {
             dots: f.dots,
             rms_px: f.rms_px,
             max_px: f.max_px,
+            model_check: f.model_check,
+            warnings,
             scene_toml,
         })
     }
@@ -144,15 +195,16 @@ impl Daemon {
             ordered.push(captures.iter().map(|c| c.id).collect());
             let stacked = super::reconstruction::stack_records(self, captures, &scene)
                 .map_err(|e| invalid(e.to_string()))?;
-            measured.push(stacked.i);
+            measured.push((stacked.i, stacked.var));
             warnings.extend(stacked.warnings);
         }
         let sets: Vec<SourceMeasurement> = positions
             .iter()
             .zip(&measured)
-            .map(|(p, i)| SourceMeasurement {
+            .map(|(p, (i, var))| SourceMeasurement {
                 source: p.source,
                 i,
+                variance: var.as_deref(),
             })
             .collect();
         // A refused fit names what loading the captures found too: a missing
@@ -161,6 +213,9 @@ impl Daemon {
             [] => invalid(e.to_string()),
             w => invalid(format!("{e}. Also: {}", w.join("; "))),
         })?;
+        // What the fit itself found (a model that does not explain the
+        // captures, a better polarizer model) comes first.
+        warnings.splice(0..0, fit.warnings.iter().cloned());
         let captures = ordered.concat();
         let positions = positions
             .iter()

@@ -216,6 +216,7 @@ impl Solver {
             homography: &homography,
             mean: &mean,
             variance: None,
+            frames: 1,
             full_scale: PixelFormat::from_name(&self.capture.pixel_format)
                 .unwrap_or(PixelFormat::Mono16)
                 .full_scale(),

@@ -251,6 +251,7 @@ impl Loaded<'_> {
             homography: &self.homography,
             mean: &self.mean,
             variance: self.variance.as_ref(),
+            frames: self.capture.frames as usize,
             full_scale: PixelFormat::from_name(&self.capture.pixel_format)
                 .unwrap_or(PixelFormat::Mono16)
                 .full_scale(),

@@ -5,7 +5,7 @@
 pub mod exposure;
 mod stack;
 
-pub use stack::{stack, BlockFrames, Measurement};
+pub use stack::{stack, with_rounding_bias, BlockFrames, Measurement};
 
 use crate::camera::Frame;
 use crate::scene::{Homography, Plane};

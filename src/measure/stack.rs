@@ -2,6 +2,15 @@
 //! each block's mean frame sampled at the wall elements through its pose's
 //! homography, in fractions of full scale per microsecond, stacked in block
 //! order, with the variance of each element when every block has one.
+//!
+//! The variance of a mean of frames is not the frame-to-frame variance over
+//! the frame count alone: where the noise per frame is below one DN the
+//! digitizer does not dither, every frame rounds the same way, and the mean
+//! keeps a bias of up to half a DN that no number of frames averages away
+//! (and that the sample variance does not see). Each element's variance
+//! therefore adds that bias's variance, `(1/12) exp(-2 pi^2 s^2)` DN² for a
+//! per-frame noise of `s` DN (the residual of Gaussian-dithered rounding:
+//! the first Fourier term of the quantizer's error, Widrow & Kollár 2008).
 
 use super::{sample_wall, MeasureError};
 use crate::camera::Frame;
@@ -18,6 +27,8 @@ pub struct BlockFrames<'a> {
     pub mean: &'a Frame,
     /// Variance of the mean frame, DN², when the capture had 2 frames or more.
     pub variance: Option<&'a Frame>,
+    /// Frames averaged into the mean (for the quantization floor of the variance).
+    pub frames: usize,
     /// Full scale of the pixel format, DN.
     pub full_scale: f64,
     /// Exposure per frame, microseconds.
@@ -46,12 +57,26 @@ pub fn stack(blocks: &[BlockFrames<'_>], wall: &Plane) -> Result<Measurement, Me
         match (b.variance, variance.as_mut()) {
             (Some(f), Some(acc)) => {
                 let values = sample_wall(f, b.homography, wall, b.pose)?;
-                acc.extend(values.into_iter().map(|v| v * to_units * to_units));
+                let n = b.frames.max(1) as f64;
+                acc.extend(
+                    values
+                        .into_iter()
+                        .map(|v| with_rounding_bias(v, n) * to_units * to_units),
+                );
             }
             _ => variance = None,
         }
     }
     Ok(Measurement { i, variance })
+}
+
+/// The variance of a mean of `n` frames, `var_mean` DN² as measured, plus the
+/// variance of the rounding bias the mean keeps when the per-frame noise
+/// `s = sqrt(n var_mean)` does not dither the digitizer (module docs).
+pub fn with_rounding_bias(var_mean: f64, n: f64) -> f64 {
+    let var_mean = var_mean.max(0.0);
+    let s2 = n * var_mean;
+    var_mean + (-2.0 * std::f64::consts::PI.powi(2) * s2).exp() / 12.0
 }
 
 #[cfg(test)]
@@ -89,6 +114,7 @@ mod tests {
             homography: &h,
             mean,
             variance,
+            frames: 8,
             full_scale: 1000.0,
             exposure_us,
         };
@@ -112,6 +138,18 @@ mod tests {
         assert_eq!(m.expect("inside").variance, None);
     }
 
+    #[test]
+    fn the_variance_keeps_the_rounding_bias_that_frames_do_not_average() {
+        // Noiseless frames: the mean is known to the digitizer's 1/12 DN², not 0.
+        assert!((with_rounding_bias(0.0, 32.0) - 1.0 / 12.0).abs() < 1e-15);
+        // 0.2 DN of noise per frame dithers a little: part of the floor remains.
+        let b = with_rounding_bias(0.04 / 32.0, 32.0) - 0.04 / 32.0;
+        assert!(b > 0.01 && b < 1.0 / 12.0, "{b}");
+        // 2 DN per frame dithers fully: the measured variance stands.
+        let v = 4.0 / 32.0;
+        assert!((with_rounding_bias(v, 32.0) - v).abs() < 1e-30);
+    }
+
     fn var_frame() -> Frame {
         flat(1.0)
     }
@@ -129,6 +167,7 @@ mod tests {
             homography: &h,
             mean: &small,
             variance: None,
+            frames: 1,
             full_scale: 1.0,
             exposure_us: 1.0,
         };

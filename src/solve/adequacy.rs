@@ -98,9 +98,14 @@ impl Adequacy {
     /// The warning a flagged fit deserves, naming what was fitted and the
     /// likely causes; `None` when the model explains the data or that is unknown.
     pub fn warning(&self, what: &str) -> Option<String> {
+        self.warning_with_causes(what, LIKELY_CAUSES)
+    }
+
+    /// [`Adequacy::warning`] naming other likely `causes` (a fit that is not of `T`).
+    pub fn warning_with_causes(&self, what: &str, causes: &str) -> Option<String> {
         match (self.explained, self.misfit_to_noise) {
             (Some(false), Some(m)) => Some(format!(
-                "the model does not explain {what}: its best fit leaves {m:.1}x the noise unexplained (chi2/dof = {:.3}, more than {MISFIT_LIMIT}x is flagged); likely causes: {LIKELY_CAUSES}",
+                "the model does not explain {what}: its best fit leaves {m:.1}x the noise unexplained (chi2/dof = {:.3}, more than {MISFIT_LIMIT}x is flagged); likely causes: {causes}",
                 m * m
             )),
             _ => None,

@@ -171,6 +171,20 @@ impl Prox {
     }
 }
 
+/// TV denoising of an image on `grid`: `argmin_x 1/2 ||x - b||^2 + weight
+/// TV(x)` on `[0, 1]`, by Chambolle's dual projection in its accelerated form
+/// (FGP, Beck & Teboulle 2009), `iterations` steps from a zero dual.
+///
+/// Why here: the paper's Fig. 9 asks whether post-processing a baseline
+/// reconstruction closes the gap to the polarized one; this is the same
+/// proximal step FISTA-TV takes, so the comparison uses one TV.
+pub fn tv_denoise(grid: Grid, b: &[f64], weight: f64, iterations: usize) -> Vec<f64> {
+    let mut prox = Prox::new(grid);
+    let mut out = vec![0.0; grid.count()];
+    prox.solve(b, weight.max(0.0), iterations, &mut out);
+    out
+}
+
 /// [`fista_tv`] with `T^T T` and `T^T i` already formed (`i` already checked).
 pub fn fista_tv_prepared(
     t: &Transport,
@@ -293,6 +307,34 @@ mod tests {
             data[k * n + k] = 1.0;
         }
         Transport::from_col_major(n, n, data, vec![], Grid { nu: n, nv: 1 }, grid)
+    }
+
+    #[test]
+    fn tv_denoising_restores_a_noisy_step() {
+        // A step edge plus alternating noise: denoising brings it closer to
+        // the step, and a zero weight only clips to the box.
+        let grid = Grid { nu: 8, nv: 8 };
+        let truth: Vec<f64> = (0..64).map(|k| if k % 8 < 4 { 0.2 } else { 0.8 }).collect();
+        let noisy: Vec<f64> = truth
+            .iter()
+            .enumerate()
+            .map(|(k, v)| v + if (k / 8 + k) % 2 == 0 { 0.1 } else { -0.1 })
+            .collect();
+        let err = |x: &[f64]| {
+            x.iter()
+                .zip(&truth)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+        };
+        let den = tv_denoise(grid, &noisy, 0.1, 200);
+        assert!(
+            err(&den) < 0.2 * err(&noisy),
+            "{} vs {}",
+            err(&den),
+            err(&noisy)
+        );
+        let clipped = tv_denoise(grid, &[1.5; 64], 0.0, 10);
+        assert!(clipped.iter().all(|&v| v == 1.0));
     }
 
     #[test]
