@@ -463,8 +463,46 @@ fn camera_settings_are_validated_and_applied() {
     );
     assert_eq!(s, 422, "{b}");
     assert!(b.contains("ExposureTimeAbs = 1: out of range"), "{b}");
+    // A partial body changes what it names; the rest keep their defaults.
     let (s, b) = put(r#"{"exposure_us": 1000}"#);
+    assert_eq!(s, 200, "{b}");
+    let defaults = &d.json("/camera")["capture_defaults"];
+    assert_eq!(defaults["exposure_us"], 1000.0, "{defaults}");
+    assert_eq!(defaults["pixel_format"], "Mono8", "{defaults}");
+    assert_eq!(defaults["trigger"], "software", "{defaults}");
+    let (s, b) = put(r#"{"pixel_format": "Mono16", "trigger": "free"}"#);
+    assert_eq!(s, 200, "{b}");
+    let defaults = &d.json("/camera")["capture_defaults"];
+    assert_eq!(defaults["pixel_format"], "Mono16", "{defaults}");
+    assert_eq!(defaults["exposure_us"], 1000.0, "{defaults}");
+    // An unknown key is named, not ignored.
+    let (s, b) = put(r#"{"pixel_fromat": "Mono8"}"#);
     assert_eq!(s, 422, "{b}");
+    assert!(b.contains("pixel_fromat"), "{b}");
+}
+
+#[test]
+fn a_capture_s_settings_do_not_leak_into_the_next() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let before = d.json("/camera")["capture_defaults"].clone();
+    assert_eq!(before["pixel_format"], "Mono16", "{before}");
+    // One capture states Mono8, 5 ms, gain 2 ...
+    let c = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 5000, "gain": 2, "pixel_format": "Mono8", "frames": 2}"#, Duration::from_secs(20));
+    assert_eq!(c["state"], "done", "{c}");
+    assert_eq!(c["pixel_format"], "Mono8", "{c}");
+    // ... the camera now reads back Mono8, but the defaults are unchanged ...
+    let cam = d.json("/camera");
+    assert_eq!(cam["capture_defaults"], before, "{cam}");
+    // ... and a capture that states none runs with them.
+    // (exposure is always the capture's own: stated, or "auto".)
+    let c = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 2}"#, Duration::from_secs(20));
+    assert_eq!(c["state"], "done", "{c}");
+    assert_eq!(c["pixel_format"], "Mono16", "{c}");
+    assert_eq!(c["gain"], before["gain"], "{c}");
+    assert_eq!(c["trigger"], before["trigger"], "{c}");
 }
 
 #[test]

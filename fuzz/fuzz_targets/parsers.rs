@@ -83,9 +83,11 @@ pub fn reconstruction_json(data: &[u8]) {
     }
 }
 
-/// A `PUT /camera/settings` body, and the geometry check it reaches.
+/// A `PUT /camera/settings` body (a change over the defaults), and the
+/// geometry check it reaches.
 pub fn settings_json(data: &[u8]) {
-    if let Ok(s) = serde_json::from_slice::<CameraSettings>(data) {
+    if let Ok(c) = serde_json::from_slice::<polnlos::camera::SettingsChange>(data) {
+        let s = c.over(&CameraSettings::default());
         if LIMITS
             .check(
                 s.region.unwrap_or([0, 0, 512, 512]),

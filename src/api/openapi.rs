@@ -55,6 +55,7 @@ use super::routes;
         crate::daemon::FittedPosition,
         crate::daemon::ProgressiveStep,
         crate::camera::CameraSettings,
+        crate::camera::SettingsChange,
         crate::store::CaptureRecord,
         crate::store::ReconstructionRecord,
         crate::store::JobState,

@@ -19,7 +19,7 @@ use super::bodies::{
 };
 use super::extract::{ApiJson, ApiPath as Path, ApiQuery as Query};
 use super::ApiError;
-use crate::camera::CameraSettings;
+use crate::camera::SettingsChange;
 use crate::daemon::metrics::{counter, gauge, Metrics};
 use crate::daemon::{Daemon, JobKind};
 use crate::measure::exposure::BlockExposure;
@@ -115,12 +115,13 @@ pub async fn camera_frame(State(d): St) -> Result<Response, ApiError> {
     Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
 }
 
-/// Applies camera settings now and makes them the defaults of later captures
-/// (queued captures keep their own). 409 while a capture has the camera.
-#[utoipa::path(put, path = "/camera/settings", request_body = CameraSettings, responses((status = 200, body = crate::camera::CameraInfo, description = "Applied; the camera's description with its settings read back"), (status = 409, description = "A capture is running"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
+/// Changes the capture defaults (any subset of the settings; the rest keep
+/// theirs) and applies them to the camera now (queued captures keep their
+/// own). 409 while a capture has the camera.
+#[utoipa::path(put, path = "/camera/settings", request_body = SettingsChange, responses((status = 200, body = crate::camera::CameraInfo, description = "Applied; the camera's description with its settings read back"), (status = 409, description = "A capture is running"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
 pub async fn camera_settings(
     State(d): St,
-    ApiJson(s): ApiJson<CameraSettings>,
+    ApiJson(s): ApiJson<SettingsChange>,
 ) -> Result<Json<crate::camera::CameraInfo>, ApiError> {
     Ok(Json(d.put_camera_settings(s).await?))
 }

@@ -20,4 +20,6 @@ pub mod worker;
 
 pub use device::{CameraDevice, CameraError, CameraInfo, Counters, FrameSink, RawFrame};
 pub use frame::Frame;
-pub use settings::{CameraSettings, GeometryError, PixelFormat, SensorLimits, TriggerMode};
+pub use settings::{
+    CameraSettings, GeometryError, PixelFormat, SensorLimits, SettingsChange, TriggerMode,
+};

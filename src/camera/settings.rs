@@ -104,6 +104,42 @@ impl Default for CameraSettings {
     }
 }
 
+/// A change of the capture defaults (`PUT /camera/settings`): any subset of
+/// the settings; what it leaves out keeps its current default.
+///
+/// Why a separate type: a client that means to change one setting must not
+/// have to restate (and so risk resetting) the others.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SettingsChange {
+    /// Exposure, microseconds.
+    pub exposure_us: Option<f64>,
+    /// Gain in the camera's units.
+    pub gain: Option<f64>,
+    /// Pixel format.
+    pub pixel_format: Option<PixelFormat>,
+    /// Region of interest `[x, y, width, height]` in (binned) pixels.
+    pub region: Option<[u32; 4]>,
+    /// Binning `[x, y]`.
+    pub binning: Option<[u32; 2]>,
+    /// Trigger mode.
+    pub trigger: Option<TriggerMode>,
+}
+
+impl SettingsChange {
+    /// `base` with this change applied.
+    pub fn over(&self, base: &CameraSettings) -> CameraSettings {
+        CameraSettings {
+            exposure_us: self.exposure_us.unwrap_or(base.exposure_us),
+            gain: self.gain.unwrap_or(base.gain),
+            pixel_format: self.pixel_format.unwrap_or(base.pixel_format),
+            region: self.region.or(base.region),
+            binning: self.binning.or(base.binning),
+            trigger: self.trigger.unwrap_or(base.trigger),
+        }
+    }
+}
+
 /// Exposure polnlos accepts at all: 10 us to one hour.
 pub const EXPOSURE_RANGE_US: (f64, f64) = (10.0, 3.6e9);
 

@@ -4,7 +4,7 @@
 
 use super::Daemon;
 use crate::camera::worker::CameraStatus;
-use crate::camera::{CameraInfo, CameraSettings};
+use crate::camera::{CameraInfo, CameraSettings, SettingsChange};
 
 /// Why a settings change was refused.
 #[derive(Debug, thiserror::Error)]
@@ -34,31 +34,46 @@ pub struct CameraView {
 
 impl Daemon {
     /// The settings a capture inherits for what it does not state: the last
-    /// `PUT /camera/settings`, else what the camera reported (`info`).
+    /// `PUT /camera/settings`, else what the camera reported the first time
+    /// the daemon saw it (`info`), latched then.
+    ///
+    /// Why latched: a capture configures the camera with its own settings,
+    /// and reading the camera back afterwards would hand them to every later
+    /// capture that states none (a Mono8 capture turning the next ones Mono8).
+    /// A capture's settings belong to it; defaults change only by a PUT.
     pub fn capture_defaults(&self, info: Option<&CameraInfo>) -> CameraSettings {
-        let put = self.defaults.lock().map(|g| g.clone()).unwrap_or(None);
         let camera = info.map(|i| i.settings.clone());
-        match (put, camera) {
+        let latched = match self.defaults.lock() {
+            Ok(mut d) => {
+                if d.is_none() {
+                    d.clone_from(&camera);
+                }
+                d.clone()
+            }
+            Err(_) => None,
+        };
+        match (latched, camera) {
             (Some(mut p), Some(c)) => {
                 p.region = p.region.or(c.region);
                 p.binning = p.binning.or(c.binning);
                 p
             }
             (Some(p), None) => p,
-            (None, Some(c)) => c,
-            (None, None) => CameraSettings::default(),
+            (None, _) => CameraSettings::default(),
         }
     }
 
-    /// Applies camera settings now and makes them the defaults later
-    /// captures inherit. Refused (not waited for) while a capture has the camera.
+    /// Applies a change of the settings (what it leaves out keeps its
+    /// current default) and makes the result the defaults later captures
+    /// inherit. Refused (not waited for) while a capture has the camera.
     pub async fn put_camera_settings(
         &self,
-        s: CameraSettings,
+        change: SettingsChange,
     ) -> Result<CameraInfo, SettingsError> {
         let Ok(_camera) = self.camera_gate.try_lock() else {
             return Err(SettingsError::Busy);
         };
+        let s = change.over(&self.capture_defaults(self.camera.status().info.as_ref()));
         if let Some(info) = self.camera.status().info {
             let binning = s.binning.or(info.settings.binning).unwrap_or([1, 1]);
             if let Some(region) = s.region.or(info.settings.region) {
