@@ -1,7 +1,12 @@
 //! Progressive reconstruction while a capture accumulates frames: every
 //! `every` frames the running mean (dark-subtracted) is sampled at the wall,
-//! stacked with the other blocks' captures, and solved with ADMM-TV warm-
-//! started from the previous step, its factorization kept ([`AdmmState`]).
+//! stacked with the other blocks' captures, and solved with ADMM-TV. Without
+//! a λ in the request each step takes the final reconstruction's rule (the
+//! resolved discrepancy of [`crate::solve::lambda`]) with the running
+//! frame-to-frame variance, so a step is as good as reconstructing the same
+//! frames afterwards; with a fixed λ (or a single frame, which has no
+//! variance) it is warm-started from the previous step, its factorization
+//! kept ([`AdmmState`]).
 //! Each step is published: a `progressive` event, `progressive.png` (the
 //! latest image) and `progressive.json` (every step) in the capture's folder.
 //!
@@ -26,6 +31,8 @@ use crate::measure::{stack, BlockFrames};
 use crate::scene::Scene;
 use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};
+use crate::solve::lambda::{admm_tv_resolved, NoiseLevel};
+use crate::solve::reconstruct::AUTO_MAX_ITER;
 use crate::store::{CaptureRecord, FrameStack};
 use crate::transport::Transport;
 
@@ -40,6 +47,8 @@ struct Snapshot {
     frames: usize,
     /// Per-pixel mean, DN (not dark-subtracted).
     mean: Vec<f64>,
+    /// Per-pixel variance of that mean, DN², from 2 frames on.
+    variance: Option<Vec<f64>>,
     /// Columns.
     width: usize,
     /// Rows.
@@ -51,6 +60,7 @@ impl Snapshot {
         Self {
             frames: st.count,
             mean: st.mean.clone(),
+            variance: st.variance_of_mean(),
             width: st.width,
             height: st.height,
         }
@@ -105,6 +115,9 @@ pub struct Step {
     pub change: Option<f64>,
     /// PSNR against the truth, when one was given, dB.
     pub psnr_db: Option<f64>,
+    /// The TV weight the step used: the automatic rule's, from the running
+    /// frame variance, unless the request fixed it.
+    pub lambda: Option<f64>,
     /// Seconds the step took.
     pub seconds: f64,
 }
@@ -116,6 +129,11 @@ struct Solver {
     capture: CaptureRecord,
     /// The measurement with the other blocks' rows filled in, in units of `T l`.
     i: Vec<f64>,
+    /// Its variance (the other blocks' from their captures), when every
+    /// other block has one; this block's rows are filled at each step.
+    variance: Option<Vec<f64>>,
+    /// Singular values of `T`, for the automatic λ.
+    singular_values: Arc<crate::solve::Conditioning>,
     /// This capture's block.
     own: usize,
     normal: Normal,
@@ -144,6 +162,7 @@ impl Solver {
             }
         })?;
         let mut i = vec![0.0; t.rows()];
+        let mut variance = Some(vec![0.0; t.rows()]);
         let mut own = None;
         let mut warnings = Vec::new();
         let others = read_captures(d, &spec.captures)?;
@@ -154,9 +173,17 @@ impl Solver {
             }
             let other = capture_for_block(&others, block)?.clone();
             let l = load_capture(d, other, &scene, &mut warnings)?;
-            let rows = stack(&[l.block()], &scene.wall.plane)?.i;
-            for (dst, v) in i[t.block_rows(b)].iter_mut().zip(rows) {
+            let m = stack(&[l.block()], &scene.wall.plane)?;
+            for (dst, v) in i[t.block_rows(b)].iter_mut().zip(m.i) {
                 *dst = v / calibration;
+            }
+            match (m.variance, variance.as_mut()) {
+                (Some(v), Some(acc)) => {
+                    for (dst, v) in acc[t.block_rows(b)].iter_mut().zip(v) {
+                        *dst = v / (calibration * calibration);
+                    }
+                }
+                _ => variance = None,
             }
         }
         let own = own.ok_or_else(|| JobError::Store("the capture's block is not in T".into()))?;
@@ -172,6 +199,8 @@ impl Solver {
                 max_iter: spec.max_iter,
                 ..AdmmSettings::default()
             },
+            singular_values: d.scenes.conditioning(&capture.scene)?,
+            variance,
             t,
             scene,
             capture,
@@ -211,30 +240,65 @@ impl Solver {
                 pose: block.pose.clone(),
             }
         })?;
+        let variance = s.variance.as_ref().map(|v| Frame {
+            width: s.width,
+            height: s.height,
+            pixels: v.iter().map(|&x| x as f32).collect(),
+        });
         let frames = BlockFrames {
             pose: &block.pose,
             homography: &homography,
             mean: &mean,
-            variance: None,
-            frames: 1,
+            variance: variance.as_ref(),
+            frames: s.frames,
             full_scale: PixelFormat::from_name(&self.capture.pixel_format)
                 .unwrap_or(PixelFormat::Mono16)
                 .full_scale(),
             exposure_us: self.capture.exposure_us,
         };
-        let rows = stack(&[frames], &self.scene.wall.plane)?.i;
+        let m = stack(&[frames], &self.scene.wall.plane)?;
         let range = self.t.block_rows(self.own);
-        for (dst, v) in self.i[range].iter_mut().zip(rows) {
+        for (dst, v) in self.i[range.clone()].iter_mut().zip(m.i) {
             *dst = v / self.calibration;
         }
-        self.normal.ti = adjoint(self.t.as_mat(), &self.i);
-        let r = admm_tv_warm(
-            &self.t,
-            &self.i,
-            &self.normal,
-            &self.settings,
-            &mut self.state,
-        )?;
+        // The running variance of this block, beside the other blocks'.
+        let noise = match (self.settings.lambda, m.variance, self.variance.as_mut()) {
+            (None, Some(v), Some(all)) => {
+                let c2 = self.calibration * self.calibration;
+                for (dst, v) in all[range].iter_mut().zip(v) {
+                    *dst = v / c2;
+                }
+                Some(NoiseLevel::measured(all.clone()))
+            }
+            _ => None,
+        };
+        let (r, lambda) = match noise {
+            Some(noise) => {
+                let (r, choice) = admm_tv_resolved(
+                    &self.t,
+                    &self.i,
+                    &noise,
+                    &self.singular_values.singular_values,
+                    &AdmmSettings {
+                        max_iter: self.settings.max_iter.max(AUTO_MAX_ITER),
+                        ..self.settings
+                    },
+                )?;
+                (r, Some(choice.lambda))
+            }
+            None => {
+                self.normal.ti = adjoint(self.t.as_mat(), &self.i);
+                let r = admm_tv_warm(
+                    &self.t,
+                    &self.i,
+                    &self.normal,
+                    &self.settings,
+                    &mut self.state,
+                )?;
+                let lambda = r.stats.lambda;
+                (r, lambda)
+            }
+        };
         let norm = r
             .image
             .iter()
@@ -259,6 +323,7 @@ impl Solver {
                 .truth
                 .as_ref()
                 .map(|t| crate::solve::metrics::psnr(t, &r.image)),
+            lambda,
             seconds: start.elapsed().as_secs_f64(),
         };
         self.previous = Some(r.image.clone());
