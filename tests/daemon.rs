@@ -648,8 +648,9 @@ fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
     let cfg = config(dir.path(), &[]);
     let data = dir.path().join("data");
     let d = Daemon::start(&cfg, &data);
-    // 150 frames of 20 ms through Aravis's fake camera (3 s), and one queued behind it.
-    let long = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 150}"#;
+    // 150 frames of 20 ms through Aravis's fake camera (3 s) after 4 dark
+    // frames, and one queued behind it.
+    let long = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 150, "dark_frames": 4}"#;
     let (s, b, running) = d.post("/captures", long);
     assert_eq!(s, 202, "{b}");
     let (s, b, queued) = d.post("/captures", long);
@@ -680,7 +681,8 @@ fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
     println!("cancelled after {taken} of 150 frames; DELETE answered in {took:?}");
     assert!(taken < 100, "{c}");
     assert!(took < Duration::from_millis(1500), "{took:?}");
-    // Nothing half-written is kept: no frame file, no temporary file.
+    // Nothing half-written is kept: no frame file, no dark frames (complete
+    // before the light frames began, of no use without them), no temporary.
     let files: Vec<String> = std::fs::read_dir(data.join("captures/1"))
         .map(|r| {
             r.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
@@ -707,6 +709,17 @@ fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
         metrics.contains("polnlos_jobs_cancelled_total 2"),
         "{metrics}"
     );
+
+    // Raw frames left in a cancelled capture's folder (a daemon stopped
+    // before it could remove them) are removed at the next start; a done
+    // capture's are kept.
+    std::fs::create_dir_all(data.join("captures/2")).unwrap();
+    std::fs::write(data.join("captures/2/dark.tiff"), b"left behind").unwrap();
+    drop(d);
+    let d = Daemon::start(&cfg, &data);
+    assert!(!data.join("captures/2/dark.tiff").exists());
+    assert!(data.join("captures/3/frames.tiff").exists());
+    assert_eq!(d.json("/captures/3")["state"], "done");
 }
 
 #[test]

@@ -115,7 +115,14 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
     if let Some((tx, steps)) = progressive {
         finish_progressive(d, id, frames.as_ref().ok(), tx, steps).await;
     }
-    let frames = frames?;
+    let frames = match frames {
+        Ok(f) => f,
+        Err(e) => {
+            // Cancelled or failed: its dark frames are of no use either.
+            crate::store::remove_raw(&dir);
+            return Err(e);
+        }
+    };
     let store = d.store.clone();
     tokio::task::spawn_blocking(move || {
         write_summary(&dir, &frames, dark.as_ref(), &meta)

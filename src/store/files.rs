@@ -62,6 +62,20 @@ impl CaptureFiles {
     pub const PREVIEW: &'static str = "preview.png";
 }
 
+/// Removes the raw frame files (`frames.tiff`, `dark.tiff`) of a capture
+/// that did not finish, and returns those it removed.
+///
+/// Why: a cancelled or interrupted capture keeps no data the user can use,
+/// but its dark frames were complete before its light frames began and
+/// would stay behind (up to hundreds of MB with many dark frames).
+pub fn remove_raw(dir: &Path) -> Vec<std::path::PathBuf> {
+    [CaptureFiles::DARK, CaptureFiles::FRAMES]
+        .iter()
+        .map(|f| dir.join(f))
+        .filter(|p| std::fs::remove_file(p).is_ok())
+        .collect()
+}
+
 /// Bytes the files of a capture take at most: raw pages, mean, variance and
 /// preview, plus a little for headers and metadata.
 pub fn capture_bytes(width: u32, height: u32, frames: usize, dark_frames: usize) -> u64 {

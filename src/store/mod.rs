@@ -15,8 +15,8 @@ use std::sync::Mutex;
 use rusqlite::{params, Connection, OptionalExtension};
 
 pub use files::{
-    capture_bytes, read_mean, read_mean_variance, write_frames, write_summary, CaptureFiles,
-    FrameMeta, FrameStack, TMP_MARK,
+    capture_bytes, read_mean, read_mean_variance, remove_raw, write_frames, write_summary,
+    CaptureFiles, FrameMeta, FrameStack, TMP_MARK,
 };
 pub use lock::{remove_orphans, DirLock, LOCK_FILE};
 pub use records::{
@@ -246,6 +246,20 @@ impl Store {
                 params![why, now()],
             )
             .map_err(db)?;
+        }
+        // Captures that did not finish keep no raw frames (a run killed
+        // mid-capture, or one that could not remove them when cancelled).
+        let unfinished: Vec<i64> = conn
+            .prepare("SELECT id FROM captures WHERE state IN ('interrupted', 'cancelled')")
+            .and_then(|mut st| {
+                st.query_map([], |r| r.get(0))?
+                    .collect::<Result<Vec<i64>, _>>()
+            })
+            .map_err(db)?;
+        for id in unfinished {
+            for p in files::remove_raw(&dir.join("captures").join(id.to_string())) {
+                tracing::info!("removed {}: capture {id} did not finish", p.display());
+            }
         }
         Ok(Self {
             dir: dir.to_path_buf(),
