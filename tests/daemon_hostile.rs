@@ -319,6 +319,11 @@ fn http_edges_answer_json_and_never_wrap() {
             "POST /captures HTTP/1.1\r\nHost: 127.0.0.1\r\nOrigin: http://attacker.example\r\nContent-Type: application/json\r\nContent-Length: 2\r\nConnection: close\r\n\r\n{}".into(),
             403,
         ),
+        // Another port on this machine is another origin (a local dev server's page).
+        (
+            "DELETE /jobs/capture-1 HTTP/1.1\r\nHost: 127.0.0.1\r\nOrigin: http://localhost:9999\r\nConnection: close\r\n\r\n".into(),
+            403,
+        ),
     ] {
         let (s, b) = d.raw(req.as_bytes());
         assert_eq!(s, status, "{}: {b}", &req[..40.min(req.len())]);

@@ -67,7 +67,7 @@ pub async fn guard(State(g): State<Guard>, req: Request, next: Next) -> Result<R
     check_host(headers, &g.hosts)?;
     let mutating = !matches!(*req.method(), Method::GET | Method::HEAD | Method::OPTIONS);
     if mutating {
-        check_origin(headers, &g.hosts)?;
+        check_origin(headers, &g.hosts, d.config().bind.port())?;
     }
     let path = req.uri().path();
     let public = path == "/health"
@@ -122,21 +122,43 @@ fn check_host(headers: &HeaderMap, allowed: &[String]) -> Result<(), ApiError> {
     )))
 }
 
-fn check_origin(headers: &HeaderMap, allowed: &[String]) -> Result<(), ApiError> {
+/// The port of a `Host` value or an origin's authority, when it names one.
+fn port_of(authority: &str) -> Option<u16> {
+    let a = authority.trim();
+    let tail = match a.strip_prefix('[') {
+        Some(rest) => rest.split_once(']').map(|(_, t)| t)?,
+        None => a,
+    };
+    let (_, port) = tail.rsplit_once(':')?;
+    port.parse().ok()
+}
+
+/// A state-changing request must come from the daemon's own origin: an
+/// allowed host name *and* the port the request was sent to (the `Host`
+/// header's, else the bound one). Why the port: another web server on the
+/// same machine (`http://localhost:9999`) is another origin, and a page it
+/// serves must not drive the bench.
+fn check_origin(headers: &HeaderMap, allowed: &[String], bound: u16) -> Result<(), ApiError> {
     let Some(origin) = headers.get(header::ORIGIN) else {
         return Ok(());
     };
     let text = origin.to_str().unwrap_or_default();
-    let authority = text
-        .strip_prefix("http://")
-        .or_else(|| text.strip_prefix("https://"))
-        .unwrap_or("");
+    let (authority, default_port) = match text.strip_prefix("http://") {
+        Some(a) => (a, 80),
+        None => (text.strip_prefix("https://").unwrap_or(""), 443),
+    };
     let name = host_name(authority);
-    if !name.is_empty() && allowed.contains(&name) {
+    let port = port_of(authority).unwrap_or(default_port);
+    let served = headers
+        .get(header::HOST)
+        .and_then(|h| h.to_str().ok())
+        .and_then(port_of)
+        .unwrap_or(bound);
+    if !name.is_empty() && allowed.contains(&name) && port == served {
         return Ok(());
     }
     Err(ApiError::forbidden(format!(
-        "requests that change state are not accepted from origin {text:?}; add its host to [http] allowed_hosts if it is yours"
+        "requests that change state are not accepted from origin {text:?}: only from this daemon's own pages (port {served}); add its host to [http] allowed_hosts if it is yours"
     )))
 }
 
@@ -191,9 +213,34 @@ mod tests {
         assert!(check_host(&with(header::HOST, "[::1]:1"), &allowed).is_ok());
         assert!(check_host(&HeaderMap::new(), &allowed).is_ok());
         assert!(check_host(&with(header::HOST, "attacker.example:8470"), &allowed).is_err());
-        assert!(check_origin(&with(header::ORIGIN, "http://localhost:8470"), &allowed).is_ok());
-        assert!(check_origin(&with(header::ORIGIN, "http://attacker.example"), &allowed).is_err());
-        assert!(check_origin(&with(header::ORIGIN, "null"), &allowed).is_err());
+        assert!(check_origin(
+            &with(header::ORIGIN, "http://localhost:8470"),
+            &allowed,
+            8470
+        )
+        .is_ok());
+        assert!(check_origin(
+            &with(header::ORIGIN, "http://attacker.example"),
+            &allowed,
+            8470
+        )
+        .is_err());
+        assert!(check_origin(&with(header::ORIGIN, "null"), &allowed, 8470).is_err());
+        // Another port on the same host is another origin.
+        assert!(check_origin(
+            &with(header::ORIGIN, "http://localhost:9999"),
+            &allowed,
+            8470
+        )
+        .is_err());
+        assert!(check_origin(&with(header::ORIGIN, "http://localhost"), &allowed, 8470).is_err());
+        assert!(check_origin(&with(header::ORIGIN, "http://[::1]:8470"), &allowed, 8470).is_ok());
+        // The port the request was sent to (Host) is the daemon's own.
+        let mut h = with(header::ORIGIN, "http://127.0.0.1:18470");
+        h.insert(header::HOST, "127.0.0.1:18470".parse().unwrap());
+        assert!(check_origin(&h, &allowed, 8470).is_ok());
+        assert_eq!(port_of("[::1]:8470"), Some(8470));
+        assert_eq!(port_of("localhost"), None);
     }
 
     #[test]
