@@ -48,6 +48,9 @@ fn exit_code(e: &anyhow::Error) -> u8 {
         let store = match cause.downcast_ref::<polnlos::daemon::DaemonError>() {
             Some(DaemonError::Store(s)) => Some(s),
             Some(DaemonError::Config(_) | DaemonError::Scene(_)) => return INPUT,
+            Some(DaemonError::Fake(polnlos::camera::fake::FakeError::AddressInUse { .. })) => {
+                return USAGE
+            }
             Some(DaemonError::Demo(_) | DaemonError::Fake(_)) => return FAILED,
             None => cause.downcast_ref::<StoreError>(),
         };

@@ -272,6 +272,28 @@ fn a_second_daemon_on_the_same_data_dir_exits_2_and_leaves_the_first_alone() {
         c["state"], "done",
         "the first daemon's capture is untouched: {c}"
     );
+    // A second daemon with its own data but the same fake-camera address
+    // would talk to the first one's camera: it exits 2 and says what to use.
+    let other = tempfile::tempdir().unwrap();
+    let second = Command::new(env!("CARGO_BIN_EXE_polnlos"))
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .args([
+            "--bind",
+            &format!("127.0.0.1:{}", common::free_port()),
+            "--data-dir",
+        ])
+        .arg(other.path().join("data"))
+        .stdout(Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert_eq!(second.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("already answers on 127.0.0.1:3956") && err.contains("127.0.0.2"),
+        "{err}"
+    );
+    assert_eq!(d.get("/health").0, 200, "the first daemon is untouched");
 }
 
 #[test]

@@ -96,9 +96,20 @@ unsafe impl Send for FakeBench {}
 // SAFETY: as above.
 unsafe impl Sync for FakeBench {}
 
+/// The GigE Vision control port (GVCP) a fake camera answers on.
+pub const GVCP_PORT: u16 = 3956;
+
 /// Why the fake camera could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum FakeError {
+    /// Another device already answers on the address's control port: a
+    /// second fake camera there would start, and the daemon would then talk
+    /// to the first one's.
+    #[error("another GigE Vision camera already answers on {address}:{GVCP_PORT} (a second polnlos, or arv-fake-gv-camera): this daemon's fake camera would talk to it. Give this daemon its own loopback address, [camera] address = \"127.0.0.2\" (after `ip addr add 127.0.0.2/8 dev lo`), or stop the other one")]
+    AddressInUse {
+        /// The address asked for.
+        address: String,
+    },
     /// The fake camera did not come up on the address.
     #[error("Aravis fake camera did not start on {0}; is another fake camera (or arv-fake-gv-camera) using that address?")]
     NotRunning(String),
@@ -114,6 +125,15 @@ impl FakeBench {
         images: BenchImages,
         reference_exposure_us: f64,
     ) -> Result<Self, FakeError> {
+        // Aravis would start a second fake camera on a port in use; a plain
+        // bind (no SO_REUSEADDR) fails there, and is released at once.
+        if let Err(e) = std::net::UdpSocket::bind((address, GVCP_PORT)) {
+            if e.kind() == std::io::ErrorKind::AddrInUse {
+                return Err(FakeError::AddressInUse {
+                    address: address.to_string(),
+                });
+            }
+        }
         let gv = aravis::GvFakeCamera::new(Some(address), Some(serial));
         let fake = gv
             .fake_camera()
