@@ -1,13 +1,17 @@
 //! `GET /openapi.json`, generated from the handlers' annotations (utoipa).
 
+use std::sync::Arc;
+
+use axum::extract::State;
 use axum::Json;
 use utoipa::{Modify, OpenApi};
 
 use super::routes;
+use crate::daemon::Daemon;
 
 #[derive(OpenApi)]
 #[openapi(
-    modifiers(&Security, &Errors),
+    modifiers(&Errors),
     info(
         title = "polnlos",
         description = "Polarization-enhanced passive NLOS imaging: captures, reconstructions, camera."
@@ -73,12 +77,21 @@ use super::routes;
 )]
 struct Doc;
 
-/// The bearer token scheme, required by every route but `/health` and the
-/// page's static files (and reads, with `[http] public_reads`).
-struct Security;
+/// Who may call what, as the guard enforces it: the bearer token on every
+/// route but `/health` (and the page's files, this document among them),
+/// reads open to all with `[http] public_reads`, and nothing at all when
+/// the daemon has no token.
+#[derive(Debug, Clone, Copy)]
+pub struct Access {
+    /// The daemon has a token.
+    pub token: bool,
+    /// `GET` routes need no token.
+    pub public_reads: bool,
+}
 
-impl Modify for Security {
-    fn modify(&self, doc: &mut utoipa::openapi::OpenApi) {
+impl Access {
+    /// Writes the bearer scheme and each operation's requirement into `doc`.
+    fn apply(self, doc: &mut utoipa::openapi::OpenApi) {
         use utoipa::openapi::security::{
             HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme,
         };
@@ -94,10 +107,22 @@ impl Modify for Security {
                     .build(),
             ),
         );
-        doc.security = Some(vec![SecurityRequirement::new(
-            "bearer",
-            Vec::<String>::new(),
-        )]);
+        let bearer = || vec![SecurityRequirement::new("bearer", Vec::<String>::new())];
+        doc.security = Some(if self.token { bearer() } else { Vec::new() });
+        for (path, item) in doc.paths.paths.iter_mut() {
+            let public_path = path == "/health";
+            let ops = [
+                (&mut item.get, true),
+                (&mut item.put, false),
+                (&mut item.post, false),
+                (&mut item.delete, false),
+            ];
+            for (op, read) in ops {
+                let Some(op) = op.as_mut() else { continue };
+                let public = !self.token || public_path || (read && self.public_reads);
+                op.security = Some(if public { Vec::new() } else { bearer() });
+            }
+        }
     }
 }
 
@@ -115,6 +140,10 @@ impl Modify for Errors {
         };
         let common = [
             ("400", "A query string, path or body that cannot be read"),
+            (
+                "422",
+                "A value out of range or of the wrong type (the detail names it)",
+            ),
             ("401", "The bearer token is missing or wrong"),
             ("403", "A foreign Host or Origin header"),
             ("414", "The request target is over 8 KiB"),
@@ -141,6 +170,18 @@ impl Modify for Errors {
                                 .into()
                         });
                 }
+                if op.request_body.is_some() {
+                    op.responses
+                        .responses
+                        .entry("415".to_string())
+                        .or_insert_with(|| {
+                            ResponseBuilder::new()
+                                .description("A body that is not Content-Type: application/json")
+                                .content("application/json", error())
+                                .build()
+                                .into()
+                        });
+                }
                 for (code, r) in op.responses.responses.iter_mut() {
                     if code.as_str() >= "400" {
                         if let utoipa::openapi::RefOr::T(r) = r {
@@ -155,7 +196,67 @@ impl Modify for Errors {
     }
 }
 
-/// The OpenAPI document.
-pub async fn spec() -> Json<utoipa::openapi::OpenApi> {
-    Json(Doc::openapi())
+/// The OpenAPI document of this daemon: its routes, and the token its
+/// configuration asks for where it asks for one.
+pub async fn spec(State(d): State<Arc<Daemon>>) -> Json<utoipa::openapi::OpenApi> {
+    Json(document(Access {
+        token: !d.token().is_empty(),
+        public_reads: d.config().http.public_reads,
+    }))
+}
+
+/// The document for a given access policy.
+pub fn document(access: Access) -> utoipa::openapi::OpenApi {
+    let mut doc = Doc::openapi();
+    access.apply(&mut doc);
+    doc
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn security(doc: &utoipa::openapi::OpenApi, path: &str, method: &str) -> serde_json::Value {
+        let v = serde_json::to_value(doc).unwrap_or_default();
+        v["paths"][path][method]["security"].clone()
+    }
+
+    #[test]
+    fn the_document_says_which_routes_need_the_token() {
+        let bearer = serde_json::json!([{ "bearer": [] }]);
+        let none = serde_json::json!([]);
+        let doc = document(Access {
+            token: true,
+            public_reads: false,
+        });
+        assert_eq!(security(&doc, "/health", "get"), none);
+        assert_eq!(security(&doc, "/captures", "get"), bearer);
+        assert_eq!(security(&doc, "/captures", "post"), bearer);
+        let doc = document(Access {
+            token: true,
+            public_reads: true,
+        });
+        assert_eq!(security(&doc, "/captures", "get"), none);
+        assert_eq!(security(&doc, "/jobs/{id}", "delete"), bearer);
+        let doc = document(Access {
+            token: false,
+            public_reads: false,
+        });
+        assert_eq!(security(&doc, "/captures", "post"), none);
+        let v = serde_json::to_value(&doc).unwrap_or_default();
+        assert_eq!(v["security"], none);
+        // 415 where a body is read, 422 everywhere.
+        let post = &v["paths"]["/captures"]["post"]["responses"];
+        assert!(post["415"].is_object() && post["422"].is_object(), "{post}");
+        assert!(v["paths"]["/captures"]["get"]["responses"]["422"].is_object());
+        assert!(v["paths"]["/captures"]["get"]["responses"]["415"].is_null());
+        // kappa: a number, "inf" or null, not an object.
+        let kappa = &v["components"]["schemas"]["ReconstructionRecord"]["properties"]["kappa"];
+        assert_eq!(kappa["oneOf"][0]["type"], "number", "{kappa}");
+        assert_eq!(
+            kappa["oneOf"][1]["enum"],
+            serde_json::json!(["inf"]),
+            "{kappa}"
+        );
+    }
 }

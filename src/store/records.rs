@@ -279,11 +279,30 @@ pub struct ReconstructionRecord {
     /// When it ended.
     pub finished_at: Option<String>,
     /// Condition number of the stacked T (`"inf"` when rank-deficient).
-    #[schema(value_type = Object)]
+    #[schema(schema_with = kappa_schema)]
     pub kappa: Option<serde_json::Value>,
     /// The full report (same format as `polnlos reconstruct`'s report.json).
     #[schema(value_type = Object)]
     pub report: Option<serde_json::Value>,
+}
+
+/// The schema of a stored condition number: a number, the string `"inf"`
+/// (rank-deficient `T`), or null before the reconstruction has one.
+fn kappa_schema() -> utoipa::openapi::schema::Schema {
+    use utoipa::openapi::schema::{ObjectBuilder, OneOfBuilder, Type};
+    OneOfBuilder::new()
+        .item(ObjectBuilder::new().schema_type(Type::Number))
+        .item(
+            ObjectBuilder::new()
+                .schema_type(Type::String)
+                .enum_values(Some(["inf"])),
+        )
+        .item(ObjectBuilder::new().schema_type(Type::Null))
+        .description(Some(
+            "kappa(T): a number, \"inf\" when rank-deficient, null until known",
+        ))
+        .build()
+        .into()
 }
 
 pub(super) const RECON_SELECT: &str = "SELECT id, scene, captures, solver, params, state, error, created_at, started_at, finished_at, kappa, report FROM reconstructions";
