@@ -39,8 +39,10 @@ fn wait_camera(d: &Daemon, connected: bool, within: Duration) -> bool {
 fn the_camera_stops_mid_capture_the_job_fails_and_the_daemon_reconnects() {
     let _g = lock();
     let dir = tempfile::tempdir().unwrap();
-    // The camera is not the daemon's own fake: this test owns it and pulls its plug.
-    let cfg = config(dir.path(), &[("fake = true", "fake = false")]);
+    // The camera is not the daemon's own fake: this test owns it and pulls
+    // its plug. (The setting's line, not the comment above it that also
+    // says "fake = true": the daemon's own fake would refuse the address.)
+    let cfg = config(dir.path(), &[("\nfake = true", "\nfake = false")]);
     let fake = external_fake();
     let d = Daemon::start(&cfg, &dir.path().join("data"));
     assert!(wait_camera(&d, true, Duration::from_secs(10)));
