@@ -732,6 +732,12 @@ fn a_target_capture_through_aravis_calibrates_the_pose() {
     assert_eq!(c["state"], "done", "{c}");
     let (s, b, _) = d.post("/calibrations", r#"{"capture": 1}"#);
     assert_eq!(s, 200, "{b}");
+    // JSON Schema calls 1.0 an integer, so a generated client may send it.
+    let (s, b1, _) = d.post("/calibrations", r#"{"capture": 1.0}"#);
+    assert_eq!(s, 200, "{b1}");
+    let (s, b2, _) = d.post("/calibrations", r#"{"capture": 1.5}"#);
+    assert_eq!(s, 422, "{b2}");
+    assert!(b2.contains("whole number"), "{b2}");
     let cal: serde_json::Value = serde_json::from_str(&b).unwrap();
     println!(
         "pose C: {} dots, RMS {:.3} px, largest {:.3} px",

@@ -28,6 +28,7 @@ pub struct CaptureBody {
     pub polarizer_deg: Option<f64>,
     /// Exposure per frame, microseconds; omit it and give `"exposure": "auto"`
     /// to have it planned (see `GET /scenes/{name}/exposure`).
+    #[schema(exclusive_minimum = 0.0)]
     pub exposure_us: Option<f64>,
     /// `"auto"`: plan the exposure (and, unless `frames` is given, the frame
     /// count) from the scene, the radiometric calibration and the camera limits.
@@ -39,20 +40,25 @@ pub struct CaptureBody {
     pub gain: f64,
     /// Frames to average (1 to `max_frames_per_capture`); default 1, or the
     /// plan's with `"exposure": "auto"`.
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1)]
     pub frames: Option<usize>,
     /// Dark frames taken within this capture with the scene switched off by
     /// the bench itself (only on a bench that can: the fake camera's). On a
     /// bench set by hand, take a `"kind": "dark"` capture instead.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "super::integral::count")]
     pub dark_frames: usize,
     /// A done dark capture (same exposure, gain, pixel format, region and
     /// binning) whose mean is subtracted from this capture's.
+    #[serde(default, deserialize_with = "super::integral::opt_int")]
     pub dark_capture: Option<i64>,
     /// Pixel format (default: the camera's current settings).
     pub pixel_format: Option<PixelFormat>,
     /// Region `[x, y, width, height]` (default: the current settings).
+    #[schema(min_items = 4, max_items = 4)]
     pub region: Option<[u32; 4]>,
     /// Binning `[x, y]` (default: the current settings).
+    #[schema(min_items = 2, max_items = 2)]
     pub binning: Option<[u32; 2]>,
     /// `free` or `software` (default: the current settings).
     pub trigger: Option<TriggerMode>,
@@ -69,15 +75,19 @@ pub struct CaptureBody {
 #[serde(deny_unknown_fields)]
 pub struct ProgressiveBody {
     /// Re-solve after every this many frames (default: a tenth of the frames, at least 1).
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1)]
     pub every: Option<usize>,
     /// Done light captures of the scene's other (pose, angle) blocks (none
     /// for a scene with one block, such as `brewster-crossed`).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "super::integral::ints")]
     pub captures: Vec<i64>,
     /// TV weight, MODEL.md units (default `1e-2 mean(diag(T^T T))`); the
     /// same at every step, so the steps compare.
     pub lambda: Option<f64>,
     /// Iteration cap of each step (1-100000, default 500).
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1, maximum = 100000)]
     pub max_iter: Option<usize>,
     /// Known truth, as a test pattern name: each step then has its PSNR.
     pub truth: Option<String>,
@@ -98,6 +108,8 @@ pub struct ReconstructionBody {
     /// Scene name.
     pub scene: String,
     /// One finished capture per (pose, polarizer angle) block of the scene.
+    #[serde(deserialize_with = "super::integral::ints")]
+    #[schema(min_items = 1)]
     pub captures: Vec<i64>,
     /// `admm-tv` (default), `fista-tv`, `tikhonov` or `lsq`.
     #[serde(default)]
@@ -110,6 +122,8 @@ pub struct ReconstructionBody {
     /// ADMM penalty.
     pub rho: Option<f64>,
     /// Iteration cap (1-100000).
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1, maximum = 100000)]
     pub max_iter: Option<usize>,
     /// Tolerance in (0, 1).
     pub tol: Option<f64>,
@@ -139,6 +153,7 @@ impl ReconstructionBody {
 #[serde(deny_unknown_fields)]
 pub struct CalibrationBody {
     /// A done `"kind": "target"` capture of the dot target on the wall.
+    #[serde(deserialize_with = "super::integral::int")]
     pub capture: i64,
     /// The target as TOML text (`radius_m`, `dots` in wall metres); default
     /// the shipped `config/targets/dots-5x5.toml`, which the demo bench shows.
@@ -153,10 +168,11 @@ pub struct WallCalibrationBody {
     /// Scene name (its wall, poses and hidden-scene plane).
     pub scene: String,
     /// One done `"kind": "source"` capture per (pose, angle) block.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "super::integral::ints")]
     pub captures: Vec<i64>,
     /// Source position `[u, v]`, metres from the hidden-scene plane's centre
     /// (the fake bench's source is at [0.03, -0.02]).
+    #[schema(min_items = 2, max_items = 2)]
     pub source: Option<[f64; 2]>,
     /// Instead of `source` and `captures`: several positions of the same
     /// source (its radiance unchanged), fitted together with one gain.
@@ -169,8 +185,11 @@ pub struct WallCalibrationBody {
 #[serde(deny_unknown_fields)]
 pub struct SourcePositionBody {
     /// `[u, v]`, metres from the hidden-scene plane's centre.
+    #[schema(min_items = 2, max_items = 2)]
     pub source: [f64; 2],
     /// One done `"kind": "source"` capture per (pose, angle) block.
+    #[serde(deserialize_with = "super::integral::ints")]
+    #[schema(min_items = 1, max_items = 64)]
     pub captures: Vec<i64>,
 }
 
@@ -246,8 +265,10 @@ impl WallCalibrationBody {
 #[serde(deny_unknown_fields)]
 pub struct Page {
     /// At most this many (1-1000, default 100).
+    #[param(minimum = 1, maximum = 1000)]
     limit: Option<u64>,
     /// Skip this many (0 to 2^63 - 1).
+    #[param(minimum = 0, maximum = 9223372036854775807_i64)]
     offset: Option<u64>,
 }
 
@@ -277,8 +298,10 @@ impl Page {
 #[serde(deny_unknown_fields)]
 pub struct TargetQuery {
     /// Brightest admissible wall element as a fraction of full scale (default 0.8).
+    #[param(exclusive_minimum = 0.0, maximum = 1.0)]
     peak_fraction: Option<f64>,
     /// SNR wanted there after averaging (default 100).
+    #[param(exclusive_minimum = 0.0)]
     snr: Option<f64>,
 }
 

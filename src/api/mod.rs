@@ -11,6 +11,7 @@ pub mod bodies;
 mod error;
 mod extract;
 mod guard;
+pub(crate) mod integral;
 mod openapi;
 mod routes;
 pub mod serve;

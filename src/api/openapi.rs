@@ -196,13 +196,49 @@ impl Modify for Errors {
     }
 }
 
-/// The OpenAPI document of this daemon: its routes, and the token its
-/// configuration asks for where it asks for one.
-pub async fn spec(State(d): State<Arc<Daemon>>) -> Json<utoipa::openapi::OpenApi> {
-    Json(document(Access {
+/// The OpenAPI document of this daemon: its routes, the token its
+/// configuration asks for where it asks for one, and the scene and pose
+/// names it knows (so a generated request can reach past their 422).
+pub async fn spec(State(d): State<Arc<Daemon>>) -> Json<serde_json::Value> {
+    let doc = document(Access {
         token: !d.token().is_empty(),
         public_reads: d.config().http.public_reads,
-    }))
+    });
+    Json(with_names(
+        serde_json::to_value(doc).unwrap_or_default(),
+        &d.scene_names(),
+        &d.pose_names(),
+    ))
+}
+
+/// `doc` with `scenes` as the enum of every scene name it takes (bodies and
+/// the exposure route's path) and `poses` as the enum of a capture's pose.
+pub fn with_names(
+    mut doc: serde_json::Value,
+    scenes: &[String],
+    poses: &[String],
+) -> serde_json::Value {
+    let mut scenes = scenes.to_vec();
+    scenes.sort();
+    let schemas = &mut doc["components"]["schemas"];
+    for body in ["CaptureBody", "ReconstructionBody", "WallCalibrationBody"] {
+        let scene = &mut schemas[body]["properties"]["scene"];
+        if scene.is_object() {
+            scene["enum"] = serde_json::json!(scenes);
+        }
+    }
+    let pose = &mut schemas["CaptureBody"]["properties"]["pose"];
+    if pose.is_object() {
+        pose["enum"] = serde_json::json!(poses);
+    }
+    if let Some(params) =
+        doc["paths"]["/scenes/{name}/exposure"]["get"]["parameters"].as_array_mut()
+    {
+        for p in params.iter_mut().filter(|p| p["name"] == "name") {
+            p["schema"]["enum"] = serde_json::json!(scenes);
+        }
+    }
+    doc
 }
 
 /// The document for a given access policy.
@@ -250,6 +286,16 @@ mod tests {
         assert!(post["415"].is_object() && post["422"].is_object(), "{post}");
         assert!(v["paths"]["/captures"]["get"]["responses"]["422"].is_object());
         assert!(v["paths"]["/captures"]["get"]["responses"]["415"].is_null());
+        // Scene and pose names appear as enums.
+        let v = with_names(v, &["b".into(), "a".into()], &["A".into()]);
+        let scene = &v["components"]["schemas"]["CaptureBody"]["properties"]["scene"];
+        assert_eq!(scene["enum"], serde_json::json!(["a", "b"]), "{scene}");
+        let name = &v["paths"]["/scenes/{name}/exposure"]["get"]["parameters"][0];
+        assert_eq!(
+            name["schema"]["enum"],
+            serde_json::json!(["a", "b"]),
+            "{name}"
+        );
         // kappa: a number, "inf" or null, not an object.
         let kappa = &v["components"]["schemas"]["ReconstructionRecord"]["properties"]["kappa"];
         assert_eq!(kappa["oneOf"][0]["type"], "number", "{kappa}");

@@ -278,6 +278,20 @@ impl Daemon {
         self.scenes.names()
     }
 
+    /// Names of the poses of every scene the daemon knows, sorted, once each.
+    pub fn pose_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = self
+            .scenes
+            .names()
+            .iter()
+            .filter_map(|n| self.scenes.get(n))
+            .flat_map(|s| s.poses.iter().map(|p| p.name.clone()).collect::<Vec<_>>())
+            .collect();
+        names.sort();
+        names.dedup();
+        names
+    }
+
     /// Whether the camera is open now.
     pub fn camera_connected(&self) -> bool {
         self.camera.status().connected

@@ -1,0 +1,82 @@
+//! The HTTP API held to its own OpenAPI document by a third-party fuzzer:
+//! schemathesis (PyPI; `.ci/run` installs it) generates requests from
+//! `/openapi.json` and checks every answer for server errors, status codes,
+//! content types and response schemas the document does not declare.
+//!
+//! Bounded: 127.0.0.1 only, a fixed seed, 25 examples per operation, one
+//! worker, 10 s per request, and the whole run killed after 5 minutes.
+
+mod common;
+
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{config, lock, Daemon};
+
+/// Runs schemathesis against `d` (with `extra` arguments) and returns its
+/// exit status and output; fails the test if it overruns its bound.
+fn schemathesis(d: &Daemon, extra: &[&str]) -> (bool, String) {
+    let out_file = tempfile::NamedTempFile::new().unwrap();
+    let mut child = Command::new("schemathesis")
+        .args(["run", &format!("{}/openapi.json", d.base)])
+        .args([
+            "--checks",
+            "not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance",
+            "--max-examples",
+            "25",
+            "--workers",
+            "1",
+            "--request-timeout",
+            "10",
+            "--seed",
+            "1",
+        ])
+        .args(extra)
+        .env("NO_COLOR", "1")
+        .stdout(out_file.reopen().unwrap())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap_or_else(|e| {
+            panic!("schemathesis could not be run ({e}): install it with `python3 -m pip install schemathesis` (.ci/run does)")
+        });
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(300) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("schemathesis ran over 5 minutes");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let text = std::fs::read_to_string(out_file.path()).unwrap_or_default();
+    (status.success(), text)
+}
+
+/// The summary: from the line that says so to the end.
+fn summary(text: &str) -> &str {
+    text.find("SUMMARY").map_or(text, |k| &text[k..])
+}
+
+#[test]
+fn schemathesis_finds_no_failure_with_and_without_a_token() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let open = config(dir.path(), &[]);
+    let d = Daemon::start(&open, &dir.path().join("data"));
+    let (ok, text) = schemathesis(&d, &[]);
+    println!("without a token:\n{}", summary(&text));
+    assert!(ok, "schemathesis found failures without a token:\n{text}");
+    assert!(text.contains("passed"), "{text}");
+    drop(d);
+
+    let other = tempfile::tempdir().unwrap();
+    let guarded = config(other.path(), &[("token = \"\"", "token = \"fuzz-token\"")]);
+    let mut d = Daemon::start(&guarded, &other.path().join("data"));
+    d.token = Some("fuzz-token".into());
+    let (ok, text) = schemathesis(&d, &["-H", "Authorization: Bearer fuzz-token"]);
+    println!("with the token:\n{}", summary(&text));
+    assert!(ok, "schemathesis found failures with the token:\n{text}");
+}
