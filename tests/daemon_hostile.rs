@@ -411,6 +411,80 @@ fn slow_and_idle_clients_are_cut_off_and_connections_are_capped() {
 }
 
 #[test]
+fn one_client_holding_idle_sockets_does_not_lock_the_others_out() {
+    let _g = lock();
+    let (_dir, d) = start(&[]);
+    let port: u16 = d.base.rsplit(':').next().unwrap().parse().unwrap();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    // One peer (127.0.0.2) keeps 300 idle sockets open, reopening each as
+    // the server closes it, for 12 s.
+    let greedy = {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            let rt = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+                .unwrap();
+            rt.block_on(async move {
+                let open = || async {
+                    let s = tokio::net::TcpSocket::new_v4().ok()?;
+                    s.bind("127.0.0.2:0".parse().ok()?).ok()?;
+                    let addr = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+                    tokio::time::timeout(Duration::from_millis(500), s.connect(addr))
+                        .await
+                        .ok()?
+                        .ok()
+                };
+                let mut held = Vec::new();
+                let mut opened = 0usize;
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    // Drop the ones the server closed, then top up to 300.
+                    held.retain(|s: &tokio::net::TcpStream| {
+                        let mut b = [0u8; 1];
+                        !matches!(s.try_read(&mut b), Ok(0))
+                    });
+                    while held.len() < 300 {
+                        match open().await {
+                            Some(s) => {
+                                held.push(s);
+                                opened += 1;
+                            }
+                            None => break,
+                        }
+                    }
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                }
+                opened
+            })
+        })
+    };
+    // Meanwhile /health from 127.0.0.1 answers within 1 s, every time.
+    std::thread::sleep(Duration::from_millis(500));
+    let t = Instant::now();
+    let mut checks = 0;
+    while t.elapsed() < Duration::from_secs(12) {
+        let asked = Instant::now();
+        let (s, b) = d.get("/health");
+        let took = asked.elapsed();
+        assert_eq!(s, 200, "{b}");
+        assert!(took < Duration::from_secs(1), "/health took {took:?}");
+        checks += 1;
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let opened = greedy.join().unwrap();
+    println!("{checks} health checks, all under 1 s, while 127.0.0.2 opened {opened} sockets");
+    assert!(opened > 300, "the greedy peer opened only {opened}");
+    let (_, metrics) = d.get("/metrics");
+    let refused: f64 = metrics
+        .lines()
+        .find(|l| l.starts_with("polnlos_http_connections_refused_total "))
+        .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
+        .unwrap();
+    assert!(refused >= 268.0, "{refused}");
+}
+
+#[test]
 fn frames_stream_to_disk_so_memory_does_not_grow_with_the_frame_count() {
     let _g = lock();
     let (_dir, d) = start(&[(

@@ -119,6 +119,10 @@ fn reserve_free() -> u64 {
 pub struct HttpConfig {
     /// Connections served at once.
     pub max_connections: usize,
+    /// Connections served at once from one client address (at most
+    /// `max_connections`): one client cannot fill `max_connections` and lock
+    /// everyone else out.
+    pub max_connections_per_peer: usize,
     /// Seconds to send a request's headers.
     pub header_timeout_s: f64,
     /// Seconds to send a request's body.
@@ -133,6 +137,7 @@ impl Default for HttpConfig {
     fn default() -> Self {
         Self {
             max_connections: 256,
+            max_connections_per_peer: 32,
             header_timeout_s: 10.0,
             body_timeout_s: 30.0,
             allowed_hosts: Vec::new(),
@@ -266,6 +271,11 @@ impl Config {
                 "[http] max_connections = {}, header_timeout_s = {}, body_timeout_s = {}: need at least 1 connection and timeouts from 0 to 3600 s",
                 h.max_connections, h.header_timeout_s, h.body_timeout_s
             )));
+        }
+        if h.max_connections_per_peer == 0 {
+            return Err(ConfigError::Invalid(
+                "[http] max_connections_per_peer = 0: need at least 1 (and well below max_connections, so that one client cannot lock the others out)".into(),
+            ));
         }
         Ok(())
     }

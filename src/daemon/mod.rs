@@ -329,6 +329,7 @@ pub async fn run(
     let http = &daemon.config.http;
     let limits = crate::api::Limits {
         max_connections: http.max_connections,
+        per_peer: http.max_connections_per_peer.min(http.max_connections),
         header_timeout: std::time::Duration::from_secs_f64(http.header_timeout_s),
     };
     let app = crate::api::router(daemon.clone());
