@@ -759,6 +759,37 @@ fn calibrate_geometry_recovers_a_pose_from_an_image_of_the_target() {
     let fitted = s.pose("A").unwrap().homography.unwrap();
     let worst = polnlos::calibrate::geometry::max_distance(&fitted, &h, &target.dots);
     assert!(worst < 0.3, "{worst} px from the shipped homography");
+    // The daemon's mean.tiff (32-bit float, DN) calibrates the same way.
+    let tiff_path = d.path().join("mean.tiff");
+    {
+        let f = std::fs::File::create(&tiff_path).unwrap();
+        let mut enc = tiff::encoder::TiffEncoder::new(std::io::BufWriter::new(f)).unwrap();
+        let dn: Vec<f32> = frame.pixels.iter().map(|&v| v * 50000.0 + 4000.0).collect();
+        enc.write_image::<tiff::encoder::colortype::Gray32Float>(512, 512, &dn)
+            .unwrap();
+    }
+    let o = polnlos(&[
+        "calibrate",
+        "geometry",
+        tiff_path.to_str().unwrap(),
+        "--target",
+        target_file.to_str().unwrap(),
+        "--scene",
+        "brewster-crossed",
+        "--pose",
+        "A",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "mean.tiff: {err}");
+    let s = Scene::from_toml_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let from_tiff = s.pose("A").unwrap().homography.unwrap();
+    let worst = polnlos::calibrate::geometry::max_distance(&from_tiff, &h, &target.dots);
+    assert!(
+        worst < 0.3,
+        "{worst} px from the shipped homography (mean.tiff)"
+    );
     // An image without the whole target is a clear input error (status 3).
     let blank = d.path().join("blank.png");
     image::write_png16(&blank, 64, 64, &vec![100u16; 64 * 64]).unwrap();

@@ -69,7 +69,8 @@ fn parse_pair(s: &str) -> Result<(f64, f64), String> {
 
 #[derive(Debug, clap::Args)]
 struct GeometryArgs {
-    /// Image of the target as the pose sees it (PNG or TIFF, grey).
+    /// Image of the target as the pose sees it (grey PNG or TIFF, 8/16-bit or
+    /// 32-bit float such as a capture's mean.tiff).
     image: PathBuf,
     /// Target file (TOML: radius_m, dots).
     #[arg(long, value_name = "FILE")]

@@ -1,18 +1,19 @@
-//! Grey images: reading 8/16-bit PNG or TIFF into [0, 1], writing 16-bit PNG,
-//! and area resampling onto a grid.
+//! Grey images: reading 8/16-bit PNG or TIFF into [0, 1] and 32-bit float
+//! TIFF as it is, writing 16-bit PNG, and area resampling onto a grid.
 
 use std::path::Path;
 
 use super::FileError;
 
-/// A grey image with values in [0, 1], row-major, top row first.
+/// A grey image, row-major, top row first: values in [0, 1] from an integer
+/// image, a float TIFF's own values (e.g. the daemon's `mean.tiff`, in DN).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Gray {
     /// Columns.
     pub width: usize,
     /// Rows.
     pub height: usize,
-    /// Values in [0, 1].
+    /// Values.
     pub data: Vec<f64>,
 }
 
@@ -22,13 +23,18 @@ pub fn read_gray(path: &Path) -> Result<Gray, FileError> {
         .map_err(|e| FileError::read(path, e))?
         .with_guessed_format()
         .map_err(|e| FileError::read(path, e))?
-        .decode()
-        .map_err(|e| {
-            FileError::format(
-                path,
-                format!("cannot decode image ({e}); use an 8- or 16-bit grey PNG"),
-            )
-        })?;
+        .decode();
+    let img = match img {
+        Ok(img) => img,
+        Err(e) => {
+            return read_float_tiff(path)?.ok_or_else(|| {
+                FileError::format(
+                    path,
+                    format!("cannot decode image ({e}); use an 8- or 16-bit grey PNG or TIFF, or a 32-bit float TIFF"),
+                )
+            })
+        }
+    };
     let g = img.to_luma16();
     let (w, h) = (g.width() as usize, g.height() as usize);
     Ok(Gray {
@@ -40,6 +46,31 @@ pub fn read_gray(path: &Path) -> Result<Gray, FileError> {
             .map(|v| f64::from(v) / 65535.0)
             .collect(),
     })
+}
+
+/// A single-page 32-bit float grey TIFF (the daemon's `mean.tiff` and
+/// `variance.tiff`), values as they are; `None` when the file is not one.
+///
+/// Why: the `image` crate decodes no float TIFF ("color type Unknown(32)"),
+/// and a user calibrating from a capture's mean frame has exactly that.
+fn read_float_tiff(path: &Path) -> Result<Option<Gray>, FileError> {
+    let f = std::fs::File::open(path).map_err(|e| FileError::read(path, e))?;
+    let Ok(mut dec) = tiff::decoder::Decoder::new(std::io::BufReader::new(f)) else {
+        return Ok(None);
+    };
+    let Ok((w, h)) = dec.dimensions() else {
+        return Ok(None);
+    };
+    match dec.read_image() {
+        Ok(tiff::decoder::DecodingResult::F32(v)) if v.len() == w as usize * h as usize => {
+            Ok(Some(Gray {
+                width: w as usize,
+                height: h as usize,
+                data: v.into_iter().map(f64::from).collect(),
+            }))
+        }
+        _ => Ok(None),
+    }
 }
 
 /// Encodes 16-bit grey pixels as PNG bytes.
@@ -157,5 +188,31 @@ mod tests {
         assert_eq!((g.width, g.height), (3, 2));
         assert!((g.data[1] - 1000.0 / 65535.0).abs() < 1e-12);
         assert_eq!(g.data[2], 1.0);
+    }
+
+    #[test]
+    fn a_float_tiff_reads_as_its_values() {
+        // The daemon's mean.tiff: 32-bit float, one page (the image crate
+        // cannot decode it).
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("mean.tiff");
+        let f = std::fs::File::create(&p).unwrap();
+        let mut enc = tiff::encoder::TiffEncoder::new(std::io::BufWriter::new(f)).unwrap();
+        enc.write_image::<tiff::encoder::colortype::Gray32Float>(
+            3,
+            2,
+            &[0.0, 1.5, 4000.25, -2.0, 7.0, 8.0],
+        )
+        .unwrap();
+        drop(enc);
+        let g = read_gray(&p).unwrap();
+        assert_eq!((g.width, g.height), (3, 2));
+        assert_eq!(g.data, vec![0.0, 1.5, 4000.25, -2.0, 7.0, 8.0]);
+        // Not an image at all: the error says what is read.
+        std::fs::write(dir.path().join("x.tiff"), b"not a tiff").unwrap();
+        let e = read_gray(&dir.path().join("x.tiff"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("32-bit float TIFF"), "{e}");
     }
 }
