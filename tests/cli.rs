@@ -759,7 +759,8 @@ fn calibrate_geometry_recovers_a_pose_from_an_image_of_the_target() {
     let fitted = s.pose("A").unwrap().homography.unwrap();
     let worst = polnlos::calibrate::geometry::max_distance(&fitted, &h, &target.dots);
     assert!(worst < 0.3, "{worst} px from the shipped homography");
-    // The daemon's mean.tiff (32-bit float, DN) calibrates the same way.
+    // The daemon's mean.tiff (32-bit float, DN) calibrates the same way,
+    // with the built-in target named as scenes are.
     let tiff_path = d.path().join("mean.tiff");
     {
         let f = std::fs::File::create(&tiff_path).unwrap();
@@ -773,7 +774,7 @@ fn calibrate_geometry_recovers_a_pose_from_an_image_of_the_target() {
         "geometry",
         tiff_path.to_str().unwrap(),
         "--target",
-        target_file.to_str().unwrap(),
+        "dots-5x5",
         "--scene",
         "brewster-crossed",
         "--pose",

@@ -52,7 +52,18 @@ const HULL_TURN: f64 = 0.1;
 /// shows and what `POST /calibrations` assumes when none is given.
 pub const DEFAULT_TARGET: &str = include_str!("../../config/targets/dots-5x5.toml");
 
+/// The built-in targets by name, as scenes are: name and TOML text.
+pub const BUILTIN_TARGETS: [(&str, &str); 1] = [("dots-5x5", DEFAULT_TARGET)];
+
 impl Target {
+    /// The TOML text of a built-in target by name (`dots-5x5`).
+    pub fn builtin_text(name: &str) -> Option<&'static str> {
+        BUILTIN_TARGETS
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, t)| *t)
+    }
+
     /// The shipped target, [`DEFAULT_TARGET`].
     pub fn default_target() -> Self {
         match Self::from_toml_str(DEFAULT_TARGET) {

@@ -18,7 +18,7 @@ pub struct Args {
 enum What {
     /// Fit a pose's camera→wall homography to an image of a dot target.
     #[command(
-        after_help = "Example:\n  polnlos calibrate geometry target-A.png --target config/targets/dots-5x5.toml \\\n    --scene brewster-crossed --pose A --out brewster-crossed-calibrated.toml\n\
+        after_help = "Example:\n  polnlos calibrate geometry target-A.png --target dots-5x5 \\\n    --scene brewster-crossed --pose A --out brewster-crossed-calibrated.toml\n\
 Prints the dots found and the reprojection error (RMS and largest, pixels);\n\
 writes the scene with the pose's homography and camera frame replaced."
     )]
@@ -72,7 +72,7 @@ struct GeometryArgs {
     /// Image of the target as the pose sees it (grey PNG or TIFF, 8/16-bit or
     /// 32-bit float such as a capture's mean.tiff).
     image: PathBuf,
-    /// Target file (TOML: radius_m, dots).
+    /// Target file (TOML: radius_m, dots), or a built-in target by name (`dots-5x5`).
     #[arg(long, value_name = "FILE")]
     target: PathBuf,
     /// Scene file (or built-in scene name) whose pose to calibrate.
@@ -155,8 +155,26 @@ fn wall(a: WallArgs) -> anyhow::Result<()> {
 }
 
 fn geometry(a: GeometryArgs) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(&a.target)
-        .with_context(|| format!("cannot read target file {}", a.target.display()))?;
+    // A file, or a built-in target by name when no such file exists.
+    let builtin = a
+        .target
+        .to_str()
+        .filter(|_| !a.target.exists())
+        .and_then(Target::builtin_text);
+    let text = match builtin {
+        Some(t) => t.to_string(),
+        None => std::fs::read_to_string(&a.target).with_context(|| {
+            format!(
+                "cannot read target file {} (built-in targets: {})",
+                a.target.display(),
+                polnlos::calibrate::geometry::BUILTIN_TARGETS
+                    .iter()
+                    .map(|t| t.0)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })?,
+    };
     let target = Target::from_toml_str(&text)
         .with_context(|| format!("target file {}", a.target.display()))?;
     let scene_text = super::scene_text(&a.scene)?;
