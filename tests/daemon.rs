@@ -59,6 +59,13 @@ fn capture_every_block_reconstruct_and_fetch() {
                     .0,
                 200
             );
+            // Everything the capture has can be downloaded: its 2 dark
+            // frames and the variance of its 4-frame mean too.
+            let id = ids.last().unwrap();
+            let (s, dark) = d.get_bytes(&format!("/captures/{id}/dark.tiff"));
+            assert_eq!((s, &dark[..2]), (200, &b"II"[..]));
+            let (s, var) = d.get_bytes(&format!("/captures/{id}/variance.tiff"));
+            assert_eq!((s, &var[..2]), (200, &b"II"[..]));
         }
         let body =
             serde_json::json!({ "scene": scene, "captures": ids, "solver": "admm-tv", "truth": "letter" }).to_string();
@@ -107,6 +114,15 @@ fn capture_every_block_reconstruct_and_fetch() {
         ));
         let (s, png) = d.get_bytes(&format!("/reconstructions/{}/image.png", r["id"]));
         assert_eq!((s, &png[1..4]), (200, &b"PNG"[..]));
+        // The measurement it solved (one value per row of T) and its report.
+        let (s, npy) = d.get_bytes(&format!("/reconstructions/{}/measurement.npy", r["id"]));
+        assert_eq!(s, 200);
+        let m_i = polnlos::files::npy::decode(&npy).unwrap();
+        assert_eq!(m_i.data.len() as u64, r["report"]["rows"].as_u64().unwrap());
+        let (s, rep) = d.get(&format!("/reconstructions/{}/report.json", r["id"]));
+        assert_eq!(s, 200);
+        let rep: serde_json::Value = serde_json::from_str(&rep).unwrap();
+        assert_eq!(rep["conditioning"], r["report"]["conditioning"]);
         println!("{}", report.last().unwrap());
         // The bound: clearly better than the best featureless guess (the truth's
         // own mean everywhere), by 3 dB; the fake camera adds only +-0.5 DN of
@@ -181,6 +197,8 @@ fn openapi_is_complete(spec: &serde_json::Value) {
         ("get", "/captures/{id}"),
         ("get", "/captures/{id}/frame.tiff"),
         ("get", "/captures/{id}/mean.tiff"),
+        ("get", "/captures/{id}/dark.tiff"),
+        ("get", "/captures/{id}/variance.tiff"),
         ("get", "/captures/{id}/preview.png"),
         ("get", "/captures/{id}/progressive.png"),
         ("get", "/captures/{id}/progressive.json"),
@@ -189,6 +207,8 @@ fn openapi_is_complete(spec: &serde_json::Value) {
         ("get", "/reconstructions/{id}"),
         ("get", "/reconstructions/{id}/image.png"),
         ("get", "/reconstructions/{id}/recovered.npy"),
+        ("get", "/reconstructions/{id}/measurement.npy"),
+        ("get", "/reconstructions/{id}/report.json"),
         ("get", "/jobs/{id}"),
         ("delete", "/jobs/{id}"),
         ("get", "/events"),

@@ -52,6 +52,11 @@ pub fn router(d: Arc<Daemon>) -> Router {
         .route("/captures/{id}", get(routes::get_capture))
         .route("/captures/{id}/frame.tiff", get(routes::capture_frames))
         .route("/captures/{id}/mean.tiff", get(routes::capture_mean))
+        .route("/captures/{id}/dark.tiff", get(routes::capture_dark))
+        .route(
+            "/captures/{id}/variance.tiff",
+            get(routes::capture_variance),
+        )
         .route("/captures/{id}/preview.png", get(routes::capture_preview))
         .route(
             "/captures/{id}/progressive.png",
@@ -75,6 +80,14 @@ pub fn router(d: Arc<Daemon>) -> Router {
         .route(
             "/reconstructions/{id}/recovered.npy",
             get(routes::reconstruction_npy),
+        )
+        .route(
+            "/reconstructions/{id}/measurement.npy",
+            get(routes::reconstruction_measurement),
+        )
+        .route(
+            "/reconstructions/{id}/report.json",
+            get(routes::reconstruction_report),
         )
         .route(
             "/jobs/{id}",

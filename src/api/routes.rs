@@ -209,6 +209,18 @@ pub async fn capture_mean(State(d): St, Path(id): Path<String>) -> Result<Respon
     capture_file(&d, &id, CaptureFiles::MEAN, "image/tiff").await
 }
 
+/// Raw dark frames taken within the capture, multi-page 16-bit TIFF.
+#[utoipa::path(get, path = "/captures/{id}/dark.tiff", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, content_type = "image/tiff", description = "Raw dark frames"), (status = 404, body = ErrorBody, description = "No such capture, or it took no dark frames")))]
+pub async fn capture_dark(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
+    capture_file(&d, &id, CaptureFiles::DARK, "image/tiff").await
+}
+
+/// Per-pixel variance of the mean frame, 32-bit float TIFF (2 frames or more).
+#[utoipa::path(get, path = "/captures/{id}/variance.tiff", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, content_type = "image/tiff", description = "Variance of the mean"), (status = 404, body = ErrorBody, description = "No such capture, or it has fewer than 2 frames")))]
+pub async fn capture_variance(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
+    capture_file(&d, &id, CaptureFiles::VARIANCE, "image/tiff").await
+}
+
 /// 16-bit PNG preview of the mean frame.
 #[utoipa::path(get, path = "/captures/{id}/preview.png", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, content_type = "image/png", description = "Preview"), (status = 404, body = ErrorBody, description = "No such capture, or its file is not written yet")))]
 pub async fn capture_preview(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
@@ -336,6 +348,25 @@ pub async fn reconstruction_npy(
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
     recon_file(&d, &id, "recovered.npy", "application/octet-stream").await
+}
+
+/// The stacked measurement a reconstruction solved, .npy (float64, units of
+/// `T l`, MODEL.md row order).
+#[utoipa::path(get, path = "/reconstructions/{id}/measurement.npy", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number")), responses((status = 200, content_type = "application/octet-stream", description = "Measurement vector"), (status = 404, body = ErrorBody, description = "No such reconstruction, or its file is not written yet")))]
+pub async fn reconstruction_measurement(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    recon_file(&d, &id, "measurement.npy", "application/octet-stream").await
+}
+
+/// A reconstruction's report, as `polnlos reconstruct` writes it.
+#[utoipa::path(get, path = "/reconstructions/{id}/report.json", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number")), responses((status = 200, content_type = "application/json", description = "report.json"), (status = 404, body = ErrorBody, description = "No such reconstruction, or its file is not written yet")))]
+pub async fn reconstruction_report(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    recon_file(&d, &id, "report.json", "application/json").await
 }
 
 /// A job id `capture-<n>` or `reconstruction-<n>`, parsed.

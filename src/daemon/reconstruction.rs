@@ -113,6 +113,7 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
         context,
     )?;
     let (image, mut report) = (solved.image, solved.report);
+    let measurement = i;
     check(cancel)?;
     report.warnings.splice(0..0, warnings);
     let grid = t.scene_grid;
@@ -120,6 +121,14 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
     std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
     let file = |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
     npy::write_f64(&dir.join("recovered.npy"), &[grid.nv, grid.nu], &image).map_err(file)?;
+    // The stacked measurement it solved (units of T l, MODEL.md row order),
+    // so a user can re-solve it offline with `polnlos reconstruct`.
+    npy::write_f64(
+        &dir.join("measurement.npy"),
+        &[measurement.len()],
+        &measurement,
+    )
+    .map_err(file)?;
     image::write_png16(
         &dir.join("image.png"),
         grid.nu,
