@@ -23,6 +23,8 @@
 //! - **Reports**: `bench` (the reports of `polnlos bench`; cargo feature
 //!   `bench`, on by default, off the daemon's path).
 
+#![deny(missing_docs)]
+
 pub mod api;
 #[cfg(feature = "bench")]
 pub mod bench;
