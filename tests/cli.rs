@@ -738,19 +738,22 @@ fn calibrate_geometry_recovers_a_pose_from_an_image_of_the_target() {
     let img = d.path().join("target-A.png");
     image::write_png16(&img, 512, 512, &px).unwrap();
     let out = d.path().join("calibrated.toml");
-    let o = polnlos(&[
-        "calibrate",
-        "geometry",
-        img.to_str().unwrap(),
-        "--target",
-        target_file.to_str().unwrap(),
-        "--scene",
-        "brewster-crossed",
-        "--pose",
-        "A",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let calibrate = |image: &std::path::Path, target: &str| {
+        polnlos(&[
+            "calibrate",
+            "geometry",
+            image.to_str().unwrap(),
+            "--target",
+            target,
+            "--scene",
+            "brewster-crossed",
+            "--pose",
+            "A",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let o = calibrate(&img, target_file.to_str().unwrap());
     let err = String::from_utf8_lossy(&o.stderr).to_string();
     assert!(o.status.success(), "{err}");
     println!("{err}");
@@ -769,19 +772,7 @@ fn calibrate_geometry_recovers_a_pose_from_an_image_of_the_target() {
         enc.write_image::<tiff::encoder::colortype::Gray32Float>(512, 512, &dn)
             .unwrap();
     }
-    let o = polnlos(&[
-        "calibrate",
-        "geometry",
-        tiff_path.to_str().unwrap(),
-        "--target",
-        "dots-5x5",
-        "--scene",
-        "brewster-crossed",
-        "--pose",
-        "A",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = calibrate(&tiff_path, "dots-5x5");
     let err = String::from_utf8_lossy(&o.stderr).to_string();
     assert!(o.status.success(), "mean.tiff: {err}");
     let s = Scene::from_toml_str(&std::fs::read_to_string(&out).unwrap()).unwrap();

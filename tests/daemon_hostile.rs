@@ -252,18 +252,7 @@ fn a_second_daemon_on_the_same_data_dir_exits_2_and_leaves_the_first_alone() {
     );
     assert_eq!(s, 202, "{b}");
     let loc = loc.unwrap();
-    let second = Command::new(env!("CARGO_BIN_EXE_polnlos"))
-        .args(["serve", "--config"])
-        .arg(&cfg)
-        .args([
-            "--bind",
-            &format!("127.0.0.1:{}", common::free_port()),
-            "--data-dir",
-        ])
-        .arg(&data)
-        .stdout(Stdio::null())
-        .output()
-        .unwrap();
+    let second = serve_once(&cfg, &data);
     assert_eq!(second.status.code(), Some(2));
     let err = String::from_utf8_lossy(&second.stderr);
     assert!(err.contains(&format!("pid {}", d.pid())), "{err}");
@@ -275,18 +264,7 @@ fn a_second_daemon_on_the_same_data_dir_exits_2_and_leaves_the_first_alone() {
     // A second daemon with its own data but the same fake-camera address
     // would talk to the first one's camera: it exits 2 and says what to use.
     let other = tempfile::tempdir().unwrap();
-    let second = Command::new(env!("CARGO_BIN_EXE_polnlos"))
-        .args(["serve", "--config"])
-        .arg(&cfg)
-        .args([
-            "--bind",
-            &format!("127.0.0.1:{}", common::free_port()),
-            "--data-dir",
-        ])
-        .arg(other.path().join("data"))
-        .stdout(Stdio::null())
-        .output()
-        .unwrap();
+    let second = serve_once(&cfg, &other.path().join("data"));
     let err = String::from_utf8_lossy(&second.stderr);
     assert_eq!(second.status.code(), Some(2), "{err}");
     assert!(
@@ -294,6 +272,23 @@ fn a_second_daemon_on_the_same_data_dir_exits_2_and_leaves_the_first_alone() {
         "{err}"
     );
     assert_eq!(d.get("/health").0, 200, "the first daemon is untouched");
+}
+
+/// `polnlos serve` with `cfg` and `data` on a free port, run to its exit
+/// (for a daemon that must refuse to start).
+fn serve_once(cfg: &std::path::Path, data: &std::path::Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_polnlos"))
+        .args(["serve", "--config"])
+        .arg(cfg)
+        .args([
+            "--bind",
+            &format!("127.0.0.1:{}", common::free_port()),
+            "--data-dir",
+        ])
+        .arg(data)
+        .stdout(Stdio::null())
+        .output()
+        .unwrap()
 }
 
 #[test]
