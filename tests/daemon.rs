@@ -195,6 +195,7 @@ fn openapi_is_complete(spec: &serde_json::Value) {
         ("post", "/captures"),
         ("get", "/captures"),
         ("get", "/captures/{id}"),
+        ("delete", "/captures/{id}"),
         ("get", "/captures/{id}/frame.tiff"),
         ("get", "/captures/{id}/mean.tiff"),
         ("get", "/captures/{id}/dark.tiff"),
@@ -205,6 +206,7 @@ fn openapi_is_complete(spec: &serde_json::Value) {
         ("post", "/reconstructions"),
         ("get", "/reconstructions"),
         ("get", "/reconstructions/{id}"),
+        ("delete", "/reconstructions/{id}"),
         ("get", "/reconstructions/{id}/image.png"),
         ("get", "/reconstructions/{id}/recovered.npy"),
         ("get", "/reconstructions/{id}/measurement.npy"),
@@ -967,4 +969,90 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
 /// A fitted wall parameter of a `POST /calibrations/wall` answer.
 fn param(v: &serde_json::Value, k: &str) -> f64 {
     v["fit"]["params"][k].as_f64().unwrap()
+}
+
+#[test]
+fn captures_and_reconstructions_can_be_deleted_with_their_files() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let data = dir.path().join("data");
+    let d = Daemon::start(&cfg, &data);
+    let capture = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#;
+    for _ in 0..2 {
+        let c = d.run_job("/captures", capture, Duration::from_secs(20));
+        assert_eq!(c["state"], "done", "{c}");
+    }
+    let r = d.run_job(
+        "/reconstructions",
+        r#"{"scene": "brewster-crossed", "captures": [1]}"#,
+        Duration::from_secs(30),
+    );
+    assert_eq!(r["state"], "done", "{r}");
+    assert!(data.join("captures/1").is_dir() && data.join("reconstructions/1").is_dir());
+    // A capture a kept reconstruction uses is refused, naming it.
+    let (s, b) = d.delete("/captures/1");
+    assert_eq!(s, 409, "{b}");
+    assert!(b.contains("reconstruction 1 uses it"), "{b}");
+    assert!(data.join("captures/1/mean.tiff").is_file());
+    // A capture nothing uses goes, row and files.
+    let (s, b) = d.delete("/captures/2");
+    assert_eq!(s, 200, "{b}");
+    assert!(!data.join("captures/2").exists());
+    assert_eq!(d.get("/captures/2").0, 404);
+    let ids: Vec<i64> = d
+        .json("/captures")
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["id"].as_i64().unwrap())
+        .collect();
+    assert_eq!(ids, [1]);
+    // Asked for, the capture goes with the reconstructions that use it.
+    let (s, b) = d.delete("/captures/1?with_reconstructions=true");
+    assert_eq!(s, 200, "{b}");
+    let v: serde_json::Value = serde_json::from_str(&b).unwrap();
+    assert_eq!(v["reconstructions"], serde_json::json!([1]), "{v}");
+    assert!(!data.join("captures/1").exists() && !data.join("reconstructions/1").exists());
+    assert_eq!(d.get("/reconstructions/1").0, 404);
+    assert_eq!(d.delete("/captures/1").0, 404);
+    // A running capture is refused until cancelled; a reconstruction alone goes.
+    let (s, b, loc) = d.post("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 150}"#);
+    assert_eq!(s, 202, "{b}");
+    let id = d.json(&loc.clone().unwrap())["id"].as_i64().unwrap();
+    let (s, b) = d.delete(&format!("/captures/{id}"));
+    assert_eq!(s, 409, "{b}");
+    assert!(b.contains("cancel it first"), "{b}");
+    assert_eq!(d.delete(&format!("/jobs/capture-{id}")).0, 200);
+    let (s, b) = d.delete(&format!("/captures/{id}"));
+    assert_eq!(s, 200, "{b}");
+    let c = d.run_job("/captures", capture, Duration::from_secs(20));
+    let r = d.run_job(
+        "/reconstructions",
+        &format!(
+            r#"{{"scene": "brewster-crossed", "captures": [{}]}}"#,
+            c["id"]
+        ),
+        Duration::from_secs(30),
+    );
+    let (s, b) = d.delete(&format!("/reconstructions/{}", r["id"]));
+    assert_eq!(s, 200, "{b}");
+    assert!(!data.join(format!("reconstructions/{}", r["id"])).exists());
+    assert!(data
+        .join(format!("captures/{}/mean.tiff", c["id"]))
+        .is_file());
+    // A deletion a stopped daemon left half done is finished or undone by
+    // the row at the next start: a parked folder whose row exists comes
+    // back, one whose row is gone is removed.
+    let kept = data.join(format!("captures/{}", c["id"]));
+    drop(d);
+    std::fs::rename(&kept, kept.with_file_name(format!("{}.deleting", c["id"]))).unwrap();
+    std::fs::create_dir_all(data.join("captures/999.deleting")).unwrap();
+    let d = Daemon::start(&cfg, &data);
+    assert!(
+        kept.join("mean.tiff").is_file(),
+        "the kept capture's files came back"
+    );
+    assert!(!data.join("captures/999.deleting").exists());
+    assert_eq!(d.json(&format!("/captures/{}", c["id"]))["state"], "done");
 }

@@ -76,6 +76,9 @@ impl From<crate::store::StoreError> for ApiError {
     fn from(e: crate::store::StoreError) -> Self {
         match e {
             crate::store::StoreError::NotFound { .. } => Self::not_found(e.to_string()),
+            crate::store::StoreError::InUse { .. } => {
+                Self::new(StatusCode::CONFLICT, "in_use", e.to_string())
+            }
             // The full text names files on the server: the log has it, the client a summary.
             e => {
                 tracing::error!("catalogue: {e}");

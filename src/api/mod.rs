@@ -49,7 +49,10 @@ pub fn router(d: Arc<Daemon>) -> Router {
             "/captures",
             post(routes::post_capture).get(routes::list_captures),
         )
-        .route("/captures/{id}", get(routes::get_capture))
+        .route(
+            "/captures/{id}",
+            get(routes::get_capture).delete(routes::delete_capture),
+        )
         .route("/captures/{id}/frame.tiff", get(routes::capture_frames))
         .route("/captures/{id}/mean.tiff", get(routes::capture_mean))
         .route("/captures/{id}/dark.tiff", get(routes::capture_dark))
@@ -72,7 +75,10 @@ pub fn router(d: Arc<Daemon>) -> Router {
             "/reconstructions",
             post(routes::post_reconstruction).get(routes::list_reconstructions),
         )
-        .route("/reconstructions/{id}", get(routes::get_reconstruction))
+        .route(
+            "/reconstructions/{id}",
+            get(routes::get_reconstruction).delete(routes::delete_reconstruction),
+        )
         .route(
             "/reconstructions/{id}/image.png",
             get(routes::reconstruction_image),

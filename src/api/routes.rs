@@ -163,6 +163,60 @@ pub async fn get_capture(
     Ok(Json(d.store().capture(parse_id(&id, "capture")?)?))
 }
 
+/// What a `DELETE` removed.
+#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
+pub struct Deleted {
+    /// The capture deleted, if a capture was asked for.
+    pub capture: Option<i64>,
+    /// The reconstructions deleted (with the capture, or the one asked for).
+    pub reconstructions: Vec<i64>,
+}
+
+/// `?with_reconstructions=true` of `DELETE /captures/{id}`.
+#[derive(Debug, serde::Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+pub struct DeleteQuery {
+    /// Also delete the (ended) reconstructions that use the capture; without
+    /// it a capture a reconstruction uses is refused with 409 naming them.
+    #[serde(default)]
+    with_reconstructions: bool,
+}
+
+/// Deletes a capture: its catalogue row and its files, and with
+/// `with_reconstructions=true` the reconstructions that use it.
+#[utoipa::path(delete, path = "/captures/{id}", params(("id" = String, Path, description = "The capture's id, a positive whole number"), DeleteQuery), responses((status = 200, body = Deleted, description = "Deleted, row and files"), (status = 404, description = "No such capture"), (status = 409, description = "Queued or running, or used by a reconstruction (named)")))]
+pub async fn delete_capture(
+    State(d): St,
+    Path(id): Path<String>,
+    Query(q): Query<DeleteQuery>,
+) -> Result<Json<Deleted>, ApiError> {
+    let id = parse_id(&id, "capture")?;
+    let reconstructions =
+        tokio::task::spawn_blocking(move || d.store().delete_capture(id, q.with_reconstructions))
+            .await
+            .map_err(|e| ApiError::internal(e.to_string()))??;
+    Ok(Json(Deleted {
+        capture: Some(id),
+        reconstructions,
+    }))
+}
+
+/// Deletes an ended reconstruction: its catalogue row and its files.
+#[utoipa::path(delete, path = "/reconstructions/{id}", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number")), responses((status = 200, body = Deleted, description = "Deleted, row and files"), (status = 404, description = "No such reconstruction"), (status = 409, description = "Queued or running")))]
+pub async fn delete_reconstruction(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Json<Deleted>, ApiError> {
+    let id = parse_id(&id, "reconstruction")?;
+    tokio::task::spawn_blocking(move || d.store().delete_reconstruction(id))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))??;
+    Ok(Json(Deleted {
+        capture: None,
+        reconstructions: vec![id],
+    }))
+}
+
 async fn file(
     path: std::path::PathBuf,
     content_type: &'static str,

@@ -64,6 +64,17 @@ pub enum StoreError {
         /// The lock holder's PID, as it wrote it.
         holder: Option<u32>,
     },
+    /// A row that may not be deleted now (HTTP 409): still queued or
+    /// running, or used by reconstructions that are kept.
+    #[error("{kind} {id} cannot be deleted: {reason}")]
+    InUse {
+        /// `capture` or `reconstruction`.
+        kind: &'static str,
+        /// Its id.
+        id: i64,
+        /// Why, naming what uses it.
+        reason: String,
+    },
     /// No such row.
     #[error("no {kind} with id {id}")]
     NotFound {
@@ -72,6 +83,47 @@ pub enum StoreError {
         /// The id asked for.
         id: i64,
     },
+}
+
+/// Suffix of a folder whose row is being deleted.
+const DELETING: &str = ".deleting";
+
+/// Renames each existing folder to `<name>.deleting`; returns (parked, original).
+fn park(folders: &[PathBuf]) -> Vec<(PathBuf, PathBuf)> {
+    folders
+        .iter()
+        .filter_map(|f| {
+            let parked =
+                f.with_file_name(format!("{}{DELETING}", f.file_name()?.to_string_lossy()));
+            std::fs::rename(f, &parked)
+                .ok()
+                .map(|()| (parked, f.clone()))
+        })
+        .collect()
+}
+
+/// Removes the parked folders once their rows are gone, or puts them back.
+fn finish(parked: &[(PathBuf, PathBuf)], deleted: bool) {
+    for (p, original) in parked {
+        if deleted {
+            remove_folder(p);
+        } else if let Err(e) = std::fs::rename(p, original) {
+            tracing::error!("cannot put {} back ({e}); the next start does", p.display());
+        }
+    }
+}
+
+/// Removes a job's folder; a failure is logged (the row is already gone,
+/// and the next start removes the folder).
+fn remove_folder(path: &Path) {
+    if let Err(e) = std::fs::remove_dir_all(path) {
+        if e.kind() != std::io::ErrorKind::NotFound {
+            tracing::warn!(
+                "cannot remove {} ({e}); the next start removes it",
+                path.display()
+            );
+        }
+    }
 }
 
 /// The catalogue and its data directory.
@@ -246,6 +298,38 @@ impl Store {
                 params![why, now()],
             )
             .map_err(db)?;
+        }
+        // A deletion a stopped daemon left half done: a folder renamed to
+        // `<id>.deleting` is removed when its row is gone, renamed back when
+        // the row's deletion never committed.
+        for (table, sub) in [
+            ("captures", "captures"),
+            ("reconstructions", "reconstructions"),
+        ] {
+            let Ok(entries) = std::fs::read_dir(dir.join(sub)) else {
+                continue;
+            };
+            for e in entries.flatten() {
+                let name = e.file_name().to_string_lossy().into_owned();
+                let Some(id) = name
+                    .strip_suffix(DELETING)
+                    .and_then(|n| n.parse::<i64>().ok())
+                else {
+                    continue;
+                };
+                let kept: bool = conn
+                    .query_row(
+                        &format!("SELECT COUNT(*) FROM {table} WHERE id = ?1"),
+                        [id],
+                        |r| r.get::<_, i64>(0).map(|n| n > 0),
+                    )
+                    .map_err(db)?;
+                if kept {
+                    let _ = std::fs::rename(e.path(), dir.join(sub).join(id.to_string()));
+                } else {
+                    remove_folder(&e.path());
+                }
+            }
         }
         // Captures that did not finish keep no raw frames (a run killed
         // mid-capture, or one that could not remove them when cancelled).
@@ -453,6 +537,107 @@ impl Store {
             )
             .optional()
         })
+    }
+
+    /// Deletes capture `id`: its row (and, with `with_reconstructions`, the
+    /// rows of the reconstructions that use it) in one transaction, then
+    /// their folders. Refused while it (or one of those reconstructions) is
+    /// queued or running, and while a kept reconstruction uses it. Returns
+    /// the reconstructions deleted with it.
+    ///
+    /// Why in three steps (folders renamed to `<id>.deleting`, rows deleted,
+    /// folders removed): a daemon stopped between any two leaves a state the
+    /// next start completes or undoes by the row ([`Store::open`]); no row is
+    /// ever left without its files.
+    pub fn delete_capture(
+        &self,
+        id: i64,
+        with_reconstructions: bool,
+    ) -> Result<Vec<i64>, StoreError> {
+        let users = self.deletable_capture(id, with_reconstructions)?;
+        let mut folders: Vec<PathBuf> = users.iter().map(|r| self.reconstruction_dir(*r)).collect();
+        folders.push(self.capture_dir(id));
+        let parked = park(&folders);
+        let deleted = self.with(|c| {
+            let tx = c.unchecked_transaction()?;
+            for r in &users {
+                tx.execute("DELETE FROM reconstructions WHERE id = ?1", [r])?;
+            }
+            tx.execute("DELETE FROM captures WHERE id = ?1", [id])?;
+            tx.commit()
+        });
+        finish(&parked, deleted.is_ok());
+        deleted?;
+        Ok(users)
+    }
+
+    /// The reconstructions that go with capture `id`, or why it may not be deleted.
+    fn deletable_capture(
+        &self,
+        id: i64,
+        with_reconstructions: bool,
+    ) -> Result<Vec<i64>, StoreError> {
+        let in_use = |reason: String| StoreError::InUse {
+            kind: "capture",
+            id,
+            reason,
+        };
+        self.with(|c| {
+            let state: Option<String> = c
+                .query_row("SELECT state FROM captures WHERE id = ?1", [id], |r| r.get(0))
+                .optional()?;
+            let Some(state) = state else {
+                return Ok(Err(StoreError::NotFound { kind: "capture", id }));
+            };
+            if state == "queued" || state == "running" {
+                return Ok(Err(in_use(format!("it is {state}; cancel it first (DELETE /jobs/capture-{id})"))));
+            }
+            let mut users: Vec<(i64, String)> = c
+                .prepare("SELECT r.id, r.state FROM reconstructions r, json_each(r.captures) j WHERE j.value = ?1 ORDER BY r.id")?
+                .query_map([id], |r| Ok((r.get(0)?, r.get(1)?)))?
+                .collect::<rusqlite::Result<_>>()?;
+            users.dedup();
+            if let Some((r, st)) = users.iter().find(|(_, st)| st == "queued" || st == "running") {
+                return Ok(Err(in_use(format!("reconstruction {r} that uses it is {st}"))));
+            }
+            if !users.is_empty() && !with_reconstructions {
+                let ids: Vec<String> = users.iter().map(|(r, _)| r.to_string()).collect();
+                return Ok(Err(in_use(format!(
+                    "reconstruction{} {} use{} it; delete {} first, or ask for ?with_reconstructions=true",
+                    if ids.len() == 1 { "" } else { "s" },
+                    ids.join(", "),
+                    if ids.len() == 1 { "s" } else { "" },
+                    if ids.len() == 1 { "it" } else { "them" },
+                ))));
+            }
+            Ok(Ok(users.into_iter().map(|(r, _)| r).collect::<Vec<i64>>()))
+        })?
+    }
+
+    /// Deletes reconstruction `id`, its row then its folder; refused while
+    /// it is queued or running.
+    pub fn delete_reconstruction(&self, id: i64) -> Result<(), StoreError> {
+        let state = self.reconstruction(id)?.state;
+        if matches!(state, JobState::Queued | JobState::Running) {
+            return Err(StoreError::InUse {
+                kind: "reconstruction",
+                id,
+                reason: format!(
+                    "it is {}; cancel it first (DELETE /jobs/reconstruction-{id})",
+                    state.name()
+                ),
+            });
+        }
+        let parked = park(&[self.reconstruction_dir(id)]);
+        let deleted = self.with(|c| {
+            c.execute(
+                "DELETE FROM reconstructions WHERE id = ?1 AND state NOT IN ('queued', 'running')",
+                [id],
+            )
+        });
+        finish(&parked, matches!(deleted, Ok(1)));
+        deleted?;
+        Ok(())
     }
 
     /// Captures, newest first.
