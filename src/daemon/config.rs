@@ -137,7 +137,7 @@ impl Default for HttpConfig {
     fn default() -> Self {
         Self {
             max_connections: 256,
-            max_connections_per_peer: 32,
+            max_connections_per_peer: 64,
             header_timeout_s: 10.0,
             body_timeout_s: 30.0,
             allowed_hosts: Vec::new(),
