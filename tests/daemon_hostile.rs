@@ -274,6 +274,16 @@ fn a_second_daemon_on_the_same_data_dir_exits_2_and_leaves_the_first_alone() {
     assert_eq!(d.get("/health").0, 200, "the first daemon is untouched");
 }
 
+/// The daemon's count of connections it closed at once (`/metrics`).
+fn refused_total(d: &Daemon) -> f64 {
+    let (_, metrics) = d.get("/metrics");
+    metrics
+        .lines()
+        .find(|l| l.starts_with("polnlos_http_connections_refused_total "))
+        .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
+        .unwrap()
+}
+
 /// `polnlos serve` with `cfg` and `data` on a free port, run to its exit
 /// (for a daemon that must refuse to start).
 fn serve_once(cfg: &std::path::Path, data: &std::path::Path) -> std::process::Output {
@@ -396,12 +406,7 @@ fn slow_and_idle_clients_are_cut_off_and_connections_are_capped() {
     // Once the idle ones time out, requests are served again.
     std::thread::sleep(Duration::from_millis(1500));
     assert_eq!(d.get("/health").0, 200);
-    let (_, metrics) = d.get("/metrics");
-    let refused: f64 = metrics
-        .lines()
-        .find(|l| l.starts_with("polnlos_http_connections_refused_total "))
-        .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
-        .unwrap();
+    let refused = refused_total(&d);
     assert!(refused >= 300.0, "{refused}");
 }
 
@@ -470,12 +475,7 @@ fn one_client_holding_idle_sockets_does_not_lock_the_others_out() {
     let opened = greedy.join().unwrap();
     println!("{checks} health checks, all under 1 s, while 127.0.0.2 opened {opened} sockets");
     assert!(opened > 300, "the greedy peer opened only {opened}");
-    let (_, metrics) = d.get("/metrics");
-    let refused: f64 = metrics
-        .lines()
-        .find(|l| l.starts_with("polnlos_http_connections_refused_total "))
-        .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
-        .unwrap();
+    let refused = refused_total(&d);
     assert!(refused >= 268.0, "{refused}");
 }
 

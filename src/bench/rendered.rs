@@ -366,33 +366,24 @@ pub fn rendered_report(
         step();
     }
     let row = |n: &str| report.rows.iter().find(|r| r.case == n);
-    if let (Some(base), Some(pol)) = (row("nopol"), row("crossed")) {
-        let truth = &cases
-            .iter()
-            .find(|c| c.name == "nopol")
-            .map(|c| c.truth.clone())
-            .unwrap_or_default();
-        let grid = cases
-            .iter()
-            .find(|c| c.name == "nopol")
-            .map(|c| c.scene.scene.plane.grid);
-        if let Some(grid) = grid {
-            let mut post = Vec::new();
-            for (noise, b, p) in [
-                ("render-noise", &base.render_noise, &pol.render_noise),
-                ("equal-exposure", &base.equal_exposure, &pol.equal_exposure),
-            ] {
-                let (denoised, weight) = best_denoised(grid, truth, &b.rendered_image);
-                post.push(PostProcessing {
-                    noise,
-                    baseline: b.rendered,
-                    denoised,
-                    weight,
-                    polarized: p.rendered,
-                });
+    let nopol = cases.iter().find(|c| c.name == "nopol");
+    if let (Some(base), Some(pol), Some(case)) = (row("nopol"), row("crossed"), nopol) {
+        let grid = case.scene.scene.plane.grid;
+        let post = [
+            ("render-noise", &base.render_noise, &pol.render_noise),
+            ("equal-exposure", &base.equal_exposure, &pol.equal_exposure),
+        ]
+        .map(|(noise, b, p)| {
+            let (denoised, weight) = best_denoised(grid, &case.truth, &b.rendered_image);
+            PostProcessing {
+                noise,
+                baseline: b.rendered,
+                denoised,
+                weight,
+                polarized: p.rendered,
             }
-            report.post_processing = post;
-        }
+        });
+        report.post_processing = post.to_vec();
     }
     Ok(report)
 }
