@@ -89,6 +89,7 @@ fn exit_code(e: &anyhow::Error) -> u8 {
         }
         if cause.is::<polnlos::calibrate::geometry::CalibrationError>()
             || cause.is::<polnlos::calibrate::wall::WallFitError>()
+            || cause.is::<polnlos::measure::MeasureError>()
         {
             return INPUT;
         }

@@ -871,3 +871,144 @@ fn calibrate_wall_fits_a_point_source_measurement_with_uncertainties() {
     ]));
     assert!(err.contains("2 --measurement but 1 --source"), "{err}");
 }
+
+/// Writes `pages` constant 16-bit pages of `size` x `size` pixels.
+fn write_tiff_pages(path: &std::path::Path, size: u32, pages: &[u16]) {
+    use tiff::encoder::{colortype, TiffEncoder};
+    let mut f = std::fs::File::create(path).unwrap();
+    let mut enc = TiffEncoder::new(&mut f).unwrap();
+    for &v in pages {
+        let px = vec![v; (size * size) as usize];
+        enc.write_image::<colortype::Gray16>(size, size, &px)
+            .unwrap();
+    }
+}
+
+#[test]
+fn measure_turns_tiff_frames_into_the_measurement_in_block_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_str().unwrap().to_string();
+    let run = |args: &[String]| {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        polnlos(&args)
+    };
+    let strings = |a: &[&str]| a.iter().map(|s| s.to_string()).collect::<Vec<String>>();
+    // Pose B sees 1100 +- 10 DN, pose C 600 DN; both over a 100 DN dark.
+    write_tiff_pages(
+        dir.path().join("B.tiff").as_path(),
+        512,
+        &[1090, 1110, 1090, 1110],
+    );
+    write_tiff_pages(dir.path().join("C.tiff").as_path(), 512, &[600, 600]);
+    write_tiff_pages(dir.path().join("dark.tiff").as_path(), 512, &[100, 100]);
+    let s = scene("brewster-multi-3x3").to_str().unwrap().to_string();
+    let out = p("m/i.npy");
+    // Blocks given C first: they are stacked B, C as the scene orders them.
+    let mut args = strings(&[
+        "measure",
+        &s,
+        "--frames",
+        &p("C.tiff"),
+        "--frames",
+        &p("B.tiff"),
+    ]);
+    args.extend(strings(&[
+        "--dark",
+        &p("dark.tiff"),
+        "--pose",
+        "C",
+        "--pose",
+        "B",
+    ]));
+    args.extend(strings(&[
+        "--angle",
+        "0",
+        "--exposure-us",
+        "1000",
+        "--raw",
+        "--out",
+        &out,
+    ]));
+    let stdout = ok(&run(&args));
+    assert!(stdout.contains("2 blocks B-pol0 C-pol0"), "{stdout}");
+    let i = npy::read(std::path::Path::new(&out)).unwrap().data;
+    let n = i.len() / 2;
+    let unit = 1.0 / 65535.0 / 1000.0;
+    assert!(
+        i[..n]
+            .iter()
+            .all(|v| (v - 1000.0 * unit).abs() < 1e-9 * unit),
+        "{:?}",
+        &i[..3]
+    );
+    assert!(i[n..]
+        .iter()
+        .all(|v| (v - 500.0 * unit).abs() < 1e-9 * unit));
+    // Variance of B's 4-frame mean (f32 in the frame): sample variance 400/3 DN², over 4 frames;
+    // C's frames do not vary: only the digitizer's rounding floor, 1/12 DN².
+    let var = npy::read(std::path::Path::new(&p("m/i.variance.npy")))
+        .unwrap()
+        .data;
+    assert!(
+        (var[0] / unit / unit - 400.0 / 3.0 / 4.0).abs() < 1e-5,
+        "{}",
+        var[0] / unit / unit
+    );
+    assert!((var[n] / unit / unit - 1.0 / 12.0).abs() < 1e-9);
+    // With a gain: units of T l, the raw values divided by it.
+    let mut gained = args.clone();
+    gained.retain(|a| a != "--raw");
+    gained.extend(strings(&["--gain", "0.5"]));
+    ok(&run(&gained));
+    let g = npy::read(std::path::Path::new(&out)).unwrap().data;
+    assert!((g[0] - 2.0 * i[0]).abs() < 1e-15);
+
+    // What a user gets wrong is named: the command line (exit status 2)...
+    let mut three_poses = args.clone();
+    three_poses.extend(strings(&["--pose", "C"]));
+    let e = usage(&run(&three_poses));
+    assert!(e.contains("3 values of --pose for 2 --frames"), "{e}");
+    // ...and the frames (exit status 3).
+    let only_b = |angle: &str, frames: &str| {
+        let mut a = strings(&[
+            "measure", &s, "--frames", frames, "--pose", "B", "--angle", angle,
+        ]);
+        a.extend(strings(&["--exposure-us", "1000", "--raw", "--out", &out]));
+        a
+    };
+    let e = fails(&run(&only_b("0", &p("B.tiff"))));
+    assert!(e.contains("no capture for block C-pol0"), "{e}");
+    let mut stray = strings(&[
+        "measure",
+        &s,
+        "--frames",
+        &p("B.tiff"),
+        "--frames",
+        &p("C.tiff"),
+    ]);
+    stray.extend(strings(&[
+        "--frames",
+        &p("C.tiff"),
+        "--pose",
+        "B",
+        "--pose",
+        "C",
+        "--pose",
+        "C",
+    ]));
+    stray.extend(strings(&["--angle", "0", "--angle", "0", "--angle", "45"]));
+    stray.extend(strings(&["--exposure-us", "1000", "--raw", "--out", &out]));
+    let e = fails(&run(&stray));
+    assert!(
+        e.contains("C.tiff was taken at C-pol45, which is not a block"),
+        "{e}"
+    );
+    write_tiff_pages(dir.path().join("small.tiff").as_path(), 64, &[5]);
+    let mut small = only_b("0", &p("small.tiff"));
+    small.extend(strings(&["--dark", &p("dark.tiff")]));
+    let e = fails(&run(&small));
+    assert!(
+        e.contains("the dark frame is 512x512 but the frames are 64x64"),
+        "{e}"
+    );
+}

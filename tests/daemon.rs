@@ -29,6 +29,51 @@ fn recovered(d: &Daemon, id: i64) -> Vec<f64> {
     polnlos::files::npy::read(&p).unwrap().data
 }
 
+/// `polnlos measure` on a capture's downloaded raw frames and dark frames
+/// gives the measurement the daemon solved (the same assembly code): the
+/// same values up to the one scale factor (the daemon's radiometric
+/// calibration; the offline run keeps raw units), block by block, given
+/// in reverse order.
+fn offline_measure_matches_the_daemon(d: &Daemon, scene: &str, ids: &[i64], daemon_i: &[f64]) {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_polnlos"));
+    cmd.args(["measure", scene, "--raw", "--exposure-us", "20000"]);
+    for id in ids.iter().rev() {
+        for file in ["frame", "dark"] {
+            let (s, bytes) = d.get_bytes(&format!("/captures/{id}/{file}.tiff"));
+            assert_eq!(s, 200);
+            let p = dir.path().join(format!("{file}-{id}.tiff"));
+            std::fs::write(&p, bytes).unwrap();
+            cmd.arg(format!(
+                "--{}",
+                if file == "frame" { "frames" } else { "dark" }
+            ))
+            .arg(&p);
+        }
+        let c = d.json(&format!("/captures/{id}"));
+        cmd.args(["--pose", c["pose"].as_str().unwrap()]);
+        cmd.args(["--angle", &c["polarizer_deg"].to_string()]);
+    }
+    let out = dir.path().join("i.npy");
+    let o = cmd.arg("--out").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let i = polnlos::files::npy::read(&out).unwrap().data;
+    assert_eq!(i.len(), daemon_i.len());
+    let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
+    let scale = dot(daemon_i, &i) / dot(&i, &i);
+    let top = daemon_i.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(scale > 0.0 && top > 0.0, "{scale} {top}");
+    for (k, (a, b)) in daemon_i.iter().zip(&i).enumerate() {
+        assert!(
+            (a - b * scale).abs() <= 1e-6 * top,
+            "element {k}: daemon {a}, offline {b} x {scale}"
+        );
+    }
+    let var = polnlos::files::npy::read(&dir.path().join("i.variance.npy")).unwrap();
+    assert_eq!(var.data.len(), i.len());
+    assert!(var.data.iter().all(|v| *v > 0.0));
+}
+
 #[test]
 fn capture_every_block_reconstruct_and_fetch() {
     let _g = lock();
@@ -123,6 +168,9 @@ fn capture_every_block_reconstruct_and_fetch() {
         assert_eq!(s, 200);
         let rep: serde_json::Value = serde_json::from_str(&rep).unwrap();
         assert_eq!(rep["conditioning"], r["report"]["conditioning"]);
+        if scene == "brewster-multi" {
+            offline_measure_matches_the_daemon(&d, scene, &ids, &m_i.data);
+        }
         println!("{}", report.last().unwrap());
         // The bound: clearly better than the best featureless guess (the truth's
         // own mean everywhere), by 3 dB; the fake camera adds only +-0.5 DN of

@@ -11,7 +11,7 @@ use rand::{Rng, SeedableRng};
 
 type Target = fn(&[u8]);
 
-const TARGETS: [(&str, Target); 8] = [
+const TARGETS: [(&str, Target); 9] = [
     ("scene_toml", parsers::scene_toml),
     ("npy", parsers::npy),
     ("capture_json", parsers::capture_json),
@@ -20,10 +20,11 @@ const TARGETS: [(&str, Target); 8] = [
     ("config_toml", parsers::config_toml),
     ("wall_calibration_json", parsers::wall_calibration_json),
     ("calibration_json", parsers::calibration_json),
+    ("frames_tiff", parsers::frames_tiff),
 ];
 
 /// Tokens that reach edge cases of these formats.
-const TOKENS: [&[u8]; 16] = [
+const TOKENS: [&[u8]; 18] = [
     b"1e308",
     b"-1",
     b"4294967296",
@@ -40,6 +41,8 @@ const TOKENS: [&[u8]; 16] = [
     b"null",
     b"[[",
     b"\x93NUMPY\x02\x00",
+    b"II*\x00",
+    b"\xff\xff\xff\x7f",
 ];
 
 fn mutate(rng: &mut rand_chacha::ChaCha8Rng, seed: &[u8]) -> Vec<u8> {

@@ -37,6 +37,15 @@ pub fn npy(data: &[u8]) {
     }
 }
 
+/// Camera frames as `polnlos measure` reads them (multi-page grey TIFF).
+pub fn frames_tiff(data: &[u8]) {
+    if let Ok(f) = polnlos::files::frames::decode_frames(data) {
+        let st = &f.stack;
+        assert!(st.count >= 1 && st.mean.len() == st.width * st.height);
+        assert!(st.width as u64 * st.height as u64 <= polnlos::files::frames::MAX_PIXELS);
+    }
+}
+
 /// The scene bodies are checked against (the reference bench, two poses).
 fn scene() -> &'static Scene {
     static SCENE: std::sync::OnceLock<Scene> = std::sync::OnceLock::new();

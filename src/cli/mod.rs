@@ -5,6 +5,7 @@
 mod bench;
 mod calibrate;
 mod cond;
+mod measure;
 mod pattern;
 mod plan;
 mod progress;
@@ -51,6 +52,8 @@ enum Command {
     Cond(cond::Args),
     /// Render a noisy measurement i = T l of a truth image.
     Simulate(simulate::Args),
+    /// Turn camera frames (TIFF) into a measurement: the daemon's stacking, offline.
+    Measure(measure::Args),
     /// Recover the hidden scene from a measurement.
     Reconstruct(reconstruct::Args),
     /// Write a test pattern (disk, bars, letter) as a PNG truth image.
@@ -83,6 +86,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Transport(a) => transport::run(a),
         Command::Cond(a) => cond::run(a),
         Command::Simulate(a) => simulate::run(a),
+        Command::Measure(a) => measure::run(a),
         Command::Reconstruct(a) => reconstruct::run(a),
         Command::Pattern(a) => pattern::run(a),
         Command::Calibrate(a) => calibrate::run(a),

@@ -35,8 +35,12 @@ pub struct Args {
     lambda: Option<LambdaArg>,
     /// simulate.json whose camera model (photons, read noise, bits) gives the
     /// noise level for the automatic lambda.
-    #[arg(long = "noise-from", value_name = "FILE")]
+    #[arg(long = "noise-from", value_name = "FILE", conflicts_with = "variance")]
     noise_from: Option<PathBuf>,
+    /// Variance of each measurement value (.npy, as `polnlos measure` writes
+    /// it beside the measurement): the noise level for the automatic lambda.
+    #[arg(long, value_name = "FILE")]
+    variance: Option<PathBuf>,
     /// ADMM penalty (default: balanced automatically).
     #[arg(long, value_name = "R")]
     rho: Option<f64>,
@@ -121,11 +125,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         rcond: a.rcond,
     };
     req.check()?;
-    let noise = a
-        .noise_from
-        .as_ref()
-        .map(|p| noise_from(p, &meas.data))
-        .transpose()?;
+    let noise = match (&a.noise_from, &a.variance) {
+        (Some(p), _) => Some(noise_from(p, &meas.data)?),
+        (None, Some(p)) => {
+            let v = npy::read(p)?;
+            anyhow::ensure!(
+                v.data.len() == meas.data.len(),
+                "{} has {} values but the measurement has {}; give the variance file written with it",
+                p.display(),
+                v.data.len(),
+                meas.data.len()
+            );
+            anyhow::ensure!(
+                v.data.iter().all(|x| x.is_finite() && *x >= 0.0),
+                "{}: every variance must be finite and not negative",
+                p.display()
+            );
+            Some(NoiseLevel::measured(v.data))
+        }
+        (None, None) => None,
+    };
     super::out_dir(&a.out)?;
 
     let (t, transport_seconds) = super::progress::build_transport(&scene)?;

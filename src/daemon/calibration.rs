@@ -193,9 +193,11 @@ impl Daemon {
         for p in positions {
             let captures = self.source_captures(scene_name, &scene, &p.captures)?;
             ordered.push(captures.iter().map(|c| c.id).collect());
-            let stacked = super::reconstruction::stack_records(self, captures, &scene)
+            let blocks = crate::transport::blocks_of(&scene);
+            let stacked = super::reconstruction::stack_records(self, captures, &scene, &blocks)
                 .map_err(|e| invalid(e.to_string()))?;
-            measured.push((stacked.i, stacked.var));
+            let m = stacked.measurement;
+            measured.push((m.i, m.variance));
             warnings.extend(stacked.warnings);
         }
         let sets: Vec<SourceMeasurement> = positions

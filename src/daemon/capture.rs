@@ -18,9 +18,10 @@ use super::jobs::{finish_job, job_event, Ending, JobError};
 use super::progressive;
 use super::{Daemon, Event};
 use crate::camera::{CameraError, CameraSettings, Frame, PixelFormat, RawFrame, TriggerMode};
+use crate::measure::FrameStack;
 use crate::store::{
     read_mean, write_frames, write_summary, CaptureFiles, CaptureKind, CaptureRecord, FrameMeta,
-    FrameStack, JobState,
+    JobState,
 };
 
 /// Least time between two frames kept for the live view (`/camera/frame.png`).

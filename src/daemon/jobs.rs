@@ -66,14 +66,7 @@ pub(super) fn block_label(pose: &str, deg: Option<f64>) -> String {
     }
 }
 
-/// Whether two polarizer settings are the same block (both absent, or equal angles).
-pub(super) fn same_angle(a: Option<f64>, b: Option<f64>) -> bool {
-    match (a, b) {
-        (None, None) => true,
-        (Some(x), Some(y)) => (x - y).abs() < 1e-6,
-        _ => false,
-    }
-}
+pub(super) use crate::measure::same_angle;
 
 pub(super) fn job_event(d: &Daemon, job: String, state: JobState, error: Option<String>) {
     d.emit(Event::Job { job, state, error });

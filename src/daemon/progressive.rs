@@ -21,19 +21,21 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use super::jobs::same_angle;
 use super::jobs::JobError;
-use super::reconstruction::{capture_for_block, load_capture, read_captures, serves};
+use super::reconstruction::{load_capture, read_captures};
 use super::validate::ProgressiveSpec;
 use super::{Daemon, Event};
 use crate::camera::{Frame, PixelFormat};
 use crate::files::{image, json};
-use crate::measure::{stack, BlockFrames};
+use crate::measure::FrameStack;
+use crate::measure::{assemble, stack, to_model_units, BlockFrames};
 use crate::scene::Scene;
 use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};
 use crate::solve::lambda::{admm_tv_resolved, NoiseLevel};
 use crate::solve::reconstruct::AUTO_MAX_ITER;
-use crate::store::{CaptureRecord, FrameStack};
+use crate::store::CaptureRecord;
 use crate::transport::Transport;
 
 /// File of the latest progressive image, in the capture's folder.
@@ -140,6 +142,8 @@ struct Solver {
     state: AdmmState,
     settings: AdmmSettings<'static>,
     calibration: f64,
+    /// Full scale of the capture's pixel format, DN.
+    full_scale: f64,
     dark: Option<Frame>,
     truth: Option<Vec<f64>>,
     previous: Option<Vec<f64>>,
@@ -161,32 +165,42 @@ impl Solver {
                 reason: format!("progressive reconstruction needs the radiometric calibration of scene {:?} ([calibration] in the config)", capture.scene),
             }
         })?;
-        let mut i = vec![0.0; t.rows()];
-        let mut variance = Some(vec![0.0; t.rows()]);
-        let mut own = None;
+        let full_scale = PixelFormat::from_name(&capture.pixel_format)
+            .ok_or_else(|| JobError::Capture {
+                id: capture.id,
+                reason: format!(
+                    "its pixel format {:?} is not one polnlos decodes",
+                    capture.pixel_format
+                ),
+            })?
+            .full_scale();
+        // This capture's block is filled at each step; the others come
+        // from their captures, assembled as a reconstruction would.
+        let own = t
+            .blocks
+            .iter()
+            .position(|b| {
+                b.pose == capture.pose && same_angle(b.polarizer_deg, capture.polarizer_deg)
+            })
+            .ok_or_else(|| JobError::Store("the capture's block is not in T".into()))?;
         let mut warnings = Vec::new();
-        let others = read_captures(d, &spec.captures)?;
-        for (b, block) in t.blocks.iter().enumerate() {
-            if serves(&capture, block) {
-                own = Some(b);
-                continue;
-            }
-            let other = capture_for_block(&others, block)?.clone();
-            let l = load_capture(d, other, &scene, &mut warnings)?;
-            let m = stack(&[l.block()], &scene.wall.plane)?;
-            for (dst, v) in i[t.block_rows(b)].iter_mut().zip(m.i) {
-                *dst = v / calibration;
-            }
-            match (m.variance, variance.as_mut()) {
-                (Some(v), Some(acc)) => {
-                    for (dst, v) in acc[t.block_rows(b)].iter_mut().zip(v) {
-                        *dst = v / (calibration * calibration);
-                    }
-                }
-                _ => variance = None,
+        let others = read_captures(d, &spec.captures)?
+            .into_iter()
+            .map(|c| load_capture(d, c, &scene, &mut warnings))
+            .collect::<Result<Vec<_>, _>>()?;
+        let other_blocks: Vec<_> = (0..t.blocks.len()).filter(|&b| b != own).collect();
+        let blocks: Vec<_> = other_blocks.iter().map(|&b| t.blocks[b].clone()).collect();
+        let mut m = assemble(&scene, &blocks, &others)?;
+        to_model_units(&t, &mut m, Some(calibration))?;
+        let mut i = vec![0.0; t.rows()];
+        let mut variance = m.variance.as_ref().map(|_| vec![0.0; t.rows()]);
+        let n = t.wall_grid.count();
+        for (k, &b) in other_blocks.iter().enumerate() {
+            i[t.block_rows(b)].copy_from_slice(&m.i[k * n..(k + 1) * n]);
+            if let (Some(acc), Some(v)) = (variance.as_mut(), m.variance.as_ref()) {
+                acc[t.block_rows(b)].copy_from_slice(&v[k * n..(k + 1) * n]);
             }
         }
-        let own = own.ok_or_else(|| JobError::Store("the capture's block is not in T".into()))?;
         let normal = Normal::new(t.as_mat(), &i);
         let truth = spec
             .truth
@@ -209,6 +223,7 @@ impl Solver {
             normal,
             state: AdmmState::default(),
             calibration,
+            full_scale,
             dark,
             truth,
             previous: None,
@@ -251,9 +266,7 @@ impl Solver {
             mean: &mean,
             variance: variance.as_ref(),
             frames: s.frames,
-            full_scale: PixelFormat::from_name(&self.capture.pixel_format)
-                .unwrap_or(PixelFormat::Mono16)
-                .full_scale(),
+            full_scale: self.full_scale,
             exposure_us: self.capture.exposure_us,
         };
         let m = stack(&[frames], &self.scene.wall.plane)?;

@@ -9,16 +9,15 @@ use std::time::Instant;
 
 use tokio::sync::{mpsc, Mutex};
 
-use super::jobs::{finish_job, job_event, same_angle, Ending, JobError};
+use super::jobs::{finish_job, job_event, Ending, JobError};
 use super::Daemon;
-use crate::camera::Frame;
 use crate::camera::PixelFormat;
 use crate::files::{image, json, npy};
-use crate::measure::BlockFrames;
+use crate::measure::{assemble, to_model_units, CaptureFrames, Measurement};
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::reconstruct::Context;
-use crate::solve::{reconstruct, tikhonov, SolveRequest, Stop};
-use crate::store::{read_mean, JobState};
+use crate::solve::{reconstruct, SolveRequest, Stop};
+use crate::store::{read_mean, CaptureRecord, JobState};
 
 /// Takes reconstructions from the shared queue.
 pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Receiver<i64>>>) {
@@ -80,13 +79,13 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
     let transport_seconds = t0.elapsed().as_secs_f64();
     check(cancel)?;
     let Stacked {
-        mut i,
-        mut var,
+        mut measurement,
         mut warnings,
     } = stack_captures(d, &rec, &scene, &t)?;
-    if let Some(w) = scale(d, &rec.scene, &t, &mut i, &mut var)? {
-        warnings.push(w);
-    }
+    let calibration = d.calibration.get(&rec.scene).copied();
+    let units = to_model_units(&t, &mut measurement, calibration)?;
+    warnings.extend(units.warning());
+    let Measurement { i, variance: var } = measurement;
     let cond = d.scenes.conditioning(&rec.scene)?;
     check(cancel)?;
     let solve = stored_solve(&rec)?;
@@ -143,17 +142,16 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
         .map_err(store)
 }
 
-/// A reconstruction's measurement: the captures stacked in block order, the
-/// variance of each element when every capture has it, and what the user
-/// should know about the captures.
+/// A reconstruction's measurement: the captures stacked in block order
+/// (with the variance of each element when every capture has it), and what
+/// the user should know about the captures.
 pub(super) struct Stacked {
-    pub(super) i: Vec<f64>,
-    pub(super) var: Option<Vec<f64>>,
+    pub(super) measurement: Measurement,
     pub(super) warnings: Vec<String>,
 }
 
-/// Reads each block's capture (in MODEL.md block order) and stacks them into
-/// the measurement with [`stack_records`].
+/// Reads the reconstruction's captures and assembles them in `T`'s block
+/// order with [`stack_records`].
 fn stack_captures(
     d: &Daemon,
     rec: &crate::store::ReconstructionRecord,
@@ -161,12 +159,7 @@ fn stack_captures(
     t: &crate::transport::Transport,
 ) -> Result<Stacked, JobError> {
     let records = read_captures(d, &rec.captures)?;
-    let ordered = t
-        .blocks
-        .iter()
-        .map(|block| capture_for_block(&records, block).cloned())
-        .collect::<Result<Vec<_>, _>>()?;
-    stack_records(d, ordered, scene)
+    stack_records(d, records, scene, &t.blocks)
 }
 
 /// The solve a reconstruction row asks for: its parameters (the same keys
@@ -190,34 +183,30 @@ fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest
     Ok(solve)
 }
 
-/// Captures in block order (each at its own pose) stacked into the
-/// measurement with [`crate::measure::stack`], in fractions of full scale
+/// Captures (each at its own pose) assembled into the measurement of
+/// `blocks` with [`crate::measure::assemble`], in fractions of full scale
 /// per µs; the variance comes with it when every capture has 2 frames or more.
 pub(super) fn stack_records(
     d: &Daemon,
-    ordered: Vec<crate::store::CaptureRecord>,
+    records: Vec<CaptureRecord>,
     scene: &crate::scene::Scene,
+    blocks: &[crate::transport::Block],
 ) -> Result<Stacked, JobError> {
     let mut warnings = Vec::new();
-    let loaded = ordered
+    let captures = records
         .into_iter()
         .map(|c| load_capture(d, c, scene, &mut warnings))
         .collect::<Result<Vec<_>, _>>()?;
-    let blocks: Vec<BlockFrames<'_>> = loaded.iter().map(Loaded::block).collect();
-    let m = crate::measure::stack(&blocks, &scene.wall.plane)?;
+    let measurement = assemble(scene, blocks, &captures)?;
     Ok(Stacked {
-        i: m.i,
-        var: m.variance,
+        measurement,
         warnings,
     })
 }
 
 /// The catalogue records of `ids`, each read once. A catalogue that cannot
 /// be read is that error, not "no capture".
-pub(super) fn read_captures(
-    d: &Daemon,
-    ids: &[i64],
-) -> Result<Vec<crate::store::CaptureRecord>, JobError> {
+pub(super) fn read_captures(d: &Daemon, ids: &[i64]) -> Result<Vec<CaptureRecord>, JobError> {
     ids.iter()
         .map(|&id| {
             d.store
@@ -227,67 +216,25 @@ pub(super) fn read_captures(
         .collect()
 }
 
-/// Whether capture `c` was taken at `block`'s pose and polarizer angle.
-pub(super) fn serves(c: &crate::store::CaptureRecord, block: &crate::transport::Block) -> bool {
-    c.pose == block.pose && same_angle(c.polarizer_deg, block.polarizer_deg)
-}
-
-/// The capture among `records` that serves `block`.
-pub(super) fn capture_for_block<'r>(
-    records: &'r [crate::store::CaptureRecord],
-    block: &crate::transport::Block,
-) -> Result<&'r crate::store::CaptureRecord, JobError> {
-    records
-        .iter()
-        .find(|c| serves(c, block))
-        .ok_or_else(|| JobError::Store(format!("no capture for block {}", block.label())))
-}
-
-/// A capture's files as a block of the measurement needs them.
-pub(super) struct Loaded<'a> {
-    capture: crate::store::CaptureRecord,
-    pose: &'a crate::scene::Pose,
-    homography: crate::scene::Homography,
-    mean: Frame,
-    variance: Option<Frame>,
-}
-
-impl Loaded<'_> {
-    /// The block as [`crate::measure::stack`] takes it.
-    pub(super) fn block(&self) -> BlockFrames<'_> {
-        BlockFrames {
-            pose: &self.pose.name,
-            homography: &self.homography,
-            mean: &self.mean,
-            variance: self.variance.as_ref(),
-            frames: self.capture.frames as usize,
-            full_scale: PixelFormat::from_name(&self.capture.pixel_format)
-                .unwrap_or(PixelFormat::Mono16)
-                .full_scale(),
-            exposure_us: self.capture.exposure_us,
-        }
-    }
-}
-
 /// Reads a capture's mean (and variance) frame, checks it is the frame the
-/// capture recorded, and notes what the user should know about it; the
-/// homography is that of the capture's own pose in `scene`.
-pub(super) fn load_capture<'a>(
+/// capture recorded, and notes what the user should know about it.
+pub(super) fn load_capture(
     d: &Daemon,
-    cap: crate::store::CaptureRecord,
-    scene: &'a crate::scene::Scene,
+    cap: CaptureRecord,
+    scene: &crate::scene::Scene,
     warnings: &mut Vec<String>,
-) -> Result<Loaded<'a>, JobError> {
+) -> Result<CaptureFrames, JobError> {
     let id = cap.id;
     let capture = |reason: String| JobError::Capture { id, reason };
     let pose = scene
         .pose(&cap.pose)
         .ok_or_else(|| capture(format!("scene has no pose {:?} any more", cap.pose)))?;
-    let homography = pose
-        .homography
-        .ok_or_else(|| crate::measure::MeasureError::NoHomography {
-            pose: pose.name.clone(),
-        })?;
+    let pixel_format = PixelFormat::from_name(&cap.pixel_format).ok_or_else(|| {
+        capture(format!(
+            "its stored pixel format {:?} is not one polnlos decodes",
+            cap.pixel_format
+        ))
+    })?;
     let dir = d.store.capture_dir(id);
     let mean = read_mean(&dir).map_err(|e| capture(d.store.describe(&e)))?;
     if let Some([_, _, w, h]) = cap.region {
@@ -312,45 +259,16 @@ pub(super) fn load_capture<'a>(
     }
     let variance =
         crate::store::read_mean_variance(&dir).map_err(|e| capture(d.store.describe(&e)))?;
-    Ok(Loaded {
-        capture: cap,
-        pose,
-        homography,
+    Ok(CaptureFrames {
+        name: format!("capture {id}"),
+        pose: cap.pose,
+        polarizer_deg: cap.polarizer_deg,
         mean,
         variance,
+        frames: cap.frames as usize,
+        full_scale: pixel_format.full_scale(),
+        exposure_us: cap.exposure_us,
     })
-}
-
-/// Puts the measurement (and its variance) in units of `T l`: by the
-/// radiometric calibration, or, without one, so that the brightest element of
-/// a Tikhonov solution is 1 (the box constraint needs some scale), which the
-/// returned warning says.
-fn scale(
-    d: &Daemon,
-    scene: &str,
-    t: &crate::transport::Transport,
-    i: &mut [f64],
-    var: &mut Option<Vec<f64>>,
-) -> Result<Option<String>, JobError> {
-    if let Some(&c) = d.calibration.get(scene).filter(|c| **c > 0.0) {
-        i.iter_mut().for_each(|v| *v /= c);
-        var.iter_mut().flatten().for_each(|v| *v /= c * c);
-        return Ok(None);
-    }
-    let probe = tikhonov(t, i, None)?;
-    let unclipped_max = probe.image.iter().copied().fold(0.0, f64::max).max(1e-300);
-    let fit = t.apply(&probe.image);
-    let lsq_scale = fit
-        .iter()
-        .zip(i.iter())
-        .map(|(a, b)| a * b)
-        .sum::<f64>()
-        .max(1e-300)
-        / fit.iter().map(|a| a * a).sum::<f64>().max(1e-300);
-    let s = lsq_scale * unclipped_max;
-    i.iter_mut().for_each(|v| *v /= s);
-    var.iter_mut().flatten().for_each(|v| *v /= s * s);
-    Ok(Some("no radiometric calibration for this scene: the measurement was scaled so that the brightest element is about 1".to_string()))
 }
 
 #[cfg(test)]

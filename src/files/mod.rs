@@ -2,6 +2,7 @@
 //! tools: `.npy` arrays, 8/16-bit grey PNGs, TIFF frames, JSON reports; and
 //! how much of them the machine can hold ([`space`]).
 
+pub mod frames;
 pub mod image;
 pub mod json;
 pub mod npy;

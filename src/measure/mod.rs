@@ -2,9 +2,13 @@
 //! camera frames to i"): sampling frames through a pose's homography, and
 //! rendering the frame a wall image implies (for simulation and the fake camera).
 
+mod assemble;
+mod average;
 pub mod exposure;
 mod stack;
 
+pub use assemble::{assemble, match_blocks, same_angle, to_model_units, CaptureFrames, Units};
+pub use average::FrameStack;
 pub use stack::{stack, with_rounding_bias, BlockFrames, Measurement};
 
 use crate::camera::Frame;
@@ -18,6 +22,48 @@ pub enum MeasureError {
     NoHomography {
         /// Pose name.
         pose: String,
+    },
+    /// No capture was taken at a block's pose and polarizer angle.
+    #[error("no capture for block {block}; take one at that pose and polarizer angle, or remove the angle from the scene's pose")]
+    NoCapture {
+        /// The block's label, e.g. `A-pol0`.
+        block: String,
+    },
+    /// Two captures were taken at the same block.
+    #[error("block {block} has two captures, {first} and {second}; name only one")]
+    TwoCaptures {
+        /// The block's label.
+        block: String,
+        /// The first capture's name.
+        first: String,
+        /// The second.
+        second: String,
+    },
+    /// A capture serves no block of the scene.
+    #[error("{capture} was taken at {block}, which is not a block of the scene; its blocks are {blocks}")]
+    NoBlock {
+        /// The capture's name.
+        capture: String,
+        /// Its pose and angle as a block label, e.g. `C-pol45`.
+        block: String,
+        /// The scene's block labels.
+        blocks: String,
+    },
+    /// A capture names a pose the scene does not have.
+    #[error("{capture} was taken at pose {pose:?}, which the scene does not have")]
+    UnknownPose {
+        /// The capture's name.
+        capture: String,
+        /// Its pose.
+        pose: String,
+    },
+    /// The dark frame does not have the frames' size.
+    #[error("the dark frame is {}x{} but the frames are {}x{}; take the dark with the same region and binning", dark[0], dark[1], frames[0], frames[1])]
+    DarkSize {
+        /// Dark frame width, height.
+        dark: [usize; 2],
+        /// Frame width, height.
+        frames: [usize; 2],
     },
     /// A wall sample maps outside the frame.
     #[error("pose {pose:?}: wall element {element} (u = {u:.4} m, v = {v:.4} m) maps to pixel ({x:.1}, {y:.1}), outside the {width}x{height} frame; check the homography and the region of interest")]

@@ -13,6 +13,7 @@ use tiff::tags::Tag;
 use super::{CaptureKind, StoreError};
 use crate::camera::{Frame, RawFrame};
 use crate::files::{image, write_atomic, FileError};
+use crate::measure::FrameStack;
 
 /// Metadata written into every page of a capture's TIFF files: everything
 /// the camera was set to, so a file says how it was taken on its own.
@@ -92,55 +93,6 @@ fn tiff_err(path: &Path, e: tiff::TiffError) -> StoreError {
         path: path.to_path_buf(),
         reason: format!("cannot encode TIFF: {e}"),
     })
-}
-
-/// The running mean and variance of a stack of equal-size frames (Welford),
-/// so that a capture of any length holds two images in memory, not its frames.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FrameStack {
-    /// Columns.
-    pub width: usize,
-    /// Rows.
-    pub height: usize,
-    /// Frames seen.
-    pub count: usize,
-    /// Per-pixel mean, DN.
-    pub mean: Vec<f64>,
-    m2: Vec<f64>,
-}
-
-impl FrameStack {
-    fn new(width: usize, height: usize) -> Self {
-        Self {
-            width,
-            height,
-            count: 0,
-            mean: vec![0.0; width * height],
-            m2: vec![0.0; width * height],
-        }
-    }
-
-    fn push(&mut self, pixels: &[u16]) {
-        self.count += 1;
-        let n = self.count as f64;
-        for ((m, m2), &p) in self.mean.iter_mut().zip(self.m2.iter_mut()).zip(pixels) {
-            let x = f64::from(p);
-            let d = x - *m;
-            *m += d / n;
-            *m2 += d * (x - *m);
-        }
-    }
-
-    /// Per-pixel variance of the mean (sample variance / count); None under two frames.
-    pub fn variance_of_mean(&self) -> Option<Vec<f64>> {
-        (self.count >= 2).then(|| {
-            let n = self.count as f64;
-            self.m2
-                .iter()
-                .map(|m2| (m2 / (n - 1.0)).max(0.0) / n)
-                .collect()
-        })
-    }
 }
 
 /// Writes `expected` frames from `frames` as pages of a 16-bit TIFF at `path`
@@ -275,38 +227,16 @@ pub fn write_summary(
     dark: Option<&Frame>,
     meta: &FrameMeta,
 ) -> Result<Frame, StoreError> {
-    let mut mean = Frame {
-        width: frames.width,
-        height: frames.height,
-        pixels: frames.mean.iter().map(|&v| v as f32).collect(),
-    };
-    if let Some(d) = dark {
-        if (d.width, d.height) != (mean.width, mean.height) {
-            return Err(StoreError::File(FileError::format(
-                &dir.join(CaptureFiles::MEAN),
-                format!(
-                    "the dark frame is {}x{}, the frames {}x{}",
-                    d.width, d.height, mean.width, mean.height
-                ),
-            )));
-        }
-        for (m, (&f, &k)) in mean
-            .pixels
-            .iter_mut()
-            .zip(frames.mean.iter().zip(&d.pixels))
-        {
-            *m = (f - f64::from(k)) as f32;
-        }
-    }
+    let mean = frames.mean_minus(dark).map_err(|e| {
+        StoreError::File(FileError::format(
+            &dir.join(CaptureFiles::MEAN),
+            e.to_string(),
+        ))
+    })?;
     let desc =
         serde_json::json!({"polnlos": "mean", "frames": frames.count, "meta": meta}).to_string();
     write_float_tiff(&dir.join(CaptureFiles::MEAN), &mean, &desc)?;
-    if let Some(v) = frames.variance_of_mean() {
-        let var = Frame {
-            width: frames.width,
-            height: frames.height,
-            pixels: v.iter().map(|&x| x as f32).collect(),
-        };
+    if let Some(var) = frames.variance_frame() {
         let desc = serde_json::json!({"polnlos": "variance of the mean", "frames": frames.count, "meta": meta}).to_string();
         write_float_tiff(&dir.join(CaptureFiles::VARIANCE), &var, &desc)?;
     }

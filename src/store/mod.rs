@@ -16,7 +16,7 @@ use rusqlite::{params, Connection, OptionalExtension};
 
 pub use files::{
     capture_bytes, read_mean, read_mean_variance, remove_raw, write_frames, write_summary,
-    CaptureFiles, FrameMeta, FrameStack, TMP_MARK,
+    CaptureFiles, FrameMeta, TMP_MARK,
 };
 pub use lock::{remove_orphans, DirLock, LOCK_FILE};
 pub use records::{

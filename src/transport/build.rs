@@ -105,8 +105,9 @@ pub fn build_with_progress(
     ))
 }
 
-/// The row blocks of a scene's `T`, in stacking order (pose, then angle).
-pub(super) fn blocks_of(scene: &Scene) -> Vec<Block> {
+/// The row blocks of a scene's `T`, in stacking order (pose, then angle):
+/// which capture goes where in the measurement, known without building `T`.
+pub fn blocks_of(scene: &Scene) -> Vec<Block> {
     let mut blocks = Vec::with_capacity(scene.block_count());
     for pose in &scene.poses {
         if pose.analyzers.is_empty() {

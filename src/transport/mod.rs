@@ -9,7 +9,7 @@ pub mod adaptive;
 mod build;
 
 pub use adaptive::{build_adaptive, AdaptiveStats};
-pub use build::{build, build_with_progress};
+pub use build::{blocks_of, build, build_with_progress};
 
 use faer::MatRef;
 

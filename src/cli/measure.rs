@@ -1,0 +1,201 @@
+//! `polnlos measure`: camera frames from any acquisition software to the
+//! measurement vector `i` (and its variance), through the same
+//! [`polnlos::measure::assemble`] the daemon uses.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use polnlos::files::frames::read_frames;
+use polnlos::files::npy;
+use polnlos::measure::{assemble, CaptureFrames, Units};
+
+/// Turn camera frames into a measurement for `polnlos reconstruct`.
+#[derive(Debug, clap::Args)]
+#[command(
+    after_help = "One block per --frames; --pose, --angle, --dark and --exposure-us are given \
+once for all blocks or once per --frames, in the same order. Blocks may come in any order; they are \
+stacked in the scene's block order (MODEL.md). Writes the measurement (.npy) and, when every block \
+has 2 frames or more, its variance beside it (<out>.variance.npy). Example:\n  \
+polnlos measure brewster-crossed-3x3 --frames A.tiff --dark dark-A.tiff --pose A --angle 0 \
+--exposure-us 200000 --gain 0.84 --out i.npy\n  \
+polnlos reconstruct brewster-crossed-3x3 --measurement i.npy --variance i.variance.npy --out rec/"
+)]
+pub struct Args {
+    /// Scene file (TOML) or built-in scene name the frames were taken with.
+    scene: PathBuf,
+    /// Frames of one block: a grey multi-page 8/16-bit TIFF (one frame per
+    /// page, averaged) or one 32-bit float TIFF that is a mean already.
+    #[arg(long, value_name = "TIFF", required = true)]
+    frames: Vec<PathBuf>,
+    /// Dark frames (scene off, same exposure and region), subtracted from
+    /// the mean: one file for all blocks or one per --frames.
+    #[arg(long, value_name = "TIFF")]
+    dark: Vec<PathBuf>,
+    /// Pose name of each block, as in the scene file.
+    #[arg(long, value_name = "NAME", required = true)]
+    pose: Vec<String>,
+    /// Polarizer angle of each block in degrees from crossed, or `none`
+    /// for a pose without polarizer.
+    #[arg(
+        long,
+        value_name = "DEG|none",
+        required = true,
+        allow_negative_numbers = true
+    )]
+    angle: Vec<AngleArg>,
+    /// Exposure per frame, microseconds.
+    #[arg(long = "exposure-us", value_name = "US", required = true)]
+    exposure_us: Vec<f64>,
+    /// Full scale in DN (default: from the TIFF bit depth, 255 or 65535;
+    /// required for a float mean). Use 4095 for 12-bit data in 16-bit pages.
+    #[arg(long = "full-scale", value_name = "DN")]
+    full_scale: Option<f64>,
+    /// Radiometric gain of the bench (the daemon's [calibration], `calibrate
+    /// wall`'s gain): the measurement is divided by it into units of T l.
+    #[arg(long, value_name = "G", conflicts_with = "raw")]
+    gain: Option<f64>,
+    /// Keep fractions of full scale per microsecond (for `calibrate wall`)
+    /// instead of units of T l.
+    #[arg(long)]
+    raw: bool,
+    /// Output measurement (.npy).
+    #[arg(long, value_name = "FILE")]
+    out: PathBuf,
+}
+
+/// `--angle`: degrees or `none`.
+#[derive(Debug, Clone, Copy)]
+struct AngleArg(Option<f64>);
+
+impl std::str::FromStr for AngleArg {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "none" {
+            return Ok(AngleArg(None));
+        }
+        match s.parse::<f64>() {
+            Ok(a) if a.is_finite() && a.abs() <= 360.0 => Ok(AngleArg(Some(a))),
+            _ => Err(format!(
+                "{s:?} is not an angle in degrees (-360..360) or `none`"
+            )),
+        }
+    }
+}
+
+/// The value of a per-block option for block `k`: the one value for all, or the k-th.
+fn per_block<'a, T>(values: &'a [T], k: usize, name: &str, n: usize) -> anyhow::Result<&'a T> {
+    match values.len() {
+        1 => Ok(&values[0]),
+        m if m == n => Ok(&values[k]),
+        m => Err(super::Usage(format!(
+            "{m} values of {name} for {n} --frames; give one for all or one per --frames"
+        ))
+        .into()),
+    }
+}
+
+/// The variance file written beside `out`: `i.npy` → `i.variance.npy`.
+fn variance_path(out: &Path) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "measurement".into());
+    out.with_file_name(format!("{stem}.variance.npy"))
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let scene = super::load_scene(&a.scene)?;
+    let n = a.frames.len();
+    let mut captures = Vec::with_capacity(n);
+    for (k, path) in a.frames.iter().enumerate() {
+        let pose = per_block(&a.pose, k, "--pose", n)?.clone();
+        let AngleArg(polarizer_deg) = *per_block(&a.angle, k, "--angle", n)?;
+        let exposure_us = *per_block(&a.exposure_us, k, "--exposure-us", n)?;
+        if !(exposure_us.is_finite() && exposure_us > 0.0) {
+            return Err(
+                super::Usage(format!("--exposure-us {exposure_us}: must be positive")).into(),
+            );
+        }
+        let frames = read_frames(path)?;
+        let full_scale = match (a.full_scale, frames.full_scale()) {
+            (Some(f), _) if f.is_finite() && f > 0.0 => f,
+            (Some(f), _) => {
+                return Err(super::Usage(format!("--full-scale {f}: must be positive")).into())
+            }
+            (None, Some(f)) => f,
+            (None, None) => {
+                return Err(super::Usage(format!(
+                    "{} is a float mean: say its full scale with --full-scale (e.g. 65535)",
+                    path.display()
+                ))
+                .into())
+            }
+        };
+        let dark = if a.dark.is_empty() {
+            eprintln!(
+                "warning: {}: no --dark; the camera's dark level is an offset that T cannot explain",
+                path.display()
+            );
+            None
+        } else {
+            let d = per_block(&a.dark, k, "--dark", n)?;
+            let dark = read_frames(d)?;
+            Some(dark.stack.mean_minus(None)?)
+        };
+        let mean = frames
+            .stack
+            .mean_minus(dark.as_ref())
+            .with_context(|| format!("{}", path.display()))?;
+        captures.push(CaptureFrames {
+            name: path.display().to_string(),
+            pose,
+            polarizer_deg,
+            mean,
+            variance: frames.stack.variance_frame(),
+            frames: frames.stack.count,
+            full_scale,
+            exposure_us,
+        });
+    }
+    let blocks = polnlos::transport::blocks_of(&scene);
+    let mut m = assemble(&scene, &blocks, &captures)?;
+    let units = if a.raw {
+        "fractions of full scale per microsecond".to_string()
+    } else {
+        let units = match a.gain {
+            Some(g) if !(g.is_finite() && g > 0.0) => {
+                return Err(super::Usage(format!("--gain {g}: must be positive")).into())
+            }
+            Some(g) => Units::Calibrated(g),
+            // Only the estimated scale needs T.
+            None => Units::estimate(&super::progress::build_transport(&scene)?.0, &m)?,
+        };
+        units.apply(&mut m);
+        if let Some(w) = units.warning() {
+            eprintln!("warning: {w}; give --gain for absolute units");
+        }
+        format!("units of T l (divided by {:.6e})", units.factor())
+    };
+    if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        super::out_dir(&parent.to_path_buf())?;
+    }
+    npy::write_f64(&a.out, &[m.i.len()], &m.i)?;
+    let labels: Vec<String> = blocks.iter().map(|b| b.label()).collect();
+    println!(
+        "wrote {} ({} values: {} blocks {} x {} wall elements), {units}",
+        a.out.display(),
+        m.i.len(),
+        blocks.len(),
+        labels.join(" "),
+        scene.wall.plane.grid.count()
+    );
+    match &m.variance {
+        Some(v) => {
+            let p = variance_path(&a.out);
+            npy::write_f64(&p, &[v.len()], v)?;
+            println!("wrote {} (variance of each value)", p.display());
+        }
+        None => println!("no variance: a block has fewer than 2 frames"),
+    }
+    Ok(())
+}

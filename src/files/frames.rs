@@ -1,0 +1,183 @@
+//! Camera frames from a user's own acquisition software: a multi-page 8- or
+//! 16-bit grey TIFF (one frame per page) averaged into a [`FrameStack`], or
+//! a single 32-bit float TIFF that is already a mean (such as the daemon's
+//! `mean.tiff`).
+//!
+//! Why: `polnlos measure` must turn frames polnlos did not take into the same
+//! measurement the daemon makes, so the reading is checked like a camera's:
+//! every page the same size, sizes bounded before anything is allocated.
+
+use std::path::Path;
+
+use super::FileError;
+use crate::measure::FrameStack;
+
+/// The largest frame side accepted, pixels (GenICam sensors are below 16k).
+pub const MAX_SIDE: u32 = 32_768;
+/// The most pixels in one frame accepted (a 16k x 16k sensor).
+pub const MAX_PIXELS: u64 = 1 << 28;
+
+/// Frames read from one file.
+#[derive(Debug, Clone)]
+pub struct FrameFile {
+    /// The frames' running mean and variance.
+    pub stack: FrameStack,
+    /// Bits per pixel of the integer pages (8 or 16, or the camera's depth
+    /// a polnlos frame file states); `None` for a float mean.
+    pub bits: Option<u32>,
+}
+
+impl FrameFile {
+    /// Full scale of the pages' bit depth, DN; `None` for a float mean.
+    pub fn full_scale(&self) -> Option<f64> {
+        self.bits.map(|b| f64::from((1u32 << b) - 1))
+    }
+}
+
+/// Reads every page of a grey TIFF: 8/16-bit pages are frames to average;
+/// one 32-bit float page is a mean frame. Pages of another size or type
+/// than the first are an error naming the page.
+pub fn read_frames(path: &Path) -> Result<FrameFile, FileError> {
+    let f = std::fs::File::open(path).map_err(|e| FileError::read(path, e))?;
+    decode_from(std::io::BufReader::new(f), path)
+}
+
+/// [`read_frames`] on bytes in memory (an upload, a fuzz input); errors name `<bytes>`.
+pub fn decode_frames(bytes: &[u8]) -> Result<FrameFile, FileError> {
+    decode_from(std::io::Cursor::new(bytes), Path::new("<bytes>"))
+}
+
+fn decode_from<R: std::io::Read + std::io::Seek>(
+    reader: R,
+    path: &Path,
+) -> Result<FrameFile, FileError> {
+    let bad = |e: tiff::TiffError| {
+        FileError::format(
+            path,
+            format!("cannot decode as TIFF ({e}); give the frames as a grey multi-page 8/16-bit TIFF, or a 32-bit float mean"),
+        )
+    };
+    let mut dec = tiff::decoder::Decoder::new(reader).map_err(bad)?;
+    let described = described_bits(&mut dec);
+    let mut stack: Option<FrameStack> = None;
+    let mut bits = None;
+    for page in 0usize.. {
+        let (w, h) = dec.dimensions().map_err(bad)?;
+        if w == 0
+            || h == 0
+            || w > MAX_SIDE
+            || h > MAX_SIDE
+            || u64::from(w) * u64::from(h) > MAX_PIXELS
+        {
+            return Err(FileError::format(
+                path,
+                format!("page {page} is {w}x{h}; frames must be 1 to {MAX_SIDE} pixels a side and at most {MAX_PIXELS} pixels"),
+            ));
+        }
+        let st = stack.get_or_insert_with(|| FrameStack::new(w as usize, h as usize));
+        if (st.width, st.height) != (w as usize, h as usize) {
+            return Err(FileError::format(
+                path,
+                format!(
+                    "page {page} is {w}x{h}, page 0 was {}x{}; every frame must have the same size",
+                    st.width, st.height
+                ),
+            ));
+        }
+        let n = st.width * st.height;
+        let not_grey = || {
+            FileError::format(
+                path,
+                format!("page {page} is not a grey frame of page 0's type; use one grey channel, 8 or 16 bits per pixel (or a single 32-bit float page)"),
+            )
+        };
+        let value_bits = match dec.read_image().map_err(bad)? {
+            tiff::decoder::DecodingResult::U8(v) if v.len() == n => {
+                st.push(&v);
+                Some(8)
+            }
+            tiff::decoder::DecodingResult::U16(v) if v.len() == n => {
+                st.push(&v);
+                Some(16)
+            }
+            tiff::decoder::DecodingResult::F32(v) if v.len() == n && page == 0 => {
+                st.push(&v);
+                None
+            }
+            _ => return Err(not_grey()),
+        };
+        if page > 0 && value_bits != bits {
+            return Err(not_grey());
+        }
+        bits = value_bits;
+        if !dec.more_images() {
+            break;
+        }
+        if bits.is_none() {
+            return Err(FileError::format(
+                path,
+                "a 32-bit float TIFF is read as one mean frame; it has more than one page",
+            ));
+        }
+        dec.next_image().map_err(bad)?;
+    }
+    let stack = stack.ok_or_else(|| FileError::format(path, "the TIFF has no page"))?;
+    // 8- to 16-bit camera data in 16-bit pages (the daemon's frame.tiff):
+    // the page's own description says the camera's bit depth.
+    let bits = bits.map(|b| described.filter(|d| (1..=b).contains(d)).unwrap_or(b));
+    Ok(FrameFile { stack, bits })
+}
+
+/// The camera's bits per pixel as a polnlos frame file's page description
+/// states it (`{"polnlos": "frames", "bits": 12, ...}`), if it does.
+fn described_bits<R: std::io::Read + std::io::Seek>(
+    dec: &mut tiff::decoder::Decoder<R>,
+) -> Option<u32> {
+    let text = dec
+        .get_tag_ascii_string(tiff::tags::Tag::ImageDescription)
+        .ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    v.get("polnlos")?;
+    v.get("bits")?.as_u64().and_then(|b| u32::try_from(b).ok())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tiff::encoder::{colortype, TiffEncoder};
+
+    fn write_pages(path: &Path, pages: &[(u32, u32, Vec<u16>)]) {
+        let mut f = std::fs::File::create(path).unwrap();
+        let mut enc = TiffEncoder::new(&mut f).unwrap();
+        for (w, h, px) in pages {
+            enc.write_image::<colortype::Gray16>(*w, *h, px).unwrap();
+        }
+    }
+
+    #[test]
+    fn pages_average_into_mean_and_variance() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("f.tiff");
+        write_pages(&p, &[(2, 1, vec![100, 7]), (2, 1, vec![110, 7])]);
+        let f = read_frames(&p).unwrap();
+        assert_eq!(
+            (f.stack.count, f.bits, f.full_scale()),
+            (2, Some(16), Some(65535.0))
+        );
+        assert_eq!(f.stack.mean, vec![105.0, 7.0]);
+        assert_eq!(f.stack.variance_of_mean(), Some(vec![25.0, 0.0]));
+    }
+
+    #[test]
+    fn a_page_of_another_size_or_a_png_is_refused_with_a_reason() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("f.tiff");
+        write_pages(&p, &[(2, 1, vec![1, 2]), (1, 2, vec![1, 2])]);
+        let e = read_frames(&p).unwrap_err().to_string();
+        assert!(e.contains("page 1 is 1x2, page 0 was 2x1"), "{e}");
+        let png = dir.path().join("f.png");
+        std::fs::write(&png, b"\x89PNG\r\n\x1a\n not really").unwrap();
+        let e = read_frames(&png).unwrap_err().to_string();
+        assert!(e.contains("multi-page 8/16-bit TIFF"), "{e}");
+    }
+}

@@ -1,0 +1,315 @@
+//! Captures to the measurement a reconstruction solves: each (pose, angle)
+//! block of `T` matched to the one capture taken there, the captures stacked
+//! in block order ([`super::stack`]), and the result put in units of `T l`.
+//!
+//! Why one function: the daemon (from its store) and `polnlos measure` (from
+//! a user's TIFF files) must give the same `i` for the same frames.
+
+use super::{stack, BlockFrames, MeasureError, Measurement};
+use crate::camera::Frame;
+use crate::scene::Scene;
+use crate::transport::{Block, Transport};
+
+/// One capture as the measurement needs it: where it was taken and its
+/// averaged frames.
+#[derive(Debug, Clone)]
+pub struct CaptureFrames {
+    /// How errors name it: `capture 12`, `frames-A.tiff`.
+    pub name: String,
+    /// Pose name in the scene.
+    pub pose: String,
+    /// Polarizer angle in degrees from crossed, `None` without a polarizer.
+    pub polarizer_deg: Option<f64>,
+    /// Mean frame minus the mean dark frame, DN.
+    pub mean: Frame,
+    /// Variance of the mean, DN², when there were 2 frames or more.
+    pub variance: Option<Frame>,
+    /// Frames averaged into the mean.
+    pub frames: usize,
+    /// Full scale of the pixel format, DN.
+    pub full_scale: f64,
+    /// Exposure per frame, microseconds.
+    pub exposure_us: f64,
+}
+
+impl CaptureFrames {
+    /// Whether it was taken at `block`'s pose and polarizer angle.
+    pub fn serves(&self, block: &Block) -> bool {
+        self.pose == block.pose && same_angle(self.polarizer_deg, block.polarizer_deg)
+    }
+}
+
+/// Whether two polarizer angles are the same setting (1e-6 degrees apart at most).
+pub fn same_angle(a: Option<f64>, b: Option<f64>) -> bool {
+    match (a, b) {
+        (None, None) => true,
+        (Some(x), Some(y)) => (x - y).abs() < 1e-6,
+        _ => false,
+    }
+}
+
+/// For each block of `blocks` (MODEL.md block order), the index in
+/// `captures` of the one capture that serves it: a block without one, two
+/// captures for one block, or a capture that serves none is an error naming
+/// them.
+pub fn match_blocks(
+    blocks: &[Block],
+    captures: &[CaptureFrames],
+) -> Result<Vec<usize>, MeasureError> {
+    let mut order = Vec::with_capacity(blocks.len());
+    for block in blocks {
+        let mut serving = captures.iter().enumerate().filter(|(_, c)| c.serves(block));
+        let (first, _) = serving.next().ok_or_else(|| MeasureError::NoCapture {
+            block: block.label(),
+        })?;
+        if let Some((second, _)) = serving.next() {
+            return Err(MeasureError::TwoCaptures {
+                block: block.label(),
+                first: captures[first].name.clone(),
+                second: captures[second].name.clone(),
+            });
+        }
+        order.push(first);
+    }
+    if let Some(c) = captures
+        .iter()
+        .find(|c| !blocks.iter().any(|b| c.serves(b)))
+    {
+        return Err(MeasureError::NoBlock {
+            capture: c.name.clone(),
+            block: Block {
+                pose: c.pose.clone(),
+                polarizer_deg: c.polarizer_deg,
+            }
+            .label(),
+            blocks: blocks
+                .iter()
+                .map(Block::label)
+                .collect::<Vec<_>>()
+                .join(", "),
+        });
+    }
+    Ok(order)
+}
+
+/// The measurement of `captures` for `scene`: each block's capture sampled
+/// through its pose's homography and stacked in the order of `blocks`, in
+/// fractions of full scale per microsecond (MODEL.md "From camera frames to i").
+pub fn assemble(
+    scene: &Scene,
+    blocks: &[Block],
+    captures: &[CaptureFrames],
+) -> Result<Measurement, MeasureError> {
+    let order = match_blocks(blocks, captures)?;
+    let mut homographies = Vec::with_capacity(order.len());
+    for &k in &order {
+        let c = &captures[k];
+        let pose = scene
+            .pose(&c.pose)
+            .ok_or_else(|| MeasureError::UnknownPose {
+                capture: c.name.clone(),
+                pose: c.pose.clone(),
+            })?;
+        let h = pose.homography.ok_or_else(|| MeasureError::NoHomography {
+            pose: pose.name.clone(),
+        })?;
+        homographies.push(h);
+    }
+    let frames: Vec<BlockFrames<'_>> = order
+        .iter()
+        .zip(&homographies)
+        .map(|(&k, h)| {
+            let c = &captures[k];
+            BlockFrames {
+                pose: &c.pose,
+                homography: h,
+                mean: &c.mean,
+                variance: c.variance.as_ref(),
+                frames: c.frames,
+                full_scale: c.full_scale,
+                exposure_us: c.exposure_us,
+            }
+        })
+        .collect();
+    stack(&frames, &scene.wall.plane)
+}
+
+/// How a measurement was put in units of `T l`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Units {
+    /// Divided by a radiometric calibration (`[calibration]` in the config,
+    /// `calibrate wall`'s gain): absolute.
+    Calibrated(f64),
+    /// No calibration: divided by the factor that makes the brightest
+    /// element of a Tikhonov solution about 1 (the box constraint needs a
+    /// scale). Relative only.
+    Estimated(f64),
+}
+
+impl Units {
+    /// The factor the measurement was divided by.
+    pub fn factor(self) -> f64 {
+        match self {
+            Units::Calibrated(c) | Units::Estimated(c) => c,
+        }
+    }
+
+    /// What a user should be told about it, if anything.
+    pub fn warning(self) -> Option<String> {
+        match self {
+            Units::Calibrated(_) => None,
+            Units::Estimated(_) => Some("no radiometric calibration for this scene: the measurement was scaled so that the brightest element is about 1".to_string()),
+        }
+    }
+}
+
+impl Units {
+    /// The scale [`Units::Estimated`] describes, for `m` under `t`.
+    pub fn estimate(t: &Transport, m: &Measurement) -> Result<Units, crate::solve::SolveError> {
+        let probe = crate::solve::tikhonov(t, &m.i, None)?;
+        let unclipped_max = probe.image.iter().copied().fold(0.0, f64::max).max(1e-300);
+        let fit = t.apply(&probe.image);
+        let fit_dot_i = fit.iter().zip(&m.i).map(|(a, b)| a * b).sum::<f64>();
+        let fit_dot_fit = fit.iter().map(|a| a * a).sum::<f64>();
+        let lsq_scale = fit_dot_i.max(1e-300) / fit_dot_fit.max(1e-300);
+        Ok(Units::Estimated(lsq_scale * unclipped_max))
+    }
+
+    /// Divides `m` by the factor, its variance by the factor's square.
+    pub fn apply(self, m: &mut Measurement) {
+        let s = self.factor();
+        m.i.iter_mut().for_each(|v| *v /= s);
+        m.variance.iter_mut().flatten().for_each(|v| *v /= s * s);
+    }
+}
+
+/// Puts `m` in units of `T l`: divided by `calibration` when there is one
+/// (and it is positive), else by the scale [`Units::Estimated`] describes.
+pub fn to_model_units(
+    t: &Transport,
+    m: &mut Measurement,
+    calibration: Option<f64>,
+) -> Result<Units, crate::solve::SolveError> {
+    let units = match calibration.filter(|c| *c > 0.0 && c.is_finite()) {
+        Some(c) => Units::Calibrated(c),
+        None => Units::estimate(t, m)?,
+    };
+    units.apply(m);
+    Ok(units)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene() -> Scene {
+        match Scene::builtin("brewster-multi-3x3") {
+            Some(Ok(s)) => s,
+            _ => panic!("built-in scene"),
+        }
+    }
+
+    fn capture(name: &str, pose: &str, angle: Option<f64>, value: f32) -> CaptureFrames {
+        CaptureFrames {
+            name: name.into(),
+            pose: pose.into(),
+            polarizer_deg: angle,
+            mean: Frame {
+                width: 512,
+                height: 512,
+                pixels: vec![value; 512 * 512],
+            },
+            variance: None,
+            frames: 1,
+            full_scale: 1000.0,
+            exposure_us: 10.0,
+        }
+    }
+
+    #[test]
+    fn captures_given_in_any_order_stack_in_block_order() {
+        let s = scene();
+        let blocks = crate::transport::blocks_of(&s);
+        assert!(blocks.len() >= 2, "{blocks:?}");
+        // One capture per block, given in reverse, each with its own level.
+        let captures: Vec<_> = blocks
+            .iter()
+            .enumerate()
+            .rev()
+            .map(|(k, b)| {
+                capture(
+                    &format!("c{k}"),
+                    &b.pose,
+                    b.polarizer_deg,
+                    100.0 * (k + 1) as f32,
+                )
+            })
+            .collect();
+        let m = assemble(&s, &blocks, &captures).expect("every block has its capture");
+        let n = s.wall.plane.grid.count();
+        for (k, _) in blocks.iter().enumerate() {
+            let want = 100.0 * (k + 1) as f64 / 1000.0 / 10.0;
+            assert!(
+                (m.i[k * n] - want).abs() < 1e-9,
+                "block {k}: {} != {want}",
+                m.i[k * n]
+            );
+        }
+    }
+
+    #[test]
+    fn a_missing_a_doubled_or_a_stray_capture_is_named() {
+        let s = scene();
+        let blocks = crate::transport::blocks_of(&s);
+        let b0 = &blocks[0];
+        let e = assemble(
+            &s,
+            &blocks,
+            &[capture("c0", &b0.pose, b0.polarizer_deg, 1.0)],
+        )
+        .unwrap_err();
+        assert!(
+            matches!(e, MeasureError::NoCapture { ref block } if *block == blocks[1].label()),
+            "{e}"
+        );
+        let mut all: Vec<_> = blocks
+            .iter()
+            .map(|b| capture("c", &b.pose, b.polarizer_deg, 1.0))
+            .collect();
+        all.push(capture("again", &b0.pose, b0.polarizer_deg, 1.0));
+        let e = assemble(&s, &blocks, &all).unwrap_err().to_string();
+        assert!(e.contains(&b0.label()) && e.contains("again"), "{e}");
+        all.pop();
+        all.push(capture("stray", "B", Some(33.0), 1.0));
+        let e = assemble(&s, &blocks, &all).unwrap_err().to_string();
+        assert!(e.contains("stray was taken at B-pol33"), "{e}");
+    }
+
+    #[test]
+    fn a_calibration_divides_and_its_absence_scales_to_about_one() {
+        let s = crate::scene::Scene::builtin("brewster-crossed")
+            .and_then(Result::ok)
+            .expect("built-in scene");
+        let t = crate::transport::build(&s).expect("T");
+        let truth = vec![0.5; t.cols()];
+        let i = t.apply(&truth);
+        let mut m = Measurement {
+            i: i.iter().map(|v| v * 40.0).collect(),
+            variance: Some(vec![4.0; i.len()]),
+        };
+        assert_eq!(
+            to_model_units(&t, &mut m.clone(), Some(40.0)).unwrap(),
+            Units::Calibrated(40.0)
+        );
+        let mut c = m.clone();
+        to_model_units(&t, &mut c, Some(40.0)).unwrap();
+        assert!(
+            (c.i[3] - i[3]).abs() < 1e-12 && (c.variance.unwrap()[0] - 4.0 / 1600.0).abs() < 1e-15
+        );
+        let units = to_model_units(&t, &mut m, None).unwrap();
+        assert!(units.warning().is_some());
+        // A flat 0.5 scene scaled so its brightest element is about 1.
+        let ratio = m.i[3] / i[3];
+        assert!((ratio - 2.0).abs() < 0.1, "{ratio}");
+    }
+}
