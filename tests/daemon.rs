@@ -1104,3 +1104,87 @@ fn captures_and_reconstructions_can_be_deleted_with_their_files() {
     assert!(!data.join("captures/999.deleting").exists());
     assert_eq!(d.json(&format!("/captures/{}", c["id"]))["state"], "done");
 }
+
+#[test]
+fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
+    use std::io::BufRead;
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    // 3 MiB for all data, checked every 0.2 s; a 256x256 capture of 4 frames
+    // and 2 dark frames takes about 1.3 MB.
+    let cfg = config(
+        dir.path(),
+        &[
+            ("max_total_mib = 0", "max_total_mib = 3"),
+            ("check_every_s = 60", "check_every_s = 0.2"),
+        ],
+    );
+    let data = dir.path().join("data");
+    let d = Daemon::start(&cfg, &data);
+    let agent: ureq::Agent = ureq::Agent::config_builder()
+        .timeout_global(Some(Duration::from_secs(40)))
+        .build()
+        .into();
+    let url = format!("{}/events", d.base);
+    let events = std::thread::spawn(move || {
+        let mut r = agent.get(url).call().unwrap();
+        let lines = std::io::BufReader::new(r.body_mut().as_reader()).lines();
+        let mut deleted = Vec::new();
+        for line in lines.map_while(Result::ok) {
+            if let Some(data) = line.strip_prefix("data: ") {
+                let v: serde_json::Value = serde_json::from_str(data).unwrap();
+                if v["type"] == "deleted" {
+                    deleted.push(v.clone());
+                    if v["id"] == 2 {
+                        break;
+                    }
+                }
+            }
+        }
+        deleted
+    });
+    std::thread::sleep(Duration::from_millis(300));
+    let small = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 4, "dark_frames": 2, "region": [0, 0, 256, 256]}"#;
+    for _ in 0..3 {
+        let c = d.run_job("/captures", small, Duration::from_secs(20));
+        assert_eq!(c["state"], "done", "{c}");
+    }
+    let ids = |d: &Daemon| -> Vec<i64> {
+        d.json("/captures")
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c["id"].as_i64().unwrap())
+            .collect()
+    };
+    let until = |want: &[i64]| {
+        let t0 = Instant::now();
+        while ids(&d) != want && t0.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        assert_eq!(ids(&d), want);
+    };
+    // 3 captures take ~3.9 MB > 3 MiB: the oldest goes, files and row.
+    until(&[3, 2]);
+    assert!(!data.join("captures/1").exists() && data.join("captures/2/mean.tiff").is_file());
+    // A long capture grows past the limit while it runs: the oldest finished
+    // capture goes, the newest finished one and the running one stay.
+    let (s, b, loc) = d.post(
+        "/captures",
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 200, "region": [0, 0, 256, 256]}"#,
+    );
+    assert_eq!(s, 202, "{b}");
+    let loc = loc.unwrap();
+    until(&[4, 3]);
+    assert_eq!(d.json(&loc)["state"], "running");
+    let deleted = events.join().unwrap();
+    assert_eq!(
+        deleted,
+        vec![
+            serde_json::json!({"type": "deleted", "kind": "capture", "id": 1, "reason": "retention"}),
+            serde_json::json!({"type": "deleted", "kind": "capture", "id": 2, "reason": "retention"}),
+        ]
+    );
+    let (s, _) = d.delete("/jobs/capture-4");
+    assert_eq!(s, 200);
+}

@@ -191,10 +191,11 @@ pub async fn delete_capture(
     Query(q): Query<DeleteQuery>,
 ) -> Result<Json<Deleted>, ApiError> {
     let id = parse_id(&id, "capture")?;
-    let reconstructions =
-        tokio::task::spawn_blocking(move || d.store().delete_capture(id, q.with_reconstructions))
-            .await
-            .map_err(|e| ApiError::internal(e.to_string()))??;
+    let reconstructions = tokio::task::spawn_blocking(move || {
+        d.delete_capture(id, q.with_reconstructions, "request")
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(Deleted {
         capture: Some(id),
         reconstructions,
@@ -208,7 +209,7 @@ pub async fn delete_reconstruction(
     Path(id): Path<String>,
 ) -> Result<Json<Deleted>, ApiError> {
     let id = parse_id(&id, "reconstruction")?;
-    tokio::task::spawn_blocking(move || d.store().delete_reconstruction(id))
+    tokio::task::spawn_blocking(move || d.delete_reconstruction(id))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(Deleted {

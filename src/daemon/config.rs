@@ -38,6 +38,45 @@ pub struct Config {
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
     #[serde(default)]
     pub calibration: BTreeMap<String, f64>,
+    /// What the daemon deletes by itself (nothing unless set).
+    #[serde(default)]
+    pub retention: RetentionConfig,
+}
+
+/// A retention policy: the oldest finished captures (with the
+/// reconstructions that use them) are deleted beyond an age or a total size;
+/// jobs that are queued or running, and what they need, are never touched.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RetentionConfig {
+    /// Captures older than this many days are deleted (0: no age limit).
+    pub max_age_days: f64,
+    /// The oldest captures are deleted while captures and reconstructions
+    /// take more than this many MiB (0: no size limit).
+    pub max_total_mib: u64,
+    /// Seconds between two applications of the policy.
+    pub check_every_s: f64,
+}
+
+impl Default for RetentionConfig {
+    fn default() -> Self {
+        Self {
+            max_age_days: 0.0,
+            max_total_mib: 0,
+            check_every_s: 60.0,
+        }
+    }
+}
+
+impl RetentionConfig {
+    /// The policy the store applies.
+    pub fn policy(&self) -> crate::store::Retention {
+        crate::store::Retention {
+            max_age: (self.max_age_days > 0.0)
+                .then(|| std::time::Duration::from_secs_f64(self.max_age_days * 86_400.0)),
+            max_bytes: (self.max_total_mib > 0).then_some(self.max_total_mib << 20),
+        }
+    }
 }
 
 /// Which camera to open.
@@ -225,6 +264,25 @@ impl Config {
                 self.bind
             )));
         }
+        let r = &self.retention;
+        if !(r.max_age_days.is_finite() && (0.0..=36_500.0).contains(&r.max_age_days)) {
+            return Err(ConfigError::Invalid(format!(
+                "retention.max_age_days = {}: give 0 (no age limit) up to 36500 days",
+                r.max_age_days
+            )));
+        }
+        if r.max_total_mib > (1 << 40) {
+            return Err(ConfigError::Invalid(format!(
+                "retention.max_total_mib = {}: at most 2^40 MiB; 0 means no size limit",
+                r.max_total_mib
+            )));
+        }
+        if !(r.check_every_s.is_finite() && (0.1..=86_400.0).contains(&r.check_every_s)) {
+            return Err(ConfigError::Invalid(format!(
+                "retention.check_every_s = {}: give 0.1 to 86400 seconds",
+                r.check_every_s
+            )));
+        }
         if self.camera.address.is_none() && self.camera.id.is_none() {
             return Err(ConfigError::Invalid(
                 "[camera] needs address or id (polnlos never runs a broadcast discovery)".into(),
@@ -309,6 +367,28 @@ mod tests {
         assert_eq!(c.resolved_token().unwrap(), "s3cret");
         c.token = " padded".into();
         assert!(c.resolved_token().is_err());
+    }
+
+    #[test]
+    fn retention_is_off_by_default_and_its_values_are_checked() {
+        let c = Config::embedded();
+        assert_eq!(c.retention.policy(), crate::store::Retention::default());
+        let mut c = Config::embedded();
+        c.retention.max_age_days = 30.0;
+        c.retention.max_total_mib = 1024;
+        let p = c.retention.policy();
+        assert_eq!(p.max_age, Some(std::time::Duration::from_secs(30 * 86_400)));
+        assert_eq!(p.max_bytes, Some(1 << 30));
+        c.retention.max_age_days = -1.0;
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("retention.max_age_days = -1"), "{e}");
+        c.retention.max_age_days = 0.0;
+        c.retention.check_every_s = f64::NAN;
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("retention.check_every_s"));
     }
 
     #[test]

@@ -33,6 +33,15 @@ pub enum Event {
         #[serde(flatten)]
         step: super::progressive::Step,
     },
+    /// A capture or a reconstruction was deleted, row and files.
+    Deleted {
+        /// `capture` or `reconstruction`.
+        kind: &'static str,
+        /// Its id.
+        id: i64,
+        /// `request` (a client's DELETE) or `retention` (the policy in the config).
+        reason: &'static str,
+    },
     /// The camera connected or was lost.
     Camera {
         /// Whether a camera is open.

@@ -25,6 +25,7 @@ mod jobs;
 pub mod metrics;
 mod progressive;
 mod reconstruction;
+mod retention;
 pub mod scenes;
 pub mod validate;
 
@@ -255,6 +256,7 @@ impl Daemon {
             tokio::spawn(worker);
         }
         tokio::spawn(watch_camera(daemon.clone()));
+        tokio::spawn(retention::retention_task(daemon.clone()));
         Ok(daemon)
     }
 

@@ -8,6 +8,7 @@
 mod files;
 mod lock;
 mod records;
+mod retention;
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -23,6 +24,7 @@ pub use records::{
     CaptureKind, CaptureRecord, CaptureRequest, JobState, ReconstructionRecord,
     ReconstructionRequest,
 };
+pub use retention::{dir_bytes, Retention};
 
 /// What can go wrong with the store, naming the path or the row.
 #[derive(Debug, thiserror::Error)]
@@ -226,9 +228,13 @@ fn is_disk_full<T>(r: &rusqlite::Result<T>) -> bool {
 
 /// Current UTC time, RFC 3339.
 pub fn now() -> String {
-    let d = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap_or_default();
+    timestamp(std::time::SystemTime::now())
+}
+
+/// A time as the catalogue stores it: UTC, RFC 3339 with milliseconds, so
+/// that stored times compare as strings.
+pub fn timestamp(t: std::time::SystemTime) -> String {
+    let d = t.duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
     let secs = d.as_secs() as i64;
     let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
     // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
@@ -591,6 +597,17 @@ impl Store {
             };
             if state == "queued" || state == "running" {
                 return Ok(Err(in_use(format!("it is {state}; cancel it first (DELETE /jobs/capture-{id})"))));
+            }
+            // A queued capture subtracts this dark capture when it runs.
+            let waiting: Option<(i64, String)> = c
+                .query_row(
+                    "SELECT id, state FROM captures WHERE dark_capture = ?1 AND state IN ('queued', 'running') ORDER BY id LIMIT 1",
+                    [id],
+                    |r| Ok((r.get(0)?, r.get(1)?)),
+                )
+                .optional()?;
+            if let Some((user, st)) = waiting {
+                return Ok(Err(in_use(format!("capture {user}, {st}, subtracts it as its dark_capture"))));
             }
             let mut users: Vec<(i64, String)> = c
                 .prepare("SELECT r.id, r.state FROM reconstructions r, json_each(r.captures) j WHERE j.value = ?1 ORDER BY r.id")?
