@@ -159,6 +159,20 @@ fn capture_every_block_reconstruct_and_fetch() {
         ));
         let (s, png) = d.get_bytes(&format!("/reconstructions/{}/image.png", r["id"]));
         assert_eq!((s, &png[1..4]), (200, &b"PNG"[..]));
+        // The truth it was compared with, on the scene grid, at the same scale.
+        let (s, png) = d.get_bytes(&format!("/reconstructions/{}/truth.png", r["id"]));
+        assert_eq!((s, &png[1..4]), (200, &b"PNG"[..]));
+        let shown = image::load_from_memory(&png).unwrap().to_luma16();
+        let (grid, t) = truth(scene);
+        assert_eq!(
+            (shown.width() as usize, shown.height() as usize),
+            (grid.nu, grid.nv)
+        );
+        let px: Vec<f64> = shown
+            .pixels()
+            .map(|p| f64::from(p.0[0]) / 65535.0)
+            .collect();
+        assert!(px.iter().zip(&t).all(|(a, b)| (a - b).abs() < 1e-4));
         // The measurement it solved (one value per row of T) and its report.
         let (s, npy) = d.get_bytes(&format!("/reconstructions/{}/measurement.npy", r["id"]));
         assert_eq!(s, 200);
@@ -256,6 +270,7 @@ fn openapi_is_complete(spec: &serde_json::Value) {
         ("get", "/reconstructions/{id}"),
         ("delete", "/reconstructions/{id}"),
         ("get", "/reconstructions/{id}/image.png"),
+        ("get", "/reconstructions/{id}/truth.png"),
         ("get", "/reconstructions/{id}/recovered.npy"),
         ("get", "/reconstructions/{id}/measurement.npy"),
         ("get", "/reconstructions/{id}/report.json"),
@@ -1187,4 +1202,57 @@ fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
     );
     let (s, _) = d.delete("/jobs/capture-4");
     assert_eq!(s, 200);
+}
+
+#[test]
+fn the_live_view_shows_a_fresh_frame_before_any_capture_with_its_levels() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    assert_eq!(d.json("/camera")["connected"], true);
+    // Without live=true there is no frame before a capture...
+    assert_eq!(d.get("/camera/frame.png").0, 404);
+    // ...with it, the idle camera takes one at the capture defaults.
+    let (s, plain) = d.get_bytes("/camera/frame.png?live=true");
+    assert_eq!((s, &plain[1..4]), (200, &b"PNG"[..]));
+    let levels: serde_json::Value = serde_json::from_str(
+        &d.get_header("/camera/frame.png?live=true", "polnlos-levels")
+            .unwrap(),
+    )
+    .unwrap();
+    let hist: u64 = levels["histogram"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .sum();
+    assert_eq!(hist, 512 * 512, "{levels}");
+    assert_eq!(levels["histogram"].as_array().unwrap().len(), 64);
+    let (peak, low, high) = (
+        levels["peak"].as_f64().unwrap(),
+        levels["low"].as_u64().unwrap(),
+        levels["high"].as_u64().unwrap(),
+    );
+    assert!(peak > 0.0 && peak < 1.0 && high > low, "{levels}");
+    // Auto-contrast spreads the frame's own range over black..white.
+    let (s, stretched) = d.get_bytes("/camera/frame.png?live=true&stretch=true");
+    assert_eq!(s, 200);
+    let max16 = |png: &[u8]| {
+        image::load_from_memory(png)
+            .unwrap()
+            .to_luma16()
+            .pixels()
+            .map(|p| p.0[0])
+            .max()
+            .unwrap()
+    };
+    assert_eq!(max16(&stretched), 65535);
+    assert!(
+        max16(&plain) < 65535,
+        "the crossed frame does not reach full scale"
+    );
+    // An unknown query key is refused, naming it.
+    let (s, b) = d.get("/camera/frame.png?zoom=4");
+    assert_eq!(s, 400, "{b}");
 }

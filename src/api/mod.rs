@@ -84,6 +84,10 @@ pub fn router(d: Arc<Daemon>) -> Router {
             get(routes::reconstruction_image),
         )
         .route(
+            "/reconstructions/{id}/truth.png",
+            get(routes::reconstruction_truth),
+        )
+        .route(
             "/reconstructions/{id}/recovered.npy",
             get(routes::reconstruction_npy),
         )

@@ -40,6 +40,7 @@ use crate::daemon::Daemon;
         routes::get_reconstruction,
         routes::delete_reconstruction,
         routes::reconstruction_image,
+        routes::reconstruction_truth,
         routes::reconstruction_npy,
         routes::reconstruction_measurement,
         routes::reconstruction_report,

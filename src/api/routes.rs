@@ -93,26 +93,53 @@ pub async fn camera(State(d): St) -> Json<crate::daemon::CameraView> {
     Json(d.camera_now().await)
 }
 
-/// The latest frame the camera delivered (during or after a capture), as a
-/// 16-bit PNG scaled to the pixel format's full scale: the page's live view.
-#[utoipa::path(get, path = "/camera/frame.png", responses((status = 200, content_type = "image/png", description = "Latest frame"), (status = 404, body = ErrorBody, description = "No frame since the daemon started")))]
-pub async fn camera_frame(State(d): St) -> Result<Response, ApiError> {
-    let frame = d.latest_frame().ok_or_else(|| {
-        ApiError::not_found("no frame yet: the live view shows the frames of captures")
+/// `?live=true&stretch=true` of `GET /camera/frame.png`.
+#[derive(Debug, Default, serde::Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+pub struct FrameQuery {
+    /// Take a fresh frame when no capture has the camera (the live view);
+    /// while a capture runs, its latest frame either way.
+    #[serde(default)]
+    live: bool,
+    /// Auto-contrast: the 0.5th..99.5th percentile to black..white (a
+    /// crossed-polarizer frame peaks at a few percent of full scale).
+    #[serde(default)]
+    stretch: bool,
+}
+
+/// The latest frame (with `live=true`, a fresh one when the camera is idle),
+/// as a 16-bit PNG scaled to full scale or stretched; its levels (histogram,
+/// peak, saturated share, stretch) in the `polnlos-levels` header as JSON.
+#[utoipa::path(get, path = "/camera/frame.png", params(FrameQuery), responses((status = 200, content_type = "image/png", description = "The frame; header polnlos-levels: its levels as JSON", headers(("polnlos-levels" = String, description = "JSON: full_scale, histogram (64 bins), peak, saturated, low, high"))), (status = 404, body = ErrorBody, description = "No frame yet (no camera, or none delivered)")))]
+pub async fn camera_frame(State(d): St, Query(q): Query<FrameQuery>) -> Result<Response, ApiError> {
+    let frame = if q.live {
+        d.live_frame().await
+    } else {
+        d.latest_frame()
+    };
+    let frame = frame.ok_or_else(|| {
+        ApiError::not_found("no frame yet: the camera has delivered none (is it connected?)")
     })?;
-    let png = tokio::task::spawn_blocking(move || {
-        let full = ((1u32 << frame.bits.clamp(1, 16)) - 1) as f64;
-        let scaled: Vec<u16> = frame
-            .pixels
-            .iter()
-            .map(|&p| (f64::from(p) / full * 65535.0).round().min(65535.0) as u16)
-            .collect();
-        crate::files::image::encode_png16(frame.width, frame.height, &scaled)
+    let (png, levels) = tokio::task::spawn_blocking(move || {
+        let levels = crate::measure::levels::levels(&frame.pixels, frame.bits)
+            .ok_or_else(|| "the frame has no pixels".to_string())?;
+        let shown = crate::measure::levels::display_u16(&frame.pixels, &levels, q.stretch);
+        let png = crate::files::image::encode_png16(frame.width, frame.height, &shown)?;
+        Ok::<_, String>((png, levels))
     })
     .await
     .map_err(|e| ApiError::internal(e.to_string()))?
     .map_err(ApiError::internal)?;
-    Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
+    let levels = serde_json::to_string(&levels).map_err(|e| ApiError::internal(e.to_string()))?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png".to_string()),
+            (header::CACHE_CONTROL, "no-store".to_string()),
+            (header::HeaderName::from_static("polnlos-levels"), levels),
+        ],
+        png,
+    )
+        .into_response())
 }
 
 /// Changes the capture defaults (any subset of the settings; the rest keep
@@ -394,6 +421,24 @@ pub async fn reconstruction_image(
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
     recon_file(&d, &id, "image.png", "image/png").await
+}
+
+/// The known truth the reconstruction was asked to compare with, on its
+/// scene grid, at the scale of its result (0..1 to black..white).
+#[utoipa::path(get, path = "/reconstructions/{id}/truth.png", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number")), responses((status = 200, content_type = "image/png", description = "The truth image"), (status = 404, body = ErrorBody, description = "No such reconstruction, or it names no truth")))]
+pub async fn reconstruction_truth(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let id = parse_id(&id, "reconstruction")?;
+    let png = tokio::task::spawn_blocking(move || {
+        let rec = d.store().reconstruction(id)?;
+        d.truth_png(&rec).map_err(ApiError::internal)
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))??
+    .ok_or_else(|| ApiError::not_found(format!("reconstruction {id} names no truth")))?;
+    Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
 }
 
 /// Recovered image, .npy (float64, scene grid).

@@ -109,4 +109,30 @@ impl Daemon {
             capture_defaults,
         }
     }
+
+    /// A frame for the live view: while no capture has the camera, a fresh
+    /// one at the capture defaults (the bench can be aimed and focused before
+    /// any capture); while a capture runs, its latest frame (the preview
+    /// never takes the camera from a capture). `None` before any frame.
+    pub async fn live_frame(&self) -> Option<std::sync::Arc<crate::camera::RawFrame>> {
+        if let Ok(_camera) = self.camera_gate.try_lock() {
+            let status = self.camera.status();
+            if status.connected {
+                let s = self.capture_defaults(status.info.as_ref());
+                let exposure = s.exposure_us.max(0.0) * 1e-6;
+                let within = std::time::Duration::from_secs_f64(exposure.min(60.0) + 3.0);
+                match tokio::time::timeout(within, self.camera.collect(s, 1)).await {
+                    Ok(Ok(mut frames)) => {
+                        if let (Some(f), Ok(mut latest)) = (frames.pop(), self.latest_frame.lock())
+                        {
+                            *latest = Some(std::sync::Arc::new(f));
+                        }
+                    }
+                    Ok(Err(e)) => tracing::debug!("live view: {e}"),
+                    Err(_) => tracing::debug!("live view: no frame within {within:?}"),
+                }
+            }
+        }
+        self.latest_frame()
+    }
 }

@@ -142,6 +142,29 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
         .map_err(store)
 }
 
+impl Daemon {
+    /// The known truth of reconstruction `rec` on its scene grid as a 16-bit
+    /// PNG (0..1 to black..white, the scale of its result), when its request
+    /// named a test pattern; `Ok(None)` when it did not.
+    pub fn truth_png(
+        &self,
+        rec: &crate::store::ReconstructionRecord,
+    ) -> Result<Option<Vec<u8>>, String> {
+        let Some(pattern) = rec
+            .params
+            .get("truth")
+            .and_then(|v| v.as_str())
+            .and_then(crate::simulate::patterns::Pattern::from_name)
+        else {
+            return Ok(None);
+        };
+        let scene = self.scenes.scene(&rec.scene).map_err(|e| e.to_string())?;
+        let grid = scene.scene.plane.grid;
+        let truth = pattern.render(grid);
+        image::encode_png16(grid.nu, grid.nv, &image::unit_to_u16(&truth)).map(Some)
+    }
+}
+
 /// A reconstruction's measurement: the captures stacked in block order
 /// (with the variance of each element when every capture has it), and what
 /// the user should know about the captures.

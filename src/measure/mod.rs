@@ -5,6 +5,7 @@
 mod assemble;
 mod average;
 pub mod exposure;
+pub mod levels;
 mod stack;
 
 pub use assemble::{assemble, match_blocks, same_angle, to_model_units, CaptureFrames, Units};
