@@ -506,3 +506,120 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
     });
     assert_eq!(page.d.json("/captures/2")["state"], "cancelled");
 }
+
+/// Runs `js` (a function body) in the page and returns its value.
+async fn js(c: &Client, code: &str) -> serde_json::Value {
+    c.execute(code, vec![]).await.expect(code)
+}
+
+#[test]
+fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_deletes() {
+    let page = Page::start();
+    // Two reconstructions of one crossed capture: automatic and a fixed λ.
+    let c = page.d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 4, "dark_frames": 1}"#, Duration::from_secs(30));
+    assert_eq!(c["state"], "done", "{c}");
+    for lambda in ["", r#", "lambda": 0.001"#] {
+        let body = format!(
+            r#"{{"scene": "brewster-crossed", "captures": [1], "truth": "letter"{lambda}}}"#
+        );
+        let r = page
+            .d
+            .run_job("/reconstructions", &body, Duration::from_secs(60));
+        assert_eq!(r["state"], "done", "{r}");
+    }
+    page.rt.block_on(async {
+        let c = page.open().await;
+        let long = Duration::from_secs(60);
+        until("both reconstructions", long, || async {
+            (text(&c, "#reconstruction-2 .state").await == "done").then_some(())
+        })
+        .await;
+        // Idle with the live view on: one frame a second, and the levels.
+        until("the live view and its levels", long, || async {
+            (image_loaded(&c, "#live").await && text(&c, "#levels").await.starts_with("peak")).then_some(())
+        })
+        .await;
+        let levels = text(&c, "#levels").await;
+        println!("live view levels: {levels}");
+        js(&c, "performance.setResourceTimingBufferSize(100000); performance.clearResourceTimings(); return true;").await;
+        tokio::time::sleep(Duration::from_secs(6)).await;
+        let requests = js(&c, "return performance.getEntriesByType('resource').map((e) => e.name.replace(location.origin, ''));").await;
+        let requests: Vec<String> = serde_json::from_value(requests).unwrap();
+        println!("an idle page in 6 s: {} requests: {requests:?}", requests.len());
+        assert!(requests.len() <= 12, "more than 2 requests a second: {requests:?}");
+        assert!(requests.iter().filter(|r| r.starts_with("/camera/frame.png?live=true")).count() >= 3, "{requests:?}");
+        // Zoom: the live frame at 4x its panel width, scrollable.
+        choose(&c, "#zoom", "4").await;
+        js(&c, "document.querySelector('#zoom').dispatchEvent(new Event('change')); return true;").await;
+        assert_eq!(js(&c, "return document.querySelector('#live').clientWidth;").await, 1024);
+        // A selection in a report survives the page's updates (no redraw without a change).
+        js(&c, "const r = document.querySelector('#reconstruction-1 .report'); getSelection().selectAllChildren(r); return true;").await;
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        let kept = js(&c, "const s = getSelection(); return s.rangeCount === 1 && s.anchorNode.isConnected && s.toString().includes('kappa');").await;
+        assert_eq!(kept, true, "the selection in the report was lost");
+        // The truth beside the result, on one colour bar.
+        until("the truth image", long, || async {
+            image_loaded(&c, "#reconstruction-1 img.truth-image").await.then_some(())
+        })
+        .await;
+        assert!(c.find(Locator::Css("#reconstruction-1 .colorbar")).await.is_ok());
+        // Side by side: tick both.
+        for id in [1, 2] {
+            click(&c, &format!("#reconstruction-{id} input.compare")).await;
+        }
+        until("the comparison", long, || async {
+            let n = js(&c, "return [...document.querySelectorAll('#compare img')].filter((i) => i.complete && i.naturalWidth > 0).length;").await;
+            (n == 2).then_some(())
+        })
+        .await;
+        let row = |name: &'static str| {
+            let c = &c;
+            async move {
+                let code = format!("for (const r of document.querySelectorAll('#compare .compare-table tr')) {{ if (r.cells[0].textContent === {name:?}) return [...r.cells].slice(1).map((x) => x.textContent).join(' | '); }} return '';");
+                js(c, &code).await.as_str().unwrap_or_default().to_string()
+            }
+        };
+        let (psnr, lambda) = (row("PSNR dB").await, row("lambda").await);
+        println!("compare: PSNR {psnr}; lambda {lambda}");
+        assert!(lambda.ends_with(" | 1.000e-3"), "{lambda}");
+        assert_eq!(psnr.split(" | ").count(), 2, "{psnr}");
+        // Downloads: the report and the capture's mean, with the page's token handling.
+        click(&c, "#reconstruction-1 button.download[data-path$='report.json']").await;
+        let got = until("the report download", long, || async {
+            let v = js(&c, "return window.lastDownload || null;").await;
+            (!v.is_null()).then_some(v)
+        })
+        .await;
+        assert_eq!(got["status"], 200, "{got}");
+        assert!(got["bytes"].as_u64().unwrap() > 100, "{got}");
+        js(&c, "window.lastDownload = null; return true;").await;
+        click(&c, "#capture-1 button.download[data-path$='mean.tiff']").await;
+        let got = until("the mean download", long, || async {
+            let v = js(&c, "return window.lastDownload || null;").await;
+            (!v.is_null()).then_some(v)
+        })
+        .await;
+        assert_eq!(got["status"], 200, "{got}");
+        assert!(got["bytes"].as_u64().unwrap() >= 512 * 512 * 4, "a 512x512 float TIFF: {got}");
+        // Delete reconstruction 2 (two clicks): gone from the page, the list and the comparison.
+        click(&c, "#reconstruction-2 button.delete").await;
+        click(&c, "#reconstruction-2 button.delete").await;
+        until("the deletion", long, || async {
+            c.find(Locator::Css("#reconstruction-2")).await.is_err().then_some(())
+        })
+        .await;
+        assert_eq!(js(&c, "return document.querySelectorAll('#compare img').length;").await, 1);
+        // The capture a kept reconstruction uses: 409 named, and the way to delete both.
+        click(&c, "#capture-1 button.delete").await;
+        click(&c, "#capture-1 button.delete").await;
+        let msg = until("the refusal", long, || async {
+            let m = text(&c, "#captures-message").await;
+            (!m.is_empty()).then_some(m)
+        })
+        .await;
+        assert!(msg.contains("reconstruction 1 uses it"), "{msg}");
+        c.close().await.unwrap();
+    });
+    assert_eq!(page.d.get("/reconstructions/2").0, 404);
+    assert_eq!(page.d.json("/captures/1")["state"], "done");
+}

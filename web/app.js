@@ -1,6 +1,10 @@
 // polnlos web page: the daemon's own HTTP API, nothing else (no CDN, no
-// framework). Reads are polled every second and refreshed on server-sent
-// events; images are fetched with the token and shown as object URLs.
+// framework). The lists are loaded once and then changed row by row from the
+// server-sent events (a job's state, a frame, a progressive step, a
+// deletion); a slow resync every 15 s catches what no event says (a row
+// edited behind the daemon's back). The live view asks for one frame a second
+// while it is on and the tab is visible. Images and downloads are fetched
+// with the token and handed over as object URLs.
 "use strict";
 
 const $ = (sel) => document.querySelector(sel);
@@ -8,7 +12,7 @@ const tokenInput = $("#token");
 tokenInput.value = localStorage.getItem("polnlos-token") || "";
 tokenInput.addEventListener("change", () => {
   localStorage.setItem("polnlos-token", tokenInput.value.trim());
-  refresh();
+  resync();
 });
 
 function headers(json) {
@@ -39,17 +43,38 @@ function unreadable(r, kind, target) {
     : "");
 }
 
-// Shows `path` in `img` (with the token); false when there is no image (yet).
+// Shows `path` in `img` (with the token); the response, or null when there is no image (yet).
 const shown = new Map();
 async function showImage(img, path) {
   const r = await fetch(path, { headers: headers(false), cache: "no-store" });
-  if (!r.ok) return false;
+  if (!r.ok) return null;
   const url = URL.createObjectURL(await r.blob());
   const old = shown.get(img);
   img.src = url;
   shown.set(img, url);
   if (old) URL.revokeObjectURL(old);
-  return true;
+  return r;
+}
+
+// Saves `path` as a file named `name` (with the token); the outcome is kept
+// in window.lastDownload for whoever wants to check it.
+async function download(path, name) {
+  const r = await fetch(path, { headers: headers(false), cache: "no-store" });
+  if (!r.ok) {
+    let why = `HTTP ${r.status}`;
+    try { why = (await r.json()).detail || why; } catch (_) { /* not JSON */ }
+    window.lastDownload = { path, status: r.status, bytes: 0 };
+    alertIn($("#captures-message"), `${name}: ${why}`);
+    return;
+  }
+  const blob = await r.blob();
+  window.lastDownload = { path, status: r.status, bytes: blob.size };
+  const url = URL.createObjectURL(blob);
+  const a = el("a", { href: url, download: name });
+  document.body.append(a);
+  a.click();
+  a.remove();
+  setTimeout(() => URL.revokeObjectURL(url), 10000);
 }
 
 function text(el, value) { el.textContent = value; return el; }
@@ -59,10 +84,34 @@ function el(tag, attrs, ...children) {
   children.forEach((c) => e.append(c));
   return e;
 }
+function alertIn(target, message) { target.className = "message error"; text(target, message); }
+function noteIn(target, message) { target.className = "message"; text(target, message); }
 const block = (c) => c.polarizer_deg === null ? `${c.pose} (no polarizer)` : `${c.pose} at ${c.polarizer_deg}°`;
 const active = (s) => s === "queued" || s === "running";
 // "2, 3" or "2 3" → [2, 3].
 const ids = (v) => String(v).split(/[ ,]+/).filter((s) => s).map(Number);
+
+// A button that acts on the second click within 4 s ("Delete" → "Really delete?").
+function twoStep(label, confirm, action) {
+  const b = el("button", { type: "button", class: "delete" }, label);
+  let armed = null;
+  b.addEventListener("click", () => {
+    if (armed) { clearTimeout(armed); armed = null; text(b, label); action(); return; }
+    text(b, confirm);
+    armed = setTimeout(() => { armed = null; text(b, label); }, 4000);
+  });
+  return b;
+}
+
+function downloads(items) {
+  return el("span", { class: "downloads" }, ...items.map(([label, path, name]) => {
+    const b = el("button", { type: "button", class: "download", "data-path": path }, label);
+    b.addEventListener("click", () => download(path, name));
+    return b;
+  }));
+}
+
+// ---- camera and live view ----
 
 async function refreshCamera() {
   const h = await api("GET", "/health");
@@ -79,114 +128,448 @@ async function refreshCamera() {
     ["frames received", k.completed], ["broken frames", k.failed],
     ["dropped frames", k.underruns], ["timeouts", k.timeouts], ["reconnects", k.connects],
   ];
-  const table = $("#camera-facts");
-  table.replaceChildren(...rows.map(([a, b]) => el("tr", {}, el("th", {}, a), el("td", {}, String(b ?? "-")))));
-  if (await showImage($("#live"), "/camera/frame.png")) text($("#live-caption"), "latest frame");
+  $("#camera-facts").replaceChildren(...rows.map(([a, b]) => el("tr", {}, el("th", {}, a), el("td", {}, String(b ?? "-")))));
 }
 
-async function refreshCaptures() {
-  const r = await api("GET", "/captures?limit=20");
+function drawHistogram(levels) {
+  const cv = $("#histogram");
+  const g = cv.getContext("2d");
+  g.clearRect(0, 0, cv.width, cv.height);
+  const h = levels.histogram;
+  const top = Math.log10(Math.max(...h, 1) + 1);
+  const w = cv.width / h.length;
+  h.forEach((n, k) => {
+    const y = n > 0 ? Math.log10(n + 1) / top * (cv.height - 2) : 0;
+    g.fillStyle = k === h.length - 1 && levels.saturated > 0 ? "#b00020" : "#1f4e79";
+    g.fillRect(k * w, cv.height - y, Math.max(w - 1, 1), y);
+  });
+  // The peak level as a line.
+  g.fillStyle = "#e08000";
+  g.fillRect(Math.min(levels.peak * cv.width, cv.width - 1), 0, 1, cv.height);
+}
+
+let liveBusy = false;
+async function refreshLive() {
+  if (liveBusy) return;
+  liveBusy = true;
+  try {
+    const stretch = $("#stretch").checked;
+    const r = await showImage($("#live"), `/camera/frame.png?live=true&stretch=${stretch}`);
+    if (!r) { text($("#live-caption"), "no frame yet (is the camera connected?)"); return; }
+    const levels = JSON.parse(r.headers.get("polnlos-levels") || "null");
+    text($("#live-caption"), `frame at ${new Date().toLocaleTimeString()}` + (stretch ? " (auto-contrast)" : " (full scale)"));
+    if (levels) {
+      drawHistogram(levels);
+      const sat = levels.saturated > 0 ? ` · ${(100 * levels.saturated).toFixed(2)} % saturated` : " · none saturated";
+      const lv = $("#levels");
+      lv.className = levels.saturated > 0 ? "warning" : "";
+      text(lv, `peak ${(100 * levels.peak).toFixed(1)} % of full scale${sat} · stretch ${levels.low}–${levels.high} DN of ${levels.full_scale}`);
+    }
+  } finally {
+    liveBusy = false;
+  }
+}
+
+function applyZoom() {
+  const z = Number($("#zoom").value);
+  $("#live").style.width = `${256 * z}px`;
+  $("#live").style.height = "auto";
+}
+$("#zoom").addEventListener("change", applyZoom);
+$("#stretch").addEventListener("change", refreshLive);
+$("#live-on").addEventListener("change", () => { if ($("#live-on").checked) refreshLive(); });
+
+// ---- captures ----
+
+const pageSize = 20;
+const paging = { captures: 0, reconstructions: 0 };
+const seen = new Map(); // row id -> JSON of the record it shows
+const steps = new Map(); // capture id -> progressive steps
+
+function pager(kind, count) {
+  const off = paging[kind];
+  text($(`#${kind}-page`), count === 0 && off === 0 ? "none yet" : `${off + 1}–${off + count}`);
+  $(`#${kind}-newer`).disabled = off === 0;
+  $(`#${kind}-older`).disabled = count < pageSize;
+}
+
+function chart(list) {
+  // Change from the previous step (log scale) against frames.
+  const pts = list.filter((s) => s.change !== null && s.change > 0);
+  const svg = document.createElementNS("http://www.w3.org/2000/svg", "svg");
+  svg.setAttribute("width", "140"); svg.setAttribute("height", "40"); svg.setAttribute("class", "steps");
+  if (pts.length >= 1) {
+    const fx = pts.map((s) => s.frames), ly = pts.map((s) => Math.log10(s.change));
+    const [x0, x1] = [Math.min(...fx), Math.max(...fx, Math.min(...fx) + 1)];
+    const [y0, y1] = [Math.min(...ly), Math.max(...ly, Math.min(...ly) + 1)];
+    const d = pts.map((s, k) => `${k ? "L" : "M"}${(4 + 132 * (s.frames - x0) / (x1 - x0)).toFixed(1)},${(4 + 32 * (y1 - Math.log10(s.change)) / (y1 - y0)).toFixed(1)}`).join(" ");
+    const path = document.createElementNS("http://www.w3.org/2000/svg", "path");
+    path.setAttribute("d", d); path.setAttribute("fill", "none"); path.setAttribute("stroke", "#1f4e79");
+    svg.append(path);
+  }
+  const last = list[list.length - 1];
+  const label = last ? `${list.length} steps, change ${last.change === null ? "-" : last.change.toExponential(1)}` + (last.psnr_db !== null && last.psnr_db !== undefined ? `, PSNR ${last.psnr_db.toFixed(2)} dB` : "") : "";
+  return el("div", { class: "chart" }, svg, el("div", { class: "step-label" }, label));
+}
+
+function progressiveCell(id) {
+  const td = el("td", { class: "progressive-cell" });
+  const list = steps.get(id);
+  if (!list || list.length === 0) return td;
+  const img = el("img", { width: "64", height: "64", alt: "", class: "progressive" });
+  showImage(img, `/captures/${id}/progressive.png`);
+  td.append(img, chart(list));
+  return td;
+}
+
+function captureRow(c) {
+  const total = c.frames + c.dark_frames;
+  const bar = el("progress", { class: "progress", max: String(total), value: String(c.frames_taken) });
+  const frames = el("td", { class: "frames" }, bar, el("span", { class: "count" }, ` ${c.frames_taken}/${total}`));
+  const files = [["mean", `/captures/${c.id}/mean.tiff`, `capture-${c.id}-mean.tiff`],
+    ["frames", `/captures/${c.id}/frame.tiff`, `capture-${c.id}-frames.tiff`]];
+  if (c.dark_frames > 0) files.push(["dark", `/captures/${c.id}/dark.tiff`, `capture-${c.id}-dark.tiff`]);
+  if (c.frames > 1) files.push(["variance", `/captures/${c.id}/variance.tiff`, `capture-${c.id}-variance.tiff`]);
+  files.push(["preview", `/captures/${c.id}/preview.png`, `capture-${c.id}-preview.png`]);
+  const actions = el("td", {});
+  if (active(c.state)) {
+    const b = el("button", { class: "cancel", "data-job": `capture-${c.id}` }, "Cancel");
+    b.addEventListener("click", () => cancel(`capture-${c.id}`));
+    actions.append(b);
+  } else {
+    actions.append(twoStep("Delete", "Really delete?", () => deleteCapture(c.id, false)));
+  }
+  const dark = c.dark_capture ? ` − dark ${c.dark_capture}` : "";
+  return el("tr", { id: `capture-${c.id}` },
+    el("td", {}, String(c.id)),
+    el("td", { class: `kind kind-${c.kind}` }, c.kind),
+    el("td", {}, `${c.scene}, ${block(c)}${dark}`),
+    el("td", { class: `state state-${c.state}` }, c.state + (c.error ? `: ${c.error}` : "")),
+    frames, progressiveCell(c.id), el("td", {}, c.state === "done" ? downloads(files) : ""), actions);
+}
+
+// Puts capture `c` in the table: replaces its row when the record changed,
+// adds it at the top of the first page when new, leaves it alone otherwise.
+function upsertCapture(c, force) {
+  const key = `capture-${c.id}`;
+  const json = JSON.stringify(c);
+  const old = document.getElementById(key);
+  if (old && seen.get(key) === json && !force) return;
+  if (!old && paging.captures > 0) return;
+  seen.set(key, json);
+  if (c.kind === "light" && !steps.has(c.id) && !old) loadSteps(c.id);
+  const row = captureRow(c);
+  if (old) old.replaceWith(row);
+  else {
+    const body = $("#captures tbody");
+    const after = [...body.children].find((r) => Number(r.id.split("-")[1]) < c.id);
+    body.insertBefore(row, after || null);
+  }
+}
+
+async function loadSteps(id) {
+  steps.set(id, []);
+  const r = await api("GET", `/captures/${id}/progressive.json`);
+  if (r.status === 200 && Array.isArray(r.json) && r.json.length) {
+    steps.set(id, r.json);
+    const c = seen.get(`capture-${id}`);
+    if (c) upsertCapture(JSON.parse(c), true);
+  }
+}
+
+async function loadCaptures() {
+  const r = await api("GET", `/captures?limit=${pageSize}&offset=${paging.captures}`);
   if (r.status !== 200) return;
   unreadable(r, "capture", $("#captures-unreadable"));
-  const body = $("#captures tbody");
-  const rows = [];
-  for (const c of r.json) {
-    const total = c.frames + c.dark_frames;
-    const bar = el("progress", { class: "progress", max: String(total), value: String(c.frames_taken) });
-    const frames = el("td", {}, bar, ` ${c.frames_taken}/${total}`);
-    const prog = el("td", {});
-    const img = el("img", { width: "64", height: "64", alt: "", class: "progressive" });
-    prog.append(img);
-    showImage(img, `/captures/${c.id}/progressive.png`).then((ok) => { if (!ok) img.remove(); });
-    const actions = el("td", {});
-    if (active(c.state)) {
-      const b = el("button", { class: "cancel", "data-job": `capture-${c.id}` }, "Cancel");
-      b.addEventListener("click", () => cancel(`capture-${c.id}`));
-      actions.append(b);
-    }
-    rows.push(el("tr", { id: `capture-${c.id}` },
-      el("td", {}, String(c.id)),
-      el("td", {}, `${c.scene}, ${block(c)}${c.kind === "dark" ? " (dark)" : ""}`),
-      el("td", { class: `state state-${c.state}` }, c.state + (c.error ? `: ${c.error}` : "")),
-      frames, prog, actions));
-  }
-  body.replaceChildren(...rows);
+  const keep = new Set(r.json.map((c) => `capture-${c.id}`));
+  [...$("#captures tbody").children].forEach((row) => { if (!keep.has(row.id)) { row.remove(); seen.delete(row.id); } });
+  const before = paging.captures;
+  paging.captures = 0; // upsert inserts rows of the page being loaded
+  r.json.forEach((c) => upsertCapture(c));
+  paging.captures = before;
+  pager("captures", r.json.length);
 }
 
-function reportText(r) {
+async function deleteCapture(id, withReconstructions) {
+  const r = await api("DELETE", `/captures/${id}${withReconstructions ? "?with_reconstructions=true" : ""}`);
+  const msg = $("#captures-message");
+  if (r.status === 200) {
+    noteIn(msg, `deleted capture ${id}` + (r.json.reconstructions.length ? ` and reconstruction ${r.json.reconstructions.join(", ")}` : ""));
+    removeCapture(id);
+    r.json.reconstructions.forEach(removeReconstruction);
+    return;
+  }
+  alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`);
+  if (r.status === 409 && !withReconstructions && /reconstructions? [0-9, ]+ uses?/.test(msg.textContent)) {
+    const b = twoStep("delete it with them", "Really delete them all?", () => deleteCapture(id, true));
+    b.id = "delete-with-reconstructions";
+    msg.append(" ", b);
+  }
+}
+
+function removeCapture(id) {
+  const row = document.getElementById(`capture-${id}`);
+  if (row) row.remove();
+  seen.delete(`capture-${id}`);
+}
+
+// ---- reconstructions ----
+
+const compare = new Set();
+
+function reportLines(r) {
   const rep = r.report || {};
   const lines = [`${r.solver}, captures ${r.captures.join(", ")}`];
   if (r.kappa !== null && r.kappa !== undefined) lines.push(`kappa ${Number(r.kappa).toExponential(3)}`);
   const l = rep.lambda_choice;
   if (l) lines.push(`lambda ${l.lambda.toExponential(3)} (${l.rule}, noise from ${l.noise})`);
+  else if (r.params && r.params.lambda !== undefined && r.params.lambda !== null) lines.push(`lambda ${Number(r.params.lambda).toExponential(3)} (given)`);
   const m = rep.metrics;
   if (m) lines.push(`PSNR ${m.psnr_db.toFixed(2)} dB, SSIM ${m.ssim.toFixed(3)}`);
-  (rep.warnings || []).forEach((w) => lines.push(`warning: ${w}`));
   if (r.error) lines.push(`error: ${r.error}`);
   return lines.join("\n");
 }
 
-async function refreshReconstructions() {
-  const r = await api("GET", "/reconstructions?limit=10");
+function colorBar() {
+  return el("div", { class: "colorbar", title: "recovered radiance, units of T l: every result and truth on this one scale" },
+    el("span", {}, "1"), el("div", { class: "bar" }), el("span", {}, "0"));
+}
+
+function reconstructionItem(x) {
+  const figs = el("div", { class: "figures" });
+  const img = el("img", { alt: `reconstruction ${x.id}`, class: "result-image" });
+  figs.append(el("figure", {}, img, el("figcaption", {}, "result")));
+  if (x.state === "done") showImage(img, `/reconstructions/${x.id}/image.png`);
+  if (x.params && x.params.truth) {
+    const t = el("img", { alt: `truth ${x.params.truth}`, class: "truth-image" });
+    figs.append(el("figure", {}, t, el("figcaption", {}, `truth: ${x.params.truth}`)));
+    showImage(t, `/reconstructions/${x.id}/truth.png`);
+  }
+  figs.append(colorBar());
+  const warnings = ((x.report || {}).warnings || []).map((w) => el("li", { class: "warning" }, w));
+  const info = el("div", { class: "info" },
+    el("div", {}, el("strong", {}, `#${x.id} ${x.scene} `), el("span", { class: `state state-${x.state}` }, x.state)),
+    el("pre", { class: "report" }, reportLines(x)));
+  if (warnings.length) info.append(el("ul", { class: "warnings" }, ...warnings));
+  if (active(x.state)) {
+    const b = el("button", { class: "cancel" }, "Cancel");
+    b.addEventListener("click", () => cancel(`reconstruction-${x.id}`));
+    info.append(b);
+  } else {
+    if (x.state === "done") {
+      info.append(downloads([
+        ["image.png", `/reconstructions/${x.id}/image.png`, `reconstruction-${x.id}.png`],
+        ["recovered.npy", `/reconstructions/${x.id}/recovered.npy`, `reconstruction-${x.id}-recovered.npy`],
+        ["measurement.npy", `/reconstructions/${x.id}/measurement.npy`, `reconstruction-${x.id}-measurement.npy`],
+        ["report.json", `/reconstructions/${x.id}/report.json`, `reconstruction-${x.id}-report.json`],
+      ]));
+      const box = el("input", { type: "checkbox", class: "compare" });
+      box.checked = compare.has(x.id);
+      box.addEventListener("change", () => { if (box.checked) compare.add(x.id); else compare.delete(x.id); drawCompare(); });
+      info.append(el("label", { class: "compare-label" }, box, " compare"));
+    }
+    info.append(twoStep("Delete", "Really delete?", () => deleteReconstruction(x.id)));
+  }
+  return el("div", { class: "result", id: `reconstruction-${x.id}` }, figs, info);
+}
+
+const records = new Map(); // reconstruction id -> record
+function upsertReconstruction(x, force) {
+  const key = `reconstruction-${x.id}`;
+  const json = JSON.stringify(x);
+  const old = document.getElementById(key);
+  if (old && seen.get(key) === json && !force) return;
+  if (!old && paging.reconstructions > 0) return;
+  seen.set(key, json);
+  records.set(x.id, x);
+  const item = reconstructionItem(x);
+  if (old) old.replaceWith(item);
+  else {
+    const list = $("#reconstructions");
+    const after = [...list.children].find((r) => Number(r.id.split("-")[1]) < x.id);
+    list.insertBefore(item, after || null);
+  }
+  if (compare.has(x.id)) drawCompare();
+}
+
+async function loadReconstructions() {
+  const r = await api("GET", `/reconstructions?limit=10&offset=${paging.reconstructions}`);
   if (r.status !== 200) return;
   unreadable(r, "reconstruction", $("#reconstructions-unreadable"));
-  const items = [];
-  for (const x of r.json) {
-    const img = el("img", { alt: `reconstruction ${x.id}` });
-    if (x.state === "done") showImage(img, `/reconstructions/${x.id}/image.png`);
-    const info = el("div", {},
-      el("div", {}, el("strong", {}, `#${x.id} ${x.scene} `), el("span", { class: `state state-${x.state}` }, x.state)),
-      el("pre", { class: "report" }, reportText(x)));
-    if (active(x.state)) {
-      const b = el("button", { class: "cancel" }, "Cancel");
-      b.addEventListener("click", () => cancel(`reconstruction-${x.id}`));
-      info.append(b);
-    }
-    items.push(el("div", { class: "result", id: `reconstruction-${x.id}` }, img, info));
-  }
-  $("#reconstructions").replaceChildren(...items);
+  const keep = new Set(r.json.map((x) => `reconstruction-${x.id}`));
+  [...$("#reconstructions").children].forEach((item) => { if (!keep.has(item.id)) { item.remove(); seen.delete(item.id); } });
+  const before = paging.reconstructions;
+  paging.reconstructions = 0;
+  r.json.forEach((x) => upsertReconstruction(x));
+  paging.reconstructions = before;
+  text($("#reconstructions-page"), r.json.length === 0 && before === 0 ? "none yet" : `${before + 1}–${before + r.json.length}`);
+  $("#reconstructions-newer").disabled = before === 0;
+  $("#reconstructions-older").disabled = r.json.length < 10;
+}
+
+async function deleteReconstruction(id) {
+  const r = await api("DELETE", `/reconstructions/${id}`);
+  const msg = $("#reconstructions-message");
+  if (r.status === 200) { noteIn(msg, `deleted reconstruction ${id}`); removeReconstruction(id); }
+  else alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`);
+}
+
+function removeReconstruction(id) {
+  const item = document.getElementById(`reconstruction-${id}`);
+  if (item) item.remove();
+  seen.delete(`reconstruction-${id}`);
+  records.delete(id);
+  if (compare.delete(id)) drawCompare();
+}
+
+// The ticked reconstructions side by side, one scale, their numbers in one table.
+function drawCompare() {
+  const chosen = [...compare].sort((a, b) => a - b).map((id) => records.get(id)).filter((x) => x);
+  const box = $("#compare");
+  if (chosen.length === 0) { box.replaceChildren(); return; }
+  const figs = el("div", { class: "figures" });
+  chosen.forEach((x) => {
+    const img = el("img", { alt: `reconstruction ${x.id}`, class: "compare-image" });
+    showImage(img, `/reconstructions/${x.id}/image.png`);
+    figs.append(el("figure", {}, img, el("figcaption", {}, `#${x.id} ${x.scene}`)));
+  });
+  figs.append(colorBar());
+  const num = (x, f) => { try { return f(x); } catch (_) { return "-"; } };
+  const rows = [
+    ["scene", (x) => x.scene], ["captures", (x) => x.captures.join(", ")], ["solver", (x) => x.solver],
+    ["kappa", (x) => Number(x.kappa).toExponential(3)],
+    ["lambda", (x) => x.report.lambda_choice ? x.report.lambda_choice.lambda.toExponential(3) : Number(x.params.lambda).toExponential(3)],
+    ["PSNR dB", (x) => x.report.metrics.psnr_db.toFixed(2)], ["SSIM", (x) => x.report.metrics.ssim.toFixed(3)],
+    ["ZNCC", (x) => x.report.metrics.zncc.toFixed(3)],
+  ];
+  const table = el("table", { class: "compare-table" },
+    el("tr", {}, el("th", {}, ""), ...chosen.map((x) => el("th", {}, `#${x.id}`))),
+    ...rows.map(([name, f]) => el("tr", {}, el("th", {}, name), ...chosen.map((x) => el("td", {}, String(num(x, f)))))));
+  box.replaceChildren(figs, table);
 }
 
 async function cancel(job) {
   const r = await api("DELETE", `/jobs/${job}`);
   if (r.status >= 400) alert((r.json && r.json.detail) || `HTTP ${r.status}`);
-  refresh();
 }
 
-let busy = false;
-async function refresh() {
-  if (busy) return;
-  busy = true;
-  try {
-    await Promise.all([refreshCamera(), refreshCaptures(), refreshReconstructions()]);
-  } catch (e) {
-    text($("#health"), `error: ${e}`);
-  } finally {
-    busy = false;
+// ---- events ----
+
+async function onEvent(v) {
+  const [kind, id] = String(v.job || "").split("-");
+  if (v.type === "job") {
+    const r = await api("GET", `/${kind}s/${id}`);
+    if (r.status !== 200) return;
+    if (kind === "capture") upsertCapture(r.json);
+    else upsertReconstruction(r.json);
+    if (kind === "capture") refreshCamera();
+  } else if (v.type === "frame") {
+    const row = document.getElementById(`capture-${id}`);
+    if (row) {
+      const bar = row.querySelector("progress");
+      bar.max = v.total; bar.value = v.taken;
+      text(row.querySelector(".count"), ` ${v.taken}/${v.total}`);
+    }
+  } else if (v.type === "progressive") {
+    const n = Number(id);
+    const list = steps.get(n) || [];
+    list.push(v);
+    steps.set(n, list);
+    const c = seen.get(`capture-${n}`);
+    if (c) upsertCapture(JSON.parse(c), true);
+  } else if (v.type === "deleted") {
+    if (v.kind === "capture") removeCapture(v.id); else removeReconstruction(v.id);
+  } else if (v.type === "camera") {
+    refreshCamera();
   }
 }
 
-function number(v) { return v === "" ? undefined : Number(v); }
+// Server-sent events over fetch (EventSource cannot send the token).
+async function events() {
+  for (;;) {
+    try {
+      const r = await fetch("/events", { headers: headers(false) });
+      const reader = r.body.getReader();
+      const decoder = new TextDecoder();
+      let buf = "";
+      for (;;) {
+        const { value, done } = await reader.read();
+        if (done) break;
+        buf += decoder.decode(value, { stream: true });
+        let cut;
+        while ((cut = buf.indexOf("\n\n")) >= 0) {
+          const chunk = buf.slice(0, cut);
+          buf = buf.slice(cut + 2);
+          chunk.split("\n").filter((l) => l.startsWith("data:")).forEach((l) => {
+            try { onEvent(JSON.parse(l.slice(5))); } catch (_) { /* not an event of ours */ }
+          });
+        }
+      }
+    } catch (_) { /* reconnect below */ }
+    await new Promise((res) => setTimeout(res, 2000));
+    resync();
+  }
+}
 
-$("#capture-form").addEventListener("submit", async (ev) => {
-  ev.preventDefault();
-  const f = new FormData(ev.target);
+let syncing = false;
+async function resync() {
+  if (syncing) return;
+  syncing = true;
+  try {
+    await Promise.all([refreshCamera(), loadCaptures(), loadReconstructions()]);
+  } catch (e) {
+    text($("#health"), `error: ${e}`);
+  } finally {
+    syncing = false;
+  }
+}
+
+["captures", "reconstructions"].forEach((kind) => {
+  const size = kind === "captures" ? pageSize : 10;
+  const load = kind === "captures" ? loadCaptures : loadReconstructions;
+  $(`#${kind}-newer`).addEventListener("click", () => { paging[kind] = Math.max(0, paging[kind] - size); load(); });
+  $(`#${kind}-older`).addEventListener("click", () => { paging[kind] += size; load(); });
+});
+
+// ---- forms ----
+
+function number(v) { return v === "" || v === null ? undefined : Number(v); }
+
+async function submitCapture(kind) {
+  const f = new FormData($("#capture-form"));
+  const exposure = String(f.get("exposure_us")).trim();
   const body = {
-    kind: f.get("kind"), scene: f.get("scene"), pose: f.get("pose"),
+    kind, scene: f.get("scene"), pose: f.get("pose"),
     polarizer_deg: f.get("polarizer_deg") === "" ? null : Number(f.get("polarizer_deg")),
-    exposure_us: number(f.get("exposure_us")), frames: number(f.get("frames")),
+    gain: number(f.get("gain")) || 0,
+    frames: number(f.get("frames")),
     dark_frames: number(f.get("dark_frames")) || 0,
   };
-  if (f.get("progressive") && body.kind === "light") {
+  if (exposure === "auto") body.exposure = "auto"; else body.exposure_us = number(exposure);
+  const dark = String(f.get("dark_capture") || "").trim();
+  if (kind !== "dark" && dark) { body.dark_capture = Number(dark); body.dark_frames = 0; }
+  if (kind === "dark") body.dark_frames = 0;
+  if (f.get("progressive") && kind === "light") {
     body.progressive = { every: number(f.get("every")) };
     if (f.get("truth")) body.progressive.truth = f.get("truth");
   }
   const r = await api("POST", "/captures", body);
   const msg = $("#capture-message");
-  msg.className = r.status === 202 ? "message" : "message error";
-  text(msg, r.status === 202 ? `queued ${r.json.job}` : (r.json && r.json.detail) || `HTTP ${r.status}`);
-  refresh();
+  if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
+  noteIn(msg, `queued ${r.json.job}` + (r.json.exposure_us ? ` (${r.json.exposure_us} µs, ${r.json.frames} frames)` : ""));
+  if (kind === "dark") {
+    $("#capture-form [name=dark_capture]").value = String(r.json.id);
+    text(msg, `${msg.textContent}; switch the hidden scene back on: later captures subtract dark capture ${r.json.id}`);
+  }
+  const c = await api("GET", `/captures/${r.json.id}`);
+  if (c.status === 200) upsertCapture(c.json);
+}
+
+$("#capture-form").addEventListener("submit", (ev) => {
+  ev.preventDefault();
+  submitCapture(new FormData(ev.target).get("kind"));
 });
+$("#take-dark").addEventListener("click", () => submitCapture("dark"));
 
 $("#reconstruction-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
@@ -197,11 +580,16 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
     solver: f.get("solver"),
   };
   if (f.get("truth")) body.truth = f.get("truth");
+  const lambda = String(f.get("lambda") || "").trim();
+  if (lambda && lambda !== "auto") body.lambda = Number(lambda);
+  const iters = String(f.get("max_iter") || "").trim();
+  if (iters) body.max_iter = Number(iters);
   const r = await api("POST", "/reconstructions", body);
   const msg = $("#reconstruction-message");
-  msg.className = r.status === 202 ? "message" : "message error";
-  text(msg, r.status === 202 ? `queued ${r.json.job}` : (r.json && r.json.detail) || `HTTP ${r.status}`);
-  refresh();
+  if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
+  noteIn(msg, `queued ${r.json.job}`);
+  const x = await api("GET", `/reconstructions/${r.json.id}`);
+  if (x.status === 200) upsertReconstruction(x.json);
 });
 
 // Calibration forms: both fits answer synchronously (a few seconds at most).
@@ -312,31 +700,12 @@ async function loadScenes() {
   });
 }
 
-// Server-sent events over fetch (EventSource cannot send the token).
-async function events() {
-  for (;;) {
-    try {
-      const r = await fetch("/events", { headers: headers(false) });
-      const reader = r.body.getReader();
-      const decoder = new TextDecoder();
-      let buf = "";
-      for (;;) {
-        const { value, done } = await reader.read();
-        if (done) break;
-        buf += decoder.decode(value, { stream: true });
-        let cut;
-        while ((cut = buf.indexOf("\n\n")) >= 0) {
-          const chunk = buf.slice(0, cut);
-          buf = buf.slice(cut + 2);
-          if (chunk.split("\n").some((l) => l.startsWith("data:"))) refresh();
-        }
-      }
-    } catch (_) { /* reconnect below */ }
-    await new Promise((res) => setTimeout(res, 2000));
-  }
-}
-
 loadScenes();
-refresh();
-setInterval(refresh, 1000);
+resync();
 events();
+applyZoom();
+setInterval(resync, 15000);
+// The live view: one frame a second while it is on and the tab is visible.
+setInterval(() => {
+  if ($("#live-on").checked && document.visibilityState === "visible") refreshLive();
+}, 1000);

@@ -31,6 +31,10 @@ const CHARTS: &[(&str, &[u8])] = &[
     ),
     ("active.png", include_bytes!("../../docs/bench/active.png")),
     (
+        "rendered.png",
+        include_bytes!("../../docs/bench/rendered.png"),
+    ),
+    (
         "speed-accuracy-S.png",
         include_bytes!("../../docs/bench/speed-accuracy-S.png"),
     ),
