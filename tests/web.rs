@@ -512,6 +512,22 @@ async fn js(c: &Client, code: &str) -> serde_json::Value {
     c.execute(code, vec![]).await.expect(code)
 }
 
+/// Clicks the download button `css` and returns what the page's download got
+/// (`window.lastDownload`: path, status, bytes).
+async fn downloaded(c: &Client, css: &str) -> serde_json::Value {
+    js(c, "window.lastDownload = null; return true;").await;
+    click(c, css).await;
+    until(
+        &format!("the download of {css}"),
+        Duration::from_secs(30),
+        || async {
+            let v = js(c, "return window.lastDownload || null;").await;
+            (!v.is_null()).then_some(v)
+        },
+    )
+    .await
+}
+
 #[test]
 fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_deletes() {
     let page = Page::start();
@@ -584,21 +600,10 @@ fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_delete
         assert!(lambda.ends_with(" | 1.000e-3"), "{lambda}");
         assert_eq!(psnr.split(" | ").count(), 2, "{psnr}");
         // Downloads: the report and the capture's mean, with the page's token handling.
-        click(&c, "#reconstruction-1 button.download[data-path$='report.json']").await;
-        let got = until("the report download", long, || async {
-            let v = js(&c, "return window.lastDownload || null;").await;
-            (!v.is_null()).then_some(v)
-        })
-        .await;
+        let got = downloaded(&c, "#reconstruction-1 button.download[data-path$='report.json']").await;
         assert_eq!(got["status"], 200, "{got}");
         assert!(got["bytes"].as_u64().unwrap() > 100, "{got}");
-        js(&c, "window.lastDownload = null; return true;").await;
-        click(&c, "#capture-1 button.download[data-path$='mean.tiff']").await;
-        let got = until("the mean download", long, || async {
-            let v = js(&c, "return window.lastDownload || null;").await;
-            (!v.is_null()).then_some(v)
-        })
-        .await;
+        let got = downloaded(&c, "#capture-1 button.download[data-path$='mean.tiff']").await;
         assert_eq!(got["status"], 200, "{got}");
         assert!(got["bytes"].as_u64().unwrap() >= 512 * 512 * 4, "a 512x512 float TIFF: {got}");
         // Delete reconstruction 2 (two clicks): gone from the page, the list and the comparison.

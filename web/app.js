@@ -248,24 +248,28 @@ function captureRow(c) {
     frames, progressiveCell(c.id), el("td", {}, c.state === "done" ? downloads(files) : ""), actions);
 }
 
-// Puts capture `c` in the table: replaces its row when the record changed,
-// adds it at the top of the first page when new, leaves it alone otherwise.
-function upsertCapture(c, force) {
-  const key = `capture-${c.id}`;
-  const json = JSON.stringify(c);
+// Puts record `x` of `kind` ("capture" or "reconstruction") into the list
+// `container`: replaces its element when the record changed (or `force`),
+// inserts it in id order when new and the first page is shown, and leaves it
+// alone otherwise (a selection in it survives). True when it was drawn.
+function upsert(kind, x, force, container, build) {
+  const key = `${kind}-${x.id}`;
+  const json = JSON.stringify(x);
   const old = document.getElementById(key);
-  if (old && seen.get(key) === json && !force) return;
-  if (!old && paging.captures > 0) return;
+  if (old && seen.get(key) === json && !force) return false;
+  if (!old && paging[`${kind}s`] > 0) return false;
   seen.set(key, json);
-  if (c.kind === "light" && !steps.has(c.id) && !old) loadSteps(c.id);
-  const row = captureRow(c);
-  if (old) old.replaceWith(row);
+  if (kind === "capture" && x.kind === "light" && !steps.has(x.id) && !old) loadSteps(x.id);
+  const node = build(x);
+  if (old) old.replaceWith(node);
   else {
-    const body = $("#captures tbody");
-    const after = [...body.children].find((r) => Number(r.id.split("-")[1]) < c.id);
-    body.insertBefore(row, after || null);
+    const after = [...container.children].find((r) => Number(r.id.split("-")[1]) < x.id);
+    container.insertBefore(node, after || null);
   }
+  return true;
 }
+
+function upsertCapture(c, force) { upsert("capture", c, force, $("#captures tbody"), captureRow); }
 
 async function loadSteps(id) {
   steps.set(id, []);
@@ -375,21 +379,8 @@ function reconstructionItem(x) {
 
 const records = new Map(); // reconstruction id -> record
 function upsertReconstruction(x, force) {
-  const key = `reconstruction-${x.id}`;
-  const json = JSON.stringify(x);
-  const old = document.getElementById(key);
-  if (old && seen.get(key) === json && !force) return;
-  if (!old && paging.reconstructions > 0) return;
-  seen.set(key, json);
   records.set(x.id, x);
-  const item = reconstructionItem(x);
-  if (old) old.replaceWith(item);
-  else {
-    const list = $("#reconstructions");
-    const after = [...list.children].find((r) => Number(r.id.split("-")[1]) < x.id);
-    list.insertBefore(item, after || null);
-  }
-  if (compare.has(x.id)) drawCompare();
+  if (upsert("reconstruction", x, force, $("#reconstructions"), reconstructionItem) && compare.has(x.id)) drawCompare();
 }
 
 async function loadReconstructions() {
