@@ -623,6 +623,41 @@ fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_delete
         })
         .await;
         assert!(msg.contains("reconstruction 1 uses it"), "{msg}");
+        // A bench switched by hand: take a dark capture, then light captures subtract it.
+        set(&c, "#capture-form [name=frames]", "2").await;
+        js(&c, "document.querySelector('#capture-form [name=progressive]').checked = false; return true;").await;
+        click(&c, "#take-dark").await;
+        let dark = until("the dark capture's id in the form", long, || async {
+            let v = js(&c, "return document.querySelector('#capture-form [name=dark_capture]').value;").await;
+            v.as_str().filter(|v| !v.is_empty()).map(String::from)
+        })
+        .await;
+        assert_eq!(dark, "2");
+        until("the dark capture", long, || async {
+            (text(&c, "#capture-2 .state").await == "done").then_some(())
+        })
+        .await;
+        assert_eq!(text(&c, "#capture-2 .kind").await, "dark");
+        click(&c, "#start-capture").await;
+        until("the light capture minus the dark", long, || async {
+            (text(&c, "#capture-3 .state").await == "done").then_some(())
+        })
+        .await;
+        assert!(text(&c, "#capture-3").await.contains("− dark 2"));
+        assert_eq!(page.d.json("/captures/3")["dark_capture"], 2);
+        // Paging: 20 more captures push capture 1 to the second page.
+        for _ in 0..20 {
+            let r = page.d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000, "frames": 1}"#, long);
+            assert_eq!(r["state"], "done");
+        }
+        click(&c, "#captures-older").await;
+        until("the second page", long, || async {
+            (text(&c, "#captures-page").await == "21–23"
+                && c.find(Locator::Css("#capture-1")).await.is_ok()
+                && c.find(Locator::Css("#capture-23")).await.is_err())
+            .then_some(())
+        })
+        .await;
         c.close().await.unwrap();
     });
     assert_eq!(page.d.get("/reconstructions/2").0, 404);

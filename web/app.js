@@ -186,11 +186,22 @@ const paging = { captures: 0, reconstructions: 0 };
 const seen = new Map(); // row id -> JSON of the record it shows
 const steps = new Map(); // capture id -> progressive steps
 
+const sizes = { captures: pageSize, reconstructions: 10 };
 function pager(kind, count) {
   const off = paging[kind];
   text($(`#${kind}-page`), count === 0 && off === 0 ? "none yet" : `${off + 1}–${off + count}`);
   $(`#${kind}-newer`).disabled = off === 0;
-  $(`#${kind}-older`).disabled = count < pageSize;
+  $(`#${kind}-older`).disabled = count < sizes[kind];
+}
+
+// The first page keeps its size as new rows come in at the top.
+function trim(kind, container) {
+  if (paging[kind] > 0) return;
+  while (container.children.length > sizes[kind]) {
+    seen.delete(container.lastElementChild.id);
+    container.lastElementChild.remove();
+  }
+  pager(kind, container.children.length);
 }
 
 function chart(list) {
@@ -269,7 +280,9 @@ function upsert(kind, x, force, container, build) {
   return true;
 }
 
-function upsertCapture(c, force) { upsert("capture", c, force, $("#captures tbody"), captureRow); }
+function upsertCapture(c, force) {
+  if (upsert("capture", c, force, $("#captures tbody"), captureRow)) trim("captures", $("#captures tbody"));
+}
 
 async function loadSteps(id) {
   steps.set(id, []);
@@ -289,7 +302,7 @@ async function loadCaptures() {
   [...$("#captures tbody").children].forEach((row) => { if (!keep.has(row.id)) { row.remove(); seen.delete(row.id); } });
   const before = paging.captures;
   paging.captures = 0; // upsert inserts rows of the page being loaded
-  r.json.forEach((c) => upsertCapture(c));
+  r.json.forEach((c) => upsert("capture", c, false, $("#captures tbody"), captureRow));
   paging.captures = before;
   pager("captures", r.json.length);
 }
@@ -380,7 +393,9 @@ function reconstructionItem(x) {
 const records = new Map(); // reconstruction id -> record
 function upsertReconstruction(x, force) {
   records.set(x.id, x);
-  if (upsert("reconstruction", x, force, $("#reconstructions"), reconstructionItem) && compare.has(x.id)) drawCompare();
+  if (!upsert("reconstruction", x, force, $("#reconstructions"), reconstructionItem)) return;
+  trim("reconstructions", $("#reconstructions"));
+  if (compare.has(x.id)) drawCompare();
 }
 
 async function loadReconstructions() {
@@ -391,11 +406,10 @@ async function loadReconstructions() {
   [...$("#reconstructions").children].forEach((item) => { if (!keep.has(item.id)) { item.remove(); seen.delete(item.id); } });
   const before = paging.reconstructions;
   paging.reconstructions = 0;
-  r.json.forEach((x) => upsertReconstruction(x));
+  r.json.forEach((x) => { records.set(x.id, x); upsert("reconstruction", x, false, $("#reconstructions"), reconstructionItem); });
   paging.reconstructions = before;
-  text($("#reconstructions-page"), r.json.length === 0 && before === 0 ? "none yet" : `${before + 1}–${before + r.json.length}`);
-  $("#reconstructions-newer").disabled = before === 0;
-  $("#reconstructions-older").disabled = r.json.length < 10;
+  pager("reconstructions", r.json.length);
+  drawCompare();
 }
 
 async function deleteReconstruction(id) {
@@ -516,7 +530,7 @@ async function resync() {
 }
 
 ["captures", "reconstructions"].forEach((kind) => {
-  const size = kind === "captures" ? pageSize : 10;
+  const size = sizes[kind];
   const load = kind === "captures" ? loadCaptures : loadReconstructions;
   $(`#${kind}-newer`).addEventListener("click", () => { paging[kind] = Math.max(0, paging[kind] - size); load(); });
   $(`#${kind}-older`).addEventListener("click", () => { paging[kind] += size; load(); });
