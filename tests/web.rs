@@ -415,6 +415,17 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
                 .then_some(())
         })
         .await;
+        // Its chart: each step's change, and PSNR against the truth, up to
+        // the last step the daemon kept.
+        let (_, json) = page.d.get("/captures/1/progressive.json");
+        let n = serde_json::from_str::<serde_json::Value>(&json).unwrap().as_array().unwrap().len();
+        let label = until("the progressive chart", long, || async {
+            let t = text(&c, "#capture-1 .step-label").await;
+            (t.starts_with(&format!("{n} steps")) && t.contains("PSNR")).then_some(t)
+        })
+        .await;
+        println!("progressive chart: {label}");
+        assert!(c.find(Locator::Css("#capture-1 svg.steps path")).await.is_ok());
 
         // Reconstruct from the page and see the image and its report appear.
         set(&c, "#reconstruction-form [name=captures]", "1").await;
