@@ -261,14 +261,15 @@ function captureRow(c) {
 
 // Puts record `x` of `kind` ("capture" or "reconstruction") into the list
 // `container`: replaces its element when the record changed (or `force`),
-// inserts it in id order when new and the first page is shown, and leaves it
-// alone otherwise (a selection in it survives). True when it was drawn.
-function upsert(kind, x, force, container, build) {
+// inserts it in id order when new and `insert` (a page being loaded, or an
+// event while the first page is shown), and leaves it alone otherwise (a
+// selection in it survives). True when it was drawn.
+function upsert(kind, x, force, container, build, insert) {
   const key = `${kind}-${x.id}`;
   const json = JSON.stringify(x);
   const old = document.getElementById(key);
   if (old && seen.get(key) === json && !force) return false;
-  if (!old && paging[`${kind}s`] > 0) return false;
+  if (!old && !insert) return false;
   seen.set(key, json);
   if (kind === "capture" && x.kind === "light" && !steps.has(x.id) && !old) loadSteps(x.id);
   const node = build(x);
@@ -281,7 +282,8 @@ function upsert(kind, x, force, container, build) {
 }
 
 function upsertCapture(c, force) {
-  if (upsert("capture", c, force, $("#captures tbody"), captureRow)) trim("captures", $("#captures tbody"));
+  const body = $("#captures tbody");
+  if (upsert("capture", c, force, body, captureRow, paging.captures === 0)) trim("captures", body);
 }
 
 async function loadSteps(id) {
@@ -300,10 +302,7 @@ async function loadCaptures() {
   unreadable(r, "capture", $("#captures-unreadable"));
   const keep = new Set(r.json.map((c) => `capture-${c.id}`));
   [...$("#captures tbody").children].forEach((row) => { if (!keep.has(row.id)) { row.remove(); seen.delete(row.id); } });
-  const before = paging.captures;
-  paging.captures = 0; // upsert inserts rows of the page being loaded
-  r.json.forEach((c) => upsert("capture", c, false, $("#captures tbody"), captureRow));
-  paging.captures = before;
+  r.json.forEach((c) => upsert("capture", c, false, $("#captures tbody"), captureRow, true));
   pager("captures", r.json.length);
 }
 
@@ -393,7 +392,7 @@ function reconstructionItem(x) {
 const records = new Map(); // reconstruction id -> record
 function upsertReconstruction(x, force) {
   records.set(x.id, x);
-  if (!upsert("reconstruction", x, force, $("#reconstructions"), reconstructionItem)) return;
+  if (!upsert("reconstruction", x, force, $("#reconstructions"), reconstructionItem, paging.reconstructions === 0)) return;
   trim("reconstructions", $("#reconstructions"));
   if (compare.has(x.id)) drawCompare();
 }
@@ -404,10 +403,7 @@ async function loadReconstructions() {
   unreadable(r, "reconstruction", $("#reconstructions-unreadable"));
   const keep = new Set(r.json.map((x) => `reconstruction-${x.id}`));
   [...$("#reconstructions").children].forEach((item) => { if (!keep.has(item.id)) { item.remove(); seen.delete(item.id); } });
-  const before = paging.reconstructions;
-  paging.reconstructions = 0;
-  r.json.forEach((x) => { records.set(x.id, x); upsert("reconstruction", x, false, $("#reconstructions"), reconstructionItem); });
-  paging.reconstructions = before;
+  r.json.forEach((x) => { records.set(x.id, x); upsert("reconstruction", x, false, $("#reconstructions"), reconstructionItem, true); });
   pager("reconstructions", r.json.length);
   drawCompare();
 }

@@ -29,7 +29,7 @@ use super::{Daemon, Event};
 use crate::camera::{Frame, PixelFormat};
 use crate::files::{image, json};
 use crate::measure::FrameStack;
-use crate::measure::{assemble, stack, to_model_units, BlockFrames};
+use crate::measure::{assemble, CaptureFrames, Units};
 use crate::scene::Scene;
 use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};
@@ -191,7 +191,7 @@ impl Solver {
         let other_blocks: Vec<_> = (0..t.blocks.len()).filter(|&b| b != own).collect();
         let blocks: Vec<_> = other_blocks.iter().map(|&b| t.blocks[b].clone()).collect();
         let mut m = assemble(&scene, &blocks, &others)?;
-        to_model_units(&t, &mut m, Some(calibration))?;
+        Units::Calibrated(calibration).apply(&mut m);
         let mut i = vec![0.0; t.rows()];
         let mut variance = m.variance.as_ref().map(|_| vec![0.0; t.rows()]);
         let n = t.wall_grid.count();
@@ -248,39 +248,31 @@ impl Solver {
             height: s.height,
             pixels,
         };
-        let block = &self.t.blocks[self.own];
-        let pose = self.scene.pose(&block.pose);
-        let homography = pose.and_then(|p| p.homography).ok_or_else(|| {
-            crate::measure::MeasureError::NoHomography {
-                pose: block.pose.clone(),
-            }
-        })?;
         let variance = s.variance.as_ref().map(|v| Frame {
             width: s.width,
             height: s.height,
             pixels: v.iter().map(|&x| x as f32).collect(),
         });
-        let frames = BlockFrames {
-            pose: &block.pose,
-            homography: &homography,
-            mean: &mean,
-            variance: variance.as_ref(),
+        // This block assembled as a reconstruction assembles it.
+        let block = &self.t.blocks[self.own];
+        let own = CaptureFrames {
+            name: format!("capture {}", self.capture.id),
+            pose: block.pose.clone(),
+            polarizer_deg: block.polarizer_deg,
+            mean,
+            variance,
             frames: s.frames,
             full_scale: self.full_scale,
             exposure_us: self.capture.exposure_us,
         };
-        let m = stack(&[frames], &self.scene.wall.plane)?;
+        let mut m = assemble(&self.scene, std::slice::from_ref(block), &[own])?;
+        Units::Calibrated(self.calibration).apply(&mut m);
         let range = self.t.block_rows(self.own);
-        for (dst, v) in self.i[range.clone()].iter_mut().zip(m.i) {
-            *dst = v / self.calibration;
-        }
+        self.i[range.clone()].copy_from_slice(&m.i);
         // The running variance of this block, beside the other blocks'.
         let noise = match (self.settings.lambda, m.variance, self.variance.as_mut()) {
             (None, Some(v), Some(all)) => {
-                let c2 = self.calibration * self.calibration;
-                for (dst, v) in all[range].iter_mut().zip(v) {
-                    *dst = v / c2;
-                }
+                all[range].copy_from_slice(&v);
                 Some(NoiseLevel::measured(all.clone()))
             }
             _ => None,
