@@ -56,9 +56,18 @@ impl NoiseLevel {
     /// when `M - N < MIN_RESIDUAL_DOF` or `i` does not fit `T`. Model error
     /// counts as noise here, so a mismatched model gets more smoothing, not less.
     pub fn from_residual(t: &Transport, i: &[f64]) -> Option<Self> {
-        let (m, n) = (t.rows(), t.cols());
-        let r = least_squares_residual(t, i)?;
-        let var = r.iter().map(|x| x * x).sum::<f64>() / (m - n) as f64;
+        Self::from_residual_with(t, i, None)
+    }
+
+    /// [`NoiseLevel::from_residual`] with the Gram already formed: when it
+    /// has a low-rank form, range(T) is spanned (to its tolerance) by the
+    /// `r` pivot columns, so the QR is of those `M x r` columns and the
+    /// residual has `M - r` degrees of freedom (instead of a QR of all of
+    /// `T`, `2 M N^2` flops and an `M x N` `Q`).
+    pub fn from_residual_with(t: &Transport, i: &[f64], normal: Option<&Normal>) -> Option<Self> {
+        let m = t.rows();
+        let (r, fitted) = residual_and_rank(t, i, normal)?;
+        let var = r.iter().map(|x| x * x).sum::<f64>() / (m - fitted) as f64;
         var.is_finite().then(|| Self {
             variance: vec![var; m],
             source: NoiseSource::Residual,
@@ -104,15 +113,40 @@ impl NoiseLevel {
 /// what no scene can explain. `None` when `M - N < MIN_RESIDUAL_DOF` or `i`
 /// does not fit `T`.
 pub fn least_squares_residual(t: &Transport, i: &[f64]) -> Option<Vec<f64>> {
+    residual_and_rank(t, i, None).map(|(r, _)| r)
+}
+
+/// [`least_squares_residual`] with the Gram already formed (see
+/// [`NoiseLevel::from_residual_with`]).
+pub fn least_squares_residual_with(
+    t: &Transport,
+    i: &[f64],
+    normal: Option<&Normal>,
+) -> Option<Vec<f64>> {
+    residual_and_rank(t, i, normal).map(|(r, _)| r)
+}
+
+/// The residual outside range(T) and the dimension of the space fitted.
+fn residual_and_rank(
+    t: &Transport,
+    i: &[f64],
+    normal: Option<&Normal>,
+) -> Option<(Vec<f64>, usize)> {
     let (m, n) = (t.rows(), t.cols());
     if i.len() != m || m < n + MIN_RESIDUAL_DOF || i.iter().any(|v| !v.is_finite()) {
         return None;
     }
-    let q = t.as_mat().qr().compute_thin_Q();
     let b = faer::Mat::<f64>::from_fn(m, 1, |r, _| i[r]);
+    let (q, fitted) = match normal.and_then(|nm| nm.low_rank.as_ref()) {
+        Some(lr) => {
+            let cols = faer::Mat::<f64>::from_fn(m, lr.pivots.len(), |r, k| t.col(lr.pivots[k])[r]);
+            (cols.qr().compute_thin_Q(), lr.pivots.len())
+        }
+        None => (t.as_mat().qr().compute_thin_Q(), n),
+    };
     let c = q.transpose() * &b;
     let fit = &q * &c;
-    Some((0..m).map(|r| i[r] - fit[(r, 0)]).collect())
+    Some(((0..m).map(|r| i[r] - fit[(r, 0)]).collect(), fitted))
 }
 
 /// How the automatic lambda was found (the `lambda_choice` of a report).
@@ -168,7 +202,20 @@ pub fn admm_tv_resolved(
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
     check_measurement(t, i)?;
     check_noise(noise, i)?;
-    let normal = Normal::new(t.as_mat(), i);
+    let normal = Normal::of(t, i);
+    admm_tv_resolved_prepared(t, i, &normal, noise, singular_values, settings)
+}
+
+/// [`admm_tv_resolved`] with `T^T T` and `T^T i` already formed (`i` already checked).
+pub fn admm_tv_resolved_prepared(
+    t: &Transport,
+    i: &[f64],
+    normal: &Normal,
+    noise: &NoiseLevel,
+    singular_values: &[f64],
+    settings: &AdmmSettings,
+) -> Result<(Reconstruction, LambdaChoice), SolveError> {
+    check_noise(noise, i)?;
     let unit = normal.unit();
     let mean_var = noise.mean_variance();
     let sigma = mean_var.sqrt();
@@ -178,7 +225,7 @@ pub fn admm_tv_resolved(
         .count()
         .max(1);
     let mut trials = Vec::new();
-    let mut solve = |lambda: f64| trial(t, i, &normal, settings, lambda, &mut trials);
+    let mut solve = |lambda: f64| trial(t, i, normal, settings, lambda, &mut trials);
     // Half-decade scan over SCAN_REL: the floor and a bracket.
     let scan: Vec<f64> = (0..=SCAN_STEPS)
         .map(|k| SCAN_REL.0 + (SCAN_REL.1 - SCAN_REL.0) * k as f64 / SCAN_STEPS as f64)
@@ -309,7 +356,7 @@ pub fn admm_tv_discrepancy(
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
     check_measurement(t, i)?;
     check_noise(noise, i)?;
-    let normal = Normal::new(t.as_mat(), i);
+    let normal = Normal::of(t, i);
     let unit = normal.unit();
     let target = noise.total();
     let mut trials = Vec::new();
@@ -347,4 +394,61 @@ pub fn admm_tv_discrepancy(
         trials,
     };
     Ok((best, choice))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{Grid, Scene};
+    use crate::transport::build;
+
+    /// Brewster bench, poses B and C, wall 32x32, scene `n x n`.
+    pub(super) fn bench(n: usize) -> Transport {
+        let mut s = Scene::builtin("brewster-multi").unwrap().unwrap();
+        s.scene.plane.grid = Grid { nu: n, nv: n };
+        build(&s).unwrap()
+    }
+
+    /// Gaussian noise of standard deviation `sigma` (Box-Muller on an LCG).
+    pub(super) fn gaussian(len: usize, sigma: f64, seed: u64) -> Vec<f64> {
+        let mut x = seed;
+        let mut u = || {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((x >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        (0..len)
+            .map(|_| sigma * (-2.0 * u().ln()).sqrt() * (std::f64::consts::TAU * u()).cos())
+            .collect()
+    }
+
+    #[test]
+    fn noise_from_the_pivot_columns_matches_the_full_qr() {
+        // 576 columns, rank far lower: the low-rank form is taken.
+        let t = bench(24);
+        let truth = crate::simulate::patterns::Pattern::Letter.render(t.scene_grid);
+        let clean = t.apply(&truth);
+        let sigma = 0.01 * clean.iter().copied().fold(0.0, f64::max);
+        let i: Vec<f64> = clean
+            .iter()
+            .zip(gaussian(clean.len(), sigma, 7))
+            .map(|(a, b)| a + b)
+            .collect();
+        let normal = Normal::of(&t, &i);
+        let lr = normal.low_rank.as_ref().expect("low rank");
+        assert!(lr.rank() < t.cols() / 4, "rank {}", lr.rank());
+        let full = NoiseLevel::from_residual(&t, &i).unwrap().mean_variance();
+        let fast = NoiseLevel::from_residual_with(&t, &i, Some(&normal))
+            .unwrap()
+            .mean_variance();
+        let s2 = sigma * sigma;
+        // Both unbiased; 2048 - 576 and 2048 - r degrees of freedom.
+        assert!((full / s2 - 1.0).abs() < 0.08, "full QR {}", full / s2);
+        assert!(
+            (fast / s2 - 1.0).abs() < 0.08,
+            "pivot columns {}",
+            fast / s2
+        );
+    }
 }
