@@ -152,6 +152,31 @@ impl AdmmState {
     pub fn image(&self) -> &[f64] {
         &self.z2
     }
+
+    /// A copy of the iterate without the factor (a point of a λ path).
+    pub fn iterate(&self) -> AdmmState {
+        AdmmState {
+            factor: None,
+            l: self.l.clone(),
+            z1: self.z1.clone(),
+            z2: self.z2.clone(),
+            u1: self.u1.clone(),
+            u2: self.u2.clone(),
+        }
+    }
+
+    /// Starts the next solve from `from`'s iterate, keeping this state's
+    /// factor, for a TV weight `tv_ratio` times `from`'s: the scaled TV dual
+    /// (bounded by `lambda / 2 rho` and at that bound on every edge where the
+    /// image changes) is scaled with it.
+    pub fn start_from(&mut self, from: &AdmmState, tv_ratio: f64) {
+        self.l.clone_from(&from.l);
+        self.z1.clone_from(&from.z1);
+        self.z2.clone_from(&from.z2);
+        self.u2.clone_from(&from.u2);
+        self.u1.clone_from(&from.u1);
+        self.u1.iter_mut().for_each(|u| *u *= tv_ratio);
+    }
 }
 
 /// `v` when it has `len` values (a warm start), else zeros.

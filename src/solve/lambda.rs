@@ -7,7 +7,7 @@
 //! provides, and the misfit grows monotonically with lambda, so a bisection in
 //! log(lambda) finds it. One `T^T T` serves every trial.
 
-use super::admm::{admm_tv_prepared, AdmmSettings};
+use super::admm::{admm_tv_prepared, admm_tv_warm, AdmmSettings, AdmmState};
 use super::gram::Normal;
 use super::{check_measurement, Reconstruction, SolveError};
 use crate::transport::Transport;
@@ -215,6 +215,20 @@ pub fn admm_tv_resolved_prepared(
     singular_values: &[f64],
     settings: &AdmmSettings,
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
+    resolved(t, i, normal, noise, singular_values, settings, true)
+}
+
+/// The resolved-discrepancy rule, its trials solved as a warm path or each
+/// from zero (`warm = false`, the cold search the path is checked against).
+fn resolved(
+    t: &Transport,
+    i: &[f64],
+    normal: &Normal,
+    noise: &NoiseLevel,
+    singular_values: &[f64],
+    settings: &AdmmSettings,
+    warm: bool,
+) -> Result<(Reconstruction, LambdaChoice), SolveError> {
     check_noise(noise, i)?;
     let unit = normal.unit();
     let mean_var = noise.mean_variance();
@@ -224,8 +238,8 @@ pub fn admm_tv_resolved_prepared(
         .filter(|&&s| s * RESOLVED_TOLERANCE >= sigma)
         .count()
         .max(1);
-    let mut trials = Vec::new();
-    let mut solve = |lambda: f64| trial(t, i, normal, settings, lambda, &mut trials);
+    let mut path = Path::new(t, i, normal, settings, warm);
+    let mut solve = |lambda: f64| path.solve(lambda);
     // Half-decade scan over SCAN_REL: the floor and a bracket.
     let scan: Vec<f64> = (0..=SCAN_STEPS)
         .map(|k| SCAN_REL.0 + (SCAN_REL.1 - SCAN_REL.0) * k as f64 / SCAN_STEPS as f64)
@@ -277,7 +291,7 @@ pub fn admm_tv_resolved_prepared(
         target,
         misfit: best.stats.data_misfit,
         lambda: best.stats.lambda.unwrap_or(0.0),
-        trials,
+        trials: path.trials,
     };
     Ok((best, choice))
 }
@@ -304,26 +318,69 @@ fn bisect(
     Ok(keep)
 }
 
-/// One ADMM-TV solve at `lambda`, recorded in `trials` as (lambda, misfit).
-fn trial(
-    t: &Transport,
-    i: &[f64],
-    normal: &Normal,
-    settings: &AdmmSettings,
-    lambda: f64,
-    trials: &mut Vec<(f64, f64)>,
-) -> Result<Reconstruction, SolveError> {
-    let r = admm_tv_prepared(
-        t,
-        i,
-        normal,
-        &AdmmSettings {
+/// The λ trials on one measurement, solved as a path: one Gram, one
+/// factor carried from trial to trial (its penalty kept, so no new
+/// factorization unless residual balancing asks for one), and each trial
+/// started from the iterate of the nearest λ solved so far (its TV dual
+/// scaled to the new λ) instead of from zero.
+struct Path<'a> {
+    t: &'a Transport,
+    i: &'a [f64],
+    normal: &'a Normal,
+    settings: &'a AdmmSettings<'a>,
+    /// Whether trials start from their neighbours (else from zero, the cold search).
+    warm: bool,
+    state: AdmmState,
+    /// (log10 lambda, iterate) of every trial.
+    points: Vec<(f64, AdmmState)>,
+    /// Every (lambda, misfit) tried, in order.
+    trials: Vec<(f64, f64)>,
+}
+
+impl<'a> Path<'a> {
+    fn new(
+        t: &'a Transport,
+        i: &'a [f64],
+        normal: &'a Normal,
+        settings: &'a AdmmSettings<'a>,
+        warm: bool,
+    ) -> Self {
+        Self {
+            t,
+            i,
+            normal,
+            settings,
+            warm,
+            state: AdmmState::default(),
+            points: Vec::new(),
+            trials: Vec::new(),
+        }
+    }
+
+    /// One ADMM-TV solve at `lambda`, recorded as (lambda, misfit).
+    fn solve(&mut self, lambda: f64) -> Result<Reconstruction, SolveError> {
+        let settings = AdmmSettings {
             lambda: Some(lambda),
-            ..*settings
-        },
-    )?;
-    trials.push((lambda, r.stats.data_misfit));
-    Ok(r)
+            ..*self.settings
+        };
+        let x = lambda.log10();
+        let r = if self.warm {
+            let nearest = self
+                .points
+                .iter()
+                .min_by(|a, b| (a.0 - x).abs().total_cmp(&(b.0 - x).abs()));
+            if let Some((y, from)) = nearest {
+                self.state.start_from(from, 10f64.powf(x - y));
+            }
+            let r = admm_tv_warm(self.t, self.i, self.normal, &settings, &mut self.state)?;
+            self.points.push((x, self.state.iterate()));
+            r
+        } else {
+            admm_tv_prepared(self.t, self.i, self.normal, &settings)?
+        };
+        self.trials.push((lambda, r.stats.data_misfit));
+        Ok(r)
+    }
 }
 
 /// Scan range of [`admm_tv_resolved`], log10 of lambda relative to `mean(diag(T^T T))`.
@@ -359,8 +416,8 @@ pub fn admm_tv_discrepancy(
     let normal = Normal::of(t, i);
     let unit = normal.unit();
     let target = noise.total();
-    let mut trials = Vec::new();
-    let mut solve = |lambda: f64| trial(t, i, &normal, settings, lambda, &mut trials);
+    let mut path = Path::new(t, i, &normal, settings, false);
+    let mut solve = |lambda: f64| path.solve(lambda);
     let (lo, hi) = ((RANGE_REL.0 * unit).log10(), (RANGE_REL.1 * unit).log10());
     let at_hi = solve(10f64.powf(hi))?;
     let mut warning = None;
@@ -391,7 +448,7 @@ pub fn admm_tv_discrepancy(
         target,
         misfit: best.stats.data_misfit,
         lambda: best.stats.lambda.unwrap_or(0.0),
-        trials,
+        trials: path.trials,
     };
     Ok((best, choice))
 }
@@ -450,5 +507,45 @@ mod tests {
             "pivot columns {}",
             fast / s2
         );
+    }
+
+    #[test]
+    fn the_warm_path_picks_the_cold_search_lambda() {
+        for n in [12, 24] {
+            let t = bench(n);
+            let truth = crate::simulate::patterns::Pattern::Disk.render(t.scene_grid);
+            let clean = t.apply(&truth);
+            let sigma = 0.01 * clean.iter().copied().fold(0.0, f64::max);
+            let i: Vec<f64> = clean
+                .iter()
+                .zip(gaussian(clean.len(), sigma, 11))
+                .map(|(a, b)| a + b)
+                .collect();
+            let normal = Normal::of(&t, &i);
+            let noise = NoiseLevel::measured(vec![sigma * sigma; i.len()]);
+            let sv = crate::solve::condition(&t).unwrap().singular_values;
+            let settings = AdmmSettings {
+                max_iter: 5000,
+                ..AdmmSettings::default()
+            };
+            let solve = |warm| resolved(&t, &i, &normal, &noise, &sv, &settings, warm).unwrap();
+            let (cold, cold_choice) = solve(false);
+            let (warm, warm_choice) = solve(true);
+            let decades = (warm_choice.lambda / cold_choice.lambda).log10().abs();
+            let psnr = |r: &Reconstruction| crate::solve::metrics::psnr(&truth, &r.image);
+            println!(
+                "{n}x{n}: lambda {:.4e} (cold) {:.4e} (warm), {decades:.4} decade apart; PSNR {:.2} / {:.2} dB",
+                cold_choice.lambda,
+                warm_choice.lambda,
+                psnr(&cold),
+                psnr(&warm)
+            );
+            // One bisection step: 0.5 / 2^BISECT_STEPS decade.
+            assert!(
+                decades <= 0.5 / (1 << BISECT_STEPS) as f64 + 1e-9,
+                "{decades}"
+            );
+            assert!((psnr(&cold) - psnr(&warm)).abs() < 0.05);
+        }
     }
 }
