@@ -9,7 +9,9 @@ polnlos bench runs it on the same scene file and measurement and compares
 both the matrix and the recovery; it is not part of the product.
 
 Usage: peer.py SCENE.toml --wall N --scene-grid N --measurement i.npy --out DIR
-Writes DIR/T.npy (float64, C order), DIR/recovered.npy and DIR/peer.json.
+              [--iterations K] [--no-save]
+Writes DIR/T.npy (float64, C order; not with --no-save), DIR/recovered.npy
+and DIR/peer.json.
 """
 
 import argparse
@@ -205,6 +207,8 @@ def main():
     ap.add_argument("--scene-grid", type=int, required=True)
     ap.add_argument("--measurement", required=True)
     ap.add_argument("--out", required=True)
+    ap.add_argument("--iterations", type=int, default=200)
+    ap.add_argument("--no-save", action="store_true", help="do not write T.npy (large grids)")
     a = ap.parse_args()
     with open(a.scene, "rb") as f:
         cfg = tomllib.load(f)
@@ -212,8 +216,9 @@ def main():
     T = build(cfg, a.wall, a.scene_grid)
     build_s = time.perf_counter() - t0
     i = np.load(a.measurement)
-    rec, gram_s, factor_s, iterate_s = admm(T, i, a.scene_grid, a.scene_grid)
-    np.save(f"{a.out}/T.npy", T)
+    rec, gram_s, factor_s, iterate_s = admm(T, i, a.scene_grid, a.scene_grid, a.iterations)
+    if not a.no_save:
+        np.save(f"{a.out}/T.npy", T)
     np.save(f"{a.out}/recovered.npy", rec)
     with open(f"{a.out}/peer.json", "w") as f:
         json.dump(
@@ -224,6 +229,7 @@ def main():
                 "gram_seconds": gram_s,
                 "factor_seconds": factor_s,
                 "iterate_seconds": iterate_s,
+                "iterations": a.iterations,
             },
             f,
         )

@@ -12,6 +12,7 @@ pub mod peer;
 pub mod rendered;
 pub mod report;
 pub mod sampling;
+pub mod scaling;
 pub mod speed;
 pub mod stability;
 mod tables;

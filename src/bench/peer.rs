@@ -19,7 +19,7 @@ use crate::solve::admm::LAMBDA_REL;
 use crate::solve::{admm_tv, metrics, AdmmSettings};
 use crate::transport::build;
 
-static SCRIPT: &str = include_str!("../../benches/peer/peer.py");
+pub(crate) static SCRIPT: &str = include_str!("../../benches/peer/peer.py");
 
 /// ADMM iterations timed on both sides.
 pub const ITERATIONS: usize = 200;
@@ -70,7 +70,7 @@ fn io(what: &str, e: impl std::fmt::Display) -> BenchError {
 }
 
 /// Whether `python3` with NumPy runs here; the reason if not.
-fn numpy_available() -> Result<String, String> {
+pub(crate) fn numpy_available() -> Result<String, String> {
     let out = Command::new("python3")
         .args(["-c", "import numpy; print(numpy.__version__)"])
         .output()

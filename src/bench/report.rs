@@ -58,6 +58,8 @@ pub struct BenchPlan {
     pub rendered: std::path::PathBuf,
     /// ... and the cases of it reconstructed.
     pub rendered_cases: Vec<&'static str>,
+    /// Wall grid side and scene grid sides of the end-to-end scaling sweep.
+    pub scaling: (usize, Vec<usize>),
 }
 
 impl BenchPlan {
@@ -79,12 +81,14 @@ impl BenchPlan {
             lambda_photons: vec![1e4],
             rendered: super::rendered::DEFAULT_DIR.into(),
             rendered_cases: vec!["nopol", "crossed"],
+            scaling: (32, vec![8]),
         }
     }
 
     /// The full run (about 5 min on 2 cores, most of it the λ sweep): adds
     /// the 8x8 grids, the M and L speed sizes with 3 seeds, finer sweeps, the
-    /// λ sweep on 4 scenes at 16x16, the peer at wall 64 x scene 32.
+    /// λ sweep on 4 scenes at 16x16, the peer at wall 64 x scene 32, and
+    /// the end-to-end reconstruction at wall 64 x scene 16 to 64 (about 2 min).
     pub fn full() -> Self {
         Self {
             quick: false,
@@ -107,6 +111,7 @@ impl BenchPlan {
             lambda_photons: vec![1e3, 1e4, 1e5],
             rendered: super::rendered::DEFAULT_DIR.into(),
             rendered_cases: super::rendered::REPORT_CASES.iter().map(|c| c.0).collect(),
+            scaling: (64, vec![16, 32, 48, 64]),
         }
     }
 
@@ -130,6 +135,7 @@ impl BenchPlan {
             + 1
             + super::lambda::lambda_len(self.lambda_scenes.len(), self.lambda_photons.len())
             + self.rendered_cases.len()
+            + self.scaling.1.len()
     }
 
     /// Runs every report, calling `step()` as each row is done; the NumPy
@@ -184,6 +190,19 @@ impl BenchPlan {
                 &self.rendered_cases,
                 step,
             )?),
+            Box::new({
+                let exe = std::env::current_exe()
+                    .map_err(|e| BenchError::Peer(format!("the polnlos binary: {e}")))?;
+                let scaling = super::scaling::scaling_sweep(
+                    &exe,
+                    self.scaling.0,
+                    &self.scaling.1,
+                    &work.join("scaling"),
+                    step,
+                );
+                let _ = std::fs::remove_dir_all(work);
+                scaling?
+            }),
             Box::new(speed::Speed {
                 seeds: self.speed_seeds,
                 summary: speed::summarize(&runs),

@@ -9,12 +9,14 @@
 
 use std::time::Instant;
 
+use faer::linalg::solvers::Llt;
 use faer::linalg::triangular_solve::{
     solve_lower_triangular_in_place, solve_upper_triangular_in_place,
 };
 use faer::{MatMut, Par, Side};
 
 use super::gram::Normal;
+use super::lowrank::Workspace;
 use super::tv::{add_divergence_adjoint, add_laplacian_lower, gradient, total_variation};
 use super::{
     check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats, Stop,
@@ -68,19 +70,55 @@ const BALANCE_MU: f64 = 10.0;
 /// ... at most this many times per solve (each costs a Cholesky).
 const MAX_REFACTOR: usize = 20;
 
-/// Cholesky factor of `T^T T + rho (D^T D + I)`.
-fn factorize(
-    normal: &Normal,
-    grid: crate::scene::Grid,
-    rho: f64,
-) -> Result<faer::linalg::solvers::Llt<f64>, SolveError> {
+/// The factor of `T^T T + rho (D^T D + I)`: a dense Cholesky, or through
+/// the Gram's low-rank form (the Cholesky of an `r x r` matrix, Woodbury).
+pub(crate) enum Factor {
+    Dense(Llt<f64>),
+    LowRank(Llt<f64>),
+}
+
+/// Factor of `T^T T + rho (D^T D + I)`.
+fn factorize(normal: &Normal, grid: crate::scene::Grid, rho: f64) -> Result<Factor, SolveError> {
+    if let Some(lr) = &normal.low_rank {
+        return Ok(Factor::LowRank(lr.factor(rho)?));
+    }
     let n = normal.gram.nrows();
     let mut a = normal.gram.clone();
     for k in 0..n {
         a[(k, k)] += rho;
     }
     add_laplacian_lower(grid, rho, |r, c, v| a[(r, c)] += v);
-    a.llt(Side::Lower).map_err(|e| SolveError::Factorization(format!("Cholesky of T^T T + rho (D^T D + I) failed ({e:?}); rho = {rho} may be too small against the entries of T")))
+    a.llt(Side::Lower).map(Factor::Dense).map_err(|e| SolveError::Factorization(format!("Cholesky of T^T T + rho (D^T D + I) failed ({e:?}); rho = {rho} may be too small against the entries of T")))
+}
+
+/// Dense triangular solves go parallel from this many unknowns (below,
+/// rayon's hand-off costs more than it saves).
+const PAR_SOLVE_MIN: usize = 1024;
+
+/// `x <- (T^T T + rho (D^T D + I))^-1 x` with `factor` (made for this `rho`).
+fn solve_system(normal: &Normal, factor: &Factor, rho: f64, x: &mut [f64], ws: &mut Workspace) {
+    match (factor, &normal.low_rank) {
+        (Factor::LowRank(f), Some(lr)) => lr.solve(f, rho, x, ws),
+        (Factor::Dense(f), _) => {
+            let n = x.len();
+            let par = if n >= PAR_SOLVE_MIN {
+                super::gram::par()
+            } else {
+                Par::Seq
+            };
+            let mut xm = MatMut::from_column_major_slice_mut(x, n, 1);
+            solve_lower_triangular_in_place(f.L(), xm.as_mut(), par);
+            solve_upper_triangular_in_place(f.L().transpose(), xm.as_mut(), par);
+        }
+        (Factor::LowRank(_), None) => {
+            unreachable!("a low-rank factor comes from a low-rank Normal")
+        }
+    }
+}
+
+/// Whether `factor` was made from this kind of `normal`.
+fn fits(normal: &Normal, factor: &Factor) -> bool {
+    matches!(factor, Factor::LowRank(_)) == normal.low_rank.is_some()
 }
 
 /// Runs ADMM-TV on a measurement `i` of the scene seen through `t`.
@@ -90,7 +128,7 @@ pub fn admm_tv(
     settings: &AdmmSettings,
 ) -> Result<Reconstruction, SolveError> {
     check_measurement(t, i)?;
-    let normal = Normal::new(t.as_mat(), i);
+    let normal = Normal::of(t, i);
     admm_tv_prepared(t, i, &normal, settings)
 }
 
@@ -101,7 +139,7 @@ pub fn admm_tv(
 /// factorization and few iterations.
 #[derive(Default)]
 pub struct AdmmState {
-    factor: Option<(f64, faer::linalg::solvers::Llt<f64>)>,
+    factor: Option<(f64, Factor)>,
     l: Vec<f64>,
     z1: Vec<f64>,
     z2: Vec<f64>,
@@ -113,6 +151,31 @@ impl AdmmState {
     /// The image of the last solve (empty before the first).
     pub fn image(&self) -> &[f64] {
         &self.z2
+    }
+
+    /// A copy of the iterate without the factor (a point of a λ path).
+    pub fn iterate(&self) -> AdmmState {
+        AdmmState {
+            factor: None,
+            l: self.l.clone(),
+            z1: self.z1.clone(),
+            z2: self.z2.clone(),
+            u1: self.u1.clone(),
+            u2: self.u2.clone(),
+        }
+    }
+
+    /// Starts the next solve from `from`'s iterate, keeping this state's
+    /// factor, for a TV weight `tv_ratio` times `from`'s: the scaled TV dual
+    /// (bounded by `lambda / 2 rho` and at that bound on every edge where the
+    /// image changes) is scaled with it.
+    pub fn start_from(&mut self, from: &AdmmState, tv_ratio: f64) {
+        self.l.clone_from(&from.l);
+        self.z1.clone_from(&from.z1);
+        self.z2.clone_from(&from.z2);
+        self.u2.clone_from(&from.u2);
+        self.u1.clone_from(&from.u1);
+        self.u1.iter_mut().for_each(|u| *u *= tv_ratio);
     }
 }
 
@@ -185,7 +248,7 @@ pub fn admm_tv_warm(
     let t0 = Instant::now();
     let same_shape = state.l.len() == n;
     let mut llt = match state.factor.take() {
-        Some((r, f)) if same_shape && settings.rho.is_none_or(|x| x == r) => {
+        Some((r, f)) if same_shape && fits(normal, &f) && settings.rho.is_none_or(|x| x == r) => {
             rho = r;
             f
         }
@@ -210,6 +273,7 @@ pub fn admm_tv_warm(
     let mut w1 = vec![0.0; 2 * n];
     let mut rhs = vec![0.0; n];
     let mut dual = vec![0.0; n];
+    let mut ws = Workspace::default();
     let (mut r_norm, mut s_norm) = (f64::INFINITY, f64::INFINITY);
     let mut iterations = 0;
     let mut converged = false;
@@ -225,10 +289,7 @@ pub fn admm_tv_warm(
         for k in 0..n {
             rhs[k] = ti[k] + rho * (rhs[k] + z2[k] - u2[k]);
         }
-        let mut x = MatMut::from_column_major_slice_mut(&mut rhs, n, 1);
-        let l_factor = llt.L();
-        solve_lower_triangular_in_place(l_factor, x.as_mut(), Par::Seq);
-        solve_upper_triangular_in_place(l_factor.transpose(), x.as_mut(), Par::Seq);
+        solve_system(normal, &llt, rho, &mut rhs, &mut ws);
         l.copy_from_slice(&rhs);
 
         // z-updates, keeping the change of z for the dual residual.

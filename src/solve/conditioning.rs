@@ -23,8 +23,13 @@ pub struct Conditioning {
     pub kappa: f64,
     /// Number of singular values above the threshold.
     pub rank: usize,
-    /// `sigma_max * max(M, N) * 2.2e-16`.
+    /// `sigma_max * max(M, N) * 2.2e-16`; from the Gram ([`Self::from_low_rank`]),
+    /// its resolution when larger.
     pub threshold: f64,
+    /// Whether the spectrum comes from `T^T T` (resolved down to `threshold`
+    /// only) rather than from an SVD of `T`.
+    #[serde(skip)]
+    pub from_gram: bool,
 }
 
 impl Conditioning {
@@ -46,7 +51,41 @@ impl Conditioning {
             kappa,
             rank,
             threshold,
+            from_gram: false,
         }
+    }
+
+    /// From the low-rank form of `T^T T` (no SVD of `T`): the singular values
+    /// it resolves, those at or below its resolution (`sqrt` of the trace it
+    /// leaves out, by Weyl's inequality) counted as zero. Rank and kappa are
+    /// then those of `T` to that resolution, about 1e-7 of `sigma_max` instead
+    /// of the SVD's 1e-12: a `T` with singular values in between reads as
+    /// rank-deficient, which it is for every noise level a camera reaches.
+    pub fn from_low_rank(
+        rows: usize,
+        cols: usize,
+        low_rank: &super::lowrank::LowRank,
+    ) -> Result<Self, SolveError> {
+        let s = low_rank.singular_values()?;
+        let smax = s.first().copied().unwrap_or(0.0);
+        let threshold = low_rank
+            .remainder
+            .max(0.0)
+            .sqrt()
+            .max(smax * rows.max(cols) as f64 * RANK_EPS);
+        let mut singular_values: Vec<f64> = s.into_iter().filter(|&v| v > threshold).collect();
+        singular_values.resize(rows.min(cols).max(singular_values.len()), 0.0);
+        let mut c = Self::from_singular_values(rows, cols, singular_values);
+        if c.threshold < threshold {
+            c.threshold = threshold;
+            c.rank = c.singular_values.iter().filter(|&&v| v > threshold).count();
+            let smin = c.singular_values.last().copied().unwrap_or(0.0);
+            if smin <= threshold {
+                c.kappa = f64::INFINITY;
+            }
+        }
+        c.from_gram = true;
+        Ok(c)
     }
 
     /// Whether `T` is rank-deficient (kappa infinite).

@@ -4,6 +4,9 @@
 use faer::linalg::matmul::triangular::{matmul, BlockStructure};
 use faer::{Accum, Mat, MatRef, Par};
 
+use super::lowrank::{LowRank, LOW_RANK_MIN_COLS};
+use crate::transport::Transport;
+
 /// Lower triangle of `T^T T` (the strict upper triangle is left zero).
 pub fn gram_lower(t: MatRef<'_, f64>, par: Par) -> Mat<f64> {
     let n = t.ncols();
@@ -51,6 +54,9 @@ pub struct Normal {
     pub ti: Vec<f64>,
     /// `mean(diag(T^T T))`, the unit of `lambda` and `rho` defaults.
     pub scale: f64,
+    /// `T^T T ~ W W^T` when `T` has many columns and low numerical rank
+    /// ([`Normal::of`]): ADMM then solves through it (see [`super::lowrank`]).
+    pub low_rank: Option<LowRank>,
     /// Seconds it took.
     pub seconds: f64,
 }
@@ -66,8 +72,22 @@ impl Normal {
             gram,
             ti,
             scale,
+            low_rank: None,
             seconds: start.elapsed().as_secs_f64(),
         }
+    }
+
+    /// [`Normal::new`] for `t`, with the low-rank form of the Gram when `t`
+    /// has at least [`LOW_RANK_MIN_COLS`] columns and a numerical rank of at
+    /// most a quarter of them.
+    pub fn of(t: &Transport, i: &[f64]) -> Self {
+        let start = std::time::Instant::now();
+        let mut normal = Self::new(t.as_mat(), i);
+        if t.cols() >= LOW_RANK_MIN_COLS {
+            normal.low_rank = LowRank::of_gram(normal.gram.as_ref(), t.scene_grid, par());
+        }
+        normal.seconds = start.elapsed().as_secs_f64();
+        normal
     }
 
     /// `scale`, or 1 for an all-zero `T`.

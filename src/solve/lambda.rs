@@ -7,7 +7,7 @@
 //! provides, and the misfit grows monotonically with lambda, so a bisection in
 //! log(lambda) finds it. One `T^T T` serves every trial.
 
-use super::admm::{admm_tv_prepared, AdmmSettings};
+use super::admm::{admm_tv_prepared, admm_tv_warm, AdmmSettings, AdmmState};
 use super::gram::Normal;
 use super::{check_measurement, Reconstruction, SolveError};
 use crate::transport::Transport;
@@ -56,9 +56,18 @@ impl NoiseLevel {
     /// when `M - N < MIN_RESIDUAL_DOF` or `i` does not fit `T`. Model error
     /// counts as noise here, so a mismatched model gets more smoothing, not less.
     pub fn from_residual(t: &Transport, i: &[f64]) -> Option<Self> {
-        let (m, n) = (t.rows(), t.cols());
-        let r = least_squares_residual(t, i)?;
-        let var = r.iter().map(|x| x * x).sum::<f64>() / (m - n) as f64;
+        Self::from_residual_with(t, i, None)
+    }
+
+    /// [`NoiseLevel::from_residual`] with the Gram already formed: when it
+    /// has a low-rank form, range(T) is spanned (to its tolerance) by the
+    /// `r` pivot columns, so the QR is of those `M x r` columns and the
+    /// residual has `M - r` degrees of freedom (instead of a QR of all of
+    /// `T`, `2 M N^2` flops and an `M x N` `Q`).
+    pub fn from_residual_with(t: &Transport, i: &[f64], normal: Option<&Normal>) -> Option<Self> {
+        let m = t.rows();
+        let (r, fitted) = residual_and_rank(t, i, normal)?;
+        let var = r.iter().map(|x| x * x).sum::<f64>() / (m - fitted) as f64;
         var.is_finite().then(|| Self {
             variance: vec![var; m],
             source: NoiseSource::Residual,
@@ -104,15 +113,40 @@ impl NoiseLevel {
 /// what no scene can explain. `None` when `M - N < MIN_RESIDUAL_DOF` or `i`
 /// does not fit `T`.
 pub fn least_squares_residual(t: &Transport, i: &[f64]) -> Option<Vec<f64>> {
+    residual_and_rank(t, i, None).map(|(r, _)| r)
+}
+
+/// [`least_squares_residual`] with the Gram already formed (see
+/// [`NoiseLevel::from_residual_with`]).
+pub fn least_squares_residual_with(
+    t: &Transport,
+    i: &[f64],
+    normal: Option<&Normal>,
+) -> Option<Vec<f64>> {
+    residual_and_rank(t, i, normal).map(|(r, _)| r)
+}
+
+/// The residual outside range(T) and the dimension of the space fitted.
+fn residual_and_rank(
+    t: &Transport,
+    i: &[f64],
+    normal: Option<&Normal>,
+) -> Option<(Vec<f64>, usize)> {
     let (m, n) = (t.rows(), t.cols());
     if i.len() != m || m < n + MIN_RESIDUAL_DOF || i.iter().any(|v| !v.is_finite()) {
         return None;
     }
-    let q = t.as_mat().qr().compute_thin_Q();
     let b = faer::Mat::<f64>::from_fn(m, 1, |r, _| i[r]);
+    let (q, fitted) = match normal.and_then(|nm| nm.low_rank.as_ref()) {
+        Some(lr) => {
+            let cols = faer::Mat::<f64>::from_fn(m, lr.pivots.len(), |r, k| t.col(lr.pivots[k])[r]);
+            (cols.qr().compute_thin_Q(), lr.pivots.len())
+        }
+        None => (t.as_mat().qr().compute_thin_Q(), n),
+    };
     let c = q.transpose() * &b;
     let fit = &q * &c;
-    Some((0..m).map(|r| i[r] - fit[(r, 0)]).collect())
+    Some(((0..m).map(|r| i[r] - fit[(r, 0)]).collect(), fitted))
 }
 
 /// How the automatic lambda was found (the `lambda_choice` of a report).
@@ -168,7 +202,34 @@ pub fn admm_tv_resolved(
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
     check_measurement(t, i)?;
     check_noise(noise, i)?;
-    let normal = Normal::new(t.as_mat(), i);
+    let normal = Normal::of(t, i);
+    admm_tv_resolved_prepared(t, i, &normal, noise, singular_values, settings)
+}
+
+/// [`admm_tv_resolved`] with `T^T T` and `T^T i` already formed (`i` already checked).
+pub fn admm_tv_resolved_prepared(
+    t: &Transport,
+    i: &[f64],
+    normal: &Normal,
+    noise: &NoiseLevel,
+    singular_values: &[f64],
+    settings: &AdmmSettings,
+) -> Result<(Reconstruction, LambdaChoice), SolveError> {
+    resolved(t, i, normal, noise, singular_values, settings, true)
+}
+
+/// The resolved-discrepancy rule, its trials solved as a warm path or each
+/// from zero (`warm = false`, the cold search the path is checked against).
+fn resolved(
+    t: &Transport,
+    i: &[f64],
+    normal: &Normal,
+    noise: &NoiseLevel,
+    singular_values: &[f64],
+    settings: &AdmmSettings,
+    warm: bool,
+) -> Result<(Reconstruction, LambdaChoice), SolveError> {
+    check_noise(noise, i)?;
     let unit = normal.unit();
     let mean_var = noise.mean_variance();
     let sigma = mean_var.sqrt();
@@ -177,8 +238,8 @@ pub fn admm_tv_resolved(
         .filter(|&&s| s * RESOLVED_TOLERANCE >= sigma)
         .count()
         .max(1);
-    let mut trials = Vec::new();
-    let mut solve = |lambda: f64| trial(t, i, &normal, settings, lambda, &mut trials);
+    let mut path = Path::new(t, i, normal, settings, warm);
+    let mut solve = |lambda: f64| path.solve(lambda);
     // Half-decade scan over SCAN_REL: the floor and a bracket.
     let scan: Vec<f64> = (0..=SCAN_STEPS)
         .map(|k| SCAN_REL.0 + (SCAN_REL.1 - SCAN_REL.0) * k as f64 / SCAN_STEPS as f64)
@@ -230,7 +291,7 @@ pub fn admm_tv_resolved(
         target,
         misfit: best.stats.data_misfit,
         lambda: best.stats.lambda.unwrap_or(0.0),
-        trials,
+        trials: path.trials,
     };
     Ok((best, choice))
 }
@@ -257,26 +318,69 @@ fn bisect(
     Ok(keep)
 }
 
-/// One ADMM-TV solve at `lambda`, recorded in `trials` as (lambda, misfit).
-fn trial(
-    t: &Transport,
-    i: &[f64],
-    normal: &Normal,
-    settings: &AdmmSettings,
-    lambda: f64,
-    trials: &mut Vec<(f64, f64)>,
-) -> Result<Reconstruction, SolveError> {
-    let r = admm_tv_prepared(
-        t,
-        i,
-        normal,
-        &AdmmSettings {
+/// The λ trials on one measurement, solved as a path: one Gram, one
+/// factor carried from trial to trial (its penalty kept, so no new
+/// factorization unless residual balancing asks for one), and each trial
+/// started from the iterate of the nearest λ solved so far (its TV dual
+/// scaled to the new λ) instead of from zero.
+struct Path<'a> {
+    t: &'a Transport,
+    i: &'a [f64],
+    normal: &'a Normal,
+    settings: &'a AdmmSettings<'a>,
+    /// Whether trials start from their neighbours (else from zero, the cold search).
+    warm: bool,
+    state: AdmmState,
+    /// (log10 lambda, iterate) of every trial.
+    points: Vec<(f64, AdmmState)>,
+    /// Every (lambda, misfit) tried, in order.
+    trials: Vec<(f64, f64)>,
+}
+
+impl<'a> Path<'a> {
+    fn new(
+        t: &'a Transport,
+        i: &'a [f64],
+        normal: &'a Normal,
+        settings: &'a AdmmSettings<'a>,
+        warm: bool,
+    ) -> Self {
+        Self {
+            t,
+            i,
+            normal,
+            settings,
+            warm,
+            state: AdmmState::default(),
+            points: Vec::new(),
+            trials: Vec::new(),
+        }
+    }
+
+    /// One ADMM-TV solve at `lambda`, recorded as (lambda, misfit).
+    fn solve(&mut self, lambda: f64) -> Result<Reconstruction, SolveError> {
+        let settings = AdmmSettings {
             lambda: Some(lambda),
-            ..*settings
-        },
-    )?;
-    trials.push((lambda, r.stats.data_misfit));
-    Ok(r)
+            ..*self.settings
+        };
+        let x = lambda.log10();
+        let r = if self.warm {
+            let nearest = self
+                .points
+                .iter()
+                .min_by(|a, b| (a.0 - x).abs().total_cmp(&(b.0 - x).abs()));
+            if let Some((y, from)) = nearest {
+                self.state.start_from(from, 10f64.powf(x - y));
+            }
+            let r = admm_tv_warm(self.t, self.i, self.normal, &settings, &mut self.state)?;
+            self.points.push((x, self.state.iterate()));
+            r
+        } else {
+            admm_tv_prepared(self.t, self.i, self.normal, &settings)?
+        };
+        self.trials.push((lambda, r.stats.data_misfit));
+        Ok(r)
+    }
 }
 
 /// Scan range of [`admm_tv_resolved`], log10 of lambda relative to `mean(diag(T^T T))`.
@@ -309,11 +413,11 @@ pub fn admm_tv_discrepancy(
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
     check_measurement(t, i)?;
     check_noise(noise, i)?;
-    let normal = Normal::new(t.as_mat(), i);
+    let normal = Normal::of(t, i);
     let unit = normal.unit();
     let target = noise.total();
-    let mut trials = Vec::new();
-    let mut solve = |lambda: f64| trial(t, i, &normal, settings, lambda, &mut trials);
+    let mut path = Path::new(t, i, &normal, settings, false);
+    let mut solve = |lambda: f64| path.solve(lambda);
     let (lo, hi) = ((RANGE_REL.0 * unit).log10(), (RANGE_REL.1 * unit).log10());
     let at_hi = solve(10f64.powf(hi))?;
     let mut warning = None;
@@ -344,7 +448,104 @@ pub fn admm_tv_discrepancy(
         target,
         misfit: best.stats.data_misfit,
         lambda: best.stats.lambda.unwrap_or(0.0),
-        trials,
+        trials: path.trials,
     };
     Ok((best, choice))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{Grid, Scene};
+    use crate::transport::build;
+
+    /// Brewster bench, poses B and C, wall 32x32, scene `n x n`.
+    pub(super) fn bench(n: usize) -> Transport {
+        let mut s = Scene::builtin("brewster-multi").unwrap().unwrap();
+        s.scene.plane.grid = Grid { nu: n, nv: n };
+        build(&s).unwrap()
+    }
+
+    /// Gaussian noise of standard deviation `sigma` (Box-Muller on an LCG).
+    pub(super) fn gaussian(len: usize, sigma: f64, seed: u64) -> Vec<f64> {
+        let mut x = seed;
+        let mut u = || {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((x >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        (0..len)
+            .map(|_| sigma * (-2.0 * u().ln()).sqrt() * (std::f64::consts::TAU * u()).cos())
+            .collect()
+    }
+
+    #[test]
+    fn noise_from_the_pivot_columns_matches_the_full_qr() {
+        // 576 columns, rank far lower: the low-rank form is taken.
+        let t = bench(24);
+        let truth = crate::simulate::patterns::Pattern::Letter.render(t.scene_grid);
+        let clean = t.apply(&truth);
+        let sigma = 0.01 * clean.iter().copied().fold(0.0, f64::max);
+        let i: Vec<f64> = clean
+            .iter()
+            .zip(gaussian(clean.len(), sigma, 7))
+            .map(|(a, b)| a + b)
+            .collect();
+        let normal = Normal::of(&t, &i);
+        let lr = normal.low_rank.as_ref().expect("low rank");
+        assert!(lr.rank() < t.cols() / 4, "rank {}", lr.rank());
+        let full = NoiseLevel::from_residual(&t, &i).unwrap().mean_variance();
+        let fast = NoiseLevel::from_residual_with(&t, &i, Some(&normal))
+            .unwrap()
+            .mean_variance();
+        let s2 = sigma * sigma;
+        // Both unbiased; 2048 - 576 and 2048 - r degrees of freedom.
+        assert!((full / s2 - 1.0).abs() < 0.08, "full QR {}", full / s2);
+        assert!(
+            (fast / s2 - 1.0).abs() < 0.08,
+            "pivot columns {}",
+            fast / s2
+        );
+    }
+
+    #[test]
+    fn the_warm_path_picks_the_cold_search_lambda() {
+        for n in [12, 24] {
+            let t = bench(n);
+            let truth = crate::simulate::patterns::Pattern::Disk.render(t.scene_grid);
+            let clean = t.apply(&truth);
+            let sigma = 0.01 * clean.iter().copied().fold(0.0, f64::max);
+            let i: Vec<f64> = clean
+                .iter()
+                .zip(gaussian(clean.len(), sigma, 11))
+                .map(|(a, b)| a + b)
+                .collect();
+            let normal = Normal::of(&t, &i);
+            let noise = NoiseLevel::measured(vec![sigma * sigma; i.len()]);
+            let sv = crate::solve::condition(&t).unwrap().singular_values;
+            let settings = AdmmSettings {
+                max_iter: 5000,
+                ..AdmmSettings::default()
+            };
+            let solve = |warm| resolved(&t, &i, &normal, &noise, &sv, &settings, warm).unwrap();
+            let (cold, cold_choice) = solve(false);
+            let (warm, warm_choice) = solve(true);
+            let decades = (warm_choice.lambda / cold_choice.lambda).log10().abs();
+            let psnr = |r: &Reconstruction| crate::solve::metrics::psnr(&truth, &r.image);
+            println!(
+                "{n}x{n}: lambda {:.4e} (cold) {:.4e} (warm), {decades:.4} decade apart; PSNR {:.2} / {:.2} dB",
+                cold_choice.lambda,
+                warm_choice.lambda,
+                psnr(&cold),
+                psnr(&warm)
+            );
+            // One bisection step: 0.5 / 2^BISECT_STEPS decade.
+            assert!(
+                decades <= 0.5 / (1 << BISECT_STEPS) as f64 + 1e-9,
+                "{decades}"
+            );
+            assert!((psnr(&cold) - psnr(&warm)).abs() < 0.05);
+        }
+    }
 }

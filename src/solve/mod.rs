@@ -13,6 +13,7 @@ pub mod conditioning;
 pub mod fista;
 pub mod gram;
 pub mod lambda;
+pub mod lowrank;
 pub mod metrics;
 pub mod plan;
 pub mod reconstruct;

@@ -11,10 +11,12 @@
 use serde::{Deserialize, Serialize};
 
 use super::adequacy::Adequacy;
+use super::admm::admm_tv_prepared;
 use super::conditioning::Conditioning;
+use super::gram::Normal;
 use super::lambda::{
-    admm_tv_resolved, least_squares_residual, LambdaChoice, NoiseLevel, NoiseSource,
-    RESOLVED_TOLERANCE,
+    admm_tv_resolved, admm_tv_resolved_prepared, least_squares_residual_with, LambdaChoice,
+    NoiseLevel, NoiseSource, RESOLVED_TOLERANCE,
 };
 use super::report::{mean_snr, snr_warnings, Report};
 use super::{
@@ -176,11 +178,35 @@ pub fn reconstruct(
     ctx: Context<'_>,
 ) -> Result<Solved, SolveError> {
     req.check()?;
+    let normal = if req.solver == Solver::AdmmTv {
+        super::check_measurement(t, i)?;
+        Some(Normal::of(t, i))
+    } else {
+        None
+    };
+    reconstruct_prepared(t, i, noise, cond, normal.as_ref(), req, ctx)
+}
+
+/// [`reconstruct`] with `T^T T` and `T^T i` already formed for ADMM-TV
+/// (`normal`, made with [`Normal::of`] from this `t` and `i`): one Gram, and
+/// its low-rank form, serve the conditioning, the noise estimate, every λ
+/// trial and the solve.
+pub fn reconstruct_prepared(
+    t: &Transport,
+    i: &[f64],
+    noise: Option<NoiseLevel>,
+    cond: &Conditioning,
+    normal: Option<&Normal>,
+    req: &SolveRequest,
+    ctx: Context<'_>,
+) -> Result<Solved, SolveError> {
+    req.check()?;
+    super::check_measurement(t, i)?;
     let tv = matches!(req.solver, Solver::AdmmTv | Solver::FistaTv);
     let auto = tv && req.lambda.is_none();
     let noise = match noise {
         Some(n) => Some(n),
-        None if auto => NoiseLevel::from_residual(t, i),
+        None if auto => NoiseLevel::from_residual_with(t, i, normal),
         None => None,
     };
     let mut warnings = Vec::new();
@@ -192,7 +218,11 @@ pub fn reconstruct(
     if auto {
         match &noise {
             Some(n) => {
-                let (r, choice) = admm_tv_resolved(t, i, n, &cond.singular_values, &req.admm(true, ctx.stop))?;
+                let settings = req.admm(true, ctx.stop);
+                let (r, choice) = match normal {
+                    Some(nm) => admm_tv_resolved_prepared(t, i, nm, n, &cond.singular_values, &settings)?,
+                    None => admm_tv_resolved(t, i, n, &cond.singular_values, &settings)?,
+                };
                 lambda = Some(choice.lambda);
                 lambda_choice = Some(choice);
                 admm_result = Some(r);
@@ -207,7 +237,10 @@ pub fn reconstruct(
     let rec = match req.solver {
         Solver::AdmmTv => match admm_result {
             Some(r) => r,
-            None => admm_tv(t, i, &req.admm(false, ctx.stop))?,
+            None => match normal {
+                Some(nm) => admm_tv_prepared(t, i, nm, &req.admm(false, ctx.stop))?,
+                None => admm_tv(t, i, &req.admm(false, ctx.stop))?,
+            },
         },
         Solver::FistaTv => {
             let d = FistaSettings::default();
@@ -234,7 +267,7 @@ pub fn reconstruct(
     }
     let model_check = noise
         .as_ref()
-        .and_then(|n| model_check(t, i, n, lambda_choice.as_ref()));
+        .and_then(|n| model_check(t, i, n, lambda_choice.as_ref(), normal));
     warnings.extend(model_check.and_then(|a| a.warning("this measurement")));
     let image = rec.image.clone();
     let mut report = Report::new(
@@ -262,6 +295,7 @@ fn model_check(
     i: &[f64],
     noise: &NoiseLevel,
     choice: Option<&LambdaChoice>,
+    normal: Option<&Normal>,
 ) -> Option<Adequacy> {
     if noise.source == NoiseSource::Residual {
         return None;
@@ -269,7 +303,7 @@ fn model_check(
     if let Some((floor, p)) = choice.and_then(|c| Some((c.floor?, c.resolved?))) {
         return Some(Adequacy::of_misfit(floor, noise.total(), t.rows(), p));
     }
-    let r = least_squares_residual(t, i)?;
+    let r = least_squares_residual_with(t, i, normal)?;
     Some(Adequacy::of(&r, Some(&noise.variance), t.cols()))
 }
 

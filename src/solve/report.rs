@@ -106,8 +106,21 @@ impl Report {
 /// Warnings that the conditioning of `T` implies for any result.
 pub fn conditioning_warnings(c: &Conditioning) -> Vec<String> {
     if c.is_rank_deficient() {
+        let resolution = if c.from_gram {
+            format!(
+                ", counting singular values above {:.1e} of the largest (the resolution of T^T T)",
+                c.threshold
+                    / c.singular_values
+                        .first()
+                        .copied()
+                        .unwrap_or(1.0)
+                        .max(f64::MIN_POSITIVE)
+            )
+        } else {
+            String::new()
+        };
         vec![format!(
-            "T is rank-deficient (rank {} of {} scene elements): some scene patterns are invisible to this setup; use a coarser scene grid, more poses or polarizer angles",
+            "T is rank-deficient (rank {} of {} scene elements{resolution}): some scene patterns are invisible to this setup; use a coarser scene grid, more poses or polarizer angles",
             c.rank, c.cols
         )]
     } else if c.kappa > KAPPA_WARN {
