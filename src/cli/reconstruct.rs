@@ -164,7 +164,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     } else {
         None
     };
-    let cond = match normal.as_ref().and_then(|n| n.low_rank.as_ref()) {
+    let cond = match normal.as_ref().and_then(|n| n.low_rank()) {
         Some(lr) if !a.full_spectrum => Conditioning::from_low_rank(t.rows(), t.cols(), lr)?,
         _ => condition(&t)?,
     };

@@ -33,7 +33,7 @@ use crate::measure::{assemble, CaptureFrames, Units};
 use crate::scene::Scene;
 use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};
-use crate::solve::lambda::{admm_tv_resolved, NoiseLevel};
+use crate::solve::lambda::{admm_tv_resolved_prepared, NoiseLevel};
 use crate::solve::reconstruct::AUTO_MAX_ITER;
 use crate::store::CaptureRecord;
 use crate::transport::Transport;
@@ -201,7 +201,7 @@ impl Solver {
                 acc[t.block_rows(b)].copy_from_slice(&v[k * n..(k + 1) * n]);
             }
         }
-        let normal = Normal::new(t.as_mat(), &i);
+        let normal = Normal::with(d.scenes.gram(&capture.scene)?, &t, &i);
         let truth = spec
             .truth
             .as_deref()
@@ -279,9 +279,11 @@ impl Solver {
         };
         let (r, lambda) = match noise {
             Some(noise) => {
-                let (r, choice) = admm_tv_resolved(
+                self.normal.ti = adjoint(self.t.as_mat(), &self.i);
+                let (r, choice) = admm_tv_resolved_prepared(
                     &self.t,
                     &self.i,
+                    &self.normal,
                     &noise,
                     &self.singular_values.singular_values,
                     &AdmmSettings {

@@ -14,9 +14,10 @@ use super::Daemon;
 use crate::camera::PixelFormat;
 use crate::files::{image, json, npy};
 use crate::measure::{assemble, to_model_units, CaptureFrames, Measurement};
+use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
-use crate::solve::reconstruct::Context;
-use crate::solve::{reconstruct, SolveRequest, Stop};
+use crate::solve::reconstruct::{reconstruct_prepared, Context, Solver};
+use crate::solve::{check_measurement, SolveRequest, Stop};
 use crate::store::{read_mean, CaptureRecord, JobState};
 
 /// Takes reconstructions from the shared queue.
@@ -103,11 +104,21 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
         truth: truth.as_deref(),
         stop: Stop::on(cancel),
     };
-    let solved = reconstruct(
+    // ADMM-TV solves on the scene's cached Gram: only `T^T i` is new.
+    let normal = match solve.solver {
+        Solver::AdmmTv => {
+            check_measurement(&t, &i)?;
+            Some(Normal::with(d.scenes.gram(&rec.scene)?, &t, &i))
+        }
+        _ => None,
+    };
+    check(cancel)?;
+    let solved = reconstruct_prepared(
         &t,
         &i,
         var.map(NoiseLevel::measured),
         &cond,
+        normal.as_ref(),
         &solve,
         context,
     )?;

@@ -1,12 +1,14 @@
 //! Scenes the daemon knows by name: the built-in bench scenes and the
-//! config's `scene_files`, each with its transport matrix and its singular
-//! values computed once on first use (both depend on the scene alone).
+//! config's `scene_files`, each with its transport matrix, its Gram `T^T T`
+//! and its singular values computed once on first use (all depend on the
+//! scene alone): a repeat or progressive reconstruction forms only `T^T i`.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use crate::scene::{Scene, SceneError};
+use crate::solve::gram::Gram;
 use crate::solve::{condition, Conditioning, SolveError};
 use crate::transport::{build, Transport, TransportError};
 
@@ -45,6 +47,7 @@ pub struct Scenes {
     /// Each scene's TOML text, for writing calibrated copies of it.
     sources: BTreeMap<String, String>,
     transports: Mutex<BTreeMap<String, Arc<Transport>>>,
+    grams: Mutex<BTreeMap<String, Arc<Gram>>>,
     conditioning: Mutex<BTreeMap<String, Arc<Conditioning>>>,
 }
 
@@ -73,6 +76,7 @@ impl Scenes {
             scenes,
             sources,
             transports: Mutex::new(BTreeMap::new()),
+            grams: Mutex::new(BTreeMap::new()),
             conditioning: Mutex::new(BTreeMap::new()),
         })
     }
@@ -111,15 +115,29 @@ impl Scenes {
         })
     }
 
-    /// Singular values and kappa of a scene's `T`, computed on first use
-    /// (an SVD: call from a blocking task).
+    /// `T^T T` of a scene's `T`, with its low-rank form for a large `T`,
+    /// formed on first use (CPU-heavy: call from a blocking task).
+    pub fn gram(&self, name: &str) -> Result<Arc<Gram>, ScenesError> {
+        cached(&self.grams, name, || Ok(Gram::of(&*self.transport(name)?)))
+    }
+
+    /// Singular values and kappa of a scene's `T`, computed on first use:
+    /// from the low-rank form of its Gram when `T` has one (as `polnlos
+    /// reconstruct` does without `--full-spectrum`), else by an SVD (call
+    /// from a blocking task).
     pub fn conditioning(&self, name: &str) -> Result<Arc<Conditioning>, ScenesError> {
         cached(&self.conditioning, name, || {
             let t = self.transport(name)?;
-            condition(&t).map_err(|source| ScenesError::Conditioning {
+            let failed = |source| ScenesError::Conditioning {
                 name: name.to_string(),
                 source,
-            })
+            };
+            if t.cols() >= crate::solve::lowrank::LOW_RANK_MIN_COLS {
+                if let Some(lr) = self.gram(name)?.low_rank.as_ref() {
+                    return Conditioning::from_low_rank(t.rows(), t.cols(), lr).map_err(failed);
+                }
+            }
+            condition(&t).map_err(failed)
         })
     }
 }
@@ -139,4 +157,51 @@ fn cached<T>(
         m.insert(name.to_string(), v.clone());
     }
     Ok(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The built-in crossed bench scene with a 24x24 scene grid (576
+    /// columns, past the low-rank threshold), as a file.
+    fn large_scene(dir: &Path) -> std::path::PathBuf {
+        let text = crate::scene::builtin::BUILT_IN
+            .iter()
+            .find(|(n, _)| *n == "brewster-crossed")
+            .map(|(_, t)| *t)
+            .expect("built-in scene")
+            .replacen("grid = [8, 8]", "grid = [24, 24]", 1);
+        let path = dir.join("large.toml");
+        std::fs::write(&path, text).expect("write scene");
+        path
+    }
+
+    #[test]
+    fn gram_is_formed_once_and_conditioning_comes_from_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let scenes = Scenes::load(&[large_scene(dir.path())]).expect("scenes");
+        let first = scenes.gram("large").expect("gram");
+        let again = scenes.gram("large").expect("gram");
+        assert!(Arc::ptr_eq(&first, &again));
+        let t = scenes.transport("large").expect("T");
+        assert_eq!(first.lower.nrows(), t.cols());
+        let lr = first
+            .low_rank
+            .as_ref()
+            .expect("a 576-column bench T is low rank");
+        let cond = scenes.conditioning("large").expect("conditioning");
+        assert!(cond.from_gram);
+        assert_eq!(
+            cond.rank,
+            Conditioning::from_low_rank(t.rows(), t.cols(), lr)
+                .expect("cond")
+                .rank
+        );
+        // A small scene keeps the SVD.
+        let small = scenes
+            .conditioning("brewster-crossed")
+            .expect("conditioning");
+        assert!(!small.from_gram);
+    }
 }

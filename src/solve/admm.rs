@@ -79,11 +79,11 @@ pub(crate) enum Factor {
 
 /// Factor of `T^T T + rho (D^T D + I)`.
 fn factorize(normal: &Normal, grid: crate::scene::Grid, rho: f64) -> Result<Factor, SolveError> {
-    if let Some(lr) = &normal.low_rank {
+    if let Some(lr) = normal.low_rank() {
         return Ok(Factor::LowRank(lr.factor(rho)?));
     }
-    let n = normal.gram.nrows();
-    let mut a = normal.gram.clone();
+    let n = normal.lower().nrows();
+    let mut a = normal.lower().clone();
     for k in 0..n {
         a[(k, k)] += rho;
     }
@@ -97,7 +97,7 @@ const PAR_SOLVE_MIN: usize = 1024;
 
 /// `x <- (T^T T + rho (D^T D + I))^-1 x` with `factor` (made for this `rho`).
 fn solve_system(normal: &Normal, factor: &Factor, rho: f64, x: &mut [f64], ws: &mut Workspace) {
-    match (factor, &normal.low_rank) {
+    match (factor, normal.low_rank()) {
         (Factor::LowRank(f), Some(lr)) => lr.solve(f, rho, x, ws),
         (Factor::Dense(f), _) => {
             let n = x.len();
@@ -118,7 +118,7 @@ fn solve_system(normal: &Normal, factor: &Factor, rho: f64, x: &mut [f64], ws: &
 
 /// Whether `factor` was made from this kind of `normal`.
 fn fits(normal: &Normal, factor: &Factor) -> bool {
-    matches!(factor, Factor::LowRank(_)) == normal.low_rank.is_some()
+    matches!(factor, Factor::LowRank(_)) == normal.low_rank().is_some()
 }
 
 /// Runs ADMM-TV on a measurement `i` of the scene seen through `t`.
@@ -212,7 +212,7 @@ pub fn admm_tv_warm(
     let start = Instant::now();
     let grid = t.scene_grid;
     let n = t.cols();
-    let scale = normal.scale;
+    let scale = normal.scale();
     let ti = &normal.ti;
     let gram_seconds = normal.seconds;
     let mut warnings = Vec::new();

@@ -205,7 +205,7 @@ pub fn fista_tv_prepared(
     let lambda = settings.lambda.unwrap_or(LAMBDA_REL * normal.unit());
     check_lambda(lambda)?;
     let mut warnings = Vec::new();
-    let g = symmetric(&normal.gram);
+    let g = symmetric(normal.lower());
     let lip = largest_eigenvalue(&g) * 1.01;
     let factor_seconds = start.elapsed().as_secs_f64();
     if lip == 0.0 {

@@ -137,7 +137,7 @@ fn residual_and_rank(
         return None;
     }
     let b = faer::Mat::<f64>::from_fn(m, 1, |r, _| i[r]);
-    let (q, fitted) = match normal.and_then(|nm| nm.low_rank.as_ref()) {
+    let (q, fitted) = match normal.and_then(|nm| nm.low_rank()) {
         Some(lr) => {
             let cols = faer::Mat::<f64>::from_fn(m, lr.pivots.len(), |r, k| t.col(lr.pivots[k])[r]);
             (cols.qr().compute_thin_Q(), lr.pivots.len())
@@ -493,7 +493,7 @@ mod tests {
             .map(|(a, b)| a + b)
             .collect();
         let normal = Normal::of(&t, &i);
-        let lr = normal.low_rank.as_ref().expect("low rank");
+        let lr = normal.low_rank().expect("low rank");
         assert!(lr.rank() < t.cols() / 4, "rank {}", lr.rank());
         let full = NoiseLevel::from_residual(&t, &i).unwrap().mean_variance();
         let fast = NoiseLevel::from_residual_with(&t, &i, Some(&normal))

@@ -477,7 +477,7 @@ mod tests {
             .collect();
         let dense = Normal::new(t.as_mat(), &i);
         let low = Normal::of(&t, &i);
-        assert!(low.low_rank.is_some());
+        assert!(low.low_rank().is_some());
         let settings = AdmmSettings {
             lambda: Some(1e-3 * dense.unit()),
             max_iter: 5000,
