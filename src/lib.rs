@@ -19,17 +19,23 @@
 //!   Aravis driver and its thread, the fake bench), [`store`] (the catalogue
 //!   and capture files).
 //! - **Service**: [`daemon`] (jobs, queues, admission, lifecycle) and [`api`]
-//!   (the HTTP routes, guard and server loop).
+//!   (the HTTP routes, guard and server loop). With [`camera`] and [`store`]
+//!   they are the cargo feature `daemon` (on by default): without it the
+//!   crate is the core, [`files`] and the offline tools, and links no
+//!   system library (`tests/layers.rs` holds `cargo tree` to that).
 //! - **Reports**: `bench` (the reports of `polnlos bench`; cargo feature
 //!   `bench`, on by default, off the daemon's path).
 
 #![deny(missing_docs)]
 
+#[cfg(feature = "daemon")]
 pub mod api;
 #[cfg(feature = "bench")]
 pub mod bench;
 pub mod calibrate;
+#[cfg(feature = "daemon")]
 pub mod camera;
+#[cfg(feature = "daemon")]
 pub mod daemon;
 pub mod files;
 pub mod measure;
@@ -37,5 +43,6 @@ pub mod optics;
 pub mod scene;
 pub mod simulate;
 pub mod solve;
+#[cfg(feature = "daemon")]
 pub mod store;
 pub mod transport;

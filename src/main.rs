@@ -36,30 +36,43 @@ const USAGE: u8 = 2;
 /// range (including a scene too large for this machine's memory).
 const INPUT: u8 = 3;
 
+/// The exit status of a daemon-side cause (the daemon, its store, its
+/// config), if it is one.
+#[cfg(feature = "daemon")]
+fn daemon_exit_code(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
+    use polnlos::daemon::DaemonError;
+    use polnlos::store::StoreError;
+    // DaemonError is transparent over these: its source skips them.
+    let store = match cause.downcast_ref::<DaemonError>() {
+        Some(DaemonError::Store(s)) => Some(s),
+        Some(DaemonError::Config(_) | DaemonError::Scene(_)) => return Some(INPUT),
+        Some(DaemonError::Fake(polnlos::camera::fake::FakeError::AddressInUse { .. })) => {
+            return Some(USAGE)
+        }
+        Some(DaemonError::Demo(_) | DaemonError::Fake(_)) => return Some(FAILED),
+        None => cause.downcast_ref::<StoreError>(),
+    };
+    if let Some(s) = store {
+        return Some(match s {
+            StoreError::Locked { .. } => USAGE,
+            StoreError::DataDir { .. } | StoreError::Database { .. } => INPUT,
+            _ => FAILED,
+        });
+    }
+    cause
+        .is::<polnlos::daemon::config::ConfigError>()
+        .then_some(INPUT)
+}
+
 /// The exit status of an error, from the first cause that says whose it is.
 fn exit_code(e: &anyhow::Error) -> u8 {
-    use polnlos::daemon::DaemonError;
     use polnlos::files::FileError;
     use polnlos::solve::SolveError;
-    use polnlos::store::StoreError;
     use polnlos::transport::TransportError;
     for cause in e.chain() {
-        // DaemonError is transparent over these: its source skips them.
-        let store = match cause.downcast_ref::<polnlos::daemon::DaemonError>() {
-            Some(DaemonError::Store(s)) => Some(s),
-            Some(DaemonError::Config(_) | DaemonError::Scene(_)) => return INPUT,
-            Some(DaemonError::Fake(polnlos::camera::fake::FakeError::AddressInUse { .. })) => {
-                return USAGE
-            }
-            Some(DaemonError::Demo(_) | DaemonError::Fake(_)) => return FAILED,
-            None => cause.downcast_ref::<StoreError>(),
-        };
-        if let Some(s) = store {
-            return match s {
-                StoreError::Locked { .. } => USAGE,
-                StoreError::DataDir { .. } | StoreError::Database { .. } => INPUT,
-                _ => FAILED,
-            };
+        #[cfg(feature = "daemon")]
+        if let Some(code) = daemon_exit_code(cause) {
+            return code;
         }
         if let Some(f) = cause.downcast_ref::<FileError>() {
             return match f {
@@ -96,9 +109,7 @@ fn exit_code(e: &anyhow::Error) -> u8 {
         if cause.is::<cli::Usage>() {
             return USAGE;
         }
-        if cause.is::<polnlos::scene::SceneError>()
-            || cause.is::<polnlos::daemon::config::ConfigError>()
-        {
+        if cause.is::<polnlos::scene::SceneError>() {
             return INPUT;
         }
     }

@@ -1,4 +1,4 @@
-//! The camera: frames, the small trait the daemon sees, the Aravis driver
+//! The camera: the small trait the daemon sees, the Aravis driver
 //! behind it, the Aravis fake camera bench used by default and in tests, and
 //! the thread that owns the camera.
 //!
@@ -10,7 +10,6 @@
 pub mod aravis;
 mod device;
 pub mod fake;
-mod frame;
 pub mod hotplug;
 pub mod settings;
 mod shown;
@@ -18,8 +17,8 @@ pub use shown::BenchImages;
 pub mod synthetic;
 pub mod worker;
 
+pub use crate::measure::Frame;
 pub use device::{CameraDevice, CameraError, CameraInfo, Counters, FrameSink, RawFrame};
-pub use frame::Frame;
 pub use settings::{
     CameraSettings, GeometryError, PixelFormat, SensorLimits, SettingsChange, TriggerMode,
 };

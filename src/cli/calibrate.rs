@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use polnlos::calibrate::geometry::{detect, fit, scene_with_homography, Target};
-use polnlos::camera::Frame;
+use polnlos::measure::Frame;
 
 /// Calibrate a bench from images.
 #[derive(Debug, clap::Args)]

@@ -10,6 +10,7 @@ mod pattern;
 mod plan;
 mod progress;
 mod reconstruct;
+#[cfg(feature = "daemon")]
 mod serve;
 mod simulate;
 mod transport;
@@ -68,6 +69,7 @@ enum Command {
     /// Calibrate a bench from images (geometry: homographies from a dot target).
     Calibrate(calibrate::Args),
     /// Run the acquisition daemon: camera, capture and reconstruction queues, HTTP API.
+    #[cfg(feature = "daemon")]
     Serve(serve::Args),
 }
 
@@ -90,6 +92,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Reconstruct(a) => reconstruct::run(a),
         Command::Pattern(a) => pattern::run(a),
         Command::Calibrate(a) => calibrate::run(a),
+        #[cfg(feature = "daemon")]
         Command::Serve(a) => serve::run(a),
         #[cfg(feature = "bench")]
         Command::Bench(a) => bench::run(a),

@@ -6,7 +6,7 @@
 //! a user's TIFF files) must give the same `i` for the same frames.
 
 use super::{stack, BlockFrames, MeasureError, Measurement};
-use crate::camera::Frame;
+use crate::measure::Frame;
 use crate::scene::Scene;
 use crate::transport::{Block, Transport};
 

@@ -5,7 +5,7 @@
 //! user's TIFF) must turn frames into the same mean and the same variance.
 
 use super::MeasureError;
-use crate::camera::Frame;
+use crate::measure::Frame;
 
 /// The running mean and variance of a stack of equal-size frames (Welford),
 /// so that a capture of any length holds two images in memory, not its frames.

@@ -5,14 +5,15 @@
 mod assemble;
 mod average;
 pub mod exposure;
+mod frame;
 pub mod levels;
 mod stack;
 
 pub use assemble::{assemble, match_blocks, same_angle, to_model_units, CaptureFrames, Units};
 pub use average::FrameStack;
+pub use frame::Frame;
 pub use stack::{stack, with_rounding_bias, BlockFrames, Measurement};
 
-use crate::camera::Frame;
 use crate::scene::{Homography, Plane};
 
 /// Why a frame could not be turned into a measurement.

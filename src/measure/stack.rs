@@ -13,7 +13,7 @@
 //! the first Fourier term of the quantizer's error, Widrow & Kollár 2008).
 
 use super::{sample_wall, MeasureError};
-use crate::camera::Frame;
+use crate::measure::Frame;
 use crate::scene::{Homography, Plane};
 
 /// One (pose, polarizer angle) block's frames, as a capture gives them.
