@@ -135,7 +135,10 @@ impl AravisCamera {
         let pixel_format =
             PixelFormat::from_name(format.as_str()).ok_or_else(|| CameraError::Feature {
                 feature: "PixelFormat".into(),
-                reason: format!("{format} is not a format polnlos reads (Mono8, Mono12, Mono16)"),
+                reason: format!(
+                    "{format} is not a format polnlos reads ({})",
+                    PixelFormat::names()
+                ),
             })?;
         let (x, y, w, h) = c
             .region()
@@ -408,10 +411,14 @@ impl CameraDevice for AravisCamera {
             }
             let frame = decode(&buffer, self.settings.pixel_format, bits);
             stream.push_buffer(buffer);
-            let Some(frame) = frame else {
-                failures += 1;
-                self.counters.failed += 1;
-                continue;
+            let frame = match frame {
+                Ok(frame) => frame,
+                Err(e) => {
+                    failures += 1;
+                    self.counters.failed += 1;
+                    tracing::warn!("dropped a frame: {e}");
+                    continue;
+                }
             };
             self.counters.completed += 1;
             taken += 1;
@@ -433,30 +440,23 @@ impl CameraDevice for AravisCamera {
     }
 }
 
-/// A received buffer as a frame: its pixels copied out (Mono8 widened to
-/// 16 bits), or None when it holds fewer bytes than its width x height says.
-fn decode(buffer: &aravis::Buffer, format: PixelFormat, bits: u32) -> Option<RawFrame> {
+/// A received buffer as a frame: its pixels decoded by its format (widened
+/// to 16 bits), or why the buffer does not hold the frame it says.
+fn decode(
+    buffer: &aravis::Buffer,
+    format: PixelFormat,
+    bits: u32,
+) -> Result<RawFrame, super::DecodeError> {
     let (w, h) = (
         buffer.image_width() as usize,
         buffer.image_height() as usize,
     );
-    let data = buffer.image_data();
-    let pixels: Vec<u16> = if format == PixelFormat::Mono8 {
-        data.iter().take(w * h).map(|&b| u16::from(b)).collect()
-    } else {
-        data.chunks_exact(2)
-            .take(w * h)
-            .map(|p| u16::from_le_bytes([p[0], p[1]]))
-            .collect()
-    };
-    if pixels.len() != w * h {
-        return None;
-    }
+    let pixels = format.decode(&buffer.image_data(), w, h)?;
     let system_timestamp_ns = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map(|d| d.as_nanos() as u64)
         .unwrap_or(0);
-    Some(RawFrame {
+    Ok(RawFrame {
         width: w,
         height: h,
         bits,

@@ -11,6 +11,7 @@ pub mod aravis;
 mod device;
 pub mod fake;
 pub mod hotplug;
+mod pixel;
 pub mod settings;
 mod shown;
 pub use shown::BenchImages;
@@ -19,6 +20,7 @@ pub mod worker;
 
 pub use crate::measure::Frame;
 pub use device::{CameraDevice, CameraError, CameraInfo, Counters, FrameSink, RawFrame};
+pub use pixel::DecodeError;
 pub use settings::{
     CameraSettings, GeometryError, PixelFormat, SensorLimits, SettingsChange, TriggerMode,
 };

@@ -2,48 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Monochrome pixel formats polnlos reads.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
-pub enum PixelFormat {
-    /// 8 bits.
-    Mono8,
-    /// 12 bits in 16-bit words.
-    Mono12,
-    /// 16 bits, little-endian.
-    Mono16,
-}
-
-impl PixelFormat {
-    /// The GenICam name.
-    pub fn name(self) -> &'static str {
-        match self {
-            PixelFormat::Mono8 => "Mono8",
-            PixelFormat::Mono12 => "Mono12",
-            PixelFormat::Mono16 => "Mono16",
-        }
-    }
-
-    /// Significant bits.
-    pub fn bits(self) -> u32 {
-        match self {
-            PixelFormat::Mono8 => 8,
-            PixelFormat::Mono12 => 12,
-            PixelFormat::Mono16 => 16,
-        }
-    }
-
-    /// The format of a GenICam name (as [`PixelFormat::name`] writes it).
-    pub fn from_name(name: &str) -> Option<Self> {
-        [PixelFormat::Mono8, PixelFormat::Mono12, PixelFormat::Mono16]
-            .into_iter()
-            .find(|f| f.name() == name)
-    }
-
-    /// Largest digital number, `2^bits - 1`.
-    pub fn full_scale(self) -> f64 {
-        f64::from((1u32 << self.bits()) - 1)
-    }
-}
+pub use super::pixel::PixelFormat;
 
 /// Free running or one frame per software trigger.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]

@@ -62,10 +62,10 @@ impl Daemon {
     ) -> Result<GeometryCalibration, RequestError> {
         let invalid = RequestError::Invalid;
         let c = self.require_capture(capture)?;
-        if c.kind != crate::store::CaptureKind::Target.name() || c.state != JobState::Done {
+        if c.kind != crate::store::CaptureKind::Target || c.state != JobState::Done {
             return Err(invalid(format!(
                 "capture {capture} is a {} capture in state {}; calibration needs a done \"kind\": \"target\" capture of the dot target on the wall",
-                c.kind,
+                c.kind.name(),
                 c.state.name()
             )));
         }
@@ -274,13 +274,13 @@ impl Daemon {
                         super::jobs::block_label(pose, *angle)
                     ))
                 })?;
-            if c.kind != crate::store::CaptureKind::Source.name()
+            if c.kind != crate::store::CaptureKind::Source
                 || c.state != JobState::Done
                 || c.scene != scene_name
             {
                 return Err(invalid(format!(
                     "capture {} is a {} capture of scene {:?} in state {}; wall calibration needs done \"kind\": \"source\" captures of scene {scene_name:?}",
-                    c.id, c.kind, c.scene, c.state.name()
+                    c.id, c.kind.name(), c.scene, c.state.name()
                 )));
             }
             ordered.push(c.clone());

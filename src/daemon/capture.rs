@@ -17,7 +17,7 @@ use tokio::sync::mpsc;
 use super::jobs::{finish_job, job_event, Ending, JobError};
 use super::progressive;
 use super::{Daemon, Event};
-use crate::camera::{CameraError, CameraSettings, Frame, PixelFormat, RawFrame, TriggerMode};
+use crate::camera::{CameraError, CameraSettings, Frame, RawFrame};
 use crate::measure::FrameStack;
 use crate::store::{
     read_mean, write_frames, write_summary, CaptureFiles, CaptureKind, CaptureRecord, FrameMeta,
@@ -160,23 +160,19 @@ async fn finish_progressive(
 
 /// The camera settings a capture recorded when it was accepted.
 fn settings_of(c: &CaptureRecord) -> Result<CameraSettings, JobError> {
-    let (Some(region), Some(binning)) = (c.region, c.binning) else {
+    let (Some(region), Some(binning), Some(trigger)) = (c.region, c.binning, c.trigger) else {
         return Err(JobError::Capture {
             id: c.id,
-            reason: "records no region or binning".into(),
+            reason: "records no region, binning or trigger mode".into(),
         });
     };
     Ok(CameraSettings {
         exposure_us: c.exposure_us,
         gain: c.gain,
-        pixel_format: PixelFormat::from_name(&c.pixel_format).unwrap_or(PixelFormat::Mono16),
+        pixel_format: c.pixel_format,
         region: Some(region),
         binning: Some(binning),
-        trigger: c
-            .trigger
-            .as_deref()
-            .and_then(TriggerMode::from_name)
-            .unwrap_or(TriggerMode::Free),
+        trigger,
     })
 }
 
@@ -190,7 +186,7 @@ async fn wait_for_camera(d: &Daemon) {
 
 /// What every page of the capture's files records about it.
 fn meta_of(c: &CaptureRecord, settings: &CameraSettings, camera_id: &str) -> FrameMeta {
-    let kind = c.capture_kind();
+    let kind = c.kind;
     FrameMeta {
         capture: c.id,
         kind,
@@ -199,10 +195,10 @@ fn meta_of(c: &CaptureRecord, settings: &CameraSettings, camera_id: &str) -> Fra
         polarizer_deg: c.polarizer_deg,
         exposure_us: c.exposure_us,
         gain: c.gain,
-        pixel_format: settings.pixel_format.name().into(),
+        pixel_format: settings.pixel_format,
         region: settings.region.unwrap_or_default(),
         binning: settings.binning.unwrap_or([1, 1]),
-        trigger: settings.trigger.name().into(),
+        trigger: settings.trigger,
         dark_capture: c.dark_capture,
         camera_id: camera_id.to_string(),
     }

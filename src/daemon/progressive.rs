@@ -26,7 +26,7 @@ use super::jobs::JobError;
 use super::reconstruction::{load_capture, read_captures};
 use super::validate::ProgressiveSpec;
 use super::{Daemon, Event};
-use crate::camera::{Frame, PixelFormat};
+use crate::camera::Frame;
 use crate::files::{image, json};
 use crate::measure::FrameStack;
 use crate::measure::{assemble, CaptureFrames, Units};
@@ -165,15 +165,7 @@ impl Solver {
                 reason: format!("progressive reconstruction needs the radiometric calibration of scene {:?} ([calibration] in the config)", capture.scene),
             }
         })?;
-        let full_scale = PixelFormat::from_name(&capture.pixel_format)
-            .ok_or_else(|| JobError::Capture {
-                id: capture.id,
-                reason: format!(
-                    "its pixel format {:?} is not one polnlos decodes",
-                    capture.pixel_format
-                ),
-            })?
-            .full_scale();
+        let full_scale = capture.pixel_format.full_scale();
         // This capture's block is filled at each step; the others come
         // from their captures, assembled as a reconstruction would.
         let own = t

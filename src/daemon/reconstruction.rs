@@ -11,7 +11,6 @@ use tokio::sync::{mpsc, Mutex};
 
 use super::jobs::{finish_job, job_event, Ending, JobError};
 use super::Daemon;
-use crate::camera::PixelFormat;
 use crate::files::{image, json, npy};
 use crate::measure::{assemble, to_model_units, CaptureFrames, Measurement};
 use crate::solve::gram::Normal;
@@ -263,12 +262,7 @@ pub(super) fn load_capture(
     let pose = scene
         .pose(&cap.pose)
         .ok_or_else(|| capture(format!("scene has no pose {:?} any more", cap.pose)))?;
-    let pixel_format = PixelFormat::from_name(&cap.pixel_format).ok_or_else(|| {
-        capture(format!(
-            "its stored pixel format {:?} is not one polnlos decodes",
-            cap.pixel_format
-        ))
-    })?;
+    let pixel_format = cap.pixel_format;
     let dir = d.store.capture_dir(id);
     let mean = read_mean(&dir).map_err(|e| capture(d.store.describe(&e)))?;
     if let Some([_, _, w, h]) = cap.region {

@@ -11,7 +11,7 @@ use tiff::encoder::{colortype, TiffEncoder};
 use tiff::tags::Tag;
 
 use super::{CaptureKind, StoreError};
-use crate::camera::{Frame, RawFrame};
+use crate::camera::{Frame, PixelFormat, RawFrame, TriggerMode};
 use crate::files::{image, write_atomic, FileError};
 use crate::measure::FrameStack;
 
@@ -34,13 +34,13 @@ pub struct FrameMeta {
     /// Gain.
     pub gain: f64,
     /// Pixel format.
-    pub pixel_format: String,
+    pub pixel_format: PixelFormat,
     /// Region of interest `[x, y, width, height]`.
     pub region: [u32; 4],
     /// Binning `[x, y]`.
     pub binning: [u32; 2],
-    /// `free` or `software`.
-    pub trigger: String,
+    /// Free running or software-triggered.
+    pub trigger: TriggerMode,
     /// The dark capture subtracted from this one, if any.
     pub dark_capture: Option<i64>,
     /// Camera id (GenICam vendor-model-serial).
@@ -382,10 +382,10 @@ mod tests {
             polarizer_deg: Some(0.0),
             exposure_us: 1000.0,
             gain: 0.0,
-            pixel_format: "Mono16".into(),
+            pixel_format: PixelFormat::Mono16,
             region: [0, 0, 3, 2],
             binning: [1, 1],
-            trigger: "free".into(),
+            trigger: TriggerMode::Free,
             dark_capture: None,
             camera_id: "cam".into(),
         }

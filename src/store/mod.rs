@@ -851,6 +851,66 @@ mod tests {
     }
 
     #[test]
+    fn stored_capture_settings_read_back_typed_or_not_at_all() {
+        use crate::camera::{PixelFormat, TriggerMode};
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        let request = CaptureRequest {
+            kind: CaptureKind::Dark,
+            scene: "brewster-crossed".into(),
+            pose: "A".into(),
+            polarizer_deg: Some(0.0),
+            exposure_us: 1000.0,
+            gain: 0.0,
+            frames: 1,
+            dark_frames: 0,
+            pixel_format: PixelFormat::Mono8,
+            region: [0, 0, 4, 4],
+            binning: [1, 1],
+            trigger: TriggerMode::Software,
+            dark_capture: None,
+        };
+        let ids: Vec<i64> = (0..4)
+            .map(|_| store.insert_capture(&request).unwrap())
+            .collect();
+        let back = store.capture(ids[0]).unwrap();
+        assert_eq!(
+            (back.kind, back.pixel_format, back.trigger),
+            (
+                CaptureKind::Dark,
+                PixelFormat::Mono8,
+                Some(TriggerMode::Software)
+            )
+        );
+        let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
+        for (sql, id) in [
+            (
+                "UPDATE captures SET pixel_format = 'Mono10' WHERE id = ?1",
+                ids[1],
+            ),
+            ("UPDATE captures SET kind = 'flat' WHERE id = ?1", ids[2]),
+            (
+                "UPDATE captures SET trigger = 'hardware' WHERE id = ?1",
+                ids[3],
+            ),
+        ] {
+            raw.execute(sql, [id]).unwrap();
+        }
+        // Before, these read back as Mono16, light and free.
+        for (id, what) in [
+            (ids[1], "unknown pixel format \"Mono10\""),
+            (ids[2], "unknown capture kind \"flat\""),
+            (ids[3], "unknown trigger mode \"hardware\""),
+        ] {
+            let e = store.capture(id).unwrap_err().to_string();
+            assert!(e.contains(what), "{e}");
+        }
+        let page = store.captures(10, 0).unwrap();
+        assert_eq!(page.records.len(), 1);
+        assert_eq!(page.unreadable.len(), 3);
+    }
+
+    #[test]
     fn timestamps_are_rfc3339() {
         let t = now();
         assert_eq!(t.len(), 24, "{t}");

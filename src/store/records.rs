@@ -31,6 +31,13 @@ impl CaptureKind {
             CaptureKind::Source => "source",
         }
     }
+
+    /// The kind of a name (as [`CaptureKind::name`] writes it).
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Self::Light, Self::Dark, Self::Target, Self::Source]
+            .into_iter()
+            .find(|k| k.name() == name)
+    }
 }
 
 /// Life of a job.
@@ -92,6 +99,18 @@ fn damaged(
 fn state_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<JobState> {
     let s: String = r.get(idx)?;
     JobState::parse(&s).ok_or_else(|| damaged(idx, format!("unknown job state {s:?}")))
+}
+
+/// Column `idx` as the value `parse` reads from its text: a name this
+/// version does not know makes the row unreadable, never a silent default.
+fn named_column<T>(
+    r: &Row<'_>,
+    idx: usize,
+    what: &str,
+    parse: impl Fn(&str) -> Option<T>,
+) -> rusqlite::Result<T> {
+    let s: String = r.get(idx)?;
+    parse(&s).ok_or_else(|| damaged(idx, format!("unknown {what} {s:?}")))
 }
 
 /// Column `idx` as JSON, `None` when NULL; malformed JSON makes the row
@@ -157,16 +176,16 @@ pub struct CaptureRecord {
     /// Dark frames subtracted.
     pub dark_frames: i64,
     /// Pixel format.
-    pub pixel_format: String,
-    /// `light` or `dark`.
-    pub kind: String,
+    pub pixel_format: PixelFormat,
+    /// Light, dark, target or source.
+    pub kind: CaptureKind,
     /// Region of interest `[x, y, width, height]` (null for captures made
     /// before it was recorded).
     pub region: Option<[u32; 4]>,
     /// Binning `[x, y]`.
     pub binning: Option<[u32; 2]>,
-    /// `free` or `software`.
-    pub trigger: Option<String>,
+    /// Trigger mode (null for captures made before it was recorded).
+    pub trigger: Option<TriggerMode>,
     /// The dark capture subtracted from this one.
     pub dark_capture: Option<i64>,
     /// Job state.
@@ -201,7 +220,7 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         gain: r.get(5)?,
         frames: r.get(6)?,
         dark_frames: r.get(7)?,
-        pixel_format: r.get(8)?,
+        pixel_format: named_column(r, 8, "pixel format", PixelFormat::from_name)?,
         state: state_column(r, 9)?,
         error: r.get(10)?,
         created_at: r.get(11)?,
@@ -210,10 +229,16 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         camera_id: r.get(14)?,
         counters: json_column(r, 15)?,
         frames_taken: r.get(16)?,
-        kind: r.get(17)?,
+        kind: named_column(r, 17, "capture kind", CaptureKind::from_name)?,
         region: json_column(r, 18)?,
         binning: json_column(r, 19)?,
-        trigger: r.get(20)?,
+        trigger: r
+            .get::<_, Option<String>>(20)?
+            .map(|s| {
+                TriggerMode::from_name(&s)
+                    .ok_or_else(|| damaged(20, format!("unknown trigger mode {s:?}")))
+            })
+            .transpose()?,
         dark_capture: r.get(21)?,
     })
 }
@@ -221,22 +246,12 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
 impl CaptureRecord {
     /// Whether this is a dark capture.
     pub fn is_dark(&self) -> bool {
-        self.kind == CaptureKind::Dark.name()
+        self.kind == CaptureKind::Dark
     }
 
     /// Whether this is a capture of the hidden scene (not dark, not target).
     pub fn is_light(&self) -> bool {
-        self.kind == CaptureKind::Light.name()
-    }
-
-    /// Its kind.
-    pub fn capture_kind(&self) -> CaptureKind {
-        match self.kind.as_str() {
-            "dark" => CaptureKind::Dark,
-            "target" => CaptureKind::Target,
-            "source" => CaptureKind::Source,
-            _ => CaptureKind::Light,
-        }
+        self.kind == CaptureKind::Light
     }
 }
 

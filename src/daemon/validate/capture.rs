@@ -197,19 +197,19 @@ fn check_dark_capture(c: &CaptureRecord, r: &CaptureRequest) -> Result<(), Reque
     if !c.is_dark() || c.state != JobState::Done {
         return Err(invalid(format!(
             "dark_capture {id} is a {} capture in state {}; it must be a done dark capture",
-            c.kind,
+            c.kind.name(),
             c.state.name()
         )));
     }
     let same = c.exposure_us == r.exposure_us
         && c.gain == r.gain
-        && c.pixel_format == r.pixel_format.name()
+        && c.pixel_format == r.pixel_format
         && c.region == Some(r.region)
         && c.binning == Some(r.binning);
     if !same {
         return Err(invalid(format!(
             "dark_capture {id} was taken at exposure_us {}, gain {}, {}, region {:?}, binning {:?}; this capture asks for {}, {}, {}, {:?}, {:?}: take a dark capture with the same settings",
-            c.exposure_us, c.gain, c.pixel_format, c.region, c.binning,
+            c.exposure_us, c.gain, c.pixel_format.name(), c.region, c.binning,
             r.exposure_us, r.gain, r.pixel_format.name(), r.region, r.binning
         )));
     }

@@ -89,7 +89,7 @@ pub(super) fn block_of(
     if !c.is_light() {
         return Err(invalid(format!(
             "capture {id} is a {} capture; give light captures (subtract darks with dark_capture when capturing; target captures are for POST /calibrations)",
-            c.kind
+            c.kind.name()
         )));
     }
     if c.scene != scene_name {
