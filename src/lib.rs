@@ -18,8 +18,8 @@
 //!   memory), [`camera`] (the camera trait, settings and sensor limits, the
 //!   Aravis driver and its thread, the fake bench), [`store`] (the catalogue
 //!   and capture files).
-//! - **Service**: [`daemon`] (jobs, queues, admission, lifecycle) and [`api`]
-//!   (the HTTP routes, guard and server loop).
+//! - **Service**: [`daemon`] (requests, jobs, queues, admission, lifecycle;
+//!   no HTTP) and [`api`] (the HTTP routes, guard and server loop over it).
 //! - **Reports**: `bench` (the reports of `polnlos bench`; cargo feature
 //!   `bench`, on by default, off the daemon's path).
 
