@@ -18,11 +18,12 @@
 //!   memory), [`camera`] (the camera trait, settings and sensor limits, the
 //!   Aravis driver and its thread, the fake bench), [`store`] (the catalogue
 //!   and capture files).
-//! - **Service**: [`daemon`] (jobs, queues, admission, lifecycle) and [`api`]
-//!   (the HTTP routes, guard and server loop). With [`camera`] and [`store`]
-//!   they are the cargo feature `daemon` (on by default): without it the
-//!   crate is the core, [`files`] and the offline tools, and links no
-//!   system library (`tests/layers.rs` holds `cargo tree` to that).
+//! - **Service**: [`daemon`] (requests, jobs, queues, admission, lifecycle;
+//!   no HTTP) and [`api`] (the HTTP routes, guard and server loop over it).
+//!   With [`camera`] and [`store`] they are the cargo feature `daemon` (on by
+//!   default): without it the crate is the core, [`files`] and the offline
+//!   tools, and links no system library (`tests/layers.rs` holds `cargo
+//!   tree` to that).
 //! - **Reports**: `bench` (the reports of `polnlos bench`; cargo feature
 //!   `bench`, on by default, off the daemon's path).
 

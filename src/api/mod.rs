@@ -5,13 +5,12 @@
 //! header); jobs answer 202 with a `Location`. Every request passes
 //! [`guard`]: size limits, the `Host`/`Origin` checks, and the bearer token
 //! when one is set. Request bodies are size- and time-limited; [`serve`] caps
-//! connections and header time.
+//! connections and header time; [`run`] serves a daemon until shut down.
 
 pub mod bodies;
 mod error;
 mod extract;
 mod guard;
-pub(crate) mod integral;
 mod openapi;
 mod routes;
 pub mod serve;
@@ -25,7 +24,7 @@ use axum::routing::{get, post, put};
 use axum::Router;
 
 pub use error::ApiError;
-pub use serve::{serve, Limits};
+pub use serve::{run, serve, Limits};
 
 use crate::daemon::Daemon;
 

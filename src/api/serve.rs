@@ -5,6 +5,10 @@
 //! each request's headers (which also closes idle keep-alive connections;
 //! shorter once three quarters of the connections are taken), and a
 //! graceful shutdown that waits a bounded time for requests in flight.
+//!
+//! [`run`] puts a daemon behind it: the router, the limits of its `[http]`
+//! configuration, and the camera stopped once serving ends. It lives here,
+//! not in the daemon, so the daemon knows nothing of HTTP.
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -19,6 +23,9 @@ use hyper_util::service::TowerToHyperService;
 use tokio::net::TcpListener;
 use tokio::sync::Semaphore;
 
+use crate::daemon::config::HttpConfig;
+use crate::daemon::Daemon;
+
 /// Connection limits of [`serve`].
 #[derive(Debug, Clone, Copy)]
 pub struct Limits {
@@ -29,6 +36,18 @@ pub struct Limits {
     /// Time to send a request's headers, or to start the next request on a
     /// kept-alive connection.
     pub header_timeout: Duration,
+}
+
+impl Limits {
+    /// The limits an `[http]` configuration sets (a per-client cap above the
+    /// total cap is the total cap).
+    pub fn of(http: &HttpConfig) -> Self {
+        Self {
+            max_connections: http.max_connections,
+            per_peer: http.max_connections_per_peer.min(http.max_connections),
+            header_timeout: Duration::from_secs_f64(http.header_timeout_s),
+        }
+    }
 }
 
 /// Connections closed at once because the cap was reached (for `/metrics`).
@@ -82,6 +101,21 @@ impl Drop for PeerSlot {
             }
         }
     }
+}
+
+/// Serves the API of `daemon` on `listener` until `shutdown` completes, then
+/// stops the camera: the library's entry point (`polnlos serve` wraps it with
+/// logging, signals and systemd notification).
+pub async fn run(
+    listener: TcpListener,
+    daemon: Arc<Daemon>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    let limits = Limits::of(&daemon.config().http);
+    let app = super::router(daemon.clone());
+    let result = serve(listener, app, limits, shutdown).await;
+    daemon.shutdown();
+    result
 }
 
 /// Serves `app` on `listener` until `shutdown` completes.

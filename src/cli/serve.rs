@@ -65,7 +65,7 @@ async fn serve(config: Config) -> anyhow::Result<()> {
     tracing::info!("polnlos API on http://{}", listener.local_addr()?);
     notify(&[sd_notify::NotifyState::Ready]);
     let watchdog = watchdog();
-    let result = polnlos::daemon::run(listener, daemon, async {
+    let result = polnlos::api::run(listener, daemon, async {
         shutdown_signal().await;
         notify(&[sd_notify::NotifyState::Stopping]);
     })

@@ -6,9 +6,9 @@
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
+use super::requests::{AutoExposure, CaptureBody, ReconstructionBody};
 use super::validate::{self, CameraContext, ProgressiveSpec, RequestError};
 use super::Daemon;
-use crate::api::bodies::{AutoExposure, CaptureBody, ReconstructionBody};
 use crate::camera::settings::EXPOSURE_RANGE_US;
 use crate::camera::CameraInfo;
 use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};

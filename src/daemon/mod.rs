@@ -1,6 +1,7 @@
 //! The acquisition daemon: wires the camera thread, the bench, the store, the
-//! scene registry and the job queues together, and hands a typed state to the
-//! HTTP routes in [`crate::api`].
+//! scene registry and the job queues together into a typed state, [`Daemon`],
+//! that a front end drives. The HTTP API is one such front end; it depends on
+//! this module, never the reverse.
 //!
 //! Captures queue for the single camera and run one at a time; reconstructions
 //! queue for a small worker pool and run their maths on blocking threads. Both
@@ -8,10 +9,11 @@
 //!
 //! - [`Daemon::start`] opens what the config names; [`Daemon::start_with`]
 //!   takes any camera ([`CameraSetup`]), e.g. the in-process synthetic one.
-//! - [`run`] serves the API on a listener until a shutdown future completes.
-//! - `admission`: requests in (validated by [`validate`], admitted by disk
-//!   space and queue room); `capture`/`reconstruction`: the workers; `camera`:
-//!   settings and what `GET /camera` shows; `metrics`: `/metrics` samples.
+//! - [`requests`]: what clients ask for (capture, reconstruction and
+//!   calibration bodies), checked by [`validate`] and admitted by
+//!   `admission` (disk space and queue room); `capture`/`reconstruction`:
+//!   the workers; `camera`: settings and what `GET /camera` shows;
+//!   `metrics`: `/metrics` samples.
 
 mod admission;
 mod calibration;
@@ -21,16 +23,17 @@ mod capture;
 pub mod config;
 mod demo;
 pub mod events;
+mod integral;
 mod jobs;
 pub mod metrics;
 mod progressive;
 mod reconstruction;
+pub mod requests;
 mod retention;
 pub mod scenes;
 pub mod validate;
 
 use std::collections::BTreeMap;
-use std::future::Future;
 use std::sync::Arc;
 
 use tokio::sync::{broadcast, mpsc, Mutex};
@@ -318,26 +321,6 @@ impl Daemon {
     pub fn shutdown(&self) {
         self.camera.shutdown();
     }
-}
-
-/// Serves the API of `daemon` on `listener` until `shutdown` completes, then
-/// stops the camera: the library's entry point (`polnlos serve` wraps it with
-/// logging, signals and systemd notification).
-pub async fn run(
-    listener: tokio::net::TcpListener,
-    daemon: Arc<Daemon>,
-    shutdown: impl Future<Output = ()> + Send + 'static,
-) -> std::io::Result<()> {
-    let http = &daemon.config.http;
-    let limits = crate::api::Limits {
-        max_connections: http.max_connections,
-        per_peer: http.max_connections_per_peer.min(http.max_connections),
-        header_timeout: std::time::Duration::from_secs_f64(http.header_timeout_s),
-    };
-    let app = crate::api::router(daemon.clone());
-    let result = crate::api::serve(listener, app, limits, shutdown).await;
-    daemon.shutdown();
-    result
 }
 
 /// Emits camera connect/lose events.

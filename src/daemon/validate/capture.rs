@@ -1,8 +1,8 @@
 //! Checking a capture request against its scene, the camera and the bench.
 
 use super::{invalid, CameraContext, RequestError};
-use crate::api::bodies::{AutoExposure, CaptureBody};
 use crate::daemon::jobs::same_angle;
+use crate::daemon::requests::{AutoExposure, CaptureBody};
 use crate::measure::exposure::BlockExposure;
 use crate::scene::{Pose, Scene};
 use crate::store::{CaptureKind, CaptureRecord, CaptureRequest, JobState};

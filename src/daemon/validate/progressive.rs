@@ -4,8 +4,8 @@
 
 use super::reconstruction::{block_of, blocks};
 use super::{invalid, RequestError};
-use crate::api::bodies::ProgressiveBody;
 use crate::daemon::jobs::{block_label, same_angle};
+use crate::daemon::requests::ProgressiveBody;
 use crate::scene::Scene;
 use crate::store::{CaptureRecord, CaptureRequest};
 

@@ -1,8 +1,8 @@
 //! Checking a reconstruction request against its scene and captures.
 
 use super::{invalid, RequestError};
-use crate::api::bodies::ReconstructionBody;
 use crate::daemon::jobs::{block_label, same_angle};
+use crate::daemon::requests::ReconstructionBody;
 use crate::scene::Scene;
 use crate::store::{CaptureRecord, JobState, ReconstructionRequest};
 

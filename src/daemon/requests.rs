@@ -1,0 +1,341 @@
+//! What clients ask the daemon for: the JSON bodies of `POST /captures`,
+//! `/reconstructions`, `/calibrations` and `/calibrations/wall`, as serde
+//! reads them.
+//!
+//! They live here, beside [`super::validate`] and the admission that take
+//! them, so the service depends on no HTTP type; the HTTP layer re-exports
+//! them in `api::bodies` and documents them in its OpenAPI document (hence
+//! the schema derives). Bodies refuse unknown fields, so a misspelt key is a
+//! 422 naming it rather than a silently ignored setting; a whole number may
+//! be written `1` or `1.0`, as JSON Schema allows.
+
+use serde::{Deserialize, Serialize};
+
+use crate::camera::{PixelFormat, TriggerMode};
+use crate::measure::exposure::ExposureTarget;
+use crate::solve::{SolveRequest, Solver};
+use crate::store::CaptureKind;
+
+use super::SourcePosition;
+
+/// `POST /captures` body.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CaptureBody {
+    /// `light` (default: the hidden scene on) or `dark` (the scene switched
+    /// off by the user; subtract it from later captures with `dark_capture`).
+    pub kind: Option<CaptureKind>,
+    /// Scene name.
+    pub scene: String,
+    /// Pose name in the scene.
+    pub pose: String,
+    /// Polarizer angle of the pose, degrees (omit or null for a pose without polarizer).
+    pub polarizer_deg: Option<f64>,
+    /// Exposure per frame, microseconds; omit it and give `"exposure": "auto"`
+    /// to have it planned (see `GET /scenes/{name}/exposure`).
+    #[schema(exclusive_minimum = 0.0)]
+    pub exposure_us: Option<f64>,
+    /// `"auto"`: plan the exposure (and, unless `frames` is given, the frame
+    /// count) from the scene, the radiometric calibration and the camera limits.
+    pub exposure: Option<AutoExposure>,
+    /// Target of an automatic exposure (default: peak at 0.8 of full scale, SNR 100).
+    pub target: Option<ExposureTarget>,
+    /// Gain (camera units).
+    #[serde(default)]
+    pub gain: f64,
+    /// Frames to average (1 to `max_frames_per_capture`); default 1, or the
+    /// plan's with `"exposure": "auto"`.
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1)]
+    pub frames: Option<usize>,
+    /// Dark frames taken within this capture with the scene switched off by
+    /// the bench itself (only on a bench that can: the fake camera's). On a
+    /// bench set by hand, take a `"kind": "dark"` capture instead.
+    #[serde(default, deserialize_with = "super::integral::count")]
+    pub dark_frames: usize,
+    /// A done dark capture (same exposure, gain, pixel format, region and
+    /// binning) whose mean is subtracted from this capture's.
+    #[serde(default, deserialize_with = "super::integral::opt_int")]
+    pub dark_capture: Option<i64>,
+    /// Pixel format (default: the camera's current settings).
+    pub pixel_format: Option<PixelFormat>,
+    /// Region `[x, y, width, height]` (default: the current settings).
+    #[schema(min_items = 4, max_items = 4)]
+    pub region: Option<[u32; 4]>,
+    /// Binning `[x, y]` (default: the current settings).
+    #[schema(min_items = 2, max_items = 2)]
+    pub binning: Option<[u32; 2]>,
+    /// `free` or `software` (default: the current settings).
+    pub trigger: Option<TriggerMode>,
+    /// Re-solve the scene from the running mean while frames accumulate, and
+    /// publish each intermediate result (event `progressive`,
+    /// `/captures/{id}/progressive.png` and `.json`).
+    pub progressive: Option<ProgressiveBody>,
+}
+
+/// Progressive reconstruction during a capture: ADMM-TV on the running mean
+/// (dark-subtracted), warm-started from the previous result with its
+/// factorization kept, so each step costs a few iterations.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ProgressiveBody {
+    /// Re-solve after every this many frames (default: a tenth of the frames, at least 1).
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1)]
+    pub every: Option<usize>,
+    /// Done light captures of the scene's other (pose, angle) blocks (none
+    /// for a scene with one block, such as `brewster-crossed`).
+    #[serde(default, deserialize_with = "super::integral::ints")]
+    pub captures: Vec<i64>,
+    /// TV weight, MODEL.md units (default `1e-2 mean(diag(T^T T))`); the
+    /// same at every step, so the steps compare.
+    pub lambda: Option<f64>,
+    /// Iteration cap of each step (1-100000, default 500).
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1, maximum = 100000)]
+    pub max_iter: Option<usize>,
+    /// Known truth, as a test pattern name: each step then has its PSNR.
+    pub truth: Option<String>,
+}
+
+/// The only automatic exposure mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum AutoExposure {
+    /// Plan from the scene (see [`crate::measure::exposure`]).
+    Auto,
+}
+
+/// `POST /reconstructions` body.
+#[derive(Debug, Clone, Deserialize, Serialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ReconstructionBody {
+    /// Scene name.
+    pub scene: String,
+    /// One finished capture per (pose, polarizer angle) block of the scene.
+    #[serde(deserialize_with = "super::integral::ints")]
+    #[schema(min_items = 1)]
+    pub captures: Vec<i64>,
+    /// `admm-tv` (default), `fista-tv`, `tikhonov` or `lsq`.
+    #[serde(default)]
+    pub solver: Solver,
+    /// Regularization weight (MODEL.md units). Default for the TV solvers:
+    /// chosen from the noise (resolved-discrepancy rule; `lambda_choice` in
+    /// the report says how), the frame-to-frame noise when every capture has
+    /// 2 frames or more, else the noise in the measurement's residual.
+    pub lambda: Option<f64>,
+    /// ADMM penalty.
+    pub rho: Option<f64>,
+    /// Iteration cap (1-100000).
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1, maximum = 100000)]
+    pub max_iter: Option<usize>,
+    /// Tolerance in (0, 1).
+    pub tol: Option<f64>,
+    /// Relative singular-value cut-off of `lsq`.
+    pub rcond: Option<f64>,
+    /// Known truth, as a test pattern name (`disk`, `bars`, `letter`): the
+    /// report then carries PSNR, ZNCC and SSIM (e.g. against the fake camera's demo scene).
+    pub truth: Option<String>,
+}
+
+impl ReconstructionBody {
+    /// The solver part of the request.
+    pub fn solve_request(&self) -> SolveRequest {
+        SolveRequest {
+            solver: self.solver,
+            lambda: self.lambda,
+            rho: self.rho,
+            max_iter: self.max_iter,
+            tol: self.tol,
+            rcond: self.rcond,
+        }
+    }
+}
+
+/// `POST /calibrations` body.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationBody {
+    /// A done `"kind": "target"` capture of the dot target on the wall.
+    #[serde(deserialize_with = "super::integral::int")]
+    pub capture: i64,
+    /// The target as TOML text (`radius_m`, `dots` in wall metres); default
+    /// the shipped `config/targets/dots-5x5.toml`, which the demo bench shows.
+    pub target: Option<String>,
+}
+
+/// `POST /calibrations/wall` body: one source position (`source` and
+/// `captures`) or several positions of the same source (`sources`).
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct WallCalibrationBody {
+    /// Scene name (its wall, poses and hidden-scene plane).
+    pub scene: String,
+    /// One done `"kind": "source"` capture per (pose, angle) block.
+    #[serde(default, deserialize_with = "super::integral::ints")]
+    pub captures: Vec<i64>,
+    /// Source position `[u, v]`, metres from the hidden-scene plane's centre
+    /// (the fake bench's source is at [0.03, -0.02]).
+    #[schema(min_items = 2, max_items = 2)]
+    pub source: Option<[f64; 2]>,
+    /// Instead of `source` and `captures`: several positions of the same
+    /// source (its radiance unchanged), fitted together with one gain.
+    #[serde(default)]
+    pub sources: Vec<SourcePositionBody>,
+}
+
+/// One source position of a wall calibration and its captures.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SourcePositionBody {
+    /// `[u, v]`, metres from the hidden-scene plane's centre.
+    #[schema(min_items = 2, max_items = 2)]
+    pub source: [f64; 2],
+    /// One done `"kind": "source"` capture per (pose, angle) block.
+    #[serde(deserialize_with = "super::integral::ints")]
+    #[schema(min_items = 1, max_items = 64)]
+    pub captures: Vec<i64>,
+}
+
+/// Most captures per source position in a wall calibration request.
+pub const MAX_CAPTURES_PER_POSITION: usize = 64;
+
+impl WallCalibrationBody {
+    /// The source positions and their captures: exactly one of the two forms,
+    /// 1 to [`MAX_SOURCES`](crate::calibrate::wall::MAX_SOURCES) positions of
+    /// finite coordinates, each with 1 to [`MAX_CAPTURES_PER_POSITION`]
+    /// captures, and no capture at two positions.
+    pub fn positions(&self) -> Result<Vec<SourcePosition>, String> {
+        use crate::calibrate::wall::{PointSource, MAX_SOURCES};
+        let given: Vec<([f64; 2], &[i64])> = match (self.source, self.sources.is_empty()) {
+            (Some(source), true) => vec![(source, &self.captures[..])],
+            (None, false) if self.captures.is_empty() => self
+                .sources
+                .iter()
+                .map(|p| (p.source, &p.captures[..]))
+                .collect(),
+            (None, true) => {
+                return Err(
+                    "give \"source\" and \"captures\", or \"sources\" (several positions)".into(),
+                )
+            }
+            _ => {
+                return Err(
+                    "give either \"source\" and \"captures\" or \"sources\", not both".into(),
+                )
+            }
+        };
+        if given.len() > MAX_SOURCES {
+            return Err(format!(
+                "{} source positions; at most {MAX_SOURCES} are fitted together",
+                given.len()
+            ));
+        }
+        let mut seen = std::collections::HashSet::new();
+        given
+            .into_iter()
+            .map(|(source, captures)| {
+                let at = format!("source [{}, {}]", source[0], source[1]);
+                if source.iter().any(|x| !x.is_finite()) {
+                    return Err(format!(
+                        "{at}: the position must be two finite numbers (metres)"
+                    ));
+                }
+                if captures.is_empty() || captures.len() > MAX_CAPTURES_PER_POSITION {
+                    return Err(format!(
+                        "{at}: {} captures; give 1 to {MAX_CAPTURES_PER_POSITION} (one per block)",
+                        captures.len()
+                    ));
+                }
+                if let Some(id) = captures.iter().find(|&&id| !seen.insert(id)) {
+                    return Err(format!(
+                        "capture {id} is given twice: one capture is of one position"
+                    ));
+                }
+                Ok(SourcePosition {
+                    source: PointSource {
+                        u: source[0],
+                        v: source[1],
+                    },
+                    captures: captures.to_vec(),
+                })
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn wall(json: &str) -> Result<Vec<SourcePosition>, String> {
+        serde_json::from_str::<WallCalibrationBody>(json)
+            .map_err(|e| e.to_string())?
+            .positions()
+    }
+
+    #[test]
+    fn a_wall_calibration_names_one_or_several_positions_but_not_both() {
+        let one = wall(r#"{"scene": "s", "captures": [1, 2], "source": [0.03, -0.02]}"#).unwrap();
+        assert_eq!(one.len(), 1);
+        assert_eq!((one[0].source.u, one[0].source.v), (0.03, -0.02));
+        assert_eq!(one[0].captures, [1, 2]);
+        let two = wall(
+            r#"{"scene": "s", "sources": [{"source": [0.03, -0.02], "captures": [1]}, {"source": [-0.06, 0.05], "captures": [2]}]}"#,
+        )
+        .unwrap();
+        assert_eq!(two.len(), 2);
+        assert_eq!(two[1].captures, [2]);
+        assert_eq!(two[1].source.u, -0.06);
+        for (json, says) in [
+            (r#"{"scene": "s"}"#, "or \"sources\""),
+            (r#"{"scene": "s", "captures": [1]}"#, "or \"sources\""),
+            (
+                r#"{"scene": "s", "captures": [1], "source": [0, 0], "sources": [{"source": [0, 0], "captures": [2]}]}"#,
+                "not both",
+            ),
+            (
+                r#"{"scene": "s", "captures": [1], "sources": [{"source": [0, 0], "captures": [2]}]}"#,
+                "not both",
+            ),
+            (
+                r#"{"scene": "s", "captures": [], "source": [0, 0]}"#,
+                "0 captures",
+            ),
+            (
+                r#"{"scene": "s", "sources": [{"source": [0, 0], "captures": [1]}, {"source": [0.01, 0], "captures": [1]}]}"#,
+                "capture 1 is given twice",
+            ),
+            (
+                r#"{"scene": "s", "captures": [1], "source": [0, 1e400]}"#,
+                "number out of range",
+            ),
+            (
+                r#"{"scene": "s", "captures": [1], "source": [0]}"#,
+                "invalid length 1",
+            ),
+        ] {
+            let e = wall(json).expect_err(json);
+            assert!(e.contains(says), "{json}: {e}");
+        }
+        let many: Vec<String> = (0..=crate::calibrate::wall::MAX_SOURCES)
+            .map(|k| format!(r#"{{"source": [0, 0], "captures": [{k}]}}"#))
+            .collect();
+        let e = wall(&format!(
+            r#"{{"scene": "s", "sources": [{}]}}"#,
+            many.join(",")
+        ))
+        .unwrap_err();
+        assert!(e.contains("at most 16"), "{e}");
+        let ids: Vec<String> = (0..=MAX_CAPTURES_PER_POSITION)
+            .map(|k| k.to_string())
+            .collect();
+        let e = wall(&format!(
+            r#"{{"scene": "s", "captures": [{}], "source": [0, 0]}}"#,
+            ids.join(",")
+        ))
+        .unwrap_err();
+        assert!(e.contains("65 captures"), "{e}");
+    }
+}
