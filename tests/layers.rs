@@ -105,3 +105,10 @@ fn the_core_names_no_service_layer() {
         }
     }
 }
+
+#[test]
+fn the_daemon_names_no_http_layer() {
+    for (path, text) in sources("daemon") {
+        assert!(!text.contains("crate::api"), "{path} names crate::api");
+    }
+}
