@@ -78,7 +78,9 @@ pub fn capture_json(data: &[u8]) {
         let plan = || Ok(Vec::new());
         if let Ok(r) = validate::capture(&b, scene(), &cam, plan, |_| Ok(None)) {
             // What is accepted fits the sensor and the frame cap.
-            assert!(LIMITS.check(r.region, r.binning).is_ok());
+            assert!(LIMITS
+                .check(r.acquisition.region, r.acquisition.binning)
+                .is_ok());
             assert!(r.frames >= 1 && r.frames + r.dark_frames <= 1000);
         }
     }

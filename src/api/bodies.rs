@@ -14,7 +14,7 @@ pub use crate::daemon::requests::{
 };
 
 use super::ApiError;
-use crate::camera::{PixelFormat, TriggerMode};
+use crate::camera::Acquisition;
 use crate::measure::exposure::ExposureTarget;
 use crate::store::{CaptureKind, CaptureRequest};
 
@@ -119,24 +119,15 @@ pub struct CaptureAccepted {
     pub job: Accepted,
     /// Light or dark.
     pub kind: CaptureKind,
-    /// Exposure per frame, microseconds.
-    pub exposure_us: f64,
-    /// Gain.
-    pub gain: f64,
+    /// Camera settings.
+    #[serde(flatten)]
+    pub acquisition: Acquisition,
     /// Frames to average.
     pub frames: usize,
     /// Dark frames within the capture.
     pub dark_frames: usize,
     /// Dark capture subtracted.
     pub dark_capture: Option<i64>,
-    /// Pixel format.
-    pub pixel_format: PixelFormat,
-    /// Region `[x, y, width, height]`.
-    pub region: [u32; 4],
-    /// Binning `[x, y]`.
-    pub binning: [u32; 2],
-    /// Trigger mode.
-    pub trigger: TriggerMode,
 }
 
 impl CaptureAccepted {
@@ -145,15 +136,10 @@ impl CaptureAccepted {
         Self {
             job: Accepted::queued("capture", id),
             kind: r.kind,
-            exposure_us: r.exposure_us,
-            gain: r.gain,
+            acquisition: r.acquisition,
             frames: r.frames,
             dark_frames: r.dark_frames,
             dark_capture: r.dark_capture,
-            pixel_format: r.pixel_format,
-            region: r.region,
-            binning: r.binning,
-            trigger: r.trigger,
         }
     }
 }

@@ -22,5 +22,6 @@ pub use crate::measure::Frame;
 pub use device::{CameraDevice, CameraError, CameraInfo, Counters, FrameSink, RawFrame};
 pub use pixel::DecodeError;
 pub use settings::{
-    CameraSettings, GeometryError, PixelFormat, SensorLimits, SettingsChange, TriggerMode,
+    Acquisition, CameraSettings, GeometryError, PixelFormat, SensorLimits, SettingsChange,
+    TriggerMode,
 };

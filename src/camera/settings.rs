@@ -31,6 +31,53 @@ impl TriggerMode {
     }
 }
 
+/// The settings one capture is taken with, every one resolved (the
+/// request's, or the camera's current ones when it was accepted): the one
+/// type the capture request, its catalogue row, its files' page
+/// description and the API's reply share.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Acquisition {
+    /// Exposure per frame, microseconds.
+    pub exposure_us: f64,
+    /// Gain in the camera's units.
+    pub gain: f64,
+    /// Pixel format.
+    pub pixel_format: PixelFormat,
+    /// Region of interest `[x, y, width, height]` in (binned) pixels.
+    #[schema(min_items = 4, max_items = 4)]
+    pub region: [u32; 4],
+    /// Binning `[x, y]`.
+    #[schema(min_items = 2, max_items = 2)]
+    pub binning: [u32; 2],
+    /// Trigger mode.
+    pub trigger: TriggerMode,
+}
+
+impl Acquisition {
+    /// Whether a dark frame taken with `self` can be subtracted from a frame
+    /// taken with `other`: the same exposure, gain, pixel format, region and
+    /// binning (the trigger does not change the dark level).
+    pub fn same_dark_as(&self, other: &Acquisition) -> bool {
+        Acquisition {
+            trigger: other.trigger,
+            ..*self
+        } == *other
+    }
+}
+
+impl From<Acquisition> for CameraSettings {
+    fn from(a: Acquisition) -> Self {
+        Self {
+            exposure_us: a.exposure_us,
+            gain: a.gain,
+            pixel_format: a.pixel_format,
+            region: Some(a.region),
+            binning: Some(a.binning),
+            trigger: a.trigger,
+        }
+    }
+}
+
 /// Everything a capture sets on the camera.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
@@ -216,6 +263,49 @@ impl SensorLimits {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_dark_fits_a_capture_with_the_same_settings_whatever_its_trigger() {
+        let light = Acquisition {
+            exposure_us: 5000.0,
+            gain: 2.0,
+            pixel_format: PixelFormat::Mono16,
+            region: [0, 0, 64, 32],
+            binning: [1, 1],
+            trigger: TriggerMode::Software,
+        };
+        let dark = Acquisition {
+            trigger: TriggerMode::Free,
+            ..light
+        };
+        assert!(dark.same_dark_as(&light));
+        for other in [
+            Acquisition {
+                exposure_us: 5001.0,
+                ..dark
+            },
+            Acquisition { gain: 0.0, ..dark },
+            Acquisition {
+                pixel_format: PixelFormat::Mono8,
+                ..dark
+            },
+            Acquisition {
+                region: [1, 0, 64, 32],
+                ..dark
+            },
+            Acquisition {
+                binning: [2, 2],
+                ..dark
+            },
+        ] {
+            assert!(!other.same_dark_as(&light), "{other:?}");
+        }
+        let camera = CameraSettings::from(light);
+        assert_eq!(
+            (camera.region, camera.binning),
+            (Some(light.region), Some(light.binning))
+        );
+    }
 
     /// Aravis's fake camera: 2048 x 2048, sizes and offsets by 1, binning to 16.
     const FAKE: SensorLimits = SensorLimits {

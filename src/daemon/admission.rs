@@ -181,7 +181,12 @@ impl Daemon {
         req: &CaptureRequest,
         progressive: Option<ProgressiveSpec>,
     ) -> Result<i64, SubmitError> {
-        let need = capture_bytes(req.region[2], req.region[3], req.frames, req.dark_frames);
+        let need = capture_bytes(
+            req.acquisition.region[2],
+            req.acquisition.region[3],
+            req.frames,
+            req.dark_frames,
+        );
         let free = crate::files::space::free_disk_bytes(self.store.dir())
             .map_err(|e| SubmitError::Internal(self.store.describe_io(self.store.dir(), &e)))?;
         let mut reserved = self.reserved.lock().unwrap_or_else(|e| e.into_inner());
@@ -195,7 +200,7 @@ impl Daemon {
                 keep,
             });
         }
-        let seconds = req.exposure_us * 1e-6 * (req.frames + req.dark_frames) as f64;
+        let seconds = req.acquisition.exposure_us * 1e-6 * (req.frames + req.dark_frames) as f64;
         let permit = self
             .captures
             .try_reserve()

@@ -17,7 +17,7 @@ use tokio::sync::mpsc;
 use super::jobs::{finish_job, job_event, Ending, JobError};
 use super::progressive;
 use super::{Daemon, Event};
-use crate::camera::{CameraError, CameraSettings, Frame, RawFrame};
+use crate::camera::{Acquisition, CameraError, CameraSettings, Frame, RawFrame};
 use crate::measure::FrameStack;
 use crate::store::{
     read_mean, write_frames, write_summary, CaptureFiles, CaptureKind, CaptureRecord, FrameMeta,
@@ -65,10 +65,15 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
     let store_err = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
     let c = d.store.capture(id).map_err(store_err)?;
     job_event(d, format!("capture-{id}"), JobState::Running, None);
-    let settings = settings_of(&c)?;
+    // The settings recorded when it was accepted.
+    let acquisition = Acquisition::try_from(&c).map_err(|e| JobError::Capture {
+        id,
+        reason: e.to_string(),
+    })?;
+    let settings = CameraSettings::from(acquisition);
     wait_for_camera(d).await;
     let camera_id = d.camera.status().info.map(|i| i.id).unwrap_or_default();
-    let meta = meta_of(&c, &settings, &camera_id);
+    let meta = meta_of(&c, acquisition, &camera_id);
     let dir = d.store.capture_dir(id);
     std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
     d.bench.select(&c.pose, c.polarizer_deg);
@@ -158,24 +163,6 @@ async fn finish_progressive(
     }
 }
 
-/// The camera settings a capture recorded when it was accepted.
-fn settings_of(c: &CaptureRecord) -> Result<CameraSettings, JobError> {
-    let (Some(region), Some(binning), Some(trigger)) = (c.region, c.binning, c.trigger) else {
-        return Err(JobError::Capture {
-            id: c.id,
-            reason: "records no region, binning or trigger mode".into(),
-        });
-    };
-    Ok(CameraSettings {
-        exposure_us: c.exposure_us,
-        gain: c.gain,
-        pixel_format: c.pixel_format,
-        region: Some(region),
-        binning: Some(binning),
-        trigger,
-    })
-}
-
 /// A camera that is (re)connecting gets a short grace period before the capture fails.
 async fn wait_for_camera(d: &Daemon) {
     let grace = Instant::now();
@@ -185,20 +172,14 @@ async fn wait_for_camera(d: &Daemon) {
 }
 
 /// What every page of the capture's files records about it.
-fn meta_of(c: &CaptureRecord, settings: &CameraSettings, camera_id: &str) -> FrameMeta {
-    let kind = c.kind;
+fn meta_of(c: &CaptureRecord, acquisition: Acquisition, camera_id: &str) -> FrameMeta {
     FrameMeta {
         capture: c.id,
-        kind,
+        kind: c.kind,
         scene: c.scene.clone(),
         pose: c.pose.clone(),
         polarizer_deg: c.polarizer_deg,
-        exposure_us: c.exposure_us,
-        gain: c.gain,
-        pixel_format: settings.pixel_format,
-        region: settings.region.unwrap_or_default(),
-        binning: settings.binning.unwrap_or([1, 1]),
-        trigger: settings.trigger,
+        acquisition,
         dark_capture: c.dark_capture,
         camera_id: camera_id.to_string(),
     }

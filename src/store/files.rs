@@ -11,7 +11,7 @@ use tiff::encoder::{colortype, TiffEncoder};
 use tiff::tags::Tag;
 
 use super::{CaptureKind, StoreError};
-use crate::camera::{Frame, PixelFormat, RawFrame, TriggerMode};
+use crate::camera::{Acquisition, Frame, RawFrame};
 use crate::files::{image, write_atomic, FileError};
 use crate::measure::FrameStack;
 
@@ -29,18 +29,9 @@ pub struct FrameMeta {
     pub pose: String,
     /// Polarizer angle (null: none).
     pub polarizer_deg: Option<f64>,
-    /// Exposure, microseconds.
-    pub exposure_us: f64,
-    /// Gain.
-    pub gain: f64,
-    /// Pixel format.
-    pub pixel_format: PixelFormat,
-    /// Region of interest `[x, y, width, height]`.
-    pub region: [u32; 4],
-    /// Binning `[x, y]`.
-    pub binning: [u32; 2],
-    /// Free running or software-triggered.
-    pub trigger: TriggerMode,
+    /// Camera settings (flattened: the same keys as before it was one type).
+    #[serde(flatten)]
+    pub acquisition: Acquisition,
     /// The dark capture subtracted from this one, if any.
     pub dark_capture: Option<i64>,
     /// Camera id (GenICam vendor-model-serial).
@@ -143,7 +134,7 @@ fn write_pages(
     let file =
         std::fs::File::create(tmp).map_err(|e| StoreError::File(FileError::write(tmp, e)))?;
     let mut out = std::io::BufWriter::new(file);
-    let [w, h] = [meta.region[2], meta.region[3]];
+    let [_, _, w, h] = meta.acquisition.region;
     // Classic TIFF addresses 4 GiB; longer captures are written as BigTIFF.
     let big = capture_bytes(w, h, expected, 0) > (3u64 << 30);
     let stack = if big {
@@ -380,12 +371,14 @@ mod tests {
             scene: "s".into(),
             pose: "A".into(),
             polarizer_deg: Some(0.0),
-            exposure_us: 1000.0,
-            gain: 0.0,
-            pixel_format: PixelFormat::Mono16,
-            region: [0, 0, 3, 2],
-            binning: [1, 1],
-            trigger: TriggerMode::Free,
+            acquisition: Acquisition {
+                exposure_us: 1000.0,
+                gain: 0.0,
+                pixel_format: crate::camera::PixelFormat::Mono16,
+                region: [0, 0, 3, 2],
+                binning: [1, 1],
+                trigger: crate::camera::TriggerMode::Free,
+            },
             dark_capture: None,
             camera_id: "cam".into(),
         }

@@ -422,12 +422,13 @@ impl Store {
 
     /// Records a new capture job (state `queued`); returns its id.
     pub fn insert_capture(&self, r: &CaptureRequest) -> Result<i64, StoreError> {
+        let a = &r.acquisition;
         self.with(|c| {
             c.execute(
                 "INSERT INTO captures (scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at, kind, region, binning, trigger, dark_capture)
                  VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, 'queued', ?9, ?10, ?11, ?12, ?13, ?14)",
-                params![r.scene, r.pose, r.polarizer_deg, r.exposure_us, r.gain, r.frames as i64, r.dark_frames as i64, r.pixel_format.name(), now(),
-                    r.kind.name(), serde_json::to_string(&r.region).unwrap_or_default(), serde_json::to_string(&r.binning).unwrap_or_default(), r.trigger.name(), r.dark_capture],
+                params![r.scene, r.pose, r.polarizer_deg, a.exposure_us, a.gain, r.frames as i64, r.dark_frames as i64, a.pixel_format.name(), now(),
+                    r.kind.name(), serde_json::to_string(&a.region).unwrap_or_default(), serde_json::to_string(&a.binning).unwrap_or_default(), a.trigger.name(), r.dark_capture],
             )?;
             Ok(c.last_insert_rowid())
         })
@@ -860,14 +861,16 @@ mod tests {
             scene: "brewster-crossed".into(),
             pose: "A".into(),
             polarizer_deg: Some(0.0),
-            exposure_us: 1000.0,
-            gain: 0.0,
+            acquisition: crate::camera::Acquisition {
+                exposure_us: 1000.0,
+                gain: 0.0,
+                pixel_format: PixelFormat::Mono8,
+                region: [0, 0, 4, 4],
+                binning: [1, 1],
+                trigger: TriggerMode::Software,
+            },
             frames: 1,
             dark_frames: 0,
-            pixel_format: PixelFormat::Mono8,
-            region: [0, 0, 4, 4],
-            binning: [1, 1],
-            trigger: TriggerMode::Software,
             dark_capture: None,
         };
         let ids: Vec<i64> = (0..4)

@@ -3,7 +3,7 @@
 use rusqlite::Row;
 use serde::{Deserialize, Serialize};
 
-use crate::camera::{PixelFormat, TriggerMode};
+use crate::camera::{Acquisition, PixelFormat, TriggerMode};
 
 /// Whether a capture shows the hidden scene, is a dark capture taken with
 /// the scene switched off (to be subtracted from light captures), or shows
@@ -136,22 +136,12 @@ pub struct CaptureRequest {
     pub pose: String,
     /// Polarizer angle (None: the pose has no polarizer).
     pub polarizer_deg: Option<f64>,
-    /// Exposure per frame, microseconds.
-    pub exposure_us: f64,
-    /// Gain.
-    pub gain: f64,
+    /// Camera settings.
+    pub acquisition: Acquisition,
     /// Frames to average.
     pub frames: usize,
     /// Dark frames (scene off) to average and subtract.
     pub dark_frames: usize,
-    /// Pixel format.
-    pub pixel_format: PixelFormat,
-    /// Region of interest `[x, y, width, height]`.
-    pub region: [u32; 4],
-    /// Binning `[x, y]`.
-    pub binning: [u32; 2],
-    /// Trigger mode.
-    pub trigger: TriggerMode,
     /// A done dark capture whose mean is subtracted from this one.
     pub dark_capture: Option<i64>,
 }
@@ -241,6 +231,46 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
             .transpose()?,
         dark_capture: r.get(21)?,
     })
+}
+
+/// A capture row that lacks a setting its acquisition needs (rows from
+/// before region, binning and trigger were recorded).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("capture {id} records no {missing}; its settings cannot be reused (take it again)")]
+pub struct IncompleteRecord {
+    /// The capture.
+    pub id: i64,
+    /// The settings it lacks, e.g. `region, trigger`.
+    pub missing: String,
+}
+
+impl TryFrom<&CaptureRecord> for Acquisition {
+    type Error = IncompleteRecord;
+
+    fn try_from(c: &CaptureRecord) -> Result<Self, IncompleteRecord> {
+        match (c.region, c.binning, c.trigger) {
+            (Some(region), Some(binning), Some(trigger)) => Ok(Acquisition {
+                exposure_us: c.exposure_us,
+                gain: c.gain,
+                pixel_format: c.pixel_format,
+                region,
+                binning,
+                trigger,
+            }),
+            (region, binning, trigger) => Err(IncompleteRecord {
+                id: c.id,
+                missing: [
+                    region.is_none().then_some("region"),
+                    binning.is_none().then_some("binning"),
+                    trigger.is_none().then_some("trigger"),
+                ]
+                .into_iter()
+                .flatten()
+                .collect::<Vec<_>>()
+                .join(", "),
+            }),
+        }
+    }
 }
 
 impl CaptureRecord {

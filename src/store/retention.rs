@@ -97,14 +97,16 @@ mod tests {
             scene: "brewster-crossed".into(),
             pose: "A".into(),
             polarizer_deg: Some(0.0),
-            exposure_us: 1000.0,
-            gain: 0.0,
+            acquisition: crate::camera::Acquisition {
+                exposure_us: 1000.0,
+                gain: 0.0,
+                pixel_format: PixelFormat::Mono16,
+                region: [0, 0, 4, 4],
+                binning: [1, 1],
+                trigger: TriggerMode::Free,
+            },
             frames: 1,
             dark_frames: 0,
-            pixel_format: PixelFormat::Mono16,
-            region: [0, 0, 4, 4],
-            binning: [1, 1],
-            trigger: TriggerMode::Free,
             dark_capture,
         }
     }

@@ -1,6 +1,7 @@
 //! Checking a capture request against its scene, the camera and the bench.
 
 use super::{invalid, CameraContext, RequestError};
+use crate::camera::Acquisition;
 use crate::daemon::jobs::same_angle;
 use crate::daemon::requests::{AutoExposure, CaptureBody};
 use crate::measure::exposure::BlockExposure;
@@ -39,14 +40,16 @@ pub fn capture(
         scene: b.scene.clone(),
         pose: b.pose.clone(),
         polarizer_deg: b.polarizer_deg,
-        exposure_us,
-        gain: b.gain,
+        acquisition: Acquisition {
+            exposure_us,
+            gain: b.gain,
+            pixel_format: b.pixel_format.unwrap_or(cam.defaults.pixel_format),
+            region,
+            binning,
+            trigger: b.trigger.unwrap_or(cam.defaults.trigger),
+        },
         frames,
         dark_frames: b.dark_frames,
-        pixel_format: b.pixel_format.unwrap_or(cam.defaults.pixel_format),
-        region,
-        binning,
-        trigger: b.trigger.unwrap_or(cam.defaults.trigger),
         dark_capture: b.dark_capture,
     };
     if let Some(id) = b.dark_capture {
@@ -201,15 +204,12 @@ fn check_dark_capture(c: &CaptureRecord, r: &CaptureRequest) -> Result<(), Reque
             c.state.name()
         )));
     }
-    let same = c.exposure_us == r.exposure_us
-        && c.gain == r.gain
-        && c.pixel_format == r.pixel_format
-        && c.region == Some(r.region)
-        && c.binning == Some(r.binning);
-    if !same {
+    let dark = Acquisition::try_from(c).map_err(|e| invalid(format!("dark_capture {id}: {e}")))?;
+    let r = &r.acquisition;
+    if !dark.same_dark_as(r) {
         return Err(invalid(format!(
             "dark_capture {id} was taken at exposure_us {}, gain {}, {}, region {:?}, binning {:?}; this capture asks for {}, {}, {}, {:?}, {:?}: take a dark capture with the same settings",
-            c.exposure_us, c.gain, c.pixel_format.name(), c.region, c.binning,
+            dark.exposure_us, dark.gain, dark.pixel_format.name(), dark.region, dark.binning,
             r.exposure_us, r.gain, r.pixel_format.name(), r.region, r.binning
         )));
     }
@@ -274,11 +274,11 @@ mod tests {
         }))
         .expect("accepted");
         assert_eq!(r.kind, CaptureKind::Light);
-        assert_eq!((r.exposure_us, r.frames), (5000.0, 3));
-        assert_eq!(r.region, [0, 0, 256, 128]);
-        assert_eq!(r.binning, [1, 1]);
-        assert_eq!(r.pixel_format, PixelFormat::Mono16);
-        assert_eq!(r.trigger, TriggerMode::Free);
+        assert_eq!((r.acquisition.exposure_us, r.frames), (5000.0, 3));
+        assert_eq!(r.acquisition.region, [0, 0, 256, 128]);
+        assert_eq!(r.acquisition.binning, [1, 1]);
+        assert_eq!(r.acquisition.pixel_format, PixelFormat::Mono16);
+        assert_eq!(r.acquisition.trigger, TriggerMode::Free);
     }
 
     #[test]
@@ -336,7 +336,7 @@ mod tests {
         };
         let plan = || Ok(vec![block("B", 1000.0, 4), block("C", 2500.0, 7)]);
         let r = capture(&b, &scene(), &cam(), plan, |_| Ok(None)).expect("accepted");
-        assert_eq!((r.exposure_us, r.frames), (2500.0, 7));
+        assert_eq!((r.acquisition.exposure_us, r.frames), (2500.0, 7));
     }
 
     #[test]
@@ -367,5 +367,14 @@ mod tests {
         let light = record(7, "light", 5000.0, JobState::Done);
         let r = capture(&b, &scene(), &cam(), no_plan, |_| Ok(Some(light.clone())));
         assert!(message(r).contains("must be a done dark capture"));
+        // A dark row from before region and trigger were recorded cannot
+        // vouch for its settings.
+        let mut old = dark(5000.0);
+        (old.region, old.trigger) = (None, None);
+        let r = capture(&b, &scene(), &cam(), no_plan, |_| Ok(Some(old.clone())));
+        assert!(
+            message(r).contains("capture 7 records no region, trigger"),
+            "{old:?}"
+        );
     }
 }

@@ -46,10 +46,10 @@ pub fn progressive(
         .ok_or_else(|| invalid("the capture's block is not one of its scene"))?;
     covered[own] = true;
     if let Some(frame) = scene.pose(&r.pose).and_then(|p| p.frame) {
-        if (r.region, r.binning) != (frame.region, frame.binning) {
+        if (r.acquisition.region, r.acquisition.binning) != (frame.region, frame.binning) {
             return Err(invalid(format!(
                 "progressive reconstruction samples this capture through pose {:?}'s homography, which maps into region {:?} binning {:?}; this capture uses region {:?} binning {:?}",
-                r.pose, frame.region, frame.binning, r.region, r.binning
+                r.pose, frame.region, frame.binning, r.acquisition.region, r.acquisition.binning
             )));
         }
     }
@@ -132,14 +132,16 @@ mod tests {
             scene: "brewster-multi-3x3".into(),
             pose: pose.into(),
             polarizer_deg: Some(0.0),
-            exposure_us: 5000.0,
-            gain: 0.0,
+            acquisition: crate::camera::Acquisition {
+                exposure_us: 5000.0,
+                gain: 0.0,
+                pixel_format: PixelFormat::Mono16,
+                region: [0, 0, 512, 512],
+                binning: [1, 1],
+                trigger: TriggerMode::Free,
+            },
             frames: 40,
             dark_frames: 2,
-            pixel_format: PixelFormat::Mono16,
-            region: [0, 0, 512, 512],
-            binning: [1, 1],
-            trigger: TriggerMode::Free,
             dark_capture: None,
         }
     }
