@@ -4,7 +4,7 @@
 //! whatever went wrong (a bad query string, a wrong method, an oversized
 //! header); jobs answer 202 with a `Location`. Every request passes
 //! [`guard`]: size limits, the `Host`/`Origin` checks, and the bearer token
-//! when one is set. Request bodies are size- and time-limited; [`serve`] caps
+//! when one is set. Request bodies are size- and time-limited; [`serve()`] caps
 //! connections and header time; [`run`] serves a daemon until shut down.
 
 pub mod bodies;
@@ -19,9 +19,12 @@ mod web;
 use std::sync::Arc;
 use std::time::Duration;
 
+use axum::extract::State;
 use axum::middleware;
-use axum::routing::{get, post, put};
+use axum::routing::get;
 use axum::Router;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
 
 pub use error::ApiError;
 pub use serve::{run, serve, Limits};
@@ -32,89 +35,71 @@ use crate::daemon::Daemon;
 pub fn router(d: Arc<Daemon>) -> Router {
     let limit = d.config().queue.max_body_bytes;
     let body_timeout = Duration::from_secs_f64(d.config().http.body_timeout_s);
-    Router::new()
+    let (app, doc) = all_routes().split_for_parts();
+    let doc = Arc::new(openapi::finish(doc));
+    // The document itself is served beside the routes it documents, not among them.
+    app.route(
+        "/openapi.json",
+        get(move |State(d): State<Arc<Daemon>>| openapi::spec(d, doc.clone())),
+    )
+    .fallback(routes::not_found)
+    .method_not_allowed_fallback(routes::method_not_allowed)
+    .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
+        body_timeout,
+    ))
+    .layer(axum::extract::DefaultBodyLimit::max(limit))
+    .layer(middleware::from_fn_with_state(
+        guard::Guard::new(d.clone()),
+        guard::guard,
+    ))
+    .with_state(d)
+}
+
+/// Every route, each declared once. An API route is one `routes!` line
+/// naming its handler, whose `#[utoipa::path]` gives the method and path
+/// axum routes and the operation `/openapi.json` documents, so the two
+/// cannot drift apart; handlers of one path share a line (a line with
+/// several paths would route every handler at each of them). The page and
+/// its files are plain routes: not API, so not in the document.
+fn all_routes() -> OpenApiRouter<Arc<Daemon>> {
+    OpenApiRouter::with_openapi(openapi::base())
         .route("/", get(web::index))
         .route("/app.js", get(web::app))
         .route("/style.css", get(web::style))
         .route("/api", get(web::api))
         .route("/api.js", get(web::api_js))
         .route("/bench/{name}", get(web::chart))
-        .route("/camera/frame.png", get(routes::camera_frame))
-        .route("/health", get(routes::health))
-        .route("/metrics", get(routes::metrics))
-        .route("/camera", get(routes::camera))
-        .route("/camera/settings", put(routes::camera_settings))
-        .route(
-            "/captures",
-            post(routes::post_capture).get(routes::list_captures),
-        )
-        .route(
-            "/captures/{id}",
-            get(routes::get_capture).delete(routes::delete_capture),
-        )
-        .route("/captures/{id}/frame.tiff", get(routes::capture_frames))
-        .route("/captures/{id}/mean.tiff", get(routes::capture_mean))
-        .route("/captures/{id}/dark.tiff", get(routes::capture_dark))
-        .route(
-            "/captures/{id}/variance.tiff",
-            get(routes::capture_variance),
-        )
-        .route("/captures/{id}/preview.png", get(routes::capture_preview))
-        .route(
-            "/captures/{id}/progressive.png",
-            get(routes::capture_progressive_image),
-        )
-        .route(
-            "/captures/{id}/progressive.json",
-            get(routes::capture_progressive_steps),
-        )
-        .route("/calibrations", post(routes::post_calibration))
-        .route("/calibrations/wall", post(routes::post_wall_calibration))
-        .route(
-            "/reconstructions",
-            post(routes::post_reconstruction).get(routes::list_reconstructions),
-        )
-        .route(
-            "/reconstructions/{id}",
-            get(routes::get_reconstruction).delete(routes::delete_reconstruction),
-        )
-        .route(
-            "/reconstructions/{id}/image.png",
-            get(routes::reconstruction_image),
-        )
-        .route(
-            "/reconstructions/{id}/truth.png",
-            get(routes::reconstruction_truth),
-        )
-        .route(
-            "/reconstructions/{id}/recovered.npy",
-            get(routes::reconstruction_npy),
-        )
-        .route(
-            "/reconstructions/{id}/measurement.npy",
-            get(routes::reconstruction_measurement),
-        )
-        .route(
-            "/reconstructions/{id}/report.json",
-            get(routes::reconstruction_report),
-        )
-        .route(
-            "/jobs/{id}",
-            get(routes::get_job).delete(routes::cancel_job),
-        )
-        .route("/events", get(routes::events))
-        .route("/scenes", get(routes::scenes))
-        .route("/scenes/{name}/exposure", get(routes::scene_exposure))
-        .route("/openapi.json", get(openapi::spec))
-        .fallback(routes::not_found)
-        .method_not_allowed_fallback(routes::method_not_allowed)
-        .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
-            body_timeout,
+        .routes(routes!(routes::health))
+        .routes(routes!(routes::metrics))
+        .routes(routes!(routes::camera))
+        .routes(routes!(routes::camera_frame))
+        .routes(routes!(routes::camera_settings))
+        .routes(routes!(routes::post_capture, routes::list_captures))
+        .routes(routes!(routes::get_capture, routes::delete_capture))
+        .routes(routes!(routes::capture_frames))
+        .routes(routes!(routes::capture_mean))
+        .routes(routes!(routes::capture_dark))
+        .routes(routes!(routes::capture_variance))
+        .routes(routes!(routes::capture_preview))
+        .routes(routes!(routes::capture_progressive_image))
+        .routes(routes!(routes::capture_progressive_steps))
+        .routes(routes!(routes::post_calibration))
+        .routes(routes!(routes::post_wall_calibration))
+        .routes(routes!(
+            routes::post_reconstruction,
+            routes::list_reconstructions
         ))
-        .layer(axum::extract::DefaultBodyLimit::max(limit))
-        .layer(middleware::from_fn_with_state(
-            guard::Guard::new(d.clone()),
-            guard::guard,
+        .routes(routes!(
+            routes::get_reconstruction,
+            routes::delete_reconstruction
         ))
-        .with_state(d)
+        .routes(routes!(routes::reconstruction_image))
+        .routes(routes!(routes::reconstruction_truth))
+        .routes(routes!(routes::reconstruction_npy))
+        .routes(routes!(routes::reconstruction_measurement))
+        .routes(routes!(routes::reconstruction_report))
+        .routes(routes!(routes::get_job, routes::cancel_job))
+        .routes(routes!(routes::events))
+        .routes(routes!(routes::scenes))
+        .routes(routes!(routes::scene_exposure))
 }

@@ -1,54 +1,23 @@
-//! `GET /openapi.json`, generated from the handlers' annotations (utoipa).
+//! `GET /openapi.json`, generated from the handlers' annotations (utoipa):
+//! the router declares each route once (see `super::all_routes`) and its
+//! paths come from there; this module adds what every route shares.
 
 use std::sync::Arc;
 
-use axum::extract::State;
 use axum::Json;
+use utoipa::openapi::OpenApi as Document;
 use utoipa::{Modify, OpenApi};
 
 use super::routes;
 use crate::daemon::Daemon;
 
+/// The document before the router adds its paths: title, description, and
+/// the schemas listed here (operations add those they name).
 #[derive(OpenApi)]
 #[openapi(
-    modifiers(&Errors),
     info(
         title = "polnlos",
         description = "Polarization-enhanced passive NLOS imaging: captures, reconstructions, camera."
-    ),
-    paths(
-        routes::health,
-        routes::metrics,
-        routes::camera,
-        routes::camera_frame,
-        routes::camera_settings,
-        routes::post_capture,
-        routes::list_captures,
-        routes::get_capture,
-        routes::delete_capture,
-        routes::capture_frames,
-        routes::capture_mean,
-        routes::capture_dark,
-        routes::capture_variance,
-        routes::capture_preview,
-        routes::capture_progressive_image,
-        routes::capture_progressive_steps,
-        routes::post_calibration,
-        routes::post_wall_calibration,
-        routes::post_reconstruction,
-        routes::list_reconstructions,
-        routes::get_reconstruction,
-        routes::delete_reconstruction,
-        routes::reconstruction_image,
-        routes::reconstruction_truth,
-        routes::reconstruction_npy,
-        routes::reconstruction_measurement,
-        routes::reconstruction_report,
-        routes::get_job,
-        routes::cancel_job,
-        routes::events,
-        routes::scenes,
-        routes::scene_exposure,
     ),
     components(schemas(
         super::bodies::CaptureBody,
@@ -99,7 +68,7 @@ pub struct Access {
 
 impl Access {
     /// Writes the bearer scheme and each operation's requirement into `doc`.
-    fn apply(self, doc: &mut utoipa::openapi::OpenApi) {
+    fn apply(self, doc: &mut Document) {
         use utoipa::openapi::security::{
             HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme,
         };
@@ -139,7 +108,7 @@ impl Access {
 struct Errors;
 
 impl Modify for Errors {
-    fn modify(&self, doc: &mut utoipa::openapi::OpenApi) {
+    fn modify(&self, doc: &mut Document) {
         use utoipa::openapi::{ContentBuilder, Ref, ResponseBuilder};
         let error = || {
             ContentBuilder::new()
@@ -204,14 +173,18 @@ impl Modify for Errors {
     }
 }
 
-/// The OpenAPI document of this daemon: its routes, the token its
-/// configuration asks for where it asks for one, and the scene and pose
-/// names it knows (so a generated request can reach past their 422).
-pub async fn spec(State(d): State<Arc<Daemon>>) -> Json<serde_json::Value> {
-    let doc = document(Access {
-        token: !d.token().is_empty(),
-        public_reads: d.config().http.public_reads,
-    });
+/// The OpenAPI document of this daemon: `doc`, the routes' document
+/// ([`finish`]ed), with the token its configuration asks for where it asks
+/// for one, and the scene and pose names it knows (so a generated request
+/// can reach past their 422).
+pub async fn spec(d: Arc<Daemon>, doc: Arc<Document>) -> Json<serde_json::Value> {
+    let doc = document(
+        &doc,
+        Access {
+            token: !d.token().is_empty(),
+            public_reads: d.config().http.public_reads,
+        },
+    );
     Json(with_names(
         serde_json::to_value(doc).unwrap_or_default(),
         &d.scene_names(),
@@ -249,9 +222,34 @@ pub fn with_names(
     doc
 }
 
-/// The document for a given access policy.
-pub fn document(access: Access) -> utoipa::openapi::OpenApi {
-    let mut doc = Doc::openapi();
+/// The base the router adds its paths to: title, description, schemas.
+pub fn base() -> Document {
+    Doc::openapi()
+}
+
+/// The router's document made whole: the errors every route can answer on
+/// each operation, and each operation's tag `routes` (the handlers' module,
+/// which the document has always named; clients grouping by tag see the
+/// same group).
+pub fn finish(mut doc: Document) -> Document {
+    Errors.modify(&mut doc);
+    for item in doc.paths.paths.values_mut() {
+        let ops = [
+            &mut item.get,
+            &mut item.put,
+            &mut item.post,
+            &mut item.delete,
+        ];
+        for op in ops.into_iter().flatten() {
+            op.tags.get_or_insert_with(|| vec!["routes".into()]);
+        }
+    }
+    doc
+}
+
+/// `doc` for a given access policy.
+pub fn document(doc: &Document, access: Access) -> Document {
+    let mut doc = doc.clone();
     access.apply(&mut doc);
     doc
 }
@@ -260,7 +258,12 @@ pub fn document(access: Access) -> utoipa::openapi::OpenApi {
 mod tests {
     use super::*;
 
-    fn security(doc: &utoipa::openapi::OpenApi, path: &str, method: &str) -> serde_json::Value {
+    /// The routes' document for `access`, as `/openapi.json` builds it.
+    fn routes_document(access: Access) -> Document {
+        document(&finish(super::super::all_routes().into_openapi()), access)
+    }
+
+    fn security(doc: &Document, path: &str, method: &str) -> serde_json::Value {
         let v = serde_json::to_value(doc).unwrap_or_default();
         v["paths"][path][method]["security"].clone()
     }
@@ -269,20 +272,20 @@ mod tests {
     fn the_document_says_which_routes_need_the_token() {
         let bearer = serde_json::json!([{ "bearer": [] }]);
         let none = serde_json::json!([]);
-        let doc = document(Access {
+        let doc = routes_document(Access {
             token: true,
             public_reads: false,
         });
         assert_eq!(security(&doc, "/health", "get"), none);
         assert_eq!(security(&doc, "/captures", "get"), bearer);
         assert_eq!(security(&doc, "/captures", "post"), bearer);
-        let doc = document(Access {
+        let doc = routes_document(Access {
             token: true,
             public_reads: true,
         });
         assert_eq!(security(&doc, "/captures", "get"), none);
         assert_eq!(security(&doc, "/jobs/{id}", "delete"), bearer);
-        let doc = document(Access {
+        let doc = routes_document(Access {
             token: false,
             public_reads: false,
         });
