@@ -133,6 +133,83 @@ fn sigkill_during_a_capture_loses_nothing_completed() {
     assert_eq!(again["id"], 3);
 }
 
+#[test]
+fn sigterm_during_a_capture_interrupts_it_and_drains_before_exit() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let cfg = config(dir.path(), &[]);
+    let mut d = Daemon::start(&cfg, &data);
+    let done = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 3}"#, Duration::from_secs(20));
+    assert_eq!(done["state"], "done");
+    let (_, mean_before) = d.get_bytes("/captures/1/mean.tiff");
+    let (s, _, loc) = d.post("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 200000, "frames": 100}"#);
+    assert_eq!(s, 202);
+    let (s, _, queued) = d.post(
+        "/captures",
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000}"#,
+    );
+    assert_eq!(s, 202);
+    let (loc, queued) = (loc.unwrap(), queued.unwrap());
+    let t = Instant::now();
+    while d.json(&loc)["frames_taken"].as_i64().unwrap_or(0) < 2 {
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "capture never started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // What systemd sends on `systemctl stop`.
+    let term = Command::new("kill")
+        .args(["-TERM", &d.pid().to_string()])
+        .status()
+        .unwrap();
+    assert!(term.success());
+    let t = Instant::now();
+    let status = loop {
+        if let Some(s) = d.child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "the daemon did not stop within 30 s of SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "{status}");
+    // The catalogue as the stopped daemon left it, before any restart's
+    // recovery: the running capture was stopped and recorded by the daemon
+    // itself, the queued one never started.
+    let db = rusqlite::Connection::open(data.join("catalogue.sqlite")).unwrap();
+    let row = |id: i64| -> (String, Option<String>) {
+        db.query_row(
+            "SELECT state, error FROM captures WHERE id = ?1",
+            [id],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )
+        .unwrap()
+    };
+    let (state, error) = row(2);
+    assert_eq!(state, "interrupted");
+    assert!(error.unwrap_or_default().contains("daemon stopped"));
+    assert_eq!(row(3).0, "queued");
+    assert_eq!(row(1).0, "done");
+    let folder = data.join("captures/2");
+    for f in ["frames.tiff", "mean.tiff", "variance.tiff"] {
+        assert!(
+            !folder.join(f).exists(),
+            "{f} of the interrupted capture was kept"
+        );
+    }
+    drop(db);
+    drop(d);
+    let d = Daemon::start(&cfg, &data);
+    assert_eq!(d.json("/captures/1")["state"], "done");
+    assert_eq!(d.get_bytes("/captures/1/mean.tiff").1, mean_before);
+    assert_eq!(d.json(&loc)["state"], "interrupted");
+    assert_eq!(d.json(&queued)["state"], "interrupted");
+}
+
 /// Whether this process may make a private mount namespace (root, as in CI).
 fn can_unshare_mounts() -> bool {
     Command::new("unshare")

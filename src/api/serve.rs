@@ -103,8 +103,14 @@ impl Drop for PeerSlot {
     }
 }
 
+/// How long a stopping daemon waits for its running jobs to stop (they are
+/// stopped at once; a frame in flight or a solver between checks may hold
+/// them a few seconds), within systemd's default 90 s stop timeout.
+pub const JOB_DRAIN: Duration = Duration::from_secs(20);
+
 /// Serves the API of `daemon` on `listener` until `shutdown` completes, then
-/// stops the camera: the library's entry point (`polnlos serve` wraps it with
+/// drains the daemon (running jobs end `interrupted`, workers joined, camera
+/// stopped): the library's entry point (`polnlos serve` wraps it with
 /// logging, signals and systemd notification).
 pub async fn run(
     listener: TcpListener,
@@ -114,7 +120,7 @@ pub async fn run(
     let limits = Limits::of(&daemon.config().http);
     let app = super::router(daemon.clone());
     let result = serve(listener, app, limits, shutdown).await;
-    daemon.shutdown();
+    daemon.drain(JOB_DRAIN).await;
     result
 }
 

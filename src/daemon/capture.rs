@@ -35,7 +35,13 @@ const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 
 /// Runs captures one at a time (one camera).
 pub(super) async fn capture_worker(d: Arc<Daemon>, mut rx: mpsc::Receiver<i64>) {
-    while let Some(id) = rx.recv().await {
+    let mut stopped = d.stopped();
+    loop {
+        let id = tokio::select! {
+            id = rx.recv() => id,
+            _ = stopped.wait_for(|s| *s) => None,
+        };
+        let Some(id) = id else { return };
         let job = format!("capture-{id}");
         let start = Instant::now();
         // Held for the whole capture: settings changes answer 409 meanwhile.
@@ -57,6 +63,7 @@ pub(super) async fn capture_worker(d: Arc<Daemon>, mut rx: mpsc::Receiver<i64>) 
         finish_job(&d, job, start, result, counters, |end| match end {
             Ending::Failed(e) => d.store.capture_failed(id, e),
             Ending::Cancelled => d.store.capture_cancelled(id).map(|_| ()),
+            Ending::Interrupted => d.store.interrupted("captures", id),
         });
     }
 }

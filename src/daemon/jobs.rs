@@ -78,6 +78,8 @@ pub(super) enum Ending<'a> {
     Failed(&'a str),
     /// Cancelled by a client while it ran.
     Cancelled,
+    /// Stopped because the daemon is stopping ([`Daemon::drain`]).
+    Interrupted,
 }
 
 /// Records how a job ended: its time and done/failed counters, the failure
@@ -96,6 +98,13 @@ pub(super) fn finish_job(
         Ok(()) => {
             done.fetch_add(1, Ordering::Relaxed);
             job_event(d, job, JobState::Done, None);
+        }
+        Err(JobError::Cancelled) if d.is_stopping() => {
+            tracing::info!("{job} interrupted: the daemon is stopping");
+            if let Err(se) = record(Ending::Interrupted) {
+                tracing::error!("cannot record the interruption of {job}: {se}");
+            }
+            job_event(d, job, JobState::Interrupted, None);
         }
         Err(JobError::Cancelled) => {
             tracing::info!("{job} cancelled");

@@ -190,6 +190,13 @@ pub struct Daemon {
     latest_frame: std::sync::Mutex<Option<Arc<crate::camera::RawFrame>>>,
     /// Cancel flags of running (or just cancelled) jobs, by job id.
     cancels: std::sync::Mutex<BTreeMap<String, Arc<std::sync::atomic::AtomicBool>>>,
+    /// Set once [`Daemon::drain`] starts: a job stopped from then on ends
+    /// `interrupted`, not `cancelled`.
+    stopping: std::sync::atomic::AtomicBool,
+    /// Tells the workers to stop taking jobs.
+    stop: tokio::sync::watch::Sender<bool>,
+    /// The job workers and background tasks, joined by [`Daemon::drain`].
+    workers: std::sync::Mutex<tokio::task::JoinSet<()>>,
     _hotplug: Option<Hotplug>,
 }
 
@@ -250,16 +257,27 @@ impl Daemon {
             progressive: std::sync::Mutex::new(BTreeMap::new()),
             latest_frame: std::sync::Mutex::new(None),
             cancels: std::sync::Mutex::new(BTreeMap::new()),
+            stopping: std::sync::atomic::AtomicBool::new(false),
+            stop: tokio::sync::watch::channel(false).0,
+            workers: std::sync::Mutex::new(tokio::task::JoinSet::new()),
             _hotplug: hotplug,
         });
-        tokio::spawn(capture::capture_worker(daemon.clone(), capture_rx));
-        let shared = Arc::new(Mutex::new(recon_rx));
-        for _ in 0..workers {
-            let worker = reconstruction::reconstruction_worker(daemon.clone(), shared.clone());
-            tokio::spawn(worker);
+        {
+            let mut set = daemon.workers.lock().unwrap_or_else(|e| e.into_inner());
+            set.spawn(capture::capture_worker(daemon.clone(), capture_rx));
+            let shared = Arc::new(Mutex::new(recon_rx));
+            for _ in 0..workers {
+                set.spawn(reconstruction::reconstruction_worker(
+                    daemon.clone(),
+                    shared.clone(),
+                ));
+            }
+            set.spawn(until_stopped(daemon.clone(), watch_camera(daemon.clone())));
+            set.spawn(until_stopped(
+                daemon.clone(),
+                retention::retention_task(daemon.clone()),
+            ));
         }
-        tokio::spawn(watch_camera(daemon.clone()));
-        tokio::spawn(retention::retention_task(daemon.clone()));
         Ok(daemon)
     }
 
@@ -320,6 +338,55 @@ impl Daemon {
     /// Stops the camera thread.
     pub fn shutdown(&self) {
         self.camera.shutdown();
+    }
+
+    /// Whether [`Daemon::drain`] has started.
+    pub fn is_stopping(&self) -> bool {
+        self.stopping.load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    /// A receiver that changes once [`Daemon::drain`] starts (for workers to
+    /// stop waiting for jobs).
+    pub(crate) fn stopped(&self) -> tokio::sync::watch::Receiver<bool> {
+        self.stop.subscribe()
+    }
+
+    /// Stops for good: no job is taken from the queues any more, the
+    /// running ones are stopped (recorded `interrupted`, their partial files
+    /// removed as a cancellation removes them), the workers are joined
+    /// within `grace` (those still busy after it are aborted), then the
+    /// camera thread stops. Queued jobs stay queued in the catalogue; the
+    /// next start marks them `interrupted`.
+    pub async fn drain(&self, grace: std::time::Duration) {
+        self.stopping
+            .store(true, std::sync::atomic::Ordering::SeqCst);
+        let _ = self.stop.send(true);
+        if let Ok(flags) = self.cancels.lock() {
+            for flag in flags.values() {
+                flag.store(true, std::sync::atomic::Ordering::SeqCst);
+            }
+        }
+        let mut set = std::mem::take(&mut *self.workers.lock().unwrap_or_else(|e| e.into_inner()));
+        let joined =
+            tokio::time::timeout(grace, async { while set.join_next().await.is_some() {} }).await;
+        if joined.is_err() {
+            tracing::warn!(
+                "{} workers still busy {:.1} s after the stop; aborting them",
+                set.len(),
+                grace.as_secs_f64()
+            );
+            set.shutdown().await;
+        }
+        self.camera.shutdown();
+    }
+}
+
+/// Runs `task` until the daemon starts draining.
+async fn until_stopped(d: Arc<Daemon>, task: impl std::future::Future<Output = ()>) {
+    let mut stopped = d.stopped();
+    tokio::select! {
+        () = task => {}
+        _ = stopped.wait_for(|s| *s) => {}
     }
 }
 

@@ -21,8 +21,13 @@ use crate::store::{read_mean, CaptureRecord, JobState};
 
 /// Takes reconstructions from the shared queue.
 pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Receiver<i64>>>) {
+    let mut stopped = d.stopped();
     loop {
-        let Some(id) = rx.lock().await.recv().await else {
+        let id = tokio::select! {
+            id = async { rx.lock().await.recv().await } => id,
+            _ = stopped.wait_for(|s| *s) => None,
+        };
+        let Some(id) = id else {
             return;
         };
         let job = format!("reconstruction-{id}");
@@ -54,6 +59,7 @@ pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Re
         finish_job(&d, job, start, r, counters, |end| match end {
             Ending::Failed(e) => d.store.reconstruction_failed(id, e),
             Ending::Cancelled => d.store.reconstruction_cancelled(id).map(|_| ()),
+            Ending::Interrupted => d.store.interrupted("reconstructions", id),
         });
     }
 }

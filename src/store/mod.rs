@@ -256,6 +256,9 @@ pub fn timestamp(t: std::time::SystemTime) -> String {
     )
 }
 
+/// Why a job is `interrupted`.
+const INTERRUPTED: &str = "the daemon stopped before this job finished; submit it again";
+
 impl Store {
     /// Opens (creating if needed) the catalogue under `dir`: takes the data
     /// directory's lock first (a second daemon is refused before it touches
@@ -297,11 +300,10 @@ impl Store {
             .map_err(db)?;
         conn.execute_batch(SCHEMA).map_err(db)?;
         migrate(&conn).map_err(db)?;
-        let why = "the daemon stopped before this job finished; submit it again";
         for table in ["captures", "reconstructions"] {
             conn.execute(
                 &format!("UPDATE {table} SET state = 'interrupted', error = ?1, finished_at = ?2 WHERE state IN ('queued', 'running')"),
-                params![why, now()],
+                params![INTERRUPTED, now()],
             )
             .map_err(db)?;
         }
@@ -478,6 +480,18 @@ impl Store {
     /// Cancels a reconstruction that is still queued; false when it is not queued.
     pub fn cancel_queued_reconstruction(&self, id: i64) -> Result<bool, StoreError> {
         self.cancel("reconstructions", id, true)
+    }
+
+    /// Records that a running job of `table` (`captures` or
+    /// `reconstructions`) stopped because the daemon is stopping.
+    pub fn interrupted(&self, table: &'static str, id: i64) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                &format!("UPDATE {table} SET state = 'interrupted', error = ?2, finished_at = ?3 WHERE id = ?1 AND state = 'running'"),
+                params![id, INTERRUPTED, now()],
+            )
+            .map(|_| ())
+        })
     }
 
     /// Records that a running reconstruction stopped because it was cancelled.
