@@ -26,6 +26,25 @@
 //!   tree` to that).
 //! - **Reports**: `bench` (the reports of `polnlos bench`; cargo feature
 //!   `bench`, on by default, off the daemon's path).
+//!
+//! # Where a change goes
+//!
+//! - **A pixel format**: one variant in `src/camera/pixel.rs` (its name, bits,
+//!   bytes and `decode`); requests, the catalogue and the driver read it
+//!   from there.
+//! - **A solver**: its file in `src/solve/` and one variant of
+//!   `solve::Solver` (`src/solve/reconstruct.rs`), which the CLI's
+//!   `--solver`, the API's `solver` and the report all take.
+//! - **A route**: a handler with `#[utoipa::path]` in `src/api/routes.rs`
+//!   and one `routes!` line in `src/api/mod.rs`; the tests read it from
+//!   `/openapi.json` (docs/guide.md, "Adding a route"). A request body the
+//!   daemon checks goes in `src/daemon/requests.rs`.
+//! - **A bench report**: its file in `src/bench/` implementing
+//!   `bench::Report`, and one entry in `BenchPlan::run` (`src/bench/plan.rs`,
+//!   the one file that names every report).
+//! - **A camera setting a capture records**: a field of `camera::Acquisition`
+//!   (the request, the catalogue row, the page description and the reply
+//!   share it) and its column in the catalogue (`src/store/`).
 
 #![deny(missing_docs)]
 

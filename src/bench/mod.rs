@@ -9,6 +9,7 @@ pub mod active;
 pub mod charts;
 pub mod lambda;
 pub mod peer;
+mod plan;
 pub mod rendered;
 pub mod report;
 pub mod sampling;
@@ -17,7 +18,8 @@ pub mod speed;
 pub mod stability;
 mod tables;
 
-pub use report::{BenchPlan, Report};
+pub use plan::BenchPlan;
+pub use report::Report;
 pub use tables::{Conditioning, Roughness};
 
 use serde::Serialize;
