@@ -7,7 +7,7 @@ use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::solve::gram::Normal;
 use polnlos::solve::lambda::NoiseLevel;
 use polnlos::solve::reconstruct::{self as rec, SolveRequest, Solver};
-use polnlos::solve::{condition, AdmmSettings, Conditioning};
+use polnlos::solve::{condition_with, AdmmSettings};
 
 /// Recover the hidden scene from a measurement.
 #[derive(Debug, clap::Args)]
@@ -164,10 +164,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     } else {
         None
     };
-    let cond = match normal.as_ref().and_then(|n| n.low_rank()) {
-        Some(lr) if !a.full_spectrum => Conditioning::from_low_rank(t.rows(), t.cols(), lr)?,
-        _ => condition(&t)?,
-    };
+    let gram = normal
+        .as_ref()
+        .filter(|_| !a.full_spectrum)
+        .map(|n| &*n.gram);
+    let cond = condition_with(&t, gram)?;
     let solved = rec::reconstruct_prepared(
         &t,
         &meas.data,

@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 
 use crate::scene::{Scene, SceneError};
 use crate::solve::gram::Gram;
-use crate::solve::{condition, Conditioning, SolveError};
+use crate::solve::{condition_with, Conditioning, SolveError};
 use crate::transport::{build, Transport, TransportError};
 
 /// Why a scene's `T` or conditioning is not available.
@@ -132,12 +132,13 @@ impl Scenes {
                 name: name.to_string(),
                 source,
             };
-            if t.cols() >= crate::solve::lowrank::LOW_RANK_MIN_COLS {
-                if let Some(lr) = self.gram(name)?.low_rank.as_ref() {
-                    return Conditioning::from_low_rank(t.rows(), t.cols(), lr).map_err(failed);
-                }
-            }
-            condition(&t).map_err(failed)
+            // Below this no Gram has a low-rank form: none is formed here.
+            let gram = if t.cols() >= crate::solve::lowrank::LOW_RANK_MIN_COLS {
+                Some(self.gram(name)?)
+            } else {
+                None
+            };
+            condition_with(&t, gram.as_deref()).map_err(failed)
         })
     }
 }

@@ -114,6 +114,18 @@ pub fn condition(t: &Transport) -> Result<Conditioning, SolveError> {
     Ok(Conditioning::from_singular_values(t.rows(), t.cols(), s))
 }
 
+/// [`condition`], or, when `gram` has a low-rank form, the spectrum it
+/// resolves ([`Conditioning::from_low_rank`], no SVD of `T`).
+pub fn condition_with(
+    t: &Transport,
+    gram: Option<&super::gram::Gram>,
+) -> Result<Conditioning, SolveError> {
+    match gram.and_then(|g| g.low_rank.as_ref()) {
+        Some(lr) => Conditioning::from_low_rank(t.rows(), t.cols(), lr),
+        None => condition(t),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

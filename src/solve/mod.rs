@@ -22,7 +22,7 @@ pub mod tv;
 
 pub use admm::{admm_tv, AdmmSettings};
 pub use baseline::{least_squares, tikhonov};
-pub use conditioning::{condition, Conditioning};
+pub use conditioning::{condition, condition_with, Conditioning};
 pub use fista::{fista_tv, tv_denoise, FistaSettings};
 pub use reconstruct::{reconstruct, SolveRequest, Solver};
 
