@@ -107,10 +107,9 @@ impl Normal {
     pub fn new(t: MatRef<'_, f64>, i: &[f64]) -> Self {
         let start = std::time::Instant::now();
         let gram = Arc::new(Gram::new(t));
-        let ti = adjoint(t, i);
         Self {
+            ti: adjoint(t, i),
             gram,
-            ti,
             seconds: start.elapsed().as_secs_f64(),
         }
     }
@@ -119,13 +118,9 @@ impl Normal {
     /// a large `T`).
     pub fn of(t: &Transport, i: &[f64]) -> Self {
         let start = std::time::Instant::now();
-        let gram = Arc::new(Gram::of(t));
-        let ti = adjoint(t.as_mat(), i);
-        Self {
-            gram,
-            ti,
-            seconds: start.elapsed().as_secs_f64(),
-        }
+        let mut normal = Self::with(Arc::new(Gram::of(t)), t, i);
+        normal.seconds = start.elapsed().as_secs_f64();
+        normal
     }
 
     /// With a Gram already formed for this `t` (e.g. a scene's cached one):
