@@ -190,10 +190,8 @@ pub struct Daemon {
     latest_frame: std::sync::Mutex<Option<Arc<crate::camera::RawFrame>>>,
     /// Cancel flags of running (or just cancelled) jobs, by job id.
     cancels: std::sync::Mutex<BTreeMap<String, Arc<std::sync::atomic::AtomicBool>>>,
-    /// Set once [`Daemon::drain`] starts: a job stopped from then on ends
-    /// `interrupted`, not `cancelled`.
-    stopping: std::sync::atomic::AtomicBool,
-    /// Tells the workers to stop taking jobs.
+    /// True once [`Daemon::drain`] starts: the workers stop taking jobs, and
+    /// a job stopped from then on ends `interrupted`, not `cancelled`.
     stop: tokio::sync::watch::Sender<bool>,
     /// The job workers and background tasks, joined by [`Daemon::drain`].
     workers: std::sync::Mutex<tokio::task::JoinSet<()>>,
@@ -257,7 +255,6 @@ impl Daemon {
             progressive: std::sync::Mutex::new(BTreeMap::new()),
             latest_frame: std::sync::Mutex::new(None),
             cancels: std::sync::Mutex::new(BTreeMap::new()),
-            stopping: std::sync::atomic::AtomicBool::new(false),
             stop: tokio::sync::watch::channel(false).0,
             workers: std::sync::Mutex::new(tokio::task::JoinSet::new()),
             _hotplug: hotplug,
@@ -342,7 +339,7 @@ impl Daemon {
 
     /// Whether [`Daemon::drain`] has started.
     pub fn is_stopping(&self) -> bool {
-        self.stopping.load(std::sync::atomic::Ordering::SeqCst)
+        *self.stop.borrow()
     }
 
     /// A receiver that changes once [`Daemon::drain`] starts (for workers to
@@ -358,9 +355,7 @@ impl Daemon {
     /// camera thread stops. Queued jobs stay queued in the catalogue; the
     /// next start marks them `interrupted`.
     pub async fn drain(&self, grace: std::time::Duration) {
-        self.stopping
-            .store(true, std::sync::atomic::Ordering::SeqCst);
-        let _ = self.stop.send(true);
+        self.stop.send_replace(true);
         if let Ok(flags) = self.cancels.lock() {
             for flag in flags.values() {
                 flag.store(true, std::sync::atomic::Ordering::SeqCst);
