@@ -127,45 +127,37 @@ impl Modify for Errors {
             ("431", "Over 64 header lines or 16 KiB of headers"),
             ("500", "The daemon failed (the detail says where)"),
         ];
-        for item in doc.paths.paths.values_mut() {
-            let ops = [
-                &mut item.get,
-                &mut item.put,
-                &mut item.post,
-                &mut item.delete,
-            ];
-            for op in ops.into_iter().flatten() {
-                for (code, what) in common {
-                    op.responses
-                        .responses
-                        .entry(code.to_string())
-                        .or_insert_with(|| {
-                            ResponseBuilder::new()
-                                .description(what)
-                                .content("application/json", error())
-                                .build()
-                                .into()
-                        });
-                }
-                if op.request_body.is_some() {
-                    op.responses
-                        .responses
-                        .entry("415".to_string())
-                        .or_insert_with(|| {
-                            ResponseBuilder::new()
-                                .description("A body that is not Content-Type: application/json")
-                                .content("application/json", error())
-                                .build()
-                                .into()
-                        });
-                }
-                for (code, r) in op.responses.responses.iter_mut() {
-                    if code.as_str() >= "400" {
-                        if let utoipa::openapi::RefOr::T(r) = r {
-                            r.content
-                                .entry("application/json".into())
-                                .or_insert_with(error);
-                        }
+        for op in operations(doc) {
+            for (code, what) in common {
+                op.responses
+                    .responses
+                    .entry(code.to_string())
+                    .or_insert_with(|| {
+                        ResponseBuilder::new()
+                            .description(what)
+                            .content("application/json", error())
+                            .build()
+                            .into()
+                    });
+            }
+            if op.request_body.is_some() {
+                op.responses
+                    .responses
+                    .entry("415".to_string())
+                    .or_insert_with(|| {
+                        ResponseBuilder::new()
+                            .description("A body that is not Content-Type: application/json")
+                            .content("application/json", error())
+                            .build()
+                            .into()
+                    });
+            }
+            for (code, r) in op.responses.responses.iter_mut() {
+                if code.as_str() >= "400" {
+                    if let utoipa::openapi::RefOr::T(r) = r {
+                        r.content
+                            .entry("application/json".into())
+                            .or_insert_with(error);
                     }
                 }
             }
@@ -222,6 +214,20 @@ pub fn with_names(
     doc
 }
 
+/// Every operation of the document (the methods the API serves).
+fn operations(doc: &mut Document) -> impl Iterator<Item = &mut utoipa::openapi::path::Operation> {
+    doc.paths.paths.values_mut().flat_map(|item| {
+        [
+            &mut item.get,
+            &mut item.put,
+            &mut item.post,
+            &mut item.delete,
+        ]
+        .into_iter()
+        .flatten()
+    })
+}
+
 /// The base the router adds its paths to: title, description, schemas.
 pub fn base() -> Document {
     Doc::openapi()
@@ -233,16 +239,8 @@ pub fn base() -> Document {
 /// same group).
 pub fn finish(mut doc: Document) -> Document {
     Errors.modify(&mut doc);
-    for item in doc.paths.paths.values_mut() {
-        let ops = [
-            &mut item.get,
-            &mut item.put,
-            &mut item.post,
-            &mut item.delete,
-        ];
-        for op in ops.into_iter().flatten() {
-            op.tags.get_or_insert_with(|| vec!["routes".into()]);
-        }
+    for op in operations(&mut doc) {
+        op.tags.get_or_insert_with(|| vec!["routes".into()]);
     }
     doc
 }
