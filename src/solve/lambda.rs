@@ -292,24 +292,20 @@ fn resolved(
     // scan stops at the first trial above the target: the larger lambdas
     // could only lower the floor by the solves' inexactness.
     let mut results: Vec<Reconstruction> = Vec::with_capacity(scan.len());
-    let floor_at = |results: &[Reconstruction]| {
-        results
-            .iter()
-            .enumerate()
-            .map(|(k, r)| (k, r.stats.data_misfit))
-            .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a })
-    };
+    let (mut argmin, mut floor) = (0, f64::INFINITY);
+    let target = |floor: f64| floor + resolved as f64 * mean_var;
     for &l in &scan {
         let r = solve(l)?;
         let misfit = r.stats.data_misfit;
         results.push(r);
-        let (_, floor) = floor_at(&results);
-        if misfit > floor + resolved as f64 * mean_var {
+        if misfit < floor {
+            (argmin, floor) = (results.len() - 1, misfit);
+        }
+        if misfit > target(floor) {
             break;
         }
     }
-    let (argmin, floor) = floor_at(&results);
-    let target = floor + resolved as f64 * mean_var;
+    let target = target(floor);
     // Largest scanned lambda at or above the floor's that meets the target.
     let mut k = argmin;
     while k + 1 < results.len() && results[k + 1].stats.data_misfit <= target {
@@ -512,6 +508,7 @@ pub fn admm_tv_discrepancy(
 mod tests {
     use super::*;
     use crate::scene::{Grid, Scene};
+    use crate::simulate::patterns::Pattern;
     use crate::transport::build;
 
     #[test]
@@ -541,31 +538,24 @@ mod tests {
     }
 
     /// Gaussian noise of standard deviation `sigma` (Box-Muller on an LCG).
-    pub(super) fn gaussian(len: usize, sigma: f64, seed: u64) -> Vec<f64> {
-        let mut x = seed;
-        let mut u = || {
-            x = x
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((x >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        (0..len)
-            .map(|_| sigma * (-2.0 * u().ln()).sqrt() * (std::f64::consts::TAU * u()).cos())
-            .collect()
+    /// `T` times `pattern` plus white noise of 1 % of its peak (seeded
+    /// ChaCha8, as the simulator draws): the measurement and that sigma.
+    fn noisy(t: &Transport, pattern: Pattern, seed: u64) -> (Vec<f64>, f64) {
+        use rand::SeedableRng;
+        use rand_distr::Distribution;
+        let clean = t.apply(&pattern.render(t.scene_grid));
+        let sigma = 0.01 * clean.iter().copied().fold(0.0, f64::max);
+        let noise = rand_distr::Normal::new(0.0, sigma).expect("a finite sigma");
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let i = clean.iter().map(|c| c + noise.sample(&mut rng)).collect();
+        (i, sigma)
     }
 
     #[test]
     fn noise_from_the_pivot_columns_matches_the_full_qr() {
         // 576 columns, rank far lower: the low-rank form is taken.
         let t = bench(24);
-        let truth = crate::simulate::patterns::Pattern::Letter.render(t.scene_grid);
-        let clean = t.apply(&truth);
-        let sigma = 0.01 * clean.iter().copied().fold(0.0, f64::max);
-        let i: Vec<f64> = clean
-            .iter()
-            .zip(gaussian(clean.len(), sigma, 7))
-            .map(|(a, b)| a + b)
-            .collect();
+        let (i, sigma) = noisy(&t, Pattern::Letter, 7);
         let normal = Normal::of(&t, &i);
         let lr = normal.low_rank().expect("low rank");
         assert!(lr.rank() < t.cols() / 4, "rank {}", lr.rank());
@@ -587,14 +577,7 @@ mod tests {
     fn the_warm_path_picks_the_cold_search_lambda() {
         for n in [12, 24] {
             let t = bench(n);
-            let truth = crate::simulate::patterns::Pattern::Disk.render(t.scene_grid);
-            let clean = t.apply(&truth);
-            let sigma = 0.01 * clean.iter().copied().fold(0.0, f64::max);
-            let i: Vec<f64> = clean
-                .iter()
-                .zip(gaussian(clean.len(), sigma, 11))
-                .map(|(a, b)| a + b)
-                .collect();
+            let (i, sigma) = noisy(&t, Pattern::Disk, 11);
             let normal = Normal::of(&t, &i);
             let noise = NoiseLevel::measured(vec![sigma * sigma; i.len()]);
             let sv = crate::solve::condition(&t).unwrap().singular_values;
@@ -606,6 +589,7 @@ mod tests {
             let (cold, cold_choice) = solve(false);
             let (warm, warm_choice) = solve(true);
             let decades = (warm_choice.lambda / cold_choice.lambda).log10().abs();
+            let truth = Pattern::Disk.render(t.scene_grid);
             let psnr = |r: &Reconstruction| crate::solve::metrics::psnr(&truth, &r.image);
             println!(
                 "{n}x{n}: lambda {:.4e} (cold) {:.4e} (warm), {decades:.4} decade apart; PSNR {:.2} / {:.2} dB",
