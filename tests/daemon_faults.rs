@@ -86,6 +86,26 @@ fn the_camera_stops_mid_capture_the_job_fails_and_the_daemon_reconnects() {
     );
 }
 
+/// A first short capture done (its `mean.tiff` returned), then `long`
+/// posted and running with at least `frames` taken (its location returned).
+fn done_then_running(d: &Daemon, long: &str, frames: i64) -> (Vec<u8>, String) {
+    let done = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 3}"#, Duration::from_secs(20));
+    assert_eq!(done["state"], "done");
+    let (_, mean) = d.get_bytes("/captures/1/mean.tiff");
+    let (s, _, loc) = d.post("/captures", long);
+    assert_eq!(s, 202);
+    let loc = loc.unwrap();
+    let t = Instant::now();
+    while d.json(&loc)["frames_taken"].as_i64().unwrap_or(0) < frames {
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "capture never started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    (mean, loc)
+}
+
 #[test]
 fn sigkill_during_a_capture_loses_nothing_completed() {
     let _g = lock();
@@ -93,20 +113,11 @@ fn sigkill_during_a_capture_loses_nothing_completed() {
     let data = dir.path().join("data");
     let cfg = config(dir.path(), &[]);
     let mut d = Daemon::start(&cfg, &data);
-    let done = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 3}"#, Duration::from_secs(20));
-    assert_eq!(done["state"], "done");
-    let (_, mean_before) = d.get_bytes("/captures/1/mean.tiff");
-    let (s, _, loc) = d.post("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 500000, "frames": 20}"#);
-    assert_eq!(s, 202);
-    let loc = loc.unwrap();
-    let t = Instant::now();
-    while d.json(&loc)["frames_taken"].as_i64().unwrap_or(0) < 1 {
-        assert!(
-            t.elapsed() < Duration::from_secs(10),
-            "capture never started"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let (mean_before, loc) = done_then_running(
+        &d,
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 500000, "frames": 20}"#,
+        1,
+    );
     d.child.kill().unwrap(); // SIGKILL
     d.child.wait().unwrap();
     drop(d);
@@ -140,25 +151,17 @@ fn sigterm_during_a_capture_interrupts_it_and_drains_before_exit() {
     let data = dir.path().join("data");
     let cfg = config(dir.path(), &[]);
     let mut d = Daemon::start(&cfg, &data);
-    let done = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 3}"#, Duration::from_secs(20));
-    assert_eq!(done["state"], "done");
-    let (_, mean_before) = d.get_bytes("/captures/1/mean.tiff");
-    let (s, _, loc) = d.post("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 200000, "frames": 100}"#);
-    assert_eq!(s, 202);
+    let (mean_before, loc) = done_then_running(
+        &d,
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 200000, "frames": 100}"#,
+        2,
+    );
     let (s, _, queued) = d.post(
         "/captures",
         r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000}"#,
     );
     assert_eq!(s, 202);
-    let (loc, queued) = (loc.unwrap(), queued.unwrap());
-    let t = Instant::now();
-    while d.json(&loc)["frames_taken"].as_i64().unwrap_or(0) < 2 {
-        assert!(
-            t.elapsed() < Duration::from_secs(10),
-            "capture never started"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let queued = queued.unwrap();
     // What systemd sends on `systemctl stop`.
     let term = Command::new("kill")
         .args(["-TERM", &d.pid().to_string()])

@@ -870,22 +870,15 @@ mod tests {
         use crate::camera::{PixelFormat, TriggerMode};
         let dir = tempfile::tempdir().unwrap();
         let store = Store::open(dir.path()).unwrap();
+        let example = CaptureRequest::example();
         let request = CaptureRequest {
             kind: CaptureKind::Dark,
-            scene: "brewster-crossed".into(),
-            pose: "A".into(),
-            polarizer_deg: Some(0.0),
             acquisition: crate::camera::Acquisition {
-                exposure_us: 1000.0,
-                gain: 0.0,
                 pixel_format: PixelFormat::Mono8,
-                region: [0, 0, 4, 4],
-                binning: [1, 1],
                 trigger: TriggerMode::Software,
+                ..example.acquisition
             },
-            frames: 1,
-            dark_frames: 0,
-            dark_capture: None,
+            ..example
         };
         let ids: Vec<i64> = (0..4)
             .map(|_| store.insert_capture(&request).unwrap())

@@ -146,6 +146,31 @@ pub struct CaptureRequest {
     pub dark_capture: Option<i64>,
 }
 
+#[cfg(test)]
+impl CaptureRequest {
+    /// A light capture of `brewster-crossed` pose A at 0°: one 4x4 Mono16
+    /// frame of 1 ms, free running (tests override what they need).
+    pub(crate) fn example() -> Self {
+        Self {
+            kind: CaptureKind::Light,
+            scene: "brewster-crossed".into(),
+            pose: "A".into(),
+            polarizer_deg: Some(0.0),
+            acquisition: Acquisition {
+                exposure_us: 1000.0,
+                gain: 0.0,
+                pixel_format: PixelFormat::Mono16,
+                region: [0, 0, 4, 4],
+                binning: [1, 1],
+                trigger: TriggerMode::Free,
+            },
+            frames: 1,
+            dark_frames: 0,
+            dark_capture: None,
+        }
+    }
+}
+
 /// A capture as the API shows it.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct CaptureRecord {

@@ -88,26 +88,12 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::{PixelFormat, TriggerMode};
-    use crate::store::{CaptureKind, CaptureRequest, ReconstructionRequest};
+    use crate::store::{CaptureRequest, ReconstructionRequest};
 
     fn request(dark_capture: Option<i64>) -> CaptureRequest {
         CaptureRequest {
-            kind: CaptureKind::Light,
-            scene: "brewster-crossed".into(),
-            pose: "A".into(),
-            polarizer_deg: Some(0.0),
-            acquisition: crate::camera::Acquisition {
-                exposure_us: 1000.0,
-                gain: 0.0,
-                pixel_format: PixelFormat::Mono16,
-                region: [0, 0, 4, 4],
-                binning: [1, 1],
-                trigger: TriggerMode::Free,
-            },
-            frames: 1,
-            dark_frames: 0,
             dark_capture,
+            ..CaptureRequest::example()
         }
     }
 

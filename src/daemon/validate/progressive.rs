@@ -123,26 +123,21 @@ fn check_numbers(p: &ProgressiveBody, r: &CaptureRequest) -> Result<(usize, usiz
 mod tests {
     use super::super::fixtures::{record, scene};
     use super::*;
-    use crate::camera::{PixelFormat, TriggerMode};
-    use crate::store::{CaptureKind, JobState};
+    use crate::store::JobState;
 
     fn request(pose: &str) -> CaptureRequest {
+        let example = CaptureRequest::example();
         CaptureRequest {
-            kind: CaptureKind::Light,
             scene: "brewster-multi-3x3".into(),
             pose: pose.into(),
-            polarizer_deg: Some(0.0),
             acquisition: crate::camera::Acquisition {
                 exposure_us: 5000.0,
-                gain: 0.0,
-                pixel_format: PixelFormat::Mono16,
                 region: [0, 0, 512, 512],
-                binning: [1, 1],
-                trigger: TriggerMode::Free,
+                ..example.acquisition
             },
             frames: 40,
             dark_frames: 2,
-            dark_capture: None,
+            ..example
         }
     }
 
