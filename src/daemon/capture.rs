@@ -37,15 +37,23 @@ const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 pub(super) async fn capture_worker(d: Arc<Daemon>, mut rx: mpsc::Receiver<i64>) {
     let mut stopped = d.stopped();
     loop {
+        // Biased towards the stop: a job still queued when the drain
+        // starts stays queued, however ready the queue is.
         let id = tokio::select! {
-            id = rx.recv() => id,
+            biased;
             _ = stopped.wait_for(|s| *s) => None,
+            id = rx.recv() => id,
         };
         let Some(id) = id else { return };
         let job = format!("capture-{id}");
         let start = Instant::now();
         // Held for the whole capture: settings changes answer 409 meanwhile.
         let camera = d.camera_gate.lock().await;
+        if d.is_stopping() {
+            // The drain began while this capture waited for the camera.
+            d.release_capture(id);
+            return;
+        }
         let result = match d.store.capture_running(id) {
             // Cancelled while it waited in the queue.
             Ok(false) => {

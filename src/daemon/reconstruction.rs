@@ -23,9 +23,12 @@ use crate::store::{read_mean, CaptureRecord, JobState};
 pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Receiver<i64>>>) {
     let mut stopped = d.stopped();
     loop {
+        // Biased towards the stop: a job still queued when the drain
+        // starts stays queued, however ready the queue is.
         let id = tokio::select! {
-            id = async { rx.lock().await.recv().await } => id,
+            biased;
             _ = stopped.wait_for(|s| *s) => None,
+            id = async { rx.lock().await.recv().await } => id,
         };
         let Some(id) = id else {
             return;
