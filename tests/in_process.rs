@@ -30,7 +30,7 @@ async fn daemon_showing(dir: &std::path::Path, scene: &str, pattern: &str) -> Ar
         .await
         .expect("daemon starts");
     let start = Instant::now();
-    while !d.camera_connected() {
+    while !d.camera().status().connected {
         assert!(
             start.elapsed() < Duration::from_secs(10),
             "camera did not connect"

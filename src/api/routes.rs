@@ -57,7 +57,7 @@ fn parse_id(raw: &str, kind: &str) -> Result<i64, ApiError> {
 pub async fn health(State(d): St) -> Json<Health> {
     Json(Health {
         status: "ok",
-        camera_connected: d.camera_connected(),
+        camera_connected: d.camera().status().connected,
         version: env!("CARGO_PKG_VERSION"),
     })
 }
@@ -90,7 +90,7 @@ pub async fn metrics(State(d): St) -> Response {
 /// `busy` naming the capture).
 #[utoipa::path(get, path = "/camera", responses((status = 200, body = crate::daemon::CameraView, description = "Camera state")))]
 pub async fn camera(State(d): St) -> Json<crate::daemon::CameraView> {
-    Json(d.camera_now().await)
+    Json(d.camera().now().await)
 }
 
 /// `?live=true&stretch=true` of `GET /camera/frame.png`.
@@ -113,9 +113,9 @@ pub struct FrameQuery {
 #[utoipa::path(get, path = "/camera/frame.png", params(FrameQuery), responses((status = 200, content_type = "image/png", description = "The frame; header polnlos-levels: its levels as JSON", headers(("polnlos-levels" = String, description = "JSON: full_scale, histogram (64 bins), peak, saturated, low, high"))), (status = 404, body = ErrorBody, description = "No frame yet (no camera, or none delivered)")))]
 pub async fn camera_frame(State(d): St, Query(q): Query<FrameQuery>) -> Result<Response, ApiError> {
     let frame = if q.live {
-        d.live_frame().await
+        d.camera().live_frame().await
     } else {
-        d.latest_frame()
+        d.camera().latest_frame()
     };
     let frame = frame.ok_or_else(|| {
         ApiError::not_found("no frame yet: the camera has delivered none (is it connected?)")
@@ -150,7 +150,7 @@ pub async fn camera_settings(
     State(d): St,
     ApiJson(s): ApiJson<SettingsChange>,
 ) -> Result<Json<crate::camera::CameraInfo>, ApiError> {
-    Ok(Json(d.put_camera_settings(s).await?))
+    Ok(Json(d.camera().put_settings(s).await?))
 }
 
 /// Queues a capture.
@@ -218,11 +218,10 @@ pub async fn delete_capture(
     Query(q): Query<DeleteQuery>,
 ) -> Result<Json<Deleted>, ApiError> {
     let id = parse_id(&id, "capture")?;
-    let reconstructions = tokio::task::spawn_blocking(move || {
-        d.delete_capture(id, q.with_reconstructions, "request")
-    })
-    .await
-    .map_err(|e| ApiError::internal(e.to_string()))??;
+    let reconstructions =
+        tokio::task::spawn_blocking(move || d.delete_capture(id, q.with_reconstructions))
+            .await
+            .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(Deleted {
         capture: Some(id),
         reconstructions,

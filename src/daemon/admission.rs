@@ -6,6 +6,7 @@
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
+use super::queue::DiskNeed;
 use super::requests::{AutoExposure, CaptureBody, ReconstructionBody};
 use super::validate::{self, CameraContext, ProgressiveSpec, RequestError};
 use super::Daemon;
@@ -124,8 +125,8 @@ impl Daemon {
             limits: self.camera_limits(info),
             gain: info.map(|i| i.gain),
             sensor: info.map(|i| i.limits),
-            defaults: self.capture_defaults(info),
-            bench_switches_scene: self.bench.switches_scene(),
+            defaults: self.camera.capture_defaults(info),
+            bench_switches_scene: self.camera.bench().switches_scene(),
             max_frames: self.config.queue.max_frames_per_capture,
         }
     }
@@ -189,60 +190,39 @@ impl Daemon {
         );
         let free = crate::files::space::free_disk_bytes(self.store.dir())
             .map_err(|e| SubmitError::Internal(self.store.describe_io(self.store.dir(), &e)))?;
-        let mut reserved = self.reserved.lock().unwrap_or_else(|e| e.into_inner());
-        let held: u64 = reserved.values().sum();
-        let keep = self.config.queue.reserve_free_mib << 20;
-        if need.saturating_add(held).saturating_add(keep) > free {
-            return Err(SubmitError::Disk {
-                need,
-                free,
-                held,
-                keep,
-            });
-        }
+        let disk = DiskNeed {
+            need,
+            free,
+            keep: self.config.queue.reserve_free_mib << 20,
+        };
         let seconds = req.acquisition.exposure_us * 1e-6 * (req.frames + req.dark_frames) as f64;
-        let permit = self
-            .captures
-            .try_reserve()
-            .map_err(|_| self.queue_full("capture", seconds.ceil().max(1.0) as u64))?;
-        let id = self
-            .store
-            .insert_capture(req)
-            .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?;
-        reserved.insert(id, need);
-        if let Some(p) = progressive {
-            let mut specs = self.progressive.lock().unwrap_or_else(|e| e.into_inner());
-            specs.insert(id, p);
-        }
-        permit.send(id);
-        Ok(id)
+        let retry_after = seconds.ceil().max(1.0) as u64;
+        let insert = || {
+            self.store
+                .insert_capture(req)
+                .map_err(|e| SubmitError::Internal(self.store.describe(&e)))
+        };
+        let pushed = self.captures.push(disk, retry_after, progressive, insert);
+        self.count_refusal(pushed)
     }
 
     /// Validates a reconstruction body against its scene and captures and queues it.
     pub fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
         let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
         let request = validate::reconstruction(b, &scene, |id| self.lookup_capture(id))?;
-        let permit = self
-            .reconstructions
-            .try_reserve()
-            .map_err(|_| self.queue_full("reconstruction", 5))?;
-        let id = self
-            .store
-            .insert_reconstruction(&request)
-            .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?;
-        permit.send(id);
-        Ok(id)
+        let pushed = self.reconstructions.push(5, || {
+            self.store
+                .insert_reconstruction(&request)
+                .map_err(|e| SubmitError::Internal(self.store.describe(&e)))
+        });
+        self.count_refusal(pushed)
     }
 
-    fn queue_full(&self, queue: &'static str, retry_after: u64) -> SubmitError {
-        self.metrics.rejected_full.fetch_add(1, Ordering::Relaxed);
-        SubmitError::QueueFull { queue, retry_after }
-    }
-
-    /// Frees the disk reservation of a capture that ended.
-    pub(super) fn release_capture(&self, id: i64) {
-        if let Ok(mut r) = self.reserved.lock() {
-            r.remove(&id);
+    /// Counts a full queue's refusal in the metrics.
+    fn count_refusal(&self, pushed: Result<i64, SubmitError>) -> Result<i64, SubmitError> {
+        if let Err(SubmitError::QueueFull { .. }) = pushed {
+            self.metrics.rejected_full.fetch_add(1, Ordering::Relaxed);
         }
+        pushed
     }
 }

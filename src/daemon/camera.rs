@@ -1,10 +1,14 @@
-//! The camera as clients see and set it: the settings captures inherit,
-//! `PUT /camera/settings` (refused, not waited for, during a capture) and
-//! the state `GET /camera` shows.
+//! The camera service: the one camera, the bench around it, and who has
+//! it. It owns the settings captures inherit, `PUT /camera/settings`
+//! (refused, not waited for, during a capture), the state `GET /camera`
+//! shows and the live view's latest frame.
 
-use super::Daemon;
-use crate::camera::worker::CameraStatus;
-use crate::camera::{CameraInfo, CameraSettings, SettingsChange};
+use std::sync::{Arc, Mutex};
+
+use crate::camera::fake::Bench;
+use crate::camera::hotplug::Hotplug;
+use crate::camera::worker::{CameraHandle, CameraStatus};
+use crate::camera::{CameraInfo, CameraSettings, RawFrame, SettingsChange};
 
 /// Why a settings change was refused.
 #[derive(Debug, thiserror::Error)]
@@ -32,7 +36,98 @@ pub struct CameraView {
     pub capture_defaults: CameraSettings,
 }
 
-impl Daemon {
+/// The camera thread's handle, the bench, and the state around them; each
+/// piece behind its own lock, none held across an await but the gate.
+pub struct CameraService {
+    handle: CameraHandle,
+    bench: Arc<dyn Bench>,
+    /// Held by a capture for its whole run: a settings change that cannot
+    /// have the camera answers 409 instead of waiting.
+    gate: tokio::sync::Mutex<()>,
+    /// The job holding the gate (`capture-<n>`), for `GET /camera`.
+    holder: Mutex<Option<String>>,
+    /// Settings from the last `PUT /camera/settings`, inherited by captures
+    /// that do not state their own (None: the camera's read-back ones).
+    defaults: Mutex<Option<CameraSettings>>,
+    /// The latest frame a capture or the live view received.
+    latest: Mutex<Option<Arc<RawFrame>>>,
+    _hotplug: Option<Hotplug>,
+}
+
+/// The camera, held by one capture until dropped.
+pub(crate) struct CameraLease<'a> {
+    _gate: tokio::sync::MutexGuard<'a, ()>,
+    holder: &'a Mutex<Option<String>>,
+}
+
+impl Drop for CameraLease<'_> {
+    fn drop(&mut self) {
+        *self.holder.lock().unwrap_or_else(|e| e.into_inner()) = None;
+    }
+}
+
+impl CameraService {
+    /// The service over a started camera thread; `hotplug` (kept alive
+    /// here) rescans when a USB device arrives.
+    pub(crate) fn new(
+        handle: CameraHandle,
+        bench: Arc<dyn Bench>,
+        hotplug: Option<Hotplug>,
+    ) -> Self {
+        Self {
+            handle,
+            bench,
+            gate: tokio::sync::Mutex::new(()),
+            holder: Mutex::new(None),
+            defaults: Mutex::new(None),
+            latest: Mutex::new(None),
+            _hotplug: hotplug,
+        }
+    }
+
+    /// The camera thread (acquisition, configuration, status).
+    pub(crate) fn handle(&self) -> &CameraHandle {
+        &self.handle
+    }
+
+    /// The bench: pose, polarizer, scene, target and source switches.
+    pub(crate) fn bench(&self) -> &dyn Bench {
+        self.bench.as_ref()
+    }
+
+    /// Connection, identity, ranges, settings read back and counters now.
+    pub fn status(&self) -> CameraStatus {
+        self.handle.status()
+    }
+
+    /// Waits for the camera and holds it for `job` until the lease drops.
+    pub(crate) async fn lease(&self, job: &str) -> CameraLease<'_> {
+        let gate = self.gate.lock().await;
+        *self.holder.lock().unwrap_or_else(|e| e.into_inner()) = Some(job.to_string());
+        CameraLease {
+            _gate: gate,
+            holder: &self.holder,
+        }
+    }
+
+    /// The latest frame a capture or the live view received, if any.
+    pub fn latest_frame(&self) -> Option<Arc<RawFrame>> {
+        self.latest
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// Shows `frame` in the live view.
+    pub(crate) fn show(&self, frame: Arc<RawFrame>) {
+        *self.latest.lock().unwrap_or_else(|e| e.into_inner()) = Some(frame);
+    }
+
+    /// Stops the camera thread.
+    pub(crate) fn shutdown(&self) {
+        self.handle.shutdown();
+    }
+
     /// The settings a capture inherits for what it does not state: the last
     /// `PUT /camera/settings`, else what the camera reported the first time
     /// the daemon saw it (`info`), latched then.
@@ -43,14 +138,12 @@ impl Daemon {
     /// A capture's settings belong to it; defaults change only by a PUT.
     pub fn capture_defaults(&self, info: Option<&CameraInfo>) -> CameraSettings {
         let camera = info.map(|i| i.settings.clone());
-        let latched = match self.defaults.lock() {
-            Ok(mut d) => {
-                if d.is_none() {
-                    d.clone_from(&camera);
-                }
-                d.clone()
+        let latched = {
+            let mut d = self.defaults.lock().unwrap_or_else(|e| e.into_inner());
+            if d.is_none() {
+                d.clone_from(&camera);
             }
-            Err(_) => None,
+            d.clone()
         };
         match (latched, camera) {
             (Some(mut p), Some(c)) => {
@@ -66,42 +159,39 @@ impl Daemon {
     /// Applies a change of the settings (what it leaves out keeps its
     /// current default) and makes the result the defaults later captures
     /// inherit. Refused (not waited for) while a capture has the camera.
-    pub async fn put_camera_settings(
-        &self,
-        change: SettingsChange,
-    ) -> Result<CameraInfo, SettingsError> {
-        let Ok(_camera) = self.camera_gate.try_lock() else {
+    pub async fn put_settings(&self, change: SettingsChange) -> Result<CameraInfo, SettingsError> {
+        let Ok(_camera) = self.gate.try_lock() else {
             return Err(SettingsError::Busy);
         };
-        let s = change.over(&self.capture_defaults(self.camera.status().info.as_ref()));
-        if let Some(info) = self.camera.status().info {
+        let s = change.over(&self.capture_defaults(self.status().info.as_ref()));
+        if let Some(info) = self.status().info {
             let binning = s.binning.or(info.settings.binning).unwrap_or([1, 1]);
             if let Some(region) = s.region.or(info.settings.region) {
                 info.limits.check(region, binning)?;
             }
         }
-        self.camera.configure(s.clone()).await?;
-        let info = self.camera.describe().await?;
-        if let Ok(mut d) = self.defaults.lock() {
-            *d = Some(info.settings.clone());
-        }
+        self.handle.configure(s.clone()).await?;
+        let info = self.handle.describe().await?;
+        *self.defaults.lock().unwrap_or_else(|e| e.into_inner()) = Some(info.settings.clone());
         Ok(info)
     }
 
     /// The camera as it is now: read from it when no capture has it, else the
     /// settings read back when that capture configured it, and the capture's job.
-    pub async fn camera_now(&self) -> CameraView {
-        let busy = if let Ok(_camera) = self.camera_gate.try_lock() {
-            if self.camera.status().connected {
-                let describe = self.camera.describe();
+    pub async fn now(&self) -> CameraView {
+        let busy = if let Ok(_camera) = self.gate.try_lock() {
+            if self.status().connected {
+                let describe = self.handle.describe();
                 let _ = tokio::time::timeout(std::time::Duration::from_secs(2), describe).await;
             }
             None
         } else {
-            let running = self.store.running_capture().ok().flatten();
-            running.map(|id| format!("capture-{id}"))
+            self.holder
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .clone()
         };
-        let status = self.camera.status();
+        let status = self.status();
         let capture_defaults = self.capture_defaults(status.info.as_ref());
         CameraView {
             status,
@@ -114,18 +204,17 @@ impl Daemon {
     /// one at the capture defaults (the bench can be aimed and focused before
     /// any capture); while a capture runs, its latest frame (the preview
     /// never takes the camera from a capture). `None` before any frame.
-    pub async fn live_frame(&self) -> Option<std::sync::Arc<crate::camera::RawFrame>> {
-        if let Ok(_camera) = self.camera_gate.try_lock() {
-            let status = self.camera.status();
+    pub async fn live_frame(&self) -> Option<Arc<RawFrame>> {
+        if let Ok(_camera) = self.gate.try_lock() {
+            let status = self.status();
             if status.connected {
                 let s = self.capture_defaults(status.info.as_ref());
                 let exposure = s.exposure_us.max(0.0) * 1e-6;
                 let within = std::time::Duration::from_secs_f64(exposure.min(60.0) + 3.0);
-                match tokio::time::timeout(within, self.camera.collect(s, 1)).await {
+                match tokio::time::timeout(within, self.handle.collect(s, 1)).await {
                     Ok(Ok(mut frames)) => {
-                        if let (Some(f), Ok(mut latest)) = (frames.pop(), self.latest_frame.lock())
-                        {
-                            *latest = Some(std::sync::Arc::new(f));
+                        if let Some(f) = frames.pop() {
+                            self.show(Arc::new(f));
                         }
                     }
                     Ok(Err(e)) => tracing::debug!("live view: {e}"),

@@ -3,11 +3,9 @@
 //! and stops at the next point it checks (a capture at its next frame,
 //! keeping nothing half-written; a reconstruction between its stages).
 
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use super::jobs::job_event;
 use super::Daemon;
 use crate::store::{JobState, StoreError};
 
@@ -60,20 +58,6 @@ pub enum CancelError {
 }
 
 impl Daemon {
-    /// The cancel flag of a job, created on first use by either side (the
-    /// worker starting it or a client cancelling it, whichever comes first).
-    pub(super) fn cancel_flag(&self, job: &str) -> Arc<AtomicBool> {
-        let mut flags = self.cancels.lock().unwrap_or_else(|e| e.into_inner());
-        flags.entry(job.to_string()).or_default().clone()
-    }
-
-    /// Drops the flag of a job that ended.
-    pub(super) fn forget_cancel(&self, job: &str) {
-        if let Ok(mut flags) = self.cancels.lock() {
-            flags.remove(job);
-        }
-    }
-
     fn job_state(&self, kind: JobKind, id: i64) -> Result<JobState, CancelError> {
         let r = match kind {
             JobKind::Capture => self.store.capture(id).map(|c| c.state),
@@ -109,14 +93,16 @@ impl Daemon {
         .map_err(store_err)?;
         if cancelled_queued {
             if kind == JobKind::Capture {
-                self.release_capture(id);
+                self.captures.release(id);
             }
             self.metrics.jobs_cancelled.fetch_add(1, Ordering::Relaxed);
-            job_event(self, job, JobState::Cancelled, None);
+            self.events.job(job, JobState::Cancelled, None);
             return Ok(JobState::Cancelled);
         }
         // Running (or it started just now): the worker sees the flag.
-        self.cancel_flag(&job).store(true, Ordering::SeqCst);
+        self.registry
+            .cancel_flag(&job)
+            .store(true, Ordering::SeqCst);
         let start = Instant::now();
         loop {
             let state = self.job_state(kind, id)?;

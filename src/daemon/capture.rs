@@ -14,9 +14,11 @@ use std::time::Instant;
 
 use tokio::sync::mpsc;
 
-use super::jobs::{finish_job, job_event, Ending, JobError};
+use super::camera::CameraService;
+use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::progressive;
-use super::{Daemon, Event};
+use super::queue::CaptureQueue;
+use super::Event;
 use crate::camera::{Acquisition, CameraError, CameraSettings, Frame, RawFrame};
 use crate::measure::FrameStack;
 use crate::store::{
@@ -33,108 +35,118 @@ const FRAME_QUEUE: usize = 4;
 /// How long a capture waits for a camera that is not connected.
 const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 
-/// Runs captures one at a time (one camera).
-pub(super) async fn capture_worker(d: Arc<Daemon>, mut rx: mpsc::Receiver<i64>) {
-    let mut stopped = d.stopped();
-    loop {
-        // Biased towards the stop: a job still queued when the drain
-        // starts stays queued, however ready the queue is.
-        let id = tokio::select! {
-            biased;
-            _ = stopped.wait_for(|s| *s) => None,
-            id = rx.recv() => id,
-        };
-        let Some(id) = id else { return };
-        let job = format!("capture-{id}");
-        let start = Instant::now();
-        // Held for the whole capture: settings changes answer 409 meanwhile.
-        let camera = d.camera_gate.lock().await;
-        if d.is_stopping() {
-            // The drain began while this capture waited for the camera.
-            d.release_capture(id);
-            return;
-        }
-        let result = match d.store.capture_running(id) {
-            // Cancelled while it waited in the queue.
-            Ok(false) => {
-                d.release_capture(id);
-                d.forget_cancel(&job);
-                continue;
+/// The capture worker and what it uses: the job services, the camera and
+/// the capture queue (for the disk reservations and progressive specs).
+pub(super) struct CaptureWorker {
+    pub(super) jobs: JobContext,
+    pub(super) camera: Arc<CameraService>,
+    pub(super) queue: Arc<CaptureQueue>,
+}
+
+impl CaptureWorker {
+    /// Runs captures one at a time (one camera) until the daemon stops.
+    pub(super) async fn run(self, mut rx: mpsc::Receiver<i64>) {
+        let w = &self;
+        let mut stopped = w.jobs.registry.stopped();
+        loop {
+            // Biased towards the stop: a job still queued when the drain
+            // starts stays queued, however ready the queue is.
+            let id = tokio::select! {
+                biased;
+                _ = stopped.wait_for(|s| *s) => None,
+                id = rx.recv() => id,
+            };
+            let Some(id) = id else { return };
+            let job = format!("capture-{id}");
+            let start = Instant::now();
+            // Held for the whole capture: settings changes answer 409 meanwhile.
+            let lease = w.camera.lease(&job).await;
+            if w.jobs.registry.is_stopping() {
+                // The drain began while this capture waited for the camera.
+                w.queue.release(id);
+                return;
             }
-            Ok(true) => run_capture(&d, id, &d.cancel_flag(&job)).await,
-            Err(e) => Err(JobError::Store(d.store.describe(&e))),
-        };
-        drop(camera);
-        d.release_capture(id);
-        let m = &d.metrics;
-        let counters = (&m.captures_done, &m.captures_failed, &m.capture_micros);
-        finish_job(&d, job, start, result, counters, |end| match end {
-            Ending::Failed(e) => d.store.capture_failed(id, e),
-            Ending::Cancelled => d.store.capture_cancelled(id).map(|_| ()),
-            Ending::Interrupted => d.store.interrupted("captures", id),
-        });
+            let result = match w.jobs.store.capture_running(id) {
+                // Cancelled while it waited in the queue.
+                Ok(false) => {
+                    w.queue.release(id);
+                    w.jobs.registry.forget(&job);
+                    continue;
+                }
+                Ok(true) => run_capture(w, id, &w.jobs.registry.cancel_flag(&job)).await,
+                Err(e) => Err(JobError::Store(w.jobs.store.describe(&e))),
+            };
+            drop(lease);
+            w.queue.release(id);
+            let (m, store) = (&w.jobs.metrics, &w.jobs.store);
+            let counters = (&m.captures_done, &m.captures_failed, &m.capture_micros);
+            finish_job(&w.jobs, job, start, result, counters, |end| match end {
+                Ending::Failed(e) => store.capture_failed(id, e),
+                Ending::Cancelled => store.capture_cancelled(id).map(|_| ()),
+                Ending::Interrupted => store.interrupted("captures", id),
+            });
+        }
     }
 }
 
-async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
-    let store_err = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
-    let c = d.store.capture(id).map_err(store_err)?;
-    job_event(d, format!("capture-{id}"), JobState::Running, None);
+async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
+    let store_err = |e: crate::store::StoreError| JobError::Store(w.jobs.store.describe(&e));
+    let c = w.jobs.store.capture(id).map_err(store_err)?;
+    w.jobs
+        .events
+        .job(format!("capture-{id}"), JobState::Running, None);
     // The settings recorded when it was accepted.
     let acquisition = Acquisition::try_from(&c).map_err(|e| JobError::Capture {
         id,
         reason: e.to_string(),
     })?;
     let settings = CameraSettings::from(acquisition);
-    wait_for_camera(d).await;
-    let camera_id = d.camera.status().info.map(|i| i.id).unwrap_or_default();
+    wait_for_camera(&w.camera).await;
+    let camera_id = w.camera.status().info.map(|i| i.id).unwrap_or_default();
     let meta = meta_of(&c, acquisition, &camera_id);
-    let dir = d.store.capture_dir(id);
-    std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
-    d.bench.select(&c.pose, c.polarizer_deg);
+    let dir = w.jobs.store.capture_dir(id);
+    std::fs::create_dir_all(&dir)
+        .map_err(|e| JobError::Store(w.jobs.store.describe_io(&dir, &e)))?;
+    w.camera.bench().select(&c.pose, c.polarizer_deg);
     let stream = Stream {
-        d,
+        w,
         id,
         settings: &settings,
         meta: &meta,
         total: (c.frames + c.dark_frames) as usize,
         cancel,
     };
-    let spec = d
-        .progressive
-        .lock()
-        .map(|mut m| m.remove(&id))
-        .unwrap_or(None);
-    let dark = dark_reference(d, &c, &stream).await?;
-    let scene_off = meta.kind == CaptureKind::Dark && d.bench.switches_scene();
+    let spec = w.queue.take_progressive(id);
+    let dark = dark_reference(w, &c, &stream).await?;
+    let scene_off = meta.kind == CaptureKind::Dark && w.camera.bench().switches_scene();
     if scene_off {
-        d.bench.scene_on(false);
+        w.camera.bench().scene_on(false);
     }
     let target = meta.kind == CaptureKind::Target;
     if target {
-        d.bench.show_target(true);
+        w.camera.bench().show_target(true);
     }
     let source = meta.kind == CaptureKind::Source;
     if source {
-        d.bench.show_source(true);
+        w.camera.bench().show_source(true);
     }
     let (n, offset) = (c.frames as usize, c.dark_frames as usize);
-    let progressive = spec.map(|s| progressive::start(d, c.clone(), &s, dark.clone()));
+    let progressive = spec.map(|s| progressive::start(&w.jobs, c.clone(), &s, dark.clone()));
     let snapshots = progressive.as_ref().map(|(tx, _)| tx.clone());
     let frames = stream
         .take(CaptureFiles::FRAMES, "frames", n, offset, snapshots)
         .await;
     if scene_off {
-        d.bench.scene_on(true);
+        w.camera.bench().scene_on(true);
     }
     if target {
-        d.bench.show_target(false);
+        w.camera.bench().show_target(false);
     }
     if source {
-        d.bench.show_source(false);
+        w.camera.bench().show_source(false);
     }
     if let Some((tx, steps)) = progressive {
-        finish_progressive(d, id, frames.as_ref().ok(), tx, steps).await;
+        finish_progressive(w, id, frames.as_ref().ok(), tx, steps).await;
     }
     let frames = match frames {
         Ok(f) => f,
@@ -144,14 +156,15 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
             return Err(e);
         }
     };
-    let store = d.store.clone();
+    let store = w.jobs.store.clone();
     tokio::task::spawn_blocking(move || {
         write_summary(&dir, &frames, dark.as_ref(), &meta)
             .map_err(|e| JobError::Store(store.describe(&e)))
     })
     .await??;
-    let counters = serde_json::to_string(&d.camera.status().counters).unwrap_or_default();
-    d.store
+    let counters = serde_json::to_string(&w.camera.status().counters).unwrap_or_default();
+    w.jobs
+        .store
         .capture_done(id, &camera_id, &counters)
         .map_err(store_err)
 }
@@ -160,7 +173,7 @@ async fn run_capture(d: &Arc<Daemon>, id: i64, cancel: &AtomicBool) -> Result<()
 /// solved) and waits for it; a capture that did not finish keeps none of its
 /// progressive files.
 async fn finish_progressive(
-    d: &Daemon,
+    w: &CaptureWorker,
     id: i64,
     frames: Option<&FrameStack>,
     tx: progressive::Snapshots,
@@ -174,14 +187,14 @@ async fn finish_progressive(
     let steps = steps.await.unwrap_or_default();
     tracing::info!("capture-{id}: {} progressive steps", steps.len());
     if frames.is_none() {
-        progressive::remove_files(d, id);
+        progressive::remove_files(&w.jobs.store, id);
     }
 }
 
 /// A camera that is (re)connecting gets a short grace period before the capture fails.
-async fn wait_for_camera(d: &Daemon) {
+async fn wait_for_camera(camera: &CameraService) {
     let grace = Instant::now();
-    while !d.camera.status().connected && grace.elapsed() < CAMERA_GRACE {
+    while !camera.status().connected && grace.elapsed() < CAMERA_GRACE {
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     }
 }
@@ -204,15 +217,15 @@ fn meta_of(c: &CaptureRecord, acquisition: Acquisition, camera_id: &str) -> Fram
 /// scene switched off (only on a bench that can, checked at acceptance), or
 /// a dark capture's mean frame, or none.
 async fn dark_reference(
-    d: &Daemon,
+    w: &CaptureWorker,
     c: &CaptureRecord,
     stream: &Stream<'_>,
 ) -> Result<Option<Frame>, JobError> {
     if c.dark_frames > 0 {
-        d.bench.scene_on(false);
+        w.camera.bench().scene_on(false);
         let n = c.dark_frames as usize;
         let r = stream.take(CaptureFiles::DARK, "dark", n, 0, None).await;
-        d.bench.scene_on(true);
+        w.camera.bench().scene_on(true);
         let st = r.map_err(|e| match e {
             JobError::Cancelled => JobError::Cancelled,
             e => JobError::Capture {
@@ -228,9 +241,9 @@ async fn dark_reference(
     }
     match c.dark_capture {
         Some(dc) => {
-            let mean = read_mean(&d.store.capture_dir(dc)).map_err(|e| JobError::Capture {
+            let mean = read_mean(&w.jobs.store.capture_dir(dc)).map_err(|e| JobError::Capture {
                 id: dc,
-                reason: d.store.describe(&e),
+                reason: w.jobs.store.describe(&e),
             })?;
             Ok(Some(mean))
         }
@@ -240,7 +253,7 @@ async fn dark_reference(
 
 /// One acquisition of a capture, streamed to one file.
 struct Stream<'a> {
-    d: &'a Arc<Daemon>,
+    w: &'a CaptureWorker,
     id: i64,
     settings: &'a CameraSettings,
     meta: &'a FrameMeta,
@@ -261,17 +274,17 @@ impl Stream<'_> {
         offset: usize,
         snapshots: Option<progressive::Snapshots>,
     ) -> Result<FrameStack, JobError> {
-        let (id, total, d) = (self.id, self.total, self.d);
+        let (id, total, w) = (self.id, self.total, self.w);
         if self.cancel.load(Ordering::SeqCst) {
             return Err(JobError::Cancelled);
         }
         let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<RawFrame>(FRAME_QUEUE);
         let (progress_tx, mut progress_rx) = mpsc::unbounded_channel::<usize>();
-        let path = d.store.capture_dir(id).join(name);
+        let path = w.jobs.store.capture_dir(id).join(name);
         let meta = self.meta.clone();
-        let store = d.store.clone();
-        let cancel = d.cancel_flag(&format!("capture-{id}"));
-        let live = d.clone();
+        let store = w.jobs.store.clone();
+        let cancel = w.jobs.registry.cancel_flag(&format!("capture-{id}"));
+        let live = w.camera.clone();
         let writer = tokio::task::spawn_blocking(move || {
             let mut shown = None;
             // A cancelled capture ends its stream at the next frame: the file
@@ -285,9 +298,7 @@ impl Stream<'_> {
                     // at most every LIVE_EVERY, not every frame.
                     if shown.is_none_or(|t: Instant| t.elapsed() >= LIVE_EVERY) {
                         shown = Some(Instant::now());
-                        if let Ok(mut latest) = live.latest_frame.lock() {
-                            *latest = Some(Arc::new(f.clone()));
-                        }
+                        live.show(Arc::new(f.clone()));
                     }
                 });
             write_frames(&path, kind, &meta, n, frames, &mut |st: &FrameStack| {
@@ -298,20 +309,24 @@ impl Stream<'_> {
             })
             .map_err(|e| JobError::Store(store.describe(&e)))
         });
-        let d2 = d.clone();
+        let (events, catalogue) = (w.jobs.events.clone(), w.jobs.store.clone());
         let progress = tokio::spawn(async move {
             while let Some(taken) = progress_rx.recv().await {
-                d2.emit(Event::Frame {
+                events.emit(Event::Frame {
                     job: format!("capture-{id}"),
                     taken,
                     total,
                 });
-                let store = d2.store.clone();
+                let store = catalogue.clone();
                 let _ =
                     tokio::task::spawn_blocking(move || store.capture_progress(id, taken)).await;
             }
         });
-        let acquired = d.camera.acquire(self.settings.clone(), n, frame_tx).await;
+        let acquired = w
+            .camera
+            .handle()
+            .acquire(self.settings.clone(), n, frame_tx)
+            .await;
         let written = writer.await.map_err(JobError::from).and_then(|r| r);
         let _ = progress.await;
         if self.cancel.load(Ordering::SeqCst) && written.is_err() {

@@ -1,6 +1,37 @@
 //! Server-sent events: job progress, frames taken, camera state changes.
+//! [`Events`] is the sending side every service holds a clone of.
 
 use serde::Serialize;
+use tokio::sync::broadcast;
+
+use crate::store::JobState;
+
+/// The event stream's sending side: cloned into each service that announces
+/// something, so none of them needs the whole daemon to do it.
+#[derive(Debug, Clone)]
+pub struct Events(broadcast::Sender<Event>);
+
+impl Events {
+    /// A stream that keeps the last `capacity` events for slow listeners.
+    pub fn new(capacity: usize) -> Self {
+        Self(broadcast::channel(capacity).0)
+    }
+
+    /// Publishes an event (nobody listening is fine).
+    pub fn emit(&self, e: Event) {
+        let _ = self.0.send(e);
+    }
+
+    /// Publishes a job's change of state.
+    pub fn job(&self, job: String, state: JobState, error: Option<String>) {
+        self.emit(Event::Job { job, state, error });
+    }
+
+    /// Events from now on.
+    pub fn subscribe(&self) -> broadcast::Receiver<Event> {
+        self.0.subscribe()
+    }
+}
 
 /// One event on `GET /events`.
 #[derive(Debug, Clone, Serialize)]
@@ -11,7 +42,7 @@ pub enum Event {
         /// `capture-<id>` or `reconstruction-<id>`.
         job: String,
         /// New state.
-        state: crate::store::JobState,
+        state: JobState,
         /// Error, when failed.
         #[serde(skip_serializing_if = "Option::is_none")]
         error: Option<String>,

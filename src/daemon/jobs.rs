@@ -1,12 +1,31 @@
-//! What capture and reconstruction jobs share: the job error, block labels,
-//! job events and the bookkeeping of a job that ended.
+//! What capture and reconstruction jobs share: the services a worker
+//! holds ([`JobContext`]), the job error, block labels and the bookkeeping
+//! of a job that ended.
 
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
-use super::scenes::ScenesError;
-use super::{Daemon, Event};
-use crate::store::JobState;
+use super::events::Events;
+use super::metrics::Metrics;
+use super::registry::JobRegistry;
+use super::scenes::{Scenes, ScenesError};
+use crate::store::{JobState, Store};
+
+/// The services every job worker holds, and nothing else of the daemon:
+/// the catalogue, the scenes with their radiometric calibration, the job
+/// registry, the event stream and the counters.
+#[derive(Clone)]
+pub(super) struct JobContext {
+    pub(super) store: Arc<Store>,
+    pub(super) scenes: Arc<Scenes>,
+    /// Fraction of full scale per microsecond per unit of `T l`, per scene.
+    pub(super) calibration: Arc<BTreeMap<String, f64>>,
+    pub(super) registry: Arc<JobRegistry>,
+    pub(super) events: Events,
+    pub(super) metrics: Arc<Metrics>,
+}
 
 /// Why a capture or reconstruction job failed: what the job's `error` says.
 #[derive(Debug, thiserror::Error)]
@@ -68,24 +87,20 @@ pub(super) fn block_label(pose: &str, deg: Option<f64>) -> String {
 
 pub(super) use crate::measure::same_angle;
 
-pub(super) fn job_event(d: &Daemon, job: String, state: JobState, error: Option<String>) {
-    d.emit(Event::Job { job, state, error });
-}
-
 /// How a job that did not finish ended, for the store.
 pub(super) enum Ending<'a> {
     /// With this error (paths redacted).
     Failed(&'a str),
     /// Cancelled by a client while it ran.
     Cancelled,
-    /// Stopped because the daemon is stopping ([`Daemon::drain`]).
+    /// Stopped because the daemon is stopping ([`super::Daemon::drain`]).
     Interrupted,
 }
 
 /// Records how a job ended: its time and done/failed counters, the failure
 /// or cancellation in the store (`record`), and the job event.
 pub(super) fn finish_job(
-    d: &Daemon,
+    d: &JobContext,
     job: String,
     start: Instant,
     result: Result<(), JobError>,
@@ -93,18 +108,18 @@ pub(super) fn finish_job(
     record: impl FnOnce(Ending<'_>) -> Result<(), crate::store::StoreError>,
 ) {
     micros.fetch_add(start.elapsed().as_micros() as u64, Ordering::Relaxed);
-    d.forget_cancel(&job);
+    d.registry.forget(&job);
     match result {
         Ok(()) => {
             done.fetch_add(1, Ordering::Relaxed);
-            job_event(d, job, JobState::Done, None);
+            d.events.job(job, JobState::Done, None);
         }
-        Err(JobError::Cancelled) if d.is_stopping() => {
+        Err(JobError::Cancelled) if d.registry.is_stopping() => {
             tracing::info!("{job} interrupted: the daemon is stopping");
             if let Err(se) = record(Ending::Interrupted) {
                 tracing::error!("cannot record the interruption of {job}: {se}");
             }
-            job_event(d, job, JobState::Interrupted, None);
+            d.events.job(job, JobState::Interrupted, None);
         }
         Err(JobError::Cancelled) => {
             tracing::info!("{job} cancelled");
@@ -112,7 +127,7 @@ pub(super) fn finish_job(
             if let Err(se) = record(Ending::Cancelled) {
                 tracing::error!("cannot record the cancellation of {job}: {se}");
             }
-            job_event(d, job, JobState::Cancelled, None);
+            d.events.job(job, JobState::Cancelled, None);
         }
         Err(e) => {
             tracing::warn!("{job} failed: {e}");
@@ -122,7 +137,7 @@ pub(super) fn finish_job(
             if let Err(se) = record(Ending::Failed(&e)) {
                 tracing::error!("cannot record the failure of {job}: {se}");
             }
-            job_event(d, job, JobState::Failed, Some(e));
+            d.events.job(job, JobState::Failed, Some(e));
         }
     }
 }

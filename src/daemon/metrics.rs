@@ -84,8 +84,6 @@ impl super::Daemon {
         let s = self.camera.status();
         let c = s.counters;
         let m = &self.metrics;
-        let depth =
-            |tx: &tokio::sync::mpsc::Sender<i64>| (tx.max_capacity() - tx.capacity()) as f64;
         let connected = f64::from(u8::from(s.connected));
         vec![
             gauge("polnlos_camera_connected", "1 when a camera is open", connected),
@@ -97,8 +95,8 @@ impl super::Daemon {
             counter("polnlos_camera_resent_packets_total", "GigE Vision packets resent", c.resent_packets as f64),
             counter("polnlos_camera_connects_total", "Camera (re)connections", c.connects as f64),
             counter("polnlos_camera_reconnect_failures_total", "Failed reconnection attempts", s.reconnect_failures as f64),
-            gauge("polnlos_capture_queue_depth", "Captures waiting", depth(&self.captures)),
-            gauge("polnlos_reconstruction_queue_depth", "Reconstructions waiting", depth(&self.reconstructions)),
+            gauge("polnlos_capture_queue_depth", "Captures waiting", self.captures.depth() as f64),
+            gauge("polnlos_reconstruction_queue_depth", "Reconstructions waiting", self.reconstructions.depth() as f64),
             counter("polnlos_captures_done_total", "Captures finished", Metrics::get(&m.captures_done)),
             counter("polnlos_captures_failed_total", "Captures failed", Metrics::get(&m.captures_failed)),
             counter("polnlos_capture_seconds_total", "Time spent capturing", Metrics::get(&m.capture_micros) * 1e-6),

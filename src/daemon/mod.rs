@@ -12,8 +12,13 @@
 //! - [`requests`]: what clients ask for (capture, reconstruction and
 //!   calibration bodies), checked by [`validate`] and admitted by
 //!   `admission` (disk space and queue room); `capture`/`reconstruction`:
-//!   the workers; `camera`: settings and what `GET /camera` shows;
-//!   `metrics`: `/metrics` samples.
+//!   the workers; `metrics`: `/metrics` samples.
+//! - The services, each owning its state and lock: `camera`
+//!   ([`CameraService`]: the camera, the bench, who holds them, the settings
+//!   captures inherit, the live view), `queue` (the bounded job queues and
+//!   the disk captures reserved), `registry` (cancel flags and the stop),
+//!   [`events`] (the event stream), [`metrics`] (counters), [`scenes`]
+//!   (scenes, their `T` and Gram, cached). Workers hold the ones they use.
 
 mod admission;
 mod calibration;
@@ -27,7 +32,9 @@ mod integral;
 mod jobs;
 pub mod metrics;
 mod progressive;
+mod queue;
 mod reconstruction;
+mod registry;
 pub mod requests;
 mod retention;
 pub mod scenes;
@@ -36,15 +43,15 @@ pub mod validate;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use tokio::sync::{broadcast, mpsc, Mutex};
+use tokio::sync::Mutex;
 
 pub use admission::SubmitError;
 pub use calibration::{FittedPosition, GeometryCalibration, SourcePosition, WallCalibration};
-pub use camera::{CameraView, SettingsError};
+pub use camera::{CameraService, CameraView, SettingsError};
 pub use cancel::{CancelError, JobKind};
 pub use config::Config;
 pub use demo::DEMO_SOURCE;
-pub use events::Event;
+pub use events::{Event, Events};
 pub use progressive::{
     Step as ProgressiveStep, IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS,
 };
@@ -55,9 +62,11 @@ use crate::camera::fake::{Bench, FakeBench, ManualBench};
 use crate::camera::hotplug::Hotplug;
 use crate::camera::synthetic::SyntheticBench;
 use crate::camera::worker::{CameraHandle, Opener};
-use crate::camera::{CameraDevice, CameraSettings};
+use crate::camera::CameraDevice;
 use crate::store::Store;
 use metrics::Metrics;
+use queue::{CaptureQueue, Queue};
+use registry::JobRegistry;
 use scenes::Scenes;
 
 /// Exposure at which the fake camera's demo image fills 80 % of full scale
@@ -161,41 +170,25 @@ async fn demo_frames(
         .map_err(|e| DaemonError::Demo(e.to_string()))?
 }
 
-/// Everything the routes and the jobs share.
+/// The daemon as a front end sees it: the configuration and the services,
+/// each owning its state and its lock. Workers get only the services they
+/// use ([`jobs::JobContext`], the camera, the capture queue), never this.
 pub struct Daemon {
     config: Config,
     /// Bearer token ("" = none).
     token: String,
     store: Arc<Store>,
     scenes: Arc<Scenes>,
-    camera: CameraHandle,
-    bench: Arc<dyn Bench>,
-    captures: mpsc::Sender<i64>,
-    reconstructions: mpsc::Sender<i64>,
-    events: broadcast::Sender<Event>,
-    metrics: Metrics,
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
-    calibration: BTreeMap<String, f64>,
-    /// Held by the capture worker for a whole capture: a settings change
-    /// that cannot have the camera answers 409 instead of waiting.
-    camera_gate: tokio::sync::Mutex<()>,
-    /// Settings from the last `PUT /camera/settings`, inherited by captures
-    /// that do not state their own (None: the camera's read-back ones).
-    defaults: std::sync::Mutex<Option<CameraSettings>>,
-    /// Disk bytes reserved by queued and running captures, by capture id.
-    reserved: std::sync::Mutex<BTreeMap<i64, u64>>,
-    /// Progressive reconstructions asked for with queued captures, by capture id.
-    progressive: std::sync::Mutex<BTreeMap<i64, validate::ProgressiveSpec>>,
-    /// The latest frame a capture received (the page's live view).
-    latest_frame: std::sync::Mutex<Option<Arc<crate::camera::RawFrame>>>,
-    /// Cancel flags of running (or just cancelled) jobs, by job id.
-    cancels: std::sync::Mutex<BTreeMap<String, Arc<std::sync::atomic::AtomicBool>>>,
-    /// True once [`Daemon::drain`] starts: the workers stop taking jobs, and
-    /// a job stopped from then on ends `interrupted`, not `cancelled`.
-    stop: tokio::sync::watch::Sender<bool>,
+    calibration: Arc<BTreeMap<String, f64>>,
+    camera: Arc<CameraService>,
+    captures: Arc<CaptureQueue>,
+    reconstructions: Queue,
+    registry: Arc<JobRegistry>,
+    events: Events,
+    metrics: Arc<Metrics>,
     /// The job workers and background tasks, joined by [`Daemon::drain`].
     workers: std::sync::Mutex<tokio::task::JoinSet<()>>,
-    _hotplug: Option<Hotplug>,
 }
 
 impl Daemon {
@@ -220,7 +213,6 @@ impl Daemon {
     ) -> Result<Arc<Self>, DaemonError> {
         config.validate()?;
         let token = config.resolved_token()?;
-        let store = Arc::new(store);
         let mut calibration = config.calibration.clone();
         if let Some(c) = camera.demo_calibration {
             for name in scenes.names() {
@@ -234,48 +226,63 @@ impl Daemon {
         } else {
             None
         };
-        let (capture_tx, capture_rx) = mpsc::channel(config.queue.captures);
-        let (recon_tx, recon_rx) = mpsc::channel(config.queue.reconstructions);
-        let workers = config.queue.reconstruction_workers;
+        let (captures, capture_rx) = CaptureQueue::new(config.queue.captures);
+        let (reconstructions, recon_rx) =
+            Queue::new("reconstruction", config.queue.reconstructions);
+        let pool = config.queue.reconstruction_workers;
         let daemon = Arc::new(Self {
             config,
             token,
-            store,
+            store: Arc::new(store),
             scenes,
-            camera: handle,
-            bench: camera.bench,
-            captures: capture_tx,
-            reconstructions: recon_tx,
-            events: broadcast::channel(1024).0,
-            metrics: Metrics::default(),
-            calibration,
-            camera_gate: tokio::sync::Mutex::new(()),
-            defaults: std::sync::Mutex::new(None),
-            reserved: std::sync::Mutex::new(BTreeMap::new()),
-            progressive: std::sync::Mutex::new(BTreeMap::new()),
-            latest_frame: std::sync::Mutex::new(None),
-            cancels: std::sync::Mutex::new(BTreeMap::new()),
-            stop: tokio::sync::watch::channel(false).0,
+            calibration: Arc::new(calibration),
+            camera: Arc::new(CameraService::new(handle, camera.bench, hotplug)),
+            captures: Arc::new(captures),
+            reconstructions,
+            registry: Arc::new(JobRegistry::default()),
+            events: Events::new(1024),
+            metrics: Arc::new(Metrics::default()),
             workers: std::sync::Mutex::new(tokio::task::JoinSet::new()),
-            _hotplug: hotplug,
         });
         {
-            let mut set = daemon.workers.lock().unwrap_or_else(|e| e.into_inner());
-            set.spawn(capture::capture_worker(daemon.clone(), capture_rx));
+            let d = &daemon;
+            let mut set = d.workers.lock().unwrap_or_else(|e| e.into_inner());
+            let capture = capture::CaptureWorker {
+                jobs: d.job_context(),
+                camera: d.camera.clone(),
+                queue: d.captures.clone(),
+            };
+            set.spawn(capture.run(capture_rx));
             let shared = Arc::new(Mutex::new(recon_rx));
-            for _ in 0..workers {
+            for _ in 0..pool {
                 set.spawn(reconstruction::reconstruction_worker(
-                    daemon.clone(),
+                    d.job_context(),
                     shared.clone(),
                 ));
             }
-            set.spawn(until_stopped(daemon.clone(), watch_camera(daemon.clone())));
-            set.spawn(until_stopped(
-                daemon.clone(),
-                retention::retention_task(daemon.clone()),
-            ));
+            let stopped = d.registry.stopped();
+            let camera = watch_camera(d.camera.clone(), d.events.clone());
+            set.spawn(until_stopped(stopped.clone(), camera));
+            let retention = retention::retention_task(
+                d.store.clone(),
+                d.events.clone(),
+                d.config.retention.clone(),
+            );
+            set.spawn(until_stopped(stopped, retention));
         }
         Ok(daemon)
+    }
+
+    /// The services a job worker holds.
+    fn job_context(&self) -> jobs::JobContext {
+        jobs::JobContext {
+            store: self.store.clone(),
+            scenes: self.scenes.clone(),
+            calibration: self.calibration.clone(),
+            registry: self.registry.clone(),
+            events: self.events.clone(),
+            metrics: self.metrics.clone(),
+        }
     }
 
     /// Configuration in force.
@@ -291,6 +298,11 @@ impl Daemon {
     /// The catalogue of captures and reconstructions.
     pub fn store(&self) -> &Store {
         &self.store
+    }
+
+    /// The camera: its settings, state, live view.
+    pub fn camera(&self) -> &CameraService {
+        &self.camera
     }
 
     /// Names of the scenes the daemon knows.
@@ -312,24 +324,9 @@ impl Daemon {
         names
     }
 
-    /// Whether the camera is open now.
-    pub fn camera_connected(&self) -> bool {
-        self.camera.status().connected
-    }
-
-    /// The latest frame a capture received, if any.
-    pub fn latest_frame(&self) -> Option<Arc<crate::camera::RawFrame>> {
-        self.latest_frame.lock().ok().and_then(|f| f.clone())
-    }
-
     /// Job, frame and camera events from now on.
-    pub fn subscribe(&self) -> broadcast::Receiver<Event> {
+    pub fn subscribe(&self) -> tokio::sync::broadcast::Receiver<Event> {
         self.events.subscribe()
-    }
-
-    /// Publishes an event (nobody listening is fine).
-    fn emit(&self, e: Event) {
-        let _ = self.events.send(e);
     }
 
     /// Stops the camera thread.
@@ -339,13 +336,7 @@ impl Daemon {
 
     /// Whether [`Daemon::drain`] has started.
     pub fn is_stopping(&self) -> bool {
-        *self.stop.borrow()
-    }
-
-    /// A receiver that changes once [`Daemon::drain`] starts (for workers to
-    /// stop waiting for jobs).
-    pub(crate) fn stopped(&self) -> tokio::sync::watch::Receiver<bool> {
-        self.stop.subscribe()
+        self.registry.is_stopping()
     }
 
     /// Stops for good: no job is taken from the queues any more, the
@@ -355,12 +346,7 @@ impl Daemon {
     /// camera thread stops. Queued jobs stay queued in the catalogue; the
     /// next start marks them `interrupted`.
     pub async fn drain(&self, grace: std::time::Duration) {
-        self.stop.send_replace(true);
-        if let Ok(flags) = self.cancels.lock() {
-            for flag in flags.values() {
-                flag.store(true, std::sync::atomic::Ordering::SeqCst);
-            }
-        }
+        self.registry.stop_all();
         let mut set = std::mem::take(&mut *self.workers.lock().unwrap_or_else(|e| e.into_inner()));
         let joined =
             tokio::time::timeout(grace, async { while set.join_next().await.is_some() {} }).await;
@@ -377,8 +363,10 @@ impl Daemon {
 }
 
 /// Runs `task` until the daemon starts draining.
-async fn until_stopped(d: Arc<Daemon>, task: impl std::future::Future<Output = ()>) {
-    let mut stopped = d.stopped();
+async fn until_stopped(
+    mut stopped: tokio::sync::watch::Receiver<bool>,
+    task: impl std::future::Future<Output = ()>,
+) {
     tokio::select! {
         () = task => {}
         _ = stopped.wait_for(|s| *s) => {}
@@ -386,12 +374,12 @@ async fn until_stopped(d: Arc<Daemon>, task: impl std::future::Future<Output = (
 }
 
 /// Emits camera connect/lose events.
-async fn watch_camera(d: Arc<Daemon>) {
+async fn watch_camera(camera: Arc<CameraService>, events: Events) {
     let mut last = None;
     loop {
-        let s = d.camera.status();
+        let s = camera.status();
         if last != Some(s.connected) {
-            d.emit(Event::Camera {
+            events.emit(Event::Camera {
                 connected: s.connected,
                 error: s.last_error.clone(),
             });

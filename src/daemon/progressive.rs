@@ -22,10 +22,10 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::jobs::same_angle;
-use super::jobs::JobError;
+use super::jobs::{JobContext, JobError};
 use super::reconstruction::{load_capture, read_captures};
 use super::validate::ProgressiveSpec;
-use super::{Daemon, Event};
+use super::Event;
 use crate::camera::Frame;
 use crate::files::{image, json};
 use crate::measure::FrameStack;
@@ -36,6 +36,7 @@ use crate::solve::gram::{adjoint, Normal};
 use crate::solve::lambda::{admm_tv_resolved_prepared, NoiseLevel};
 use crate::solve::reconstruct::AUTO_MAX_ITER;
 use crate::store::CaptureRecord;
+use crate::store::Store;
 use crate::transport::Transport;
 
 /// File of the latest progressive image, in the capture's folder.
@@ -152,7 +153,7 @@ struct Solver {
 
 impl Solver {
     fn new(
-        d: &Daemon,
+        d: &JobContext,
         capture: CaptureRecord,
         spec: &ProgressiveSpec,
         dark: Option<Frame>,
@@ -176,9 +177,9 @@ impl Solver {
             })
             .ok_or_else(|| JobError::Store("the capture's block is not in T".into()))?;
         let mut warnings = Vec::new();
-        let others = read_captures(d, &spec.captures)?
+        let others = read_captures(&d.store, &spec.captures)?
             .into_iter()
-            .map(|c| load_capture(d, c, &scene, &mut warnings))
+            .map(|c| load_capture(&d.store, c, &scene, &mut warnings))
             .collect::<Result<Vec<_>, _>>()?;
         let other_blocks: Vec<_> = (0..t.blocks.len()).filter(|&b| b != own).collect();
         let blocks: Vec<_> = other_blocks.iter().map(|&b| t.blocks[b].clone()).collect();
@@ -337,7 +338,7 @@ impl Solver {
 /// [`Snapshots`] is dropped (or at once, with none, if the solver cannot be
 /// set up).
 pub(super) fn start(
-    d: &Arc<Daemon>,
+    d: &JobContext,
     capture: CaptureRecord,
     spec: &ProgressiveSpec,
     dark: Option<Frame>,
@@ -363,7 +364,12 @@ pub(super) fn start(
     (snapshots, handle)
 }
 
-fn run(d: &Daemon, solver: &mut Solver, rx: Receiver<Snapshot>, pending: &AtomicBool) -> Vec<Step> {
+fn run(
+    d: &JobContext,
+    solver: &mut Solver,
+    rx: Receiver<Snapshot>,
+    pending: &AtomicBool,
+) -> Vec<Step> {
     let id = solver.capture.id;
     let dir = d.store.capture_dir(id);
     let grid = solver.t.scene_grid;
@@ -381,7 +387,7 @@ fn run(d: &Daemon, solver: &mut Solver, rx: Receiver<Snapshot>, pending: &Atomic
                 if let Err(e) = png.and(steps) {
                     tracing::warn!("capture-{id}: progressive result not written: {e}");
                 }
-                d.emit(Event::Progressive {
+                d.events.emit(Event::Progressive {
                     job: format!("capture-{id}"),
                     step,
                 });
@@ -396,8 +402,8 @@ fn run(d: &Daemon, solver: &mut Solver, rx: Receiver<Snapshot>, pending: &Atomic
 }
 
 /// Removes a capture's progressive files (when the capture did not finish).
-pub(super) fn remove_files(d: &Daemon, id: i64) {
-    let dir = d.store.capture_dir(id);
+pub(super) fn remove_files(store: &Store, id: i64) {
+    let dir = store.capture_dir(id);
     let _ = std::fs::remove_file(dir.join(IMAGE));
     let _ = std::fs::remove_file(dir.join(STEPS));
 }

@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use tokio::sync::{mpsc, Mutex};
 
-use super::jobs::{finish_job, job_event, Ending, JobError};
+use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::Daemon;
 use crate::files::{image, json, npy};
 use crate::measure::{assemble, to_model_units, CaptureFrames, Measurement};
@@ -17,11 +17,11 @@ use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::reconstruct::{reconstruct_prepared, Context, Solver};
 use crate::solve::{check_measurement, SolveRequest, Stop};
-use crate::store::{read_mean, CaptureRecord, JobState};
+use crate::store::{read_mean, CaptureRecord, JobState, Store};
 
 /// Takes reconstructions from the shared queue.
-pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Receiver<i64>>>) {
-    let mut stopped = d.stopped();
+pub(super) async fn reconstruction_worker(d: JobContext, rx: Arc<Mutex<mpsc::Receiver<i64>>>) {
+    let mut stopped = d.registry.stopped();
     loop {
         // Biased towards the stop: a job still queued when the drain
         // starts stays queued, however ready the queue is.
@@ -39,7 +39,7 @@ pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Re
             Ok(true) => {}
             // Cancelled while it waited in the queue.
             Ok(false) => {
-                d.forget_cancel(&job);
+                d.registry.forget(&job);
                 continue;
             }
             Err(e) => {
@@ -47,8 +47,8 @@ pub(super) async fn reconstruction_worker(d: Arc<Daemon>, rx: Arc<Mutex<mpsc::Re
                 continue;
             }
         }
-        job_event(&d, job.clone(), JobState::Running, None);
-        let (d2, cancel) = (d.clone(), d.cancel_flag(&job));
+        d.events.job(job.clone(), JobState::Running, None);
+        let (d2, cancel) = (d.clone(), d.registry.cancel_flag(&job));
         let r = tokio::task::spawn_blocking(move || run_reconstruction(&d2, id, &cancel))
             .await
             .map_err(JobError::from)
@@ -79,7 +79,7 @@ fn check(cancel: &AtomicBool) -> Result<(), JobError> {
 /// Frames to `i` through the homographies, the solve, and the files; a
 /// cancellation is noticed between these stages and inside the solve (every
 /// [`Stop::EVERY`] iterations), and nothing is written after it.
-fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
+fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
     let store = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
     let rec = d.store.reconstruction(id).map_err(store)?;
     let scene = d.scenes.scene(&rec.scene)?;
@@ -90,7 +90,7 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
     let Stacked {
         mut measurement,
         mut warnings,
-    } = stack_captures(d, &rec, &scene, &t)?;
+    } = stack_captures(&d.store, &rec, &scene, &t)?;
     let calibration = d.calibration.get(&rec.scene).copied();
     let units = to_model_units(&t, &mut measurement, calibration)?;
     warnings.extend(units.warning());
@@ -195,13 +195,13 @@ pub(super) struct Stacked {
 /// Reads the reconstruction's captures and assembles them in `T`'s block
 /// order with [`stack_records`].
 fn stack_captures(
-    d: &Daemon,
+    store: &Store,
     rec: &crate::store::ReconstructionRecord,
     scene: &crate::scene::Scene,
     t: &crate::transport::Transport,
 ) -> Result<Stacked, JobError> {
-    let records = read_captures(d, &rec.captures)?;
-    stack_records(d, records, scene, &t.blocks)
+    let records = read_captures(store, &rec.captures)?;
+    stack_records(store, records, scene, &t.blocks)
 }
 
 /// The solve a reconstruction row asks for: its parameters (the same keys
@@ -229,7 +229,7 @@ fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest
 /// `blocks` with [`crate::measure::assemble`], in fractions of full scale
 /// per µs; the variance comes with it when every capture has 2 frames or more.
 pub(super) fn stack_records(
-    d: &Daemon,
+    store: &Store,
     records: Vec<CaptureRecord>,
     scene: &crate::scene::Scene,
     blocks: &[crate::transport::Block],
@@ -237,7 +237,7 @@ pub(super) fn stack_records(
     let mut warnings = Vec::new();
     let captures = records
         .into_iter()
-        .map(|c| load_capture(d, c, scene, &mut warnings))
+        .map(|c| load_capture(store, c, scene, &mut warnings))
         .collect::<Result<Vec<_>, _>>()?;
     let measurement = assemble(scene, blocks, &captures)?;
     Ok(Stacked {
@@ -248,12 +248,12 @@ pub(super) fn stack_records(
 
 /// The catalogue records of `ids`, each read once. A catalogue that cannot
 /// be read is that error, not "no capture".
-pub(super) fn read_captures(d: &Daemon, ids: &[i64]) -> Result<Vec<CaptureRecord>, JobError> {
+pub(super) fn read_captures(store: &Store, ids: &[i64]) -> Result<Vec<CaptureRecord>, JobError> {
     ids.iter()
         .map(|&id| {
-            d.store
+            store
                 .capture(id)
-                .map_err(|e| JobError::Store(format!("capture {id}: {}", d.store.describe(&e))))
+                .map_err(|e| JobError::Store(format!("capture {id}: {}", store.describe(&e))))
         })
         .collect()
 }
@@ -261,7 +261,7 @@ pub(super) fn read_captures(d: &Daemon, ids: &[i64]) -> Result<Vec<CaptureRecord
 /// Reads a capture's mean (and variance) frame, checks it is the frame the
 /// capture recorded, and notes what the user should know about it.
 pub(super) fn load_capture(
-    d: &Daemon,
+    store: &Store,
     cap: CaptureRecord,
     scene: &crate::scene::Scene,
     warnings: &mut Vec<String>,
@@ -272,8 +272,8 @@ pub(super) fn load_capture(
         .pose(&cap.pose)
         .ok_or_else(|| capture(format!("scene has no pose {:?} any more", cap.pose)))?;
     let pixel_format = cap.pixel_format;
-    let dir = d.store.capture_dir(id);
-    let mean = read_mean(&dir).map_err(|e| capture(d.store.describe(&e)))?;
+    let dir = store.capture_dir(id);
+    let mean = read_mean(&dir).map_err(|e| capture(store.describe(&e)))?;
     if let Some([_, _, w, h]) = cap.region {
         if (mean.width, mean.height) != (w as usize, h as usize) {
             return Err(capture(format!(
@@ -295,7 +295,7 @@ pub(super) fn load_capture(
         ));
     }
     let variance =
-        crate::store::read_mean_variance(&dir).map_err(|e| capture(d.store.describe(&e)))?;
+        crate::store::read_mean_variance(&dir).map_err(|e| capture(store.describe(&e)))?;
     Ok(CaptureFrames {
         name: format!("capture {id}"),
         pose: cap.pose,

@@ -6,38 +6,33 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use super::config::RetentionConfig;
+use super::events::Events;
 use super::{Daemon, Event};
-use crate::store::StoreError;
+use crate::store::{Store, StoreError};
 
 impl Daemon {
     /// Deletes capture `id` (and, with `with_reconstructions`, the
-    /// reconstructions that use it); returns those reconstructions.
+    /// reconstructions that use it) on a client's request; returns those
+    /// reconstructions.
     pub fn delete_capture(
         &self,
         id: i64,
         with_reconstructions: bool,
-        reason: &'static str,
     ) -> Result<Vec<i64>, StoreError> {
-        let reconstructions = self.store.delete_capture(id, with_reconstructions)?;
-        for &r in &reconstructions {
-            self.emit(Event::Deleted {
-                kind: "reconstruction",
-                id: r,
-                reason,
-            });
-        }
-        self.emit(Event::Deleted {
-            kind: "capture",
+        delete_capture(
+            &self.store,
+            &self.events,
             id,
-            reason,
-        });
-        Ok(reconstructions)
+            with_reconstructions,
+            "request",
+        )
     }
 
     /// Deletes reconstruction `id`.
     pub fn delete_reconstruction(&self, id: i64) -> Result<(), StoreError> {
         self.store.delete_reconstruction(id)?;
-        self.emit(Event::Deleted {
+        self.events.emit(Event::Deleted {
             kind: "reconstruction",
             id,
             reason: "request",
@@ -45,42 +40,77 @@ impl Daemon {
         Ok(())
     }
 
-    /// Applies the retention policy once: deletes what
-    /// [`crate::store::Store::retention_plan`] names; returns the captures
-    /// deleted. A capture a job took meanwhile is skipped, not an error.
+    /// Applies the retention policy once (see [`apply`]).
     pub fn apply_retention(&self) -> Result<Vec<i64>, StoreError> {
-        let plan = self.store.retention_plan(&self.config.retention.policy())?;
-        let mut deleted = Vec::with_capacity(plan.len());
-        for id in plan {
-            match self.delete_capture(id, true, "retention") {
-                Ok(with) => {
-                    tracing::info!(
-                        "retention: deleted capture {id} and {} reconstruction(s) using it",
-                        with.len()
-                    );
-                    deleted.push(id);
-                }
-                Err(e @ StoreError::InUse { .. }) => tracing::debug!("retention: {e}"),
-                Err(e) => return Err(e),
-            }
-        }
-        Ok(deleted)
+        apply(&self.store, &self.events, &self.config.retention)
     }
+}
+
+/// Deletes capture `id` (with the reconstructions using it when asked) and
+/// announces each row deleted, with `reason` (`request` or `retention`).
+fn delete_capture(
+    store: &Store,
+    events: &Events,
+    id: i64,
+    with_reconstructions: bool,
+    reason: &'static str,
+) -> Result<Vec<i64>, StoreError> {
+    let reconstructions = store.delete_capture(id, with_reconstructions)?;
+    for &r in &reconstructions {
+        events.emit(Event::Deleted {
+            kind: "reconstruction",
+            id: r,
+            reason,
+        });
+    }
+    events.emit(Event::Deleted {
+        kind: "capture",
+        id,
+        reason,
+    });
+    Ok(reconstructions)
+}
+
+/// Applies the retention policy once: deletes what
+/// [`crate::store::Store::retention_plan`] names; returns the captures
+/// deleted. A capture a job took meanwhile is skipped, not an error.
+fn apply(
+    store: &Store,
+    events: &Events,
+    retention: &RetentionConfig,
+) -> Result<Vec<i64>, StoreError> {
+    let plan = store.retention_plan(&retention.policy())?;
+    let mut deleted = Vec::with_capacity(plan.len());
+    for id in plan {
+        match delete_capture(store, events, id, true, "retention") {
+            Ok(with) => {
+                tracing::info!(
+                    "retention: deleted capture {id} and {} reconstruction(s) using it",
+                    with.len()
+                );
+                deleted.push(id);
+            }
+            Err(e @ StoreError::InUse { .. }) => tracing::debug!("retention: {e}"),
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(deleted)
 }
 
 /// Applies the retention policy now and then every `check_every_s`, while
 /// the daemon runs; does nothing when no limit is set.
-pub(super) async fn retention_task(d: Arc<Daemon>) {
-    let policy = d.config.retention.policy();
+pub(super) async fn retention_task(store: Arc<Store>, events: Events, retention: RetentionConfig) {
+    let policy = retention.policy();
     if policy.max_age.is_none() && policy.max_bytes.is_none() {
         return;
     }
-    let every = Duration::from_secs_f64(d.config.retention.check_every_s);
+    let every = Duration::from_secs_f64(retention.check_every_s);
+    let retention = Arc::new(retention);
     loop {
-        let d2 = d.clone();
-        match tokio::task::spawn_blocking(move || d2.apply_retention()).await {
+        let (s, e, r) = (store.clone(), events.clone(), retention.clone());
+        match tokio::task::spawn_blocking(move || apply(&s, &e, &r)).await {
             Ok(Ok(_)) => {}
-            Ok(Err(e)) => tracing::error!("retention: {}", d.store.describe(&e)),
+            Ok(Err(e)) => tracing::error!("retention: {}", store.describe(&e)),
             Err(e) => tracing::error!("retention: {e}"),
         }
         tokio::time::sleep(every).await;
