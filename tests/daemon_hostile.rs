@@ -92,6 +92,17 @@ fn the_camera_reads_back_and_a_capture_keeps_the_settings_it_was_accepted_with()
         id.starts_with("Aravis-") && id.ends_with("-POLNLOS-DEMO"),
         "GenICam id: {id}"
     );
+    // A pixel format the camera does not list is refused at the request,
+    // naming what it offers, not failed at the camera.
+    let listed = cam["info"]["pixel_formats"].as_array().unwrap();
+    assert!(listed.iter().any(|f| f == "Mono16"), "{cam}");
+    assert!(!listed.iter().any(|f| f == "Mono12p"), "{cam}");
+    let (s, b, _) = d.post(
+        "/captures",
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 5000, "pixel_format": "Mono12p"}"#,
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("does not offer") && b.contains("Mono16"), "{b}");
     // A long capture inherits that region and records it.
     let (s, b, loc) = d.post(
         "/captures",

@@ -72,6 +72,7 @@ pub fn capture_json(data: &[u8]) {
                 region: Some([0, 0, 512, 512]),
                 ..CameraSettings::default()
             },
+            pixel_formats: Some(vec!["Mono8".into(), "Mono16".into()]),
             bench_switches_scene: true,
             max_frames: 1000,
         };
@@ -82,6 +83,8 @@ pub fn capture_json(data: &[u8]) {
                 .check(r.acquisition.region, r.acquisition.binning)
                 .is_ok());
             assert!(r.frames >= 1 && r.frames + r.dark_frames <= 1000);
+            // ... and is a pixel format the camera lists.
+            assert!(matches!(r.acquisition.pixel_format.name(), "Mono8" | "Mono16"));
         }
     }
 }

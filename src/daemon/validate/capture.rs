@@ -1,7 +1,7 @@
 //! Checking a capture request against its scene, the camera and the bench.
 
 use super::{invalid, CameraContext, RequestError};
-use crate::camera::Acquisition;
+use crate::camera::{Acquisition, PixelFormat};
 use crate::daemon::jobs::same_angle;
 use crate::daemon::requests::{AutoExposure, CaptureBody};
 use crate::measure::exposure::BlockExposure;
@@ -35,6 +35,8 @@ pub fn capture(
     }
     check_frames(b, kind, frames, cam)?;
     let (region, binning) = geometry(b, cam)?;
+    let pixel_format = b.pixel_format.unwrap_or(cam.defaults.pixel_format);
+    check_pixel_format(pixel_format, cam)?;
     let request = CaptureRequest {
         kind,
         scene: b.scene.clone(),
@@ -43,7 +45,7 @@ pub fn capture(
         acquisition: Acquisition {
             exposure_us,
             gain: b.gain,
-            pixel_format: b.pixel_format.unwrap_or(cam.defaults.pixel_format),
+            pixel_format,
             region,
             binning,
             trigger: b.trigger.unwrap_or(cam.defaults.trigger),
@@ -59,6 +61,31 @@ pub fn capture(
         check_dark_capture(&record, &request)?;
     }
     Ok(request)
+}
+
+/// Checks that the camera lists the pixel format (when it lists any): a
+/// format it cannot deliver is a 422 now, not a failed capture later.
+fn check_pixel_format(format: PixelFormat, cam: &CameraContext) -> Result<(), RequestError> {
+    let Some(listed) = cam.pixel_formats.as_ref().filter(|l| !l.is_empty()) else {
+        return Ok(());
+    };
+    if listed.iter().any(|n| n == format.name()) {
+        return Ok(());
+    }
+    let usable: Vec<&str> = listed
+        .iter()
+        .filter_map(|n| PixelFormat::from_name(n))
+        .map(PixelFormat::name)
+        .collect();
+    Err(invalid(format!(
+        "pixel_format = {:?}: the camera does not offer it; it offers {} of the formats polnlos decodes",
+        format.name(),
+        if usable.is_empty() {
+            "none".to_string()
+        } else {
+            usable.join(", ")
+        }
+    )))
 }
 
 /// The pose a request names, or an error listing the scene's poses.
@@ -242,6 +269,7 @@ mod tests {
                 pixel_format: PixelFormat::Mono16,
                 ..CameraSettings::default()
             },
+            pixel_formats: Some(vec!["Mono8".into(), "Mono16".into(), "BayerRG8".into()]),
             bench_switches_scene: false,
             max_frames: 100,
         }
@@ -279,6 +307,31 @@ mod tests {
         assert_eq!(r.acquisition.binning, [1, 1]);
         assert_eq!(r.acquisition.pixel_format, PixelFormat::Mono16);
         assert_eq!(r.acquisition.trigger, TriggerMode::Free);
+    }
+
+    #[test]
+    fn a_pixel_format_the_camera_does_not_list_is_refused_with_what_it_offers() {
+        let with = |format: &str| {
+            check(serde_json::json!({
+                "scene": "brewster-multi-3x3", "pose": "B", "polarizer_deg": 0.0,
+                "exposure_us": 5000.0, "pixel_format": format
+            }))
+        };
+        let m = message(with("Mono12p"));
+        assert!(m.contains("\"Mono12p\""), "{m}");
+        assert!(m.contains("it offers Mono8, Mono16 of the formats"), "{m}");
+        assert_eq!(
+            with("Mono8").expect("listed").acquisition.pixel_format,
+            PixelFormat::Mono8
+        );
+        // A camera that lists nothing (or no camera yet) checks nothing here.
+        let mut open = cam();
+        open.pixel_formats = Some(Vec::new());
+        let b = body(serde_json::json!({
+            "scene": "brewster-multi-3x3", "pose": "B", "polarizer_deg": 0.0,
+            "exposure_us": 5000.0, "pixel_format": "Mono12p"
+        }));
+        assert!(capture(&b, &scene(), &open, no_plan, |_| Ok(None)).is_ok());
     }
 
     #[test]

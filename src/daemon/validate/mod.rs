@@ -63,6 +63,9 @@ pub struct CameraContext {
     pub sensor: Option<SensorLimits>,
     /// What a capture inherits for a setting it does not state.
     pub defaults: CameraSettings,
+    /// The pixel formats the camera lists (GenICam names), when connected;
+    /// an empty list (a camera that lists none) checks nothing.
+    pub pixel_formats: Option<Vec<String>>,
     /// Whether the bench can switch the hidden scene off by itself.
     pub bench_switches_scene: bool,
     /// Frames plus dark frames a capture may take (`[queue] max_frames_per_capture`).
