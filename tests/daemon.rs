@@ -935,6 +935,10 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     assert!(p("kd") < 0.01, "{v}");
     assert!((p("gain") / configured - 1.0).abs() < 0.05, "{v}");
     assert_eq!(v["warnings"], serde_json::json!([]), "{v}");
+    assert!(
+        v["fit"].get("warnings").is_none(),
+        "said once, at the top: {v}"
+    );
     // 32 frames: the model check is against the frame variance, and the
     // fake bench (rendered with the absorbing sheet) is explained by it,
     // clearly better than by the transmitting reading.

@@ -84,7 +84,10 @@ pub fn capture_json(data: &[u8]) {
                 .is_ok());
             assert!(r.frames >= 1 && r.frames + r.dark_frames <= 1000);
             // ... and is a pixel format the camera lists.
-            assert!(matches!(r.acquisition.pixel_format.name(), "Mono8" | "Mono16"));
+            assert!(matches!(
+                r.acquisition.pixel_format.name(),
+                "Mono8" | "Mono16"
+            ));
         }
     }
 }

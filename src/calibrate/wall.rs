@@ -118,7 +118,9 @@ pub struct WallFit {
     /// The polarizer model the fit used and, for a scene with a polarizer,
     /// the other one's best fit beside it.
     pub polarizer_models: Vec<PolarizerModelFit>,
-    /// What the user should know before trusting the numbers.
+    /// What the user should know before trusting the numbers (left out of
+    /// the JSON when there is nothing to say).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
     /// RMS of the residual, in the units of `i`.
     pub residual_rms: f64,

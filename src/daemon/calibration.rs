@@ -148,8 +148,9 @@ pub struct WallCalibration {
     pub fit: crate::calibrate::wall::WallFit,
     /// The scene's `[calibration]` value in force now, for comparison.
     pub configured_gain: Option<f64>,
-    /// What the user should know before trusting the fit, from loading the
-    /// captures (a capture without dark subtraction biases the gain).
+    /// What the user should know before trusting the fit: what the fit found
+    /// (a model that does not explain the captures), then what loading the
+    /// captures found (a capture without dark subtraction biases the gain).
     pub warnings: Vec<String>,
 }
 
@@ -212,13 +213,15 @@ impl Daemon {
             .collect();
         // A refused fit names what loading the captures found too: a missing
         // dark subtraction is a likelier cause than a misplaced source.
-        let fit = fit_sources_from_scene(&scene, &sets).map_err(|e| match warnings.as_slice() {
-            [] => invalid(e.to_string()),
-            w => invalid(format!("{e}. Also: {}", w.join("; "))),
-        })?;
+        let mut fit =
+            fit_sources_from_scene(&scene, &sets).map_err(|e| match warnings.as_slice() {
+                [] => invalid(e.to_string()),
+                w => invalid(format!("{e}. Also: {}", w.join("; "))),
+            })?;
         // What the fit itself found (a model that does not explain the
-        // captures, a better polarizer model) comes first.
-        warnings.splice(0..0, fit.warnings.iter().cloned());
+        // captures, a better polarizer model) comes first; the answer says
+        // each warning once, here, not again inside `fit`.
+        warnings.splice(0..0, std::mem::take(&mut fit.warnings));
         let captures = ordered.concat();
         let positions = positions
             .iter()
