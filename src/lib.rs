@@ -45,6 +45,11 @@
 //! - **A camera setting a capture records**: a field of `camera::Acquisition`
 //!   (the request, the catalogue row, the page description and the reply
 //!   share it) and its column in the catalogue (`src/store/`).
+//! - **State the daemon keeps**: a service in its own file under
+//!   `src/daemon/` that owns the state and its lock (as `queue.rs`,
+//!   `registry.rs` and `camera.rs` do); `Daemon` holds it, and a worker gets
+//!   it through `JobContext` (`src/daemon/jobs.rs`) or its own struct,
+//!   never the whole `Daemon`.
 
 #![deny(missing_docs)]
 
