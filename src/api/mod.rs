@@ -3,7 +3,7 @@
 //! Errors are JSON `{ "error": code, "detail": text }` with the right status,
 //! whatever went wrong (a bad query string, a wrong method, an oversized
 //! header); jobs answer 202 with a `Location`. Every request passes
-//! [`guard`]: size limits, the `Host`/`Origin` checks, and the bearer token
+//! `guard`: size limits, the `Host`/`Origin` checks, and the bearer token
 //! when one is set. Request bodies are size- and time-limited; [`serve()`] caps
 //! connections and header time; [`run`] serves a daemon until shut down.
 

@@ -172,7 +172,7 @@ async fn demo_frames(
 
 /// The daemon as a front end sees it: the configuration and the services,
 /// each owning its state and its lock. Workers get only the services they
-/// use ([`jobs::JobContext`], the camera, the capture queue), never this.
+/// use (`JobContext`, the camera, the capture queue), never this.
 pub struct Daemon {
     config: Config,
     /// Bearer token ("" = none).
