@@ -978,6 +978,11 @@ fn measure_turns_tiff_frames_into_the_measurement_in_block_order() {
     };
     let e = fails(&run(&only_b("0", &p("B.tiff"))));
     assert!(e.contains("no capture for block C-pol0"), "{e}");
+    // Without --dark it was told so, in the words the daemon uses, with the flag to give.
+    assert!(
+        e.contains("B.tiff has no dark subtraction") && e.contains("with --dark"),
+        "{e}"
+    );
     let mut stray = strings(&[
         "measure",
         &s,

@@ -1,13 +1,12 @@
 //! `polnlos measure`: camera frames from any acquisition software to the
 //! measurement vector `i` (and its variance), through the same
-//! [`polnlos::measure::assemble`] the daemon uses.
+//! [`polnlos::measure::load`] and [`polnlos::measure::assemble`] the daemon uses.
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use polnlos::files::frames::read_frames;
 use polnlos::files::npy;
-use polnlos::measure::{assemble, CaptureFrames, Units};
+use polnlos::measure::{assemble, load, CaptureInfo, CaptureSource, Frame, FrameStack, Units};
 
 /// Turn camera frames into a measurement for `polnlos reconstruct`.
 #[derive(Debug, clap::Args)]
@@ -94,6 +93,29 @@ fn per_block<'a, T>(values: &'a [T], k: usize, name: &str, n: usize) -> anyhow::
     }
 }
 
+/// One block's frames from a user's files, and the dark to subtract.
+struct FileCapture {
+    info: CaptureInfo,
+    stack: FrameStack,
+    dark: Option<Frame>,
+}
+
+impl CaptureSource for FileCapture {
+    fn info(&self) -> CaptureInfo {
+        self.info.clone()
+    }
+
+    fn mean(&self) -> Result<Frame, String> {
+        self.stack
+            .mean_minus(self.dark.as_ref())
+            .map_err(|e| e.to_string())
+    }
+
+    fn variance(&self) -> Result<Option<Frame>, String> {
+        Ok(self.stack.variance_frame())
+    }
+}
+
 /// The variance file written beside `out`: `i.npy` → `i.variance.npy`.
 fn variance_path(out: &Path) -> PathBuf {
     let stem = out
@@ -107,6 +129,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let n = a.frames.len();
     let mut captures = Vec::with_capacity(n);
+    let mut warnings = Vec::new();
     for (k, path) in a.frames.iter().enumerate() {
         let pose = per_block(&a.pose, k, "--pose", n)?.clone();
         let AngleArg(polarizer_deg) = *per_block(&a.angle, k, "--angle", n)?;
@@ -132,30 +155,32 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             }
         };
         let dark = if a.dark.is_empty() {
-            eprintln!(
-                "warning: {}: no --dark; the camera's dark level is an offset that T cannot explain",
-                path.display()
-            );
             None
         } else {
             let d = per_block(&a.dark, k, "--dark", n)?;
             let dark = read_frames(d)?;
             Some(dark.stack.mean_minus(None)?)
         };
-        let mean = frames
-            .stack
-            .mean_minus(dark.as_ref())
-            .with_context(|| format!("{}", path.display()))?;
-        captures.push(CaptureFrames {
-            name: path.display().to_string(),
-            pose,
-            polarizer_deg,
-            mean,
-            variance: frames.stack.variance_frame(),
-            frames: frames.stack.count,
-            full_scale,
-            exposure_us,
-        });
+        let file = FileCapture {
+            info: CaptureInfo {
+                name: path.display().to_string(),
+                pose,
+                polarizer_deg,
+                frames: frames.stack.count,
+                full_scale,
+                exposure_us,
+                region: None,
+                missing_dark: dark.is_none().then_some(
+                    "give dark frames (scene off, same exposure and region) with --dark",
+                ),
+            },
+            stack: frames.stack,
+            dark,
+        };
+        captures.push(load(&scene, &file, &mut warnings)?);
+    }
+    for w in &warnings {
+        eprintln!("warning: {w}");
     }
     let blocks = polnlos::transport::blocks_of(&scene);
     let mut m = assemble(&scene, &blocks, &captures)?;

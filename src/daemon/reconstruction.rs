@@ -12,7 +12,9 @@ use tokio::sync::{mpsc, Mutex};
 use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::Daemon;
 use crate::files::{image, json, npy};
-use crate::measure::{assemble, to_model_units, CaptureFrames, Measurement};
+use crate::measure::{
+    assemble, load, to_model_units, CaptureFrames, CaptureInfo, CaptureSource, Frame, Measurement,
+};
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::reconstruct::{reconstruct_prepared, Context, Solver};
@@ -258,54 +260,49 @@ pub(super) fn read_captures(store: &Store, ids: &[i64]) -> Result<Vec<CaptureRec
         .collect()
 }
 
-/// Reads a capture's mean (and variance) frame, checks it is the frame the
-/// capture recorded, and notes what the user should know about it.
+/// A done capture in the catalogue, read for a measurement from its files.
+struct StoredCapture<'a> {
+    store: &'a Store,
+    record: CaptureRecord,
+}
+
+impl CaptureSource for StoredCapture<'_> {
+    fn info(&self) -> CaptureInfo {
+        let c = &self.record;
+        let dark = c.dark_frames > 0 || c.dark_capture.is_some();
+        CaptureInfo {
+            name: format!("capture {}", c.id),
+            pose: c.pose.clone(),
+            polarizer_deg: c.polarizer_deg,
+            frames: c.frames as usize,
+            full_scale: c.pixel_format.full_scale(),
+            exposure_us: c.exposure_us,
+            region: c.region,
+            missing_dark: (!dark)
+                .then_some("take dark_frames, or a dark capture named in dark_capture"),
+        }
+    }
+
+    fn mean(&self) -> Result<Frame, String> {
+        let dir = self.store.capture_dir(self.record.id);
+        read_mean(&dir).map_err(|e| self.store.describe(&e))
+    }
+
+    fn variance(&self) -> Result<Option<Frame>, String> {
+        let dir = self.store.capture_dir(self.record.id);
+        crate::store::read_mean_variance(&dir).map_err(|e| self.store.describe(&e))
+    }
+}
+
+/// Reads a capture's mean (and variance) frame for `scene` with
+/// [`crate::measure::load`]: the same checks and warnings `polnlos measure` makes.
 pub(super) fn load_capture(
     store: &Store,
-    cap: CaptureRecord,
+    record: CaptureRecord,
     scene: &crate::scene::Scene,
     warnings: &mut Vec<String>,
 ) -> Result<CaptureFrames, JobError> {
-    let id = cap.id;
-    let capture = |reason: String| JobError::Capture { id, reason };
-    let pose = scene
-        .pose(&cap.pose)
-        .ok_or_else(|| capture(format!("scene has no pose {:?} any more", cap.pose)))?;
-    let pixel_format = cap.pixel_format;
-    let dir = store.capture_dir(id);
-    let mean = read_mean(&dir).map_err(|e| capture(store.describe(&e)))?;
-    if let Some([_, _, w, h]) = cap.region {
-        if (mean.width, mean.height) != (w as usize, h as usize) {
-            return Err(capture(format!(
-                "its mean frame is {}x{}, but the capture recorded a {w}x{h} region; the files do not belong to this row",
-                mean.width, mean.height
-            )));
-        }
-    }
-    if cap.dark_frames == 0 && cap.dark_capture.is_none() {
-        warnings.push(format!(
-            "capture {id} has no dark subtraction: the camera's dark level is an offset that T cannot explain, and it can dominate the result; take dark_frames, or a dark capture named in dark_capture"
-        ));
-    }
-    if pose.frame.is_none() {
-        warnings.push(format!(
-            "pose {:?} does not say which camera frame its homography maps to (scene file keys region and binning), so capture {id}'s frame ({}) could not be checked against it",
-            pose.name,
-            cap.region.map_or("unknown region".into(), |r| format!("region {r:?}"))
-        ));
-    }
-    let variance =
-        crate::store::read_mean_variance(&dir).map_err(|e| capture(store.describe(&e)))?;
-    Ok(CaptureFrames {
-        name: format!("capture {id}"),
-        pose: cap.pose,
-        polarizer_deg: cap.polarizer_deg,
-        mean,
-        variance,
-        frames: cap.frames as usize,
-        full_scale: pixel_format.full_scale(),
-        exposure_us: cap.exposure_us,
-    })
+    Ok(load(scene, &StoredCapture { store, record }, warnings)?)
 }
 
 #[cfg(test)]

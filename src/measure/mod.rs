@@ -7,11 +7,13 @@ mod average;
 pub mod exposure;
 mod frame;
 pub mod levels;
+mod load;
 mod stack;
 
 pub use assemble::{assemble, match_blocks, same_angle, to_model_units, CaptureFrames, Units};
 pub use average::FrameStack;
 pub use frame::Frame;
+pub use load::{load, CaptureInfo, CaptureSource};
 pub use stack::{stack, with_rounding_bias, BlockFrames, Measurement};
 
 use crate::scene::{Homography, Plane};
@@ -50,6 +52,14 @@ pub enum MeasureError {
         block: String,
         /// The scene's block labels.
         blocks: String,
+    },
+    /// A capture's files cannot serve it (unreadable, or not its frame).
+    #[error("{capture}: {reason}")]
+    Capture {
+        /// The capture's name.
+        capture: String,
+        /// What is wrong, and with which file.
+        reason: String,
     },
     /// A capture names a pose the scene does not have.
     #[error("{capture} was taken at pose {pose:?}, which the scene does not have")]
