@@ -16,7 +16,7 @@ fn truth(scene: &str) -> (polnlos::scene::Grid, Vec<f64>) {
         env!("CARGO_MANIFEST_DIR")
     ))
     .unwrap();
-    let grid = Scene::from_toml_str(&text).unwrap().scene.plane.grid;
+    let grid = Scene::from_toml_str(&text).unwrap().hidden().plane.grid;
     (grid, Pattern::Letter.render(grid))
 }
 
@@ -627,8 +627,8 @@ fn auto_exposure_reaches_the_planned_signal() {
     let expect = 0.5 * max(t.apply(&letter)) / max(t.apply(&vec![1.0; t.cols()]));
     let wall = polnlos::measure::sample_wall(
         &mean,
-        scene.poses[0].homography.as_ref().unwrap(),
-        &scene.wall.plane,
+        scene.poses()[0].homography.as_ref().unwrap(),
+        &scene.wall().plane,
         "A",
     )
     .unwrap();

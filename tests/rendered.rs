@@ -79,8 +79,11 @@ fn the_revision_1_model_does_not_explain_the_renders() {
     assert!(a.ratio > 10.0, "{a:?}");
 
     let kd = case("nopol-kd");
-    let mut lambert = kd.scene.clone();
-    lambert.wall.brdf.diffuse = DiffuseModel::Lambert;
+    let lambert = kd
+        .scene
+        .clone()
+        .edit(|s| s.wall.brdf.diffuse = DiffuseModel::Lambert)
+        .unwrap();
     let a = agreement(&build(&lambert).unwrap(), &kd);
     println!("nopol-kd, lambert: {a:?}");
     assert!(a.ratio > 3.0, "{a:?}");

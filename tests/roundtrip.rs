@@ -82,8 +82,8 @@ fn frames_rendered_through_the_homography_sample_back_to_the_wall_image() {
         let pose = scene.pose(&block.pose).unwrap();
         let h = pose.homography.as_ref().unwrap();
         let wall = &sim.measurement[t.block_rows(b)];
-        let frame = render_wall(wall, h, &scene.wall.plane, 512, 512, 0.0);
-        let back = sample_wall(&frame, h, &scene.wall.plane, &pose.name).unwrap();
+        let frame = render_wall(wall, h, &scene.wall().plane, 512, 512, 0.0);
+        let back = sample_wall(&frame, h, &scene.wall().plane, &pose.name).unwrap();
         for (j, (a, w)) in back.iter().zip(wall).enumerate() {
             assert!(
                 (a - w).abs() <= 1e-6 * w.abs().max(1e-12),
@@ -96,12 +96,12 @@ fn frames_rendered_through_the_homography_sample_back_to_the_wall_image() {
 #[test]
 fn a_wall_sample_outside_the_frame_is_an_error() {
     let scene = bench16("crossed");
-    let pose = &scene.poses[0];
+    let pose = &scene.poses()[0];
     let frame = polnlos::camera::Frame::zeros(300, 300);
     let e = sample_wall(
         &frame,
         pose.homography.as_ref().unwrap(),
-        &scene.wall.plane,
+        &scene.wall().plane,
         "A",
     )
     .unwrap_err();

@@ -42,7 +42,7 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
     // Which pose and angle this block is.
     let mut b = block;
     let (pose, angle) = scene
-        .poses
+        .poses()
         .iter()
         .find_map(|p| {
             let n = p.analyzers.len().max(1);
@@ -54,9 +54,9 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
             }
         })
         .unwrap();
-    let w = &scene.wall.plane;
-    let s = &scene.scene.plane;
-    let brdf = scene.wall.brdf;
+    let w = &scene.wall().plane;
+    let s = &scene.hidden().plane;
+    let brdf = scene.wall().brdf;
     let n = w.normal;
     let o = pose.camera;
     let c0 = w.center;
@@ -91,11 +91,11 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                     let w_o = (o - c).normalize();
                     if n.dot(&w_i) <= 0.0
                         || n.dot(&w_o) <= 0.0
-                        || scene.occluders.iter().any(|oc| oc.blocks(&sp, &c))
+                        || scene.occluders().iter().any(|oc| oc.blocks(&sp, &c))
                     {
                         continue;
                     }
-                    let g = match scene.scene.emitter {
+                    let g = match scene.hidden().emitter {
                         Emitter::Lambertian => s.normal.dot(&(c - sp).normalize()).max(0.0),
                         Emitter::Isotropic => 1.0,
                     };
@@ -110,7 +110,7 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                     let (rs, rp) = fresnel(phi, brdf.eta);
                     let t = q.map(|q| {
                         let n_p = (c0 - o).normalize();
-                        match scene.polarizer {
+                        match scene.polarizer() {
                             PolarizerModel::Absorbing => w_o.cross(&n_p.cross(&q)).normalize(),
                             PolarizerModel::Transmitting => (q - w_o * q.dot(&w_o)).normalize(),
                         }
@@ -225,8 +225,8 @@ fn the_revision_2_keys_match_the_literal_model() {
         for model in ["absorbing", "transmitting"] {
             for diffuse in ["fresnel", "lambert"] {
                 let scene = Scene::from_toml_str(&with_keys(name, 0.1, diffuse, model)).unwrap();
-                assert_eq!(scene.polarizer.name(), model);
-                assert_eq!(scene.wall.brdf.diffuse.name(), diffuse);
+                assert_eq!(scene.polarizer().name(), model);
+                assert_eq!(scene.wall().brdf.diffuse.name(), diffuse);
                 let t = build(&scene).unwrap();
                 assert_matches_reference(&scene, &t, &format!("{name} {model} {diffuse}"));
             }

@@ -39,9 +39,11 @@ fn point(
     grid: usize,
     roughness: f64,
 ) -> Result<ActiveRow, BenchError> {
-    let mut s = builtin(&format!("brewster-{config}"))?;
-    s.scene.plane.grid = Grid { nu: grid, nv: grid };
-    s.wall.brdf.alpha = roughness;
+    let name = format!("brewster-{config}");
+    let s = super::edit(&name, builtin(&name)?, |s| {
+        s.hidden.plane.grid = Grid { nu: grid, nv: grid };
+        s.wall.brdf.alpha = roughness;
+    })?;
     let a = build_active(&s, &ActiveSetup::default())?;
     Ok(ActiveRow {
         sweep,

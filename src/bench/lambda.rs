@@ -146,10 +146,11 @@ fn case(
     })
 }
 
-/// `scene` with its hidden-scene grid set to `n x n`.
-fn with_grid(mut scene: Scene, n: usize) -> Scene {
-    scene.scene.plane.grid = Grid { nu: n, nv: n };
-    scene
+/// Built-in scene `name` with its hidden-scene grid set to `n x n`.
+fn with_grid(name: &str, n: usize) -> Result<Scene, BenchError> {
+    super::edit(name, builtin(name)?, |s| {
+        s.hidden.plane.grid = Grid { nu: n, nv: n }
+    })
 }
 
 /// Every scene x photon level x pattern on an `n x n` grid; a fixed seed per
@@ -163,7 +164,7 @@ pub fn lambda_sweep(
     let mut rows = Vec::new();
     let mut seed = 100;
     for name in scenes {
-        let scene = with_grid(builtin(name)?, grid);
+        let scene = with_grid(name, grid)?;
         let t = build(&scene)?;
         let cond = condition(&t)?;
         for &p in photons {

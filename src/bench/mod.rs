@@ -24,7 +24,7 @@ pub use tables::{Conditioning, Roughness};
 
 use serde::Serialize;
 
-use crate::scene::{Scene, SceneError};
+use crate::scene::{Scene, SceneError, SceneParts};
 use crate::solve::{condition, SolveError};
 use crate::transport::{build, TransportError};
 
@@ -170,6 +170,18 @@ pub(crate) fn builtin(name: &str) -> Result<Scene, BenchError> {
     }
 }
 
+/// `scene` changed by `change` and validated again, or a bench error naming it `name`.
+pub(crate) fn edit(
+    name: &str,
+    scene: Scene,
+    change: impl FnOnce(&mut SceneParts),
+) -> Result<Scene, BenchError> {
+    scene.edit(change).map_err(|e| BenchError::Scene {
+        name: name.into(),
+        reason: e.to_string(),
+    })
+}
+
 fn kappa(scene: &Scene) -> Result<f64, BenchError> {
     Ok(condition(&build(scene)?)?.kappa)
 }
@@ -226,10 +238,10 @@ pub fn roughness_sweep(grid: usize, step: &mut dyn FnMut()) -> Result<Vec<RoughR
     let mut rows = Vec::new();
     for occluder in [false, true] {
         for config in ["nopol", "crossed", "multi"] {
-            let base = builtin(&scene_name(config, occluder, grid))?;
+            let name = scene_name(config, occluder, grid);
+            let base = builtin(&name)?;
             for &alpha in &ROUGHNESS {
-                let mut s = base.clone();
-                s.wall.brdf.alpha = alpha;
+                let s = edit(&name, base.clone(), |s| s.wall.brdf.alpha = alpha)?;
                 rows.push(RoughRow {
                     config: config.into(),
                     occluder,

@@ -93,12 +93,13 @@ pub fn compare(
 ) -> Result<PeerReport, BenchError> {
     let text = crate::scene::builtin::text(name)
         .ok_or_else(|| io("scene", format!("{name} is not built in")))?;
-    let mut scene = Scene::from_toml_str(text)?;
-    scene.wall.plane.grid = Grid { nu: wall, nv: wall };
-    scene.scene.plane.grid = Grid {
-        nu: scene_grid,
-        nv: scene_grid,
-    };
+    let scene = super::edit(name, Scene::from_toml_str(text)?, |s| {
+        s.wall.plane.grid = Grid { nu: wall, nv: wall };
+        s.hidden.plane.grid = Grid {
+            nu: scene_grid,
+            nv: scene_grid,
+        };
+    })?;
     let mut report = PeerReport {
         scene: name.into(),
         wall,

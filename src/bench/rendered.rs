@@ -351,10 +351,10 @@ pub fn rendered_report(
             continue;
         };
         let t = build(&case.scene)?;
-        let mut old = case
-            .scene
-            .with_polarizer_model(crate::optics::PolarizerModel::Transmitting);
-        old.wall.brdf.diffuse = crate::optics::DiffuseModel::Lambert;
+        let old = super::edit(name, case.scene.clone(), |s| {
+            s.polarizer = crate::optics::PolarizerModel::Transmitting;
+            s.wall.brdf.diffuse = crate::optics::DiffuseModel::Lambert;
+        })?;
         report.rows.push(RenderedRow {
             case: name.into(),
             label: label.into(),
@@ -368,7 +368,7 @@ pub fn rendered_report(
     let row = |n: &str| report.rows.iter().find(|r| r.case == n);
     let nopol = cases.iter().find(|c| c.name == "nopol");
     if let (Some(base), Some(pol), Some(case)) = (row("nopol"), row("crossed"), nopol) {
-        let grid = case.scene.scene.plane.grid;
+        let grid = case.scene.hidden().plane.grid;
         let post = [
             ("render-noise", &base.render_noise, &pol.render_noise),
             ("equal-exposure", &base.equal_exposure, &pol.equal_exposure),

@@ -41,11 +41,11 @@ pub struct SamplingRow {
 }
 
 fn case(name: &str, alpha: Option<f64>) -> Result<Scene, BenchError> {
-    let mut s = builtin(name)?;
-    if let Some(a) = alpha {
-        s.wall.brdf.alpha = a;
+    let s = builtin(name)?;
+    match alpha {
+        Some(a) => super::edit(name, s, |s| s.wall.brdf.alpha = a),
+        None => Ok(s),
     }
-    Ok(s)
 }
 
 /// The sweep: `grid` is the scene grid side (3 or 8), `reference_m` the
@@ -69,8 +69,7 @@ pub fn sampling_sweep(
     let mut rows = Vec::new();
     for (label, scene) in cases {
         let uniform = |m: usize| -> Result<Transport, BenchError> {
-            let mut s = scene.clone();
-            s.wall.plane.supersample = m;
+            let s = scene.clone().edit(|s| s.wall.plane.supersample = m)?;
             Ok(build(&s)?)
         };
         let reference = uniform(reference_m)?;
@@ -86,7 +85,7 @@ pub fn sampling_sweep(
                 estimated_error: None,
             });
         }
-        let n_wall = scene.wall.plane.grid.count() as f64;
+        let n_wall = scene.wall().plane.grid.count() as f64;
         for tol in TOLERANCES {
             let ((t, st), secs) = timed3(|| Ok(build_adaptive(&scene, tol, MAX_M)?))?;
             rows.push(SamplingRow {

@@ -146,9 +146,10 @@ pub fn scaling_sweep(
     std::fs::write(&script, super::peer::SCRIPT).map_err(|e| err("peer.py", e))?;
     let mut rows = Vec::new();
     for &g in grids {
-        let mut scene = Scene::from_toml_str(text)?;
-        scene.wall.plane.grid = Grid { nu: wall, nv: wall };
-        scene.scene.plane.grid = Grid { nu: g, nv: g };
+        let scene = super::edit(SCENE, Scene::from_toml_str(text)?, |s| {
+            s.wall.plane.grid = Grid { nu: wall, nv: wall };
+            s.hidden.plane.grid = Grid { nu: g, nv: g };
+        })?;
         // The scene file the child reads: the built-in one with both grids set.
         let toml = text
             .replacen("grid = [32, 32]", &format!("grid = [{wall}, {wall}]"), 1)

@@ -129,21 +129,22 @@ pub struct SpeedSummary {
 pub fn scene_for(size: &Size) -> Result<Scene, BenchError> {
     let a = builtin("brewster-crossed")?;
     let bc = builtin("brewster-multi")?;
-    let mut s = a.clone();
-    s.poses = match size.poses {
-        1 => a.poses.clone(),
-        2 => bc.poses.clone(),
-        _ => a.poses.iter().chain(&bc.poses).cloned().collect(),
+    let poses = match size.poses {
+        1 => a.poses().to_vec(),
+        2 => bc.poses().to_vec(),
+        _ => a.poses().iter().chain(bc.poses()).cloned().collect(),
     };
-    s.wall.plane.grid = Grid {
-        nu: size.wall,
-        nv: size.wall,
-    };
-    s.scene.plane.grid = Grid {
-        nu: size.scene,
-        nv: size.scene,
-    };
-    Ok(s)
+    super::edit("brewster-crossed", a, |s| {
+        s.poses = poses;
+        s.wall.plane.grid = Grid {
+            nu: size.wall,
+            nv: size.wall,
+        };
+        s.hidden.plane.grid = Grid {
+            nu: size.scene,
+            nv: size.scene,
+        };
+    })
 }
 
 fn solve_err(e: SolveError) -> BenchError {
@@ -585,12 +586,15 @@ mod tests {
     #[test]
     fn sizes_build_the_shapes_they_name() {
         let s = scene_for(&SIZES[2]).unwrap();
-        assert_eq!(s.poses.len(), 3);
+        assert_eq!(s.poses().len(), 3);
         assert_eq!(s.rows(), 3 * 96 * 96);
         assert_eq!(s.cols(), 32 * 32);
         let s = scene_for(&SIZES[1]).unwrap();
         assert_eq!(
-            s.poses.iter().map(|p| p.name.as_str()).collect::<Vec<_>>(),
+            s.poses()
+                .iter()
+                .map(|p| p.name.as_str())
+                .collect::<Vec<_>>(),
             ["B", "C"]
         );
     }

@@ -21,7 +21,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::optics::PolarizerModel;
-use crate::scene::{Grid, Scene};
+use crate::scene::{Grid, Scene, SceneError};
 use crate::solve::adequacy::Adequacy;
 use crate::transport::{build, TransportError};
 
@@ -31,6 +31,9 @@ pub enum WallFitError {
     /// The point-source transport could not be built for these parameters.
     #[error("the point-source model of the scene could not be built: {0}")]
     Model(#[source] TransportError),
+    /// The scene shrunk to the point source with these wall parameters is not a valid scene.
+    #[error("the point-source model of the scene is not a valid scene: {0}")]
+    Scene(#[source] SceneError),
     /// No measurement to fit, or more than [`MAX_SOURCES`].
     #[error("a wall fit needs 1 to {MAX_SOURCES} source positions, got {0}")]
     Sources(usize),
@@ -161,16 +164,19 @@ impl WallParams {
 
 /// The scene with its hidden plane shrunk to the point source and the wall
 /// material set to `p`.
-fn point_scene(scene: &Scene, source: &PointSource, p: &WallParams) -> Scene {
-    let mut s = scene.clone();
-    let plane = &mut s.scene.plane;
-    plane.center = plane.center + plane.u * source.u + plane.v * source.v;
-    plane.size = [SOURCE_SIDE_M, SOURCE_SIDE_M];
-    plane.grid = Grid { nu: 1, nv: 1 };
-    s.wall.brdf.alpha = p.alpha;
-    s.wall.brdf.eta = p.ior;
-    s.wall.brdf.kd = p.kd;
-    s
+fn point_scene(scene: &Scene, source: &PointSource, p: &WallParams) -> Result<Scene, WallFitError> {
+    scene
+        .clone()
+        .edit(|s| {
+            let plane = &mut s.hidden.plane;
+            plane.center = plane.center + plane.u * source.u + plane.v * source.v;
+            plane.size = [SOURCE_SIDE_M, SOURCE_SIDE_M];
+            plane.grid = Grid { nu: 1, nv: 1 };
+            s.wall.brdf.alpha = p.alpha;
+            s.wall.brdf.eta = p.ior;
+            s.wall.brdf.kd = p.kd;
+        })
+        .map_err(WallFitError::Scene)
 }
 
 /// The measurement the model predicts for the source: `gain * T e`, in
@@ -180,7 +186,7 @@ pub fn predict(
     source: &PointSource,
     p: &WallParams,
 ) -> Result<Vec<f64>, WallFitError> {
-    let t = build(&point_scene(scene, source, p)).map_err(WallFitError::Model)?;
+    let t = build(&point_scene(scene, source, p)?).map_err(WallFitError::Model)?;
     Ok(t.apply(&[1.0]).into_iter().map(|v| v * p.gain).collect())
 }
 
@@ -426,10 +432,10 @@ fn compare_polarizer_models(
     sets: &[SourceMeasurement<'_>],
     fit: &mut WallFit,
 ) -> Result<(), WallFitError> {
-    if scene.poses.iter().all(|p| p.analyzers.is_empty()) {
+    if scene.poses().iter().all(|p| p.analyzers.is_empty()) {
         return Ok(());
     }
-    let used = scene.polarizer;
+    let used = scene.polarizer();
     let other = PolarizerModel::ALL
         .into_iter()
         .find(|m| *m != used)
@@ -496,7 +502,7 @@ pub fn fit_sources_from_scene(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
 ) -> Result<WallFit, WallFitError> {
-    let b = scene.wall.brdf;
+    let b = scene.wall().brdf;
     let unit = WallParams {
         alpha: b.alpha,
         ior: b.eta,

@@ -187,7 +187,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         m.i.len(),
         blocks.len(),
         labels.join(" "),
-        scene.wall.plane.grid.count()
+        scene.wall().plane.grid.count()
     );
     match &m.variance {
         Some(v) => {

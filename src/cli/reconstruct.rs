@@ -109,7 +109,7 @@ fn noise_from(path: &std::path::Path, measurement: &[f64]) -> anyhow::Result<Noi
 pub fn run(a: Args) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let meas = npy::read(&a.measurement)?;
-    let sgrid = scene.scene.plane.grid;
+    let sgrid = scene.hidden().plane.grid;
     let truth = a
         .truth
         .as_ref()

@@ -106,14 +106,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     model.validate()?;
     let frame_size = a.frames.then(|| parse_size(&a.frame_size)).transpose()?;
     if a.frames {
-        if let Some(p) = scene.poses.iter().find(|p| p.homography.is_none()) {
+        if let Some(p) = scene.poses().iter().find(|p| p.homography.is_none()) {
             anyhow::bail!(
                 "--frames needs a homography for every pose; pose {:?} has none",
                 p.name
             );
         }
     }
-    let sgrid = scene.scene.plane.grid;
+    let sgrid = scene.hidden().plane.grid;
     let truth = load_grid_image(&a.truth, sgrid)?;
     super::out_dir(&a.out)?;
 
@@ -183,7 +183,7 @@ fn write_block(
     let frame_png = match (frame_size, homography) {
         (Some((w, h)), Some(hom)) => {
             let values: Vec<f64> = scaled.iter().map(|&v| f64::from(v)).collect();
-            let frame = render_wall(&values, hom, &scene.wall.plane, w, h, 0.0);
+            let frame = render_wall(&values, hom, &scene.wall().plane, w, h, 0.0);
             let px: Vec<u16> = frame.pixels.iter().map(|&v| v.round() as u16).collect();
             let name = format!("frame-{}.png", block.label());
             image::write_png16(&a.out.join(&name), w, h, &px)?;

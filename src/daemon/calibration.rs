@@ -44,7 +44,7 @@ pub struct GeometryCalibration {
 /// (NaN without the scene).
 fn element_px(h: &crate::scene::Homography, scene: Option<&crate::scene::Scene>) -> f64 {
     let Some(s) = scene else { return f64::NAN };
-    let p = &s.wall.plane;
+    let p = &s.wall().plane;
     let du = p.size[0] / p.grid.nu as f64;
     match (h.apply(0.0, 0.0), h.apply(du, 0.0)) {
         (Some(a), Some(b)) => (b.0 - a.0).hypot(b.1 - a.1),

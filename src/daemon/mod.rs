@@ -305,7 +305,7 @@ impl Daemon {
             .names()
             .iter()
             .filter_map(|n| self.scenes.get(n))
-            .flat_map(|s| s.poses.iter().map(|p| p.name.clone()).collect::<Vec<_>>())
+            .flat_map(|s| s.poses().iter().map(|p| p.name.clone()).collect::<Vec<_>>())
             .collect();
         names.sort();
         names.dedup();

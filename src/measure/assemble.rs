@@ -131,7 +131,7 @@ pub fn assemble(
             }
         })
         .collect();
-    stack(&frames, &scene.wall.plane)
+    stack(&frames, &scene.wall().plane)
 }
 
 /// How a measurement was put in units of `T l`.
@@ -246,7 +246,7 @@ mod tests {
             })
             .collect();
         let m = assemble(&s, &blocks, &captures).expect("every block has its capture");
-        let n = s.wall.plane.grid.count();
+        let n = s.wall().plane.grid.count();
         for (k, _) in blocks.iter().enumerate() {
             let want = 100.0 * (k + 1) as f64 / 1000.0 / 10.0;
             assert!(

@@ -151,7 +151,7 @@ impl NoiseModel {
 /// which sets the exposure. Reuses `t` when the scene has no polarizer;
 /// otherwise builds the polarizer-free `T` (one block per pose).
 pub fn unpolarized_peak(scene: &Scene, t: &Transport, l: &[f64]) -> Result<f64, TransportError> {
-    let has_polarizer = scene.poses.iter().any(|p| !p.analyzers.is_empty());
+    let has_polarizer = scene.poses().iter().any(|p| !p.analyzers.is_empty());
     let image = if has_polarizer {
         crate::transport::build(&scene.without_polarizers())?.apply(l)
     } else {

@@ -532,8 +532,11 @@ mod tests {
 
     /// Brewster bench, poses B and C, wall 32x32, scene `n x n`.
     pub(super) fn bench(n: usize) -> Transport {
-        let mut s = Scene::builtin("brewster-multi").unwrap().unwrap();
-        s.scene.plane.grid = Grid { nu: n, nv: n };
+        let s = Scene::builtin("brewster-multi")
+            .unwrap()
+            .unwrap()
+            .edit(|s| s.hidden.plane.grid = Grid { nu: n, nv: n })
+            .unwrap();
         build(&s).unwrap()
     }
 

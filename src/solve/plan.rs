@@ -14,7 +14,7 @@ use serde::Serialize;
 use super::conditioning::condition;
 use super::lambda::NoiseLevel;
 use super::SolveError;
-use crate::scene::{Grid, Scene};
+use crate::scene::{Grid, Scene, SceneError};
 use crate::simulate::NoiseModel;
 use crate::transport::{build, TransportError};
 
@@ -57,6 +57,9 @@ pub enum PlanError {
     /// Building `T`.
     #[error(transparent)]
     Transport(#[from] TransportError),
+    /// A grid that makes the scene invalid (zero, or past the loader's limit).
+    #[error(transparent)]
+    Scene(#[from] SceneError),
     /// The SVD.
     #[error(transparent)]
     Solve(#[from] SolveError),
@@ -76,8 +79,9 @@ pub fn plan(
     let mut rows = Vec::new();
     let mut sigma = 0.0;
     for &g in grids {
-        let mut s = scene.clone();
-        s.scene.plane.grid = Grid { nu: g, nv: g };
+        let s = scene
+            .clone()
+            .edit(|s| s.hidden.plane.grid = Grid { nu: g, nv: g })?;
         let t = build(&s)?;
         let c = condition(&t)?;
         // Exposure as in `simulate`: `photons` at the unpolarized peak of a fully lit scene.

@@ -70,7 +70,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
             reason: "must be a positive path length in metres",
         });
     }
-    let wall = &scene.wall.plane;
+    let wall = &scene.wall().plane;
     let (hu, hv) = (0.5 * wall.size[0], 0.5 * wall.size[1]);
     if setup.spot.0.abs() > hu || setup.spot.1.abs() > hv {
         return Err(TransportError::Parameter {
@@ -80,7 +80,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
         });
     }
     let n = wall.normal;
-    let brdf = scene.wall.brdf;
+    let brdf = scene.wall().brdf;
     let p = wall.point(setup.spot.0, setup.spot.1);
     let patches: Vec<Vec3> = {
         let mut c = wall.clone();
@@ -88,11 +88,11 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
         c.sample_points()
     };
     let voxels: Vec<Vec3> = {
-        let mut s = scene.scene.plane.clone();
+        let mut s = scene.hidden().plane.clone();
         s.supersample = 1;
         s.sample_points()
     };
-    let area = scene.scene.plane.element_area();
+    let area = scene.hidden().plane.element_area();
     let n_wall = patches.len();
     let n_vox = voxels.len();
 
@@ -118,7 +118,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
         to_camera: Vec<(Vec3, Option<Vec3>)>,
     }
     let views: Vec<BlockView> = scene
-        .poses
+        .poses()
         .iter()
         .flat_map(|pose| {
             let axes: Vec<Option<crate::scene::Analyzer>> = if pose.analyzers.is_empty() {
@@ -126,7 +126,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
             } else {
                 pose.analyzers.iter().copied().map(Some).collect()
             };
-            let model = scene.polarizer;
+            let model = scene.polarizer();
             let cam = pose.camera;
             let patches = &patches;
             axes.into_iter().map(move |q| BlockView {
@@ -151,7 +151,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
             let to_x = x - p;
             let r_px = to_x.norm();
             let w_px = to_x / r_px;
-            if n.dot(&w_px) <= 0.0 || scene.occluders.iter().any(|o| o.blocks(&x, &p)) {
+            if n.dot(&w_px) <= 0.0 || scene.occluders().iter().any(|o| o.blocks(&x, &p)) {
                 return;
             }
             let no_polarizer = Polarization {
@@ -172,7 +172,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
                 let r = to_x.norm();
                 let w_cx = to_x / r;
                 let cos = n.dot(&w_cx);
-                if cos <= 0.0 || scene.occluders.iter().any(|o| o.blocks(&x, c)) {
+                if cos <= 0.0 || scene.occluders().iter().any(|o| o.blocks(&x, c)) {
                     continue;
                 }
                 let b = (((r_px + r - d0) / setup.bin_width).floor() as usize).min(bins - 1);
@@ -204,7 +204,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
                 nu: bins,
                 nv: n_wall,
             },
-            scene.scene.plane.grid,
+            scene.hidden().plane.grid,
         ),
         bins,
         d0,
@@ -223,15 +223,15 @@ mod tests {
     fn one_entry_matches_the_formula_written_out() {
         let s = scene("brewster-nopol-3x3");
         let a = build_active(&s, &ActiveSetup::default()).unwrap();
-        let wall = &s.wall.plane;
+        let wall = &s.wall().plane;
         let (j, k) = (wall.grid.index(20, 9), 4);
         let c = wall.point(wall.local(20, 9, 0, 0).0, wall.local(20, 9, 0, 0).1);
-        let sp = &s.scene.plane;
+        let sp = &s.hidden().plane;
         let (iu, iv) = sp.grid.coords(k);
         let (u, v) = sp.local(iu, iv, 0, 0);
         let x = sp.point(u, v);
         let p = wall.center;
-        let o = s.poses[0].camera;
+        let o = s.poses()[0].camera;
         let n = wall.normal;
         let no = Polarization {
             analyzer: None,
@@ -244,12 +244,12 @@ mod tests {
             (o - c).normalize(),
         );
         let expect = sp.element_area() / std::f64::consts::PI
-            * s.wall.brdf.eval(&n, &wl, &wpx, no)
+            * s.wall().brdf.eval(&n, &wl, &wpx, no)
             * n.dot(&wpx)
             / (x - p).norm_squared()
             * n.dot(&wcx)
             / (x - c).norm_squared()
-            * s.wall.brdf.eval(&n, &wcx, &wco, no);
+            * s.wall().brdf.eval(&n, &wcx, &wco, no);
         let b = (((x - p).norm() + (x - c).norm() - a.d0) / 0.01).floor() as usize;
         let got = a.t.get(j * a.bins + b, k);
         assert!((got / expect - 1.0).abs() < 1e-12, "{got} vs {expect}");

@@ -63,7 +63,7 @@ pub fn build_adaptive(
     max_m: usize,
 ) -> Result<(Transport, AdaptiveStats), TransportError> {
     check(tolerance, max_m)?;
-    let plane = &scene.wall.plane;
+    let plane = &scene.wall().plane;
     let n_wall = plane.grid.count();
     let blocks = scene.block_count();
     let rows = scene.rows();
@@ -162,7 +162,7 @@ pub fn build_adaptive(
         data,
         blocks_of(scene),
         plane.grid,
-        scene.scene.plane.grid,
+        scene.hidden().plane.grid,
     );
     Ok((
         t,
@@ -246,10 +246,9 @@ mod tests {
         // With a tiny tolerance and max_m = 2 every element ends at m = 2 (the
         // scene is 3x3, so no second difference is exactly 0):
         // exactly MODEL.md's uniform m = 2 (same samples, same order).
-        let mut s = scene("occluder-crossed-3x3");
+        let s = scene("occluder-crossed-3x3");
         let (t, st) = build_adaptive(&s, 1e-300, 2).unwrap();
-        s.wall.plane.supersample = 2;
-        let u = build(&s).unwrap();
+        let u = uniform(&s, 2);
         assert_eq!(st.elements_at, vec![(1, 0), (2, 32 * 32)]);
         assert!(!st.met);
         let worst = t
@@ -263,16 +262,16 @@ mod tests {
     }
 
     fn uniform(s: &Scene, m: usize) -> Transport {
-        let mut u = s.clone();
-        u.wall.plane.supersample = m;
+        let u = s.clone().edit(|s| s.wall.plane.supersample = m).unwrap();
         build(&u).unwrap()
     }
 
     #[test]
     fn on_a_glossy_wall_it_beats_uniform_sampling_of_the_same_cost() {
         // Narrow specular lobe (alpha 0.05); the reference is uniform m = 16.
-        let mut s = scene("brewster-crossed");
-        s.wall.brdf.alpha = 0.05;
+        let s = scene("brewster-crossed")
+            .edit(|s| s.wall.brdf.alpha = 0.05)
+            .unwrap();
         let reference = uniform(&s, 16);
         let (t, st) = build_adaptive(&s, 1e-2, 16).unwrap();
         assert!(st.met);

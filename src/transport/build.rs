@@ -79,7 +79,7 @@ pub fn build_with_progress(
     scene: &Scene,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Transport, TransportError> {
-    let plane = &scene.wall.plane;
+    let plane = &scene.wall().plane;
     // The wall samples (points and their structure-of-arrays copy) come first: check them with T.
     let samples = plane.grid.count() as f64 * plane.samples_per_element() as f64;
     super::check_size(
@@ -101,7 +101,7 @@ pub fn build_with_progress(
         data,
         blocks_of(scene),
         plane.grid,
-        scene.scene.plane.grid,
+        scene.hidden().plane.grid,
     ))
 }
 
@@ -109,7 +109,7 @@ pub fn build_with_progress(
 /// which capture goes where in the measurement, known without building `T`.
 pub fn blocks_of(scene: &Scene) -> Vec<Block> {
     let mut blocks = Vec::with_capacity(scene.block_count());
-    for pose in &scene.poses {
+    for pose in scene.poses() {
         if pose.analyzers.is_empty() {
             blocks.push(Block {
                 pose: pose.name.clone(),
@@ -141,7 +141,7 @@ pub(super) fn build_rows(
     let cols = scene.cols();
     super::check_size(rows, cols, scene.block_count(), 0.0)?;
 
-    let wall = &scene.wall;
+    let wall = &scene.wall();
     let brdf = wall.brdf;
     let n = wall.plane.normal;
     let wall_soa = Soa::from_vecs(wall_pts.iter().copied());
@@ -170,8 +170,8 @@ pub(super) fn build_rows(
     };
 
     let mut n_blocks = 0;
-    let mut views = Vec::with_capacity(scene.poses.len());
-    for pose in &scene.poses {
+    let mut views = Vec::with_capacity(scene.poses().len());
+    for pose in scene.poses() {
         let dirs: Vec<Vec3> = wall_pts
             .iter()
             .map(|c| (pose.camera - c).normalize())
@@ -189,7 +189,7 @@ pub(super) fn build_rows(
             // should it, the ray passes no light (t = 0).
             let t: Vec<Vec3> = dirs
                 .iter()
-                .map(|w| a.effective_axis(scene.polarizer, w))
+                .map(|w| a.effective_axis(scene.polarizer(), w))
                 .collect();
             let b = Soa::from_vecs(dirs.iter().zip(&t).map(|(w, t)| w.cross(t)));
             analyzers.push(AnalyzerView {
@@ -208,7 +208,7 @@ pub(super) fn build_rows(
         });
     }
 
-    let hidden = &scene.scene;
+    let hidden = &scene.hidden();
     let scene_pts = hidden.plane.sample_points();
     let ms = hidden.plane.samples_per_element();
     let weight = hidden.plane.element_area() / (mw * ms) as f64;
@@ -283,15 +283,15 @@ fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
         if c.fresnel_in {
             sc.transmittance_in(c.brdf.eta);
         }
-        if !c.scene.occluders.is_empty() {
+        if !c.scene.occluders().is_empty() {
             for (ws, p) in c.wall_pts.iter().enumerate() {
-                if sc.base[ws] != 0.0 && c.scene.occluders.iter().any(|o| o.blocks(s, p)) {
+                if sc.base[ws] != 0.0 && c.scene.occluders().iter().any(|o| o.blocks(s, p)) {
                     sc.base[ws] = 0.0;
                 }
             }
         }
         for view in c.views {
-            if let Some(e_src) = c.scene.scene.polarization.as_ref() {
+            if let Some(e_src) = c.scene.hidden().polarization.as_ref() {
                 sc.polarized_source(view, e_src, &c.brdf, &c.n, col, n_wall, mw);
                 continue;
             }
