@@ -36,7 +36,7 @@ fn transport_build_64x64_32x32_2poses(bencher: divan::Bencher) {
 fn gram_cholesky_admm200_64x64_32x32_2poses(bencher: divan::Bencher) {
     let s = scene();
     let t = build(&s).expect("T");
-    let i = t.apply(&Pattern::Letter.render(t.scene_grid));
+    let i = t.apply(&Pattern::Letter.render(t.scene_grid()));
     // Fixed rho (no residual balancing): the cost of exactly one factorization
     // and 200 iterations.
     let unit = t.mean_column_norm2();

@@ -39,7 +39,7 @@ fn automatic_lambda_lands_within_1_db_of_the_best() {
             .into_iter()
             .flat_map(|p| PHOTONS_SEEDS.into_iter().map(move |n| (p, n)))
         {
-            let truth = p.render(t.scene_grid);
+            let truth = p.render(t.scene_grid());
             let model = NoiseModel {
                 photons,
                 read_noise: 5.0,
@@ -146,7 +146,7 @@ fn lambda_from_the_measurement_alone_lands_within_1_5_db_of_the_best() {
         let unit = t.mean_column_norm2();
         for (k, photons) in [1e3, 1e4, 1e5].into_iter().enumerate() {
             let p = [Pattern::Disk, Pattern::Letter, Pattern::Bars][k];
-            let truth = p.render(t.scene_grid);
+            let truth = p.render(t.scene_grid());
             let model = NoiseModel {
                 photons,
                 read_noise: 5.0,

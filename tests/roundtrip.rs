@@ -43,7 +43,7 @@ fn admm_tv_beats_least_squares_and_the_crossed_polarizer_helps() {
     let (tc, tn) = (build(&crossed).unwrap(), build(&nopol).unwrap());
     let mut crossed_wins = 0;
     for p in Pattern::ALL {
-        let truth = p.render(tc.scene_grid);
+        let truth = p.render(tc.scene_grid());
         let sc = simulate(&crossed, &tc, &truth);
         let sn = simulate(&nopol, &tn, &truth);
         let admm_c = admm_tv(&tc, &sc.measurement, &settings).unwrap();
@@ -76,9 +76,9 @@ fn admm_tv_beats_least_squares_and_the_crossed_polarizer_helps() {
 fn frames_rendered_through_the_homography_sample_back_to_the_wall_image() {
     let scene = bench16("multi");
     let t = build(&scene).unwrap();
-    let truth = Pattern::Letter.render(t.scene_grid);
+    let truth = Pattern::Letter.render(t.scene_grid());
     let sim = simulate(&scene, &t, &truth);
-    for (b, block) in t.blocks.iter().enumerate() {
+    for (b, block) in t.blocks().iter().enumerate() {
         let pose = scene.pose(&block.pose).unwrap();
         let h = pose.homography.as_ref().unwrap();
         let wall = &sim.measurement[t.block_rows(b)];

@@ -26,7 +26,7 @@ fn survives(scene: &Scene) -> (Transport, f64) {
     assert!(all_finite(t.col_major()), "T has a non-finite entry");
     let c = condition(&t).unwrap();
     assert!(!c.kappa.is_nan());
-    let i = t.apply(&Pattern::Disk.render(t.scene_grid));
+    let i = t.apply(&Pattern::Disk.render(t.scene_grid()));
     let r = admm_tv(&t, &i, &AdmmSettings::default()).unwrap();
     assert!(all_finite(&r.image) && r.image.iter().all(|v| (0.0..=1.0).contains(v)));
     assert!(
@@ -162,7 +162,7 @@ fn bad_measurements_are_clear_errors() {
 #[test]
 fn lambda_zero_is_box_constrained_least_squares() {
     let t = build(&crossed3(|s| s)).unwrap();
-    let truth = Pattern::Letter.render(t.scene_grid);
+    let truth = Pattern::Letter.render(t.scene_grid());
     let i = t.apply(&truth);
     let r = admm_tv(
         &t,
@@ -189,7 +189,7 @@ fn lambda_zero_is_box_constrained_least_squares() {
 #[test]
 fn an_iteration_cap_is_reported_not_hidden() {
     let t = build(&crossed3(|s| s)).unwrap();
-    let i = t.apply(&Pattern::Bars.render(t.scene_grid));
+    let i = t.apply(&Pattern::Bars.render(t.scene_grid()));
     let r = admm_tv(
         &t,
         &i,

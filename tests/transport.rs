@@ -163,7 +163,7 @@ fn max_abs(t: &Transport) -> f64 {
 }
 
 fn assert_matches_reference(scene: &Scene, t: &Transport, label: &str) {
-    let nw = t.wall_grid.count();
+    let nw = t.wall_grid().count();
     let floor = 1e-14 * max_abs(t);
     for row in 0..t.rows() {
         for k in 0..t.cols() {
@@ -261,7 +261,7 @@ fn the_two_polarizer_readings_differ_where_the_model_says() {
     )
     .unwrap();
     // Largest relative difference over the crossed block, per wall row (v).
-    let grid = abs.wall_grid;
+    let grid = abs.wall_grid();
     let row_worst: Vec<f64> = (0..grid.nv)
         .map(|iv| {
             let mut w = 0.0f64;
@@ -561,7 +561,7 @@ fn row_and_column_order_on_a_non_square_grid() {
     let scene = Scene::from_toml_str(CUSTOM).unwrap();
     let t = build(&scene).unwrap();
     assert_eq!((t.rows(), t.cols()), (3 * 24 * 40, 35));
-    let labels: Vec<String> = t.blocks.iter().map(|b| b.label()).collect();
+    let labels: Vec<String> = t.blocks().iter().map(|b| b.label()).collect();
     assert_eq!(labels, ["A-pol0", "A-pol30", "B-nopol"]);
     // Rows: block, then v outer, u inner. Columns: v outer, u inner.
     for (block, iu, iv, ku, kv) in [

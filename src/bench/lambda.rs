@@ -67,8 +67,8 @@ fn case(
     photons: f64,
     seed: u64,
 ) -> Result<LambdaRow, BenchError> {
-    let grid = t.scene_grid.nu;
-    let truth = pattern.render(t.scene_grid);
+    let grid = t.scene_grid().nu;
+    let truth = pattern.render(t.scene_grid());
     let model = NoiseModel {
         photons,
         read_noise: 5.0,

@@ -122,7 +122,7 @@ pub fn compare(
     };
     let (t, build_seconds) = timed3(|| Ok(build(&scene)?))?;
     report.polnlos_build_seconds = build_seconds;
-    let truth = Pattern::Letter.render(t.scene_grid);
+    let truth = Pattern::Letter.render(t.scene_grid());
     let peak = unpolarized_peak(&scene, &t, &truth)?;
     let sim = NoiseModel {
         photons: 2e4,

@@ -181,7 +181,7 @@ pub fn reconstruct_pair(
     noise: PairNoise,
 ) -> Result<Pair, BenchError> {
     let cond = condition(t)?;
-    let grid = t.scene_grid;
+    let grid = t.scene_grid();
     let solve = |i: &[f64], level: NoiseLevel| -> Result<(Metrics, Vec<f64>), BenchError> {
         let solved = reconstruct(
             t,

@@ -162,7 +162,7 @@ pub fn scaling_sweep(
         if Scene::from_toml_str(&toml)?.cols() != t.cols() {
             return Err(err("scene grid", "the built-in scene's grids moved"));
         }
-        let truth = Pattern::Letter.render(t.scene_grid);
+        let truth = Pattern::Letter.render(t.scene_grid());
         let peak = unpolarized_peak(&scene, &t, &truth)?;
         let sim = NoiseModel {
             photons: PHOTONS,

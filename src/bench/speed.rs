@@ -267,7 +267,7 @@ pub fn speed_sweep(
         let scene = scene_for(size)?;
         let t = build(&scene)?;
         let t_nopol = build(&scene.without_polarizers())?;
-        let grid = t.scene_grid;
+        let grid = t.scene_grid();
         let truth = Pattern::Letter.render(grid);
         let p = Problem { t, truth, grid };
         let nopol = Problem {

@@ -133,7 +133,7 @@ pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, Benc
     let mut rows = Vec::new();
     for c in cases()? {
         let t = build(&c.scene)?;
-        let truth = Pattern::Letter.render(t.scene_grid);
+        let truth = Pattern::Letter.render(t.scene_grid());
         let model = NoiseModel {
             photons: c.photons,
             read_noise: 5.0,

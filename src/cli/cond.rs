@@ -42,7 +42,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             scene: super::scene_name(&a.scene),
             rows: c.rows,
             cols: c.cols,
-            blocks: &t.blocks,
+            blocks: t.blocks(),
             kappa: c.kappa,
             rank: c.rank,
             threshold: c.threshold,
@@ -59,7 +59,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "T          {} x {} ({} blocks)",
             c.rows,
             c.cols,
-            t.blocks.len()
+            t.blocks().len()
         );
         println!("sigma_max  {smax:.6e}");
         println!("sigma_min  {smin:.6e}");

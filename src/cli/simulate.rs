@@ -130,8 +130,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     npy::write_f64(&a.out.join("truth.npy"), &[sgrid.nv, sgrid.nu], &truth)?;
     let full = f64::from((1u32 << a.bits) - 1);
     let png_scale = 65535.0 / full;
-    let wgrid = t.wall_grid;
-    let blocks = (0..t.blocks.len())
+    let wgrid = t.wall_grid();
+    let blocks = (0..t.blocks().len())
         .map(|b| write_block(&a, &scene, &t, &sim, b, frame_size, png_scale))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let out = Output {
@@ -152,7 +152,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     json::write(&a.out.join("simulate.json"), &out)?;
     eprintln!(
         "simulated {} blocks of {} wall elements into {}",
-        t.blocks.len(),
+        t.blocks().len(),
         wgrid.count(),
         a.out.display()
     );
@@ -170,9 +170,9 @@ fn write_block(
     frame_size: Option<(usize, usize)>,
     png_scale: f64,
 ) -> anyhow::Result<BlockOut> {
-    let block = &t.blocks[b];
+    let block = &t.blocks()[b];
     let rows = t.block_rows(b);
-    let wgrid = t.wall_grid;
+    let wgrid = t.wall_grid();
     let scaled: Vec<u16> = sim.dn[rows.clone()]
         .iter()
         .map(|&d| (f64::from(d) * png_scale).round() as u16)

@@ -91,8 +91,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "active T: {} x {} ({} blocks x {} wall elements x {} time bins of {} m from path length {:.4} m) built in {:.3} s, written to {}",
             shape[0],
             shape[1],
-            at.t.blocks.len(),
-            at.t.wall_grid.nv,
+            at.t.blocks().len(),
+            at.t.wall_grid().nv,
             at.bins,
             a.bin_width,
             at.d0,
@@ -130,7 +130,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "T: {} x {} ({} blocks) built in {:.3} s, written to {}",
         t.rows(),
         t.cols(),
-        t.blocks.len(),
+        t.blocks().len(),
         secs,
         a.out.display()
     );

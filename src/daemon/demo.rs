@@ -40,7 +40,7 @@ pub(super) fn frames(
     let t = scenes
         .transport(&demo.scene)
         .map_err(|e| err(e.to_string()))?;
-    let l = pattern.render(t.scene_grid);
+    let l = pattern.render(t.scene_grid());
     let peak = crate::simulate::unpolarized_peak(&scene, &t, &l).map_err(|e| err(e.to_string()))?;
     if peak <= 0.0 {
         return Err(err("the demo scene lights no wall element".into()));
@@ -57,12 +57,12 @@ pub(super) fn frames(
         let (Some(s), Ok(t)) = (scenes.get(&name), scenes.transport(&name)) else {
             continue;
         };
-        let l = pattern.render(t.scene_grid);
+        let l = pattern.render(t.scene_grid());
         let i = t.apply(&l);
         // The point source's wall image, all blocks at once (a T of one column).
         let source = crate::calibrate::wall::predict(&s, &DEMO_SOURCE, &material(&s))
             .map_err(|e| err(e.to_string()))?;
-        for (b, block) in t.blocks.iter().enumerate() {
+        for (b, block) in t.blocks().iter().enumerate() {
             if frames
                 .scene
                 .iter()

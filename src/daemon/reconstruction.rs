@@ -103,7 +103,7 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
         .get("truth")
         .and_then(|v| v.as_str())
         .and_then(crate::simulate::patterns::Pattern::from_name)
-        .map(|pat| pat.render(t.scene_grid));
+        .map(|pat| pat.render(t.scene_grid()));
     // Frame-to-frame noise when every capture has it; else reconstruct
     // estimates it from the measurement itself.
     let context = Context {
@@ -134,7 +134,7 @@ fn run_reconstruction(d: &Daemon, id: i64, cancel: &AtomicBool) -> Result<(), Jo
     let measurement = i;
     check(cancel)?;
     report.warnings.splice(0..0, warnings);
-    let grid = t.scene_grid;
+    let grid = t.scene_grid();
     let dir = d.store.reconstruction_dir(id);
     std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
     let file = |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
@@ -201,7 +201,7 @@ fn stack_captures(
     t: &crate::transport::Transport,
 ) -> Result<Stacked, JobError> {
     let records = read_captures(d, &rec.captures)?;
-    stack_records(d, records, scene, &t.blocks)
+    stack_records(d, records, scene, t.blocks())
 }
 
 /// The solve a reconstruction row asks for: its parameters (the same keys

@@ -134,8 +134,8 @@ pub fn plan_exposure(
     )?;
     let ones = vec![1.0; t.cols()];
     let lit = t.apply(&ones);
-    let mut out = Vec::with_capacity(t.blocks.len());
-    for (b, block) in t.blocks.iter().enumerate() {
+    let mut out = Vec::with_capacity(t.blocks().len());
+    for (b, block) in t.blocks().iter().enumerate() {
         let peak = lit[t.block_rows(b)].iter().copied().fold(0.0, f64::max);
         let rate = calibration * peak;
         let mut limited_by = None;

@@ -546,7 +546,7 @@ mod tests {
     fn noisy(t: &Transport, pattern: Pattern, seed: u64) -> (Vec<f64>, f64) {
         use rand::SeedableRng;
         use rand_distr::Distribution;
-        let clean = t.apply(&pattern.render(t.scene_grid));
+        let clean = t.apply(&pattern.render(t.scene_grid()));
         let sigma = 0.01 * clean.iter().copied().fold(0.0, f64::max);
         let noise = rand_distr::Normal::new(0.0, sigma).expect("a finite sigma");
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
@@ -592,7 +592,7 @@ mod tests {
             let (cold, cold_choice) = solve(false);
             let (warm, warm_choice) = solve(true);
             let decades = (warm_choice.lambda / cold_choice.lambda).log10().abs();
-            let truth = Pattern::Disk.render(t.scene_grid);
+            let truth = Pattern::Disk.render(t.scene_grid());
             let psnr = |r: &Reconstruction| crate::solve::metrics::psnr(&truth, &r.image);
             println!(
                 "{n}x{n}: lambda {:.4e} (cold) {:.4e} (warm), {decades:.4} decade apart; PSNR {:.2} / {:.2} dB",

@@ -469,7 +469,7 @@ mod tests {
             .edit(|s| s.hidden.plane.grid = Grid { nu: 24, nv: 24 })
             .unwrap();
         let t = crate::transport::build(&scene).unwrap();
-        let truth = crate::simulate::patterns::Pattern::Letter.render(t.scene_grid);
+        let truth = crate::simulate::patterns::Pattern::Letter.render(t.scene_grid());
         let i: Vec<f64> = t
             .apply(&truth)
             .iter()

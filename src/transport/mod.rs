@@ -35,6 +35,9 @@ impl Block {
 }
 
 /// The stacked transport matrix with the layout needed to read it.
+///
+/// Its fields are private so that the layout always matches the entries:
+/// `rows = blocks x wall-grid cells` and `cols = scene-grid cells`.
 #[derive(Debug, Clone)]
 pub struct Transport {
     rows: usize,
@@ -42,11 +45,11 @@ pub struct Transport {
     /// Column-major entries, `data[k * rows + j] = T[j, k]`.
     data: Vec<f64>,
     /// Row blocks, in row order.
-    pub blocks: Vec<Block>,
+    blocks: Vec<Block>,
     /// Wall grid (rows within a block).
-    pub wall_grid: Grid,
+    wall_grid: Grid,
     /// Scene grid (columns).
-    pub scene_grid: Grid,
+    scene_grid: Grid,
 }
 
 /// Why `T` could not be built.
@@ -119,7 +122,9 @@ pub(crate) fn check_size(
 }
 
 impl Transport {
-    /// Wraps column-major entries; `data.len()` must be `rows * cols`.
+    /// Wraps column-major entries; `data.len()` must be `rows * cols`, `rows`
+    /// the blocks times the wall grid's cells and `cols` the scene grid's cells
+    /// (a layout that does not add up is a bug of the caller: it panics).
     pub fn from_col_major(
         rows: usize,
         cols: usize,
@@ -132,6 +137,16 @@ impl Transport {
             data.len(),
             rows * cols,
             "transport data does not match its shape"
+        );
+        assert_eq!(
+            rows,
+            blocks.len() * wall_grid.count(),
+            "transport rows are not the blocks times the wall grid's cells"
+        );
+        assert_eq!(
+            cols,
+            scene_grid.count(),
+            "transport columns are not the scene grid's cells"
         );
         Self {
             rows,
@@ -150,6 +165,21 @@ impl Transport {
             return 0.0;
         }
         self.data.iter().map(|v| v * v).sum::<f64>() / self.cols as f64
+    }
+
+    /// Row blocks, in row order (pose, then polarizer angle).
+    pub fn blocks(&self) -> &[Block] {
+        &self.blocks
+    }
+
+    /// Wall grid: the rows within one block.
+    pub fn wall_grid(&self) -> Grid {
+        self.wall_grid
+    }
+
+    /// Scene grid: the columns.
+    pub fn scene_grid(&self) -> Grid {
+        self.scene_grid
     }
 
     /// Number of rows (measurements).
@@ -225,7 +255,10 @@ mod tests {
             2,
             2,
             vec![3.0, 4.0, 0.0, 2.0],
-            vec![],
+            vec![Block {
+                pose: "A".into(),
+                polarizer_deg: None,
+            }],
             Grid { nu: 2, nv: 1 },
             Grid { nu: 2, nv: 1 },
         );
