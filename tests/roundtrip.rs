@@ -9,7 +9,7 @@ use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};
 use polnlos::solve::{admm_tv, least_squares, metrics, AdmmSettings};
-use polnlos::transport::{build, Transport};
+use polnlos::transport::{build, MemoryBudget, Transport};
 
 fn bench16(kind: &str) -> Scene {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -28,7 +28,7 @@ const NOISE: NoiseModel = NoiseModel {
 };
 
 fn simulate(scene: &Scene, t: &Transport, truth: &[f64]) -> Simulation {
-    let peak = unpolarized_peak(scene, t, truth).unwrap();
+    let peak = unpolarized_peak(scene, t, truth, MemoryBudget::DEFAULT).unwrap();
     NOISE.apply(t.apply(truth), peak).unwrap()
 }
 
@@ -40,7 +40,10 @@ fn admm_tv_beats_least_squares_and_the_crossed_polarizer_helps() {
     };
     let crossed = bench16("crossed");
     let nopol = bench16("nopol");
-    let (tc, tn) = (build(&crossed).unwrap(), build(&nopol).unwrap());
+    let (tc, tn) = (
+        build(&crossed, MemoryBudget::DEFAULT).unwrap(),
+        build(&nopol, MemoryBudget::DEFAULT).unwrap(),
+    );
     let mut crossed_wins = 0;
     for p in Pattern::ALL {
         let truth = p.render(tc.scene_grid());
@@ -75,7 +78,7 @@ fn admm_tv_beats_least_squares_and_the_crossed_polarizer_helps() {
 #[test]
 fn frames_rendered_through_the_homography_sample_back_to_the_wall_image() {
     let scene = bench16("multi");
-    let t = build(&scene).unwrap();
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
     let truth = Pattern::Letter.render(t.scene_grid());
     let sim = simulate(&scene, &t, &truth);
     for (b, block) in t.blocks().iter().enumerate() {

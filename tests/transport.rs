@@ -12,7 +12,7 @@ use nalgebra::Vector3;
 use polnlos::optics::{DiffuseModel, PolarizerModel};
 use polnlos::scene::{Emitter, Scene};
 use polnlos::solve::condition;
-use polnlos::transport::{build, Transport};
+use polnlos::transport::{build, MemoryBudget, Transport};
 
 type V = Vector3<f64>;
 
@@ -200,7 +200,7 @@ fn every_shipped_scene_matches_the_literal_model() {
     assert_eq!(names.len(), 16);
     for name in names {
         let scene = load(&name);
-        let t = build(&scene).unwrap();
+        let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
         assert_matches_reference(&scene, &t, &name);
     }
 }
@@ -227,7 +227,7 @@ fn the_revision_2_keys_match_the_literal_model() {
                 let scene = Scene::from_toml_str(&with_keys(name, 0.1, diffuse, model)).unwrap();
                 assert_eq!(scene.polarizer().name(), model);
                 assert_eq!(scene.wall().brdf.diffuse.name(), diffuse);
-                let t = build(&scene).unwrap();
+                let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
                 assert_matches_reference(&scene, &t, &format!("{name} {model} {diffuse}"));
             }
         }
@@ -248,6 +248,7 @@ fn the_two_polarizer_readings_differ_where_the_model_says() {
             "absorbing",
         ))
         .unwrap(),
+        MemoryBudget::DEFAULT,
     )
     .unwrap();
     let tra = build(
@@ -258,6 +259,7 @@ fn the_two_polarizer_readings_differ_where_the_model_says() {
             "transmitting",
         ))
         .unwrap(),
+        MemoryBudget::DEFAULT,
     )
     .unwrap();
     // Largest relative difference over the crossed block, per wall row (v).
@@ -353,7 +355,7 @@ fn entries_computed_independently_in_python() {
         ),
     ];
     for (name, block, [ju, jv, ku, kv], expect) in cases {
-        let t = build(&load(name)).unwrap();
+        let t = build(&load(name), MemoryBudget::DEFAULT).unwrap();
         let got = t.get(block * 1024 + jv * 32 + ju, kv * 3 + ku);
         assert!(
             (got - expect).abs() <= 1e-9 * expect,
@@ -463,8 +465,11 @@ fn entries_computed_independently_in_python() {
         ),
     ];
     for (kd, diffuse, model, name, [ju, jv, ku, kv], expect) in keyed {
-        let t =
-            build(&Scene::from_toml_str(&with_keys(name, kd, diffuse, model)).unwrap()).unwrap();
+        let t = build(
+            &Scene::from_toml_str(&with_keys(name, kd, diffuse, model)).unwrap(),
+            MemoryBudget::DEFAULT,
+        )
+        .unwrap();
         let got = t.get(jv * 32 + ju, kv * 3 + ku);
         assert!(
             (got - expect).abs() <= 1e-9 * expect,
@@ -503,7 +508,7 @@ fn reference_scenes_load_with_their_shapes_and_condition_numbers() {
     named.sort();
     assert_eq!(on_disk, named, "every shipped scene has a golden kappa");
     for (name, kappa, rows, cols) in golden {
-        let t = build(&load(name)).unwrap();
+        let t = build(&load(name), MemoryBudget::DEFAULT).unwrap();
         assert_eq!((t.rows(), t.cols()), (rows, cols), "{name}");
         let c = condition(&t).unwrap();
         assert!(
@@ -516,7 +521,11 @@ fn reference_scenes_load_with_their_shapes_and_condition_numbers() {
 
 #[test]
 fn the_paper_trend_holds_on_the_3x3_bench() {
-    let k = |n: &str| condition(&build(&load(n)).unwrap()).unwrap().kappa;
+    let k = |n: &str| {
+        condition(&build(&load(n), MemoryBudget::DEFAULT).unwrap())
+            .unwrap()
+            .kappa
+    };
     let (crossed, rotating, nopol) = (
         k("brewster-crossed-3x3"),
         k("brewster-rotating-3x3"),
@@ -559,7 +568,7 @@ camera = [0.4097, 0.0722, 0.2774]
 #[test]
 fn row_and_column_order_on_a_non_square_grid() {
     let scene = Scene::from_toml_str(CUSTOM).unwrap();
-    let t = build(&scene).unwrap();
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
     assert_eq!((t.rows(), t.cols()), (3 * 24 * 40, 35));
     let labels: Vec<String> = t.blocks().iter().map(|b| b.label()).collect();
     assert_eq!(labels, ["A-pol0", "A-pol30", "B-nopol"]);
@@ -590,7 +599,7 @@ fn supersampling_matches_the_reference() {
         .replace("grid = [24, 40]", "grid = [6, 5]\nsupersample = 3")
         .replace("grid = [7, 5]", "grid = [3, 2]\nsupersample = 2");
     let scene = Scene::from_toml_str(&text).unwrap();
-    let t = build(&scene).unwrap();
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
     assert_matches_reference(&scene, &t, "supersampled");
 }
 
@@ -627,7 +636,7 @@ camera = [0.5, 0.0, 1.0]
 sphere = { center = [0.0, 0.0, 0.5], radius = 0.1 }
 "#;
     let scene = Scene::from_toml_str(text).unwrap();
-    let t = build(&scene).unwrap();
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
     let shadow = 0.1 / (0.25f64 - 0.01).sqrt();
     let mut dark = 0;
     for j in 0..441 {
@@ -655,10 +664,11 @@ fn crossed_polarizer_darkens_the_central_brewster_path() {
         .replace("grid = [32, 32]", "grid = [33, 33]")
         .replace("grid = [3, 3]", "grid = [1, 1]")
         .replace("size = [0.2, 0.2]", "size = [0.001, 0.001]");
-    let crossed = build(&Scene::from_toml_str(&text).unwrap()).unwrap();
+    let crossed = build(&Scene::from_toml_str(&text).unwrap(), MemoryBudget::DEFAULT).unwrap();
     let open = build(
         &Scene::from_toml_str(&text.replace("polarizer_deg = [0.0]", "polarizer_deg = []"))
             .unwrap(),
+        MemoryBudget::DEFAULT,
     )
     .unwrap();
     let centre = 16 * 33 + 16;

@@ -10,7 +10,7 @@ use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
 use super::{builtin, timed3, BenchError};
 use crate::scene::Scene;
 use crate::transport::adaptive::relative_error;
-use crate::transport::{build, build_adaptive, Transport};
+use crate::transport::{build, build_adaptive, MemoryBudget, Transport};
 
 /// Uniform sub-sampling per side compared.
 pub const UNIFORM: [usize; 6] = [1, 2, 3, 4, 6, 8];
@@ -53,6 +53,7 @@ fn case(name: &str, alpha: Option<f64>) -> Result<Scene, BenchError> {
 pub fn sampling_sweep(
     grid: usize,
     reference_m: usize,
+    budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Vec<SamplingRow>, BenchError> {
     let suffix = if grid == 3 { "-3x3" } else { "" };
@@ -70,7 +71,7 @@ pub fn sampling_sweep(
     for (label, scene) in cases {
         let uniform = |m: usize| -> Result<Transport, BenchError> {
             let s = scene.clone().edit(|s| s.wall.plane.supersample = m)?;
-            Ok(build(&s)?)
+            Ok(build(&s, budget)?)
         };
         let reference = uniform(reference_m)?;
         for m in UNIFORM {
@@ -87,7 +88,7 @@ pub fn sampling_sweep(
         }
         let n_wall = scene.wall().plane.grid.count() as f64;
         for tol in TOLERANCES {
-            let ((t, st), secs) = timed3(|| Ok(build_adaptive(&scene, tol, MAX_M)?))?;
+            let ((t, st), secs) = timed3(|| Ok(build_adaptive(&scene, tol, MAX_M, budget)?))?;
             rows.push(SamplingRow {
                 case: label.into(),
                 method: "adaptive",

@@ -24,7 +24,7 @@ use crate::solve::admm::admm_tv_prepared;
 use crate::solve::fista::fista_tv_prepared;
 use crate::solve::gram::Normal;
 use crate::solve::{least_squares, metrics, tikhonov, AdmmSettings, FistaSettings, SolveError};
-use crate::transport::{build, Transport};
+use crate::transport::{build, MemoryBudget, Transport};
 
 /// One problem size of the sweep.
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -260,13 +260,14 @@ pub fn speed_sweep(
     sizes: &[Size],
     seeds: u64,
     budgets: &[usize],
+    budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Vec<SpeedRow>, BenchError> {
     let mut rows = Vec::new();
     for size in sizes {
         let scene = scene_for(size)?;
-        let t = build(&scene)?;
-        let t_nopol = build(&scene.without_polarizers())?;
+        let t = build(&scene, budget)?;
+        let t_nopol = build(&scene.without_polarizers(), budget)?;
         let grid = t.scene_grid();
         let truth = Pattern::Letter.render(grid);
         let p = Problem { t, truth, grid };

@@ -11,7 +11,7 @@ use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
 use crate::solve::report::{conditioning_warnings, mean_snr, snr_warnings};
 use crate::solve::{admm_tv, condition, metrics, AdmmSettings};
-use crate::transport::build;
+use crate::transport::{build, MemoryBudget};
 
 /// Outcome of one stability case.
 #[derive(Debug, Clone, Serialize)]
@@ -129,10 +129,13 @@ fn cases() -> Result<Vec<Case>, BenchError> {
 pub const CASES: usize = 12;
 
 /// Runs every case.
-pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, BenchError> {
+pub fn stability_table(
+    budget: MemoryBudget,
+    step: &mut dyn FnMut(),
+) -> Result<Vec<StabilityRow>, BenchError> {
     let mut rows = Vec::new();
     for c in cases()? {
-        let t = build(&c.scene)?;
+        let t = build(&c.scene, budget)?;
         let truth = Pattern::Letter.render(t.scene_grid());
         let model = NoiseModel {
             photons: c.photons,
@@ -140,7 +143,7 @@ pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, Benc
             bits: 12,
             seed: 17,
         };
-        let peak = unpolarized_peak(&c.scene, &t, &truth)?;
+        let peak = unpolarized_peak(&c.scene, &t, &truth, budget)?;
         let sim = model
             .apply(t.apply(&truth), peak)
             .map_err(|source| BenchError::Simulate {

@@ -23,7 +23,7 @@ use nalgebra::{SMatrix, SVector};
 use crate::optics::PolarizerModel;
 use crate::scene::{Grid, Scene, SceneError};
 use crate::solve::adequacy::Adequacy;
-use crate::transport::{build, TransportError};
+use crate::transport::{build, MemoryBudget, TransportError};
 
 /// Why a wall fit could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -185,8 +185,9 @@ pub fn predict(
     scene: &Scene,
     source: &PointSource,
     p: &WallParams,
+    budget: MemoryBudget,
 ) -> Result<Vec<f64>, WallFitError> {
-    let t = build(&point_scene(scene, source, p)?).map_err(WallFitError::Model)?;
+    let t = build(&point_scene(scene, source, p)?, budget).map_err(WallFitError::Model)?;
     Ok(t.apply(&[1.0]).into_iter().map(|v| v * p.gain).collect())
 }
 
@@ -197,6 +198,7 @@ pub fn fit(
     source: &PointSource,
     i: &[f64],
     start: WallParams,
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
     fit_sources(
         scene,
@@ -206,6 +208,7 @@ pub fn fit(
             variance: None,
         }],
         start,
+        budget,
     )
 }
 
@@ -220,10 +223,11 @@ pub fn fit_sources(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
     start: WallParams,
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
     check_count(sets)?;
-    let first = predict_all(scene, sets, &start)?;
-    levenberg_marquardt(scene, sets, start, first)
+    let first = predict_all(scene, sets, &start, budget)?;
+    levenberg_marquardt(scene, sets, start, first, budget)
 }
 
 /// 1 to [`MAX_SOURCES`] positions.
@@ -239,10 +243,11 @@ fn predict_all(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
     w: &WallParams,
+    budget: MemoryBudget,
 ) -> Result<Vec<f64>, WallFitError> {
     let mut all = Vec::new();
     for set in sets {
-        all.extend(predict(scene, &set.source, w)?);
+        all.extend(predict(scene, &set.source, w, budget)?);
     }
     Ok(all)
 }
@@ -265,8 +270,9 @@ fn solve(
     i: &[f64],
     start: WallParams,
     first: Vec<f64>,
+    budget: MemoryBudget,
 ) -> Result<Solution, WallFitError> {
-    let model = |p: &SVector<f64, 4>| predict_all(scene, sets, &WallParams::from_vec(p));
+    let model = |p: &SVector<f64, 4>| predict_all(scene, sets, &WallParams::from_vec(p), budget);
     let residual = |m: &[f64]| -> Vec<f64> { i.iter().zip(m).map(|(a, b)| a - b).collect() };
     let ss = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
     let mut p = start.to_vec();
@@ -344,10 +350,11 @@ fn levenberg_marquardt(
     sets: &[SourceMeasurement<'_>],
     start: WallParams,
     first: Vec<f64>,
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
     let rows = first.len() / sets.len();
     let (i, variance) = stack(sets, rows)?;
-    let sol = solve(scene, sets, &i, start, first)?;
+    let sol = solve(scene, sets, &i, start, first, budget)?;
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     let relative_residual = sol.cost.sqrt() / norm(&i).max(1e-300);
     let source_residuals: Vec<f64> = sol
@@ -431,6 +438,7 @@ fn compare_polarizer_models(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
     fit: &mut WallFit,
+    budget: MemoryBudget,
 ) -> Result<(), WallFitError> {
     if scene.poses().iter().all(|p| p.analyzers.is_empty()) {
         return Ok(());
@@ -441,10 +449,10 @@ fn compare_polarizer_models(
         .find(|m| *m != used)
         .unwrap_or(used);
     let alt = scene.with_polarizer_model(other);
-    let first = predict_all(&alt, sets, &fit.params)?;
+    let first = predict_all(&alt, sets, &fit.params, budget)?;
     let rows = first.len() / sets.len();
     let (i, variance) = stack(sets, rows)?;
-    let sol = solve(&alt, sets, &i, fit.params, first)?;
+    let sol = solve(&alt, sets, &i, fit.params, first, budget)?;
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     let alt_fit = PolarizerModelFit {
         model: other,
@@ -485,6 +493,7 @@ pub fn fit_from_scene(
     scene: &Scene,
     source: &PointSource,
     i: &[f64],
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
     fit_sources_from_scene(
         scene,
@@ -493,6 +502,7 @@ pub fn fit_from_scene(
             i,
             variance: None,
         }],
+        budget,
     )
 }
 
@@ -501,6 +511,7 @@ pub fn fit_from_scene(
 pub fn fit_sources_from_scene(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
     let b = scene.wall().brdf;
     let unit = WallParams {
@@ -512,7 +523,7 @@ pub fn fit_sources_from_scene(
     check_count(sets)?;
     // The prediction is linear in the gain: the unit-gain one, scaled, is the
     // fit's first prediction.
-    let mut first = predict_all(scene, sets, &unit)?;
+    let mut first = predict_all(scene, sets, &unit, budget)?;
     let i = sets.iter().flat_map(|set| set.i.iter());
     let (dot, nn) = first
         .iter()
@@ -520,8 +531,8 @@ pub fn fit_sources_from_scene(
         .fold((0.0, 0.0), |(d, n), (a, x)| (d + a * x, n + a * a));
     let gain = if nn > 0.0 && dot > 0.0 { dot / nn } else { 1.0 };
     first.iter_mut().for_each(|v| *v *= gain);
-    let mut fit = levenberg_marquardt(scene, sets, WallParams { gain, ..unit }, first)?;
-    compare_polarizer_models(scene, sets, &mut fit)?;
+    let mut fit = levenberg_marquardt(scene, sets, WallParams { gain, ..unit }, first, budget)?;
+    compare_polarizer_models(scene, sets, &mut fit, budget)?;
     Ok(fit)
 }
 
@@ -598,8 +609,11 @@ mod tests {
     fn simulated_point_source_captures_give_back_the_wall() {
         let s = scene();
         let source = PointSource { u: 0.03, v: -0.02 };
-        let i = noisy(&predict(&s, &source, &TRUTH).expect("model"), 0.005);
-        let f = fit(&s, &source, &i, START).expect("fit");
+        let i = noisy(
+            &predict(&s, &source, &TRUTH, MemoryBudget::DEFAULT).expect("model"),
+            0.005,
+        );
+        let f = fit(&s, &source, &i, START, MemoryBudget::DEFAULT).expect("fit");
         println!("{f:?}");
         let p = f.params;
         assert!((p.alpha - 0.3).abs() < 0.02, "{f:?}");
@@ -614,15 +628,35 @@ mod tests {
     #[test]
     fn a_capture_of_another_geometry_is_refused_not_fitted() {
         let s = scene();
-        let i = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &TRUTH).expect("model");
-        let e = fit(&s, &PointSource { u: -0.06, v: -0.06 }, &i, TRUTH).expect_err("wrong place");
+        let i = predict(
+            &s,
+            &PointSource { u: 0.06, v: 0.06 },
+            &TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect("model");
+        let e = fit(
+            &s,
+            &PointSource { u: -0.06, v: -0.06 },
+            &i,
+            TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect_err("wrong place");
         assert!(e.to_string().contains("do not match the capture"), "{e}");
         assert!(!e.to_string().contains("dots"), "{e}");
         let WallFitError::Unexplained { percent, limit, .. } = e else {
             panic!("{e}")
         };
         assert!(percent > limit && limit == 25.0, "{percent} {limit}");
-        let short = fit(&s, &PointSource { u: 0.06, v: 0.06 }, &i[1..], TRUTH).expect_err("short");
+        let short = fit(
+            &s,
+            &PointSource { u: 0.06, v: 0.06 },
+            &i[1..],
+            TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect_err("short");
         assert!(
             matches!(short, WallFitError::Length { measurement, rows, .. } if rows == i.len() && measurement == rows - 1),
             "{short}"
@@ -639,7 +673,12 @@ mod tests {
         ];
         let measured: Vec<Vec<f64>> = at
             .iter()
-            .map(|a| noisy(&predict(&s, a, &TRUTH).expect("model"), 0.005))
+            .map(|a| {
+                noisy(
+                    &predict(&s, a, &TRUTH, MemoryBudget::DEFAULT).expect("model"),
+                    0.005,
+                )
+            })
             .collect();
         let sets: Vec<SourceMeasurement> = at
             .iter()
@@ -650,8 +689,8 @@ mod tests {
                 variance: None,
             })
             .collect();
-        let one = fit(&s, &at[0], &measured[0], START).expect("one source");
-        let all = fit_sources(&s, &sets, START).expect("three sources");
+        let one = fit(&s, &at[0], &measured[0], START, MemoryBudget::DEFAULT).expect("one source");
+        let all = fit_sources(&s, &sets, START, MemoryBudget::DEFAULT).expect("three sources");
         println!("one: {one:?}\nthree: {all:?}");
         let p = all.params;
         assert!((p.alpha - 0.3).abs() < 0.01, "{all:?}");
@@ -673,7 +712,8 @@ mod tests {
             assert!(a / b > 2.0 * 3f64.sqrt(), "{one:?} {all:?}");
         }
         // The scene-started variant agrees.
-        let from_scene = fit_sources_from_scene(&s, &sets).expect("from the scene");
+        let from_scene =
+            fit_sources_from_scene(&s, &sets, MemoryBudget::DEFAULT).expect("from the scene");
         assert!(
             (from_scene.params.alpha - p.alpha).abs() < 1e-3,
             "{from_scene:?}"
@@ -683,8 +723,20 @@ mod tests {
     #[test]
     fn one_misplaced_source_among_several_is_named() {
         let s = scene();
-        let a = predict(&s, &PointSource { u: 0.03, v: -0.02 }, &TRUTH).expect("model");
-        let b = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &TRUTH).expect("model");
+        let a = predict(
+            &s,
+            &PointSource { u: 0.03, v: -0.02 },
+            &TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect("model");
+        let b = predict(
+            &s,
+            &PointSource { u: 0.06, v: 0.06 },
+            &TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect("model");
         let wrong = PointSource { u: -0.06, v: -0.06 };
         let sets = [
             SourceMeasurement {
@@ -698,7 +750,8 @@ mod tests {
                 variance: None,
             },
         ];
-        let e = fit_sources(&s, &sets, TRUTH).expect_err("one source misplaced");
+        let e =
+            fit_sources(&s, &sets, TRUTH, MemoryBudget::DEFAULT).expect_err("one source misplaced");
         println!("{e}");
         assert!(
             matches!(e, WallFitError::Unexplained { at, .. } if at == wrong),
@@ -706,12 +759,12 @@ mod tests {
         );
         assert!(e.to_string().contains("(-0.06, -0.06) m"), "{e}");
         assert!(matches!(
-            fit_sources(&s, &[], TRUTH),
+            fit_sources(&s, &[], TRUTH, MemoryBudget::DEFAULT),
             Err(WallFitError::Sources(0))
         ));
         let many = vec![sets[0]; MAX_SOURCES + 1];
         assert!(matches!(
-            fit_sources(&s, &many, TRUTH),
+            fit_sources(&s, &many, TRUTH, MemoryBudget::DEFAULT),
             Err(WallFitError::Sources(n)) if n == MAX_SOURCES + 1
         ));
     }
@@ -722,7 +775,7 @@ mod tests {
         // peak (uniform: variance level^2 peak^2 / 12).
         let s = scene();
         let source = PointSource { u: 0.03, v: -0.02 };
-        let clean = predict(&s, &source, &TRUTH).expect("model");
+        let clean = predict(&s, &source, &TRUTH, MemoryBudget::DEFAULT).expect("model");
         let peak = clean.iter().copied().fold(0.0, f64::max);
         let i = noisy(&clean, 0.001);
         let var = vec![(0.001 * peak).powi(2) / 12.0; i.len()];
@@ -731,7 +784,7 @@ mod tests {
             i: &i,
             variance: Some(&var),
         }];
-        let good = fit_sources_from_scene(&s, &sets).expect("fit");
+        let good = fit_sources_from_scene(&s, &sets, MemoryBudget::DEFAULT).expect("fit");
         let check = good.model_check;
         println!("absorbing scene: {check:?} {:?}", good.polarizer_models);
         assert_eq!(check.explained, Some(true), "{good:?}");
@@ -758,7 +811,8 @@ mod tests {
         // The same captures read with the transmitting sheet: flagged, the
         // standard errors scaled up by the misfit, the better model named.
         let wrong = s.with_polarizer_model(PolarizerModel::Transmitting);
-        let bad = fit_sources_from_scene(&wrong, &sets).expect("still within 25 %");
+        let bad = fit_sources_from_scene(&wrong, &sets, MemoryBudget::DEFAULT)
+            .expect("still within 25 %");
         let check = bad.model_check;
         println!("transmitting scene: {check:?} {:?}", bad.warnings);
         assert_eq!(check.explained, Some(false), "{bad:?}");

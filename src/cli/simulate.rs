@@ -7,6 +7,7 @@ use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::measure::render_wall;
 use polnlos::scene::Scene;
 use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};
+use polnlos::transport::MemoryBudget;
 use polnlos::transport::Transport;
 
 /// Simulate a measurement of a hidden scene.
@@ -95,7 +96,7 @@ fn parse_size(s: &str) -> Result<(usize, usize), super::Usage> {
     Ok((w, h))
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let model = NoiseModel {
         photons: a.photons,
@@ -117,9 +118,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let truth = load_grid_image(&a.truth, sgrid)?;
     super::out_dir(&a.out)?;
 
-    let (t, transport_seconds) = super::progress::build_transport(&scene)?;
+    let (t, transport_seconds) = super::progress::build_transport(&scene, budget)?;
     let clean = t.apply(&truth);
-    let peak = unpolarized_peak(&scene, &t, &truth)?;
+    let peak = unpolarized_peak(&scene, &t, &truth, budget)?;
     let sim = model.apply(clean, peak)?;
 
     npy::write_f64(

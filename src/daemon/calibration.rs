@@ -211,10 +211,13 @@ impl Daemon {
             .collect();
         // A refused fit names what loading the captures found too: a missing
         // dark subtraction is a likelier cause than a misplaced source.
-        let fit = fit_sources_from_scene(&scene, &sets).map_err(|e| match warnings.as_slice() {
-            [] => invalid(e.to_string()),
-            w => invalid(format!("{e}. Also: {}", w.join("; "))),
-        })?;
+        let fit =
+            fit_sources_from_scene(&scene, &sets, self.scenes.budget()).map_err(
+                |e| match warnings.as_slice() {
+                    [] => invalid(e.to_string()),
+                    w => invalid(format!("{e}. Also: {}", w.join("; "))),
+                },
+            )?;
         // What the fit itself found (a model that does not explain the
         // captures, a better polarizer model) comes first.
         warnings.splice(0..0, fit.warnings.iter().cloned());

@@ -41,7 +41,8 @@ pub(super) fn frames(
         .transport(&demo.scene)
         .map_err(|e| err(e.to_string()))?;
     let l = pattern.render(t.scene_grid());
-    let peak = crate::simulate::unpolarized_peak(&scene, &t, &l).map_err(|e| err(e.to_string()))?;
+    let peak = crate::simulate::unpolarized_peak(&scene, &t, &l, scenes.budget())
+        .map_err(|e| err(e.to_string()))?;
     if peak <= 0.0 {
         return Err(err("the demo scene lights no wall element".into()));
     }
@@ -60,8 +61,9 @@ pub(super) fn frames(
         let l = pattern.render(t.scene_grid());
         let i = t.apply(&l);
         // The point source's wall image, all blocks at once (a T of one column).
-        let source = crate::calibrate::wall::predict(&s, &DEMO_SOURCE, &material(&s))
-            .map_err(|e| err(e.to_string()))?;
+        let source =
+            crate::calibrate::wall::predict(&s, &DEMO_SOURCE, &material(&s), scenes.budget())
+                .map_err(|e| err(e.to_string()))?;
         for (b, block) in t.blocks().iter().enumerate() {
             if frames
                 .scene

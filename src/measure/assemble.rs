@@ -201,6 +201,7 @@ pub fn to_model_units(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::transport::MemoryBudget;
 
     fn scene() -> Scene {
         match Scene::builtin("brewster-multi-3x3") {
@@ -290,7 +291,7 @@ mod tests {
         let s = crate::scene::Scene::builtin("brewster-crossed")
             .and_then(Result::ok)
             .expect("built-in scene");
-        let t = crate::transport::build(&s).expect("T");
+        let t = crate::transport::build(&s, MemoryBudget::DEFAULT).expect("T");
         let truth = vec![0.5; t.cols()];
         let i = t.apply(&truth);
         let mut m = Measurement {

@@ -510,6 +510,7 @@ mod tests {
     use crate::scene::{Grid, Scene};
     use crate::simulate::patterns::Pattern;
     use crate::transport::build;
+    use crate::transport::MemoryBudget;
 
     #[test]
     fn projection_residual_is_orthogonal_to_the_columns_and_leaves_the_rest() {
@@ -537,7 +538,7 @@ mod tests {
             .unwrap()
             .edit(|s| s.hidden.plane.grid = Grid { nu: n, nv: n })
             .unwrap();
-        build(&s).unwrap()
+        build(&s, MemoryBudget::DEFAULT).unwrap()
     }
 
     /// Gaussian noise of standard deviation `sigma` (Box-Muller on an LCG).

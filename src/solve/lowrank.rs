@@ -347,6 +347,7 @@ impl Neumann {
 mod tests {
     use super::*;
     use crate::solve::tv::{add_divergence_adjoint, gradient};
+    use crate::transport::MemoryBudget;
 
     /// A Gram of rank `r` with eigenvalues spread over `decades`, `n x n`.
     fn low_rank_gram(n: usize, r: usize, decades: f64) -> Mat<f64> {
@@ -468,7 +469,7 @@ mod tests {
             .unwrap()
             .edit(|s| s.hidden.plane.grid = Grid { nu: 24, nv: 24 })
             .unwrap();
-        let t = crate::transport::build(&scene).unwrap();
+        let t = crate::transport::build(&scene, MemoryBudget::DEFAULT).unwrap();
         let truth = crate::simulate::patterns::Pattern::Letter.render(t.scene_grid());
         let i: Vec<f64> = t
             .apply(&truth)

@@ -26,7 +26,7 @@
 use rayon::prelude::*;
 
 use super::build::blocks_of;
-use super::{Transport, TransportError};
+use super::{MemoryBudget, Transport, TransportError};
 use crate::optics::{Polarization, Vec3};
 use crate::scene::{Grid, Scene};
 
@@ -61,8 +61,12 @@ pub struct ActiveTransport {
 }
 
 /// Builds the time-resolved transport of `scene` (wall, voxels on the scene
-/// grid, poses as laser + detector positions, occluders).
-pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTransport, TransportError> {
+/// grid, poses as laser + detector positions, occluders), refusing one over `budget`.
+pub fn build_active(
+    scene: &Scene,
+    setup: &ActiveSetup,
+    budget: MemoryBudget,
+) -> Result<ActiveTransport, TransportError> {
     if !(setup.bin_width > 0.0 && setup.bin_width.is_finite()) {
         return Err(TransportError::Parameter {
             name: "bin-width",
@@ -109,7 +113,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
     let blocks = blocks_of(scene);
     let per_block = n_wall * bins;
     let rows = per_block * blocks.len();
-    super::check_size(rows, n_vox, bins * blocks.len(), 0.0)?;
+    super::check_size(budget, rows, n_vox, bins * blocks.len(), 0.0)?;
 
     // Per block, computed once: the direction from the spot to the laser and,
     // per patch, the direction to the camera and the effective analyzer axis.
@@ -222,7 +226,7 @@ mod tests {
     #[test]
     fn one_entry_matches_the_formula_written_out() {
         let s = scene("brewster-nopol-3x3");
-        let a = build_active(&s, &ActiveSetup::default()).unwrap();
+        let a = build_active(&s, &ActiveSetup::default(), MemoryBudget::DEFAULT).unwrap();
         let wall = &s.wall().plane;
         let (j, k) = (wall.grid.index(20, 9), 4);
         let c = wall.point(wall.local(20, 9, 0, 0).0, wall.local(20, 9, 0, 0).1);
@@ -261,9 +265,18 @@ mod tests {
 
     #[test]
     fn the_crossed_polarizer_only_removes_light_and_time_covers_the_paths() {
-        let open = build_active(&scene("brewster-nopol-3x3"), &ActiveSetup::default()).unwrap();
-        let crossed =
-            build_active(&scene("brewster-crossed-3x3"), &ActiveSetup::default()).unwrap();
+        let open = build_active(
+            &scene("brewster-nopol-3x3"),
+            &ActiveSetup::default(),
+            MemoryBudget::DEFAULT,
+        )
+        .unwrap();
+        let crossed = build_active(
+            &scene("brewster-crossed-3x3"),
+            &ActiveSetup::default(),
+            MemoryBudget::DEFAULT,
+        )
+        .unwrap();
         assert_eq!(open.t.rows(), crossed.t.rows());
         let mut fewer = 0;
         for (a, b) in crossed.t.col_major().iter().zip(open.t.col_major()) {
@@ -287,6 +300,7 @@ mod tests {
                 bin_width: 0.0,
                 ..ActiveSetup::default()
             },
+            MemoryBudget::DEFAULT,
         )
         .unwrap_err();
         assert!(e.to_string().starts_with("bin-width = 0"), "{e}");
@@ -296,6 +310,7 @@ mod tests {
                 spot: (0.5, 0.0),
                 ..ActiveSetup::default()
             },
+            MemoryBudget::DEFAULT,
         )
         .unwrap_err();
         assert!(e.to_string().contains("spot"), "{e}");

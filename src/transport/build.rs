@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
-use super::{Block, Transport, TransportError};
+use super::{Block, MemoryBudget, Transport, TransportError};
 use crate::optics::brdf::Direction;
 use crate::optics::polarizer::analyzer_factor;
 use crate::optics::{diffuse, ggx, DiffuseModel, Polarization, Vec3};
@@ -69,20 +69,22 @@ struct PoseView {
     first_block: usize,
 }
 
-/// Builds `T` for a scene.
-pub fn build(scene: &Scene) -> Result<Transport, TransportError> {
-    build_with_progress(scene, &|_| {})
+/// Builds `T` for a scene, refusing one over `budget` before allocating it.
+pub fn build(scene: &Scene, budget: MemoryBudget) -> Result<Transport, TransportError> {
+    build_with_progress(scene, budget, &|_| {})
 }
 
-/// Builds `T`, calling `progress(columns_done)` as columns complete.
+/// Builds `T` within `budget`, calling `progress(columns_done)` as columns complete.
 pub fn build_with_progress(
     scene: &Scene,
+    budget: MemoryBudget,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Transport, TransportError> {
     let plane = &scene.wall().plane;
     // The wall samples (points and their structure-of-arrays copy) come first: check them with T.
     let samples = plane.grid.count() as f64 * plane.samples_per_element() as f64;
     super::check_size(
+        budget,
         scene.rows(),
         scene.cols(),
         scene.block_count(),
@@ -90,6 +92,7 @@ pub fn build_with_progress(
     )?;
     let data = build_rows(
         scene,
+        budget,
         plane.sample_points(),
         plane.grid.count(),
         plane.samples_per_element(),
@@ -132,6 +135,7 @@ pub fn blocks_of(scene: &Scene) -> Vec<Block> {
 /// Rows are `blocks x n_wall`; the uniform build passes the whole wall.
 pub(super) fn build_rows(
     scene: &Scene,
+    budget: MemoryBudget,
     wall_pts: Vec<Vec3>,
     n_wall: usize,
     mw: usize,
@@ -139,7 +143,7 @@ pub(super) fn build_rows(
 ) -> Result<Vec<f64>, TransportError> {
     let rows = n_wall * scene.block_count();
     let cols = scene.cols();
-    super::check_size(rows, cols, scene.block_count(), 0.0)?;
+    super::check_size(budget, rows, cols, scene.block_count(), 0.0)?;
 
     let wall = &scene.wall();
     let brdf = wall.brdf;

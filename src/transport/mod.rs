@@ -81,31 +81,49 @@ pub enum TransportError {
     },
 }
 
-/// Bytes a dense `T` may take, set by the front ends from the machine's
-/// available memory ([`set_memory_limit`]); 12 GiB until one does.
-static MEMORY_LIMIT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(12 << 30);
+/// Bytes a dense `T` (with the working memory built alongside it) may take.
+///
+/// Passed to every build rather than held globally, so that the front end
+/// that knows the machine sizes it once and a test or bench can pick its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MemoryBudget(u64);
 
-/// Sets the memory budget for `T` (bytes). Front ends call it with a quarter
-/// of the available memory, so that `T`, its copies and the solver fit.
-pub fn set_memory_limit(bytes: u64) {
-    MEMORY_LIMIT.store(bytes.max(1 << 20), std::sync::atomic::Ordering::Relaxed);
+impl MemoryBudget {
+    /// 12 GiB: the budget where the machine's available memory is unknown,
+    /// and what tests and benches that build small matrices use.
+    pub const DEFAULT: MemoryBudget = MemoryBudget(12 << 30);
+
+    /// A budget of `bytes`, at least 1 MiB.
+    ///
+    /// The floor keeps a machine that reports almost no free memory able to
+    /// build the smallest scenes.
+    pub fn new(bytes: u64) -> Self {
+        Self(bytes.max(1 << 20))
+    }
+
+    /// The budget in bytes.
+    pub fn bytes(self) -> u64 {
+        self.0
+    }
 }
 
-/// The memory budget for `T` in bytes (see [`set_memory_limit`]).
-pub fn memory_limit() -> u64 {
-    MEMORY_LIMIT.load(std::sync::atomic::Ordering::Relaxed)
+impl Default for MemoryBudget {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
 }
 
 /// Refuses a `rows x cols` f64 matrix (plus `extra_bytes` of working
-/// memory) over the budget, naming what to reduce; each wall element
+/// memory) over `budget`, naming what to reduce; each wall element
 /// contributes `rows_per_wall_element` rows.
 pub(crate) fn check_size(
+    budget: MemoryBudget,
     rows: usize,
     cols: usize,
     rows_per_wall_element: usize,
     extra_bytes: f64,
 ) -> Result<(), TransportError> {
-    let limit = memory_limit() as f64;
+    let limit = budget.bytes() as f64;
     let bytes = rows as f64 * cols as f64 * 8.0 + extra_bytes;
     if bytes <= limit {
         return Ok(());
@@ -247,6 +265,30 @@ impl Transport {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_build_over_its_budget_is_refused_before_it_allocates() {
+        assert_eq!(MemoryBudget::new(0).bytes(), 1 << 20);
+        let scene = crate::scene::Scene::builtin("brewster-crossed")
+            .and_then(Result::ok)
+            .expect("built-in scene")
+            .edit(|s| s.hidden.plane.grid = Grid { nu: 24, nv: 24 })
+            .expect("a valid grid");
+        // 1024 rows x 576 columns in f64 is 4.5 MiB.
+        let e = build(&scene, MemoryBudget::new(1 << 20)).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                TransportError::TooLarge {
+                    rows: 1024,
+                    cols: 576,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(build(&scene, MemoryBudget::new(64 << 20)).is_ok());
+    }
 
     #[test]
     fn mean_column_norm2_is_the_mean_diagonal_of_the_gram_matrix() {
