@@ -9,7 +9,7 @@ use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::solve::admm::LAMBDA_REL;
 use polnlos::solve::{admm_tv, AdmmSettings};
-use polnlos::transport::build;
+use polnlos::transport::{build, MemoryBudget};
 
 fn main() {
     faer::set_global_parallelism(faer::Par::rayon(0));
@@ -29,14 +29,14 @@ fn scene() -> Scene {
 #[divan::bench(sample_count = 10)]
 fn transport_build_64x64_32x32_2poses(bencher: divan::Bencher) {
     let s = scene();
-    bencher.bench(|| build(divan::black_box(&s)).expect("T"));
+    bencher.bench(|| build(divan::black_box(&s), MemoryBudget::DEFAULT).expect("T"));
 }
 
 #[divan::bench(sample_count = 10)]
 fn gram_cholesky_admm200_64x64_32x32_2poses(bencher: divan::Bencher) {
     let s = scene();
-    let t = build(&s).expect("T");
-    let i = t.apply(&Pattern::Letter.render(t.scene_grid));
+    let t = build(&s, MemoryBudget::DEFAULT).expect("T");
+    let i = t.apply(&Pattern::Letter.render(t.scene_grid()));
     // Fixed rho (no residual balancing): the cost of exactly one factorization
     // and 200 iterations.
     let unit = t.mean_column_norm2();

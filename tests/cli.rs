@@ -7,6 +7,7 @@ use std::process::{Command, Output};
 use polnlos::files::{image, npy};
 use polnlos::scene::{Grid, Scene};
 use polnlos::simulate::patterns::Pattern;
+use polnlos::transport::MemoryBudget;
 
 fn scene(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("config/scenes/{name}.toml"))
@@ -72,7 +73,11 @@ fn transport_writes_a_standard_npy() {
     ]));
     let a = npy::read(&out).unwrap();
     assert_eq!(a.shape, vec![4096, 9]);
-    let t = polnlos::transport::build(&polnlos::scene::Scene::load(&s).unwrap()).unwrap();
+    let t = polnlos::transport::build(
+        &polnlos::scene::Scene::load(&s).unwrap(),
+        MemoryBudget::DEFAULT,
+    )
+    .unwrap();
     // C order: row j, column k at j * 9 + k.
     assert_eq!(a.data[1500 * 9 + 7], t.get(1500, 7));
     ok(&polnlos(&[
@@ -815,7 +820,7 @@ fn calibrate_wall_fits_a_point_source_measurement_with_uncertainties() {
     };
     // The measurement of the source at (u, v), written as .npy.
     let measured = |file: &str, u: f64, v: f64| {
-        let i = predict(&scene, &PointSource { u, v }, &truth).unwrap();
+        let i = predict(&scene, &PointSource { u, v }, &truth, MemoryBudget::DEFAULT).unwrap();
         let m = d.path().join(file);
         npy::write_f64(&m, &[i.len()], &i).unwrap();
         m.to_str().unwrap().to_string()

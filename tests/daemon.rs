@@ -9,6 +9,7 @@ use common::{config, lock, Daemon};
 use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::solve::metrics;
+use polnlos::transport::MemoryBudget;
 
 fn truth(scene: &str) -> (polnlos::scene::Grid, Vec<f64>) {
     let text = std::fs::read_to_string(format!(
@@ -16,7 +17,7 @@ fn truth(scene: &str) -> (polnlos::scene::Grid, Vec<f64>) {
         env!("CARGO_MANIFEST_DIR")
     ))
     .unwrap();
-    let grid = Scene::from_toml_str(&text).unwrap().scene.plane.grid;
+    let grid = Scene::from_toml_str(&text).unwrap().hidden().plane.grid;
     (grid, Pattern::Letter.render(grid))
 }
 
@@ -621,14 +622,14 @@ fn auto_exposure_reaches_the_planned_signal() {
     std::fs::write(mdir.path().join("mean.tiff"), tiff).unwrap();
     let mean = polnlos::store::read_mean(mdir.path()).unwrap();
     let scene = Scene::builtin("brewster-crossed").unwrap().unwrap();
-    let t = polnlos::transport::build(&scene).unwrap();
+    let t = polnlos::transport::build(&scene, MemoryBudget::DEFAULT).unwrap();
     let (_, letter) = truth("brewster-crossed");
     let max = |v: Vec<f64>| v.into_iter().fold(0.0, f64::max);
     let expect = 0.5 * max(t.apply(&letter)) / max(t.apply(&vec![1.0; t.cols()]));
     let wall = polnlos::measure::sample_wall(
         &mean,
-        scene.poses[0].homography.as_ref().unwrap(),
-        &scene.wall.plane,
+        scene.poses()[0].homography.as_ref().unwrap(),
+        &scene.wall().plane,
         "A",
     )
     .unwrap();

@@ -11,6 +11,7 @@ use axum::http::{Request, StatusCode};
 use polnlos::daemon::scenes::Scenes;
 use polnlos::daemon::{CameraSetup, Config, Daemon};
 use polnlos::store::Store;
+use polnlos::transport::MemoryBudget;
 use tower::ServiceExt;
 
 /// A daemon on the synthetic camera showing `scene`'s `pattern`, its camera connected.
@@ -22,7 +23,9 @@ async fn daemon_showing(dir: &std::path::Path, scene: &str, pattern: &str) -> Ar
     config.demo.scene = scene.into();
     config.demo.pattern = pattern.into();
     let store = Store::open(&config.data_dir).expect("data directory");
-    let scenes = Arc::new(Scenes::load(&config.scene_files).expect("built-in scenes"));
+    let scenes = Arc::new(
+        Scenes::load(&config.scene_files, MemoryBudget::DEFAULT).expect("built-in scenes"),
+    );
     let camera = CameraSetup::synthetic(&config, &scenes)
         .await
         .expect("synthetic camera");

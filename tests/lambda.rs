@@ -9,7 +9,7 @@ use polnlos::simulate::patterns::Pattern;
 use polnlos::simulate::{unpolarized_peak, NoiseModel};
 use polnlos::solve::lambda::{admm_tv_discrepancy, admm_tv_resolved, NoiseLevel};
 use polnlos::solve::{admm_tv, condition, metrics, AdmmSettings};
-use polnlos::transport::build;
+use polnlos::transport::{build, MemoryBudget};
 
 fn scene(name: &str) -> Scene {
     Scene::load(
@@ -32,14 +32,14 @@ fn automatic_lambda_lands_within_1_db_of_the_best() {
         (0.0f64, 0.0f64, 0.0, 0);
     for name in ["brewster-crossed", "brewster-multi"] {
         let s = scene(name);
-        let t = build(&s).unwrap();
+        let t = build(&s, MemoryBudget::DEFAULT).unwrap();
         let sv = condition(&t).unwrap().singular_values;
         let unit = t.mean_column_norm2();
         for (p, (photons, seed)) in Pattern::ALL
             .into_iter()
             .flat_map(|p| PHOTONS_SEEDS.into_iter().map(move |n| (p, n)))
         {
-            let truth = p.render(t.scene_grid);
+            let truth = p.render(t.scene_grid());
             let model = NoiseModel {
                 photons,
                 read_noise: 5.0,
@@ -47,7 +47,10 @@ fn automatic_lambda_lands_within_1_db_of_the_best() {
                 seed,
             };
             let sim = model
-                .apply(t.apply(&truth), unpolarized_peak(&s, &t, &truth).unwrap())
+                .apply(
+                    t.apply(&truth),
+                    unpolarized_peak(&s, &t, &truth, MemoryBudget::DEFAULT).unwrap(),
+                )
                 .unwrap();
             let noise = NoiseLevel::from_camera(
                 &sim.measurement,
@@ -141,12 +144,12 @@ fn lambda_from_the_measurement_alone_lands_within_1_5_db_of_the_best() {
     println!("scene            pattern photons | sigma est/true | auto PSNR | default PSNR | best PSNR (lambda/unit) | gap");
     for name in ["brewster-nopol", "brewster-crossed", "occluder-crossed"] {
         let s = scene_at(name, 16);
-        let t = build(&s).unwrap();
+        let t = build(&s, MemoryBudget::DEFAULT).unwrap();
         let sv = condition(&t).unwrap().singular_values;
         let unit = t.mean_column_norm2();
         for (k, photons) in [1e3, 1e4, 1e5].into_iter().enumerate() {
             let p = [Pattern::Disk, Pattern::Letter, Pattern::Bars][k];
-            let truth = p.render(t.scene_grid);
+            let truth = p.render(t.scene_grid());
             let model = NoiseModel {
                 photons,
                 read_noise: 5.0,
@@ -154,7 +157,10 @@ fn lambda_from_the_measurement_alone_lands_within_1_5_db_of_the_best() {
                 seed: 21 + k as u64,
             };
             let sim = model
-                .apply(t.apply(&truth), unpolarized_peak(&s, &t, &truth).unwrap())
+                .apply(
+                    t.apply(&truth),
+                    unpolarized_peak(&s, &t, &truth, MemoryBudget::DEFAULT).unwrap(),
+                )
                 .unwrap();
             let est = NoiseLevel::from_residual(&t, &sim.measurement).unwrap();
             let true_var = NoiseLevel::from_camera(

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 
 use polnlos::bench::rendered::{agreement, reconstruct_pair, PairNoise, RenderedCase};
 use polnlos::optics::{DiffuseModel, PolarizerModel};
-use polnlos::transport::build;
+use polnlos::transport::{build, MemoryBudget};
 
 fn cases() -> Vec<RenderedCase> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/rendered");
@@ -43,7 +43,7 @@ fn every_rendered_case_matches_t_to_its_noise() {
     }
     println!("case               gain     corr       residual  noise    ratio");
     for c in &all {
-        let a = agreement(&build(&c.scene).unwrap(), c);
+        let a = agreement(&build(&c.scene, MemoryBudget::DEFAULT).unwrap(), c);
         println!(
             "{:<18} {:.5}  {:.7}  {:.4}%   {:.4}%  {:.2}",
             c.name,
@@ -72,6 +72,7 @@ fn the_revision_1_model_does_not_explain_the_renders() {
         &crossed
             .scene
             .with_polarizer_model(PolarizerModel::Transmitting),
+        MemoryBudget::DEFAULT,
     )
     .unwrap();
     let a = agreement(&t, &crossed);
@@ -79,9 +80,12 @@ fn the_revision_1_model_does_not_explain_the_renders() {
     assert!(a.ratio > 10.0, "{a:?}");
 
     let kd = case("nopol-kd");
-    let mut lambert = kd.scene.clone();
-    lambert.wall.brdf.diffuse = DiffuseModel::Lambert;
-    let a = agreement(&build(&lambert).unwrap(), &kd);
+    let lambert = kd
+        .scene
+        .clone()
+        .edit(|s| s.wall.brdf.diffuse = DiffuseModel::Lambert)
+        .unwrap();
+    let a = agreement(&build(&lambert, MemoryBudget::DEFAULT).unwrap(), &kd);
     println!("nopol-kd, lambert: {a:?}");
     assert!(a.ratio > 3.0, "{a:?}");
 }
@@ -92,14 +96,18 @@ fn the_rendered_crossed_case_reconstructs_as_well_as_polnlos_own_simulation() {
     // of the render's per-element standard error.
     let c = case("crossed");
     let noise = PairNoise::Render { seed: 5 };
-    let t = build(&c.scene).unwrap();
-    let pair = reconstruct_pair(&t, &c, noise).unwrap();
+    let t = build(&c.scene, MemoryBudget::DEFAULT).unwrap();
+    let pair = reconstruct_pair(&t, &c, noise, MemoryBudget::DEFAULT).unwrap();
     println!("absorbing: {pair:?}");
     let loss = pair.simulated.psnr_db - pair.rendered.psnr_db;
     assert!(loss <= 1.5, "the render loses {loss:.2} dB: {pair:?}");
     // Under the previous reading the same render loses several dB: the check bites.
-    let t = build(&c.scene.with_polarizer_model(PolarizerModel::Transmitting)).unwrap();
-    let old = reconstruct_pair(&t, &c, noise).unwrap();
+    let t = build(
+        &c.scene.with_polarizer_model(PolarizerModel::Transmitting),
+        MemoryBudget::DEFAULT,
+    )
+    .unwrap();
+    let old = reconstruct_pair(&t, &c, noise, MemoryBudget::DEFAULT).unwrap();
     println!("transmitting: {old:?}");
     assert!(
         old.simulated.psnr_db - old.rendered.psnr_db > 3.0,
@@ -115,7 +123,7 @@ fn a_reconstruction_says_when_the_model_does_not_explain_the_data() {
     let c = case("crossed");
     let variance: Vec<f64> = c.sigma.iter().map(|s| s * s).collect();
     let check = |model: PolarizerModel| {
-        let t = build(&c.scene.with_polarizer_model(model)).unwrap();
+        let t = build(&c.scene.with_polarizer_model(model), MemoryBudget::DEFAULT).unwrap();
         let cond = condition(&t).unwrap();
         reconstruct(
             &t,

@@ -9,7 +9,7 @@ use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};
 use polnlos::solve::{admm_tv, least_squares, metrics, AdmmSettings};
-use polnlos::transport::{build, Transport};
+use polnlos::transport::{build, MemoryBudget, Transport};
 
 fn bench16(kind: &str) -> Scene {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -28,7 +28,7 @@ const NOISE: NoiseModel = NoiseModel {
 };
 
 fn simulate(scene: &Scene, t: &Transport, truth: &[f64]) -> Simulation {
-    let peak = unpolarized_peak(scene, t, truth).unwrap();
+    let peak = unpolarized_peak(scene, t, truth, MemoryBudget::DEFAULT).unwrap();
     NOISE.apply(t.apply(truth), peak).unwrap()
 }
 
@@ -40,10 +40,13 @@ fn admm_tv_beats_least_squares_and_the_crossed_polarizer_helps() {
     };
     let crossed = bench16("crossed");
     let nopol = bench16("nopol");
-    let (tc, tn) = (build(&crossed).unwrap(), build(&nopol).unwrap());
+    let (tc, tn) = (
+        build(&crossed, MemoryBudget::DEFAULT).unwrap(),
+        build(&nopol, MemoryBudget::DEFAULT).unwrap(),
+    );
     let mut crossed_wins = 0;
     for p in Pattern::ALL {
-        let truth = p.render(tc.scene_grid);
+        let truth = p.render(tc.scene_grid());
         let sc = simulate(&crossed, &tc, &truth);
         let sn = simulate(&nopol, &tn, &truth);
         let admm_c = admm_tv(&tc, &sc.measurement, &settings).unwrap();
@@ -75,15 +78,15 @@ fn admm_tv_beats_least_squares_and_the_crossed_polarizer_helps() {
 #[test]
 fn frames_rendered_through_the_homography_sample_back_to_the_wall_image() {
     let scene = bench16("multi");
-    let t = build(&scene).unwrap();
-    let truth = Pattern::Letter.render(t.scene_grid);
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
+    let truth = Pattern::Letter.render(t.scene_grid());
     let sim = simulate(&scene, &t, &truth);
-    for (b, block) in t.blocks.iter().enumerate() {
+    for (b, block) in t.blocks().iter().enumerate() {
         let pose = scene.pose(&block.pose).unwrap();
         let h = pose.homography.as_ref().unwrap();
         let wall = &sim.measurement[t.block_rows(b)];
-        let frame = render_wall(wall, h, &scene.wall.plane, 512, 512, 0.0);
-        let back = sample_wall(&frame, h, &scene.wall.plane, &pose.name).unwrap();
+        let frame = render_wall(wall, h, &scene.wall().plane, 512, 512, 0.0);
+        let back = sample_wall(&frame, h, &scene.wall().plane, &pose.name).unwrap();
         for (j, (a, w)) in back.iter().zip(wall).enumerate() {
             assert!(
                 (a - w).abs() <= 1e-6 * w.abs().max(1e-12),
@@ -96,12 +99,12 @@ fn frames_rendered_through_the_homography_sample_back_to_the_wall_image() {
 #[test]
 fn a_wall_sample_outside_the_frame_is_an_error() {
     let scene = bench16("crossed");
-    let pose = &scene.poses[0];
+    let pose = &scene.poses()[0];
     let frame = polnlos::camera::Frame::zeros(300, 300);
     let e = sample_wall(
         &frame,
         pose.homography.as_ref().unwrap(),
-        &scene.wall.plane,
+        &scene.wall().plane,
         "A",
     )
     .unwrap_err();

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::solve::{admm_tv, condition, least_squares, tikhonov, AdmmSettings, SolveError};
-use polnlos::transport::{build, Transport};
+use polnlos::transport::{build, MemoryBudget, Transport};
 
 fn crossed3(edit: impl Fn(String) -> String) -> Scene {
     let path =
@@ -22,11 +22,11 @@ fn all_finite(v: &[f64]) -> bool {
 
 /// Builds T, checks it and its kappa, and runs all three solvers on a clean measurement.
 fn survives(scene: &Scene) -> (Transport, f64) {
-    let t = build(scene).unwrap();
+    let t = build(scene, MemoryBudget::DEFAULT).unwrap();
     assert!(all_finite(t.col_major()), "T has a non-finite entry");
     let c = condition(&t).unwrap();
     assert!(!c.kappa.is_nan());
-    let i = t.apply(&Pattern::Disk.render(t.scene_grid));
+    let i = t.apply(&Pattern::Disk.render(t.scene_grid()));
     let r = admm_tv(&t, &i, &AdmmSettings::default()).unwrap();
     assert!(all_finite(&r.image) && r.image.iter().all(|v| (0.0..=1.0).contains(v)));
     assert!(
@@ -107,7 +107,7 @@ fn rank_deficient_transport() {
 #[test]
 fn fewer_rows_than_columns_is_infinitely_ill_conditioned() {
     let s = crossed3(|s| s.replace("grid = [32, 32]", "grid = [2, 2]"));
-    let t = build(&s).unwrap();
+    let t = build(&s, MemoryBudget::DEFAULT).unwrap();
     assert_eq!((t.rows(), t.cols()), (4, 9));
     assert!(condition(&t).unwrap().kappa.is_infinite());
     survives(&s);
@@ -115,7 +115,7 @@ fn fewer_rows_than_columns_is_infinitely_ill_conditioned() {
 
 #[test]
 fn bad_measurements_are_clear_errors() {
-    let t = build(&crossed3(|s| s)).unwrap();
+    let t = build(&crossed3(|s| s), MemoryBudget::DEFAULT).unwrap();
     let mut i = t.apply(&[0.3; 9]);
     let e = admm_tv(&t, &i[..100], &AdmmSettings::default()).unwrap_err();
     assert!(
@@ -161,8 +161,8 @@ fn bad_measurements_are_clear_errors() {
 
 #[test]
 fn lambda_zero_is_box_constrained_least_squares() {
-    let t = build(&crossed3(|s| s)).unwrap();
-    let truth = Pattern::Letter.render(t.scene_grid);
+    let t = build(&crossed3(|s| s), MemoryBudget::DEFAULT).unwrap();
+    let truth = Pattern::Letter.render(t.scene_grid());
     let i = t.apply(&truth);
     let r = admm_tv(
         &t,
@@ -188,8 +188,8 @@ fn lambda_zero_is_box_constrained_least_squares() {
 
 #[test]
 fn an_iteration_cap_is_reported_not_hidden() {
-    let t = build(&crossed3(|s| s)).unwrap();
-    let i = t.apply(&Pattern::Bars.render(t.scene_grid));
+    let t = build(&crossed3(|s| s), MemoryBudget::DEFAULT).unwrap();
+    let i = t.apply(&Pattern::Bars.render(t.scene_grid()));
     let r = admm_tv(
         &t,
         &i,

@@ -12,7 +12,7 @@ use nalgebra::Vector3;
 use polnlos::optics::{DiffuseModel, PolarizerModel};
 use polnlos::scene::{Emitter, Scene};
 use polnlos::solve::condition;
-use polnlos::transport::{build, Transport};
+use polnlos::transport::{build, MemoryBudget, Transport};
 
 type V = Vector3<f64>;
 
@@ -42,7 +42,7 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
     // Which pose and angle this block is.
     let mut b = block;
     let (pose, angle) = scene
-        .poses
+        .poses()
         .iter()
         .find_map(|p| {
             let n = p.analyzers.len().max(1);
@@ -54,9 +54,9 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
             }
         })
         .unwrap();
-    let w = &scene.wall.plane;
-    let s = &scene.scene.plane;
-    let brdf = scene.wall.brdf;
+    let w = &scene.wall().plane;
+    let s = &scene.hidden().plane;
+    let brdf = scene.wall().brdf;
     let n = w.normal;
     let o = pose.camera;
     let c0 = w.center;
@@ -91,11 +91,11 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                     let w_o = (o - c).normalize();
                     if n.dot(&w_i) <= 0.0
                         || n.dot(&w_o) <= 0.0
-                        || scene.occluders.iter().any(|oc| oc.blocks(&sp, &c))
+                        || scene.occluders().iter().any(|oc| oc.blocks(&sp, &c))
                     {
                         continue;
                     }
-                    let g = match scene.scene.emitter {
+                    let g = match scene.hidden().emitter {
                         Emitter::Lambertian => s.normal.dot(&(c - sp).normalize()).max(0.0),
                         Emitter::Isotropic => 1.0,
                     };
@@ -110,7 +110,7 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                     let (rs, rp) = fresnel(phi, brdf.eta);
                     let t = q.map(|q| {
                         let n_p = (c0 - o).normalize();
-                        match scene.polarizer {
+                        match scene.polarizer() {
                             PolarizerModel::Absorbing => w_o.cross(&n_p.cross(&q)).normalize(),
                             PolarizerModel::Transmitting => (q - w_o * q.dot(&w_o)).normalize(),
                         }
@@ -163,7 +163,7 @@ fn max_abs(t: &Transport) -> f64 {
 }
 
 fn assert_matches_reference(scene: &Scene, t: &Transport, label: &str) {
-    let nw = t.wall_grid.count();
+    let nw = t.wall_grid().count();
     let floor = 1e-14 * max_abs(t);
     for row in 0..t.rows() {
         for k in 0..t.cols() {
@@ -200,7 +200,7 @@ fn every_shipped_scene_matches_the_literal_model() {
     assert_eq!(names.len(), 16);
     for name in names {
         let scene = load(&name);
-        let t = build(&scene).unwrap();
+        let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
         assert_matches_reference(&scene, &t, &name);
     }
 }
@@ -225,9 +225,9 @@ fn the_revision_2_keys_match_the_literal_model() {
         for model in ["absorbing", "transmitting"] {
             for diffuse in ["fresnel", "lambert"] {
                 let scene = Scene::from_toml_str(&with_keys(name, 0.1, diffuse, model)).unwrap();
-                assert_eq!(scene.polarizer.name(), model);
-                assert_eq!(scene.wall.brdf.diffuse.name(), diffuse);
-                let t = build(&scene).unwrap();
+                assert_eq!(scene.polarizer().name(), model);
+                assert_eq!(scene.wall().brdf.diffuse.name(), diffuse);
+                let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
                 assert_matches_reference(&scene, &t, &format!("{name} {model} {diffuse}"));
             }
         }
@@ -248,6 +248,7 @@ fn the_two_polarizer_readings_differ_where_the_model_says() {
             "absorbing",
         ))
         .unwrap(),
+        MemoryBudget::DEFAULT,
     )
     .unwrap();
     let tra = build(
@@ -258,10 +259,11 @@ fn the_two_polarizer_readings_differ_where_the_model_says() {
             "transmitting",
         ))
         .unwrap(),
+        MemoryBudget::DEFAULT,
     )
     .unwrap();
     // Largest relative difference over the crossed block, per wall row (v).
-    let grid = abs.wall_grid;
+    let grid = abs.wall_grid();
     let row_worst: Vec<f64> = (0..grid.nv)
         .map(|iv| {
             let mut w = 0.0f64;
@@ -353,7 +355,7 @@ fn entries_computed_independently_in_python() {
         ),
     ];
     for (name, block, [ju, jv, ku, kv], expect) in cases {
-        let t = build(&load(name)).unwrap();
+        let t = build(&load(name), MemoryBudget::DEFAULT).unwrap();
         let got = t.get(block * 1024 + jv * 32 + ju, kv * 3 + ku);
         assert!(
             (got - expect).abs() <= 1e-9 * expect,
@@ -463,8 +465,11 @@ fn entries_computed_independently_in_python() {
         ),
     ];
     for (kd, diffuse, model, name, [ju, jv, ku, kv], expect) in keyed {
-        let t =
-            build(&Scene::from_toml_str(&with_keys(name, kd, diffuse, model)).unwrap()).unwrap();
+        let t = build(
+            &Scene::from_toml_str(&with_keys(name, kd, diffuse, model)).unwrap(),
+            MemoryBudget::DEFAULT,
+        )
+        .unwrap();
         let got = t.get(jv * 32 + ju, kv * 3 + ku);
         assert!(
             (got - expect).abs() <= 1e-9 * expect,
@@ -503,7 +508,7 @@ fn reference_scenes_load_with_their_shapes_and_condition_numbers() {
     named.sort();
     assert_eq!(on_disk, named, "every shipped scene has a golden kappa");
     for (name, kappa, rows, cols) in golden {
-        let t = build(&load(name)).unwrap();
+        let t = build(&load(name), MemoryBudget::DEFAULT).unwrap();
         assert_eq!((t.rows(), t.cols()), (rows, cols), "{name}");
         let c = condition(&t).unwrap();
         assert!(
@@ -516,7 +521,11 @@ fn reference_scenes_load_with_their_shapes_and_condition_numbers() {
 
 #[test]
 fn the_paper_trend_holds_on_the_3x3_bench() {
-    let k = |n: &str| condition(&build(&load(n)).unwrap()).unwrap().kappa;
+    let k = |n: &str| {
+        condition(&build(&load(n), MemoryBudget::DEFAULT).unwrap())
+            .unwrap()
+            .kappa
+    };
     let (crossed, rotating, nopol) = (
         k("brewster-crossed-3x3"),
         k("brewster-rotating-3x3"),
@@ -559,9 +568,9 @@ camera = [0.4097, 0.0722, 0.2774]
 #[test]
 fn row_and_column_order_on_a_non_square_grid() {
     let scene = Scene::from_toml_str(CUSTOM).unwrap();
-    let t = build(&scene).unwrap();
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
     assert_eq!((t.rows(), t.cols()), (3 * 24 * 40, 35));
-    let labels: Vec<String> = t.blocks.iter().map(|b| b.label()).collect();
+    let labels: Vec<String> = t.blocks().iter().map(|b| b.label()).collect();
     assert_eq!(labels, ["A-pol0", "A-pol30", "B-nopol"]);
     // Rows: block, then v outer, u inner. Columns: v outer, u inner.
     for (block, iu, iv, ku, kv) in [
@@ -590,7 +599,7 @@ fn supersampling_matches_the_reference() {
         .replace("grid = [24, 40]", "grid = [6, 5]\nsupersample = 3")
         .replace("grid = [7, 5]", "grid = [3, 2]\nsupersample = 2");
     let scene = Scene::from_toml_str(&text).unwrap();
-    let t = build(&scene).unwrap();
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
     assert_matches_reference(&scene, &t, "supersampled");
 }
 
@@ -627,7 +636,7 @@ camera = [0.5, 0.0, 1.0]
 sphere = { center = [0.0, 0.0, 0.5], radius = 0.1 }
 "#;
     let scene = Scene::from_toml_str(text).unwrap();
-    let t = build(&scene).unwrap();
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
     let shadow = 0.1 / (0.25f64 - 0.01).sqrt();
     let mut dark = 0;
     for j in 0..441 {
@@ -655,10 +664,11 @@ fn crossed_polarizer_darkens_the_central_brewster_path() {
         .replace("grid = [32, 32]", "grid = [33, 33]")
         .replace("grid = [3, 3]", "grid = [1, 1]")
         .replace("size = [0.2, 0.2]", "size = [0.001, 0.001]");
-    let crossed = build(&Scene::from_toml_str(&text).unwrap()).unwrap();
+    let crossed = build(&Scene::from_toml_str(&text).unwrap(), MemoryBudget::DEFAULT).unwrap();
     let open = build(
         &Scene::from_toml_str(&text.replace("polarizer_deg = [0.0]", "polarizer_deg = []"))
             .unwrap(),
+        MemoryBudget::DEFAULT,
     )
     .unwrap();
     let centre = 16 * 33 + 16;

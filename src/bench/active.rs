@@ -10,7 +10,7 @@ use super::{builtin, BenchError, ROUGHNESS};
 use crate::scene::Grid;
 use crate::solve::condition;
 use crate::transport::active::{build_active, ActiveSetup};
-use crate::transport::build;
+use crate::transport::{build, MemoryBudget};
 
 /// One point of the active sweep.
 #[derive(Debug, Clone, Serialize)]
@@ -38,11 +38,14 @@ fn point(
     config: &'static str,
     grid: usize,
     roughness: f64,
+    budget: MemoryBudget,
 ) -> Result<ActiveRow, BenchError> {
-    let mut s = builtin(&format!("brewster-{config}"))?;
-    s.scene.plane.grid = Grid { nu: grid, nv: grid };
-    s.wall.brdf.alpha = roughness;
-    let a = build_active(&s, &ActiveSetup::default())?;
+    let name = format!("brewster-{config}");
+    let s = super::edit(&name, builtin(&name)?, |s| {
+        s.hidden.plane.grid = Grid { nu: grid, nv: grid };
+        s.wall.brdf.alpha = roughness;
+    })?;
+    let a = build_active(&s, &ActiveSetup::default(), budget)?;
     Ok(ActiveRow {
         sweep,
         config,
@@ -50,7 +53,7 @@ fn point(
         roughness,
         bins: a.bins,
         kappa_active: condition(&a.t)?.kappa,
-        kappa_passive: condition(&build(&s)?)?.kappa,
+        kappa_passive: condition(&build(&s, budget)?)?.kappa,
     })
 }
 
@@ -59,16 +62,17 @@ fn point(
 pub fn active_sweep(
     grids: &[usize],
     rough_grid: usize,
+    budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Vec<ActiveRow>, BenchError> {
     let mut rows = Vec::new();
     for config in ["nopol", "crossed"] {
         for &g in grids {
-            rows.push(point("resolution", config, g, 0.3)?);
+            rows.push(point("resolution", config, g, 0.3, budget)?);
             step();
         }
         for &a in &ROUGHNESS {
-            rows.push(point("roughness", config, rough_grid, a)?);
+            rows.push(point("roughness", config, rough_grid, a, budget)?);
             step();
         }
     }

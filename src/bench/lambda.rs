@@ -20,7 +20,7 @@ use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::reconstruct::{Context, AUTO_MAX_ITER};
 use crate::solve::{condition, metrics, reconstruct, AdmmSettings, Conditioning, SolveRequest};
-use crate::transport::{build, Transport};
+use crate::transport::{build, MemoryBudget, Transport};
 
 /// Grid search of the best λ: log10(λ / mean(diag(T^T T))) from -6 to 1.
 const SEARCH: (f64, f64, usize) = (-6.0, 1.0, 28);
@@ -57,25 +57,30 @@ pub struct LambdaRow {
     pub gap: f64,
 }
 
-/// One case: simulate, reconstruct with every λ, compare.
+/// The camera of the sweep at `photons`, noise drawn from `seed`.
+fn noise_model(photons: f64, seed: u64) -> NoiseModel {
+    NoiseModel {
+        photons,
+        read_noise: 5.0,
+        bits: 12,
+        seed,
+    }
+}
+
+/// One case: simulate under `model`, reconstruct with every λ, compare.
 fn case(
     name: &str,
     scene: &Scene,
     t: &Transport,
     cond: &Conditioning,
     pattern: Pattern,
-    photons: f64,
-    seed: u64,
+    model: NoiseModel,
+    budget: MemoryBudget,
 ) -> Result<LambdaRow, BenchError> {
-    let grid = t.scene_grid.nu;
-    let truth = pattern.render(t.scene_grid);
-    let model = NoiseModel {
-        photons,
-        read_noise: 5.0,
-        bits: 12,
-        seed,
-    };
-    let peak = unpolarized_peak(scene, t, &truth)?;
+    let photons = model.photons;
+    let grid = t.scene_grid().nu;
+    let truth = pattern.render(t.scene_grid());
+    let peak = unpolarized_peak(scene, t, &truth, budget)?;
     let sim = model
         .apply(t.apply(&truth), peak)
         .map_err(|source| BenchError::Simulate {
@@ -146,10 +151,11 @@ fn case(
     })
 }
 
-/// `scene` with its hidden-scene grid set to `n x n`.
-fn with_grid(mut scene: Scene, n: usize) -> Scene {
-    scene.scene.plane.grid = Grid { nu: n, nv: n };
-    scene
+/// Built-in scene `name` with its hidden-scene grid set to `n x n`.
+fn with_grid(name: &str, n: usize) -> Result<Scene, BenchError> {
+    super::edit(name, builtin(name)?, |s| {
+        s.hidden.plane.grid = Grid { nu: n, nv: n }
+    })
 }
 
 /// Every scene x photon level x pattern on an `n x n` grid; a fixed seed per
@@ -158,18 +164,20 @@ pub fn lambda_sweep(
     scenes: &[&str],
     grid: usize,
     photons: &[f64],
+    budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Vec<LambdaRow>, BenchError> {
     let mut rows = Vec::new();
     let mut seed = 100;
     for name in scenes {
-        let scene = with_grid(builtin(name)?, grid);
-        let t = build(&scene)?;
+        let scene = with_grid(name, grid)?;
+        let t = build(&scene, budget)?;
         let cond = condition(&t)?;
         for &p in photons {
             for pattern in Pattern::ALL {
                 seed += 1;
-                rows.push(case(name, &scene, &t, &cond, pattern, p, seed)?);
+                let model = noise_model(p, seed);
+                rows.push(case(name, &scene, &t, &cond, pattern, model, budget)?);
                 step();
             }
         }

@@ -24,9 +24,9 @@ pub use tables::{Conditioning, Roughness};
 
 use serde::Serialize;
 
-use crate::scene::{Scene, SceneError};
+use crate::scene::{Scene, SceneError, SceneParts};
 use crate::solve::{condition, SolveError};
-use crate::transport::{build, TransportError};
+use crate::transport::{build, MemoryBudget, TransportError};
 
 /// Polarizer configurations of the reference bench, in the paper's order.
 pub const CONFIGS: [&str; 4] = ["nopol", "rotating", "crossed", "multi"];
@@ -170,14 +170,27 @@ pub(crate) fn builtin(name: &str) -> Result<Scene, BenchError> {
     }
 }
 
-fn kappa(scene: &Scene) -> Result<f64, BenchError> {
-    Ok(condition(&build(scene)?)?.kappa)
+/// `scene` changed by `change` and validated again, or a bench error naming it `name`.
+pub(crate) fn edit(
+    name: &str,
+    scene: Scene,
+    change: impl FnOnce(&mut SceneParts),
+) -> Result<Scene, BenchError> {
+    scene.edit(change).map_err(|e| BenchError::Scene {
+        name: name.into(),
+        reason: e.to_string(),
+    })
+}
+
+fn kappa(scene: &Scene, budget: MemoryBudget) -> Result<f64, BenchError> {
+    Ok(condition(&build(scene, budget)?)?.kappa)
 }
 
 /// Table 1: kappa for every configuration, with and without the occluder, on
 /// the given scene grids (3 and/or 8). `step()` is called after each row.
 pub fn conditioning_table(
     grids: &[usize],
+    budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Vec<CondRow>, BenchError> {
     let mut rows = Vec::new();
@@ -187,7 +200,7 @@ pub fn conditioning_table(
                 let name = scene_name(config, occluder, grid);
                 let scene = builtin(&name)?;
                 let start = std::time::Instant::now();
-                let t = build(&scene)?;
+                let t = build(&scene, budget)?;
                 let c = condition(&t)?;
                 rows.push(CondRow {
                     scene: name,
@@ -222,20 +235,24 @@ pub struct RoughRow {
 }
 
 /// Fig. 6: kappa against roughness for nopol, crossed and multi, with and without the occluder.
-pub fn roughness_sweep(grid: usize, step: &mut dyn FnMut()) -> Result<Vec<RoughRow>, BenchError> {
+pub fn roughness_sweep(
+    grid: usize,
+    budget: MemoryBudget,
+    step: &mut dyn FnMut(),
+) -> Result<Vec<RoughRow>, BenchError> {
     let mut rows = Vec::new();
     for occluder in [false, true] {
         for config in ["nopol", "crossed", "multi"] {
-            let base = builtin(&scene_name(config, occluder, grid))?;
+            let name = scene_name(config, occluder, grid);
+            let base = builtin(&name)?;
             for &alpha in &ROUGHNESS {
-                let mut s = base.clone();
-                s.wall.brdf.alpha = alpha;
+                let s = edit(&name, base.clone(), |s| s.wall.brdf.alpha = alpha)?;
                 rows.push(RoughRow {
                     config: config.into(),
                     occluder,
                     grid,
                     roughness: alpha,
-                    kappa: kappa(&s)?,
+                    kappa: kappa(&s, budget)?,
                 });
                 step();
             }

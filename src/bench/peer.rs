@@ -17,7 +17,7 @@ use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
 use crate::solve::admm::LAMBDA_REL;
 use crate::solve::{admm_tv, metrics, AdmmSettings};
-use crate::transport::build;
+use crate::transport::{build, MemoryBudget};
 
 pub(crate) static SCRIPT: &str = include_str!("../../benches/peer/peer.py");
 
@@ -90,15 +90,17 @@ pub fn compare(
     wall: usize,
     scene_grid: usize,
     work: &Path,
+    budget: MemoryBudget,
 ) -> Result<PeerReport, BenchError> {
     let text = crate::scene::builtin::text(name)
         .ok_or_else(|| io("scene", format!("{name} is not built in")))?;
-    let mut scene = Scene::from_toml_str(text)?;
-    scene.wall.plane.grid = Grid { nu: wall, nv: wall };
-    scene.scene.plane.grid = Grid {
-        nu: scene_grid,
-        nv: scene_grid,
-    };
+    let scene = super::edit(name, Scene::from_toml_str(text)?, |s| {
+        s.wall.plane.grid = Grid { nu: wall, nv: wall };
+        s.hidden.plane.grid = Grid {
+            nu: scene_grid,
+            nv: scene_grid,
+        };
+    })?;
     let mut report = PeerReport {
         scene: name.into(),
         wall,
@@ -119,10 +121,10 @@ pub fn compare(
         polnlos_psnr_db: f64::NAN,
         peer_psnr_db: f64::NAN,
     };
-    let (t, build_seconds) = timed3(|| Ok(build(&scene)?))?;
+    let (t, build_seconds) = timed3(|| Ok(build(&scene, budget)?))?;
     report.polnlos_build_seconds = build_seconds;
-    let truth = Pattern::Letter.render(t.scene_grid);
-    let peak = unpolarized_peak(&scene, &t, &truth)?;
+    let truth = Pattern::Letter.render(t.scene_grid());
+    let peak = unpolarized_peak(&scene, &t, &truth, budget)?;
     let sim = NoiseModel {
         photons: 2e4,
         ..NoiseModel::default()

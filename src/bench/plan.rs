@@ -6,6 +6,7 @@
 use super::report::Report;
 use super::speed;
 use super::BenchError;
+use crate::transport::MemoryBudget;
 
 /// What a bench run measures: sizes, sweeps and seeds.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -120,43 +121,49 @@ impl BenchPlan {
             + self.scaling.1.len()
     }
 
-    /// Runs every report, calling `step()` as each row is done; the NumPy
-    /// peer works in `work` (created and removed here).
+    /// Runs every report, calling `step()` as each row is done, each `T`
+    /// built within `budget`; the NumPy peer works in `work` (created and removed here).
     pub fn run(
         &self,
+        budget: MemoryBudget,
         work: &std::path::Path,
         step: &mut dyn FnMut(),
     ) -> Result<Vec<Box<dyn Report>>, BenchError> {
         let roughness_grid = *self.grids.last().unwrap_or(&3);
         let sizes = self.sizes();
-        let runs = speed::speed_sweep(&sizes, self.speed_seeds, &self.speed_budgets, step)?;
+        let runs = speed::speed_sweep(&sizes, self.speed_seeds, &self.speed_budgets, budget, step)?;
         let reports: Vec<Box<dyn Report>> = vec![
             Box::new(super::Conditioning(super::conditioning_table(
                 &self.grids,
+                budget,
                 step,
             )?)),
             Box::new(super::Roughness(super::roughness_sweep(
                 roughness_grid,
+                budget,
                 step,
             )?)),
             Box::new(super::stability::Stability(
-                super::stability::stability_table(step)?,
+                super::stability::stability_table(budget, step)?,
             )),
             Box::new(super::sampling::Sampling {
                 reference_m: self.sampling_reference_m,
                 rows: super::sampling::sampling_sweep(
                     self.sampling_grid,
                     self.sampling_reference_m,
+                    budget,
                     step,
                 )?,
             }),
             Box::new(super::active::Active(super::active::active_sweep(
                 &self.active_grids,
                 self.active_roughness_grid,
+                budget,
                 step,
             )?)),
             Box::new({
-                let peer = super::peer::compare("brewster-multi", self.peer.0, self.peer.1, work);
+                let peer =
+                    super::peer::compare("brewster-multi", self.peer.0, self.peer.1, work, budget);
                 let _ = std::fs::remove_dir_all(work);
                 step();
                 peer?
@@ -165,11 +172,13 @@ impl BenchPlan {
                 &self.lambda_scenes,
                 self.lambda_grid,
                 &self.lambda_photons,
+                budget,
                 step,
             )?)),
             Box::new(super::rendered::rendered_report(
                 &self.rendered,
                 &self.rendered_cases,
+                budget,
                 step,
             )?),
             Box::new({
@@ -180,6 +189,7 @@ impl BenchPlan {
                     self.scaling.0,
                     &self.scaling.1,
                     &work.join("scaling"),
+                    budget,
                     step,
                 );
                 let _ = std::fs::remove_dir_all(work);

@@ -23,7 +23,7 @@ use crate::solve::lambda::NoiseLevel;
 use crate::solve::metrics::{compare, Metrics};
 use crate::solve::reconstruct::Context;
 use crate::solve::{condition, reconstruct, SolveRequest};
-use crate::transport::{build, Transport};
+use crate::transport::{build, MemoryBudget, Transport};
 
 /// The folder of the shipped cases, relative to the repository.
 pub const DEFAULT_DIR: &str = "tests/data/rendered";
@@ -179,9 +179,10 @@ pub fn reconstruct_pair(
     t: &Transport,
     case: &RenderedCase,
     noise: PairNoise,
+    budget: MemoryBudget,
 ) -> Result<Pair, BenchError> {
     let cond = condition(t)?;
-    let grid = t.scene_grid;
+    let grid = t.scene_grid();
     let solve = |i: &[f64], level: NoiseLevel| -> Result<(Metrics, Vec<f64>), BenchError> {
         let solved = reconstruct(
             t,
@@ -218,7 +219,7 @@ pub fn reconstruct_pair(
             ))
         }
         PairNoise::Camera(model) => {
-            let peak = unpolarized_peak(&case.scene, t, &case.truth)?;
+            let peak = unpolarized_peak(&case.scene, t, &case.truth, budget)?;
             let camera = |signal: Vec<f64>| -> Result<(Metrics, Vec<f64>), BenchError> {
                 let sim = model
                     .apply(signal, peak)
@@ -324,6 +325,7 @@ fn best_denoised(grid: crate::scene::Grid, truth: &[f64], image: &[f64]) -> (Met
 pub fn rendered_report(
     dir: &Path,
     which: &[&str],
+    budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Rendered, BenchError> {
     let mut report = Rendered {
@@ -350,25 +352,25 @@ pub fn rendered_report(
             step();
             continue;
         };
-        let t = build(&case.scene)?;
-        let mut old = case
-            .scene
-            .with_polarizer_model(crate::optics::PolarizerModel::Transmitting);
-        old.wall.brdf.diffuse = crate::optics::DiffuseModel::Lambert;
+        let t = build(&case.scene, budget)?;
+        let old = super::edit(name, case.scene.clone(), |s| {
+            s.polarizer = crate::optics::PolarizerModel::Transmitting;
+            s.wall.brdf.diffuse = crate::optics::DiffuseModel::Lambert;
+        })?;
         report.rows.push(RenderedRow {
             case: name.into(),
             label: label.into(),
             agreement: agreement(&t, case),
-            agreement_revision_1: agreement(&build(&old)?, case),
-            render_noise: reconstruct_pair(&t, case, PairNoise::Render { seed: 7 })?,
-            equal_exposure: reconstruct_pair(&t, case, camera)?,
+            agreement_revision_1: agreement(&build(&old, budget)?, case),
+            render_noise: reconstruct_pair(&t, case, PairNoise::Render { seed: 7 }, budget)?,
+            equal_exposure: reconstruct_pair(&t, case, camera, budget)?,
         });
         step();
     }
     let row = |n: &str| report.rows.iter().find(|r| r.case == n);
     let nopol = cases.iter().find(|c| c.name == "nopol");
     if let (Some(base), Some(pol), Some(case)) = (row("nopol"), row("crossed"), nopol) {
-        let grid = case.scene.scene.plane.grid;
+        let grid = case.scene.hidden().plane.grid;
         let post = [
             ("render-noise", &base.render_noise, &pol.render_noise),
             ("equal-exposure", &base.equal_exposure, &pol.equal_exposure),

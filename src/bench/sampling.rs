@@ -10,7 +10,7 @@ use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
 use super::{builtin, timed3, BenchError};
 use crate::scene::Scene;
 use crate::transport::adaptive::relative_error;
-use crate::transport::{build, build_adaptive, Transport};
+use crate::transport::{build, build_adaptive, MemoryBudget, Transport};
 
 /// Uniform sub-sampling per side compared.
 pub const UNIFORM: [usize; 6] = [1, 2, 3, 4, 6, 8];
@@ -41,11 +41,11 @@ pub struct SamplingRow {
 }
 
 fn case(name: &str, alpha: Option<f64>) -> Result<Scene, BenchError> {
-    let mut s = builtin(name)?;
-    if let Some(a) = alpha {
-        s.wall.brdf.alpha = a;
+    let s = builtin(name)?;
+    match alpha {
+        Some(a) => super::edit(name, s, |s| s.wall.brdf.alpha = a),
+        None => Ok(s),
     }
-    Ok(s)
 }
 
 /// The sweep: `grid` is the scene grid side (3 or 8), `reference_m` the
@@ -53,6 +53,7 @@ fn case(name: &str, alpha: Option<f64>) -> Result<Scene, BenchError> {
 pub fn sampling_sweep(
     grid: usize,
     reference_m: usize,
+    budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Vec<SamplingRow>, BenchError> {
     let suffix = if grid == 3 { "-3x3" } else { "" };
@@ -69,9 +70,8 @@ pub fn sampling_sweep(
     let mut rows = Vec::new();
     for (label, scene) in cases {
         let uniform = |m: usize| -> Result<Transport, BenchError> {
-            let mut s = scene.clone();
-            s.wall.plane.supersample = m;
-            Ok(build(&s)?)
+            let s = scene.clone().edit(|s| s.wall.plane.supersample = m)?;
+            Ok(build(&s, budget)?)
         };
         let reference = uniform(reference_m)?;
         for m in UNIFORM {
@@ -86,9 +86,9 @@ pub fn sampling_sweep(
                 estimated_error: None,
             });
         }
-        let n_wall = scene.wall.plane.grid.count() as f64;
+        let n_wall = scene.wall().plane.grid.count() as f64;
         for tol in TOLERANCES {
-            let ((t, st), secs) = timed3(|| Ok(build_adaptive(&scene, tol, MAX_M)?))?;
+            let ((t, st), secs) = timed3(|| Ok(build_adaptive(&scene, tol, MAX_M, budget)?))?;
             rows.push(SamplingRow {
                 case: label.into(),
                 method: "adaptive",

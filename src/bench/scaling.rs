@@ -22,7 +22,7 @@ use crate::scene::{Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
 use crate::solve::admm::LAMBDA_REL;
-use crate::transport::build;
+use crate::transport::{build, MemoryBudget};
 
 /// Built-in scene of the sweep: two crossed poses (B, C).
 pub const SCENE: &str = "brewster-multi";
@@ -136,6 +136,7 @@ pub fn scaling_sweep(
     wall: usize,
     grids: &[usize],
     work: &Path,
+    budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Scaling, BenchError> {
     std::fs::create_dir_all(work).map_err(|e| err("work folder", e))?;
@@ -146,9 +147,10 @@ pub fn scaling_sweep(
     std::fs::write(&script, super::peer::SCRIPT).map_err(|e| err("peer.py", e))?;
     let mut rows = Vec::new();
     for &g in grids {
-        let mut scene = Scene::from_toml_str(text)?;
-        scene.wall.plane.grid = Grid { nu: wall, nv: wall };
-        scene.scene.plane.grid = Grid { nu: g, nv: g };
+        let scene = super::edit(SCENE, Scene::from_toml_str(text)?, |s| {
+            s.wall.plane.grid = Grid { nu: wall, nv: wall };
+            s.hidden.plane.grid = Grid { nu: g, nv: g };
+        })?;
         // The scene file the child reads: the built-in one with both grids set.
         let toml = text
             .replacen("grid = [32, 32]", &format!("grid = [{wall}, {wall}]"), 1)
@@ -157,12 +159,12 @@ pub fn scaling_sweep(
         std::fs::create_dir_all(&dir).map_err(|e| err("work folder", e))?;
         let scene_file = dir.join("scene.toml");
         std::fs::write(&scene_file, &toml).map_err(|e| err("scene.toml", e))?;
-        let t = build(&scene)?;
+        let t = build(&scene, budget)?;
         if Scene::from_toml_str(&toml)?.cols() != t.cols() {
             return Err(err("scene grid", "the built-in scene's grids moved"));
         }
-        let truth = Pattern::Letter.render(t.scene_grid);
-        let peak = unpolarized_peak(&scene, &t, &truth)?;
+        let truth = Pattern::Letter.render(t.scene_grid());
+        let peak = unpolarized_peak(&scene, &t, &truth, budget)?;
         let sim = NoiseModel {
             photons: PHOTONS,
             ..NoiseModel::default()

@@ -24,7 +24,7 @@ use crate::solve::admm::admm_tv_prepared;
 use crate::solve::fista::fista_tv_prepared;
 use crate::solve::gram::Normal;
 use crate::solve::{least_squares, metrics, tikhonov, AdmmSettings, FistaSettings, SolveError};
-use crate::transport::{build, Transport};
+use crate::transport::{build, MemoryBudget, Transport};
 
 /// One problem size of the sweep.
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -129,21 +129,22 @@ pub struct SpeedSummary {
 pub fn scene_for(size: &Size) -> Result<Scene, BenchError> {
     let a = builtin("brewster-crossed")?;
     let bc = builtin("brewster-multi")?;
-    let mut s = a.clone();
-    s.poses = match size.poses {
-        1 => a.poses.clone(),
-        2 => bc.poses.clone(),
-        _ => a.poses.iter().chain(&bc.poses).cloned().collect(),
+    let poses = match size.poses {
+        1 => a.poses().to_vec(),
+        2 => bc.poses().to_vec(),
+        _ => a.poses().iter().chain(bc.poses()).cloned().collect(),
     };
-    s.wall.plane.grid = Grid {
-        nu: size.wall,
-        nv: size.wall,
-    };
-    s.scene.plane.grid = Grid {
-        nu: size.scene,
-        nv: size.scene,
-    };
-    Ok(s)
+    super::edit("brewster-crossed", a, |s| {
+        s.poses = poses;
+        s.wall.plane.grid = Grid {
+            nu: size.wall,
+            nv: size.wall,
+        };
+        s.hidden.plane.grid = Grid {
+            nu: size.scene,
+            nv: size.scene,
+        };
+    })
 }
 
 fn solve_err(e: SolveError) -> BenchError {
@@ -259,14 +260,15 @@ pub fn speed_sweep(
     sizes: &[Size],
     seeds: u64,
     budgets: &[usize],
+    budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Vec<SpeedRow>, BenchError> {
     let mut rows = Vec::new();
     for size in sizes {
         let scene = scene_for(size)?;
-        let t = build(&scene)?;
-        let t_nopol = build(&scene.without_polarizers())?;
-        let grid = t.scene_grid;
+        let t = build(&scene, budget)?;
+        let t_nopol = build(&scene.without_polarizers(), budget)?;
+        let grid = t.scene_grid();
         let truth = Pattern::Letter.render(grid);
         let p = Problem { t, truth, grid };
         let nopol = Problem {
@@ -585,12 +587,15 @@ mod tests {
     #[test]
     fn sizes_build_the_shapes_they_name() {
         let s = scene_for(&SIZES[2]).unwrap();
-        assert_eq!(s.poses.len(), 3);
+        assert_eq!(s.poses().len(), 3);
         assert_eq!(s.rows(), 3 * 96 * 96);
         assert_eq!(s.cols(), 32 * 32);
         let s = scene_for(&SIZES[1]).unwrap();
         assert_eq!(
-            s.poses.iter().map(|p| p.name.as_str()).collect::<Vec<_>>(),
+            s.poses()
+                .iter()
+                .map(|p| p.name.as_str())
+                .collect::<Vec<_>>(),
             ["B", "C"]
         );
     }

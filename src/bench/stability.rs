@@ -5,13 +5,13 @@
 
 use serde::Serialize;
 
-use super::{builtin, BenchError};
-use crate::scene::Scene;
+use super::{builtin, edit, BenchError};
+use crate::scene::{Grid, Scene, SceneParts};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
 use crate::solve::report::{conditioning_warnings, mean_snr, snr_warnings};
 use crate::solve::{admm_tv, condition, metrics, AdmmSettings};
-use crate::transport::build;
+use crate::transport::{build, MemoryBudget};
 
 /// Outcome of one stability case.
 #[derive(Debug, Clone, Serialize)]
@@ -49,11 +49,8 @@ struct Case {
 
 fn cases() -> Result<Vec<Case>, BenchError> {
     let crossed = builtin("brewster-crossed")?;
-    let with = |f: &dyn Fn(&mut Scene)| {
-        let mut s = crossed.clone();
-        f(&mut s);
-        s
-    };
+    // A moved camera moves its sheet: the edit recomputes the crossed setting there.
+    let with = |f: &dyn Fn(&mut SceneParts)| edit("brewster-crossed", crossed.clone(), f);
     let case = |name: &str, scene: Scene, photons: f64, lambda_rel: Option<f64>| Case {
         name: name.into(),
         scene,
@@ -61,34 +58,19 @@ fn cases() -> Result<Vec<Case>, BenchError> {
         lambda_rel,
     };
     // Exact Brewster mirror geometry: the camera on the mirror ray at atan(eta).
-    let eta: f64 = crossed.wall.brdf.eta;
+    let eta: f64 = crossed.wall().brdf.eta;
     let tb = eta.atan();
-    // A moved camera moves its sheet: the crossed setting is recomputed there.
-    let recross = |s: &mut Scene| {
-        if let Some(a) = crate::scene::Analyzer::at(
-            &s.wall.plane.center,
-            &s.scene.plane.center,
-            &s.poses[0].camera,
-            0.0,
-        ) {
-            s.poses[0].analyzers[0] = a;
-        }
-    };
     let exact = with(&|s| {
         s.poses[0].camera = nalgebra::Vector3::new(0.5 * tb.sin(), 0.0, 0.5 * tb.cos());
-        recross(s);
-    });
+    })?;
     let mirror30 = with(&|s| {
         // Scene and camera both at 30 deg incidence: far from Brewster.
         let t = 30f64.to_radians();
-        s.scene.plane.center = nalgebra::Vector3::new(-0.45 * t.sin(), 0.0, 0.45 * t.cos());
-        s.scene.plane.normal = -s.scene.plane.center.normalize();
-        s.scene.plane.v = s.scene.plane.normal.cross(&s.scene.plane.u);
+        s.hidden.plane.center = nalgebra::Vector3::new(-0.45 * t.sin(), 0.0, 0.45 * t.cos());
+        s.hidden.plane.normal = -s.hidden.plane.center.normalize();
         s.poses[0].camera = nalgebra::Vector3::new(0.5 * t.sin(), 0.0, 0.5 * t.cos());
-        recross(s);
-    });
-    let mut fine = crossed.clone();
-    fine.scene.plane.grid = crate::scene::Grid { nu: 40, nv: 40 };
+    })?;
+    let fine = with(&|s| s.hidden.plane.grid = Grid { nu: 40, nv: 40 })?;
     Ok(vec![
         case(
             "reference: Brewster bench, crossed, alpha 0.3",
@@ -98,7 +80,7 @@ fn cases() -> Result<Vec<Case>, BenchError> {
         ),
         case(
             "mirror-like wall (alpha 0.01)",
-            with(&|s| s.wall.brdf.alpha = 0.01),
+            with(&|s| s.wall.brdf.alpha = 0.01)?,
             2e4,
             None,
         ),
@@ -107,13 +89,13 @@ fn cases() -> Result<Vec<Case>, BenchError> {
             with(&|s| {
                 s.wall.brdf.alpha = 1.0;
                 s.wall.brdf.kd = 1.0;
-            }),
+            })?,
             2e4,
             None,
         ),
         case(
             "camera at grazing angle (89.8 deg)",
-            with(&|s| s.poses[0].camera = nalgebra::Vector3::new(2.0, 0.0, 0.007)),
+            with(&|s| s.poses[0].camera = nalgebra::Vector3::new(2.0, 0.0, 0.007))?,
             2e4,
             None,
         ),
@@ -147,18 +129,21 @@ fn cases() -> Result<Vec<Case>, BenchError> {
 pub const CASES: usize = 12;
 
 /// Runs every case.
-pub fn stability_table(step: &mut dyn FnMut()) -> Result<Vec<StabilityRow>, BenchError> {
+pub fn stability_table(
+    budget: MemoryBudget,
+    step: &mut dyn FnMut(),
+) -> Result<Vec<StabilityRow>, BenchError> {
     let mut rows = Vec::new();
     for c in cases()? {
-        let t = build(&c.scene)?;
-        let truth = Pattern::Letter.render(t.scene_grid);
+        let t = build(&c.scene, budget)?;
+        let truth = Pattern::Letter.render(t.scene_grid());
         let model = NoiseModel {
             photons: c.photons,
             read_noise: 5.0,
             bits: 12,
             seed: 17,
         };
-        let peak = unpolarized_peak(&c.scene, &t, &truth)?;
+        let peak = unpolarized_peak(&c.scene, &t, &truth, budget)?;
         let sim = model
             .apply(t.apply(&truth), peak)
             .map_err(|source| BenchError::Simulate {

@@ -617,7 +617,7 @@ mod tests {
 
     fn shipped(scene: &str, pose: usize) -> Homography {
         match crate::scene::Scene::builtin(scene) {
-            Some(Ok(s)) => s.poses[pose].homography.expect("homography"),
+            Some(Ok(s)) => s.poses()[pose].homography.expect("homography"),
             _ => panic!("scene"),
         }
     }

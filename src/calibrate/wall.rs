@@ -21,9 +21,9 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::optics::PolarizerModel;
-use crate::scene::{Grid, Scene};
+use crate::scene::{Grid, Scene, SceneError};
 use crate::solve::adequacy::Adequacy;
-use crate::transport::{build, TransportError};
+use crate::transport::{build, MemoryBudget, TransportError};
 
 /// Why a wall fit could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -31,6 +31,9 @@ pub enum WallFitError {
     /// The point-source transport could not be built for these parameters.
     #[error("the point-source model of the scene could not be built: {0}")]
     Model(#[source] TransportError),
+    /// The scene shrunk to the point source with these wall parameters is not a valid scene.
+    #[error("the point-source model of the scene is not a valid scene: {0}")]
+    Scene(#[source] SceneError),
     /// No measurement to fit, or more than [`MAX_SOURCES`].
     #[error("a wall fit needs 1 to {MAX_SOURCES} source positions, got {0}")]
     Sources(usize),
@@ -163,16 +166,19 @@ impl WallParams {
 
 /// The scene with its hidden plane shrunk to the point source and the wall
 /// material set to `p`.
-fn point_scene(scene: &Scene, source: &PointSource, p: &WallParams) -> Scene {
-    let mut s = scene.clone();
-    let plane = &mut s.scene.plane;
-    plane.center = plane.center + plane.u * source.u + plane.v * source.v;
-    plane.size = [SOURCE_SIDE_M, SOURCE_SIDE_M];
-    plane.grid = Grid { nu: 1, nv: 1 };
-    s.wall.brdf.alpha = p.alpha;
-    s.wall.brdf.eta = p.ior;
-    s.wall.brdf.kd = p.kd;
-    s
+fn point_scene(scene: &Scene, source: &PointSource, p: &WallParams) -> Result<Scene, WallFitError> {
+    scene
+        .clone()
+        .edit(|s| {
+            let plane = &mut s.hidden.plane;
+            plane.center = plane.center + plane.u * source.u + plane.v * source.v;
+            plane.size = [SOURCE_SIDE_M, SOURCE_SIDE_M];
+            plane.grid = Grid { nu: 1, nv: 1 };
+            s.wall.brdf.alpha = p.alpha;
+            s.wall.brdf.eta = p.ior;
+            s.wall.brdf.kd = p.kd;
+        })
+        .map_err(WallFitError::Scene)
 }
 
 /// The measurement the model predicts for the source: `gain * T e`, in
@@ -181,8 +187,9 @@ pub fn predict(
     scene: &Scene,
     source: &PointSource,
     p: &WallParams,
+    budget: MemoryBudget,
 ) -> Result<Vec<f64>, WallFitError> {
-    let t = build(&point_scene(scene, source, p)).map_err(WallFitError::Model)?;
+    let t = build(&point_scene(scene, source, p)?, budget).map_err(WallFitError::Model)?;
     Ok(t.apply(&[1.0]).into_iter().map(|v| v * p.gain).collect())
 }
 
@@ -193,6 +200,7 @@ pub fn fit(
     source: &PointSource,
     i: &[f64],
     start: WallParams,
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
     fit_sources(
         scene,
@@ -202,6 +210,7 @@ pub fn fit(
             variance: None,
         }],
         start,
+        budget,
     )
 }
 
@@ -216,10 +225,11 @@ pub fn fit_sources(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
     start: WallParams,
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
     check_count(sets)?;
-    let first = predict_all(scene, sets, &start)?;
-    levenberg_marquardt(scene, sets, start, first)
+    let first = predict_all(scene, sets, &start, budget)?;
+    levenberg_marquardt(scene, sets, start, first, budget)
 }
 
 /// 1 to [`MAX_SOURCES`] positions.
@@ -235,10 +245,11 @@ fn predict_all(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
     w: &WallParams,
+    budget: MemoryBudget,
 ) -> Result<Vec<f64>, WallFitError> {
     let mut all = Vec::new();
     for set in sets {
-        all.extend(predict(scene, &set.source, w)?);
+        all.extend(predict(scene, &set.source, w, budget)?);
     }
     Ok(all)
 }
@@ -261,8 +272,9 @@ fn solve(
     i: &[f64],
     start: WallParams,
     first: Vec<f64>,
+    budget: MemoryBudget,
 ) -> Result<Solution, WallFitError> {
-    let model = |p: &SVector<f64, 4>| predict_all(scene, sets, &WallParams::from_vec(p));
+    let model = |p: &SVector<f64, 4>| predict_all(scene, sets, &WallParams::from_vec(p), budget);
     let residual = |m: &[f64]| -> Vec<f64> { i.iter().zip(m).map(|(a, b)| a - b).collect() };
     let ss = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
     let mut p = start.to_vec();
@@ -340,10 +352,11 @@ fn levenberg_marquardt(
     sets: &[SourceMeasurement<'_>],
     start: WallParams,
     first: Vec<f64>,
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
     let rows = first.len() / sets.len();
     let (i, variance) = stack(sets, rows)?;
-    let sol = solve(scene, sets, &i, start, first)?;
+    let sol = solve(scene, sets, &i, start, first, budget)?;
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     let relative_residual = sol.cost.sqrt() / norm(&i).max(1e-300);
     let source_residuals: Vec<f64> = sol
@@ -427,20 +440,21 @@ fn compare_polarizer_models(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
     fit: &mut WallFit,
+    budget: MemoryBudget,
 ) -> Result<(), WallFitError> {
-    if scene.poses.iter().all(|p| p.analyzers.is_empty()) {
+    if scene.poses().iter().all(|p| p.analyzers.is_empty()) {
         return Ok(());
     }
-    let used = scene.polarizer;
+    let used = scene.polarizer();
     let other = PolarizerModel::ALL
         .into_iter()
         .find(|m| *m != used)
         .unwrap_or(used);
     let alt = scene.with_polarizer_model(other);
-    let first = predict_all(&alt, sets, &fit.params)?;
+    let first = predict_all(&alt, sets, &fit.params, budget)?;
     let rows = first.len() / sets.len();
     let (i, variance) = stack(sets, rows)?;
-    let sol = solve(&alt, sets, &i, fit.params, first)?;
+    let sol = solve(&alt, sets, &i, fit.params, first, budget)?;
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     let alt_fit = PolarizerModelFit {
         model: other,
@@ -481,6 +495,7 @@ pub fn fit_from_scene(
     scene: &Scene,
     source: &PointSource,
     i: &[f64],
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
     fit_sources_from_scene(
         scene,
@@ -489,6 +504,7 @@ pub fn fit_from_scene(
             i,
             variance: None,
         }],
+        budget,
     )
 }
 
@@ -497,8 +513,9 @@ pub fn fit_from_scene(
 pub fn fit_sources_from_scene(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
+    budget: MemoryBudget,
 ) -> Result<WallFit, WallFitError> {
-    let b = scene.wall.brdf;
+    let b = scene.wall().brdf;
     let unit = WallParams {
         alpha: b.alpha,
         ior: b.eta,
@@ -508,7 +525,7 @@ pub fn fit_sources_from_scene(
     check_count(sets)?;
     // The prediction is linear in the gain: the unit-gain one, scaled, is the
     // fit's first prediction.
-    let mut first = predict_all(scene, sets, &unit)?;
+    let mut first = predict_all(scene, sets, &unit, budget)?;
     let i = sets.iter().flat_map(|set| set.i.iter());
     let (dot, nn) = first
         .iter()
@@ -516,8 +533,8 @@ pub fn fit_sources_from_scene(
         .fold((0.0, 0.0), |(d, n), (a, x)| (d + a * x, n + a * a));
     let gain = if nn > 0.0 && dot > 0.0 { dot / nn } else { 1.0 };
     first.iter_mut().for_each(|v| *v *= gain);
-    let mut fit = levenberg_marquardt(scene, sets, WallParams { gain, ..unit }, first)?;
-    compare_polarizer_models(scene, sets, &mut fit)?;
+    let mut fit = levenberg_marquardt(scene, sets, WallParams { gain, ..unit }, first, budget)?;
+    compare_polarizer_models(scene, sets, &mut fit, budget)?;
     Ok(fit)
 }
 
@@ -594,8 +611,11 @@ mod tests {
     fn simulated_point_source_captures_give_back_the_wall() {
         let s = scene();
         let source = PointSource { u: 0.03, v: -0.02 };
-        let i = noisy(&predict(&s, &source, &TRUTH).expect("model"), 0.005);
-        let f = fit(&s, &source, &i, START).expect("fit");
+        let i = noisy(
+            &predict(&s, &source, &TRUTH, MemoryBudget::DEFAULT).expect("model"),
+            0.005,
+        );
+        let f = fit(&s, &source, &i, START, MemoryBudget::DEFAULT).expect("fit");
         println!("{f:?}");
         let p = f.params;
         assert!((p.alpha - 0.3).abs() < 0.02, "{f:?}");
@@ -610,15 +630,35 @@ mod tests {
     #[test]
     fn a_capture_of_another_geometry_is_refused_not_fitted() {
         let s = scene();
-        let i = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &TRUTH).expect("model");
-        let e = fit(&s, &PointSource { u: -0.06, v: -0.06 }, &i, TRUTH).expect_err("wrong place");
+        let i = predict(
+            &s,
+            &PointSource { u: 0.06, v: 0.06 },
+            &TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect("model");
+        let e = fit(
+            &s,
+            &PointSource { u: -0.06, v: -0.06 },
+            &i,
+            TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect_err("wrong place");
         assert!(e.to_string().contains("do not match the capture"), "{e}");
         assert!(!e.to_string().contains("dots"), "{e}");
         let WallFitError::Unexplained { percent, limit, .. } = e else {
             panic!("{e}")
         };
         assert!(percent > limit && limit == 25.0, "{percent} {limit}");
-        let short = fit(&s, &PointSource { u: 0.06, v: 0.06 }, &i[1..], TRUTH).expect_err("short");
+        let short = fit(
+            &s,
+            &PointSource { u: 0.06, v: 0.06 },
+            &i[1..],
+            TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect_err("short");
         assert!(
             matches!(short, WallFitError::Length { measurement, rows, .. } if rows == i.len() && measurement == rows - 1),
             "{short}"
@@ -635,7 +675,12 @@ mod tests {
         ];
         let measured: Vec<Vec<f64>> = at
             .iter()
-            .map(|a| noisy(&predict(&s, a, &TRUTH).expect("model"), 0.005))
+            .map(|a| {
+                noisy(
+                    &predict(&s, a, &TRUTH, MemoryBudget::DEFAULT).expect("model"),
+                    0.005,
+                )
+            })
             .collect();
         let sets: Vec<SourceMeasurement> = at
             .iter()
@@ -646,8 +691,8 @@ mod tests {
                 variance: None,
             })
             .collect();
-        let one = fit(&s, &at[0], &measured[0], START).expect("one source");
-        let all = fit_sources(&s, &sets, START).expect("three sources");
+        let one = fit(&s, &at[0], &measured[0], START, MemoryBudget::DEFAULT).expect("one source");
+        let all = fit_sources(&s, &sets, START, MemoryBudget::DEFAULT).expect("three sources");
         println!("one: {one:?}\nthree: {all:?}");
         let p = all.params;
         assert!((p.alpha - 0.3).abs() < 0.01, "{all:?}");
@@ -669,7 +714,8 @@ mod tests {
             assert!(a / b > 2.0 * 3f64.sqrt(), "{one:?} {all:?}");
         }
         // The scene-started variant agrees.
-        let from_scene = fit_sources_from_scene(&s, &sets).expect("from the scene");
+        let from_scene =
+            fit_sources_from_scene(&s, &sets, MemoryBudget::DEFAULT).expect("from the scene");
         assert!(
             (from_scene.params.alpha - p.alpha).abs() < 1e-3,
             "{from_scene:?}"
@@ -679,8 +725,20 @@ mod tests {
     #[test]
     fn one_misplaced_source_among_several_is_named() {
         let s = scene();
-        let a = predict(&s, &PointSource { u: 0.03, v: -0.02 }, &TRUTH).expect("model");
-        let b = predict(&s, &PointSource { u: 0.06, v: 0.06 }, &TRUTH).expect("model");
+        let a = predict(
+            &s,
+            &PointSource { u: 0.03, v: -0.02 },
+            &TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect("model");
+        let b = predict(
+            &s,
+            &PointSource { u: 0.06, v: 0.06 },
+            &TRUTH,
+            MemoryBudget::DEFAULT,
+        )
+        .expect("model");
         let wrong = PointSource { u: -0.06, v: -0.06 };
         let sets = [
             SourceMeasurement {
@@ -694,7 +752,8 @@ mod tests {
                 variance: None,
             },
         ];
-        let e = fit_sources(&s, &sets, TRUTH).expect_err("one source misplaced");
+        let e =
+            fit_sources(&s, &sets, TRUTH, MemoryBudget::DEFAULT).expect_err("one source misplaced");
         println!("{e}");
         assert!(
             matches!(e, WallFitError::Unexplained { at, .. } if at == wrong),
@@ -702,12 +761,12 @@ mod tests {
         );
         assert!(e.to_string().contains("(-0.06, -0.06) m"), "{e}");
         assert!(matches!(
-            fit_sources(&s, &[], TRUTH),
+            fit_sources(&s, &[], TRUTH, MemoryBudget::DEFAULT),
             Err(WallFitError::Sources(0))
         ));
         let many = vec![sets[0]; MAX_SOURCES + 1];
         assert!(matches!(
-            fit_sources(&s, &many, TRUTH),
+            fit_sources(&s, &many, TRUTH, MemoryBudget::DEFAULT),
             Err(WallFitError::Sources(n)) if n == MAX_SOURCES + 1
         ));
     }
@@ -718,7 +777,7 @@ mod tests {
         // peak (uniform: variance level^2 peak^2 / 12).
         let s = scene();
         let source = PointSource { u: 0.03, v: -0.02 };
-        let clean = predict(&s, &source, &TRUTH).expect("model");
+        let clean = predict(&s, &source, &TRUTH, MemoryBudget::DEFAULT).expect("model");
         let peak = clean.iter().copied().fold(0.0, f64::max);
         let i = noisy(&clean, 0.001);
         let var = vec![(0.001 * peak).powi(2) / 12.0; i.len()];
@@ -727,7 +786,7 @@ mod tests {
             i: &i,
             variance: Some(&var),
         }];
-        let good = fit_sources_from_scene(&s, &sets).expect("fit");
+        let good = fit_sources_from_scene(&s, &sets, MemoryBudget::DEFAULT).expect("fit");
         let check = good.model_check;
         println!("absorbing scene: {check:?} {:?}", good.polarizer_models);
         assert_eq!(check.explained, Some(true), "{good:?}");
@@ -754,7 +813,8 @@ mod tests {
         // The same captures read with the transmitting sheet: flagged, the
         // standard errors scaled up by the misfit, the better model named.
         let wrong = s.with_polarizer_model(PolarizerModel::Transmitting);
-        let bad = fit_sources_from_scene(&wrong, &sets).expect("still within 25 %");
+        let bad = fit_sources_from_scene(&wrong, &sets, MemoryBudget::DEFAULT)
+            .expect("still within 25 %");
         let check = bad.model_check;
         println!("transmitting scene: {check:?} {:?}", bad.warnings);
         assert_eq!(check.explained, Some(false), "{bad:?}");

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 use polnlos::bench::{charts, BenchPlan};
 use polnlos::files::{json, write_atomic};
+use polnlos::transport::MemoryBudget;
 
 /// Write the bench reports (JSON, Markdown, charts) into a folder.
 #[derive(Debug, clap::Args)]
@@ -38,7 +39,7 @@ fn write_chart(dir: &std::path::Path, name: &str, c: &charts::Chart) -> anyhow::
     Ok(())
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     super::out_dir(&a.out)?;
     let start = std::time::Instant::now();
     let plan = BenchPlan {
@@ -51,7 +52,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let pb = super::progress::bar(plan.steps(), "bench");
     let work = std::env::temp_dir().join(format!("polnlos-peer-{}", std::process::id()));
-    let reports = plan.run(&work, &mut || pb.inc(1))?;
+    let reports = plan.run(budget, &work, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
 

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use polnlos::calibrate::geometry::{detect, fit, scene_with_homography, Target};
 use polnlos::measure::Frame;
+use polnlos::transport::MemoryBudget;
 
 /// Calibrate a bench from images.
 #[derive(Debug, clap::Args)]
@@ -86,14 +87,14 @@ struct GeometryArgs {
     out: Option<PathBuf>,
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     match a.what {
         What::Geometry(g) => geometry(g),
-        What::Wall(w) => wall(w),
+        What::Wall(w) => wall(w, budget),
     }
 }
 
-fn wall(a: WallArgs) -> anyhow::Result<()> {
+fn wall(a: WallArgs, budget: MemoryBudget) -> anyhow::Result<()> {
     use polnlos::calibrate::wall::{fit_sources_from_scene, PointSource, SourceMeasurement};
     if a.measurement.len() != a.source.len() {
         return Err(super::Usage(format!(
@@ -142,7 +143,7 @@ fn wall(a: WallArgs) -> anyhow::Result<()> {
         })
         .collect();
     // Starts from the scene file's own material.
-    let f = fit_sources_from_scene(&scene, &sets).with_context(|| {
+    let f = fit_sources_from_scene(&scene, &sets, budget).with_context(|| {
         let files: Vec<String> = a
             .measurement
             .iter()

@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use polnlos::solve::condition;
+use polnlos::transport::MemoryBudget;
 
 /// Print the conditioning of T.
 #[derive(Debug, clap::Args)]
@@ -31,9 +32,9 @@ struct Output<'a> {
     svd_seconds: f64,
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
-    let (t, transport_seconds) = super::progress::build_transport(&scene)?;
+    let (t, transport_seconds) = super::progress::build_transport(&scene, budget)?;
     let start = std::time::Instant::now();
     let c = condition(&t)?;
     let svd_seconds = start.elapsed().as_secs_f64();
@@ -42,7 +43,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             scene: super::scene_name(&a.scene),
             rows: c.rows,
             cols: c.cols,
-            blocks: &t.blocks,
+            blocks: t.blocks(),
             kappa: c.kappa,
             rank: c.rank,
             threshold: c.threshold,
@@ -59,7 +60,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "T          {} x {} ({} blocks)",
             c.rows,
             c.cols,
-            t.blocks.len()
+            t.blocks().len()
         );
         println!("sigma_max  {smax:.6e}");
         println!("sigma_min  {smin:.6e}");

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use polnlos::files::frames::read_frames;
 use polnlos::files::npy;
 use polnlos::measure::{assemble, load, CaptureInfo, CaptureSource, Frame, FrameStack, Units};
+use polnlos::transport::MemoryBudget;
 
 /// Turn camera frames into a measurement for `polnlos reconstruct`.
 #[derive(Debug, clap::Args)]
@@ -125,7 +126,7 @@ fn variance_path(out: &Path) -> PathBuf {
     out.with_file_name(format!("{stem}.variance.npy"))
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let n = a.frames.len();
     let mut captures = Vec::with_capacity(n);
@@ -193,7 +194,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             }
             Some(g) => Units::Calibrated(g),
             // Only the estimated scale needs T.
-            None => Units::estimate(&super::progress::build_transport(&scene)?.0, &m)?,
+            None => Units::estimate(&super::progress::build_transport(&scene, budget)?.0, &m)?,
         };
         units.apply(&mut m);
         if let Some(w) = units.warning() {
@@ -212,7 +213,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         m.i.len(),
         blocks.len(),
         labels.join(" "),
-        scene.wall.plane.grid.count()
+        scene.wall().plane.grid.count()
     );
     match &m.variance {
         Some(v) => {

@@ -83,20 +83,21 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             .context("cannot start the worker threads")?;
     }
     faer::set_global_parallelism(faer::Par::rayon(0));
-    polnlos::files::space::budget_transport_memory();
+    // Every command that builds T builds it within this one budget.
+    let budget = polnlos::files::space::transport_memory_budget();
     match cli.command {
-        Command::Transport(a) => transport::run(a),
-        Command::Cond(a) => cond::run(a),
-        Command::Simulate(a) => simulate::run(a),
-        Command::Measure(a) => measure::run(a),
-        Command::Reconstruct(a) => reconstruct::run(a),
+        Command::Transport(a) => transport::run(a, budget),
+        Command::Cond(a) => cond::run(a, budget),
+        Command::Simulate(a) => simulate::run(a, budget),
+        Command::Measure(a) => measure::run(a, budget),
+        Command::Reconstruct(a) => reconstruct::run(a, budget),
         Command::Pattern(a) => pattern::run(a),
-        Command::Calibrate(a) => calibrate::run(a),
+        Command::Calibrate(a) => calibrate::run(a, budget),
         #[cfg(feature = "daemon")]
-        Command::Serve(a) => serve::run(a),
+        Command::Serve(a) => serve::run(a, budget),
         #[cfg(feature = "bench")]
-        Command::Bench(a) => bench::run(a),
-        Command::Plan(a) => plan::run(a),
+        Command::Bench(a) => bench::run(a, budget),
+        Command::Plan(a) => plan::run(a, budget),
     }
 }
 

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use polnlos::simulate::NoiseModel;
 use polnlos::solve::plan::plan;
+use polnlos::transport::MemoryBudget;
 
 /// Recommend the finest scene grid the measurement supports.
 #[derive(Debug, clap::Args)]
@@ -35,7 +36,7 @@ pub struct Args {
     json: bool,
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     anyhow::ensure!(
         a.grids.iter().all(|g| (1..=64).contains(g)),
         "--grids must be sides from 1 to 64"
@@ -51,7 +52,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         bits: a.bits,
         seed: 0,
     };
-    let p = plan(&scene, &noise, &grids, a.tolerance)?;
+    let p = plan(&scene, &noise, &grids, a.tolerance, budget)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&p)?);
         return Ok(());

@@ -14,13 +14,16 @@ pub fn bar(len: usize, what: &str) -> ProgressBar {
     pb
 }
 
-/// Builds `T` with a bar over its columns.
+/// Builds `T` within `budget`, with a bar over its columns.
 pub fn build_transport(
     scene: &polnlos::scene::Scene,
+    budget: polnlos::transport::MemoryBudget,
 ) -> anyhow::Result<(polnlos::transport::Transport, f64)> {
     let pb = bar(scene.cols(), "building T");
     let start = std::time::Instant::now();
-    let t = polnlos::transport::build_with_progress(scene, &|done| pb.set_position(done as u64))?;
+    let t = polnlos::transport::build_with_progress(scene, budget, &|done| {
+        pb.set_position(done as u64)
+    })?;
     pb.finish_and_clear();
     Ok((t, start.elapsed().as_secs_f64()))
 }

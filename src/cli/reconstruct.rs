@@ -8,6 +8,7 @@ use polnlos::solve::gram::Normal;
 use polnlos::solve::lambda::NoiseLevel;
 use polnlos::solve::reconstruct::{self as rec, SolveRequest, Solver};
 use polnlos::solve::{condition_with, AdmmSettings};
+use polnlos::transport::MemoryBudget;
 
 /// Recover the hidden scene from a measurement.
 #[derive(Debug, clap::Args)]
@@ -106,10 +107,10 @@ fn noise_from(path: &std::path::Path, measurement: &[f64]) -> anyhow::Result<Noi
     ))
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let meas = npy::read(&a.measurement)?;
-    let sgrid = scene.scene.plane.grid;
+    let sgrid = scene.hidden().plane.grid;
     let truth = a
         .truth
         .as_ref()
@@ -155,7 +156,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     super::out_dir(&a.out)?;
 
-    let (t, transport_seconds) = super::progress::build_transport(&scene)?;
+    let (t, transport_seconds) = super::progress::build_transport(&scene, budget)?;
     // ADMM-TV forms T^T T anyway: form it once, here, and take the
     // conditioning from its low-rank form unless the full spectrum is asked for.
     let normal = if a.solver == Solver::AdmmTv {

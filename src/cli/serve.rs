@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use polnlos::daemon::{Config, Daemon};
+use polnlos::transport::MemoryBudget;
 
 /// Run the acquisition daemon (camera, queues, HTTP API).
 #[derive(Debug, clap::Args)]
@@ -24,7 +25,7 @@ pub struct Args {
     data_dir: Option<PathBuf>,
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     use std::io::IsTerminal;
     // Colour only on a terminal: not into log files or journald.
     tracing_subscriber::fmt()
@@ -50,18 +51,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
-    rt.block_on(serve(config))
+    rt.block_on(serve(config, budget))
 }
 
-async fn serve(config: Config) -> anyhow::Result<()> {
+async fn serve(config: Config, budget: MemoryBudget) -> anyhow::Result<()> {
     let bind = config.bind;
     // The port first: a second daemon fails here, or on the data directory's
     // lock, before it touches anything of the first one's.
     let listener = tokio::net::TcpListener::bind(bind)
         .await
         .with_context(|| format!("cannot listen on {bind}"))?;
-    polnlos::files::space::budget_transport_memory();
-    let daemon = Daemon::start(config).await?;
+    let daemon = Daemon::start(config, budget).await?;
     tracing::info!("polnlos API on http://{}", listener.local_addr()?);
     notify(&[sd_notify::NotifyState::Ready]);
     let watchdog = watchdog();

@@ -7,6 +7,7 @@ use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::measure::render_wall;
 use polnlos::scene::Scene;
 use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};
+use polnlos::transport::MemoryBudget;
 use polnlos::transport::Transport;
 
 /// Simulate a measurement of a hidden scene.
@@ -95,7 +96,7 @@ fn parse_size(s: &str) -> Result<(usize, usize), super::Usage> {
     Ok((w, h))
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let model = NoiseModel {
         photons: a.photons,
@@ -106,20 +107,20 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     model.validate()?;
     let frame_size = a.frames.then(|| parse_size(&a.frame_size)).transpose()?;
     if a.frames {
-        if let Some(p) = scene.poses.iter().find(|p| p.homography.is_none()) {
+        if let Some(p) = scene.poses().iter().find(|p| p.homography.is_none()) {
             anyhow::bail!(
                 "--frames needs a homography for every pose; pose {:?} has none",
                 p.name
             );
         }
     }
-    let sgrid = scene.scene.plane.grid;
+    let sgrid = scene.hidden().plane.grid;
     let truth = load_grid_image(&a.truth, sgrid)?;
     super::out_dir(&a.out)?;
 
-    let (t, transport_seconds) = super::progress::build_transport(&scene)?;
+    let (t, transport_seconds) = super::progress::build_transport(&scene, budget)?;
     let clean = t.apply(&truth);
-    let peak = unpolarized_peak(&scene, &t, &truth)?;
+    let peak = unpolarized_peak(&scene, &t, &truth, budget)?;
     let sim = model.apply(clean, peak)?;
 
     npy::write_f64(
@@ -130,8 +131,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     npy::write_f64(&a.out.join("truth.npy"), &[sgrid.nv, sgrid.nu], &truth)?;
     let full = f64::from((1u32 << a.bits) - 1);
     let png_scale = 65535.0 / full;
-    let wgrid = t.wall_grid;
-    let blocks = (0..t.blocks.len())
+    let wgrid = t.wall_grid();
+    let blocks = (0..t.blocks().len())
         .map(|b| write_block(&a, &scene, &t, &sim, b, frame_size, png_scale))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let out = Output {
@@ -152,7 +153,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     json::write(&a.out.join("simulate.json"), &out)?;
     eprintln!(
         "simulated {} blocks of {} wall elements into {}",
-        t.blocks.len(),
+        t.blocks().len(),
         wgrid.count(),
         a.out.display()
     );
@@ -170,9 +171,9 @@ fn write_block(
     frame_size: Option<(usize, usize)>,
     png_scale: f64,
 ) -> anyhow::Result<BlockOut> {
-    let block = &t.blocks[b];
+    let block = &t.blocks()[b];
     let rows = t.block_rows(b);
-    let wgrid = t.wall_grid;
+    let wgrid = t.wall_grid();
     let scaled: Vec<u16> = sim.dn[rows.clone()]
         .iter()
         .map(|&d| (f64::from(d) * png_scale).round() as u16)
@@ -183,7 +184,7 @@ fn write_block(
     let frame_png = match (frame_size, homography) {
         (Some((w, h)), Some(hom)) => {
             let values: Vec<f64> = scaled.iter().map(|&v| f64::from(v)).collect();
-            let frame = render_wall(&values, hom, &scene.wall.plane, w, h, 0.0);
+            let frame = render_wall(&values, hom, &scene.wall().plane, w, h, 0.0);
             let px: Vec<u16> = frame.pixels.iter().map(|&v| v.round() as u16).collect();
             let name = format!("frame-{}.png", block.label());
             image::write_png16(&a.out.join(&name), w, h, &px)?;

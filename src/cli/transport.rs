@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use polnlos::files::npy;
+use polnlos::transport::MemoryBudget;
 
 /// Build the transport matrix of a scene.
 #[derive(Debug, clap::Args)]
@@ -75,7 +76,7 @@ fn write_t(
     Ok(())
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     if a.active {
         let Spot(u, v) = a.spot.unwrap_or(Spot(0.0, 0.0));
@@ -84,15 +85,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             bin_width: a.bin_width,
         };
         let start = std::time::Instant::now();
-        let at = polnlos::transport::active::build_active(&scene, &setup)?;
+        let at = polnlos::transport::active::build_active(&scene, &setup, budget)?;
         write_t(&a.out, &at.t, a.f32)?;
         let shape = [at.t.rows(), at.t.cols()];
         eprintln!(
             "active T: {} x {} ({} blocks x {} wall elements x {} time bins of {} m from path length {:.4} m) built in {:.3} s, written to {}",
             shape[0],
             shape[1],
-            at.t.blocks.len(),
-            at.t.wall_grid.nv,
+            at.t.blocks().len(),
+            at.t.wall_grid().nv,
             at.bins,
             a.bin_width,
             at.d0,
@@ -102,10 +103,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     let (t, secs) = match a.adaptive {
-        None => super::progress::build_transport(&scene)?,
+        None => super::progress::build_transport(&scene, budget)?,
         Some(tol) => {
             let start = std::time::Instant::now();
-            let (t, st) = polnlos::transport::build_adaptive(&scene, tol, a.max_m)?;
+            let (t, st) = polnlos::transport::build_adaptive(&scene, tol, a.max_m, budget)?;
             let levels: Vec<String> = st
                 .elements_at
                 .iter()
@@ -130,7 +131,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "T: {} x {} ({} blocks) built in {:.3} s, written to {}",
         t.rows(),
         t.cols(),
-        t.blocks.len(),
+        t.blocks().len(),
         secs,
         a.out.display()
     );

@@ -44,7 +44,7 @@ pub struct GeometryCalibration {
 /// (NaN without the scene).
 fn element_px(h: &crate::scene::Homography, scene: Option<&crate::scene::Scene>) -> f64 {
     let Some(s) = scene else { return f64::NAN };
-    let p = &s.wall.plane;
+    let p = &s.wall().plane;
     let du = p.size[0] / p.grid.nu as f64;
     match (h.apply(0.0, 0.0), h.apply(du, 0.0)) {
         (Some(a), Some(b)) => (b.0 - a.0).hypot(b.1 - a.1),
@@ -214,10 +214,12 @@ impl Daemon {
         // A refused fit names what loading the captures found too: a missing
         // dark subtraction is a likelier cause than a misplaced source.
         let mut fit =
-            fit_sources_from_scene(&scene, &sets).map_err(|e| match warnings.as_slice() {
-                [] => invalid(e.to_string()),
-                w => invalid(format!("{e}. Also: {}", w.join("; "))),
-            })?;
+            fit_sources_from_scene(&scene, &sets, self.scenes.budget()).map_err(
+                |e| match warnings.as_slice() {
+                    [] => invalid(e.to_string()),
+                    w => invalid(format!("{e}. Also: {}", w.join("; "))),
+                },
+            )?;
         // What the fit itself found (a model that does not explain the
         // captures, a better polarizer model) comes first; the answer says
         // each warning once, here, not again inside `fit`.

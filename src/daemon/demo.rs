@@ -40,8 +40,9 @@ pub(super) fn frames(
     let t = scenes
         .transport(&demo.scene)
         .map_err(|e| err(e.to_string()))?;
-    let l = pattern.render(t.scene_grid);
-    let peak = crate::simulate::unpolarized_peak(&scene, &t, &l).map_err(|e| err(e.to_string()))?;
+    let l = pattern.render(t.scene_grid());
+    let peak = crate::simulate::unpolarized_peak(&scene, &t, &l, scenes.budget())
+        .map_err(|e| err(e.to_string()))?;
     if peak <= 0.0 {
         return Err(err("the demo scene lights no wall element".into()));
     }
@@ -57,12 +58,13 @@ pub(super) fn frames(
         let (Some(s), Ok(t)) = (scenes.get(&name), scenes.transport(&name)) else {
             continue;
         };
-        let l = pattern.render(t.scene_grid);
+        let l = pattern.render(t.scene_grid());
         let i = t.apply(&l);
         // The point source's wall image, all blocks at once (a T of one column).
-        let source = crate::calibrate::wall::predict(&s, &DEMO_SOURCE, &material(&s))
-            .map_err(|e| err(e.to_string()))?;
-        for (b, block) in t.blocks.iter().enumerate() {
+        let source =
+            crate::calibrate::wall::predict(&s, &DEMO_SOURCE, &material(&s), scenes.budget())
+                .map_err(|e| err(e.to_string()))?;
+        for (b, block) in t.blocks().iter().enumerate() {
             if frames
                 .scene
                 .iter()
@@ -77,13 +79,13 @@ pub(super) fn frames(
             frames.scene.push((
                 block.pose.clone(),
                 block.polarizer_deg,
-                render_wall(&values, &h, &s.wall.plane, 512, 512, 0.0),
+                render_wall(&values, &h, &s.wall().plane, 512, 512, 0.0),
             ));
             let values: Vec<f64> = source[t.block_rows(b)].iter().map(|v| v * norm).collect();
             frames.source.push((
                 block.pose.clone(),
                 block.polarizer_deg,
-                render_wall(&values, &h, &s.wall.plane, 512, 512, 0.0),
+                render_wall(&values, &h, &s.wall().plane, 512, 512, 0.0),
             ));
             let mut dots = crate::calibrate::geometry::render(&target, &h, 512, 512);
             dots.pixels.iter_mut().for_each(|p| *p *= TARGET_LEVEL);
@@ -100,20 +102,20 @@ pub(super) fn frames(
 /// The scene's wall material as wall calibration fits it, with a unit source.
 fn material(s: &crate::scene::Scene) -> crate::calibrate::wall::WallParams {
     crate::calibrate::wall::WallParams {
-        alpha: s.wall.brdf.alpha,
-        ior: s.wall.brdf.eta,
-        kd: s.wall.brdf.kd,
+        alpha: s.wall().brdf.alpha,
+        ior: s.wall().brdf.eta,
+        kd: s.wall().brdf.kd,
         gain: 1.0,
     }
 }
 
 /// Same wall, same hidden-scene plane, no occluder difference: frames can be shared.
 fn same_bench(a: &crate::scene::Scene, b: &crate::scene::Scene) -> bool {
-    a.wall.plane.center == b.wall.plane.center
-        && a.wall.plane.size == b.wall.plane.size
-        && a.wall.plane.grid == b.wall.plane.grid
-        && a.wall.brdf == b.wall.brdf
-        && a.scene.plane.center == b.scene.plane.center
-        && a.scene.plane.size == b.scene.plane.size
-        && a.occluders == b.occluders
+    a.wall().plane.center == b.wall().plane.center
+        && a.wall().plane.size == b.wall().plane.size
+        && a.wall().plane.grid == b.wall().plane.grid
+        && a.wall().brdf == b.wall().brdf
+        && a.hidden().plane.center == b.hidden().plane.center
+        && a.hidden().plane.size == b.hidden().plane.size
+        && a.occluders() == b.occluders()
 }

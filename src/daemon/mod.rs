@@ -64,6 +64,7 @@ use crate::camera::synthetic::SyntheticBench;
 use crate::camera::worker::{CameraHandle, Opener};
 use crate::camera::CameraDevice;
 use crate::store::Store;
+use crate::transport::MemoryBudget;
 use metrics::Metrics;
 use queue::{CaptureQueue, Queue};
 use registry::JobRegistry;
@@ -195,10 +196,11 @@ impl Daemon {
     /// Starts with the camera the config names (see [`CameraSetup::configured`]).
     /// The data directory is opened, and locked, before any camera starts: a
     /// second daemon on the same directory stops there, touching nothing.
-    pub async fn start(config: Config) -> Result<Arc<Self>, DaemonError> {
+    /// Every scene's `T` is built within `budget`.
+    pub async fn start(config: Config, budget: MemoryBudget) -> Result<Arc<Self>, DaemonError> {
         config.validate()?;
         let store = Store::open(&config.data_dir)?;
-        let scenes = Arc::new(Scenes::load(&config.scene_files)?);
+        let scenes = Arc::new(Scenes::load(&config.scene_files, budget)?);
         let camera = CameraSetup::configured(&config, &scenes).await?;
         Self::start_with(config, store, scenes, camera).await
     }
@@ -317,7 +319,7 @@ impl Daemon {
             .names()
             .iter()
             .filter_map(|n| self.scenes.get(n))
-            .flat_map(|s| s.poses.iter().map(|p| p.name.clone()).collect::<Vec<_>>())
+            .flat_map(|s| s.poses().iter().map(|p| p.name.clone()).collect::<Vec<_>>())
             .collect();
         names.sort();
         names.dedup();

@@ -170,7 +170,7 @@ impl Solver {
         // This capture's block is filled at each step; the others come
         // from their captures, assembled as a reconstruction would.
         let own = t
-            .blocks
+            .blocks()
             .iter()
             .position(|b| {
                 b.pose == capture.pose && same_angle(b.polarizer_deg, capture.polarizer_deg)
@@ -181,13 +181,16 @@ impl Solver {
             .into_iter()
             .map(|c| load_capture(&d.store, c, &scene, &mut warnings))
             .collect::<Result<Vec<_>, _>>()?;
-        let other_blocks: Vec<_> = (0..t.blocks.len()).filter(|&b| b != own).collect();
-        let blocks: Vec<_> = other_blocks.iter().map(|&b| t.blocks[b].clone()).collect();
+        let other_blocks: Vec<_> = (0..t.blocks().len()).filter(|&b| b != own).collect();
+        let blocks: Vec<_> = other_blocks
+            .iter()
+            .map(|&b| t.blocks()[b].clone())
+            .collect();
         let mut m = assemble(&scene, &blocks, &others)?;
         Units::Calibrated(calibration).apply(&mut m);
         let mut i = vec![0.0; t.rows()];
         let mut variance = m.variance.as_ref().map(|_| vec![0.0; t.rows()]);
-        let n = t.wall_grid.count();
+        let n = t.wall_grid().count();
         for (k, &b) in other_blocks.iter().enumerate() {
             i[t.block_rows(b)].copy_from_slice(&m.i[k * n..(k + 1) * n]);
             if let (Some(acc), Some(v)) = (variance.as_mut(), m.variance.as_ref()) {
@@ -199,7 +202,7 @@ impl Solver {
             .truth
             .as_deref()
             .and_then(crate::simulate::patterns::Pattern::from_name)
-            .map(|p| p.render(t.scene_grid));
+            .map(|p| p.render(t.scene_grid()));
         Ok(Self {
             settings: AdmmSettings {
                 lambda: spec.lambda,
@@ -247,7 +250,7 @@ impl Solver {
             pixels: v.iter().map(|&x| x as f32).collect(),
         });
         // This block assembled as a reconstruction assembles it.
-        let block = &self.t.blocks[self.own];
+        let block = &self.t.blocks()[self.own];
         let own = CaptureFrames {
             name: format!("capture {}", self.capture.id),
             pose: block.pose.clone(),
@@ -372,7 +375,7 @@ fn run(
 ) -> Vec<Step> {
     let id = solver.capture.id;
     let dir = d.store.capture_dir(id);
-    let grid = solver.t.scene_grid;
+    let grid = solver.t.scene_grid();
     for snapshot in rx {
         pending.store(false, Ordering::SeqCst);
         match solver.step(&snapshot) {

@@ -105,7 +105,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         .get("truth")
         .and_then(|v| v.as_str())
         .and_then(crate::simulate::patterns::Pattern::from_name)
-        .map(|pat| pat.render(t.scene_grid));
+        .map(|pat| pat.render(t.scene_grid()));
     // Frame-to-frame noise when every capture has it; else reconstruct
     // estimates it from the measurement itself.
     let context = Context {
@@ -136,7 +136,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     let measurement = i;
     check(cancel)?;
     report.warnings.splice(0..0, warnings);
-    let grid = t.scene_grid;
+    let grid = t.scene_grid();
     let dir = d.store.reconstruction_dir(id);
     std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
     let file = |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
@@ -180,7 +180,7 @@ impl Daemon {
             return Ok(None);
         };
         let scene = self.scenes.scene(&rec.scene).map_err(|e| e.to_string())?;
-        let grid = scene.scene.plane.grid;
+        let grid = scene.hidden().plane.grid;
         let truth = pattern.render(grid);
         image::encode_png16(grid.nu, grid.nv, &image::unit_to_u16(&truth)).map(Some)
     }
@@ -203,7 +203,7 @@ fn stack_captures(
     t: &crate::transport::Transport,
 ) -> Result<Stacked, JobError> {
     let records = read_captures(store, &rec.captures)?;
-    stack_records(store, records, scene, &t.blocks)
+    stack_records(store, records, scene, t.blocks())
 }
 
 /// The solve a reconstruction row asks for: its parameters (the same keys

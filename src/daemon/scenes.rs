@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex};
 use crate::scene::{Scene, SceneError};
 use crate::solve::gram::Gram;
 use crate::solve::{condition_with, Conditioning, SolveError};
-use crate::transport::{build, Transport, TransportError};
+use crate::transport::{build, MemoryBudget, Transport, TransportError};
 
 /// Why a scene's `T` or conditioning is not available.
 #[derive(Debug, thiserror::Error)]
@@ -41,8 +41,9 @@ pub enum ScenesError {
     },
 }
 
-/// Scenes by name, with a cache of their `T`.
+/// Scenes by name, with a cache of their `T`, each built within one memory budget.
 pub struct Scenes {
+    budget: MemoryBudget,
     scenes: BTreeMap<String, Arc<Scene>>,
     /// Each scene's TOML text, for writing calibrated copies of it.
     sources: BTreeMap<String, String>,
@@ -52,8 +53,9 @@ pub struct Scenes {
 }
 
 impl Scenes {
-    /// Built-in scenes plus these files (a file replaces a built-in of the same name).
-    pub fn load(files: &[impl AsRef<Path>]) -> Result<Self, SceneError> {
+    /// Built-in scenes plus these files (a file replaces a built-in of the
+    /// same name), whose `T` will be built within `budget`.
+    pub fn load(files: &[impl AsRef<Path>], budget: MemoryBudget) -> Result<Self, SceneError> {
         let mut scenes = BTreeMap::new();
         let mut sources = BTreeMap::new();
         for (name, text) in crate::scene::builtin::BUILT_IN {
@@ -73,12 +75,21 @@ impl Scenes {
             scenes.insert(name, Arc::new(scene));
         }
         Ok(Self {
+            budget,
             scenes,
             sources,
             transports: Mutex::new(BTreeMap::new()),
             grams: Mutex::new(BTreeMap::new()),
             conditioning: Mutex::new(BTreeMap::new()),
         })
+    }
+
+    /// The memory budget every `T` of these scenes is built within.
+    ///
+    /// Other models of a scene built for a request (the wall fit's point
+    /// source, the demo's unpolarized image) are held to it too.
+    pub fn budget(&self) -> MemoryBudget {
+        self.budget
     }
 
     /// The scene with this name.
@@ -108,7 +119,7 @@ impl Scenes {
     pub fn transport(&self, name: &str) -> Result<Arc<Transport>, ScenesError> {
         let scene = self.scene(name)?;
         cached(&self.transports, name, || {
-            build(&scene).map_err(|source| ScenesError::Transport {
+            build(&scene, self.budget).map_err(|source| ScenesError::Transport {
                 name: name.to_string(),
                 source,
             })
@@ -181,7 +192,8 @@ mod tests {
     #[test]
     fn gram_is_formed_once_and_conditioning_comes_from_it() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let scenes = Scenes::load(&[large_scene(dir.path())]).expect("scenes");
+        let scenes =
+            Scenes::load(&[large_scene(dir.path())], MemoryBudget::DEFAULT).expect("scenes");
         let first = scenes.gram("large").expect("gram");
         let again = scenes.gram("large").expect("gram");
         assert!(Arc::ptr_eq(&first, &again));

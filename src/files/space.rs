@@ -4,6 +4,8 @@
 
 use std::path::Path;
 
+use crate::transport::MemoryBudget;
+
 /// Bytes an unprivileged process may still write on the file system of `dir`
 /// (`statvfs`: available blocks times fragment size).
 pub fn free_disk_bytes(dir: &Path) -> std::io::Result<u64> {
@@ -36,14 +38,15 @@ fn parse_mem_available(meminfo: &str) -> Option<u64> {
     kib.checked_mul(1024)
 }
 
-/// Sets the transport matrix's memory budget to a quarter of the available
-/// memory: what follows T (an SVD or a solver's working copy of it, the wall
-/// samples, the Gram matrix) takes about as much again, and the daemon keeps
-/// T cached.
-pub fn budget_transport_memory() {
-    if let Some(m) = available_memory_bytes() {
-        crate::transport::set_memory_limit(m / 4);
-    }
+/// The transport matrix's memory budget on this machine: a quarter of the
+/// available memory, because what follows T (an SVD or a solver's working
+/// copy of it, the wall samples, the Gram matrix) takes about as much again
+/// and the daemon keeps T cached; [`MemoryBudget::DEFAULT`] where the
+/// available memory is unknown.
+pub fn transport_memory_budget() -> MemoryBudget {
+    available_memory_bytes()
+        .map(|m| MemoryBudget::new(m / 4))
+        .unwrap_or_default()
 }
 
 #[cfg(test)]

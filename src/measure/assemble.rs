@@ -131,7 +131,7 @@ pub fn assemble(
             }
         })
         .collect();
-    stack(&frames, &scene.wall.plane)
+    stack(&frames, &scene.wall().plane)
 }
 
 /// How a measurement was put in units of `T l`.
@@ -201,6 +201,7 @@ pub fn to_model_units(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::transport::MemoryBudget;
 
     fn scene() -> Scene {
         match Scene::builtin("brewster-multi-3x3") {
@@ -246,7 +247,7 @@ mod tests {
             })
             .collect();
         let m = assemble(&s, &blocks, &captures).expect("every block has its capture");
-        let n = s.wall.plane.grid.count();
+        let n = s.wall().plane.grid.count();
         for (k, _) in blocks.iter().enumerate() {
             let want = 100.0 * (k + 1) as f64 / 1000.0 / 10.0;
             assert!(
@@ -290,7 +291,7 @@ mod tests {
         let s = crate::scene::Scene::builtin("brewster-crossed")
             .and_then(Result::ok)
             .expect("built-in scene");
-        let t = crate::transport::build(&s).expect("T");
+        let t = crate::transport::build(&s, MemoryBudget::DEFAULT).expect("T");
         let truth = vec![0.5; t.cols()];
         let i = t.apply(&truth);
         let mut m = Measurement {

@@ -134,8 +134,8 @@ pub fn plan_exposure(
     )?;
     let ones = vec![1.0; t.cols()];
     let lit = t.apply(&ones);
-    let mut out = Vec::with_capacity(t.blocks.len());
-    for (b, block) in t.blocks.iter().enumerate() {
+    let mut out = Vec::with_capacity(t.blocks().len());
+    for (b, block) in t.blocks().iter().enumerate() {
         let peak = lit[t.block_rows(b)].iter().copied().fold(0.0, f64::max);
         let rate = calibration * peak;
         let mut limited_by = None;
@@ -201,6 +201,7 @@ mod tests {
     use super::*;
     use crate::scene::Scene;
     use crate::transport::build;
+    use crate::transport::MemoryBudget;
 
     fn limits() -> CameraLimits {
         CameraLimits {
@@ -213,7 +214,11 @@ mod tests {
 
     #[test]
     fn the_brightest_admissible_scene_reaches_the_target_and_darker_blocks_wait_longer() {
-        let t = build(&Scene::builtin("brewster-rotating-3x3").unwrap().unwrap()).unwrap();
+        let t = build(
+            &Scene::builtin("brewster-rotating-3x3").unwrap().unwrap(),
+            MemoryBudget::DEFAULT,
+        )
+        .unwrap();
         let peak = t.apply(&[1.0; 9]);
         let p0 = peak[t.block_rows(0)].iter().copied().fold(0.0, f64::max);
         let cal = 0.5 / p0 / 1000.0; // block 0 reaches half scale in 1 ms
@@ -239,7 +244,11 @@ mod tests {
 
     #[test]
     fn camera_limits_are_reported_not_exceeded() {
-        let t = build(&Scene::builtin("brewster-crossed-3x3").unwrap().unwrap()).unwrap();
+        let t = build(
+            &Scene::builtin("brewster-crossed-3x3").unwrap().unwrap(),
+            MemoryBudget::DEFAULT,
+        )
+        .unwrap();
         let tiny = plan_exposure(&t, 1e-30, &limits(), &ExposureTarget::default()).unwrap();
         assert_eq!(tiny[0].exposure_us, 1e7);
         assert!(tiny[0]

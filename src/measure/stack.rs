@@ -85,7 +85,7 @@ mod tests {
 
     fn wall() -> Plane {
         match crate::scene::Scene::builtin("brewster-multi-3x3") {
-            Some(Ok(s)) => s.wall.plane,
+            Some(Ok(s)) => s.wall().plane.clone(),
             _ => panic!("built-in scene"),
         }
     }
@@ -100,7 +100,7 @@ mod tests {
 
     fn homography() -> Homography {
         match crate::scene::Scene::builtin("brewster-multi-3x3") {
-            Some(Ok(s)) => s.poses[0].homography.expect("pose B has a homography"),
+            Some(Ok(s)) => s.poses()[0].homography.expect("pose B has a homography"),
             _ => panic!("built-in scene"),
         }
     }

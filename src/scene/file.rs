@@ -4,7 +4,7 @@ use serde::Deserialize;
 
 use super::{
     crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography, Occluder, Plane,
-    Pose, Scene, SceneError, Wall,
+    Pose, Scene, SceneError, SceneParts, Wall,
 };
 use crate::optics::{Brdf, DiffuseModel, PolarizerModel, Vec3};
 
@@ -116,6 +116,94 @@ pub(super) fn parse(text: &str) -> Result<Scene, SceneError> {
         message: e.to_string().trim_end().to_string(),
     })?;
     validate(raw)
+}
+
+/// Validates the parts of an edited scene exactly as a file is validated: they
+/// are written back in the file's terms (the values a file gives, not the
+/// derived ones) and read again.
+pub(super) fn revalidate(parts: SceneParts) -> Result<Scene, SceneError> {
+    validate(RawFile::from(parts))
+}
+
+/// A count in the file's integer type; one too large for it stays too large.
+fn count(n: usize) -> i64 {
+    i64::try_from(n).unwrap_or(i64::MAX)
+}
+
+fn array(v: Vec3) -> [f64; 3] {
+    [v.x, v.y, v.z]
+}
+
+impl From<SceneParts> for RawFile {
+    fn from(p: SceneParts) -> Self {
+        let (w, s) = (p.wall.plane, p.hidden.plane);
+        let brdf = p.wall.brdf;
+        let mut polarizer = toml::Table::new();
+        polarizer.insert("model".into(), p.polarizer.name().into());
+        RawFile {
+            wall: RawWall {
+                center: array(w.center),
+                normal: array(w.normal),
+                u_axis: array(w.u),
+                size: w.size,
+                grid: [count(w.grid.nu), count(w.grid.nv)],
+                supersample: count(w.supersample),
+                roughness: brdf.alpha,
+                ior: brdf.eta,
+                ks: brdf.ks,
+                kd: brdf.kd,
+                diffuse: Some(brdf.diffuse.name().into()),
+            },
+            scene: RawScenePlane {
+                center: array(s.center),
+                normal: array(s.normal),
+                u_axis: array(s.u),
+                size: s.size,
+                grid: [count(s.grid.nu), count(s.grid.nv)],
+                supersample: count(s.supersample),
+                emitter: p.hidden.emitter,
+                polarization: p.hidden.polarization.map(array),
+            },
+            pose: p
+                .poses
+                .into_iter()
+                .map(|pose| RawPose {
+                    name: pose.name,
+                    camera: array(pose.camera),
+                    polarizer_deg: pose.analyzers.iter().map(|a| a.angle_deg).collect(),
+                    homography: pose.homography.map(|h| h.matrix()),
+                    region: pose.frame.map(|f| f.region.map(i64::from)),
+                    binning: pose.frame.map(|f| f.binning.map(i64::from)),
+                })
+                .collect(),
+            occluder: p
+                .occluders
+                .into_iter()
+                .map(|o| match o {
+                    Occluder::Rect {
+                        center,
+                        half_u,
+                        half_v,
+                    } => RawOccluder {
+                        rect: Some(RawRect {
+                            center: array(center),
+                            half_u: array(half_u),
+                            half_v: array(half_v),
+                        }),
+                        sphere: None,
+                    },
+                    Occluder::Sphere { center, radius } => RawOccluder {
+                        rect: None,
+                        sphere: Some(RawSphere {
+                            center: array(center),
+                            radius,
+                        }),
+                    },
+                })
+                .collect(),
+            polarizer: Some(polarizer),
+        }
+    }
 }
 
 fn point(key: &str, v: [f64; 3]) -> Result<Vec3, SceneError> {
@@ -510,7 +598,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
             plane: wall_plane,
             brdf,
         },
-        scene: HiddenScene {
+        hidden: HiddenScene {
             plane: scene_plane,
             emitter: s.emitter,
             polarization,
@@ -565,7 +653,7 @@ polarizer_deg = [0.0, 90.0]
         assert_eq!(s.wall.brdf.diffuse, DiffuseModel::Fresnel);
         assert_eq!(s.polarizer, PolarizerModel::Absorbing);
         assert_eq!(s.wall.plane.supersample, 1);
-        assert_eq!(s.scene.emitter, Emitter::Lambertian);
+        assert_eq!(s.hidden.emitter, Emitter::Lambertian);
         assert!(s.occluders.is_empty());
         assert_eq!(s.rows(), 24);
         assert_eq!(s.cols(), 4);
@@ -732,6 +820,41 @@ polarizer_deg = [0.0, 90.0]
     fn duplicate_pose_names_are_rejected() {
         let twice = format!("{BASE}\n[[pose]]\nname = \"A\"\ncamera = [0.4, 0.1, 0.3]\n");
         assert_eq!(parse(&twice).unwrap_err().key(), Some("pose[1].name"));
+    }
+
+    #[test]
+    fn an_edit_is_validated_again_and_recomputes_what_follows() {
+        let s = parse(BASE).unwrap();
+        let same = s.clone().edit(|_| {}).unwrap();
+        assert_eq!(same.rows(), s.rows());
+        assert!((same.poses[0].analyzers[1].axis - s.poses[0].analyzers[1].axis).norm() < 1e-12);
+
+        let finer = s
+            .clone()
+            .edit(|p| p.hidden.plane.grid = Grid { nu: 5, nv: 6 })
+            .unwrap();
+        assert_eq!(finer.cols(), 30);
+
+        // A moved camera gets its own crossed sheet, as in a file.
+        let camera = Vec3::new(0.3, 0.2, 0.3);
+        let moved = s.clone().edit(|p| p.poses[0].camera = camera).unwrap();
+        let from_file = with("camera = [0.416, 0.0, 0.277]", "camera = [0.3, 0.2, 0.3]").unwrap();
+        assert!(
+            (moved.poses[0].analyzers[0].axis - from_file.poses[0].analyzers[0].axis).norm()
+                < 1e-12
+        );
+
+        type Change = Box<dyn FnOnce(&mut SceneParts)>;
+        let cases: [(&str, Change); 4] = [
+            ("scene.grid", Box::new(|p| p.hidden.plane.grid.nu = 0)),
+            ("wall.roughness", Box::new(|p| p.wall.brdf.alpha = 2.0)),
+            ("pose[0].camera", Box::new(|p| p.poses[0].camera.z = -1.0)),
+            ("pose", Box::new(|p| p.poses.clear())),
+        ];
+        for (key, change) in cases {
+            let e = s.clone().edit(change).unwrap_err();
+            assert_eq!(e.key(), Some(key), "{e}");
+        }
     }
 
     proptest::proptest! {

@@ -125,17 +125,35 @@ impl Pose {
 }
 
 /// A validated scene: wall, hidden scene, poses and occluders.
+///
+/// Its fields are private so that it stays as validation left it: read them
+/// through the accessors, change them through [`Scene::edit`], which runs the
+/// loader's validation again.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scene {
-    /// The wall.
+    wall: Wall,
+    hidden: HiddenScene,
+    poses: Vec<Pose>,
+    occluders: Vec<Occluder>,
+    polarizer: PolarizerModel,
+}
+
+/// The parts of a [`Scene`], open for change inside [`Scene::edit`].
+///
+/// Only the values a scene file gives are read back: the derived ones (a
+/// plane's `v` axis, an analyzer's `axis` and `normal`) are recomputed from
+/// them, as when the file is loaded, so a moved camera gets its own crossed sheet.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneParts {
+    /// The wall (file section `[wall]`).
     pub wall: Wall,
-    /// The hidden scene.
-    pub scene: HiddenScene,
-    /// Camera poses, in file order (the row-block order of `T`).
+    /// The hidden scene (file section `[scene]`).
+    pub hidden: HiddenScene,
+    /// Camera poses, in file order (`[[pose]]`); an analyzer counts by its `angle_deg`.
     pub poses: Vec<Pose>,
-    /// Occluders between scene and wall.
+    /// Occluders between scene and wall (`[[occluder]]`).
     pub occluders: Vec<Occluder>,
-    /// How every pose's polarizer sheet acts on oblique rays (MODEL.md `[polarizer] model`).
+    /// How every pose's polarizer sheet acts on oblique rays (`[polarizer] model`).
     pub polarizer: PolarizerModel,
 }
 
@@ -159,6 +177,46 @@ impl Scene {
         Self::from_toml_str(&text).map_err(|e| e.in_file(path))
     }
 
+    /// The same scene changed by `change`, validated again as a scene file is:
+    /// how a bench or a fit varies one value of a loaded scene without ever
+    /// holding one that the loader would refuse (the error names the key).
+    pub fn edit(self, change: impl FnOnce(&mut SceneParts)) -> Result<Scene, SceneError> {
+        let mut parts = SceneParts {
+            wall: self.wall,
+            hidden: self.hidden,
+            poses: self.poses,
+            occluders: self.occluders,
+            polarizer: self.polarizer,
+        };
+        change(&mut parts);
+        file::revalidate(parts)
+    }
+
+    /// The wall.
+    pub fn wall(&self) -> &Wall {
+        &self.wall
+    }
+
+    /// The hidden scene (the file's `[scene]` section).
+    pub fn hidden(&self) -> &HiddenScene {
+        &self.hidden
+    }
+
+    /// Camera poses, in file order (the row-block order of `T`).
+    pub fn poses(&self) -> &[Pose] {
+        &self.poses
+    }
+
+    /// Occluders between scene and wall.
+    pub fn occluders(&self) -> &[Occluder] {
+        &self.occluders
+    }
+
+    /// How every pose's polarizer sheet acts on oblique rays (MODEL.md `[polarizer] model`).
+    pub fn polarizer(&self) -> PolarizerModel {
+        self.polarizer
+    }
+
     /// Number of rows of the stacked `T`: wall elements times row blocks.
     pub fn rows(&self) -> usize {
         self.wall.plane.grid.count() * self.block_count()
@@ -166,7 +224,7 @@ impl Scene {
 
     /// Number of columns of `T`: scene elements.
     pub fn cols(&self) -> usize {
-        self.scene.plane.grid.count()
+        self.hidden.plane.grid.count()
     }
 
     /// Number of (pose, angle) row blocks.

@@ -12,7 +12,7 @@ pub mod patterns;
 use rand::SeedableRng;
 
 use crate::scene::Scene;
-use crate::transport::{Transport, TransportError};
+use crate::transport::{MemoryBudget, Transport, TransportError};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal, Poisson};
 
@@ -149,11 +149,16 @@ impl NoiseModel {
 
 /// Brightest element of the scene's unpolarized wall image, `max(T_nopol l)`,
 /// which sets the exposure. Reuses `t` when the scene has no polarizer;
-/// otherwise builds the polarizer-free `T` (one block per pose).
-pub fn unpolarized_peak(scene: &Scene, t: &Transport, l: &[f64]) -> Result<f64, TransportError> {
-    let has_polarizer = scene.poses.iter().any(|p| !p.analyzers.is_empty());
+/// otherwise builds the polarizer-free `T` (one block per pose) within `budget`.
+pub fn unpolarized_peak(
+    scene: &Scene,
+    t: &Transport,
+    l: &[f64],
+    budget: MemoryBudget,
+) -> Result<f64, TransportError> {
+    let has_polarizer = scene.poses().iter().any(|p| !p.analyzers.is_empty());
     let image = if has_polarizer {
-        crate::transport::build(&scene.without_polarizers())?.apply(l)
+        crate::transport::build(&scene.without_polarizers(), budget)?.apply(l)
     } else {
         t.apply(l)
     };

@@ -210,7 +210,7 @@ pub fn admm_tv_warm(
 ) -> Result<Reconstruction, SolveError> {
     check_tol(settings.tol)?;
     let start = Instant::now();
-    let grid = t.scene_grid;
+    let grid = t.scene_grid();
     let n = t.cols();
     let scale = normal.scale();
     let ti = &normal.ti;
@@ -433,5 +433,5 @@ pub fn admm_tv_warm(
 pub(crate) fn objective_of(t: &Transport, i: &[f64], l: &[f64], lambda: f64) -> (f64, f64) {
     let pred = t.apply(l);
     let misfit: f64 = pred.iter().zip(i).map(|(p, m)| (m - p) * (m - p)).sum();
-    (misfit, misfit + lambda * total_variation(t.scene_grid, l))
+    (misfit, misfit + lambda * total_variation(t.scene_grid(), l))
 }

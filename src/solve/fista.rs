@@ -220,7 +220,7 @@ pub fn fista_tv_prepared(
 
     let t1 = Instant::now();
     let mu = if lip > 0.0 { 0.5 * lambda / lip } else { 0.0 };
-    let mut prox = Prox::new(t.scene_grid);
+    let mut prox = Prox::new(t.scene_grid());
     let mut x = vec![0.0; n];
     let mut x_old = vec![0.0; n];
     let mut y = vec![0.0; n];
@@ -306,7 +306,11 @@ mod tests {
         for k in 0..n {
             data[k * n + k] = 1.0;
         }
-        Transport::from_col_major(n, n, data, vec![], Grid { nu: n, nv: 1 }, grid)
+        let block = crate::transport::Block {
+            pose: "A".into(),
+            polarizer_deg: None,
+        };
+        Transport::from_col_major(n, n, data, vec![block], Grid { nu: n, nv: 1 }, grid)
     }
 
     #[test]

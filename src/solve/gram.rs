@@ -83,7 +83,7 @@ impl Gram {
         let start = std::time::Instant::now();
         let mut gram = Self::new(t.as_mat());
         if t.cols() >= LOW_RANK_MIN_COLS {
-            gram.low_rank = LowRank::of_gram(gram.lower.as_ref(), t.scene_grid, par());
+            gram.low_rank = LowRank::of_gram(gram.lower.as_ref(), t.scene_grid(), par());
         }
         gram.seconds = start.elapsed().as_secs_f64();
         gram

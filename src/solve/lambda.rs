@@ -510,6 +510,7 @@ mod tests {
     use crate::scene::{Grid, Scene};
     use crate::simulate::patterns::Pattern;
     use crate::transport::build;
+    use crate::transport::MemoryBudget;
 
     #[test]
     fn projection_residual_is_orthogonal_to_the_columns_and_leaves_the_rest() {
@@ -532,9 +533,12 @@ mod tests {
 
     /// Brewster bench, poses B and C, wall 32x32, scene `n x n`.
     pub(super) fn bench(n: usize) -> Transport {
-        let mut s = Scene::builtin("brewster-multi").unwrap().unwrap();
-        s.scene.plane.grid = Grid { nu: n, nv: n };
-        build(&s).unwrap()
+        let s = Scene::builtin("brewster-multi")
+            .unwrap()
+            .unwrap()
+            .edit(|s| s.hidden.plane.grid = Grid { nu: n, nv: n })
+            .unwrap();
+        build(&s, MemoryBudget::DEFAULT).unwrap()
     }
 
     /// Gaussian noise of standard deviation `sigma` (Box-Muller on an LCG).
@@ -543,7 +547,7 @@ mod tests {
     fn noisy(t: &Transport, pattern: Pattern, seed: u64) -> (Vec<f64>, f64) {
         use rand::SeedableRng;
         use rand_distr::Distribution;
-        let clean = t.apply(&pattern.render(t.scene_grid));
+        let clean = t.apply(&pattern.render(t.scene_grid()));
         let sigma = 0.01 * clean.iter().copied().fold(0.0, f64::max);
         let noise = rand_distr::Normal::new(0.0, sigma).expect("a finite sigma");
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
@@ -589,7 +593,7 @@ mod tests {
             let (cold, cold_choice) = solve(false);
             let (warm, warm_choice) = solve(true);
             let decades = (warm_choice.lambda / cold_choice.lambda).log10().abs();
-            let truth = Pattern::Disk.render(t.scene_grid);
+            let truth = Pattern::Disk.render(t.scene_grid());
             let psnr = |r: &Reconstruction| crate::solve::metrics::psnr(&truth, &r.image);
             println!(
                 "{n}x{n}: lambda {:.4e} (cold) {:.4e} (warm), {decades:.4} decade apart; PSNR {:.2} / {:.2} dB",

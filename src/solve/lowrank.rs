@@ -347,6 +347,7 @@ impl Neumann {
 mod tests {
     use super::*;
     use crate::solve::tv::{add_divergence_adjoint, gradient};
+    use crate::transport::MemoryBudget;
 
     /// A Gram of rank `r` with eigenvalues spread over `decades`, `n x n`.
     fn low_rank_gram(n: usize, r: usize, decades: f64) -> Mat<f64> {
@@ -463,12 +464,13 @@ mod tests {
     fn admm_through_the_low_rank_form_matches_the_dense_factor() {
         use crate::solve::admm::{admm_tv_prepared, AdmmSettings};
         use crate::solve::gram::Normal;
-        let mut scene = crate::scene::Scene::builtin("brewster-multi")
+        let scene = crate::scene::Scene::builtin("brewster-multi")
             .unwrap()
+            .unwrap()
+            .edit(|s| s.hidden.plane.grid = Grid { nu: 24, nv: 24 })
             .unwrap();
-        scene.scene.plane.grid = Grid { nu: 24, nv: 24 };
-        let t = crate::transport::build(&scene).unwrap();
-        let truth = crate::simulate::patterns::Pattern::Letter.render(t.scene_grid);
+        let t = crate::transport::build(&scene, MemoryBudget::DEFAULT).unwrap();
+        let truth = crate::simulate::patterns::Pattern::Letter.render(t.scene_grid());
         let i: Vec<f64> = t
             .apply(&truth)
             .iter()

@@ -14,9 +14,9 @@ use serde::Serialize;
 use super::conditioning::condition;
 use super::lambda::NoiseLevel;
 use super::SolveError;
-use crate::scene::{Grid, Scene};
+use crate::scene::{Grid, Scene, SceneError};
 use crate::simulate::NoiseModel;
-use crate::transport::{build, TransportError};
+use crate::transport::{build, MemoryBudget, TransportError};
 
 /// One candidate grid.
 #[derive(Debug, Clone, Serialize)]
@@ -57,6 +57,9 @@ pub enum PlanError {
     /// Building `T`.
     #[error(transparent)]
     Transport(#[from] TransportError),
+    /// A grid that makes the scene invalid (zero, or past the loader's limit).
+    #[error(transparent)]
+    Scene(#[from] SceneError),
     /// The SVD.
     #[error(transparent)]
     Solve(#[from] SolveError),
@@ -65,24 +68,26 @@ pub enum PlanError {
     Noise(#[from] crate::simulate::SimulateError),
 }
 
-/// Plans the scene grid for `scene` under the camera `noise`.
+/// Plans the scene grid for `scene` under the camera `noise`, each candidate `T` built within `budget`.
 pub fn plan(
     scene: &Scene,
     noise: &NoiseModel,
     grids: &[usize],
     tolerance: f64,
+    budget: MemoryBudget,
 ) -> Result<Plan, PlanError> {
     noise.validate()?;
     let mut rows = Vec::new();
     let mut sigma = 0.0;
     for &g in grids {
-        let mut s = scene.clone();
-        s.scene.plane.grid = Grid { nu: g, nv: g };
-        let t = build(&s)?;
+        let s = scene
+            .clone()
+            .edit(|s| s.hidden.plane.grid = Grid { nu: g, nv: g })?;
+        let t = build(&s, budget)?;
         let c = condition(&t)?;
         // Exposure as in `simulate`: `photons` at the unpolarized peak of a fully lit scene.
         let ones = vec![1.0; t.cols()];
-        let peak = crate::simulate::unpolarized_peak(&s, &t, &ones)?;
+        let peak = crate::simulate::unpolarized_peak(&s, &t, &ones, budget)?;
         let epu = noise.photons / peak.max(1e-300);
         let full = f64::from((1u32 << noise.bits) - 1);
         let grey = t.apply(&vec![0.5; t.cols()]);
@@ -122,8 +127,8 @@ mod tests {
             bits: 16,
             seed: 1,
         };
-        let dim = plan(&s, &shot(1e3), &grids, 0.1).unwrap();
-        let bright = plan(&s, &shot(1e5), &grids, 0.1).unwrap();
+        let dim = plan(&s, &shot(1e3), &grids, 0.1, MemoryBudget::DEFAULT).unwrap();
+        let bright = plan(&s, &shot(1e5), &grids, 0.1, MemoryBudget::DEFAULT).unwrap();
         // Amplification grows with the grid, and shrinks as sqrt(photons).
         for w in dim.rows.windows(2) {
             assert!(

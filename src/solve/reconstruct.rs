@@ -315,7 +315,7 @@ fn grid_warning(t: &Transport, cond: &Conditioning, noise: &NoiseLevel) -> Optio
     (amp > PLAN_TOLERANCE).then(|| {
         format!(
             "the {}x{} scene grid is finer than this measurement supports: its noise alone gives a least-squares RMS error of {amp:.2e} of the radiance range (> {PLAN_TOLERANCE}); `polnlos plan` suggests a coarser grid, or take more frames",
-            t.scene_grid.nu, t.scene_grid.nv
+            t.scene_grid().nu, t.scene_grid().nv
         )
     })
 }

@@ -87,14 +87,14 @@ impl Report {
         warnings.extend(rec.stats.warnings.iter().cloned());
         Self {
             scene,
-            scene_grid: t.scene_grid,
-            wall_grid: t.wall_grid,
-            blocks: t.blocks.clone(),
+            scene_grid: t.scene_grid(),
+            wall_grid: t.wall_grid(),
+            blocks: t.blocks().to_vec(),
             rows: t.rows(),
             cols: t.cols(),
             transport_seconds,
             conditioning: cond.into(),
-            metrics: truth.map(|tr| super::metrics::compare(t.scene_grid, tr, &rec.image)),
+            metrics: truth.map(|tr| super::metrics::compare(t.scene_grid(), tr, &rec.image)),
             solver: rec.stats,
             lambda_choice,
             model_check: None,

@@ -26,7 +26,7 @@
 use rayon::prelude::*;
 
 use super::build::blocks_of;
-use super::{Transport, TransportError};
+use super::{MemoryBudget, Transport, TransportError};
 use crate::optics::{Polarization, Vec3};
 use crate::scene::{Grid, Scene};
 
@@ -61,8 +61,12 @@ pub struct ActiveTransport {
 }
 
 /// Builds the time-resolved transport of `scene` (wall, voxels on the scene
-/// grid, poses as laser + detector positions, occluders).
-pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTransport, TransportError> {
+/// grid, poses as laser + detector positions, occluders), refusing one over `budget`.
+pub fn build_active(
+    scene: &Scene,
+    setup: &ActiveSetup,
+    budget: MemoryBudget,
+) -> Result<ActiveTransport, TransportError> {
     if !(setup.bin_width > 0.0 && setup.bin_width.is_finite()) {
         return Err(TransportError::Parameter {
             name: "bin-width",
@@ -70,7 +74,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
             reason: "must be a positive path length in metres",
         });
     }
-    let wall = &scene.wall.plane;
+    let wall = &scene.wall().plane;
     let (hu, hv) = (0.5 * wall.size[0], 0.5 * wall.size[1]);
     if setup.spot.0.abs() > hu || setup.spot.1.abs() > hv {
         return Err(TransportError::Parameter {
@@ -80,7 +84,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
         });
     }
     let n = wall.normal;
-    let brdf = scene.wall.brdf;
+    let brdf = scene.wall().brdf;
     let p = wall.point(setup.spot.0, setup.spot.1);
     let patches: Vec<Vec3> = {
         let mut c = wall.clone();
@@ -88,11 +92,11 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
         c.sample_points()
     };
     let voxels: Vec<Vec3> = {
-        let mut s = scene.scene.plane.clone();
+        let mut s = scene.hidden().plane.clone();
         s.supersample = 1;
         s.sample_points()
     };
-    let area = scene.scene.plane.element_area();
+    let area = scene.hidden().plane.element_area();
     let n_wall = patches.len();
     let n_vox = voxels.len();
 
@@ -109,7 +113,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
     let blocks = blocks_of(scene);
     let per_block = n_wall * bins;
     let rows = per_block * blocks.len();
-    super::check_size(rows, n_vox, bins * blocks.len(), 0.0)?;
+    super::check_size(budget, rows, n_vox, bins * blocks.len(), 0.0)?;
 
     // Per block, computed once: the direction from the spot to the laser and,
     // per patch, the direction to the camera and the effective analyzer axis.
@@ -118,7 +122,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
         to_camera: Vec<(Vec3, Option<Vec3>)>,
     }
     let views: Vec<BlockView> = scene
-        .poses
+        .poses()
         .iter()
         .flat_map(|pose| {
             let axes: Vec<Option<crate::scene::Analyzer>> = if pose.analyzers.is_empty() {
@@ -126,7 +130,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
             } else {
                 pose.analyzers.iter().copied().map(Some).collect()
             };
-            let model = scene.polarizer;
+            let model = scene.polarizer();
             let cam = pose.camera;
             let patches = &patches;
             axes.into_iter().map(move |q| BlockView {
@@ -151,7 +155,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
             let to_x = x - p;
             let r_px = to_x.norm();
             let w_px = to_x / r_px;
-            if n.dot(&w_px) <= 0.0 || scene.occluders.iter().any(|o| o.blocks(&x, &p)) {
+            if n.dot(&w_px) <= 0.0 || scene.occluders().iter().any(|o| o.blocks(&x, &p)) {
                 return;
             }
             let no_polarizer = Polarization {
@@ -172,7 +176,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
                 let r = to_x.norm();
                 let w_cx = to_x / r;
                 let cos = n.dot(&w_cx);
-                if cos <= 0.0 || scene.occluders.iter().any(|o| o.blocks(&x, c)) {
+                if cos <= 0.0 || scene.occluders().iter().any(|o| o.blocks(&x, c)) {
                     continue;
                 }
                 let b = (((r_px + r - d0) / setup.bin_width).floor() as usize).min(bins - 1);
@@ -204,7 +208,7 @@ pub fn build_active(scene: &Scene, setup: &ActiveSetup) -> Result<ActiveTranspor
                 nu: bins,
                 nv: n_wall,
             },
-            scene.scene.plane.grid,
+            scene.hidden().plane.grid,
         ),
         bins,
         d0,
@@ -222,16 +226,16 @@ mod tests {
     #[test]
     fn one_entry_matches_the_formula_written_out() {
         let s = scene("brewster-nopol-3x3");
-        let a = build_active(&s, &ActiveSetup::default()).unwrap();
-        let wall = &s.wall.plane;
+        let a = build_active(&s, &ActiveSetup::default(), MemoryBudget::DEFAULT).unwrap();
+        let wall = &s.wall().plane;
         let (j, k) = (wall.grid.index(20, 9), 4);
         let c = wall.point(wall.local(20, 9, 0, 0).0, wall.local(20, 9, 0, 0).1);
-        let sp = &s.scene.plane;
+        let sp = &s.hidden().plane;
         let (iu, iv) = sp.grid.coords(k);
         let (u, v) = sp.local(iu, iv, 0, 0);
         let x = sp.point(u, v);
         let p = wall.center;
-        let o = s.poses[0].camera;
+        let o = s.poses()[0].camera;
         let n = wall.normal;
         let no = Polarization {
             analyzer: None,
@@ -244,12 +248,12 @@ mod tests {
             (o - c).normalize(),
         );
         let expect = sp.element_area() / std::f64::consts::PI
-            * s.wall.brdf.eval(&n, &wl, &wpx, no)
+            * s.wall().brdf.eval(&n, &wl, &wpx, no)
             * n.dot(&wpx)
             / (x - p).norm_squared()
             * n.dot(&wcx)
             / (x - c).norm_squared()
-            * s.wall.brdf.eval(&n, &wcx, &wco, no);
+            * s.wall().brdf.eval(&n, &wcx, &wco, no);
         let b = (((x - p).norm() + (x - c).norm() - a.d0) / 0.01).floor() as usize;
         let got = a.t.get(j * a.bins + b, k);
         assert!((got / expect - 1.0).abs() < 1e-12, "{got} vs {expect}");
@@ -261,9 +265,18 @@ mod tests {
 
     #[test]
     fn the_crossed_polarizer_only_removes_light_and_time_covers_the_paths() {
-        let open = build_active(&scene("brewster-nopol-3x3"), &ActiveSetup::default()).unwrap();
-        let crossed =
-            build_active(&scene("brewster-crossed-3x3"), &ActiveSetup::default()).unwrap();
+        let open = build_active(
+            &scene("brewster-nopol-3x3"),
+            &ActiveSetup::default(),
+            MemoryBudget::DEFAULT,
+        )
+        .unwrap();
+        let crossed = build_active(
+            &scene("brewster-crossed-3x3"),
+            &ActiveSetup::default(),
+            MemoryBudget::DEFAULT,
+        )
+        .unwrap();
         assert_eq!(open.t.rows(), crossed.t.rows());
         let mut fewer = 0;
         for (a, b) in crossed.t.col_major().iter().zip(open.t.col_major()) {
@@ -287,6 +300,7 @@ mod tests {
                 bin_width: 0.0,
                 ..ActiveSetup::default()
             },
+            MemoryBudget::DEFAULT,
         )
         .unwrap_err();
         assert!(e.to_string().starts_with("bin-width = 0"), "{e}");
@@ -296,6 +310,7 @@ mod tests {
                 spot: (0.5, 0.0),
                 ..ActiveSetup::default()
             },
+            MemoryBudget::DEFAULT,
         )
         .unwrap_err();
         assert!(e.to_string().contains("spot"), "{e}");

@@ -15,7 +15,7 @@
 //! keeps the scene file's `supersample`.
 
 use super::build::{blocks_of, build_rows};
-use super::{Transport, TransportError};
+use super::{MemoryBudget, Transport, TransportError};
 use crate::scene::Scene;
 
 /// What an adaptive build did.
@@ -56,14 +56,16 @@ fn check(tolerance: f64, max_m: usize) -> Result<(), TransportError> {
 }
 
 /// Builds `T` with adaptive wall supersampling (the scene's own wall
-/// `supersample` is ignored: refinement starts at the element centres).
+/// `supersample` is ignored: refinement starts at the element centres);
+/// `T` and each refinement pass must fit `budget`.
 pub fn build_adaptive(
     scene: &Scene,
     tolerance: f64,
     max_m: usize,
+    budget: MemoryBudget,
 ) -> Result<(Transport, AdaptiveStats), TransportError> {
     check(tolerance, max_m)?;
-    let plane = &scene.wall.plane;
+    let plane = &scene.wall().plane;
     let n_wall = plane.grid.count();
     let blocks = scene.block_count();
     let rows = scene.rows();
@@ -86,7 +88,7 @@ pub fn build_adaptive(
     };
 
     let all: Vec<usize> = (0..n_wall).collect();
-    let mut data = build_rows(scene, samples_of(&all, 1), n_wall, 1, &|_| {})?;
+    let mut data = build_rows(scene, budget, samples_of(&all, 1), n_wall, 1, &|_| {})?;
     let mut samples = n_wall;
     let norm2: f64 = data.iter().map(|v| v * v).sum();
     let budget2 = tolerance * tolerance * norm2;
@@ -123,7 +125,7 @@ pub fn build_adaptive(
             let pts = samples_of(&group, m2);
             samples += pts.len();
             let sub_rows = group.len() * blocks;
-            let finer = build_rows(scene, pts, group.len(), m2 * m2, &|_| {})?;
+            let finer = build_rows(scene, budget, pts, group.len(), m2 * m2, &|_| {})?;
             let mut change = vec![0.0f64; group.len()];
             for k in 0..cols {
                 for b in 0..blocks {
@@ -162,7 +164,7 @@ pub fn build_adaptive(
         data,
         blocks_of(scene),
         plane.grid,
-        scene.scene.plane.grid,
+        scene.hidden().plane.grid,
     );
     Ok((
         t,
@@ -246,10 +248,9 @@ mod tests {
         // With a tiny tolerance and max_m = 2 every element ends at m = 2 (the
         // scene is 3x3, so no second difference is exactly 0):
         // exactly MODEL.md's uniform m = 2 (same samples, same order).
-        let mut s = scene("occluder-crossed-3x3");
-        let (t, st) = build_adaptive(&s, 1e-300, 2).unwrap();
-        s.wall.plane.supersample = 2;
-        let u = build(&s).unwrap();
+        let s = scene("occluder-crossed-3x3");
+        let (t, st) = build_adaptive(&s, 1e-300, 2, MemoryBudget::DEFAULT).unwrap();
+        let u = uniform(&s, 2);
         assert_eq!(st.elements_at, vec![(1, 0), (2, 32 * 32)]);
         assert!(!st.met);
         let worst = t
@@ -263,18 +264,18 @@ mod tests {
     }
 
     fn uniform(s: &Scene, m: usize) -> Transport {
-        let mut u = s.clone();
-        u.wall.plane.supersample = m;
-        build(&u).unwrap()
+        let u = s.clone().edit(|s| s.wall.plane.supersample = m).unwrap();
+        build(&u, MemoryBudget::DEFAULT).unwrap()
     }
 
     #[test]
     fn on_a_glossy_wall_it_beats_uniform_sampling_of_the_same_cost() {
         // Narrow specular lobe (alpha 0.05); the reference is uniform m = 16.
-        let mut s = scene("brewster-crossed");
-        s.wall.brdf.alpha = 0.05;
+        let s = scene("brewster-crossed")
+            .edit(|s| s.wall.brdf.alpha = 0.05)
+            .unwrap();
         let reference = uniform(&s, 16);
-        let (t, st) = build_adaptive(&s, 1e-2, 16).unwrap();
+        let (t, st) = build_adaptive(&s, 1e-2, 16, MemoryBudget::DEFAULT).unwrap();
         assert!(st.met);
         let refined: usize = st.elements_at.iter().skip(1).map(|e| e.1).sum();
         assert!(refined < 32 * 32 / 2, "{:?}", st.elements_at);
@@ -293,8 +294,8 @@ mod tests {
     #[test]
     fn behind_an_occluder_it_refines_the_shadow_edges_first() {
         let s = scene("occluder-crossed-3x3");
-        let (t1, _) = build_adaptive(&s, 1.0, 16).unwrap();
-        let (t, st) = build_adaptive(&s, 3e-2, 16).unwrap();
+        let (t1, _) = build_adaptive(&s, 1.0, 16, MemoryBudget::DEFAULT).unwrap();
+        let (t, st) = build_adaptive(&s, 3e-2, 16, MemoryBudget::DEFAULT).unwrap();
         let refined: usize = st.elements_at.iter().skip(1).map(|e| e.1).sum();
         assert!(refined > 0 && refined < 32 * 32 / 2, "{:?}", st.elements_at);
         let reference = uniform(&s, 16);
@@ -304,9 +305,9 @@ mod tests {
     #[test]
     fn bad_parameters_are_named() {
         let s = scene("brewster-crossed-3x3");
-        let e = build_adaptive(&s, 0.0, 8).unwrap_err();
+        let e = build_adaptive(&s, 0.0, 8, MemoryBudget::DEFAULT).unwrap_err();
         assert!(e.to_string().starts_with("tolerance = 0"), "{e}");
-        let e = build_adaptive(&s, 1e-3, 0).unwrap_err();
+        let e = build_adaptive(&s, 1e-3, 0, MemoryBudget::DEFAULT).unwrap_err();
         assert!(e.to_string().starts_with("max-m = 0"), "{e}");
     }
 }

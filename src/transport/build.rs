@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
-use super::{Block, Transport, TransportError};
+use super::{Block, MemoryBudget, Transport, TransportError};
 use crate::optics::brdf::Direction;
 use crate::optics::polarizer::analyzer_factor;
 use crate::optics::{diffuse, ggx, DiffuseModel, Polarization, Vec3};
@@ -69,20 +69,22 @@ struct PoseView {
     first_block: usize,
 }
 
-/// Builds `T` for a scene.
-pub fn build(scene: &Scene) -> Result<Transport, TransportError> {
-    build_with_progress(scene, &|_| {})
+/// Builds `T` for a scene, refusing one over `budget` before allocating it.
+pub fn build(scene: &Scene, budget: MemoryBudget) -> Result<Transport, TransportError> {
+    build_with_progress(scene, budget, &|_| {})
 }
 
-/// Builds `T`, calling `progress(columns_done)` as columns complete.
+/// Builds `T` within `budget`, calling `progress(columns_done)` as columns complete.
 pub fn build_with_progress(
     scene: &Scene,
+    budget: MemoryBudget,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Transport, TransportError> {
-    let plane = &scene.wall.plane;
+    let plane = &scene.wall().plane;
     // The wall samples (points and their structure-of-arrays copy) come first: check them with T.
     let samples = plane.grid.count() as f64 * plane.samples_per_element() as f64;
     super::check_size(
+        budget,
         scene.rows(),
         scene.cols(),
         scene.block_count(),
@@ -90,6 +92,7 @@ pub fn build_with_progress(
     )?;
     let data = build_rows(
         scene,
+        budget,
         plane.sample_points(),
         plane.grid.count(),
         plane.samples_per_element(),
@@ -101,7 +104,7 @@ pub fn build_with_progress(
         data,
         blocks_of(scene),
         plane.grid,
-        scene.scene.plane.grid,
+        scene.hidden().plane.grid,
     ))
 }
 
@@ -109,7 +112,7 @@ pub fn build_with_progress(
 /// which capture goes where in the measurement, known without building `T`.
 pub fn blocks_of(scene: &Scene) -> Vec<Block> {
     let mut blocks = Vec::with_capacity(scene.block_count());
-    for pose in &scene.poses {
+    for pose in scene.poses() {
         if pose.analyzers.is_empty() {
             blocks.push(Block {
                 pose: pose.name.clone(),
@@ -132,6 +135,7 @@ pub fn blocks_of(scene: &Scene) -> Vec<Block> {
 /// Rows are `blocks x n_wall`; the uniform build passes the whole wall.
 pub(super) fn build_rows(
     scene: &Scene,
+    budget: MemoryBudget,
     wall_pts: Vec<Vec3>,
     n_wall: usize,
     mw: usize,
@@ -139,9 +143,9 @@ pub(super) fn build_rows(
 ) -> Result<Vec<f64>, TransportError> {
     let rows = n_wall * scene.block_count();
     let cols = scene.cols();
-    super::check_size(rows, cols, scene.block_count(), 0.0)?;
+    super::check_size(budget, rows, cols, scene.block_count(), 0.0)?;
 
-    let wall = &scene.wall;
+    let wall = &scene.wall();
     let brdf = wall.brdf;
     let n = wall.plane.normal;
     let wall_soa = Soa::from_vecs(wall_pts.iter().copied());
@@ -170,8 +174,8 @@ pub(super) fn build_rows(
     };
 
     let mut n_blocks = 0;
-    let mut views = Vec::with_capacity(scene.poses.len());
-    for pose in &scene.poses {
+    let mut views = Vec::with_capacity(scene.poses().len());
+    for pose in scene.poses() {
         let dirs: Vec<Vec3> = wall_pts
             .iter()
             .map(|c| (pose.camera - c).normalize())
@@ -189,7 +193,7 @@ pub(super) fn build_rows(
             // should it, the ray passes no light (t = 0).
             let t: Vec<Vec3> = dirs
                 .iter()
-                .map(|w| a.effective_axis(scene.polarizer, w))
+                .map(|w| a.effective_axis(scene.polarizer(), w))
                 .collect();
             let b = Soa::from_vecs(dirs.iter().zip(&t).map(|(w, t)| w.cross(t)));
             analyzers.push(AnalyzerView {
@@ -208,7 +212,7 @@ pub(super) fn build_rows(
         });
     }
 
-    let hidden = &scene.scene;
+    let hidden = &scene.hidden();
     let scene_pts = hidden.plane.sample_points();
     let ms = hidden.plane.samples_per_element();
     let weight = hidden.plane.element_area() / (mw * ms) as f64;
@@ -283,15 +287,15 @@ fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
         if c.fresnel_in {
             sc.transmittance_in(c.brdf.eta);
         }
-        if !c.scene.occluders.is_empty() {
+        if !c.scene.occluders().is_empty() {
             for (ws, p) in c.wall_pts.iter().enumerate() {
-                if sc.base[ws] != 0.0 && c.scene.occluders.iter().any(|o| o.blocks(s, p)) {
+                if sc.base[ws] != 0.0 && c.scene.occluders().iter().any(|o| o.blocks(s, p)) {
                     sc.base[ws] = 0.0;
                 }
             }
         }
         for view in c.views {
-            if let Some(e_src) = c.scene.scene.polarization.as_ref() {
+            if let Some(e_src) = c.scene.hidden().polarization.as_ref() {
                 sc.polarized_source(view, e_src, &c.brdf, &c.n, col, n_wall, mw);
                 continue;
             }

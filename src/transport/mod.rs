@@ -35,6 +35,9 @@ impl Block {
 }
 
 /// The stacked transport matrix with the layout needed to read it.
+///
+/// Its fields are private so that the layout always matches the entries:
+/// `rows = blocks x wall-grid cells` and `cols = scene-grid cells`.
 #[derive(Debug, Clone)]
 pub struct Transport {
     rows: usize,
@@ -42,11 +45,11 @@ pub struct Transport {
     /// Column-major entries, `data[k * rows + j] = T[j, k]`.
     data: Vec<f64>,
     /// Row blocks, in row order.
-    pub blocks: Vec<Block>,
+    blocks: Vec<Block>,
     /// Wall grid (rows within a block).
-    pub wall_grid: Grid,
+    wall_grid: Grid,
     /// Scene grid (columns).
-    pub scene_grid: Grid,
+    scene_grid: Grid,
 }
 
 /// Why `T` could not be built.
@@ -78,31 +81,49 @@ pub enum TransportError {
     },
 }
 
-/// Bytes a dense `T` may take, set by the front ends from the machine's
-/// available memory ([`set_memory_limit`]); 12 GiB until one does.
-static MEMORY_LIMIT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(12 << 30);
+/// Bytes a dense `T` (with the working memory built alongside it) may take.
+///
+/// Passed to every build rather than held globally, so that the front end
+/// that knows the machine sizes it once and a test or bench can pick its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MemoryBudget(u64);
 
-/// Sets the memory budget for `T` (bytes). Front ends call it with a quarter
-/// of the available memory, so that `T`, its copies and the solver fit.
-pub fn set_memory_limit(bytes: u64) {
-    MEMORY_LIMIT.store(bytes.max(1 << 20), std::sync::atomic::Ordering::Relaxed);
+impl MemoryBudget {
+    /// 12 GiB: the budget where the machine's available memory is unknown,
+    /// and what tests and benches that build small matrices use.
+    pub const DEFAULT: MemoryBudget = MemoryBudget(12 << 30);
+
+    /// A budget of `bytes`, at least 1 MiB.
+    ///
+    /// The floor keeps a machine that reports almost no free memory able to
+    /// build the smallest scenes.
+    pub fn new(bytes: u64) -> Self {
+        Self(bytes.max(1 << 20))
+    }
+
+    /// The budget in bytes.
+    pub fn bytes(self) -> u64 {
+        self.0
+    }
 }
 
-/// The memory budget for `T` in bytes (see [`set_memory_limit`]).
-pub fn memory_limit() -> u64 {
-    MEMORY_LIMIT.load(std::sync::atomic::Ordering::Relaxed)
+impl Default for MemoryBudget {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
 }
 
 /// Refuses a `rows x cols` f64 matrix (plus `extra_bytes` of working
-/// memory) over the budget, naming what to reduce; each wall element
+/// memory) over `budget`, naming what to reduce; each wall element
 /// contributes `rows_per_wall_element` rows.
 pub(crate) fn check_size(
+    budget: MemoryBudget,
     rows: usize,
     cols: usize,
     rows_per_wall_element: usize,
     extra_bytes: f64,
 ) -> Result<(), TransportError> {
-    let limit = memory_limit() as f64;
+    let limit = budget.bytes() as f64;
     let bytes = rows as f64 * cols as f64 * 8.0 + extra_bytes;
     if bytes <= limit {
         return Ok(());
@@ -119,7 +140,9 @@ pub(crate) fn check_size(
 }
 
 impl Transport {
-    /// Wraps column-major entries; `data.len()` must be `rows * cols`.
+    /// Wraps column-major entries; `data.len()` must be `rows * cols`, `rows`
+    /// the blocks times the wall grid's cells and `cols` the scene grid's cells
+    /// (a layout that does not add up is a bug of the caller: it panics).
     pub fn from_col_major(
         rows: usize,
         cols: usize,
@@ -132,6 +155,16 @@ impl Transport {
             data.len(),
             rows * cols,
             "transport data does not match its shape"
+        );
+        assert_eq!(
+            rows,
+            blocks.len() * wall_grid.count(),
+            "transport rows are not the blocks times the wall grid's cells"
+        );
+        assert_eq!(
+            cols,
+            scene_grid.count(),
+            "transport columns are not the scene grid's cells"
         );
         Self {
             rows,
@@ -150,6 +183,21 @@ impl Transport {
             return 0.0;
         }
         self.data.iter().map(|v| v * v).sum::<f64>() / self.cols as f64
+    }
+
+    /// Row blocks, in row order (pose, then polarizer angle).
+    pub fn blocks(&self) -> &[Block] {
+        &self.blocks
+    }
+
+    /// Wall grid: the rows within one block.
+    pub fn wall_grid(&self) -> Grid {
+        self.wall_grid
+    }
+
+    /// Scene grid: the columns.
+    pub fn scene_grid(&self) -> Grid {
+        self.scene_grid
     }
 
     /// Number of rows (measurements).
@@ -219,13 +267,40 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_build_over_its_budget_is_refused_before_it_allocates() {
+        assert_eq!(MemoryBudget::new(0).bytes(), 1 << 20);
+        let scene = crate::scene::Scene::builtin("brewster-crossed")
+            .and_then(Result::ok)
+            .expect("built-in scene")
+            .edit(|s| s.hidden.plane.grid = Grid { nu: 24, nv: 24 })
+            .expect("a valid grid");
+        // 1024 rows x 576 columns in f64 is 4.5 MiB.
+        let e = build(&scene, MemoryBudget::new(1 << 20)).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                TransportError::TooLarge {
+                    rows: 1024,
+                    cols: 576,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(build(&scene, MemoryBudget::new(64 << 20)).is_ok());
+    }
+
+    #[test]
     fn mean_column_norm2_is_the_mean_diagonal_of_the_gram_matrix() {
         // Columns (3, 4) and (0, 2): squared norms 25 and 4.
         let t = Transport::from_col_major(
             2,
             2,
             vec![3.0, 4.0, 0.0, 2.0],
-            vec![],
+            vec![Block {
+                pose: "A".into(),
+                polarizer_deg: None,
+            }],
             Grid { nu: 2, nv: 1 },
             Grid { nu: 2, nv: 1 },
         );

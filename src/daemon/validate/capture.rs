@@ -91,7 +91,7 @@ fn check_pixel_format(format: PixelFormat, cam: &CameraContext) -> Result<(), Re
 /// The pose a request names, or an error listing the scene's poses.
 fn pose_of<'a>(scene_name: &str, scene: &'a Scene, pose: &str) -> Result<&'a Pose, RequestError> {
     scene.pose(pose).ok_or_else(|| {
-        let names: Vec<&str> = scene.poses.iter().map(|p| p.name.as_str()).collect();
+        let names: Vec<&str> = scene.poses().iter().map(|p| p.name.as_str()).collect();
         invalid(format!(
             "scene {scene_name:?} has no pose {pose:?}; its poses: {}",
             names.join(", ")

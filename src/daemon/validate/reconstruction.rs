@@ -9,7 +9,7 @@ use crate::store::{CaptureRecord, JobState, ReconstructionRequest};
 /// The (pose, polarizer angle) blocks of a scene in MODEL.md row order.
 pub fn blocks(scene: &Scene) -> Vec<(String, Option<f64>)> {
     let mut blocks = Vec::new();
-    for p in &scene.poses {
+    for p in scene.poses() {
         if p.analyzers.is_empty() {
             blocks.push((p.name.clone(), None));
         }
