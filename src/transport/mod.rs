@@ -56,7 +56,7 @@ pub struct Transport {
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
     /// The matrix would not fit in the memory budget.
-    #[error("T would be {rows} x {cols} ({gib:.1} GiB in f64), over the {limit_gib:.1} GiB this machine can spare (a quarter of its available memory); reduce wall.grid to at most {max_wall_side}x{max_wall_side} elements, or scene.grid, or the number of poses/angles")]
+    #[error("T would be {rows} x {cols} ({gib:.1} GiB in f64), over the {limit_gib:.1} GiB budget for T (a quarter of the memory available when polnlos started, or 12 GiB where that is unknown); reduce wall.grid to at most {max_wall_side}x{max_wall_side} elements, or scene.grid, or the number of poses/angles")]
     TooLarge {
         /// Rows asked for.
         rows: usize,
