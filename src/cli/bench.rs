@@ -13,12 +13,13 @@ use polnlos::transport::MemoryBudget;
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Writes bench.json, bench.md and the charts conditioning, roughness, sampling,\n\
-active, lambda, rendered and speed-accuracy-<size> (PNG and SVG).\n\
+active, lambda, rendered, scaling and speed-accuracy-<size> (PNG and SVG).\n\
 Example:\n  polnlos bench --quick --out bench/\n\
-The full run (about 5 min on 2 cores, mostly the λ sweep) adds the 8x8 scene grids, the M and L\n\
+The full run (about 2 min on 2 cores) adds the 8x8 scene grids, the M and L\n\
 speed sizes with 3 seeds, finer active and sampling sweeps, the automatic-λ\n\
 sweep on 4 scenes at 16x16 (1e3, 1e4, 1e5 photo-electrons, 3 patterns), and\n\
-the NumPy peer at wall 64x64 x scene 32x32 (run when python3 has NumPy)."
+the NumPy peer at wall 64x64 x scene 32x32, and `reconstruct` end to end at\n\
+scene grids 16x16 to 64x64 beside the NumPy peer (the peers run when python3 has NumPy)."
 )]
 pub struct Args {
     /// Output folder.
