@@ -148,56 +148,54 @@ pub fn build_active(
         .collect();
 
     let mut data = vec![0.0; rows * n_vox];
-    data.par_chunks_mut(rows.max(1))
-        .enumerate()
-        .for_each(|(k, col)| {
-            let x = voxels[k];
-            let to_x = x - p;
-            let r_px = to_x.norm();
-            let w_px = to_x / r_px;
-            if n.dot(&w_px) <= 0.0 || scene.occluders().iter().any(|o| o.blocks(&x, &p)) {
-                return;
+    super::build::columns_mut(&mut data, rows).for_each(|(k, col)| {
+        let x = voxels[k];
+        let to_x = x - p;
+        let r_px = to_x.norm();
+        let w_px = to_x / r_px;
+        if n.dot(&w_px) <= 0.0 || scene.occluders().iter().any(|o| o.blocks(&x, &p)) {
+            return;
+        }
+        let no_polarizer = Polarization {
+            analyzer: None,
+            source: None,
+        };
+        let first: Vec<f64> = views
+            .iter()
+            .map(|v| {
+                area / std::f64::consts::PI
+                    * brdf.eval(&n, &v.w_l, &w_px, no_polarizer)
+                    * n.dot(&w_px)
+                    / (r_px * r_px)
+            })
+            .collect();
+        for (j, c) in patches.iter().enumerate() {
+            let to_x = x - c;
+            let r = to_x.norm();
+            let w_cx = to_x / r;
+            let cos = n.dot(&w_cx);
+            if cos <= 0.0 || scene.occluders().iter().any(|o| o.blocks(&x, c)) {
+                continue;
             }
-            let no_polarizer = Polarization {
-                analyzer: None,
-                source: None,
-            };
-            let first: Vec<f64> = views
-                .iter()
-                .map(|v| {
-                    area / std::f64::consts::PI
-                        * brdf.eval(&n, &v.w_l, &w_px, no_polarizer)
-                        * n.dot(&w_px)
-                        / (r_px * r_px)
-                })
-                .collect();
-            for (j, c) in patches.iter().enumerate() {
-                let to_x = x - c;
-                let r = to_x.norm();
-                let w_cx = to_x / r;
-                let cos = n.dot(&w_cx);
-                if cos <= 0.0 || scene.occluders().iter().any(|o| o.blocks(&x, c)) {
+            let b = (((r_px + r - d0) / setup.bin_width).floor() as usize).min(bins - 1);
+            for (blk, v) in views.iter().enumerate() {
+                if first[blk] == 0.0 {
                     continue;
                 }
-                let b = (((r_px + r - d0) / setup.bin_width).floor() as usize).min(bins - 1);
-                for (blk, v) in views.iter().enumerate() {
-                    if first[blk] == 0.0 {
-                        continue;
-                    }
-                    let (w_co, t) = &v.to_camera[j];
-                    let f_c = brdf.eval(
-                        &n,
-                        &w_cx,
-                        w_co,
-                        Polarization {
-                            analyzer: t.as_ref(),
-                            source: None,
-                        },
-                    );
-                    col[blk * per_block + j * bins + b] += first[blk] * cos / (r * r) * f_c;
-                }
+                let (w_co, t) = &v.to_camera[j];
+                let f_c = brdf.eval(
+                    &n,
+                    &w_cx,
+                    w_co,
+                    Polarization {
+                        analyzer: t.as_ref(),
+                        source: None,
+                    },
+                );
+                col[blk * per_block + j * bins + b] += first[blk] * cos / (r * r) * f_c;
             }
-        });
+        }
+    });
     Ok(ActiveTransport {
         t: Transport::from_col_major(
             rows,

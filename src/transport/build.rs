@@ -237,20 +237,34 @@ pub(super) fn build_rows(
         fresnel_in: diffuse_on && brdf.diffuse == DiffuseModel::Fresnel,
         ks_on: brdf.ks != 0.0,
     };
-    data.par_chunks_mut(rows.max(1)).enumerate().for_each_init(
+    columns_mut(&mut data, rows).for_each_init(
         || Scratch::new(n_samples),
         |sc, (k, col)| {
-            // First touch by a write: the zeroed allocation's pages are not
-            // mapped yet, and a read-then-write (`+=`) first maps the shared
-            // zero page, then faults again to copy it, flushing the other
-            // cores' TLBs each time (a third of a 64x64 build's time).
-            col.fill(0.0);
             fill_column(sc, col, k, &ctx);
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
         },
     );
 
     Ok(data)
+}
+
+/// The columns of a column-major `T` (`rows` long) with their index, in
+/// parallel, each zeroed by a write before a task fills it.
+///
+/// Why the write: a zeroed allocation's pages are not mapped yet, and a
+/// first touch by `+=` (a read) maps the shared zero page, then faults again
+/// to copy it on the write, flushing the other cores' TLBs for every page (a
+/// third of a 64x64 build's time).
+pub(super) fn columns_mut(
+    data: &mut [f64],
+    rows: usize,
+) -> impl IndexedParallelIterator<Item = (usize, &mut [f64])> {
+    data.par_chunks_mut(rows.max(1))
+        .map(|col| {
+            col.fill(0.0);
+            col
+        })
+        .enumerate()
 }
 
 /// Everything a column needs, shared read-only by all tasks.
