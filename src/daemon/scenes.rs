@@ -47,9 +47,9 @@ pub struct Scenes {
     scenes: BTreeMap<String, Arc<Scene>>,
     /// Each scene's TOML text, for writing calibrated copies of it.
     sources: BTreeMap<String, String>,
-    transports: Mutex<BTreeMap<String, Arc<Transport>>>,
-    grams: Mutex<BTreeMap<String, Arc<Gram>>>,
-    conditioning: Mutex<BTreeMap<String, Arc<Conditioning>>>,
+    transports: Cache<Transport>,
+    grams: Cache<Gram>,
+    conditioning: Cache<Conditioning>,
 }
 
 impl Scenes {
@@ -154,21 +154,32 @@ impl Scenes {
     }
 }
 
-/// The value cached under `name`, or `make`'s, cached (a poisoned lock only
-/// loses the cache, never the value).
+/// One value per scene name, each made at most once.
+type Cache<T> = Mutex<BTreeMap<String, Arc<Mutex<Option<Arc<T>>>>>>;
+
+/// The value cached under `name`, or `make`'s, cached. The map's lock is held
+/// only to find the name's slot; the slot's lock is held while `make` runs,
+/// so two jobs asking for the same scene's `T` or Gram at once wait for one
+/// build instead of making two (a poisoned lock keeps its value). A failed
+/// `make` caches nothing: the next call tries again.
 fn cached<T>(
-    cache: &Mutex<BTreeMap<String, Arc<T>>>,
+    cache: &Cache<T>,
     name: &str,
     make: impl FnOnce() -> Result<T, ScenesError>,
 ) -> Result<Arc<T>, ScenesError> {
-    if let Some(v) = cache.lock().ok().and_then(|m| m.get(name).cloned()) {
-        return Ok(v);
+    let slot = cache
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .entry(name.to_string())
+        .or_default()
+        .clone();
+    let mut value = slot.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(v) = value.as_ref() {
+        return Ok(v.clone());
     }
-    let v = Arc::new(make()?);
-    if let Ok(mut m) = cache.lock() {
-        m.insert(name.to_string(), v.clone());
-    }
-    Ok(v)
+    let made = Arc::new(make()?);
+    *value = Some(made.clone());
+    Ok(made)
 }
 
 #[cfg(test)]
@@ -187,6 +198,19 @@ mod tests {
         let path = dir.join("large.toml");
         std::fs::write(&path, text).expect("write scene");
         path
+    }
+
+    #[test]
+    fn two_jobs_asking_at_once_share_one_build() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let scenes =
+            Scenes::load(&[large_scene(dir.path())], MemoryBudget::DEFAULT).expect("scenes");
+        let (a, b) = std::thread::scope(|s| {
+            let a = s.spawn(|| scenes.gram("large").expect("gram"));
+            let b = s.spawn(|| scenes.gram("large").expect("gram"));
+            (a.join().expect("thread"), b.join().expect("thread"))
+        });
+        assert!(Arc::ptr_eq(&a, &b));
     }
 
     #[test]
