@@ -273,9 +273,9 @@ impl Solver {
             }
             _ => None,
         };
+        self.normal.ti = adjoint(self.t.as_mat(), &self.i);
         let (r, lambda) = match noise {
             Some(noise) => {
-                self.normal.ti = adjoint(self.t.as_mat(), &self.i);
                 let (r, choice) = admm_tv_resolved_prepared(
                     &self.t,
                     &self.i,
@@ -290,7 +290,6 @@ impl Solver {
                 (r, Some(choice.lambda))
             }
             None => {
-                self.normal.ti = adjoint(self.t.as_mat(), &self.i);
                 let r = admm_tv_warm(
                     &self.t,
                     &self.i,
