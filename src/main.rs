@@ -84,7 +84,11 @@ fn exit_code(e: &anyhow::Error) -> u8 {
         if let Some(t) = cause.downcast_ref::<TransportError>() {
             return match t {
                 TransportError::Parameter { .. } => USAGE,
-                TransportError::TooLarge { .. } => INPUT,
+                TransportError::TooLarge { .. }
+                | TransportError::NoHomography { .. }
+                | TransportError::Footprint(_)
+                | TransportError::ActivePixels
+                | TransportError::Choice(_) => INPUT,
             };
         }
         if let Some(s) = cause.downcast_ref::<SolveError>() {

@@ -949,17 +949,30 @@ fn measure_turns_tiff_frames_into_the_measurement_in_block_order() {
     assert!(i[n..]
         .iter()
         .all(|v| (v - 500.0 * unit).abs() < 1e-9 * unit));
-    // Variance of B's 4-frame mean (f32 in the frame): sample variance 400/3 DN², over 4 frames;
-    // C's frames do not vary: only the digitizer's rounding floor, 1/12 DN².
+    // Variance of B's 4-frame mean (f32 in the frame): sample variance 400/3 DN², over 4 frames,
+    // per pixel; C's frames do not vary: only the digitizer's rounding floor, 1/12 DN². An element
+    // averages its pixels with weights w_p: its variance is the pixels' times sum w_p²
+    // (MODEL.md revision 3; the dark's two frames are equal and add none).
     let var = npy::read(std::path::Path::new(&p("m/i.variance.npy")))
         .unwrap()
         .data;
+    let multi = Scene::load(std::path::Path::new(&s)).unwrap();
+    let w2 = |pose: usize| {
+        let h = multi.poses()[pose].homography.unwrap();
+        let g = polnlos::scene::FrameGeometry::plain(512, 512);
+        let map = polnlos::scene::PixelMap::frame(&h, &multi.wall().plane, g, "p").unwrap();
+        map.weights()[map.range(0)]
+            .iter()
+            .map(|w| w * w)
+            .sum::<f64>()
+    };
+    assert!(w2(0) < 0.05, "element 0 of pose B has dozens of pixels");
     assert!(
-        (var[0] / unit / unit - 400.0 / 3.0 / 4.0).abs() < 1e-5,
+        (var[0] / unit / unit - 400.0 / 3.0 / 4.0 * w2(0)).abs() < 1e-5,
         "{}",
         var[0] / unit / unit
     );
-    assert!((var[n] / unit / unit - 1.0 / 12.0).abs() < 1e-9);
+    assert!((var[n] / unit / unit - w2(1) / 12.0).abs() < 1e-9);
     // With a gain: units of T l, the raw values divided by it.
     let mut gained = args.clone();
     gained.retain(|a| a != "--raw");

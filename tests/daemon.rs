@@ -626,7 +626,7 @@ fn auto_exposure_reaches_the_planned_signal() {
     let (_, letter) = truth("brewster-crossed");
     let max = |v: Vec<f64>| v.into_iter().fold(0.0, f64::max);
     let expect = 0.5 * max(t.apply(&letter)) / max(t.apply(&vec![1.0; t.cols()]));
-    let wall = polnlos::measure::sample_wall(
+    let wall = polnlos::measure::wall_means(
         &mean,
         scene.poses()[0].homography.as_ref().unwrap(),
         &scene.wall().plane,

@@ -4,8 +4,10 @@
 
 use std::path::PathBuf;
 
-use polnlos::measure::{render_wall, sample_wall};
+use polnlos::measure::wall_means;
+use polnlos::scene::FrameGeometry;
 use polnlos::scene::Scene;
+use polnlos::simulate::camera;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};
 use polnlos::solve::{admm_tv, least_squares, metrics, AdmmSettings};
@@ -76,18 +78,26 @@ fn admm_tv_beats_least_squares_and_the_crossed_polarizer_helps() {
 }
 
 #[test]
-fn frames_rendered_through_the_homography_sample_back_to_the_wall_image() {
-    let scene = bench16("multi");
+fn frames_rendered_pixel_by_pixel_measure_back_to_the_pixel_rows() {
+    // Each pixel at its own wall point; with rows over exactly those pixels
+    // (MODEL.md revision 3, sampling = "pixels") T l is what the camera measures.
+    let scene = Scene::from_toml_str(
+        &std::fs::read_to_string(
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes/brewster-multi.toml"),
+        )
+        .unwrap()
+        .replace("ks = 1.0", "ks = 1.0\nsampling = \"pixels\""),
+    )
+    .unwrap();
     let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
     let truth = Pattern::Letter.render(t.scene_grid());
-    let sim = simulate(&scene, &t, &truth);
-    for (b, block) in t.blocks().iter().enumerate() {
+    let want = t.apply(&truth);
+    let frames = camera::render(&scene, &truth, FrameGeometry::plain(512, 512));
+    for (b, (block, frame)) in frames.iter().enumerate() {
         let pose = scene.pose(&block.pose).unwrap();
         let h = pose.homography.as_ref().unwrap();
-        let wall = &sim.measurement[t.block_rows(b)];
-        let frame = render_wall(wall, h, &scene.wall().plane, 512, 512, 0.0);
-        let back = sample_wall(&frame, h, &scene.wall().plane, &pose.name).unwrap();
-        for (j, (a, w)) in back.iter().zip(wall).enumerate() {
+        let back = wall_means(frame.as_ref().unwrap(), h, &scene.wall().plane, &pose.name).unwrap();
+        for (j, (a, w)) in back.iter().zip(&want[t.block_rows(b)]).enumerate() {
             assert!(
                 (a - w).abs() <= 1e-6 * w.abs().max(1e-12),
                 "block {b} element {j}: {a} vs {w}"
@@ -97,16 +107,20 @@ fn frames_rendered_through_the_homography_sample_back_to_the_wall_image() {
 }
 
 #[test]
-fn a_wall_sample_outside_the_frame_is_an_error() {
+fn a_wall_element_outside_the_frame_is_an_error_naming_it() {
     let scene = bench16("crossed");
     let pose = &scene.poses()[0];
     let frame = polnlos::camera::Frame::zeros(300, 300);
-    let e = sample_wall(
+    let e = wall_means(
         &frame,
         pose.homography.as_ref().unwrap(),
         &scene.wall().plane,
         "A",
     )
     .unwrap_err();
-    assert!(e.to_string().contains("outside the 300x300 frame"), "{e}");
+    assert!(
+        e.to_string().starts_with("pose \"A\": wall element")
+            && e.to_string().contains("partly outside the frame"),
+        "{e}"
+    );
 }

@@ -166,7 +166,13 @@ impl WallParams {
 
 /// The scene with its hidden plane shrunk to the point source and the wall
 /// material set to `p`.
-fn point_scene(scene: &Scene, source: &PointSource, p: &WallParams) -> Result<Scene, WallFitError> {
+/// `scene` with its hidden screen shrunk to one element at `source`, and the
+/// wall's material `p`: the scene whose `T` has one column, the source's image.
+pub fn point_scene(
+    scene: &Scene,
+    source: &PointSource,
+    p: &WallParams,
+) -> Result<Scene, WallFitError> {
     scene
         .clone()
         .edit(|s| {

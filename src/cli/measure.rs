@@ -99,6 +99,8 @@ struct FileCapture {
     info: CaptureInfo,
     stack: FrameStack,
     dark: Option<Frame>,
+    /// The variance of the dark's mean, when it had 2 frames or more.
+    dark_variance: Option<Frame>,
 }
 
 impl CaptureSource for FileCapture {
@@ -112,8 +114,23 @@ impl CaptureSource for FileCapture {
             .map_err(|e| e.to_string())
     }
 
+    /// The variance of the dark-subtracted mean: the frames' plus the dark's
+    /// (MODEL.md `var_p`).
     fn variance(&self) -> Result<Option<Frame>, String> {
-        Ok(self.stack.variance_frame())
+        let mut v = self.stack.variance_frame();
+        if let (Some(v), Some(d)) = (v.as_mut(), self.dark_variance.as_ref()) {
+            if (d.width, d.height) != (v.width, v.height) {
+                return Err(format!(
+                    "the dark frames are {}x{} but the frames {}x{}",
+                    d.width, d.height, v.width, v.height
+                ));
+            }
+            v.pixels
+                .iter_mut()
+                .zip(&d.pixels)
+                .for_each(|(a, b)| *a += b);
+        }
+        Ok(v)
     }
 }
 
@@ -155,12 +172,15 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
                 .into())
             }
         };
-        let dark = if a.dark.is_empty() {
-            None
+        let (dark, dark_variance) = if a.dark.is_empty() {
+            (None, None)
         } else {
             let d = per_block(&a.dark, k, "--dark", n)?;
             let dark = read_frames(d)?;
-            Some(dark.stack.mean_minus(None)?)
+            (
+                Some(dark.stack.mean_minus(None)?),
+                dark.stack.variance_frame(),
+            )
         };
         let file = FileCapture {
             info: CaptureInfo {
@@ -171,12 +191,14 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
                 full_scale,
                 exposure_us,
                 region: None,
+                binning: None,
                 missing_dark: dark.is_none().then_some(
                     "give dark frames (scene off, same exposure and region) with --dark",
                 ),
             },
             stack: frames.stack,
             dark,
+            dark_variance,
         };
         captures.push(load(&scene, &file, &mut warnings)?);
     }

@@ -3,9 +3,10 @@
 
 use std::path::PathBuf;
 
-use polnlos::files::{image, json, load_grid_image, npy};
-use polnlos::measure::render_wall;
-use polnlos::scene::Scene;
+use polnlos::files::{frames::write_frames, image, json, load_grid_image, npy};
+use polnlos::measure::Frame;
+use polnlos::scene::FrameGeometry;
+use polnlos::simulate::camera;
 use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};
 use polnlos::transport::MemoryBudget;
 use polnlos::transport::Transport;
@@ -16,7 +17,10 @@ use polnlos::transport::Transport;
     after_help = "Exposure is set so that the brightest element of the UNPOLARIZED wall image collects \
 --photons electrons; polarized blocks collect what the polarizer passes at that same exposure.\n\
 Writes measurement.npy, truth.npy, wall-<pose>-<angle>.png per block, simulate.json \
-(and frame-<pose>-<angle>.png with --frames). Example:\n  \
+(with --frames, camera frames rendered pixel by pixel, each pixel at its own wall point, with \
+per-pixel shot and read noise: frames-<pose>-<angle>.tiff, --frame-count pages of 16-bit DN that \
+`polnlos measure` reads, dark-<pose>-<angle>.tiff with --dark-level, and a preview \
+frame-<pose>-<angle>.png). Example:\n  \
 polnlos simulate config/scenes/brewster-crossed.toml --truth disk.png --out sim/ --photons 20000 --seed 3"
 )]
 pub struct Args {
@@ -46,6 +50,13 @@ pub struct Args {
     /// Camera frame size for --frames, WIDTHxHEIGHT.
     #[arg(long, value_name = "WxH", default_value = "512x512")]
     frame_size: String,
+    /// Frames (TIFF pages) per block with --frames, each with its own noise.
+    #[arg(long, value_name = "N", default_value_t = 4)]
+    frame_count: usize,
+    /// Dark level the camera adds to every pixel, DN; with --frames and a
+    /// level above 0, dark frames (the scene off) are written too.
+    #[arg(long, value_name = "DN", default_value_t = 0.0)]
+    dark_level: f64,
 }
 
 /// One block in `simulate.json`.
@@ -79,6 +90,65 @@ struct Output {
     blocks: Vec<BlockOut>,
 }
 
+/// Writes `--frame-count` noisy frames of one block (and its dark frames
+/// with `--dark-level`): each pixel's electrons drawn from its own clean
+/// value, the dark level added in DN; returns the preview's file name.
+fn write_frames_of(
+    a: &Args,
+    label: &str,
+    b: usize,
+    clean: &Frame,
+    set: &FrameSet<'_>,
+    png_scale: f64,
+) -> anyhow::Result<String> {
+    let values: Vec<f64> = clean.pixels.iter().map(|&v| f64::from(v)).collect();
+    let dark_values = vec![0.0; values.len()];
+    let full = f64::from((1u32 << a.bits) - 1);
+    let page = |values: &[f64], k: usize| -> anyhow::Result<Vec<u16>> {
+        // A seed per block and page: the same command gives the same frames.
+        let model = NoiseModel {
+            seed: set.model.seed ^ ((b as u64 + 1) << 32) ^ (k as u64 + 1),
+            ..*set.model
+        };
+        let sim = model.apply(values.to_vec(), set.peak)?;
+        Ok(sim
+            .dn
+            .iter()
+            .map(|&d| (f64::from(d) + a.dark_level).round().min(full) as u16)
+            .collect())
+    };
+    let n = a.frame_count;
+    let pages = (0..n)
+        .map(|k| page(&values, k))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    write_frames(
+        &a.out.join(format!("frames-{label}.tiff")),
+        clean.width,
+        clean.height,
+        &pages,
+        a.bits,
+    )?;
+    if a.dark_level > 0.0 {
+        let darks = (n..2 * n)
+            .map(|k| page(&dark_values, k))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        write_frames(
+            &a.out.join(format!("dark-{label}.tiff")),
+            clean.width,
+            clean.height,
+            &darks,
+            a.bits,
+        )?;
+    }
+    let preview: Vec<u16> = pages[0]
+        .iter()
+        .map(|&d| (f64::from(d) * png_scale).round().min(65535.0) as u16)
+        .collect();
+    let name = format!("frame-{label}.png");
+    image::write_png16(&a.out.join(&name), clean.width, clean.height, &preview)?;
+    Ok(name)
+}
+
 fn parse_size(s: &str) -> Result<(usize, usize), super::Usage> {
     let bad = || {
         super::Usage(format!(
@@ -106,6 +176,21 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     };
     model.validate()?;
     let frame_size = a.frames.then(|| parse_size(&a.frame_size)).transpose()?;
+    if a.frames && !(1..=1000).contains(&a.frame_count) {
+        return Err(super::Usage(format!(
+            "--frame-count {}: give 1 to 1000 frames per block",
+            a.frame_count
+        ))
+        .into());
+    }
+    let full_dn = f64::from((1u32 << a.bits.clamp(1, 16)) - 1);
+    if !(a.dark_level >= 0.0 && a.dark_level < full_dn) {
+        return Err(super::Usage(format!(
+            "--dark-level {}: give 0 to {full_dn} DN (below full scale)",
+            a.dark_level
+        ))
+        .into());
+    }
     if a.frames {
         if let Some(p) = scene.poses().iter().find(|p| p.homography.is_none()) {
             anyhow::bail!(
@@ -132,8 +217,23 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let full = f64::from((1u32 << a.bits) - 1);
     let png_scale = 65535.0 / full;
     let wgrid = t.wall_grid();
+    // Each pixel at its own wall point (MODEL.md revision 3), not one value per element.
+    let clean_frames: Vec<Option<Frame>> = match frame_size {
+        Some((w, h)) => camera::render(&scene, &truth, FrameGeometry::plain(w, h))
+            .into_iter()
+            .map(|(_, f)| f)
+            .collect(),
+        None => vec![None; t.blocks().len()],
+    };
     let blocks = (0..t.blocks().len())
-        .map(|b| write_block(&a, &scene, &t, &sim, b, frame_size, png_scale))
+        .map(|b| {
+            let frames = FrameSet {
+                clean: clean_frames[b].as_ref(),
+                model: &model,
+                peak,
+            };
+            write_block(&a, &t, &sim, b, frames, png_scale)
+        })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let out = Output {
         scene: super::scene_name(&a.scene),
@@ -160,15 +260,23 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes one block's wall image (and camera frame with `--frames`) and
+/// What one block's camera frames are made from.
+struct FrameSet<'a> {
+    /// The clean frame (units of `T l` per pixel), with --frames.
+    clean: Option<&'a Frame>,
+    model: &'a NoiseModel,
+    /// The unpolarized peak that sets the exposure.
+    peak: f64,
+}
+
+/// Writes one block's wall image (and camera frames with `--frames`) and
 /// returns what `simulate.json` says about it.
 fn write_block(
     a: &Args,
-    scene: &Scene,
     t: &Transport,
     sim: &Simulation,
     b: usize,
-    frame_size: Option<(usize, usize)>,
+    frames: FrameSet<'_>,
     png_scale: f64,
 ) -> anyhow::Result<BlockOut> {
     let block = &t.blocks()[b];
@@ -180,17 +288,16 @@ fn write_block(
         .collect();
     let wall_png = format!("wall-{}.png", block.label());
     image::write_png16(&a.out.join(&wall_png), wgrid.nu, wgrid.nv, &scaled)?;
-    let homography = scene.pose(&block.pose).and_then(|p| p.homography.as_ref());
-    let frame_png = match (frame_size, homography) {
-        (Some((w, h)), Some(hom)) => {
-            let values: Vec<f64> = scaled.iter().map(|&v| f64::from(v)).collect();
-            let frame = render_wall(&values, hom, &scene.wall().plane, w, h, 0.0);
-            let px: Vec<u16> = frame.pixels.iter().map(|&v| v.round() as u16).collect();
-            let name = format!("frame-{}.png", block.label());
-            image::write_png16(&a.out.join(&name), w, h, &px)?;
-            Some(name)
-        }
-        _ => None,
+    let frame_png = match frames.clean {
+        Some(clean) => Some(write_frames_of(
+            a,
+            &block.label(),
+            b,
+            clean,
+            &frames,
+            png_scale,
+        )?),
+        None => None,
     };
     let electrons: Vec<f64> = sim.clean[rows]
         .iter()

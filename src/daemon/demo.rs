@@ -4,7 +4,9 @@
 
 use super::scenes::Scenes;
 use super::{config, DaemonError, DEMO_PEAK_FRACTION, DEMO_REFERENCE_EXPOSURE_US};
-use crate::measure::render_wall;
+use crate::measure::Frame;
+use crate::scene::FrameGeometry;
+use crate::simulate::camera::render;
 use crate::simulate::patterns::Pattern;
 
 type DemoFrames = crate::camera::BenchImages;
@@ -54,44 +56,53 @@ pub(super) fn frames(
     names.extend(scenes.names().into_iter().filter(|n| {
         n != &demo.scene && same_bench(&scene, &scenes.get(n).unwrap_or_else(|| scene.clone()))
     }));
+    let sensor = FrameGeometry::plain(512, 512);
+    let scaled = |f: Option<Frame>| {
+        f.map(|mut f| {
+            f.pixels.iter_mut().for_each(|p| *p *= norm as f32);
+            f
+        })
+    };
     for name in names {
-        let (Some(s), Ok(t)) = (scenes.get(&name), scenes.transport(&name)) else {
+        let Some(s) = scenes.get(&name) else {
             continue;
         };
-        let l = pattern.render(t.scene_grid());
-        let i = t.apply(&l);
-        // The point source's wall image, all blocks at once (a T of one column).
-        let source =
-            crate::calibrate::wall::predict(&s, &DEMO_SOURCE, &material(&s), scenes.budget())
-                .map_err(|e| err(e.to_string()))?;
-        for (b, block) in t.blocks().iter().enumerate() {
-            if frames
-                .scene
-                .iter()
-                .any(|(p, a, _)| p == &block.pose && *a == block.polarizer_deg)
-            {
+        let shown = |frames: &DemoFrames, p: &str, a: Option<f64>| {
+            frames.scene.iter().any(|(q, b, _)| q == p && *b == a)
+        };
+        let blocks = crate::transport::blocks_of(&s);
+        if blocks
+            .iter()
+            .all(|b| shown(&frames, &b.pose, b.polarizer_deg))
+        {
+            continue;
+        }
+        // Each pixel at its own wall point: the camera a measurement must average.
+        let l = pattern.render(s.hidden().plane.grid);
+        let lit = render(&s, &l, sensor);
+        let point = crate::calibrate::wall::point_scene(&s, &DEMO_SOURCE, &material(&s))
+            .map_err(|e| err(e.to_string()))?;
+        let source = render(&point, &[1.0], sensor);
+        for ((block, frame), (_, source)) in lit.into_iter().zip(source) {
+            if shown(&frames, &block.pose, block.polarizer_deg) {
                 continue;
             }
-            let Some(h) = s.pose(&block.pose).and_then(|p| p.homography) else {
+            let (Some(frame), Some(source), Some(h)) = (
+                scaled(frame),
+                scaled(source),
+                s.pose(&block.pose).and_then(|p| p.homography),
+            ) else {
                 continue;
             };
-            let values: Vec<f64> = i[t.block_rows(b)].iter().map(|v| v * norm).collect();
-            frames.scene.push((
-                block.pose.clone(),
-                block.polarizer_deg,
-                render_wall(&values, &h, &s.wall().plane, 512, 512, 0.0),
-            ));
-            let values: Vec<f64> = source[t.block_rows(b)].iter().map(|v| v * norm).collect();
-            frames.source.push((
-                block.pose.clone(),
-                block.polarizer_deg,
-                render_wall(&values, &h, &s.wall().plane, 512, 512, 0.0),
-            ));
+            frames
+                .scene
+                .push((block.pose.clone(), block.polarizer_deg, frame));
+            frames
+                .source
+                .push((block.pose.clone(), block.polarizer_deg, source));
             let mut dots = crate::calibrate::geometry::render(&target, &h, 512, 512);
             dots.pixels.iter_mut().for_each(|p| *p *= TARGET_LEVEL);
-            frames
-                .target
-                .push((block.pose.clone(), block.polarizer_deg, dots));
+            frames.target.push((block.pose, block.polarizer_deg, dots));
         }
     }
     // Frame value v = norm T l at the reference exposure, as a fraction of full scale.

@@ -29,7 +29,7 @@ use super::Event;
 use crate::camera::Frame;
 use crate::files::{image, json};
 use crate::measure::FrameStack;
-use crate::measure::{assemble, CaptureFrames, Units};
+use crate::measure::{assemble_with, CaptureFrames, PixelMaps, Units};
 use crate::scene::Scene;
 use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};
@@ -149,6 +149,8 @@ struct Solver {
     truth: Option<Vec<f64>>,
     previous: Option<Vec<f64>>,
     steps: Vec<Step>,
+    /// The pixel maps of the scene's poses, made at the first step that needs one.
+    maps: PixelMaps,
 }
 
 impl Solver {
@@ -186,7 +188,8 @@ impl Solver {
             .iter()
             .map(|&b| t.blocks()[b].clone())
             .collect();
-        let mut m = assemble(&scene, &blocks, &others)?;
+        let maps = PixelMaps::default();
+        let mut m = assemble_with(&scene, &blocks, &others, &maps)?;
         Units::Calibrated(calibration).apply(&mut m);
         let mut i = vec![0.0; t.rows()];
         let mut variance = m.variance.as_ref().map(|_| vec![0.0; t.rows()]);
@@ -224,6 +227,7 @@ impl Solver {
             truth,
             previous: None,
             steps: Vec::new(),
+            maps,
         })
     }
 
@@ -260,8 +264,10 @@ impl Solver {
             frames: s.frames,
             full_scale: self.full_scale,
             exposure_us: self.capture.exposure_us,
+            offset: self.capture.region.map_or([0, 0], |r| [r[0], r[1]]),
+            binning: self.capture.binning.unwrap_or([1, 1]),
         };
-        let mut m = assemble(&self.scene, std::slice::from_ref(block), &[own])?;
+        let mut m = assemble_with(&self.scene, std::slice::from_ref(block), &[own], &self.maps)?;
         Units::Calibrated(self.calibration).apply(&mut m);
         let range = self.t.block_rows(self.own);
         self.i[range.clone()].copy_from_slice(&m.i);

@@ -97,7 +97,17 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     let units = to_model_units(&t, &mut measurement, calibration)?;
     warnings.extend(units.warning());
     let Measurement { i, variance: var } = measurement;
-    let cond = d.scenes.conditioning(&rec.scene)?;
+    // The noise known, the sampling keys the file left out are chosen from it.
+    let (key, model) = match var.as_deref() {
+        Some(v) => d.scenes.for_noise(&rec.scene, v)?,
+        None => (rec.scene.clone(), None),
+    };
+    let t = if key == rec.scene {
+        t
+    } else {
+        d.scenes.transport(&key)?
+    };
+    let cond = d.scenes.conditioning(&key)?;
     check(cancel)?;
     let solve = stored_solve(&rec)?;
     let truth = rec
@@ -106,8 +116,6 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         .and_then(|v| v.as_str())
         .and_then(crate::simulate::patterns::Pattern::from_name)
         .map(|pat| pat.render(t.scene_grid()));
-    // Frame-to-frame noise when every capture has it; else reconstruct
-    // estimates it from the measurement itself.
     let context = Context {
         scene: rec.scene.clone(),
         transport_seconds,
@@ -118,7 +126,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     let normal = match solve.solver {
         Solver::AdmmTv => {
             check_measurement(&t, &i)?;
-            Some(Normal::with(d.scenes.gram(&rec.scene)?, &t, &i))
+            Some(Normal::with(d.scenes.gram(&key)?, &t, &i))
         }
         _ => None,
     };
@@ -133,6 +141,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         context,
     )?;
     let (image, mut report) = (solved.image, solved.report);
+    report.model = model;
     let measurement = i;
     check(cancel)?;
     report.warnings.splice(0..0, warnings);
@@ -278,6 +287,7 @@ impl CaptureSource for StoredCapture<'_> {
             full_scale: c.pixel_format.full_scale(),
             exposure_us: c.exposure_us,
             region: c.region,
+            binning: c.binning,
             missing_dark: (!dark)
                 .then_some("take dark_frames, or a dark capture named in dark_capture"),
         }

@@ -50,6 +50,9 @@ pub struct Scenes {
     transports: Cache<Transport>,
     grams: Cache<Gram>,
     conditioning: Cache<Conditioning>,
+    /// Scenes sampled as a reconstruction chose from its noise, by key
+    /// (`name#sampling,wall m,scene m`): each has its own cached `T`.
+    variants: Mutex<BTreeMap<String, Arc<Scene>>>,
 }
 
 impl Scenes {
@@ -81,6 +84,7 @@ impl Scenes {
             transports: Mutex::new(BTreeMap::new()),
             grams: Mutex::new(BTreeMap::new()),
             conditioning: Mutex::new(BTreeMap::new()),
+            variants: Mutex::new(BTreeMap::new()),
         })
     }
 
@@ -107,12 +111,55 @@ impl Scenes {
         self.scenes.keys().cloned().collect()
     }
 
-    /// The scene with this name, or the error that lists the known ones.
+    /// The scene with this name (or a variant's key), or the error that lists the known ones.
     pub fn scene(&self, name: &str) -> Result<Arc<Scene>, ScenesError> {
+        if let Some(v) = self
+            .variants
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .get(name)
+        {
+            return Ok(Arc::clone(v));
+        }
         self.get(name).ok_or_else(|| ScenesError::Unknown {
             name: name.to_string(),
             known: self.names(),
         })
+    }
+
+    /// The key under which scene `name`, sampled as a reconstruction with
+    /// per-row `variance` chose (MODEL.md "Rows that match the measurement"),
+    /// keeps its `T`, Gram and conditioning; `name` itself when the choice is
+    /// the file's own, and what was chosen when the file left a key out.
+    pub fn for_noise(
+        &self,
+        name: &str,
+        variance: &[f64],
+    ) -> Result<(String, Option<crate::transport::choose::ModelChoice>), ScenesError> {
+        let scene = self.scene(name)?;
+        if scene.left_out() == Default::default() {
+            return Ok((name.to_string(), None));
+        }
+        let (chosen, choice) = crate::transport::choose::choose(&scene, variance, self.budget)
+            .map_err(|source| ScenesError::Transport {
+                name: name.to_string(),
+                source,
+            })?;
+        if chosen == *scene {
+            return Ok((name.to_string(), Some(choice)));
+        }
+        let key = format!(
+            "{name}#{},{},{}",
+            choice.sampling.name(),
+            choice.wall_supersample,
+            choice.scene_supersample
+        );
+        self.variants
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .entry(key.clone())
+            .or_insert_with(|| Arc::new(chosen));
+        Ok((key, Some(choice)))
     }
 
     /// `T` of a scene, built on first use (CPU-heavy: call from a blocking task).

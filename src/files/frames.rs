@@ -130,6 +130,45 @@ fn decode_from<R: std::io::Read + std::io::Seek>(
 
 /// The camera's bits per pixel as a polnlos frame file's page description
 /// states it (`{"polnlos": "frames", "bits": 12, ...}`), if it does.
+/// Writes `pages` (each `width x height` DN, row-major) as a multi-page
+/// 16-bit grey TIFF that states its bit depth, so that [`read_frames`] (and
+/// `polnlos measure`) reads the right full scale back.
+pub fn write_frames(
+    path: &Path,
+    width: usize,
+    height: usize,
+    pages: &[Vec<u16>],
+    bits: u32,
+) -> Result<(), FileError> {
+    use tiff::encoder::{colortype, TiffEncoder};
+    let fail = |e: tiff::TiffError| FileError::format(path, format!("cannot encode TIFF: {e}"));
+    let (w, h) = match (u32::try_from(width), u32::try_from(height)) {
+        (Ok(w), Ok(h)) if w <= MAX_SIDE && h <= MAX_SIDE => (w, h),
+        _ => {
+            return Err(FileError::format(
+                path,
+                format!(
+                    "{width}x{height} is larger than the {MAX_SIDE}-pixel sides frames may have"
+                ),
+            ))
+        }
+    };
+    let mut buf = std::io::Cursor::new(Vec::new());
+    {
+        let mut enc = TiffEncoder::new(&mut buf).map_err(fail)?;
+        let desc = serde_json::json!({"polnlos": "frames", "bits": bits}).to_string();
+        for px in pages {
+            let mut image = enc.new_image::<colortype::Gray16>(w, h).map_err(fail)?;
+            image
+                .encoder()
+                .write_tag(tiff::tags::Tag::ImageDescription, desc.as_str())
+                .map_err(fail)?;
+            image.write_data(px).map_err(fail)?;
+        }
+    }
+    super::write_atomic(path, &buf.into_inner())
+}
+
 fn described_bits<R: std::io::Read + std::io::Seek>(
     dec: &mut tiff::decoder::Decoder<R>,
 ) -> Option<u32> {
@@ -152,6 +191,16 @@ mod tests {
         for (w, h, px) in pages {
             enc.write_image::<colortype::Gray16>(*w, *h, px).unwrap();
         }
+    }
+
+    #[test]
+    fn written_frames_read_back_with_their_bit_depth() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("f.tiff");
+        write_frames(&p, 2, 1, &[vec![100, 7], vec![110, 7]], 12).unwrap();
+        let f = read_frames(&p).unwrap();
+        assert_eq!((f.stack.count, f.full_scale()), (2, Some(4095.0)));
+        assert_eq!(f.stack.mean, vec![105.0, 7.0]);
     }
 
     #[test]

@@ -5,7 +5,7 @@
 //! Why one function: the daemon (from its store) and `polnlos measure` (from
 //! a user's TIFF files) must give the same `i` for the same frames.
 
-use super::{stack, BlockFrames, MeasureError, Measurement};
+use super::{stack, BlockFrames, MeasureError, Measurement, PixelMaps};
 use crate::measure::Frame;
 use crate::scene::Scene;
 use crate::transport::{Block, Transport};
@@ -30,6 +30,10 @@ pub struct CaptureFrames {
     pub full_scale: f64,
     /// Exposure per frame, microseconds.
     pub exposure_us: f64,
+    /// The frame's region offset on the sensor, unbinned pixels (`[0, 0]` when unknown).
+    pub offset: [u32; 2],
+    /// The frame's binning (`[1, 1]` when unknown).
+    pub binning: [u32; 2],
 }
 
 impl CaptureFrames {
@@ -92,13 +96,25 @@ pub fn match_blocks(
     Ok(order)
 }
 
-/// The measurement of `captures` for `scene`: each block's capture sampled
-/// through its pose's homography and stacked in the order of `blocks`, in
-/// fractions of full scale per microsecond (MODEL.md "From camera frames to i").
+/// The measurement of `captures` for `scene`: each block's capture averaged
+/// over every wall element's pixels through its pose's homography and
+/// stacked in the order of `blocks`, in fractions of full scale per
+/// microsecond (MODEL.md "From camera frames to i").
 pub fn assemble(
     scene: &Scene,
     blocks: &[Block],
     captures: &[CaptureFrames],
+) -> Result<Measurement, MeasureError> {
+    assemble_with(scene, blocks, captures, &PixelMaps::default())
+}
+
+/// [`assemble`] with the pixel maps kept in `maps` (made on first use), for
+/// a caller that measures the same poses again (a progressive reconstruction).
+pub fn assemble_with(
+    scene: &Scene,
+    blocks: &[Block],
+    captures: &[CaptureFrames],
+    maps: &PixelMaps,
 ) -> Result<Measurement, MeasureError> {
     let order = match_blocks(blocks, captures)?;
     let mut homographies = Vec::with_capacity(order.len());
@@ -128,10 +144,12 @@ pub fn assemble(
                 frames: c.frames,
                 full_scale: c.full_scale,
                 exposure_us: c.exposure_us,
+                offset: c.offset,
+                binning: c.binning,
             }
         })
         .collect();
-    stack(&frames, &scene.wall().plane)
+    stack(&frames, &scene.wall().plane, maps)
 }
 
 /// How a measurement was put in units of `T l`.
@@ -224,6 +242,8 @@ mod tests {
             frames: 1,
             full_scale: 1000.0,
             exposure_us: 10.0,
+            offset: [0, 0],
+            binning: [1, 1],
         }
     }
 

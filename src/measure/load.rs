@@ -21,8 +21,11 @@ pub struct CaptureInfo {
     /// Exposure per frame, microseconds.
     pub exposure_us: f64,
     /// The region `[x, y, width, height]` it recorded, when it did: its
-    /// mean frame must have that size.
+    /// mean frame must have that size, and its offset places the pixels on
+    /// the sensor (MODEL.md "From camera frames to i").
     pub region: Option<[u32; 4]>,
+    /// The binning it recorded, when it did (`[1, 1]` otherwise).
+    pub binning: Option<[u32; 2]>,
     /// `None` when a dark level was subtracted from its mean; else how to
     /// take one next time (the daemon's and the CLI's ways differ).
     pub missing_dark: Option<&'static str>,
@@ -93,6 +96,8 @@ pub fn load(
         frames: info.frames,
         full_scale: info.full_scale,
         exposure_us: info.exposure_us,
+        offset: info.region.map_or([0, 0], |r| [r[0], r[1]]),
+        binning: info.binning.unwrap_or([1, 1]),
     })
 }
 
@@ -131,6 +136,7 @@ mod tests {
                 full_scale: 65535.0,
                 exposure_us: 100.0,
                 region,
+                binning: None,
                 missing_dark: Some("take dark frames"),
             },
             size,

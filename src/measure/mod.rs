@@ -10,11 +10,13 @@ pub mod levels;
 mod load;
 mod stack;
 
-pub use assemble::{assemble, match_blocks, same_angle, to_model_units, CaptureFrames, Units};
+pub use assemble::{
+    assemble, assemble_with, match_blocks, same_angle, to_model_units, CaptureFrames, Units,
+};
 pub use average::FrameStack;
 pub use frame::Frame;
 pub use load::{load, CaptureInfo, CaptureSource};
-pub use stack::{stack, with_rounding_bias, BlockFrames, Measurement};
+pub use stack::{stack, with_rounding_bias, BlockFrames, Measurement, PixelMaps};
 
 use crate::scene::{Homography, Plane};
 
@@ -77,81 +79,31 @@ pub enum MeasureError {
         /// Frame width, height.
         frames: [usize; 2],
     },
-    /// A wall sample maps outside the frame.
-    #[error("pose {pose:?}: wall element {element} (u = {u:.4} m, v = {v:.4} m) maps to pixel ({x:.1}, {y:.1}), outside the {width}x{height} frame; check the homography and the region of interest")]
-    OutsideFrame {
+    /// The wall's pixels could not be found in the frame.
+    #[error(transparent)]
+    Footprint(#[from] crate::scene::FootprintError),
+    /// A variance frame of another size than its mean.
+    #[error("pose {pose:?}: the variance frame is {}x{} but the mean is {}x{}; the files do not belong together", variance[0], variance[1], mean[0], mean[1])]
+    VarianceSize {
         /// Pose name.
         pose: String,
-        /// Wall element index.
-        element: usize,
-        /// Wall coordinate u.
-        u: f64,
-        /// Wall coordinate v.
-        v: f64,
-        /// Pixel x.
-        x: f64,
-        /// Pixel y.
-        y: f64,
-        /// Frame width.
-        width: usize,
-        /// Frame height.
-        height: usize,
+        /// Variance frame width, height.
+        variance: [usize; 2],
+        /// Mean frame width, height.
+        mean: [usize; 2],
     },
 }
 
-/// One wall value per element: the mean of the frame bilinearly sampled at
-/// the element's sub-sample points through `h`.
-pub fn sample_wall(
+/// The footprint-weighted mean of each wall element's pixels in `frame`, a
+/// whole unbinned frame at the sensor's origin (MODEL.md `i_j`): one block's
+/// wall image in DN, as [`stack`] makes it before the units.
+pub fn wall_means(
     frame: &Frame,
     h: &Homography,
     wall: &Plane,
     pose: &str,
 ) -> Result<Vec<f64>, MeasureError> {
-    let m2 = wall.samples_per_element();
-    let uv = wall.sample_uv();
-    let mut out = vec![0.0; wall.grid.count()];
-    for (s, &(u, v)) in uv.iter().enumerate() {
-        let element = s / m2;
-        let outside = |x: f64, y: f64| MeasureError::OutsideFrame {
-            pose: pose.to_string(),
-            element,
-            u,
-            v,
-            x,
-            y,
-            width: frame.width,
-            height: frame.height,
-        };
-        let (x, y) = h.apply(u, v).ok_or_else(|| outside(f64::NAN, f64::NAN))?;
-        let value = frame.bilinear(x, y).ok_or_else(|| outside(x, y))?;
-        out[element] += value / m2 as f64;
-    }
-    Ok(out)
-}
-
-/// The camera frame showing a wall whose elements have the given values:
-/// each pixel shows the wall element it sees (piecewise constant), `background`
-/// where it sees no wall.
-pub fn render_wall(
-    values: &[f64],
-    h: &Homography,
-    wall: &Plane,
-    width: usize,
-    height: usize,
-    background: f64,
-) -> Frame {
-    let mut frame = Frame::zeros(width, height);
-    let (nu, nv) = (wall.grid.nu as f64, wall.grid.nv as f64);
-    for y in 0..height {
-        for x in 0..width {
-            let value = h.invert(x as f64, y as f64).and_then(|(u, v)| {
-                let fu = (u / wall.size[0] + 0.5) * nu;
-                let fv = (v / wall.size[1] + 0.5) * nv;
-                (fu >= 0.0 && fv >= 0.0 && fu < nu && fv < nv)
-                    .then(|| values[wall.grid.index(fu as usize, fv as usize)])
-            });
-            frame.pixels[y * width + x] = value.unwrap_or(background) as f32;
-        }
-    }
-    frame
+    let g = crate::scene::FrameGeometry::plain(frame.width, frame.height);
+    let map = crate::scene::PixelMap::frame(h, wall, g, pose)?;
+    Ok(map.average(&frame.pixels, None).0)
 }

@@ -3,8 +3,8 @@
 use serde::Deserialize;
 
 use super::{
-    crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography, Occluder, Plane,
-    Pose, Scene, SceneError, SceneParts, Wall,
+    crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography, LeftOut, Occluder,
+    Plane, Pose, Scene, SceneError, SceneParts, Wall, WallSampling,
 };
 use crate::optics::{Brdf, DiffuseModel, PolarizerModel, Vec3};
 
@@ -29,8 +29,7 @@ struct RawWall {
     u_axis: [f64; 3],
     size: [f64; 2],
     grid: [i64; 2],
-    #[serde(default = "one")]
-    supersample: i64,
+    supersample: Option<i64>,
     roughness: f64,
     ior: f64,
     #[serde(default = "unit")]
@@ -39,6 +38,8 @@ struct RawWall {
     kd: f64,
     /// Read as a value so that a wrong one is an error naming the key.
     diffuse: Option<toml::Value>,
+    /// Likewise.
+    sampling: Option<toml::Value>,
 }
 
 #[derive(Deserialize)]
@@ -49,8 +50,7 @@ struct RawScenePlane {
     u_axis: [f64; 3],
     size: [f64; 2],
     grid: [i64; 2],
-    #[serde(default = "one")]
-    supersample: i64,
+    supersample: Option<i64>,
     #[serde(default = "lambertian")]
     emitter: Emitter,
     polarization: Option<[f64; 3]>,
@@ -90,9 +90,6 @@ struct RawSphere {
     radius: f64,
 }
 
-fn one() -> i64 {
-    1
-}
 fn unit() -> f64 {
     1.0
 }
@@ -137,7 +134,7 @@ fn array(v: Vec3) -> [f64; 3] {
 impl From<SceneParts> for RawFile {
     fn from(p: SceneParts) -> Self {
         let (w, s) = (p.wall.plane, p.hidden.plane);
-        let brdf = p.wall.brdf;
+        let (brdf, sampling, left_out) = (p.wall.brdf, p.wall.sampling, p.left_out);
         let mut polarizer = toml::Table::new();
         polarizer.insert("model".into(), p.polarizer.name().into());
         RawFile {
@@ -147,12 +144,15 @@ impl From<SceneParts> for RawFile {
                 u_axis: array(w.u),
                 size: w.size,
                 grid: [count(w.grid.nu), count(w.grid.nv)],
-                supersample: count(w.supersample),
+                supersample: (!left_out.wall_supersample || w.supersample != 1)
+                    .then(|| count(w.supersample)),
                 roughness: brdf.alpha,
                 ior: brdf.eta,
                 ks: brdf.ks,
                 kd: brdf.kd,
                 diffuse: Some(brdf.diffuse.name().into()),
+                sampling: (!left_out.sampling || sampling != WallSampling::default())
+                    .then(|| sampling.name().into()),
             },
             scene: RawScenePlane {
                 center: array(s.center),
@@ -160,7 +160,8 @@ impl From<SceneParts> for RawFile {
                 u_axis: array(s.u),
                 size: s.size,
                 grid: [count(s.grid.nu), count(s.grid.nv)],
-                supersample: count(s.supersample),
+                supersample: (!left_out.scene_supersample || s.supersample != 1)
+                    .then(|| count(s.supersample)),
                 emitter: p.hidden.emitter,
                 polarization: p.hidden.polarization.map(array),
             },
@@ -355,6 +356,20 @@ fn diffuse_model(v: Option<toml::Value>) -> Result<DiffuseModel, SceneError> {
         })
 }
 
+/// `[wall] sampling`: `"uniform"` (default) or `"pixels"`.
+fn wall_sampling(v: Option<toml::Value>) -> Result<WallSampling, SceneError> {
+    let Some(v) = v else {
+        return Ok(WallSampling::default());
+    };
+    v.as_str().and_then(WallSampling::from_name).ok_or_else(|| {
+        SceneError::invalid(
+            "wall.sampling",
+            v.to_string(),
+            "must be \"uniform\" (the element's supersample points, the default) or \"pixels\" (the wall points of the element's pixels, as the measurement weighs them)",
+        )
+    })
+}
+
 /// `[polarizer]`: only `model = "absorbing"` (default) or `"transmitting"`.
 fn polarizer_model(t: Option<toml::Table>) -> Result<PolarizerModel, SceneError> {
     let Some(t) = t else {
@@ -384,6 +399,12 @@ fn polarizer_model(t: Option<toml::Table>) -> Result<PolarizerModel, SceneError>
 fn validate(raw: RawFile) -> Result<Scene, SceneError> {
     let polarizer = polarizer_model(raw.polarizer)?;
     let w = raw.wall;
+    let left_out = LeftOut {
+        wall_supersample: w.supersample.is_none(),
+        scene_supersample: raw.scene.supersample.is_none(),
+        sampling: w.sampling.is_none(),
+    };
+    let sampling = wall_sampling(w.sampling)?;
     let wall_plane = plane(
         "wall",
         w.center,
@@ -391,7 +412,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         w.u_axis,
         w.size,
         w.grid,
-        w.supersample,
+        w.supersample.unwrap_or(1),
     )?;
     if !(w.roughness > 0.0 && w.roughness <= 1.0) {
         return Err(SceneError::invalid(
@@ -428,7 +449,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         s.u_axis,
         s.size,
         s.grid,
-        s.supersample,
+        s.supersample.unwrap_or(1),
     )?;
     let n = wall_plane.normal;
     let c0 = wall_plane.center;
@@ -593,10 +614,21 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         }
     }
 
+    if sampling == WallSampling::Pixels {
+        if let Some(i) = poses.iter().position(|p| p.homography.is_none()) {
+            return Err(SceneError::invalid(
+                format!("pose[{i}].homography"),
+                "absent",
+                "is required by wall.sampling = \"pixels\" (rows over the element's pixels need the pose's homography); add it, or use sampling = \"uniform\"",
+            ));
+        }
+    }
+
     Ok(Scene {
         wall: Wall {
             plane: wall_plane,
             brdf,
+            sampling,
         },
         hidden: HiddenScene {
             plane: scene_plane,
@@ -606,6 +638,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         poses,
         occluders,
         polarizer,
+        left_out,
     })
 }
 
@@ -639,6 +672,38 @@ polarizer_deg = [0.0, 90.0]
     fn with(from: &str, to: &str) -> Result<Scene, SceneError> {
         assert!(BASE.contains(from), "{from}");
         parse(&BASE.replacen(from, to, 1))
+    }
+
+    #[test]
+    fn wall_sampling_is_read_checked_and_what_was_left_out_is_kept() {
+        let s = parse(BASE).unwrap();
+        assert_eq!(s.wall.sampling, WallSampling::Uniform);
+        let all = LeftOut {
+            wall_supersample: true,
+            scene_supersample: true,
+            sampling: true,
+        };
+        assert_eq!(s.left_out, all);
+        // An edit keeps what the file left out left out.
+        assert_eq!(s.clone().edit(|_| {}).unwrap().left_out, all);
+        let h = "polarizer_deg = [0.0, 90.0]\nhomography = [[-425.5, 1220.5, 255.5], [250.9, 0, 255.5], [-1.665, 0, 1]]";
+        let text = BASE
+            .replace(
+                "ior = 1.5",
+                "ior = 1.5\nsampling = \"pixels\"\nsupersample = 2",
+            )
+            .replace("polarizer_deg = [0.0, 90.0]", h);
+        let p = parse(&text).unwrap();
+        assert_eq!(p.wall.sampling, WallSampling::Pixels);
+        assert!(
+            !p.left_out.sampling && !p.left_out.wall_supersample && p.left_out.scene_supersample
+        );
+        // "pixels" needs every pose's homography; an unknown value is named.
+        let e = with("ior = 1.5", "ior = 1.5\nsampling = \"pixels\"").unwrap_err();
+        assert_eq!(e.key(), Some("pose[0].homography"), "{e}");
+        assert!(e.to_string().contains("wall.sampling = \"pixels\""), "{e}");
+        let e = with("ior = 1.5", "ior = 1.5\nsampling = \"centre\"").unwrap_err();
+        assert_eq!(e.key(), Some("wall.sampling"), "{e}");
     }
 
     #[test]

@@ -37,6 +37,19 @@ impl Homography {
         project(&self.h, u, v)
     }
 
+    /// `H^-1`, pixels to wall metres (up to scale).
+    pub fn inverse_matrix(&self) -> [[f64; 3]; 3] {
+        self.inv
+    }
+
+    /// `det H^-1`: with `w` the third coordinate of `H^-1 [x, y, 1]`, the
+    /// footprint of pixel (x, y) on the wall is `|det H^-1| / |w|^3` m^2
+    /// (the Jacobian determinant of a projective map; MODEL.md `a_p`).
+    pub fn inverse_determinant(&self) -> f64 {
+        let m = nalgebra::Matrix3::from_fn(|r, c| self.inv[r][c]);
+        m.determinant()
+    }
+
     /// Wall point (u, v) seen at pixel (x, y); `None` off the wall's plane.
     pub fn invert(&self, x: f64, y: f64) -> Option<(f64, f64)> {
         let (a, b, w) = mul(&self.inv, x, y);

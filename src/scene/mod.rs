@@ -8,6 +8,7 @@
 pub mod builtin;
 mod error;
 mod file;
+pub mod footprint;
 pub mod homography;
 pub mod occluder;
 pub mod plane;
@@ -15,6 +16,7 @@ pub mod plane;
 use std::path::Path;
 
 pub use error::SceneError;
+pub use footprint::{effective_pixels, FootprintError, FrameGeometry, PixelMap};
 pub use homography::Homography;
 pub use occluder::Occluder;
 pub use plane::{Grid, Plane};
@@ -38,6 +40,53 @@ pub struct Wall {
     pub plane: Plane,
     /// Its reflectance.
     pub brdf: Brdf,
+    /// How the rows of a pose with a homography average over an element.
+    pub sampling: WallSampling,
+}
+
+/// How a row of `T` averages over its wall element (MODEL.md "Rows that
+/// match the measurement", `[wall] sampling`); a pose without a homography
+/// always samples uniformly.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WallSampling {
+    /// The element's `m x m` sub-samples (wall `supersample`).
+    #[default]
+    Uniform,
+    /// The wall points `H^-1(p)` of the element's pixels, weighted by their
+    /// footprints: the same pixels and weights as the measurement.
+    Pixels,
+}
+
+impl WallSampling {
+    /// Every value, default first.
+    pub const ALL: [WallSampling; 2] = [WallSampling::Uniform, WallSampling::Pixels];
+
+    /// The value as a scene file writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            WallSampling::Uniform => "uniform",
+            WallSampling::Pixels => "pixels",
+        }
+    }
+
+    /// The value a scene file names, or `None` for an unknown name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|m| m.name() == name)
+    }
+}
+
+/// Which of the keys that set how finely `T` is sampled a scene file left
+/// out: a reconstruction, which knows the noise, may choose those itself
+/// (MODEL.md "Rows that match the measurement").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LeftOut {
+    /// `[wall] supersample`.
+    pub wall_supersample: bool,
+    /// `[scene] supersample`.
+    pub scene_supersample: bool,
+    /// `[wall] sampling`.
+    pub sampling: bool,
 }
 
 /// The hidden scene: a plane of emitting elements.
@@ -136,6 +185,7 @@ pub struct Scene {
     poses: Vec<Pose>,
     occluders: Vec<Occluder>,
     polarizer: PolarizerModel,
+    left_out: LeftOut,
 }
 
 /// The parts of a [`Scene`], open for change inside [`Scene::edit`].
@@ -155,6 +205,9 @@ pub struct SceneParts {
     pub occluders: Vec<Occluder>,
     /// How every pose's polarizer sheet acts on oblique rays (`[polarizer] model`).
     pub polarizer: PolarizerModel,
+    /// The sampling keys the file left out; a key an edit sets away from its
+    /// default counts as given from then on.
+    pub left_out: LeftOut,
 }
 
 impl Scene {
@@ -187,6 +240,7 @@ impl Scene {
             poses: self.poses,
             occluders: self.occluders,
             polarizer: self.polarizer,
+            left_out: self.left_out,
         };
         change(&mut parts);
         file::revalidate(parts)
@@ -205,6 +259,11 @@ impl Scene {
     /// Camera poses, in file order (the row-block order of `T`).
     pub fn poses(&self) -> &[Pose] {
         &self.poses
+    }
+
+    /// The sampling keys the scene file left out.
+    pub fn left_out(&self) -> LeftOut {
+        self.left_out
     }
 
     /// Occluders between scene and wall.

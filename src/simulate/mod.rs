@@ -7,6 +7,7 @@
 //! the bench. Each element then gets Poisson shot noise, Gaussian read noise,
 //! and quantization to `bits` with the full well mapped to full scale.
 
+pub mod camera;
 pub mod patterns;
 
 use rand::SeedableRng;

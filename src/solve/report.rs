@@ -66,6 +66,10 @@ pub struct Report {
     /// the noise level; `null` when no independent noise level is known (a
     /// noise estimated from the same residual cannot tell model from noise).
     pub model_check: Option<super::adequacy::Adequacy>,
+    /// How finely `T` was sampled when polnlos chose it from the noise
+    /// (keys the scene file left out; MODEL.md "Rows that match the measurement").
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model: Option<crate::transport::choose::ModelChoice>,
     /// Warnings from every stage (solver, conditioning).
     pub warnings: Vec<String>,
 }
@@ -98,6 +102,7 @@ impl Report {
             solver: rec.stats,
             lambda_choice,
             model_check: None,
+            model: None,
             warnings,
         }
     }

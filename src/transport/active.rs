@@ -74,6 +74,9 @@ pub fn build_active(
             reason: "must be a positive path length in metres",
         });
     }
+    if scene.wall().sampling == crate::scene::WallSampling::Pixels {
+        return Err(TransportError::ActivePixels);
+    }
     let wall = &scene.wall().plane;
     let (hu, hv) = (0.5 * wall.size[0], 0.5 * wall.size[1]);
     if setup.spot.0.abs() > hu || setup.spot.1.abs() > hv {

@@ -14,7 +14,7 @@
 //! evaluated, through the same kernel as the uniform build; the scene side
 //! keeps the scene file's `supersample`.
 
-use super::build::{blocks_of, build_rows};
+use super::build::{blocks_of, build_rows, WallSamples};
 use super::{MemoryBudget, Transport, TransportError};
 use crate::scene::Scene;
 
@@ -57,7 +57,9 @@ fn check(tolerance: f64, max_m: usize) -> Result<(), TransportError> {
 
 /// Builds `T` with adaptive wall supersampling (the scene's own wall
 /// `supersample` is ignored: refinement starts at the element centres);
-/// `T` and each refinement pass must fit `budget`.
+/// `T` and each refinement pass must fit `budget`. With `sampling =
+/// "pixels"` the rows already average over exactly the element's pixels:
+/// that build is returned, nothing refined (`samples` counts the pixels).
 pub fn build_adaptive(
     scene: &Scene,
     tolerance: f64,
@@ -65,6 +67,21 @@ pub fn build_adaptive(
     budget: MemoryBudget,
 ) -> Result<(Transport, AdaptiveStats), TransportError> {
     check(tolerance, max_m)?;
+    if scene.wall().sampling == crate::scene::WallSampling::Pixels {
+        let samples = WallSamples::of_scene(scene, budget)?;
+        let t = super::build(scene, budget)?;
+        return Ok((
+            t,
+            AdaptiveStats {
+                tolerance,
+                max_m,
+                elements_at: Vec::new(),
+                estimated_error: 0.0,
+                met: true,
+                samples: samples.points.len(),
+            },
+        ));
+    }
     let plane = &scene.wall().plane;
     let n_wall = plane.grid.count();
     let blocks = scene.block_count();
@@ -88,7 +105,12 @@ pub fn build_adaptive(
     };
 
     let all: Vec<usize> = (0..n_wall).collect();
-    let mut data = build_rows(scene, budget, samples_of(&all, 1), n_wall, 1, &|_| {})?;
+    let mut data = build_rows(
+        scene,
+        budget,
+        &WallSamples::uniform(scene, samples_of(&all, 1), n_wall, 1),
+        &|_| {},
+    )?;
     let mut samples = n_wall;
     let norm2: f64 = data.iter().map(|v| v * v).sum();
     let budget2 = tolerance * tolerance * norm2;
@@ -125,7 +147,12 @@ pub fn build_adaptive(
             let pts = samples_of(&group, m2);
             samples += pts.len();
             let sub_rows = group.len() * blocks;
-            let finer = build_rows(scene, budget, pts, group.len(), m2 * m2, &|_| {})?;
+            let finer = build_rows(
+                scene,
+                budget,
+                &WallSamples::uniform(scene, pts, group.len(), m2 * m2),
+                &|_| {},
+            )?;
             let mut change = vec![0.0f64; group.len()];
             for k in 0..cols {
                 for b in 0..blocks {

@@ -21,7 +21,7 @@ use super::{Block, MemoryBudget, Transport, TransportError};
 use crate::optics::brdf::Direction;
 use crate::optics::polarizer::analyzer_factor;
 use crate::optics::{diffuse, ggx, DiffuseModel, Polarization, Vec3};
-use crate::scene::{Emitter, Scene};
+use crate::scene::{Emitter, PixelMap, Scene, WallSampling};
 
 /// Three coordinate arrays, one entry per wall sample.
 #[derive(Default, Clone)]
@@ -55,8 +55,122 @@ struct AnalyzerView {
     diffuse_out: Vec<f64>,
 }
 
+/// How the samples of a pose fold into its rows.
+#[derive(Debug, Clone)]
+pub(crate) enum Rows {
+    /// `mw` consecutive samples per wall element, equal weights (uniform sampling).
+    Uniform {
+        /// Samples per element.
+        mw: usize,
+    },
+    /// Sample `s` adds to row `row[s]` with weight `weight[s]` (the weights of a
+    /// row sum to 1): the `"pixels"` rows, or one row per pixel for a render.
+    Weighted {
+        /// Row (wall element, or pixel) of each sample.
+        row: Vec<u32>,
+        /// Its weight.
+        weight: Vec<f64>,
+    },
+}
+
+/// The wall samples one pose's rows average over: a range of the shared
+/// sample points and how they fold into rows.
+#[derive(Debug, Clone)]
+pub(crate) struct PoseSamples {
+    /// The pose's samples in the shared array.
+    pub range: std::ops::Range<usize>,
+    /// How they fold into rows.
+    pub rows: Rows,
+}
+
+/// Every pose's wall samples: shared points (poses that sample alike share
+/// theirs, so the incident geometry is computed once) and each pose's part.
+#[derive(Debug, Clone)]
+pub(crate) struct WallSamples {
+    /// World positions of every sample.
+    pub points: Vec<Vec3>,
+    /// One per pose, in scene order.
+    pub poses: Vec<PoseSamples>,
+    /// Rows per block.
+    pub rows_per_block: usize,
+}
+
+impl WallSamples {
+    /// Every pose sampling `points` uniformly, `mw` consecutive samples per row.
+    pub fn uniform(scene: &Scene, points: Vec<Vec3>, rows_per_block: usize, mw: usize) -> Self {
+        let range = 0..points.len();
+        WallSamples {
+            poses: scene
+                .poses()
+                .iter()
+                .map(|_| PoseSamples {
+                    range: range.clone(),
+                    rows: Rows::Uniform { mw },
+                })
+                .collect(),
+            points,
+            rows_per_block,
+        }
+    }
+
+    /// The samples `scene`'s rows average over (MODEL.md "Rows that match the
+    /// measurement"): with `sampling = "pixels"` each pose's own pixels
+    /// through its homography, weighted by their footprints; the wall's
+    /// uniform `m x m` sub-samples otherwise.
+    pub fn of_scene(scene: &Scene, budget: MemoryBudget) -> Result<Self, TransportError> {
+        let plane = &scene.wall().plane;
+        if scene.wall().sampling == WallSampling::Uniform {
+            return Ok(Self::uniform(
+                scene,
+                plane.sample_points(),
+                plane.grid.count(),
+                plane.samples_per_element(),
+            ));
+        }
+        let mut points = Vec::new();
+        let mut poses = Vec::with_capacity(scene.poses().len());
+        for pose in scene.poses() {
+            let h = pose
+                .homography
+                .as_ref()
+                .ok_or_else(|| TransportError::NoHomography {
+                    pose: pose.name.clone(),
+                })?;
+            let map = PixelMap::plane(h, plane, &pose.name)?;
+            // Each sample keeps its point, row and weight, and per pose the scratch arrays.
+            super::check_size(
+                budget,
+                scene.rows(),
+                scene.cols(),
+                scene.block_count(),
+                (points.len() + map.len()) as f64 * 120.0,
+            )?;
+            let start = points.len();
+            let mut row = Vec::with_capacity(map.len());
+            for j in 0..map.elements() {
+                row.extend(map.range(j).map(|_| j as u32));
+            }
+            points.extend(map.points().iter().map(|&[u, v]| plane.point(u, v)));
+            poses.push(PoseSamples {
+                range: start..points.len(),
+                rows: Rows::Weighted {
+                    row,
+                    weight: map.weights().to_vec(),
+                },
+            });
+        }
+        Ok(WallSamples {
+            points,
+            poses,
+            rows_per_block: plane.grid.count(),
+        })
+    }
+}
+
 /// What one pose contributes, precomputed per wall sample.
 struct PoseView {
+    /// Its samples in the shared array, and how they fold into rows.
+    samples: PoseSamples,
     /// Direction to the camera, `n.w_o` and `G1(w_o)` per wall sample.
     w_o: Soa,
     cos_o: Vec<f64>,
@@ -90,14 +204,8 @@ pub fn build_with_progress(
         scene.block_count(),
         samples * 48.0,
     )?;
-    let data = build_rows(
-        scene,
-        budget,
-        plane.sample_points(),
-        plane.grid.count(),
-        plane.samples_per_element(),
-        progress,
-    )?;
+    let samples = WallSamples::of_scene(scene, budget)?;
+    let data = build_rows(scene, budget, &samples, progress)?;
     Ok(Transport::from_col_major(
         scene.rows(),
         scene.cols(),
@@ -106,6 +214,45 @@ pub fn build_with_progress(
         plane.grid,
         scene.hidden().plane.grid,
     ))
+}
+
+/// The wall radiance each block's camera sees at single wall points, for a
+/// hidden scene `l` (MODEL.md "One entry of T" at one point, no averaging):
+/// `points[p]` are wall coordinates (u, v) for pose `p`; the answer holds,
+/// per block in `T`'s order, one value per point of its pose. How a camera
+/// frame is rendered pixel by pixel, each pixel at its own wall point.
+pub fn radiance_at(scene: &Scene, points: &[Vec<[f64; 2]>], l: &[f64]) -> Vec<Vec<f64>> {
+    let plane = &scene.wall().plane;
+    let longest = points.iter().map(Vec::len).max().unwrap_or(0);
+    let mut all = Vec::with_capacity(points.iter().map(Vec::len).sum());
+    let mut poses = Vec::with_capacity(scene.poses().len());
+    for (k, _) in scene.poses().iter().enumerate() {
+        let own = points.get(k).map_or(&[][..], Vec::as_slice);
+        let start = all.len();
+        all.extend(own.iter().map(|&[u, v]| plane.point(u, v)));
+        poses.push(PoseSamples {
+            range: start..all.len(),
+            rows: Rows::Weighted {
+                row: (0..own.len() as u32).collect(),
+                weight: vec![1.0; own.len()],
+            },
+        });
+    }
+    let samples = WallSamples {
+        points: all,
+        poses,
+        rows_per_block: longest,
+    };
+    let flat = apply_rows(scene, &samples, l);
+    let mut out = Vec::with_capacity(scene.block_count());
+    for (k, pose) in scene.poses().iter().enumerate() {
+        let n = points.get(k).map_or(0, Vec::len);
+        for _ in 0..pose.block_count() {
+            let b = out.len();
+            out.push(flat[b * longest..b * longest + n].to_vec());
+        }
+    }
+    out
 }
 
 /// The row blocks of a scene's `T`, in stacking order (pose, then angle):
@@ -129,123 +276,184 @@ pub fn blocks_of(scene: &Scene) -> Vec<Block> {
     blocks
 }
 
-/// Column-major entries of `T` restricted to `n_wall` wall elements whose
-/// samples are `wall_pts`, element-major with `mw` consecutive samples per
-/// element (row `j` of a block averages samples `j mw .. (j + 1) mw`).
-/// Rows are `blocks x n_wall`; the uniform build passes the whole wall.
-pub(super) fn build_rows(
+/// Column-major entries of `T` for the rows `samples` describe: each pose's
+/// block rows average over its samples (the uniform build passes the whole
+/// wall; the adaptive one the elements it refines). Rows are
+/// `blocks x samples.rows_per_block`.
+pub(crate) fn build_rows(
     scene: &Scene,
     budget: MemoryBudget,
-    wall_pts: Vec<Vec3>,
-    n_wall: usize,
-    mw: usize,
+    samples: &WallSamples,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Vec<f64>, TransportError> {
-    let rows = n_wall * scene.block_count();
+    let rows = samples.rows_per_block * scene.block_count();
     let cols = scene.cols();
     super::check_size(budget, rows, cols, scene.block_count(), 0.0)?;
-
-    let wall = &scene.wall();
-    let brdf = wall.brdf;
-    let n = wall.plane.normal;
-    let wall_soa = Soa::from_vecs(wall_pts.iter().copied());
-    let n_samples = wall_pts.len();
-    let diffuse_on = brdf.kd != 0.0;
-    // The diffuse exit factor of one block at every wall sample (MODEL.md P_diff
-    // without its T_in): only when the scene has a diffuse term.
-    let exit = |dirs: &[Vec3], cos_o: &[f64], t: Option<&[Vec3]>| -> Vec<f64> {
-        if !diffuse_on {
-            return Vec::new();
-        }
-        (0..dirs.len())
-            .map(|j| match brdf.diffuse {
-                DiffuseModel::Lambert => {
-                    if t.is_some() {
-                        0.5
-                    } else {
-                        1.0
-                    }
-                }
-                DiffuseModel::Fresnel => {
-                    diffuse::exit(&n, &dirs[j], cos_o[j], brdf.eta, t.map(|t| &t[j]))
-                }
-            })
-            .collect()
-    };
-
-    let mut n_blocks = 0;
-    let mut views = Vec::with_capacity(scene.poses().len());
-    for pose in scene.poses() {
-        let dirs: Vec<Vec3> = wall_pts
-            .iter()
-            .map(|c| (pose.camera - c).normalize())
-            .collect();
-        let cos_o: Vec<f64> = dirs.iter().map(|w| n.dot(w)).collect();
-        let g1_o = cos_o
-            .iter()
-            .map(|&c| ggx::smith_g1(c, brdf.alpha))
-            .collect();
-        let first_block = n_blocks;
-        n_blocks += pose.block_count();
-        let mut analyzers = Vec::with_capacity(pose.analyzers.len());
-        for a in &pose.analyzers {
-            // A polarizer facing the wall never sees a ray along its axis;
-            // should it, the ray passes no light (t = 0).
-            let t: Vec<Vec3> = dirs
-                .iter()
-                .map(|w| a.effective_axis(scene.polarizer(), w))
-                .collect();
-            let b = Soa::from_vecs(dirs.iter().zip(&t).map(|(w, t)| w.cross(t)));
-            analyzers.push(AnalyzerView {
-                diffuse_out: exit(&dirs, &cos_o, Some(&t)),
-                t: Soa::from_vecs(t.into_iter()),
-                b,
-            });
-        }
-        views.push(PoseView {
-            diffuse_open: exit(&dirs, &cos_o, None),
-            w_o: Soa::from_vecs(dirs.into_iter()),
-            cos_o,
-            g1_o,
-            analyzers,
-            first_block,
-        });
-    }
-
-    let hidden = &scene.hidden();
-    let scene_pts = hidden.plane.sample_points();
-    let ms = hidden.plane.samples_per_element();
-    let weight = hidden.plane.element_area() / (mw * ms) as f64;
+    let ctx_parts = Parts::new(scene, samples);
+    let ctx = ctx_parts.ctx(scene, samples);
     let done = AtomicUsize::new(0);
-
     let mut data = vec![0.0f64; rows * cols];
-    let ctx = Ctx {
-        scene,
-        views: &views,
-        wall_pts: &wall_pts,
-        wall_soa: &wall_soa,
-        scene_pts: &scene_pts,
-        ms,
-        mw,
-        n_wall,
-        n: wall.plane.normal,
-        n_s: hidden.plane.normal,
-        lambertian: hidden.emitter == Emitter::Lambertian,
-        weight,
-        brdf,
-        diffuse: brdf.kd / PI,
-        fresnel_in: diffuse_on && brdf.diffuse == DiffuseModel::Fresnel,
-        ks_on: brdf.ks != 0.0,
-    };
+    let longest = ctx_parts.longest();
     columns_mut(&mut data, rows).for_each_init(
-        || Scratch::new(n_samples),
+        || Scratch::new(samples.points.len(), longest),
         |sc, (k, col)| {
             fill_column(sc, col, k, &ctx);
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
         },
     );
-
     Ok(data)
+}
+
+/// `T l` for the rows `samples` describe, without holding `T`: every
+/// column is made as [`build_rows`] makes it and added in, weighted by `l`.
+/// How a camera frame is rendered pixel by pixel (one row per pixel).
+pub(crate) fn apply_rows(scene: &Scene, samples: &WallSamples, l: &[f64]) -> Vec<f64> {
+    let rows = samples.rows_per_block * scene.block_count();
+    let parts = Parts::new(scene, samples);
+    let ctx = parts.ctx(scene, samples);
+    let longest = parts.longest();
+    (0..scene.cols().min(l.len()))
+        .into_par_iter()
+        .filter(|&k| l[k] != 0.0)
+        .fold(
+            || {
+                (
+                    Scratch::new(samples.points.len(), longest),
+                    vec![0.0; rows],
+                    vec![0.0; rows],
+                )
+            },
+            |(mut sc, mut col, mut acc), k| {
+                col.fill(0.0);
+                fill_column(&mut sc, &mut col, k, &ctx);
+                acc.iter_mut().zip(&col).for_each(|(a, c)| *a += l[k] * c);
+                (sc, col, acc)
+            },
+        )
+        .map(|(_, _, acc)| acc)
+        .reduce(
+            || vec![0.0; rows],
+            |mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                a
+            },
+        )
+}
+
+/// The per-pose views and scene samples a build shares between its tasks.
+struct Parts {
+    views: Vec<PoseView>,
+    wall_soa: Soa,
+    scene_pts: Vec<Vec3>,
+}
+
+impl Parts {
+    fn new(scene: &Scene, samples: &WallSamples) -> Self {
+        let wall = &scene.wall();
+        let brdf = wall.brdf;
+        let n = wall.plane.normal;
+        let wall_soa = Soa::from_vecs(samples.points.iter().copied());
+        let diffuse_on = brdf.kd != 0.0;
+        // The diffuse exit factor of one block at every wall sample (MODEL.md P_diff
+        // without its T_in): only when the scene has a diffuse term.
+        let exit = |dirs: &[Vec3], cos_o: &[f64], t: Option<&[Vec3]>| -> Vec<f64> {
+            if !diffuse_on {
+                return Vec::new();
+            }
+            (0..dirs.len())
+                .map(|j| match brdf.diffuse {
+                    DiffuseModel::Lambert => {
+                        if t.is_some() {
+                            0.5
+                        } else {
+                            1.0
+                        }
+                    }
+                    DiffuseModel::Fresnel => {
+                        diffuse::exit(&n, &dirs[j], cos_o[j], brdf.eta, t.map(|t| &t[j]))
+                    }
+                })
+                .collect()
+        };
+
+        let mut n_blocks = 0;
+        let mut views = Vec::with_capacity(scene.poses().len());
+        for (pose, own) in scene.poses().iter().zip(&samples.poses) {
+            let dirs: Vec<Vec3> = samples.points[own.range.clone()]
+                .iter()
+                .map(|c| (pose.camera - c).normalize())
+                .collect();
+            let cos_o: Vec<f64> = dirs.iter().map(|w| n.dot(w)).collect();
+            let g1_o = cos_o
+                .iter()
+                .map(|&c| ggx::smith_g1(c, brdf.alpha))
+                .collect();
+            let first_block = n_blocks;
+            n_blocks += pose.block_count();
+            let mut analyzers = Vec::with_capacity(pose.analyzers.len());
+            for a in &pose.analyzers {
+                // A polarizer facing the wall never sees a ray along its axis;
+                // should it, the ray passes no light (t = 0).
+                let t: Vec<Vec3> = dirs
+                    .iter()
+                    .map(|w| a.effective_axis(scene.polarizer(), w))
+                    .collect();
+                let b = Soa::from_vecs(dirs.iter().zip(&t).map(|(w, t)| w.cross(t)));
+                analyzers.push(AnalyzerView {
+                    diffuse_out: exit(&dirs, &cos_o, Some(&t)),
+                    t: Soa::from_vecs(t.into_iter()),
+                    b,
+                });
+            }
+            views.push(PoseView {
+                samples: own.clone(),
+                diffuse_open: exit(&dirs, &cos_o, None),
+                w_o: Soa::from_vecs(dirs.into_iter()),
+                cos_o,
+                g1_o,
+                analyzers,
+                first_block,
+            });
+        }
+
+        Parts {
+            views,
+            wall_soa,
+            scene_pts: scene.hidden().plane.sample_points(),
+        }
+    }
+
+    /// The most samples one pose has (the per-pose scratch length).
+    fn longest(&self) -> usize {
+        self.views
+            .iter()
+            .map(|v| v.samples.range.len())
+            .max()
+            .unwrap_or(0)
+    }
+
+    fn ctx<'a>(&'a self, scene: &'a Scene, samples: &'a WallSamples) -> Ctx<'a> {
+        let hidden = scene.hidden();
+        let brdf = scene.wall().brdf;
+        let ms = hidden.plane.samples_per_element();
+        Ctx {
+            scene,
+            views: &self.views,
+            wall_pts: &samples.points,
+            wall_soa: &self.wall_soa,
+            scene_pts: &self.scene_pts,
+            ms,
+            n_wall: samples.rows_per_block,
+            n: scene.wall().plane.normal,
+            n_s: hidden.plane.normal,
+            lambertian: hidden.emitter == Emitter::Lambertian,
+            weight: hidden.plane.element_area() / ms as f64,
+            brdf,
+            diffuse: brdf.kd / PI,
+            fresnel_in: brdf.kd != 0.0 && brdf.diffuse == DiffuseModel::Fresnel,
+            ks_on: brdf.ks != 0.0,
+        }
+    }
 }
 
 /// The columns of a column-major `T` (`rows` long) with their index, in
@@ -275,7 +483,6 @@ struct Ctx<'a> {
     wall_soa: &'a Soa,
     scene_pts: &'a [Vec3],
     ms: usize,
-    mw: usize,
     n_wall: usize,
     n: Vec3,
     n_s: Vec3,
@@ -292,7 +499,7 @@ struct Ctx<'a> {
 /// Column `k` of `T`: every block's response to scene element `k`.
 #[multiversion::multiversion(targets("x86_64+avx2+fma"))]
 fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
-    let (n_wall, mw) = (c.n_wall, c.mw);
+    let n_wall = c.n_wall;
     for s in &c.scene_pts[k * c.ms..(k + 1) * c.ms] {
         sc.incident(
             s,
@@ -315,23 +522,33 @@ fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
         }
         for view in c.views {
             if let Some(e_src) = c.scene.hidden().polarization.as_ref() {
-                sc.polarized_source(view, e_src, &c.brdf, &c.n, col, n_wall, mw);
+                sc.polarized_source(view, e_src, &c.brdf, &c.n, col, n_wall);
                 continue;
             }
             sc.pose(view, &c.brdf, c.ks_on);
             for blk in 0..view.analyzers.len().max(1) {
                 let a = view.analyzers.get(blk);
                 let out = a.map_or(&view.diffuse_open, |a| &a.diffuse_out);
-                sc.block(a, c.ks_on, c.diffuse, out);
+                sc.block(view.samples.range.clone(), a, c.ks_on, c.diffuse, out);
                 let out = &mut col
                     [(view.first_block + blk) * n_wall..(view.first_block + blk + 1) * n_wall];
-                if mw == 1 {
-                    for (o, v) in out.iter_mut().zip(&sc.value) {
-                        *o += v;
+                let value = &sc.value[..view.samples.range.len()];
+                match &view.samples.rows {
+                    Rows::Uniform { mw: 1 } => {
+                        for (o, v) in out.iter_mut().zip(value) {
+                            *o += v;
+                        }
                     }
-                } else {
-                    for (ws, v) in sc.value.iter().enumerate() {
-                        out[ws / mw] += v;
+                    Rows::Uniform { mw } => {
+                        let inv = 1.0 / *mw as f64;
+                        for (ws, v) in value.iter().enumerate() {
+                            out[ws / mw] += v * inv;
+                        }
+                    }
+                    Rows::Weighted { row, weight } => {
+                        for ((r, w), v) in row.iter().zip(weight).zip(value) {
+                            out[*r as usize] += w * v;
+                        }
                     }
                 }
             }
@@ -339,7 +556,8 @@ fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
     }
 }
 
-/// Per-thread buffers, one entry per wall sample, reused across columns.
+/// Per-thread buffers reused across columns: the incident geometry for
+/// every wall sample, the rest for the samples of one pose at a time.
 struct Scratch {
     /// Incident direction `w_i`.
     w_i: Soa,
@@ -362,8 +580,10 @@ struct Scratch {
 }
 
 impl Scratch {
-    fn new(n: usize) -> Self {
+    /// Buffers for `n` wall samples, of which one pose has `per_pose` at most.
+    fn new(n: usize, per_pose: usize) -> Self {
         let z = || vec![0.0; n];
+        let p = || vec![0.0; per_pose];
         Self {
             w_i: Soa {
                 x: z(),
@@ -374,12 +594,12 @@ impl Scratch {
             g1_i: z(),
             base: z(),
             t_in: vec![1.0; n],
-            spec: z(),
-            rs: z(),
-            rp: z(),
-            cross2: z(),
-            open: z(),
-            value: z(),
+            spec: p(),
+            rs: p(),
+            rp: p(),
+            cross2: p(),
+            open: p(),
+            value: p(),
         }
     }
 
@@ -448,7 +668,8 @@ impl Scratch {
     /// The unpolarized specular lobe of one pose.
     #[inline(always)]
     fn pose(&mut self, v: &PoseView, brdf: &crate::optics::Brdf, ks_on: bool) {
-        let len = self.base.len();
+        let r = v.samples.range.clone();
+        let len = r.len();
         let Scratch {
             w_i,
             cos_i,
@@ -468,9 +689,9 @@ impl Scratch {
         if !ks_on {
             return;
         }
-        let (ix, iy, iz) = (&w_i.x[..len], &w_i.y[..len], &w_i.z[..len]);
+        let (ix, iy, iz) = (&w_i.x[r.clone()], &w_i.y[r.clone()], &w_i.z[r.clone()]);
         let (ox, oy, oz) = (&v.w_o.x[..len], &v.w_o.y[..len], &v.w_o.z[..len]);
-        let (ci, g1i, g1o) = (&cos_i[..len], &g1_i[..len], &v.g1_o[..len]);
+        let (ci, g1i, g1o) = (&cos_i[r.clone()], &g1_i[r], &v.g1_o[..len]);
         let (spec, rs, rp, cross2) = (
             &mut spec[..len],
             &mut rs[..len],
@@ -497,8 +718,15 @@ impl Scratch {
     /// `value = base * f` for one block of the current pose (analyzer or
     /// none); `out` is the block's diffuse exit factor, empty without one.
     #[inline(always)]
-    fn block(&mut self, a: Option<&AnalyzerView>, ks_on: bool, diffuse: f64, out: &[f64]) {
-        let len = self.base.len();
+    fn block(
+        &mut self,
+        r: std::ops::Range<usize>,
+        a: Option<&AnalyzerView>,
+        ks_on: bool,
+        diffuse: f64,
+        out: &[f64],
+    ) {
+        let len = r.len();
         let Scratch {
             w_i,
             base,
@@ -512,7 +740,7 @@ impl Scratch {
             ..
         } = self;
         let (base, spec, rs, rp, cross2, open) = (
-            &base[..len],
+            &base[r.clone()],
             &spec[..len],
             &rs[..len],
             &rp[..len],
@@ -522,7 +750,7 @@ impl Scratch {
         let value = &mut value[..len];
         match a {
             Some(a) => {
-                let (ix, iy, iz) = (&w_i.x[..len], &w_i.y[..len], &w_i.z[..len]);
+                let (ix, iy, iz) = (&w_i.x[r.clone()], &w_i.y[r.clone()], &w_i.z[r.clone()]);
                 let (tx, ty, tz) = (&a.t.x[..len], &a.t.y[..len], &a.t.z[..len]);
                 let (bx, by, bz) = (&a.b.x[..len], &a.b.y[..len], &a.b.z[..len]);
                 for j in 0..len {
@@ -549,7 +777,7 @@ impl Scratch {
         }
         if !out.is_empty() {
             // kd/pi T_in(θi) exit(θo, t): MODEL.md's diffuse term.
-            let (t_in, out) = (&t_in[..len], &out[..len]);
+            let (t_in, out) = (&t_in[r], &out[..len]);
             for j in 0..len {
                 value[j] += base[j] * open[j] * diffuse * t_in[j] * out[j];
             }
@@ -566,16 +794,17 @@ impl Scratch {
         n: &Vec3,
         col: &mut [f64],
         n_wall: usize,
-        mw: usize,
     ) {
-        for j in 0..self.base.len() {
-            if self.base[j] == 0.0 || v.cos_o[j] <= 0.0 {
+        let start = v.samples.range.start;
+        for j in 0..v.samples.range.len() {
+            let g = start + j;
+            if self.base[g] == 0.0 || v.cos_o[j] <= 0.0 {
                 continue;
             }
             let i = Direction {
-                w: self.w_i.get(j),
-                cos: self.cos_i[j],
-                g1: self.g1_i[j],
+                w: self.w_i.get(g),
+                cos: self.cos_i[g],
+                g1: self.g1_i[g],
             };
             let o = Direction {
                 w: v.w_o.get(j),
@@ -589,8 +818,12 @@ impl Scratch {
                     analyzer: t.as_ref(),
                     source: Some(e_src),
                 };
-                col[(v.first_block + blk) * n_wall + j / mw] +=
-                    self.base[j] * brdf.finish(&lobe, n, &i, &o, pol);
+                let (row, weight) = match &v.samples.rows {
+                    Rows::Uniform { mw } => (j / mw, 1.0 / *mw as f64),
+                    Rows::Weighted { row, weight } => (row[j] as usize, weight[j]),
+                };
+                col[(v.first_block + blk) * n_wall + row] +=
+                    weight * self.base[g] * brdf.finish(&lobe, n, &i, &o, pol);
             }
         }
     }

@@ -7,9 +7,10 @@
 pub mod active;
 pub mod adaptive;
 mod build;
+pub mod choose;
 
 pub use adaptive::{build_adaptive, AdaptiveStats};
-pub use build::{blocks_of, build, build_with_progress};
+pub use build::{blocks_of, build, build_with_progress, radiance_at};
 
 use faer::MatRef;
 
@@ -79,6 +80,21 @@ pub enum TransportError {
         /// Acceptable range.
         reason: &'static str,
     },
+    /// `"pixels"` rows asked of a pose without a homography.
+    #[error("pose {pose:?} has no homography, which wall.sampling = \"pixels\" needs; add one to the pose, or use sampling = \"uniform\"")]
+    NoHomography {
+        /// Pose name.
+        pose: String,
+    },
+    /// A pose's pixels could not be found on the wall.
+    #[error(transparent)]
+    Footprint(#[from] crate::scene::FootprintError),
+    /// A finer model could not be made from the scene (its edit was refused).
+    #[error("choosing how finely to sample T: {0}")]
+    Choice(String),
+    /// The time-resolved build samples the wall uniformly only.
+    #[error("the time-resolved (active) transport samples the wall uniformly; set wall.sampling = \"uniform\"")]
+    ActivePixels,
 }
 
 /// Bytes a dense `T` (with the working memory built alongside it) may take.

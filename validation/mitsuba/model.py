@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""A literal numpy reading of MODEL.md (revision 2): the transport matrix T.
+"""A literal numpy reading of MODEL.md (revision 3): the transport matrix T and i from frames.
 
 Independent of the Rust crate and of render.py (its own scene-file parsing and
 geometry), so that comparing `T @ truth` with a Mitsuba render tests the
@@ -8,7 +8,13 @@ contract, not shared code.
 Covers: both planes with supersampling, lambertian / isotropic emitters,
 occluders (parallelogram and ball), the specular GGX term, the diffuse term
 (`fresnel` default, `lambert`), no polarizer or an ideal sheet per pose angle
-(`absorbing` default, `transmitting`). Not covered: linearly polarized scenes.
+(`absorbing` default, `transmitting`). Not covered: linearly polarized scenes,
+the on-chip mosaic analyzer, binning.
+
+Revision 3 ("From camera frames to i"): `pixel_map` (which integer image points
+belong to which wall element, their wall points and footprints a_p), `measure`
+(i_j and var_j of a frame), `transport(sc, sampling="pixels")` (rows averaged over
+an element's pixels, weights a_p). `python3 model.py --selfcheck` runs the checks.
 
 Usage as a check against a rendered case:
 
@@ -71,6 +77,7 @@ def load(path, scene_supersample=None, wall_supersample=None):
         "diffuse": w.get("diffuse", "fresnel"),
         "polmodel": raw.get("polarizer", {}).get("model", "absorbing"),
         "emitter": s.get("emitter", "lambertian"),
+        "sampling": w.get("sampling", "uniform"),
         "poses": [],
         "occluders": [],
     }
@@ -85,6 +92,7 @@ def load(path, scene_supersample=None, wall_supersample=None):
             "name": p.get("name", ""),
             "o": np.asarray(p["camera"], dtype=float),
             "deg": [float(a) for a in p.get("polarizer_deg", [])],
+            "H": np.asarray(p["homography"], dtype=float) if "homography" in p else None,
         })
     for oc in raw.get("occluder", []):
         if "rect" in oc:
@@ -188,10 +196,13 @@ def visible(S, C, occluders):
     return V
 
 
-def block(sc, pose, psi=None, polmodel=None, diffuse=None):
-    """T rows of one block: (n_wall, n_scene). psi in radians, None = no polarizer."""
+def block(sc, pose, psi=None, polmodel=None, diffuse=None, cols=None):
+    """T rows of one block: (n_wall, n_scene). psi in radians, None = no polarizer.
+    cols: only these columns (scene element indices), e.g. where a truth is non-zero."""
     W = samples(sc["wall"])            # (J, mw, 3)
     S = samples(sc["scene"])           # (K, ms, 3)
+    if cols is not None:
+        S = S[cols]
     J, mw, _ = W.shape
     K, ms, _ = S.shape
     step = max(1, (1 << 21) // (mw * K * ms))   # wall elements per chunk (memory)
@@ -305,6 +316,202 @@ def build(sc, **kw):
     return np.vstack(blocks), labels
 
 
+# ------------------------------------------- revision 3: from camera frames to i
+def _wall_geometry(wall):
+    """(size_u, size_v), (nu, nv) of a wall given as model.py's plane dict or a scene dict."""
+    if "wall" in wall:
+        wall = wall["wall"]
+    return wall["size"], wall["grid"]
+
+
+def pixel_map(H, wall, frame=None):
+    """The integer image points that belong to wall elements (MODEL.md 'From camera frames to i').
+
+    H: 3x3, wall (u, v) in metres relative to the wall centre -> pixel (x, y), pixel centres
+    at integers. frame: None = the whole image plane; [x0, y0, width, height] = only the
+    pixels x0 <= x < x0 + width, y0 <= y < y0 + height.
+
+    Returns a dict of 1-D arrays over the pixels (raster order, y outer, x inner):
+      x, y   int64 pixel coordinates
+      j      int64 element index iv*nu + iu (element (iu, iv) spans u in
+             [(iu/nu - 1/2) su, ((iu+1)/nu - 1/2) su), likewise v)
+      u, v   float64 wall point H^-1(x, y)
+      a      float64 footprint |det J(H^-1)| at (x, y), m^2 per pixel
+      margin float64 distance of (u, v) to the nearest element border, in element widths
+             (for judging whether another implementation's rounding could move the pixel)
+    """
+    H = np.asarray(H, dtype=float)
+    (su, sv), (nu, nv) = _wall_geometry(wall)
+    corners = np.array([[-su / 2, -sv / 2, 1], [su / 2, -sv / 2, 1],
+                        [su / 2, sv / 2, 1], [-su / 2, sv / 2, 1]]) @ H.T
+    if not np.all(corners[:, 2] > 0):
+        raise ValueError("homography: a wall corner maps to w <= 0 (behind the camera)")
+    cx, cy = corners[:, 0] / corners[:, 2], corners[:, 1] / corners[:, 2]
+    # the wall's image is the convex quadrilateral of its corners: its integer points are
+    # inside this box
+    x0, x1 = math.ceil(cx.min()), math.floor(cx.max())
+    y0, y1 = math.ceil(cy.min()), math.floor(cy.max())
+    if frame is not None:
+        fx, fy, fw, fh = (int(t) for t in frame)
+        x0, x1 = max(x0, fx), min(x1, fx + fw - 1)
+        y0, y1 = max(y0, fy), min(y1, fy + fh - 1)
+    xs = np.arange(x0, x1 + 1, dtype=np.int64)
+    ys = np.arange(y0, y1 + 1, dtype=np.int64)
+    X, Y = np.meshgrid(xs, ys)            # (ny, nx): y outer, x inner
+    X, Y = X.ravel(), Y.ravel()
+    G = np.linalg.inv(H)
+    P = np.stack([X, Y, np.ones_like(X)], axis=-1).astype(float) @ G.T
+    w = P[:, 2]
+    u, v = P[:, 0] / w, P[:, 1] / w
+    fu = (u / su + 0.5) * nu              # element coordinate along u (element iu: [iu, iu+1))
+    fv = (v / sv + 0.5) * nv
+    iu, iv = np.floor(fu), np.floor(fv)
+    keep = (iu >= 0) & (iu < nu) & (iv >= 0) & (iv < nv)
+    # det J of p -> (Gp)_{1,2} / (Gp)_3 is det(G) / ((Gp)_3)^3
+    a = np.abs(np.linalg.det(G) / w ** 3)
+    margin = np.minimum(np.minimum(fu - iu, iu + 1 - fu), np.minimum(fv - iv, iv + 1 - fv))
+    return {
+        "x": X[keep], "y": Y[keep],
+        "j": (iv * nu + iu).astype(np.int64)[keep],
+        "u": u[keep], "v": v[keep], "a": a[keep], "margin": margin[keep],
+    }
+
+
+def measure(frame_array, H, wall, variance=None):
+    """i_j = sum a_p x_p / sum a_p and var_j = sum a_p^2 var_p / (sum a_p)^2 (MODEL.md rev 3).
+
+    frame_array: (height, width), pixel (x, y) = frame_array[y, x] (region offset 0, no
+    binning), already dark-subtracted and averaged. variance: the same shape, the variance
+    of each pixel's mean (optional). Every pixel of the image plane whose H^-1 lies in an
+    element must be inside the frame, and every element must have a pixel; otherwise
+    ValueError naming the first bad element.
+    Returns (i, var) as float64 arrays of length nu*nv (var None without `variance`).
+    """
+    frame_array = np.asarray(frame_array)
+    hgt, wid = frame_array.shape
+    (_, _), (nu, nv) = _wall_geometry(wall)
+    pm = pixel_map(H, wall)
+    out = (pm["x"] < 0) | (pm["x"] >= wid) | (pm["y"] < 0) | (pm["y"] >= hgt)
+    if np.any(out):
+        j = int(pm["j"][out].min())
+        raise ValueError(f"wall element (iu {j % nu}, iv {j // nu}): pixels outside the frame")
+    count = np.bincount(pm["j"], minlength=nu * nv)
+    if np.any(count == 0):
+        j = int(np.flatnonzero(count == 0)[0])
+        raise ValueError(f"wall element (iu {j % nu}, iv {j // nu}): no pixel")
+    a = pm["a"]
+    xp = frame_array[pm["y"], pm["x"]].astype(np.float64)
+    A = np.bincount(pm["j"], weights=a, minlength=nu * nv)
+    i = np.bincount(pm["j"], weights=a * xp, minlength=nu * nv) / A
+    var = None
+    if variance is not None:
+        vp = np.asarray(variance)[pm["y"], pm["x"]].astype(np.float64)
+        var = np.bincount(pm["j"], weights=a * a * vp, minlength=nu * nv) / A ** 2
+    return i, var
+
+
+def _entries(sc, pose, psi, P, cols=None, **kw):
+    """T entries for single wall points P (N, 3), averaged over scene sub-samples: (N, K)."""
+    S = samples(sc["scene"])
+    if cols is not None:
+        S = S[cols]
+    K, ms, _ = S.shape
+    step = max(1, (1 << 21) // (K * ms))
+    W = P[:, None, :]
+    return np.vstack([_block(sc, pose, psi, kw.get("polmodel"), kw.get("diffuse"), W[i:i + step], S)
+                      for i in range(0, len(P), step)])
+
+
+def pixel_block(sc, pose, psi=None, **kw):
+    """T rows of one block with sampling = "pixels": entry averaged over the wall points
+    H^-1(p) of element j's pixels p, weights a_p / sum a_p (p over the whole image plane)."""
+    wall = sc["wall"]
+    nu, nv = wall["grid"]
+    pm = pixel_map(pose["H"], wall)
+    count = np.bincount(pm["j"], minlength=nu * nv)
+    if np.any(count == 0):
+        j = int(np.flatnonzero(count == 0)[0])
+        raise ValueError(f"pose {pose['name']}: wall element (iu {j % nu}, iv {j // nu}) has no pixel")
+    order = np.argsort(pm["j"], kind="stable")
+    j, a = pm["j"][order], pm["a"][order]
+    P = wall["c"] + pm["u"][order, None] * wall["u"] + pm["v"][order, None] * wall["v"]
+    E = _entries(sc, pose, psi, P, **kw)                       # (Npix, K)
+    A = np.bincount(j, weights=a, minlength=nu * nv)
+    starts = np.concatenate([[0], np.cumsum(count)[:-1]])
+    return np.add.reduceat(E * (a / A[j])[:, None], starts, axis=0)
+
+
+def transport(sc, sampling="pixels", **kw):
+    """Stacked T with `sampling` ("uniform" or "pixels"; None = the scene file's value).
+    "pixels" applies to poses with a homography; a pose without one gets uniform rows."""
+    sampling = sampling or sc["sampling"]
+    if sampling not in ("uniform", "pixels"):
+        raise ValueError(f"wall.sampling: {sampling}")
+    blocks, labels = [], []
+    for p in sc["poses"]:
+        fn = pixel_block if (sampling == "pixels" and p["H"] is not None) else block
+        for deg in (p["deg"] or [None]):
+            blocks.append(fn(sc, p, None if deg is None else math.radians(deg), **kw))
+            labels.append((p["name"], deg))
+    return np.vstack(blocks), labels
+
+
+def selfcheck(scene_file=None):
+    """Checks of the revision-3 functions; raises AssertionError on failure."""
+    root = Path(__file__).resolve().parents[2]
+    scene_file = scene_file or root / "config/scenes/brewster-crossed-3x3.toml"
+    sc = load(scene_file)
+    H = sc["poses"][0]["H"]
+    wall = sc["wall"]
+    pm = pixel_map(H, wall)
+    su, sv = wall["size"]
+    # footprints: det J against central differences of H^-1, and sum a_p ~ wall area
+    G = np.linalg.inv(H)
+    def inv(x, y):
+        p = G @ np.array([x, y, 1.0])
+        return p[:2] / p[2]
+    for k in np.linspace(0, len(pm["x"]) - 1, 7).astype(int):
+        x, y, e = float(pm["x"][k]), float(pm["y"][k]), 1e-3
+        J = np.column_stack([(inv(x + e, y) - inv(x - e, y)) / (2 * e), (inv(x, y + e) - inv(x, y - e)) / (2 * e)])
+        assert abs(abs(np.linalg.det(J)) / pm["a"][k] - 1) < 1e-6
+    area = pm["a"].sum()
+    assert abs(area / (su * sv) - 1) < 0.01, area
+    # every wall point is inside its element; the frame restriction is a subset
+    nu, nv = wall["grid"]
+    iu, iv = pm["j"] % nu, pm["j"] // nu
+    assert np.all((pm["u"] >= (iu / nu - 0.5) * su) & (pm["u"] < ((iu + 1) / nu - 0.5) * su))
+    assert np.all((pm["v"] >= (iv / nv - 0.5) * sv) & (pm["v"] < ((iv + 1) / nv - 0.5) * sv))
+    sub = pixel_map(H, wall, frame=[100, 50, 200, 300])
+    assert np.all((sub["x"] >= 100) & (sub["x"] < 300) & (sub["y"] >= 50) & (sub["y"] < 350))
+    assert len(sub["x"]) == np.sum((pm["x"] >= 100) & (pm["x"] < 300) & (pm["y"] >= 50) & (pm["y"] < 350))
+    # measure: a flat frame gives the flat value; var of a flat variance frame
+    flat = np.full((512, 512), 0.37, dtype=np.float32)
+    i, var = measure(flat, H, wall, variance=np.full((512, 512), 4.0))
+    assert np.allclose(i, np.float64(np.float32(0.37)), rtol=1e-12, atol=0)
+    A = np.bincount(pm["j"], weights=pm["a"])
+    A2 = np.bincount(pm["j"], weights=pm["a"] ** 2)
+    assert np.allclose(var, 4.0 * A2 / A ** 2, rtol=1e-12)
+    # a frame that is affine in the wall coordinates measures the a-weighted centroid
+    # a frame linear in x measures the weighted mean of x
+    lin = np.tile(np.arange(512, dtype=float), (512, 1))
+    i, _ = measure(lin, H, wall)
+    assert np.allclose(i, np.bincount(pm["j"], weights=pm["a"] * pm["x"]) / A, rtol=1e-12)
+    # uniform sampling through transport() is the existing build()
+    T0, lab0 = build(sc)
+    T1, lab1 = transport(sc, "uniform")
+    assert lab0 == lab1 and np.array_equal(T0, T1)
+    # pixels rows: close to finely supersampled uniform rows, not equal
+    T2, _ = transport(sc, "pixels")
+    T8, _ = transport(load(scene_file, wall_supersample=8), "uniform")
+    rel = np.sqrt(np.mean((T2 - T8) ** 2) / np.mean(T8 ** 2))
+    assert 1e-5 < rel < 0.02, rel
+    print(f"selfcheck ok ({Path(scene_file).name}): {len(pm['x'])} pixels, sum a_p / wall area"
+          f" {area / (su * sv):.6f}, pixels per element {int(np.bincount(pm['j']).min())}-"
+          f"{int(np.bincount(pm['j']).max())}, min border margin {pm['margin'].min():.2e} elements,"
+          f" rms(T_pixels - T_uniform m=8)/rms {rel:.2e}")
+    return True
+
+
 # ------------------------------------------------------------------ compare
 def compare(case, scene_supersample=None, polmodel=None, diffuse=None, quiet=False, scene=None):
     case = Path(case)
@@ -341,13 +548,22 @@ def compare(case, scene_supersample=None, polmodel=None, diffuse=None, quiet=Fal
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("cases", nargs="+", help="case directories (scene.toml, truth.npy, i.npy, sigma.npy)")
+    ap.add_argument("cases", nargs="*", help="case directories (scene.toml, truth.npy, i.npy, sigma.npy)")
+    ap.add_argument("--selfcheck", nargs="*", metavar="SCENE",
+                    help="run the revision-3 self-checks (default scene: config/scenes/brewster-crossed-3x3.toml)")
     ap.add_argument("--scene-supersample", type=int, default=None)
     ap.add_argument("--polarizer-model", default=None, choices=["absorbing", "transmitting"])
     ap.add_argument("--diffuse", default=None, choices=["fresnel", "lambert"])
     ap.add_argument("--scene", default=None, help="scene file (default CASE/scene.toml)")
     ap.add_argument("--json", action="store_true", help="print JSON instead of text")
     a = ap.parse_args()
+    if a.selfcheck is not None:
+        for f in a.selfcheck or [None]:
+            selfcheck(f)
+        if not a.cases:
+            return
+    if not a.cases:
+        ap.error("no case directory given")
     res = {}
     for c in a.cases:
         if not a.json:
