@@ -16,7 +16,9 @@ use polnlos::transport::MemoryBudget;
 pub struct Args {
     /// Scene file (TOML); its own scene grid is ignored.
     scene: PathBuf,
-    /// Photo-electrons at the brightest element of the unpolarized image of a fully lit scene.
+    /// Photo-electrons per pixel at the brightest element of the unpolarized
+    /// image of a fully lit scene; where every pose has a homography an element
+    /// is measured from all its pixels, so it collects that many times more.
     #[arg(long, default_value_t = NoiseModel::default().photons)]
     photons: f64,
     /// Read noise, electrons RMS.

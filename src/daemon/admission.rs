@@ -116,7 +116,11 @@ impl Daemon {
                 "no radiometric calibration for scene {scene:?}, so exposures cannot be planned: add `{scene} = <fraction of full scale per microsecond per unit of T l>` under [calibration] in the config, or give exposure_us"
             ))
         })?;
-        plan_exposure(&t, cal, limits, target).map_err(|e| RequestError::Invalid(e.to_string()))
+        // Each element is measured from all its pixels: their photons count.
+        let pixels = crate::scene::effective_pixels(&*self.scenes.scene(scene)?)
+            .map_err(|e| RequestError::Invalid(e.to_string()))?;
+        plan_exposure(&t, cal, limits, target, pixels.as_deref())
+            .map_err(|e| RequestError::Invalid(e.to_string()))
     }
 
     /// What a capture is checked against now.

@@ -98,12 +98,17 @@ fn check(
     }
 }
 
-/// Plans every block of `t` (see the module doc).
+/// Plans every block of `t` (see the module doc). `pixels` gives each row's
+/// effective number of camera pixels ([`crate::scene::effective_pixels`]):
+/// an element measured from all its pixels (MODEL.md revision 3) collects
+/// their photons, so its SNR is `sqrt(pixels)` times one pixel's; without
+/// it every element is one pixel.
 pub fn plan_exposure(
     t: &Transport,
     calibration: f64,
     limits: &CameraLimits,
     target: &ExposureTarget,
+    pixels: Option<&[f64]>,
 ) -> Result<Vec<BlockExposure>, ExposureError> {
     check(
         "calibration",
@@ -136,7 +141,17 @@ pub fn plan_exposure(
     let lit = t.apply(&ones);
     let mut out = Vec::with_capacity(t.blocks().len());
     for (b, block) in t.blocks().iter().enumerate() {
-        let peak = lit[t.block_rows(b)].iter().copied().fold(0.0, f64::max);
+        let rows = t.block_rows(b);
+        let (at, peak) = lit[rows.clone()]
+            .iter()
+            .copied()
+            .enumerate()
+            .fold((0, 0.0), |m, (j, v)| if v > m.1 { (j, v) } else { m });
+        let n_pixels = pixels
+            .and_then(|p| p.get(rows.start + at))
+            .copied()
+            .filter(|n| *n >= 1.0)
+            .unwrap_or(1.0);
         let rate = calibration * peak;
         let mut limited_by = None;
         let exposure_us = if rate > 0.0 {
@@ -161,8 +176,9 @@ pub fn plan_exposure(
         let fraction = rate * exposure_us;
         let electrons = fraction.min(1.0) * limits.full_well_e;
         let read2 = limits.read_noise_e * limits.read_noise_e;
+        // One frame's SNR at the peak element: the mean of its pixels.
         let snr1 = if electrons > 0.0 {
-            electrons / (electrons + read2).sqrt()
+            n_pixels.sqrt() * electrons / (electrons + read2).sqrt()
         } else {
             0.0
         };
@@ -222,7 +238,7 @@ mod tests {
         let peak = t.apply(&[1.0; 9]);
         let p0 = peak[t.block_rows(0)].iter().copied().fold(0.0, f64::max);
         let cal = 0.5 / p0 / 1000.0; // block 0 reaches half scale in 1 ms
-        let plan = plan_exposure(&t, cal, &limits(), &ExposureTarget::default()).unwrap();
+        let plan = plan_exposure(&t, cal, &limits(), &ExposureTarget::default(), None).unwrap();
         assert_eq!(plan.len(), 4);
         assert!((plan[0].exposure_us - 1600.0).abs() < 1e-6, "{:?}", plan[0]);
         for p in &plan {
@@ -240,6 +256,28 @@ mod tests {
             .max_by(|a, b| a.exposure_us.total_cmp(&b.exposure_us))
             .unwrap();
         assert_eq!(longest.polarizer_deg, Some(0.0));
+        // Measured from all of its pixels, the peak element collects dozens
+        // of pixels' photons: one frame reaches SNR 100 where one pixel needed 2.
+        let scene = Scene::builtin("brewster-rotating-3x3").unwrap().unwrap();
+        let pixels = crate::scene::effective_pixels(&scene).unwrap().unwrap();
+        assert_eq!(pixels.len(), t.rows());
+        assert!(
+            pixels.iter().all(|&n| n > 30.0 && n < 200.0),
+            "{:?}",
+            &pixels[..4]
+        );
+        let plan = plan_exposure(
+            &t,
+            cal,
+            &limits(),
+            &ExposureTarget::default(),
+            Some(&pixels),
+        )
+        .unwrap();
+        for p in &plan {
+            assert_eq!(p.frames, 1, "{p:?}");
+            assert!(p.snr > 89.4 * 30f64.sqrt(), "{p:?}");
+        }
     }
 
     #[test]
@@ -249,7 +287,7 @@ mod tests {
             MemoryBudget::DEFAULT,
         )
         .unwrap();
-        let tiny = plan_exposure(&t, 1e-30, &limits(), &ExposureTarget::default()).unwrap();
+        let tiny = plan_exposure(&t, 1e-30, &limits(), &ExposureTarget::default(), None).unwrap();
         assert_eq!(tiny[0].exposure_us, 1e7);
         assert!(tiny[0]
             .limited_by
@@ -257,7 +295,7 @@ mod tests {
             .unwrap()
             .contains("longest exposure"));
         assert_eq!(tiny[0].frames, 1000);
-        let huge = plan_exposure(&t, 1e30, &limits(), &ExposureTarget::default()).unwrap();
+        let huge = plan_exposure(&t, 1e30, &limits(), &ExposureTarget::default(), None).unwrap();
         assert_eq!(huge[0].exposure_us, 10.0);
         assert!(huge[0]
             .limited_by
@@ -272,9 +310,10 @@ mod tests {
                 peak_fraction: 1.5,
                 snr: 10.0,
             },
+            None,
         )
         .unwrap_err();
         assert!(e.to_string().starts_with("peak_fraction = 1.5"));
-        assert!(plan_exposure(&t, f64::NAN, &limits(), &ExposureTarget::default()).is_err());
+        assert!(plan_exposure(&t, f64::NAN, &limits(), &ExposureTarget::default(), None).is_err());
     }
 }

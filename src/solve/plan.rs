@@ -66,6 +66,9 @@ pub enum PlanError {
     /// The noise model.
     #[error(transparent)]
     Noise(#[from] crate::simulate::SimulateError),
+    /// A pose's pixels could not be found on the wall.
+    #[error(transparent)]
+    Footprint(#[from] crate::scene::FootprintError),
 }
 
 /// Plans the scene grid for `scene` under the camera `noise`, each candidate `T` built within `budget`.
@@ -91,8 +94,16 @@ pub fn plan(
         let epu = noise.photons / peak.max(1e-300);
         let full = f64::from((1u32 << noise.bits) - 1);
         let grey = t.apply(&vec![0.5; t.cols()]);
-        let level =
+        let mut level =
             NoiseLevel::from_camera(&grey, epu, noise.read_noise, noise.photons / full / epu);
+        // Measured from camera frames, an element averages its pixels' photons.
+        if let Some(pixels) = crate::scene::effective_pixels(&s)? {
+            level
+                .variance
+                .iter_mut()
+                .zip(&pixels)
+                .for_each(|(v, n)| *v /= n.max(1.0));
+        }
         sigma = level.mean_variance().sqrt();
         let amp = c.noise_amplification(sigma);
         rows.push(PlanRow {
