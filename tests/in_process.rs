@@ -252,6 +252,10 @@ async fn progressive_reconstruction_converges_while_frames_arrive() {
     let rec = wait_done(&d, "reconstruction-1", Duration::from_secs(60)).await;
     let after = rec["report"]["metrics"]["psnr_db"].as_f64().expect("psnr");
     println!("last step {final_psnr:.2} dB, reconstruction of the same capture {after:.2} dB");
+    println!(
+        "reconstruction: model {}, lambda {}; last step lambda {}",
+        rec["report"]["model"], rec["report"]["solver"]["lambda"], last["lambda"]
+    );
     assert!((final_psnr - after).abs() <= 0.5, "{final_psnr} vs {after}");
     // The image route serves the latest, and the steps were events.
     let png = std::fs::read(dir.join("progressive.png")).expect("image");

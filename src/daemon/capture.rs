@@ -131,7 +131,15 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         w.camera.bench().show_source(true);
     }
     let (n, offset) = (c.frames as usize, c.dark_frames as usize);
-    let progressive = spec.map(|s| progressive::start(&w.jobs, c.clone(), &s, dark.clone()));
+    let (dark, dark_variance) = dark.map_or((None, None), |(m, v)| (Some(m), v));
+    let progressive = spec.map(|s| {
+        progressive::start(
+            &w.jobs,
+            c.clone(),
+            &s,
+            (dark.clone(), dark_variance.clone()),
+        )
+    });
     let snapshots = progressive.as_ref().map(|(tx, _)| tx.clone());
     let frames = stream
         .take(CaptureFiles::FRAMES, "frames", n, offset, snapshots)
@@ -158,7 +166,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     };
     let store = w.jobs.store.clone();
     tokio::task::spawn_blocking(move || {
-        write_summary(&dir, &frames, dark.as_ref(), &meta)
+        write_summary(&dir, &frames, dark.as_ref(), dark_variance.as_ref(), &meta)
             .map_err(|e| JobError::Store(store.describe(&e)))
     })
     .await??;
@@ -213,14 +221,15 @@ fn meta_of(c: &CaptureRecord, acquisition: Acquisition, camera_id: &str) -> Fram
     }
 }
 
-/// The dark level to subtract: the mean of dark frames taken now with the
-/// scene switched off (only on a bench that can, checked at acceptance), or
-/// a dark capture's mean frame, or none.
+/// The dark level to subtract, with the variance of that mean when known:
+/// the mean of dark frames taken now with the scene switched off (only on a
+/// bench that can, checked at acceptance), or a dark capture's mean frame,
+/// or none.
 async fn dark_reference(
     w: &CaptureWorker,
     c: &CaptureRecord,
     stream: &Stream<'_>,
-) -> Result<Option<Frame>, JobError> {
+) -> Result<Option<(Frame, Option<Frame>)>, JobError> {
     if c.dark_frames > 0 {
         w.camera.bench().scene_on(false);
         let n = c.dark_frames as usize;
@@ -233,19 +242,23 @@ async fn dark_reference(
                 reason: format!("dark frames: {e}"),
             },
         })?;
-        return Ok(Some(Frame {
+        let mean = Frame {
             width: st.width,
             height: st.height,
             pixels: st.mean.iter().map(|&v| v as f32).collect(),
-        }));
+        };
+        return Ok(Some((mean, st.variance_frame())));
     }
     match c.dark_capture {
         Some(dc) => {
-            let mean = read_mean(&w.jobs.store.capture_dir(dc)).map_err(|e| JobError::Capture {
+            let dir = w.jobs.store.capture_dir(dc);
+            let failed = |e: crate::store::StoreError| JobError::Capture {
                 id: dc,
                 reason: w.jobs.store.describe(&e),
-            })?;
-            Ok(Some(mean))
+            };
+            let mean = read_mean(&dir).map_err(failed)?;
+            let variance = crate::store::read_mean_variance(&dir).map_err(failed)?;
+            Ok(Some((mean, variance)))
         }
         None => Ok(None),
     }

@@ -146,11 +146,17 @@ struct Solver {
     /// Full scale of the capture's pixel format, DN.
     full_scale: f64,
     dark: Option<Frame>,
+    /// The variance of the dark mean, added to each step's (MODEL.md `var_p`).
+    dark_variance: Option<Frame>,
     truth: Option<Vec<f64>>,
     previous: Option<Vec<f64>>,
     steps: Vec<Step>,
     /// The pixel maps of the scene's poses, made at the first step that needs one.
     maps: PixelMaps,
+    /// The scenes, for the model a step's noise asks for.
+    scenes: Arc<super::scenes::Scenes>,
+    /// The key of the model `t` is (the scene's name, or a sampling variant's).
+    key: String,
 }
 
 impl Solver {
@@ -158,7 +164,7 @@ impl Solver {
         d: &JobContext,
         capture: CaptureRecord,
         spec: &ProgressiveSpec,
-        dark: Option<Frame>,
+        (dark, dark_variance): (Option<Frame>, Option<Frame>),
     ) -> Result<Self, JobError> {
         let scene = d.scenes.scene(&capture.scene)?;
         let t = d.scenes.transport(&capture.scene)?;
@@ -206,6 +212,7 @@ impl Solver {
             .as_deref()
             .and_then(crate::simulate::patterns::Pattern::from_name)
             .map(|p| p.render(t.scene_grid()));
+        let key = capture.scene.clone();
         Ok(Self {
             settings: AdmmSettings {
                 lambda: spec.lambda,
@@ -224,11 +231,25 @@ impl Solver {
             calibration,
             full_scale,
             dark,
+            dark_variance,
             truth,
             previous: None,
             steps: Vec::new(),
             maps,
+            scenes: Arc::clone(&d.scenes),
+            key,
         })
+    }
+
+    /// Solves from now on with the model cached under `key`: its `T`, Gram
+    /// and conditioning, and a cold start (the old iterate fits another `T`).
+    fn use_model(&mut self, key: String) -> Result<(), JobError> {
+        self.t = self.scenes.transport(&key)?;
+        self.normal = Normal::with(self.scenes.gram(&key)?, &self.t, &self.i);
+        self.singular_values = self.scenes.conditioning(&key)?;
+        self.state = AdmmState::default();
+        self.key = key;
+        Ok(())
     }
 
     /// Solves one snapshot; returns the step and the image.
@@ -248,10 +269,18 @@ impl Solver {
             height: s.height,
             pixels,
         };
+        let dark_var = self
+            .dark_variance
+            .as_ref()
+            .filter(|d| (d.width, d.height) == (s.width, s.height));
         let variance = s.variance.as_ref().map(|v| Frame {
             width: s.width,
             height: s.height,
-            pixels: v.iter().map(|&x| x as f32).collect(),
+            pixels: v
+                .iter()
+                .enumerate()
+                .map(|(k, &x)| (x + dark_var.map_or(0.0, |d| f64::from(d.pixels[k]))) as f32)
+                .collect(),
         });
         // This block assembled as a reconstruction assembles it.
         let block = &self.t.blocks()[self.own];
@@ -279,6 +308,14 @@ impl Solver {
             }
             _ => None,
         };
+        // The sampling the scene file leaves out, chosen from this step's noise
+        // as a reconstruction of the same frames chooses it.
+        if let Some(n) = &noise {
+            let (key, _) = self.scenes.for_noise(&self.capture.scene, &n.variance)?;
+            if key != self.key {
+                self.use_model(key)?;
+            }
+        }
         self.normal.ti = adjoint(self.t.as_mat(), &self.i);
         let (r, lambda) = match noise {
             Some(noise) => {
@@ -349,7 +386,7 @@ pub(super) fn start(
     d: &JobContext,
     capture: CaptureRecord,
     spec: &ProgressiveSpec,
-    dark: Option<Frame>,
+    dark: (Option<Frame>, Option<Frame>),
 ) -> (Snapshots, tokio::task::JoinHandle<Vec<Step>>) {
     let (tx, rx) = std::sync::mpsc::sync_channel::<Snapshot>(1);
     let pending = Arc::new(AtomicBool::new(false));

@@ -210,12 +210,14 @@ fn encode_stream<W: std::io::Write + std::io::Seek, K: tiff::encoder::TiffKind>(
 }
 
 /// Writes a capture's mean (minus `dark`, the mean dark frame, when given),
-/// the variance of the mean and the preview, each atomically; returns the
-/// mean. `frames` is the stack of the capture's frames.
+/// the variance of that mean (the frames' plus `dark_variance`, the dark
+/// mean's, when known: MODEL.md `var_p`) and the preview, each atomically;
+/// returns the mean. `frames` is the stack of the capture's frames.
 pub fn write_summary(
     dir: &Path,
     frames: &FrameStack,
     dark: Option<&Frame>,
+    dark_variance: Option<&Frame>,
     meta: &FrameMeta,
 ) -> Result<Frame, StoreError> {
     let mean = frames.mean_minus(dark).map_err(|e| {
@@ -227,7 +229,13 @@ pub fn write_summary(
     let desc =
         serde_json::json!({"polnlos": "mean", "frames": frames.count, "meta": meta}).to_string();
     write_float_tiff(&dir.join(CaptureFiles::MEAN), &mean, &desc)?;
-    if let Some(var) = frames.variance_frame() {
+    if let Some(mut var) = frames.variance_frame() {
+        if let Some(d) = dark_variance.filter(|d| (d.width, d.height) == (var.width, var.height)) {
+            var.pixels
+                .iter_mut()
+                .zip(&d.pixels)
+                .for_each(|(v, d)| *v += d);
+        }
         let desc = serde_json::json!({"polnlos": "variance of the mean", "frames": frames.count, "meta": meta}).to_string();
         write_float_tiff(&dir.join(CaptureFiles::VARIANCE), &var, &desc)?;
     }
@@ -406,12 +414,23 @@ mod tests {
             height: 2,
             pixels: vec![6.0; 6],
         };
-        let m = write_summary(dir.path(), &stack, Some(&dark), &meta()).unwrap();
+        let m = write_summary(dir.path(), &stack, Some(&dark), None, &meta()).unwrap();
         assert_eq!(m.pixels, vec![99.0; 6]);
         assert_eq!(read_mean(dir.path()).unwrap(), m);
         assert_eq!(
             read_mean_variance(dir.path()).unwrap().unwrap().pixels,
             vec![25.0; 6]
+        );
+        // With the dark mean's variance, the dark-subtracted mean carries both.
+        let dark_var = Frame {
+            width: 3,
+            height: 2,
+            pixels: vec![2.0; 6],
+        };
+        write_summary(dir.path(), &stack, Some(&dark), Some(&dark_var), &meta()).unwrap();
+        assert_eq!(
+            read_mean_variance(dir.path()).unwrap().unwrap().pixels,
+            vec![27.0; 6]
         );
         assert_eq!(
             variance_from_pages(dir.path()).unwrap().unwrap().pixels,
