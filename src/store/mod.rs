@@ -171,6 +171,27 @@ CREATE TABLE IF NOT EXISTS reconstructions (
     kappa TEXT,
     report TEXT
 );
+CREATE TABLE IF NOT EXISTS issued_ids (
+    kind TEXT PRIMARY KEY,
+    last INTEGER NOT NULL
+);
+";
+
+/// Ids are never issued twice in one data directory's life (a deleted or
+/// retired capture's id would otherwise come back: `INTEGER PRIMARY KEY`
+/// reuses the largest id once its row is gone, and lab notes and downloaded
+/// files named by id would become ambiguous). The highest id issued per table
+/// is kept in `issued_ids`, raised by a trigger on every insert, and a new
+/// row takes the next one. A catalogue from before starts from its largest id.
+const ID_SEQUENCES: &str = "
+INSERT OR IGNORE INTO issued_ids (kind, last) SELECT 'captures', COALESCE(MAX(id), 0) FROM captures;
+INSERT OR IGNORE INTO issued_ids (kind, last) SELECT 'reconstructions', COALESCE(MAX(id), 0) FROM reconstructions;
+CREATE TRIGGER IF NOT EXISTS captures_issue_id AFTER INSERT ON captures BEGIN
+    UPDATE issued_ids SET last = MAX(last, NEW.id) WHERE kind = 'captures';
+END;
+CREATE TRIGGER IF NOT EXISTS reconstructions_issue_id AFTER INSERT ON reconstructions BEGIN
+    UPDATE issued_ids SET last = MAX(last, NEW.id) WHERE kind = 'reconstructions';
+END;
 ";
 
 /// Columns added after the first release: (table, column, declaration).
@@ -195,7 +216,7 @@ fn migrate(conn: &Connection) -> rusqlite::Result<()> {
             conn.execute_batch(&format!("ALTER TABLE {table} ADD COLUMN {column} {decl}"))?;
         }
     }
-    Ok(())
+    conn.execute_batch(ID_SEQUENCES)
 }
 
 /// A file of zeros kept in the data directory and given up when the disk is
@@ -427,8 +448,8 @@ impl Store {
         let a = &r.acquisition;
         self.with(|c| {
             c.execute(
-                "INSERT INTO captures (scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at, kind, region, binning, trigger, dark_capture)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, 'queued', ?9, ?10, ?11, ?12, ?13, ?14)",
+                "INSERT INTO captures (id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at, kind, region, binning, trigger, dark_capture)
+                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, 'queued', ?9, ?10, ?11, ?12, ?13, ?14)",
                 params![r.scene, r.pose, r.polarizer_deg, a.exposure_us, a.gain, r.frames as i64, r.dark_frames as i64, a.pixel_format.name(), now(),
                     r.kind.name(), serde_json::to_string(&a.region).unwrap_or_default(), serde_json::to_string(&a.binning).unwrap_or_default(), a.trigger.name(), r.dark_capture],
             )?;
@@ -693,7 +714,7 @@ impl Store {
         let params_json = serde_json::to_string(&r.params).unwrap_or_else(|_| "{}".into());
         self.with(|c| {
             c.execute(
-                "INSERT INTO reconstructions (scene, captures, solver, params, state, created_at) VALUES (?1, ?2, ?3, ?4, 'queued', ?5)",
+                "INSERT INTO reconstructions (id, scene, captures, solver, params, state, created_at) VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'reconstructions'), ?1, ?2, ?3, ?4, 'queued', ?5)",
                 params![r.scene, captures, r.solver, params_json, now()],
             )?;
             Ok(c.last_insert_rowid())
@@ -819,6 +840,58 @@ pub struct Listing<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_id_is_never_issued_twice_across_deletion_and_restart() {
+        let dir = tempfile::tempdir().unwrap();
+        let request = CaptureRequest::example();
+        let rec = |captures: Vec<i64>| ReconstructionRequest {
+            scene: "brewster-crossed".into(),
+            captures,
+            solver: "admm-tv".into(),
+            params: serde_json::json!({}),
+        };
+        let (a, b, r) = {
+            let store = Store::open(dir.path()).unwrap();
+            let a = store.insert_capture(&request).unwrap();
+            let b = store.insert_capture(&request).unwrap();
+            let r = store.insert_reconstruction(&rec(vec![a])).unwrap();
+            store.capture_failed(b, "test").unwrap();
+            store.reconstruction_failed(r, "test").unwrap();
+            // The newest of each deleted: INTEGER PRIMARY KEY alone would issue them again.
+            assert_eq!(store.delete_capture(b, false).unwrap(), Vec::<i64>::new());
+            store.delete_reconstruction(r).unwrap();
+            assert_eq!(store.insert_capture(&request).unwrap(), b + 1);
+            assert_eq!(store.insert_reconstruction(&rec(vec![a])).unwrap(), r + 1);
+            (a, b, r)
+        };
+        // Reopened (a daemon restart), after the newest are deleted again.
+        let store = Store::open(dir.path()).unwrap();
+        store.capture_failed(b + 1, "test").unwrap();
+        store.delete_capture(b + 1, true).unwrap();
+        assert_eq!(store.insert_capture(&request).unwrap(), b + 2);
+        assert_eq!(store.insert_reconstruction(&rec(vec![a])).unwrap(), r + 2);
+    }
+
+    #[test]
+    fn a_catalogue_from_before_issued_ids_starts_after_its_largest_id() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let store = Store::open(dir.path()).unwrap();
+            for _ in 0..3 {
+                store.insert_capture(&CaptureRequest::example()).unwrap();
+            }
+        }
+        // As an older polnlos left it: no sequence table, no triggers.
+        let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
+        raw.execute_batch(
+            "DROP TRIGGER captures_issue_id; DROP TRIGGER reconstructions_issue_id; DROP TABLE issued_ids;",
+        )
+        .unwrap();
+        drop(raw);
+        let store = Store::open(dir.path()).unwrap();
+        assert_eq!(store.insert_capture(&CaptureRequest::example()).unwrap(), 4);
+    }
 
     #[test]
     fn a_row_that_cannot_be_read_is_named_not_hidden() {
