@@ -1035,3 +1035,90 @@ fn measure_turns_tiff_frames_into_the_measurement_in_block_order() {
         "{e}"
     );
 }
+
+#[test]
+fn frames_that_cut_the_wall_or_simulated_frames_of_a_scene_are_measured_or_refused_plainly() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_str().unwrap().to_string();
+    let s = scene("brewster-crossed-3x3").to_str().unwrap().to_string();
+    // A 300x300 frame holds only part of the wall's image: the error names the
+    // pose and an element, and nothing is written.
+    write_tiff_pages(dir.path().join("small.tiff").as_path(), 300, &[100, 110]);
+    let args = [
+        "measure",
+        &s,
+        "--frames",
+        &p("small.tiff"),
+        "--pose",
+        "A",
+        "--angle",
+        "0",
+        "--exposure-us",
+        "1000",
+        "--raw",
+        "--out",
+        &p("i.npy"),
+    ];
+    let e = fails(&polnlos(&args));
+    assert!(
+        e.contains("pose \"A\": wall element") && e.contains("partly outside the frame"),
+        "{e}"
+    );
+    assert!(!dir.path().join("i.npy").exists());
+    // Frames simulated pixel by pixel (with a dark level and its dark frames)
+    // measure back to the wall image: the letter's brightest element is found.
+    let truth = p("letter.png");
+    ok(&polnlos(&[
+        "pattern", "letter", "--size", "32", "--out", &truth,
+    ]));
+    ok(&polnlos(&[
+        "simulate",
+        &s,
+        "--truth",
+        &truth,
+        "--out",
+        &p("sim"),
+        "--photons",
+        "20000",
+        "--frames",
+        "--frame-count",
+        "3",
+        "--dark-level",
+        "64",
+        "--seed",
+        "4",
+    ]));
+    let frames =
+        polnlos::files::frames::read_frames(&dir.path().join("sim/frames-A-pol0.tiff")).unwrap();
+    assert_eq!((frames.stack.count, frames.full_scale()), (3, Some(4095.0)));
+    let out = ok(&polnlos(&[
+        "measure",
+        &s,
+        "--frames",
+        &p("sim/frames-A-pol0.tiff"),
+        "--dark",
+        &p("sim/dark-A-pol0.tiff"),
+        "--pose",
+        "A",
+        "--angle",
+        "0",
+        "--exposure-us",
+        "1",
+        "--raw",
+        "--out",
+        &p("sim/i.npy"),
+    ]));
+    assert!(
+        out.contains("1 blocks A-pol0") || out.contains("A-pol0"),
+        "{out}"
+    );
+    let i = npy::read(&dir.path().join("sim/i.npy")).unwrap().data;
+    let var = npy::read(&dir.path().join("sim/i.variance.npy"))
+        .unwrap()
+        .data;
+    assert_eq!((i.len(), var.len()), (1024, 1024));
+    // The dark level is gone: the darkest elements sit near 0, not near 64 DN.
+    let min = i.iter().copied().fold(f64::INFINITY, f64::min) * 4095.0;
+    assert!(min.abs() < 10.0, "darkest element {min} DN");
+    assert!(var.iter().all(|v| *v > 0.0));
+}

@@ -103,19 +103,15 @@ fn write_frames_of(
 ) -> anyhow::Result<String> {
     let values: Vec<f64> = clean.pixels.iter().map(|&v| f64::from(v)).collect();
     let dark_values = vec![0.0; values.len()];
-    let full = f64::from((1u32 << a.bits) - 1);
     let page = |values: &[f64], k: usize| -> anyhow::Result<Vec<u16>> {
         // A seed per block and page: the same command gives the same frames.
         let model = NoiseModel {
             seed: set.model.seed ^ ((b as u64 + 1) << 32) ^ (k as u64 + 1),
             ..*set.model
         };
-        let sim = model.apply(values.to_vec(), set.peak)?;
-        Ok(sim
-            .dn
-            .iter()
-            .map(|&d| (f64::from(d) + a.dark_level).round().min(full) as u16)
-            .collect())
+        Ok(model
+            .apply_with_offset(values.to_vec(), set.peak, a.dark_level)?
+            .dn)
     };
     let n = a.frame_count;
     let pages = (0..n)

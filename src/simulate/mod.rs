@@ -109,6 +109,18 @@ impl NoiseModel {
         clean: Vec<f64>,
         unpolarized_peak: f64,
     ) -> Result<Simulation, SimulateError> {
+        self.apply_with_offset(clean, unpolarized_peak, 0.0)
+    }
+
+    /// [`NoiseModel::apply`] by a camera that adds `offset_dn` (its dark
+    /// level) before it rounds and clips, as sensors do so that read noise
+    /// below zero is not cut off; `dn` keeps the offset, `measurement` does not.
+    pub fn apply_with_offset(
+        &self,
+        clean: Vec<f64>,
+        unpolarized_peak: f64,
+        offset_dn: f64,
+    ) -> Result<Simulation, SimulateError> {
         self.validate()?;
         if !(unpolarized_peak > 0.0 && unpolarized_peak.is_finite()) {
             return Err(SimulateError::Black);
@@ -134,10 +146,13 @@ impl NoiseModel {
                 0.0
             };
             let e = shot + read.sample(&mut rng);
-            dn.push((e * dn_per_electron).round().clamp(0.0, full) as u16);
+            dn.push((e * dn_per_electron + offset_dn).round().clamp(0.0, full) as u16);
         }
         let units_per_dn = 1.0 / (dn_per_electron * electrons_per_unit);
-        let measurement = dn.iter().map(|&d| f64::from(d) * units_per_dn).collect();
+        let measurement = dn
+            .iter()
+            .map(|&d| (f64::from(d) - offset_dn) * units_per_dn)
+            .collect();
         Ok(Simulation {
             measurement,
             clean,
@@ -196,6 +211,26 @@ mod tests {
             (var / expect - 1.0).abs() < 0.1,
             "variance {var} vs {expect}"
         );
+    }
+
+    #[test]
+    fn a_dark_level_keeps_read_noise_below_zero_from_being_clipped() {
+        let m = NoiseModel {
+            photons: 4095.0,
+            read_noise: 3.0,
+            bits: 12,
+            seed: 9,
+        };
+        // No light: 3 e- (3 DN) of read noise around a 64 DN dark level.
+        let s = m.apply_with_offset(vec![0.0; 20_000], 1.0, 64.0).unwrap();
+        let mean_dn = s.dn.iter().map(|&d| f64::from(d)).sum::<f64>() / 20_000.0;
+        assert!((mean_dn - 64.0).abs() < 0.1, "{mean_dn}");
+        let mean = s.measurement.iter().sum::<f64>() / 20_000.0;
+        assert!(mean.abs() < 0.1 * s.units_per_dn, "{mean}");
+        // Without the level the same noise is clipped at 0 and biased upward.
+        let clipped = m.apply(vec![0.0; 20_000], 1.0).unwrap();
+        let bias = clipped.dn.iter().map(|&d| f64::from(d)).sum::<f64>() / 20_000.0;
+        assert!(bias > 1.0, "{bias}");
     }
 
     #[test]
