@@ -80,6 +80,78 @@ impl RenderedCase {
         })
     }
 
+    /// Reads the camera frames rendered for the case in `dir` (its `frames/`
+    /// folder: `frame-<k>.npy` and `frame-sigma-<k>.npy` per block, 512x512 or
+    /// any size the poses' homographies image the wall into) and measures
+    /// them as polnlos measures a capture (MODEL.md "From camera frames to
+    /// i"): each element the footprint-weighted mean of its pixels, its
+    /// standard error propagated from theirs.
+    pub fn load_frames(dir: &Path) -> Result<Self, BenchError> {
+        let frames = dir.join("frames");
+        let bad = |reason: String| BenchError::Rendered {
+            case: frames.display().to_string(),
+            reason,
+        };
+        let scene = Scene::load(&frames.join("scene.toml")).map_err(|e| bad(e.to_string()))?;
+        let truth = npy::read(&frames.join("truth.npy")).map_err(|e| bad(e.to_string()))?;
+        if truth.data.len() != scene.cols() {
+            return Err(bad(format!(
+                "truth.npy has {} values, the scene needs {}",
+                truth.data.len(),
+                scene.cols()
+            )));
+        }
+        let wall = &scene.wall().plane;
+        let (mut i, mut sigma) = (
+            Vec::with_capacity(scene.rows()),
+            Vec::with_capacity(scene.rows()),
+        );
+        let blocks = crate::transport::blocks_of(&scene);
+        for (k, block) in blocks.iter().enumerate() {
+            let read = |name: String| -> Result<(usize, usize, Vec<f32>), BenchError> {
+                let a = npy::read(&frames.join(&name)).map_err(|e| bad(e.to_string()))?;
+                match a.shape[..] {
+                    [h, w] if a.data.iter().all(|v| v.is_finite()) => {
+                        Ok((w, h, a.data.iter().map(|&v| v as f32).collect()))
+                    }
+                    _ => Err(bad(format!("{name} is not a finite 2-D frame"))),
+                }
+            };
+            let (w, h, values) = read(format!("frame-{k}.npy"))?;
+            let (sw, sh, sig) = read(format!("frame-sigma-{k}.npy"))?;
+            if (sw, sh) != (w, h) {
+                return Err(bad(format!(
+                    "frame-sigma-{k}.npy is {sw}x{sh}, frame-{k}.npy {w}x{h}"
+                )));
+            }
+            let hom = scene
+                .pose(&block.pose)
+                .and_then(|p| p.homography)
+                .ok_or_else(|| bad(format!("pose {} has no homography", block.pose)))?;
+            let map = crate::scene::PixelMap::frame(
+                &hom,
+                wall,
+                crate::scene::FrameGeometry::plain(w, h),
+                &block.pose,
+            )
+            .map_err(|e| bad(e.to_string()))?;
+            let var_of = |p: usize| f64::from(sig[p]) * f64::from(sig[p]);
+            let (mean, var) = map.average(&values, Some(&var_of));
+            i.extend(mean);
+            sigma.extend(var.unwrap_or_default().into_iter().map(f64::sqrt));
+        }
+        Ok(Self {
+            name: dir
+                .file_name()
+                .map(|n| format!("{}-frames", n.to_string_lossy()))
+                .unwrap_or_default(),
+            scene,
+            truth: truth.data,
+            i,
+            sigma,
+        })
+    }
+
     /// Every case under `root` (one folder each), in name order.
     pub fn load_all(root: &Path) -> Result<Vec<Self>, BenchError> {
         let entries = std::fs::read_dir(root).map_err(|e| BenchError::Rendered {

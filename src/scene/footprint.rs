@@ -188,7 +188,10 @@ impl PixelMap {
     /// Element `j`'s effective number of pixels, `1 / sum w_p^2` (`(sum a_p)^2 /
     /// sum a_p^2`): its mean carries the noise of that many equal pixels.
     pub fn effective_pixels(&self, j: usize) -> f64 {
-        1.0 / self.weights[self.range(j)].iter().map(|w| w * w).sum::<f64>()
+        1.0 / self.weights[self.range(j)]
+            .iter()
+            .map(|w| w * w)
+            .sum::<f64>()
     }
 
     /// The range of element `j`'s pixels in [`PixelMap::weights`] and its kin.
@@ -416,7 +419,9 @@ pub fn effective_pixels(scene: &super::Scene) -> Result<Option<Vec<f64>>, Footpr
             return Ok(None);
         };
         let map = PixelMap::plane(h, plane, &pose.name)?;
-        let pose_rows: Vec<f64> = (0..map.elements()).map(|j| map.effective_pixels(j)).collect();
+        let pose_rows: Vec<f64> = (0..map.elements())
+            .map(|j| map.effective_pixels(j))
+            .collect();
         for _ in 0..pose.block_count() {
             out.extend_from_slice(&pose_rows);
         }

@@ -255,6 +255,69 @@ pub fn radiance_at(scene: &Scene, points: &[Vec<[f64; 2]>], l: &[f64]) -> Vec<Ve
     out
 }
 
+/// The rows of `T` for the wall elements `elements` only, in every block
+/// (column-major, `blocks x elements.len()` rows, block-major as in `T`):
+/// checking a model on a sample of rows without building all of `T`.
+pub fn build_elements(
+    scene: &Scene,
+    elements: &[usize],
+    budget: MemoryBudget,
+) -> Result<Vec<f64>, TransportError> {
+    let n = scene.wall().plane.grid.count();
+    if let Some(&j) = elements.iter().find(|&&j| j >= n) {
+        return Err(TransportError::Parameter {
+            name: "element",
+            value: j as f64,
+            reason: "must be a wall element of the scene",
+        });
+    }
+    build_rows(scene, budget, &subset(scene, elements)?, &|_| {})
+}
+
+/// The wall samples of `scene`'s rows for the elements `sample` only.
+fn subset(scene: &Scene, sample: &[usize]) -> Result<WallSamples, TransportError> {
+    let plane = &scene.wall().plane;
+    if scene.wall().sampling == WallSampling::Uniform {
+        let all = plane.sample_points();
+        let m2 = plane.samples_per_element();
+        let points = sample
+            .iter()
+            .flat_map(|&j| all[j * m2..(j + 1) * m2].iter().copied())
+            .collect();
+        return Ok(WallSamples::uniform(scene, points, sample.len(), m2));
+    }
+    let mut points = Vec::new();
+    let mut poses = Vec::with_capacity(scene.poses().len());
+    for pose in scene.poses() {
+        let h = pose
+            .homography
+            .as_ref()
+            .ok_or_else(|| TransportError::NoHomography {
+                pose: pose.name.clone(),
+            })?;
+        let map = PixelMap::plane(h, plane, &pose.name)?;
+        let start = points.len();
+        let (mut row, mut weight) = (Vec::new(), Vec::new());
+        for (k, &j) in sample.iter().enumerate() {
+            for s in map.range(j) {
+                let [u, v] = map.points()[s];
+                points.push(plane.point(u, v));
+                row.push(k as u32);
+                weight.push(map.weights()[s]);
+            }
+        }
+        poses.push(PoseSamples {
+            range: start..points.len(),
+            rows: Rows::Weighted { row, weight },
+        });
+    }
+    Ok(WallSamples {
+        points,
+        poses,
+        rows_per_block: sample.len(),
+    })
+}
+
 /// The row blocks of a scene's `T`, in stacking order (pose, then angle):
 /// which capture goes where in the measurement, known without building `T`.
 pub fn blocks_of(scene: &Scene) -> Vec<Block> {

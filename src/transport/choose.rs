@@ -8,9 +8,8 @@
 //! model's error, estimated against the next finer model on a sample of
 //! rows, stays below a third of the noise of those rows.
 
-use super::build::{build_rows, PoseSamples, Rows, WallSamples};
 use super::{MemoryBudget, TransportError};
-use crate::scene::{PixelMap, Scene, WallSampling};
+use crate::scene::{Scene, WallSampling};
 
 /// The most the model error may be, as a fraction of the noise (rms over rows).
 pub const TARGET: f64 = 1.0 / 3.0;
@@ -165,58 +164,13 @@ fn row_sums(
     sample: &[usize],
     budget: MemoryBudget,
 ) -> Result<Vec<f64>, TransportError> {
-    let samples = subset(scene, sample)?;
-    let rows = samples.rows_per_block * scene.block_count();
-    let data = build_rows(scene, budget, &samples, &|_| {})?;
+    let rows = sample.len() * scene.block_count();
+    let data = super::build_elements(scene, sample, budget)?;
     let mut sums = vec![0.0; rows];
     for col in data.chunks(rows.max(1)) {
         sums.iter_mut().zip(col).for_each(|(s, v)| *s += v);
     }
     Ok(sums)
-}
-
-/// The wall samples of `scene`'s rows for the elements `sample` only.
-fn subset(scene: &Scene, sample: &[usize]) -> Result<WallSamples, TransportError> {
-    let plane = &scene.wall().plane;
-    if scene.wall().sampling == WallSampling::Uniform {
-        let all = plane.sample_points();
-        let m2 = plane.samples_per_element();
-        let points = sample
-            .iter()
-            .flat_map(|&j| all[j * m2..(j + 1) * m2].iter().copied())
-            .collect();
-        return Ok(WallSamples::uniform(scene, points, sample.len(), m2));
-    }
-    let mut points = Vec::new();
-    let mut poses = Vec::with_capacity(scene.poses().len());
-    for pose in scene.poses() {
-        let h = pose
-            .homography
-            .as_ref()
-            .ok_or_else(|| TransportError::NoHomography {
-                pose: pose.name.clone(),
-            })?;
-        let map = PixelMap::plane(h, plane, &pose.name)?;
-        let start = points.len();
-        let (mut row, mut weight) = (Vec::new(), Vec::new());
-        for (k, &j) in sample.iter().enumerate() {
-            for s in map.range(j) {
-                let [u, v] = map.points()[s];
-                points.push(plane.point(u, v));
-                row.push(k as u32);
-                weight.push(map.weights()[s]);
-            }
-        }
-        poses.push(PoseSamples {
-            range: start..points.len(),
-            rows: Rows::Weighted { row, weight },
-        });
-    }
-    Ok(WallSamples {
-        points,
-        poses,
-        rows_per_block: sample.len(),
-    })
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ mod build;
 pub mod choose;
 
 pub use adaptive::{build_adaptive, AdaptiveStats};
-pub use build::{blocks_of, build, build_with_progress, radiance_at};
+pub use build::{blocks_of, build, build_elements, build_with_progress, radiance_at};
 
 use faer::MatRef;
 

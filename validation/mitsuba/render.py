@@ -16,6 +16,15 @@ Writes to DIR:
   truth.npy   float64 (nv, nu) scene radiance used (row iv, column iu).
   render.json settings, timings, Mitsuba version, block list.
 
+With --frames WIDTH HEIGHT (every pose needs a homography; --spp is per pixel) it writes
+instead, per block k in T's order:
+  frame-<k>.npy        float32 (HEIGHT, WIDTH) camera frame, pixel (x, y) at [y, x]: the mean
+                       S0 over spp rays from the camera centre to the wall points
+                       H^-1(x + jx, y + jy), jitter uniform in [-1/2, 1/2)^2; samples off the
+                       wall (grown by --wall-margin, default 1 cm) count 0.
+  frame-sigma-<k>.npy  float32 per-pixel standard error from the batch means;
+and truth.npy, render.json (with each element's noise measured through model.py's measure).
+
 Mitsuba scene (MODEL.md geometry, see README.md for the checks):
   * wall: `rectangle` placed as the wall plane, `pplastic` (ggx, alpha = roughness,
     int_ior = ior, ext_ior = 1.0, diffuse_reflectance = kd, specular_reflectance = ks);
@@ -112,9 +121,15 @@ def load_scene_file(path):
     for k, p in enumerate(poses):
         if "camera" not in p:
             raise ValueError(f"pose[{k}].camera: missing")
+        H = None
+        if "homography" in p:
+            H = np.asarray(p["homography"], dtype=float)
+            if H.shape != (3, 3) or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) == 0:
+                raise ValueError(f"pose[{k}].homography: not an invertible 3x3 matrix")
         sc["poses"].append(dict(name=str(p.get("name", str(k))),
                                 o=np.asarray(p["camera"], dtype=float),
-                                deg=[float(a) for a in p.get("polarizer_deg", [])]))
+                                deg=[float(a) for a in p.get("polarizer_deg", [])],
+                                H=H))
     sc["occluders"] = []
     for k, oc in enumerate(raw.get("occluder", [])):
         if "rect" in oc:
@@ -354,6 +369,144 @@ def render(sc, truth, spp, batches, variant, seed, max_depth=4, flip_rows=False,
     return i, sigma, info, time.time() - t_all, spp_pt * m2 * batches
 
 
+def frame_pixels(H, wall, width, height, margin):
+    """Pixels of a width x height frame whose square can reach the (extended) wall: the
+    integer points of the bounding box of the extended wall's image, grown by one pixel."""
+    su, sv = wall["size"][0] / 2 + margin, wall["size"][1] / 2 + margin
+    c = np.array([[-su, -sv, 1], [su, -sv, 1], [su, sv, 1], [-su, sv, 1]]) @ H.T
+    if not np.all(c[:, 2] > 0):
+        raise ValueError("pose.homography: a wall corner maps behind the camera")
+    x, y = c[:, 0] / c[:, 2], c[:, 1] / c[:, 2]
+    x0, x1 = max(0, math.floor(x.min()) - 1), min(width - 1, math.ceil(x.max()) + 1)
+    y0, y1 = max(0, math.floor(y.min()) - 1), min(height - 1, math.ceil(y.max()) + 1)
+    X, Y = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1))
+    return X.ravel(), Y.ravel()
+
+
+def render_frame_batch(mi, scene, o, H, wall, margin, px, py, spp, seed):
+    """Mean S0 per pixel over `spp` jittered samples (float64, shape (len(px),)).
+
+    Sample: (x + jx, y + jy), (jx, jy) uniform in [-1/2, 1/2)^2, mapped by H^-1 to the wall
+    plane; a sample on the wall rectangle grown by `margin` on every side is traced along
+    camera -> that wall point, any other contributes 0 (dark background)."""
+    import drjit as dr
+    G = np.linalg.inv(H)
+    su, sv = wall["size"][0] / 2 + margin, wall["size"][1] / 2 + margin
+    npix = len(px)
+    acc = np.zeros(npix)
+    rng = np.random.default_rng(seed)
+    integrator = scene.integrator()
+    per_launch = max(1, MAX_LANES // npix)
+    done, launch = 0, 0
+    O = mi.Point3f(*[float(t) for t in o])
+    while done < spp:
+        k = min(per_launch, spp - done)
+        jx = rng.random((k, npix)) - 0.5
+        jy = rng.random((k, npix)) - 0.5
+        X, Y = px[None, :] + jx, py[None, :] + jy
+        w = G[2, 0] * X + G[2, 1] * Y + G[2, 2]
+        u = (G[0, 0] * X + G[0, 1] * Y + G[0, 2]) / w
+        v = (G[1, 0] * X + G[1, 1] * Y + G[1, 2]) / w
+        on = (w > 0) & (np.abs(u) <= su) & (np.abs(v) <= sv)
+        idx = np.nonzero(on.ravel())[0]
+        if idx.size:
+            P = wall["c"] + u.ravel()[idx, None] * wall["u"] + v.ravel()[idx, None] * wall["v"]
+            d = P - o
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            ray = mi.RayDifferential3f(mi.Ray3f(O, mi.Vector3f(d[:, 0], d[:, 1], d[:, 2])))
+            sampler = mi.load_dict({"type": "independent"})
+            sampler.seed(dr.opaque(mi.UInt32, (seed * 7919 + launch) & 0xFFFFFFFF), int(idx.size))
+            spec, _, _ = integrator.sample(scene, sampler, ray)
+            s0 = spec[0, 0] if hasattr(spec, "shape") and len(spec.shape) >= 2 else spec
+            val = np.asarray(s0, dtype=np.float64).reshape(-1)
+            if val.size != idx.size:
+                val = np.asarray(dr.ravel(s0), dtype=np.float64)[:idx.size]
+            if not np.all(np.isfinite(val)):
+                raise RuntimeError(f"{np.sum(~np.isfinite(val))} non-finite samples")
+            acc += np.bincount(idx % npix, weights=val, minlength=npix)
+        done += k
+        launch += 1
+    return acc / spp
+
+
+def render_frames(sc, truth, width, height, spp, batches, variant, seed, margin=0.01,
+                  max_depth=4, log=print):
+    """Per block a (height, width) camera frame: mean S0 over `spp` jittered rays per pixel,
+    split in `batches` independent batches. Returns (frames, sigmas, batch_frames, info, secs)."""
+    mi = setup_mitsuba(variant)
+    for p in sc["poses"]:
+        if p["H"] is None:
+            raise ValueError(f"pose {p['name']}: --frames needs a homography")
+    wall = sc["wall"]
+    big = dict(sc, wall=dict(wall, size=(wall["size"][0] + 2 * margin, wall["size"][1] + 2 * margin)))
+    su, sv = big["wall"]["size"][0] / 2, big["wall"]["size"][1] / 2
+    corners = wall["c"] + np.array([[a * su, b * sv] for a in (-1, 1) for b in (-1, 1)]) @ np.stack([wall["u"], wall["v"]])
+    spp_b = spp // batches
+    frames, sigmas, per_batch, info = [], [], [], []
+    t_all = time.time()
+    bi = 0
+    for p in sc["poses"]:
+        px, py = frame_pixels(p["H"], wall, width, height, margin)
+        for deg in (p["deg"] or [None]):
+            t0 = time.time()
+            psi = None if deg is None else math.radians(deg)
+            scene, sheet = build_scene(mi, big, truth, p, psi, corners, max_depth)
+            means = np.zeros((batches, height, width))
+            for b in range(batches):
+                bseed = (seed * 1_000_003 + bi * 10_007 + b * 101) & 0x7FFFFFFF
+                means[b, py, px] = render_frame_batch(mi, scene, p["o"], p["H"], wall, margin, px, py, spp_b, bseed)
+            dt = time.time() - t0
+            frames.append(means.mean(axis=0))
+            sigmas.append(means.std(axis=0, ddof=1) / math.sqrt(batches))
+            per_batch.append(means)
+            info.append(dict(pose=p["name"], polarizer_deg=deg, seconds=round(dt, 2), sheet=sheet,
+                             traced_pixels=int(len(px))))
+            log(f"block {bi} pose {p['name']} polarizer {deg}: {dt:.1f} s ({len(px)} pixels x {spp_b * batches} spp)")
+            bi += 1
+    return frames, sigmas, per_batch, info, time.time() - t_all, spp_b * batches
+
+
+def main_frames(a, sc, truth, pattern):
+    width, height = a.frames
+    frames, sigmas, per_batch, info, secs, spp_eff = render_frames(
+        sc, truth, width, height, a.spp, a.batches, a.variant, a.seed, a.wall_margin, a.max_depth)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for k, (f, s) in enumerate(zip(frames, sigmas)):
+        np.save(out / f"frame-{k}.npy", f.astype(np.float32))
+        np.save(out / f"frame-sigma-{k}.npy", s.astype(np.float32))
+    np.save(out / "truth.npy", truth)
+    # diagnostics: each wall element's mean over its pixels (model.py's measure, MODEL.md
+    # rev 3) per batch: its standard error measured directly, against sigma propagated
+    import mitsuba as mi
+    import drjit as dr
+    import model
+    for k, p in enumerate(b for p in sc["poses"] for b in [p] * max(1, len(p["deg"]))):
+        wall = dict(size=sc["wall"]["size"], grid=sc["wall"]["grid"])
+        el = np.array([model.measure(m, p["H"], wall)[0] for m in per_batch[k]])
+        i = el.mean(axis=0)
+        direct = el.std(axis=0, ddof=1) / math.sqrt(a.batches)
+        _, var = model.measure(frames[k], p["H"], wall, variance=sigmas[k] ** 2)
+        info[k]["element_median_rel_stderr_direct"] = float(np.median(direct / i))
+        info[k]["element_median_rel_stderr_propagated"] = float(np.median(np.sqrt(var) / i))
+        on = frames[k] > 0
+        info[k]["pixel_median_rel_stderr"] = float(np.median(sigmas[k][on] / frames[k][on]))
+    meta = dict(
+        scene_file=Path(a.scene).name, mode="frames", width=width, height=height,
+        spp_per_pixel=spp_eff, spp_requested=a.spp, batches=a.batches, variant=a.variant,
+        mitsuba=mi.__version__, drjit=dr.__version__, seed=a.seed,
+        integrator=dict(type="volpath", max_depth=a.max_depth), wall_margin_m=a.wall_margin,
+        seconds=round(secs, 2), pattern=pattern,
+        wall_grid=list(sc["wall"]["grid"]), scene_grid=list(sc["scene"]["grid"]),
+        blocks=info,
+    )
+    with open(out / "render.json", "w") as f:
+        json.dump(meta, f, indent=1)
+        f.write("\n")
+    print(f"{len(frames)} frames in {secs:.1f} s, element median relative stderr "
+          + ", ".join(f"{100 * b['element_median_rel_stderr_direct']:.3f} %" for b in info))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene", help="polnlos scene file (TOML)")
@@ -366,6 +519,12 @@ def main(argv=None):
     ap.add_argument("--variant", default="llvm_ad_mono_polarized")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--max-depth", type=int, default=4)
+    ap.add_argument("--frames", nargs=2, type=int, metavar=("WIDTH", "HEIGHT"),
+                    help="render camera frames (one per block) through each pose's homography "
+                         "instead of per-element values; --spp is then per pixel")
+    ap.add_argument("--wall-margin", type=float, default=0.01,
+                    help="--frames: metres the Mitsuba wall extends beyond the file's wall on every "
+                         "side (a real wall goes on; 0 = dark beyond the file's wall)")
     ap.add_argument("--flip-rows", action="store_true",
                     help="debug only: feed the bitmap upside down (for the orientation probe)")
     a = ap.parse_args(argv)
@@ -397,6 +556,9 @@ def main(argv=None):
         raise SystemExit(f"unknown pattern {a.pattern!r}")
     if np.any(truth < 0) or not np.all(np.isfinite(truth)):
         raise SystemExit("truth must be finite and >= 0")
+
+    if a.frames:
+        return main_frames(a, sc, truth, pattern)
 
     i, sigma, info, secs, spp_eff = render(sc, truth, a.spp, a.batches, a.variant, a.seed,
                                            a.max_depth, a.flip_rows)
