@@ -124,3 +124,84 @@ fn a_wall_element_outside_the_frame_is_an_error_naming_it() {
         "{e}"
     );
 }
+
+#[test]
+fn frames_with_per_pixel_noise_carry_a_variance_the_model_check_confirms() {
+    // Camera frames drawn pixel by pixel with per-pixel noise, measured from all
+    // of each element's pixels: with the rows that match (sampling = "pixels")
+    // the best fit's misfit is the propagated noise, chi2/dof = 1 +- 0.1.
+    use polnlos::measure::{assemble, CaptureFrames, FrameStack};
+    use polnlos::solve::lambda::NoiseLevel;
+    use polnlos::solve::reconstruct::{reconstruct, Context};
+    use polnlos::solve::{condition, SolveRequest};
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let text = std::fs::read_to_string(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes/brewster-rotating.toml"),
+    )
+    .unwrap()
+    .replace("ks = 1.0", "ks = 1.0\nsampling = \"pixels\"");
+    let scene = Scene::from_toml_str(&text).unwrap();
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
+    let truth = Pattern::Disk.render(t.scene_grid());
+    let rendered = camera::render(&scene, &truth, FrameGeometry::plain(512, 512));
+    let peak = rendered
+        .iter()
+        .flat_map(|(_, f)| f.as_ref().unwrap().pixels.iter().copied())
+        .fold(0.0f32, f32::max);
+    let dn_per_unit = 3000.0 / f64::from(peak);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+    // Four blocks of 1024 elements, 16 frames each: chi2/dof of 4000 terms
+    // scatters by about 2 %.
+    let (blocks, captures): (Vec<_>, Vec<_>) = rendered
+        .into_iter()
+        .map(|(block, clean)| {
+            let clean = clean.unwrap();
+            let mut stack = FrameStack::new(512, 512);
+            for _ in 0..16 {
+                let frame: Vec<f64> = clean
+                    .pixels
+                    .iter()
+                    .map(|&c| {
+                        let dn = f64::from(c) * dn_per_unit;
+                        // Shot noise of ~1 e-/DN and 5 DN of read noise.
+                        dn + Normal::new(0.0, (dn + 25.0).sqrt())
+                            .unwrap()
+                            .sample(&mut rng)
+                    })
+                    .collect();
+                stack.push(&frame);
+            }
+            let capture = CaptureFrames {
+                name: block.label(),
+                pose: block.pose.clone(),
+                polarizer_deg: block.polarizer_deg,
+                mean: stack.mean_minus(None).unwrap(),
+                variance: stack.variance_frame(),
+                frames: 16,
+                full_scale: dn_per_unit,
+                exposure_us: 1.0,
+                offset: [0, 0],
+                binning: [1, 1],
+            };
+            (block, capture)
+        })
+        .unzip();
+    let m = assemble(&scene, &blocks, &captures).unwrap();
+    let cond = condition(&t).unwrap();
+    let ctx = Context {
+        scene: "brewster-rotating".into(),
+        transport_seconds: 0.0,
+        truth: Some(&truth),
+        stop: Default::default(),
+    };
+    let noise = NoiseLevel::measured(m.variance.unwrap());
+    let solved = reconstruct(&t, &m.i, Some(noise), &cond, &SolveRequest::default(), ctx).unwrap();
+    let check = solved.report.model_check.unwrap();
+    let chi2 = check.chi2_per_dof.unwrap();
+    println!(
+        "chi2/dof {chi2:.3}, PSNR {:.2} dB",
+        solved.report.metrics.unwrap().psnr_db
+    );
+    assert!((chi2 - 1.0).abs() <= 0.1, "{check:?}");
+}
