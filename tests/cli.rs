@@ -1088,6 +1088,12 @@ fn frames_that_cut_the_wall_or_simulated_frames_of_a_scene_are_measured_or_refus
         "--seed",
         "4",
     ]));
+    let sim: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("sim/simulate.json")).unwrap(),
+    )
+    .unwrap();
+    let gain = sim["frame_gain"].as_f64().unwrap();
+    assert!((gain * sim["unpolarized_peak"].as_f64().unwrap() - 1.0).abs() < 1e-12);
     let frames =
         polnlos::files::frames::read_frames(&dir.path().join("sim/frames-A-pol0.tiff")).unwrap();
     assert_eq!((frames.stack.count, frames.full_scale()), (3, Some(4095.0)));

@@ -86,6 +86,11 @@ struct Output {
     electrons_per_unit: f64,
     units_per_dn: f64,
     png_scale: f64,
+    /// With --frames: the gain `polnlos measure --gain` takes for them at
+    /// `--exposure-us 1` (fraction of full scale per unit of `T l`, the
+    /// unpolarized peak at full scale), so the measurement is in units of `T l`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    frame_gain: Option<f64>,
     transport_seconds: f64,
     blocks: Vec<BlockOut>,
 }
@@ -243,6 +248,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         electrons_per_unit: sim.electrons_per_unit,
         units_per_dn: sim.units_per_dn,
         png_scale,
+        frame_gain: a.frames.then(|| 1.0 / peak),
         transport_seconds,
         blocks,
     };
