@@ -118,14 +118,27 @@ impl WallSamples {
     /// through its homography, weighted by their footprints; the wall's
     /// uniform `m x m` sub-samples otherwise.
     pub fn of_scene(scene: &Scene, budget: MemoryBudget) -> Result<Self, TransportError> {
+        let all: Vec<usize> = (0..scene.wall().plane.grid.count()).collect();
+        Self::of_elements(scene, &all, budget)
+    }
+
+    /// [`WallSamples::of_scene`] for the wall elements `elements` only (rows
+    /// in that order), each sample's point, row and weight checked against
+    /// `budget` before the next pose's are made.
+    fn of_elements(
+        scene: &Scene,
+        elements: &[usize],
+        budget: MemoryBudget,
+    ) -> Result<Self, TransportError> {
         let plane = &scene.wall().plane;
         if scene.wall().sampling == WallSampling::Uniform {
-            return Ok(Self::uniform(
-                scene,
-                plane.sample_points(),
-                plane.grid.count(),
-                plane.samples_per_element(),
-            ));
+            let all = plane.sample_points();
+            let m2 = plane.samples_per_element();
+            let points = elements
+                .iter()
+                .flat_map(|&j| all[j * m2..(j + 1) * m2].iter().copied())
+                .collect();
+            return Ok(Self::uniform(scene, points, elements.len(), m2));
         }
         let mut points = Vec::new();
         let mut poses = Vec::with_capacity(scene.poses().len());
@@ -137,32 +150,34 @@ impl WallSamples {
                     pose: pose.name.clone(),
                 })?;
             let map = PixelMap::plane(h, plane, &pose.name)?;
+            let pixels: usize = elements.iter().map(|&j| map.range(j).len()).sum();
             // Each sample keeps its point, row and weight, and per pose the scratch arrays.
             super::check_size(
                 budget,
-                scene.rows(),
+                elements.len() * scene.block_count(),
                 scene.cols(),
                 scene.block_count(),
-                (points.len() + map.len()) as f64 * 120.0,
+                (points.len() + pixels) as f64 * 120.0,
             )?;
             let start = points.len();
-            let mut row = Vec::with_capacity(map.len());
-            for j in 0..map.elements() {
-                row.extend(map.range(j).map(|_| j as u32));
+            let (mut row, mut weight) = (Vec::with_capacity(pixels), Vec::with_capacity(pixels));
+            for (k, &j) in elements.iter().enumerate() {
+                for s in map.range(j) {
+                    let [u, v] = map.points()[s];
+                    points.push(plane.point(u, v));
+                    row.push(k as u32);
+                    weight.push(map.weights()[s]);
+                }
             }
-            points.extend(map.points().iter().map(|&[u, v]| plane.point(u, v)));
             poses.push(PoseSamples {
                 range: start..points.len(),
-                rows: Rows::Weighted {
-                    row,
-                    weight: map.weights().to_vec(),
-                },
+                rows: Rows::Weighted { row, weight },
             });
         }
         Ok(WallSamples {
             points,
             poses,
-            rows_per_block: plane.grid.count(),
+            rows_per_block: elements.len(),
         })
     }
 }
@@ -271,51 +286,12 @@ pub fn build_elements(
             reason: "must be a wall element of the scene",
         });
     }
-    build_rows(scene, budget, &subset(scene, elements)?, &|_| {})
-}
-
-/// The wall samples of `scene`'s rows for the elements `sample` only.
-fn subset(scene: &Scene, sample: &[usize]) -> Result<WallSamples, TransportError> {
-    let plane = &scene.wall().plane;
-    if scene.wall().sampling == WallSampling::Uniform {
-        let all = plane.sample_points();
-        let m2 = plane.samples_per_element();
-        let points = sample
-            .iter()
-            .flat_map(|&j| all[j * m2..(j + 1) * m2].iter().copied())
-            .collect();
-        return Ok(WallSamples::uniform(scene, points, sample.len(), m2));
-    }
-    let mut points = Vec::new();
-    let mut poses = Vec::with_capacity(scene.poses().len());
-    for pose in scene.poses() {
-        let h = pose
-            .homography
-            .as_ref()
-            .ok_or_else(|| TransportError::NoHomography {
-                pose: pose.name.clone(),
-            })?;
-        let map = PixelMap::plane(h, plane, &pose.name)?;
-        let start = points.len();
-        let (mut row, mut weight) = (Vec::new(), Vec::new());
-        for (k, &j) in sample.iter().enumerate() {
-            for s in map.range(j) {
-                let [u, v] = map.points()[s];
-                points.push(plane.point(u, v));
-                row.push(k as u32);
-                weight.push(map.weights()[s]);
-            }
-        }
-        poses.push(PoseSamples {
-            range: start..points.len(),
-            rows: Rows::Weighted { row, weight },
-        });
-    }
-    Ok(WallSamples {
-        points,
-        poses,
-        rows_per_block: sample.len(),
-    })
+    build_rows(
+        scene,
+        budget,
+        &WallSamples::of_elements(scene, elements, budget)?,
+        &|_| {},
+    )
 }
 
 /// The row blocks of a scene's `T`, in stacking order (pose, then angle):
