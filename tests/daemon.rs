@@ -1101,6 +1101,30 @@ fn captures_and_reconstructions_can_be_deleted_with_their_files() {
     );
     assert!(!data.join("captures/999.deleting").exists());
     assert_eq!(d.json(&format!("/captures/{}", c["id"]))["state"], "done");
+    // An id is never issued twice (issue 31): the newest capture deleted, the
+    // next one gets a new id, and again after a restart; likewise reconstructions.
+    let newest = c["id"].as_i64().unwrap();
+    assert_eq!(d.delete(&format!("/captures/{newest}")).0, 200);
+    let next = d.run_job("/captures", capture, Duration::from_secs(20));
+    assert_eq!(next["id"].as_i64(), Some(newest + 1), "{next}");
+    assert_eq!(d.delete(&format!("/captures/{}", newest + 1)).0, 200);
+    drop(d);
+    let d = Daemon::start(&cfg, &data);
+    let after = d.run_job("/captures", capture, Duration::from_secs(20));
+    assert_eq!(after["id"].as_i64(), Some(newest + 2), "{after}");
+    let again = d.run_job(
+        "/reconstructions",
+        &format!(
+            r#"{{"scene": "brewster-crossed", "captures": [{}]}}"#,
+            newest + 2
+        ),
+        Duration::from_secs(30),
+    );
+    assert_eq!(
+        again["id"].as_i64(),
+        r["id"].as_i64().map(|i| i + 1),
+        "{again}"
+    );
 }
 
 #[test]
