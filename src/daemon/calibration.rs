@@ -195,9 +195,14 @@ impl Daemon {
             let captures = self.source_captures(scene_name, &scene, &p.captures)?;
             ordered.push(captures.iter().map(|c| c.id).collect());
             let blocks = crate::transport::blocks_of(&scene);
-            let stacked =
-                super::reconstruction::stack_records(&self.store, captures, &scene, &blocks)
-                    .map_err(|e| invalid(e.to_string()))?;
+            let stacked = super::reconstruction::stack_records(
+                &self.store,
+                captures,
+                &scene,
+                &blocks,
+                &self.scenes.pixel_maps(scene_name),
+            )
+            .map_err(|e| invalid(e.to_string()))?;
             let m = stacked.measurement;
             measured.push((m.i, m.variance));
             warnings.extend(stacked.warnings);

@@ -151,8 +151,8 @@ struct Solver {
     truth: Option<Vec<f64>>,
     previous: Option<Vec<f64>>,
     steps: Vec<Step>,
-    /// The pixel maps of the scene's poses, made at the first step that needs one.
-    maps: PixelMaps,
+    /// The pixel maps of the scene's poses, kept with the scene.
+    maps: Arc<PixelMaps>,
     /// The scenes, for the model a step's noise asks for.
     scenes: Arc<super::scenes::Scenes>,
     /// The key of the model `t` is (the scene's name, or a sampling variant's).
@@ -194,7 +194,7 @@ impl Solver {
             .iter()
             .map(|&b| t.blocks()[b].clone())
             .collect();
-        let maps = PixelMaps::default();
+        let maps = d.scenes.pixel_maps(&capture.scene);
         let mut m = assemble_with(&scene, &blocks, &others, &maps)?;
         Units::Calibrated(calibration).apply(&mut m);
         let mut i = vec![0.0; t.rows()];

@@ -13,7 +13,8 @@ use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::Daemon;
 use crate::files::{image, json, npy};
 use crate::measure::{
-    assemble, load, to_model_units, CaptureFrames, CaptureInfo, CaptureSource, Frame, Measurement,
+    assemble_with, load, to_model_units, CaptureFrames, CaptureInfo, CaptureSource, Frame,
+    Measurement, PixelMaps,
 };
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
@@ -92,7 +93,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     let Stacked {
         mut measurement,
         mut warnings,
-    } = stack_captures(&d.store, &rec, &scene, &t)?;
+    } = stack_captures(&d.store, &rec, &scene, &t, &d.scenes.pixel_maps(&rec.scene))?;
     let calibration = d.calibration.get(&rec.scene).copied();
     let units = to_model_units(&t, &mut measurement, calibration)?;
     warnings.extend(units.warning());
@@ -210,9 +211,10 @@ fn stack_captures(
     rec: &crate::store::ReconstructionRecord,
     scene: &crate::scene::Scene,
     t: &crate::transport::Transport,
+    maps: &PixelMaps,
 ) -> Result<Stacked, JobError> {
     let records = read_captures(store, &rec.captures)?;
-    stack_records(store, records, scene, t.blocks())
+    stack_records(store, records, scene, t.blocks(), maps)
 }
 
 /// The solve a reconstruction row asks for: its parameters (the same keys
@@ -237,20 +239,22 @@ fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest
 }
 
 /// Captures (each at its own pose) assembled into the measurement of
-/// `blocks` with [`crate::measure::assemble`], in fractions of full scale
-/// per µs; the variance comes with it when every capture has 2 frames or more.
+/// `blocks` with [`crate::measure::assemble_with`] and the scene's pixel
+/// `maps`, in fractions of full scale per µs; the variance comes with it
+/// when every capture has 2 frames or more.
 pub(super) fn stack_records(
     store: &Store,
     records: Vec<CaptureRecord>,
     scene: &crate::scene::Scene,
     blocks: &[crate::transport::Block],
+    maps: &PixelMaps,
 ) -> Result<Stacked, JobError> {
     let mut warnings = Vec::new();
     let captures = records
         .into_iter()
         .map(|c| load_capture(store, c, scene, &mut warnings))
         .collect::<Result<Vec<_>, _>>()?;
-    let measurement = assemble(scene, blocks, &captures)?;
+    let measurement = assemble_with(scene, blocks, &captures, maps)?;
     Ok(Stacked {
         measurement,
         warnings,

@@ -53,6 +53,10 @@ pub struct Scenes {
     /// Scenes sampled as a reconstruction chose from its noise, by key
     /// (`name#sampling,wall m,scene m`): each has its own cached `T`.
     variants: Mutex<BTreeMap<String, Arc<Scene>>>,
+    /// Each scene's pixel maps (which pixels image which wall element, per
+    /// pose and frame geometry), made on first use and kept: a measurement
+    /// is then one pass over each frame.
+    pixel_maps: Mutex<BTreeMap<String, Arc<crate::measure::PixelMaps>>>,
 }
 
 impl Scenes {
@@ -85,6 +89,7 @@ impl Scenes {
             grams: Mutex::new(BTreeMap::new()),
             conditioning: Mutex::new(BTreeMap::new()),
             variants: Mutex::new(BTreeMap::new()),
+            pixel_maps: Mutex::new(BTreeMap::new()),
         })
     }
 
@@ -125,6 +130,15 @@ impl Scenes {
             name: name.to_string(),
             known: self.names(),
         })
+    }
+
+    /// The pixel maps of scene `name`'s poses, kept for every measurement of it.
+    pub fn pixel_maps(&self, name: &str) -> Arc<crate::measure::PixelMaps> {
+        let mut maps = self
+            .pixel_maps
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        Arc::clone(maps.entry(name.to_string()).or_default())
     }
 
     /// The key under which scene `name`, sampled as a reconstruction with
@@ -245,6 +259,34 @@ mod tests {
         let path = dir.join("large.toml");
         std::fs::write(&path, text).expect("write scene");
         path
+    }
+
+    #[test]
+    fn a_scene_keeps_its_pixel_maps_and_a_noise_gets_its_own_model() {
+        let none: [&Path; 0] = [];
+        let scenes = Scenes::load(&none, MemoryBudget::DEFAULT).expect("scenes");
+        let (a, b) = (
+            scenes.pixel_maps("brewster-crossed"),
+            scenes.pixel_maps("brewster-crossed"),
+        );
+        assert!(Arc::ptr_eq(&a, &b));
+        assert!(!Arc::ptr_eq(&a, &scenes.pixel_maps("brewster-multi")));
+        // A quiet measurement asks for the pixel rows the file leaves out: a
+        // variant with its own key, T and scene; a loud one keeps the file's.
+        let t = scenes.transport("brewster-crossed").expect("T");
+        let level = t.apply(&vec![1.0; t.cols()]);
+        let quiet: Vec<f64> = level.iter().map(|v| (1e-4 * v).powi(2)).collect();
+        let (key, choice) = scenes
+            .for_noise("brewster-crossed", &quiet)
+            .expect("choice");
+        assert_eq!(key, "brewster-crossed#pixels,1,1");
+        assert_eq!(choice.expect("chosen").chosen, vec!["wall.sampling"]);
+        let variant = scenes.scene(&key).expect("the variant is a scene");
+        assert_eq!(variant.wall().sampling, crate::scene::WallSampling::Pixels);
+        assert_eq!(scenes.transport(&key).expect("its T").rows(), t.rows());
+        let loud: Vec<f64> = level.iter().map(|v| (0.05 * v).powi(2)).collect();
+        let (key, _) = scenes.for_noise("brewster-crossed", &loud).expect("choice");
+        assert_eq!(key, "brewster-crossed");
     }
 
     #[test]
