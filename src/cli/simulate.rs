@@ -118,28 +118,18 @@ fn write_frames_of(
             .apply_with_offset(values.to_vec(), set.peak, a.dark_level)?
             .dn)
     };
-    let n = a.frame_count;
-    let pages = (0..n)
-        .map(|k| page(&values, k))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    write_frames(
-        &a.out.join(format!("frames-{label}.tiff")),
-        clean.width,
-        clean.height,
-        &pages,
-        a.bits,
-    )?;
-    if a.dark_level > 0.0 {
-        let darks = (n..2 * n)
-            .map(|k| page(&dark_values, k))
+    // Pages `seeds` of `values` written as one file.
+    let write = |file: String, values: &[f64], seeds: std::ops::Range<usize>| {
+        let pages = seeds
+            .map(|k| page(values, k))
             .collect::<anyhow::Result<Vec<_>>>()?;
-        write_frames(
-            &a.out.join(format!("dark-{label}.tiff")),
-            clean.width,
-            clean.height,
-            &darks,
-            a.bits,
-        )?;
+        write_frames(&a.out.join(file), clean.width, clean.height, &pages, a.bits)?;
+        anyhow::Ok(pages)
+    };
+    let n = a.frame_count;
+    let pages = write(format!("frames-{label}.tiff"), &values, 0..n)?;
+    if a.dark_level > 0.0 {
+        write(format!("dark-{label}.tiff"), &dark_values, n..2 * n)?;
     }
     let preview: Vec<u16> = pages[0]
         .iter()
