@@ -126,7 +126,7 @@ pub fn stack(
             .map(|v| move |p: usize| with_rounding_bias(f64::from(v.pixels[p]), n));
         let (values, vars) = map.average(
             &b.mean.pixels,
-            var_of.as_ref().map(|f| f as &dyn Fn(usize) -> f64),
+            var_of.as_ref().map(|f| f as &(dyn Fn(usize) -> f64 + Sync)),
         );
         let to_units = 1.0 / b.full_scale / b.exposure_us;
         i.extend(values.into_iter().map(|v| v * to_units));

@@ -224,33 +224,25 @@ impl PixelMap {
     pub fn average(
         &self,
         values: &[f32],
-        variance: Option<&dyn Fn(usize) -> f64>,
+        variance: Option<&(dyn Fn(usize) -> f64 + Sync)>,
     ) -> (Vec<f64>, Option<Vec<f64>>) {
-        let n = self.elements();
-        let means: Vec<f64> = (0..n)
-            .into_par_iter()
-            .with_min_len(64)
-            .map(|j| {
-                let r = self.range(j);
-                self.pixels[r.clone()]
-                    .iter()
-                    .zip(&self.weights[r])
-                    .map(|(&p, &w)| w * f64::from(values[p]))
-                    .sum()
-            })
-            .collect();
-        let variances = variance.map(|var| {
-            (0..n)
+        // One weighted sum per element over its pixels, in parallel.
+        let per_element = |term: &(dyn Fn(usize, f64) -> f64 + Sync)| -> Vec<f64> {
+            (0..self.elements())
+                .into_par_iter()
+                .with_min_len(64)
                 .map(|j| {
                     let r = self.range(j);
                     self.pixels[r.clone()]
                         .iter()
                         .zip(&self.weights[r])
-                        .map(|(&p, &w)| w * w * var(p))
+                        .map(|(&p, &w)| term(p, w))
                         .sum()
                 })
                 .collect()
-        });
+        };
+        let means = per_element(&|p, w| w * f64::from(values[p]));
+        let variances = variance.map(|var| per_element(&|p, w| w * w * var(p)));
         (means, variances)
     }
 
