@@ -693,6 +693,48 @@ fn plan_recommends_a_grid_and_more_light_allows_a_finer_one() {
 }
 
 #[test]
+fn a_pattern_on_a_scene_grid_is_the_daemons_truth_for_that_scene() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("letter.png");
+    let said = ok(&polnlos(&[
+        "pattern",
+        "letter",
+        "--scene",
+        "brewster-crossed",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    let scene = polnlos::scene::Scene::builtin("brewster-crossed")
+        .expect("a built-in scene")
+        .unwrap();
+    let grid = scene.hidden().plane.grid;
+    assert!(
+        said.contains(&format!("{} x {} pixels", grid.nu, grid.nv)),
+        "{said}"
+    );
+    let png = image::read_gray(&out).unwrap();
+    // The daemon's truth for "truth": "letter" on this scene (Daemon::truth_png).
+    let expect = Pattern::Letter.render(grid);
+    assert_eq!(png.data.len(), expect.len());
+    assert!(png
+        .data
+        .iter()
+        .zip(&expect)
+        .all(|(a, b)| (a - b).abs() < 1e-4));
+    // A size and a scene are two answers to one question.
+    usage(&polnlos(&[
+        "pattern",
+        "letter",
+        "--scene",
+        "brewster-crossed",
+        "--size",
+        "64",
+        "--out",
+        "x.png",
+    ]));
+}
+
+#[test]
 fn exit_status_says_whose_the_error_is() {
     let d = tempfile::tempdir().unwrap();
     // 2: the command line (clap's own, and ranges polnlos checks itself).
