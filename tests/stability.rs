@@ -98,7 +98,10 @@ fn rank_deficient_transport() {
     assert!(lsq.stats.warnings.iter().any(|w| w.contains("rank 1")));
     // Unregularized normal equations cannot be factorized: a clear error.
     match tikhonov(&t, &i, Some(0.0)) {
-        Err(SolveError::Factorization(m)) => assert!(m.contains("raise --lambda"), "{m}"),
+        Err(SolveError::Factorization(m)) => assert!(
+            m.contains("raise lambda") && m.contains("\"lambda\" / \"solver\" in a request"),
+            "{m}"
+        ),
         Ok(r) => assert!(all_finite(&r.image)),
         Err(e) => panic!("unexpected error {e}"),
     }

@@ -380,7 +380,7 @@ pub fn admm_tv_warm(
     let iterate_seconds = t1.elapsed().as_secs_f64();
     if !converged {
         warnings.push(format!(
-            "ADMM stopped at the iteration cap ({iterations}) before meeting tol = {}: primal residual {r_norm:.3e}, dual residual {s_norm:.3e}; raise --max-iter or --tol",
+            "ADMM stopped at the iteration cap ({iterations}) before meeting tol = {}: primal residual {r_norm:.3e}, dual residual {s_norm:.3e}; raise max_iter or tol (\"max_iter\" / \"tol\" in a request, --max-iter / --tol on the command line)",
             settings.tol
         ));
     }

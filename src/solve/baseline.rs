@@ -108,7 +108,7 @@ pub fn tikhonov(
     }
     let llt = g.llt(Side::Lower).map_err(|e| {
         SolveError::Factorization(format!(
-            "Cholesky of T^T T + lambda I failed ({e:?}): T is rank-deficient and lambda = {lambda} is too small; raise --lambda or use --solver lsq"
+            "Cholesky of T^T T + lambda I failed ({e:?}): T is rank-deficient and lambda = {lambda} is too small; raise lambda or use the lsq solver (\"lambda\" / \"solver\" in a request, --lambda / --solver on the command line)"
         ))
     })?;
     let factor_seconds = t0.elapsed().as_secs_f64();

@@ -266,7 +266,7 @@ pub fn fista_tv_prepared(
     let iterate_seconds = t1.elapsed().as_secs_f64();
     if !converged {
         warnings.push(format!(
-            "FISTA stopped at the iteration cap ({iterations}) before meeting tol = {}: relative change {change:.3e}; raise --max-iter or --tol",
+            "FISTA stopped at the iteration cap ({iterations}) before meeting tol = {}: relative change {change:.3e}; raise max_iter or tol (\"max_iter\" / \"tol\" in a request, --max-iter / --tol on the command line)",
             settings.tol
         ));
     }
