@@ -341,3 +341,116 @@ fn software_trigger_delivers_one_frame_per_trigger() {
     assert_eq!(cam.string_feature("TriggerMode").unwrap(), "Off");
     assert!(f64::from(frames[0].pixels[100 * 512 + 400]) > 0.3 * 65535.0 * 0.25);
 }
+
+/// Acquires `n` frames of 1 ms (the fake camera's fastest) from a fresh fake
+/// camera through a reader that takes `per_frame` over each: what the
+/// acquisition counted, the frame ids the reader saw, and the camera (with
+/// its fake, which must outlive it).
+fn fast_frames(
+    n: usize,
+    per_frame: Duration,
+) -> (
+    polnlos::camera::FrameCounts,
+    Vec<u64>,
+    CameraHandle,
+    FakeBench,
+) {
+    let fake = bench();
+    fake.select("A", Some(0.0));
+    let cam = handle();
+    assert!(wait_connected(&cam, true, Duration::from_secs(5)));
+    let settings = CameraSettings {
+        exposure_us: 1_000.0,
+        ..CameraSettings::default()
+    };
+    let (tx, rx) = std::sync::mpsc::sync_channel(1);
+    let reader = std::thread::spawn(move || {
+        rx.iter()
+            .map(|f: polnlos::camera::RawFrame| {
+                std::thread::sleep(per_frame);
+                f.frame_id
+            })
+            .collect::<Vec<_>>()
+    });
+    let counts = rt().block_on(cam.acquire(settings, n, tx)).unwrap();
+    let ids = reader.join().unwrap();
+    assert_eq!(counts.received as usize, n, "{counts:?}");
+    assert_eq!(ids.len(), n);
+    (counts, ids, cam, fake)
+}
+
+/// Ids from the first to the last of `ids`, with the wrap of 16-bit ids.
+fn id_span(ids: &[u64]) -> u64 {
+    ids.windows(2)
+        .map(|w| polnlos::camera::frames_between(w[0], w[1]).unwrap_or(0) + 1)
+        .sum::<u64>()
+        + 1
+}
+
+#[test]
+fn a_200_frame_capture_loses_no_frame_and_short_fast_captures_neither() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    let (counts, ids, cam, _fake) = fast_frames(200, Duration::ZERO);
+    assert_eq!((counts.dropped, counts.broken), (0, 0), "{counts:?}");
+    // Consecutive ids (16-bit, wrapping past 0): none went missing.
+    assert_eq!(id_span(&ids), 200, "{ids:?}");
+    // Short captures, one after another: each one's frames consecutive.
+    let settings = CameraSettings {
+        exposure_us: 1_000.0,
+        ..CameraSettings::default()
+    };
+    for k in 0..20 {
+        let frames = rt().block_on(cam.collect(settings.clone(), 2)).unwrap();
+        let ids: Vec<u64> = frames.iter().map(|f| f.frame_id).collect();
+        assert_eq!(id_span(&ids), 2, "capture {k}: {ids:?}");
+    }
+    assert_eq!(cam.status().counters.failed, 0);
+    cam.shutdown();
+}
+
+#[test]
+fn frames_a_slow_reader_makes_the_camera_drop_are_counted_as_dropped() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    // A reader that takes 15 ms per frame while the camera sends one every
+    // few milliseconds: the stream's buffers (32 of these 512 KiB frames)
+    // run out and frames are lost.
+    let (counts, ids, cam, _fake) = fast_frames(150, Duration::from_millis(15));
+    // Every id between the first and the last frame received is received,
+    // dropped or broken (a broken one may also come before the first).
+    let (seen, span) = (counts.received + counts.dropped, id_span(&ids));
+    assert!(
+        seen <= span && span <= seen + counts.broken,
+        "{counts:?}, {span} ids"
+    );
+    assert!(counts.dropped > 0, "{counts:?} {ids:?}");
+    cam.shutdown();
+}
+
+#[test]
+fn a_loopback_address_no_interface_holds_is_named_with_how_to_add_it() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    // Linux routes all of 127/8 to lo, yet only 127.0.0.1 is lo's own.
+    assert_eq!(
+        polnlos::camera::fake::interface_has("127.0.0.1".parse().unwrap()),
+        Some(true)
+    );
+    assert_eq!(
+        polnlos::camera::fake::interface_has("127.0.0.77".parse().unwrap()),
+        Some(false)
+    );
+    let e = match FakeBench::start(
+        "127.0.0.77",
+        "POLNLOS-TEST",
+        polnlos::camera::BenchImages::default(),
+        20_000.0,
+    ) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a fake camera on an address no interface has"),
+    };
+    assert!(
+        e.contains("no network interface has the address 127.0.0.77"),
+        "{e}"
+    );
+    assert!(e.contains("ip addr add 127.0.0.77/8 dev lo"), "{e}");
+    assert!(!e.contains("another fake camera"), "{e}");
+}

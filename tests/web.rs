@@ -128,9 +128,14 @@ struct Page {
 
 impl Page {
     fn start() -> Self {
+        Self::start_with(&[])
+    }
+
+    /// The page of a daemon whose configuration has these edits.
+    fn start_with(edits: &[(&str, &str)]) -> Self {
         let g = lock();
         let dir = tempfile::tempdir().unwrap();
-        let cfg = config(dir.path(), &[]);
+        let cfg = config(dir.path(), edits);
         let d = Daemon::start(&cfg, &dir.path().join("data"));
         let driver = Driver::start();
         let rt = tokio::runtime::Builder::new_current_thread()
@@ -371,9 +376,16 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
         let c = page.open().await;
         let long = Duration::from_secs(60);
 
+        // Progressive results are off by default (a capture of fewer frames
+        // than "every" would be refused).
+        let ticked = js(&c, "return document.querySelector('#capture-form [name=progressive]').checked;").await;
+        assert_eq!(ticked, false);
         // Start a capture from the page: 24 frames of 20 ms, progressive every 4.
         set(&c, "#capture-form [name=frames]", "24").await;
+        click(&c, "#capture-form [name=progressive]").await;
         set(&c, "#capture-form [name=every]", "4").await;
+        // Every value its progress bar takes, sampled faster than frames arrive.
+        js(&c, "window.bar = []; setInterval(() => { const b = document.querySelector('#capture-1 progress'); if (b) window.bar.push(Number(b.value)); }, 5); return true;").await;
         choose(&c, "#capture-form select[name=truth]", "letter").await;
         click(&c, "#start-capture").await;
         until("the capture to be queued", long, || async {
@@ -405,6 +417,10 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
         assert_eq!(done, "done");
         println!("progress seen at {partial:?} of 26 frames");
         assert!(partial.is_some(), "no intermediate progress was shown");
+        // The bar never runs backwards, progressive steps arriving or not.
+        let bar: Vec<f64> = serde_json::from_value(js(&c, "return window.bar;").await).unwrap();
+        let back = bar.windows(2).find(|w| w[1] < w[0]);
+        assert!(back.is_none(), "the progress bar went back {back:?}: {bar:?}");
         until("the live view", long, || async {
             image_loaded(&c, "#live").await.then_some(())
         })
@@ -673,4 +689,68 @@ fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_delete
     });
     assert_eq!(page.d.get("/reconstructions/2").0, 404);
     assert_eq!(page.d.json("/captures/1")["state"], "done");
+}
+
+#[test]
+fn the_page_of_a_daemon_with_a_token_says_so_and_works_once_it_is_entered() {
+    let page = Page::start_with(&[("token = \"\"", "token = \"s3cret\"")]);
+    page.rt.block_on(async {
+        let c = browser(&page.driver, &page.dir.path().join("profile")).await;
+        c.goto(&format!("{}/", page.d.base)).await.expect("the page");
+        let long = Duration::from_secs(30);
+        // Without the token: every panel says the token is the reason, none
+        // blames the camera or speaks of a state change.
+        until("the token hint", long, || async {
+            text(&c, "#token-message").await.contains("needs its API token").then_some(())
+        })
+        .await;
+        until("the camera panel's reason", long, || async {
+            text(&c, "#camera-status").await.contains("API token").then_some(())
+        })
+        .await;
+        let camera = text(&c, "#camera-status").await;
+        assert!(!camera.contains("changes state"), "{camera}");
+        until("the live view's reason", long, || async {
+            text(&c, "#live-caption").await.contains("API token").then_some(())
+        })
+        .await;
+        // A wrong token reads differently from none.
+        set(&c, "#token", "s3cre").await;
+        js(&c, "document.querySelector('#token').dispatchEvent(new Event('change')); return true;").await;
+        until("the wrong-token message", long, || async {
+            text(&c, "#token-message").await.contains("wrong").then_some(())
+        })
+        .await;
+        // Starting a capture then says why it cannot, not "scene: invalid type: null".
+        click(&c, "#start-capture").await;
+        let refused = until("the capture message", long, || async {
+            let m = text(&c, "#capture-message").await;
+            (!m.is_empty()).then_some(m)
+        })
+        .await;
+        assert!(refused.contains("token"), "{refused}");
+        assert!(!refused.contains("invalid type"), "{refused}");
+        // The right token: the scene lists fill without a reload, the camera
+        // shows, and a capture from the form runs.
+        set(&c, "#token", "s3cret").await;
+        js(&c, "document.querySelector('#token').dispatchEvent(new Event('change')); return true;").await;
+        until("the scene list", long, || async {
+            let n = js(&c, "return document.querySelectorAll('#capture-form select[name=scene] option').length;").await;
+            (n.as_u64().unwrap_or(0) > 0).then_some(())
+        })
+        .await;
+        until("the camera status", long, || async {
+            text(&c, "#camera-status").await.starts_with("connected").then_some(())
+        })
+        .await;
+        assert_eq!(text(&c, "#token-message").await, "");
+        set(&c, "#capture-form [name=frames]", "4").await;
+        let state = capture(&c, 1, &[], Duration::from_secs(60)).await;
+        assert_eq!(state, "done");
+        until("a live frame", long, || async {
+            image_loaded(&c, "#live").await.then_some(())
+        })
+        .await;
+        c.close().await.ok();
+    });
 }

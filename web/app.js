@@ -12,8 +12,32 @@ const tokenInput = $("#token");
 tokenInput.value = localStorage.getItem("polnlos-token") || "";
 tokenInput.addEventListener("change", () => {
   localStorage.setItem("polnlos-token", tokenInput.value.trim());
+  loadScenes();
   resync();
+  refreshLive();
 });
+
+// What the daemon said of the token on the last refused request: "missing",
+// "wrong", or null (accepted, or not needed). Shown beside the token field,
+// so that a refused read never reads as a camera or daemon problem.
+let tokenState = null;
+function noteToken(r) {
+  if (r.status === 401) {
+    const code = r.json && r.json.error;
+    tokenState = code === "token_wrong" ? "wrong" : "missing";
+  } else if (r.status < 400) {
+    tokenState = null;
+  }
+  const m = $("#token-message");
+  m.className = tokenState ? "token-message error" : "token-message";
+  text(m, tokenState === "wrong" ? "this token is wrong: the daemon refuses it"
+    : tokenState === "missing" ? "this daemon needs its API token: enter it here" : "");
+}
+// Why a panel shows nothing, when the token is the reason.
+function tokenReason() {
+  return tokenState === "wrong" ? "the API token entered is wrong"
+    : tokenState === "missing" ? "enter the API token (top right) to see this" : null;
+}
 
 function headers(json) {
   const h = {};
@@ -31,7 +55,9 @@ async function api(method, path, body) {
   });
   let json = null;
   try { json = await r.json(); } catch (_) { /* not JSON */ }
-  return { status: r.status, json, headers: r.headers };
+  const out = { status: r.status, json, headers: r.headers };
+  if (path !== "/health") noteToken(out);
+  return out;
 }
 
 // Says which rows of a list the catalogue could not read (the daemon names
@@ -43,11 +69,17 @@ function unreadable(r, kind, target) {
     : "");
 }
 
-// Shows `path` in `img` (with the token); the response, or null when there is no image (yet).
+// Shows `path` in `img` (with the token); the response (its status says
+// why when there is no image).
 const shown = new Map();
 async function showImage(img, path) {
   const r = await fetch(path, { headers: headers(false), cache: "no-store" });
-  if (!r.ok) return null;
+  if (r.status === 401) {
+    let json = null;
+    try { json = await r.json(); } catch (_) { /* not JSON */ }
+    noteToken({ status: 401, json });
+  }
+  if (!r.ok) return r;
   const url = URL.createObjectURL(await r.blob());
   const old = shown.get(img);
   img.src = url;
@@ -117,7 +149,11 @@ async function refreshCamera() {
   const h = await api("GET", "/health");
   text($("#health"), h.status === 200 ? (h.json.camera_connected ? "camera connected" : "camera not connected") : "daemon unreachable");
   const c = await api("GET", "/camera");
-  if (c.status !== 200) { text($("#camera-status"), (c.json && c.json.detail) || `HTTP ${c.status}`); return; }
+  if (c.status !== 200) {
+    text($("#camera-status"), (c.status === 401 && tokenReason()) || (c.json && c.json.detail) || `HTTP ${c.status}`);
+    $("#camera-facts").replaceChildren();
+    return;
+  }
   const cam = c.json;
   text($("#camera-status"), cam.connected ? `connected: ${cam.info.id}` + (cam.busy ? ` (busy: ${cam.busy})` : "") : `not connected: ${cam.last_error || ""}`);
   const s = (cam.info && cam.info.settings) || {};
@@ -125,8 +161,9 @@ async function refreshCamera() {
   const rows = [
     ["exposure", s.exposure_us !== undefined ? `${s.exposure_us} µs` : "-"],
     ["gain", s.gain], ["pixel format", s.pixel_format], ["region", JSON.stringify(s.region)],
+    ["since the daemon started:", ""],
     ["frames received", k.completed], ["broken frames", k.failed],
-    ["dropped frames", k.underruns], ["timeouts", k.timeouts], ["reconnects", k.connects],
+    ["packets with no free buffer", k.underruns], ["timeouts", k.timeouts], ["connections", k.connects],
   ];
   $("#camera-facts").replaceChildren(...rows.map(([a, b]) => el("tr", {}, el("th", {}, a), el("td", {}, String(b ?? "-")))));
 }
@@ -143,9 +180,12 @@ function drawHistogram(levels) {
     g.fillStyle = k === h.length - 1 && levels.saturated > 0 ? "#b00020" : "#1f4e79";
     g.fillRect(k * w, cv.height - y, Math.max(w - 1, 1), y);
   });
-  // The peak level as a line.
+  // The peak level as a line, on the histogram's DN range.
+  const lo = levels.histogram_low, hi = levels.histogram_high;
+  const at = (levels.peak * levels.full_scale - lo) / Math.max(hi - lo, 1);
   g.fillStyle = "#e08000";
-  g.fillRect(Math.min(levels.peak * cv.width, cv.width - 1), 0, 1, cv.height);
+  g.fillRect(Math.min(Math.max(at, 0) * cv.width, cv.width - 1), 0, 1, cv.height);
+  cv.title = `histogram over ${lo}–${hi} DN of ${levels.full_scale} (log counts)`;
 }
 
 let liveBusy = false;
@@ -155,7 +195,11 @@ async function refreshLive() {
   try {
     const stretch = $("#stretch").checked;
     const r = await showImage($("#live"), `/camera/frame.png?live=true&stretch=${stretch}`);
-    if (!r) { text($("#live-caption"), "no frame yet (is the camera connected?)"); return; }
+    if (!r.ok) {
+      text($("#live-caption"), (r.status === 401 && tokenReason())
+        || (r.status === 404 ? "no frame yet: the camera has sent none since the daemon started" : `no frame: HTTP ${r.status}`));
+      return;
+    }
     const levels = JSON.parse(r.headers.get("polnlos-levels") || "null");
     text($("#live-caption"), `frame at ${new Date().toLocaleTimeString()}` + (stretch ? " (auto-contrast)" : " (full scale)"));
     if (levels) {
@@ -163,7 +207,7 @@ async function refreshLive() {
       const sat = levels.saturated > 0 ? ` · ${(100 * levels.saturated).toFixed(2)} % saturated` : " · none saturated";
       const lv = $("#levels");
       lv.className = levels.saturated > 0 ? "warning" : "";
-      text(lv, `peak ${(100 * levels.peak).toFixed(1)} % of full scale${sat} · stretch ${levels.low}–${levels.high} DN of ${levels.full_scale}`);
+      text(lv, `peak ${(100 * levels.peak).toFixed(1)} % of full scale${sat} · stretch ${levels.low}–${levels.high} DN of ${levels.full_scale} · histogram ${levels.histogram_low}–${levels.histogram_high} DN, log counts`);
     }
   } finally {
     liveBusy = false;
@@ -233,10 +277,20 @@ function progressiveCell(id) {
   return td;
 }
 
+// Frames taken per running capture as the frame events say: the record a
+// row is redrawn from can be older than the last event.
+const taken = new Map();
 function captureRow(c) {
   const total = c.frames + c.dark_frames;
-  const bar = el("progress", { class: "progress", max: String(total), value: String(c.frames_taken) });
-  const frames = el("td", { class: "frames" }, bar, el("span", { class: "count" }, ` ${c.frames_taken}/${total}`));
+  const n = active(c.state) ? Math.max(c.frames_taken, taken.get(c.id) || 0) : c.frames_taken;
+  const bar = el("progress", { class: "progress", max: String(total), value: String(n) });
+  const frames = el("td", { class: "frames" }, bar, el("span", { class: "count" }, ` ${n}/${total}`));
+  // This capture's own losses (frame_counts), when it lost any.
+  const fc = c.frame_counts;
+  if (fc && fc.dropped + fc.broken > 0) {
+    frames.append(el("div", { class: "lost warning", title: "frames the camera sent that never arrived (dropped) or arrived incomplete (broken)" },
+      `lost ${fc.dropped} dropped, ${fc.broken} broken`));
+  }
   const files = [["mean", `/captures/${c.id}/mean.tiff`, `capture-${c.id}-mean.tiff`],
     ["frames", `/captures/${c.id}/frame.tiff`, `capture-${c.id}-frames.tiff`]];
   if (c.dark_frames > 0) files.push(["dark", `/captures/${c.id}/dark.tiff`, `capture-${c.id}-dark.tiff`]);
@@ -461,10 +515,12 @@ async function onEvent(v) {
   if (v.type === "job") {
     const r = await api("GET", `/${kind}s/${id}`);
     if (r.status !== 200) return;
+    if (kind === "capture" && !active(r.json.state)) taken.delete(r.json.id);
     if (kind === "capture") upsertCapture(r.json);
     else upsertReconstruction(r.json);
     if (kind === "capture") refreshCamera();
   } else if (v.type === "frame") {
+    taken.set(Number(id), Math.max(v.taken, taken.get(Number(id)) || 0));
     const row = document.getElementById(`capture-${id}`);
     if (row) {
       const bar = row.querySelector("progress");
@@ -538,6 +594,10 @@ function number(v) { return v === "" || v === null ? undefined : Number(v); }
 
 async function submitCapture(kind) {
   const f = new FormData($("#capture-form"));
+  if (!f.get("scene")) {
+    alertIn($("#capture-message"), tokenReason() || "no scene to choose: the daemon has not sent its scene list (see the message at the top)");
+    return;
+  }
   const exposure = String(f.get("exposure_us")).trim();
   const body = {
     kind, scene: f.get("scene"), pose: f.get("pose"),
@@ -694,7 +754,10 @@ $("#wall-form").addEventListener("submit", async (ev) => {
 
 async function loadScenes() {
   const r = await api("GET", "/scenes");
-  if (r.status !== 200) return;
+  if (r.status !== 200) {
+    text($("#health"), tokenReason() || `scene list: HTTP ${r.status}`);
+    return;
+  }
   document.querySelectorAll("select.scenes").forEach((s) => {
     s.replaceChildren(...r.json.map((n) => el("option", { value: n }, n)));
     s.value = r.json.includes("brewster-crossed") ? "brewster-crossed" : r.json[0];

@@ -31,9 +31,26 @@ impl ApiError {
     pub fn invalid(detail: impl Into<String>) -> Self {
         Self::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_request", detail)
     }
-    /// 401.
-    pub fn unauthorized() -> Self {
-        Self::new(StatusCode::UNAUTHORIZED, "unauthorized", "this request changes state and needs 'Authorization: Bearer <token>' (see token / token_file in the config)")
+    /// 401 without a token: what needs one and where the token is set.
+    pub fn token_missing(mutating: bool) -> Self {
+        let what = if mutating {
+            "this request changes state"
+        } else {
+            "this daemon answers reads only with its token ([http] public_reads = false), and this request"
+        };
+        Self::new(
+            StatusCode::UNAUTHORIZED,
+            "token_missing",
+            format!("{what} needs 'Authorization: Bearer <token>' (the token or token_file in the daemon's config)"),
+        )
+    }
+    /// 401 with a token that is not the daemon's.
+    pub fn token_wrong() -> Self {
+        Self::new(
+            StatusCode::UNAUTHORIZED,
+            "token_wrong",
+            "the bearer token given is not this daemon's: check it against the token or token_file in the daemon's config",
+        )
     }
     /// 429 with Retry-After.
     pub fn queue_full(which: &str, retry_after: u64) -> Self {

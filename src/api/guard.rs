@@ -72,8 +72,12 @@ pub async fn guard(State(g): State<Guard>, req: Request, next: Next) -> Result<R
     let path = req.uri().path();
     let public = path == "/health"
         || (!mutating && (d.config().http.public_reads || super::web::is_static(path)));
-    if !d.token().is_empty() && !public && !token_matches(headers, d.token()) {
-        return Err(ApiError::unauthorized());
+    if !d.token().is_empty() && !public {
+        match token_given(headers, d.token()) {
+            Token::Right => {}
+            Token::Missing => return Err(ApiError::token_missing(mutating)),
+            Token::Wrong => return Err(ApiError::token_wrong()),
+        }
     }
     Ok(next.run(req).await)
 }
@@ -165,27 +169,40 @@ fn check_origin(headers: &HeaderMap, allowed: &[String], bound: u16) -> Result<(
 /// Whether `Authorization: Bearer <token>` carries the token. The scheme is
 /// case-insensitive (RFC 7235); the compare is on SHA-256 digests, so its
 /// time depends on neither the token's length nor where they differ.
-fn token_matches(headers: &HeaderMap, token: &str) -> bool {
-    let Some(value) = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-    else {
-        return false;
+/// What a request's `Authorization` header holds against the daemon's token.
+#[derive(Debug, PartialEq)]
+enum Token {
+    /// No bearer token at all (no header, or another scheme).
+    Missing,
+    /// A bearer token that is not the daemon's.
+    Wrong,
+    /// The daemon's token.
+    Right,
+}
+
+fn token_given(headers: &HeaderMap, token: &str) -> Token {
+    let Some(value) = headers.get(header::AUTHORIZATION) else {
+        return Token::Missing;
     };
-    let Some((scheme, given)) = value.trim().split_once(' ') else {
-        return false;
+    let Some((scheme, given)) = value.to_str().ok().and_then(|v| v.trim().split_once(' ')) else {
+        return Token::Wrong;
     };
     if !scheme.eq_ignore_ascii_case("bearer") {
-        return false;
+        return Token::Missing;
     }
     let (a, b) = (
         Sha256::digest(given.trim().as_bytes()),
         Sha256::digest(token.as_bytes()),
     );
-    a.iter()
+    let differ = a
+        .iter()
         .zip(b.iter())
-        .fold(0u8, |acc, (x, y)| acc | (x ^ y))
-        == 0
+        .fold(0u8, |acc, (x, y)| acc | (x ^ y));
+    if differ == 0 {
+        Token::Right
+    } else {
+        Token::Wrong
+    }
 }
 
 #[cfg(test)]
@@ -244,33 +261,16 @@ mod tests {
     }
 
     #[test]
-    fn bearer_is_case_insensitive_and_exact() {
+    fn bearer_is_case_insensitive_and_exact_and_a_wrong_one_is_not_a_missing_one() {
         let t = "s3cret";
-        assert!(token_matches(
-            &with(header::AUTHORIZATION, "Bearer s3cret"),
-            t
-        ));
-        assert!(token_matches(
-            &with(header::AUTHORIZATION, "bearer s3cret"),
-            t
-        ));
-        assert!(token_matches(
-            &with(header::AUTHORIZATION, "BEARER  s3cret "),
-            t
-        ));
-        assert!(!token_matches(
-            &with(header::AUTHORIZATION, "Bearer s3cre"),
-            t
-        ));
-        assert!(!token_matches(
-            &with(header::AUTHORIZATION, "Bearer s3cretx"),
-            t
-        ));
-        assert!(!token_matches(
-            &with(header::AUTHORIZATION, "Basic s3cret"),
-            t
-        ));
-        assert!(!token_matches(&with(header::AUTHORIZATION, "s3cret"), t));
-        assert!(!token_matches(&HeaderMap::new(), t));
+        let given = |v: &str| token_given(&with(header::AUTHORIZATION, v), t);
+        assert_eq!(given("Bearer s3cret"), Token::Right);
+        assert_eq!(given("bearer s3cret"), Token::Right);
+        assert_eq!(given("BEARER  s3cret "), Token::Right);
+        assert_eq!(given("Bearer s3cre"), Token::Wrong);
+        assert_eq!(given("Bearer s3cretx"), Token::Wrong);
+        assert_eq!(given("s3cret"), Token::Wrong);
+        assert_eq!(given("Basic s3cret"), Token::Missing);
+        assert_eq!(token_given(&HeaderMap::new(), t), Token::Missing);
     }
 }

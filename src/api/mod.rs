@@ -83,7 +83,7 @@ fn all_routes() -> OpenApiRouter<Arc<Daemon>> {
         .routes(routes!(routes::capture_preview))
         .routes(routes!(routes::capture_progressive_image))
         .routes(routes!(routes::capture_progressive_steps))
-        .routes(routes!(routes::post_calibration))
+        .routes(routes!(routes::post_calibration, routes::list_calibrations))
         .routes(routes!(routes::post_wall_calibration))
         .routes(routes!(
             routes::post_reconstruction,

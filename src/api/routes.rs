@@ -44,11 +44,15 @@ fn listing<T: serde::Serialize>(l: Listing<T>) -> Response {
     r
 }
 
+/// A path's id: a positive whole number, else 400 (a request that cannot be
+/// read, not a thing that does not exist).
 fn parse_id(raw: &str, kind: &str) -> Result<i64, ApiError> {
     raw.parse::<i64>().ok().filter(|v| *v > 0).ok_or_else(|| {
-        ApiError::not_found(format!(
-            "{raw:?} is not a {kind} id (a positive whole number)"
-        ))
+        ApiError::new(
+            StatusCode::BAD_REQUEST,
+            "bad_id",
+            format!("{raw:?} is not a {kind} id (a positive whole number)"),
+        )
     })
 }
 
@@ -110,7 +114,7 @@ pub struct FrameQuery {
 /// The latest frame (with `live=true`, a fresh one when the camera is idle),
 /// as a 16-bit PNG scaled to full scale or stretched; its levels (histogram,
 /// peak, saturated share, stretch) in the `polnlos-levels` header as JSON.
-#[utoipa::path(get, path = "/camera/frame.png", params(FrameQuery), responses((status = 200, content_type = "image/png", description = "The frame; header polnlos-levels: its levels as JSON", headers(("polnlos-levels" = String, description = "JSON: full_scale, histogram (64 bins), peak, saturated, low, high"))), (status = 404, body = ErrorBody, description = "No frame yet (no camera, or none delivered)")))]
+#[utoipa::path(get, path = "/camera/frame.png", params(FrameQuery), responses((status = 200, content_type = "image/png", description = "The frame; header polnlos-levels: its levels as JSON", headers(("polnlos-levels" = String, description = "JSON: full_scale, histogram (64 bins from histogram_low to histogram_high DN), histogram_low, histogram_high, peak, saturated, low, high (the stretch)"))), (status = 404, body = ErrorBody, description = "No frame yet (no camera, or none delivered)")))]
 pub async fn camera_frame(State(d): St, Query(q): Query<FrameQuery>) -> Result<Response, ApiError> {
     let frame = if q.live {
         d.camera().live_frame().await
@@ -332,6 +336,13 @@ pub async fn capture_progressive_steps(
         "application/json",
     )
     .await
+}
+
+/// The radiometric gain of each scene that has one, as reconstructions
+/// use it (and `polnlos measure --gain` takes it).
+#[utoipa::path(get, path = "/calibrations", responses((status = 200, body = crate::daemon::Calibrations, description = "The gains in use")))]
+pub async fn list_calibrations(State(d): St) -> Json<crate::daemon::Calibrations> {
+    Json(d.calibrations())
 }
 
 /// Fits the pose of a target capture: its homography, reprojection error,

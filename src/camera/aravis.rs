@@ -11,11 +11,25 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use aravis::prelude::*;
 use aravis::{AcquisitionMode, BufferStatus, Camera};
 
-use super::device::{CameraDevice, CameraError, CameraInfo, Counters, FrameSink, RawFrame};
+use super::device::{
+    CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameIds, FrameSink, RawFrame,
+};
 use super::settings::{CameraSettings, PixelFormat, SensorLimits, TriggerMode};
 
-/// Buffers queued on the stream at most.
-const MAX_BUFFERS: usize = 16;
+/// Buffers queued on the stream: at least this many whatever the frame
+/// count, so that frames arriving while earlier ones are decoded and handed
+/// on find a free buffer (a 2-frame capture used to queue 2)...
+const MIN_BUFFERS: usize = 8;
+/// ...and at most this many...
+const MAX_BUFFERS: usize = 32;
+/// ...within this much memory (the daemon's memory must not grow with a
+/// capture's frame count: tests/daemon_hostile.rs holds it to 64 MiB).
+const BUFFER_BYTES: usize = 16 << 20;
+
+/// Stream buffers for frames of `payload` bytes (see [`MIN_BUFFERS`]).
+fn buffer_count(payload: usize) -> usize {
+    (BUFFER_BYTES / payload.max(1)).clamp(MIN_BUFFERS, MAX_BUFFERS)
+}
 
 /// A camera opened through Aravis.
 pub struct AravisCamera {
@@ -360,7 +374,7 @@ impl CameraDevice for AravisCamera {
         Ok(())
     }
 
-    fn acquire(&mut self, n: usize, sink: &mut FrameSink<'_>) -> Result<(), CameraError> {
+    fn acquire(&mut self, n: usize, sink: &mut FrameSink<'_>) -> Result<FrameCounts, CameraError> {
         let period = self.match_frame_rate()?;
         let exposure_s = self.settings.exposure_us * 1e-6;
         // Long exposures must not time out; the first frame after a period change
@@ -371,7 +385,7 @@ impl CameraDevice for AravisCamera {
         let c = &self.camera;
         let payload = c.payload().map_err(driver)? as usize;
         let stream = c.create_stream().map_err(driver)?;
-        for _ in 0..n.clamp(2, MAX_BUFFERS) {
+        for _ in 0..buffer_count(payload) {
             stream.push_buffer(aravis::Buffer::new_allocate(payload));
         }
         c.set_acquisition_mode(AcquisitionMode::Continuous)
@@ -382,9 +396,11 @@ impl CameraDevice for AravisCamera {
         let bits = self.settings.pixel_format.bits();
         let mut taken = 0;
         let mut failures = 0;
+        let mut counts = FrameCounts::default();
+        let mut ids = FrameIds::default();
         let result = loop {
             if taken == n {
-                break Ok(());
+                break Ok(counts);
             }
             if software {
                 if let Err(e) = c.software_trigger() {
@@ -400,8 +416,10 @@ impl CameraDevice for AravisCamera {
                     wanted: n,
                 });
             };
+            counts.dropped += ids.next(buffer.frame_id());
             if buffer.status() != BufferStatus::Success {
                 failures += 1;
+                counts.broken += 1;
                 self.counters.failed += 1;
                 stream.push_buffer(buffer);
                 if failures > 2 * n + 4 {
@@ -415,12 +433,14 @@ impl CameraDevice for AravisCamera {
                 Ok(frame) => frame,
                 Err(e) => {
                     failures += 1;
+                    counts.broken += 1;
                     self.counters.failed += 1;
                     tracing::warn!("dropped a frame: {e}");
                     continue;
                 }
             };
             self.counters.completed += 1;
+            counts.received += 1;
             taken += 1;
             if let Err(why) = sink(frame) {
                 break Err(CameraError::Stopped(why));

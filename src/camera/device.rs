@@ -21,6 +21,95 @@ pub struct RawFrame {
     pub system_timestamp_ns: u64,
 }
 
+/// What one acquisition received, lost and could not use: recorded with
+/// each capture, so that a user can tell which capture lost frames.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, serde::Deserialize, utoipa::ToSchema,
+)]
+pub struct FrameCounts {
+    /// Frames delivered whole.
+    pub received: u64,
+    /// Frames the camera sent that never arrived while the acquisition
+    /// waited for them (gaps in the frame ids between the first and the
+    /// last frame it saw: no free buffer, or every packet lost).
+    pub dropped: u64,
+    /// Frames that arrived incomplete or undecodable (missing packets, a
+    /// payload that does not match the format).
+    pub broken: u64,
+}
+
+impl FrameCounts {
+    /// Frames lost to this acquisition: dropped and broken ones.
+    pub fn lost(&self) -> u64 {
+        self.dropped + self.broken
+    }
+}
+
+impl std::ops::Add for FrameCounts {
+    type Output = Self;
+    fn add(self, o: Self) -> Self {
+        Self {
+            received: self.received + o.received,
+            dropped: self.dropped + o.dropped,
+            broken: self.broken + o.broken,
+        }
+    }
+}
+
+/// Follows the frame ids of one acquisition and says how many frames never
+/// arrived before each one.
+#[derive(Debug, Default)]
+pub struct FrameIds {
+    last: Option<u64>,
+    /// Broken frames without an id since the last id: they are among the
+    /// ids skipped, and counted broken, not dropped.
+    unnamed: u64,
+}
+
+impl FrameIds {
+    /// The frames lost just before the frame with id `id` (whole or broken).
+    /// Id 0 (a frame broken before its leader told its id) counts nothing
+    /// now; a late frame (an id behind the last one) counts nothing.
+    pub fn next(&mut self, id: u64) -> u64 {
+        if id == 0 {
+            self.unnamed += 1;
+            return 0;
+        }
+        let Some(last) = self.last else {
+            self.last = Some(id);
+            return 0;
+        };
+        match frames_between(last, id) {
+            Some(gap) => {
+                self.last = Some(id);
+                let gap = gap.saturating_sub(self.unnamed);
+                self.unnamed = 0;
+                gap
+            }
+            None => 0,
+        }
+    }
+}
+
+/// How many frame ids lie strictly between two frames' ids, or None when
+/// `id` does not come after `previous` (a late frame, or a count that
+/// restarted). GigE Vision 1 block ids are 16-bit and wrap from 65535 to 1
+/// (0 is never used), and are compared as Aravis does, within half the
+/// cycle; larger ids (GigE Vision 2, USB3 Vision) do not wrap.
+pub fn frames_between(previous: u64, id: u64) -> Option<u64> {
+    const WRAP: u64 = 0xffff;
+    if (1..=WRAP).contains(&previous) && (1..=WRAP).contains(&id) {
+        let ahead = if id > previous {
+            id - previous
+        } else {
+            id + WRAP - previous
+        };
+        (ahead > 0 && ahead <= WRAP / 2).then(|| ahead - 1)
+    } else {
+        (id > previous).then(|| id - previous - 1)
+    }
+}
+
 /// Acquisition counters, as areaDetector's ADAravis reports them.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, utoipa::ToSchema)]
 pub struct Counters {
@@ -30,7 +119,10 @@ pub struct Counters {
     pub failed: u64,
     /// Pops that timed out.
     pub timeouts: u64,
-    /// Frames dropped because no buffer was free.
+    /// Stream packets that found no free buffer (Aravis 0.8 counts
+    /// `n_underruns` per packet, and counts the frames a free-running camera
+    /// sends after a capture had its frames): not a capture's frame losses,
+    /// which [`FrameCounts`] gives per capture.
     pub underruns: u64,
     /// GigE Vision packets missing.
     pub missing_packets: u64,
@@ -172,8 +264,72 @@ pub trait CameraDevice: Send {
     fn configure(&mut self, settings: &CameraSettings) -> Result<(), CameraError>;
     /// Acquires `n` frames with the current settings, handing each to `sink`
     /// as it arrives (nothing is kept here); an `Err` from the sink stops the
-    /// acquisition with [`CameraError::Stopped`].
-    fn acquire(&mut self, n: usize, sink: &mut FrameSink<'_>) -> Result<(), CameraError>;
+    /// acquisition with [`CameraError::Stopped`]. Returns what this
+    /// acquisition received and lost.
+    fn acquire(&mut self, n: usize, sink: &mut FrameSink<'_>) -> Result<FrameCounts, CameraError>;
     /// Counters since the camera was opened.
     fn counters(&self) -> Counters;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn gaps_in_16_bit_block_ids_wrap_past_zero() {
+        assert_eq!(frames_between(5, 6), Some(0));
+        assert_eq!(frames_between(5, 9), Some(3));
+        assert_eq!(frames_between(65535, 1), Some(0));
+        assert_eq!(frames_between(65534, 2), Some(2));
+        assert_eq!(frames_between(70_000, 70_003), Some(2));
+        // Late frames and a restarted count are no loss.
+        assert_eq!(frames_between(3, 65530), None);
+        assert_eq!(frames_between(300, 1), None);
+        assert_eq!(frames_between(9, 9), None);
+    }
+
+    #[test]
+    fn a_broken_frame_without_an_id_is_not_also_dropped() {
+        let mut ids = FrameIds::default();
+        assert_eq!(ids.next(10), 0);
+        assert_eq!(ids.next(0), 0);
+        assert_eq!(ids.next(13), 1);
+        // A late frame neither counts nor moves the count back.
+        assert_eq!(ids.next(12), 0);
+        assert_eq!(ids.next(14), 0);
+    }
+
+    proptest! {
+        /// Frames of a wrapping 16-bit count, some left out and some
+        /// delivered late (swapped with the next): the gaps add up to the
+        /// frames left out.
+        #[test]
+        fn dropped_frames_are_counted_across_the_wrap(
+            start in 1u64..65536,
+            keep in proptest::collection::vec(any::<bool>(), 2..300),
+            swap in proptest::collection::vec(any::<bool>(), 300),
+        ) {
+            let id = |k: u64| (start - 1 + k) % 65535 + 1;
+            let last = keep.len() - 1;
+            // The first and the last are always seen.
+            let mut seen: Vec<u64> = (0..keep.len())
+                .filter(|&k| keep[k] || k == 0 || k == last)
+                .map(|k| id(k as u64))
+                .collect();
+            let kept = seen.len() as u64;
+            // Late frames: a frame arrives after its successor (not the first or last).
+            let swapped: Vec<usize> = (1..seen.len().saturating_sub(2)).filter(|&k| swap[k]).collect();
+            for &k in &swapped {
+                seen.swap(k, k + 1);
+            }
+            let mut ids = FrameIds::default();
+            let dropped: u64 = seen.iter().map(|&i| ids.next(i)).sum();
+            // A late frame is counted dropped when its successor arrives
+            // first, and not taken back: at most one per swap.
+            let swaps = swapped.len() as u64;
+            prop_assert!(dropped >= keep.len() as u64 - kept);
+            prop_assert!(dropped <= keep.len() as u64 - kept + swaps);
+        }
+    }
 }

@@ -110,9 +110,49 @@ pub enum FakeError {
         /// The address asked for.
         address: String,
     },
+    /// No network interface holds the address: Linux answers all of
+    /// 127.0.0.0/8 on `lo`, but Aravis's fake camera listens only on an
+    /// address an interface has.
+    #[error("no network interface has the address {address}, and Aravis's fake camera listens only on an interface's own address: add it (`sudo ip addr add {address}/8 dev lo`, for a loopback address), or set [camera] address to one `ip -brief addr` lists, such as 127.0.0.1")]
+    NotOnInterface {
+        /// The address asked for.
+        address: String,
+    },
     /// The fake camera did not come up on the address.
     #[error("Aravis fake camera did not start on {0}; is another fake camera (or arv-fake-gv-camera) using that address?")]
     NotRunning(String),
+}
+
+/// Whether a network interface of this machine holds `address` (IPv4), or
+/// None when the interfaces cannot be listed.
+pub fn interface_has(address: std::net::Ipv4Addr) -> Option<bool> {
+    let mut list: *mut libc::ifaddrs = std::ptr::null_mut();
+    // SAFETY: getifaddrs writes a list head into `list` (a valid place) and
+    // returns 0, or returns -1 and writes nothing usable.
+    if unsafe { libc::getifaddrs(&mut list) } != 0 {
+        return None;
+    }
+    let mut found = false;
+    let mut node = list;
+    while !node.is_null() {
+        // SAFETY: `node` is a non-null element of the list getifaddrs made,
+        // alive until freeifaddrs below; its fields are only read.
+        let (addr, next) = unsafe { ((*node).ifa_addr, (*node).ifa_next) };
+        // SAFETY: a non-null `ifa_addr` points to a sockaddr whose family
+        // says its type; it is read as a sockaddr_in only for AF_INET.
+        if !addr.is_null() && i32::from(unsafe { (*addr).sa_family }) == libc::AF_INET {
+            // SAFETY: as above: the family is AF_INET, so it is a sockaddr_in.
+            let sin = unsafe { &*(addr as *const libc::sockaddr_in) };
+            if u32::from_be(sin.sin_addr.s_addr) == u32::from(address) {
+                found = true;
+            }
+        }
+        node = next;
+    }
+    // SAFETY: `list` came from a successful getifaddrs and is freed once;
+    // no pointer into it is used after this.
+    unsafe { libc::freeifaddrs(list) };
+    Some(found)
 }
 
 impl FakeBench {
@@ -125,6 +165,13 @@ impl FakeBench {
         images: BenchImages,
         reference_exposure_us: f64,
     ) -> Result<Self, FakeError> {
+        if let Ok(ip) = address.parse::<std::net::Ipv4Addr>() {
+            if interface_has(ip) == Some(false) {
+                return Err(FakeError::NotOnInterface {
+                    address: address.to_string(),
+                });
+            }
+        }
         // Aravis would start a second fake camera on a port in use; a plain
         // bind (no SO_REUSEADDR) fails there, and is released at once.
         if let Err(e) = std::net::UdpSocket::bind((address, GVCP_PORT)) {

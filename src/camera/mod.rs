@@ -19,7 +19,10 @@ pub mod synthetic;
 pub mod worker;
 
 pub use crate::measure::Frame;
-pub use device::{CameraDevice, CameraError, CameraInfo, Counters, FrameSink, RawFrame};
+pub use device::{
+    frames_between, CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameIds,
+    FrameSink, RawFrame,
+};
 pub use pixel::DecodeError;
 pub use settings::{
     Acquisition, CameraSettings, GeometryError, PixelFormat, SensorLimits, SettingsChange,

@@ -8,7 +8,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use super::device::FrameSink;
+use super::device::{FrameCounts, FrameSink};
 use super::fake::Bench;
 use super::settings::{SensorLimits, EXPOSURE_RANGE_US};
 use super::shown::{BenchImages, Shown};
@@ -140,7 +140,7 @@ impl CameraDevice for SyntheticCamera {
         Ok(())
     }
 
-    fn acquire(&mut self, n: usize, sink: &mut FrameSink<'_>) -> Result<(), CameraError> {
+    fn acquire(&mut self, n: usize, sink: &mut FrameSink<'_>) -> Result<FrameCounts, CameraError> {
         let s = self.settings();
         let [ox, oy, w, h] = s.region.unwrap_or([0, 0, SENSOR, SENSOR]);
         let (w, h) = (w as usize, h as usize);
@@ -175,7 +175,10 @@ impl CameraDevice for SyntheticCamera {
             })
             .map_err(CameraError::Stopped)?;
         }
-        Ok(())
+        Ok(FrameCounts {
+            received: n as u64,
+            ..FrameCounts::default()
+        })
     }
 
     fn counters(&self) -> Counters {

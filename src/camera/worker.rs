@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use tokio::sync::oneshot;
 
-use super::device::{CameraDevice, CameraError, CameraInfo, Counters, RawFrame};
+use super::device::{CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, RawFrame};
 use super::settings::CameraSettings;
 
 /// Opens the camera (again): the worker calls it at start and after a loss.
@@ -22,7 +22,7 @@ enum Request {
         settings: CameraSettings,
         n: usize,
         sink: mpsc::SyncSender<RawFrame>,
-        reply: oneshot::Sender<Result<(), CameraError>>,
+        reply: oneshot::Sender<Result<FrameCounts, CameraError>>,
     },
     Rescan,
     Shutdown,
@@ -100,13 +100,14 @@ impl CameraHandle {
     /// Configures and acquires `n` frames, sending each into `sink` as it
     /// arrives. The sink is bounded: a slow receiver holds the camera thread
     /// back (the camera's own buffers absorb it) instead of piling frames up
-    /// in memory; a dropped receiver stops the acquisition.
+    /// in memory; a dropped receiver stops the acquisition. Returns what
+    /// this acquisition received and lost.
     pub async fn acquire(
         &self,
         settings: CameraSettings,
         n: usize,
         sink: mpsc::SyncSender<RawFrame>,
-    ) -> Result<(), CameraError> {
+    ) -> Result<FrameCounts, CameraError> {
         let (reply, rx) = oneshot::channel();
         self.tx
             .send(Request::Acquire {
@@ -269,7 +270,7 @@ impl Worker {
         settings: &CameraSettings,
         n: usize,
         sink: &SyncSender<RawFrame>,
-    ) -> Result<(), CameraError> {
+    ) -> Result<FrameCounts, CameraError> {
         let Some(c) = self.camera.as_mut() else {
             return Err(self.not_connected());
         };

@@ -208,6 +208,17 @@ impl Daemon {
                 .map_err(|e| SubmitError::Internal(self.store.describe(&e)))
         };
         let pushed = self.captures.push(disk, retry_after, progressive, insert);
+        if let Ok(id) = &pushed {
+            let a = &req.acquisition;
+            tracing::info!(
+                "capture-{id} queued: {} {}, {} frames + {} dark of {} us",
+                req.scene,
+                super::jobs::block_label(&req.pose, req.polarizer_deg),
+                req.frames,
+                req.dark_frames,
+                a.exposure_us
+            );
+        }
         self.count_refusal(pushed)
     }
 
@@ -220,6 +231,14 @@ impl Daemon {
                 .insert_reconstruction(&request)
                 .map_err(|e| SubmitError::Internal(self.store.describe(&e)))
         });
+        if let Ok(id) = &pushed {
+            tracing::info!(
+                "reconstruction-{id} queued: {} of captures {:?}, {}",
+                b.scene,
+                b.captures,
+                request.solver
+            );
+        }
         self.count_refusal(pushed)
     }
 

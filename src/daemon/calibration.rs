@@ -52,7 +52,49 @@ fn element_px(h: &crate::scene::Homography, scene: Option<&crate::scene::Scene>)
     }
 }
 
+/// One scene's radiometric gain, as reconstructions of it use it.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct RadiometricGain {
+    /// The scene.
+    pub scene: String,
+    /// Fraction of the camera's full scale per microsecond of exposure per
+    /// unit of `T l`, at the camera gain the calibration was made with: a
+    /// measurement is divided by it into units of `T l`. `polnlos measure
+    /// --gain` with this number gives the daemon's measurement offline.
+    pub gain: f64,
+    /// `config` (the daemon's `[calibration]`) or `fake camera` (the demo
+    /// bench's known one).
+    pub source: String,
+}
+
+/// What `GET /calibrations` shows: the radiometric gains reconstructions use.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct Calibrations {
+    /// Per scene with a gain; scenes without one are scaled so that the
+    /// brightest recovered element is about 1 (relative units).
+    pub radiometric: Vec<RadiometricGain>,
+}
+
 impl Daemon {
+    /// The radiometric gains in use, per scene, and where each came from.
+    pub fn calibrations(&self) -> Calibrations {
+        let radiometric = self
+            .calibration
+            .iter()
+            .map(|(scene, &gain)| RadiometricGain {
+                scene: scene.clone(),
+                gain,
+                source: if self.config.calibration.contains_key(scene) {
+                    "config"
+                } else {
+                    "fake camera"
+                }
+                .to_string(),
+            })
+            .collect();
+        Calibrations { radiometric }
+    }
+
     /// Fits the pose of target capture `capture` to `target` (TOML text;
     /// default: the shipped `config/targets/dots-5x5.toml`).
     pub fn calibrate_geometry(

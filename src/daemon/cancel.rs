@@ -96,10 +96,12 @@ impl Daemon {
                 self.captures.release(id);
             }
             self.metrics.jobs_cancelled.fetch_add(1, Ordering::Relaxed);
+            tracing::info!("{job} cancelled while queued");
             self.events.job(job, JobState::Cancelled, None);
             return Ok(JobState::Cancelled);
         }
         // Running (or it started just now): the worker sees the flag.
+        tracing::info!("{job}: cancel asked while it runs");
         self.registry
             .cancel_flag(&job)
             .store(true, Ordering::SeqCst);

@@ -13,13 +13,15 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use tokio::sync::mpsc;
+use tracing::Instrument;
 
 use super::camera::CameraService;
+use super::config::LostFrames;
 use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::progressive;
 use super::queue::CaptureQueue;
 use super::Event;
-use crate::camera::{Acquisition, CameraError, CameraSettings, Frame, RawFrame};
+use crate::camera::{Acquisition, CameraError, CameraSettings, Frame, FrameCounts, RawFrame};
 use crate::measure::FrameStack;
 use crate::store::{
     read_mean, write_frames, write_summary, CaptureFiles, CaptureKind, CaptureRecord, FrameMeta,
@@ -41,6 +43,8 @@ pub(super) struct CaptureWorker {
     pub(super) jobs: JobContext,
     pub(super) camera: Arc<CameraService>,
     pub(super) queue: Arc<CaptureQueue>,
+    /// What a capture that lost frames does.
+    pub(super) lost_frames: LostFrames,
 }
 
 impl CaptureWorker {
@@ -73,7 +77,13 @@ impl CaptureWorker {
                     w.jobs.registry.forget(&job);
                     continue;
                 }
-                Ok(true) => run_capture(w, id, &w.jobs.registry.cancel_flag(&job)).await,
+                Ok(true) => {
+                    tracing::info!("{job} started");
+                    let span = tracing::info_span!("job", id = %job);
+                    run_capture(w, id, &w.jobs.registry.cancel_flag(&job))
+                        .instrument(span)
+                        .await
+                }
                 Err(e) => Err(JobError::Store(w.jobs.store.describe(&e))),
             };
             drop(lease);
@@ -117,7 +127,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         cancel,
     };
     let spec = w.queue.take_progressive(id);
-    let dark = dark_reference(w, &c, &stream).await?;
+    let (dark, dark_counts) = dark_reference(w, &c, &stream).await?;
     let scene_off = meta.kind == CaptureKind::Dark && w.camera.bench().switches_scene();
     if scene_off {
         w.camera.bench().scene_on(false);
@@ -143,7 +153,11 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     let snapshots = progressive.as_ref().map(|(tx, _)| tx.clone());
     let frames = stream
         .take(CaptureFiles::FRAMES, "frames", n, offset, snapshots)
-        .await;
+        .await
+        .and_then(|(f, light)| {
+            let counts = dark_counts + light;
+            lost(w, id, counts).map(|()| (f, counts))
+        });
     if scene_off {
         w.camera.bench().scene_on(true);
     }
@@ -154,9 +168,9 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         w.camera.bench().show_source(false);
     }
     if let Some((tx, steps)) = progressive {
-        finish_progressive(w, id, frames.as_ref().ok(), tx, steps).await;
+        finish_progressive(w, id, frames.as_ref().ok().map(|(f, _)| f), tx, steps).await;
     }
-    let frames = match frames {
+    let (frames, counts) = match frames {
         Ok(f) => f,
         Err(e) => {
             // Cancelled or failed: its dark frames are of no use either.
@@ -170,11 +184,42 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
             .map_err(|e| JobError::Store(store.describe(&e)))
     })
     .await??;
+    tracing::info!(
+        "{} frames received, {} dropped, {} broken",
+        counts.received,
+        counts.dropped,
+        counts.broken
+    );
     let counters = serde_json::to_string(&w.camera.status().counters).unwrap_or_default();
     w.jobs
         .store
-        .capture_done(id, &camera_id, &counters)
+        .capture_done(id, &camera_id, &counters, counts)
         .map_err(store_err)
+}
+
+/// Applies the lost-frames policy to a capture's counts: a warning in the
+/// log (the record keeps the counts), or the capture's failure.
+fn lost(w: &CaptureWorker, id: i64, c: FrameCounts) -> Result<(), JobError> {
+    if c.lost() == 0 {
+        return Ok(());
+    }
+    let what = format!(
+        "lost {} frames ({} dropped, {} broken) of {} received",
+        c.lost(),
+        c.dropped,
+        c.broken,
+        c.received
+    );
+    match w.lost_frames {
+        LostFrames::Warn => {
+            tracing::warn!(capture = id, "capture-{id} {what}; kept ([camera] lost_frames = \"warn\")");
+            Ok(())
+        }
+        LostFrames::Fail => Err(JobError::Capture {
+            id,
+            reason: format!("{what}; check the camera's link and packet size, or set [camera] lost_frames = \"warn\" to keep such captures"),
+        }),
+    }
 }
 
 /// Gives the progressive solver the final mean (so the last step is always
@@ -224,18 +269,18 @@ fn meta_of(c: &CaptureRecord, acquisition: Acquisition, camera_id: &str) -> Fram
 /// The dark level to subtract, with the variance of that mean when known:
 /// the mean of dark frames taken now with the scene switched off (only on a
 /// bench that can, checked at acceptance), or a dark capture's mean frame,
-/// or none.
+/// or none; and what taking dark frames now received and lost.
 async fn dark_reference(
     w: &CaptureWorker,
     c: &CaptureRecord,
     stream: &Stream<'_>,
-) -> Result<Option<(Frame, Option<Frame>)>, JobError> {
+) -> Result<(Option<(Frame, Option<Frame>)>, FrameCounts), JobError> {
     if c.dark_frames > 0 {
         w.camera.bench().scene_on(false);
         let n = c.dark_frames as usize;
         let r = stream.take(CaptureFiles::DARK, "dark", n, 0, None).await;
         w.camera.bench().scene_on(true);
-        let st = r.map_err(|e| match e {
+        let (st, counts) = r.map_err(|e| match e {
             JobError::Cancelled => JobError::Cancelled,
             e => JobError::Capture {
                 id: c.id,
@@ -247,7 +292,7 @@ async fn dark_reference(
             height: st.height,
             pixels: st.mean.iter().map(|&v| v as f32).collect(),
         };
-        return Ok(Some((mean, st.variance_frame())));
+        return Ok((Some((mean, st.variance_frame())), counts));
     }
     match c.dark_capture {
         Some(dc) => {
@@ -258,10 +303,19 @@ async fn dark_reference(
             };
             let mean = read_mean(&dir).map_err(failed)?;
             let variance = crate::store::read_mean_variance(&dir).map_err(failed)?;
-            Ok(Some((mean, variance)))
+            Ok((Some((mean, variance)), FrameCounts::default()))
         }
-        None => Ok(None),
+        None => Ok((None, FrameCounts::default())),
     }
+}
+
+/// The longest an acquisition of `n` frames of `exposure_us` may take before
+/// its capture fails as stalled: twice its frames' time, plus the camera
+/// thread's own first-frame and reconnection allowances (a few seconds),
+/// plus a minute for a machine under load.
+fn stall_limit(exposure_us: f64, n: usize) -> std::time::Duration {
+    let frames = 2.0 * n as f64 * (exposure_us * 1e-6).max(1e-3);
+    std::time::Duration::from_secs_f64(frames + 60.0)
 }
 
 /// One acquisition of a capture, streamed to one file.
@@ -278,7 +332,8 @@ struct Stream<'a> {
 impl Stream<'_> {
     /// Acquires `n` frames into the capture's file `name`, while a blocking
     /// writer puts each on disk and adds it to the running mean; progress
-    /// counts from `offset`.
+    /// counts from `offset`. Returns the frames' running sums and what the
+    /// camera received and lost.
     async fn take(
         &self,
         name: &str,
@@ -286,7 +341,7 @@ impl Stream<'_> {
         n: usize,
         offset: usize,
         snapshots: Option<progressive::Snapshots>,
-    ) -> Result<FrameStack, JobError> {
+    ) -> Result<(FrameStack, FrameCounts), JobError> {
         let (id, total, w) = (self.id, self.total, self.w);
         if self.cancel.load(Ordering::SeqCst) {
             return Err(JobError::Cancelled);
@@ -297,6 +352,8 @@ impl Stream<'_> {
         let meta = self.meta.clone();
         let store = w.jobs.store.clone();
         let cancel = w.jobs.registry.cancel_flag(&format!("capture-{id}"));
+        let stalled = Arc::new(AtomicBool::new(false));
+        let stop = stalled.clone();
         let live = w.camera.clone();
         let writer = tokio::task::spawn_blocking(move || {
             let mut shown = None;
@@ -305,7 +362,7 @@ impl Stream<'_> {
             // next frame finds the channel closed.
             let frames = frame_rx
                 .into_iter()
-                .take_while(|_| !cancel.load(Ordering::SeqCst))
+                .take_while(|_| !cancel.load(Ordering::SeqCst) && !stop.load(Ordering::SeqCst))
                 .inspect(|f| {
                     // The live view polls once a second: copy a frame for it
                     // at most every LIVE_EVERY, not every frame.
@@ -335,20 +392,43 @@ impl Stream<'_> {
                     tokio::task::spawn_blocking(move || store.capture_progress(id, taken)).await;
             }
         });
-        let acquired = w
+        let acquire = w
             .camera
             .handle()
-            .acquire(self.settings.clone(), n, frame_tx)
-            .await;
+            .acquire(self.settings.clone(), n, frame_tx);
+        // The camera thread bounds every wait on the camera; this bounds the
+        // whole acquisition too, so that a capture can never hold the queue.
+        let limit = stall_limit(self.settings.exposure_us, n);
+        let acquired = match tokio::time::timeout(limit, acquire).await {
+            Ok(r) => r,
+            Err(_) => {
+                // The writer stops at its next frame; it is not waited for.
+                stalled.store(true, Ordering::SeqCst);
+                let taken = w
+                    .jobs
+                    .store
+                    .capture(id)
+                    .map(|c| c.frames_taken)
+                    .unwrap_or(0);
+                return Err(JobError::Capture {
+                    id,
+                    reason: format!(
+                        "the camera stalled: {taken} of {total} frames after {:.0} s, for {n} {kind} frames of {} us; the capture failed (its acquisition stops at its next frame), and the queue goes on",
+                        limit.as_secs_f64(),
+                        self.settings.exposure_us
+                    ),
+                });
+            }
+        };
         let written = writer.await.map_err(JobError::from).and_then(|r| r);
         let _ = progress.await;
         if self.cancel.load(Ordering::SeqCst) && written.is_err() {
             return Err(JobError::Cancelled);
         }
         match (acquired, written) {
-            (Ok(()), Ok(stack)) => Ok(stack),
+            (Ok(counts), Ok(stack)) => Ok((stack, counts)),
             // The writer stopped first (a full disk): its reason is the one that matters.
-            (Err(CameraError::Stopped(_)), Err(w)) | (Ok(()), Err(w)) => Err(w),
+            (Err(CameraError::Stopped(_)), Err(w)) | (Ok(_), Err(w)) => Err(w),
             (Err(e), _) => Err(e.into()),
         }
     }

@@ -96,6 +96,22 @@ pub struct CameraConfig {
     /// Read noise in electrons RMS (the datasheet's), for exposure planning.
     #[serde(default = "read_noise")]
     pub read_noise_e: f64,
+    /// What a capture that lost frames (dropped or broken) does.
+    #[serde(default)]
+    pub lost_frames: LostFrames,
+}
+
+/// What a capture that lost frames does: the mean of the frames received is
+/// still unbiased in free run, but a loss says the link or the host cannot
+/// keep up, and a user may want such captures refused.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LostFrames {
+    /// Keep the capture; its record counts the losses and the log warns.
+    #[default]
+    Warn,
+    /// Fail the capture, naming the losses.
+    Fail,
 }
 
 fn full_well() -> f64 {

@@ -107,22 +107,25 @@ pub(super) fn finish_job(
     (done, failed, micros): (&AtomicU64, &AtomicU64, &AtomicU64),
     record: impl FnOnce(Ending<'_>) -> Result<(), crate::store::StoreError>,
 ) {
-    micros.fetch_add(start.elapsed().as_micros() as u64, Ordering::Relaxed);
+    let took = start.elapsed();
+    micros.fetch_add(took.as_micros() as u64, Ordering::Relaxed);
+    let took = took.as_secs_f64();
     d.registry.forget(&job);
     match result {
         Ok(()) => {
+            tracing::info!("{job} done in {took:.2} s");
             done.fetch_add(1, Ordering::Relaxed);
             d.events.job(job, JobState::Done, None);
         }
         Err(JobError::Cancelled) if d.registry.is_stopping() => {
-            tracing::info!("{job} interrupted: the daemon is stopping");
+            tracing::info!("{job} interrupted after {took:.2} s: the daemon is stopping");
             if let Err(se) = record(Ending::Interrupted) {
                 tracing::error!("cannot record the interruption of {job}: {se}");
             }
             d.events.job(job, JobState::Interrupted, None);
         }
         Err(JobError::Cancelled) => {
-            tracing::info!("{job} cancelled");
+            tracing::info!("{job} cancelled after {took:.2} s");
             d.metrics.jobs_cancelled.fetch_add(1, Ordering::Relaxed);
             if let Err(se) = record(Ending::Cancelled) {
                 tracing::error!("cannot record the cancellation of {job}: {se}");
@@ -130,7 +133,7 @@ pub(super) fn finish_job(
             d.events.job(job, JobState::Cancelled, None);
         }
         Err(e) => {
-            tracing::warn!("{job} failed: {e}");
+            tracing::warn!("{job} failed after {took:.2} s: {e}");
             // What clients read says where inside the data directory, not where it is.
             let e = d.store.redact_paths(&e.to_string());
             failed.fetch_add(1, Ordering::Relaxed);

@@ -90,7 +90,7 @@ impl super::Daemon {
             counter("polnlos_camera_frames_completed_total", "Frames received", c.completed as f64),
             counter("polnlos_camera_frames_failed_total", "Broken buffers", c.failed as f64),
             counter("polnlos_camera_timeouts_total", "Buffer pops that timed out", c.timeouts as f64),
-            counter("polnlos_camera_underruns_total", "Frames dropped for lack of buffers", c.underruns as f64),
+            counter("polnlos_camera_underruns_total", "Stream packets that found no free buffer (Aravis n_underruns; per packet, including frames sent after a capture had its own)", c.underruns as f64),
             counter("polnlos_camera_missing_packets_total", "GigE Vision packets missing", c.missing_packets as f64),
             counter("polnlos_camera_resent_packets_total", "GigE Vision packets resent", c.resent_packets as f64),
             counter("polnlos_camera_connects_total", "Camera (re)connections", c.connects as f64),

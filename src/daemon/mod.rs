@@ -46,7 +46,10 @@ use std::sync::Arc;
 use tokio::sync::Mutex;
 
 pub use admission::SubmitError;
-pub use calibration::{FittedPosition, GeometryCalibration, SourcePosition, WallCalibration};
+pub use calibration::{
+    Calibrations, FittedPosition, GeometryCalibration, RadiometricGain, SourcePosition,
+    WallCalibration,
+};
 pub use camera::{CameraService, CameraView, SettingsError};
 pub use cancel::{CancelError, JobKind};
 pub use config::Config;
@@ -253,6 +256,7 @@ impl Daemon {
                 jobs: d.job_context(),
                 camera: d.camera.clone(),
                 queue: d.captures.clone(),
+                lost_frames: d.config.camera.lost_frames,
             };
             set.spawn(capture.run(capture_rx));
             let shared = Arc::new(Mutex::new(recon_rx));

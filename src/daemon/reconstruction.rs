@@ -51,11 +51,15 @@ pub(super) async fn reconstruction_worker(d: JobContext, rx: Arc<Mutex<mpsc::Rec
             }
         }
         d.events.job(job.clone(), JobState::Running, None);
+        tracing::info!("{job} started");
         let (d2, cancel) = (d.clone(), d.registry.cancel_flag(&job));
-        let r = tokio::task::spawn_blocking(move || run_reconstruction(&d2, id, &cancel))
-            .await
-            .map_err(JobError::from)
-            .and_then(|r| r);
+        let span = tracing::info_span!("job", id = %job);
+        let r = tokio::task::spawn_blocking(move || {
+            span.in_scope(|| run_reconstruction(&d2, id, &cancel))
+        })
+        .await
+        .map_err(JobError::from)
+        .and_then(|r| r);
         let m = &d.metrics;
         let counters = (
             &m.reconstructions_done,
@@ -143,6 +147,13 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     )?;
     let (image, mut report) = (solved.image, solved.report);
     report.model = model;
+    report.gain = Some(crate::solve::report::Gain {
+        value: units.factor(),
+        source: match units {
+            crate::measure::Units::Calibrated(_) => "calibration",
+            crate::measure::Units::Estimated(_) => "estimated",
+        },
+    });
     let measurement = i;
     check(cancel)?;
     report.warnings.splice(0..0, warnings);
@@ -167,6 +178,23 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     )
     .map_err(file)?;
     json::write(&dir.join("report.json"), &report).map_err(file)?;
+    tracing::info!(
+        "{} rows x {} unknowns, {} iterations{}{}; {} warnings",
+        report.rows,
+        report.cols,
+        report.solver.iterations,
+        report
+            .lambda_choice
+            .as_ref()
+            .map(|l| format!(", lambda {:.3e} ({})", l.lambda, l.rule))
+            .unwrap_or_default(),
+        report
+            .metrics
+            .as_ref()
+            .map(|m| format!(", PSNR {:.2} dB", m.psnr_db))
+            .unwrap_or_default(),
+        report.warnings.len()
+    );
     let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
     d.store
         .reconstruction_done(id, cond.kappa, &text)

@@ -8,24 +8,49 @@
 
 use serde::Serialize;
 
-/// Histogram bins over full scale.
+/// Histogram bins over the range the frame uses.
 pub const BINS: usize = 64;
+
+/// The narrowest stretch and histogram range, DN, at `full` scale: 1/512 of
+/// full scale and at least 8 DN. Why: a frame of read noise alone spans a
+/// DN or two, and stretching that to black..white shows noise as an image.
+pub fn min_span(full: u32) -> u32 {
+    (full / 512).max(8).min(full)
+}
 
 /// The levels of one frame.
 #[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct Levels {
     /// Full scale of the frame's bit depth, DN.
     pub full_scale: u32,
-    /// Pixels per bin, `BINS` equal bins from 0 to full scale.
+    /// Pixels per bin, `BINS` equal bins from `histogram_low` to
+    /// `histogram_high` DN: the range the frame uses, at least
+    /// [`min_span`] wide, so that a dim frame's pixels spread over the bins.
     pub histogram: Vec<u32>,
+    /// The darkest DN the histogram covers.
+    pub histogram_low: u32,
+    /// The brightest DN the histogram covers.
+    pub histogram_high: u32,
     /// The brightest pixel, as a fraction of full scale.
     pub peak: f64,
     /// The share of pixels at full scale (saturated).
     pub saturated: f64,
-    /// The 0.5th percentile, DN: the black of the auto-contrast stretch.
+    /// The black of the auto-contrast stretch, DN: the 0.5th percentile,
+    /// lowered when the span would be narrower than [`min_span`].
     pub low: u32,
-    /// The 99.5th percentile, DN: the white of the auto-contrast stretch.
+    /// The white of the auto-contrast stretch, DN: the 99.5th percentile,
+    /// raised when the span would be narrower than [`min_span`].
     pub high: u32,
+}
+
+/// `lo..hi` widened about its middle to at least `span`, within `0..=full`.
+fn widen(lo: u32, hi: u32, span: u32, full: u32) -> (u32, u32) {
+    if hi - lo >= span {
+        return (lo, hi);
+    }
+    let mid = (lo + hi) / 2;
+    let lo = mid.saturating_sub(span / 2).min(full - span);
+    (lo, lo + span)
 }
 
 /// The levels of `pixels` at `bits` per pixel (1 to 16); `None` for no pixels.
@@ -51,19 +76,25 @@ pub fn levels(pixels: &[u16], bits: u32) -> Option<Levels> {
             })
             .unwrap_or(full as usize) as u32
     };
+    let span = min_span(full);
+    let darkest = counts.iter().position(|&c| c > 0).unwrap_or(0) as u32;
+    let brightest = counts.iter().rposition(|&c| c > 0).unwrap_or(0) as u32;
+    let (h_lo, h_hi) = widen(darkest, brightest, span, full);
+    let width = (h_hi - h_lo + 1) as usize;
     let mut histogram = vec![0u32; BINS];
-    for (dn, &c) in counts.iter().enumerate() {
-        histogram[(dn * BINS / (full as usize + 1)).min(BINS - 1)] += c;
+    for (dn, &c) in counts.iter().enumerate().skip(h_lo as usize).take(width) {
+        histogram[((dn - h_lo as usize) * BINS / width).min(BINS - 1)] += c;
     }
-    let peak = counts.iter().rposition(|&c| c > 0).unwrap_or(0) as f64 / f64::from(full);
-    let (low, high) = (percentile(0.005), percentile(0.995));
+    let (low, high) = widen(percentile(0.005), percentile(0.995), span, full);
     Some(Levels {
         full_scale: full,
         histogram,
-        peak,
+        histogram_low: h_lo,
+        histogram_high: h_hi,
+        peak: f64::from(brightest) / f64::from(full),
         saturated: f64::from(counts[full as usize]) / n,
         low,
-        high: high.max(low + 1),
+        high,
     })
 }
 
@@ -99,7 +130,9 @@ mod tests {
         assert!((l.peak - 115.0 / 4095.0).abs() < 1e-12);
         assert_eq!((l.low, l.high, l.saturated), (100, 115, 0.0));
         assert_eq!(l.histogram.iter().sum::<u32>(), 1000);
-        assert_eq!(l.histogram[1], 1000, "100..115 DN is bin 1 of 64 over 4096");
+        // The histogram covers the range used: its 16 levels over 64 bins.
+        assert_eq!((l.histogram_low, l.histogram_high), (100, 115));
+        assert_eq!(l.histogram.iter().filter(|&&c| c > 0).count(), 16);
         let shown = display_u16(&px, &l, true);
         assert_eq!(
             (shown.iter().min(), shown.iter().max()),
@@ -110,9 +143,32 @@ mod tests {
     }
 
     #[test]
+    fn a_frame_of_one_dn_of_noise_is_not_stretched_to_black_and_white() {
+        // The fake camera before its first capture: 655 and 656 DN (16 bits).
+        let px: Vec<u16> = (0..4096).map(|k| 655 + (k % 2) as u16).collect();
+        let l = levels(&px, 16).unwrap();
+        let span = min_span(65535);
+        assert_eq!(span, 127);
+        assert_eq!(l.high - l.low, span);
+        assert!(l.low <= 655 && l.high >= 656, "{l:?}");
+        let shown = display_u16(&px, &l, true);
+        let (lo, hi) = (shown.iter().min().unwrap(), shown.iter().max().unwrap());
+        // One DN in 127: a grey with a 1 % ripple, not black and white.
+        assert!(hi - lo < 1000 && *lo > 20_000 && *hi < 45_000, "{lo}..{hi}");
+        // Its histogram spans the same narrow range, the two levels apart.
+        assert_eq!(l.histogram_high - l.histogram_low, span);
+        assert_eq!(l.histogram.iter().filter(|&&c| c > 0).count(), 2);
+        // At the top of the range the span stays within full scale.
+        let l = levels(&[65535, 65534], 16).unwrap();
+        assert_eq!((l.high, l.histogram_high), (65535, 65535));
+        assert_eq!(l.high - l.low, span);
+    }
+
+    #[test]
     fn saturated_pixels_are_counted_and_nothing_is_none() {
         let l = levels(&[255, 255, 0, 10], 8).unwrap();
         assert_eq!((l.saturated, l.peak), (0.5, 1.0));
+        assert_eq!((l.histogram_low, l.histogram_high), (0, 255));
         assert_eq!(l.histogram[BINS - 1], 2);
         assert_eq!(levels(&[], 8), None);
     }

@@ -70,6 +70,13 @@ pub struct Report {
     /// (keys the scene file left out; MODEL.md "Rows that match the measurement").
     #[serde(skip_serializing_if = "Option::is_none")]
     pub model: Option<crate::transport::choose::ModelChoice>,
+    /// The radiometric gain the measurement was divided by into units of
+    /// `T l` (fraction of full scale per microsecond of exposure per unit of
+    /// `T l`), and where it came from; `polnlos measure --gain` with this
+    /// number reproduces the measurement offline. Absent when the
+    /// measurement was given in units of `T l`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gain: Option<Gain>,
     /// Warnings from every stage (solver, conditioning).
     pub warnings: Vec<String>,
 }
@@ -103,6 +110,7 @@ impl Report {
             lambda_choice,
             model_check: None,
             model: None,
+            gain: None,
             warnings,
         }
     }
@@ -179,4 +187,15 @@ mod tests {
         assert!(snr_warnings(0.25)[0].contains("mean SNR of the measurement is 0.25"));
         assert_eq!(mean_snr(&[1.0], &[0.0]), f64::INFINITY);
     }
+}
+
+/// The radiometric gain a measurement was divided by.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Gain {
+    /// Fraction of full scale per microsecond of exposure per unit of `T l`.
+    pub value: f64,
+    /// `calibration` (the daemon's [calibration], or the fake camera's
+    /// known one) or `estimated` (scaled so the brightest recovered element
+    /// is about 1: relative units only).
+    pub source: &'static str,
 }

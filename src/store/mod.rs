@@ -195,12 +195,13 @@ END;
 ";
 
 /// Columns added after the first release: (table, column, declaration).
-const ADDED_COLUMNS: [(&str, &str, &str); 5] = [
+const ADDED_COLUMNS: [(&str, &str, &str); 6] = [
     ("captures", "kind", "TEXT NOT NULL DEFAULT 'light'"),
     ("captures", "region", "TEXT"),
     ("captures", "binning", "TEXT"),
     ("captures", "trigger", "TEXT"),
     ("captures", "dark_capture", "INTEGER"),
+    ("captures", "frame_counts", "TEXT"),
 ];
 
 /// Adds the columns a catalogue from an older polnlos lacks (rows kept).
@@ -532,11 +533,18 @@ impl Store {
     }
 
     /// Marks a capture done; call only after its files are durable.
-    pub fn capture_done(&self, id: i64, camera_id: &str, counters: &str) -> Result<(), StoreError> {
+    pub fn capture_done(
+        &self,
+        id: i64,
+        camera_id: &str,
+        counters: &str,
+        frames: crate::camera::FrameCounts,
+    ) -> Result<(), StoreError> {
+        let frames = serde_json::to_string(&frames).unwrap_or_default();
         self.with(|c| {
             c.execute(
-                "UPDATE captures SET state = 'done', finished_at = ?2, camera_id = ?3, counters = ?4, error = NULL WHERE id = ?1",
-                params![id, now(), camera_id, counters],
+                "UPDATE captures SET state = 'done', finished_at = ?2, camera_id = ?3, counters = ?4, frame_counts = ?5, error = NULL WHERE id = ?1",
+                params![id, now(), camera_id, counters, frames],
             )
             .map(|_| ())
         })

@@ -216,14 +216,19 @@ pub struct CaptureRecord {
     pub finished_at: Option<String>,
     /// Camera that took it.
     pub camera_id: Option<String>,
-    /// Camera counters after the capture.
+    /// The camera's counters since the daemon started, as they stood when
+    /// the capture ended (cumulative: see `frame_counts` for this capture's own).
     #[schema(value_type = Object)]
     pub counters: Option<serde_json::Value>,
     /// Frames taken so far.
     pub frames_taken: i64,
+    /// What this capture's acquisitions (light and dark) received, dropped
+    /// and got broken; null for captures not done, and for those made
+    /// before it was recorded.
+    pub frame_counts: Option<crate::camera::FrameCounts>,
 }
 
-pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, region, binning, trigger, dark_capture FROM captures";
+pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, region, binning, trigger, dark_capture, frame_counts FROM captures";
 
 pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
     Ok(CaptureRecord {
@@ -255,6 +260,7 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
             })
             .transpose()?,
         dark_capture: r.get(21)?,
+        frame_counts: json_column(r, 22)?,
     })
 }
 

@@ -104,7 +104,9 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(dir.join("mean.tiff"), vec![0u8; bytes]).unwrap();
         assert!(store.capture_running(id).unwrap());
-        store.capture_done(id, "cam", "{}").unwrap();
+        store
+            .capture_done(id, "cam", "{}", crate::camera::FrameCounts::default())
+            .unwrap();
         id
     }
 

@@ -111,6 +111,7 @@ pub(crate) mod fixtures {
             camera_id: None,
             counters: None,
             frames_taken: 1,
+            frame_counts: None,
         }
     }
 }
