@@ -112,3 +112,141 @@ fn the_daemon_names_no_http_layer() {
         assert!(!text.contains("crate::api"), "{path} names crate::api");
     }
 }
+
+#[test]
+fn the_maths_core_names_no_file_layer() {
+    for dir in [
+        "optics",
+        "scene",
+        "transport",
+        "solve",
+        "simulate",
+        "measure",
+        "calibrate",
+    ] {
+        for (path, text) in sources(dir) {
+            assert!(!text.contains("crate::files"), "{path} names crate::files");
+        }
+    }
+}
+
+/// `text` without its `//` comments and its `#[cfg(test)] mod tests` block
+/// (a test module's `super` is its own file).
+fn code(text: &str) -> String {
+    let body = match text.find("#[cfg(test)]\nmod tests") {
+        Some(k) => &text[..k],
+        None => text,
+    };
+    body.lines()
+        .map(|l| l.split("//").next().unwrap_or(""))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// The `crate::`/`super::` paths `text` names, braces expanded one level
+/// (`super::{a::X, b::Y}` is `super::a::X` and `super::b::Y`).
+fn paths(text: &str) -> Vec<String> {
+    let word = |c: char| c.is_ascii_alphanumeric() || c == '_' || c == ':';
+    let mut out = Vec::new();
+    for root in ["crate::", "super::"] {
+        let mut from = 0;
+        while let Some(k) = text[from..].find(root) {
+            let start = from + k;
+            from = start + root.len();
+            if start > 0
+                && text[..start]
+                    .ends_with(|c: char| c.is_ascii_alphanumeric() || c == '_' || c == ':')
+            {
+                continue;
+            }
+            let head: String = text[start..].chars().take_while(|&c| word(c)).collect();
+            let rest = &text[start + head.len()..];
+            if let (true, Some(end)) = (rest.starts_with('{'), rest.find('}')) {
+                for item in rest[1..end].split(',') {
+                    let item: String = item.trim().chars().take_while(|&c| word(c)).collect();
+                    out.push(format!("{head}{item}"));
+                }
+            } else {
+                out.push(head);
+            }
+        }
+    }
+    out
+}
+
+/// The source file (not a folder's `mod.rs`) that `path`, named in `file`,
+/// points into, if any.
+fn target(src: &Path, file: &Path, path: &str) -> Option<std::path::PathBuf> {
+    let mut segs: Vec<&str> = path.split("::").filter(|s| !s.is_empty()).collect();
+    // The module folder the path starts from.
+    let mut dir = if segs[0] == "crate" {
+        segs.remove(0);
+        src.to_path_buf()
+    } else {
+        // `super` of a.rs is a's folder; of a folder's mod.rs, the folder above.
+        let mut d = file.parent()?.to_path_buf();
+        if file.file_name()? == "mod.rs" {
+            d = d.parent()?.to_path_buf();
+        }
+        segs.remove(0);
+        while segs.first() == Some(&"super") {
+            segs.remove(0);
+            d = d.parent()?.to_path_buf();
+        }
+        d
+    };
+    for s in segs {
+        let f = dir.join(format!("{s}.rs"));
+        if f.is_file() {
+            return Some(f);
+        }
+        if dir.join(s).join("mod.rs").is_file() {
+            dir = dir.join(s);
+        } else {
+            return None;
+        }
+    }
+    None
+}
+
+#[test]
+fn no_two_files_import_each_other_even_through_others() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let files: Vec<(String, String)> = sources("");
+    let mut edges: std::collections::BTreeMap<String, std::collections::BTreeSet<String>> =
+        Default::default();
+    for (path, text) in &files {
+        let p = Path::new(path);
+        let to = edges.entry(path.clone()).or_default();
+        for named in paths(&code(text)) {
+            if let Some(t) = target(&src, p, &named) {
+                let t = t.display().to_string();
+                if t != *path {
+                    to.insert(t);
+                }
+            }
+        }
+    }
+    // The files each file reaches; a file that reaches itself is in a circle.
+    let mut circles = Vec::new();
+    for start in edges.keys() {
+        let mut seen = std::collections::BTreeSet::new();
+        let mut stack: Vec<&String> = edges[start].iter().collect();
+        while let Some(n) = stack.pop() {
+            if seen.insert(n.clone()) {
+                stack.extend(edges.get(n).into_iter().flatten());
+            }
+        }
+        if seen.contains(start) {
+            circles.push(start.replace(&format!("{}/", src.display()), ""));
+        }
+    }
+    // The check sees imports at all (so an empty answer means something).
+    let capture = src.join("daemon/capture.rs").display().to_string();
+    assert!(
+        edges[&capture].contains(&src.join("daemon/jobs.rs").display().to_string()),
+        "{:?}",
+        edges[&capture]
+    );
+    assert!(circles.is_empty(), "files in an import circle: {circles:?}");
+}

@@ -26,10 +26,10 @@ pub struct ActiveRow {
     /// Time bins of the active `T`.
     pub bins: usize,
     /// kappa of the time-resolved `T`.
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub kappa_active: f64,
     /// kappa of the steady-state `T` of the same scene.
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub kappa_passive: f64,
 }
 

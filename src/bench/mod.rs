@@ -86,7 +86,7 @@ pub struct CondRow {
     /// Rows x columns of `T`.
     pub shape: (usize, usize),
     /// Condition number (`"inf"` when rank-deficient).
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub kappa: f64,
     /// Seconds to build `T` and its SVD.
     pub seconds: f64,
@@ -230,7 +230,7 @@ pub struct RoughRow {
     /// GGX alpha.
     pub roughness: f64,
     /// Condition number.
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub kappa: f64,
 }
 

@@ -19,7 +19,7 @@ pub struct StabilityRow {
     /// What was stressed.
     pub case: String,
     /// Condition number of `T` (`"inf"` when rank-deficient).
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub kappa: f64,
     /// Mean SNR of the simulated measurement.
     pub snr: f64,
@@ -32,7 +32,7 @@ pub struct StabilityRow {
     /// Final dual residual.
     pub dual_residual: f64,
     /// PSNR against the truth, dB.
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub psnr_db: f64,
     /// Whether every recovered value is finite.
     pub finite: bool,

@@ -23,7 +23,7 @@ struct Output<'a> {
     rows: usize,
     cols: usize,
     blocks: &'a [polnlos::transport::Block],
-    #[serde(serialize_with = "polnlos::files::json::finite_or_inf")]
+    #[serde(serialize_with = "polnlos::solve::json::finite_or_inf")]
     kappa: f64,
     rank: usize,
     threshold: f64,

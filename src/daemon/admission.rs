@@ -6,7 +6,7 @@
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
-use super::queue::DiskNeed;
+use super::queue::{DiskNeed, SubmitError};
 use super::requests::{AutoExposure, CaptureBody, ReconstructionBody};
 use super::validate::{self, CameraContext, ProgressiveSpec, RequestError};
 use super::Daemon;
@@ -14,41 +14,6 @@ use crate::camera::settings::EXPOSURE_RANGE_US;
 use crate::camera::CameraInfo;
 use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
 use crate::store::{capture_bytes, CaptureRequest};
-
-/// Why a request was not queued.
-#[derive(Debug, thiserror::Error)]
-pub enum SubmitError {
-    /// The request itself is wrong (404, 422) or needs the camera (503).
-    #[error(transparent)]
-    Request(#[from] RequestError),
-    /// Its files would not fit on the disk (HTTP 507).
-    #[error("this capture needs {} MiB of disk, but the data directory has {} MiB free, of which queued captures reserve {} MiB and {} MiB are kept free ([queue] reserve_free_mib); take fewer frames or a smaller region, or free disk space", mib(*.need), mib(*.free), mib(*.held), mib(*.keep))]
-    Disk {
-        /// Bytes its files take at most.
-        need: u64,
-        /// Bytes free now.
-        free: u64,
-        /// Bytes reserved by queued captures.
-        held: u64,
-        /// Bytes kept free.
-        keep: u64,
-    },
-    /// The queue is full (HTTP 429).
-    #[error("the {queue} queue is full; retry after {retry_after} s")]
-    QueueFull {
-        /// `capture` or `reconstruction`.
-        queue: &'static str,
-        /// Seconds to wait.
-        retry_after: u64,
-    },
-    /// The catalogue could not record it, or validation did not finish.
-    #[error("{0}")]
-    Internal(String),
-}
-
-fn mib(bytes: u64) -> String {
-    format!("{:.1}", bytes as f64 / (1u64 << 20) as f64)
-}
 
 impl Daemon {
     /// Capture `id` from the catalogue for a request's checks: `None` when

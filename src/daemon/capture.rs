@@ -230,7 +230,7 @@ async fn finish_progressive(
     id: i64,
     frames: Option<&FrameStack>,
     tx: progressive::Snapshots,
-    steps: tokio::task::JoinHandle<Vec<progressive::Step>>,
+    steps: tokio::task::JoinHandle<Vec<super::events::Step>>,
 ) {
     if let Some(st) = frames {
         let _ = tokio::task::spawn_blocking(tx.send_last(st)).await;

@@ -1,4 +1,5 @@
-//! Server-sent events: job progress, frames taken, camera state changes.
+//! Server-sent events: job progress, frames taken, progressive steps,
+//! deletions, camera state changes.
 //! [`Events`] is the sending side every service holds a clone of.
 
 use serde::Serialize;
@@ -62,7 +63,7 @@ pub enum Event {
         job: String,
         /// The step's numbers.
         #[serde(flatten)]
-        step: super::progressive::Step,
+        step: Step,
     },
     /// A capture or a reconstruction was deleted, row and files.
     Deleted {
@@ -81,4 +82,25 @@ pub enum Event {
         #[serde(skip_serializing_if = "Option::is_none")]
         error: Option<String>,
     },
+}
+
+/// One published progressive step (what `progressive.json` lists and the
+/// `progressive` event carries).
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct Step {
+    /// Frames in the mean it solved.
+    pub frames: usize,
+    /// ADMM iterations it took (warm-started from the previous step).
+    pub iterations: usize,
+    /// Whether ADMM met its tolerance.
+    pub converged: bool,
+    /// `||l_k - l_{k-1}|| / ||l_k||` against the previous step.
+    pub change: Option<f64>,
+    /// PSNR against the truth, when one was given, dB.
+    pub psnr_db: Option<f64>,
+    /// The TV weight the step used: the automatic rule's, from the running
+    /// frame variance, unless the request fixed it.
+    pub lambda: Option<f64>,
+    /// Seconds the step took.
+    pub seconds: f64,
 }

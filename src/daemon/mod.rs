@@ -45,7 +45,6 @@ use std::sync::Arc;
 
 use tokio::sync::Mutex;
 
-pub use admission::SubmitError;
 pub use calibration::{
     Calibrations, FittedPosition, GeometryCalibration, RadiometricGain, SourcePosition,
     WallCalibration,
@@ -54,10 +53,9 @@ pub use camera::{CameraService, CameraView, SettingsError};
 pub use cancel::{CancelError, JobKind};
 pub use config::Config;
 pub use demo::DEMO_SOURCE;
-pub use events::{Event, Events};
-pub use progressive::{
-    Step as ProgressiveStep, IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS,
-};
+pub use events::{Event, Events, Step as ProgressiveStep};
+pub use progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
+pub use queue::SubmitError;
 pub use validate::RequestError;
 
 use crate::camera::aravis::AravisCamera;

@@ -19,8 +19,7 @@ use std::sync::mpsc::{Receiver, SyncSender};
 use std::sync::Arc;
 use std::time::Instant;
 
-use serde::Serialize;
-
+use super::events::Step;
 use super::jobs::same_angle;
 use super::jobs::{JobContext, JobError};
 use super::reconstruction::{load_capture, read_captures};
@@ -103,26 +102,6 @@ impl Snapshots {
             let _ = self.tx.send(last);
         }
     }
-}
-
-/// One published step.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
-pub struct Step {
-    /// Frames in the mean it solved.
-    pub frames: usize,
-    /// ADMM iterations it took (warm-started from the previous step).
-    pub iterations: usize,
-    /// Whether ADMM met its tolerance.
-    pub converged: bool,
-    /// `||l_k - l_{k-1}|| / ||l_k||` against the previous step.
-    pub change: Option<f64>,
-    /// PSNR against the truth, when one was given, dB.
-    pub psnr_db: Option<f64>,
-    /// The TV weight the step used: the automatic rule's, from the running
-    /// frame variance, unless the request fixed it.
-    pub lambda: Option<f64>,
-    /// Seconds the step took.
-    pub seconds: f64,
 }
 
 /// A capture's progressive solver.

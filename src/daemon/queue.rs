@@ -1,14 +1,49 @@
 //! The job queues: bounded channels of job ids, refused at once when full
 //! (HTTP 429), and for captures the disk each queued capture reserved and
-//! the progressive reconstruction it asked for.
+//! the progressive reconstruction it asked for; and why a job was not
+//! queued ([`SubmitError`]), which admission answers with.
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;
 
 use tokio::sync::mpsc;
 
-use super::admission::SubmitError;
-use super::validate::ProgressiveSpec;
+use super::validate::{ProgressiveSpec, RequestError};
+
+/// Why a request was not queued.
+#[derive(Debug, thiserror::Error)]
+pub enum SubmitError {
+    /// The request itself is wrong (404, 422) or needs the camera (503).
+    #[error(transparent)]
+    Request(#[from] RequestError),
+    /// Its files would not fit on the disk (HTTP 507).
+    #[error("this capture needs {} MiB of disk, but the data directory has {} MiB free, of which queued captures reserve {} MiB and {} MiB are kept free ([queue] reserve_free_mib); take fewer frames or a smaller region, or free disk space", mib(*.need), mib(*.free), mib(*.held), mib(*.keep))]
+    Disk {
+        /// Bytes its files take at most.
+        need: u64,
+        /// Bytes free now.
+        free: u64,
+        /// Bytes reserved by queued captures.
+        held: u64,
+        /// Bytes kept free.
+        keep: u64,
+    },
+    /// The queue is full (HTTP 429).
+    #[error("the {queue} queue is full; retry after {retry_after} s")]
+    QueueFull {
+        /// `capture` or `reconstruction`.
+        queue: &'static str,
+        /// Seconds to wait.
+        retry_after: u64,
+    },
+    /// The catalogue could not record it, or validation did not finish.
+    #[error("{0}")]
+    Internal(String),
+}
+
+fn mib(bytes: u64) -> String {
+    format!("{:.1}", bytes as f64 / (1u64 << 20) as f64)
+}
 
 /// A bounded queue of job ids for one kind of worker.
 #[derive(Debug)]

@@ -1,20 +1,5 @@
-//! JSON conventions: non-finite numbers (an infinite kappa, a perfect PSNR)
-//! are written as the strings `"inf"`, `"-inf"`, `"nan"`, since JSON has no such numbers.
-
-use serde::Serializer;
-
-/// Serializes a finite `f64` as a number and a non-finite one as a string.
-pub fn finite_or_inf<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
-    if v.is_finite() {
-        s.serialize_f64(*v)
-    } else if v.is_nan() {
-        s.serialize_str("nan")
-    } else if *v > 0.0 {
-        s.serialize_str("inf")
-    } else {
-        s.serialize_str("-inf")
-    }
-}
+//! JSON files: written pretty and atomically. Non-finite numbers in reports
+//! follow [`crate::solve::json::finite_or_inf`].
 
 /// Writes a value as pretty JSON atomically.
 pub fn write<T: serde::Serialize>(

@@ -102,7 +102,7 @@ fn solve_system(normal: &Normal, factor: &Factor, rho: f64, x: &mut [f64], ws: &
         (Factor::Dense(f), _) => {
             let n = x.len();
             let par = if n >= PAR_SOLVE_MIN {
-                super::gram::par()
+                super::par()
             } else {
                 Par::Seq
             };

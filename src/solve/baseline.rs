@@ -7,8 +7,8 @@ use std::time::Instant;
 use faer::Side;
 
 use super::admm::objective_of;
-use super::gram::{adjoint, gram_lower, mean_diag, par};
-use super::{check_measurement, Reconstruction, SolveError, SolveStats};
+use super::gram::{adjoint, gram_lower, mean_diag};
+use super::{check_measurement, par, Reconstruction, SolveError, SolveStats};
 use crate::transport::Transport;
 
 /// Default Tikhonov weight relative to `mean(diag(T^T T))`.

@@ -19,7 +19,7 @@ pub struct Conditioning {
     /// Singular values, non-increasing.
     pub singular_values: Vec<f64>,
     /// `sigma_max / sigma_min`, or infinity (serialized as the string `"inf"`).
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub kappa: f64,
     /// Number of singular values above the threshold.
     pub rank: usize,

@@ -7,6 +7,7 @@ use std::sync::Arc;
 use faer::{Accum, Mat, MatRef, Par};
 
 use super::lowrank::{LowRank, LOW_RANK_MIN_COLS};
+use super::par;
 use crate::transport::Transport;
 
 /// Lower triangle of `T^T T` (the strict upper triangle is left zero).
@@ -158,9 +159,4 @@ impl Normal {
             1.0
         }
     }
-}
-
-/// Current parallelism for dense kernels (faer's global setting).
-pub fn par() -> Par {
-    faer::get_global_parallelism()
 }

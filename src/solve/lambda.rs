@@ -156,7 +156,7 @@ fn projection_residual(mut a: faer::Mat<f64>, i: &[f64]) -> Vec<f64> {
     use faer::linalg::householder as hh;
     use faer::linalg::qr::no_pivoting::factor;
     let (m, k) = (a.nrows(), a.ncols());
-    let par = super::gram::par();
+    let par = super::par();
     let bs = factor::recommended_block_size::<f64>(m, k);
     let mut coeff = faer::Mat::<f64>::zeros(bs, k);
     let scratch = factor::qr_in_place_scratch::<f64>(m, k, bs, par, Default::default())

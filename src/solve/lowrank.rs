@@ -178,7 +178,7 @@ impl LowRank {
             self.w.transpose(),
             self.w.as_ref(),
             1.0,
-            super::gram::par(),
+            super::par(),
         );
         let mut e = wtw.self_adjoint_eigenvalues(Side::Lower).map_err(|e| {
             SolveError::Factorization(format!("eigenvalues of W^T W did not converge ({e:?})"))

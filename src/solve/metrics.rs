@@ -8,7 +8,7 @@ use crate::scene::Grid;
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Metrics {
     /// Peak signal-to-noise ratio in dB (infinite for a perfect match, serialized `"inf"`).
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub psnr_db: f64,
     /// Zero-mean normalized cross-correlation in [-1, 1].
     pub zncc: f64,

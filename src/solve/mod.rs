@@ -12,6 +12,7 @@ pub mod baseline;
 pub mod conditioning;
 pub mod fista;
 pub mod gram;
+pub mod json;
 pub mod lambda;
 pub mod lowrank;
 pub mod metrics;
@@ -29,6 +30,12 @@ pub use reconstruct::{reconstruct, SolveRequest, Solver};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::transport::Transport;
+
+/// Current parallelism for dense kernels (faer's global setting): every
+/// solver's factorizations and products run at it.
+pub fn par() -> faer::Par {
+    faer::get_global_parallelism()
+}
 
 /// Why a reconstruction could not be computed.
 #[derive(Debug, thiserror::Error)]

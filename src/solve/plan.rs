@@ -26,13 +26,13 @@ pub struct PlanRow {
     /// Rows x columns of `T`.
     pub shape: (usize, usize),
     /// Condition number.
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub kappa: f64,
     /// Numerical rank.
     pub rank: usize,
     /// Expected per-element RMS error of the pseudo-inverse, in units of the
     /// radiance range (`"inf"` when rank-deficient).
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub noise_amplification: f64,
     /// Whether the measurement supports this grid.
     pub supported: bool,

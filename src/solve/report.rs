@@ -15,7 +15,7 @@ pub const KAPPA_WARN: f64 = 1e8;
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct ConditioningSummary {
     /// `sigma_max / sigma_min` (`"inf"` when rank-deficient).
-    #[serde(serialize_with = "crate::files::json::finite_or_inf")]
+    #[serde(serialize_with = "crate::solve::json::finite_or_inf")]
     pub kappa: f64,
     /// Numerical rank.
     pub rank: usize,
