@@ -32,9 +32,12 @@
 //! - **A pixel format**: one variant in `src/camera/pixel.rs` (its name, bits,
 //!   bytes and `decode`); requests, the catalogue and the driver read it
 //!   from there.
-//! - **A solver**: its file in `src/solve/` and one variant of
-//!   `solve::Solver` (`src/solve/reconstruct.rs`), which the CLI's
-//!   `--solver`, the API's `solver` and the report all take.
+//! - **A solver** (2 files): its file in `src/solve/`, and in
+//!   `src/solve/solver.rs` its variant of `Solver` with its name, what it
+//!   needs (`Needs`: the Gram, a λ from the noise, a warm start) and its arm
+//!   of `Solver::run`. The CLI's `--solver`, the API's `solver` enum, the
+//!   page's list (read from `/openapi.json`), the report and the automatic λ
+//!   all take it from there.
 //! - **A route**: a handler with `#[utoipa::path]` in `src/api/routes.rs`
 //!   and one `routes!` line in `src/api/mod.rs`; the tests read it from
 //!   `/openapi.json` (docs/guide.md, "Adding a route"). A request body the

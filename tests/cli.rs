@@ -342,7 +342,10 @@ fn simulate_then_reconstruct_through_files() {
         "--lambda",
         "auto",
     ]));
-    assert!(err.contains("TV solvers"), "{err}");
+    assert!(
+        err.contains("choose it from the noise (admm-tv, fista-tv)"),
+        "{err}"
+    );
 
     let rec_lsq = d.join("lsq");
     ok(&args("lsq", &rec_lsq));

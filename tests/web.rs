@@ -376,6 +376,22 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
         let c = page.open().await;
         let long = Duration::from_secs(60);
 
+        // The solver list is the daemon's: its OpenAPI Solver enum, which is
+        // every solver polnlos declares.
+        let (_, doc) = page.d.get("/openapi.json");
+        let doc: serde_json::Value = serde_json::from_str(&doc).unwrap();
+        let declared: Vec<String> = polnlos::solve::Solver::ALL
+            .iter()
+            .map(|s| s.name().to_string())
+            .collect();
+        assert_eq!(doc["components"]["schemas"]["Solver"]["enum"], serde_json::json!(declared));
+        let listed = until("the solver list", Duration::from_secs(30), || async {
+            let v = js(&c, "return [...document.querySelectorAll('#reconstruction-form select[name=solver] option')].map((o) => o.value);").await;
+            let v: Vec<String> = serde_json::from_value(v).unwrap_or_default();
+            (!v.is_empty()).then_some(v)
+        })
+        .await;
+        assert_eq!(listed, declared);
         // Progressive results are off by default (a capture of fewer frames
         // than "every" would be refused).
         let ticked = js(&c, "return document.querySelector('#capture-form [name=progressive]').checked;").await;

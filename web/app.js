@@ -764,7 +764,20 @@ async function loadScenes() {
   });
 }
 
+// The solvers, as the daemon declares them (its OpenAPI document's Solver
+// enum, public like the page): a new solver shows here without a page change.
+async function loadSolvers() {
+  const r = await fetch("/openapi.json", { cache: "no-store" });
+  if (!r.ok) return;
+  const doc = await r.json();
+  const names = (((doc.components || {}).schemas || {}).Solver || {}).enum || [];
+  const s = $("#reconstruction-form select[name=solver]");
+  s.replaceChildren(...names.map((n) => el("option", { value: n }, n)));
+  if (names.length) s.value = names[0];
+}
+
 loadScenes();
+loadSolvers();
 resync();
 events();
 applyZoom();

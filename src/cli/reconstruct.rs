@@ -116,11 +116,17 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         .as_ref()
         .map(|p| load_grid_image(p, sgrid))
         .transpose()?;
-    let tv = matches!(a.solver, Solver::AdmmTv | Solver::FistaTv);
-    if matches!(a.lambda, Some(LambdaArg::Auto)) && !tv {
-        return Err(
-            super::Usage("--lambda auto is for the TV solvers (admm-tv, fista-tv)".into()).into(),
-        );
+    if matches!(a.lambda, Some(LambdaArg::Auto)) && !a.solver.needs().lambda_from_noise {
+        let tv: Vec<&str> = Solver::ALL
+            .iter()
+            .filter(|s| s.needs().lambda_from_noise)
+            .map(|s| s.name())
+            .collect();
+        return Err(super::Usage(format!(
+            "--lambda auto is for the solvers that choose it from the noise ({})",
+            tv.join(", ")
+        ))
+        .into());
     }
     let req = SolveRequest {
         solver: a.solver,
@@ -167,9 +173,9 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     };
     let scene = choice.as_ref().map_or(scene, |(s, _)| s.clone());
     let (t, transport_seconds) = super::progress::build_transport(&scene, budget)?;
-    // ADMM-TV forms T^T T anyway: form it once, here, and take the
-    // conditioning from its low-rank form unless the full spectrum is asked for.
-    let normal = if a.solver == Solver::AdmmTv {
+    // A solver that needs T^T T forms it anyway: form it once, here, and take
+    // the conditioning from its low-rank form unless the full spectrum is asked for.
+    let normal = if a.solver.needs().gram {
         polnlos::solve::check_measurement(&t, &meas.data)?;
         Some(Normal::of(&t, &meas.data))
     } else {

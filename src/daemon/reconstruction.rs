@@ -18,7 +18,7 @@ use crate::measure::{
 };
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
-use crate::solve::reconstruct::{reconstruct_prepared, Context, Solver};
+use crate::solve::reconstruct::{reconstruct_prepared, Context};
 use crate::solve::{check_measurement, SolveRequest, Stop};
 use crate::store::{read_mean, CaptureRecord, JobState, Store};
 
@@ -127,13 +127,13 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         truth: truth.as_deref(),
         stop: Stop::on(cancel),
     };
-    // ADMM-TV solves on the scene's cached Gram: only `T^T i` is new.
-    let normal = match solve.solver {
-        Solver::AdmmTv => {
-            check_measurement(&t, &i)?;
-            Some(Normal::with(d.scenes.gram(&key)?, &t, &i))
-        }
-        _ => None,
+    // A solver that needs the Gram solves on the scene's cached one: only
+    // `T^T i` is new.
+    let normal = if solve.solver.needs().gram {
+        check_measurement(&t, &i)?;
+        Some(Normal::with(d.scenes.gram(&key)?, &t, &i))
+    } else {
+        None
     };
     check(cancel)?;
     let solved = reconstruct_prepared(

@@ -19,13 +19,15 @@ pub mod metrics;
 pub mod plan;
 pub mod reconstruct;
 pub mod report;
+pub mod solver;
 pub mod tv;
 
 pub use admm::{admm_tv, AdmmSettings};
 pub use baseline::{least_squares, tikhonov};
 pub use conditioning::{condition, condition_with, Conditioning};
 pub use fista::{fista_tv, tv_denoise, FistaSettings};
-pub use reconstruct::{reconstruct, SolveRequest, Solver};
+pub use reconstruct::{reconstruct, SolveRequest};
+pub use solver::{Needs, Problem, Solver};
 
 use std::sync::atomic::{AtomicBool, Ordering};
 

@@ -8,10 +8,7 @@
 //! level (a camera model, frame-to-frame variance) or, when there is none,
 //! from the measurement itself ([`NoiseLevel::from_residual`]).
 
-use serde::{Deserialize, Serialize};
-
 use super::adequacy::Adequacy;
-use super::admm::admm_tv_prepared;
 use super::conditioning::Conditioning;
 use super::gram::Normal;
 use super::lambda::{
@@ -19,129 +16,14 @@ use super::lambda::{
     NoiseLevel, NoiseSource, RESOLVED_TOLERANCE,
 };
 use super::report::{mean_snr, snr_warnings, Report};
-use super::{
-    admm_tv, fista_tv, least_squares, tikhonov, AdmmSettings, FistaSettings, SolveError, Stop,
-};
+pub use super::solver::{Needs, Problem, SolveRequest, Solver, AUTO_MAX_ITER};
+use super::{SolveError, Stop};
 use crate::transport::Transport;
-
-/// The solvers polnlos offers.
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    PartialEq,
-    Eq,
-    Default,
-    Serialize,
-    Deserialize,
-    clap::ValueEnum,
-    utoipa::ToSchema,
-)]
-#[serde(rename_all = "kebab-case")]
-pub enum Solver {
-    /// ADMM with isotropic TV and the box 0 <= l <= 1 (MODEL.md Eq. 12).
-    #[default]
-    AdmmTv,
-    /// FISTA with a TV proximal step and the box (Saunders et al. 2019); same objective.
-    FistaTv,
-    /// Tikhonov (ridge) regularization, clipped to [0, 1].
-    Tikhonov,
-    /// (Truncated) pseudo-inverse, clipped to [0, 1].
-    Lsq,
-}
-
-impl Solver {
-    /// The name in files and requests (`admm-tv`, ...).
-    pub fn name(self) -> &'static str {
-        match self {
-            Solver::AdmmTv => "admm-tv",
-            Solver::FistaTv => "fista-tv",
-            Solver::Tikhonov => "tikhonov",
-            Solver::Lsq => "lsq",
-        }
-    }
-}
-
-/// What to solve with: the same fields from the command line and from JSON.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-pub struct SolveRequest {
-    /// Solver (default `admm-tv`).
-    #[serde(default)]
-    pub solver: Solver,
-    /// TV weight in MODEL.md units; absent: chosen from the noise (TV
-    /// solvers), `1e-3 x mean(diag(T^T T))` (Tikhonov).
-    pub lambda: Option<f64>,
-    /// ADMM penalty (default: balanced automatically).
-    pub rho: Option<f64>,
-    /// Iteration cap (1-100000; default 500, 5000 with an automatic λ).
-    pub max_iter: Option<usize>,
-    /// Tolerance in (0, 1) (default 1e-4).
-    pub tol: Option<f64>,
-    /// Relative singular-value cut-off of `lsq` (default: numerical rank).
-    pub rcond: Option<f64>,
-}
-
-/// Iteration cap of an automatic-λ solve unless the request sets one: small
-/// λs (low noise) converge slowly.
-pub const AUTO_MAX_ITER: usize = 5000;
 
 /// Largest least-squares RMS error (fraction of the radiance range) before a
 /// reconstruction warns that its grid is finer than the data support (as
 /// `polnlos plan`).
 pub const PLAN_TOLERANCE: f64 = RESOLVED_TOLERANCE;
-
-impl SolveRequest {
-    /// Checks every parameter before anything is computed (a request from a
-    /// client is refused with this message before it is queued).
-    pub fn check(&self) -> Result<(), SolveError> {
-        let bad = |name, value: f64, reason| {
-            Err(SolveError::Parameter {
-                name,
-                value,
-                reason,
-            })
-        };
-        if let Some(l) = self.lambda {
-            if !(l >= 0.0 && l.is_finite()) {
-                return bad("lambda", l, "must be a finite number >= 0");
-            }
-        }
-        if let Some(r) = self.rho {
-            if !(r > 0.0 && r.is_finite()) {
-                return bad("rho", r, "must be a finite number > 0");
-            }
-        }
-        if let Some(m) = self.max_iter {
-            if !(1..=100_000).contains(&m) {
-                return bad("max_iter", m as f64, "must be from 1 to 100000");
-            }
-        }
-        if let Some(t) = self.tol {
-            if !(t > 0.0 && t < 1.0) {
-                return bad("tol", t, "must be in (0, 1)");
-            }
-        }
-        if let Some(r) = self.rcond {
-            if !(0.0..1.0).contains(&r) {
-                return bad("rcond", r, "must be in [0, 1)");
-            }
-        }
-        Ok(())
-    }
-
-    fn admm<'a>(&self, auto: bool, stop: Stop<'a>) -> AdmmSettings<'a> {
-        let d = AdmmSettings::default();
-        AdmmSettings {
-            lambda: self.lambda,
-            rho: self.rho,
-            max_iter: self
-                .max_iter
-                .unwrap_or(if auto { AUTO_MAX_ITER } else { d.max_iter }),
-            tol: self.tol.unwrap_or(d.tol),
-            stop,
-        }
-    }
-}
 
 /// Where the result and its report name the scene, what to compare with,
 /// and the flag that ends the solve early (a cancelled job).
@@ -178,7 +60,7 @@ pub fn reconstruct(
     ctx: Context<'_>,
 ) -> Result<Solved, SolveError> {
     req.check()?;
-    let normal = if req.solver == Solver::AdmmTv {
+    let normal = if req.solver.needs().gram {
         super::check_measurement(t, i)?;
         Some(Normal::of(t, i))
     } else {
@@ -202,8 +84,7 @@ pub fn reconstruct_prepared(
 ) -> Result<Solved, SolveError> {
     req.check()?;
     super::check_measurement(t, i)?;
-    let tv = matches!(req.solver, Solver::AdmmTv | Solver::FistaTv);
-    let auto = tv && req.lambda.is_none();
+    let auto = req.solver.needs().lambda_from_noise && req.lambda.is_none();
     let noise = match noise {
         Some(n) => Some(n),
         None if auto => NoiseLevel::from_residual_with(t, i, normal),
@@ -234,32 +115,17 @@ pub fn reconstruct_prepared(
             )),
         }
     }
-    let rec = match req.solver {
-        Solver::AdmmTv => match admm_result {
-            Some(r) => r,
-            None => match normal {
-                Some(nm) => admm_tv_prepared(t, i, nm, &req.admm(false, ctx.stop))?,
-                None => admm_tv(t, i, &req.admm(false, ctx.stop))?,
-            },
-        },
-        Solver::FistaTv => {
-            let d = FistaSettings::default();
-            fista_tv(
-                t,
-                i,
-                &FistaSettings {
-                    lambda,
-                    max_iter: req
-                        .max_iter
-                        .unwrap_or(if auto { AUTO_MAX_ITER } else { d.max_iter }),
-                    tol: req.tol.unwrap_or(d.tol),
-                    stop: ctx.stop,
-                    ..d
-                },
-            )?
-        }
-        Solver::Tikhonov => tikhonov(t, i, req.lambda)?,
-        Solver::Lsq => least_squares(t, i, req.rcond)?,
+    let rec = match admm_result {
+        Some(r) if req.solver == Solver::AdmmTv => r,
+        _ => req.solver.run(&Problem {
+            t,
+            i,
+            normal,
+            lambda,
+            req,
+            auto,
+            stop: ctx.stop,
+        })?,
     };
     if let Some(n) = &noise {
         warnings.extend(snr_warnings(mean_snr(i, &n.variance)));
