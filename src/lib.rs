@@ -45,9 +45,20 @@
 //! - **A bench report**: its file in `src/bench/` implementing
 //!   `bench::Report`, and one entry in `BenchPlan::run` (`src/bench/plan.rs`,
 //!   the one file that names every report).
-//! - **A camera setting a capture records**: a field of `camera::Acquisition`
-//!   (the request, the catalogue row, the page description and the reply
-//!   share it) and its column in the catalogue (`src/store/`).
+//! - **A camera setting a capture records** (today 10 files, counted from
+//!   `trigger`; issue 30 is to bring it to 3): `camera::Acquisition`,
+//!   `CameraSettings` and `SettingsChange` (`src/camera/settings.rs`), the
+//!   device mapping (`src/camera/aravis.rs`), the request
+//!   (`src/daemon/requests.rs`) and its resolution
+//!   (`src/daemon/validate/capture.rs`, `validate/mod.rs`), the row
+//!   (`src/store/records.rs`, `schema.rs`, `captures.rs`), the frame files'
+//!   page description (`src/store/files.rs`), and the page.
+//! - **A catalogue column** (3 files): its declaration in
+//!   `src/store/schema.rs` (`SCHEMA`, and `ADDED_CAPTURE_COLUMNS` for
+//!   catalogues that predate it), the row type in `src/store/records.rs`,
+//!   and the statements of its aggregate (`src/store/captures.rs` or
+//!   `reconstructions.rs`). Statements on either job table are written out
+//!   per table in `store::Table`; none splices a table name.
 //! - **State the daemon keeps**: a service in its own file under
 //!   `src/daemon/` that owns the state and its lock (as `queue.rs`,
 //!   `registry.rs` and `camera.rs` do); `Daemon` holds it, and a worker gets

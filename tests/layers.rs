@@ -250,3 +250,14 @@ fn no_two_files_import_each_other_even_through_others() {
     );
     assert!(circles.is_empty(), "files in an import circle: {circles:?}");
 }
+
+#[test]
+fn the_catalogue_splices_no_table_name_into_sql() {
+    // Statements on either job table are written out per table
+    // (store::Table); a `{...}` after a table keyword is a spliced name.
+    for (path, text) in sources("store") {
+        for keyword in ["FROM {", "UPDATE {", "INTO {", "TABLE {", "table_info({"] {
+            assert!(!text.contains(keyword), "{path} splices a table name: {keyword}");
+        }
+    }
+}

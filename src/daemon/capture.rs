@@ -93,7 +93,7 @@ impl CaptureWorker {
             finish_job(&w.jobs, job, start, result, counters, |end| match end {
                 Ending::Failed(e) => store.capture_failed(id, e),
                 Ending::Cancelled => store.capture_cancelled(id).map(|_| ()),
-                Ending::Interrupted => store.interrupted("captures", id),
+                Ending::Interrupted => store.interrupted(crate::store::Table::Captures, id),
             });
         }
     }

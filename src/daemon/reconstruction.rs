@@ -69,7 +69,9 @@ pub(super) async fn reconstruction_worker(d: JobContext, rx: Arc<Mutex<mpsc::Rec
         finish_job(&d, job, start, r, counters, |end| match end {
             Ending::Failed(e) => d.store.reconstruction_failed(id, e),
             Ending::Cancelled => d.store.reconstruction_cancelled(id).map(|_| ()),
-            Ending::Interrupted => d.store.interrupted("reconstructions", id),
+            Ending::Interrupted => d
+                .store
+                .interrupted(crate::store::Table::Reconstructions, id),
         });
     }
 }

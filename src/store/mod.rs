@@ -5,15 +5,18 @@
 //! every earlier row and file as it was. On open, jobs that were queued or
 //! running when the daemon stopped are marked `interrupted`.
 
+mod captures;
 mod files;
 mod lock;
+mod reconstructions;
 mod records;
 mod retention;
+mod schema;
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use rusqlite::{params, Connection, OptionalExtension};
+use rusqlite::{params, Connection};
 
 pub use files::{
     capture_bytes, read_mean, read_mean_variance, remove_raw, write_frames, write_summary,
@@ -25,6 +28,7 @@ pub use records::{
     ReconstructionRequest,
 };
 pub use retention::{dir_bytes, Retention};
+pub use schema::Table;
 
 /// What can go wrong with the store, naming the path or the row.
 #[derive(Debug, thiserror::Error)]
@@ -137,89 +141,6 @@ pub struct Store {
     _lock: DirLock,
 }
 
-const SCHEMA: &str = "
-CREATE TABLE IF NOT EXISTS captures (
-    id INTEGER PRIMARY KEY,
-    scene TEXT NOT NULL,
-    pose TEXT NOT NULL,
-    polarizer_deg REAL,
-    exposure_us REAL NOT NULL,
-    gain REAL NOT NULL,
-    frames INTEGER NOT NULL,
-    dark_frames INTEGER NOT NULL,
-    pixel_format TEXT NOT NULL,
-    state TEXT NOT NULL,
-    error TEXT,
-    created_at TEXT NOT NULL,
-    started_at TEXT,
-    finished_at TEXT,
-    camera_id TEXT,
-    counters TEXT,
-    frames_taken INTEGER NOT NULL DEFAULT 0
-);
-CREATE TABLE IF NOT EXISTS reconstructions (
-    id INTEGER PRIMARY KEY,
-    scene TEXT NOT NULL,
-    captures TEXT NOT NULL,
-    solver TEXT NOT NULL,
-    params TEXT NOT NULL,
-    state TEXT NOT NULL,
-    error TEXT,
-    created_at TEXT NOT NULL,
-    started_at TEXT,
-    finished_at TEXT,
-    kappa TEXT,
-    report TEXT
-);
-CREATE TABLE IF NOT EXISTS issued_ids (
-    kind TEXT PRIMARY KEY,
-    last INTEGER NOT NULL
-);
-";
-
-/// Ids are never issued twice in one data directory's life (a deleted or
-/// retired capture's id would otherwise come back: `INTEGER PRIMARY KEY`
-/// reuses the largest id once its row is gone, and lab notes and downloaded
-/// files named by id would become ambiguous). The highest id issued per table
-/// is kept in `issued_ids`, raised by a trigger on every insert, and a new
-/// row takes the next one. A catalogue from before starts from its largest id.
-const ID_SEQUENCES: &str = "
-INSERT OR IGNORE INTO issued_ids (kind, last) SELECT 'captures', COALESCE(MAX(id), 0) FROM captures;
-INSERT OR IGNORE INTO issued_ids (kind, last) SELECT 'reconstructions', COALESCE(MAX(id), 0) FROM reconstructions;
-CREATE TRIGGER IF NOT EXISTS captures_issue_id AFTER INSERT ON captures BEGIN
-    UPDATE issued_ids SET last = MAX(last, NEW.id) WHERE kind = 'captures';
-END;
-CREATE TRIGGER IF NOT EXISTS reconstructions_issue_id AFTER INSERT ON reconstructions BEGIN
-    UPDATE issued_ids SET last = MAX(last, NEW.id) WHERE kind = 'reconstructions';
-END;
-";
-
-/// Columns added after the first release: (table, column, declaration).
-const ADDED_COLUMNS: [(&str, &str, &str); 6] = [
-    ("captures", "kind", "TEXT NOT NULL DEFAULT 'light'"),
-    ("captures", "region", "TEXT"),
-    ("captures", "binning", "TEXT"),
-    ("captures", "trigger", "TEXT"),
-    ("captures", "dark_capture", "INTEGER"),
-    ("captures", "frame_counts", "TEXT"),
-];
-
-/// Adds the columns a catalogue from an older polnlos lacks (rows kept).
-fn migrate(conn: &Connection) -> rusqlite::Result<()> {
-    for (table, column, decl) in ADDED_COLUMNS {
-        let mut st = conn.prepare(&format!("PRAGMA table_info({table})"))?;
-        let has = st
-            .query_map([], |r| r.get::<_, String>(1))?
-            .collect::<rusqlite::Result<Vec<_>>>()?
-            .iter()
-            .any(|c| c == column);
-        if !has {
-            conn.execute_batch(&format!("ALTER TABLE {table} ADD COLUMN {column} {decl}"))?;
-        }
-    }
-    conn.execute_batch(ID_SEQUENCES)
-}
-
 /// A file of zeros kept in the data directory and given up when the disk is
 /// full, so that the catalogue can still record that jobs failed.
 const BALLAST_FILE: &str = "catalogue.reserve";
@@ -292,7 +213,7 @@ impl Store {
             source,
         })?;
         let lock = DirLock::acquire(dir)?;
-        for sub in ["captures", "reconstructions"] {
+        for sub in Table::ALL.map(Table::name) {
             std::fs::create_dir_all(dir.join(sub)).map_err(|source| StoreError::DataDir {
                 path: dir.join(sub),
                 source,
@@ -320,22 +241,16 @@ impl Store {
             .map_err(db)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))
             .map_err(db)?;
-        conn.execute_batch(SCHEMA).map_err(db)?;
-        migrate(&conn).map_err(db)?;
-        for table in ["captures", "reconstructions"] {
-            conn.execute(
-                &format!("UPDATE {table} SET state = 'interrupted', error = ?1, finished_at = ?2 WHERE state IN ('queued', 'running')"),
-                params![INTERRUPTED, now()],
-            )
-            .map_err(db)?;
+        schema::migrate(&conn).map_err(db)?;
+        for table in Table::ALL {
+            conn.execute(table.interrupt_all(), params![INTERRUPTED, now()])
+                .map_err(db)?;
         }
         // A deletion a stopped daemon left half done: a folder renamed to
         // `<id>.deleting` is removed when its row is gone, renamed back when
         // the row's deletion never committed.
-        for (table, sub) in [
-            ("captures", "captures"),
-            ("reconstructions", "reconstructions"),
-        ] {
+        for table in Table::ALL {
+            let sub = table.name();
             let Ok(entries) = std::fs::read_dir(dir.join(sub)) else {
                 continue;
             };
@@ -348,11 +263,9 @@ impl Store {
                     continue;
                 };
                 let kept: bool = conn
-                    .query_row(
-                        &format!("SELECT COUNT(*) FROM {table} WHERE id = ?1"),
-                        [id],
-                        |r| r.get::<_, i64>(0).map(|n| n > 0),
-                    )
+                    .query_row(table.count_id(), [id], |r| {
+                        r.get::<_, i64>(0).map(|n| n > 0)
+                    })
                     .map_err(db)?;
                 if kept {
                     let _ = std::fs::rename(e.path(), dir.join(sub).join(id.to_string()));
@@ -444,354 +357,22 @@ impl Store {
         })
     }
 
-    /// Records a new capture job (state `queued`); returns its id.
-    pub fn insert_capture(&self, r: &CaptureRequest) -> Result<i64, StoreError> {
-        let a = &r.acquisition;
+    /// Marks a queued (`only_queued`) or a queued or running job of
+    /// `table` cancelled; false when it had already ended (done, failed,
+    /// interrupted or cancelled), or was running and `only_queued`.
+    fn cancel(&self, table: Table, id: i64, only_queued: bool) -> Result<bool, StoreError> {
         self.with(|c| {
-            c.execute(
-                "INSERT INTO captures (id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at, kind, region, binning, trigger, dark_capture)
-                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, 'queued', ?9, ?10, ?11, ?12, ?13, ?14)",
-                params![r.scene, r.pose, r.polarizer_deg, a.exposure_us, a.gain, r.frames as i64, r.dark_frames as i64, a.pixel_format.name(), now(),
-                    r.kind.name(), serde_json::to_string(&a.region).unwrap_or_default(), serde_json::to_string(&a.binning).unwrap_or_default(), a.trigger.name(), r.dark_capture],
-            )?;
-            Ok(c.last_insert_rowid())
+            c.execute(table.cancel(only_queued), params![id, now()])
+                .map(|n| n == 1)
         })
     }
 
-    /// Marks a capture running.
-    /// Returns false (and changes nothing) when it is no longer queued: a
-    /// client cancelled it meanwhile.
-    pub fn capture_running(&self, id: i64) -> Result<bool, StoreError> {
+    /// Records that a running job of `table` stopped because the daemon is stopping.
+    pub fn interrupted(&self, table: Table, id: i64) -> Result<(), StoreError> {
         self.with(|c| {
-            c.execute(
-                "UPDATE captures SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
-                params![id, now()],
-            )
-            .map(|n| n == 1)
+            c.execute(table.interrupt_one(), params![id, INTERRUPTED, now()])
+                .map(|_| ())
         })
-    }
-
-    /// Marks a queued or running job cancelled; false when it had already
-    /// ended (done, failed, interrupted or cancelled). `table` is
-    /// `captures` or `reconstructions`.
-    fn cancel(&self, table: &str, id: i64, only_queued: bool) -> Result<bool, StoreError> {
-        let states = if only_queued {
-            "('queued')"
-        } else {
-            "('queued', 'running')"
-        };
-        self.with(|c| {
-            c.execute(
-                &format!("UPDATE {table} SET state = 'cancelled', finished_at = ?2 WHERE id = ?1 AND state IN {states}"),
-                params![id, now()],
-            )
-            .map(|n| n == 1)
-        })
-    }
-
-    /// Cancels a capture that is still queued; false when it is not queued.
-    pub fn cancel_queued_capture(&self, id: i64) -> Result<bool, StoreError> {
-        self.cancel("captures", id, true)
-    }
-
-    /// Records that a running capture stopped because it was cancelled.
-    pub fn capture_cancelled(&self, id: i64) -> Result<bool, StoreError> {
-        self.cancel("captures", id, false)
-    }
-
-    /// Cancels a reconstruction that is still queued; false when it is not queued.
-    pub fn cancel_queued_reconstruction(&self, id: i64) -> Result<bool, StoreError> {
-        self.cancel("reconstructions", id, true)
-    }
-
-    /// Records that a running job of `table` (`captures` or
-    /// `reconstructions`) stopped because the daemon is stopping.
-    pub fn interrupted(&self, table: &'static str, id: i64) -> Result<(), StoreError> {
-        self.with(|c| {
-            c.execute(
-                &format!("UPDATE {table} SET state = 'interrupted', error = ?2, finished_at = ?3 WHERE id = ?1 AND state = 'running'"),
-                params![id, INTERRUPTED, now()],
-            )
-            .map(|_| ())
-        })
-    }
-
-    /// Records that a running reconstruction stopped because it was cancelled.
-    pub fn reconstruction_cancelled(&self, id: i64) -> Result<bool, StoreError> {
-        self.cancel("reconstructions", id, false)
-    }
-
-    /// Records progress (frames taken so far).
-    pub fn capture_progress(&self, id: i64, frames_taken: usize) -> Result<(), StoreError> {
-        self.with(|c| {
-            c.execute(
-                "UPDATE captures SET frames_taken = ?2 WHERE id = ?1",
-                params![id, frames_taken as i64],
-            )
-            .map(|_| ())
-        })
-    }
-
-    /// Marks a capture done; call only after its files are durable.
-    pub fn capture_done(
-        &self,
-        id: i64,
-        camera_id: &str,
-        counters: &str,
-        frames: crate::camera::FrameCounts,
-    ) -> Result<(), StoreError> {
-        let frames = serde_json::to_string(&frames).unwrap_or_default();
-        self.with(|c| {
-            c.execute(
-                "UPDATE captures SET state = 'done', finished_at = ?2, camera_id = ?3, counters = ?4, frame_counts = ?5, error = NULL WHERE id = ?1",
-                params![id, now(), camera_id, counters, frames],
-            )
-            .map(|_| ())
-        })
-    }
-
-    /// Marks a capture failed with a reason.
-    pub fn capture_failed(&self, id: i64, error: &str) -> Result<(), StoreError> {
-        self.with(|c| {
-            c.execute(
-                "UPDATE captures SET state = 'failed', finished_at = ?2, error = ?3 WHERE id = ?1",
-                params![id, now(), error],
-            )
-            .map(|_| ())
-        })
-    }
-
-    /// One capture.
-    pub fn capture(&self, id: i64) -> Result<CaptureRecord, StoreError> {
-        self.with(|c| {
-            c.query_row(
-                &format!("{} WHERE id = ?1", records::CAPTURE_SELECT),
-                [id],
-                records::capture_row,
-            )
-            .optional()
-        })?
-        .ok_or(StoreError::NotFound {
-            kind: "capture",
-            id,
-        })
-    }
-
-    /// The capture running now, if any.
-    pub fn running_capture(&self) -> Result<Option<i64>, StoreError> {
-        self.with(|c| {
-            c.query_row(
-                "SELECT id FROM captures WHERE state = 'running' ORDER BY id DESC LIMIT 1",
-                [],
-                |r| r.get(0),
-            )
-            .optional()
-        })
-    }
-
-    /// Deletes capture `id`: its row (and, with `with_reconstructions`, the
-    /// rows of the reconstructions that use it) in one transaction, then
-    /// their folders. Refused while it (or one of those reconstructions) is
-    /// queued or running, and while a kept reconstruction uses it. Returns
-    /// the reconstructions deleted with it.
-    ///
-    /// Why in three steps (folders renamed to `<id>.deleting`, rows deleted,
-    /// folders removed): a daemon stopped between any two leaves a state the
-    /// next start completes or undoes by the row ([`Store::open`]); no row is
-    /// ever left without its files.
-    pub fn delete_capture(
-        &self,
-        id: i64,
-        with_reconstructions: bool,
-    ) -> Result<Vec<i64>, StoreError> {
-        let users = self.deletable_capture(id, with_reconstructions)?;
-        let mut folders: Vec<PathBuf> = users.iter().map(|r| self.reconstruction_dir(*r)).collect();
-        folders.push(self.capture_dir(id));
-        let parked = park(&folders);
-        let deleted = self.with(|c| {
-            let tx = c.unchecked_transaction()?;
-            for r in &users {
-                tx.execute("DELETE FROM reconstructions WHERE id = ?1", [r])?;
-            }
-            tx.execute("DELETE FROM captures WHERE id = ?1", [id])?;
-            tx.commit()
-        });
-        finish(&parked, deleted.is_ok());
-        deleted?;
-        Ok(users)
-    }
-
-    /// The reconstructions that go with capture `id`, or why it may not be deleted.
-    fn deletable_capture(
-        &self,
-        id: i64,
-        with_reconstructions: bool,
-    ) -> Result<Vec<i64>, StoreError> {
-        let in_use = |reason: String| StoreError::InUse {
-            kind: "capture",
-            id,
-            reason,
-        };
-        self.with(|c| {
-            let state: Option<String> = c
-                .query_row("SELECT state FROM captures WHERE id = ?1", [id], |r| r.get(0))
-                .optional()?;
-            let Some(state) = state else {
-                return Ok(Err(StoreError::NotFound { kind: "capture", id }));
-            };
-            if state == "queued" || state == "running" {
-                return Ok(Err(in_use(format!("it is {state}; cancel it first (DELETE /jobs/capture-{id})"))));
-            }
-            // A queued capture subtracts this dark capture when it runs.
-            let waiting: Option<(i64, String)> = c
-                .query_row(
-                    "SELECT id, state FROM captures WHERE dark_capture = ?1 AND state IN ('queued', 'running') ORDER BY id LIMIT 1",
-                    [id],
-                    |r| Ok((r.get(0)?, r.get(1)?)),
-                )
-                .optional()?;
-            if let Some((user, st)) = waiting {
-                return Ok(Err(in_use(format!("capture {user}, {st}, subtracts it as its dark_capture"))));
-            }
-            let mut users: Vec<(i64, String)> = c
-                .prepare("SELECT r.id, r.state FROM reconstructions r, json_each(r.captures) j WHERE j.value = ?1 ORDER BY r.id")?
-                .query_map([id], |r| Ok((r.get(0)?, r.get(1)?)))?
-                .collect::<rusqlite::Result<_>>()?;
-            users.dedup();
-            if let Some((r, st)) = users.iter().find(|(_, st)| st == "queued" || st == "running") {
-                return Ok(Err(in_use(format!("reconstruction {r} that uses it is {st}"))));
-            }
-            if !users.is_empty() && !with_reconstructions {
-                let ids: Vec<String> = users.iter().map(|(r, _)| r.to_string()).collect();
-                return Ok(Err(in_use(format!(
-                    "reconstruction{} {} use{} it; delete {} first, or ask for ?with_reconstructions=true",
-                    if ids.len() == 1 { "" } else { "s" },
-                    ids.join(", "),
-                    if ids.len() == 1 { "s" } else { "" },
-                    if ids.len() == 1 { "it" } else { "them" },
-                ))));
-            }
-            Ok(Ok(users.into_iter().map(|(r, _)| r).collect::<Vec<i64>>()))
-        })?
-    }
-
-    /// Deletes reconstruction `id`, its row then its folder; refused while
-    /// it is queued or running.
-    pub fn delete_reconstruction(&self, id: i64) -> Result<(), StoreError> {
-        let state = self.reconstruction(id)?.state;
-        if matches!(state, JobState::Queued | JobState::Running) {
-            return Err(StoreError::InUse {
-                kind: "reconstruction",
-                id,
-                reason: format!(
-                    "it is {}; cancel it first (DELETE /jobs/reconstruction-{id})",
-                    state.name()
-                ),
-            });
-        }
-        let parked = park(&[self.reconstruction_dir(id)]);
-        let deleted = self.with(|c| {
-            c.execute(
-                "DELETE FROM reconstructions WHERE id = ?1 AND state NOT IN ('queued', 'running')",
-                [id],
-            )
-        });
-        finish(&parked, matches!(deleted, Ok(1)));
-        deleted?;
-        Ok(())
-    }
-
-    /// Captures, newest first.
-    pub fn captures(
-        &self,
-        limit: usize,
-        offset: usize,
-    ) -> Result<Listing<CaptureRecord>, StoreError> {
-        self.page(
-            records::CAPTURE_SELECT,
-            records::capture_row,
-            "capture",
-            limit,
-            offset,
-        )
-    }
-
-    /// Records a new reconstruction job (state `queued`).
-    pub fn insert_reconstruction(&self, r: &ReconstructionRequest) -> Result<i64, StoreError> {
-        let captures = serde_json::to_string(&r.captures).unwrap_or_else(|_| "[]".into());
-        let params_json = serde_json::to_string(&r.params).unwrap_or_else(|_| "{}".into());
-        self.with(|c| {
-            c.execute(
-                "INSERT INTO reconstructions (id, scene, captures, solver, params, state, created_at) VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'reconstructions'), ?1, ?2, ?3, ?4, 'queued', ?5)",
-                params![r.scene, captures, r.solver, params_json, now()],
-            )?;
-            Ok(c.last_insert_rowid())
-        })
-    }
-
-    /// Marks a reconstruction running.
-    /// Returns false (and changes nothing) when it is no longer queued: a
-    /// client cancelled it meanwhile.
-    pub fn reconstruction_running(&self, id: i64) -> Result<bool, StoreError> {
-        self.with(|c| {
-            c.execute(
-                "UPDATE reconstructions SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
-                params![id, now()],
-            )
-            .map(|n| n == 1)
-        })
-    }
-
-    /// Marks a reconstruction done with its kappa and report; call after its files are durable.
-    pub fn reconstruction_done(&self, id: i64, kappa: f64, report: &str) -> Result<(), StoreError> {
-        let kappa = if kappa.is_finite() {
-            kappa.to_string()
-        } else {
-            "inf".into()
-        };
-        self.with(|c| {
-            c.execute(
-                "UPDATE reconstructions SET state = 'done', finished_at = ?2, kappa = ?3, report = ?4, error = NULL WHERE id = ?1",
-                params![id, now(), kappa, report],
-            )
-            .map(|_| ())
-        })
-    }
-
-    /// Marks a reconstruction failed.
-    pub fn reconstruction_failed(&self, id: i64, error: &str) -> Result<(), StoreError> {
-        self.with(|c| c.execute("UPDATE reconstructions SET state = 'failed', finished_at = ?2, error = ?3 WHERE id = ?1", params![id, now(), error]).map(|_| ()))
-    }
-
-    /// One reconstruction.
-    pub fn reconstruction(&self, id: i64) -> Result<ReconstructionRecord, StoreError> {
-        self.with(|c| {
-            c.query_row(
-                &format!("{} WHERE id = ?1", records::RECON_SELECT),
-                [id],
-                records::recon_row,
-            )
-            .optional()
-        })?
-        .ok_or(StoreError::NotFound {
-            kind: "reconstruction",
-            id,
-        })
-    }
-
-    /// Reconstructions, newest first.
-    pub fn reconstructions(
-        &self,
-        limit: usize,
-        offset: usize,
-    ) -> Result<Listing<ReconstructionRecord>, StoreError> {
-        self.page(
-            records::RECON_SELECT,
-            records::recon_row,
-            "reconstruction",
-            limit,
-            offset,
-        )
     }
 
     /// One page of `select`'s rows, newest first, decoded row by row: a row

@@ -1,0 +1,218 @@
+//! The captures aggregate: a capture job's row from queued to done, failed,
+//! cancelled or deleted (with the reconstructions that use it), and its list.
+
+use std::path::PathBuf;
+
+use rusqlite::{params, OptionalExtension};
+
+use super::records::{self, CaptureRecord, CaptureRequest};
+use super::schema::Table;
+use super::{finish, now, park, Listing, Store, StoreError};
+
+impl Store {
+    /// Records a new capture job (state `queued`); returns its id.
+    pub fn insert_capture(&self, r: &CaptureRequest) -> Result<i64, StoreError> {
+        let a = &r.acquisition;
+        self.with(|c| {
+            c.execute(
+                "INSERT INTO captures (id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at, kind, region, binning, trigger, dark_capture)
+                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, 'queued', ?9, ?10, ?11, ?12, ?13, ?14)",
+                params![r.scene, r.pose, r.polarizer_deg, a.exposure_us, a.gain, r.frames as i64, r.dark_frames as i64, a.pixel_format.name(), now(),
+                    r.kind.name(), serde_json::to_string(&a.region).unwrap_or_default(), serde_json::to_string(&a.binning).unwrap_or_default(), a.trigger.name(), r.dark_capture],
+            )?;
+            Ok(c.last_insert_rowid())
+        })
+    }
+
+    /// Marks a capture running.
+    /// Returns false (and changes nothing) when it is no longer queued: a
+    /// client cancelled it meanwhile.
+    pub fn capture_running(&self, id: i64) -> Result<bool, StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET state = 'running', started_at = ?2 WHERE id = ?1 AND state = 'queued'",
+                params![id, now()],
+            )
+            .map(|n| n == 1)
+        })
+    }
+
+    /// Cancels a capture that is still queued; false when it is not queued.
+    pub fn cancel_queued_capture(&self, id: i64) -> Result<bool, StoreError> {
+        self.cancel(Table::Captures, id, true)
+    }
+
+    /// Records that a running capture stopped because it was cancelled.
+    pub fn capture_cancelled(&self, id: i64) -> Result<bool, StoreError> {
+        self.cancel(Table::Captures, id, false)
+    }
+
+    /// Records progress (frames taken so far).
+    pub fn capture_progress(&self, id: i64, frames_taken: usize) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET frames_taken = ?2 WHERE id = ?1",
+                params![id, frames_taken as i64],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// Marks a capture done; call only after its files are durable.
+    pub fn capture_done(
+        &self,
+        id: i64,
+        camera_id: &str,
+        counters: &str,
+        frames: crate::camera::FrameCounts,
+    ) -> Result<(), StoreError> {
+        let frames = serde_json::to_string(&frames).unwrap_or_default();
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET state = 'done', finished_at = ?2, camera_id = ?3, counters = ?4, frame_counts = ?5, error = NULL WHERE id = ?1",
+                params![id, now(), camera_id, counters, frames],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// Marks a capture failed with a reason.
+    pub fn capture_failed(&self, id: i64, error: &str) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET state = 'failed', finished_at = ?2, error = ?3 WHERE id = ?1",
+                params![id, now(), error],
+            )
+            .map(|_| ())
+        })
+    }
+
+    /// One capture.
+    pub fn capture(&self, id: i64) -> Result<CaptureRecord, StoreError> {
+        self.with(|c| {
+            c.query_row(
+                &format!("{} WHERE id = ?1", records::CAPTURE_SELECT),
+                [id],
+                records::capture_row,
+            )
+            .optional()
+        })?
+        .ok_or(StoreError::NotFound {
+            kind: "capture",
+            id,
+        })
+    }
+
+    /// The capture running now, if any.
+    pub fn running_capture(&self) -> Result<Option<i64>, StoreError> {
+        self.with(|c| {
+            c.query_row(
+                "SELECT id FROM captures WHERE state = 'running' ORDER BY id DESC LIMIT 1",
+                [],
+                |r| r.get(0),
+            )
+            .optional()
+        })
+    }
+
+    /// Deletes capture `id`: its row (and, with `with_reconstructions`, the
+    /// rows of the reconstructions that use it) in one transaction, then
+    /// their folders. Refused while it (or one of those reconstructions) is
+    /// queued or running, and while a kept reconstruction uses it. Returns
+    /// the reconstructions deleted with it.
+    ///
+    /// Why in three steps (folders renamed to `<id>.deleting`, rows deleted,
+    /// folders removed): a daemon stopped between any two leaves a state the
+    /// next start completes or undoes by the row ([`Store::open`]); no row is
+    /// ever left without its files.
+    pub fn delete_capture(
+        &self,
+        id: i64,
+        with_reconstructions: bool,
+    ) -> Result<Vec<i64>, StoreError> {
+        let users = self.deletable_capture(id, with_reconstructions)?;
+        let mut folders: Vec<PathBuf> = users.iter().map(|r| self.reconstruction_dir(*r)).collect();
+        folders.push(self.capture_dir(id));
+        let parked = park(&folders);
+        let deleted = self.with(|c| {
+            let tx = c.unchecked_transaction()?;
+            for r in &users {
+                tx.execute("DELETE FROM reconstructions WHERE id = ?1", [r])?;
+            }
+            tx.execute("DELETE FROM captures WHERE id = ?1", [id])?;
+            tx.commit()
+        });
+        finish(&parked, deleted.is_ok());
+        deleted?;
+        Ok(users)
+    }
+
+    /// The reconstructions that go with capture `id`, or why it may not be deleted.
+    pub(super) fn deletable_capture(
+        &self,
+        id: i64,
+        with_reconstructions: bool,
+    ) -> Result<Vec<i64>, StoreError> {
+        let in_use = |reason: String| StoreError::InUse {
+            kind: "capture",
+            id,
+            reason,
+        };
+        self.with(|c| {
+            let state: Option<String> = c
+                .query_row("SELECT state FROM captures WHERE id = ?1", [id], |r| r.get(0))
+                .optional()?;
+            let Some(state) = state else {
+                return Ok(Err(StoreError::NotFound { kind: "capture", id }));
+            };
+            if state == "queued" || state == "running" {
+                return Ok(Err(in_use(format!("it is {state}; cancel it first (DELETE /jobs/capture-{id})"))));
+            }
+            // A queued capture subtracts this dark capture when it runs.
+            let waiting: Option<(i64, String)> = c
+                .query_row(
+                    "SELECT id, state FROM captures WHERE dark_capture = ?1 AND state IN ('queued', 'running') ORDER BY id LIMIT 1",
+                    [id],
+                    |r| Ok((r.get(0)?, r.get(1)?)),
+                )
+                .optional()?;
+            if let Some((user, st)) = waiting {
+                return Ok(Err(in_use(format!("capture {user}, {st}, subtracts it as its dark_capture"))));
+            }
+            let mut users: Vec<(i64, String)> = c
+                .prepare("SELECT r.id, r.state FROM reconstructions r, json_each(r.captures) j WHERE j.value = ?1 ORDER BY r.id")?
+                .query_map([id], |r| Ok((r.get(0)?, r.get(1)?)))?
+                .collect::<rusqlite::Result<_>>()?;
+            users.dedup();
+            if let Some((r, st)) = users.iter().find(|(_, st)| st == "queued" || st == "running") {
+                return Ok(Err(in_use(format!("reconstruction {r} that uses it is {st}"))));
+            }
+            if !users.is_empty() && !with_reconstructions {
+                let ids: Vec<String> = users.iter().map(|(r, _)| r.to_string()).collect();
+                return Ok(Err(in_use(format!(
+                    "reconstruction{} {} use{} it; delete {} first, or ask for ?with_reconstructions=true",
+                    if ids.len() == 1 { "" } else { "s" },
+                    ids.join(", "),
+                    if ids.len() == 1 { "s" } else { "" },
+                    if ids.len() == 1 { "it" } else { "them" },
+                ))));
+            }
+            Ok(Ok(users.into_iter().map(|(r, _)| r).collect::<Vec<i64>>()))
+        })?
+    }
+
+    /// Captures, newest first.
+    pub fn captures(
+        &self,
+        limit: usize,
+        offset: usize,
+    ) -> Result<Listing<CaptureRecord>, StoreError> {
+        self.page(
+            records::CAPTURE_SELECT,
+            records::capture_row,
+            "capture",
+            limit,
+            offset,
+        )
+    }
+}

@@ -1,0 +1,156 @@
+//! The catalogue's schema: its tables, the columns later releases added
+//! (and the migration that adds them to an older catalogue), the id
+//! sequences, and the statements that work on either job table.
+
+use rusqlite::Connection;
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS captures (
+    id INTEGER PRIMARY KEY,
+    scene TEXT NOT NULL,
+    pose TEXT NOT NULL,
+    polarizer_deg REAL,
+    exposure_us REAL NOT NULL,
+    gain REAL NOT NULL,
+    frames INTEGER NOT NULL,
+    dark_frames INTEGER NOT NULL,
+    pixel_format TEXT NOT NULL,
+    state TEXT NOT NULL,
+    error TEXT,
+    created_at TEXT NOT NULL,
+    started_at TEXT,
+    finished_at TEXT,
+    camera_id TEXT,
+    counters TEXT,
+    frames_taken INTEGER NOT NULL DEFAULT 0
+);
+CREATE TABLE IF NOT EXISTS reconstructions (
+    id INTEGER PRIMARY KEY,
+    scene TEXT NOT NULL,
+    captures TEXT NOT NULL,
+    solver TEXT NOT NULL,
+    params TEXT NOT NULL,
+    state TEXT NOT NULL,
+    error TEXT,
+    created_at TEXT NOT NULL,
+    started_at TEXT,
+    finished_at TEXT,
+    kappa TEXT,
+    report TEXT
+);
+CREATE TABLE IF NOT EXISTS issued_ids (
+    kind TEXT PRIMARY KEY,
+    last INTEGER NOT NULL
+);
+";
+
+/// Ids are never issued twice in one data directory's life (a deleted or
+/// retired capture's id would otherwise come back: `INTEGER PRIMARY KEY`
+/// reuses the largest id once its row is gone, and lab notes and downloaded
+/// files named by id would become ambiguous). The highest id issued per table
+/// is kept in `issued_ids`, raised by a trigger on every insert, and a new
+/// row takes the next one. A catalogue from before starts from its largest id.
+const ID_SEQUENCES: &str = "
+INSERT OR IGNORE INTO issued_ids (kind, last) SELECT 'captures', COALESCE(MAX(id), 0) FROM captures;
+INSERT OR IGNORE INTO issued_ids (kind, last) SELECT 'reconstructions', COALESCE(MAX(id), 0) FROM reconstructions;
+CREATE TRIGGER IF NOT EXISTS captures_issue_id AFTER INSERT ON captures BEGIN
+    UPDATE issued_ids SET last = MAX(last, NEW.id) WHERE kind = 'captures';
+END;
+CREATE TRIGGER IF NOT EXISTS reconstructions_issue_id AFTER INSERT ON reconstructions BEGIN
+    UPDATE issued_ids SET last = MAX(last, NEW.id) WHERE kind = 'reconstructions';
+END;
+";
+
+/// Columns added to `captures` after the first release: (column, the
+/// statement that adds it).
+const ADDED_CAPTURE_COLUMNS: [(&str, &str); 6] = [
+    (
+        "kind",
+        "ALTER TABLE captures ADD COLUMN kind TEXT NOT NULL DEFAULT 'light'",
+    ),
+    ("region", "ALTER TABLE captures ADD COLUMN region TEXT"),
+    ("binning", "ALTER TABLE captures ADD COLUMN binning TEXT"),
+    ("trigger", "ALTER TABLE captures ADD COLUMN trigger TEXT"),
+    (
+        "dark_capture",
+        "ALTER TABLE captures ADD COLUMN dark_capture INTEGER",
+    ),
+    (
+        "frame_counts",
+        "ALTER TABLE captures ADD COLUMN frame_counts TEXT",
+    ),
+];
+
+/// Creates the tables, adds the columns a catalogue from an older polnlos
+/// lacks (rows kept), and sets up the id sequences.
+pub(super) fn migrate(conn: &Connection) -> rusqlite::Result<()> {
+    conn.execute_batch(SCHEMA)?;
+    let mut st = conn.prepare("PRAGMA table_info(captures)")?;
+    let has: Vec<String> = st
+        .query_map([], |r| r.get::<_, String>(1))?
+        .collect::<rusqlite::Result<_>>()?;
+    for (column, add) in ADDED_CAPTURE_COLUMNS {
+        if !has.iter().any(|c| c == column) {
+            conn.execute_batch(add)?;
+        }
+    }
+    conn.execute_batch(ID_SEQUENCES)
+}
+
+/// The catalogue's job tables. Every statement that works on either is
+/// written out here per table: no table name is spliced into SQL.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Table {
+    /// `captures`.
+    Captures,
+    /// `reconstructions`.
+    Reconstructions,
+}
+
+impl Table {
+    /// Both tables.
+    pub const ALL: [Table; 2] = [Table::Captures, Table::Reconstructions];
+
+    /// The table's name, which is also its folder under the data directory.
+    pub fn name(self) -> &'static str {
+        match self {
+            Table::Captures => "captures",
+            Table::Reconstructions => "reconstructions",
+        }
+    }
+
+    /// Marks every queued or running job interrupted (?1 error, ?2 time).
+    pub(super) fn interrupt_all(self) -> &'static str {
+        match self {
+            Table::Captures => "UPDATE captures SET state = 'interrupted', error = ?1, finished_at = ?2 WHERE state IN ('queued', 'running')",
+            Table::Reconstructions => "UPDATE reconstructions SET state = 'interrupted', error = ?1, finished_at = ?2 WHERE state IN ('queued', 'running')",
+        }
+    }
+
+    /// Marks job ?1 interrupted if it runs (?2 error, ?3 time).
+    pub(super) fn interrupt_one(self) -> &'static str {
+        match self {
+            Table::Captures => "UPDATE captures SET state = 'interrupted', error = ?2, finished_at = ?3 WHERE id = ?1 AND state = 'running'",
+            Table::Reconstructions => "UPDATE reconstructions SET state = 'interrupted', error = ?2, finished_at = ?3 WHERE id = ?1 AND state = 'running'",
+        }
+    }
+
+    /// Marks job ?1 cancelled at ?2 if it is queued (`only_queued`) or
+    /// queued or running.
+    pub(super) fn cancel(self, only_queued: bool) -> &'static str {
+        match (self, only_queued) {
+            (Table::Captures, true) => "UPDATE captures SET state = 'cancelled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued')",
+            (Table::Captures, false) => "UPDATE captures SET state = 'cancelled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
+            (Table::Reconstructions, true) => "UPDATE reconstructions SET state = 'cancelled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued')",
+            (Table::Reconstructions, false) => "UPDATE reconstructions SET state = 'cancelled', finished_at = ?2 WHERE id = ?1 AND state IN ('queued', 'running')",
+        }
+    }
+
+    /// Counts the rows with id ?1 (0 or 1).
+    pub(super) fn count_id(self) -> &'static str {
+        match self {
+            Table::Captures => "SELECT COUNT(*) FROM captures WHERE id = ?1",
+            Table::Reconstructions => "SELECT COUNT(*) FROM reconstructions WHERE id = ?1",
+        }
+    }
+}
