@@ -16,11 +16,13 @@
 //!   exposure planning), [`calibrate`] (homographies from target images).
 //! - **I/O**: [`files`] (npy, PNG/TIFF, JSON, atomic writes, free disk and
 //!   memory), [`camera`] (the camera trait, settings and sensor limits, the
-//!   Aravis driver and its thread, the fake bench), [`store`] (the catalogue
-//!   and capture files).
+//!   Aravis driver and its thread, the fake bench), [`mount`] (the
+//!   motorized polarizer: the Thorlabs Elliptec driver and a simulated
+//!   Elliptec on a pseudo-terminal), [`store`] (the catalogue and capture
+//!   files).
 //! - **Service**: [`daemon`] (requests, jobs, queues, admission, lifecycle;
 //!   no HTTP) and [`api`] (the HTTP routes, guard and server loop over it).
-//!   With [`camera`] and [`store`] they are the cargo feature `daemon` (on by
+//!   With [`camera`], [`mount`] and [`store`] they are the cargo feature `daemon` (on by
 //!   default): without it the crate is the core, [`files`] and the offline
 //!   tools, and links no system library (`tests/layers.rs` holds `cargo
 //!   tree` to that).
@@ -78,6 +80,8 @@ pub mod camera;
 pub mod daemon;
 pub mod files;
 pub mod measure;
+#[cfg(feature = "daemon")]
+pub mod mount;
 pub mod optics;
 pub mod scene;
 pub mod simulate;

@@ -11,7 +11,7 @@ use rand::{Rng, SeedableRng};
 
 type Target = fn(&[u8]);
 
-const TARGETS: [(&str, Target); 9] = [
+const TARGETS: [(&str, Target); 10] = [
     ("scene_toml", parsers::scene_toml),
     ("npy", parsers::npy),
     ("capture_json", parsers::capture_json),
@@ -21,6 +21,7 @@ const TARGETS: [(&str, Target); 9] = [
     ("wall_calibration_json", parsers::wall_calibration_json),
     ("calibration_json", parsers::calibration_json),
     ("frames_tiff", parsers::frames_tiff),
+    ("elliptec_reply", parsers::elliptec_reply),
 ];
 
 /// Tokens that reach edge cases of these formats.

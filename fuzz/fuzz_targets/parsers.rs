@@ -166,3 +166,14 @@ fn target_toml(data: &[u8]) {
         }
     }
 }
+
+/// A reply line from a rotation mount (Thorlabs Elliptec), as the serial
+/// port delivers it.
+pub fn elliptec_reply(data: &[u8]) {
+    let line = String::from_utf8_lossy(data);
+    if let Ok(polnlos::mount::elliptec::Reply::Info(i)) =
+        polnlos::mount::elliptec::parse_reply('0', line.trim_end())
+    {
+        assert!(i.pulses > 0 && i.travel > 0);
+    }
+}

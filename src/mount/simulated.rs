@@ -1,0 +1,270 @@
+//! A simulated Elliptec ELL14 on a pseudo-terminal: it speaks the device's
+//! protocol on the pty's master side, and the driver opens the slave's path
+//! (`/dev/pts/N`) like any serial port, so the real serial code runs. It
+//! keeps the angle it is at (the fake bench renders there) and can play
+//! faults: no reply, an error reply, a move that lands off target, a
+//! cable pulled.
+
+use std::io::{Read, Write};
+use std::os::fd::{FromRawFd, OwnedFd};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// Pulses per turn of the simulated ELL14 (the real one's).
+pub const PULSES: u32 = 143_360;
+
+/// The simulated device's `in` reply data (after `0IN`).
+const INFO: &str = "0E1140051720231701016800023000";
+
+/// How the simulated device misbehaves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Fault {
+    /// It answers as the manual says.
+    #[default]
+    None,
+    /// It answers nothing.
+    Silent,
+    /// Moves and homing answer this status code (2: mechanical timeout).
+    Error(u8),
+    /// Moves land this many pulses off target.
+    Slip(i32),
+}
+
+struct State {
+    pulses: i32,
+    fault: Fault,
+}
+
+/// A running simulated ELL14; stops (the cable pulled) when dropped or
+/// [`SimulatedEll14::unplug`]ged.
+pub struct SimulatedEll14 {
+    path: String,
+    state: Arc<Mutex<State>>,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    /// The slave side, held so the pty stays up between the driver's opens.
+    _slave: Option<OwnedFd>,
+}
+
+impl SimulatedEll14 {
+    /// Starts the device on a new pseudo-terminal at address `0`.
+    pub fn start() -> std::io::Result<Self> {
+        let (mut master, mut slave) = (-1, -1);
+        // SAFETY: openpty writes two descriptors into the given places (valid
+        // i32s) and reads no name, termios or window size (null pointers
+        // are allowed for those).
+        let r = unsafe {
+            libc::openpty(
+                &mut master,
+                &mut slave,
+                std::ptr::null_mut(),
+                std::ptr::null(),
+                std::ptr::null(),
+            )
+        };
+        if r != 0 || master < 0 || slave < 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        // SAFETY: both descriptors were just opened by openpty (checked
+        // above) and are owned by nothing else.
+        let (master, slave) =
+            unsafe { (OwnedFd::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };
+        let path = pty_path(&slave)?;
+        raw_mode(&slave)?;
+        let state = Arc::new(Mutex::new(State {
+            pulses: 0,
+            fault: Fault::None,
+        }));
+        let stop = Arc::new(AtomicBool::new(false));
+        let (st, halt) = (state.clone(), stop.clone());
+        let port = std::fs::File::from(master);
+        let thread = std::thread::Builder::new()
+            .name("sim-ell14".into())
+            .spawn(move || serve(port, &st, &halt))?;
+        Ok(Self {
+            path,
+            state,
+            stop,
+            thread: Some(thread),
+            _slave: Some(slave),
+        })
+    }
+
+    /// The serial port's path to open (`/dev/pts/N`).
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+
+    /// The angle the device is at, degrees in [0, 360).
+    pub fn angle(&self) -> f64 {
+        let p = self.state.lock().map(|s| s.pulses).unwrap_or(0);
+        super::wrap_degrees(f64::from(p) * 360.0 / f64::from(PULSES))
+    }
+
+    /// Makes the device misbehave from now on (or behave again).
+    pub fn set_fault(&self, fault: Fault) {
+        if let Ok(mut s) = self.state.lock() {
+            s.fault = fault;
+        }
+    }
+
+    /// Pulls the cable: the device stops and its pty closes.
+    pub fn unplug(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        self._slave = None;
+    }
+}
+
+impl Drop for SimulatedEll14 {
+    fn drop(&mut self) {
+        self.unplug();
+    }
+}
+
+/// The path of the pty whose slave side is `slave`.
+fn pty_path(slave: &OwnedFd) -> std::io::Result<String> {
+    use std::os::fd::AsRawFd;
+    let mut buf = [0u8; 128];
+    // SAFETY: `slave` is an open descriptor; ttyname_r writes at most
+    // `buf.len()` bytes (a NUL-terminated name) into `buf`.
+    let r = unsafe { libc::ttyname_r(slave.as_raw_fd(), buf.as_mut_ptr().cast(), buf.len()) };
+    if r != 0 {
+        return Err(std::io::Error::from_raw_os_error(r));
+    }
+    let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+    Ok(String::from_utf8_lossy(&buf[..end]).into_owned())
+}
+
+/// Puts the pty in raw mode: no echo, no line editing, bytes as they come.
+fn raw_mode(slave: &OwnedFd) -> std::io::Result<()> {
+    use std::os::fd::AsRawFd;
+    // SAFETY: termios is plain data; tcgetattr fills it from the open
+    // descriptor before it is read.
+    let mut t: libc::termios = unsafe { std::mem::zeroed() };
+    // SAFETY: `slave` is open; `t` is a valid termios to fill.
+    if unsafe { libc::tcgetattr(slave.as_raw_fd(), &mut t) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    // SAFETY: `t` was filled by tcgetattr above.
+    unsafe { libc::cfmakeraw(&mut t) };
+    // SAFETY: `slave` is open; `t` is a valid termios.
+    if unsafe { libc::tcsetattr(slave.as_raw_fd(), libc::TCSANOW, &t) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(())
+}
+
+/// Reads commands on the master side and answers them until told to stop.
+fn serve(mut port: std::fs::File, state: &Mutex<State>, stop: &AtomicBool) {
+    use std::os::fd::AsRawFd;
+    let mut pending = String::new();
+    let mut buf = [0u8; 64];
+    while !stop.load(Ordering::SeqCst) {
+        // Wait for input at most 20 ms, so that a stop is seen.
+        let mut poll = libc::pollfd {
+            fd: port.as_raw_fd(),
+            events: libc::POLLIN,
+            revents: 0,
+        };
+        // SAFETY: one valid pollfd for an open descriptor.
+        let ready = unsafe { libc::poll(&mut poll, 1, 20) };
+        if ready <= 0 {
+            continue;
+        }
+        let n = match port.read(&mut buf) {
+            Ok(0) | Err(_) => {
+                // The driver closed its side: wait for the next open.
+                std::thread::sleep(Duration::from_millis(20));
+                continue;
+            }
+            Ok(n) => n,
+        };
+        pending.extend(buf[..n].iter().map(|&b| b as char));
+        while let Some((cmd, rest)) = take_command(&pending) {
+            let reply = answer(&cmd, state);
+            pending = rest;
+            if let Some(r) = reply {
+                let _ = port.write_all(format!("{r}\r\n").as_bytes());
+                let _ = port.flush();
+            }
+        }
+    }
+}
+
+/// The first whole command in `input` (address, two letters, data of the
+/// command's length), and what follows it; line ends and noise before a
+/// command are skipped.
+fn take_command(input: &str) -> Option<(String, String)> {
+    let s = input.trim_start_matches(|c: char| !c.is_ascii_hexdigit());
+    let cmd = s.get(1..3)?;
+    let data = match cmd {
+        "ho" => 1,
+        "ma" | "mr" => 8,
+        _ => 0,
+    };
+    let end = 3 + data;
+    let whole = s.get(..end)?;
+    Some((whole.to_string(), s[end..].to_string()))
+}
+
+/// The reply to one command, or none (a silent device).
+fn answer(cmd: &str, state: &Mutex<State>) -> Option<String> {
+    let mut s = state.lock().ok()?;
+    let addr = cmd.get(..1)?;
+    if addr != "0" || s.fault == Fault::Silent {
+        return None;
+    }
+    let position = |p: i32| format!("0PO{:08X}", p as u32);
+    match cmd.get(1..3)? {
+        "in" => Some(format!("0IN{INFO}")),
+        "gs" => Some("0GS00".into()),
+        "gp" => Some(position(s.pulses)),
+        "ho" | "ma" => {
+            if let Fault::Error(code) = s.fault {
+                return Some(format!("0GS{code:02X}"));
+            }
+            let target = if &cmd[1..3] == "ho" {
+                0
+            } else {
+                u32::from_str_radix(cmd.get(3..11)?, 16).ok()? as i32
+            };
+            let slip = match s.fault {
+                Fault::Slip(p) => p,
+                _ => 0,
+            };
+            s.pulses = (target + slip).rem_euclid(PULSES as i32);
+            Some(position(s.pulses))
+        }
+        _ => Some("0GS03".into()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn commands_are_cut_by_their_length_and_noise_is_skipped() {
+        assert_eq!(
+            take_command("0gp0ma00004600"),
+            Some(("0gp".into(), "0ma00004600".into()))
+        );
+        assert_eq!(
+            take_command("\r\n0ho0"),
+            Some(("0ho0".into(), String::new()))
+        );
+        assert_eq!(take_command("0ma0000"), None);
+        let st = Mutex::new(State {
+            pulses: 0,
+            fault: Fault::None,
+        });
+        assert_eq!(answer("0ma00004600", &st).as_deref(), Some("0PO00004600"));
+        assert_eq!(answer("0gp", &st).as_deref(), Some("0PO00004600"));
+        assert_eq!(answer("0xx", &st).as_deref(), Some("0GS03"));
+        assert_eq!(answer("1gp", &st), None);
+    }
+}
