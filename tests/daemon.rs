@@ -590,6 +590,22 @@ fn a_capture_s_settings_do_not_leak_into_the_next() {
     assert_eq!(c["pixel_format"], "Mono16", "{c}");
     assert_eq!(c["gain"], before["gain"], "{c}");
     assert_eq!(c["trigger"], before["trigger"], "{c}");
+    // Every setting a capture leaves out inherits the defaults the same way,
+    // gain included (it used to default to 0 whatever the defaults said).
+    let agent = &d.agent;
+    let r = agent
+        .put(format!("{}/camera/settings", d.base))
+        .header("content-type", "application/json")
+        .send(r#"{"gain": 3, "pixel_format": "Mono8"}"#)
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let c = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 2}"#, Duration::from_secs(20));
+    assert_eq!(c["state"], "done", "{c}");
+    assert_eq!(
+        (c["gain"].as_f64(), c["pixel_format"].as_str()),
+        (Some(3.0), Some("Mono8")),
+        "{c}"
+    );
 }
 
 #[test]

@@ -602,7 +602,7 @@ async function submitCapture(kind) {
   const body = {
     kind, scene: f.get("scene"), pose: f.get("pose"),
     polarizer_deg: f.get("polarizer_deg") === "" ? null : Number(f.get("polarizer_deg")),
-    gain: number(f.get("gain")) || 0,
+    gain: number(String(f.get("gain") || "").trim()),
     frames: number(f.get("frames")),
     dark_frames: number(f.get("dark_frames")) || 0,
   };

@@ -40,9 +40,9 @@ pub struct CaptureBody {
     pub exposure: Option<AutoExposure>,
     /// Target of an automatic exposure (default: peak at 0.8 of full scale, SNR 100).
     pub target: Option<ExposureTarget>,
-    /// Gain (camera units).
-    #[serde(default)]
-    pub gain: f64,
+    /// Gain (camera units; default: the current settings, as for every
+    /// other camera setting).
+    pub gain: Option<f64>,
     /// Frames to average (1 to `max_frames_per_capture`); default 1, or the
     /// plan's with `"exposure": "auto"`.
     #[serde(default, deserialize_with = "super::integral::opt_count")]

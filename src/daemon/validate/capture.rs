@@ -25,12 +25,10 @@ pub fn capture(
     let frames = b
         .frames
         .unwrap_or_else(|| planned.as_ref().map_or(1, |p| p.frames));
+    let gain = b.gain.unwrap_or(cam.defaults.gain);
     if let Some((lo, hi)) = cam.gain {
-        if !(b.gain >= lo && b.gain <= hi) {
-            return Err(invalid(format!(
-                "gain = {}: must be from {lo} to {hi}",
-                b.gain
-            )));
+        if !(gain >= lo && gain <= hi) {
+            return Err(invalid(format!("gain = {gain}: must be from {lo} to {hi}")));
         }
     }
     check_frames(b, kind, frames, cam)?;
@@ -44,7 +42,7 @@ pub fn capture(
         polarizer_deg: b.polarizer_deg,
         acquisition: Acquisition {
             exposure_us,
-            gain: b.gain,
+            gain,
             pixel_format,
             region,
             binning,
