@@ -341,3 +341,122 @@ async fn the_router_serves_exactly_the_operations_its_document_names() {
     assert!(detail.starts_with("no route"), "{detail}");
     d.shutdown();
 }
+
+/// A camera that stops delivering without an error while `frozen` is set
+/// (what no Aravis camera does: every Aravis wait times out), and otherwise
+/// delivers flat frames at once.
+struct Freezing {
+    frozen: Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl polnlos::camera::CameraDevice for Freezing {
+    fn describe(&mut self) -> Result<polnlos::camera::CameraInfo, polnlos::camera::CameraError> {
+        Ok(polnlos::camera::CameraInfo {
+            id: "Test-Freezing-1".into(),
+            sensor: (512, 512),
+            exposure_us: (10.0, 1e7),
+            gain: (0.0, 10.0),
+            limits: polnlos::camera::SensorLimits {
+                sensor: [512, 512],
+                ..Default::default()
+            },
+            settings: polnlos::camera::CameraSettings {
+                region: Some([0, 0, 512, 512]),
+                binning: Some([1, 1]),
+                ..Default::default()
+            },
+            ..Default::default()
+        })
+    }
+    fn configure(
+        &mut self,
+        _: &polnlos::camera::CameraSettings,
+    ) -> Result<(), polnlos::camera::CameraError> {
+        Ok(())
+    }
+    fn acquire(
+        &mut self,
+        n: usize,
+        sink: &mut polnlos::camera::FrameSink<'_>,
+    ) -> Result<polnlos::camera::FrameCounts, polnlos::camera::CameraError> {
+        while self.frozen.load(std::sync::atomic::Ordering::SeqCst) {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        for k in 0..n {
+            let frame = polnlos::camera::RawFrame {
+                width: 512,
+                height: 512,
+                bits: 16,
+                pixels: vec![1000; 512 * 512],
+                frame_id: k as u64 + 1,
+                system_timestamp_ns: 0,
+            };
+            sink(frame).map_err(polnlos::camera::CameraError::Stopped)?;
+        }
+        Ok(polnlos::camera::FrameCounts {
+            received: n as u64,
+            ..Default::default()
+        })
+    }
+    fn counters(&self) -> polnlos::camera::Counters {
+        polnlos::camera::Counters::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_camera_that_stalls_fails_its_capture_in_bounded_time_and_the_queue_goes_on() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut config = Config::embedded();
+    config.data_dir = dir.path().join("data");
+    config.camera.fake = false;
+    config.camera.stall_slack_s = 1.0;
+    let store = Store::open(&config.data_dir).expect("data directory");
+    let scenes = Arc::new(
+        Scenes::load(&config.scene_files, MemoryBudget::DEFAULT).expect("built-in scenes"),
+    );
+    let frozen = Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let f = frozen.clone();
+    let camera = CameraSetup {
+        opener: Box::new(move || {
+            Ok(Box::new(Freezing { frozen: f.clone() }) as Box<dyn polnlos::camera::CameraDevice>)
+        }),
+        bench: Arc::new(polnlos::camera::fake::ManualBench),
+        demo_calibration: None,
+        watch_usb: false,
+    };
+    let d = Daemon::start_with(config, store, scenes, camera)
+        .await
+        .expect("daemon starts");
+    let start = Instant::now();
+    while !d.camera().status().connected {
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "camera did not connect"
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let capture = serde_json::json!({ "scene": "brewster-crossed", "pose": "A",
+        "polarizer_deg": 0, "exposure_us": 20000, "frames": 2 });
+    let (s, first) = call(&d, "POST", "/captures", Some(capture.clone())).await;
+    assert_eq!(s, StatusCode::ACCEPTED, "{first}");
+    let (s, second) = call(&d, "POST", "/captures", Some(capture)).await;
+    assert_eq!(s, StatusCode::ACCEPTED, "{second}");
+    // Frozen: the first fails after twice its frames' time plus the 1 s slack.
+    let t = Instant::now();
+    let c = wait_done(&d, first["job"].as_str().unwrap(), Duration::from_secs(20)).await;
+    let took = t.elapsed();
+    assert_eq!(c["state"], "failed", "{c}");
+    assert!(
+        c["error"]
+            .as_str()
+            .unwrap()
+            .contains("the camera stalled: 0 of 2 frames"),
+        "{c}"
+    );
+    assert!(took < Duration::from_secs(5), "{took:?}");
+    // The camera comes back: the queued capture runs.
+    frozen.store(false, std::sync::atomic::Ordering::SeqCst);
+    let c = wait_done(&d, second["job"].as_str().unwrap(), Duration::from_secs(20)).await;
+    assert_eq!(c["state"], "done", "{c}");
+    assert_eq!(c["frame_counts"]["received"], 2, "{c}");
+}

@@ -45,6 +45,8 @@ pub(super) struct CaptureWorker {
     pub(super) queue: Arc<CaptureQueue>,
     /// What a capture that lost frames does.
     pub(super) lost_frames: LostFrames,
+    /// How far beyond twice its frames' time an acquisition may run.
+    pub(super) stall_slack: std::time::Duration,
 }
 
 impl CaptureWorker {
@@ -310,12 +312,12 @@ async fn dark_reference(
 }
 
 /// The longest an acquisition of `n` frames of `exposure_us` may take before
-/// its capture fails as stalled: twice its frames' time, plus the camera
-/// thread's own first-frame and reconnection allowances (a few seconds),
-/// plus a minute for a machine under load.
-fn stall_limit(exposure_us: f64, n: usize) -> std::time::Duration {
+/// its capture fails as stalled: twice its frames' time plus `slack`
+/// (`[camera] stall_slack_s`, a minute by default: beyond the camera
+/// thread's own timeouts, and a machine under load).
+fn stall_limit(exposure_us: f64, n: usize, slack: std::time::Duration) -> std::time::Duration {
     let frames = 2.0 * n as f64 * (exposure_us * 1e-6).max(1e-3);
-    std::time::Duration::from_secs_f64(frames + 60.0)
+    std::time::Duration::from_secs_f64(frames) + slack
 }
 
 /// One acquisition of a capture, streamed to one file.
@@ -398,7 +400,7 @@ impl Stream<'_> {
             .acquire(self.settings.clone(), n, frame_tx);
         // The camera thread bounds every wait on the camera; this bounds the
         // whole acquisition too, so that a capture can never hold the queue.
-        let limit = stall_limit(self.settings.exposure_us, n);
+        let limit = stall_limit(self.settings.exposure_us, n, w.stall_slack);
         let acquired = match tokio::time::timeout(limit, acquire).await {
             Ok(r) => r,
             Err(_) => {

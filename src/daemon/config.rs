@@ -99,6 +99,14 @@ pub struct CameraConfig {
     /// What a capture that lost frames (dropped or broken) does.
     #[serde(default)]
     pub lost_frames: LostFrames,
+    /// Seconds an acquisition may run beyond twice its frames' time before
+    /// its capture fails as stalled (and the queue goes on).
+    #[serde(default = "stall_slack")]
+    pub stall_slack_s: f64,
+}
+
+fn stall_slack() -> f64 {
+    60.0
 }
 
 /// What a capture that lost frames does: the mean of the frames received is
@@ -280,6 +288,12 @@ impl Config {
                 self.bind
             )));
         }
+        let slack = self.camera.stall_slack_s;
+        if !(slack.is_finite() && (0.0..=86_400.0).contains(&slack)) {
+            return Err(ConfigError::Invalid(format!(
+                "camera.stall_slack_s = {slack}: give 0 to 86400 seconds"
+            )));
+        }
         let r = &self.retention;
         if !(r.max_age_days.is_finite() && (0.0..=36_500.0).contains(&r.max_age_days)) {
             return Err(ConfigError::Invalid(format!(
@@ -405,6 +419,19 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("retention.check_every_s"));
+    }
+
+    #[test]
+    fn the_camera_policies_default_to_keep_and_a_minute_and_are_checked() {
+        let c = Config::embedded();
+        assert_eq!(c.camera.lost_frames, LostFrames::Warn);
+        assert_eq!(c.camera.stall_slack_s, 60.0);
+        for bad in [f64::NAN, -1.0, 1e6] {
+            let mut c = Config::embedded();
+            c.camera.stall_slack_s = bad;
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains("camera.stall_slack_s"), "{e}");
+        }
     }
 
     #[test]

@@ -255,6 +255,10 @@ impl Daemon {
                 camera: d.camera.clone(),
                 queue: d.captures.clone(),
                 lost_frames: d.config.camera.lost_frames,
+                // Checked to be 0..=86400 by Config::validate.
+                stall_slack: std::time::Duration::from_secs_f64(
+                    d.config.camera.stall_slack_s.clamp(0.0, 86_400.0),
+                ),
             };
             set.spawn(capture.run(capture_rx));
             let shared = Arc::new(Mutex::new(recon_rx));
