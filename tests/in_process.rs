@@ -29,9 +29,12 @@ async fn daemon_showing(dir: &std::path::Path, scene: &str, pattern: &str) -> Ar
     let camera = CameraSetup::synthetic(&config, &scenes)
         .await
         .expect("synthetic camera");
-    let d = Daemon::start_with(config, store, scenes, camera)
-        .await
-        .expect("daemon starts");
+    connected(Daemon::start_with(config, store, scenes, camera).await).await
+}
+
+/// The started daemon, once its camera is connected.
+async fn connected(started: Result<Arc<Daemon>, polnlos::daemon::DaemonError>) -> Arc<Daemon> {
+    let d = started.expect("daemon starts");
     let start = Instant::now();
     while !d.camera().status().connected {
         assert!(
@@ -424,17 +427,7 @@ async fn a_camera_that_stalls_fails_its_capture_in_bounded_time_and_the_queue_go
         demo_calibration: None,
         watch_usb: false,
     };
-    let d = Daemon::start_with(config, store, scenes, camera)
-        .await
-        .expect("daemon starts");
-    let start = Instant::now();
-    while !d.camera().status().connected {
-        assert!(
-            start.elapsed() < Duration::from_secs(10),
-            "camera did not connect"
-        );
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    let d = connected(Daemon::start_with(config, store, scenes, camera).await).await;
     let capture = serde_json::json!({ "scene": "brewster-crossed", "pose": "A",
         "polarizer_deg": 0, "exposure_us": 20000, "frames": 2 });
     let (s, first) = call(&d, "POST", "/captures", Some(capture.clone())).await;

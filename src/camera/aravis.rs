@@ -405,7 +405,6 @@ impl CameraDevice for AravisCamera {
         let software = self.settings.trigger == TriggerMode::Software;
         let bits = self.settings.pixel_format.bits();
         let mut taken = 0;
-        let mut failures = 0;
         let mut counts = FrameCounts::default();
         let mut ids = FrameIds::default();
         let result = loop {
@@ -428,12 +427,14 @@ impl CameraDevice for AravisCamera {
             };
             counts.dropped += ids.next(buffer.frame_id());
             if buffer.status() != BufferStatus::Success {
-                failures += 1;
                 counts.broken += 1;
                 self.counters.failed += 1;
                 stream.push_buffer(buffer);
-                if failures > 2 * n + 4 {
-                    break Err(CameraError::Driver(format!("{failures} broken buffers in a row; check the network or the camera's packet size")));
+                if counts.broken > 2 * n as u64 + 4 {
+                    break Err(CameraError::Driver(format!(
+                        "{} broken buffers in a row; check the network or the camera's packet size",
+                        counts.broken
+                    )));
                 }
                 continue;
             }
@@ -442,7 +443,6 @@ impl CameraDevice for AravisCamera {
             let frame = match frame {
                 Ok(frame) => frame,
                 Err(e) => {
-                    failures += 1;
                     counts.broken += 1;
                     self.counters.failed += 1;
                     tracing::warn!("dropped a frame: {e}");
