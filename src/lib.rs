@@ -31,7 +31,7 @@
 //!
 //! # Where a change goes
 //!
-//! - **A pixel format**: one variant in `src/camera/pixel.rs` (its name, bits,
+//! - **A pixel format** (1 file): one variant in `src/camera/pixel.rs` (its name, bits,
 //!   bytes and `decode`); requests, the catalogue and the driver read it
 //!   from there.
 //! - **A solver** (2 files): its file in `src/solve/`, and in
@@ -47,14 +47,16 @@
 //! - **A bench report**: its file in `src/bench/` implementing
 //!   `bench::Report`, and one entry in `BenchPlan::run` (`src/bench/plan.rs`,
 //!   the one file that names every report).
-//! - **A camera setting a capture records** (today 10 files, counted from
-//!   `trigger`; issue 30 is to bring it to 3): `camera::Acquisition`,
-//!   `CameraSettings` and `SettingsChange` (`src/camera/settings.rs`), the
-//!   device mapping (`src/camera/aravis.rs`), the request
-//!   (`src/daemon/requests.rs`) and its resolution
-//!   (`src/daemon/validate/capture.rs`, `validate/mod.rs`), the row
-//!   (`src/store/records.rs`, `schema.rs`, `captures.rs`), the frame files'
-//!   page description (`src/store/files.rs`), and the page.
+//! - **A camera setting** (3 files, counted in docs/guide.md "Where a
+//!   change goes"): its field in `Acquisition` and `CameraSettings` with
+//!   its line in their `over`, `complete` and `defaults_at`
+//!   (`src/camera/settings.rs`), its feature in the device mapping
+//!   (`src/camera/aravis.rs`), and its `data-setting` input on the page
+//!   (`web/index.html`). The capture request and `PUT /camera/settings`
+//!   embed `CameraSettings`, the catalogue stores it as one versioned
+//!   document, and the API's records, the frame files and the page's camera
+//!   table all take it from there; `tests/layers.rs` holds the request, the
+//!   camera and the store to those two declarations.
 //! - **A catalogue column** (3 files): its declaration in
 //!   `src/store/schema.rs` (`SCHEMA`, and `ADDED_CAPTURE_COLUMNS` for
 //!   catalogues that predate it), the row type in `src/store/records.rs`,

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use polnlos::camera::aravis::AravisCamera;
 use polnlos::camera::fake::{Bench, FakeBench};
 use polnlos::camera::worker::CameraHandle;
-use polnlos::camera::{CameraDevice, CameraError, CameraSettings, Frame, PixelFormat};
+use polnlos::camera::{Acquisition, CameraDevice, CameraError, Frame, PixelFormat};
 
 static ARAVIS: Mutex<()> = Mutex::new(());
 
@@ -62,6 +62,12 @@ fn wait_connected(h: &CameraHandle, want: bool, within: Duration) -> bool {
     false
 }
 
+/// The settings the fake camera opens with: polnlos's defaults at its own
+/// 512 x 512 region.
+fn at_open() -> Acquisition {
+    Acquisition::defaults_at([0, 0, 512, 512], [1, 1])
+}
+
 #[test]
 fn frames_show_the_selected_block_and_scale_with_exposure() {
     let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
@@ -77,7 +83,7 @@ fn frames_show_the_selected_block_and_scale_with_exposure() {
     assert_eq!(info.exposure_feature, "ExposureTimeAbs");
     assert_eq!(info.gain_feature, "GainRaw");
     // The camera opens at its own region (the fake's 512 x 512 of a 2048 sensor).
-    assert_eq!(info.settings.region, Some([0, 0, 512, 512]));
+    assert_eq!(info.settings, at_open());
     assert_eq!(info.limits.sensor, [2048, 2048]);
     assert!(info.id.starts_with("Aravis-"), "GenICam id: {}", info.id);
     assert!(
@@ -85,14 +91,14 @@ fn frames_show_the_selected_block_and_scale_with_exposure() {
         "GenICam id: {}",
         info.id
     );
-    let settings = CameraSettings {
+    let settings = Acquisition {
         exposure_us: 20_000.0,
-        ..CameraSettings::default()
+        ..at_open()
     };
     // Frames arrive one by one through a bounded channel.
     let (tx, rx) = std::sync::mpsc::sync_channel(1);
     let reader = std::thread::spawn(move || rx.iter().collect::<Vec<_>>());
-    rt().block_on(cam.acquire(settings.clone(), 3, tx)).unwrap();
+    rt().block_on(cam.acquire(settings, 3, tx)).unwrap();
     let frames = reader.join().unwrap();
     assert_eq!(frames.len(), 3);
     let f = &frames[0];
@@ -111,7 +117,7 @@ fn frames_show_the_selected_block_and_scale_with_exposure() {
     // Half the exposure, half the signal.
     let half = rt()
         .block_on(cam.collect(
-            CameraSettings {
+            Acquisition {
                 exposure_us: 10_000.0,
                 ..settings
             },
@@ -130,10 +136,10 @@ fn a_two_second_exposure_does_not_time_out() {
     fake.select("A", Some(0.0));
     let cam = handle();
     assert!(wait_connected(&cam, true, Duration::from_secs(5)));
-    let settings = CameraSettings {
+    let settings = Acquisition {
         exposure_us: 2_000_000.0,
         pixel_format: PixelFormat::Mono8,
-        ..CameraSettings::default()
+        ..at_open()
     };
     let frames = rt().block_on(cam.collect(settings, 3)).unwrap();
     assert_eq!(frames.len(), 3);
@@ -152,9 +158,9 @@ fn out_of_range_settings_name_the_feature() {
     let _fake = bench();
     let mut cam = AravisCamera::open(ADDR).unwrap();
     let e = cam
-        .configure(&CameraSettings {
+        .configure(&Acquisition {
             exposure_us: 5.0,
-            ..CameraSettings::default()
+            ..at_open()
         })
         .unwrap_err();
     assert!(
@@ -162,9 +168,9 @@ fn out_of_range_settings_name_the_feature() {
         "{e}"
     );
     let e = cam
-        .configure(&CameraSettings {
+        .configure(&Acquisition {
             gain: 99.0,
-            ..CameraSettings::default()
+            ..at_open()
         })
         .unwrap_err();
     assert!(
@@ -185,15 +191,15 @@ fn a_camera_that_vanishes_mid_capture_fails_the_capture_and_comes_back() {
     let cam = handle();
     assert!(wait_connected(&cam, true, Duration::from_secs(5)));
     // 20 frames at 10 fps take 2 s; the camera disappears after 0.5 s.
-    let settings = CameraSettings {
+    let settings = Acquisition {
         exposure_us: 100_000.0,
-        ..CameraSettings::default()
+        ..at_open()
     };
     let killer = std::thread::spawn(move || {
         std::thread::sleep(Duration::from_millis(500));
         drop(fake);
     });
-    let r = rt().block_on(cam.collect(settings.clone(), 20));
+    let r = rt().block_on(cam.collect(settings, 20));
     killer.join().unwrap();
     let e = r.unwrap_err();
     assert!(e.is_connection_loss(), "{e}");
@@ -219,16 +225,16 @@ fn regions_beyond_the_sensor_are_refused_before_aravis_and_the_camera_reads_back
     let mut cam = AravisCamera::open(ADDR).unwrap();
     // The region sizes of the bug report: each is refused with the limit named.
     for (region, binning) in [
-        (Some([0, 0, 100_000, 100_000]), None),
-        (Some([2_147_483_647, 0, 16, 16]), None),
-        (Some([0, 0, 0, 0]), None),
-        (None, Some([100_000, 100_000])),
+        ([0, 0, 100_000, 100_000], [1, 1]),
+        ([2_147_483_647, 0, 16, 16], [1, 1]),
+        ([0, 0, 0, 0], [1, 1]),
+        ([0, 0, 512, 512], [100_000, 100_000]),
     ] {
         let e = cam
-            .configure(&CameraSettings {
+            .configure(&Acquisition {
                 region,
                 binning,
-                ..CameraSettings::default()
+                ..at_open()
             })
             .unwrap_err();
         assert!(
@@ -237,17 +243,17 @@ fn regions_beyond_the_sensor_are_refused_before_aravis_and_the_camera_reads_back
         );
     }
     // A real change is applied and read back from the camera's features.
-    cam.configure(&CameraSettings {
+    cam.configure(&Acquisition {
         exposure_us: 7_000.0,
         gain: 3.0,
-        region: Some([64, 32, 256, 128]),
-        binning: Some([2, 2]),
-        ..CameraSettings::default()
+        region: [64, 32, 256, 128],
+        binning: [2, 2],
+        ..at_open()
     })
     .unwrap();
     let s = cam.describe().unwrap().settings;
-    assert_eq!(s.region, Some([64, 32, 256, 128]));
-    assert_eq!(s.binning, Some([2, 2]));
+    assert_eq!(s.region, [64, 32, 256, 128]);
+    assert_eq!(s.binning, [2, 2]);
     assert_eq!((s.exposure_us, s.gain), (7_000.0, 3.0));
     let mut frames = Vec::new();
     cam.acquire(2, &mut |f| {
@@ -322,10 +328,10 @@ fn software_trigger_delivers_one_frame_per_trigger() {
     let fake = bench();
     fake.select("A", Some(0.0));
     let mut cam = AravisCamera::open(ADDR).unwrap();
-    let settings = CameraSettings {
+    let settings = Acquisition {
         exposure_us: 5_000.0,
         trigger: polnlos::camera::TriggerMode::Software,
-        ..CameraSettings::default()
+        ..at_open()
     };
     cam.configure(&settings).unwrap();
     assert_eq!(cam.string_feature("TriggerMode").unwrap(), "On");
@@ -337,7 +343,7 @@ fn software_trigger_delivers_one_frame_per_trigger() {
     })
     .unwrap();
     assert_eq!(frames.len(), 3);
-    cam.configure(&CameraSettings::default()).unwrap();
+    cam.configure(&at_open()).unwrap();
     assert_eq!(cam.string_feature("TriggerMode").unwrap(), "Off");
     assert!(f64::from(frames[0].pixels[100 * 512 + 400]) > 0.3 * 65535.0 * 0.25);
 }
@@ -359,9 +365,9 @@ fn fast_frames(
     fake.select("A", Some(0.0));
     let cam = handle();
     assert!(wait_connected(&cam, true, Duration::from_secs(5)));
-    let settings = CameraSettings {
+    let settings = Acquisition {
         exposure_us: 1_000.0,
-        ..CameraSettings::default()
+        ..at_open()
     };
     let (tx, rx) = std::sync::mpsc::sync_channel(1);
     let reader = std::thread::spawn(move || {
@@ -395,12 +401,12 @@ fn a_200_frame_capture_loses_no_frame_and_short_fast_captures_neither() {
     // Consecutive ids (16-bit, wrapping past 0): none went missing.
     assert_eq!(id_span(&ids), 200, "{ids:?}");
     // Short captures, one after another: each one's frames consecutive.
-    let settings = CameraSettings {
+    let settings = Acquisition {
         exposure_us: 1_000.0,
-        ..CameraSettings::default()
+        ..at_open()
     };
     for k in 0..20 {
-        let frames = rt().block_on(cam.collect(settings.clone(), 2)).unwrap();
+        let frames = rt().block_on(cam.collect(settings, 2)).unwrap();
         let ids: Vec<u64> = frames.iter().map(|f| f.frame_id).collect();
         assert_eq!(id_span(&ids), 2, "capture {k}: {ids:?}");
     }

@@ -683,12 +683,18 @@ fn auto_exposure_reaches_the_planned_signal() {
     );
     assert_eq!(s, 422, "{body}");
     assert!(body.contains("not both"), "{body}");
+    // Neither: the exposure is inherited from the capture defaults, as
+    // every camera setting is (it was a 422 before).
+    let (_, camera) = d.get("/camera");
+    let camera: serde_json::Value = serde_json::from_str(&camera).unwrap();
+    let default = camera["capture_defaults"]["exposure_us"].as_f64().unwrap();
     let (s, body, _) = d.post(
         "/captures",
         r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0}"#,
     );
-    assert_eq!(s, 422, "{body}");
-    assert!(body.contains("exposure_us is missing"), "{body}");
+    assert_eq!(s, 202, "{body}");
+    let accepted: serde_json::Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(accepted["exposure_us"].as_f64(), Some(default), "{body}");
 }
 
 #[test]

@@ -356,24 +356,27 @@ impl polnlos::camera::CameraDevice for Freezing {
     fn describe(&mut self) -> Result<polnlos::camera::CameraInfo, polnlos::camera::CameraError> {
         Ok(polnlos::camera::CameraInfo {
             id: "Test-Freezing-1".into(),
+            address: "in-process".into(),
+            vendor: "Test".into(),
+            model: "Freezing".into(),
+            serial: "1".into(),
             sensor: (512, 512),
             exposure_us: (10.0, 1e7),
+            exposure_feature: "ExposureTime".into(),
             gain: (0.0, 10.0),
+            gain_feature: "Gain".into(),
+            frame_rate: None,
+            pixel_formats: Vec::new(),
             limits: polnlos::camera::SensorLimits {
                 sensor: [512, 512],
                 ..Default::default()
             },
-            settings: polnlos::camera::CameraSettings {
-                region: Some([0, 0, 512, 512]),
-                binning: Some([1, 1]),
-                ..Default::default()
-            },
-            ..Default::default()
+            settings: polnlos::camera::Acquisition::defaults_at([0, 0, 512, 512], [1, 1]),
         })
     }
     fn configure(
         &mut self,
-        _: &polnlos::camera::CameraSettings,
+        _: &polnlos::camera::Acquisition,
     ) -> Result<(), polnlos::camera::CameraError> {
         Ok(())
     }

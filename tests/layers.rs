@@ -260,3 +260,38 @@ fn the_catalogue_splices_no_table_name_into_sql() {
         }
     }
 }
+
+#[test]
+fn a_camera_setting_is_declared_in_two_structs_across_request_camera_and_store() {
+    // Issue 30: the request, the camera and the catalogue take the settings
+    // from `camera::CameraSettings` and `camera::Acquisition`; a third
+    // struct with an `exposure_us` field is a third declaration to keep in step.
+    let mut files = sources("camera");
+    files.extend(sources("store"));
+    files.extend(
+        sources("daemon")
+            .into_iter()
+            .filter(|(p, _)| p.ends_with("requests.rs")),
+    );
+    let mut declared = Vec::new();
+    for (path, text) in &files {
+        let mut within = None;
+        for line in code(text).lines() {
+            let l = line.trim();
+            if let Some(rest) = l.strip_prefix("pub struct ") {
+                within = rest.split([' ', '<', '{', '(']).next().map(str::to_string);
+            }
+            // The setting (`f64`, or `Option<f64>` where it may be absent);
+            // CameraInfo's `(f64, f64)` is the camera's range, another concept.
+            if l == "pub exposure_us: f64," || l == "pub exposure_us: Option<f64>," {
+                declared.push(format!("{path}: {}", within.clone().unwrap_or_default()));
+            }
+        }
+    }
+    declared.sort();
+    let names: Vec<&str> = declared
+        .iter()
+        .map(|d| d.rsplit(": ").next().unwrap_or(""))
+        .collect();
+    assert_eq!(names, ["Acquisition", "CameraSettings"], "{declared:?}");
+}

@@ -158,9 +158,9 @@ async function refreshCamera() {
   text($("#camera-status"), cam.connected ? `connected: ${cam.info.id}` + (cam.busy ? ` (busy: ${cam.busy})` : "") : `not connected: ${cam.last_error || ""}`);
   const s = (cam.info && cam.info.settings) || {};
   const k = cam.counters || {};
+  // Every setting the camera reads back, by its API name (a new setting shows without a change here).
   const rows = [
-    ["exposure", s.exposure_us !== undefined ? `${s.exposure_us} µs` : "-"],
-    ["gain", s.gain], ["pixel format", s.pixel_format], ["region", JSON.stringify(s.region)],
+    ...Object.entries(s).map(([name, v]) => [name.replaceAll("_", " "), Array.isArray(v) ? JSON.stringify(v) : v]),
     ["since the daemon started:", ""],
     ["frames received", k.completed], ["broken frames", k.failed],
     ["packets with no free buffer", k.underruns], ["timeouts", k.timeouts], ["connections", k.connects],
@@ -602,11 +602,15 @@ async function submitCapture(kind) {
   const body = {
     kind, scene: f.get("scene"), pose: f.get("pose"),
     polarizer_deg: f.get("polarizer_deg") === "" ? null : Number(f.get("polarizer_deg")),
-    gain: number(String(f.get("gain") || "").trim()),
     frames: number(f.get("frames")),
     dark_frames: number(f.get("dark_frames")) || 0,
   };
   if (exposure === "auto") body.exposure = "auto"; else body.exposure_us = number(exposure);
+  // Camera settings (inputs marked data-setting): sent when filled, else the capture defaults apply.
+  for (const input of $("#capture-form").querySelectorAll("[data-setting]")) {
+    const v = input.value.trim();
+    if (v !== "") body[input.name] = input.dataset.setting === "number" ? Number(v) : v;
+  }
   const dark = String(f.get("dark_capture") || "").trim();
   if (kind !== "dark" && dark) { body.dark_capture = Number(dark); body.dark_frames = 0; }
   if (kind === "dark") body.dark_frames = 0;

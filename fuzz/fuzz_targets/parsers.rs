@@ -6,7 +6,7 @@
 
 #![allow(dead_code)]
 
-use polnlos::camera::{CameraSettings, SensorLimits};
+use polnlos::camera::{Acquisition, CameraSettings, SensorLimits};
 use polnlos::daemon::validate::{self, CameraContext};
 use polnlos::measure::exposure::CameraLimits;
 use polnlos::scene::Scene;
@@ -70,7 +70,7 @@ pub fn capture_json(data: &[u8]) {
             sensor: Some(LIMITS),
             defaults: CameraSettings {
                 region: Some([0, 0, 512, 512]),
-                ..CameraSettings::default()
+                ..CameraSettings::builtin()
             },
             pixel_formats: Some(vec!["Mono8".into(), "Mono16".into()]),
             bench_switches_scene: true,
@@ -103,16 +103,12 @@ pub fn reconstruction_json(data: &[u8]) {
 /// A `PUT /camera/settings` body (a change over the defaults), and the
 /// geometry check it reaches.
 pub fn settings_json(data: &[u8]) {
-    if let Ok(c) = serde_json::from_slice::<polnlos::camera::SettingsChange>(data) {
-        let s = c.over(&CameraSettings::default());
-        if LIMITS
-            .check(
-                s.region.unwrap_or([0, 0, 512, 512]),
-                s.binning.unwrap_or([1, 1]),
-            )
-            .is_ok()
-        {
-            let [x, y, w, h] = s.region.unwrap_or([0, 0, 512, 512]);
+    if let Ok(b) = serde_json::from_slice::<polnlos::api::bodies::SettingsBody>(data) {
+        let on_camera = Acquisition::defaults_at([0, 0, 512, 512], [1, 1]);
+        let s = b.change.over(&on_camera.into()).complete();
+        let s = s.expect("every setting is stated or the camera's");
+        if LIMITS.check(s.region, s.binning).is_ok() {
+            let [x, y, w, h] = s.region;
             assert!(x + w <= 2048 && y + h <= 2048);
         }
     }

@@ -9,7 +9,7 @@
 use serde::{Deserialize, Serialize};
 
 pub use crate::daemon::requests::{
-    AutoExposure, CalibrationBody, CaptureBody, ProgressiveBody, ReconstructionBody,
+    AutoExposure, CalibrationBody, CaptureBody, ProgressiveBody, ReconstructionBody, SettingsBody,
     SourcePositionBody, WallCalibrationBody, MAX_CAPTURES_PER_POSITION,
 };
 

@@ -36,7 +36,8 @@ use crate::daemon::Daemon;
         crate::daemon::FittedPosition,
         crate::daemon::ProgressiveStep,
         crate::camera::CameraSettings,
-        crate::camera::SettingsChange,
+        super::bodies::SettingsBody,
+        crate::camera::Acquisition,
         crate::store::CaptureRecord,
         crate::store::ReconstructionRecord,
         crate::store::JobState,
@@ -195,13 +196,11 @@ pub fn with_names(
     scenes.sort();
     let schemas = &mut doc["components"]["schemas"];
     for body in ["CaptureBody", "ReconstructionBody", "WallCalibrationBody"] {
-        let scene = &mut schemas[body]["properties"]["scene"];
-        if scene.is_object() {
+        if let Some(scene) = property(&mut schemas[body], "scene") {
             scene["enum"] = serde_json::json!(scenes);
         }
     }
-    let pose = &mut schemas["CaptureBody"]["properties"]["pose"];
-    if pose.is_object() {
+    if let Some(pose) = property(&mut schemas["CaptureBody"], "pose") {
         pose["enum"] = serde_json::json!(poses);
     }
     if let Some(params) =
@@ -212,6 +211,22 @@ pub fn with_names(
         }
     }
     doc
+}
+
+/// The schema of property `name` of an object schema, also where a body
+/// embeds another struct's fields (`allOf` of the two).
+fn property<'a>(
+    schema: &'a mut serde_json::Value,
+    name: &str,
+) -> Option<&'a mut serde_json::Value> {
+    if schema["properties"][name].is_object() {
+        return schema["properties"].get_mut(name);
+    }
+    schema["allOf"]
+        .as_array_mut()?
+        .iter_mut()
+        .find(|part| part["properties"][name].is_object())?["properties"]
+        .get_mut(name)
 }
 
 /// Every operation of the document (the methods the API serves).
@@ -296,9 +311,19 @@ mod tests {
         assert!(v["paths"]["/captures"]["get"]["responses"]["422"].is_object());
         assert!(v["paths"]["/captures"]["get"]["responses"]["415"].is_null());
         // Scene and pose names appear as enums.
-        let v = with_names(v, &["b".into(), "a".into()], &["A".into()]);
-        let scene = &v["components"]["schemas"]["CaptureBody"]["properties"]["scene"];
+        let mut v = with_names(v, &["b".into(), "a".into()], &["A".into()]);
+        let body = &mut v["components"]["schemas"]["CaptureBody"];
+        let scene = property(body, "scene").cloned().unwrap_or_default();
         assert_eq!(scene["enum"], serde_json::json!(["a", "b"]), "{scene}");
+        let pose = property(body, "pose").cloned().unwrap_or_default();
+        assert_eq!(pose["enum"], serde_json::json!(["A"]), "{pose}");
+        // The camera settings a capture body embeds are documented in it.
+        let exposure = property(body, "exposure_us").cloned();
+        assert!(exposure.is_none(), "embedded by reference, not copied");
+        assert_eq!(
+            body["allOf"][0]["$ref"], "#/components/schemas/CameraSettings",
+            "{body}"
+        );
         let name = &v["paths"]["/scenes/{name}/exposure"]["get"]["parameters"][0];
         assert_eq!(
             name["schema"]["enum"],

@@ -15,11 +15,10 @@ use tokio_stream::StreamExt;
 
 use super::bodies::{
     Accepted, CaptureAccepted, CaptureBody, ErrorBody, Health, Page, ReconstructionBody,
-    TargetQuery,
+    SettingsBody, TargetQuery,
 };
 use super::extract::{ApiJson, ApiPath as Path, ApiQuery as Query};
 use super::ApiError;
-use crate::camera::SettingsChange;
 use crate::daemon::metrics::{counter, gauge, Metrics};
 use crate::daemon::{Daemon, JobKind};
 use crate::measure::exposure::BlockExposure;
@@ -149,12 +148,12 @@ pub async fn camera_frame(State(d): St, Query(q): Query<FrameQuery>) -> Result<R
 /// Changes the capture defaults (any subset of the settings; the rest keep
 /// theirs) and applies them to the camera now (queued captures keep their
 /// own). 409 while a capture has the camera.
-#[utoipa::path(put, path = "/camera/settings", request_body = SettingsChange, responses((status = 200, body = crate::camera::CameraInfo, description = "Applied; the camera's description with its settings read back"), (status = 409, description = "A capture is running"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
+#[utoipa::path(put, path = "/camera/settings", request_body = SettingsBody, responses((status = 200, body = crate::camera::CameraInfo, description = "Applied; the camera's description with its settings read back"), (status = 409, description = "A capture is running"), (status = 422, description = "Out of range"), (status = 503, description = "No camera")))]
 pub async fn camera_settings(
     State(d): St,
-    ApiJson(s): ApiJson<SettingsChange>,
+    ApiJson(s): ApiJson<SettingsBody>,
 ) -> Result<Json<crate::camera::CameraInfo>, ApiError> {
-    Ok(Json(d.camera().put_settings(s).await?))
+    Ok(Json(d.camera().put_settings(s.change).await?))
 }
 
 /// Queues a capture.

@@ -14,7 +14,7 @@ use aravis::{AcquisitionMode, BufferStatus, Camera};
 use super::device::{
     CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameIds, FrameSink, RawFrame,
 };
-use super::settings::{CameraSettings, PixelFormat, SensorLimits, TriggerMode};
+use super::settings::{Acquisition, PixelFormat, SensorLimits, TriggerMode};
 
 /// Buffers queued on the stream: at least this many whatever the frame
 /// count, so that frames arriving while earlier ones are decoded and handed
@@ -47,7 +47,7 @@ pub struct AravisCamera {
     frame_rate_feature: Option<&'static str>,
     limits: SensorLimits,
     /// Settings read back after the last configure (what the camera has).
-    settings: CameraSettings,
+    settings: Acquisition,
     counters: Counters,
     /// Frame period of the previous acquisition: the first frame after a
     /// change can take up to one old period.
@@ -105,7 +105,7 @@ impl AravisCamera {
             gain_is_integer,
             frame_rate_feature,
             limits,
-            settings: CameraSettings::default(),
+            settings: Acquisition::defaults_at([0, 0, 0, 0], [1, 1]),
             counters: Counters {
                 connects: 1,
                 ..Counters::default()
@@ -126,17 +126,14 @@ impl AravisCamera {
                 .map_err(feature_err("BinningHorizontal/BinningVertical"))?,
             _ => [1, 1],
         };
-        let current = CameraSettings {
-            region: Some([to_u32(x), to_u32(y), to_u32(w), to_u32(h)]),
-            binning: Some(binning),
-            ..CameraSettings::default()
-        };
+        let current =
+            Acquisition::defaults_at([to_u32(x), to_u32(y), to_u32(w), to_u32(h)], binning);
         cam.configure(&current)?;
         Ok(cam)
     }
 
     /// What the camera has now: every setting read back from its features.
-    fn read_settings(&self) -> Result<CameraSettings, CameraError> {
+    fn read_settings(&self) -> Result<Acquisition, CameraError> {
         let c = &self.camera;
         let d = self.device()?;
         let exposure_us = d
@@ -179,12 +176,12 @@ impl AravisCamera {
             && c.trigger_source()
                 .map(|v| v.as_str() == "Software")
                 .unwrap_or(false);
-        Ok(CameraSettings {
+        Ok(Acquisition {
             exposure_us,
             gain,
             pixel_format,
-            region: Some([to_u32(x), to_u32(y), to_u32(w), to_u32(h)]),
-            binning: Some(binning),
+            region: [to_u32(x), to_u32(y), to_u32(w), to_u32(h)],
+            binning,
             trigger: if software {
                 TriggerMode::Software
             } else {
@@ -319,16 +316,9 @@ impl CameraDevice for AravisCamera {
         })
     }
 
-    fn configure(&mut self, s: &CameraSettings) -> Result<(), CameraError> {
-        // Region and binning are checked against the sensor before Aravis sees
-        // them; an absent one is the camera's current one.
-        let binning = s.binning.or(self.settings.binning).unwrap_or([1, 1]);
-        let region = s.region.or(self.settings.region).unwrap_or([
-            0,
-            0,
-            self.limits.sensor[0] / binning[0].max(1),
-            self.limits.sensor[1] / binning[1].max(1),
-        ]);
+    fn configure(&mut self, s: &Acquisition) -> Result<(), CameraError> {
+        // Region and binning are checked against the sensor before Aravis sees them.
+        let (region, binning) = (s.region, s.binning);
         self.limits.check(region, binning)?;
         let d = self.device()?;
         let eb = self.float_bounds(self.exposure_feature)?;
@@ -368,7 +358,7 @@ impl CameraDevice for AravisCamera {
                 .map_err(feature_err("TriggerMode/TriggerSource"))?,
         }
         self.settings = self.read_settings()?;
-        if (self.settings.region, self.settings.binning) != (Some(region), Some(binning)) {
+        if (self.settings.region, self.settings.binning) != (region, binning) {
             return Err(CameraError::Feature {
                 feature: "OffsetX/OffsetY/Width/Height".into(),
                 reason: format!(

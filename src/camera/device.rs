@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use super::settings::{CameraSettings, GeometryError, SensorLimits};
+use super::settings::{Acquisition, GeometryError, SensorLimits};
 
 /// One frame as the sensor delivered it (no arithmetic done yet).
 #[derive(Debug, Clone)]
@@ -133,7 +133,7 @@ pub struct Counters {
 }
 
 /// What the camera is and what it can do.
-#[derive(Debug, Clone, Default, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct CameraInfo {
     /// GenICam identity, `vendor-model-serial`.
     pub id: String,
@@ -162,7 +162,7 @@ pub struct CameraInfo {
     /// Region and binning limits, read from the feature nodes.
     pub limits: SensorLimits,
     /// Settings read back from the camera (not what was asked for).
-    pub settings: CameraSettings,
+    pub settings: Acquisition,
 }
 
 /// What went wrong with the camera, naming the feature or the device.
@@ -261,7 +261,7 @@ pub trait CameraDevice: Send {
     /// Identity, ranges and current settings.
     fn describe(&mut self) -> Result<CameraInfo, CameraError>;
     /// Applies settings (validated against the camera's ranges).
-    fn configure(&mut self, settings: &CameraSettings) -> Result<(), CameraError>;
+    fn configure(&mut self, settings: &Acquisition) -> Result<(), CameraError>;
     /// Acquires `n` frames with the current settings, handing each to `sink`
     /// as it arrives (nothing is kept here); an `Err` from the sink stops the
     /// acquisition with [`CameraError::Stopped`]. Returns what this

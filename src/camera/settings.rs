@@ -31,15 +31,20 @@ impl TriggerMode {
     }
 }
 
-/// The settings one capture is taken with, every one resolved (the
-/// request's, or the camera's current ones when it was accepted): the one
-/// type the capture request, its catalogue row, its files' page
-/// description and the API's reply share.
+/// Every camera setting, resolved: what a capture is taken with (the
+/// request's, or the defaults when it was accepted), what a camera is
+/// configured with and reads back, and what a capture's files describe.
+///
+/// Why two types and no more: [`CameraSettings`] is the same settings each
+/// one stated or not (a request, a change, the defaults, a catalogue row);
+/// this one is the same after every gap was filled. A new setting is a field
+/// in both, its line in [`CameraSettings::over`], [`CameraSettings::complete`]
+/// and [`Acquisition::defaults_at`], and its device mapping.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Acquisition {
     /// Exposure per frame, microseconds.
     pub exposure_us: f64,
-    /// Gain in the camera's units.
+    /// Gain in the camera's units (dB for `Gain`, raw steps for `GainRaw`).
     pub gain: f64,
     /// Pixel format.
     pub pixel_format: PixelFormat,
@@ -54,6 +59,19 @@ pub struct Acquisition {
 }
 
 impl Acquisition {
+    /// polnlos's own defaults (20 ms, gain 0, Mono16, free running) at a
+    /// region and binning: what a camera is set to when it is opened.
+    pub fn defaults_at(region: [u32; 4], binning: [u32; 2]) -> Self {
+        Self {
+            exposure_us: 20_000.0,
+            gain: 0.0,
+            pixel_format: PixelFormat::Mono16,
+            region,
+            binning,
+            trigger: TriggerMode::Free,
+        }
+    }
+
     /// Whether a dark frame taken with `self` can be subtracted from a frame
     /// taken with `other`: the same exposure, gain, pixel format, region and
     /// binning (the trigger does not change the dark level).
@@ -68,80 +86,107 @@ impl Acquisition {
 impl From<Acquisition> for CameraSettings {
     fn from(a: Acquisition) -> Self {
         Self {
-            exposure_us: a.exposure_us,
-            gain: a.gain,
-            pixel_format: a.pixel_format,
+            exposure_us: Some(a.exposure_us),
+            gain: Some(a.gain),
+            pixel_format: Some(a.pixel_format),
             region: Some(a.region),
             binning: Some(a.binning),
-            trigger: a.trigger,
+            trigger: Some(a.trigger),
         }
     }
 }
 
-/// Everything a capture sets on the camera.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct CameraSettings {
-    /// Exposure, microseconds.
-    pub exposure_us: f64,
-    /// Gain in the camera's units (dB for `Gain`, raw steps for `GainRaw`).
-    pub gain: f64,
-    /// Pixel format.
-    pub pixel_format: PixelFormat,
-    /// Region of interest `[x, y, width, height]` in (binned) pixels; the
-    /// camera's current one when absent.
-    pub region: Option<[u32; 4]>,
-    /// Binning `[x, y]`; the camera's current one when absent.
-    pub binning: Option<[u32; 2]>,
-    /// Trigger mode.
-    pub trigger: TriggerMode,
-}
-
-impl Default for CameraSettings {
-    fn default() -> Self {
-        Self {
-            exposure_us: 20_000.0,
-            gain: 0.0,
-            pixel_format: PixelFormat::Mono16,
-            region: None,
-            binning: None,
-            trigger: TriggerMode::Free,
-        }
-    }
-}
-
-/// A change of the capture defaults (`PUT /camera/settings`): any subset of
-/// the settings; what it leaves out keeps its current default.
+/// The camera settings, each one stated or not: a capture request's (what
+/// it leaves out inherits the defaults), a `PUT /camera/settings` change
+/// (what it leaves out keeps its default), the capture defaults themselves
+/// (the region is unknown until a camera reports it), and a
+/// catalogue row's (rows from before a setting was recorded lack it).
 ///
-/// Why a separate type: a client that means to change one setting must not
-/// have to restate (and so risk resetting) the others.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct SettingsChange {
-    /// Exposure, microseconds.
+/// Why one type for all four: every setting inherits the same way
+/// ([`CameraSettings::over`]), and the request, the camera, the catalogue
+/// and the API's documents all take a new setting from here. Embedded in a
+/// request body with `#[serde(flatten)]` (unknown keys are refused there).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct CameraSettings {
+    /// Exposure per frame, microseconds.
+    #[schema(exclusive_minimum = 0.0)]
     pub exposure_us: Option<f64>,
-    /// Gain in the camera's units.
+    /// Gain in the camera's units (dB for `Gain`, raw steps for `GainRaw`).
     pub gain: Option<f64>,
     /// Pixel format.
     pub pixel_format: Option<PixelFormat>,
     /// Region of interest `[x, y, width, height]` in (binned) pixels.
+    #[schema(min_items = 4, max_items = 4)]
     pub region: Option<[u32; 4]>,
     /// Binning `[x, y]`.
+    #[schema(min_items = 2, max_items = 2)]
     pub binning: Option<[u32; 2]>,
-    /// Trigger mode.
+    /// `free` or `software`.
     pub trigger: Option<TriggerMode>,
 }
 
-impl SettingsChange {
-    /// `base` with this change applied.
+/// Settings that were never stated, neither given nor inherited.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("no {}", missing.join(", "))]
+pub struct MissingSettings {
+    /// The settings' names, e.g. `region`, `trigger`.
+    pub missing: Vec<&'static str>,
+}
+
+impl CameraSettings {
+    /// polnlos's defaults before a camera has reported its region
+    /// ([`Acquisition::defaults_at`] unbinned, without a region).
+    pub fn builtin() -> Self {
+        Self {
+            region: None,
+            ..Acquisition::defaults_at([0; 4], [1, 1]).into()
+        }
+    }
+
+    /// These settings, each one that is absent taken from `base`: the one
+    /// inheritance rule of every setting.
     pub fn over(&self, base: &CameraSettings) -> CameraSettings {
         CameraSettings {
-            exposure_us: self.exposure_us.unwrap_or(base.exposure_us),
-            gain: self.gain.unwrap_or(base.gain),
-            pixel_format: self.pixel_format.unwrap_or(base.pixel_format),
+            exposure_us: self.exposure_us.or(base.exposure_us),
+            gain: self.gain.or(base.gain),
+            pixel_format: self.pixel_format.or(base.pixel_format),
             region: self.region.or(base.region),
             binning: self.binning.or(base.binning),
-            trigger: self.trigger.unwrap_or(base.trigger),
+            trigger: self.trigger.or(base.trigger),
+        }
+    }
+
+    /// Every setting, or which are missing.
+    pub fn complete(&self) -> Result<Acquisition, MissingSettings> {
+        match *self {
+            CameraSettings {
+                exposure_us: Some(exposure_us),
+                gain: Some(gain),
+                pixel_format: Some(pixel_format),
+                region: Some(region),
+                binning: Some(binning),
+                trigger: Some(trigger),
+            } => Ok(Acquisition {
+                exposure_us,
+                gain,
+                pixel_format,
+                region,
+                binning,
+                trigger,
+            }),
+            s => Err(MissingSettings {
+                missing: [
+                    ("exposure_us", s.exposure_us.is_none()),
+                    ("gain", s.gain.is_none()),
+                    ("pixel_format", s.pixel_format.is_none()),
+                    ("region", s.region.is_none()),
+                    ("binning", s.binning.is_none()),
+                    ("trigger", s.trigger.is_none()),
+                ]
+                .into_iter()
+                .filter_map(|(name, absent)| absent.then_some(name))
+                .collect(),
+            }),
         }
     }
 }
@@ -360,19 +405,54 @@ mod tests {
     }
 
     #[test]
-    fn settings_refuse_negative_regions_and_unknown_fields() {
+    fn settings_refuse_negative_regions_and_short_arrays() {
         let ok = r#"{"exposure_us": 1000, "gain": 0, "pixel_format": "Mono16", "trigger": "free", "region": [0, 0, 64, 64], "binning": [1, 1]}"#;
-        serde_json::from_str::<CameraSettings>(ok).unwrap();
+        let read: CameraSettings = serde_json::from_str(ok).unwrap();
+        assert_eq!(read.complete().unwrap().region, [0, 0, 64, 64]);
         for bad in [
             ok.replace("[0, 0, 64, 64]", "[-1, -1, 10, 10]"),
-            ok.replace("[1, 1]", "[1, 1], \"colour\": true"),
             ok.replace("[0, 0, 64, 64]", "[0, 0, 64]"),
+            ok.replace("\"free\"", "\"sometimes\""),
         ] {
             assert!(
                 serde_json::from_str::<CameraSettings>(&bad).is_err(),
                 "{bad}"
             );
         }
+    }
+
+    #[test]
+    fn every_setting_inherits_the_same_way_and_a_gap_is_named() {
+        let base = CameraSettings::from(Acquisition::defaults_at([0, 0, 64, 32], [2, 2]));
+        let stated = CameraSettings {
+            gain: Some(3.0),
+            trigger: Some(TriggerMode::Software),
+            ..CameraSettings::default()
+        };
+        let got = stated.over(&base).complete().unwrap();
+        assert_eq!(
+            got,
+            Acquisition {
+                gain: 3.0,
+                trigger: TriggerMode::Software,
+                ..Acquisition::defaults_at([0, 0, 64, 32], [2, 2])
+            }
+        );
+        assert_eq!(CameraSettings::from(got).over(&stated), got.into());
+        let gap = stated
+            .over(&CameraSettings::builtin())
+            .complete()
+            .unwrap_err();
+        assert_eq!(gap.missing, ["region"]);
+        assert_eq!(gap.to_string(), "no region");
+        assert_eq!(
+            CameraSettings::default()
+                .complete()
+                .unwrap_err()
+                .missing
+                .len(),
+            6
+        );
     }
 
     proptest::proptest! {

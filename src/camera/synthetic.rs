@@ -13,7 +13,7 @@ use super::fake::Bench;
 use super::settings::{SensorLimits, EXPOSURE_RANGE_US};
 use super::shown::{BenchImages, Shown};
 use super::worker::Opener;
-use super::{CameraDevice, CameraError, CameraInfo, CameraSettings, Counters, RawFrame};
+use super::{Acquisition, CameraDevice, CameraError, CameraInfo, Counters, RawFrame};
 
 /// Gain range of the synthetic camera.
 const GAIN_RANGE: (f64, f64) = (0.0, 10.0);
@@ -25,7 +25,7 @@ const SENSOR: u32 = 512;
 pub struct SyntheticBench {
     shown: Arc<Shown>,
     /// Settings of the camera, kept across reopenings like a real camera's.
-    settings: Arc<Mutex<CameraSettings>>,
+    settings: Arc<Mutex<Acquisition>>,
 }
 
 impl SyntheticBench {
@@ -34,11 +34,10 @@ impl SyntheticBench {
     pub fn new(images: BenchImages, reference_exposure_us: f64) -> Self {
         Self {
             shown: Arc::new(Shown::new(images, reference_exposure_us)),
-            settings: Arc::new(Mutex::new(CameraSettings {
-                region: Some([0, 0, SENSOR, SENSOR]),
-                binning: Some([1, 1]),
-                ..CameraSettings::default()
-            })),
+            settings: Arc::new(Mutex::new(Acquisition::defaults_at(
+                [0, 0, SENSOR, SENSOR],
+                [1, 1],
+            ))),
         }
     }
 
@@ -81,7 +80,7 @@ impl Bench for SyntheticBench {
 /// The camera of a [`SyntheticBench`].
 struct SyntheticCamera {
     shown: Arc<Shown>,
-    settings: Arc<Mutex<CameraSettings>>,
+    settings: Arc<Mutex<Acquisition>>,
     counters: Counters,
     frame_id: u64,
 }
@@ -97,11 +96,11 @@ impl SyntheticCamera {
         }
     }
 
-    fn settings(&self) -> CameraSettings {
+    fn settings(&self) -> Acquisition {
         self.settings
             .lock()
-            .map(|s| s.clone())
-            .unwrap_or_else(|e| e.into_inner().clone())
+            .map(|s| *s)
+            .unwrap_or_else(|e| *e.into_inner())
     }
 }
 
@@ -125,24 +124,17 @@ impl CameraDevice for SyntheticCamera {
         })
     }
 
-    fn configure(&mut self, s: &CameraSettings) -> Result<(), CameraError> {
-        let mut next = s.clone();
-        let current = self.settings();
-        next.region = s.region.or(current.region);
-        next.binning = s.binning.or(current.binning);
-        Self::limits().check(
-            next.region.unwrap_or([0, 0, SENSOR, SENSOR]),
-            next.binning.unwrap_or([1, 1]),
-        )?;
+    fn configure(&mut self, s: &Acquisition) -> Result<(), CameraError> {
+        Self::limits().check(s.region, s.binning)?;
         CameraError::check_range("ExposureTime", s.exposure_us, EXPOSURE_RANGE_US)?;
         CameraError::check_range("Gain", s.gain, GAIN_RANGE)?;
-        *self.settings.lock().unwrap_or_else(|e| e.into_inner()) = next;
+        *self.settings.lock().unwrap_or_else(|e| e.into_inner()) = *s;
         Ok(())
     }
 
     fn acquire(&mut self, n: usize, sink: &mut FrameSink<'_>) -> Result<FrameCounts, CameraError> {
         let s = self.settings();
-        let [ox, oy, w, h] = s.region.unwrap_or([0, 0, SENSOR, SENSOR]);
+        let [ox, oy, w, h] = s.region;
         let (w, h) = (w as usize, h as usize);
         let full = s.pixel_format.full_scale();
         for _ in 0..n {

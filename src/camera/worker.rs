@@ -10,16 +10,16 @@ use std::time::Duration;
 use tokio::sync::oneshot;
 
 use super::device::{CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, RawFrame};
-use super::settings::CameraSettings;
+use super::settings::Acquisition;
 
 /// Opens the camera (again): the worker calls it at start and after a loss.
 pub type Opener = Box<dyn Fn() -> Result<Box<dyn CameraDevice>, CameraError> + Send>;
 
 enum Request {
     Describe(oneshot::Sender<Result<CameraInfo, CameraError>>),
-    Configure(CameraSettings, oneshot::Sender<Result<(), CameraError>>),
+    Configure(Acquisition, oneshot::Sender<Result<(), CameraError>>),
     Acquire {
-        settings: CameraSettings,
+        settings: Acquisition,
         n: usize,
         sink: mpsc::SyncSender<RawFrame>,
         reply: oneshot::Sender<Result<FrameCounts, CameraError>>,
@@ -89,7 +89,7 @@ impl CameraHandle {
     }
 
     /// Applies settings now (and keeps them for later captures).
-    pub async fn configure(&self, settings: CameraSettings) -> Result<(), CameraError> {
+    pub async fn configure(&self, settings: Acquisition) -> Result<(), CameraError> {
         let (reply, rx) = oneshot::channel();
         self.tx
             .send(Request::Configure(settings, reply))
@@ -104,7 +104,7 @@ impl CameraHandle {
     /// this acquisition received and lost.
     pub async fn acquire(
         &self,
-        settings: CameraSettings,
+        settings: Acquisition,
         n: usize,
         sink: mpsc::SyncSender<RawFrame>,
     ) -> Result<FrameCounts, CameraError> {
@@ -124,7 +124,7 @@ impl CameraHandle {
     /// memory: for tests and a few frames, not for captures).
     pub async fn collect(
         &self,
-        settings: CameraSettings,
+        settings: Acquisition,
         n: usize,
     ) -> Result<Vec<RawFrame>, CameraError> {
         let (tx, rx) = mpsc::sync_channel(n.max(1));
@@ -267,7 +267,7 @@ impl Worker {
     /// Configures, then acquires `n` frames into `sink`; counters follow.
     fn acquire(
         &mut self,
-        settings: &CameraSettings,
+        settings: &Acquisition,
         n: usize,
         sink: &SyncSender<RawFrame>,
     ) -> Result<FrameCounts, CameraError> {

@@ -150,6 +150,7 @@ impl Daemon {
             ));
         }
         let region = c
+            .settings
             .region
             .unwrap_or([0, 0, mean.width as u32, mean.height as u32]);
         let source = self

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 use crate::camera::fake::Bench;
 use crate::camera::hotplug::Hotplug;
 use crate::camera::worker::{CameraHandle, CameraStatus};
-use crate::camera::{CameraInfo, CameraSettings, RawFrame, SettingsChange};
+use crate::camera::{Acquisition, CameraError, CameraInfo, CameraSettings, RawFrame};
 
 /// Why a settings change was refused.
 #[derive(Debug, thiserror::Error)]
@@ -137,42 +137,42 @@ impl CameraService {
     /// capture that states none (a Mono8 capture turning the next ones Mono8).
     /// A capture's settings belong to it; defaults change only by a PUT.
     pub fn capture_defaults(&self, info: Option<&CameraInfo>) -> CameraSettings {
-        let camera = info.map(|i| i.settings.clone());
+        let camera = info.map(|i| CameraSettings::from(i.settings));
         let latched = {
             let mut d = self.defaults.lock().unwrap_or_else(|e| e.into_inner());
             if d.is_none() {
                 d.clone_from(&camera);
             }
-            d.clone()
+            *d
         };
-        match (latched, camera) {
-            (Some(mut p), Some(c)) => {
-                p.region = p.region.or(c.region);
-                p.binning = p.binning.or(c.binning);
-                p
-            }
-            (Some(p), None) => p,
-            (None, _) => CameraSettings::default(),
-        }
+        latched.unwrap_or_else(CameraSettings::builtin)
+    }
+
+    /// `stated` over the capture defaults, on this camera: what neither
+    /// states is the camera's own (read back in `info`), so nothing is missing.
+    fn settings_on(&self, stated: CameraSettings, info: &CameraInfo) -> Acquisition {
+        stated
+            .over(&self.capture_defaults(Some(info)))
+            .over(&info.settings.into())
+            .complete()
+            .unwrap_or(info.settings)
     }
 
     /// Applies a change of the settings (what it leaves out keeps its
     /// current default) and makes the result the defaults later captures
     /// inherit. Refused (not waited for) while a capture has the camera.
-    pub async fn put_settings(&self, change: SettingsChange) -> Result<CameraInfo, SettingsError> {
+    pub async fn put_settings(&self, change: CameraSettings) -> Result<CameraInfo, SettingsError> {
         let Ok(_camera) = self.gate.try_lock() else {
             return Err(SettingsError::Busy);
         };
-        let s = change.over(&self.capture_defaults(self.status().info.as_ref()));
-        if let Some(info) = self.status().info {
-            let binning = s.binning.or(info.settings.binning).unwrap_or([1, 1]);
-            if let Some(region) = s.region.or(info.settings.region) {
-                info.limits.check(region, binning)?;
-            }
-        }
-        self.handle.configure(s.clone()).await?;
+        let info = self.status().info.ok_or_else(|| {
+            CameraError::Disconnected("settings are applied to a connected camera".into())
+        })?;
+        let s = self.settings_on(change, &info);
+        info.limits.check(s.region, s.binning)?;
+        self.handle.configure(s).await?;
         let info = self.handle.describe().await?;
-        *self.defaults.lock().unwrap_or_else(|e| e.into_inner()) = Some(info.settings.clone());
+        *self.defaults.lock().unwrap_or_else(|e| e.into_inner()) = Some(info.settings.into());
         Ok(info)
     }
 
@@ -207,8 +207,8 @@ impl CameraService {
     pub async fn live_frame(&self) -> Option<Arc<RawFrame>> {
         if let Ok(_camera) = self.gate.try_lock() {
             let status = self.status();
-            if status.connected {
-                let s = self.capture_defaults(status.info.as_ref());
+            if let Some(info) = status.info.as_ref().filter(|_| status.connected) {
+                let s = self.settings_on(CameraSettings::default(), info);
                 let exposure = s.exposure_us.max(0.0) * 1e-6;
                 let within = std::time::Duration::from_secs_f64(exposure.min(60.0) + 3.0);
                 match tokio::time::timeout(within, self.handle.collect(s, 1)).await {

@@ -21,7 +21,7 @@ use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::progressive;
 use super::queue::CaptureQueue;
 use super::Event;
-use crate::camera::{Acquisition, CameraError, CameraSettings, Frame, FrameCounts, RawFrame};
+use crate::camera::{Acquisition, CameraError, Frame, FrameCounts, RawFrame};
 use crate::measure::FrameStack;
 use crate::store::{
     read_mean, write_frames, write_summary, CaptureFiles, CaptureKind, CaptureRecord, FrameMeta,
@@ -112,7 +112,6 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         id,
         reason: e.to_string(),
     })?;
-    let settings = CameraSettings::from(acquisition);
     wait_for_camera(&w.camera).await;
     let camera_id = w.camera.status().info.map(|i| i.id).unwrap_or_default();
     let meta = meta_of(&c, acquisition, &camera_id);
@@ -123,7 +122,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     let stream = Stream {
         w,
         id,
-        settings: &settings,
+        settings: &acquisition,
         meta: &meta,
         total: (c.frames + c.dark_frames) as usize,
         cancel,
@@ -324,7 +323,7 @@ fn stall_limit(exposure_us: f64, n: usize, slack: std::time::Duration) -> std::t
 struct Stream<'a> {
     w: &'a CaptureWorker,
     id: i64,
-    settings: &'a CameraSettings,
+    settings: &'a Acquisition,
     meta: &'a FrameMeta,
     total: usize,
     /// Set by `DELETE /jobs/capture-<id>`: the writer stops at the next frame.
@@ -394,10 +393,7 @@ impl Stream<'_> {
                     tokio::task::spawn_blocking(move || store.capture_progress(id, taken)).await;
             }
         });
-        let acquire = w
-            .camera
-            .handle()
-            .acquire(self.settings.clone(), n, frame_tx);
+        let acquire = w.camera.handle().acquire(*self.settings, n, frame_tx);
         // The camera thread bounds every wait on the camera; this bounds the
         // whole acquisition too, so that a capture can never hold the queue.
         let limit = stall_limit(self.settings.exposure_us, n, w.stall_slack);

@@ -28,6 +28,7 @@ mod capture;
 pub mod config;
 mod demo;
 pub mod events;
+mod flatten;
 mod integral;
 mod jobs;
 pub mod metrics;

@@ -25,7 +25,7 @@ use super::jobs::{JobContext, JobError};
 use super::reconstruction::{load_capture, read_captures};
 use super::validate::ProgressiveSpec;
 use super::Event;
-use crate::camera::Frame;
+use crate::camera::{Acquisition, Frame};
 use crate::files::{image, json};
 use crate::measure::FrameStack;
 use crate::measure::{assemble_with, CaptureFrames, PixelMaps, Units};
@@ -122,6 +122,8 @@ struct Solver {
     state: AdmmState,
     settings: AdmmSettings<'static>,
     calibration: f64,
+    /// The settings the capture is taken with.
+    acquisition: Acquisition,
     /// Full scale of the capture's pixel format, DN.
     full_scale: f64,
     dark: Option<Frame>,
@@ -153,7 +155,11 @@ impl Solver {
                 reason: format!("progressive reconstruction needs the radiometric calibration of scene {:?} ([calibration] in the config)", capture.scene),
             }
         })?;
-        let full_scale = capture.pixel_format.full_scale();
+        let acquisition = Acquisition::try_from(&capture).map_err(|e| JobError::Capture {
+            id: capture.id,
+            reason: e.to_string(),
+        })?;
+        let full_scale = acquisition.pixel_format.full_scale();
         // This capture's block is filled at each step; the others come
         // from their captures, assembled as a reconstruction would.
         let own = t
@@ -208,6 +214,7 @@ impl Solver {
             normal,
             state: AdmmState::default(),
             calibration,
+            acquisition,
             full_scale,
             dark,
             dark_variance,
@@ -271,9 +278,9 @@ impl Solver {
             variance,
             frames: s.frames,
             full_scale: self.full_scale,
-            exposure_us: self.capture.exposure_us,
-            offset: self.capture.region.map_or([0, 0], |r| [r[0], r[1]]),
-            binning: self.capture.binning.unwrap_or([1, 1]),
+            exposure_us: self.acquisition.exposure_us,
+            offset: [self.acquisition.region[0], self.acquisition.region[1]],
+            binning: self.acquisition.binning,
         };
         let mut m = assemble_with(&self.scene, std::slice::from_ref(block), &[own], &self.maps)?;
         Units::Calibrated(self.calibration).apply(&mut m);

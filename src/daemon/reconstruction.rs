@@ -119,8 +119,8 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     let solve = stored_solve(&rec)?;
     let truth = rec
         .params
-        .get("truth")
-        .and_then(|v| v.as_str())
+        .truth
+        .as_deref()
         .and_then(crate::simulate::patterns::Pattern::from_name)
         .map(|pat| pat.render(t.scene_grid()));
     let context = Context {
@@ -213,8 +213,8 @@ impl Daemon {
     ) -> Result<Option<Vec<u8>>, String> {
         let Some(pattern) = rec
             .params
-            .get("truth")
-            .and_then(|v| v.as_str())
+            .truth
+            .as_deref()
             .and_then(crate::simulate::patterns::Pattern::from_name)
         else {
             return Ok(None);
@@ -247,25 +247,18 @@ fn stack_captures(
     stack_records(store, records, scene, t.blocks(), maps)
 }
 
-/// The solve a reconstruction row asks for: its parameters (the same keys
-/// as [`SolveRequest`]; none stored means the defaults) and its solver
-/// column. Parameters that do not read as a request are an error naming
-/// the row, never silently the defaults: a stored λ must not turn automatic.
+/// The solve a reconstruction row asks for: its parameters (read typed
+/// with the row: parameters that do not read back make the row unreadable,
+/// never the defaults) and its solver column.
 fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest, JobError> {
-    let mut solve: SolveRequest = match &rec.params {
-        serde_json::Value::Null => SolveRequest::default(),
-        p => serde_json::from_value(p.clone()).map_err(|e| {
-            JobError::Store(format!(
-                "reconstruction {}: its stored parameters cannot be read ({e})",
-                rec.id
-            ))
-        })?,
-    };
-    solve.solver =
+    let solver =
         serde_json::from_value(serde_json::Value::String(rec.solver.clone())).map_err(|_| {
             JobError::Store(format!("solver {:?} is not one polnlos knows", rec.solver))
         })?;
-    Ok(solve)
+    Ok(SolveRequest {
+        solver,
+        ..rec.params.solve.clone()
+    })
 }
 
 /// Captures (each at its own pose) assembled into the measurement of
@@ -307,24 +300,45 @@ pub(super) fn read_captures(store: &Store, ids: &[i64]) -> Result<Vec<CaptureRec
 struct StoredCapture<'a> {
     store: &'a Store,
     record: CaptureRecord,
+    info: CaptureInfo,
 }
 
-impl CaptureSource for StoredCapture<'_> {
-    fn info(&self) -> CaptureInfo {
-        let c = &self.record;
+impl<'a> StoredCapture<'a> {
+    /// The capture and what it recorded; its exposure and pixel format are
+    /// needed (every capture records them; a row without is refused).
+    fn new(store: &'a Store, record: CaptureRecord) -> Result<Self, JobError> {
+        let c = &record;
+        let s = &c.settings;
+        let (Some(exposure_us), Some(pixel_format)) = (s.exposure_us, s.pixel_format) else {
+            return Err(JobError::Capture {
+                id: c.id,
+                reason: "its row records no exposure_us or pixel_format".into(),
+            });
+        };
         let dark = c.dark_frames > 0 || c.dark_capture.is_some();
-        CaptureInfo {
+        let info = CaptureInfo {
             name: format!("capture {}", c.id),
             pose: c.pose.clone(),
             polarizer_deg: c.polarizer_deg,
             frames: c.frames as usize,
-            full_scale: c.pixel_format.full_scale(),
-            exposure_us: c.exposure_us,
-            region: c.region,
-            binning: c.binning,
+            full_scale: pixel_format.full_scale(),
+            exposure_us,
+            region: s.region,
+            binning: s.binning,
             missing_dark: (!dark)
                 .then_some("take dark_frames, or a dark capture named in dark_capture"),
-        }
+        };
+        Ok(Self {
+            store,
+            record,
+            info,
+        })
+    }
+}
+
+impl CaptureSource for StoredCapture<'_> {
+    fn info(&self) -> CaptureInfo {
+        self.info.clone()
     }
 
     fn mean(&self) -> Result<Frame, String> {
@@ -346,15 +360,15 @@ pub(super) fn load_capture(
     scene: &crate::scene::Scene,
     warnings: &mut Vec<String>,
 ) -> Result<CaptureFrames, JobError> {
-    Ok(load(scene, &StoredCapture { store, record }, warnings)?)
+    Ok(load(scene, &StoredCapture::new(store, record)?, warnings)?)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::store::{JobState, ReconstructionRecord};
+    use crate::store::{JobState, ReconstructionParams, ReconstructionRecord};
 
-    fn row(solver: &str, params: serde_json::Value) -> ReconstructionRecord {
+    fn row(solver: &str, params: ReconstructionParams) -> ReconstructionRecord {
         ReconstructionRecord {
             id: 7,
             scene: "brewster-crossed".into(),
@@ -372,26 +386,19 @@ mod tests {
     }
 
     #[test]
-    fn a_stored_request_is_read_back_or_refused_never_defaulted() {
-        let s = stored_solve(&row(
-            "fista-tv",
-            serde_json::json!({"lambda": 0.25, "max_iter": 40, "truth": "disk"}),
-        ))
-        .unwrap();
+    fn a_stored_request_is_solved_with_its_own_solver_column() {
+        let params = ReconstructionParams::new(
+            SolveRequest {
+                lambda: Some(0.25),
+                max_iter: Some(40),
+                ..SolveRequest::default()
+            },
+            Some("disk".into()),
+        );
+        let s = stored_solve(&row("fista-tv", params)).unwrap();
         assert_eq!(s.solver, crate::solve::Solver::FistaTv);
         assert_eq!((s.lambda, s.max_iter), (Some(0.25), Some(40)));
-        // No parameters stored: the defaults.
-        let s = stored_solve(&row("admm-tv", serde_json::Value::Null)).unwrap();
-        assert_eq!(s.lambda, None);
-        // A damaged λ is an error naming the row, not the automatic λ.
-        let e = stored_solve(&row("admm-tv", serde_json::json!({"lambda": "much"})))
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.starts_with("reconstruction 7: its stored parameters cannot be read"),
-            "{e}"
-        );
-        let e = stored_solve(&row("sgd", serde_json::json!({}))).unwrap_err();
+        let e = stored_solve(&row("sgd", ReconstructionParams::default())).unwrap_err();
         assert_eq!(e.to_string(), "solver \"sgd\" is not one polnlos knows");
     }
 }

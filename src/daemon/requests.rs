@@ -11,7 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::camera::{PixelFormat, TriggerMode};
+use crate::camera::CameraSettings;
 use crate::measure::exposure::ExposureTarget;
 use crate::solve::{SolveRequest, Solver};
 use crate::store::CaptureKind;
@@ -31,18 +31,18 @@ pub struct CaptureBody {
     pub pose: String,
     /// Polarizer angle of the pose, degrees (omit or null for a pose without polarizer).
     pub polarizer_deg: Option<f64>,
-    /// Exposure per frame, microseconds; omit it and give `"exposure": "auto"`
-    /// to have it planned (see `GET /scenes/{name}/exposure`).
-    #[schema(exclusive_minimum = 0.0)]
-    pub exposure_us: Option<f64>,
+    /// The camera settings: exposure per frame (`exposure_us`), gain, pixel
+    /// format, region, binning and trigger, each inheriting the capture
+    /// defaults (`GET /camera`, set by `PUT /camera/settings`) when absent.
+    /// For a planned exposure, leave `exposure_us` out and give `"exposure": "auto"`.
+    #[serde(flatten, deserialize_with = "super::flatten::named")]
+    pub settings: CameraSettings,
     /// `"auto"`: plan the exposure (and, unless `frames` is given, the frame
-    /// count) from the scene, the radiometric calibration and the camera limits.
+    /// count) from the scene, the radiometric calibration and the camera
+    /// limits (see `GET /scenes/{name}/exposure`).
     pub exposure: Option<AutoExposure>,
     /// Target of an automatic exposure (default: peak at 0.8 of full scale, SNR 100).
     pub target: Option<ExposureTarget>,
-    /// Gain (camera units; default: the current settings, as for every
-    /// other camera setting).
-    pub gain: Option<f64>,
     /// Frames to average (1 to `max_frames_per_capture`); default 1, or the
     /// plan's with `"exposure": "auto"`.
     #[serde(default, deserialize_with = "super::integral::opt_count")]
@@ -57,20 +57,23 @@ pub struct CaptureBody {
     /// binning) whose mean is subtracted from this capture's.
     #[serde(default, deserialize_with = "super::integral::opt_int")]
     pub dark_capture: Option<i64>,
-    /// Pixel format (default: the camera's current settings).
-    pub pixel_format: Option<PixelFormat>,
-    /// Region `[x, y, width, height]` (default: the current settings).
-    #[schema(min_items = 4, max_items = 4)]
-    pub region: Option<[u32; 4]>,
-    /// Binning `[x, y]` (default: the current settings).
-    #[schema(min_items = 2, max_items = 2)]
-    pub binning: Option<[u32; 2]>,
-    /// `free` or `software` (default: the current settings).
-    pub trigger: Option<TriggerMode>,
     /// Re-solve the scene from the running mean while frames accumulate, and
     /// publish each intermediate result (event `progressive`,
     /// `/captures/{id}/progressive.png` and `.json`).
     pub progressive: Option<ProgressiveBody>,
+}
+
+/// `PUT /camera/settings` body: any subset of the camera settings; what it
+/// leaves out keeps its current default.
+///
+/// Why a subset: a client that means to change one setting must not have to
+/// restate (and so risk resetting) the others.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SettingsBody {
+    /// The settings to change.
+    #[serde(flatten, deserialize_with = "super::flatten::named")]
+    pub change: CameraSettings,
 }
 
 /// Progressive reconstruction during a capture: ADMM-TV on the running mean

@@ -5,20 +5,19 @@ use std::path::PathBuf;
 
 use rusqlite::{params, OptionalExtension};
 
-use super::records::{self, CaptureRecord, CaptureRequest};
+use super::records::{self, CaptureRecord, CaptureRequest, SettingsDocument};
 use super::schema::Table;
 use super::{finish, now, park, Listing, Store, StoreError};
 
 impl Store {
     /// Records a new capture job (state `queued`); returns its id.
     pub fn insert_capture(&self, r: &CaptureRequest) -> Result<i64, StoreError> {
-        let a = &r.acquisition;
         self.with(|c| {
             c.execute(
-                "INSERT INTO captures (id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at, kind, region, binning, trigger, dark_capture)
-                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, 'queued', ?9, ?10, ?11, ?12, ?13, ?14)",
-                params![r.scene, r.pose, r.polarizer_deg, a.exposure_us, a.gain, r.frames as i64, r.dark_frames as i64, a.pixel_format.name(), now(),
-                    r.kind.name(), serde_json::to_string(&a.region).unwrap_or_default(), serde_json::to_string(&a.binning).unwrap_or_default(), a.trigger.name(), r.dark_capture],
+                "INSERT INTO captures (id, scene, pose, polarizer_deg, settings, frames, dark_frames, state, created_at, kind, dark_capture)
+                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, 'queued', ?7, ?8, ?9)",
+                params![r.scene, r.pose, r.polarizer_deg, SettingsDocument::of(&r.acquisition), r.frames as i64, r.dark_frames as i64, now(),
+                    r.kind.name(), r.dark_capture],
             )?;
             Ok(c.last_insert_rowid())
         })

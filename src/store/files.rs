@@ -381,11 +381,7 @@ mod tests {
             polarizer_deg: Some(0.0),
             acquisition: Acquisition {
                 exposure_us: 1000.0,
-                gain: 0.0,
-                pixel_format: crate::camera::PixelFormat::Mono16,
-                region: [0, 0, 3, 2],
-                binning: [1, 1],
-                trigger: crate::camera::TriggerMode::Free,
+                ..Acquisition::defaults_at([0, 0, 3, 2], [1, 1])
             },
             dark_capture: None,
             camera_id: "cam".into(),

@@ -24,8 +24,8 @@ pub use files::{
 };
 pub use lock::{remove_orphans, DirLock, LOCK_FILE};
 pub use records::{
-    CaptureKind, CaptureRecord, CaptureRequest, JobState, ReconstructionRecord,
-    ReconstructionRequest,
+    CaptureKind, CaptureRecord, CaptureRequest, JobState, ReconstructionParams,
+    ReconstructionRecord, ReconstructionRequest,
 };
 pub use retention::{dir_bytes, Retention};
 pub use schema::Table;
@@ -438,7 +438,7 @@ mod tests {
             scene: "brewster-crossed".into(),
             captures,
             solver: "admm-tv".into(),
-            params: serde_json::json!({}),
+            params: ReconstructionParams::default(),
         };
         let (a, b, r) = {
             let store = Store::open(dir.path()).unwrap();
@@ -490,9 +490,9 @@ mod tests {
             scene: "brewster-crossed".into(),
             captures: vec![1],
             solver: "admm-tv".into(),
-            params: serde_json::json!({}),
+            params: ReconstructionParams::default(),
         };
-        let ids: Vec<i64> = (0..4)
+        let ids: Vec<i64> = (0..6)
             .map(|_| store.insert_reconstruction(&request).unwrap())
             .collect();
         let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
@@ -509,15 +509,23 @@ mod tests {
                 "UPDATE reconstructions SET report = '{\"psnr\": 1' WHERE id = ?1",
                 ids[3],
             ),
+            (
+                "UPDATE reconstructions SET params = '{\"lambda\": \"much\"}' WHERE id = ?1",
+                ids[4],
+            ),
+            (
+                "UPDATE reconstructions SET params = '{\"version\": 2}' WHERE id = ?1",
+                ids[5],
+            ),
         ] {
             raw.execute(sql, [id]).unwrap();
         }
         let page = store.reconstructions(10, 0).unwrap();
         let listed: Vec<i64> = page.records.iter().map(|r| r.id).collect();
         assert_eq!(listed, [ids[0]]);
-        assert_eq!(page.unreadable, [ids[3], ids[2], ids[1]]);
+        assert_eq!(page.unreadable, [ids[5], ids[4], ids[3], ids[2], ids[1]]);
         // A page that does not reach a damaged row does not name it.
-        let last = store.reconstructions(1, 3).unwrap();
+        let last = store.reconstructions(1, 5).unwrap();
         assert!(last.unreadable.is_empty());
         assert_eq!(last.records[0].state, JobState::Queued);
         // One by one, each damaged row is an error naming what is wrong.
@@ -525,6 +533,20 @@ mod tests {
         assert!(e.contains("unknown job state \"finished\""), "{e}");
         let e = store.reconstruction(ids[3]).unwrap_err().to_string();
         assert!(e.contains("EOF while parsing"), "{e}");
+        // A damaged λ is an error naming the row, never the automatic λ.
+        let e = store.reconstruction(ids[4]).unwrap_err().to_string();
+        assert!(e.contains("invalid type: string \"much\""), "{e}");
+        let e = store.reconstruction(ids[5]).unwrap_err().to_string();
+        assert!(e.contains("parameters document version 2"), "{e}");
+        // Parameters as an older polnlos stored them (no version) read back.
+        raw.execute(
+            "UPDATE reconstructions SET params = '{\"lambda\": 0.5, \"truth\": \"disk\"}' WHERE id = ?1",
+            [ids[0]],
+        )
+        .unwrap();
+        let old = store.reconstruction(ids[0]).unwrap().params;
+        assert_eq!((old.version, old.solve.lambda), (1, Some(0.5)));
+        assert_eq!(old.truth.as_deref(), Some("disk"));
     }
 
     #[test]
@@ -533,6 +555,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let store = Store::open(dir.path()).unwrap();
         let example = CaptureRequest::example();
+        // Before, these read back as Mono16, light and version 1.
         let request = CaptureRequest {
             kind: CaptureKind::Dark,
             acquisition: crate::camera::Acquisition {
@@ -546,33 +569,29 @@ mod tests {
             .map(|_| store.insert_capture(&request).unwrap())
             .collect();
         let back = store.capture(ids[0]).unwrap();
+        assert_eq!(back.kind, CaptureKind::Dark);
         assert_eq!(
-            (back.kind, back.pixel_format, back.trigger),
-            (
-                CaptureKind::Dark,
-                PixelFormat::Mono8,
-                Some(TriggerMode::Software)
-            )
+            crate::camera::Acquisition::try_from(&back).unwrap(),
+            request.acquisition
         );
         let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
         for (sql, id) in [
             (
-                "UPDATE captures SET pixel_format = 'Mono10' WHERE id = ?1",
+                "UPDATE captures SET settings = json_set(settings, '$.pixel_format', 'Mono10') WHERE id = ?1",
                 ids[1],
             ),
             ("UPDATE captures SET kind = 'flat' WHERE id = ?1", ids[2]),
             (
-                "UPDATE captures SET trigger = 'hardware' WHERE id = ?1",
+                "UPDATE captures SET settings = json_set(settings, '$.version', 2) WHERE id = ?1",
                 ids[3],
             ),
         ] {
             raw.execute(sql, [id]).unwrap();
         }
-        // Before, these read back as Mono16, light and free.
         for (id, what) in [
-            (ids[1], "unknown pixel format \"Mono10\""),
+            (ids[1], "unknown variant `Mono10`"),
             (ids[2], "unknown capture kind \"flat\""),
-            (ids[3], "unknown trigger mode \"hardware\""),
+            (ids[3], "settings document version 2"),
         ] {
             let e = store.capture(id).unwrap_err().to_string();
             assert!(e.contains(what), "{e}");

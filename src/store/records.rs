@@ -3,7 +3,8 @@
 use rusqlite::Row;
 use serde::{Deserialize, Serialize};
 
-use crate::camera::{Acquisition, PixelFormat, TriggerMode};
+use crate::camera::{Acquisition, CameraSettings};
+use crate::solve::SolveRequest;
 
 /// Whether a capture shows the hidden scene, is a dark capture taken with
 /// the scene switched off (to be subtracted from light captures), or shows
@@ -158,11 +159,7 @@ impl CaptureRequest {
             polarizer_deg: Some(0.0),
             acquisition: Acquisition {
                 exposure_us: 1000.0,
-                gain: 0.0,
-                pixel_format: PixelFormat::Mono16,
-                region: [0, 0, 4, 4],
-                binning: [1, 1],
-                trigger: TriggerMode::Free,
+                ..Acquisition::defaults_at([0, 0, 4, 4], [1, 1])
             },
             frames: 1,
             dark_frames: 0,
@@ -182,25 +179,17 @@ pub struct CaptureRecord {
     pub pose: String,
     /// Polarizer angle, degrees (null: no polarizer).
     pub polarizer_deg: Option<f64>,
-    /// Exposure, microseconds.
-    pub exposure_us: f64,
-    /// Gain.
-    pub gain: f64,
+    /// The camera settings it was taken with, every one resolved when it was
+    /// accepted (null only for a setting polnlos did not yet record then:
+    /// region, binning and trigger of old captures).
+    #[serde(flatten)]
+    pub settings: CameraSettings,
     /// Frames averaged.
     pub frames: i64,
     /// Dark frames subtracted.
     pub dark_frames: i64,
-    /// Pixel format.
-    pub pixel_format: PixelFormat,
     /// Light, dark, target or source.
     pub kind: CaptureKind,
-    /// Region of interest `[x, y, width, height]` (null for captures made
-    /// before it was recorded).
-    pub region: Option<[u32; 4]>,
-    /// Binning `[x, y]`.
-    pub binning: Option<[u32; 2]>,
-    /// Trigger mode (null for captures made before it was recorded).
-    pub trigger: Option<TriggerMode>,
     /// The dark capture subtracted from this one.
     pub dark_capture: Option<i64>,
     /// Job state.
@@ -218,7 +207,7 @@ pub struct CaptureRecord {
     pub camera_id: Option<String>,
     /// The camera's counters since the daemon started, as they stood when
     /// the capture ended (cumulative: see `frame_counts` for this capture's own).
-    #[schema(value_type = Object)]
+    #[schema(value_type = Option<Object>)]
     pub counters: Option<serde_json::Value>,
     /// Frames taken so far.
     pub frames_taken: i64,
@@ -228,7 +217,56 @@ pub struct CaptureRecord {
     pub frame_counts: Option<crate::camera::FrameCounts>,
 }
 
-pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, region, binning, trigger, dark_capture, frame_counts FROM captures";
+pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, settings, frames, dark_frames, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, dark_capture, frame_counts FROM captures";
+
+/// What the `settings` column holds: a capture's camera settings as one
+/// typed JSON document, with the version of its layout.
+///
+/// Why a document: a new camera setting is a new field of
+/// [`CameraSettings`] and needs no column (rows written before it read it
+/// back as null); `version` says which layout a row has, so a later
+/// polnlos can migrate one it reads differently.
+#[derive(Debug, Serialize, Deserialize)]
+pub(super) struct SettingsDocument {
+    /// Layout of the document ([`SettingsDocument::VERSION`]).
+    pub version: u32,
+    /// The settings.
+    #[serde(flatten)]
+    pub settings: CameraSettings,
+}
+
+impl SettingsDocument {
+    /// The layout this polnlos writes and reads.
+    pub const VERSION: u32 = 1;
+
+    /// The document of a capture's settings, as the catalogue stores it.
+    pub fn of(a: &Acquisition) -> String {
+        let doc = SettingsDocument {
+            version: Self::VERSION,
+            settings: (*a).into(),
+        };
+        // A struct of numbers, names and arrays always serializes.
+        serde_json::to_string(&doc).unwrap_or_default()
+    }
+}
+
+/// Column `idx` as a settings document of the version this polnlos reads.
+fn settings_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<CameraSettings> {
+    let s: String = r.get(idx)?;
+    let doc: SettingsDocument =
+        serde_json::from_str(&s).map_err(|e| damaged(idx, format!("settings {s}: {e}")))?;
+    if doc.version != SettingsDocument::VERSION {
+        return Err(damaged(
+            idx,
+            format!(
+                "settings document version {} (this polnlos reads version {}): open this data directory with the polnlos that wrote it",
+                doc.version,
+                SettingsDocument::VERSION
+            ),
+        ));
+    }
+    Ok(doc.settings)
+}
 
 pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
     Ok(CaptureRecord {
@@ -236,31 +274,20 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         scene: r.get(1)?,
         pose: r.get(2)?,
         polarizer_deg: r.get(3)?,
-        exposure_us: r.get(4)?,
-        gain: r.get(5)?,
-        frames: r.get(6)?,
-        dark_frames: r.get(7)?,
-        pixel_format: named_column(r, 8, "pixel format", PixelFormat::from_name)?,
-        state: state_column(r, 9)?,
-        error: r.get(10)?,
-        created_at: r.get(11)?,
-        started_at: r.get(12)?,
-        finished_at: r.get(13)?,
-        camera_id: r.get(14)?,
-        counters: json_column(r, 15)?,
-        frames_taken: r.get(16)?,
-        kind: named_column(r, 17, "capture kind", CaptureKind::from_name)?,
-        region: json_column(r, 18)?,
-        binning: json_column(r, 19)?,
-        trigger: r
-            .get::<_, Option<String>>(20)?
-            .map(|s| {
-                TriggerMode::from_name(&s)
-                    .ok_or_else(|| damaged(20, format!("unknown trigger mode {s:?}")))
-            })
-            .transpose()?,
-        dark_capture: r.get(21)?,
-        frame_counts: json_column(r, 22)?,
+        settings: settings_column(r, 4)?,
+        frames: r.get(5)?,
+        dark_frames: r.get(6)?,
+        state: state_column(r, 7)?,
+        error: r.get(8)?,
+        created_at: r.get(9)?,
+        started_at: r.get(10)?,
+        finished_at: r.get(11)?,
+        camera_id: r.get(12)?,
+        counters: json_column(r, 13)?,
+        frames_taken: r.get(14)?,
+        kind: named_column(r, 15, "capture kind", CaptureKind::from_name)?,
+        dark_capture: r.get(16)?,
+        frame_counts: json_column(r, 17)?,
     })
 }
 
@@ -279,28 +306,10 @@ impl TryFrom<&CaptureRecord> for Acquisition {
     type Error = IncompleteRecord;
 
     fn try_from(c: &CaptureRecord) -> Result<Self, IncompleteRecord> {
-        match (c.region, c.binning, c.trigger) {
-            (Some(region), Some(binning), Some(trigger)) => Ok(Acquisition {
-                exposure_us: c.exposure_us,
-                gain: c.gain,
-                pixel_format: c.pixel_format,
-                region,
-                binning,
-                trigger,
-            }),
-            (region, binning, trigger) => Err(IncompleteRecord {
-                id: c.id,
-                missing: [
-                    region.is_none().then_some("region"),
-                    binning.is_none().then_some("binning"),
-                    trigger.is_none().then_some("trigger"),
-                ]
-                .into_iter()
-                .flatten()
-                .collect::<Vec<_>>()
-                .join(", "),
-            }),
-        }
+        c.settings.complete().map_err(|e| IncompleteRecord {
+            id: c.id,
+            missing: e.missing.join(", "),
+        })
     }
 }
 
@@ -326,7 +335,50 @@ pub struct ReconstructionRequest {
     /// `admm-tv`, `tikhonov` or `lsq`.
     pub solver: String,
     /// Solver parameters as given.
-    pub params: serde_json::Value,
+    pub params: ReconstructionParams,
+}
+
+/// What a reconstruction was asked to solve with: the one typed document of
+/// its `params` column, shown as its `params`.
+///
+/// Why typed: the worker, the truth image and the API read the same
+/// fields, and a row whose parameters do not read back is refused (named)
+/// rather than solved with the defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ReconstructionParams {
+    /// Layout of the document (1; rows from before it was versioned have
+    /// the same layout and read as 1).
+    #[serde(default = "ReconstructionParams::version_one")]
+    pub version: u32,
+    /// The solver and its parameters, as requested (absent: defaults).
+    #[serde(flatten)]
+    pub solve: SolveRequest,
+    /// Known truth, as a test pattern name.
+    pub truth: Option<String>,
+}
+
+impl Default for ReconstructionParams {
+    fn default() -> Self {
+        Self::new(SolveRequest::default(), None)
+    }
+}
+
+impl ReconstructionParams {
+    /// The layout this polnlos writes and reads.
+    pub const VERSION: u32 = 1;
+
+    fn version_one() -> u32 {
+        1
+    }
+
+    /// The parameters of a request: `solve` and the truth it names.
+    pub fn new(solve: SolveRequest, truth: Option<String>) -> Self {
+        Self {
+            version: Self::VERSION,
+            solve,
+            truth,
+        }
+    }
 }
 
 /// A reconstruction as the API shows it.
@@ -341,8 +393,7 @@ pub struct ReconstructionRecord {
     /// Solver.
     pub solver: String,
     /// Solver parameters.
-    #[schema(value_type = Object)]
-    pub params: serde_json::Value,
+    pub params: ReconstructionParams,
     /// Job state.
     pub state: JobState,
     /// Why it failed or was interrupted.
@@ -358,7 +409,7 @@ pub struct ReconstructionRecord {
     #[schema(schema_with = kappa_schema)]
     pub kappa: Option<serde_json::Value>,
     /// The full report (same format as `polnlos reconstruct`'s report.json).
-    #[schema(value_type = Object)]
+    #[schema(value_type = Option<Object>)]
     pub report: Option<serde_json::Value>,
 }
 
@@ -381,6 +432,22 @@ fn kappa_schema() -> utoipa::openapi::schema::Schema {
         .into()
 }
 
+/// Column `idx` as the parameters document of the version this polnlos
+/// reads (NULL: the defaults, as rows without parameters meant).
+fn params_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<ReconstructionParams> {
+    let params: ReconstructionParams = json_column(r, idx)?.unwrap_or_default();
+    match params.version {
+        ReconstructionParams::VERSION => Ok(params),
+        v => Err(damaged(
+            idx,
+            format!(
+                "parameters document version {v} (this polnlos reads version {}): open this data directory with the polnlos that wrote it",
+                ReconstructionParams::VERSION
+            ),
+        )),
+    }
+}
+
 pub(super) const RECON_SELECT: &str = "SELECT id, scene, captures, solver, params, state, error, created_at, started_at, finished_at, kappa, report FROM reconstructions";
 
 pub(super) fn recon_row(r: &Row<'_>) -> rusqlite::Result<ReconstructionRecord> {
@@ -390,7 +457,7 @@ pub(super) fn recon_row(r: &Row<'_>) -> rusqlite::Result<ReconstructionRecord> {
         scene: r.get(1)?,
         captures: json_column(r, 2)?.unwrap_or_default(),
         solver: r.get(3)?,
-        params: json_column(r, 4)?.unwrap_or(serde_json::Value::Null),
+        params: params_column(r, 4)?,
         state: state_column(r, 5)?,
         error: r.get(6)?,
         created_at: r.get(7)?,

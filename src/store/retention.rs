@@ -147,7 +147,7 @@ mod tests {
                 scene: "brewster-crossed".into(),
                 captures: vec![ids[0]],
                 solver: "admm-tv".into(),
-                params: serde_json::json!({}),
+                params: crate::store::ReconstructionParams::default(),
             })
             .unwrap();
         assert_eq!(store.retention_plan(&fit(3999)).unwrap(), vec![ids[1]]);

@@ -10,11 +10,9 @@ CREATE TABLE IF NOT EXISTS captures (
     scene TEXT NOT NULL,
     pose TEXT NOT NULL,
     polarizer_deg REAL,
-    exposure_us REAL NOT NULL,
-    gain REAL NOT NULL,
+    settings TEXT NOT NULL,
     frames INTEGER NOT NULL,
     dark_frames INTEGER NOT NULL,
-    pixel_format TEXT NOT NULL,
     state TEXT NOT NULL,
     error TEXT,
     created_at TEXT NOT NULL,
@@ -63,14 +61,11 @@ END;
 
 /// Columns added to `captures` after the first release: (column, the
 /// statement that adds it).
-const ADDED_CAPTURE_COLUMNS: [(&str, &str); 6] = [
+const ADDED_CAPTURE_COLUMNS: [(&str, &str); 3] = [
     (
         "kind",
         "ALTER TABLE captures ADD COLUMN kind TEXT NOT NULL DEFAULT 'light'",
     ),
-    ("region", "ALTER TABLE captures ADD COLUMN region TEXT"),
-    ("binning", "ALTER TABLE captures ADD COLUMN binning TEXT"),
-    ("trigger", "ALTER TABLE captures ADD COLUMN trigger TEXT"),
     (
         "dark_capture",
         "ALTER TABLE captures ADD COLUMN dark_capture INTEGER",
@@ -81,8 +76,41 @@ const ADDED_CAPTURE_COLUMNS: [(&str, &str); 6] = [
     ),
 ];
 
-/// Creates the tables, adds the columns a catalogue from an older polnlos
-/// lacks (rows kept), and sets up the id sequences.
+/// Catalogues from before the settings document kept a capture's camera
+/// settings in columns (region, binning and trigger added later, so absent
+/// from the oldest): these are added where missing (rows read them as null)
+/// before the columns move into the document.
+const SETTINGS_COLUMNS: [(&str, &str); 3] = [
+    ("region", "ALTER TABLE captures ADD COLUMN region TEXT"),
+    ("binning", "ALTER TABLE captures ADD COLUMN binning TEXT"),
+    ("trigger", "ALTER TABLE captures ADD COLUMN trigger TEXT"),
+];
+
+/// Moves the settings columns into one `settings` document (version 1, as
+/// `records::SettingsDocument` reads it) and drops them, in one transaction:
+/// a catalogue is either all old or all new.
+const SETTINGS_TO_DOCUMENT: &str = "
+BEGIN;
+ALTER TABLE captures ADD COLUMN settings TEXT;
+UPDATE captures SET settings = json_object(
+    'version', 1,
+    'exposure_us', exposure_us,
+    'gain', gain,
+    'pixel_format', pixel_format,
+    'region', json(region),
+    'binning', json(binning),
+    'trigger', trigger);
+ALTER TABLE captures DROP COLUMN exposure_us;
+ALTER TABLE captures DROP COLUMN gain;
+ALTER TABLE captures DROP COLUMN pixel_format;
+ALTER TABLE captures DROP COLUMN region;
+ALTER TABLE captures DROP COLUMN binning;
+ALTER TABLE captures DROP COLUMN trigger;
+COMMIT;
+";
+
+/// Creates the tables, brings a catalogue from an older polnlos to this
+/// layout (rows kept), and sets up the id sequences.
 pub(super) fn migrate(conn: &Connection) -> rusqlite::Result<()> {
     conn.execute_batch(SCHEMA)?;
     let mut st = conn.prepare("PRAGMA table_info(captures)")?;
@@ -93,6 +121,16 @@ pub(super) fn migrate(conn: &Connection) -> rusqlite::Result<()> {
         if !has.iter().any(|c| c == column) {
             conn.execute_batch(add)?;
         }
+    }
+    if !has.iter().any(|c| c == "settings") {
+        for (column, add) in SETTINGS_COLUMNS {
+            if !has.iter().any(|c| c == column) {
+                conn.execute_batch(add)?;
+            }
+        }
+        conn.execute_batch(SETTINGS_TO_DOCUMENT).inspect_err(|_| {
+            let _ = conn.execute_batch("ROLLBACK");
+        })?;
     }
     conn.execute_batch(ID_SEQUENCES)
 }
@@ -152,5 +190,88 @@ impl Table {
             Table::Captures => "SELECT COUNT(*) FROM captures WHERE id = ?1",
             Table::Reconstructions => "SELECT COUNT(*) FROM reconstructions WHERE id = ?1",
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rusqlite::Connection;
+
+    use crate::camera::{Acquisition, CameraSettings, PixelFormat, TriggerMode};
+    use crate::store::Store;
+
+    /// The captures table as the first release made it.
+    const FIRST_RELEASE: &str = "CREATE TABLE captures (
+        id INTEGER PRIMARY KEY, scene TEXT NOT NULL, pose TEXT NOT NULL, polarizer_deg REAL,
+        exposure_us REAL NOT NULL, gain REAL NOT NULL, frames INTEGER NOT NULL,
+        dark_frames INTEGER NOT NULL, pixel_format TEXT NOT NULL, state TEXT NOT NULL,
+        error TEXT, created_at TEXT NOT NULL, started_at TEXT, finished_at TEXT,
+        camera_id TEXT, counters TEXT, frames_taken INTEGER NOT NULL DEFAULT 0);";
+
+    const OLD_ROW: &str = "INSERT INTO captures (id, scene, pose, polarizer_deg, exposure_us, gain, frames, dark_frames, pixel_format, state, created_at)
+        VALUES (?1, 'brewster-crossed', 'A', 0.0, 2500.0, 1.5, 3, 0, 'Mono8', 'done', '2026-01-01T00:00:00.000Z')";
+
+    #[test]
+    fn settings_columns_of_an_old_catalogue_move_into_the_document() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("catalogue.sqlite");
+        {
+            let raw = Connection::open(&path).unwrap();
+            raw.execute_batch(FIRST_RELEASE).unwrap();
+            raw.execute(OLD_ROW, [1]).unwrap();
+            // A later release recorded the geometry and the trigger.
+            raw.execute_batch("ALTER TABLE captures ADD COLUMN region TEXT; ALTER TABLE captures ADD COLUMN binning TEXT; ALTER TABLE captures ADD COLUMN trigger TEXT;").unwrap();
+            raw.execute(OLD_ROW, [2]).unwrap();
+            raw.execute(
+                "UPDATE captures SET region = '[0,0,64,32]', binning = '[2,2]', trigger = 'software' WHERE id = 2",
+                [],
+            )
+            .unwrap();
+        }
+        let store = Store::open(dir.path()).unwrap();
+        let first = store.capture(1).unwrap();
+        assert_eq!(
+            first.settings,
+            CameraSettings {
+                exposure_us: Some(2500.0),
+                gain: Some(1.5),
+                pixel_format: Some(PixelFormat::Mono8),
+                ..CameraSettings::default()
+            }
+        );
+        let e = Acquisition::try_from(&first).unwrap_err().to_string();
+        assert!(e.contains("records no region, binning, trigger"), "{e}");
+        let second = Acquisition::try_from(&store.capture(2).unwrap()).unwrap();
+        assert_eq!(
+            second,
+            Acquisition {
+                exposure_us: 2500.0,
+                gain: 1.5,
+                pixel_format: PixelFormat::Mono8,
+                trigger: TriggerMode::Software,
+                ..Acquisition::defaults_at([0, 0, 64, 32], [2, 2])
+            }
+        );
+        drop(store);
+        let raw = Connection::open(&path).unwrap();
+        let mut st = raw.prepare("PRAGMA table_info(captures)").unwrap();
+        let columns: Vec<String> = st
+            .query_map([], |r| r.get(1))
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        for gone in [
+            "exposure_us",
+            "gain",
+            "pixel_format",
+            "region",
+            "binning",
+            "trigger",
+        ] {
+            assert!(!columns.iter().any(|c| c == gone), "{gone} in {columns:?}");
+        }
+        // Opened again: already migrated, the rows unchanged.
+        let store = Store::open(dir.path()).unwrap();
+        assert_eq!(store.capture(1).unwrap().settings, first.settings);
     }
 }

@@ -1,7 +1,7 @@
 //! Checking a capture request against its scene, the camera and the bench.
 
 use super::{invalid, CameraContext, RequestError};
-use crate::camera::{Acquisition, PixelFormat};
+use crate::camera::{Acquisition, CameraSettings, PixelFormat};
 use crate::daemon::jobs::same_angle;
 use crate::daemon::requests::{AutoExposure, CaptureBody};
 use crate::measure::exposure::BlockExposure;
@@ -25,29 +25,34 @@ pub fn capture(
     let frames = b
         .frames
         .unwrap_or_else(|| planned.as_ref().map_or(1, |p| p.frames));
-    let gain = b.gain.unwrap_or(cam.defaults.gain);
+    check_frames(b, kind, frames, cam)?;
+    let stated = CameraSettings {
+        exposure_us: Some(exposure_us),
+        ..b.settings
+    };
+    let acquisition = stated.over(&cam.defaults).complete().map_err(|e| {
+        RequestError::Unavailable(format!(
+            "the camera has not reported its settings yet ({e}): give them, or retry when GET /camera shows it connected"
+        ))
+    })?;
     if let Some((lo, hi)) = cam.gain {
+        let gain = acquisition.gain;
         if !(gain >= lo && gain <= hi) {
             return Err(invalid(format!("gain = {gain}: must be from {lo} to {hi}")));
         }
     }
-    check_frames(b, kind, frames, cam)?;
-    let (region, binning) = geometry(b, cam)?;
-    let pixel_format = b.pixel_format.unwrap_or(cam.defaults.pixel_format);
-    check_pixel_format(pixel_format, cam)?;
+    if let Some(limits) = &cam.sensor {
+        limits
+            .check(acquisition.region, acquisition.binning)
+            .map_err(|e| invalid(e.to_string()))?;
+    }
+    check_pixel_format(acquisition.pixel_format, cam)?;
     let request = CaptureRequest {
         kind,
         scene: b.scene.clone(),
         pose: b.pose.clone(),
         polarizer_deg: b.polarizer_deg,
-        acquisition: Acquisition {
-            exposure_us,
-            gain,
-            pixel_format,
-            region,
-            binning,
-            trigger: b.trigger.unwrap_or(cam.defaults.trigger),
-        },
+        acquisition,
         frames,
         dark_frames: b.dark_frames,
         dark_capture: b.dark_capture,
@@ -135,18 +140,22 @@ fn exposure(
     cam: &CameraContext,
     plan: impl FnOnce() -> Result<Vec<BlockExposure>, RequestError>,
 ) -> Result<(f64, Option<BlockExposure>), RequestError> {
-    let (exposure_us, planned) = match (b.exposure_us, b.exposure) {
+    let stated = b.settings.exposure_us;
+    let (exposure_us, planned) = match (stated, b.exposure) {
         (Some(_), Some(_)) => {
             return Err(invalid(
                 "give either exposure_us or \"exposure\": \"auto\", not both",
             ))
         }
-        (None, None) => {
-            return Err(invalid(
-                "exposure_us is missing: give it in microseconds, or \"exposure\": \"auto\"",
-            ))
-        }
-        (Some(_), None) if b.target.is_some() => {
+        (None, None) => match cam.defaults.exposure_us {
+            Some(e) => (e, None),
+            None => {
+                return Err(invalid(
+                    "exposure_us is missing and there is no default: give it in microseconds, or \"exposure\": \"auto\"",
+                ))
+            }
+        },
+        (_, None) if b.target.is_some() => {
             return Err(invalid("target is only for \"exposure\": \"auto\""))
         }
         (Some(e), None) => (e, None),
@@ -203,21 +212,6 @@ fn check_frames(
 }
 
 /// Region and binning, stated or inherited, within the sensor's limits.
-fn geometry(b: &CaptureBody, cam: &CameraContext) -> Result<([u32; 4], [u32; 2]), RequestError> {
-    let binning = b.binning.or(cam.defaults.binning).unwrap_or([1, 1]);
-    let region = b.region.or(cam.defaults.region).ok_or_else(|| {
-        RequestError::Unavailable(
-            "the camera has not reported its region yet: give region = [x, y, width, height], or retry when GET /camera shows it connected".into(),
-        )
-    })?;
-    if let Some(limits) = &cam.sensor {
-        limits
-            .check(region, binning)
-            .map_err(|e| invalid(e.to_string()))?;
-    }
-    Ok((region, binning))
-}
-
 /// A dark capture fits a light one when it is done, dark, and taken with the
 /// same exposure, gain, pixel format, region and binning.
 fn check_dark_capture(c: &CaptureRecord, r: &CaptureRequest) -> Result<(), RequestError> {
@@ -263,9 +257,7 @@ mod tests {
             }),
             defaults: CameraSettings {
                 region: Some([0, 0, 512, 512]),
-                binning: Some([1, 1]),
-                pixel_format: PixelFormat::Mono16,
-                ..CameraSettings::default()
+                ..CameraSettings::builtin()
             },
             pixel_formats: Some(vec!["Mono8".into(), "Mono16".into(), "BayerRG8".into()]),
             bench_switches_scene: false,
@@ -356,8 +348,9 @@ mod tests {
         };
         assert!(message(with(serde_json::json!({ "exposure_us": 5.0 })))
             .contains("must be from 10 to 1000000"));
-        assert!(message(with(serde_json::json!({ "exposure_us": null })))
-            .contains("exposure_us is missing"));
+        // An exposure not given inherits the defaults, as every setting does.
+        let r = with(serde_json::json!({ "exposure_us": null })).expect("the default exposure");
+        assert_eq!(r.acquisition.exposure_us, 20_000.0);
         assert!(message(with(serde_json::json!({ "exposure": "auto" }))).contains("not both"));
         assert!(message(with(serde_json::json!({ "gain": 11.0 }))).contains("gain = 11"));
         assert!(message(with(serde_json::json!({ "frames": 0 }))).contains("at least 1 frame"));
@@ -421,7 +414,7 @@ mod tests {
         // A dark row from before region and trigger were recorded cannot
         // vouch for its settings.
         let mut old = dark(5000.0);
-        (old.region, old.trigger) = (None, None);
+        (old.settings.region, old.settings.trigger) = (None, None);
         let r = capture(&b, &scene(), &cam(), no_plan, |_| Ok(Some(old.clone())));
         assert!(
             message(r).contains("capture 7 records no region, trigger"),

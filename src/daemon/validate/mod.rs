@@ -93,15 +93,14 @@ pub(crate) mod fixtures {
             scene: "brewster-multi-3x3".into(),
             pose: "B".into(),
             polarizer_deg: Some(0.0),
-            exposure_us,
-            gain: 0.0,
+            settings: crate::camera::Acquisition {
+                exposure_us,
+                ..crate::camera::Acquisition::defaults_at([0, 0, 512, 512], [1, 1])
+            }
+            .into(),
             frames: 1,
             dark_frames: 0,
-            pixel_format: crate::camera::PixelFormat::Mono16,
             kind: crate::store::CaptureKind::from_name(kind).expect("a capture kind"),
-            region: Some([0, 0, 512, 512]),
-            binning: Some([1, 1]),
-            trigger: Some(crate::camera::TriggerMode::Free),
             dark_capture: None,
             state,
             error: None,

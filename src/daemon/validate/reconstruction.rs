@@ -4,7 +4,7 @@ use super::{invalid, RequestError};
 use crate::daemon::jobs::{block_label, same_angle};
 use crate::daemon::requests::ReconstructionBody;
 use crate::scene::Scene;
-use crate::store::{CaptureRecord, JobState, ReconstructionRequest};
+use crate::store::{CaptureRecord, JobState, ReconstructionParams, ReconstructionRequest};
 
 /// The (pose, polarizer angle) blocks of a scene in MODEL.md row order.
 pub fn blocks(scene: &Scene) -> Vec<(String, Option<f64>)> {
@@ -61,13 +61,11 @@ pub fn reconstruction(
         }
         covered[k] = true;
     }
-    let mut params = serde_json::to_value(&solve).map_err(|e| invalid(e.to_string()))?;
-    params["truth"] = serde_json::to_value(&b.truth).map_err(|e| invalid(e.to_string()))?;
     Ok(ReconstructionRequest {
         scene: b.scene.clone(),
         captures: b.captures.clone(),
         solver: b.solver.name().to_string(),
-        params,
+        params: ReconstructionParams::new(solve, b.truth.clone()),
     })
 }
 
@@ -108,11 +106,12 @@ pub(super) fn block_of(
             ))
         })?;
     if let Some(frame) = scene.pose(&c.pose).and_then(|p| p.frame) {
-        if (c.region, c.binning) != (Some(frame.region), Some(frame.binning)) {
+        let s = &c.settings;
+        if (s.region, s.binning) != (Some(frame.region), Some(frame.binning)) {
             return Err(invalid(format!(
                 "capture {id} was taken at region {} binning {}, but pose {:?}'s homography maps the wall into region {:?} binning {:?} (scene file keys region and binning): sampling it would read the wrong pixels; capture again with that region and binning, or calibrate the pose for this frame",
-                c.region.map_or("unknown".into(), |r| format!("{r:?}")),
-                c.binning.map_or("unknown".into(), |r| format!("{r:?}")),
+                s.region.map_or("unknown".into(), |r| format!("{r:?}")),
+                s.binning.map_or("unknown".into(), |r| format!("{r:?}")),
                 c.pose,
                 frame.region,
                 frame.binning
@@ -163,7 +162,7 @@ mod tests {
     fn a_capture_at_another_frame_or_state_cannot_serve_a_block() {
         let s = scene();
         let mut cropped = record(1, "light", 5000.0, JobState::Done);
-        cropped.region = Some([0, 0, 256, 256]);
+        cropped.settings.region = Some([0, 0, 256, 256]);
         let blocks = blocks(&s);
         let m =
             block_of(&cropped, "brewster-multi-3x3", &s, &blocks).expect_err("a cropped capture");
