@@ -74,6 +74,7 @@ fn all_routes() -> OpenApiRouter<Arc<Daemon>> {
         .routes(routes!(routes::camera))
         .routes(routes!(routes::camera_frame))
         .routes(routes!(routes::camera_settings))
+        .routes(routes!(routes::mount))
         .routes(routes!(routes::post_capture, routes::list_captures))
         .routes(routes!(routes::get_capture, routes::delete_capture))
         .routes(routes!(routes::capture_frames))

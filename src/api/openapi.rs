@@ -43,6 +43,8 @@ use crate::daemon::Daemon;
         crate::store::JobState,
         crate::store::CaptureKind,
         crate::daemon::CameraView,
+        crate::daemon::mount::MountView,
+        crate::daemon::mount::MountKind,
         crate::camera::worker::CameraStatus,
         crate::camera::CameraInfo,
         crate::camera::Counters,

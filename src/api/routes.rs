@@ -96,6 +96,13 @@ pub async fn camera(State(d): St) -> Json<crate::daemon::CameraView> {
     Json(d.camera().now().await)
 }
 
+/// The rotation mount that turns the polarizer: its kind and port, the angle
+/// read from it now (as last read while a capture turns it), and its last error.
+#[utoipa::path(get, path = "/mount", responses((status = 200, body = crate::daemon::mount::MountView, description = "Mount state")))]
+pub async fn mount(State(d): St) -> Json<crate::daemon::mount::MountView> {
+    Json(d.mount_now().await)
+}
+
 /// `?live=true&stretch=true` of `GET /camera/frame.png`.
 #[derive(Debug, Default, serde::Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]

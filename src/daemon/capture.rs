@@ -42,6 +42,8 @@ const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 pub(super) struct CaptureWorker {
     pub(super) jobs: JobContext,
     pub(super) camera: Arc<CameraService>,
+    /// Turns the polarizer to the capture's angle, when a mount is configured.
+    pub(super) mount: Arc<super::mount::MountService>,
     pub(super) queue: Arc<CaptureQueue>,
     /// What a capture that lost frames does.
     pub(super) lost_frames: LostFrames,
@@ -112,6 +114,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         id,
         reason: e.to_string(),
     })?;
+    turn_polarizer(w, &c).await?;
     wait_for_camera(&w.camera).await;
     let camera_id = w.camera.status().info.map(|i| i.id).unwrap_or_default();
     let meta = meta_of(&c, acquisition, &camera_id);
@@ -317,6 +320,33 @@ async fn dark_reference(
 fn stall_limit(exposure_us: f64, n: usize, slack: std::time::Duration) -> std::time::Duration {
     let frames = 2.0 * n as f64 * (exposure_us * 1e-6).max(1e-3);
     std::time::Duration::from_secs_f64(frames) + slack
+}
+
+/// Turns the mount to the capture's polarizer angle and records the angle
+/// read back; a capture without an angle, or a bench without a mount
+/// (whose angle is set by hand and trusted), records none.
+async fn turn_polarizer(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobError> {
+    let (Some(deg), true) = (c.polarizer_deg, w.mount.present()) else {
+        return Ok(());
+    };
+    let mount = w.mount.clone();
+    let turned = tokio::task::spawn_blocking(move || mount.turn_to(deg))
+        .await
+        .map_err(|e| JobError::Capture {
+            id: c.id,
+            reason: format!("the rotation mount's task failed: {e}"),
+        })?;
+    let measured = turned.map_err(|e| JobError::Capture {
+        id: c.id,
+        reason: format!("the polarizer could not be turned to {deg}° from crossed: {e}"),
+    })?;
+    tracing::info!(
+        "polarizer at {measured:.3}° from crossed (asked {deg}°), read back from the mount"
+    );
+    w.jobs
+        .store
+        .capture_polarizer_measured(c.id, measured)
+        .map_err(|e| JobError::Store(w.jobs.store.describe(&e)))
 }
 
 /// One acquisition of a capture, streamed to one file.

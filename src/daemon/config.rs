@@ -41,6 +41,9 @@ pub struct Config {
     /// What the daemon deletes by itself (nothing unless set).
     #[serde(default)]
     pub retention: RetentionConfig,
+    /// The rotation mount that turns the polarizer (none unless set).
+    #[serde(default)]
+    pub mount: super::mount::MountConfig,
 }
 
 /// A retention policy: the oldest finished captures (with the
@@ -313,6 +316,7 @@ impl Config {
                 r.check_every_s
             )));
         }
+        self.mount.check().map_err(ConfigError::Invalid)?;
         if self.camera.address.is_none() && self.camera.id.is_none() {
             return Err(ConfigError::Invalid(
                 "[camera] needs address or id (polnlos never runs a broadcast discovery)".into(),

@@ -32,6 +32,7 @@ mod flatten;
 mod integral;
 mod jobs;
 pub mod metrics;
+pub mod mount;
 mod progressive;
 mod queue;
 mod reconstruction;
@@ -95,6 +96,9 @@ pub enum DaemonError {
     /// The fake camera did not start.
     #[error(transparent)]
     Fake(#[from] crate::camera::fake::FakeError),
+    /// The simulated rotation mount did not start.
+    #[error(transparent)]
+    Mount(#[from] crate::mount::MountError),
 }
 
 /// The daemon's camera: how to open it, the bench around it, and the
@@ -185,6 +189,8 @@ pub struct Daemon {
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
     calibration: Arc<BTreeMap<String, f64>>,
     camera: Arc<CameraService>,
+    /// The rotation mount, when one turns the polarizer.
+    mount: Arc<mount::MountService>,
     captures: Arc<CaptureQueue>,
     reconstructions: Queue,
     registry: Arc<JobRegistry>,
@@ -230,6 +236,7 @@ impl Daemon {
         } else {
             None
         };
+        let mount = Arc::new(mount::MountService::start(&config.mount)?);
         let (captures, capture_rx) = CaptureQueue::new(config.queue.captures);
         let (reconstructions, recon_rx) =
             Queue::new("reconstruction", config.queue.reconstructions);
@@ -241,6 +248,7 @@ impl Daemon {
             scenes,
             calibration: Arc::new(calibration),
             camera: Arc::new(CameraService::new(handle, camera.bench, hotplug)),
+            mount,
             captures: Arc::new(captures),
             reconstructions,
             registry: Arc::new(JobRegistry::default()),
@@ -254,6 +262,7 @@ impl Daemon {
             let capture = capture::CaptureWorker {
                 jobs: d.job_context(),
                 camera: d.camera.clone(),
+                mount: d.mount.clone(),
                 queue: d.captures.clone(),
                 lost_frames: d.config.camera.lost_frames,
                 // Checked to be 0..=86400 by Config::validate.
@@ -312,6 +321,19 @@ impl Daemon {
     /// The camera: its settings, state, live view.
     pub fn camera(&self) -> &CameraService {
         &self.camera
+    }
+
+    /// The rotation mount: where it is now (read from it unless a capture
+    /// is turning it, then as last read).
+    pub async fn mount_now(&self) -> mount::MountView {
+        let m = self.mount.clone();
+        if m.present() {
+            let read = tokio::task::spawn_blocking(move || {
+                let _ = m.read();
+            });
+            let _ = tokio::time::timeout(std::time::Duration::from_secs(2), read).await;
+        }
+        self.mount.view()
     }
 
     /// Names of the scenes the daemon knows.

@@ -46,6 +46,17 @@ impl Store {
         self.cancel(Table::Captures, id, false)
     }
 
+    /// Records the polarizer angle the mount read back for a capture.
+    pub fn capture_polarizer_measured(&self, id: i64, deg: f64) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET polarizer_measured_deg = ?2 WHERE id = ?1",
+                params![id, deg],
+            )
+            .map(|_| ())
+        })
+    }
+
     /// Records progress (frames taken so far).
     pub fn capture_progress(&self, id: i64, frames_taken: usize) -> Result<(), StoreError> {
         self.with(|c| {

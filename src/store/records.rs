@@ -179,6 +179,10 @@ pub struct CaptureRecord {
     pub pose: String,
     /// Polarizer angle, degrees (null: no polarizer).
     pub polarizer_deg: Option<f64>,
+    /// The polarizer angle the rotation mount read back before the first
+    /// frame, degrees from crossed (null: no mount, the angle was set by
+    /// hand and `polarizer_deg` is trusted; or not taken yet).
+    pub polarizer_measured_deg: Option<f64>,
     /// The camera settings it was taken with, every one resolved when it was
     /// accepted (null only for a setting polnlos did not yet record then:
     /// region, binning and trigger of old captures).
@@ -217,7 +221,7 @@ pub struct CaptureRecord {
     pub frame_counts: Option<crate::camera::FrameCounts>,
 }
 
-pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, settings, frames, dark_frames, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, dark_capture, frame_counts FROM captures";
+pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, settings, frames, dark_frames, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, dark_capture, frame_counts, polarizer_measured_deg FROM captures";
 
 /// What the `settings` column holds: a capture's camera settings as one
 /// typed JSON document, with the version of its layout.
@@ -288,6 +292,7 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         kind: named_column(r, 15, "capture kind", CaptureKind::from_name)?,
         dark_capture: r.get(16)?,
         frame_counts: json_column(r, 17)?,
+        polarizer_measured_deg: r.get(18)?,
     })
 }
 

@@ -61,7 +61,7 @@ END;
 
 /// Columns added to `captures` after the first release: (column, the
 /// statement that adds it).
-const ADDED_CAPTURE_COLUMNS: [(&str, &str); 3] = [
+const ADDED_CAPTURE_COLUMNS: [(&str, &str); 4] = [
     (
         "kind",
         "ALTER TABLE captures ADD COLUMN kind TEXT NOT NULL DEFAULT 'light'",
@@ -73,6 +73,10 @@ const ADDED_CAPTURE_COLUMNS: [(&str, &str); 3] = [
     (
         "frame_counts",
         "ALTER TABLE captures ADD COLUMN frame_counts TEXT",
+    ),
+    (
+        "polarizer_measured_deg",
+        "ALTER TABLE captures ADD COLUMN polarizer_measured_deg REAL",
     ),
 ];
 

@@ -93,6 +93,7 @@ pub(crate) mod fixtures {
             scene: "brewster-multi-3x3".into(),
             pose: "B".into(),
             polarizer_deg: Some(0.0),
+            polarizer_measured_deg: None,
             settings: crate::camera::Acquisition {
                 exposure_us,
                 ..crate::camera::Acquisition::defaults_at([0, 0, 512, 512], [1, 1])
