@@ -11,12 +11,13 @@ use rand::{Rng, SeedableRng};
 
 type Target = fn(&[u8]);
 
-const TARGETS: [(&str, Target); 10] = [
+const TARGETS: [(&str, Target); 11] = [
     ("scene_toml", parsers::scene_toml),
     ("npy", parsers::npy),
     ("capture_json", parsers::capture_json),
     ("reconstruction_json", parsers::reconstruction_json),
     ("settings_json", parsers::settings_json),
+    ("plan_json", parsers::plan_json),
     ("config_toml", parsers::config_toml),
     ("wall_calibration_json", parsers::wall_calibration_json),
     ("calibration_json", parsers::calibration_json),
@@ -181,6 +182,7 @@ proptest::proptest! {
         parsers::capture_json(&bytes);
         parsers::reconstruction_json(&bytes);
         parsers::settings_json(&bytes);
+        parsers::plan_json(&bytes);
         parsers::wall_calibration_json(&bytes);
         parsers::calibration_json(&bytes);
     }

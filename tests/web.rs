@@ -770,3 +770,51 @@ fn the_page_of_a_daemon_with_a_token_says_so_and_works_once_it_is_entered() {
         c.close().await.ok();
     });
 }
+
+#[test]
+fn the_page_runs_a_scene_and_asks_the_operator_to_move_the_camera() {
+    let page = Page::start();
+    page.rt.block_on(async {
+        let c = page.open().await;
+        let long = Duration::from_secs(120);
+        until("the scene list", long, || async {
+            let n = js(
+                &c,
+                "return document.querySelectorAll('#plan-form select[name=scene] option').length;",
+            )
+            .await;
+            (n.as_u64().unwrap_or(0) > 0).then_some(())
+        })
+        .await;
+        choose(&c, "#plan-form select[name=scene]", "brewster-multi").await;
+        set(&c, "#plan-form [name=frames]", "2").await;
+        click(&c, "#run-plan").await;
+        until("the plan to be queued", long, || async {
+            text(&c, "#plan-message")
+                .await
+                .contains("plan 1 queued")
+                .then_some(())
+        })
+        .await;
+        // Pose B is captured, then the page asks for pose C with Continue.
+        until("the operator prompt", long, || async {
+            text(&c, "#plan-prompt")
+                .await
+                .contains("pose C")
+                .then_some(())
+        })
+        .await;
+        click(&c, "#plan-continue").await;
+        let title = until("the plan to finish", long, || async {
+            let t = text(&c, "#plan-title").await;
+            (t.contains("done") || t.contains("failed")).then_some(t)
+        })
+        .await;
+        assert!(title.contains("done"), "{title}");
+        let step = text(&c, "#plan-step").await;
+        assert!(step.contains("reconstruction"), "{step}");
+        assert_eq!(text(&c, "#plan-prompt").await, "");
+    });
+    let plan = page.d.json("/plans/1");
+    assert_eq!(plan["state"], "done", "{plan}");
+}

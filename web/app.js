@@ -538,6 +538,8 @@ async function onEvent(v) {
     if (v.kind === "capture") removeCapture(v.id); else removeReconstruction(v.id);
   } else if (v.type === "camera") {
     refreshCamera();
+  } else if (v.type === "plan") {
+    showPlan(v.plan);
   }
 }
 
@@ -573,7 +575,7 @@ async function resync() {
   if (syncing) return;
   syncing = true;
   try {
-    await Promise.all([refreshCamera(), loadCaptures(), loadReconstructions()]);
+    await Promise.all([refreshCamera(), loadCaptures(), loadReconstructions(), showPlan()]);
   } catch (e) {
     text($("#health"), `error: ${e}`);
   } finally {
@@ -655,6 +657,57 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
   noteIn(msg, `queued ${r.json.job}`);
   const x = await api("GET", `/reconstructions/${r.json.id}`);
   if (x.status === 200) upsertReconstruction(x.json);
+});
+
+// ---- plans ----
+
+let shownPlan = null;
+// Shows plan `id` (the newest when none is given): its state, its progress
+// across steps, and the operator's prompt with Continue while it waits.
+async function showPlan(id) {
+  if (id === undefined) {
+    const r = await api("GET", "/plans?limit=1");
+    if (r.status !== 200 || !r.json.length) return;
+    id = r.json[0].id;
+  }
+  const r = await api("GET", `/plans/${id}`);
+  if (r.status !== 200) return;
+  const p = r.json;
+  shownPlan = p.id;
+  $("#plan-status").hidden = false;
+  text($("#plan-title"), `plan ${p.id} (${p.scene}): ${p.state.replaceAll("_", " ")}`);
+  const bar = $("#plan-progress");
+  bar.max = Math.max(1, p.steps.length); bar.value = Math.min(p.step, p.steps.length);
+  text($("#plan-step"), `step ${Math.min(p.step + 1, p.steps.length)} of ${p.steps.length}` +
+    (p.reconstruction ? `, reconstruction ${p.reconstruction}` : "") + (p.error ? `: ${p.error}` : ""));
+  const waiting = p.state === "waiting_for_operator";
+  text($("#plan-prompt"), waiting ? p.prompt : "");
+  $("#plan-continue").hidden = !waiting;
+  $("#plan-cancel").hidden = ["done", "failed", "cancelled", "interrupted"].includes(p.state);
+}
+
+$("#plan-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const exposure = String(f.get("exposure_us")).trim();
+  const body = { scene: f.get("scene"), frames: number(f.get("frames")), dark_frames: number(f.get("dark_frames")) || 0 };
+  if (exposure === "auto") body.exposure = "auto"; else body.exposure_us = number(exposure);
+  if (f.get("truth")) body.reconstruct = { truth: f.get("truth") };
+  const r = await api("POST", "/plans", body);
+  const msg = $("#plan-message");
+  if (r.status !== 202) { alertIn(msg, tokenReason() || (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
+  noteIn(msg, `plan ${r.json.id} queued: ${r.json.steps.length} steps`);
+  showPlan(r.json.id);
+});
+$("#plan-continue").addEventListener("click", async () => {
+  const r = await api("POST", `/plans/${shownPlan}/continue`);
+  if (r.status >= 400) alertIn($("#plan-message"), (r.json && r.json.detail) || `HTTP ${r.status}`);
+  showPlan(shownPlan);
+});
+$("#plan-cancel").addEventListener("click", async () => {
+  const r = await api("DELETE", `/plans/${shownPlan}`);
+  if (r.status >= 400) alertIn($("#plan-message"), (r.json && r.json.detail) || `HTTP ${r.status}`);
+  showPlan(shownPlan);
 });
 
 // Calibration forms: both fits answer synchronously (a few seconds at most).

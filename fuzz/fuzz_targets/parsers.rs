@@ -114,6 +114,25 @@ pub fn settings_json(data: &[u8]) {
     }
 }
 
+/// A `POST /plans` body, and the steps it would walk on a bench with and
+/// without a mount and a scene switch.
+pub fn plan_json(data: &[u8]) {
+    if let Ok(b) = serde_json::from_slice::<polnlos::api::bodies::PlanBody>(data) {
+        for (mount, switches) in [(true, true), (false, false)] {
+            let steps = polnlos::daemon::steps_of(scene(), &b, mount, switches);
+            assert!(matches!(
+                steps.last(),
+                Some(polnlos::daemon::PlanStep::Reconstruct)
+            ));
+            let captures = steps
+                .iter()
+                .filter(|s| matches!(s, polnlos::daemon::PlanStep::Capture { .. }))
+                .count();
+            assert!(captures >= scene().block_count());
+        }
+    }
+}
+
 /// A daemon configuration file (token files are not read).
 pub fn config_toml(data: &[u8]) {
     if let Ok(text) = std::str::from_utf8(data) {

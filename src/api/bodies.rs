@@ -9,8 +9,9 @@
 use serde::{Deserialize, Serialize};
 
 pub use crate::daemon::requests::{
-    AutoExposure, CalibrationBody, CaptureBody, ProgressiveBody, ReconstructionBody, SettingsBody,
-    SourcePositionBody, WallCalibrationBody, MAX_CAPTURES_PER_POSITION,
+    AutoExposure, CalibrationBody, CaptureBody, PlanBody, PlanReconstruct, ProgressiveBody,
+    ReconstructionBody, SettingsBody, SourcePositionBody, WallCalibrationBody,
+    MAX_CAPTURES_PER_POSITION,
 };
 
 use super::ApiError;

@@ -145,6 +145,20 @@ impl From<crate::daemon::CancelError> for ApiError {
     }
 }
 
+impl From<crate::daemon::PlanError> for ApiError {
+    fn from(e: crate::daemon::PlanError) -> Self {
+        use crate::daemon::PlanError;
+        match e {
+            PlanError::NotFound(_) => Self::not_found(e.to_string()),
+            PlanError::NotWaiting { .. } => {
+                Self::new(StatusCode::CONFLICT, "not_waiting", e.to_string())
+            }
+            PlanError::Ended { .. } => Self::new(StatusCode::CONFLICT, "ended", e.to_string()),
+            PlanError::Submit(s) => s.into(),
+        }
+    }
+}
+
 impl From<crate::daemon::SettingsError> for ApiError {
     fn from(e: crate::daemon::SettingsError) -> Self {
         use crate::camera::CameraError;

@@ -122,7 +122,7 @@ impl Daemon {
         Ok((id, request))
     }
 
-    fn check_capture(
+    pub(super) fn check_capture(
         &self,
         b: &CaptureBody,
     ) -> Result<(CaptureRequest, Option<ProgressiveSpec>), RequestError> {

@@ -74,6 +74,18 @@ pub enum Event {
         /// `request` (a client's DELETE) or `retention` (the policy in the config).
         reason: &'static str,
     },
+    /// A plan moved: a step ended, it waits for the operator, or it ended.
+    Plan {
+        /// The plan's id.
+        plan: i64,
+        /// Where it is.
+        state: crate::store::PlanState,
+        /// The step it is at.
+        step: usize,
+        /// What the operator is asked to do (while waiting for the operator).
+        #[serde(skip_serializing_if = "Option::is_none")]
+        prompt: Option<String>,
+    },
     /// The camera connected or was lost.
     Camera {
         /// Whether a camera is open.

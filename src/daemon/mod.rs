@@ -33,6 +33,7 @@ mod integral;
 mod jobs;
 pub mod metrics;
 pub mod mount;
+mod plans;
 mod progressive;
 mod queue;
 mod reconstruction;
@@ -56,6 +57,7 @@ pub use cancel::{CancelError, JobKind};
 pub use config::Config;
 pub use demo::DEMO_SOURCE;
 pub use events::{Event, Events, Step as ProgressiveStep};
+pub use plans::{steps_of, PlanError, PlanStep, PlanView};
 pub use progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
 pub use queue::SubmitError;
 pub use validate::RequestError;
@@ -191,6 +193,8 @@ pub struct Daemon {
     camera: Arc<CameraService>,
     /// The rotation mount, when one turns the polarizer.
     mount: Arc<mount::MountService>,
+    /// Wakes the plan runner: a plan was posted, continued or cancelled.
+    plan_wake: Arc<tokio::sync::Notify>,
     captures: Arc<CaptureQueue>,
     reconstructions: Queue,
     registry: Arc<JobRegistry>,
@@ -249,6 +253,7 @@ impl Daemon {
             calibration: Arc::new(calibration),
             camera: Arc::new(CameraService::new(handle, camera.bench, hotplug)),
             mount,
+            plan_wake: Arc::new(tokio::sync::Notify::new()),
             captures: Arc::new(captures),
             reconstructions,
             registry: Arc::new(JobRegistry::default()),
@@ -287,6 +292,7 @@ impl Daemon {
                 d.config.retention.clone(),
             );
             set.spawn(until_stopped(stopped, retention));
+            set.spawn(plans::run(Arc::downgrade(d)));
         }
         Ok(daemon)
     }

@@ -102,7 +102,7 @@ pub struct ProgressiveBody {
 }
 
 /// The only automatic exposure mode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum AutoExposure {
     /// Plan from the scene (see [`crate::measure::exposure`]).
@@ -154,6 +154,52 @@ impl ReconstructionBody {
             rcond: self.rcond,
         }
     }
+}
+
+/// `POST /plans` body: acquire every (pose, angle) block of a scene, then
+/// reconstruct from the captures.
+#[derive(Debug, Clone, Deserialize, Serialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PlanBody {
+    /// Scene name.
+    pub scene: String,
+    /// The camera settings of every capture it takes (exposure_us, gain,
+    /// pixel format, region, binning, trigger), each inheriting the capture
+    /// defaults when absent, as in `POST /captures`. For planned exposures,
+    /// leave `exposure_us` out and give `"exposure": "auto"`.
+    #[serde(flatten, deserialize_with = "super::flatten::named")]
+    pub settings: CameraSettings,
+    /// `"auto"`: each block's exposure and frame count planned from the scene.
+    pub exposure: Option<AutoExposure>,
+    /// Frames per block (default 1, or the plan's with `"exposure": "auto"`).
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1)]
+    pub frames: Option<usize>,
+    /// Dark frames per block: taken within each capture on a bench that
+    /// switches the scene off itself, else as a dark capture between two
+    /// operator steps (scene off, scene on).
+    #[serde(default, deserialize_with = "super::integral::count")]
+    pub dark_frames: usize,
+    /// The reconstruction queued when every block is captured (default: ADMM-TV, automatic λ).
+    #[serde(default)]
+    pub reconstruct: PlanReconstruct,
+}
+
+/// The reconstruction a plan ends with.
+#[derive(Debug, Clone, Default, Deserialize, Serialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PlanReconstruct {
+    /// Solver (default `admm-tv`).
+    #[serde(default)]
+    pub solver: Solver,
+    /// Regularization weight (MODEL.md units; default: chosen from the noise).
+    pub lambda: Option<f64>,
+    /// Iteration cap (1-100000).
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1, maximum = 100000)]
+    pub max_iter: Option<usize>,
+    /// Known truth, as a test pattern name: the report then has PSNR.
+    pub truth: Option<String>,
 }
 
 /// `POST /calibrations` body.

@@ -8,6 +8,7 @@
 mod captures;
 mod files;
 mod lock;
+mod plans;
 mod reconstructions;
 mod records;
 mod retention;
@@ -23,6 +24,7 @@ pub use files::{
     CaptureFiles, FrameMeta, TMP_MARK,
 };
 pub use lock::{remove_orphans, DirLock, LOCK_FILE};
+pub use plans::{PlanCapture, PlanRow, PlanState};
 pub use records::{
     CaptureKind, CaptureRecord, CaptureRequest, JobState, ReconstructionParams,
     ReconstructionRecord, ReconstructionRequest,

@@ -104,7 +104,7 @@ fn state_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<JobState> {
 
 /// Column `idx` as the value `parse` reads from its text: a name this
 /// version does not know makes the row unreadable, never a silent default.
-fn named_column<T>(
+pub(super) fn named_column<T>(
     r: &Row<'_>,
     idx: usize,
     what: &str,
@@ -116,7 +116,7 @@ fn named_column<T>(
 
 /// Column `idx` as JSON, `None` when NULL; malformed JSON makes the row
 /// unreadable (before, a damaged region or report read as absent).
-fn json_column<T: serde::de::DeserializeOwned>(
+pub(super) fn json_column<T: serde::de::DeserializeOwned>(
     r: &Row<'_>,
     idx: usize,
 ) -> rusqlite::Result<Option<T>> {

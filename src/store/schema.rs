@@ -36,6 +36,20 @@ CREATE TABLE IF NOT EXISTS reconstructions (
     kappa TEXT,
     report TEXT
 );
+CREATE TABLE IF NOT EXISTS plans (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    scene TEXT NOT NULL,
+    request TEXT NOT NULL,
+    state TEXT NOT NULL,
+    step INTEGER NOT NULL DEFAULT 0,
+    prompt TEXT,
+    captures TEXT NOT NULL DEFAULT '[]',
+    reconstruction INTEGER,
+    error TEXT,
+    created_at TEXT NOT NULL,
+    started_at TEXT,
+    finished_at TEXT
+);
 CREATE TABLE IF NOT EXISTS issued_ids (
     kind TEXT PRIMARY KEY,
     last INTEGER NOT NULL

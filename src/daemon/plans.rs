@@ -1,0 +1,675 @@
+//! Acquisition plans: one request that captures every (pose, angle) block
+//! of a scene, light and dark, and then reconstructs; the steps a bench
+//! cannot do by itself (moving the camera, turning a polarizer by hand,
+//! switching the hidden scene off) wait for the operator's Continue.
+//!
+//! Why a plan is a catalogue row walked by one runner: a daemon stopped in
+//! the middle resumes at the step it was at, with the captures its finished
+//! steps took (a capture the stop interrupted is taken again; none that
+//! finished is), and plans share the one bench in the order they came.
+
+use std::sync::{Arc, Weak};
+use std::time::Duration;
+
+use serde::Serialize;
+
+use super::events::Event;
+use super::requests::{CaptureBody, PlanBody, ReconstructionBody};
+use super::{Daemon, JobKind, RequestError, SubmitError};
+use crate::scene::Scene;
+use crate::store::{CaptureKind, JobState, PlanCapture, PlanRow, PlanState};
+
+/// How often a plan looks at the job its step waits on.
+const POLL: Duration = Duration::from_millis(200);
+
+/// One step of a plan.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum PlanStep {
+    /// The operator does something, then `POST /plans/{id}/continue`.
+    Operator {
+        /// What to do.
+        prompt: String,
+    },
+    /// A capture of one block.
+    Capture {
+        /// Pose name.
+        pose: String,
+        /// Polarizer angle from crossed (None: the pose has no polarizer).
+        polarizer_deg: Option<f64>,
+        /// `light` or `dark`.
+        capture: CaptureKind,
+        /// The step of the dark capture subtracted from this one.
+        dark_step: Option<usize>,
+    },
+    /// The reconstruction from the light captures, in the scene's block order.
+    Reconstruct,
+}
+
+/// A plan as `GET /plans/{id}` shows it: its row and its steps.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct PlanView {
+    /// The plan's row: state, the step it is at, the prompt, the captures taken.
+    #[serde(flatten)]
+    pub plan: PlanRow,
+    /// Every step, in order (empty when its scene is no longer known).
+    pub steps: Vec<PlanStep>,
+}
+
+/// Why a plan request could not be done.
+#[derive(Debug, thiserror::Error)]
+pub enum PlanError {
+    /// No plan with that id (404).
+    #[error("no plan with id {0}")]
+    NotFound(i64),
+    /// `continue` on a plan that is not waiting for the operator (409).
+    #[error("plan {id} is {}, not waiting for the operator", state.name())]
+    NotWaiting {
+        /// The plan.
+        id: i64,
+        /// Where it is.
+        state: PlanState,
+    },
+    /// The plan already ended (409).
+    #[error("plan {id} is {}; only a plan that has not ended can be cancelled", state.name())]
+    Ended {
+        /// The plan.
+        id: i64,
+        /// How it ended.
+        state: PlanState,
+    },
+    /// The request itself is wrong (422/404/503 as for a capture).
+    #[error(transparent)]
+    Submit(#[from] SubmitError),
+}
+
+/// The steps of a plan over `scene`: its blocks in order (all angles of a
+/// pose together, poses in file order), an operator step before each pose
+/// after the first, one before each angle when no mount turns the
+/// polarizer, and operator steps around a dark capture when the bench cannot
+/// switch the hidden scene off by itself; then the reconstruction.
+pub fn steps_of(
+    scene: &Scene,
+    body: &PlanBody,
+    mount: bool,
+    switches_scene: bool,
+) -> Vec<PlanStep> {
+    let mut steps = Vec::new();
+    let mut last_pose: Option<String> = None;
+    for block in crate::transport::blocks_of(scene) {
+        if last_pose.as_ref().is_some_and(|p| *p != block.pose) {
+            steps.push(PlanStep::Operator {
+                prompt: format!(
+                    "move the camera to pose {}, then press Continue",
+                    block.pose
+                ),
+            });
+        }
+        if let (Some(deg), false) = (block.polarizer_deg, mount) {
+            steps.push(PlanStep::Operator {
+                prompt: format!(
+                    "turn the polarizer of pose {} to {deg}° from crossed, then press Continue",
+                    block.pose
+                ),
+            });
+        }
+        let capture = |kind, dark_step| PlanStep::Capture {
+            pose: block.pose.clone(),
+            polarizer_deg: block.polarizer_deg,
+            capture: kind,
+            dark_step,
+        };
+        if body.dark_frames > 0 && !switches_scene {
+            steps.push(PlanStep::Operator {
+                prompt: "switch the hidden scene off, then press Continue".into(),
+            });
+            let dark = steps.len();
+            steps.push(capture(CaptureKind::Dark, None));
+            steps.push(PlanStep::Operator {
+                prompt: "switch the hidden scene on again, then press Continue".into(),
+            });
+            steps.push(capture(CaptureKind::Light, Some(dark)));
+        } else {
+            steps.push(capture(CaptureKind::Light, None));
+        }
+        last_pose = Some(block.pose);
+    }
+    steps.push(PlanStep::Reconstruct);
+    steps
+}
+
+/// The capture request of a capture step.
+fn capture_body(
+    scene: &str,
+    body: &PlanBody,
+    step: &PlanStep,
+    dark_capture: Option<i64>,
+    switches_scene: bool,
+) -> Option<CaptureBody> {
+    let PlanStep::Capture {
+        pose,
+        polarizer_deg,
+        capture,
+        ..
+    } = step
+    else {
+        return None;
+    };
+    let dark = *capture == CaptureKind::Dark;
+    Some(CaptureBody {
+        kind: Some(*capture),
+        scene: scene.to_string(),
+        pose: pose.clone(),
+        polarizer_deg: *polarizer_deg,
+        settings: body.settings,
+        exposure: body.exposure,
+        target: None,
+        frames: if dark {
+            Some(body.dark_frames.max(1))
+        } else {
+            body.frames
+        },
+        dark_frames: if !dark && switches_scene {
+            body.dark_frames
+        } else {
+            0
+        },
+        dark_capture,
+        progressive: None,
+    })
+}
+
+/// Where a step's job is.
+enum Waited {
+    Done,
+    Failed(String),
+    PlanEnded,
+    Stopping,
+}
+
+impl Daemon {
+    fn plan_steps(&self, plan: &PlanRow) -> Result<(PlanBody, Vec<PlanStep>), String> {
+        let body: PlanBody = serde_json::from_value(plan.request.clone())
+            .map_err(|e| format!("its stored request cannot be read ({e})"))?;
+        let scene = self
+            .scenes
+            .scene(&plan.scene)
+            .map_err(|e| format!("its scene is no longer known ({e})"))?;
+        let switches = self.camera.bench().switches_scene();
+        Ok((
+            body.clone(),
+            steps_of(&scene, &body, self.mount.present(), switches),
+        ))
+    }
+
+    /// Checks a plan request (every capture it will post, as `POST
+    /// /captures` would) and records it; the runner starts it when the
+    /// plans before it have ended.
+    pub async fn submit_plan(self: &Arc<Self>, body: PlanBody) -> Result<PlanView, PlanError> {
+        let scene = self
+            .scenes
+            .scene(&body.scene)
+            .map_err(|e| SubmitError::from(RequestError::from(e)))?;
+        if body.settings.exposure_us.is_some() && body.exposure.is_some() {
+            return Err(SubmitError::from(RequestError::Invalid(
+                "give either exposure_us or \"exposure\": \"auto\", not both".into(),
+            ))
+            .into());
+        }
+        let switches = self.camera.bench().switches_scene();
+        let steps = steps_of(&scene, &body, self.mount.present(), switches);
+        for step in &steps {
+            // A dark capture stands in for the one a light step will name.
+            if let Some(b) = capture_body(&body.scene, &body, step, None, switches) {
+                let d = self.clone();
+                tokio::task::spawn_blocking(move || d.check_capture(&b))
+                    .await
+                    .map_err(|e| SubmitError::Internal(format!("plan validation: {e}")))?
+                    .map_err(SubmitError::from)?;
+            }
+        }
+        let request = serde_json::to_value(&body)
+            .map_err(|e| SubmitError::Internal(format!("plan request: {e}")))?;
+        let id = self
+            .store
+            .insert_plan(&body.scene, &request)
+            .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?;
+        tracing::info!("plan-{id} queued: {}, {} steps", body.scene, steps.len());
+        self.plan_event(id, PlanState::Queued, 0, None);
+        self.plan_wake.notify_one();
+        self.plan_view(id)
+    }
+
+    /// A plan with its steps.
+    pub fn plan_view(&self, id: i64) -> Result<PlanView, PlanError> {
+        let plan = self
+            .store
+            .plan(id)
+            .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?
+            .ok_or(PlanError::NotFound(id))?;
+        let steps = self.plan_steps(&plan).map(|(_, s)| s).unwrap_or_default();
+        Ok(PlanView { plan, steps })
+    }
+
+    /// The operator did what the prompt asked: the plan goes on.
+    pub fn continue_plan(&self, id: i64) -> Result<PlanView, PlanError> {
+        let store_err =
+            |e: crate::store::StoreError| SubmitError::Internal(self.store.describe(&e));
+        let plan = self
+            .store
+            .plan(id)
+            .map_err(store_err)?
+            .ok_or(PlanError::NotFound(id))?;
+        if plan.state != PlanState::WaitingForOperator {
+            return Err(PlanError::NotWaiting {
+                id,
+                state: plan.state,
+            });
+        }
+        self.store
+            .plan_step(id, plan.step + 1, &plan.captures)
+            .map_err(store_err)?;
+        self.store
+            .plan_state(id, PlanState::Running, None, None)
+            .map_err(store_err)?;
+        tracing::info!("plan-{id}: the operator continued after step {}", plan.step);
+        self.plan_event(id, PlanState::Running, plan.step + 1, None);
+        self.plan_wake.notify_one();
+        self.plan_view(id)
+    }
+
+    /// Cancels a plan that has not ended, and the capture or reconstruction
+    /// its current step waits on; the captures it took are kept.
+    pub async fn cancel_plan(&self, id: i64) -> Result<PlanView, PlanError> {
+        let store_err =
+            |e: crate::store::StoreError| SubmitError::Internal(self.store.describe(&e));
+        let plan = self
+            .store
+            .plan(id)
+            .map_err(store_err)?
+            .ok_or(PlanError::NotFound(id))?;
+        if plan.state.is_final()
+            || !self
+                .store
+                .plan_state(
+                    id,
+                    PlanState::Cancelled,
+                    None,
+                    Some("cancelled by a client"),
+                )
+                .map_err(store_err)?
+        {
+            return Err(PlanError::Ended {
+                id,
+                state: plan.state,
+            });
+        }
+        if let Some(c) = plan.captures.iter().find(|c| c.step == plan.step) {
+            let _ = self.cancel_job(JobKind::Capture, c.capture).await;
+        }
+        if let Some(r) = plan.reconstruction {
+            let _ = self.cancel_job(JobKind::Reconstruction, r).await;
+        }
+        tracing::info!("plan-{id} cancelled");
+        self.plan_event(id, PlanState::Cancelled, plan.step, None);
+        self.plan_wake.notify_one();
+        self.plan_view(id)
+    }
+
+    fn plan_event(&self, plan: i64, state: PlanState, step: usize, prompt: Option<String>) {
+        self.events.emit(Event::Plan {
+            plan,
+            state,
+            step,
+            prompt,
+        });
+    }
+
+    /// Posts a step's capture; while the camera has not reported itself (a
+    /// daemon that just started) or the queue is full, tries again every
+    /// second. `None` when the plan ended or the daemon stops meanwhile.
+    async fn submit_until_admitted(
+        self: &Arc<Self>,
+        plan: i64,
+        body: CaptureBody,
+    ) -> Option<Result<i64, SubmitError>> {
+        loop {
+            match self.submit_capture(body.clone()).await {
+                Ok((c, _)) => return Some(Ok(c)),
+                Err(
+                    SubmitError::Request(RequestError::Unavailable(_))
+                    | SubmitError::QueueFull { .. },
+                ) => {}
+                Err(e) => return Some(Err(e)),
+            }
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            let ended = self
+                .store
+                .plan(plan)
+                .ok()
+                .flatten()
+                .is_none_or(|p| p.state.is_final());
+            if ended || self.registry.is_stopping() {
+                return None;
+            }
+        }
+    }
+
+    /// Waits until capture or reconstruction `id` ends, the plan ends (a
+    /// cancel) or the daemon stops.
+    async fn wait_job(&self, plan: i64, kind: JobKind, id: i64) -> Waited {
+        loop {
+            if self.registry.is_stopping() {
+                return Waited::Stopping;
+            }
+            if self
+                .store
+                .plan(plan)
+                .ok()
+                .flatten()
+                .is_none_or(|p| p.state.is_final())
+            {
+                return Waited::PlanEnded;
+            }
+            let state = match kind {
+                JobKind::Capture => self.store.capture(id).map(|c| (c.state, c.error)),
+                JobKind::Reconstruction => {
+                    self.store.reconstruction(id).map(|r| (r.state, r.error))
+                }
+            };
+            match state {
+                Ok((JobState::Done, _)) => return Waited::Done,
+                Ok((JobState::Queued | JobState::Running, _)) => {}
+                Ok((s, e)) => {
+                    return Waited::Failed(format!(
+                        "{}-{id} {}{}",
+                        kind.name(),
+                        s.name(),
+                        e.map(|e| format!(": {e}")).unwrap_or_default()
+                    ))
+                }
+                Err(e) => return Waited::Failed(self.store.describe(&e)),
+            }
+            tokio::time::sleep(POLL).await;
+        }
+    }
+
+    /// Walks plan `id` from the step it is at until it ends, waits for the
+    /// operator, or the daemon stops.
+    async fn run_plan(self: &Arc<Self>, id: i64) {
+        let Ok(Some(mut plan)) = self.store.plan(id) else {
+            return;
+        };
+        let fail = |plan: &PlanRow, why: String| {
+            tracing::warn!("plan-{id} failed at step {}: {why}", plan.step);
+            let _ = self
+                .store
+                .plan_state(id, PlanState::Failed, None, Some(&why));
+            self.plan_event(id, PlanState::Failed, plan.step, None);
+        };
+        let (body, steps) = match self.plan_steps(&plan) {
+            Ok(s) => s,
+            Err(why) => {
+                let _ = self
+                    .store
+                    .plan_state(id, PlanState::Interrupted, None, Some(&why));
+                self.plan_event(id, PlanState::Interrupted, plan.step, None);
+                return;
+            }
+        };
+        if plan.state == PlanState::WaitingForOperator {
+            return;
+        }
+        if plan.state == PlanState::Queued {
+            let _ = self.store.plan_state(id, PlanState::Running, None, None);
+            tracing::info!("plan-{id} started");
+            self.plan_event(id, PlanState::Running, plan.step, None);
+        }
+        let switches = self.camera.bench().switches_scene();
+        while let Some(step) = steps.get(plan.step) {
+            let at = plan.step;
+            match step {
+                PlanStep::Operator { prompt } => {
+                    let _ = self.store.plan_state(
+                        id,
+                        PlanState::WaitingForOperator,
+                        Some(prompt),
+                        None,
+                    );
+                    tracing::info!("plan-{id} waits for the operator: {prompt}");
+                    self.plan_event(id, PlanState::WaitingForOperator, at, Some(prompt.clone()));
+                    return;
+                }
+                PlanStep::Capture { dark_step, .. } => {
+                    // Resumed: a capture this step took is kept if it is done
+                    // or still going, and taken again if it did not finish.
+                    let taken = plan
+                        .captures
+                        .iter()
+                        .find(|c| c.step == at)
+                        .map(|c| c.capture)
+                        .filter(|&c| {
+                            self.store.capture(c).is_ok_and(|r| {
+                                matches!(
+                                    r.state,
+                                    JobState::Done | JobState::Queued | JobState::Running
+                                )
+                            })
+                        });
+                    let capture = match taken {
+                        Some(c) => c,
+                        None => {
+                            let dark = dark_step.and_then(|s| {
+                                plan.captures
+                                    .iter()
+                                    .find(|c| c.step == s)
+                                    .map(|c| c.capture)
+                            });
+                            let Some(b) = capture_body(&plan.scene, &body, step, dark, switches)
+                            else {
+                                return;
+                            };
+                            let c = match self.submit_until_admitted(id, b).await {
+                                Some(Ok(c)) => c,
+                                Some(Err(e)) => return fail(&plan, format!("step {at}: {e}")),
+                                None => return,
+                            };
+                            plan.captures.retain(|c| c.step != at);
+                            plan.captures.push(PlanCapture {
+                                step: at,
+                                capture: c,
+                            });
+                            let _ = self.store.plan_step(id, at, &plan.captures);
+                            c
+                        }
+                    };
+                    match self.wait_job(id, JobKind::Capture, capture).await {
+                        Waited::Done => {}
+                        Waited::Failed(why) => return fail(&plan, format!("step {at}: {why}")),
+                        Waited::PlanEnded | Waited::Stopping => return,
+                    }
+                }
+                PlanStep::Reconstruct => {
+                    let rid = match plan.reconstruction {
+                        Some(r) => r,
+                        None => {
+                            let mut captures = Vec::new();
+                            for (k, s) in steps.iter().enumerate() {
+                                if let PlanStep::Capture {
+                                    capture: CaptureKind::Light,
+                                    ..
+                                } = s
+                                {
+                                    if let Some(c) = plan.captures.iter().find(|c| c.step == k) {
+                                        captures.push(c.capture);
+                                    }
+                                }
+                            }
+                            let r = &body.reconstruct;
+                            let b = ReconstructionBody {
+                                scene: plan.scene.clone(),
+                                captures,
+                                solver: r.solver,
+                                lambda: r.lambda,
+                                rho: None,
+                                max_iter: r.max_iter,
+                                tol: None,
+                                rcond: None,
+                                truth: r.truth.clone(),
+                            };
+                            let rid = match self.submit_reconstruction(&b) {
+                                Ok(r) => r,
+                                Err(e) => return fail(&plan, format!("step {at}: {e}")),
+                            };
+                            let _ = self.store.plan_reconstruction(id, rid);
+                            plan.reconstruction = Some(rid);
+                            rid
+                        }
+                    };
+                    match self.wait_job(id, JobKind::Reconstruction, rid).await {
+                        Waited::Done => {}
+                        Waited::Failed(why) => return fail(&plan, format!("step {at}: {why}")),
+                        Waited::PlanEnded | Waited::Stopping => return,
+                    }
+                }
+            }
+            plan.step = at + 1;
+            let _ = self.store.plan_step(id, plan.step, &plan.captures);
+            self.plan_event(id, PlanState::Running, plan.step, None);
+        }
+        if self
+            .store
+            .plan_state(id, PlanState::Done, None, None)
+            .unwrap_or(false)
+        {
+            tracing::info!("plan-{id} done");
+            self.plan_event(id, PlanState::Done, plan.step, None);
+        }
+    }
+}
+
+/// Runs the plans one at a time, oldest first, until the daemon stops: a
+/// plan waiting for the operator holds the bench until it is continued or
+/// cancelled.
+pub(super) async fn run(daemon: Weak<Daemon>) {
+    loop {
+        let Some(d) = daemon.upgrade() else { return };
+        if d.registry.is_stopping() {
+            return;
+        }
+        let wake = d.plan_wake.clone();
+        let notified = wake.notified();
+        let next = d
+            .store
+            .unfinished_plans()
+            .ok()
+            .and_then(|p| p.first().copied());
+        if let Some(id) = next {
+            d.run_plan(id).await;
+        }
+        let waiting = next.is_none()
+            || d.store
+                .plan(next.unwrap_or(0))
+                .ok()
+                .flatten()
+                .is_some_and(|p| p.state == PlanState::WaitingForOperator);
+        let mut stopped = d.registry.stopped();
+        drop(d);
+        if waiting {
+            tokio::select! {
+                _ = notified => {}
+                _ = stopped.wait_for(|s| *s) => return,
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene(name: &str) -> Scene {
+        let text = crate::scene::builtin::text(name).unwrap();
+        Scene::from_toml_str(text).unwrap()
+    }
+
+    fn body(dark_frames: usize) -> PlanBody {
+        serde_json::from_value(serde_json::json!({
+            "scene": "brewster-multi", "exposure_us": 1000, "dark_frames": dark_frames
+        }))
+        .unwrap()
+    }
+
+    fn prompts(steps: &[PlanStep]) -> Vec<String> {
+        steps
+            .iter()
+            .map(|s| match s {
+                PlanStep::Operator { prompt } => prompt.clone(),
+                PlanStep::Capture {
+                    pose,
+                    polarizer_deg,
+                    capture,
+                    ..
+                } => format!("{} {pose} {polarizer_deg:?}", capture.name()),
+                PlanStep::Reconstruct => "reconstruct".into(),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_bench_that_does_everything_waits_only_to_move_the_camera() {
+        let scene = scene("brewster-multi");
+        let steps = steps_of(&scene, &body(2), true, true);
+        let p = prompts(&steps);
+        let first = format!("light {} Some(0.0)", scene.poses()[0].name);
+        assert_eq!(p.first(), Some(&first));
+        assert_eq!(p.last().map(String::as_str), Some("reconstruct"));
+        let waits: Vec<&String> = p.iter().filter(|s| s.contains("Continue")).collect();
+        assert_eq!(waits.len(), scene.poses().len() - 1, "{p:?}");
+        assert!(waits.iter().all(|w| w.contains("move the camera")), "{p:?}");
+        let captures = p.iter().filter(|s| s.starts_with("light ")).count();
+        assert_eq!(captures, scene.block_count());
+    }
+
+    #[test]
+    fn a_bench_set_by_hand_waits_for_each_angle_and_around_each_dark() {
+        let scene = scene("brewster-rotating");
+        let steps = steps_of(&scene, &body(2), false, false);
+        let p = prompts(&steps);
+        let blocks = scene.block_count();
+        assert_eq!(
+            p.iter()
+                .filter(|s| s.contains("turn the polarizer"))
+                .count(),
+            blocks
+        );
+        assert_eq!(p.iter().filter(|s| s.starts_with("dark ")).count(), blocks);
+        assert_eq!(
+            p.iter()
+                .filter(|s| s.contains("switch the hidden scene off"))
+                .count(),
+            blocks
+        );
+        // Each light capture subtracts the dark taken just before it.
+        for (k, s) in steps.iter().enumerate() {
+            if let PlanStep::Capture {
+                capture: CaptureKind::Light,
+                dark_step: Some(d),
+                ..
+            } = s
+            {
+                assert!(matches!(
+                    steps[*d],
+                    PlanStep::Capture {
+                        capture: CaptureKind::Dark,
+                        ..
+                    }
+                ));
+                assert_eq!(*d + 2, k);
+            }
+        }
+        // Without darks, no scene switching.
+        let steps = steps_of(&scene, &body(0), false, false);
+        assert!(prompts(&steps).iter().all(|s| !s.contains("hidden scene")));
+    }
+}

@@ -1,0 +1,244 @@
+//! Acquisition plans through the daemon (issue 28): one `POST /plans` walks
+//! a scene's blocks with the shipped bench (Aravis's fake camera, the
+//! simulated rotation mount) to a finished reconstruction; a plan waits for
+//! the operator to move the camera; a SIGKILL in the middle loses no finished
+//! capture and repeats none. Real HTTP on 127.0.0.1, the real catalogue.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::{config, lock, Daemon};
+
+/// The fake camera shows the rotating bench's letter.
+fn rotating_bench(dir: &std::path::Path) -> std::path::PathBuf {
+    config(
+        dir,
+        &[(
+            "scene = \"brewster-crossed\"",
+            "scene = \"brewster-rotating\"",
+        )],
+    )
+}
+
+/// Waits until plan `loc` is in one of `states`.
+fn wait_plan(d: &Daemon, loc: &str, states: &[&str], within: Duration) -> serde_json::Value {
+    let t = Instant::now();
+    loop {
+        let v = d.json(loc);
+        if states.iter().any(|s| v["state"] == *s) {
+            return v;
+        }
+        assert!(t.elapsed() < within, "{loc}: {v}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn psnr(r: &serde_json::Value) -> f64 {
+    r["report"]["metrics"]["psnr_db"]
+        .as_f64()
+        .unwrap_or(f64::NAN)
+}
+
+#[test]
+fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let d = Daemon::start(&rotating_bench(dir.path()), &dir.path().join("data"));
+    let long = Duration::from_secs(240);
+    let (s, body, loc) = d.post(
+        "/plans",
+        r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 4, "dark_frames": 1,
+            "reconstruct": {"truth": "letter"}}"#,
+    );
+    assert_eq!(s, 202, "{body}");
+    let loc = loc.expect("Location");
+    let accepted: serde_json::Value = serde_json::from_str(&body).unwrap();
+    // Four captures (the mount turns, the bench switches its scene) and the reconstruction.
+    assert_eq!(
+        accepted["steps"].as_array().map(Vec::len),
+        Some(5),
+        "{body}"
+    );
+    let plan = wait_plan(&d, &loc, &["done", "failed", "cancelled"], long);
+    assert_eq!(plan["state"], "done", "{plan}");
+    let captures: Vec<i64> = plan["captures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["capture"].as_i64().unwrap())
+        .collect();
+    assert_eq!(captures.len(), 4, "{plan}");
+    for (id, angle) in captures.iter().zip([0.0, 45.0, 90.0, 135.0]) {
+        let c = d.json(&format!("/captures/{id}"));
+        assert_eq!(c["state"], "done", "{c}");
+        assert_eq!(c["polarizer_deg"], angle, "{c}");
+        let measured = c["polarizer_measured_deg"].as_f64().unwrap();
+        assert!((measured - angle).abs() <= 0.05, "{c}");
+        assert_eq!(c["dark_frames"], 1, "{c}");
+    }
+    let rid = plan["reconstruction"].as_i64().unwrap();
+    let by_plan = d.json(&format!("/reconstructions/{rid}"));
+    assert_eq!(by_plan["state"], "done", "{by_plan}");
+
+    // The same blocks captured by hand, one request each.
+    let mut hand = Vec::new();
+    for angle in [0, 45, 90, 135] {
+        let c = d.run_job(
+            "/captures",
+            &format!(r#"{{"scene": "brewster-rotating", "pose": "A", "polarizer_deg": {angle}, "exposure_us": 20000, "frames": 4, "dark_frames": 1}}"#),
+            long,
+        );
+        assert_eq!(c["state"], "done", "{c}");
+        hand.push(c["id"].as_i64().unwrap());
+    }
+    let by_hand = d.run_job(
+        "/reconstructions",
+        &format!(r#"{{"scene": "brewster-rotating", "captures": {hand:?}, "truth": "letter"}}"#),
+        long,
+    );
+    assert_eq!(by_hand["state"], "done", "{by_hand}");
+    let (p, h) = (psnr(&by_plan), psnr(&by_hand));
+    println!("PSNR by plan {p:.2} dB, by hand {h:.2} dB");
+    assert!((p - h).abs() <= 0.5, "by plan {p} dB, by hand {h} dB");
+    // The plan's reconstruction is of its own captures, in block order.
+    let used: Vec<i64> = by_plan["captures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|c| c.as_i64())
+        .collect();
+    assert_eq!(used, captures, "{by_plan}");
+}
+
+#[test]
+fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let long = Duration::from_secs(240);
+    let body =
+        r#"{"scene": "brewster-multi", "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#;
+    let (s, b, loc) = d.post("/plans", body);
+    assert_eq!(s, 202, "{b}");
+    let loc = loc.unwrap();
+    // Pose B's block first (the camera starts at the first pose), then the
+    // prompt to move it to pose C.
+    let waiting = wait_plan(&d, &loc, &["waiting_for_operator", "failed"], long);
+    assert_eq!(waiting["state"], "waiting_for_operator", "{waiting}");
+    assert!(
+        waiting["prompt"].as_str().unwrap_or("").contains("pose C"),
+        "{waiting}"
+    );
+    assert_eq!(waiting["captures"].as_array().map(Vec::len), Some(1));
+    let (s, b, _) = d.post(&format!("{loc}/continue"), "{}");
+    assert_eq!(s, 200, "{b}");
+    let done = wait_plan(&d, &loc, &["done", "failed"], long);
+    assert_eq!(done["state"], "done", "{done}");
+    assert_eq!(done["captures"].as_array().map(Vec::len), Some(2), "{done}");
+    let rid = done["reconstruction"].as_i64().unwrap();
+    assert_eq!(d.json(&format!("/reconstructions/{rid}"))["state"], "done");
+    let (s, b, _) = d.post(&format!("{loc}/continue"), "{}");
+    assert_eq!(s, 409, "{b}");
+
+    // A second plan, cancelled while it waits: its capture is kept.
+    let (s, b, loc) = d.post("/plans", body);
+    assert_eq!(s, 202, "{b}");
+    let loc = loc.unwrap();
+    let waiting = wait_plan(&d, &loc, &["waiting_for_operator", "failed"], long);
+    let first = waiting["captures"][0]["capture"].as_i64().unwrap();
+    let (s, b) = d.delete(&loc);
+    assert_eq!(s, 200, "{b}");
+    assert_eq!(d.json(&loc)["state"], "cancelled");
+    assert_eq!(d.json(&format!("/captures/{first}"))["state"], "done");
+    let (s, b, _) = d.post(&format!("{loc}/continue"), "{}");
+    assert_eq!(s, 409, "{b}");
+    let (s, _) = d.delete(&loc);
+    assert_eq!(s, 409);
+    // Bad requests are refused before anything is recorded.
+    for (bad, says) in [
+        (r#"{"scene": "nowhere"}"#, "nowhere"),
+        (
+            r#"{"scene": "brewster-multi", "exposure_us": 1000, "exposure": "auto"}"#,
+            "not both",
+        ),
+        (
+            r#"{"scene": "brewster-multi", "exposure_us": 1}"#,
+            "exposure_us",
+        ),
+        (r#"{"scene": "brewster-multi", "colour": 1}"#, "colour"),
+    ] {
+        let (s, b, _) = d.post("/plans", bad);
+        assert!(s == 404 || s == 422, "{bad}: {s} {b}");
+        assert!(b.contains(says), "{bad}: {b}");
+    }
+    assert_eq!(d.json("/plans").as_array().map(Vec::len), Some(2));
+}
+
+#[test]
+fn sigkill_in_the_middle_of_a_plan_loses_no_capture_and_repeats_none() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let cfg = rotating_bench(dir.path());
+    let mut d = Daemon::start(&cfg, &data);
+    let long = Duration::from_secs(240);
+    let (s, b, loc) = d.post(
+        "/plans",
+        r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 40, "reconstruct": {"lambda": 0.001}}"#,
+    );
+    assert_eq!(s, 202, "{b}");
+    let loc = loc.unwrap();
+    // Killed once the first capture is done and the second is under way.
+    let t = Instant::now();
+    let before = loop {
+        let v = d.json(&loc);
+        let taken = v["captures"].as_array().map(Vec::len).unwrap_or(0);
+        if taken >= 2 {
+            break v;
+        }
+        assert!(t.elapsed() < long, "{v}");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    d.child.kill().unwrap(); // SIGKILL
+    d.child.wait().unwrap();
+    drop(d);
+    let first = before["captures"][0]["capture"].as_i64().unwrap();
+    let d = Daemon::start(&cfg, &data);
+    let plan = wait_plan(&d, &loc, &["done", "failed", "interrupted"], long);
+    assert_eq!(plan["state"], "done", "{plan}");
+    let ids: Vec<i64> = plan["captures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["capture"].as_i64().unwrap())
+        .collect();
+    assert_eq!(ids.len(), 4, "{plan}");
+    assert_eq!(
+        ids[0], first,
+        "the finished capture is kept, not taken again"
+    );
+    // Every block captured once to the end: 4 done, and at most the one the
+    // kill cut short besides (interrupted).
+    let all = d.json("/captures");
+    let done = all
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["state"] == "done")
+        .count();
+    assert_eq!(done, 4, "{all}");
+    let others: Vec<&serde_json::Value> = all
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["state"] != "done")
+        .collect();
+    assert!(
+        others.len() <= 1 && others.iter().all(|c| c["state"] == "interrupted"),
+        "{all}"
+    );
+    let rid = plan["reconstruction"].as_i64().unwrap();
+    assert_eq!(d.json(&format!("/reconstructions/{rid}"))["state"], "done");
+}
