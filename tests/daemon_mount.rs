@@ -112,3 +112,83 @@ fn the_shipped_daemon_turns_its_simulated_mount() {
         "{m}"
     );
 }
+
+/// Mean of a capture's mean frame, DN.
+fn wall_mean(data: &std::path::Path, id: i64) -> f64 {
+    let f = polnlos::store::read_mean(&data.join("captures").join(id.to_string())).unwrap();
+    f.pixels.iter().map(|&p| f64::from(p)).sum::<f64>() / f.pixels.len() as f64
+}
+
+#[test]
+fn an_uncalibrated_mount_shows_in_the_frames_and_the_sweep_finds_its_zero() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    // The simulated polarizer is really crossed at mount angle 4; the
+    // config says 0, as a mount clamped at an unknown angle would.
+    let cfg = config(
+        dir.path(),
+        &[
+            ("zero_deg = 0.0", "zero_deg = 0.0\nsimulated_zero_deg = 4.0"),
+            (
+                "scene = \"brewster-crossed\"",
+                "scene = \"brewster-rotating\"",
+            ),
+        ],
+    );
+    let d = Daemon::start(&cfg, &data);
+    let long = Duration::from_secs(60);
+    let crossed = r#"{"scene": "brewster-rotating", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#;
+    let before = d.run_job("/captures", crossed, long);
+    assert_eq!(before["state"], "done", "{before}");
+    let before = wall_mean(&data, before["id"].as_i64().unwrap());
+
+    let (s, b, _) = d.post(
+        "/mount/zero",
+        r#"{"scene": "brewster-rotating", "pose": "A", "exposure_us": 20000, "span_deg": 10, "step_deg": 2}"#,
+    );
+    assert_eq!(s, 200, "{b}");
+    let fit: serde_json::Value = serde_json::from_str(&b).unwrap();
+    let zero = fit["zero_deg"].as_f64().unwrap();
+    println!(
+        "zero found at {zero:.3} deg (truth 4), residual {}",
+        fit["relative_residual"]
+    );
+    assert!((zero - 4.0).abs() < 0.2, "{fit}");
+    assert_eq!(fit["sweep"].as_array().map(Vec::len), Some(11), "{fit}");
+
+    // Crossed now means crossed: less light than through the 4-degree error.
+    let after = d.run_job("/captures", crossed, long);
+    assert_eq!(after["state"], "done", "{after}");
+    let after = wall_mean(&data, after["id"].as_i64().unwrap());
+    println!("crossed wall mean {before:.1} DN before, {after:.1} DN after");
+    assert!(after < before, "{after} vs {before}");
+
+    // Kept across a restart, and shown.
+    drop(d);
+    let d = Daemon::start(&cfg, &data);
+    let m = d.json("/mount");
+    assert!((m["zero_deg"].as_f64().unwrap() - zero).abs() < 1e-9, "{m}");
+    assert!(
+        m["zero_source"]
+            .as_str()
+            .unwrap_or("")
+            .starts_with("calibrated"),
+        "{m}"
+    );
+    // The scene's own light, extended, has its least light off crossed.
+    let (s, b, _) = d.post(
+        "/mount/zero",
+        r#"{"scene": "brewster-rotating", "pose": "A", "exposure_us": 20000, "light": "scene"}"#,
+    );
+    assert_eq!(s, 200, "{b}");
+    let by_scene: serde_json::Value = serde_json::from_str(&b).unwrap();
+    println!("by the scene's light: {}", by_scene["zero_deg"]);
+    // Out of range: refused, naming the key.
+    let (s, b, _) = d.post(
+        "/mount/zero",
+        r#"{"scene": "brewster-rotating", "pose": "A", "span_deg": 90}"#,
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("span_deg"), "{b}");
+}

@@ -103,6 +103,18 @@ pub async fn mount(State(d): St) -> Json<crate::daemon::mount::MountView> {
     Json(d.mount_now().await)
 }
 
+/// Finds the mount angle at which the polarizer is crossed: sweeps the
+/// mount around its zero with the camera at `pose`, fits the minimum of the
+/// polarizer's intensity law to the wall's mean light, and makes it the
+/// zero (kept in the data directory). Holds the camera like a capture.
+#[utoipa::path(post, path = "/mount/zero", request_body = crate::daemon::ZeroBody, responses((status = 200, body = crate::daemon::ZeroFit, description = "The zero found, now in force, and the sweep"), (status = 404, description = "Unknown scene"), (status = 422, description = "No mount, a value out of range, or no minimum in the sweep"), (status = 503, description = "No camera, or the mount did not turn")))]
+pub async fn mount_zero(
+    State(d): St,
+    ApiJson(b): ApiJson<crate::daemon::ZeroBody>,
+) -> Result<Json<crate::daemon::ZeroFit>, ApiError> {
+    Ok(Json(d.calibrate_mount_zero(b).await?))
+}
+
 /// `?live=true&stretch=true` of `GET /camera/frame.png`.
 #[derive(Debug, Default, serde::Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]

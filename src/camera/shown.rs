@@ -5,7 +5,7 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use super::Frame;
 
@@ -29,16 +29,122 @@ pub struct BenchImages {
     pub source: Vec<(String, Option<f64>, Frame)>,
 }
 
+/// One kind of image (the lit wall, the target, the point source) per block.
+struct Images {
+    /// Per block key.
+    by_key: HashMap<String, Arc<Frame>>,
+    /// Per pose: its polarizer angles (degrees) and their images.
+    by_pose: HashMap<String, Vec<(f64, Arc<Frame>)>>,
+}
+
+impl Images {
+    fn new(v: Vec<(String, Option<f64>, Frame)>) -> Self {
+        let mut by_key = HashMap::new();
+        let mut by_pose: HashMap<String, Vec<(f64, Arc<Frame>)>> = HashMap::new();
+        for (pose, deg, frame) in v {
+            let frame = Arc::new(frame);
+            if let Some(d) = deg {
+                by_pose
+                    .entry(pose.clone())
+                    .or_default()
+                    .push((d, frame.clone()));
+            }
+            by_key.insert(key(&pose, deg), frame);
+        }
+        Self { by_key, by_pose }
+    }
+
+    /// The image of `pose` with its polarizer at `deg`: the rendered one at
+    /// that angle, else the nearest rendered angle's moved by the change of
+    /// the polarizer's intensity law fitted to the pose's rendered angles
+    /// (with fewer than three angles, the nearest rendered angle's as is).
+    ///
+    /// Why: a rotation mount stops where it stops, and a bench that shows
+    /// the angle the mount is really at makes a mis-set mount show in the
+    /// data. Through a linear polarizer turned by θ the intensity of every
+    /// pixel is `a + b cos 2θ + c sin 2θ` (the Stokes parameters of its
+    /// light, exact for a sheet seen head-on; the bench's off-axis rays
+    /// bend it by less than the fit's residual at the rendered angles).
+    fn at(&self, pose: &str, deg: Option<f64>) -> Option<Arc<Frame>> {
+        if let Some(f) = self.by_key.get(&key(pose, deg)) {
+            return Some(f.clone());
+        }
+        let (deg, rendered) = (deg?, self.by_pose.get(pose)?);
+        let gap = |d: f64| {
+            let g = (d - deg).rem_euclid(180.0);
+            g.min(180.0 - g)
+        };
+        let (near_deg, near) = rendered
+            .iter()
+            .min_by(|a, b| gap(a.0).total_cmp(&gap(b.0)))?;
+        let angles = || rendered.iter().map(|(d, _)| *d);
+        // The nearest rendered image, moved by the law's change from its
+        // angle to `deg`: exact at every rendered angle, the law between.
+        let (Some(at), Some(from)) = (
+            malus_weights(angles(), deg),
+            malus_weights(angles(), *near_deg),
+        ) else {
+            return Some(near.clone());
+        };
+        let mut pixels = near.pixels.clone();
+        for ((a, b), (_, f)) in at.iter().zip(&from).zip(rendered) {
+            let w = (a - b) as f32;
+            for (p, &v) in pixels.iter_mut().zip(&f.pixels) {
+                *p += w * v;
+            }
+        }
+        // Light through a polarizer is never negative.
+        pixels.iter_mut().for_each(|p| *p = p.max(0.0));
+        Some(Arc::new(Frame {
+            width: near.width,
+            height: near.height,
+            pixels,
+        }))
+    }
+}
+
+/// The weights `w_k` with `I(deg) = sum_k w_k I(angles_k)` for intensities
+/// that follow `a + b cos 2θ + c sin 2θ` (least squares over the angles);
+/// `None` with fewer than three distinct angles (mod 180 degrees).
+fn malus_weights(angles: impl Iterator<Item = f64>, deg: f64) -> Option<Vec<f64>> {
+    let basis = |d: f64| {
+        let t = 2.0 * d.to_radians();
+        [1.0, t.cos(), t.sin()]
+    };
+    let rows: Vec<[f64; 3]> = angles.map(basis).collect();
+    let mut m = nalgebra::Matrix3::<f64>::zeros();
+    for r in &rows {
+        let v = nalgebra::Vector3::from(*r);
+        m += v * v.transpose();
+    }
+    // Fewer than three distinct angles make M singular.
+    let inv = m.try_inverse().filter(|_| m.determinant().abs() > 1e-9)?;
+    let q = inv * nalgebra::Vector3::from(basis(deg));
+    Some(
+        rows.iter()
+            .map(|r| nalgebra::Vector3::from(*r).dot(&q))
+            .collect(),
+    )
+}
+
+/// The images of the selected block.
+#[derive(Default)]
+struct Selected {
+    scene: Option<Arc<Frame>>,
+    target: Option<Arc<Frame>>,
+    source: Option<Arc<Frame>>,
+}
+
 /// Wall images per block and the bench's state.
 pub struct Shown {
     /// Wall frames per block, in fractions of full scale at the reference exposure.
-    frames: HashMap<String, Frame>,
+    frames: Images,
     /// The target's image per block.
-    targets: HashMap<String, Frame>,
+    targets: Images,
     /// The point source's image per block.
-    sources: HashMap<String, Frame>,
+    sources: Images,
     source_on: AtomicBool,
-    selected: Mutex<Option<String>>,
+    selected: Mutex<Selected>,
     scene_on: AtomicBool,
     target_on: AtomicBool,
     reference_exposure_us: f64,
@@ -51,17 +157,12 @@ impl Shown {
     /// A bench showing `images` (scaled to `reference_exposure_us`), the
     /// scene lit, the target away, nothing selected.
     pub fn new(images: BenchImages, reference_exposure_us: f64) -> Self {
-        let keyed = |v: Vec<(String, Option<f64>, Frame)>| {
-            v.into_iter()
-                .map(|(p, d, f)| (key(&p, d), f))
-                .collect::<HashMap<_, _>>()
-        };
         Self {
-            frames: keyed(images.scene),
-            targets: keyed(images.target),
-            sources: keyed(images.source),
+            frames: Images::new(images.scene),
+            targets: Images::new(images.target),
+            sources: Images::new(images.source),
             source_on: AtomicBool::new(false),
-            selected: Mutex::new(None),
+            selected: Mutex::new(Selected::default()),
             scene_on: AtomicBool::new(true),
             target_on: AtomicBool::new(false),
             reference_exposure_us,
@@ -70,10 +171,16 @@ impl Shown {
         }
     }
 
-    /// Moves the bench to a block.
+    /// Moves the bench to `pose` with the polarizer at `polarizer_deg`
+    /// (any angle: see [`Images::at`]).
     pub fn select(&self, pose: &str, polarizer_deg: Option<f64>) {
+        let chosen = Selected {
+            scene: self.frames.at(pose, polarizer_deg),
+            target: self.targets.at(pose, polarizer_deg),
+            source: self.sources.at(pose, polarizer_deg),
+        };
         if let Ok(mut s) = self.selected.lock() {
-            *s = Some(key(pose, polarizer_deg));
+            *s = chosen;
         }
     }
 
@@ -106,16 +213,18 @@ impl Shown {
         mut put: impl FnMut(usize, f64),
     ) {
         let scale = exposure_us / self.reference_exposure_us * (1.0 + 0.1 * gain);
-        let selected = self.selected.lock().ok().and_then(|s| s.clone());
-        let frame = if self.target_on.load(Ordering::SeqCst) {
-            selected.and_then(|k| self.targets.get(&k))
-        } else if self.source_on.load(Ordering::SeqCst) {
-            selected.and_then(|k| self.sources.get(&k))
-        } else if self.scene_on.load(Ordering::SeqCst) {
-            selected.and_then(|k| self.frames.get(&k))
-        } else {
-            None
-        };
+        let frame = self.selected.lock().ok().and_then(|s| {
+            if self.target_on.load(Ordering::SeqCst) {
+                s.target.clone()
+            } else if self.source_on.load(Ordering::SeqCst) {
+                s.source.clone()
+            } else if self.scene_on.load(Ordering::SeqCst) {
+                s.scene.clone()
+            } else {
+                None
+            }
+        });
+        let frame = frame.as_deref();
         let mut seed = self
             .counter
             .fetch_add(1, Ordering::Relaxed)
@@ -148,6 +257,42 @@ impl Shown {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_polarizer_between_rendered_angles_follows_the_intensity_law() {
+        // One pixel lit by partly polarized light: a + b cos 2θ + c sin 2θ.
+        let law = |d: f64| {
+            let t = 2.0 * d.to_radians();
+            0.4 + 0.25 * t.cos() - 0.1 * t.sin()
+        };
+        let frame = |d: f64| Frame {
+            width: 1,
+            height: 1,
+            pixels: vec![law(d) as f32],
+        };
+        let images = Images::new(
+            [0.0, 45.0, 90.0, 135.0]
+                .into_iter()
+                .map(|d| ("A".to_string(), Some(d), frame(d)))
+                .collect(),
+        );
+        for d in [2.0, -2.0, 30.0, 100.5, 179.0] {
+            let got = f64::from(images.at("A", Some(d)).unwrap().pixels[0]);
+            assert!((got - law(d)).abs() < 1e-6, "{d}: {got} vs {}", law(d));
+        }
+        // A rendered angle is itself; two angles cannot fit the law: the nearest.
+        assert_eq!(
+            images.at("A", Some(45.0)).unwrap().pixels[0],
+            law(45.0) as f32
+        );
+        let two = Images::new(vec![
+            ("B".into(), Some(0.0), frame(0.0)),
+            ("B".into(), Some(90.0), frame(90.0)),
+        ]);
+        assert_eq!(two.at("B", Some(80.0)).unwrap().pixels[0], law(90.0) as f32);
+        assert_eq!(two.at("B", Some(178.0)).unwrap().pixels[0], law(0.0) as f32);
+        assert!(two.at("C", Some(0.0)).is_none());
+    }
 
     fn bench() -> Shown {
         let frame = Frame {

@@ -110,6 +110,20 @@ impl CameraService {
         }
     }
 
+    /// `n` frames at `settings`, for a caller that holds the camera's lease
+    /// (a sweep that is not a capture).
+    pub(crate) async fn collect(
+        &self,
+        settings: Acquisition,
+        n: usize,
+    ) -> Result<Vec<RawFrame>, CameraError> {
+        let frames = self.handle.collect(settings, n).await?;
+        if let Some(f) = frames.last() {
+            self.show(Arc::new(f.clone()));
+        }
+        Ok(frames)
+    }
+
     /// The latest frame a capture or the live view received, if any.
     pub fn latest_frame(&self) -> Option<Arc<RawFrame>> {
         self.latest
@@ -150,7 +164,7 @@ impl CameraService {
 
     /// `stated` over the capture defaults, on this camera: what neither
     /// states is the camera's own (read back in `info`), so nothing is missing.
-    fn settings_on(&self, stated: CameraSettings, info: &CameraInfo) -> Acquisition {
+    pub(crate) fn settings_on(&self, stated: CameraSettings, info: &CameraInfo) -> Acquisition {
         stated
             .over(&self.capture_defaults(Some(info)))
             .over(&info.settings.into())

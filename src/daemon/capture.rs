@@ -121,7 +121,12 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     let dir = w.jobs.store.capture_dir(id);
     std::fs::create_dir_all(&dir)
         .map_err(|e| JobError::Store(w.jobs.store.describe_io(&dir, &e)))?;
-    w.camera.bench().select(&c.pose, c.polarizer_deg);
+    // The bench at the polarizer's real angle where it knows it (the fake
+    // bench's simulated mount), else at the angle asked for.
+    let shown = c
+        .polarizer_deg
+        .map(|d| w.mount.simulated_truth_deg().unwrap_or(d));
+    w.camera.bench().select(&c.pose, shown);
     let stream = Stream {
         w,
         id,

@@ -33,6 +33,7 @@ mod integral;
 mod jobs;
 pub mod metrics;
 pub mod mount;
+mod mount_zero;
 mod plans;
 mod progressive;
 mod queue;
@@ -57,6 +58,7 @@ pub use cancel::{CancelError, JobKind};
 pub use config::Config;
 pub use demo::DEMO_SOURCE;
 pub use events::{Event, Events, Step as ProgressiveStep};
+pub use mount_zero::{SweepPoint, ZeroBody, ZeroFit, ZeroLight};
 pub use plans::{steps_of, PlanError, PlanStep, PlanView};
 pub use progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
 pub use queue::SubmitError;
@@ -240,7 +242,8 @@ impl Daemon {
         } else {
             None
         };
-        let mount = Arc::new(mount::MountService::start(&config.mount)?);
+        let zero_file = store.dir().join("mount-zero.json");
+        let mount = Arc::new(mount::MountService::start(&config.mount, Some(zero_file))?);
         let (captures, capture_rx) = CaptureQueue::new(config.queue.captures);
         let (reconstructions, recon_rx) =
             Queue::new("reconstruction", config.queue.reconstructions);

@@ -34,6 +34,12 @@ pub struct MountConfig {
     /// to `zero_deg + θ`.
     #[serde(default)]
     pub zero_deg: f64,
+    /// Mount angle at which the *simulated* polarizer is really crossed
+    /// (`kind = "simulated"` only): the fake bench shows the light of that
+    /// truth, so a `zero_deg` that differs from it (an uncalibrated mount)
+    /// shows in the frames; `POST /mount/zero` finds it.
+    #[serde(default)]
+    pub simulated_zero_deg: f64,
 }
 
 fn default_address() -> char {
@@ -47,6 +53,7 @@ impl Default for MountConfig {
             port: None,
             address: default_address(),
             zero_deg: 0.0,
+            simulated_zero_deg: 0.0,
         }
     }
 }
@@ -76,11 +83,15 @@ impl MountConfig {
                 self.address
             ));
         }
-        if !(self.zero_deg.is_finite() && self.zero_deg.abs() <= 360.0) {
-            return Err(format!(
-                "[mount] zero_deg = {}: must be degrees from -360 to 360",
-                self.zero_deg
-            ));
+        for (key, v) in [
+            ("zero_deg", self.zero_deg),
+            ("simulated_zero_deg", self.simulated_zero_deg),
+        ] {
+            if !(v.is_finite() && v.abs() <= 360.0) {
+                return Err(format!(
+                    "[mount] {key} = {v}: must be degrees from -360 to 360"
+                ));
+            }
         }
         Ok(())
     }
@@ -99,8 +110,11 @@ pub struct MountView {
     pub position_deg: Option<f64>,
     /// The polarizer angle that is, from crossed (`position_deg - zero_deg`, in (-180, 180]).
     pub polarizer_deg: Option<f64>,
-    /// `[mount] zero_deg`.
+    /// Mount angle at which the polarizer is crossed, in force now.
     pub zero_deg: f64,
+    /// Where `zero_deg` comes from: `config` (`[mount] zero_deg`), or
+    /// `calibrated <time>` (`POST /mount/zero`, kept in the data directory).
+    pub zero_source: String,
     /// What went wrong last, if the last command failed.
     pub last_error: Option<String>,
 }
@@ -117,6 +131,10 @@ struct State {
 pub struct MountService {
     config: MountConfig,
     port: Option<String>,
+    /// The zero in force and where it comes from.
+    zero: Mutex<(f64, String)>,
+    /// Where a calibrated zero is kept (`None`: not kept).
+    zero_file: Option<std::path::PathBuf>,
     state: Mutex<State>,
     /// The simulated device, kept running while the daemon is.
     _simulated: Option<SimulatedEll14>,
@@ -124,8 +142,12 @@ pub struct MountService {
 
 impl MountService {
     /// Starts the configured mount; one that cannot be opened now is opened
-    /// again at the next capture (its error is shown meanwhile).
-    pub fn start(config: &MountConfig) -> Result<Self, MountError> {
+    /// again at the next capture (its error is shown meanwhile). A zero
+    /// calibrated earlier and kept in `zero_file` overrides `[mount] zero_deg`.
+    pub fn start(
+        config: &MountConfig,
+        zero_file: Option<std::path::PathBuf>,
+    ) -> Result<Self, MountError> {
         let simulated = match config.kind {
             MountKind::Simulated => {
                 Some(SimulatedEll14::start().map_err(|e| MountError::Open {
@@ -140,9 +162,28 @@ impl MountService {
             MountKind::Simulated => simulated.as_ref().map(|s| s.path().to_string()),
             MountKind::Elliptec => config.port.clone(),
         };
+        let kept = zero_file
+            .as_deref()
+            .and_then(|f| std::fs::read_to_string(f).ok())
+            .and_then(|t| serde_json::from_str::<KeptZero>(&t).ok())
+            .filter(|k| k.zero_deg.is_finite() && k.zero_deg.abs() <= 360.0);
+        let zero = match kept {
+            Some(k) => {
+                tracing::info!(
+                    "rotation mount: crossed at {:.3}° (calibrated {}; [mount] zero_deg = {} is not used)",
+                    k.zero_deg,
+                    k.calibrated_at,
+                    config.zero_deg
+                );
+                (k.zero_deg, format!("calibrated {}", k.calibrated_at))
+            }
+            None => (config.zero_deg, "config".to_string()),
+        };
         let service = Self {
             config: config.clone(),
             port,
+            zero: Mutex::new(zero),
+            zero_file,
             state: Mutex::new(State {
                 device: None,
                 position_deg: None,
@@ -163,9 +204,41 @@ impl MountService {
     /// angle measured after the move (same convention), or why it could not.
     /// Blocking: serial I/O of up to a few seconds.
     pub fn turn_to(&self, polarizer_deg: f64) -> Result<f64, MountError> {
-        let zero = self.config.zero_deg;
+        let zero = self.zero_deg();
         let position = self.with_device(|d| d.move_to(zero + polarizer_deg))?;
         Ok(from_crossed(position, zero))
+    }
+
+    /// Mount angle at which the polarizer is crossed, in force now.
+    pub fn zero_deg(&self) -> f64 {
+        self.zero.lock().unwrap_or_else(|e| e.into_inner()).0
+    }
+
+    /// Makes `zero_deg` the crossed setting from now on and keeps it in the
+    /// data directory (written to a new file, then renamed over the old).
+    pub fn set_zero(&self, zero_deg: f64, calibrated_at: &str) -> std::io::Result<()> {
+        if let Some(f) = &self.zero_file {
+            let kept = KeptZero {
+                zero_deg,
+                calibrated_at: calibrated_at.to_string(),
+            };
+            let text = serde_json::to_string_pretty(&kept).map_err(std::io::Error::other)?;
+            let tmp = f.with_extension("json.new");
+            std::fs::write(&tmp, text)?;
+            std::fs::File::open(&tmp)?.sync_all()?;
+            std::fs::rename(&tmp, f)?;
+        }
+        *self.zero.lock().unwrap_or_else(|e| e.into_inner()) =
+            (zero_deg, format!("calibrated {calibrated_at}"));
+        Ok(())
+    }
+
+    /// Where the simulated polarizer really is, degrees from its true
+    /// crossed setting (`None` for a real mount or none: only the bench
+    /// knows). What the fake bench shows.
+    pub fn simulated_truth_deg(&self) -> Option<f64> {
+        let sim = self._simulated.as_ref()?;
+        Some(from_crossed(sim.angle(), self.config.simulated_zero_deg))
     }
 
     /// Reads the position (blocking, a fraction of a second).
@@ -175,16 +248,16 @@ impl MountService {
 
     /// The mount as last seen (no I/O).
     pub fn view(&self) -> MountView {
+        let (zero_deg, zero_source) = self.zero.lock().unwrap_or_else(|e| e.into_inner()).clone();
         let s = self.state.lock().unwrap_or_else(|e| e.into_inner());
         MountView {
             kind: self.config.kind,
             port: self.port.clone(),
             connected: s.device.is_some() && s.last_error.is_none(),
             position_deg: s.position_deg,
-            polarizer_deg: s
-                .position_deg
-                .map(|p| from_crossed(p, self.config.zero_deg)),
-            zero_deg: self.config.zero_deg,
+            polarizer_deg: s.position_deg.map(|p| from_crossed(p, zero_deg)),
+            zero_deg,
+            zero_source,
             last_error: s.last_error.clone(),
         }
     }
@@ -231,8 +304,15 @@ impl MountService {
     }
 }
 
+/// A calibrated zero as the data directory keeps it (`mount-zero.json`).
+#[derive(Debug, Serialize, Deserialize)]
+struct KeptZero {
+    zero_deg: f64,
+    calibrated_at: String,
+}
+
 /// A mount angle as a polarizer angle from crossed, in (-180, 180].
-fn from_crossed(position_deg: f64, zero_deg: f64) -> f64 {
+pub(super) fn from_crossed(position_deg: f64, zero_deg: f64) -> f64 {
     let d = wrap_degrees(position_deg - zero_deg);
     if d > 180.0 {
         d - 360.0
@@ -275,12 +355,14 @@ mod tests {
 
     #[test]
     fn the_simulated_mount_turns_and_reads_back_through_the_driver() {
-        let m = MountService::start(&MountConfig {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("mount-zero.json");
+        let config = MountConfig {
             kind: MountKind::Simulated,
             zero_deg: 12.0,
             ..MountConfig::default()
-        })
-        .unwrap();
+        };
+        let m = MountService::start(&config, Some(file.clone())).unwrap();
         assert!(m.present());
         let got = m.turn_to(45.0).unwrap();
         assert!((got - 45.0).abs() < 0.05, "{got}");
@@ -288,5 +370,17 @@ mod tests {
         assert!(v.connected, "{v:?}");
         assert!((v.position_deg.unwrap() - 57.0).abs() < 0.05, "{v:?}");
         assert!((v.polarizer_deg.unwrap() - 45.0).abs() < 0.05, "{v:?}");
+        assert_eq!(v.zero_source, "config");
+        // A calibrated zero is used at once and kept across a restart.
+        m.set_zero(20.0, "2026-11-24T00:00:00Z").unwrap();
+        assert!((m.turn_to(0.0).unwrap()).abs() < 0.05);
+        assert!((m.view().position_deg.unwrap() - 20.0).abs() < 0.05);
+        drop(m);
+        let again = MountService::start(&config, Some(file)).unwrap();
+        assert_eq!(again.zero_deg(), 20.0);
+        assert!(again
+            .view()
+            .zero_source
+            .starts_with("calibrated 2026-11-24"));
     }
 }
