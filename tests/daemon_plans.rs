@@ -242,3 +242,51 @@ fn sigkill_in_the_middle_of_a_plan_loses_no_capture_and_repeats_none() {
     let rid = plan["reconstruction"].as_i64().unwrap();
     assert_eq!(d.json(&format!("/reconstructions/{rid}"))["state"], "done");
 }
+
+#[test]
+fn a_mount_that_slips_pauses_the_plan_and_continue_takes_the_block_again() {
+    use polnlos::mount::simulated::{Fault, SimulatedEll14};
+    let _g = lock();
+    let device = SimulatedEll14::start().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let port = format!("kind = \"elliptec\"\nport = \"{}\"", device.path());
+    let cfg = config(
+        dir.path(),
+        &[
+            ("kind = \"simulated\"", port.as_str()),
+            (
+                "scene = \"brewster-crossed\"",
+                "scene = \"brewster-rotating\"",
+            ),
+        ],
+    );
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let long = Duration::from_secs(240);
+    // 796 of the ELL14's 143360 pulses per turn: 2 degrees off.
+    device.set_fault(Fault::Slip(796));
+    let (s, b, loc) = d.post(
+        "/plans",
+        r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 2}"#,
+    );
+    assert_eq!(s, 202, "{b}");
+    let loc = loc.unwrap();
+    let paused = wait_plan(&d, &loc, &["waiting_for_operator", "failed", "done"], long);
+    assert_eq!(paused["state"], "waiting_for_operator", "{paused}");
+    let prompt = paused["prompt"].as_str().unwrap_or("");
+    assert!(
+        prompt.contains("slipped") && prompt.contains("Continue"),
+        "{paused}"
+    );
+    assert_eq!(paused["step"], 0, "{paused}");
+    let failed = paused["captures"][0]["capture"].as_i64().unwrap();
+    // The mount fixed, Continue takes the same block again, and the plan ends.
+    device.set_fault(Fault::None);
+    let (s, b, _) = d.post(&format!("{loc}/continue"), "{}");
+    assert_eq!(s, 200, "{b}");
+    let done = wait_plan(&d, &loc, &["done", "failed", "waiting_for_operator"], long);
+    assert_eq!(done["state"], "done", "{done}");
+    let first = done["captures"][0]["capture"].as_i64().unwrap();
+    assert_ne!(first, failed, "{done}");
+    assert_eq!(d.json(&format!("/captures/{failed}"))["state"], "failed");
+    assert_eq!(done["captures"].as_array().map(Vec::len), Some(4), "{done}");
+}

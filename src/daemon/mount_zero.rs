@@ -15,6 +15,9 @@ use super::mount::from_crossed;
 use super::{Daemon, RequestError, SubmitError};
 use crate::camera::CameraSettings;
 
+/// Longest exposure a sweep may add up to, seconds (it answers within the request).
+const MAX_SWEEP_S: f64 = 600.0;
+
 /// `POST /mount/zero` body.
 #[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
@@ -212,6 +215,21 @@ impl Daemon {
             },
             &info,
         );
+        let (lo, hi) = self.camera_limits(Some(&info)).exposure_us;
+        let e = settings.exposure_us;
+        if !(e >= lo && e <= hi) {
+            return Err(invalid(format!(
+                "exposure_us = {e}: must be from {lo} to {hi} microseconds"
+            )));
+        }
+        let n = (span / step).floor() as i64;
+        let seconds = (2 * n + 1) as f64 * frames as f64 * e * 1e-6;
+        if seconds > MAX_SWEEP_S {
+            return Err(invalid(format!(
+                "the sweep would expose for {seconds:.0} s ({} angles x {frames} frames x {e} us); at most {MAX_SWEEP_S} s: fewer frames, a shorter exposure or a larger step_deg",
+                2 * n + 1
+            )));
+        }
         let full = settings.pixel_format.full_scale();
         let previous = self.mount.zero_deg();
         let bench = self.camera.bench();
@@ -219,7 +237,6 @@ impl Daemon {
         if source {
             bench.show_source(true);
         }
-        let n = (span / step).floor() as i64;
         let mut sweep = Vec::new();
         for k in -n..=n {
             let asked = k as f64 * step;
@@ -234,11 +251,15 @@ impl Daemon {
                 })?;
             let shown = self.mount.simulated_truth_deg().unwrap_or(read);
             self.camera.bench().select(&b.pose, Some(shown));
-            let got = self
-                .camera
-                .collect(settings, frames)
-                .await
-                .map_err(|e| SubmitError::from(RequestError::Unavailable(e.to_string())))?;
+            let got = self.camera.collect(settings, frames).await.map_err(|e| {
+                use crate::camera::CameraError;
+                SubmitError::from(match e {
+                    CameraError::OutOfRange { .. }
+                    | CameraError::Feature { .. }
+                    | CameraError::Geometry(_) => RequestError::Invalid(e.to_string()),
+                    e => RequestError::Unavailable(e.to_string()),
+                })
+            })?;
             let (sum, count) = got.iter().fold((0.0, 0usize), |(s, c), f| {
                 let (ps, pc) = central_sum(f, centre, settings.region);
                 (s + ps, c + pc)

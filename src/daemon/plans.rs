@@ -266,14 +266,21 @@ impl Daemon {
                 state: plan.state,
             });
         }
+        // An operator step is done; a capture step that paused on a failure
+        // is taken again.
+        let steps = self.plan_steps(&plan).map(|(_, s)| s).unwrap_or_default();
+        let next = match steps.get(plan.step) {
+            Some(PlanStep::Operator { .. }) => plan.step + 1,
+            _ => plan.step,
+        };
         self.store
-            .plan_step(id, plan.step + 1, &plan.captures)
+            .plan_step(id, next, &plan.captures)
             .map_err(store_err)?;
         self.store
             .plan_state(id, PlanState::Running, None, None)
             .map_err(store_err)?;
-        tracing::info!("plan-{id}: the operator continued after step {}", plan.step);
-        self.plan_event(id, PlanState::Running, plan.step + 1, None);
+        tracing::info!("plan-{id}: the operator continued at step {}", plan.step);
+        self.plan_event(id, PlanState::Running, next, None);
         self.plan_wake.notify_one();
         self.plan_view(id)
     }
@@ -485,7 +492,22 @@ impl Daemon {
                     };
                     match self.wait_job(id, JobKind::Capture, capture).await {
                         Waited::Done => {}
-                        Waited::Failed(why) => return fail(&plan, format!("step {at}: {why}")),
+                        // A camera lost, a mount that missed, frames lost:
+                        // the bench needs a look, the plan waits for it.
+                        Waited::Failed(why) => {
+                            let prompt = format!(
+                                "step {at} failed ({why}); fix the bench, then press Continue to take it again"
+                            );
+                            tracing::warn!("plan-{id} paused: {prompt}");
+                            let _ = self.store.plan_state(
+                                id,
+                                PlanState::WaitingForOperator,
+                                Some(&prompt),
+                                None,
+                            );
+                            self.plan_event(id, PlanState::WaitingForOperator, at, Some(prompt));
+                            return;
+                        }
                         Waited::PlanEnded | Waited::Stopping => return,
                     }
                 }
