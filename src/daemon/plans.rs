@@ -242,24 +242,27 @@ impl Daemon {
 
     /// A plan with its steps.
     pub fn plan_view(&self, id: i64) -> Result<PlanView, PlanError> {
-        let plan = self
-            .store
-            .plan(id)
-            .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?
-            .ok_or(PlanError::NotFound(id))?;
+        let plan = self.plan_row(id)?;
         let steps = self.plan_steps(&plan).map(|(_, s)| s).unwrap_or_default();
         Ok(PlanView { plan, steps })
     }
 
+    /// Plan `id`'s row, or 404.
+    fn plan_row(&self, id: i64) -> Result<PlanRow, PlanError> {
+        self.store
+            .plan(id)
+            .map_err(|e| self.plan_store_error(e))?
+            .ok_or(PlanError::NotFound(id))
+    }
+
+    fn plan_store_error(&self, e: crate::store::StoreError) -> PlanError {
+        SubmitError::Internal(self.store.describe(&e)).into()
+    }
+
     /// The operator did what the prompt asked: the plan goes on.
     pub fn continue_plan(&self, id: i64) -> Result<PlanView, PlanError> {
-        let store_err =
-            |e: crate::store::StoreError| SubmitError::Internal(self.store.describe(&e));
-        let plan = self
-            .store
-            .plan(id)
-            .map_err(store_err)?
-            .ok_or(PlanError::NotFound(id))?;
+        let store_err = |e| self.plan_store_error(e);
+        let plan = self.plan_row(id)?;
         if plan.state != PlanState::WaitingForOperator {
             return Err(PlanError::NotWaiting {
                 id,
@@ -288,13 +291,8 @@ impl Daemon {
     /// Cancels a plan that has not ended, and the capture or reconstruction
     /// its current step waits on; the captures it took are kept.
     pub async fn cancel_plan(&self, id: i64) -> Result<PlanView, PlanError> {
-        let store_err =
-            |e: crate::store::StoreError| SubmitError::Internal(self.store.describe(&e));
-        let plan = self
-            .store
-            .plan(id)
-            .map_err(store_err)?
-            .ok_or(PlanError::NotFound(id))?;
+        let store_err = |e| self.plan_store_error(e);
+        let plan = self.plan_row(id)?;
         if plan.state.is_final()
             || !self
                 .store
