@@ -49,7 +49,7 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
     let (s, body, loc) = d.post(
         "/plans",
         r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 4, "dark_frames": 1,
-            "reconstruct": {"truth": "letter"}}"#,
+            "reconstruct": {"truth": "letter", "progressive_every": 2}}"#,
     );
     assert_eq!(s, 202, "{body}");
     let loc = loc.expect("Location");
@@ -77,6 +77,19 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
         assert!((measured - angle).abs() <= 0.05, "{c}");
         assert_eq!(c["dark_frames"], 1, "{c}");
     }
+    // The last block re-solved the whole scene as its frames came: 2 steps
+    // (every 2 of 4 frames), each against the truth.
+    let (s, steps) = d.get(&format!("/captures/{}/progressive.json", captures[3]));
+    assert_eq!(s, 200, "{steps}");
+    let steps: serde_json::Value = serde_json::from_str(&steps).unwrap();
+    let steps = steps.as_array().cloned().unwrap_or_default();
+    assert_eq!(steps.len(), 2, "{steps:?}");
+    assert!(
+        steps.iter().all(|s| s["psnr_db"].as_f64().is_some()),
+        "{steps:?}"
+    );
+    let (s, _) = d.get(&format!("/captures/{}/progressive.json", captures[0]));
+    assert_eq!(s, 404, "only the last block is progressive");
     let rid = plan["reconstruction"].as_i64().unwrap();
     let by_plan = d.json(&format!("/reconstructions/{rid}"));
     assert_eq!(by_plan["state"], "done", "{by_plan}");
@@ -168,6 +181,10 @@ fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
             "exposure_us",
         ),
         (r#"{"scene": "brewster-multi", "colour": 1}"#, "colour"),
+        (
+            r#"{"scene": "brewster-multi", "frames": 2, "reconstruct": {"progressive_every": 5}}"#,
+            "progressive_every = 5",
+        ),
     ] {
         let (s, b, _) = d.post("/plans", bad);
         assert!(s == 404 || s == 422, "{bad}: {s} {b}");

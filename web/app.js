@@ -692,7 +692,10 @@ $("#plan-form").addEventListener("submit", async (ev) => {
   const exposure = String(f.get("exposure_us")).trim();
   const body = { scene: f.get("scene"), frames: number(f.get("frames")), dark_frames: number(f.get("dark_frames")) || 0 };
   if (exposure === "auto") body.exposure = "auto"; else body.exposure_us = number(exposure);
-  if (f.get("truth")) body.reconstruct = { truth: f.get("truth") };
+  body.reconstruct = {};
+  if (f.get("truth")) body.reconstruct.truth = f.get("truth");
+  const every = number(String(f.get("progressive_every") || "").trim());
+  if (every) body.reconstruct.progressive_every = every;
   const r = await api("POST", "/plans", body);
   const msg = $("#plan-message");
   if (r.status !== 202) { alertIn(msg, tokenReason() || (r.json && r.json.detail) || `HTTP ${r.status}`); return; }

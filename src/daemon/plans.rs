@@ -179,6 +179,46 @@ fn capture_body(
     })
 }
 
+/// The progressive re-solve of the plan's last light capture: every other
+/// block's capture is taken by then, so the whole scene can be solved from
+/// them and the running mean (None for other steps, or when not asked).
+fn last_block_progressive(
+    body: &PlanBody,
+    steps: &[PlanStep],
+    plan: &PlanRow,
+    at: usize,
+) -> Option<super::requests::ProgressiveBody> {
+    let every = body.reconstruct.progressive_every?;
+    let light = |s: &PlanStep| {
+        matches!(
+            s,
+            PlanStep::Capture {
+                capture: CaptureKind::Light,
+                ..
+            }
+        )
+    };
+    let last = steps.iter().rposition(light)?;
+    if last != at {
+        return None;
+    }
+    let others = steps[..at]
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| light(s))
+        .filter_map(|(k, _)| plan.captures.iter().find(|c| c.step == k))
+        .map(|c| c.capture)
+        .collect();
+    let r = &body.reconstruct;
+    Some(super::requests::ProgressiveBody {
+        every: Some(every),
+        captures: others,
+        lambda: r.lambda,
+        max_iter: r.max_iter,
+        truth: r.truth.clone(),
+    })
+}
+
 /// Where a step's job is.
 enum Waited {
     Done,
@@ -215,6 +255,23 @@ impl Daemon {
                 "give either exposure_us or \"exposure\": \"auto\", not both".into(),
             ))
             .into());
+        }
+        if body.reconstruct.progressive_every.is_some()
+            && !self.calibration.contains_key(&body.scene)
+        {
+            return Err(SubmitError::from(RequestError::Invalid(format!(
+                "reconstruct.progressive_every needs the radiometric calibration of scene {:?}: add it under [calibration] in the config",
+                body.scene
+            )))
+            .into());
+        }
+        if let (Some(every), Some(frames)) = (body.reconstruct.progressive_every, body.frames) {
+            if every > frames {
+                return Err(SubmitError::from(RequestError::Invalid(format!(
+                    "reconstruct.progressive_every = {every}: the last block takes only {frames} frames; give at most {frames}"
+                )))
+                .into());
+            }
         }
         let switches = self.camera.bench().switches_scene();
         let steps = steps_of(&scene, &body, self.mount.present(), switches);
@@ -470,10 +527,12 @@ impl Daemon {
                                     .find(|c| c.step == s)
                                     .map(|c| c.capture)
                             });
-                            let Some(b) = capture_body(&plan.scene, &body, step, dark, switches)
+                            let Some(mut b) =
+                                capture_body(&plan.scene, &body, step, dark, switches)
                             else {
                                 return;
                             };
+                            b.progressive = last_block_progressive(&body, &steps, &plan, at);
                             let c = match self.submit_until_admitted(id, b).await {
                                 Some(Ok(c)) => c,
                                 Some(Err(e)) => return fail(&plan, format!("step {at}: {e}")),

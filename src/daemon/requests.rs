@@ -200,6 +200,12 @@ pub struct PlanReconstruct {
     pub max_iter: Option<usize>,
     /// Known truth, as a test pattern name: the report then has PSNR.
     pub truth: Option<String>,
+    /// Re-solve the whole scene while the last block's frames accumulate,
+    /// every this many frames, from the other blocks' captures and the
+    /// running mean (a progressive capture; needs the scene's `[calibration]`).
+    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[schema(minimum = 1)]
+    pub progressive_every: Option<usize>,
 }
 
 /// `POST /calibrations` body.
