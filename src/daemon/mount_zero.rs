@@ -160,6 +160,33 @@ fn central_sum(
 }
 
 impl Daemon {
+    /// `n` frames for one angle of a sweep; a transient camera failure
+    /// (broken buffers, a late frame) is retried twice before the sweep
+    /// gives up, as an operator would press the button again.
+    async fn sweep_frames(
+        &self,
+        settings: crate::camera::Acquisition,
+        n: usize,
+    ) -> Result<Vec<crate::camera::RawFrame>, SubmitError> {
+        use crate::camera::CameraError;
+        let mut tries = 0;
+        loop {
+            match self.camera.collect(settings, n).await {
+                Ok(frames) => return Ok(frames),
+                Err(
+                    e @ (CameraError::OutOfRange { .. }
+                    | CameraError::Feature { .. }
+                    | CameraError::Geometry(_)),
+                ) => return Err(RequestError::Invalid(e.to_string()).into()),
+                Err(e) if tries >= 2 => return Err(RequestError::Unavailable(e.to_string()).into()),
+                Err(e) => {
+                    tries += 1;
+                    tracing::debug!("mount zero sweep: {e}; trying again");
+                }
+            }
+        }
+    }
+
     /// Sweeps the mount around its zero with the camera at `pose`, fits the
     /// crossed minimum, and makes it the zero (kept in the data directory).
     /// Holds the camera like a capture for the sweep's duration.
@@ -251,15 +278,7 @@ impl Daemon {
                 })?;
             let shown = self.mount.simulated_truth_deg().unwrap_or(read);
             self.camera.bench().select(&b.pose, Some(shown));
-            let got = self.camera.collect(settings, frames).await.map_err(|e| {
-                use crate::camera::CameraError;
-                SubmitError::from(match e {
-                    CameraError::OutOfRange { .. }
-                    | CameraError::Feature { .. }
-                    | CameraError::Geometry(_) => RequestError::Invalid(e.to_string()),
-                    e => RequestError::Unavailable(e.to_string()),
-                })
-            })?;
+            let got = self.sweep_frames(settings, frames).await?;
             let (sum, count) = got.iter().fold((0.0, 0usize), |(s, c), f| {
                 let (ps, pc) = central_sum(f, centre, settings.region);
                 (s + ps, c + pc)
