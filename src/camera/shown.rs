@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use super::Frame;
+use crate::optics::polarizer::IntensityLaw;
 
 /// Key of a block: pose name and polarizer angle in millidegrees (None: no polarizer).
 fn key(pose: &str, deg: Option<f64>) -> String {
@@ -77,15 +78,12 @@ impl Images {
         let (near_deg, near) = rendered
             .iter()
             .min_by(|a, b| gap(a.0).total_cmp(&gap(b.0)))?;
-        let angles = || rendered.iter().map(|(d, _)| *d);
         // The nearest rendered image, moved by the law's change from its
         // angle to `deg`: exact at every rendered angle, the law between.
-        let (Some(at), Some(from)) = (
-            malus_weights(angles(), deg),
-            malus_weights(angles(), *near_deg),
-        ) else {
+        let Some(law) = IntensityLaw::over(rendered.iter().map(|(d, _)| *d)) else {
             return Some(near.clone());
         };
+        let (at, from) = (law.weights(deg), law.weights(*near_deg));
         let mut pixels = near.pixels.clone();
         for ((a, b), (_, f)) in at.iter().zip(&from).zip(rendered) {
             let w = (a - b) as f32;
@@ -101,30 +99,6 @@ impl Images {
             pixels,
         }))
     }
-}
-
-/// The weights `w_k` with `I(deg) = sum_k w_k I(angles_k)` for intensities
-/// that follow `a + b cos 2θ + c sin 2θ` (least squares over the angles);
-/// `None` with fewer than three distinct angles (mod 180 degrees).
-fn malus_weights(angles: impl Iterator<Item = f64>, deg: f64) -> Option<Vec<f64>> {
-    let basis = |d: f64| {
-        let t = 2.0 * d.to_radians();
-        [1.0, t.cos(), t.sin()]
-    };
-    let rows: Vec<[f64; 3]> = angles.map(basis).collect();
-    let mut m = nalgebra::Matrix3::<f64>::zeros();
-    for r in &rows {
-        let v = nalgebra::Vector3::from(*r);
-        m += v * v.transpose();
-    }
-    // Fewer than three distinct angles make M singular.
-    let inv = m.try_inverse().filter(|_| m.determinant().abs() > 1e-9)?;
-    let q = inv * nalgebra::Vector3::from(basis(deg));
-    Some(
-        rows.iter()
-            .map(|r| nalgebra::Vector3::from(*r).dot(&q))
-            .collect(),
-    )
 }
 
 /// The images of the selected block.

@@ -110,8 +110,8 @@ impl CameraService {
         }
     }
 
-    /// `n` frames at `settings`, for a caller that holds the camera's lease
-    /// (a sweep that is not a capture).
+    /// `n` frames at `settings`, the last one shown in the live view, for a
+    /// caller that holds the camera's lease (the live view, a sweep).
     pub(crate) async fn collect(
         &self,
         settings: Acquisition,
@@ -225,12 +225,9 @@ impl CameraService {
                 let s = self.settings_on(CameraSettings::default(), info);
                 let exposure = s.exposure_us.max(0.0) * 1e-6;
                 let within = std::time::Duration::from_secs_f64(exposure.min(60.0) + 3.0);
-                match tokio::time::timeout(within, self.handle.collect(s, 1)).await {
-                    Ok(Ok(mut frames)) => {
-                        if let Some(f) = frames.pop() {
-                            self.show(Arc::new(f));
-                        }
-                    }
+                // `collect` shows the frame it got.
+                match tokio::time::timeout(within, self.collect(s, 1)).await {
+                    Ok(Ok(_)) => {}
                     Ok(Err(e)) => tracing::debug!("live view: {e}"),
                     Err(_) => tracing::debug!("live view: no frame within {within:?}"),
                 }

@@ -58,10 +58,11 @@ pub use cancel::{CancelError, JobKind};
 pub use config::Config;
 pub use demo::DEMO_SOURCE;
 pub use events::{Event, Events, Step as ProgressiveStep};
-pub use mount_zero::{SweepPoint, ZeroBody, ZeroFit, ZeroLight};
+pub use mount_zero::{SweepPoint, ZeroFit};
 pub use plans::{steps_of, PlanError, PlanStep, PlanView};
 pub use progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
 pub use queue::SubmitError;
+pub use requests::{ZeroBody, ZeroLight};
 pub use validate::RequestError;
 
 use crate::camera::aravis::AravisCamera;

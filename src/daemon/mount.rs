@@ -137,7 +137,7 @@ pub struct MountService {
     zero_file: Option<std::path::PathBuf>,
     state: Mutex<State>,
     /// The simulated device, kept running while the daemon is.
-    _simulated: Option<SimulatedEll14>,
+    simulated: Option<SimulatedEll14>,
 }
 
 impl MountService {
@@ -189,7 +189,7 @@ impl MountService {
                 position_deg: None,
                 last_error: None,
             }),
-            _simulated: simulated,
+            simulated,
         };
         let _ = service.read();
         Ok(service)
@@ -237,7 +237,7 @@ impl MountService {
     /// crossed setting (`None` for a real mount or none: only the bench
     /// knows). What the fake bench shows.
     pub fn simulated_truth_deg(&self) -> Option<f64> {
-        let sim = self._simulated.as_ref()?;
+        let sim = self.simulated.as_ref()?;
         Some(from_crossed(sim.angle(), self.config.simulated_zero_deg))
     }
 
@@ -312,7 +312,7 @@ struct KeptZero {
 }
 
 /// A mount angle as a polarizer angle from crossed, in (-180, 180].
-pub(super) fn from_crossed(position_deg: f64, zero_deg: f64) -> f64 {
+fn from_crossed(position_deg: f64, zero_deg: f64) -> f64 {
     let d = wrap_degrees(position_deg - zero_deg);
     if d > 180.0 {
         d - 360.0

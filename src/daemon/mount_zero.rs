@@ -9,57 +9,14 @@
 
 use std::sync::Arc;
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
-use super::mount::from_crossed;
+use super::requests::{ZeroBody, ZeroLight};
 use super::{Daemon, RequestError, SubmitError};
-use crate::camera::CameraSettings;
+use crate::optics::polarizer::IntensityLaw;
 
 /// Longest exposure a sweep may add up to, seconds (it answers within the request).
 const MAX_SWEEP_S: f64 = 600.0;
-
-/// `POST /mount/zero` body.
-#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct ZeroBody {
-    /// The pose the camera is at (its polarizer is the one the mount turns).
-    pub pose: String,
-    /// Scene the pose belongs to (the fake bench shows its light).
-    pub scene: String,
-    /// Exposure per frame, microseconds (default: the capture defaults').
-    pub exposure_us: Option<f64>,
-    /// Frames averaged per angle (1-100, default 2).
-    #[serde(default, deserialize_with = "super::integral::opt_count")]
-    #[schema(minimum = 1, maximum = 100)]
-    pub frames: Option<usize>,
-    /// Half-width of the sweep around the current zero, degrees (1-45, default 10).
-    pub span_deg: Option<f64>,
-    /// Step of the sweep, degrees (0.1-10, default 2).
-    pub step_deg: Option<f64>,
-    /// The light swept: `source` (default), the calibration point source
-    /// near the hidden scene's centre (as for a wall calibration), or
-    /// `scene`, the hidden scene's own light.
-    #[serde(default)]
-    pub light: ZeroLight,
-}
-
-/// The light a zero sweep looks at.
-///
-/// Why the point source by default: crossed is defined for the path from
-/// the scene's centre through the wall's (MODEL.md); light from an extended
-/// scene arrives in other planes of incidence, and its least-light angle
-/// sits off crossed (measured on the demo bench's letter: 1.4° at the wall
-/// centre's pixels, 0.55° over the whole frame; the point source 3.6 cm
-/// from the centre: 0.1°).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, utoipa::ToSchema)]
-#[serde(rename_all = "lowercase")]
-pub enum ZeroLight {
-    /// The point source in place of the hidden scene.
-    #[default]
-    Source,
-    /// The hidden scene's own light.
-    Scene,
-}
 
 /// One angle of a sweep.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, utoipa::ToSchema)]
@@ -88,35 +45,20 @@ pub struct ZeroFit {
 /// mean; `None` with fewer than three distinct angles or a flat fit (no
 /// polarized light to find a minimum in).
 pub fn crossed_minimum(points: &[SweepPoint]) -> Option<(f64, f64)> {
-    let basis = |d: f64| {
-        let t = 2.0 * d.to_radians();
-        nalgebra::Vector3::new(1.0, t.cos(), t.sin())
-    };
-    let mut m = nalgebra::Matrix3::<f64>::zeros();
-    let mut rhs = nalgebra::Vector3::<f64>::zeros();
-    for p in points {
-        let v = basis(p.deg);
-        m += v * v.transpose();
-        rhs += v * p.mean;
-    }
-    let coef = m.try_inverse().filter(|_| m.determinant().abs() > 1e-12)? * rhs;
-    let (b, c) = (coef[1], coef[2]);
-    let mean = points.iter().map(|p| p.mean).sum::<f64>() / points.len() as f64;
-    if b.hypot(c) <= 1e-9 * mean.abs().max(1e-300) {
+    let law = IntensityLaw::over(points.iter().map(|p| p.deg))?;
+    let means: Vec<f64> = points.iter().map(|p| p.mean).collect();
+    let coef = law.coefficients(&means);
+    let mean = means.iter().sum::<f64>() / means.len() as f64;
+    if coef[1].hypot(coef[2]) <= 1e-9 * mean.abs().max(1e-300) {
         return None;
     }
-    // The law is largest at θ = atan2(c, b) / 2 and least 90° from there.
-    let least = from_crossed(c.atan2(b).to_degrees() / 2.0 + 90.0, 0.0);
-    let least = if least > 90.0 {
-        least - 180.0
-    } else if least <= -90.0 {
-        least + 180.0
-    } else {
-        least
-    };
+    // The law is largest at θ = atan2(c, b) / 2 and least 90° from there;
+    // taken into (-90, 90].
+    let least = (coef[2].atan2(coef[1]).to_degrees() / 2.0 + 90.0).rem_euclid(180.0);
+    let least = if least > 90.0 { least - 180.0 } else { least };
     let rss: f64 = points
         .iter()
-        .map(|p| (basis(p.deg).dot(&coef) - p.mean).powi(2))
+        .map(|p| (IntensityLaw::value(coef, p.deg) - p.mean).powi(2))
         .sum();
     let rms = (rss / points.len() as f64).sqrt();
     Some((least, rms / mean.abs().max(1e-300)))
@@ -235,13 +177,7 @@ impl Daemon {
                 "the camera is not connected; retry when GET /camera shows it connected".into(),
             ))
         })?;
-        let settings = self.camera.settings_on(
-            CameraSettings {
-                exposure_us: b.exposure_us,
-                ..CameraSettings::default()
-            },
-            &info,
-        );
+        let settings = self.camera.settings_on(b.settings, &info);
         let (lo, hi) = self.camera_limits(Some(&info)).exposure_us;
         let e = settings.exposure_us;
         if !(e >= lo && e <= hi) {

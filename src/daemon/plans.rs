@@ -387,6 +387,15 @@ impl Daemon {
         });
     }
 
+    /// Whether plan `id` has ended (or is gone): a cancel while a step waits.
+    fn plan_ended(&self, id: i64) -> bool {
+        self.store
+            .plan(id)
+            .ok()
+            .flatten()
+            .is_none_or(|p| p.state.is_final())
+    }
+
     /// Posts a step's capture; while the camera has not reported itself (a
     /// daemon that just started) or the queue is full, tries again every
     /// second. `None` when the plan ended or the daemon stops meanwhile.
@@ -405,13 +414,7 @@ impl Daemon {
                 Err(e) => return Some(Err(e)),
             }
             tokio::time::sleep(Duration::from_secs(1)).await;
-            let ended = self
-                .store
-                .plan(plan)
-                .ok()
-                .flatten()
-                .is_none_or(|p| p.state.is_final());
-            if ended || self.registry.is_stopping() {
+            if self.plan_ended(plan) || self.registry.is_stopping() {
                 return None;
             }
         }
@@ -424,13 +427,7 @@ impl Daemon {
             if self.registry.is_stopping() {
                 return Waited::Stopping;
             }
-            if self
-                .store
-                .plan(plan)
-                .ok()
-                .flatten()
-                .is_none_or(|p| p.state.is_final())
-            {
+            if self.plan_ended(plan) {
                 return Waited::PlanEnded;
             }
             let state = match kind {
@@ -643,15 +640,18 @@ pub(super) async fn run(daemon: Weak<Daemon>) {
             .unfinished_plans()
             .ok()
             .and_then(|p| p.first().copied());
-        if let Some(id) = next {
-            d.run_plan(id).await;
-        }
-        let waiting = next.is_none()
-            || d.store
-                .plan(next.unwrap_or(0))
-                .ok()
-                .flatten()
-                .is_some_and(|p| p.state == PlanState::WaitingForOperator);
+        // Nothing to run, or the oldest plan holds the bench for its operator.
+        let waiting = match next {
+            None => true,
+            Some(id) => {
+                d.run_plan(id).await;
+                d.store
+                    .plan(id)
+                    .ok()
+                    .flatten()
+                    .is_some_and(|p| p.state == PlanState::WaitingForOperator)
+            }
+        };
         let mut stopped = d.registry.stopped();
         drop(d);
         if waiting {

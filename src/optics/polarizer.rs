@@ -106,6 +106,61 @@ pub fn rotate(v: &Vec3, axis: &Vec3, angle: f64) -> Vec3 {
     v * c + axis.cross(v) * s + axis * (axis.dot(v) * (1.0 - c))
 }
 
+/// The intensity through a linear polarizer turned by θ, `a + b cos 2θ +
+/// c sin 2θ` (the Stokes parameters of the light reaching it), fitted by
+/// least squares over the angles it was measured at.
+///
+/// Why here: the fake bench draws between its rendered angles with it and a
+/// mount's zero is found at its minimum; both fit the same law.
+#[derive(Debug, Clone)]
+pub struct IntensityLaw {
+    rows: Vec<nalgebra::Vector3<f64>>,
+    inverse: nalgebra::Matrix3<f64>,
+}
+
+impl IntensityLaw {
+    /// The fit over `angles_deg`; `None` with fewer than three distinct
+    /// angles (mod 180 degrees), which leave the law undetermined.
+    pub fn over(angles_deg: impl IntoIterator<Item = f64>) -> Option<Self> {
+        let rows: Vec<_> = angles_deg.into_iter().map(Self::basis).collect();
+        let normal = rows
+            .iter()
+            .fold(nalgebra::Matrix3::zeros(), |m, v| m + v * v.transpose());
+        let inverse = normal
+            .try_inverse()
+            .filter(|_| normal.determinant().abs() > 1e-12)?;
+        Some(Self { rows, inverse })
+    }
+
+    /// `[1, cos 2θ, sin 2θ]`.
+    fn basis(deg: f64) -> nalgebra::Vector3<f64> {
+        let t = 2.0 * deg.to_radians();
+        nalgebra::Vector3::new(1.0, t.cos(), t.sin())
+    }
+
+    /// The weights `w_k` with `I(deg) = sum_k w_k I_k` for intensities
+    /// `I_k` measured at the fit's angles.
+    pub fn weights(&self, deg: f64) -> Vec<f64> {
+        let q = self.inverse * Self::basis(deg);
+        self.rows.iter().map(|r| r.dot(&q)).collect()
+    }
+
+    /// `[a, b, c]` of `values` measured at the fit's angles (in their order).
+    pub fn coefficients(&self, values: &[f64]) -> [f64; 3] {
+        let rhs = self
+            .rows
+            .iter()
+            .zip(values)
+            .fold(nalgebra::Vector3::zeros(), |acc, (r, &v)| acc + r * v);
+        (self.inverse * rhs).into()
+    }
+
+    /// The law with `coefficients` at `deg`.
+    pub fn value(coefficients: [f64; 3], deg: f64) -> f64 {
+        Self::basis(deg).dot(&nalgebra::Vector3::from(coefficients))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -151,26 +151,7 @@ impl Store {
 
     /// Plans, newest first.
     pub fn plans(&self, limit: usize, offset: usize) -> Result<Listing<PlanRow>, StoreError> {
-        self.with(|c| {
-            let mut st = c.prepare(&format!(
-                "{PLAN_SELECT} ORDER BY id DESC LIMIT ?1 OFFSET ?2"
-            ))?;
-            let mut out = Listing {
-                records: Vec::new(),
-                unreadable: Vec::new(),
-            };
-            let rows = st.query_map(params![limit as i64, offset as i64], |r| {
-                Ok((r.get::<_, i64>(0)?, plan_row(r)))
-            })?;
-            for row in rows {
-                let (id, plan) = row?;
-                match plan {
-                    Ok(p) => out.records.push(p),
-                    Err(_) => out.unreadable.push(id),
-                }
-            }
-            Ok(out)
-        })
+        self.page(PLAN_SELECT, plan_row, "plan", limit, offset)
     }
 
     /// Ids of the plans that have not ended, oldest first (what a start resumes).

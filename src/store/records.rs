@@ -256,20 +256,24 @@ impl SettingsDocument {
 
 /// Column `idx` as a settings document of the version this polnlos reads.
 fn settings_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<CameraSettings> {
-    let s: String = r.get(idx)?;
     let doc: SettingsDocument =
-        serde_json::from_str(&s).map_err(|e| damaged(idx, format!("settings {s}: {e}")))?;
-    if doc.version != SettingsDocument::VERSION {
-        return Err(damaged(
-            idx,
-            format!(
-                "settings document version {} (this polnlos reads version {}): open this data directory with the polnlos that wrote it",
-                doc.version,
-                SettingsDocument::VERSION
-            ),
-        ));
-    }
+        json_column(r, idx)?.ok_or_else(|| damaged(idx, "no settings document"))?;
+    layout(idx, "settings", doc.version, SettingsDocument::VERSION)?;
     Ok(doc.settings)
+}
+
+/// A document in column `idx` is of the layout this polnlos reads, else
+/// its row is damaged (a newer polnlos wrote it).
+fn layout(idx: usize, what: &str, found: u32, reads: u32) -> rusqlite::Result<()> {
+    if found == reads {
+        return Ok(());
+    }
+    Err(damaged(
+        idx,
+        format!(
+            "{what} document version {found} (this polnlos reads version {reads}): open this data directory with the polnlos that wrote it"
+        ),
+    ))
 }
 
 pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
@@ -441,16 +445,13 @@ fn kappa_schema() -> utoipa::openapi::schema::Schema {
 /// reads (NULL: the defaults, as rows without parameters meant).
 fn params_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<ReconstructionParams> {
     let params: ReconstructionParams = json_column(r, idx)?.unwrap_or_default();
-    match params.version {
-        ReconstructionParams::VERSION => Ok(params),
-        v => Err(damaged(
-            idx,
-            format!(
-                "parameters document version {v} (this polnlos reads version {}): open this data directory with the polnlos that wrote it",
-                ReconstructionParams::VERSION
-            ),
-        )),
-    }
+    layout(
+        idx,
+        "parameters",
+        params.version,
+        ReconstructionParams::VERSION,
+    )?;
+    Ok(params)
 }
 
 pub(super) const RECON_SELECT: &str = "SELECT id, scene, captures, solver, params, state, error, created_at, started_at, finished_at, kappa, report FROM reconstructions";

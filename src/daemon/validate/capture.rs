@@ -21,13 +21,14 @@ pub fn capture(
     let pose = pose_of(&b.scene, scene, &b.pose)?;
     check_block(&b.scene, pose, b.polarizer_deg)?;
     let kind = b.kind.unwrap_or(CaptureKind::Light);
-    let (exposure_us, planned) = exposure(b, cam, plan)?;
-    let frames = b
-        .frames
-        .unwrap_or_else(|| planned.as_ref().map_or(1, |p| p.frames));
-    check_frames(b, kind, frames, cam)?;
+    let planned = planned_exposure(b, plan)?;
+    // A planned exposure stands for a stated one; what neither states
+    // inherits the defaults, as every setting does.
     let stated = CameraSettings {
-        exposure_us: Some(exposure_us),
+        exposure_us: planned
+            .as_ref()
+            .map(|p| p.exposure_us)
+            .or(b.settings.exposure_us),
         ..b.settings
     };
     let acquisition = stated.over(&cam.defaults).complete().map_err(|e| {
@@ -35,6 +36,17 @@ pub fn capture(
             "the camera has not reported its settings yet ({e}): give them, or retry when GET /camera shows it connected"
         ))
     })?;
+    let (lo, hi) = cam.limits.exposure_us;
+    let exposure_us = acquisition.exposure_us;
+    if !(exposure_us >= lo && exposure_us <= hi) {
+        return Err(invalid(format!(
+            "exposure_us = {exposure_us}: must be from {lo} to {hi} microseconds"
+        )));
+    }
+    let frames = b
+        .frames
+        .unwrap_or_else(|| planned.as_ref().map_or(1, |p| p.frames));
+    check_frames(b, kind, frames, cam)?;
     if let Some((lo, hi)) = cam.gain {
         let gain = acquisition.gain;
         if !(gain >= lo && gain <= hi) {
@@ -133,52 +145,31 @@ fn check_block(
     }
 }
 
-/// The exposure a capture uses, stated or planned, within the camera's
-/// range; with the plan's block when planned.
-fn exposure(
+/// The plan's block for a capture asking `"exposure": "auto"` (None when
+/// it does not), refusing an exposure both stated and planned.
+fn planned_exposure(
     b: &CaptureBody,
-    cam: &CameraContext,
     plan: impl FnOnce() -> Result<Vec<BlockExposure>, RequestError>,
-) -> Result<(f64, Option<BlockExposure>), RequestError> {
-    let stated = b.settings.exposure_us;
-    let (exposure_us, planned) = match (stated, b.exposure) {
-        (Some(_), Some(_)) => {
-            return Err(invalid(
-                "give either exposure_us or \"exposure\": \"auto\", not both",
-            ))
-        }
-        (None, None) => match cam.defaults.exposure_us {
-            Some(e) => (e, None),
-            None => {
-                return Err(invalid(
-                    "exposure_us is missing and there is no default: give it in microseconds, or \"exposure\": \"auto\"",
-                ))
-            }
-        },
+) -> Result<Option<BlockExposure>, RequestError> {
+    match (b.settings.exposure_us, b.exposure) {
+        (Some(_), Some(_)) => Err(invalid(
+            "give either exposure_us or \"exposure\": \"auto\", not both",
+        )),
         (_, None) if b.target.is_some() => {
-            return Err(invalid("target is only for \"exposure\": \"auto\""))
+            Err(invalid("target is only for \"exposure\": \"auto\""))
         }
-        (Some(e), None) => (e, None),
-        (None, Some(AutoExposure::Auto)) => {
-            let block = plan()?
-                .into_iter()
-                .find(|p| p.pose == b.pose && same_angle(p.polarizer_deg, b.polarizer_deg))
-                .ok_or_else(|| {
-                    invalid(format!(
-                        "the exposure plan of scene {:?} has no block for pose {:?}",
-                        b.scene, b.pose
-                    ))
-                })?;
-            (block.exposure_us, Some(block))
-        }
-    };
-    let (lo, hi) = cam.limits.exposure_us;
-    if !(exposure_us >= lo && exposure_us <= hi) {
-        return Err(invalid(format!(
-            "exposure_us = {exposure_us}: must be from {lo} to {hi} microseconds"
-        )));
+        (_, None) => Ok(None),
+        (None, Some(AutoExposure::Auto)) => plan()?
+            .into_iter()
+            .find(|p| p.pose == b.pose && same_angle(p.polarizer_deg, b.polarizer_deg))
+            .map(Some)
+            .ok_or_else(|| {
+                invalid(format!(
+                    "the exposure plan of scene {:?} has no block for pose {:?}",
+                    b.scene, b.pose
+                ))
+            }),
     }
-    Ok((exposure_us, planned))
 }
 
 /// Frame counts within the cap; dark frames only where the bench can take them.
