@@ -1173,3 +1173,70 @@ fn frames_that_cut_the_wall_or_simulated_frames_of_a_scene_are_measured_or_refus
     assert!(min.abs() < 10.0, "darkest element {min} DN");
     assert!(var.iter().all(|v| *v > 0.0));
 }
+
+#[test]
+fn a_mosaic_frame_measures_to_its_four_blocks_in_angle_order() {
+    use tiff::encoder::{colortype, TiffEncoder};
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_str().unwrap().to_string();
+    // Polarsens (row, col) mod 2: (0,0) 90°, (0,1) 45°, (1,0) 135°, (1,1) 0°.
+    let level = |x: usize, y: usize| match (y % 2, x % 2) {
+        (0, 0) => 900u16,
+        (0, _) => 450,
+        (1, 0) => 1350,
+        _ => 100,
+    };
+    let px: Vec<u16> = (0..512 * 512).map(|k| level(k % 512, k / 512)).collect();
+    let mut f = std::fs::File::create(p("mosaic.tiff")).unwrap();
+    TiffEncoder::new(&mut f)
+        .unwrap()
+        .write_image::<colortype::Gray16>(512, 512, &px)
+        .unwrap();
+    let out = p("i.npy");
+    let s = scene("brewster-rotating-3x3").to_str().unwrap().to_string();
+    let text = std::fs::read_to_string(&s).unwrap().replace(
+        "polarizer_deg = [0.0, 45.0, 90.0, 135.0]",
+        "analyzer = \"mosaic\"\nsensor_deg = 0.0",
+    );
+    let mosaic = p("mosaic.toml");
+    std::fs::write(&mosaic, text).unwrap();
+    let args = |angle: &str, scene: &str| {
+        polnlos(&[
+            "measure",
+            scene,
+            "--frames",
+            &p("mosaic.tiff"),
+            "--pose",
+            "A",
+            "--angle",
+            angle,
+            "--exposure-us",
+            "1000",
+            "--raw",
+            "--out",
+            &out,
+        ])
+    };
+    let stdout = ok(&args("mosaic", &mosaic));
+    assert!(
+        stdout.contains("4 blocks A-mosaic0 A-mosaic45 A-mosaic90 A-mosaic135"),
+        "{stdout}"
+    );
+    let i = npy::read(std::path::Path::new(&out)).unwrap().data;
+    let n = i.len() / 4;
+    let unit = 1.0 / 65535.0 / 1000.0;
+    for (k, want) in [100.0, 450.0, 900.0, 1350.0].into_iter().enumerate() {
+        assert!(
+            i[k * n..(k + 1) * n]
+                .iter()
+                .all(|v| (v - want * unit).abs() < 1e-9 * want * unit),
+            "block {k}: {:?}",
+            &i[k * n..k * n + 3]
+        );
+    }
+    // A mosaic frame on a scene whose pose has a sheet names the blocks it cannot serve.
+    let e = fails(&args("mosaic", &s));
+    assert!(e.contains("A-mosaic0, which is not a block"), "{e}");
+    let e = usage(&args("mosaik", &mosaic));
+    assert!(e.contains("`none` or `mosaic`"), "{e}");
+}

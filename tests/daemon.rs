@@ -76,7 +76,12 @@ fn offline_measure_matches_the_daemon(
         }
         let c = d.json(&format!("/captures/{id}"));
         cmd.args(["--pose", c["pose"].as_str().unwrap()]);
-        cmd.args(["--angle", &c["polarizer_deg"].to_string()]);
+        let angle = match c["channels"].as_array().unwrap().as_slice() {
+            [one] if one["analyzer"] == "sheet" => one["deg"].to_string(),
+            [one] if one["analyzer"] == "none" => "none".to_string(),
+            _ => "mosaic".to_string(),
+        };
+        cmd.args(["--angle", &angle]);
     }
     let out = dir.path().join("i.npy");
     let o = cmd.arg("--out").arg(&out).output().unwrap();
@@ -321,7 +326,7 @@ fn bad_requests_get_a_reason_never_a_500() {
         ("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000, "colour": 1}"#.into(), 422, "unknown field"),
         ("/captures", format!(r#"{{"scene": "{}"}}"#, "x".repeat(5000)), 413, "body_too_large"),
         ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [999]}"#.into(), 404, "no capture with id 999"),
-        ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": []}"#.into(), 422, "give exactly one capture"),
+        ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": []}"#.into(), 422, "give one capture for each"),
         ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [1], "solver": "magic"}"#.into(), 422, "solver"),
         ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [1], "lambda": -1}"#.into(), 422, "lambda = -1"),
         ("/reconstructions", r#"{"scene": "brewster-crossed", "captures": [1], "truth": "cat"}"#.into(), 422, "truth"),
@@ -620,7 +625,10 @@ fn auto_exposure_reaches_the_planned_signal() {
     let blocks = plan.as_array().unwrap();
     assert_eq!(blocks.len(), 4, "{plan}");
     let exposure = |b: &serde_json::Value| b["exposure_us"].as_f64().unwrap();
-    let crossed = blocks.iter().find(|b| b["polarizer_deg"] == 0.0).unwrap();
+    let crossed = blocks
+        .iter()
+        .find(|b| b["channel"] == serde_json::json!({"analyzer": "sheet", "deg": 0.0}))
+        .unwrap();
     assert!(
         blocks.iter().all(|b| exposure(b) <= exposure(crossed)),
         "{plan}"
@@ -1080,7 +1088,10 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
         r#"{"scene": "brewster-crossed", "captures": [1, 2], "source": [0.03, -0.02]}"#,
     );
     assert_eq!(s, 422, "{b}");
-    assert!(b.contains("2 captures for the 1 block of scene"), "{b}");
+    assert!(
+        b.contains("captures 1 and 2 are both for block pose A at 0°"),
+        "{b}"
+    );
     // A source capture without dark frames: its offset leaves the fit
     // refused, and the refusal names the missing dark subtraction.
     source_capture(8, 0);

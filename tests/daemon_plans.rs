@@ -72,7 +72,11 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
     for (id, angle) in captures.iter().zip([0.0, 45.0, 90.0, 135.0]) {
         let c = d.json(&format!("/captures/{id}"));
         assert_eq!(c["state"], "done", "{c}");
-        assert_eq!(c["polarizer_deg"], angle, "{c}");
+        assert_eq!(
+            c["channels"],
+            serde_json::json!([{"analyzer": "sheet", "deg": angle}]),
+            "{c}"
+        );
         let measured = c["polarizer_measured_deg"].as_f64().unwrap();
         assert!((measured - angle).abs() <= 0.05, "{c}");
         assert_eq!(c["dark_frames"], 1, "{c}");

@@ -175,7 +175,7 @@ fn frames_with_per_pixel_noise_carry_a_variance_the_model_check_confirms() {
             let capture = CaptureFrames {
                 name: block.label(),
                 pose: block.pose.clone(),
-                polarizer_deg: block.polarizer_deg,
+                channels: vec![block.channel],
                 mean: stack.mean_minus(None).unwrap(),
                 variance: stack.variance_frame(),
                 frames: 16,

@@ -118,7 +118,11 @@ function el(tag, attrs, ...children) {
 }
 function alertIn(target, message) { target.className = "message error"; text(target, message); }
 function noteIn(target, message) { target.className = "message"; text(target, message); }
-const block = (c) => c.polarizer_deg === null ? `${c.pose} (no polarizer)` : `${c.pose} at ${c.polarizer_deg}°`;
+const block = (c) => {
+  if (c.channels.length > 1) return `${c.pose} (polarizer mosaic, ${c.channels.length} blocks)`;
+  const ch = c.channels[0];
+  return ch.analyzer === "none" ? `${c.pose} (no polarizer)` : ch.analyzer === "sheet" ? `${c.pose} at ${ch.deg}°` : `${c.pose} mosaic ${ch.deg}°`;
+};
 const active = (s) => s === "queued" || s === "running";
 // "2, 3" or "2 3" → [2, 3].
 const ids = (v) => String(v).split(/[ ,]+/).filter((s) => s).map(Number);
@@ -159,7 +163,10 @@ async function refreshCamera() {
   const s = (cam.info && cam.info.settings) || {};
   const k = cam.counters || {};
   // Every setting the camera reads back, by its API name (a new setting shows without a change here).
+  const mosaic = cam.info && cam.info.mosaic;
+  $("#view-box").hidden = !mosaic;
   const rows = [
+    ["sensor", mosaic ? `polarizer mosaic (${mosaic}): 0/45/90/135° in one frame` : "monochrome"],
     ...Object.entries(s).map(([name, v]) => [name.replaceAll("_", " "), Array.isArray(v) ? JSON.stringify(v) : v]),
     ["since the daemon started:", ""],
     ["frames received", k.completed], ["broken frames", k.failed],
@@ -194,7 +201,8 @@ async function refreshLive() {
   liveBusy = true;
   try {
     const stretch = $("#stretch").checked;
-    const r = await showImage($("#live"), `/camera/frame.png?live=true&stretch=${stretch}`);
+    const view = $("#view-box").hidden ? "raw" : $("#view").value;
+    const r = await showImage($("#live"), `/camera/frame.png?live=true&stretch=${stretch}&view=${view}`);
     if (!r.ok) {
       text($("#live-caption"), (r.status === 401 && tokenReason())
         || (r.status === 404 ? "no frame yet: the camera has sent none since the daemon started" : `no frame: HTTP ${r.status}`));
@@ -221,6 +229,7 @@ function applyZoom() {
 }
 $("#zoom").addEventListener("change", applyZoom);
 $("#stretch").addEventListener("change", refreshLive);
+$("#view").addEventListener("change", refreshLive);
 $("#live-on").addEventListener("change", () => { if ($("#live-on").checked) refreshLive(); });
 
 // ---- captures ----

@@ -1,11 +1,25 @@
-//! The pixel formats polnlos reads: each one's GenICam name, bit depth and
-//! decoding of a camera buffer, in one place, so a new format (a packed one
-//! such as Mono12p) is one variant here and a format polnlos cannot decode
-//! is an error rather than a mis-read frame.
+//! The pixel formats polnlos reads: each one's GenICam name, bit depth,
+//! buffer layout and whether its sensor is a polarizer mosaic, in one place,
+//! so a new format (a vendor's name for a known layout) is one variant here
+//! and a format polnlos cannot decode is an error rather than a mis-read frame.
+//!
+//! Polarization cameras (Sony IMX250MZR/IMX253MZR "Polarsens") present
+//! their raw mosaic under vendor names Aravis does not know; polnlos sets
+//! them by name and unpacks the buffer itself. Names and layouts: Lucid
+//! Arena SDK `ArenaCDefs.h` (`PolarizeMono8` 0x81080001, `PolarizeMono12p`
+//! 0x810C0047, `PolarizeMono12Packed` 0x810C0006, `PolarizeMono12`
+//! 0x81100008, `PolarizeMono16` 0x81100007), The Imaging Source's tiscamera
+//! (`PolarizedMono8` 0x8108000A, `PolarizedMono12p` 0x810C000B,
+//! `PolarizedMono12Packed` 0x810C0010, `PolarizedMono16` 0x8110000C), FLIR
+//! Spinnaker's names (`Polarized8`, `Polarized12p`, `Polarized16`; their
+//! device values are not published, and polnlos needs only the name).
 
 use serde::{Deserialize, Serialize};
 
-/// Monochrome pixel formats polnlos reads.
+use crate::scene::MosaicLayout;
+
+/// Pixel formats polnlos reads: monochrome, and the raw mosaic of
+/// polarization cameras under each vendor's name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 pub enum PixelFormat {
     /// 8 bits.
@@ -17,6 +31,47 @@ pub enum PixelFormat {
     Mono12p,
     /// 16 bits, little-endian.
     Mono16,
+    /// Lucid: Polarsens mosaic, 8 bits.
+    PolarizeMono8,
+    /// Lucid: Polarsens mosaic, 12 bits in 16-bit words.
+    PolarizeMono12,
+    /// Lucid: Polarsens mosaic, 12 bits packed as `Mono12p`.
+    PolarizeMono12p,
+    /// Lucid: Polarsens mosaic, 12 bits packed as GigE Vision `Mono12Packed`.
+    PolarizeMono12Packed,
+    /// Lucid: Polarsens mosaic, 16 bits.
+    PolarizeMono16,
+    /// The Imaging Source: Polarsens mosaic, 8 bits.
+    PolarizedMono8,
+    /// The Imaging Source: Polarsens mosaic, 12 bits packed as `Mono12p` (USB3 Vision).
+    PolarizedMono12p,
+    /// The Imaging Source: Polarsens mosaic, 12 bits as `Mono12Packed` (GigE Vision).
+    PolarizedMono12Packed,
+    /// The Imaging Source: Polarsens mosaic, 16 bits.
+    PolarizedMono16,
+    /// FLIR: Polarsens mosaic, 8 bits.
+    Polarized8,
+    /// FLIR: Polarsens mosaic, 12 bits packed as `Mono12p`.
+    Polarized12p,
+    /// FLIR: Polarsens mosaic, 16 bits.
+    Polarized16,
+}
+
+/// How a format lays its pixels out in a buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layout {
+    /// One byte per pixel.
+    Bits8,
+    /// 12 significant bits in 16-bit little-endian words.
+    Bits12In16,
+    /// Two pixels in three bytes, least significant bits first (PFNC `Mono12p`):
+    /// `p0 = b0 | (b1 & 0x0f) << 8`, `p1 = b1 >> 4 | b2 << 4`.
+    Packed12p,
+    /// Two pixels in three bytes, GigE Vision `Mono12Packed`:
+    /// `p0 = b0 << 4 | (b1 & 0x0f)`, `p1 = b2 << 4 | b1 >> 4`.
+    Packed12GigE,
+    /// 16-bit little-endian words.
+    Bits16,
 }
 
 /// A buffer that does not hold the frame its format and size say.
@@ -50,11 +105,23 @@ impl std::fmt::Display for Needed {
 
 impl PixelFormat {
     /// Every format polnlos reads, in the order errors list them.
-    pub const ALL: [PixelFormat; 4] = [
+    pub const ALL: [PixelFormat; 16] = [
         PixelFormat::Mono8,
         PixelFormat::Mono12,
         PixelFormat::Mono12p,
         PixelFormat::Mono16,
+        PixelFormat::PolarizeMono8,
+        PixelFormat::PolarizeMono12,
+        PixelFormat::PolarizeMono12p,
+        PixelFormat::PolarizeMono12Packed,
+        PixelFormat::PolarizeMono16,
+        PixelFormat::PolarizedMono8,
+        PixelFormat::PolarizedMono12p,
+        PixelFormat::PolarizedMono12Packed,
+        PixelFormat::PolarizedMono16,
+        PixelFormat::Polarized8,
+        PixelFormat::Polarized12p,
+        PixelFormat::Polarized16,
     ];
 
     /// The GenICam name.
@@ -64,15 +131,60 @@ impl PixelFormat {
             PixelFormat::Mono12 => "Mono12",
             PixelFormat::Mono12p => "Mono12p",
             PixelFormat::Mono16 => "Mono16",
+            PixelFormat::PolarizeMono8 => "PolarizeMono8",
+            PixelFormat::PolarizeMono12 => "PolarizeMono12",
+            PixelFormat::PolarizeMono12p => "PolarizeMono12p",
+            PixelFormat::PolarizeMono12Packed => "PolarizeMono12Packed",
+            PixelFormat::PolarizeMono16 => "PolarizeMono16",
+            PixelFormat::PolarizedMono8 => "PolarizedMono8",
+            PixelFormat::PolarizedMono12p => "PolarizedMono12p",
+            PixelFormat::PolarizedMono12Packed => "PolarizedMono12Packed",
+            PixelFormat::PolarizedMono16 => "PolarizedMono16",
+            PixelFormat::Polarized8 => "Polarized8",
+            PixelFormat::Polarized12p => "Polarized12p",
+            PixelFormat::Polarized16 => "Polarized16",
         }
+    }
+
+    /// How its pixels lie in a buffer.
+    pub fn layout(self) -> Layout {
+        use PixelFormat::*;
+        match self {
+            Mono8 | PolarizeMono8 | PolarizedMono8 | Polarized8 => Layout::Bits8,
+            Mono12 | PolarizeMono12 => Layout::Bits12In16,
+            Mono12p | PolarizeMono12p | PolarizedMono12p | Polarized12p => Layout::Packed12p,
+            PolarizeMono12Packed | PolarizedMono12Packed => Layout::Packed12GigE,
+            Mono16 | PolarizeMono16 | PolarizedMono16 | Polarized16 => Layout::Bits16,
+        }
+    }
+
+    /// The micro-polarizer pattern of the sensor the format reads out raw,
+    /// `None` for a plain monochrome sensor (every vendor's is Sony's Polarsens).
+    pub fn mosaic(self) -> Option<MosaicLayout> {
+        use PixelFormat::*;
+        match self {
+            Mono8 | Mono12 | Mono12p | Mono16 => None,
+            _ => Some(MosaicLayout::Polarsens),
+        }
+    }
+
+    /// The polarizer mosaic of a camera offering `offered` (GenICam names)
+    /// and using `current`: a camera that offers a polarization format has
+    /// the mosaic whatever it reads out now.
+    pub fn sensor_mosaic(offered: &[String], current: PixelFormat) -> Option<MosaicLayout> {
+        offered
+            .iter()
+            .filter_map(|n| PixelFormat::from_name(n))
+            .chain([current])
+            .find_map(PixelFormat::mosaic)
     }
 
     /// Significant bits.
     pub fn bits(self) -> u32 {
-        match self {
-            PixelFormat::Mono8 => 8,
-            PixelFormat::Mono12 | PixelFormat::Mono12p => 12,
-            PixelFormat::Mono16 => 16,
+        match self.layout() {
+            Layout::Bits8 => 8,
+            Layout::Bits12In16 | Layout::Packed12p | Layout::Packed12GigE => 12,
+            Layout::Bits16 => 16,
         }
     }
 
@@ -94,10 +206,12 @@ impl PixelFormat {
     /// Bytes a `width x height` frame takes, `None` when the count overflows.
     pub fn frame_bytes(self, width: usize, height: usize) -> Option<usize> {
         let pixels = width.checked_mul(height)?;
-        match self {
-            PixelFormat::Mono8 => Some(pixels),
-            PixelFormat::Mono12 | PixelFormat::Mono16 => pixels.checked_mul(2),
-            PixelFormat::Mono12p => pixels.checked_mul(3).map(|b| b.div_ceil(2)),
+        match self.layout() {
+            Layout::Bits8 => Some(pixels),
+            Layout::Bits12In16 | Layout::Bits16 => pixels.checked_mul(2),
+            Layout::Packed12p | Layout::Packed12GigE => {
+                pixels.checked_mul(3).map(|b| b.div_ceil(2))
+            }
         }
     }
 
@@ -118,22 +232,25 @@ impl PixelFormat {
             }
         };
         let pixels = width * height;
-        Ok(match self {
-            PixelFormat::Mono8 => data.iter().map(|&b| u16::from(b)).collect(),
-            PixelFormat::Mono12 | PixelFormat::Mono16 => data
+        let unpack = |pair: fn(u16, u16, u16) -> (u16, u16)| {
+            let mut out = Vec::with_capacity(pixels + 1);
+            for c in data.chunks(3) {
+                let b = |k: usize| u16::from(c.get(k).copied().unwrap_or(0));
+                let (p0, p1) = pair(b(0), b(1), b(2));
+                out.push(p0);
+                out.push(p1);
+            }
+            out.truncate(pixels);
+            out
+        };
+        Ok(match self.layout() {
+            Layout::Bits8 => data.iter().map(|&b| u16::from(b)).collect(),
+            Layout::Bits12In16 | Layout::Bits16 => data
                 .chunks_exact(2)
                 .map(|p| u16::from_le_bytes([p[0], p[1]]))
                 .collect(),
-            PixelFormat::Mono12p => {
-                let mut out = Vec::with_capacity(pixels);
-                for c in data.chunks(3) {
-                    let b = |k: usize| u16::from(c.get(k).copied().unwrap_or(0));
-                    out.push(b(0) | (b(1) & 0x0f) << 8);
-                    out.push(b(1) >> 4 | b(2) << 4);
-                }
-                out.truncate(pixels);
-                out
-            }
+            Layout::Packed12p => unpack(|b0, b1, b2| (b0 | (b1 & 0x0f) << 8, b1 >> 4 | b2 << 4)),
+            Layout::Packed12GigE => unpack(|b0, b1, b2| (b0 << 4 | (b1 & 0x0f), b2 << 4 | b1 >> 4)),
         })
     }
 }
@@ -149,7 +266,13 @@ mod tests {
             assert_eq!(PixelFormat::from_name(f.name()), Some(f));
         }
         assert_eq!(PixelFormat::from_name("Mono10"), None);
-        assert_eq!(PixelFormat::names(), "Mono8, Mono12, Mono12p, Mono16");
+        assert!(PixelFormat::names().starts_with("Mono8, Mono12, Mono12p, Mono16, PolarizeMono8"));
+        assert_eq!(PixelFormat::Mono16.mosaic(), None);
+        for f in ["PolarizeMono8", "PolarizedMono16", "Polarized12p"] {
+            let f = PixelFormat::from_name(f).unwrap();
+            assert_eq!(f.mosaic(), Some(MosaicLayout::Polarsens), "{f:?}");
+        }
+        assert_eq!(PixelFormat::PolarizeMono12Packed.bits(), 12);
     }
 
     #[test]
@@ -165,6 +288,15 @@ mod tests {
         // Mono12p: 0xABC and 0x123 as BC 3A 12 (low bits first).
         assert_eq!(
             PixelFormat::Mono12p.decode(&[0xbc, 0x3a, 0x12], 2, 1),
+            Ok(vec![0xabc, 0x123])
+        );
+        // Mono12Packed (GigE Vision): 0xABC and 0x123 as AB 3C 12.
+        assert_eq!(
+            PixelFormat::PolarizedMono12Packed.decode(&[0xab, 0x3c, 0x12], 2, 1),
+            Ok(vec![0xabc, 0x123])
+        );
+        assert_eq!(
+            PixelFormat::PolarizeMono12p.decode(&[0xbc, 0x3a, 0x12], 2, 1),
             Ok(vec![0xabc, 0x123])
         );
         // An odd pixel count ends in a half-filled triple: 2 bytes.
@@ -201,6 +333,20 @@ mod tests {
                 }
             }
             prop_assert_eq!(PixelFormat::Mono12p.decode(&packed, px.len(), 1), Ok(px));
+        }
+
+        #[test]
+        fn mono12packed_packs_back_to_what_it_decoded(px in proptest::collection::vec(0u16..4096, 1..64)) {
+            let mut packed = Vec::new();
+            for pair in px.chunks(2) {
+                let (a, b) = (pair[0], pair.get(1).copied().unwrap_or(0));
+                packed.push((a >> 4) as u8);
+                packed.push(((a & 0x0f) | (b & 0x0f) << 4) as u8);
+                if pair.len() == 2 {
+                    packed.push((b >> 4) as u8);
+                }
+            }
+            prop_assert_eq!(PixelFormat::PolarizeMono12Packed.decode(&packed, px.len(), 1), Ok(px));
         }
     }
 }

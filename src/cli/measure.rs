@@ -7,12 +7,13 @@ use std::path::{Path, PathBuf};
 use polnlos::files::frames::read_frames;
 use polnlos::files::npy;
 use polnlos::measure::{assemble, load, CaptureInfo, CaptureSource, Frame, FrameStack, Units};
+use polnlos::scene::Channel;
 use polnlos::transport::MemoryBudget;
 
 /// Turn camera frames into a measurement for `polnlos reconstruct`.
 #[derive(Debug, clap::Args)]
 #[command(
-    after_help = "One block per --frames; --pose, --angle, --dark and --exposure-us are given \
+    after_help = "One capture per --frames (one block, or a mosaic pose's four with --angle mosaic); --pose, --angle, --dark and --exposure-us are given \
 once for all blocks or once per --frames, in the same order. Blocks may come in any order; they are \
 stacked in the scene's block order (MODEL.md). Writes the measurement (.npy) and, when every block \
 has 2 frames or more, its variance beside it (<out>.variance.npy). Example:\n  \
@@ -34,11 +35,12 @@ pub struct Args {
     /// Pose name of each block, as in the scene file.
     #[arg(long, value_name = "NAME", required = true)]
     pose: Vec<String>,
-    /// Polarizer angle of each block in degrees from crossed, or `none`
-    /// for a pose without polarizer.
+    /// Polarizer angle of each block in degrees from crossed, `none` for a
+    /// pose without polarizer, or `mosaic` for a polarizer-mosaic camera's
+    /// raw frame (analyzer = "mosaic"): its four blocks 0, 45, 90, 135.
     #[arg(
         long,
-        value_name = "DEG|none",
+        value_name = "DEG|none|mosaic",
         required = true,
         allow_negative_numbers = true
     )]
@@ -63,20 +65,24 @@ pub struct Args {
     out: PathBuf,
 }
 
-/// `--angle`: degrees or `none`.
-#[derive(Debug, Clone, Copy)]
-struct AngleArg(Option<f64>);
+/// `--angle`: degrees, `none` or `mosaic`: the blocks the frames hold.
+#[derive(Debug, Clone)]
+struct AngleArg(Vec<Channel>);
 
 impl std::str::FromStr for AngleArg {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        if s == "none" {
-            return Ok(AngleArg(None));
+        match s {
+            "none" => return Ok(AngleArg(vec![Channel::None])),
+            "mosaic" => return Ok(AngleArg(Channel::mosaic().to_vec())),
+            _ => {}
         }
         match s.parse::<f64>() {
-            Ok(a) if a.is_finite() && a.abs() <= 360.0 => Ok(AngleArg(Some(a))),
+            Ok(a) if a.is_finite() && a.abs() <= 360.0 => {
+                Ok(AngleArg(vec![Channel::Sheet { deg: a }]))
+            }
             _ => Err(format!(
-                "{s:?} is not an angle in degrees (-360..360) or `none`"
+                "{s:?} is not an angle in degrees (-360..360), `none` or `mosaic`"
             )),
         }
     }
@@ -150,7 +156,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let mut warnings = Vec::new();
     for (k, path) in a.frames.iter().enumerate() {
         let pose = per_block(&a.pose, k, "--pose", n)?.clone();
-        let AngleArg(polarizer_deg) = *per_block(&a.angle, k, "--angle", n)?;
+        let AngleArg(channels) = per_block(&a.angle, k, "--angle", n)?.clone();
         let exposure_us = *per_block(&a.exposure_us, k, "--exposure-us", n)?;
         if !(exposure_us.is_finite() && exposure_us > 0.0) {
             return Err(
@@ -186,7 +192,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
             info: CaptureInfo {
                 name: path.display().to_string(),
                 pose,
-                polarizer_deg,
+                channels,
                 frames: frames.stack.count,
                 full_scale,
                 exposure_us,

@@ -63,7 +63,8 @@ pub struct Args {
 #[derive(serde::Serialize)]
 struct BlockOut {
     pose: String,
-    polarizer_deg: Option<f64>,
+    /// The block's analyzer: `{"analyzer": "sheet", "deg": 0}`, `none`, or a mosaic angle.
+    channel: polnlos::scene::Channel,
     wall_png: String,
     frame_png: Option<String>,
     mean_electrons: f64,
@@ -299,7 +300,7 @@ fn write_block(
     let r2 = a.read_noise * a.read_noise;
     Ok(BlockOut {
         pose: block.pose.clone(),
-        polarizer_deg: block.polarizer_deg,
+        channel: block.channel,
         wall_png,
         frame_png,
         mean_electrons: electrons.iter().sum::<f64>() / n,

@@ -178,7 +178,7 @@ impl Daemon {
             tracing::info!(
                 "capture-{id} queued: {} {}, {} frames + {} dark of {} us",
                 req.scene,
-                super::jobs::block_label(&req.pose, req.polarizer_deg),
+                super::jobs::capture_label(&req.pose, &req.channels),
                 req.frames,
                 req.dark_frames,
                 a.exposure_us

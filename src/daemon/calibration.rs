@@ -293,8 +293,9 @@ impl Daemon {
         })
     }
 
-    /// The captures, one per (pose, angle) block of the scene in MODEL.md
-    /// row order, each a done source capture of the scene.
+    /// The captures, in the order of the first block each serves (MODEL.md
+    /// row order), together one for every block of the scene (a mosaic
+    /// capture serves its pose's four), each a done source capture of the scene.
     fn source_captures(
         &self,
         scene_name: &str,
@@ -306,28 +307,42 @@ impl Daemon {
             .iter()
             .map(|&id| self.require_capture(id))
             .collect::<Result<_, _>>()?;
-        let blocks = super::validate::blocks(scene);
-        if records.len() != blocks.len() {
+        let blocks = crate::transport::blocks_of(scene);
+        let serves = |c: &crate::store::CaptureRecord, b: &crate::transport::Block| {
+            c.pose == b.pose && c.channels.iter().any(|ch| ch.same(b.channel))
+        };
+        if let Some(c) = records
+            .iter()
+            .find(|c| !blocks.iter().any(|b| serves(c, b)))
+        {
             return Err(invalid(format!(
-                "{} captures for the {} of scene {scene_name:?}: give exactly one \"kind\": \"source\" capture per block",
-                records.len(),
-                match blocks.len() {
-                    1 => "1 block".to_string(),
-                    n => format!("{n} blocks"),
-                }
+                "capture {} ({}) is not a block of scene {scene_name:?}",
+                c.id,
+                super::jobs::capture_label(&c.pose, &c.channels)
             )));
         }
-        let mut ordered = Vec::with_capacity(blocks.len());
-        for (pose, angle) in &blocks {
-            let c = records
-                .iter()
-                .find(|c| c.pose == *pose && super::jobs::same_angle(c.polarizer_deg, *angle))
-                .ok_or_else(|| {
-                    invalid(format!(
-                        "no capture for block {}: give one \"kind\": \"source\" capture per block",
-                        super::jobs::block_label(pose, *angle)
-                    ))
-                })?;
+        let mut ordered: Vec<crate::store::CaptureRecord> = Vec::with_capacity(records.len());
+        for block in &blocks {
+            let mut serving = records.iter().filter(|c| serves(c, block));
+            let c = serving.next().ok_or_else(|| {
+                invalid(format!(
+                    "no capture for block {}: give one \"kind\": \"source\" capture per block ({} captures for the {} blocks of scene {scene_name:?})",
+                    super::jobs::block_label(&block.pose, block.channel),
+                    records.len(),
+                    blocks.len()
+                ))
+            })?;
+            if let Some(other) = serving.next() {
+                return Err(invalid(format!(
+                    "captures {} and {} are both for block {}: give exactly one \"kind\": \"source\" capture per block",
+                    c.id,
+                    other.id,
+                    super::jobs::block_label(&block.pose, block.channel)
+                )));
+            }
+            if ordered.iter().any(|o| o.id == c.id) {
+                continue;
+            }
             if c.kind != crate::store::CaptureKind::Source
                 || c.state != JobState::Done
                 || c.scene != scene_name

@@ -124,7 +124,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     // The bench at the polarizer's real angle where it knows it (the fake
     // bench's simulated mount), else at the angle asked for.
     let shown = c
-        .polarizer_deg
+        .sheet_deg()
         .map(|d| w.mount.simulated_truth_deg().unwrap_or(d));
     w.camera.bench().select(&c.pose, shown);
     let stream = Stream {
@@ -268,7 +268,7 @@ fn meta_of(c: &CaptureRecord, acquisition: Acquisition, camera_id: &str) -> Fram
         kind: c.kind,
         scene: c.scene.clone(),
         pose: c.pose.clone(),
-        polarizer_deg: c.polarizer_deg,
+        channels: c.channels.clone(),
         acquisition,
         dark_capture: c.dark_capture,
         camera_id: camera_id.to_string(),
@@ -331,7 +331,7 @@ fn stall_limit(exposure_us: f64, n: usize, slack: std::time::Duration) -> std::t
 /// read back; a capture without an angle, or a bench without a mount
 /// (whose angle is set by hand and trusted), records none.
 async fn turn_polarizer(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobError> {
-    let (Some(deg), true) = (c.polarizer_deg, w.mount.present()) else {
+    let (Some(deg), true) = (c.sheet_deg(), w.mount.present()) else {
         return Ok(());
     };
     let mount = w.mount.clone();

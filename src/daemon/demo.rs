@@ -73,7 +73,7 @@ pub(super) fn frames(
         let blocks = crate::transport::blocks_of(&s);
         if blocks
             .iter()
-            .all(|b| shown(&frames, &b.pose, b.polarizer_deg))
+            .all(|b| shown(&frames, &b.pose, bench_angle(&s, b)))
         {
             continue;
         }
@@ -84,7 +84,8 @@ pub(super) fn frames(
             .map_err(|e| err(e.to_string()))?;
         let source = render(&point, &[1.0], sensor);
         for ((block, frame), (_, source)) in lit.into_iter().zip(source) {
-            if shown(&frames, &block.pose, block.polarizer_deg) {
+            let angle = bench_angle(&s, &block);
+            if shown(&frames, &block.pose, angle) {
                 continue;
             }
             let (Some(frame), Some(source), Some(h)) = (
@@ -94,20 +95,27 @@ pub(super) fn frames(
             ) else {
                 continue;
             };
-            frames
-                .scene
-                .push((block.pose.clone(), block.polarizer_deg, frame));
-            frames
-                .source
-                .push((block.pose.clone(), block.polarizer_deg, source));
+            frames.scene.push((block.pose.clone(), angle, frame));
+            frames.source.push((block.pose.clone(), angle, source));
             let mut dots = crate::calibrate::geometry::render(&target, &h, 512, 512);
             dots.pixels.iter_mut().for_each(|p| *p *= TARGET_LEVEL);
-            frames.target.push((block.pose, block.polarizer_deg, dots));
+            frames.target.push((block.pose, angle, dots));
         }
     }
     // Frame value v = norm T l at the reference exposure, as a fraction of full scale.
     let c = norm / DEMO_REFERENCE_EXPOSURE_US;
     Ok((frames, c))
+}
+
+/// The angle from crossed of the polarizer a block's light passes, as the
+/// bench shows it (a sheet's, or a mosaic micro-polarizer's `sensor_deg +
+/// theta`); `None` without one.
+fn bench_angle(s: &crate::scene::Scene, block: &crate::transport::Block) -> Option<f64> {
+    s.pose(&block.pose)?
+        .analyzers
+        .iter()
+        .find(|a| a.channel.same(block.channel))
+        .map(|a| a.angle_deg)
 }
 
 /// The scene's wall material as wall calibration fits it, with a unit source.

@@ -11,6 +11,7 @@ use super::events::Events;
 use super::metrics::Metrics;
 use super::registry::JobRegistry;
 use super::scenes::{Scenes, ScenesError};
+use crate::scene::Channel;
 use crate::store::{JobState, Store};
 
 /// The services every job worker holds, and nothing else of the daemon:
@@ -77,15 +78,24 @@ impl From<tokio::task::JoinError> for JobError {
     }
 }
 
-/// A block as people read it: `pose A at 0°` or `pose A without polarizer`.
-pub(super) fn block_label(pose: &str, deg: Option<f64>) -> String {
-    match deg {
-        Some(a) => format!("pose {pose} at {a}°"),
-        None => format!("pose {pose} without polarizer"),
+/// A block as people read it: `pose A at 0°`, `pose A without polarizer`,
+/// `pose A's 45° micro-polarizers`.
+pub(super) fn block_label(pose: &str, channel: Channel) -> String {
+    match channel {
+        Channel::Sheet { deg } => format!("pose {pose} at {deg}°"),
+        Channel::None => format!("pose {pose} without polarizer"),
+        Channel::Mosaic { deg } => format!("pose {pose}'s {deg}° micro-polarizers"),
     }
 }
 
-pub(super) use crate::measure::same_angle;
+/// What a capture yields, as people read it: its one block, or `pose A's
+/// mosaic (4 blocks)`.
+pub(super) fn capture_label(pose: &str, channels: &[Channel]) -> String {
+    match channels {
+        [one] => block_label(pose, *one),
+        many => format!("pose {pose}'s mosaic ({} blocks)", many.len()),
+    }
+}
 
 /// How a job that did not finish ended, for the store.
 pub(super) enum Ending<'a> {

@@ -16,7 +16,7 @@ use serde::Serialize;
 use super::events::Event;
 use super::requests::{CaptureBody, PlanBody, ReconstructionBody};
 use super::{Daemon, JobKind, RequestError, SubmitError};
-use crate::scene::Scene;
+use crate::scene::{Channel, Scene};
 use crate::store::{CaptureKind, JobState, PlanCapture, PlanRow, PlanState};
 
 /// How often a plan looks at the job its step waits on.
@@ -97,6 +97,10 @@ pub fn steps_of(
     let mut steps = Vec::new();
     let mut last_pose: Option<String> = None;
     for block in crate::transport::blocks_of(scene) {
+        // One mosaic frame holds all of its pose's blocks: one capture, at its first.
+        if matches!(block.channel, Channel::Mosaic { deg } if deg != 0.0) {
+            continue;
+        }
         if last_pose.as_ref().is_some_and(|p| *p != block.pose) {
             steps.push(PlanStep::Operator {
                 prompt: format!(
@@ -105,7 +109,7 @@ pub fn steps_of(
                 ),
             });
         }
-        if let (Some(deg), false) = (block.polarizer_deg, mount) {
+        if let (Some(deg), false) = (block.channel.sheet_deg(), mount) {
             steps.push(PlanStep::Operator {
                 prompt: format!(
                     "turn the polarizer of pose {} to {deg}° from crossed, then press Continue",
@@ -115,7 +119,7 @@ pub fn steps_of(
         }
         let capture = |kind, dark_step| PlanStep::Capture {
             pose: block.pose.clone(),
-            polarizer_deg: block.polarizer_deg,
+            polarizer_deg: block.channel.sheet_deg(),
             capture: kind,
             dark_step,
         };

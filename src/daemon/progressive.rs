@@ -20,7 +20,6 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::events::Step;
-use super::jobs::same_angle;
 use super::jobs::{JobContext, JobError};
 use super::reconstruction::{load_capture, read_captures};
 use super::validate::ProgressiveSpec;
@@ -116,8 +115,8 @@ struct Solver {
     variance: Option<Vec<f64>>,
     /// Singular values of `T`, for the automatic λ.
     singular_values: Arc<crate::solve::Conditioning>,
-    /// This capture's block.
-    own: usize,
+    /// This capture's blocks (one, or a mosaic pose's four), in `T`'s order.
+    own: Vec<usize>,
     normal: Normal,
     state: AdmmState,
     settings: AdmmSettings<'static>,
@@ -162,19 +161,21 @@ impl Solver {
         let full_scale = acquisition.pixel_format.full_scale();
         // This capture's block is filled at each step; the others come
         // from their captures, assembled as a reconstruction would.
-        let own = t
-            .blocks()
-            .iter()
-            .position(|b| {
-                b.pose == capture.pose && same_angle(b.polarizer_deg, capture.polarizer_deg)
+        let own: Vec<usize> = (0..t.blocks().len())
+            .filter(|&k| {
+                let b = &t.blocks()[k];
+                b.pose == capture.pose && capture.channels.iter().any(|c| c.same(b.channel))
             })
-            .ok_or_else(|| JobError::Store("the capture's block is not in T".into()))?;
+            .collect();
+        if own.len() != capture.channels.len() {
+            return Err(JobError::Store("the capture's blocks are not in T".into()));
+        }
         let mut warnings = Vec::new();
         let others = read_captures(&d.store, &spec.captures)?
             .into_iter()
             .map(|c| load_capture(&d.store, c, &scene, &mut warnings))
             .collect::<Result<Vec<_>, _>>()?;
-        let other_blocks: Vec<_> = (0..t.blocks().len()).filter(|&b| b != own).collect();
+        let other_blocks: Vec<_> = (0..t.blocks().len()).filter(|b| !own.contains(b)).collect();
         let blocks: Vec<_> = other_blocks
             .iter()
             .map(|&b| t.blocks()[b].clone())
@@ -268,12 +269,16 @@ impl Solver {
                 .map(|(k, &x)| (x + dark_var.map_or(0.0, |d| f64::from(d.pixels[k]))) as f32)
                 .collect(),
         });
-        // This block assembled as a reconstruction assembles it.
-        let block = &self.t.blocks()[self.own];
+        // This capture's blocks assembled as a reconstruction assembles them.
+        let blocks: Vec<_> = self
+            .own
+            .iter()
+            .map(|&k| self.t.blocks()[k].clone())
+            .collect();
         let own = CaptureFrames {
             name: format!("capture {}", self.capture.id),
-            pose: block.pose.clone(),
-            polarizer_deg: block.polarizer_deg,
+            pose: self.capture.pose.clone(),
+            channels: self.capture.channels.clone(),
             mean,
             variance,
             frames: s.frames,
@@ -282,14 +287,18 @@ impl Solver {
             offset: [self.acquisition.region[0], self.acquisition.region[1]],
             binning: self.acquisition.binning,
         };
-        let mut m = assemble_with(&self.scene, std::slice::from_ref(block), &[own], &self.maps)?;
+        let mut m = assemble_with(&self.scene, &blocks, &[own], &self.maps)?;
         Units::Calibrated(self.calibration).apply(&mut m);
-        let range = self.t.block_rows(self.own);
-        self.i[range.clone()].copy_from_slice(&m.i);
-        // The running variance of this block, beside the other blocks'.
+        let n = self.t.wall_grid().count();
+        for (k, &b) in self.own.iter().enumerate() {
+            self.i[self.t.block_rows(b)].copy_from_slice(&m.i[k * n..(k + 1) * n]);
+        }
+        // The running variance of these blocks, beside the other blocks'.
         let noise = match (self.settings.lambda, m.variance, self.variance.as_mut()) {
             (None, Some(v), Some(all)) => {
-                all[range].copy_from_slice(&v);
+                for (k, &b) in self.own.iter().enumerate() {
+                    all[self.t.block_rows(b)].copy_from_slice(&v[k * n..(k + 1) * n]);
+                }
                 Some(NoiseLevel::measured(all.clone()))
             }
             _ => None,

@@ -319,7 +319,7 @@ impl<'a> StoredCapture<'a> {
         let info = CaptureInfo {
             name: format!("capture {}", c.id),
             pose: c.pose.clone(),
-            polarizer_deg: c.polarizer_deg,
+            channels: c.channels.clone(),
             frames: c.frames as usize,
             full_scale: pixel_format.full_scale(),
             exposure_us,

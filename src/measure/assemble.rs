@@ -7,7 +7,7 @@
 
 use super::{stack, BlockFrames, MeasureError, Measurement, PixelMaps};
 use crate::measure::Frame;
-use crate::scene::Scene;
+use crate::scene::{Channel, Scene};
 use crate::transport::{Block, Transport};
 
 /// One capture as the measurement needs it: where it was taken and its
@@ -18,8 +18,9 @@ pub struct CaptureFrames {
     pub name: String,
     /// Pose name in the scene.
     pub pose: String,
-    /// Polarizer angle in degrees from crossed, `None` without a polarizer.
-    pub polarizer_deg: Option<f64>,
+    /// The blocks its frames hold, in the order it yields them: one for a
+    /// capture through a sheet (or none), four for a mosaic sensor's.
+    pub channels: Vec<Channel>,
     /// Mean frame minus the mean dark frame, DN.
     pub mean: Frame,
     /// Variance of the mean, DN², when there were 2 frames or more.
@@ -37,29 +38,50 @@ pub struct CaptureFrames {
 }
 
 impl CaptureFrames {
-    /// Whether it was taken at `block`'s pose and polarizer angle.
+    /// Whether it holds `block`: taken at its pose, through its analyzer.
     pub fn serves(&self, block: &Block) -> bool {
-        self.pose == block.pose && same_angle(self.polarizer_deg, block.polarizer_deg)
-    }
-}
-
-/// Whether two polarizer angles are the same setting (1e-6 degrees apart at most).
-pub fn same_angle(a: Option<f64>, b: Option<f64>) -> bool {
-    match (a, b) {
-        (None, None) => true,
-        (Some(x), Some(y)) => (x - y).abs() < 1e-6,
-        _ => false,
+        self.pose == block.pose && self.channels.iter().any(|c| c.same(block.channel))
     }
 }
 
 /// For each block of `blocks` (MODEL.md block order), the index in
-/// `captures` of the one capture that serves it: a block without one, two
-/// captures for one block, or a capture that serves none is an error naming
-/// them.
+/// `captures` of the one capture that serves it: a capture yielding a block
+/// the scene lacks, a block without a capture, or two captures for one block
+/// is an error naming them.
 pub fn match_blocks(
     blocks: &[Block],
     captures: &[CaptureFrames],
 ) -> Result<Vec<usize>, MeasureError> {
+    // Every block a capture yields must be one the scene has.
+    let stray = captures.iter().find_map(|c| {
+        c.channels
+            .iter()
+            .find(|ch| {
+                !blocks
+                    .iter()
+                    .any(|b| b.pose == c.pose && b.channel.same(**ch))
+            })
+            .map(|&channel| {
+                (
+                    c,
+                    Block {
+                        pose: c.pose.clone(),
+                        channel,
+                    },
+                )
+            })
+    });
+    if let Some((c, block)) = stray {
+        return Err(MeasureError::NoBlock {
+            capture: c.name.clone(),
+            block: block.label(),
+            blocks: blocks
+                .iter()
+                .map(Block::label)
+                .collect::<Vec<_>>()
+                .join(", "),
+        });
+    }
     let mut order = Vec::with_capacity(blocks.len());
     for block in blocks {
         let mut serving = captures.iter().enumerate().filter(|(_, c)| c.serves(block));
@@ -74,24 +96,6 @@ pub fn match_blocks(
             });
         }
         order.push(first);
-    }
-    if let Some(c) = captures
-        .iter()
-        .find(|c| !blocks.iter().any(|b| c.serves(b)))
-    {
-        return Err(MeasureError::NoBlock {
-            capture: c.name.clone(),
-            block: Block {
-                pose: c.pose.clone(),
-                polarizer_deg: c.polarizer_deg,
-            }
-            .label(),
-            blocks: blocks
-                .iter()
-                .map(Block::label)
-                .collect::<Vec<_>>()
-                .join(", "),
-        });
     }
     Ok(order)
 }
@@ -118,7 +122,7 @@ pub fn assemble_with(
 ) -> Result<Measurement, MeasureError> {
     let order = match_blocks(blocks, captures)?;
     let mut homographies = Vec::with_capacity(order.len());
-    for &k in &order {
+    for (block, &k) in blocks.iter().zip(&order) {
         let c = &captures[k];
         let pose = scene
             .pose(&c.pose)
@@ -129,16 +133,32 @@ pub fn assemble_with(
         let h = pose.homography.ok_or_else(|| MeasureError::NoHomography {
             pose: pose.name.clone(),
         })?;
-        homographies.push(h);
+        // A mosaic block is measured over its micro-polarizer's pixels only.
+        let cell = pose
+            .analyzers
+            .iter()
+            .find(|a| a.channel.same(block.channel))
+            .and_then(|a| a.cell);
+        if cell.is_some() && c.binning != [1, 1] {
+            return Err(MeasureError::Capture {
+                capture: c.name.clone(),
+                reason: format!(
+                    "it was binned {:?}, but pose {:?} has a polarizer mosaic: a binned pixel mixes its micro-polarizers; capture with binning [1, 1]",
+                    c.binning, pose.name
+                ),
+            });
+        }
+        homographies.push((h, cell));
     }
     let frames: Vec<BlockFrames<'_>> = order
         .iter()
         .zip(&homographies)
-        .map(|(&k, h)| {
+        .map(|(&k, (h, cell))| {
             let c = &captures[k];
             BlockFrames {
                 pose: &c.pose,
                 homography: h,
+                cell: *cell,
                 mean: &c.mean,
                 variance: c.variance.as_ref(),
                 frames: c.frames,
@@ -228,11 +248,11 @@ mod tests {
         }
     }
 
-    fn capture(name: &str, pose: &str, angle: Option<f64>, value: f32) -> CaptureFrames {
+    fn capture(name: &str, pose: &str, channel: Channel, value: f32) -> CaptureFrames {
         CaptureFrames {
             name: name.into(),
             pose: pose.into(),
-            polarizer_deg: angle,
+            channels: vec![channel],
             mean: Frame {
                 width: 512,
                 height: 512,
@@ -257,14 +277,7 @@ mod tests {
             .iter()
             .enumerate()
             .rev()
-            .map(|(k, b)| {
-                capture(
-                    &format!("c{k}"),
-                    &b.pose,
-                    b.polarizer_deg,
-                    100.0 * (k + 1) as f32,
-                )
-            })
+            .map(|(k, b)| capture(&format!("c{k}"), &b.pose, b.channel, 100.0 * (k + 1) as f32))
             .collect();
         let m = assemble(&s, &blocks, &captures).expect("every block has its capture");
         let n = s.wall().plane.grid.count();
@@ -283,25 +296,20 @@ mod tests {
         let s = scene();
         let blocks = crate::transport::blocks_of(&s);
         let b0 = &blocks[0];
-        let e = assemble(
-            &s,
-            &blocks,
-            &[capture("c0", &b0.pose, b0.polarizer_deg, 1.0)],
-        )
-        .unwrap_err();
+        let e = assemble(&s, &blocks, &[capture("c0", &b0.pose, b0.channel, 1.0)]).unwrap_err();
         assert!(
             matches!(e, MeasureError::NoCapture { ref block } if *block == blocks[1].label()),
             "{e}"
         );
         let mut all: Vec<_> = blocks
             .iter()
-            .map(|b| capture("c", &b.pose, b.polarizer_deg, 1.0))
+            .map(|b| capture("c", &b.pose, b.channel, 1.0))
             .collect();
-        all.push(capture("again", &b0.pose, b0.polarizer_deg, 1.0));
+        all.push(capture("again", &b0.pose, b0.channel, 1.0));
         let e = assemble(&s, &blocks, &all).unwrap_err().to_string();
         assert!(e.contains(&b0.label()) && e.contains("again"), "{e}");
         all.pop();
-        all.push(capture("stray", "B", Some(33.0), 1.0));
+        all.push(capture("stray", "B", Channel::Sheet { deg: 33.0 }, 1.0));
         let e = assemble(&s, &blocks, &all).unwrap_err().to_string();
         assert!(e.contains("stray was taken at B-pol33"), "{e}");
     }

@@ -50,8 +50,9 @@ impl Default for ExposureTarget {
 pub struct BlockExposure {
     /// Pose name.
     pub pose: String,
-    /// Polarizer angle from crossed, degrees (`None`: no polarizer).
-    pub polarizer_deg: Option<f64>,
+    /// The analyzer of the block (a sheet's angle, a mosaic's micro-polarizer, none).
+    #[schema(value_type = Object)]
+    pub channel: crate::scene::Channel,
     /// Fraction of full scale per microsecond at the brightest element when `l = 1`.
     pub peak_rate_per_us: f64,
     /// Proposed exposure per frame, microseconds.
@@ -200,7 +201,7 @@ pub fn plan_exposure(
         };
         out.push(BlockExposure {
             pose: block.pose.clone(),
-            polarizer_deg: block.polarizer_deg,
+            channel: block.channel,
             peak_rate_per_us: rate,
             exposure_us,
             frames,
@@ -255,7 +256,7 @@ mod tests {
             .iter()
             .max_by(|a, b| a.exposure_us.total_cmp(&b.exposure_us))
             .unwrap();
-        assert_eq!(longest.polarizer_deg, Some(0.0));
+        assert_eq!(longest.channel, crate::scene::Channel::Sheet { deg: 0.0 });
         // Measured from all of its pixels, the peak element collects dozens
         // of pixels' photons: one frame reaches SNR 100 where one pixel needed 2.
         let scene = Scene::builtin("brewster-rotating-3x3").unwrap().unwrap();

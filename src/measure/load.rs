@@ -12,8 +12,8 @@ pub struct CaptureInfo {
     pub name: String,
     /// Pose name in the scene.
     pub pose: String,
-    /// Polarizer angle in degrees from crossed, `None` without a polarizer.
-    pub polarizer_deg: Option<f64>,
+    /// The blocks its frames hold (one through a sheet or none, four from a mosaic sensor).
+    pub channels: Vec<crate::scene::Channel>,
     /// Frames averaged into its mean.
     pub frames: usize,
     /// Full scale of its pixel format, DN.
@@ -90,7 +90,7 @@ pub fn load(
     Ok(CaptureFrames {
         name: info.name,
         pose: info.pose,
-        polarizer_deg: info.polarizer_deg,
+        channels: info.channels,
         mean,
         variance,
         frames: info.frames,
@@ -131,7 +131,7 @@ mod tests {
             info: CaptureInfo {
                 name: "capture 4".into(),
                 pose: pose.into(),
-                polarizer_deg: Some(0.0),
+                channels: vec![crate::scene::Channel::Sheet { deg: 0.0 }],
                 frames: 2,
                 full_scale: 65535.0,
                 exposure_us: 100.0,

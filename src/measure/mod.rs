@@ -8,11 +8,10 @@ pub mod exposure;
 mod frame;
 pub mod levels;
 mod load;
+pub mod mosaic;
 mod stack;
 
-pub use assemble::{
-    assemble, assemble_with, match_blocks, same_angle, to_model_units, CaptureFrames, Units,
-};
+pub use assemble::{assemble, assemble_with, match_blocks, to_model_units, CaptureFrames, Units};
 pub use average::FrameStack;
 pub use frame::Frame;
 pub use load::{load, CaptureInfo, CaptureSource};

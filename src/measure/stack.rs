@@ -27,6 +27,9 @@ pub struct BlockFrames<'a> {
     pub pose: &'a str,
     /// The pose's camera→wall homography.
     pub homography: &'a Homography,
+    /// For a mosaic block, the sensor column and row mod 2 of its
+    /// micro-polarizer's pixels (the only ones it averages); `None`: all.
+    pub cell: Option<[u32; 2]>,
     /// Mean dark-subtracted frame, DN.
     pub mean: &'a Frame,
     /// Variance of the mean frame, DN², when the capture had 2 frames or more.
@@ -54,6 +57,9 @@ impl BlockFrames<'_> {
     }
 }
 
+/// What a pixel map is made for: pose, frame and mosaic cell.
+type MapKey = (String, FrameGeometry, Option<[u32; 2]>);
+
 /// A stacked measurement.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Measurement {
@@ -63,12 +69,12 @@ pub struct Measurement {
     pub variance: Option<Vec<f64>>,
 }
 
-/// The pixel maps of a scene's poses, made once per (pose, frame geometry)
-/// and shared: a map costs a pass over the wall's image, a measurement
+/// The pixel maps of a scene's poses, made once per (pose, frame geometry,
+/// mosaic cell) and shared: a map costs a pass over the wall's image, a measurement
 /// with it one pass over the frame (MODEL.md "From camera frames to i").
 #[derive(Debug, Default)]
 pub struct PixelMaps {
-    maps: Mutex<HashMap<(String, FrameGeometry), Arc<PixelMap>>>,
+    maps: Mutex<HashMap<MapKey, Arc<PixelMap>>>,
 }
 
 impl PixelMaps {
@@ -79,17 +85,18 @@ impl PixelMaps {
         h: &Homography,
         wall: &Plane,
         geometry: FrameGeometry,
+        cell: Option<[u32; 2]>,
     ) -> Result<Arc<PixelMap>, MeasureError> {
-        let key = (pose.to_string(), geometry);
+        let key = (pose.to_string(), geometry, cell);
         if let Some(m) = self.lock().get(&key) {
             return Ok(Arc::clone(m));
         }
-        let map = Arc::new(PixelMap::frame(h, wall, geometry, pose)?);
+        let map = Arc::new(PixelMap::cell_frame(h, wall, geometry, cell, pose)?);
         self.lock().insert(key, Arc::clone(&map));
         Ok(map)
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<(String, FrameGeometry), Arc<PixelMap>>> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<MapKey, Arc<PixelMap>>> {
         // A panic while inserting leaves at worst a missing entry: the map stays usable.
         self.maps
             .lock()
@@ -110,7 +117,7 @@ pub fn stack(
     let mut i = Vec::with_capacity(blocks.len() * wall.grid.count());
     let mut variance = Some(Vec::with_capacity(i.capacity()));
     for b in blocks {
-        let map = maps.get(b.pose, b.homography, wall, b.geometry())?;
+        let map = maps.get(b.pose, b.homography, wall, b.geometry(), b.cell)?;
         if let Some(v) = b.variance {
             if (v.width, v.height) != (b.mean.width, b.mean.height) {
                 return Err(MeasureError::VarianceSize {
@@ -180,6 +187,7 @@ mod tests {
         let block = |mean, variance, exposure_us| BlockFrames {
             pose: "B",
             homography: &h,
+            cell: None,
             mean,
             variance,
             frames: 8,
@@ -201,7 +209,7 @@ mod tests {
         assert!(m.i.iter().all(|v| (v - 0.1).abs() < 1e-12), "{:?}", m.i);
         // 4 DN² per pixel, averaged over element 0's pixels: 4 sum w_p².
         let map = maps
-            .get("B", &h, &w, FrameGeometry::plain(512, 512))
+            .get("B", &h, &w, FrameGeometry::plain(512, 512), None)
             .expect("cached");
         let w2: f64 = map.weights()[map.range(0)].iter().map(|w| w * w).sum();
         assert!(w2 < 1.0 / 20.0, "element 0 has dozens of pixels: {w2}");
@@ -242,6 +250,7 @@ mod tests {
         let b = BlockFrames {
             pose: "B",
             homography: &h,
+            cell: None,
             mean: &f,
             variance: Some(&var),
             frames: 1,
@@ -306,6 +315,7 @@ mod tests {
             let b = BlockFrames {
                 pose: "B",
                 homography: &h,
+                cell: None,
                 mean: &f,
                 variance: Some(&var),
                 frames: 1,
@@ -322,7 +332,7 @@ mod tests {
             reported = m.variance.expect("given");
         }
         let map = maps
-            .get("B", &h, &w, FrameGeometry::plain(512, 512))
+            .get("B", &h, &w, FrameGeometry::plain(512, 512), None)
             .expect("cached");
         let (mut ratio, mut worst) = (0.0, 0.0f64);
         for j in 0..n {
@@ -366,6 +376,7 @@ mod tests {
         let block = BlockFrames {
             pose: "B",
             homography: &h,
+            cell: None,
             mean: &small,
             variance: None,
             frames: 1,

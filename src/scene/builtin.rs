@@ -19,6 +19,14 @@ pub const BUILT_IN: &[(&str, &str)] = &[
         include_str!("../../config/scenes/brewster-multi.toml"),
     ),
     (
+        "brewster-mosaic-3x3",
+        include_str!("../../config/scenes/brewster-mosaic-3x3.toml"),
+    ),
+    (
+        "brewster-mosaic",
+        include_str!("../../config/scenes/brewster-mosaic.toml"),
+    ),
+    (
         "brewster-nopol-3x3",
         include_str!("../../config/scenes/brewster-nopol-3x3.toml"),
     ),

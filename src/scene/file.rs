@@ -3,8 +3,8 @@
 use serde::Deserialize;
 
 use super::{
-    crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography, LeftOut, Occluder,
-    Plane, Pose, Scene, SceneError, SceneParts, Wall, WallSampling,
+    crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography, LeftOut, Mosaic,
+    MosaicLayout, Occluder, Plane, Pose, Scene, SceneError, SceneParts, Wall, WallSampling,
 };
 use crate::optics::{Brdf, DiffuseModel, PolarizerModel, Vec3};
 
@@ -61,8 +61,12 @@ struct RawScenePlane {
 struct RawPose {
     name: String,
     camera: [f64; 3],
-    #[serde(default)]
-    polarizer_deg: Vec<f64>,
+    polarizer_deg: Option<Vec<f64>>,
+    /// `"mosaic"`: an on-chip polarizer mosaic instead of a sheet.
+    analyzer: Option<String>,
+    sensor_deg: Option<f64>,
+    extinction: Option<f64>,
+    layout: Option<String>,
     homography: Option<[[f64; 3]; 3]>,
     region: Option<[i64; 4]>,
     binning: Option<[i64; 2]>,
@@ -171,7 +175,14 @@ impl From<SceneParts> for RawFile {
                 .map(|pose| RawPose {
                     name: pose.name,
                     camera: array(pose.camera),
-                    polarizer_deg: pose.analyzers.iter().map(|a| a.angle_deg).collect(),
+                    polarizer_deg: pose
+                        .mosaic
+                        .is_none()
+                        .then(|| pose.analyzers.iter().map(|a| a.angle_deg).collect()),
+                    analyzer: pose.mosaic.map(|_| "mosaic".to_string()),
+                    sensor_deg: pose.mosaic.map(|m| m.sensor_deg),
+                    extinction: pose.mosaic.and_then(|m| m.extinction),
+                    layout: pose.mosaic.map(|m| m.layout.name().to_string()),
                     homography: pose.homography.map(|h| h.matrix()),
                     region: pose.frame.map(|f| f.region.map(i64::from)),
                     binning: pose.frame.map(|f| f.binning.map(i64::from)),
@@ -291,6 +302,79 @@ const MAX_FRAME_SIDE: i64 = 65_536;
 fn same_polarizer_setting(a: f64, b: f64) -> bool {
     let d = (a - b).rem_euclid(180.0);
     d < 1e-6 || 180.0 - d < 1e-6
+}
+
+/// A pose's on-chip polarizer mosaic (MODEL.md "On-chip polarizer mosaic"):
+/// `analyzer = "mosaic"` with `sensor_deg`, `extinction` and `layout`; the
+/// last three without it, or a mosaic with `polarizer_deg`, are errors naming the keys.
+fn mosaic(key: &dyn Fn(&str) -> String, p: &RawPose) -> Result<Option<Mosaic>, SceneError> {
+    match p.analyzer.as_deref() {
+        None => {
+            for (k, given) in [
+                ("sensor_deg", p.sensor_deg.is_some()),
+                ("extinction", p.extinction.is_some()),
+                ("layout", p.layout.is_some()),
+            ] {
+                if given {
+                    return Err(SceneError::invalid(
+                        key(k),
+                        &p.name,
+                        "belongs to a pose with analyzer = \"mosaic\"; add that key or remove this one",
+                    ));
+                }
+            }
+            Ok(None)
+        }
+        Some("mosaic") => {
+            if let Some(deg) = &p.polarizer_deg {
+                return Err(SceneError::invalid(
+                    format!("{} and {}", key("analyzer"), key("polarizer_deg")),
+                    deg,
+                    "a pose has either a polarizer sheet (polarizer_deg) or an on-chip mosaic (analyzer = \"mosaic\"), not both; remove one",
+                ));
+            }
+            let sensor_deg = p.sensor_deg.unwrap_or(0.0);
+            if !(-360.0..=360.0).contains(&sensor_deg) {
+                return Err(SceneError::invalid(
+                    key("sensor_deg"),
+                    sensor_deg,
+                    "must be degrees from -360 to 360",
+                ));
+            }
+            if let Some(e) = p.extinction {
+                if !(e > 1.0 && e.is_finite()) {
+                    return Err(SceneError::invalid(
+                        key("extinction"),
+                        e,
+                        "must be a finite ratio above 1 (e.g. 300); leave it out for ideal micro-polarizers",
+                    ));
+                }
+            }
+            let layout = match p.layout.as_deref() {
+                None => MosaicLayout::default(),
+                Some(name) => MosaicLayout::from_name(name).ok_or_else(|| {
+                    SceneError::invalid(
+                        key("layout"),
+                        name,
+                        format!(
+                            "is not a known mosaic layout; known: {}",
+                            MosaicLayout::ALL.map(MosaicLayout::name).join(", ")
+                        ),
+                    )
+                })?,
+            };
+            Ok(Some(Mosaic {
+                sensor_deg,
+                extinction: p.extinction,
+                layout,
+            }))
+        }
+        Some(other) => Err(SceneError::invalid(
+            key("analyzer"),
+            other,
+            "must be \"mosaic\" (an on-chip polarizer mosaic); leave it out for a polarizer sheet (polarizer_deg) or none",
+        )),
+    }
 }
 
 /// The camera frame a pose's homography was calibrated at: `region` (and
@@ -511,38 +595,49 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
                 format!("pose {name:?}: the camera is on or behind the wall"),
             ));
         }
-        let mut analyzers = Vec::with_capacity(p.polarizer_deg.len());
-        if !p.polarizer_deg.is_empty() {
-            if crossed_axis(&c0, &s0, &camera).is_none() {
+        let mosaic = mosaic(&key, &p)?;
+        let polarizer_deg = p.polarizer_deg.clone().unwrap_or_default();
+        let mut analyzers = Vec::with_capacity(polarizer_deg.len());
+        if (!polarizer_deg.is_empty() || mosaic.is_some())
+            && crossed_axis(&c0, &s0, &camera).is_none()
+        {
+            let k = if mosaic.is_some() {
+                "analyzer"
+            } else {
+                "polarizer_deg"
+            };
+            return Err(SceneError::invalid(
+                key(k),
+                &p.polarizer_deg,
+                format!("pose {name:?}: the crossed axis is undefined because the camera, the wall centre and the scene centre are collinear"),
+            ));
+        }
+        if let Some(m) = &mosaic {
+            // The crossed axis exists (checked above), so every angle has a micro-polarizer.
+            analyzers.extend(Analyzer::mosaic(&c0, &s0, &camera, m).into_iter().flatten());
+        }
+        for (k, &deg) in polarizer_deg.iter().enumerate() {
+            if !(-360.0..=360.0).contains(&deg) {
                 return Err(SceneError::invalid(
                     key("polarizer_deg"),
-                    &p.polarizer_deg,
-                    format!("pose {name:?}: the crossed axis is undefined because the camera, the wall centre and the scene centre are collinear"),
+                    &polarizer_deg,
+                    "angles must be degrees from -360 to 360",
                 ));
             }
-            for (k, &deg) in p.polarizer_deg.iter().enumerate() {
-                if !(-360.0..=360.0).contains(&deg) {
-                    return Err(SceneError::invalid(
-                        key("polarizer_deg"),
-                        &p.polarizer_deg,
-                        "angles must be degrees from -360 to 360",
-                    ));
-                }
-                // A linear polarizer at a and at a + 180 degrees is the same setting.
-                if let Some(&earlier) = p.polarizer_deg[..k]
-                    .iter()
-                    .find(|&&e| same_polarizer_setting(e, deg))
-                {
-                    return Err(SceneError::invalid(
-                        key("polarizer_deg"),
-                        &p.polarizer_deg,
-                        format!("{deg} and {earlier} degrees are the same polarizer setting (angles repeat every 180 degrees); list each setting once"),
-                    ));
-                }
-                // The crossed axis exists (checked above), so every angle has a sheet.
-                if let Some(a) = Analyzer::at(&c0, &s0, &camera, deg) {
-                    analyzers.push(a);
-                }
+            // A linear polarizer at a and at a + 180 degrees is the same setting.
+            if let Some(&earlier) = polarizer_deg[..k]
+                .iter()
+                .find(|&&e| same_polarizer_setting(e, deg))
+            {
+                return Err(SceneError::invalid(
+                    key("polarizer_deg"),
+                    &polarizer_deg,
+                    format!("{deg} and {earlier} degrees are the same polarizer setting (angles repeat every 180 degrees); list each setting once"),
+                ));
+            }
+            // The crossed axis exists (checked above), so every angle has a sheet.
+            if let Some(a) = Analyzer::at(&c0, &s0, &camera, deg) {
+                analyzers.push(a);
             }
         }
         let homography = match p.homography {
@@ -556,10 +651,20 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
             })?),
         };
         let frame = camera_frame(&key, p.region, p.binning)?;
+        if let (Some(_), Some(f)) = (&mosaic, &frame) {
+            if f.binning != [1, 1] {
+                return Err(SceneError::invalid(
+                    key("binning"),
+                    f.binning,
+                    "must be [1, 1] on a pose with analyzer = \"mosaic\": a binned pixel mixes the micro-polarizers of a 2x2 cell",
+                ));
+            }
+        }
         poses.push(Pose {
             name,
             camera,
             analyzers,
+            mosaic,
             homography,
             frame,
         });
@@ -645,6 +750,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::Channel;
 
     const BASE: &str = r#"
 [wall]
@@ -725,6 +831,24 @@ polarizer_deg = [0.0, 90.0]
     }
 
     #[test]
+    fn a_mosaic_pose_has_four_micro_polarizers_and_survives_an_edit() {
+        let s = with(
+            "polarizer_deg = [0.0, 90.0]",
+            "analyzer = \"mosaic\"\nsensor_deg = 10.0\nextinction = 300.0",
+        )
+        .unwrap();
+        let p = &s.poses[0];
+        let m = p.mosaic.expect("a mosaic");
+        assert_eq!((m.sensor_deg, m.extinction), (10.0, Some(300.0)));
+        assert_eq!(p.channels(), Channel::mosaic().to_vec());
+        let psi: Vec<f64> = p.analyzers.iter().map(|a| a.angle_deg).collect();
+        assert_eq!(psi, [10.0, 55.0, 100.0, 145.0]);
+        assert_eq!(p.analyzers[0].cell, Some([1, 1]));
+        let again = s.clone().edit(|_| {}).unwrap();
+        assert_eq!(again.poses, s.poses);
+    }
+
+    #[test]
     fn crossed_axis_is_normal_to_the_s_direction_and_rotates() {
         let s = parse(BASE).unwrap();
         let p = &s.poses[0];
@@ -776,6 +900,41 @@ polarizer_deg = [0.0, 90.0]
             (
                 "polarizer_deg = [0.0, 90.0]",
                 "polarizer_deg = [0.0]\nregion = [0, 0, 512, 512]\nbinning = [0, 1]",
+                "pose[0].binning",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "polarizer_deg = [0.0]\nanalyzer = \"mosaic\"",
+                "pose[0].analyzer and pose[0].polarizer_deg",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "analyzer = \"mosaic\"\nlayout = \"bayer\"",
+                "pose[0].layout",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "analyzer = \"mosaic\"\nextinction = 1.0",
+                "pose[0].extinction",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "analyzer = \"mosaic\"\nsensor_deg = 400.0",
+                "pose[0].sensor_deg",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "analyzer = \"sheet\"",
+                "pose[0].analyzer",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "polarizer_deg = [0.0]\nextinction = 300.0",
+                "pose[0].extinction",
+            ),
+            (
+                "polarizer_deg = [0.0, 90.0]",
+                "analyzer = \"mosaic\"\nregion = [0, 0, 512, 512]\nbinning = [2, 2]",
                 "pose[0].binning",
             ),
             ("grid = [4, 3]", "grid = [0, 3]", "wall.grid"),

@@ -160,14 +160,38 @@ impl PixelMap {
         geometry: FrameGeometry,
         pose: &str,
     ) -> Result<Self, FootprintError> {
-        Self::make(h, wall, Some(geometry), pose)
+        Self::make(h, wall, Some(geometry), None, pose)
     }
 
     /// Every integer point of the (unbounded) image plane whose `H^-1` lies in
     /// an element of `wall`, with its wall coordinates: the samples of the
     /// `"pixels"` rows of `T`.
     pub fn plane(h: &Homography, wall: &Plane, pose: &str) -> Result<Self, FootprintError> {
-        Self::make(h, wall, None, pose)
+        Self::make(h, wall, None, None, pose)
+    }
+
+    /// [`PixelMap::frame`] over the pixels of one micro-polarizer of a mosaic
+    /// only: those at sensor column and row `cell` mod 2 (MODEL.md "On-chip
+    /// polarizer mosaic"; `None`: every pixel).
+    pub fn cell_frame(
+        h: &Homography,
+        wall: &Plane,
+        geometry: FrameGeometry,
+        cell: Option<[u32; 2]>,
+        pose: &str,
+    ) -> Result<Self, FootprintError> {
+        Self::make(h, wall, Some(geometry), cell, pose)
+    }
+
+    /// [`PixelMap::plane`] over the integer points at column and row `cell`
+    /// mod 2 only: the samples of a mosaic block's `"pixels"` rows.
+    pub fn cell_plane(
+        h: &Homography,
+        wall: &Plane,
+        cell: Option<[u32; 2]>,
+        pose: &str,
+    ) -> Result<Self, FootprintError> {
+        Self::make(h, wall, None, cell, pose)
     }
 
     /// Elements mapped.
@@ -250,6 +274,7 @@ impl PixelMap {
         h: &Homography,
         wall: &Plane,
         geometry: Option<FrameGeometry>,
+        cell: Option<[u32; 2]>,
         pose: &str,
     ) -> Result<Self, FootprintError> {
         let [hu, hv] = [wall.size[0] / 2.0, wall.size[1] / 2.0];
@@ -296,6 +321,11 @@ impl PixelMap {
         let inside = |x: i64, y: i64| {
             geometry.is_none() || (0..width).contains(&x) && (0..height).contains(&y)
         };
+        // A mosaic block sees the pixels of its micro-polarizer only (sensor
+        // coordinates are whole numbers there: a mosaic frame is not binned).
+        let on_cell = |a: usize, c: f64| {
+            cell.is_none_or(|cell| (c.round() as i64).rem_euclid(2) == i64::from(cell[a]))
+        };
         // Per lattice row: the hits inside the frame, and the elements seen outside it.
         let rows: Vec<(Vec<Hit>, Vec<u32>)> = (y0..=y1)
             .into_par_iter()
@@ -303,7 +333,13 @@ impl PixelMap {
                 let mut hits = Vec::new();
                 let mut outside = Vec::new();
                 let y = g.sensor(1, yi);
+                if !on_cell(1, y) {
+                    return (hits, outside);
+                }
                 for xi in x0..=x1 {
+                    if !on_cell(0, g.sensor(0, xi)) {
+                        continue;
+                    }
                     let Some((element, area, point)) = element_of(g.sensor(0, xi), y) else {
                         continue;
                     };
@@ -410,12 +446,26 @@ pub fn effective_pixels(scene: &super::Scene) -> Result<Option<Vec<f64>>, Footpr
         let Some(h) = pose.homography.as_ref() else {
             return Ok(None);
         };
-        let map = PixelMap::plane(h, plane, &pose.name)?;
-        let pose_rows: Vec<f64> = (0..map.elements())
-            .map(|j| map.effective_pixels(j))
-            .collect();
-        for _ in 0..pose.block_count() {
-            out.extend_from_slice(&pose_rows);
+        let cells: Vec<Option<[u32; 2]>> = if pose.analyzers.is_empty() {
+            vec![None]
+        } else {
+            pose.analyzers.iter().map(|a| a.cell).collect()
+        };
+        // One map per pixel lattice: a sheet's angles share the pose's.
+        let mut made: Vec<(Option<[u32; 2]>, Vec<f64>)> = Vec::new();
+        for cell in cells {
+            if !made.iter().any(|(c, _)| *c == cell) {
+                let map = PixelMap::cell_plane(h, plane, cell, &pose.name)?;
+                made.push((
+                    cell,
+                    (0..map.elements())
+                        .map(|j| map.effective_pixels(j))
+                        .collect(),
+                ));
+            }
+            if let Some((_, rows)) = made.iter().find(|(c, _)| *c == cell) {
+                out.extend_from_slice(rows);
+            }
         }
     }
     Ok(Some(out))

@@ -5,6 +5,7 @@
 //! rely on unit normals, orthonormal plane axes, positive sizes and grids, a
 //! camera and a hidden scene in front of the wall, and well-defined polarizer axes.
 
+mod analyzer;
 pub mod builtin;
 mod error;
 mod file;
@@ -15,6 +16,10 @@ pub mod plane;
 
 use std::path::Path;
 
+pub use analyzer::{
+    analyzer_axis, crossed_axis, perpendicular, Analyzer, Channel, Mosaic, MosaicLayout,
+    MOSAIC_DEGREES,
+};
 pub use error::SceneError;
 pub use footprint::{effective_pixels, FootprintError, FrameGeometry, PixelMap};
 pub use homography::Homography;
@@ -100,46 +105,6 @@ pub struct HiddenScene {
     pub polarization: Option<Vec3>,
 }
 
-/// One polarizer setting of a pose: the angle the user wrote and the sheet it means.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Analyzer {
-    /// Rotation from the crossed setting, degrees (as in the file).
-    pub angle_deg: f64,
-    /// Transmission axis `q(psi)` in world coordinates (unit, in the polarizer plane).
-    pub axis: Vec3,
-    /// The sheet's normal `n_p = normalize(c0 - o)` (MODEL.md "The crossed polarizer of a pose").
-    pub normal: Vec3,
-}
-
-impl Analyzer {
-    /// The sheet of a pose with its camera at `camera`, set `angle_deg` from
-    /// crossed (MODEL.md "The crossed polarizer of a pose"); `None` when the
-    /// crossed axis is undefined (`w_i0` parallel to `w_o0`).
-    pub fn at(
-        wall_center: &Vec3,
-        scene_center: &Vec3,
-        camera: &Vec3,
-        angle_deg: f64,
-    ) -> Option<Self> {
-        let q0 = crossed_axis(wall_center, scene_center, camera)?;
-        Some(Self {
-            angle_deg,
-            axis: analyzer_axis(&q0, wall_center, camera, angle_deg.to_radians()),
-            normal: (wall_center - camera).normalize(),
-        })
-    }
-
-    /// Effective axis `t` for the ray that reaches the camera along `w_o`
-    /// under `model` (MODEL.md "One entry of T"); zero when the sheet is seen
-    /// edge-on, so that such a ray passes no light.
-    #[inline]
-    pub fn effective_axis(&self, model: PolarizerModel, w_o: &Vec3) -> Vec3 {
-        model
-            .effective_axis(&self.axis, &self.normal, w_o)
-            .unwrap_or_else(Vec3::zeros)
-    }
-}
-
 /// A camera pose: where the camera is and which polarizer angles it captures.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Pose {
@@ -147,8 +112,11 @@ pub struct Pose {
     pub name: String,
     /// Centre of projection `o`.
     pub camera: Vec3,
-    /// Polarizer settings, in file order; empty means no polarizer.
+    /// Polarizer settings in block order (a sheet's angles in file order, a
+    /// mosaic's four micro-polarizers); empty means no polarizer.
     pub analyzers: Vec<Analyzer>,
+    /// The on-chip polarizer mosaic, when the pose has one instead of a sheet.
+    pub mosaic: Option<Mosaic>,
     /// Wall (u, v) metres to image pixels, when the pose has been calibrated.
     pub homography: Option<Homography>,
     /// The camera frame the homography was calibrated at, when the file says.
@@ -170,6 +138,14 @@ impl Pose {
     /// Number of row blocks this pose adds to `T` (one per angle, one without a polarizer).
     pub fn block_count(&self) -> usize {
         self.analyzers.len().max(1)
+    }
+
+    /// The channel of each of its blocks, in block order.
+    pub fn channels(&self) -> Vec<Channel> {
+        if self.analyzers.is_empty() {
+            return vec![Channel::None];
+        }
+        self.analyzers.iter().map(|a| a.channel).collect()
     }
 }
 
@@ -311,23 +287,8 @@ impl Scene {
         let mut s = self.clone();
         for p in &mut s.poses {
             p.analyzers.clear();
+            p.mosaic = None;
         }
         s
     }
-}
-
-/// Crossed polarizer axis of a pose, `q(0) = normalize(e_s0 x n_p)` (MODEL.md
-/// "The crossed polarizer of a pose"); `None` when `w_i0` is parallel to `w_o0`.
-pub fn crossed_axis(wall_center: &Vec3, scene_center: &Vec3, camera: &Vec3) -> Option<Vec3> {
-    let n_p = (wall_center - camera).normalize();
-    let w_i0 = (scene_center - wall_center).normalize();
-    let w_o0 = (camera - wall_center).normalize();
-    let e_s0 = crate::optics::polarizer::s_direction(&w_i0, &w_o0)?;
-    Some(e_s0.cross(&n_p).normalize())
-}
-
-/// `q(psi)`: the crossed axis rotated by `+psi` about `n_p = normalize(c0 - o)` (Rodrigues).
-pub fn analyzer_axis(q0: &Vec3, wall_center: &Vec3, camera: &Vec3, psi: f64) -> Vec3 {
-    let n_p = (wall_center - camera).normalize();
-    crate::optics::polarizer::rotate(q0, &n_p, psi)
 }

@@ -83,7 +83,7 @@ mod tests {
         let capture = CaptureFrames {
             name: "render".into(),
             pose: block.pose.clone(),
-            polarizer_deg: block.polarizer_deg,
+            channels: vec![block.channel],
             mean: frame.expect("pose A has a homography"),
             variance: None,
             frames: 1,

@@ -249,7 +249,7 @@ mod tests {
         }
         let block = crate::transport::Block {
             pose: "A".into(),
-            polarizer_deg: None,
+            channel: crate::scene::Channel::None,
         };
         Transport::from_col_major(n, n, data, vec![block], Grid { nu: n, nv: 1 }, grid)
     }

@@ -14,9 +14,9 @@ impl Store {
     pub fn insert_capture(&self, r: &CaptureRequest) -> Result<i64, StoreError> {
         self.with(|c| {
             c.execute(
-                "INSERT INTO captures (id, scene, pose, polarizer_deg, settings, frames, dark_frames, state, created_at, kind, dark_capture)
+                "INSERT INTO captures (id, scene, pose, channels, settings, frames, dark_frames, state, created_at, kind, dark_capture)
                  VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, 'queued', ?7, ?8, ?9)",
-                params![r.scene, r.pose, r.polarizer_deg, SettingsDocument::of(&r.acquisition), r.frames as i64, r.dark_frames as i64, now(),
+                params![r.scene, r.pose, records::channels_document(&r.channels), SettingsDocument::of(&r.acquisition), r.frames as i64, r.dark_frames as i64, now(),
                     r.kind.name(), r.dark_capture],
             )?;
             Ok(c.last_insert_rowid())

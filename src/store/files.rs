@@ -27,8 +27,8 @@ pub struct FrameMeta {
     pub scene: String,
     /// Pose name.
     pub pose: String,
-    /// Polarizer angle (null: none).
-    pub polarizer_deg: Option<f64>,
+    /// The blocks the frames hold (one through a sheet or none, four from a mosaic sensor).
+    pub channels: Vec<crate::scene::Channel>,
     /// Camera settings (flattened: the same keys as before it was one type).
     #[serde(flatten)]
     pub acquisition: Acquisition,
@@ -378,7 +378,7 @@ mod tests {
             kind: CaptureKind::Light,
             scene: "s".into(),
             pose: "A".into(),
-            polarizer_deg: Some(0.0),
+            channels: vec![crate::scene::Channel::Sheet { deg: 0.0 }],
             acquisition: Acquisition {
                 exposure_us: 1000.0,
                 ..Acquisition::defaults_at([0, 0, 3, 2], [1, 1])

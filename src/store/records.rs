@@ -4,6 +4,7 @@ use rusqlite::Row;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::{Acquisition, CameraSettings};
+use crate::scene::Channel;
 use crate::solve::SolveRequest;
 
 /// Whether a capture shows the hidden scene, is a dark capture taken with
@@ -135,8 +136,9 @@ pub struct CaptureRequest {
     pub scene: String,
     /// Pose name in that scene.
     pub pose: String,
-    /// Polarizer angle (None: the pose has no polarizer).
-    pub polarizer_deg: Option<f64>,
+    /// The blocks its frames hold: one through a sheet (or none), four
+    /// from a mosaic sensor.
+    pub channels: Vec<Channel>,
     /// Camera settings.
     pub acquisition: Acquisition,
     /// Frames to average.
@@ -156,7 +158,7 @@ impl CaptureRequest {
             kind: CaptureKind::Light,
             scene: "brewster-crossed".into(),
             pose: "A".into(),
-            polarizer_deg: Some(0.0),
+            channels: vec![Channel::Sheet { deg: 0.0 }],
             acquisition: Acquisition {
                 exposure_us: 1000.0,
                 ..Acquisition::defaults_at([0, 0, 4, 4], [1, 1])
@@ -177,11 +179,15 @@ pub struct CaptureRecord {
     pub scene: String,
     /// Pose name.
     pub pose: String,
-    /// Polarizer angle, degrees (null: no polarizer).
-    pub polarizer_deg: Option<f64>,
+    /// The blocks its frames hold, in the order it yields them: one
+    /// through a polarizer sheet (`{"analyzer": "sheet", "deg": 0}`) or
+    /// none (`{"analyzer": "none"}`); four from a polarizer-mosaic camera
+    /// (`{"analyzer": "mosaic", "deg": 0}`, 45, 90, 135).
+    #[schema(value_type = Vec<Object>)]
+    pub channels: Vec<Channel>,
     /// The polarizer angle the rotation mount read back before the first
-    /// frame, degrees from crossed (null: no mount, the angle was set by
-    /// hand and `polarizer_deg` is trusted; or not taken yet).
+    /// frame, degrees from crossed (null: no mount, the sheet's angle was
+    /// set by hand and is trusted; or not taken yet).
     pub polarizer_measured_deg: Option<f64>,
     /// The camera settings it was taken with, every one resolved when it was
     /// accepted (null only for a setting polnlos did not yet record then:
@@ -221,7 +227,7 @@ pub struct CaptureRecord {
     pub frame_counts: Option<crate::camera::FrameCounts>,
 }
 
-pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, polarizer_deg, settings, frames, dark_frames, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, dark_capture, frame_counts, polarizer_measured_deg FROM captures";
+pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, channels, settings, frames, dark_frames, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, dark_capture, frame_counts, polarizer_measured_deg FROM captures";
 
 /// What the `settings` column holds: a capture's camera settings as one
 /// typed JSON document, with the version of its layout.
@@ -262,6 +268,21 @@ fn settings_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<CameraSettings> 
     Ok(doc.settings)
 }
 
+/// A capture's channels as the catalogue stores them (a JSON list).
+pub(super) fn channels_document(channels: &[Channel]) -> String {
+    // A list of tagged numbers always serializes.
+    serde_json::to_string(channels).unwrap_or_default()
+}
+
+/// Column `idx` as a capture's channels: a JSON list of at least one.
+fn channels_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<Vec<Channel>> {
+    let channels: Vec<Channel> = json_column(r, idx)?.ok_or_else(|| damaged(idx, "no channels"))?;
+    if channels.is_empty() {
+        return Err(damaged(idx, "an empty list of channels"));
+    }
+    Ok(channels)
+}
+
 /// A document in column `idx` is of the layout this polnlos reads, else
 /// its row is damaged (a newer polnlos wrote it).
 fn layout(idx: usize, what: &str, found: u32, reads: u32) -> rusqlite::Result<()> {
@@ -281,7 +302,7 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         id: r.get(0)?,
         scene: r.get(1)?,
         pose: r.get(2)?,
-        polarizer_deg: r.get(3)?,
+        channels: channels_column(r, 3)?,
         settings: settings_column(r, 4)?,
         frames: r.get(5)?,
         dark_frames: r.get(6)?,
@@ -323,6 +344,12 @@ impl TryFrom<&CaptureRecord> for Acquisition {
 }
 
 impl CaptureRecord {
+    /// The polarizer sheet's angle from crossed it was taken through, when
+    /// it was (not without one, nor from a mosaic sensor).
+    pub fn sheet_deg(&self) -> Option<f64> {
+        self.channels.iter().find_map(|c| c.sheet_deg())
+    }
+
     /// Whether this is a dark capture.
     pub fn is_dark(&self) -> bool {
         self.kind == CaptureKind::Dark

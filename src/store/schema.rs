@@ -9,7 +9,7 @@ CREATE TABLE IF NOT EXISTS captures (
     id INTEGER PRIMARY KEY,
     scene TEXT NOT NULL,
     pose TEXT NOT NULL,
-    polarizer_deg REAL,
+    channels TEXT NOT NULL,
     settings TEXT NOT NULL,
     frames INTEGER NOT NULL,
     dark_frames INTEGER NOT NULL,
@@ -127,6 +127,20 @@ ALTER TABLE captures DROP COLUMN trigger;
 COMMIT;
 ";
 
+/// Catalogues from before a capture could yield several blocks kept its one
+/// polarizer angle in a column: it becomes the capture's list of channels
+/// (MODEL.md blocks: `none` without a polarizer, else the sheet's angle), as
+/// `records::channels_column` reads it, and the column goes, in one transaction.
+const ANGLE_TO_CHANNELS: &str = r#"
+BEGIN;
+ALTER TABLE captures ADD COLUMN channels TEXT;
+UPDATE captures SET channels = CASE
+    WHEN polarizer_deg IS NULL THEN json_array(json_object('analyzer', 'none'))
+    ELSE json_array(json_object('analyzer', 'sheet', 'deg', polarizer_deg)) END;
+ALTER TABLE captures DROP COLUMN polarizer_deg;
+COMMIT;
+"#;
+
 /// Creates the tables, brings a catalogue from an older polnlos to this
 /// layout (rows kept), and sets up the id sequences.
 pub(super) fn migrate(conn: &Connection) -> rusqlite::Result<()> {
@@ -147,6 +161,11 @@ pub(super) fn migrate(conn: &Connection) -> rusqlite::Result<()> {
             }
         }
         conn.execute_batch(SETTINGS_TO_DOCUMENT).inspect_err(|_| {
+            let _ = conn.execute_batch("ROLLBACK");
+        })?;
+    }
+    if !has.iter().any(|c| c == "channels") {
+        conn.execute_batch(ANGLE_TO_CHANNELS).inspect_err(|_| {
             let _ = conn.execute_batch("ROLLBACK");
         })?;
     }
@@ -216,6 +235,7 @@ mod tests {
     use rusqlite::Connection;
 
     use crate::camera::{Acquisition, CameraSettings, PixelFormat, TriggerMode};
+    use crate::scene::Channel;
     use crate::store::Store;
 
     /// The captures table as the first release made it.
@@ -288,8 +308,35 @@ mod tests {
         ] {
             assert!(!columns.iter().any(|c| c == gone), "{gone} in {columns:?}");
         }
+        assert!(!columns.iter().any(|c| c == "polarizer_deg"), "{columns:?}");
         // Opened again: already migrated, the rows unchanged.
         let store = Store::open(dir.path()).unwrap();
         assert_eq!(store.capture(1).unwrap().settings, first.settings);
+    }
+
+    #[test]
+    fn an_old_capture_yields_the_one_block_its_angle_column_named() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
+            raw.execute_batch(FIRST_RELEASE).unwrap();
+            raw.execute(OLD_ROW, [1]).unwrap();
+            raw.execute(OLD_ROW, [2]).unwrap();
+            raw.execute(OLD_ROW, [3]).unwrap();
+            raw.execute("UPDATE captures SET polarizer_deg = NULL WHERE id = 2", [])
+                .unwrap();
+            raw.execute("UPDATE captures SET polarizer_deg = 22.5 WHERE id = 3", [])
+                .unwrap();
+        }
+        let store = Store::open(dir.path()).unwrap();
+        assert_eq!(
+            store.capture(1).unwrap().channels,
+            vec![Channel::Sheet { deg: 0.0 }]
+        );
+        assert_eq!(store.capture(2).unwrap().channels, vec![Channel::None]);
+        assert_eq!(
+            store.capture(3).unwrap().channels,
+            vec![Channel::Sheet { deg: 22.5 }]
+        );
     }
 }

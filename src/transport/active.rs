@@ -122,6 +122,7 @@ pub fn build_active(
     // per patch, the direction to the camera and the effective analyzer axis.
     struct BlockView {
         w_l: Vec3,
+        analyzer: Option<crate::scene::Analyzer>,
         to_camera: Vec<(Vec3, Option<Vec3>)>,
     }
     let views: Vec<BlockView> = scene
@@ -138,6 +139,7 @@ pub fn build_active(
             let patches = &patches;
             axes.into_iter().map(move |q| BlockView {
                 w_l: (cam - p).normalize(),
+                analyzer: q,
                 to_camera: patches
                     .iter()
                     .map(|c| {
@@ -186,15 +188,22 @@ pub fn build_active(
                     continue;
                 }
                 let (w_co, t) = &v.to_camera[j];
-                let f_c = brdf.eval(
-                    &n,
-                    &w_cx,
-                    w_co,
-                    Polarization {
-                        analyzer: t.as_ref(),
-                        source: None,
-                    },
-                );
+                let through = |t: Option<&Vec3>| {
+                    brdf.eval(
+                        &n,
+                        &w_cx,
+                        w_co,
+                        Polarization {
+                            analyzer: t,
+                            source: None,
+                        },
+                    )
+                };
+                // A partial polarizer also passes 1/E of the crossed axis.
+                let f_c = match (&v.analyzer, t) {
+                    (Some(a), Some(t)) => a.weigh(t, w_co, |t| through(Some(t))),
+                    _ => through(None),
+                };
                 col[blk * per_block + j * bins + b] += first[blk] * cos / (r * r) * f_c;
             }
         }

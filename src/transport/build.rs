@@ -48,11 +48,17 @@ impl Soa {
 }
 
 /// One polarizer angle of a pose: `t`, `b = w_o x t` and the diffuse exit
-/// factor per wall sample (empty without a diffuse term).
+/// factor per wall sample (empty without a diffuse term), with a partial
+/// polarizer's `1/E` (MODEL.md "On-chip polarizer mosaic": `P(t) + P(t_perp)/E`;
+/// the exit factor holds both terms already).
 struct AnalyzerView {
     t: Soa,
     b: Soa,
     diffuse_out: Vec<f64>,
+    /// `1/E`, 0 for an ideal polarizer.
+    leak: f64,
+    /// The analyzer itself, for the Jones path.
+    analyzer: crate::scene::Analyzer,
 }
 
 /// How the samples of a pose fold into its rows.
@@ -73,11 +79,16 @@ pub(crate) enum Rows {
     },
 }
 
-/// The wall samples one pose's rows average over: a range of the shared
-/// sample points and how they fold into rows.
+/// The wall samples some of one pose's blocks average over: a range of the
+/// shared sample points and how they fold into rows. A pose's blocks share
+/// theirs, except a mosaic's `"pixels"` rows: each micro-polarizer has its own pixels.
 #[derive(Debug, Clone)]
 pub(crate) struct PoseSamples {
-    /// The pose's samples in the shared array.
+    /// Index of the pose in the scene.
+    pub pose: usize,
+    /// Which of its blocks (indices into its analyzers; `0..1` without one).
+    pub blocks: std::ops::Range<usize>,
+    /// The samples in the shared array.
     pub range: std::ops::Range<usize>,
     /// How they fold into rows.
     pub rows: Rows,
@@ -89,7 +100,7 @@ pub(crate) struct PoseSamples {
 pub(crate) struct WallSamples {
     /// World positions of every sample.
     pub points: Vec<Vec3>,
-    /// One per pose, in scene order.
+    /// Every block of every pose in exactly one entry, in block order.
     pub poses: Vec<PoseSamples>,
     /// Rows per block.
     pub rows_per_block: usize,
@@ -103,7 +114,10 @@ impl WallSamples {
             poses: scene
                 .poses()
                 .iter()
-                .map(|_| PoseSamples {
+                .enumerate()
+                .map(|(k, pose)| PoseSamples {
+                    pose: k,
+                    blocks: 0..pose.block_count(),
                     range: range.clone(),
                     rows: Rows::Uniform { mw },
                 })
@@ -142,37 +156,53 @@ impl WallSamples {
         }
         let mut points = Vec::new();
         let mut poses = Vec::with_capacity(scene.poses().len());
-        for pose in scene.poses() {
+        for (index, pose) in scene.poses().iter().enumerate() {
             let h = pose
                 .homography
                 .as_ref()
                 .ok_or_else(|| TransportError::NoHomography {
                     pose: pose.name.clone(),
                 })?;
-            let map = PixelMap::plane(h, plane, &pose.name)?;
-            let pixels: usize = elements.iter().map(|&j| map.range(j).len()).sum();
-            // Each sample keeps its point, row and weight, and per pose the scratch arrays.
-            super::check_size(
-                budget,
-                elements.len() * scene.block_count(),
-                scene.cols(),
-                scene.block_count(),
-                (points.len() + pixels) as f64 * 120.0,
-            )?;
-            let start = points.len();
-            let (mut row, mut weight) = (Vec::with_capacity(pixels), Vec::with_capacity(pixels));
-            for (k, &j) in elements.iter().enumerate() {
-                for s in map.range(j) {
-                    let [u, v] = map.points()[s];
-                    points.push(plane.point(u, v));
-                    row.push(k as u32);
-                    weight.push(map.weights()[s]);
+            // A mosaic's blocks each average over their micro-polarizer's
+            // pixels; every other pose's blocks over all of its pixels.
+            let groups: Vec<(std::ops::Range<usize>, Option<[u32; 2]>)> = match pose.mosaic {
+                Some(_) => pose
+                    .analyzers
+                    .iter()
+                    .enumerate()
+                    .map(|(b, a)| (b..b + 1, a.cell))
+                    .collect(),
+                None => vec![(0..pose.block_count(), None)],
+            };
+            for (blocks, cell) in groups {
+                let map = PixelMap::cell_plane(h, plane, cell, &pose.name)?;
+                let pixels: usize = elements.iter().map(|&j| map.range(j).len()).sum();
+                // Each sample keeps its point, row and weight, and per pose the scratch arrays.
+                super::check_size(
+                    budget,
+                    elements.len() * scene.block_count(),
+                    scene.cols(),
+                    scene.block_count(),
+                    (points.len() + pixels) as f64 * 120.0,
+                )?;
+                let start = points.len();
+                let (mut row, mut weight) =
+                    (Vec::with_capacity(pixels), Vec::with_capacity(pixels));
+                for (k, &j) in elements.iter().enumerate() {
+                    for s in map.range(j) {
+                        let [u, v] = map.points()[s];
+                        points.push(plane.point(u, v));
+                        row.push(k as u32);
+                        weight.push(map.weights()[s]);
+                    }
                 }
+                poses.push(PoseSamples {
+                    pose: index,
+                    blocks,
+                    range: start..points.len(),
+                    rows: Rows::Weighted { row, weight },
+                });
             }
-            poses.push(PoseSamples {
-                range: start..points.len(),
-                rows: Rows::Weighted { row, weight },
-            });
         }
         Ok(WallSamples {
             points,
@@ -246,6 +276,8 @@ pub fn radiance_at(scene: &Scene, points: &[Vec<[f64; 2]>], l: &[f64]) -> Vec<Ve
         let start = all.len();
         all.extend(own.iter().map(|&[u, v]| plane.point(u, v)));
         poses.push(PoseSamples {
+            pose: k,
+            blocks: 0..scene.poses()[k].block_count(),
             range: start..all.len(),
             rows: Rows::Weighted {
                 row: (0..own.len() as u32).collect(),
@@ -297,22 +329,16 @@ pub fn build_elements(
 /// The row blocks of a scene's `T`, in stacking order (pose, then angle):
 /// which capture goes where in the measurement, known without building `T`.
 pub fn blocks_of(scene: &Scene) -> Vec<Block> {
-    let mut blocks = Vec::with_capacity(scene.block_count());
-    for pose in scene.poses() {
-        if pose.analyzers.is_empty() {
-            blocks.push(Block {
+    scene
+        .poses()
+        .iter()
+        .flat_map(|pose| {
+            pose.channels().into_iter().map(|channel| Block {
                 pose: pose.name.clone(),
-                polarizer_deg: None,
-            });
-        }
-        for a in &pose.analyzers {
-            blocks.push(Block {
-                pose: pose.name.clone(),
-                polarizer_deg: Some(a.angle_deg),
-            });
-        }
-    }
-    blocks
+                channel,
+            })
+        })
+        .collect()
 }
 
 /// Column-major entries of `T` for the rows `samples` describe: each pose's
@@ -415,9 +441,15 @@ impl Parts {
                 .collect()
         };
 
-        let mut n_blocks = 0;
-        let mut views = Vec::with_capacity(scene.poses().len());
-        for (pose, own) in scene.poses().iter().zip(&samples.poses) {
+        // Each pose's first block in T's order.
+        let mut first = Vec::with_capacity(scene.poses().len());
+        scene.poses().iter().fold(0, |at, p| {
+            first.push(at);
+            at + p.block_count()
+        });
+        let mut views = Vec::with_capacity(samples.poses.len());
+        for own in &samples.poses {
+            let pose = &scene.poses()[own.pose];
             let dirs: Vec<Vec3> = samples.points[own.range.clone()]
                 .iter()
                 .map(|c| (pose.camera - c).normalize())
@@ -427,21 +459,37 @@ impl Parts {
                 .iter()
                 .map(|&c| ggx::smith_g1(c, brdf.alpha))
                 .collect();
-            let first_block = n_blocks;
-            n_blocks += pose.block_count();
-            let mut analyzers = Vec::with_capacity(pose.analyzers.len());
-            for a in &pose.analyzers {
+            let own_analyzers = pose.analyzers.get(own.blocks.clone()).unwrap_or(&[]);
+            let mut analyzers = Vec::with_capacity(own_analyzers.len());
+            for a in own_analyzers {
                 // A polarizer facing the wall never sees a ray along its axis;
                 // should it, the ray passes no light (t = 0).
                 let t: Vec<Vec3> = dirs
                     .iter()
                     .map(|w| a.effective_axis(scene.polarizer(), w))
                     .collect();
-                let b = Soa::from_vecs(dirs.iter().zip(&t).map(|(w, t)| w.cross(t)));
+                let b: Vec<Vec3> = dirs.iter().zip(&t).map(|(w, t)| w.cross(t)).collect();
+                let leak = a.extinction.map_or(0.0, |e| 1.0 / e);
+                let mut diffuse_out = exit(&dirs, &cos_o, Some(&t));
+                if leak != 0.0 && !diffuse_out.is_empty() {
+                    // t_perp = normalize(w_o x t) = b / |b|.
+                    let t_perp: Vec<Vec3> = dirs
+                        .iter()
+                        .zip(&t)
+                        .map(|(w, t)| crate::scene::perpendicular(t, w))
+                        .collect();
+                    let perp = exit(&dirs, &cos_o, Some(&t_perp));
+                    diffuse_out
+                        .iter_mut()
+                        .zip(perp)
+                        .for_each(|(o, p)| *o += leak * p);
+                }
                 analyzers.push(AnalyzerView {
-                    diffuse_out: exit(&dirs, &cos_o, Some(&t)),
+                    diffuse_out,
                     t: Soa::from_vecs(t.into_iter()),
-                    b,
+                    b: Soa::from_vecs(b.into_iter()),
+                    leak,
+                    analyzer: *a,
                 });
             }
             views.push(PoseView {
@@ -451,7 +499,7 @@ impl Parts {
                 cos_o,
                 g1_o,
                 analyzers,
-                first_block,
+                first_block: first[own.pose] + own.blocks.start,
             });
         }
 
@@ -792,11 +840,16 @@ impl Scratch {
                 let (ix, iy, iz) = (&w_i.x[r.clone()], &w_i.y[r.clone()], &w_i.z[r.clone()]);
                 let (tx, ty, tz) = (&a.t.x[..len], &a.t.y[..len], &a.t.z[..len]);
                 let (bx, by, bz) = (&a.b.x[..len], &a.b.y[..len], &a.b.z[..len]);
+                let leak = a.leak;
                 for j in 0..len {
                     let wi_b = ix[j] * bx[j] + iy[j] * by[j] + iz[j] * bz[j];
                     let wi_t = ix[j] * tx[j] + iy[j] * ty[j] + iz[j] * tz[j];
+                    // Along t_perp = b (unit, as t is) w_o x t_perp = -t: the
+                    // same factor with w_i.b and w_i.t swapped.
                     let sp = if ks_on {
-                        spec[j] * analyzer_factor(rs[j], rp[j], wi_b, wi_t, cross2[j])
+                        spec[j]
+                            * (analyzer_factor(rs[j], rp[j], wi_b, wi_t, cross2[j])
+                                + leak * analyzer_factor(rs[j], rp[j], wi_t, wi_b, cross2[j]))
                     } else {
                         0.0
                     };
@@ -852,17 +905,27 @@ impl Scratch {
             };
             let lobe = brdf.lobe(&i, &o);
             for blk in 0..v.analyzers.len().max(1) {
-                let t = v.analyzers.get(blk).map(|a| a.t.get(j));
-                let pol = Polarization {
-                    analyzer: t.as_ref(),
-                    source: Some(e_src),
+                let through = |t: Option<&Vec3>| {
+                    brdf.finish(
+                        &lobe,
+                        n,
+                        &i,
+                        &o,
+                        Polarization {
+                            analyzer: t,
+                            source: Some(e_src),
+                        },
+                    )
+                };
+                let f = match v.analyzers.get(blk) {
+                    None => through(None),
+                    Some(a) => a.analyzer.weigh(&a.t.get(j), &o.w, |t| through(Some(t))),
                 };
                 let (row, weight) = match &v.samples.rows {
                     Rows::Uniform { mw } => (j / mw, 1.0 / *mw as f64),
                     Rows::Weighted { row, weight } => (row[j] as usize, weight[j]),
                 };
-                col[(v.first_block + blk) * n_wall + row] +=
-                    weight * self.base[g] * brdf.finish(&lobe, n, &i, &o, pol);
+                col[(v.first_block + blk) * n_wall + row] += weight * self.base[g] * f;
             }
         }
     }

@@ -14,24 +14,21 @@ pub use build::{blocks_of, build, build_elements, build_with_progress, radiance_
 
 use faer::MatRef;
 
-use crate::scene::Grid;
+use crate::scene::{Channel, Grid};
 
 /// One block of rows of `T`: a camera pose at one polarizer setting.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Block {
     /// Pose name.
     pub pose: String,
-    /// Polarizer angle in degrees from crossed, or `None` without a polarizer.
-    pub polarizer_deg: Option<f64>,
+    /// The analyzer its rows saw (a sheet's angle, a mosaic's micro-polarizer, none).
+    pub channel: Channel,
 }
 
 impl Block {
-    /// A file-name-safe label: `A-pol0`, `A-pol22.5`, `B-nopol`.
+    /// A file-name-safe label: `A-pol0`, `A-pol22.5`, `B-nopol`, `C-mosaic45`.
     pub fn label(&self) -> String {
-        match self.polarizer_deg {
-            Some(a) => format!("{}-pol{}", self.pose, a),
-            None => format!("{}-nopol", self.pose),
-        }
+        format!("{}-{}", self.pose, self.channel.label())
     }
 }
 
@@ -315,7 +312,7 @@ mod tests {
             vec![3.0, 4.0, 0.0, 2.0],
             vec![Block {
                 pose: "A".into(),
-                polarizer_deg: None,
+                channel: crate::scene::Channel::None,
             }],
             Grid { nu: 2, nv: 1 },
             Grid { nu: 2, nv: 1 },

@@ -8,13 +8,27 @@ contract, not shared code.
 Covers: both planes with supersampling, lambertian / isotropic emitters,
 occluders (parallelogram and ball), the specular GGX term, the diffuse term
 (`fresnel` default, `lambert`), no polarizer or an ideal sheet per pose angle
-(`absorbing` default, `transmitting`). Not covered: linearly polarized scenes,
-the on-chip mosaic analyzer, binning.
+(`absorbing` default, `transmitting`), the on-chip polarizer mosaic (`analyzer =
+"mosaic"`, `sensor_deg`, `extinction`, `layout = "polarsens"`). Not covered: linearly
+polarized scenes, binning.
 
 Revision 3 ("From camera frames to i"): `pixel_map` (which integer image points
 belong to which wall element, their wall points and footprints a_p), `measure`
 (i_j and var_j of a frame), `transport(sc, sampling="pixels")` (rows averaged over
 an element's pixels, weights a_p). `python3 model.py --selfcheck` runs the checks.
+
+Mosaic ("On-chip polarizer mosaic", written from MODEL.md): a pose with `analyzer =
+"mosaic"` gives four blocks, theta_k = 0, 45, 90, 135 in that order; block k's analyzer is
+the sheet's effective axis t (same n_p, same [polarizer] model) of q(psi), psi = sensor_deg +
+theta_k; with `extinction` E every polarization factor (specular and diffuse) is
+P(t) + P(t_perp)/E, t_perp = normalize(w_o x t). Under sampling = "pixels" block k averages
+over the element's integer image points (x, y) whose micro-polarizer is theta_k (Polarsens:
+(y % 2, x % 2) = (0,0) 90, (0,1) 45, (1,0) 135, (1,1) 0 degrees), weights a_p normalized over
+those points. Choices where MODEL.md is silent (errors name the key): `sensor_deg`,
+`extinction` or `layout` on a pose without `analyzer = "mosaic"` is an error, as is any
+`polarizer_deg` key (even []) beside `analyzer = "mosaic"`, an `analyzer` other than
+"mosaic", and an `extinction` that is not finite and >= 1; an element with no pixel of one
+angle is an error naming the element, the pose and the angle.
 
 Usage as a check against a rendered case:
 
@@ -88,12 +102,7 @@ def load(path, scene_supersample=None, wall_supersample=None):
     if wall_supersample:
         sc["wall"]["m"] = wall_supersample
     for p in raw["pose"]:
-        sc["poses"].append({
-            "name": p.get("name", ""),
-            "o": np.asarray(p["camera"], dtype=float),
-            "deg": [float(a) for a in p.get("polarizer_deg", [])],
-            "H": np.asarray(p["homography"], dtype=float) if "homography" in p else None,
-        })
+        sc["poses"].append(_pose(p))
     for oc in raw.get("occluder", []):
         if "rect" in oc:
             r = oc["rect"]
@@ -105,6 +114,58 @@ def load(path, scene_supersample=None, wall_supersample=None):
         else:
             raise ValueError("occluder: neither rect nor sphere")
     return sc
+
+
+# micro-polarizer angle (degrees) -> (row, col) = (y mod 2, x mod 2) of its pixels
+LAYOUTS = {"polarsens": {90.0: (0, 0), 45.0: (0, 1), 135.0: (1, 0), 0.0: (1, 1)}}
+MOSAIC_THETAS = (0.0, 45.0, 90.0, 135.0)
+
+
+def _pose(p):
+    """One [[pose]] table -> dict (name, o, deg, H, analyzer, sensor_deg, E, layout)."""
+    name = p.get("name", "")
+    out = {
+        "name": name,
+        "o": np.asarray(p["camera"], dtype=float),
+        "deg": [float(a) for a in p.get("polarizer_deg", [])],
+        "H": np.asarray(p["homography"], dtype=float) if "homography" in p else None,
+        "analyzer": None, "sensor_deg": 0.0, "E": None, "layout": "polarsens",
+    }
+    if "analyzer" in p:
+        if p["analyzer"] != "mosaic":
+            raise ValueError(f"pose {name}: analyzer = {p['analyzer']!r} (only \"mosaic\")")
+        if "polarizer_deg" in p:
+            raise ValueError(f"pose {name}: analyzer = \"mosaic\" together with polarizer_deg")
+        out["analyzer"] = "mosaic"
+        out["sensor_deg"] = float(p.get("sensor_deg", 0.0))
+        if "extinction" in p:
+            E = float(p["extinction"])
+            if not (math.isfinite(E) and E >= 1.0):
+                raise ValueError(f"pose {name}: extinction = {E} (finite, >= 1)")
+            out["E"] = E
+        out["layout"] = p.get("layout", "polarsens")
+        if out["layout"] not in LAYOUTS:
+            raise ValueError(f"pose {name}: layout = {out['layout']!r} (only \"polarsens\")")
+    else:
+        for k in ("sensor_deg", "extinction", "layout"):
+            if k in p:
+                raise ValueError(f"pose {name}: {k} without analyzer = \"mosaic\"")
+    return out
+
+
+def pose_blocks(pose):
+    """The row blocks of a pose in MODEL.md order: list of dicts
+    label (as in build()'s labels), psi (radians or None = no polarizer), E (None = ideal),
+    cell ((y % 2, x % 2) of the block's pixels, None = every pixel)."""
+    if pose.get("analyzer") == "mosaic":
+        lay = LAYOUTS[pose["layout"]]
+        return [{"label": (pose["name"], "mosaic", th),
+                 "psi": math.radians(pose["sensor_deg"] + th),
+                 "E": pose["E"], "cell": lay[th]} for th in MOSAIC_THETAS]
+    if not pose["deg"]:
+        return [{"label": (pose["name"], None), "psi": None, "E": None, "cell": None}]
+    return [{"label": (pose["name"], d), "psi": math.radians(d), "E": None, "cell": None}
+            for d in pose["deg"]]
 
 
 def samples(pl):
@@ -196,9 +257,10 @@ def visible(S, C, occluders):
     return V
 
 
-def block(sc, pose, psi=None, polmodel=None, diffuse=None, cols=None):
+def block(sc, pose, psi=None, polmodel=None, diffuse=None, cols=None, E=None):
     """T rows of one block: (n_wall, n_scene). psi in radians, None = no polarizer.
-    cols: only these columns (scene element indices), e.g. where a truth is non-zero."""
+    cols: only these columns (scene element indices), e.g. where a truth is non-zero.
+    E: extinction ratio of the analyzer (None = ideal): factor P(t) + P(t_perp)/E."""
     W = samples(sc["wall"])            # (J, mw, 3)
     S = samples(sc["scene"])           # (K, ms, 3)
     if cols is not None:
@@ -206,11 +268,11 @@ def block(sc, pose, psi=None, polmodel=None, diffuse=None, cols=None):
     J, mw, _ = W.shape
     K, ms, _ = S.shape
     step = max(1, (1 << 21) // (mw * K * ms))   # wall elements per chunk (memory)
-    return np.vstack([_block(sc, pose, psi, polmodel, diffuse, W[j:j + step], S)
+    return np.vstack([_block(sc, pose, psi, polmodel, diffuse, W[j:j + step], S, E)
                       for j in range(0, J, step)])
 
 
-def _block(sc, pose, psi, polmodel, diffuse, W, S):
+def _block(sc, pose, psi, polmodel, diffuse, W, S, E=None):
     polmodel = polmodel or sc["polmodel"]
     diffuse = diffuse or sc["diffuse"]
     J, mw, _ = W.shape
@@ -262,14 +324,18 @@ def _block(sc, pose, psi, polmodel, diffuse, W, S):
             t = _normalize(q - (wo @ q)[..., None] * wo)
         else:
             raise ValueError(f"polarizer.model: {polmodel}")
+        # partial analyzer (mosaic extinction E): the second principal axis, normal to t and w_o
+        axes = [(t, 1.0)] if E is None else [(t, 1.0), (_normalize(np.cross(wo, t)), 1.0 / E)]
         es = np.cross(wi, wo)
         nes = np.linalg.norm(es, axis=-1)
         degenerate = nes < 1e-12
         es = es / np.where(degenerate, 1.0, nes)[..., None]
         ep = np.cross(es, wo)
-        ts = np.sum(t * es, -1)
-        tp = np.sum(t * ep, -1)
-        Pspec = np.where(degenerate, Rs / 2, (Rs * ts ** 2 + Rp * tp ** 2) / 2)
+        Pspec = 0.0
+        for tt, wgt in axes:
+            ts = np.sum(tt * es, -1)
+            tp = np.sum(tt * ep, -1)
+            Pspec = Pspec + wgt * np.where(degenerate, Rs / 2, (Rs * ts ** 2 + Rp * tp ** 2) / 2)
 
     with np.errstate(divide="ignore", invalid="ignore"):
         fspec = ks * D * G2 / (4 * ni * no) * Pspec
@@ -289,9 +355,12 @@ def _block(sc, pose, psi, polmodel, diffuse, W, S):
                 eso = np.where(neso < 1e-12, np.cross(n, np.array([1.0, 0, 0])), eso / np.maximum(neso, 1e-300))
                 eso = _normalize(eso)
                 epo = np.cross(eso, wo)
-                Pd = T_in * ((1 - Rso) * np.sum(t * eso, -1) ** 2 + (1 - Rpo) * np.sum(t * epo, -1) ** 2) / 2
+                Pd = 0.0
+                for tt, wgt in axes:
+                    Pd = Pd + wgt * T_in * ((1 - Rso) * np.sum(tt * eso, -1) ** 2
+                                            + (1 - Rpo) * np.sum(tt * epo, -1) ** 2) / 2
         elif diffuse == "lambert":
-            Pd = 1.0 if psi is None else 0.5
+            Pd = 1.0 if psi is None else sum(0.5 * wgt for _, wgt in axes)
         else:
             raise ValueError(f"wall.diffuse: {diffuse}")
         f = f + kd / math.pi * Pd
@@ -307,12 +376,9 @@ def build(sc, **kw):
     """Full stacked T and the (pose, deg) list of its blocks."""
     blocks, labels = [], []
     for p in sc["poses"]:
-        if not p["deg"]:
-            blocks.append(block(sc, p, None, **kw))
-            labels.append((p["name"], None))
-        for deg in p["deg"]:
-            blocks.append(block(sc, p, math.radians(deg), **kw))
-            labels.append((p["name"], deg))
+        for b in pose_blocks(p):
+            blocks.append(block(sc, p, b["psi"], E=b["E"], **kw))
+            labels.append(b["label"])
     return np.vstack(blocks), labels
 
 
@@ -410,7 +476,7 @@ def measure(frame_array, H, wall, variance=None):
     return i, var
 
 
-def _entries(sc, pose, psi, P, cols=None, **kw):
+def _entries(sc, pose, psi, P, cols=None, E=None, **kw):
     """T entries for single wall points P (N, 3), averaged over scene sub-samples: (N, K)."""
     S = samples(sc["scene"])
     if cols is not None:
@@ -418,27 +484,39 @@ def _entries(sc, pose, psi, P, cols=None, **kw):
     K, ms, _ = S.shape
     step = max(1, (1 << 21) // (K * ms))
     W = P[:, None, :]
-    return np.vstack([_block(sc, pose, psi, kw.get("polmodel"), kw.get("diffuse"), W[i:i + step], S)
+    return np.vstack([_block(sc, pose, psi, kw.get("polmodel"), kw.get("diffuse"), W[i:i + step], S, E)
                       for i in range(0, len(P), step)])
 
 
-def pixel_block(sc, pose, psi=None, **kw):
+def cell_pixel_map(H, wall, cell=None):
+    """pixel_map restricted to the integer points (x, y) with (y % 2, x % 2) == cell
+    (None: all of them)."""
+    pm = pixel_map(H, wall)
+    if cell is None:
+        return pm
+    keep = (pm["y"] % 2 == cell[0]) & (pm["x"] % 2 == cell[1])
+    return {k: v[keep] for k, v in pm.items()}
+
+
+def pixel_block(sc, pose, psi=None, E=None, cell=None, **kw):
     """T rows of one block with sampling = "pixels": entry averaged over the wall points
-    H^-1(p) of element j's pixels p, weights a_p / sum a_p (p over the whole image plane)."""
+    H^-1(p) of element j's pixels p, weights a_p / sum a_p (p over the whole image plane;
+    with `cell` = (row, col) only the points with (y % 2, x % 2) == cell, a mosaic angle)."""
     wall = sc["wall"]
     nu, nv = wall["grid"]
-    pm = pixel_map(pose["H"], wall)
+    pm = cell_pixel_map(pose["H"], wall, cell)
     count = np.bincount(pm["j"], minlength=nu * nv)
     if np.any(count == 0):
         j = int(np.flatnonzero(count == 0)[0])
-        raise ValueError(f"pose {pose['name']}: wall element (iu {j % nu}, iv {j // nu}) has no pixel")
+        what = "" if cell is None else f" of mosaic cell (y%2, x%2) = {tuple(cell)}"
+        raise ValueError(f"pose {pose['name']}: wall element (iu {j % nu}, iv {j // nu}) has no pixel{what}")
     order = np.argsort(pm["j"], kind="stable")
     j, a = pm["j"][order], pm["a"][order]
     P = wall["c"] + pm["u"][order, None] * wall["u"] + pm["v"][order, None] * wall["v"]
-    E = _entries(sc, pose, psi, P, **kw)                       # (Npix, K)
+    Ent = _entries(sc, pose, psi, P, E=E, **kw)                # (Npix, K)
     A = np.bincount(j, weights=a, minlength=nu * nv)
     starts = np.concatenate([[0], np.cumsum(count)[:-1]])
-    return np.add.reduceat(E * (a / A[j])[:, None], starts, axis=0)
+    return np.add.reduceat(Ent * (a / A[j])[:, None], starts, axis=0)
 
 
 def transport(sc, sampling="pixels", **kw):
@@ -449,10 +527,13 @@ def transport(sc, sampling="pixels", **kw):
         raise ValueError(f"wall.sampling: {sampling}")
     blocks, labels = [], []
     for p in sc["poses"]:
-        fn = pixel_block if (sampling == "pixels" and p["H"] is not None) else block
-        for deg in (p["deg"] or [None]):
-            blocks.append(fn(sc, p, None if deg is None else math.radians(deg), **kw))
-            labels.append((p["name"], deg))
+        pix = sampling == "pixels" and p["H"] is not None
+        for b in pose_blocks(p):
+            if pix:
+                blocks.append(pixel_block(sc, p, b["psi"], E=b["E"], cell=b["cell"], **kw))
+            else:
+                blocks.append(block(sc, p, b["psi"], E=b["E"], **kw))
+            labels.append(b["label"])
     return np.vstack(blocks), labels
 
 
@@ -512,6 +593,189 @@ def selfcheck(scene_file=None):
     return True
 
 
+# ------------------------------------------------------------- mosaic self-check
+def _hand_entry(sc, o, psi, E, c, s):
+    """One T entry at wall point c, scene point s written out scalar by scalar (no
+    vectorized code shared with _block): MODEL.md 'One entry of T' with the mosaic factor
+    P(t) + P(t_perp)/E (E None: ideal). No occluder test (use an unblocked pair)."""
+    def dot(a, b):
+        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+    def cross(a, b):
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+    def unit(a):
+        L = math.sqrt(dot(a, a))
+        return [x / L for x in a]
+
+    def sub(a, b):
+        return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+
+    def fres(phi, eta):
+        if phi < 1e-7:
+            r = ((eta - 1) / (eta + 1)) ** 2
+            return r, r
+        pt = math.asin(math.sin(phi) / eta)
+        return (math.sin(phi - pt) ** 2 / math.sin(phi + pt) ** 2,
+                math.tan(phi - pt) ** 2 / math.tan(phi + pt) ** 2)
+
+    c, s, o = list(map(float, c)), list(map(float, s)), list(map(float, o))
+    n = list(sc["wall"]["n"]); ns = list(sc["scene"]["n"])
+    alpha, eta, ks, kd = sc["alpha"], sc["eta"], sc["ks"], sc["kd"]
+    su, sv = sc["scene"]["size"]; nu, nv = sc["scene"]["grid"]
+    d = sub(s, c); r2 = dot(d, d); wi = unit(d); wo = unit(sub(o, c))
+    ni, no = dot(n, wi), dot(n, wo)
+    if ni <= 0 or no <= 0:
+        return 0.0
+    g = max(0.0, -dot(ns, wi)) if sc["emitter"] == "lambertian" else 1.0
+    # crossed axis and q(psi), Rodrigues about n_p
+    c0, s0 = list(sc["wall"]["c"]), list(sc["scene"]["c"])
+    n_p = unit(sub(c0, o))
+    es0 = unit(cross(unit(sub(s0, c0)), unit(sub(o, c0))))
+    q0 = unit(cross(es0, n_p))
+    k = cross(n_p, q0); kq = dot(n_p, q0)
+    q = [q0[i] * math.cos(psi) + k[i] * math.sin(psi) + n_p[i] * kq * (1 - math.cos(psi)) for i in range(3)]
+    if sc["polmodel"] == "absorbing":
+        t = unit(cross(wo, cross(n_p, q)))
+    else:
+        qw = dot(q, wo)
+        t = unit([q[i] - qw * wo[i] for i in range(3)])
+    tperp = unit(cross(wo, t))
+    # specular
+    h = unit([wi[i] + wo[i] for i in range(3)])
+    nh = dot(n, h)
+    D = alpha ** 2 / (math.pi * (nh * nh * (alpha ** 2 - 1) + 1) ** 2)
+    G1 = lambda x: 2 * x / (x + math.sqrt(alpha ** 2 + (1 - alpha ** 2) * x * x))
+    Rs, Rp = fres(0.5 * math.acos(max(-1.0, min(1.0, dot(wi, wo)))), eta)
+    es = unit(cross(wi, wo)); ep = cross(es, wo)
+    Pspec_t = (Rs * dot(t, es) ** 2 + Rp * dot(t, ep) ** 2) / 2
+    Pspec_p = (Rs * dot(tperp, es) ** 2 + Rp * dot(tperp, ep) ** 2) / 2
+    Pspec = Pspec_t + (0.0 if E is None else Pspec_p / E)
+    f = ks * D * G1(ni) * G1(no) / (4 * ni * no) * Pspec
+    if kd:
+        if sc["diffuse"] == "fresnel":
+            Rsi, Rpi = fres(math.acos(ni), eta)
+            Tin = 1 - (Rsi + Rpi) / 2
+            Rso, Rpo = fres(math.acos(no), eta)
+            eso = unit(cross(n, wo)); epo = cross(eso, wo)
+            Pd_t = Tin * ((1 - Rso) * dot(t, eso) ** 2 + (1 - Rpo) * dot(t, epo) ** 2) / 2
+            Pd_p = Tin * ((1 - Rso) * dot(tperp, eso) ** 2 + (1 - Rpo) * dot(tperp, epo) ** 2) / 2
+        else:
+            Pd_t = Pd_p = 0.5
+        f += kd / math.pi * (Pd_t + (0.0 if E is None else Pd_p / E))
+    return su / nu * sv / nv * g * ni / r2 * f
+
+
+def selfcheck_mosaic(scene_file=None):
+    """Mosaic checks; raises AssertionError on failure. Returns a dict of the numbers seen."""
+    root = Path(__file__).resolve().parents[2]
+    scene_file = scene_file or root / "config/scenes/occluder-multi-3x3.toml"
+    res = {}
+
+    def mosaic(sc, sensor_deg=0.0, E=None):
+        for p in sc["poses"]:
+            p.update(analyzer="mosaic", sensor_deg=sensor_deg, E=E, layout="polarsens", deg=[])
+        return sc
+
+    # (1) ideal mosaic at sensor_deg 0, uniform rows == sheet at [0, 45, 90, 135]
+    worst = 0.0
+    for polmodel in ("absorbing", "transmitting"):
+        for kd, diffuse in ((0.0, "fresnel"), (0.1, "fresnel"), (0.1, "lambert")):
+            sheet = load(scene_file, wall_supersample=2)
+            sheet.update(polmodel=polmodel, kd=kd, diffuse=diffuse)
+            for p in sheet["poses"]:
+                p["deg"] = [0.0, 45.0, 90.0, 135.0]
+            mos = mosaic(load(scene_file, wall_supersample=2))
+            mos.update(polmodel=polmodel, kd=kd, diffuse=diffuse)
+            Ts, ls = transport(sheet, "uniform")
+            Tm, lm = transport(mos, "uniform")
+            assert Ts.shape == Tm.shape and [l[1] for l in ls] == [l[2] for l in lm]
+            err = float(np.abs(Ts - Tm).max() / np.abs(Ts).max())
+            assert err <= 1e-12, (polmodel, kd, diffuse, err)
+            worst = max(worst, err)
+    res["ideal_mosaic_vs_sheet_max_rel"] = worst
+
+    # (2) E = 1: t and t_perp pass equally, the factor is the unpolarized one (Rs+Rp)/2 and
+    #     T_in (1 - (Rs+Rp)/2) (fresnel), 1/2 + 1/2 (lambert): every block == no-polarizer block
+    worst = 0.0
+    for polmodel in ("absorbing", "transmitting"):
+        for diffuse in ("fresnel", "lambert"):
+            nop = load(scene_file); nop.update(polmodel=polmodel, kd=0.1, diffuse=diffuse)
+            for p in nop["poses"]:
+                p["deg"] = []
+            T0, _ = transport(nop, "uniform")
+            mos = mosaic(load(scene_file), sensor_deg=17.0, E=1.0)
+            mos.update(polmodel=polmodel, kd=0.1, diffuse=diffuse)
+            Tm, _ = transport(mos, "uniform")
+            nb = Tm.shape[0] // T0.shape[0]              # 4 mosaic blocks per no-polarizer block
+            assert nb == 4
+            J = T0.shape[0] // len(nop["poses"])
+            for ip in range(len(nop["poses"])):
+                ref = T0[ip * J:(ip + 1) * J]
+                for k in range(nb):
+                    blk = Tm[(ip * nb + k) * J:(ip * nb + k + 1) * J]
+                    worst = max(worst, float(np.abs(blk - ref).max() / np.abs(ref).max()))
+    assert worst <= 1e-12, worst
+    res["E1_vs_nopolarizer_max_rel"] = worst
+
+    # (3) one entry with E against the scalar hand computation, and P(t) + P(t_perp)/E as the
+    #     sum of an ideal block at t and the same E=inf computation with t_perp
+    worst = 0.0
+    for polmodel in ("absorbing", "transmitting"):
+        for diffuse in ("fresnel", "lambert"):
+            for E in (None, 300.0, 7.0):
+                sc = mosaic(load(scene_file), sensor_deg=-20.0, E=E)
+                sc.update(polmodel=polmodel, kd=0.1, diffuse=diffuse)
+                sc["occluders"] = []
+                pose = sc["poses"][0]
+                W = samples(sc["wall"]); S = samples(sc["scene"])
+                for b in pose_blocks(pose):
+                    T = block(sc, pose, b["psi"], E=b["E"])
+                    for j, kk in ((0, 0), (517, 4), (1023, 8), (300, 2)):
+                        h = _hand_entry(sc, pose["o"], b["psi"], b["E"], W[j, 0], S[kk, 0])
+                        worst = max(worst, abs(T[j, kk] - h) / abs(h))
+    assert worst <= 1e-12, worst
+    res["E_entry_vs_hand_max_rel"] = worst
+
+    # (4) pixels: the four cells partition each element's full-frame pixel set; the
+    #     a-weighted combination of the cells' rows at one angle is the full-frame row
+    sc = load(scene_file); sc.update(kd=0.1)
+    lay = LAYOUTS["polarsens"]
+    assert sorted(lay.values()) == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    stats = {}
+    for pose in sc["poses"]:
+        full = pixel_map(pose["H"], sc["wall"])
+        key = lambda pm: set(zip(pm["x"].tolist(), pm["y"].tolist(), pm["j"].tolist()))
+        cells = {th: cell_pixel_map(pose["H"], sc["wall"], lay[th]) for th in MOSAIC_THETAS}
+        sets = {th: key(pm) for th, pm in cells.items()}
+        union = set().union(*sets.values())
+        assert union == key(full)
+        assert sum(len(v) for v in sets.values()) == len(full["x"])
+        for th, pm in cells.items():
+            r, cc = lay[th]
+            assert np.all(pm["y"] % 2 == r) and np.all(pm["x"] % 2 == cc)
+        nu, nv = sc["wall"]["grid"]
+        counts = {th: np.bincount(pm["j"], minlength=nu * nv) for th, pm in cells.items()}
+        assert np.array_equal(sum(counts.values()), np.bincount(full["j"], minlength=nu * nv))
+        psi = math.radians(33.0)
+        Tfull = pixel_block(sc, pose, psi, E=50.0)
+        A = {th: np.bincount(pm["j"], weights=pm["a"], minlength=nu * nv) for th, pm in cells.items()}
+        comb = sum(A[th][:, None] * pixel_block(sc, pose, psi, E=50.0, cell=lay[th]) for th in MOSAIC_THETAS)
+        comb /= sum(A.values())[:, None]
+        err = float(np.abs(comb - Tfull).max() / np.abs(Tfull).max())
+        assert err <= 1e-12, err
+        # how far one angle's sub-lattice rows are from the full-frame rows of that angle
+        d = [float(np.sqrt(np.mean((pixel_block(sc, pose, psi, cell=lay[th]) - pixel_block(sc, pose, psi)) ** 2)
+                           / np.mean(pixel_block(sc, pose, psi) ** 2))) for th in (0.0,)]
+        stats[pose["name"]] = {"cell_pixels_per_element_min": int(min(c.min() for c in counts.values())),
+                               "cell_pixels_per_element_max": int(max(c.max() for c in counts.values())),
+                               "combined_cells_vs_full_max_rel": err,
+                               "cell0_vs_full_rms_rel": d[0]}
+    res["pixels"] = stats
+    print(f"selfcheck_mosaic ok ({Path(scene_file).name}): {json.dumps(res)}")
+    return res
+
+
 # ------------------------------------------------------------------ compare
 def compare(case, scene_supersample=None, polmodel=None, diffuse=None, quiet=False, scene=None):
     case = Path(case)
@@ -560,6 +824,7 @@ def main():
     if a.selfcheck is not None:
         for f in a.selfcheck or [None]:
             selfcheck(f)
+        selfcheck_mosaic()
         if not a.cases:
             return
     if not a.cases:

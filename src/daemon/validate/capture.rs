@@ -2,10 +2,9 @@
 
 use super::{invalid, CameraContext, RequestError};
 use crate::camera::{Acquisition, CameraSettings, PixelFormat};
-use crate::daemon::jobs::same_angle;
 use crate::daemon::requests::{AutoExposure, CaptureBody};
 use crate::measure::exposure::BlockExposure;
-use crate::scene::{Pose, Scene};
+use crate::scene::{Channel, Pose, Scene};
 use crate::store::{CaptureKind, CaptureRecord, CaptureRequest, JobState};
 
 /// Checks a capture request against its scene, the camera and the bench,
@@ -19,7 +18,6 @@ pub fn capture(
     capture: impl Fn(i64) -> Result<Option<CaptureRecord>, RequestError>,
 ) -> Result<CaptureRequest, RequestError> {
     let pose = pose_of(&b.scene, scene, &b.pose)?;
-    check_block(&b.scene, pose, b.polarizer_deg)?;
     let kind = b.kind.unwrap_or(CaptureKind::Light);
     let planned = planned_exposure(b, plan)?;
     // A planned exposure stands for a stated one; what neither states
@@ -59,11 +57,12 @@ pub fn capture(
             .map_err(|e| invalid(e.to_string()))?;
     }
     check_pixel_format(acquisition.pixel_format, cam)?;
+    let channels = channels(&b.scene, pose, b.polarizer_deg, &acquisition)?;
     let request = CaptureRequest {
         kind,
         scene: b.scene.clone(),
         pose: b.pose.clone(),
-        polarizer_deg: b.polarizer_deg,
+        channels,
         acquisition,
         frames,
         dark_frames: b.dark_frames,
@@ -114,8 +113,70 @@ fn pose_of<'a>(scene_name: &str, scene: &'a Scene, pose: &str) -> Result<&'a Pos
     })
 }
 
-/// Checks that `polarizer_deg` is a setting of the pose (or absent for a pose without polarizer).
-fn check_block(
+/// The blocks a capture of `pose` yields: the pose's four micro-polarizer
+/// channels from a polarizer-mosaic camera (which states no angle and reads
+/// its mosaic whole: unbinned, at an even offset), else the one sheet
+/// setting `polarizer_deg` names (absent for a pose without polarizer).
+fn channels(
+    scene_name: &str,
+    pose: &Pose,
+    polarizer_deg: Option<f64>,
+    a: &Acquisition,
+) -> Result<Vec<Channel>, RequestError> {
+    let format = a.pixel_format.name();
+    match (pose.mosaic, a.pixel_format.mosaic()) {
+        (Some(_), Some(_)) => {
+            if let Some(deg) = polarizer_deg {
+                return Err(invalid(format!(
+                    "polarizer_deg = {deg}: pose {:?} of scene {scene_name:?} sees through the camera's polarizer mosaic (analyzer = \"mosaic\"), which gives all four angles in one frame; leave polarizer_deg out",
+                    pose.name
+                )));
+            }
+            if a.binning != [1, 1] {
+                return Err(invalid(format!(
+                    "binning = {:?}: a binned pixel of a polarizer-mosaic camera ({format}) mixes the four micro-polarizers of its 2x2 cell; use binning [1, 1]",
+                    a.binning
+                )));
+            }
+            if a.region[0] % 2 != 0 || a.region[1] % 2 != 0 {
+                return Err(invalid(format!(
+                    "region = {:?}: on a polarizer-mosaic camera ({format}) the region's x and y offsets must be even, or the 2x2 micro-polarizer pattern starts on another angle; use [{}, {}, ...]",
+                    a.region,
+                    a.region[0] & !1,
+                    a.region[1] & !1
+                )));
+            }
+            Ok(Channel::mosaic().to_vec())
+        }
+        (Some(_), None) => Err(invalid(format!(
+            "pose {:?} of scene {scene_name:?} has a polarizer mosaic (analyzer = \"mosaic\"), but pixel_format = {format:?} is not a polarization camera's raw mosaic; set a polarization format ({}) or capture a scene whose pose has a polarizer sheet",
+            pose.name,
+            crate::camera::PixelFormat::ALL
+                .iter()
+                .filter(|f| f.mosaic().is_some())
+                .map(|f| f.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))),
+        (None, Some(_)) => Err(invalid(format!(
+            "pixel_format = {format:?} reads a polarizer mosaic, but pose {:?} of scene {scene_name:?} {}: its scene must say analyzer = \"mosaic\" for this pose, or set a monochrome pixel_format",
+            pose.name,
+            if pose.analyzers.is_empty() {
+                "has no polarizer".to_string()
+            } else {
+                "has a polarizer sheet (polarizer_deg)".to_string()
+            }
+        ))),
+        (None, None) => {
+            check_sheet(scene_name, pose, polarizer_deg)?;
+            Ok(vec![Channel::sheet(polarizer_deg)])
+        }
+    }
+}
+
+/// Checks that `polarizer_deg` is a setting of the pose's sheet (or absent
+/// for a pose without polarizer).
+fn check_sheet(
     scene_name: &str,
     pose: &Pose,
     polarizer_deg: Option<f64>,
@@ -127,7 +188,7 @@ fn check_block(
     };
     match (polarizer_deg, angles.is_empty()) {
         (None, true) => Ok(()),
-        (Some(a), false) if angles.iter().any(|x| same_angle(Some(*x), Some(a))) => Ok(()),
+        (Some(a), false) if angles.iter().any(|x| (x - a).abs() < 1e-6) => Ok(()),
         (None, false) => Err(invalid(format!(
             "pose {:?} of scene {scene_name:?} has a polarizer: give polarizer_deg, one of {}",
             pose.name,
@@ -159,9 +220,16 @@ fn planned_exposure(
             Err(invalid("target is only for \"exposure\": \"auto\""))
         }
         (_, None) => Ok(None),
+        // A mosaic frame holds its pose's four blocks: the shortest
+        // exposure keeps the brightest of them within full scale.
         (None, Some(AutoExposure::Auto)) => plan()?
             .into_iter()
-            .find(|p| p.pose == b.pose && same_angle(p.polarizer_deg, b.polarizer_deg))
+            .filter(|p| {
+                p.pose == b.pose
+                    && (Channel::sheet(b.polarizer_deg).same(p.channel)
+                        || matches!(p.channel, Channel::Mosaic { .. }))
+            })
+            .min_by(|x, y| x.exposure_us.total_cmp(&y.exposure_us))
             .map(Some)
             .ok_or_else(|| {
                 invalid(format!(
@@ -361,7 +429,7 @@ mod tests {
         );
         let block = |pose: &str, exposure_us: f64, frames: usize| BlockExposure {
             pose: pose.into(),
-            polarizer_deg: Some(0.0),
+            channel: Channel::Sheet { deg: 0.0 },
             peak_rate_per_us: 1e-4,
             exposure_us,
             frames,

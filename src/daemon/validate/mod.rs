@@ -92,7 +92,7 @@ pub(crate) mod fixtures {
             id,
             scene: "brewster-multi-3x3".into(),
             pose: "B".into(),
-            polarizer_deg: Some(0.0),
+            channels: vec![crate::scene::Channel::Sheet { deg: 0.0 }],
             polarizer_measured_deg: None,
             settings: crate::camera::Acquisition {
                 exposure_us,

@@ -2,9 +2,8 @@
 //! capture and the other captures named must cover every block of the
 //! scene once, at the frames the poses' homographies map to.
 
-use super::reconstruction::{block_of, blocks};
+use super::reconstruction::{blocks, blocks_served, cover, uncovered};
 use super::{invalid, RequestError};
-use crate::daemon::jobs::{block_label, same_angle};
 use crate::daemon::requests::ProgressiveBody;
 use crate::scene::Scene;
 use crate::store::{CaptureRecord, CaptureRequest};
@@ -40,11 +39,16 @@ pub fn progressive(
     let (every, max_iter) = check_numbers(p, r)?;
     let blocks = blocks(scene);
     let mut covered = vec![false; blocks.len()];
-    let own = blocks
+    let own: Vec<usize> = blocks
         .iter()
-        .position(|(pose, a)| *pose == r.pose && same_angle(*a, r.polarizer_deg))
-        .ok_or_else(|| invalid("the capture's block is not one of its scene"))?;
-    covered[own] = true;
+        .enumerate()
+        .filter(|(_, b)| b.pose == r.pose && r.channels.iter().any(|c| c.same(b.channel)))
+        .map(|(k, _)| k)
+        .collect();
+    if own.len() != r.channels.len() {
+        return Err(invalid("the capture's blocks are not blocks of its scene"));
+    }
+    cover(&mut covered, &own, &blocks, "progressive.captures: ")?;
     if let Some(frame) = scene.pose(&r.pose).and_then(|p| p.frame) {
         if (r.acquisition.region, r.acquisition.binning) != (frame.region, frame.binning) {
             return Err(invalid(format!(
@@ -56,22 +60,11 @@ pub fn progressive(
     for &id in &p.captures {
         let c = capture(id)?
             .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))?;
-        let k = block_of(&c, &r.scene, scene, &blocks)?;
-        if covered[k] {
-            return Err(invalid(format!(
-                "progressive.captures: two captures for block {}",
-                block_label(&blocks[k].0, blocks[k].1)
-            )));
-        }
-        covered[k] = true;
+        let served = blocks_served(&c, &r.scene, scene, &blocks)?;
+        cover(&mut covered, &served, &blocks, "progressive.captures: ")?;
     }
-    if covered.iter().any(|c| !c) {
-        let missing: Vec<String> = blocks
-            .iter()
-            .zip(&covered)
-            .filter(|(_, c)| !**c)
-            .map(|((p, a), _)| block_label(p, *a))
-            .collect();
+    let missing = uncovered(&covered, &blocks);
+    if !missing.is_empty() {
         return Err(invalid(format!(
             "progressive reconstruction of scene {:?} needs a done capture of every other block in progressive.captures; missing: {}",
             r.scene,

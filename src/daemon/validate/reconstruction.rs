@@ -1,23 +1,49 @@
 //! Checking a reconstruction request against its scene and captures.
 
 use super::{invalid, RequestError};
-use crate::daemon::jobs::{block_label, same_angle};
+use crate::daemon::jobs::{block_label, capture_label};
 use crate::daemon::requests::ReconstructionBody;
 use crate::scene::Scene;
 use crate::store::{CaptureRecord, JobState, ReconstructionParams, ReconstructionRequest};
+use crate::transport::Block;
 
-/// The (pose, polarizer angle) blocks of a scene in MODEL.md row order.
-pub fn blocks(scene: &Scene) -> Vec<(String, Option<f64>)> {
-    let mut blocks = Vec::new();
-    for p in scene.poses() {
-        if p.analyzers.is_empty() {
-            blocks.push((p.name.clone(), None));
+/// The blocks of a scene in MODEL.md row order.
+pub fn blocks(scene: &Scene) -> Vec<Block> {
+    crate::transport::blocks_of(scene)
+}
+
+/// Marks the blocks `served` as `covered`, refusing one already covered.
+pub(super) fn cover(
+    covered: &mut [bool],
+    served: &[usize],
+    blocks: &[Block],
+    what: &str,
+) -> Result<(), RequestError> {
+    for &k in served {
+        if covered[k] {
+            return Err(invalid(format!(
+                "{what}two captures for block {}; give one per block",
+                label(&blocks[k])
+            )));
         }
-        for a in &p.analyzers {
-            blocks.push((p.name.clone(), Some(a.angle_deg)));
-        }
+        covered[k] = true;
     }
+    Ok(())
+}
+
+/// The blocks not `covered`, as people read them.
+pub(super) fn uncovered(covered: &[bool], blocks: &[Block]) -> Vec<String> {
     blocks
+        .iter()
+        .zip(covered)
+        .filter(|(_, c)| !**c)
+        .map(|(b, _)| label(b))
+        .collect()
+}
+
+/// A block as people read it.
+pub(super) fn label(b: &Block) -> String {
+    block_label(&b.pose, b.channel)
 }
 
 /// Checks a reconstruction request: solver parameters, the truth's name, and
@@ -38,28 +64,22 @@ pub fn reconstruction(
         }
     }
     let blocks = blocks(scene);
-    if b.captures.len() != blocks.len() {
-        let labels: Vec<String> = blocks.iter().map(|(p, a)| block_label(p, *a)).collect();
-        return Err(invalid(format!(
-            "scene {:?} has {} (pose, polarizer) blocks ({}); give exactly one capture for each ({} given)",
-            b.scene,
-            blocks.len(),
-            labels.join("; "),
-            b.captures.len()
-        )));
-    }
     let mut covered = vec![false; blocks.len()];
     for &id in &b.captures {
         let c = capture(id)?
             .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))?;
-        let k = block_of(&c, &b.scene, scene, &blocks)?;
-        if covered[k] {
-            return Err(invalid(format!(
-                "two captures for block {}; give one per block",
-                block_label(&blocks[k].0, blocks[k].1)
-            )));
-        }
-        covered[k] = true;
+        let served = blocks_served(&c, &b.scene, scene, &blocks)?;
+        cover(&mut covered, &served, &blocks, "")?;
+    }
+    let missing = uncovered(&covered, &blocks);
+    if !missing.is_empty() {
+        return Err(invalid(format!(
+            "scene {:?} has {} (pose, polarizer) blocks ({}); give one capture for each (a polarizer-mosaic capture gives its pose's four); missing: {}",
+            b.scene,
+            blocks.len(),
+            blocks.iter().map(label).collect::<Vec<_>>().join("; "),
+            missing.join("; ")
+        )));
     }
     Ok(ReconstructionRequest {
         scene: b.scene.clone(),
@@ -69,14 +89,15 @@ pub fn reconstruction(
     })
 }
 
-/// The block a capture serves, after checking it can serve one: done, light,
-/// of this scene, at the pose's camera frame.
-pub(super) fn block_of(
+/// The blocks a capture serves (one, or a mosaic pose's four), after
+/// checking it can serve them: done, light, of this scene, at the pose's
+/// camera frame.
+pub(super) fn blocks_served(
     c: &CaptureRecord,
     scene_name: &str,
     scene: &Scene,
-    blocks: &[(String, Option<f64>)],
-) -> Result<usize, RequestError> {
+    blocks: &[Block],
+) -> Result<Vec<usize>, RequestError> {
     let id = c.id;
     if c.state != JobState::Done {
         return Err(invalid(format!(
@@ -96,15 +117,23 @@ pub(super) fn block_of(
             c.scene
         )));
     }
-    let k = blocks
+    let served: Vec<usize> = blocks
         .iter()
-        .position(|(p, a)| *p == c.pose && same_angle(*a, c.polarizer_deg))
-        .ok_or_else(|| {
-            invalid(format!(
-                "capture {id} ({}) is not a block of scene {scene_name:?}",
-                block_label(&c.pose, c.polarizer_deg)
-            ))
-        })?;
+        .enumerate()
+        .filter(|(_, b)| b.pose == c.pose && c.channels.iter().any(|ch| ch.same(b.channel)))
+        .map(|(k, _)| k)
+        .collect();
+    if served.len() != c.channels.len() {
+        return Err(invalid(format!(
+            "capture {id} ({}) is not {} of scene {scene_name:?}",
+            capture_label(&c.pose, &c.channels),
+            if c.channels.len() == 1 {
+                "a block"
+            } else {
+                "a pose's blocks"
+            }
+        )));
+    }
     if let Some(frame) = scene.pose(&c.pose).and_then(|p| p.frame) {
         let s = &c.settings;
         if (s.region, s.binning) != (Some(frame.region), Some(frame.binning)) {
@@ -118,7 +147,7 @@ pub(super) fn block_of(
             )));
         }
     }
-    Ok(k)
+    Ok(served)
 }
 
 #[cfg(test)]
@@ -150,6 +179,7 @@ mod tests {
             Err(e) => panic!("{e:?}"),
         };
         assert!(err(&[1]).contains("2 (pose, polarizer) blocks (pose B at 0°; pose C at 0°)"));
+        assert!(err(&[1]).contains("missing: pose C at 0°"));
         assert!(err(&[1, 1]).contains("two captures for block pose B at 0°"));
         assert!(err(&[1, 9]).contains("no capture with id 9"));
         // A catalogue that cannot be read is passed on, not called a missing capture.
@@ -164,16 +194,16 @@ mod tests {
         let mut cropped = record(1, "light", 5000.0, JobState::Done);
         cropped.settings.region = Some([0, 0, 256, 256]);
         let blocks = blocks(&s);
-        let m =
-            block_of(&cropped, "brewster-multi-3x3", &s, &blocks).expect_err("a cropped capture");
+        let m = blocks_served(&cropped, "brewster-multi-3x3", &s, &blocks)
+            .expect_err("a cropped capture");
         assert!(m.to_string().contains("region [0, 0, 256, 256]"), "{m}");
         let running = record(1, "light", 5000.0, JobState::Running);
-        let m = block_of(&running, "brewster-multi-3x3", &s, &blocks).expect_err("running");
+        let m = blocks_served(&running, "brewster-multi-3x3", &s, &blocks).expect_err("running");
         assert!(m.to_string().contains("is running, not done"), "{m}");
         let dark = record(1, "dark", 5000.0, JobState::Done);
-        let m = block_of(&dark, "brewster-multi-3x3", &s, &blocks).expect_err("dark");
+        let m = blocks_served(&dark, "brewster-multi-3x3", &s, &blocks).expect_err("dark");
         assert!(m.to_string().contains("is a dark capture"), "{m}");
-        let m = block_of(&dark, "brewster-crossed-3x3", &s, &blocks).expect_err("scene");
+        let m = blocks_served(&dark, "brewster-crossed-3x3", &s, &blocks).expect_err("scene");
         assert!(m.to_string().contains("dark capture"), "{m}");
     }
 
