@@ -31,9 +31,9 @@
 //!
 //! # Where a change goes
 //!
-//! - **A pixel format** (1 file): one variant in `src/camera/pixel.rs` (its name, bits,
-//!   bytes and `decode`); requests, the catalogue and the driver read it
-//!   from there.
+//! - **A pixel format** (1 file): one variant in `src/camera/pixel.rs` (its
+//!   name, buffer layout and, for a polarization camera's raw mosaic, its
+//!   pattern); requests, the catalogue and the driver read it from there.
 //! - **A solver** (2 files): its file in `src/solve/`, and in
 //!   `src/solve/solver.rs` its variant of `Solver` with its name, what it
 //!   needs (`Needs`: the Gram, a λ from the noise, a warm start) and its arm

@@ -367,6 +367,7 @@ impl polnlos::camera::CameraDevice for Freezing {
             gain_feature: "Gain".into(),
             frame_rate: None,
             pixel_formats: Vec::new(),
+            mosaic: None,
             limits: polnlos::camera::SensorLimits {
                 sensor: [512, 512],
                 ..Default::default()

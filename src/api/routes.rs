@@ -127,6 +127,12 @@ pub struct FrameQuery {
     /// crossed-polarizer frame peaks at a few percent of full scale).
     #[serde(default)]
     stretch: bool,
+    /// On a polarizer-mosaic camera: `raw` (the mosaic as read out), `s0`
+    /// (intensity), `dolp` (degree of linear polarization) or `aolp` (its
+    /// angle), the last three at half resolution.
+    #[serde(default)]
+    #[param(value_type = Option<String>)]
+    view: crate::measure::mosaic::View,
 }
 
 /// The latest frame (with `live=true`, a fresh one when the camera is idle),
@@ -142,11 +148,36 @@ pub async fn camera_frame(State(d): St, Query(q): Query<FrameQuery>) -> Result<R
     let frame = frame.ok_or_else(|| {
         ApiError::not_found("no frame yet: the camera has delivered none (is it connected?)")
     })?;
+    // The Stokes views read the mosaic the camera's settings say the frame holds.
+    let mosaic = match q.view {
+        crate::measure::mosaic::View::Raw => None,
+        view => {
+            let settings = d.camera().status().info.map(|i| i.settings);
+            let layout = settings.and_then(|s| s.pixel_format.mosaic()).ok_or_else(|| {
+                ApiError::invalid(format!(
+                    "view={view:?} is for a polarizer-mosaic camera; this camera reads out {} (use view=raw, or a polarization pixel_format)",
+                    settings.map_or("no frames yet".to_string(), |s| s.pixel_format.name().to_string())
+                ))
+            })?;
+            let region = settings.map_or([0, 0, 0, 0], |s| s.region);
+            Some((layout, [region[0], region[1]], view))
+        }
+    };
     let (png, levels) = tokio::task::spawn_blocking(move || {
-        let levels = crate::measure::levels::levels(&frame.pixels, frame.bits)
+        let (width, height, pixels, bits) = match mosaic {
+            Some((layout, offset, view)) => crate::measure::mosaic::view(
+                &frame.pixels,
+                (frame.width, frame.height, frame.bits),
+                layout,
+                offset,
+                view,
+            ),
+            None => (frame.width, frame.height, frame.pixels.to_vec(), frame.bits),
+        };
+        let levels = crate::measure::levels::levels(&pixels, bits)
             .ok_or_else(|| "the frame has no pixels".to_string())?;
-        let shown = crate::measure::levels::display_u16(&frame.pixels, &levels, q.stretch);
-        let png = crate::files::image::encode_png16(frame.width, frame.height, &shown)?;
+        let shown = crate::measure::levels::display_u16(&pixels, &levels, q.stretch);
+        let png = crate::files::image::encode_png16(width, height, &shown)?;
         Ok::<_, String>((png, levels))
     })
     .await

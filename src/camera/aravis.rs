@@ -126,8 +126,19 @@ impl AravisCamera {
                 .map_err(feature_err("BinningHorizontal/BinningVertical"))?,
             _ => [1, 1],
         };
-        let current =
+        let mut current =
             Acquisition::defaults_at([to_u32(x), to_u32(y), to_u32(w), to_u32(h)], binning);
+        // A polarization camera keeps its raw-mosaic format: the default
+        // monochrome one would read the same mosaic under a name that hides it.
+        if let Some(own) = cam
+            .camera
+            .pixel_format_as_string()
+            .ok()
+            .and_then(|f| PixelFormat::from_name(f.as_str()))
+            .filter(|f| f.mosaic().is_some())
+        {
+            current.pixel_format = own;
+        }
         cam.configure(&current)?;
         Ok(cam)
     }
@@ -293,6 +304,11 @@ impl CameraDevice for AravisCamera {
             s(c.model_name()),
             s(c.device_serial_number()),
         );
+        let pixel_formats: Vec<String> = c
+            .dup_available_pixel_formats_as_strings()
+            .map(|v| v.into_iter().map(|g| g.to_string()).collect())
+            .unwrap_or_default();
+        let settings = self.read_settings()?;
         Ok(CameraInfo {
             id: format!("{vendor}-{model}-{serial}"),
             address: self.id.clone(),
@@ -307,12 +323,10 @@ impl CameraDevice for AravisCamera {
             frame_rate: self
                 .frame_rate_feature
                 .and_then(|f| self.float_bounds(f).ok()),
-            pixel_formats: c
-                .dup_available_pixel_formats_as_strings()
-                .map(|v| v.into_iter().map(|g| g.to_string()).collect())
-                .unwrap_or_default(),
+            mosaic: PixelFormat::sensor_mosaic(&pixel_formats, settings.pixel_format),
+            pixel_formats,
             limits: self.limits,
-            settings: self.read_settings()?,
+            settings,
         })
     }
 

@@ -159,6 +159,11 @@ pub struct CameraInfo {
     pub frame_rate: Option<(f64, f64)>,
     /// Pixel formats the camera offers.
     pub pixel_formats: Vec<String>,
+    /// The sensor's polarizer mosaic (`"polarsens"`), when the camera
+    /// offers or uses a polarization camera's raw-mosaic format; null for a
+    /// plain sensor. A capture of a mosaic pose needs such a format.
+    #[schema(value_type = Option<String>)]
+    pub mosaic: Option<crate::scene::MosaicLayout>,
     /// Region and binning limits, read from the feature nodes.
     pub limits: SensorLimits,
     /// Settings read back from the camera (not what was asked for).

@@ -81,12 +81,48 @@ unsafe impl Sync for Shared {}
 // SAFETY: as above; the pointer does not own anything.
 unsafe impl Send for Shared {}
 
+/// The sensor the fake camera plays (`[camera] fake_sensor`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FakeSensor {
+    /// A monochrome sensor (Aravis's own fake camera).
+    #[default]
+    Mono,
+    /// A Sony Polarsens polarizer-mosaic sensor presenting itself as Lucid's
+    /// cameras do (PixelFormat `PolarizeMono8`, `PolarizeMono16`), its
+    /// 0-degree micro-polarizers at crossed, ideal.
+    Polarsens,
+}
+
+/// Aravis's own fake-camera description (0.8.26) with Lucid's two
+/// polarization formats added (`PolarizeMono8` 0x81080001,
+/// `PolarizeMono16` 0x81100007): the fake camera then lists, sets and reads
+/// them back like any format, and its payload follows their bit depth.
+const POLARSENS_XML: &str = include_str!("fake_polarsens.xml");
+
+/// The fake camera's PixelFormat register (Aravis `ARV_FAKE_CAMERA_REGISTER_PIXEL_FORMAT`).
+const PIXEL_FORMAT_REGISTER: u32 = 0x128;
+
+/// `PolarizeMono16`'s GenICam value (Lucid Arena SDK).
+const POLARIZE_MONO16: u32 = 0x8110_0007;
+
 /// Aravis's GigE Vision fake camera on a loopback address, showing a scene.
 pub struct FakeBench {
     gv: Option<aravis::GvFakeCamera>,
     shared: *const Shared,
     address: String,
     switches_scene: bool,
+    /// The description file a Polarsens fake camera was made from.
+    _description: Option<Removed>,
+}
+
+/// A file removed when this is dropped (also on an early error return).
+struct Removed(std::path::PathBuf);
+
+impl Drop for Removed {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
 }
 
 // SAFETY: the GvFakeCamera runs its own threads; the object itself is only
@@ -121,6 +157,9 @@ pub enum FakeError {
     /// The fake camera did not come up on the address.
     #[error("Aravis fake camera did not start on {0}; is another fake camera (or arv-fake-gv-camera) using that address?")]
     NotRunning(String),
+    /// The Polarsens fake camera's description could not be written.
+    #[error("could not write the Polarsens fake camera's description to the temporary directory ({0}); set TMPDIR to a writable directory")]
+    Description(String),
 }
 
 /// Whether a network interface of this machine holds `address` (IPv4), or
@@ -165,6 +204,25 @@ impl FakeBench {
         images: BenchImages,
         reference_exposure_us: f64,
     ) -> Result<Self, FakeError> {
+        Self::start_with(
+            address,
+            serial,
+            images,
+            reference_exposure_us,
+            FakeSensor::Mono,
+        )
+    }
+
+    /// [`FakeBench::start`] with the camera playing `sensor`: a Polarsens
+    /// one offers the polarization formats, starts in `PolarizeMono16` and
+    /// shows every pixel through its own micro-polarizer.
+    pub fn start_with(
+        address: &str,
+        serial: &str,
+        images: BenchImages,
+        reference_exposure_us: f64,
+        sensor: FakeSensor,
+    ) -> Result<Self, FakeError> {
         if let Ok(ip) = address.parse::<std::net::Ipv4Addr>() {
             if interface_has(ip) == Some(false) {
                 return Err(FakeError::NotOnInterface {
@@ -181,14 +239,44 @@ impl FakeBench {
                 });
             }
         }
-        let gv = aravis::GvFakeCamera::new(Some(address), Some(serial));
+        let description = match sensor {
+            FakeSensor::Mono => None,
+            FakeSensor::Polarsens => {
+                let path = std::env::temp_dir().join(format!(
+                    "polnlos-fake-polarsens-{}-{serial}.xml",
+                    std::process::id()
+                ));
+                std::fs::write(&path, POLARSENS_XML)
+                    .map_err(|e| FakeError::Description(format!("{}: {e}", path.display())))?;
+                Some(Removed(path))
+            }
+        };
+        let gv = match description.as_ref().and_then(|p| p.0.to_str()) {
+            Some(path) => aravis::GvFakeCamera::new_full(Some(address), Some(serial), Some(path)),
+            None => aravis::GvFakeCamera::new(Some(address), Some(serial)),
+        };
         let fake = gv
             .fake_camera()
             .ok_or_else(|| FakeError::NotRunning(address.to_string()))?;
         let camera: *mut aravis_sys::ArvFakeCamera =
             aravis::glib::translate::ToGlibPtr::to_glib_none(&fake).0;
+        let mosaic = match sensor {
+            FakeSensor::Mono => None,
+            FakeSensor::Polarsens => {
+                // SAFETY: `camera` is the live fake camera of `gv`; writing one
+                // of its registers only changes its register memory.
+                unsafe {
+                    aravis_sys::arv_fake_camera_write_register(
+                        camera,
+                        PIXEL_FORMAT_REGISTER,
+                        POLARIZE_MONO16,
+                    );
+                }
+                Some(crate::scene::MosaicLayout::Polarsens)
+            }
+        };
         let shared = Arc::new(Shared {
-            shown: Shown::new(images, reference_exposure_us),
+            shown: Shown::new(images, reference_exposure_us).with_mosaic(mosaic),
             camera,
         });
         let ptr = Arc::into_raw(shared);
@@ -213,6 +301,7 @@ impl FakeBench {
             shared: ptr,
             address: address.to_string(),
             switches_scene: true,
+            _description: description,
         })
     }
 

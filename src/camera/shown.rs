@@ -9,6 +9,7 @@ use std::sync::{Arc, Mutex};
 
 use super::Frame;
 use crate::optics::polarizer::IntensityLaw;
+use crate::scene::{MosaicLayout, MOSAIC_DEGREES};
 
 /// Key of a block: pose name and polarizer angle in millidegrees (None: no polarizer).
 fn key(pose: &str, deg: Option<f64>) -> String {
@@ -101,6 +102,35 @@ impl Images {
     }
 }
 
+impl Images {
+    /// The image a polarizer-mosaic sensor at `pose` records: each pixel
+    /// through its own micro-polarizer (`layout`, the sensor's 0-degree one
+    /// at crossed, ideal), i.e. the image at that angle (MODEL.md "On-chip
+    /// polarizer mosaic"); `None` when an angle has no image.
+    fn mosaic(&self, pose: &str, layout: MosaicLayout) -> Option<Arc<Frame>> {
+        let at: Vec<Arc<Frame>> = MOSAIC_DEGREES
+            .iter()
+            .map(|&deg| self.at(pose, Some(deg)))
+            .collect::<Option<_>>()?;
+        let (width, height) = (at[0].width, at[0].height);
+        if at.iter().any(|f| (f.width, f.height) != (width, height)) {
+            return None;
+        }
+        let mut pixels = vec![0.0; width * height];
+        for (k, p) in pixels.iter_mut().enumerate() {
+            let (x, y) = ((k % width) as i64, (k / width) as i64);
+            let angle = layout.degrees_at(x, y);
+            let which = MOSAIC_DEGREES.iter().position(|&d| d == angle).unwrap_or(0);
+            *p = at[which].pixels[k];
+        }
+        Some(Arc::new(Frame {
+            width,
+            height,
+            pixels,
+        }))
+    }
+}
+
 /// The images of the selected block.
 #[derive(Default)]
 struct Selected {
@@ -125,6 +155,8 @@ pub struct Shown {
     /// Dark level, fraction of full scale at the reference exposure.
     dark_level: f64,
     counter: AtomicU64,
+    /// The sensor's polarizer mosaic, when the bench's camera has one.
+    mosaic: Option<MosaicLayout>,
 }
 
 impl Shown {
@@ -142,16 +174,31 @@ impl Shown {
             reference_exposure_us,
             dark_level: 0.01,
             counter: AtomicU64::new(0),
+            mosaic: None,
         }
+    }
+
+    /// The same bench seen by a camera whose sensor has a polarizer mosaic:
+    /// a block without a sheet shows each pixel through its micro-polarizer.
+    pub fn with_mosaic(mut self, layout: Option<MosaicLayout>) -> Self {
+        self.mosaic = layout;
+        self
     }
 
     /// Moves the bench to `pose` with the polarizer at `polarizer_deg`
     /// (any angle: see [`Images::at`]).
     pub fn select(&self, pose: &str, polarizer_deg: Option<f64>) {
-        let chosen = Selected {
-            scene: self.frames.at(pose, polarizer_deg),
-            target: self.targets.at(pose, polarizer_deg),
-            source: self.sources.at(pose, polarizer_deg),
+        let chosen = match (self.mosaic, polarizer_deg) {
+            (Some(layout), None) => Selected {
+                scene: self.frames.mosaic(pose, layout),
+                target: self.targets.mosaic(pose, layout),
+                source: self.sources.mosaic(pose, layout),
+            },
+            _ => Selected {
+                scene: self.frames.at(pose, polarizer_deg),
+                target: self.targets.at(pose, polarizer_deg),
+                source: self.sources.at(pose, polarizer_deg),
+            },
         };
         if let Ok(mut s) = self.selected.lock() {
             *s = chosen;
@@ -266,6 +313,42 @@ mod tests {
         assert_eq!(two.at("B", Some(80.0)).unwrap().pixels[0], law(90.0) as f32);
         assert_eq!(two.at("B", Some(178.0)).unwrap().pixels[0], law(0.0) as f32);
         assert!(two.at("C", Some(0.0)).is_none());
+    }
+
+    #[test]
+    fn a_mosaic_sensor_shows_each_pixel_through_its_micro_polarizer() {
+        let frame = |v: f32| Frame {
+            width: 4,
+            height: 2,
+            pixels: vec![v; 8],
+        };
+        let images = BenchImages {
+            scene: [0.0, 45.0, 90.0, 135.0]
+                .into_iter()
+                .map(|d| ("A".to_string(), Some(d), frame(0.1 + d as f32 / 450.0)))
+                .collect(),
+            ..BenchImages::default()
+        };
+        let s = Shown::new(images, 1000.0).with_mosaic(Some(MosaicLayout::Polarsens));
+        s.select("A", None);
+        let mut got = [0.0; 8];
+        s.expose((4, 2, 0, 0), 1000.0, 1000.0, 0.0, |i, v| got[i] = v);
+        // Row 0: 90, 45, 90, 45; row 1: 135, 0, 135, 0 (plus 10 DN of dark).
+        let want = |d: f64| 1000.0 * (0.01 + 0.1 + d / 450.0);
+        for (k, d) in [90.0, 45.0, 90.0, 45.0, 135.0, 0.0, 135.0, 0.0]
+            .into_iter()
+            .enumerate()
+        {
+            assert!(
+                (got[k] - want(d)).abs() <= 0.6,
+                "{k}: {} vs {}",
+                got[k],
+                want(d)
+            );
+        }
+        // A region at an odd offset starts on another micro-polarizer.
+        s.expose((2, 1, 1, 1), 1000.0, 1000.0, 0.0, |i, v| got[i] = v);
+        assert!((got[0] - want(0.0)).abs() <= 0.6 && (got[1] - want(135.0)).abs() <= 0.6);
     }
 
     fn bench() -> Shown {

@@ -119,6 +119,7 @@ impl CameraDevice for SyntheticCamera {
             gain_feature: "Gain".into(),
             frame_rate: None,
             pixel_formats: vec!["Mono8".into(), "Mono16".into()],
+            mosaic: None,
             limits: Self::limits(),
             settings: self.settings(),
         })

@@ -89,6 +89,10 @@ pub struct CameraConfig {
     /// Start Aravis's GigE Vision fake camera on `address`.
     #[serde(default)]
     pub fake: bool,
+    /// The sensor the fake camera plays: `"mono"`, or `"polarsens"` (a
+    /// polarizer-mosaic camera presenting Lucid's PolarizeMono8/16 formats).
+    #[serde(default)]
+    pub fake_sensor: crate::camera::fake::FakeSensor,
     /// IP address to open the camera at.
     pub address: Option<String>,
     /// Aravis device id to open the camera by.

@@ -131,13 +131,19 @@ impl CameraSetup {
                 .clone()
                 .unwrap_or_else(|| "127.0.0.1".into());
             let (frames, c) = demo_frames(&config.demo, scenes).await?;
-            let mut fake =
-                FakeBench::start(&address, "POLNLOS-DEMO", frames, DEMO_REFERENCE_EXPOSURE_US)?;
+            let mut fake = FakeBench::start_with(
+                &address,
+                "POLNLOS-DEMO",
+                frames,
+                DEMO_REFERENCE_EXPOSURE_US,
+                config.camera.fake_sensor,
+            )?;
             if !config.demo.bench_switches_scene {
                 fake = fake.operated_by_hand();
             }
             tracing::info!(
                 address,
+                sensor = ?config.camera.fake_sensor,
                 "Aravis GigE Vision fake camera started (demo scene {:?}, pattern {:?})",
                 config.demo.scene,
                 config.demo.pattern
