@@ -142,6 +142,34 @@ fn one_mosaic_frame_per_pose_reconstructs_as_well_as_four_sheet_captures() {
     let last = steps[1]["psnr_db"].as_f64().unwrap();
     assert!((last - mosaic_psnr).abs() <= 1.0, "{last} vs {mosaic_psnr}");
 
+    // A plan of the mosaic scene takes one capture for the pose's four blocks.
+    let (s, body, loc) = d.post(
+        "/plans",
+        &format!(r#"{{"scene": "brewster-mosaic", "exposure_us": {EXPOSURE_US}, "frames": 4, "reconstruct": {{"truth": "letter"}}}}"#),
+    );
+    assert_eq!(s, 202, "{body}");
+    let accepted: serde_json::Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(
+        accepted["steps"].as_array().map(Vec::len),
+        Some(2),
+        "{body}"
+    );
+    let loc = loc.expect("Location");
+    let t = std::time::Instant::now();
+    let plan = loop {
+        let v = d.json(&loc);
+        if ["done", "failed", "cancelled"]
+            .iter()
+            .any(|s| v["state"] == *s)
+        {
+            break v;
+        }
+        assert!(t.elapsed() < long, "{v}");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert_eq!(plan["state"], "done", "{plan}");
+    assert_eq!(plan["captures"].as_array().map(Vec::len), Some(1), "{plan}");
+
     // The live view reads the mosaic as Stokes images at half resolution.
     for view in ["raw", "s0", "dolp", "aolp"] {
         let (s, png) = d.get_bytes(&format!("/camera/frame.png?view={view}"));
@@ -180,5 +208,5 @@ fn one_mosaic_frame_per_pose_reconstructs_as_well_as_four_sheet_captures() {
     let n = list
         .as_array()
         .map_or_else(|| list["items"].as_array().map_or(0, Vec::len), Vec::len);
-    assert_eq!(n, 2, "{list}");
+    assert_eq!(n, 3, "{list}");
 }

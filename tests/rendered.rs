@@ -279,3 +279,44 @@ fn camera_frames_reconstruct_with_pixel_rows_at_least_as_well_as_with_centre_sam
     // And as well as polnlos's own simulation at the render's noise.
     assert!(p.rendered.psnr_db >= p.simulated.psnr_db - 1.5, "{p:?}");
 }
+
+/// Issue 27's comparison: a polarization camera against a crossed and a
+/// rotating sheet at equal total exposure, on polnlos's camera-frame
+/// simulation and on Mitsuba's camera frames composed into a mosaic.
+#[test]
+fn a_polarization_camera_is_compared_with_sheets_at_equal_exposure() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/rendered/rotating/frames");
+    let mut steps = 0;
+    let r = polnlos::bench::mosaic::mosaic_report(&dir, MemoryBudget::DEFAULT, &mut || steps += 1)
+        .unwrap();
+    assert_eq!(steps, polnlos::bench::mosaic::STEPS);
+    assert!(r.rendered_skipped.is_none(), "{:?}", r.rendered_skipped);
+    for row in &r.rows {
+        println!(
+            "{:32} kappa {:.3e}  PSNR simulated {:.2} dB, Mitsuba {:.2} dB",
+            row.setup,
+            row.kappa,
+            row.simulated.psnr_db,
+            row.rendered.map_or(f64::NAN, |m| m.psnr_db)
+        );
+    }
+    let by = |s: &str| r.rows.iter().find(|row| row.setup.starts_with(s)).unwrap();
+    let (rotating, ideal) = (by("rotating"), by("mosaic, ideal"));
+    // An ideal mosaic at crossed is the rotating sheet's T, each block's rows
+    // over a quarter of the pixels (kappa within 1 %); one exposure of all the
+    // time gathers the photons four quarter exposures do.
+    assert!((ideal.kappa / rotating.kappa - 1.0).abs() < 0.01);
+    for (mosaic, sheet) in [
+        (ideal.simulated, rotating.simulated),
+        (ideal.rendered.unwrap(), rotating.rendered.unwrap()),
+    ] {
+        assert!(
+            mosaic.psnr_db > sheet.psnr_db - 1.0,
+            "mosaic {} dB, rotating sheet {} dB",
+            mosaic.psnr_db,
+            sheet.psnr_db
+        );
+    }
+    let md = polnlos::bench::Report::markdown(&r);
+    assert!(md.contains("| mosaic, extinction 100 | 1 |"), "{md}");
+}

@@ -774,3 +774,48 @@ fn an_ideal_mosaic_at_crossed_is_the_rotating_sheet_and_leaks_with_e() {
         ["A-mosaic0", "A-mosaic45", "A-mosaic90", "A-mosaic135"]
     );
 }
+
+#[test]
+fn the_adaptive_and_active_builders_read_a_mosaic_as_its_sheets() {
+    use polnlos::transport::active::{build_active, ActiveSetup};
+    use polnlos::transport::build_adaptive;
+    let text = std::fs::read_to_string(scenes_dir().join("brewster-rotating-3x3.toml")).unwrap();
+    let sheet = Scene::from_toml_str(&text).unwrap();
+    let ideal = Scene::from_toml_str(&with_mosaic(&text, "sensor_deg = 0.0\n")).unwrap();
+    let leaky =
+        Scene::from_toml_str(&with_mosaic(&text, "sensor_deg = 0.0\nextinction = 50.0\n")).unwrap();
+    let budget = MemoryBudget::DEFAULT;
+    // Adaptive: an ideal mosaic at crossed refines exactly as the rotating sheet.
+    let (a, _) = build_adaptive(&sheet, 1e-2, 4, budget).unwrap();
+    let (b, stats) = build_adaptive(&ideal, 1e-2, 4, budget).unwrap();
+    assert!(stats.met, "{stats:?}");
+    let peak = max_abs(&a);
+    for (x, y) in a.col_major().iter().zip(b.col_major()) {
+        assert!((x - y).abs() <= 1e-12 * peak);
+    }
+    // Active: the same, and a partial micro-polarizer adds 1/E of the
+    // crossed axis's light to the crossed block.
+    let setup = ActiveSetup::default();
+    let (a, b, c) = (
+        build_active(&sheet, &setup, budget).unwrap().t,
+        build_active(&ideal, &setup, budget).unwrap().t,
+        build_active(&leaky, &setup, budget).unwrap().t,
+    );
+    let peak = max_abs(&a);
+    assert!(peak > 0.0);
+    for (x, y) in a.col_major().iter().zip(b.col_major()) {
+        assert!((x - y).abs() <= 1e-12 * peak);
+    }
+    let crossed = |t: &Transport| -> f64 {
+        let rows = t.rows() / 4;
+        (0..t.cols())
+            .map(|k| (0..rows).map(|j| t.get(j, k)).sum::<f64>())
+            .sum()
+    };
+    assert!(
+        crossed(&c) > crossed(&b) * 1.001,
+        "{} vs {}",
+        crossed(&c),
+        crossed(&b)
+    );
+}

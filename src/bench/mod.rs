@@ -8,6 +8,7 @@
 pub mod active;
 pub mod charts;
 pub mod lambda;
+pub mod mosaic;
 pub mod peer;
 mod plan;
 pub mod rendered;

@@ -43,6 +43,9 @@ pub struct BenchPlan {
     pub rendered_cases: Vec<&'static str>,
     /// Wall grid side and scene grid sides of the end-to-end scaling sweep.
     pub scaling: (usize, Vec<usize>),
+    /// Whether to compare a polarization camera with polarizer sheets
+    /// ([`super::mosaic`], about 30 s).
+    pub mosaic: bool,
 }
 
 impl BenchPlan {
@@ -65,6 +68,7 @@ impl BenchPlan {
             rendered: super::rendered::DEFAULT_DIR.into(),
             rendered_cases: vec!["nopol", "crossed"],
             scaling: (32, vec![8]),
+            mosaic: false,
         }
     }
 
@@ -95,6 +99,7 @@ impl BenchPlan {
             rendered: super::rendered::DEFAULT_DIR.into(),
             rendered_cases: super::rendered::REPORT_CASES.iter().map(|c| c.0).collect(),
             scaling: (64, vec![16, 32, 48, 64]),
+            mosaic: true,
         }
     }
 
@@ -119,6 +124,7 @@ impl BenchPlan {
             + super::lambda::lambda_len(self.lambda_scenes.len(), self.lambda_photons.len())
             + self.rendered_cases.len()
             + self.scaling.1.len()
+            + if self.mosaic { super::mosaic::STEPS } else { 0 }
     }
 
     /// Runs every report, calling `step()` as each row is done, each `T`
@@ -132,7 +138,7 @@ impl BenchPlan {
         let roughness_grid = *self.grids.last().unwrap_or(&3);
         let sizes = self.sizes();
         let runs = speed::speed_sweep(&sizes, self.speed_seeds, &self.speed_budgets, budget, step)?;
-        let reports: Vec<Box<dyn Report>> = vec![
+        let mut reports: Vec<Box<dyn Report>> = vec![
             Box::new(super::Conditioning(super::conditioning_table(
                 &self.grids,
                 budget,
@@ -201,6 +207,13 @@ impl BenchPlan {
                 runs,
             }),
         ];
+        if self.mosaic {
+            reports.push(Box::new(super::mosaic::mosaic_report(
+                &self.rendered.join("rotating/frames"),
+                budget,
+                step,
+            )?));
+        }
         Ok(reports)
     }
 }
