@@ -21,6 +21,32 @@ fn read(path: &Path) -> npy::Array {
     npy::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
+/// `T` of `scene` against the independent implementation's `T.npy` at
+/// `want`: every entry to 1e-9 of itself (entries below 1e-3 of the peak to
+/// 1e-9 of that).
+fn equals_the_independent_reading(case: &str, scene: &Scene, want: &Path) {
+    let t = build(scene, MemoryBudget::DEFAULT).unwrap();
+    let want = read(want);
+    assert_eq!(want.shape, vec![t.rows(), t.cols()], "{case}");
+    let peak = want.data.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let mut worst = 0.0f64;
+    for j in 0..t.rows() {
+        for k in 0..t.cols() {
+            let (a, b) = (t.get(j, k), want.data[j * t.cols() + k]);
+            worst = worst.max((a - b).abs() / (1e-300 + b.abs().max(1e-6 * peak)));
+            assert!(
+                (a - b).abs() <= 1e-9 * b.abs().max(1e-3 * peak),
+                "{case}: T[{j},{k}] = {a}, the independent reading has {b}"
+            );
+        }
+    }
+    println!(
+        "{case}: {} x {}, worst relative difference {worst:.1e}",
+        t.rows(),
+        t.cols()
+    );
+}
+
 #[test]
 fn pixel_rows_equal_the_independent_implementation() {
     let cases = [
@@ -32,26 +58,7 @@ fn pixel_rows_equal_the_independent_implementation() {
     for case in cases {
         let scene = Scene::load(&data(case).join("scene.toml")).unwrap();
         assert_eq!(scene.wall().sampling, WallSampling::Pixels, "{case}");
-        let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
-        let want = read(&data(case).join("T.npy"));
-        assert_eq!(want.shape, vec![t.rows(), t.cols()], "{case}");
-        let peak = want.data.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let mut worst = 0.0f64;
-        for j in 0..t.rows() {
-            for k in 0..t.cols() {
-                let (a, b) = (t.get(j, k), want.data[j * t.cols() + k]);
-                worst = worst.max((a - b).abs() / (1e-300 + b.abs().max(1e-6 * peak)));
-                assert!(
-                    (a - b).abs() <= 1e-9 * b.abs().max(1e-3 * peak),
-                    "{case}: T[{j},{k}] = {a}, the independent reading has {b}"
-                );
-            }
-        }
-        println!(
-            "{case}: {} x {}, worst relative difference {worst:.1e}",
-            t.rows(),
-            t.cols()
-        );
+        equals_the_independent_reading(case, &scene, &data(case).join("T.npy"));
     }
 }
 
@@ -123,25 +130,6 @@ fn mosaic_rows_equal_the_independent_implementation() {
         let case = dir.file_name().unwrap().to_string_lossy().into_owned();
         let scene = Scene::load(&dir.join("scene.toml")).unwrap();
         assert!(scene.poses().iter().any(|p| p.mosaic.is_some()), "{case}");
-        let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
-        let want = read(&dir.join("T.npy"));
-        assert_eq!(want.shape, vec![t.rows(), t.cols()], "{case}");
-        let peak = want.data.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let mut worst = 0.0f64;
-        for j in 0..t.rows() {
-            for k in 0..t.cols() {
-                let (a, b) = (t.get(j, k), want.data[j * t.cols() + k]);
-                worst = worst.max((a - b).abs() / (1e-300 + b.abs().max(1e-6 * peak)));
-                assert!(
-                    (a - b).abs() <= 1e-9 * b.abs().max(1e-3 * peak),
-                    "{case}: T[{j},{k}] = {a}, the independent reading has {b}"
-                );
-            }
-        }
-        println!(
-            "{case}: {} x {}, worst relative difference {worst:.1e}",
-            t.rows(),
-            t.cols()
-        );
+        equals_the_independent_reading(&case, &scene, &dir.join("T.npy"));
     }
 }

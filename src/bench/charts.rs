@@ -546,6 +546,16 @@ pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
         .collect()
 }
 
+/// An axis label numbering the categories a chart's integer x stands for:
+/// `case: 1 nopol, 2 rotating`.
+pub fn numbered<'a>(what: &str, names: impl Iterator<Item = &'a str>) -> String {
+    let names: Vec<String> = names
+        .enumerate()
+        .map(|(k, n)| format!("{} {n}", k + 1))
+        .collect();
+    format!("{what}: {}", names.join(", "))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

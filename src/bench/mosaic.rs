@@ -23,7 +23,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
-use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
+use super::charts::{numbered, panels, Chart, ChartError, Marker, Plot, Series};
 use super::BenchError;
 use crate::files::npy;
 use crate::measure::{assemble, CaptureFrames, Frame};
@@ -410,15 +410,7 @@ pub fn chart(r: &MosaicReport) -> Result<Chart, ChartError> {
             "equal total exposure ({:.0e} e- at the unpolarized peak)",
             r.photons
         ),
-        x_label: format!(
-            "setup: {}",
-            r.rows
-                .iter()
-                .enumerate()
-                .map(|(k, row)| format!("{} {}", k + 1, row.short))
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
+        x_label: numbered("setup", r.rows.iter().map(|row| row.short.as_str())),
         y_label: "PSNR (dB)".into(),
         x_log: false,
         y_log: false,

@@ -14,7 +14,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
-use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
+use super::charts::{numbered, panels, Chart, ChartError, Marker, Plot, Series};
 use super::BenchError;
 use crate::files::npy;
 use crate::scene::Scene;
@@ -473,15 +473,7 @@ pub fn chart(r: &Rendered) -> Result<Chart, ChartError> {
     };
     let plot = |title: &str, pick: &dyn Fn(&RenderedRow) -> &Pair| Plot {
         title: title.into(),
-        x_label: format!(
-            "case: {}",
-            r.rows
-                .iter()
-                .enumerate()
-                .map(|(k, row)| format!("{} {}", k + 1, row.case))
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
+        x_label: numbered("case", r.rows.iter().map(|row| row.case.as_str())),
         y_label: "PSNR (dB)".into(),
         x_log: false,
         y_log: false,
