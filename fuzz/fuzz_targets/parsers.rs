@@ -46,6 +46,15 @@ pub fn frames_tiff(data: &[u8]) {
     }
 }
 
+/// The polarization-camera bench (pose A through a Polarsens mosaic).
+fn mosaic_scene() -> &'static Scene {
+    static SCENE: std::sync::OnceLock<Scene> = std::sync::OnceLock::new();
+    SCENE.get_or_init(|| match Scene::builtin("brewster-mosaic-3x3") {
+        Some(Ok(s)) => s,
+        _ => panic!("the built-in scene brewster-mosaic-3x3 must parse"),
+    })
+}
+
 /// The scene bodies are checked against (the reference bench, two poses).
 fn scene() -> &'static Scene {
     static SCENE: std::sync::OnceLock<Scene> = std::sync::OnceLock::new();
@@ -72,12 +81,22 @@ pub fn capture_json(data: &[u8]) {
                 region: Some([0, 0, 512, 512]),
                 ..CameraSettings::builtin()
             },
-            pixel_formats: Some(vec!["Mono8".into(), "Mono16".into()]),
+            pixel_formats: Some(vec![
+                "Mono8".into(),
+                "Mono16".into(),
+                "PolarizeMono16".into(),
+            ]),
             bench_switches_scene: true,
             max_frames: 1000,
         };
         let plan = || Ok(Vec::new());
-        if let Ok(r) = validate::capture(&b, scene(), &cam, plan, |_| Ok(None)) {
+        // The mosaic bench when the body names it, else the two-pose bench.
+        let scene = if b.scene == "brewster-mosaic-3x3" {
+            mosaic_scene()
+        } else {
+            scene()
+        };
+        if let Ok(r) = validate::capture(&b, scene, &cam, plan, |_| Ok(None)) {
             // What is accepted fits the sensor and the frame cap.
             assert!(LIMITS
                 .check(r.acquisition.region, r.acquisition.binning)
@@ -86,8 +105,19 @@ pub fn capture_json(data: &[u8]) {
             // ... and is a pixel format the camera lists.
             assert!(matches!(
                 r.acquisition.pixel_format.name(),
-                "Mono8" | "Mono16"
+                "Mono8" | "Mono16" | "PolarizeMono16"
             ));
+            // A mosaic capture yields its pose's four blocks, from an
+            // unbinned frame at an even offset; any other capture one.
+            let mosaic = scene.pose(&r.pose).is_some_and(|p| p.mosaic.is_some());
+            assert_eq!(mosaic, r.acquisition.pixel_format.mosaic().is_some());
+            if mosaic {
+                let [x, y, ..] = r.acquisition.region;
+                assert!(r.channels.len() == 4 && r.acquisition.binning == [1, 1]);
+                assert!(x % 2 == 0 && y % 2 == 0);
+            } else {
+                assert_eq!(r.channels.len(), 1);
+            }
         }
     }
 }

@@ -1103,5 +1103,32 @@ polarizer_deg = [0.0, 90.0]
                 .join("\n");
             let _ = parse(&text);
         }
+
+        #[test]
+        fn arbitrary_mosaic_values_never_panic_and_what_is_accepted_builds(
+            key in proptest::sample::select(vec!["analyzer", "sensor_deg", "extinction", "layout", "polarizer_deg", "region", "binning"]),
+            value in proptest::sample::select(vec!["0", "-1", "1", "1.0000001", "1e308", "nan", "inf", "-inf", "[]", "[0.0]", "[1, 0, 64, 64]", "[2, 2]", "\"mosaic\"", "\"polarsens\"", "\"x\"", "{ a = 1 }", "360", "-360.5"]),
+        ) {
+            let base = format!(
+                "{}region = [0, 0, 64, 64]\nbinning = [1, 1]\npolarizer_deg = []\n",
+                BASE.replace(
+                    "polarizer_deg = [0.0, 90.0]",
+                    "analyzer = \"mosaic\"\nsensor_deg = 10.0\nextinction = 300.0\nlayout = \"polarsens\"",
+                )
+            );
+            let valid: Vec<&str> = base.lines().filter(|l| !l.starts_with("polarizer_deg =")).collect();
+            proptest::prop_assert!(parse(&valid.join("\n")).is_ok(), "the unmutated mosaic pose parses");
+            let text = base
+                .lines()
+                .filter(|l| key == "polarizer_deg" || !l.starts_with("polarizer_deg ="))
+                .map(|l| if l.starts_with(&format!("{key} =")) { format!("{key} = {value}") } else { l.to_string() })
+                .collect::<Vec<_>>()
+                .join("\n");
+            if let Ok(scene) = parse(&text) {
+                let t = crate::transport::build(&scene, crate::transport::MemoryBudget::DEFAULT);
+                let t = t.expect("an accepted scene builds");
+                proptest::prop_assert!(t.col_major().iter().all(|v| v.is_finite()));
+            }
+        }
     }
 }
