@@ -320,3 +320,94 @@ fn a_polarization_camera_is_compared_with_sheets_at_equal_exposure() {
     let md = polnlos::bench::Report::markdown(&r);
     assert!(md.contains("| mosaic, extinction 100 | 1 |"), "{md}");
 }
+
+/// Issue 26: a scene file that leaves the sampling keys out lets a
+/// reconstruction choose them from the noise (`transport::choose`); on the
+/// camera-frame renders that choice reconstructs within 0.5 dB of the file
+/// with scene supersample 8 and pixel rows.
+#[test]
+fn a_file_without_sampling_keys_reconstructs_as_well_as_supersample_8() {
+    use polnlos::solve::lambda::NoiseLevel;
+    use polnlos::solve::metrics::compare;
+    use polnlos::solve::reconstruct::Context;
+    use polnlos::solve::{condition, reconstruct, SolveRequest};
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/rendered");
+    let budget = MemoryBudget::DEFAULT;
+    for case in frame_cases() {
+        // The case's file with every sampling key removed.
+        let dir = root
+            .join(case.name.trim_end_matches("-frames"))
+            .join("frames");
+        let text: String = std::fs::read_to_string(dir.join("scene.toml"))
+            .unwrap()
+            .lines()
+            .filter(|l| !l.starts_with("supersample") && !l.starts_with("sampling"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        let bare = polnlos::scene::Scene::from_toml_str(&text).unwrap();
+        let left = bare.left_out();
+        assert!(left.wall_supersample && left.scene_supersample && left.sampling);
+        let fine = bare
+            .clone()
+            .edit(|p| {
+                p.hidden.plane.supersample = 8;
+                p.wall.sampling = polnlos::scene::WallSampling::Pixels;
+            })
+            .unwrap();
+        let t_fine = build(&fine, budget).unwrap();
+        // At the render's noise, and at 10x it (a shorter capture), where
+        // the choice is coarser.
+        for factor in [1.0, 10.0] {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+            let extra = (factor * factor - 1.0f64).sqrt();
+            let i: Vec<f64> = case
+                .i
+                .iter()
+                .zip(&case.sigma)
+                .map(|(v, s)| {
+                    let z: f64 = StandardNormal.sample(&mut rng);
+                    v + extra * s * z
+                })
+                .collect();
+            let variance: Vec<f64> = case.sigma.iter().map(|s| (factor * s).powi(2)).collect();
+            let psnr = |t: &polnlos::transport::Transport| -> f64 {
+                let cond = condition(t).unwrap();
+                let solved = reconstruct(
+                    t,
+                    &i,
+                    Some(NoiseLevel::measured(variance.clone())),
+                    &cond,
+                    &SolveRequest::default(),
+                    Context::default(),
+                )
+                .unwrap();
+                compare(t.scene_grid(), &case.truth, &solved.image).psnr_db
+            };
+            let (chosen, choice) =
+                polnlos::transport::choose::choose(&bare, &variance, budget).unwrap();
+            // The same sampling is the same T: built once.
+            let same = (
+                choice.sampling,
+                choice.wall_supersample,
+                choice.scene_supersample,
+            ) == (fine.wall().sampling, fine.wall().plane.supersample, 8);
+            let b = psnr(&t_fine);
+            let a = if same {
+                b
+            } else {
+                psnr(&build(&chosen, budget).unwrap())
+            };
+            println!(
+                "{} at {factor}x the render noise: chose {:?} (scene supersample {}, error {:.2} of the noise) {a:.2} dB, supersample 8 {b:.2} dB",
+                case.name, choice.chosen, choice.scene_supersample, choice.error_over_noise
+            );
+            assert!(
+                (a - b).abs() <= 0.5,
+                "{} at {factor}x: {a} dB vs {b} dB",
+                case.name
+            );
+        }
+    }
+}
