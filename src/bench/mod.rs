@@ -10,6 +10,7 @@ pub mod charts;
 pub mod lambda;
 pub mod mosaic;
 pub mod peer;
+pub mod photons;
 mod plan;
 pub mod rendered;
 pub mod report;

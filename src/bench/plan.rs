@@ -44,7 +44,8 @@ pub struct BenchPlan {
     /// Wall grid side and scene grid sides of the end-to-end scaling sweep.
     pub scaling: (usize, Vec<usize>),
     /// Whether to compare a polarization camera with polarizer sheets
-    /// ([`super::mosaic`], about 30 s).
+    /// ([`super::mosaic`], about 30 s) and the revision-2 measurement with
+    /// revision 3's against exposure ([`super::photons`], about 90 s).
     pub mosaic: bool,
 }
 
@@ -124,7 +125,11 @@ impl BenchPlan {
             + super::lambda::lambda_len(self.lambda_scenes.len(), self.lambda_photons.len())
             + self.rendered_cases.len()
             + self.scaling.1.len()
-            + if self.mosaic { super::mosaic::STEPS } else { 0 }
+            + if self.mosaic {
+                super::mosaic::STEPS + super::photons::STEPS
+            } else {
+                0
+            }
     }
 
     /// Runs every report, calling `step()` as each row is done, each `T`
@@ -210,6 +215,11 @@ impl BenchPlan {
         if self.mosaic {
             reports.push(Box::new(super::mosaic::mosaic_report(
                 &self.rendered.join("rotating/frames"),
+                budget,
+                step,
+            )?));
+            reports.push(Box::new(super::photons::photons_report(
+                "brewster-crossed",
                 budget,
                 step,
             )?));
