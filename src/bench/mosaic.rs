@@ -20,7 +20,6 @@ use std::path::Path;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
 use super::charts::{numbered, panels, Chart, ChartError, Marker, Plot, Series};
@@ -28,6 +27,7 @@ use super::BenchError;
 use crate::files::npy;
 use crate::measure::{assemble, CaptureFrames, Frame};
 use crate::scene::{Channel, FrameGeometry, Mosaic, MosaicLayout, Scene, WallSampling};
+use crate::simulate::camera::expose;
 use crate::simulate::unpolarized_peak;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::metrics::{compare, Metrics};
@@ -211,19 +211,12 @@ fn reconstruct_shots(
         .iter()
         .enumerate()
         .map(|(k, shot)| {
-            let mut mean = Frame::zeros(shot.clean.width, shot.clean.height);
-            let mut variance = Frame::zeros(shot.clean.width, shot.clean.height);
-            for (p, &v) in shot.clean.pixels.iter().enumerate() {
-                let electrons = (f64::from(v) * scale).max(0.0);
-                let var = electrons + READ_NOISE * READ_NOISE;
-                let z: f64 = StandardNormal.sample(&mut rng);
-                mean.pixels[p] = (electrons + var.sqrt() * z) as f32;
-                // The source's own noise is in the data: the variance says so.
-                let carried = shot
-                    .carried
-                    .as_ref()
-                    .map_or(0.0, |c| f64::from(c.pixels[p]) * scale * scale);
-                variance.pixels[p] = (var + carried) as f32;
+            let (mean, mut variance) = expose(&shot.clean, scale, READ_NOISE, &mut rng);
+            // The source's own noise is in the data: the variance says so.
+            if let Some(c) = &shot.carried {
+                for (v, &c) in variance.pixels.iter_mut().zip(&c.pixels) {
+                    *v = (f64::from(*v) + f64::from(c) * scale * scale) as f32;
+                }
             }
             // Digital numbers are electrons: full scale `scale` puts i in units of T l.
             CaptureFrames {

@@ -11,13 +11,13 @@
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
 use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
 use super::BenchError;
 use crate::measure::{assemble, CaptureFrames, Frame};
 use crate::scene::{FrameGeometry, Scene, WallSampling};
+use crate::simulate::camera::expose;
 use crate::simulate::patterns::Pattern;
 use crate::simulate::unpolarized_peak;
 use crate::solve::lambda::NoiseLevel;
@@ -154,15 +154,7 @@ pub fn photons_report(
             let (mut old, mut new) = (0.0, 0.0);
             for seed in 0..SEEDS {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
-                let mut mean = Frame::zeros(clean.width, clean.height);
-                let mut variance = Frame::zeros(clean.width, clean.height);
-                for (p, &v) in clean.pixels.iter().enumerate() {
-                    let e = (f64::from(v) * scale).max(0.0);
-                    let var = e + READ_NOISE * READ_NOISE;
-                    let z: f64 = StandardNormal.sample(&mut rng);
-                    mean.pixels[p] = (e + var.sqrt() * z) as f32;
-                    variance.pixels[p] = var as f32;
-                }
+                let (mean, variance) = expose(&clean, scale, READ_NOISE, &mut rng);
                 let (i, var) =
                     centre_samples(&centre, &mean, &variance, scale).ok_or_else(|| {
                         BenchError::Scene {

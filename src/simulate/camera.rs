@@ -58,6 +58,29 @@ pub fn render(scene: &Scene, l: &[f64], geometry: FrameGeometry) -> Vec<(Block, 
     out
 }
 
+/// One exposure of `clean` (units of `T l`) on a camera of `electrons_per_unit`
+/// and `read_noise` electrons RMS: each pixel's electrons with Gaussian shot
+/// and read noise (variance `e + read_noise^2`) drawn from `rng`, and that
+/// variance, both in electrons (digital numbers at unit gain).
+pub fn expose(
+    clean: &Frame,
+    electrons_per_unit: f64,
+    read_noise: f64,
+    rng: &mut impl rand::Rng,
+) -> (Frame, Frame) {
+    use rand_distr::{Distribution, StandardNormal};
+    let mut mean = Frame::zeros(clean.width, clean.height);
+    let mut variance = Frame::zeros(clean.width, clean.height);
+    for (p, &v) in clean.pixels.iter().enumerate() {
+        let e = (f64::from(v) * electrons_per_unit).max(0.0);
+        let var = e + read_noise * read_noise;
+        let z: f64 = StandardNormal.sample(rng);
+        mean.pixels[p] = (e + var.sqrt() * z) as f32;
+        variance.pixels[p] = var as f32;
+    }
+    (mean, variance)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
