@@ -170,8 +170,7 @@ fn shots(setup: Setup, sheet: &[Source], own: Option<&[Frame]>) -> Vec<Shot> {
             let mut clean = Frame::zeros(w, h);
             let mut carried = sheet[0].1.as_ref().map(|_| Frame::zeros(w, h));
             for p in 0..w * h {
-                let deg = MosaicLayout::Polarsens.degrees_at((p % w) as i64, (p / w) as i64);
-                let k = (deg / 45.0).round() as usize % 4;
+                let k = MosaicLayout::Polarsens.block_at((p % w) as i64, (p / w) as i64);
                 // I(theta) + I(theta + 90)/E, or the block's own frame.
                 clean.pixels[p] = match own {
                     Some(blocks) => blocks[k].pixels[p],

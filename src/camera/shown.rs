@@ -118,10 +118,7 @@ impl Images {
         }
         let mut pixels = vec![0.0; width * height];
         for (k, p) in pixels.iter_mut().enumerate() {
-            let (x, y) = ((k % width) as i64, (k / width) as i64);
-            let angle = layout.degrees_at(x, y);
-            let which = MOSAIC_DEGREES.iter().position(|&d| d == angle).unwrap_or(0);
-            *p = at[which].pixels[k];
+            *p = at[layout.block_at((k % width) as i64, (k / width) as i64)].pixels[k];
         }
         Some(Arc::new(Frame {
             width,

@@ -309,7 +309,7 @@ impl Daemon {
             .collect::<Result<_, _>>()?;
         let blocks = crate::transport::blocks_of(scene);
         let serves = |c: &crate::store::CaptureRecord, b: &crate::transport::Block| {
-            c.pose == b.pose && c.channels.iter().any(|ch| ch.same(b.channel))
+            b.taken_by(&c.pose, &c.channels)
         };
         if let Some(c) = records
             .iter()

@@ -112,9 +112,7 @@ pub(super) fn frames(
 /// theta`); `None` without one.
 fn bench_angle(s: &crate::scene::Scene, block: &crate::transport::Block) -> Option<f64> {
     s.pose(&block.pose)?
-        .analyzers
-        .iter()
-        .find(|a| a.channel.same(block.channel))
+        .analyzer(block.channel)
         .map(|a| a.angle_deg)
 }
 

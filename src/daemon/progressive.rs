@@ -161,12 +161,7 @@ impl Solver {
         let full_scale = acquisition.pixel_format.full_scale();
         // This capture's block is filled at each step; the others come
         // from their captures, assembled as a reconstruction would.
-        let own: Vec<usize> = (0..t.blocks().len())
-            .filter(|&k| {
-                let b = &t.blocks()[k];
-                b.pose == capture.pose && capture.channels.iter().any(|c| c.same(b.channel))
-            })
-            .collect();
+        let own = crate::transport::Block::taken(t.blocks(), &capture.pose, &capture.channels);
         if own.len() != capture.channels.len() {
             return Err(JobError::Store("the capture's blocks are not in T".into()));
         }

@@ -40,7 +40,7 @@ pub struct CaptureFrames {
 impl CaptureFrames {
     /// Whether it holds `block`: taken at its pose, through its analyzer.
     pub fn serves(&self, block: &Block) -> bool {
-        self.pose == block.pose && self.channels.iter().any(|c| c.same(block.channel))
+        block.taken_by(&self.pose, &self.channels)
     }
 }
 
@@ -134,11 +134,7 @@ pub fn assemble_with(
             pose: pose.name.clone(),
         })?;
         // A mosaic block is measured over its micro-polarizer's pixels only.
-        let cell = pose
-            .analyzers
-            .iter()
-            .find(|a| a.channel.same(block.channel))
-            .and_then(|a| a.cell);
+        let cell = pose.analyzer(block.channel).and_then(|a| a.cell);
         if cell.is_some() && c.binning != [1, 1] {
             return Err(MeasureError::Capture {
                 capture: c.name.clone(),

@@ -40,11 +40,10 @@ pub fn stokes(frame: &Frame, layout: MosaicLayout, offset: [u32; 2]) -> Stokes {
             let mut i = [0.0f64; 4];
             for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
                 let (x, y) = (x0 + 2 * cx + dx, y0 + 2 * cy + dy);
-                let deg = layout.degrees_at(
+                let k = layout.block_at(
                     i64::from(offset[0]) + x as i64,
                     i64::from(offset[1]) + y as i64,
                 );
-                let k = (deg / 45.0).round() as usize % 4;
                 i[k] = f64::from(frame.pixels[y * frame.width + x]);
             }
             let total = (i[0] + i[1] + i[2] + i[3]) / 2.0;

@@ -87,6 +87,27 @@ pub fn analyzer_factor(rs: f64, rp: f64, wi_dot_b: f64, wi_dot_t: f64, cross2: f
     }
 }
 
+/// [`analyzer_factor`] of a partial polarizer, `P(t) + leak P(t_perp)` with
+/// `leak = 1/E` (MODEL.md "On-chip polarizer mosaic"): along `t_perp = b`
+/// (unit, as `t` is) `w_o x t_perp = -t`, so the second factor swaps `w_i.b`
+/// and `w_i.t`, and both fold into one expression.
+#[inline(always)]
+pub fn partial_analyzer_factor(
+    rs: f64,
+    rp: f64,
+    wi_dot_b: f64,
+    wi_dot_t: f64,
+    cross2: f64,
+    leak: f64,
+) -> f64 {
+    if cross2 < DEGENERATE_CROSS * DEGENERATE_CROSS {
+        0.5 * rs * (1.0 + leak)
+    } else {
+        let (b2, t2) = (wi_dot_b * wi_dot_b, wi_dot_t * wi_dot_t);
+        (rs * (b2 + leak * t2) + rp * (t2 + leak * b2)) / (2.0 * cross2)
+    }
+}
+
 /// Projects a polarized source's field direction onto the plane normal to `w_i`
 /// and normalizes it; zero when it is parallel to `w_i` (MODEL.md edge cases).
 #[inline]

@@ -109,6 +109,12 @@ impl MosaicLayout {
         }
     }
 
+    /// The index in [`MOSAIC_DEGREES`] (the pose's block) of the
+    /// micro-polarizer over sensor pixel `(x, y)`.
+    pub fn block_at(self, x: i64, y: i64) -> usize {
+        (self.degrees_at(x, y) / 45.0).round() as usize % 4
+    }
+
     /// The pixel `[col, row]` mod 2 of the micro-polarizer at `deg`, or
     /// `None` when `deg` is not one of [`MOSAIC_DEGREES`].
     pub fn cell_of(self, deg: f64) -> Option<[u32; 2]> {

@@ -140,6 +140,11 @@ impl Pose {
         self.analyzers.len().max(1)
     }
 
+    /// The analyzer of its block `channel`, when it has a polarizer.
+    pub fn analyzer(&self, channel: Channel) -> Option<&Analyzer> {
+        self.analyzers.iter().find(|a| a.channel.same(channel))
+    }
+
     /// The channel of each of its blocks, in block order.
     pub fn channels(&self) -> Vec<Channel> {
         if self.analyzers.is_empty() {

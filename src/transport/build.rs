@@ -19,7 +19,7 @@ use rayon::prelude::*;
 
 use super::{Block, MemoryBudget, Transport, TransportError};
 use crate::optics::brdf::Direction;
-use crate::optics::polarizer::analyzer_factor;
+use crate::optics::polarizer::{analyzer_factor, partial_analyzer_factor};
 use crate::optics::{diffuse, ggx, DiffuseModel, Polarization, Vec3};
 use crate::scene::{Emitter, PixelMap, Scene, WallSampling};
 
@@ -840,18 +840,21 @@ impl Scratch {
                 let (ix, iy, iz) = (&w_i.x[r.clone()], &w_i.y[r.clone()], &w_i.z[r.clone()]);
                 let (tx, ty, tz) = (&a.t.x[..len], &a.t.y[..len], &a.t.z[..len]);
                 let (bx, by, bz) = (&a.b.x[..len], &a.b.y[..len], &a.b.z[..len]);
+                // An ideal polarizer (every sheet) pays nothing for the
+                // partial one's second axis.
                 let leak = a.leak;
                 for j in 0..len {
                     let wi_b = ix[j] * bx[j] + iy[j] * by[j] + iz[j] * bz[j];
                     let wi_t = ix[j] * tx[j] + iy[j] * ty[j] + iz[j] * tz[j];
-                    // Along t_perp = b (unit, as t is) w_o x t_perp = -t: the
-                    // same factor with w_i.b and w_i.t swapped.
-                    let sp = if ks_on {
-                        spec[j]
-                            * (analyzer_factor(rs[j], rp[j], wi_b, wi_t, cross2[j])
-                                + leak * analyzer_factor(rs[j], rp[j], wi_t, wi_b, cross2[j]))
-                    } else {
-                        0.0
+                    let sp = match (ks_on, leak == 0.0) {
+                        (false, _) => 0.0,
+                        (true, true) => {
+                            spec[j] * analyzer_factor(rs[j], rp[j], wi_b, wi_t, cross2[j])
+                        }
+                        (true, false) => {
+                            spec[j]
+                                * partial_analyzer_factor(rs[j], rp[j], wi_b, wi_t, cross2[j], leak)
+                        }
                     };
                     value[j] = base[j] * open[j] * sp;
                 }

@@ -30,6 +30,19 @@ impl Block {
     pub fn label(&self) -> String {
         format!("{}-{}", self.pose, self.channel.label())
     }
+
+    /// Whether a capture at `pose` yielding `channels` holds this block.
+    pub fn taken_by(&self, pose: &str, channels: &[Channel]) -> bool {
+        self.pose == pose && channels.iter().any(|c| c.same(self.channel))
+    }
+
+    /// The indices of the blocks of `blocks` a capture at `pose` yielding
+    /// `channels` holds, in block order.
+    pub fn taken(blocks: &[Block], pose: &str, channels: &[Channel]) -> Vec<usize> {
+        (0..blocks.len())
+            .filter(|&k| blocks[k].taken_by(pose, channels))
+            .collect()
+    }
 }
 
 /// The stacked transport matrix with the layout needed to read it.

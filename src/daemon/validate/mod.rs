@@ -16,7 +16,7 @@ mod reconstruction;
 
 pub use capture::capture;
 pub use progressive::{progressive, ProgressiveSpec};
-pub use reconstruction::{blocks, reconstruction};
+pub use reconstruction::reconstruction;
 
 use crate::camera::{CameraSettings, SensorLimits};
 use crate::measure::exposure::CameraLimits;

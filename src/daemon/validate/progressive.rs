@@ -2,7 +2,7 @@
 //! capture and the other captures named must cover every block of the
 //! scene once, at the frames the poses' homographies map to.
 
-use super::reconstruction::{blocks, blocks_served, cover, uncovered};
+use super::reconstruction::{blocks_served, cover, uncovered};
 use super::{invalid, RequestError};
 use crate::daemon::requests::ProgressiveBody;
 use crate::scene::Scene;
@@ -37,14 +37,9 @@ pub fn progressive(
         ));
     }
     let (every, max_iter) = check_numbers(p, r)?;
-    let blocks = blocks(scene);
+    let blocks = crate::transport::blocks_of(scene);
     let mut covered = vec![false; blocks.len()];
-    let own: Vec<usize> = blocks
-        .iter()
-        .enumerate()
-        .filter(|(_, b)| b.pose == r.pose && r.channels.iter().any(|c| c.same(b.channel)))
-        .map(|(k, _)| k)
-        .collect();
+    let own = crate::transport::Block::taken(&blocks, &r.pose, &r.channels);
     if own.len() != r.channels.len() {
         return Err(invalid("the capture's blocks are not blocks of its scene"));
     }

@@ -5,12 +5,7 @@ use crate::daemon::jobs::{block_label, capture_label};
 use crate::daemon::requests::ReconstructionBody;
 use crate::scene::Scene;
 use crate::store::{CaptureRecord, JobState, ReconstructionParams, ReconstructionRequest};
-use crate::transport::Block;
-
-/// The blocks of a scene in MODEL.md row order.
-pub fn blocks(scene: &Scene) -> Vec<Block> {
-    crate::transport::blocks_of(scene)
-}
+use crate::transport::{blocks_of, Block};
 
 /// Marks the blocks `served` as `covered`, refusing one already covered.
 pub(super) fn cover(
@@ -63,7 +58,7 @@ pub fn reconstruction(
             )));
         }
     }
-    let blocks = blocks(scene);
+    let blocks = blocks_of(scene);
     let mut covered = vec![false; blocks.len()];
     for &id in &b.captures {
         let c = capture(id)?
@@ -117,12 +112,7 @@ pub(super) fn blocks_served(
             c.scene
         )));
     }
-    let served: Vec<usize> = blocks
-        .iter()
-        .enumerate()
-        .filter(|(_, b)| b.pose == c.pose && c.channels.iter().any(|ch| ch.same(b.channel)))
-        .map(|(k, _)| k)
-        .collect();
+    let served = Block::taken(blocks, &c.pose, &c.channels);
     if served.len() != c.channels.len() {
         return Err(invalid(format!(
             "capture {id} ({}) is not {} of scene {scene_name:?}",
@@ -193,7 +183,7 @@ mod tests {
         let s = scene();
         let mut cropped = record(1, "light", 5000.0, JobState::Done);
         cropped.settings.region = Some([0, 0, 256, 256]);
-        let blocks = blocks(&s);
+        let blocks = blocks_of(&s);
         let m = blocks_served(&cropped, "brewster-multi-3x3", &s, &blocks)
             .expect_err("a cropped capture");
         assert!(m.to_string().contains("region [0, 0, 256, 256]"), "{m}");
