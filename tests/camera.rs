@@ -415,6 +415,42 @@ fn a_200_frame_capture_loses_no_frame_and_short_fast_captures_neither() {
 }
 
 #[test]
+fn broken_frames_of_a_lossy_link_are_waited_past_and_a_link_that_breaks_all_fails_with_advice() {
+    let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    let mut fake = bench();
+    fake.select("A", Some(0.0));
+    let cam = handle();
+    assert!(wait_connected(&cam, true, Duration::from_secs(5)));
+    let settings = Acquisition {
+        exposure_us: 10_000.0,
+        ..at_open()
+    };
+    // A 512x512 Mono16 frame is ~375 packets: losing 1 in 300 breaks
+    // about 70 % of frames, and the capture still gets its 12 whole ones.
+    fake.lose_packets(1.0 / 300.0);
+    let (tx, rx) = std::sync::mpsc::sync_channel(16);
+    let counts = rt().block_on(cam.acquire(settings, 12, tx)).unwrap();
+    assert_eq!((counts.received, rx.try_iter().count()), (12, 12));
+    assert!(counts.broken > 0, "{counts:?}");
+    assert_eq!(cam.status().counters.failed, counts.broken);
+    // Losing 1 in 20 breaks every frame: the capture fails once its
+    // timeout passes with no whole frame, and says what to check.
+    fake.lose_packets(0.05);
+    let t = Instant::now();
+    let e = rt()
+        .block_on(cam.collect(settings, 2))
+        .expect_err("no frame is whole")
+        .to_string();
+    assert!(e.contains("no whole frame in"), "{e}");
+    assert!(e.contains("packet size"), "{e}");
+    assert!(t.elapsed() < Duration::from_secs(20), "{:?}", t.elapsed());
+    // The link mends: the next capture is whole again.
+    fake.lose_packets(0.0);
+    assert_eq!(rt().block_on(cam.collect(settings, 2)).unwrap().len(), 2);
+    cam.shutdown();
+}
+
+#[test]
 fn frames_a_slow_reader_makes_the_camera_drop_are_counted_as_dropped() {
     let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
     // A reader that takes 15 ms per frame while the camera sends one every

@@ -6,8 +6,9 @@
 //! real cameras and Aravis's fake camera. Cameras are opened by explicit id or
 //! address only: polnlos never broadcasts a GigE Vision discovery.
 
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use aravis::glib::object::Cast;
 use aravis::prelude::*;
 use aravis::{AcquisitionMode, BufferStatus, Camera};
 
@@ -31,6 +32,12 @@ const BUFFER_BYTES: usize = 16 << 20;
 const FIRST_FRAME_SLACK_S: f64 = 5.0;
 /// Seconds a later frame may be late beyond its period.
 const FRAME_SLACK_S: f64 = 3.0;
+
+/// How long a GigE Vision frame may wait for its missing packets before
+/// Aravis gives it up as broken: Aravis's 100 ms broke frames whenever a busy
+/// host (a solve on both cores) held the stream thread off mid-frame, and a
+/// bench of long exposures has no use for the lower latency.
+const FRAME_RETENTION_US: u32 = 1_000_000;
 
 /// Stream buffers for frames of `payload` bytes (see [`MIN_BUFFERS`]).
 fn buffer_count(payload: usize) -> usize {
@@ -399,6 +406,13 @@ impl CameraDevice for AravisCamera {
         let c = &self.camera;
         let payload = c.payload().map_err(driver)? as usize;
         let stream = c.create_stream().map_err(driver)?;
+        if let Some(gv) = stream.downcast_ref::<aravis::GvStream>() {
+            // A socket buffer of one frame (capped by net.core.rmem_max)
+            // rides out a late stream thread; Aravis's default keeps the
+            // kernel's 208 KiB, less than one 512x512 Mono16 frame.
+            gv.set_socket_buffer(aravis::GvStreamSocketBuffer::Auto);
+            gv.set_frame_retention(FRAME_RETENTION_US);
+        }
         for _ in 0..buffer_count(payload) {
             stream.push_buffer(aravis::Buffer::new_allocate(payload));
         }
@@ -411,6 +425,9 @@ impl CameraDevice for AravisCamera {
         let mut taken = 0;
         let mut counts = FrameCounts::default();
         let mut ids = FrameIds::default();
+        // Broken buffers count as frames that did not arrive: the capture
+        // fails when no whole frame came within the frame timeout.
+        let mut last_whole = Instant::now();
         let result = loop {
             if taken == n {
                 break Ok(counts);
@@ -433,11 +450,18 @@ impl CameraDevice for AravisCamera {
             if buffer.status() != BufferStatus::Success {
                 counts.broken += 1;
                 self.counters.failed += 1;
+                tracing::warn!(
+                    "frame {} arrived broken ({:?}); waiting for the next",
+                    buffer.frame_id(),
+                    buffer.status()
+                );
                 stream.push_buffer(buffer);
-                if counts.broken > 2 * n as u64 + 4 {
+                let limit = if taken == 0 { first_timeout } else { timeout };
+                if last_whole.elapsed() > limit {
                     break Err(CameraError::Driver(format!(
-                        "{} broken buffers in a row; check the network or the camera's packet size",
-                        counts.broken
+                        "{} broken buffers and no whole frame in {} ms; check the network or the camera's packet size",
+                        counts.broken,
+                        limit.as_millis()
                     )));
                 }
                 continue;
@@ -454,6 +478,7 @@ impl CameraDevice for AravisCamera {
                 }
             };
             self.counters.completed += 1;
+            last_whole = Instant::now();
             counts.received += 1;
             taken += 1;
             if let Err(why) = sink(frame) {

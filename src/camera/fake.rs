@@ -126,7 +126,7 @@ impl Drop for Removed {
 }
 
 // SAFETY: the GvFakeCamera runs its own threads; the object itself is only
-// started and stopped from the owner. `shared` is an `Arc` of a Sync type kept
+// started, stopped and given a packet-loss ratio from the owner (`&mut self`). `shared` is an `Arc` of a Sync type kept
 // alive until drop, and only read through `&`.
 unsafe impl Send for FakeBench {}
 // SAFETY: as above.
@@ -311,6 +311,15 @@ impl FakeBench {
     pub fn operated_by_hand(mut self) -> Self {
         self.switches_scene = false;
         self
+    }
+
+    /// Drops this fraction of the stream's packets (0 to 1), as a lossy
+    /// link or an overloaded switch would: the capture path's handling of
+    /// broken frames is then testable on loopback.
+    pub fn lose_packets(&mut self, ratio: f64) {
+        if let Some(gv) = &self.gv {
+            gv.set_gvsp_lost_ratio(ratio.clamp(0.0, 1.0));
+        }
     }
 
     /// The address to open the camera at.
