@@ -68,58 +68,73 @@ fn daemon_exit_code(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
 
 /// The exit status of an error, from the first cause that says whose it is.
 fn exit_code(e: &anyhow::Error) -> u8 {
+    e.chain().find_map(code_of).unwrap_or(FAILED)
+}
+
+/// The exit status one cause says, when it says one.
+fn code_of(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
     use polnlos::files::FileError;
+    use polnlos::measure::given::GivenError;
+    use polnlos::solve::scene::SceneSolveError;
     use polnlos::solve::SolveError;
     use polnlos::transport::TransportError;
-    for cause in e.chain() {
-        #[cfg(feature = "daemon")]
-        if let Some(code) = daemon_exit_code(cause) {
-            return code;
-        }
-        if let Some(f) = cause.downcast_ref::<FileError>() {
-            return match f {
-                FileError::Format { .. } => INPUT,
-                FileError::Io { action, .. } if action.starts_with("cannot read") => INPUT,
-                FileError::Io { .. } => FAILED,
-            };
-        }
-        if let Some(t) = cause.downcast_ref::<TransportError>() {
-            return match t {
-                TransportError::Parameter { .. } => USAGE,
-                TransportError::TooLarge { .. }
-                | TransportError::NoHomography { .. }
-                | TransportError::Footprint(_)
-                | TransportError::ActivePixels
-                | TransportError::Choice(_) => INPUT,
-            };
-        }
-        if let Some(s) = cause.downcast_ref::<SolveError>() {
-            return match s {
-                SolveError::Parameter { .. } => USAGE,
-                SolveError::Length { .. } | SolveError::NonFinite { .. } => INPUT,
-                _ => FAILED,
-            };
-        }
-        if let Some(s) = cause.downcast_ref::<polnlos::simulate::SimulateError>() {
-            return match s {
-                polnlos::simulate::SimulateError::Parameter { .. } => USAGE,
-                polnlos::simulate::SimulateError::Black => INPUT,
-            };
-        }
-        if cause.is::<polnlos::calibrate::geometry::CalibrationError>()
-            || cause.is::<polnlos::calibrate::wall::WallFitError>()
-            || cause.is::<polnlos::measure::MeasureError>()
-        {
-            return INPUT;
-        }
-        if cause.is::<cli::Usage>() {
-            return USAGE;
-        }
-        if cause.is::<polnlos::scene::SceneError>() {
-            return INPUT;
-        }
+    #[cfg(feature = "daemon")]
+    if let Some(code) = daemon_exit_code(cause) {
+        return Some(code);
     }
-    FAILED
+    // The library's combined errors are their inner error's.
+    if let Some(e) = cause.downcast_ref::<SceneSolveError>() {
+        return match e {
+            SceneSolveError::Transport(t) => code_of(t),
+            SceneSolveError::Solve(s) => code_of(s),
+        };
+    }
+    if let Some(e) = cause.downcast_ref::<GivenError>() {
+        return match e {
+            GivenError::Measure(m) => code_of(m),
+            GivenError::Transport(t) => code_of(t),
+            GivenError::Solve(s) => code_of(s),
+            GivenError::Gain(_) => Some(USAGE),
+        };
+    }
+    if let Some(f) = cause.downcast_ref::<FileError>() {
+        return Some(match f {
+            FileError::Format { .. } => INPUT,
+            FileError::Io { action, .. } if action.starts_with("cannot read") => INPUT,
+            FileError::Io { .. } => FAILED,
+        });
+    }
+    if let Some(t) = cause.downcast_ref::<TransportError>() {
+        return Some(match t {
+            TransportError::Parameter { .. } => USAGE,
+            TransportError::TooLarge { .. }
+            | TransportError::NoHomography { .. }
+            | TransportError::Footprint(_)
+            | TransportError::ActivePixels
+            | TransportError::Choice(_) => INPUT,
+        });
+    }
+    if let Some(s) = cause.downcast_ref::<SolveError>() {
+        return Some(match s {
+            SolveError::Parameter { .. } => USAGE,
+            SolveError::Length { .. } | SolveError::NonFinite { .. } => INPUT,
+            _ => FAILED,
+        });
+    }
+    if let Some(s) = cause.downcast_ref::<polnlos::simulate::SimulateError>() {
+        return Some(match s {
+            polnlos::simulate::SimulateError::Parameter { .. } => USAGE,
+            polnlos::simulate::SimulateError::Black => INPUT,
+        });
+    }
+    if cause.is::<polnlos::calibrate::geometry::CalibrationError>()
+        || cause.is::<polnlos::calibrate::wall::WallFitError>()
+        || cause.is::<polnlos::measure::MeasureError>()
+        || cause.is::<polnlos::scene::SceneError>()
+    {
+        return Some(INPUT);
+    }
+    cause.is::<cli::Usage>().then_some(USAGE)
 }
 
 fn main() -> ExitCode {

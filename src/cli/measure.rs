@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 
 use polnlos::files::frames::read_frames;
 use polnlos::files::npy;
-use polnlos::measure::{assemble, load, CaptureInfo, CaptureSource, Frame, FrameStack, Units};
+use polnlos::measure::given::{measure_given, GivenCapture, UnitsWanted};
+use polnlos::measure::CaptureInfo;
 use polnlos::scene::Channel;
 use polnlos::transport::MemoryBudget;
 
@@ -72,19 +73,7 @@ struct AngleArg(Vec<Channel>);
 impl std::str::FromStr for AngleArg {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "none" => return Ok(AngleArg(vec![Channel::None])),
-            "mosaic" => return Ok(AngleArg(Channel::mosaic().to_vec())),
-            _ => {}
-        }
-        match s.parse::<f64>() {
-            Ok(a) if a.is_finite() && a.abs() <= 360.0 => {
-                Ok(AngleArg(vec![Channel::Sheet { deg: a }]))
-            }
-            _ => Err(format!(
-                "{s:?} is not an angle in degrees (-360..360), `none` or `mosaic`"
-            )),
-        }
+        Channel::of_capture(s).map(AngleArg)
     }
 }
 
@@ -97,46 +86,6 @@ fn per_block<'a, T>(values: &'a [T], k: usize, name: &str, n: usize) -> anyhow::
             "{m} values of {name} for {n} --frames; give one for all or one per --frames"
         ))
         .into()),
-    }
-}
-
-/// One block's frames from a user's files, and the dark to subtract.
-struct FileCapture {
-    info: CaptureInfo,
-    stack: FrameStack,
-    dark: Option<Frame>,
-    /// The variance of the dark's mean, when it had 2 frames or more.
-    dark_variance: Option<Frame>,
-}
-
-impl CaptureSource for FileCapture {
-    fn info(&self) -> CaptureInfo {
-        self.info.clone()
-    }
-
-    fn mean(&self) -> Result<Frame, String> {
-        self.stack
-            .mean_minus(self.dark.as_ref())
-            .map_err(|e| e.to_string())
-    }
-
-    /// The variance of the dark-subtracted mean: the frames' plus the dark's
-    /// (MODEL.md `var_p`).
-    fn variance(&self) -> Result<Option<Frame>, String> {
-        let mut v = self.stack.variance_frame();
-        if let (Some(v), Some(d)) = (v.as_mut(), self.dark_variance.as_ref()) {
-            if (d.width, d.height) != (v.width, v.height) {
-                return Err(format!(
-                    "the dark frames are {}x{} but the frames {}x{}",
-                    d.width, d.height, v.width, v.height
-                ));
-            }
-            v.pixels
-                .iter_mut()
-                .zip(&d.pixels)
-                .for_each(|(a, b)| *a += b);
-        }
-        Ok(v)
     }
 }
 
@@ -153,7 +102,6 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let n = a.frames.len();
     let mut captures = Vec::with_capacity(n);
-    let mut warnings = Vec::new();
     for (k, path) in a.frames.iter().enumerate() {
         let pose = per_block(&a.pose, k, "--pose", n)?.clone();
         let AngleArg(channels) = per_block(&a.angle, k, "--angle", n)?.clone();
@@ -178,17 +126,12 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
                 .into())
             }
         };
-        let (dark, dark_variance) = if a.dark.is_empty() {
-            (None, None)
+        let dark = if a.dark.is_empty() {
+            None
         } else {
-            let d = per_block(&a.dark, k, "--dark", n)?;
-            let dark = read_frames(d)?;
-            (
-                Some(dark.stack.mean_minus(None)?),
-                dark.stack.variance_frame(),
-            )
+            Some(read_frames(per_block(&a.dark, k, "--dark", n)?)?.stack)
         };
-        let file = FileCapture {
+        captures.push(GivenCapture {
             info: CaptureInfo {
                 name: path.display().to_string(),
                 pose,
@@ -204,31 +147,35 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
             },
             stack: frames.stack,
             dark,
-            dark_variance,
-        };
-        captures.push(load(&scene, &file, &mut warnings)?);
+        });
     }
+    let wanted = match (a.raw, a.gain) {
+        (true, _) => UnitsWanted::Raw,
+        (false, Some(g)) if !(g.is_finite() && g > 0.0) => {
+            return Err(super::Usage(format!("--gain {g}: must be positive")).into())
+        }
+        (false, Some(g)) => UnitsWanted::Gain(g),
+        (false, None) => UnitsWanted::Estimated,
+    };
+    let pb = super::progress::bar(scene.cols(), "building T");
+    let mut warnings = Vec::new();
+    let measured = measure_given(
+        &scene,
+        &captures,
+        wanted,
+        budget,
+        &|done| pb.set_position(done as u64),
+        &mut warnings,
+    );
+    pb.finish_and_clear();
     for w in &warnings {
         eprintln!("warning: {w}");
     }
-    let blocks = polnlos::transport::blocks_of(&scene);
-    let mut m = assemble(&scene, &blocks, &captures)?;
-    let units = if a.raw {
-        "fractions of full scale per microsecond".to_string()
-    } else {
-        let units = match a.gain {
-            Some(g) if !(g.is_finite() && g > 0.0) => {
-                return Err(super::Usage(format!("--gain {g}: must be positive")).into())
-            }
-            Some(g) => Units::Calibrated(g),
-            // Only the estimated scale needs T.
-            None => Units::estimate(&super::progress::build_transport(&scene, budget)?.0, &m)?,
-        };
-        units.apply(&mut m);
-        if let Some(w) = units.warning() {
-            eprintln!("warning: {w}; give --gain for absolute units");
-        }
-        format!("units of T l (divided by {:.6e})", units.factor())
+    let measured = measured?;
+    let (m, blocks) = (measured.measurement, measured.blocks);
+    let units = match measured.units {
+        None => "fractions of full scale per microsecond".to_string(),
+        Some(u) => format!("units of T l (divided by {:.6e})", u.factor()),
     };
     if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
         super::out_dir(&parent.to_path_buf())?;

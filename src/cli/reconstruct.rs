@@ -4,10 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
-use polnlos::solve::gram::Normal;
 use polnlos::solve::lambda::NoiseLevel;
-use polnlos::solve::reconstruct::{self as rec, SolveRequest, Solver};
-use polnlos::solve::{condition_with, AdmmSettings};
+use polnlos::solve::reconstruct::{SolveRequest, Solver};
+use polnlos::solve::scene::{reconstruct_scene, SceneInput};
+use polnlos::solve::AdmmSettings;
 use polnlos::transport::MemoryBudget;
 
 /// Recover the hidden scene from a measurement.
@@ -161,47 +161,23 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         (None, None) => None,
     };
     super::out_dir(&a.out)?;
-
-    // With the noise known, the sampling keys the file left out are chosen
-    // so that the model's error stays below a third of it.
-    let choice = match &noise {
-        Some(n) if scene.left_out() != Default::default() => {
-            let (chosen, choice) = polnlos::transport::choose::choose(&scene, &n.variance, budget)?;
-            Some((chosen, choice))
-        }
-        _ => None,
-    };
-    let scene = choice.as_ref().map_or(scene, |(s, _)| s.clone());
-    let (t, transport_seconds) = super::progress::build_transport(&scene, budget)?;
-    // A solver that needs T^T T forms it anyway: form it once, here, and take
-    // the conditioning from its low-rank form unless the full spectrum is asked for.
-    let normal = if a.solver.needs().gram {
-        polnlos::solve::check_measurement(&t, &meas.data)?;
-        Some(Normal::of(&t, &meas.data))
-    } else {
-        None
-    };
-    let gram = normal
-        .as_ref()
-        .filter(|_| !a.full_spectrum)
-        .map(|n| &*n.gram);
-    let cond = condition_with(&t, gram)?;
-    let solved = rec::reconstruct_prepared(
-        &t,
-        &meas.data,
-        noise,
-        &cond,
-        normal.as_ref(),
-        &req,
-        rec::Context {
-            scene: super::scene_name(&a.scene),
-            transport_seconds,
+    let pb = super::progress::bar(scene.cols(), "building T");
+    let solved = reconstruct_scene(
+        &scene,
+        SceneInput {
+            measurement: &meas.data,
+            noise,
             truth: truth.as_deref(),
+            full_spectrum: a.full_spectrum,
+            name: super::scene_name(&a.scene),
             stop: Default::default(),
         },
+        &req,
+        budget,
+        &|done| pb.set_position(done as u64),
     )?;
-    let (image, mut report) = (solved.image, solved.report);
-    report.model = choice.map(|(_, c)| c);
+    pb.finish_and_clear();
+    let (image, report) = (solved.image, solved.report);
     npy::write_f64(&a.out.join("recovered.npy"), &[sgrid.nv, sgrid.nu], &image)?;
     image::write_png16(
         &a.out.join("recovered.png"),

@@ -6,6 +6,7 @@ mod assemble;
 mod average;
 pub mod exposure;
 mod frame;
+pub mod given;
 pub mod levels;
 mod load;
 pub mod mosaic;

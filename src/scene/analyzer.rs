@@ -41,6 +41,24 @@ impl Channel {
         MOSAIC_DEGREES.map(|deg| Channel::Mosaic { deg })
     }
 
+    /// The channels a capture yields, from how its analyzer is named:
+    /// degrees from crossed (-360..360) for a sheet, `none`, or `mosaic`
+    /// for a polarizer-mosaic sensor's four; the error says what is accepted.
+    pub fn of_capture(angle: &str) -> Result<Vec<Self>, String> {
+        match angle {
+            "none" => Ok(vec![Channel::None]),
+            "mosaic" => Ok(Self::mosaic().to_vec()),
+            _ => match angle.trim().parse::<f64>() {
+                Ok(deg) if deg.is_finite() && deg.abs() <= 360.0 => {
+                    Ok(vec![Channel::Sheet { deg }])
+                }
+                _ => Err(format!(
+                    "{angle:?} is not an angle in degrees (-360..360), `none` or `mosaic`"
+                )),
+            },
+        }
+    }
+
     /// The sheet's angle from crossed, for a sheet channel.
     pub fn sheet_deg(self) -> Option<f64> {
         match self {
@@ -255,6 +273,46 @@ pub fn analyzer_axis(q0: &Vec3, wall_center: &Vec3, camera: &Vec3, psi: f64) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    proptest::proptest! {
+        /// Whatever a user types for a capture's analyzer, it is a sheet at
+        /// exactly that angle (within -360..360), `none`, `mosaic`'s four,
+        /// or an error that says what is accepted.
+        #[test]
+        fn a_capture_s_analyzer_parses_or_says_what_is_accepted(text in "\\PC{0,12}", deg in -400.0f64..400.0) {
+            match Channel::of_capture(&text) {
+                Ok(c) => {
+                    let sheet = matches!(c[..], [Channel::Sheet { deg }] if deg.abs() <= 360.0);
+                    let named = c == vec![Channel::None] || c == Channel::mosaic().to_vec();
+                    proptest::prop_assert!(sheet || named, "{:?}", c);
+                }
+                Err(e) => proptest::prop_assert!(e.contains("`none` or `mosaic`"), "{}", e),
+            }
+            let parsed = Channel::of_capture(&deg.to_string());
+            if deg.abs() <= 360.0 {
+                proptest::prop_assert_eq!(parsed, Ok(vec![Channel::Sheet { deg }]));
+            } else {
+                proptest::prop_assert!(parsed.is_err());
+            }
+        }
+    }
+
+    #[test]
+    fn a_capture_s_analyzer_by_name() {
+        assert_eq!(Channel::of_capture("none"), Ok(vec![Channel::None]));
+        assert_eq!(
+            Channel::of_capture("mosaic"),
+            Ok(Channel::mosaic().to_vec())
+        );
+        assert_eq!(
+            Channel::of_capture("22.5"),
+            Ok(vec![Channel::Sheet { deg: 22.5 }])
+        );
+        assert!(Channel::of_capture("NaN").is_err());
+        assert!(Channel::of_capture("crossed")
+            .unwrap_err()
+            .contains("\"crossed\""));
+    }
 
     #[test]
     fn the_polarsens_layout_is_the_documented_pattern() {

@@ -19,6 +19,7 @@ pub mod metrics;
 pub mod plan;
 pub mod reconstruct;
 pub mod report;
+pub mod scene;
 pub mod solver;
 pub mod tv;
 

@@ -1,0 +1,141 @@
+//! Captures a caller hands in as frame stacks (a user's TIFF files, NumPy
+//! arrays from Python), measured the way the daemon measures its own.
+//!
+//! Why: `polnlos measure` and the Python bindings must turn the same frames
+//! into the same `i` and variance, so both call [`measure_given`].
+
+use super::{assemble, load, CaptureInfo, CaptureSource, Frame, FrameStack, Measurement, Units};
+use crate::scene::Scene;
+use crate::transport::{Block, MemoryBudget, TransportError};
+
+/// One capture's frames and the dark frames to subtract from their mean.
+pub struct GivenCapture {
+    /// What the capture was (pose, blocks, exposure, full scale).
+    pub info: CaptureInfo,
+    /// Its frames.
+    pub stack: FrameStack,
+    /// Dark frames (scene off, same exposure and region).
+    pub dark: Option<FrameStack>,
+}
+
+impl CaptureSource for GivenCapture {
+    fn info(&self) -> CaptureInfo {
+        self.info.clone()
+    }
+
+    fn mean(&self) -> Result<Frame, String> {
+        let dark = match &self.dark {
+            Some(d) => Some(d.mean_minus(None).map_err(|e| e.to_string())?),
+            None => None,
+        };
+        self.stack
+            .mean_minus(dark.as_ref())
+            .map_err(|e| e.to_string())
+    }
+
+    /// The variance of the dark-subtracted mean: the frames' plus the dark's
+    /// (MODEL.md `var_p`).
+    fn variance(&self) -> Result<Option<Frame>, String> {
+        let mut v = self.stack.variance_frame();
+        let d = self.dark.as_ref().and_then(FrameStack::variance_frame);
+        if let (Some(v), Some(d)) = (v.as_mut(), d) {
+            if (d.width, d.height) != (v.width, v.height) {
+                return Err(format!(
+                    "the dark frames are {}x{} but the frames {}x{}",
+                    d.width, d.height, v.width, v.height
+                ));
+            }
+            v.pixels
+                .iter_mut()
+                .zip(&d.pixels)
+                .for_each(|(a, b)| *a += b);
+        }
+        Ok(v)
+    }
+}
+
+/// The units a measurement is put in.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum UnitsWanted {
+    /// Fractions of full scale per microsecond (for `calibrate wall`).
+    Raw,
+    /// Units of `T l`, divided by the bench's radiometric gain.
+    Gain(f64),
+    /// Units of `T l`, scaled so that the brightest element is about 1.
+    Estimated,
+}
+
+/// A measurement from given captures, in the scene's block order.
+pub struct Measured {
+    /// `i` and its variance.
+    pub measurement: Measurement,
+    /// The scene's blocks, in row order.
+    pub blocks: Vec<Block>,
+    /// The units applied, when any (`None` for [`UnitsWanted::Raw`]).
+    pub units: Option<Units>,
+}
+
+/// Why given captures could not be measured.
+#[derive(Debug, thiserror::Error)]
+pub enum GivenError {
+    /// A capture does not fit the scene or cannot be read.
+    #[error(transparent)]
+    Measure(#[from] super::MeasureError),
+    /// `T`, needed for the estimated units, could not be built.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The estimated units could not be computed.
+    #[error(transparent)]
+    Solve(#[from] crate::solve::SolveError),
+    /// The gain is not a positive number.
+    #[error("gain {0}: must be a positive number")]
+    Gain(f64),
+}
+
+/// Measures `captures` for `scene`: each capture read and checked
+/// ([`load`]), the blocks stacked in the scene's order ([`assemble`]) and
+/// put in the units asked for; `progress` hears how many columns of `T` are
+/// built (only the estimated units need `T`). What the user should know (no
+/// dark subtraction, estimated units) is added to `warnings`, failure or not.
+pub fn measure_given(
+    scene: &Scene,
+    captures: &[GivenCapture],
+    units: UnitsWanted,
+    budget: MemoryBudget,
+    progress: &(dyn Fn(usize) + Sync),
+    warnings: &mut Vec<String>,
+) -> Result<Measured, GivenError> {
+    if let UnitsWanted::Gain(g) = units {
+        if !(g.is_finite() && g > 0.0) {
+            return Err(GivenError::Gain(g));
+        }
+    }
+    let loaded = captures
+        .iter()
+        .map(|c| load(scene, c, warnings))
+        .collect::<Result<Vec<_>, _>>()?;
+    let blocks = crate::transport::blocks_of(scene);
+    let mut measurement = assemble(scene, &blocks, &loaded)?;
+    let units = match units {
+        UnitsWanted::Raw => None,
+        UnitsWanted::Gain(g) => Some(Units::Calibrated(g)),
+        // Only the estimated scale needs T.
+        UnitsWanted::Estimated => Some(Units::estimate(
+            &crate::transport::build_with_progress(scene, budget, progress)?,
+            &measurement,
+        )?),
+    };
+    if let Some(u) = units {
+        u.apply(&mut measurement);
+        if let Some(w) = u.warning() {
+            warnings.push(format!(
+                "{w}; give the bench's radiometric gain for absolute units"
+            ));
+        }
+    }
+    Ok(Measured {
+        measurement,
+        blocks,
+        units,
+    })
+}
