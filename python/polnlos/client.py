@@ -1,0 +1,213 @@
+"""A client for the polnlos daemon's HTTP API (`polnlos serve`).
+
+Thin over the API: request bodies are the API's own fields (see the daemon's
+/api page), answers are the API's JSON as dicts, and downloads come back as
+NumPy arrays. Standard library only.
+
+    c = polnlos.Client("http://127.0.0.1:8470")
+    cap = c.wait(c.capture("brewster-crossed", "A", polarizer_deg=0,
+                           exposure_us=20000, frames=4))
+    rec = c.wait(c.reconstruct("brewster-crossed", [cap["id"]]))
+    image = c.recovered(rec["id"])
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+import urllib.error
+import urllib.request
+from typing import Any, Dict, Iterator, List, Optional
+
+import numpy as np
+
+from ._polnlos import PolnlosError, decode_tiff
+
+# States after which a job or plan changes no more (a plan waiting for the
+# operator is not one: `wait` returns there too, so the caller can continue it).
+_FINAL = {"done", "failed", "cancelled", "interrupted"}
+
+
+class DaemonError(PolnlosError):
+    """An answer other than 2xx: `status` (HTTP), `code` (`invalid`,
+    `not_found`, ...) and the daemon's sentence saying what was wrong."""
+
+    def __init__(self, status: int, code: str, message: str, path: str):
+        super().__init__(f"{path}: {status} {code}: {message}")
+        self.status = status
+        self.code = code
+        self.message = message
+        self.path = path
+
+
+class Client:
+    """The daemon at `url`, with its bearer `token` when it wants one."""
+
+    def __init__(self, url: str = "http://127.0.0.1:8470", token: Optional[str] = None,
+                 timeout: float = 30.0):
+        self.url = url.rstrip("/")
+        self.token = token
+        self.timeout = timeout
+
+    # -- transport ---------------------------------------------------------
+
+    def _request(self, method: str, path: str, body: Any = None,
+                 timeout: Optional[float] = None):
+        data = None
+        headers = {"Accept": "application/json"}
+        if body is not None:
+            data = json.dumps(body).encode()
+            headers["Content-Type"] = "application/json"
+        if self.token:
+            headers["Authorization"] = f"Bearer {self.token}"
+        req = urllib.request.Request(self.url + path, data=data, method=method, headers=headers)
+        try:
+            return urllib.request.urlopen(req, timeout=timeout or self.timeout)
+        except urllib.error.HTTPError as e:
+            raw = e.read()
+            try:
+                err = json.loads(raw)
+                code, message = err.get("error", "error"), err.get("detail", "")
+            except ValueError:
+                code, message = "error", raw.decode(errors="replace")
+            raise DaemonError(e.code, code, message, f"{method} {path}") from None
+        except urllib.error.URLError as e:
+            raise PolnlosError(f"{method} {path}: cannot reach the daemon at {self.url} ({e.reason}); "
+                               "is `polnlos serve` running?") from None
+
+    def _json(self, method: str, path: str, body: Any = None) -> Any:
+        with self._request(method, path, body) as r:
+            return json.loads(r.read())
+
+    def _bytes(self, path: str) -> bytes:
+        with self._request("GET", path) as r:
+            return r.read()
+
+    # -- the daemon --------------------------------------------------------
+
+    def health(self) -> Dict[str, Any]:
+        """Liveness, the camera's state and the queues."""
+        return self._json("GET", "/health")
+
+    def camera(self) -> Dict[str, Any]:
+        """The camera: model, sensor, settings, counters."""
+        return self._json("GET", "/camera")
+
+    def scenes(self) -> List[str]:
+        """The scene names the daemon knows."""
+        return self._json("GET", "/scenes")
+
+    # -- captures ------------------------------------------------------------
+
+    def capture(self, scene: str, pose: str, **fields: Any) -> Dict[str, Any]:
+        """Queues a capture (`POST /captures`): `polarizer_deg`, `exposure_us`,
+        `frames`, `kind` ("light" or "dark") and the API's other fields.
+        Returns the accepted job (`id`, `job`, `state`)."""
+        return self._json("POST", "/captures", {"scene": scene, "pose": pose, **fields})
+
+    def captures(self) -> List[Dict[str, Any]]:
+        """The newest captures (`GET /captures`)."""
+        return self._json("GET", "/captures")
+
+    def get_capture(self, capture_id: int) -> Dict[str, Any]:
+        """One capture's record."""
+        return self._json("GET", f"/captures/{int(capture_id)}")
+
+    def capture_mean(self, capture_id: int) -> np.ndarray:
+        """A capture's mean frame (DN, dark-subtracted when it has a dark)."""
+        mean, _ = decode_tiff(self._bytes(f"/captures/{int(capture_id)}/mean.tiff"))
+        return mean
+
+    def delete_capture(self, capture_id: int) -> Dict[str, Any]:
+        """Deletes a finished capture, its row and its files."""
+        return self._json("DELETE", f"/captures/{int(capture_id)}")
+
+    # -- reconstructions -----------------------------------------------------
+
+    def reconstruct(self, scene: str, captures: List[int], **fields: Any) -> Dict[str, Any]:
+        """Queues a reconstruction (`POST /reconstructions`): `solver`,
+        `lambda`, `max_iter`, `truth` and the API's other fields."""
+        return self._json("POST", "/reconstructions",
+                          {"scene": scene, "captures": [int(c) for c in captures], **fields})
+
+    def get_reconstruction(self, rec_id: int) -> Dict[str, Any]:
+        """One reconstruction's record."""
+        return self._json("GET", f"/reconstructions/{int(rec_id)}")
+
+    def recovered(self, rec_id: int) -> np.ndarray:
+        """The recovered image (scene grid, rows = v)."""
+        return np.load(io.BytesIO(self._bytes(f"/reconstructions/{int(rec_id)}/recovered.npy")))
+
+    def measurement(self, rec_id: int) -> np.ndarray:
+        """The measurement vector the reconstruction solved for."""
+        return np.load(io.BytesIO(self._bytes(f"/reconstructions/{int(rec_id)}/measurement.npy")))
+
+    def report(self, rec_id: int) -> Dict[str, Any]:
+        """report.json: conditioning, λ, solver statistics, model check."""
+        return self._json("GET", f"/reconstructions/{int(rec_id)}/report.json")
+
+    # -- plans ---------------------------------------------------------------
+
+    def plan(self, scene: str, **fields: Any) -> Dict[str, Any]:
+        """Starts a plan over every block of `scene` (`POST /plans`):
+        `exposure_us` (or `exposure`), `frames`, `dark_frames`, `reconstruct`."""
+        return self._json("POST", "/plans", {"scene": scene, **fields})
+
+    def get_plan(self, plan_id: int) -> Dict[str, Any]:
+        """A plan: its state, current step, captures and reconstruction."""
+        return self._json("GET", f"/plans/{int(plan_id)}")
+
+    def continue_plan(self, plan_id: int) -> Dict[str, Any]:
+        """Tells a plan waiting for the operator that the step is done."""
+        return self._json("POST", f"/plans/{int(plan_id)}/continue")
+
+    def cancel_plan(self, plan_id: int) -> Dict[str, Any]:
+        """Cancels a plan; its finished captures are kept."""
+        return self._json("DELETE", f"/plans/{int(plan_id)}")
+
+    # -- waiting and events --------------------------------------------------
+
+    def job(self, job: str) -> Dict[str, Any]:
+        """A capture or reconstruction by job id (`capture-3`)."""
+        return self._json("GET", f"/jobs/{job}")
+
+    def wait(self, accepted: Dict[str, Any], timeout: float = 600.0,
+             poll: float = 0.1) -> Dict[str, Any]:
+        """Polls a job (an accepted capture or reconstruction) or a plan until
+        it ends (or, for a plan, waits for the operator); returns its record.
+        Raises DaemonError-free PolnlosError when it failed or time ran out."""
+        if "job" in accepted and isinstance(accepted["job"], dict):  # a capture's answer
+            accepted = accepted["job"]
+        if "job" in accepted:
+            fetch = lambda: self.job(accepted["job"])  # noqa: E731
+        elif "id" in accepted:
+            fetch = lambda: self.get_plan(accepted["id"])  # noqa: E731
+        else:
+            raise ValueError("give the answer of capture(), reconstruct() or plan()")
+        end = time.monotonic() + timeout
+        while True:
+            record = fetch()
+            state = record.get("state")
+            if state in _FINAL or state == "waiting_for_operator":
+                if state == "failed":
+                    raise PolnlosError(f"{accepted.get('job', 'plan')} failed: {record.get('error')}")
+                return record
+            if time.monotonic() > end:
+                raise PolnlosError(f"{accepted.get('job', 'plan')} still {state} after {timeout} s")
+            time.sleep(poll)
+
+    def events(self, timeout: Optional[float] = None) -> Iterator[Dict[str, Any]]:
+        """The daemon's event stream (`GET /events`, server-sent events), one
+        dict per event, as long as the connection lasts; `timeout` bounds the
+        wait for each line (the daemon sends a keep-alive every 15 s)."""
+        r = self._request("GET", "/events", timeout=timeout or self.timeout)
+        with r:
+            data: List[str] = []
+            for raw in r:
+                line = raw.decode("utf-8").rstrip("\r\n")
+                if line.startswith("data:"):
+                    data.append(line[5:].lstrip(" "))
+                elif line == "" and data:
+                    yield json.loads("\n".join(data))
+                    data = []

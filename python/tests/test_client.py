@@ -1,0 +1,89 @@
+"""The client against a real daemon (`polnlos serve` with Aravis's fake
+camera on 127.0.0.1, started by tests/python.rs): captures, a
+reconstruction, downloads as arrays, the event stream and errors."""
+
+import queue
+import threading
+
+import numpy as np
+import pytest
+
+import polnlos
+
+
+@pytest.fixture(scope="module")
+def client(daemon_url):
+    return polnlos.Client(daemon_url, timeout=30)
+
+
+def test_a_capture_reconstructs_and_downloads_as_arrays(client):
+    assert client.health()["camera_connected"] is True
+    assert "brewster-crossed" in client.scenes()
+    light = client.wait(client.capture("brewster-crossed", "A", polarizer_deg=0,
+                                       exposure_us=20000, frames=4, dark_frames=2))
+    assert light["state"] == "done"
+    mean = client.capture_mean(light["id"])
+    assert mean.shape == (512, 512) and mean.dtype == np.float64
+    assert mean.max() > 0
+    rec = client.wait(client.reconstruct("brewster-crossed", [light["id"]], truth="letter"))
+    assert rec["state"] == "done"
+    image = client.recovered(rec["id"])
+    assert image.shape == tuple(polnlos.Scene.load("brewster-crossed").scene_shape)
+    assert 0.0 <= image.min() and image.max() <= 1.0
+    report = client.report(rec["id"])
+    assert report["metrics"]["psnr_db"] > 12, report["metrics"]
+    m = client.measurement(rec["id"])
+    assert m.shape == (polnlos.Scene.load("brewster-crossed").rows,)
+
+
+def test_a_plan_runs_the_scene_through_the_mount_to_a_reconstruction(client):
+    accepted = client.plan("brewster-crossed", exposure_us=20000, frames=2, dark_frames=1,
+                           reconstruct={"truth": "letter"})
+    plan = client.wait(accepted, timeout=300)
+    assert plan["state"] == "done", plan
+    assert len(plan["captures"]) == 1, plan
+    assert plan["reconstruction"] is not None, plan
+    rec = client.wait({"job": f"reconstruction-{plan['reconstruction']}"})
+    assert rec["state"] == "done"
+    assert client.recovered(plan["reconstruction"]).shape == (8, 8)
+    assert client.get_plan(accepted["id"])["id"] == accepted["id"]
+
+
+def test_events_arrive_as_dicts_while_a_capture_runs(client):
+    seen = queue.Queue()
+
+    def listen():
+        try:
+            for e in client.events(timeout=30):
+                seen.put(e)
+        except Exception as e:  # the stream's end when the test is over
+            seen.put(e)
+
+    threading.Thread(target=listen, daemon=True).start()
+    accepted = None
+    job = None
+    for _ in range(300):
+        if accepted is None:
+            # Subscribe first: the capture's events come after.
+            threading.Event().wait(0.3)
+            accepted = client.capture("brewster-crossed", "A", polarizer_deg=0,
+                                      exposure_us=10000, frames=1)
+            job = accepted["job"]
+        e = seen.get(timeout=30)
+        assert isinstance(e, dict), e
+        if e.get("job") == job and e.get("state") == "done":
+            break
+    else:
+        pytest.fail(f"no 'done' event for {job}")
+
+
+def test_errors_carry_the_daemons_status_and_sentence(client):
+    with pytest.raises(polnlos.DaemonError) as e:
+        client.capture("brewster-crossed", "Q", polarizer_deg=0, exposure_us=1000, frames=1)
+    assert e.value.status in (404, 422)
+    assert "Q" in e.value.message
+    with pytest.raises(polnlos.DaemonError) as e:
+        client.get_capture(999999)
+    assert e.value.status == 404
+    with pytest.raises(polnlos.PolnlosError, match="cannot reach"):
+        polnlos.Client("http://127.0.0.1:9", timeout=2).health()

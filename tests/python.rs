@@ -1,0 +1,124 @@
+//! The Python package (`python/`) as a lab user gets it: built and installed
+//! with pip from this repository into a fresh virtual environment, its pytest
+//! suite run against this build's `polnlos` binary and a real daemon (Aravis's
+//! fake camera, HTTP on 127.0.0.1), and the notebook in docs/ executed.
+//!
+//! Needs what the README's set-up line installs: python3 with maturin,
+//! pytest, nbclient and ipykernel.
+
+mod common;
+
+use common::{config, lock, Daemon};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Runs `cmd` and fails the test with its output when it fails.
+fn run(cmd: &mut Command, what: &str) {
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("{what}: cannot start ({e})"));
+    assert!(
+        out.status.success(),
+        "{what} failed ({}):\n{}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// A virtual environment with the package installed from `python/` (its own
+/// build folder: `cargo test` holds this one's lock), seeing the system's
+/// NumPy, maturin, pytest and nbclient.
+fn venv() -> PathBuf {
+    let venv = root().join("target/python-venv");
+    let python = venv.join("bin/python");
+    if !python.exists() {
+        run(
+            Command::new("python3")
+                .args(["-m", "venv", "--system-site-packages"])
+                .arg(&venv),
+            "python3 -m venv",
+        );
+    }
+    for module in ["maturin", "pytest", "nbclient", "ipykernel", "numpy"] {
+        let ok = Command::new(&python)
+            .args(["-c", &format!("import {module}")])
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(
+            ok,
+            "python3 has no {module}: run the README's set-up line (python3 -m pip install maturin pytest nbclient ipykernel numpy)"
+        );
+    }
+    run(
+        Command::new(&python)
+            .args([
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--no-build-isolation",
+                "--no-deps",
+                "--force-reinstall",
+            ])
+            .arg(root().join("python"))
+            .env("CARGO_TARGET_DIR", root().join("target/python")),
+        "pip install ./python",
+    );
+    python
+}
+
+/// PATH with the environment's bin folder first: a kernel spec that names
+/// plain `python` starts the environment's.
+fn path_with(python: &Path) -> std::ffi::OsString {
+    let bin = python.parent().map(Path::to_path_buf).unwrap_or_default();
+    let mut paths = vec![bin];
+    paths.extend(std::env::split_paths(
+        &std::env::var_os("PATH").unwrap_or_default(),
+    ));
+    std::env::join_paths(paths).unwrap_or_default()
+}
+
+#[test]
+fn the_python_package_matches_the_cli_talks_to_the_daemon_and_runs_the_notebook() {
+    let python = venv();
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    run(
+        Command::new(&python)
+            .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
+            .arg(root().join("python/tests"))
+            .env("POLNLOS_BIN", env!("CARGO_BIN_EXE_polnlos"))
+            .env("POLNLOS_URL", &d.base)
+            .current_dir(dir.path()),
+        "pytest python/tests",
+    );
+    let executed = dir.path().join("python.ipynb");
+    run(
+        Command::new(&python)
+            .args([
+                "-c",
+                "import sys, nbformat, nbclient\n\
+                 nb = nbformat.read(sys.argv[1], as_version=4)\n\
+                 nbclient.NotebookClient(nb, timeout=600, kernel_name='python3').execute()\n\
+                 nbformat.write(nb, sys.argv[2])",
+            ])
+            .arg(root().join("docs/python.ipynb"))
+            .arg(&executed)
+            .env("POLNLOS_URL", &d.base)
+            .env("PATH", path_with(&python))
+            .current_dir(dir.path()),
+        "executing docs/python.ipynb",
+    );
+    // The notebook reached its last cell and printed the comparison.
+    let text = std::fs::read_to_string(&executed).unwrap();
+    assert!(text.contains("the crossed polarizer gains"), "{text}");
+    assert!(text.contains("largest difference to the daemon"), "{text}");
+    drop(d);
+}
