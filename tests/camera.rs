@@ -352,6 +352,15 @@ fn software_trigger_delivers_one_frame_per_trigger() {
 /// camera through a reader that takes `per_frame` over each: what the
 /// acquisition counted, the frame ids the reader saw, and the camera (with
 /// its fake, which must outlive it).
+/// The fake bench showing pose A at crossed, and the camera connected to it.
+fn showing_a() -> (FakeBench, CameraHandle) {
+    let fake = bench();
+    fake.select("A", Some(0.0));
+    let cam = handle();
+    assert!(wait_connected(&cam, true, Duration::from_secs(5)));
+    (fake, cam)
+}
+
 fn fast_frames(
     n: usize,
     per_frame: Duration,
@@ -361,10 +370,7 @@ fn fast_frames(
     CameraHandle,
     FakeBench,
 ) {
-    let fake = bench();
-    fake.select("A", Some(0.0));
-    let cam = handle();
-    assert!(wait_connected(&cam, true, Duration::from_secs(5)));
+    let (fake, cam) = showing_a();
     let settings = Acquisition {
         exposure_us: 1_000.0,
         ..at_open()
@@ -417,10 +423,7 @@ fn a_200_frame_capture_loses_no_frame_and_short_fast_captures_neither() {
 #[test]
 fn broken_frames_of_a_lossy_link_are_waited_past_and_a_link_that_breaks_all_fails_with_advice() {
     let _g = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
-    let mut fake = bench();
-    fake.select("A", Some(0.0));
-    let cam = handle();
-    assert!(wait_connected(&cam, true, Duration::from_secs(5)));
+    let (mut fake, cam) = showing_a();
     let settings = Acquisition {
         exposure_us: 10_000.0,
         ..at_open()

@@ -135,14 +135,14 @@ def measure(
     darks = dark if (many and isinstance(dark, (list, tuple))) else [dark]
     captures = []
     for k, f in enumerate(stacks):
+        d = _per_capture(darks, k, n, "dark")
         captures.append(
             {
                 "frames": _np.asarray(f),
                 "pose": _per_capture(pose, k, n, "pose"),
                 "angle": _per_capture(angle, k, n, "angle"),
                 "exposure_us": float(_per_capture(exposure_us, k, n, "exposure_us")),
-                "dark": None if _per_capture(darks, k, n, "dark") is None
-                else _np.asarray(_per_capture(darks, k, n, "dark")),
+                "dark": None if d is None else _np.asarray(d),
                 "full_scale": _per_capture(full_scale, k, n, "full_scale"),
             }
         )

@@ -176,9 +176,7 @@ class Client:
              poll: float = 0.1) -> Dict[str, Any]:
         """Polls a job (an accepted capture or reconstruction) or a plan until
         it ends (or, for a plan, waits for the operator); returns its record.
-        Raises DaemonError-free PolnlosError when it failed or time ran out."""
-        if "job" in accepted and isinstance(accepted["job"], dict):  # a capture's answer
-            accepted = accepted["job"]
+        Raises PolnlosError when it failed or time ran out."""
         if "job" in accepted:
             fetch = lambda: self.job(accepted["job"])  # noqa: E731
         elif "id" in accepted:

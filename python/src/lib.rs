@@ -19,7 +19,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use polnlos::measure::given::{measure_given, GivenCapture, UnitsWanted};
-use polnlos::measure::{CaptureInfo, FrameStack};
+use polnlos::measure::FrameStack;
 use polnlos::scene::{Channel, WallSampling};
 use polnlos::simulate::{unpolarized_peak, NoiseModel};
 use polnlos::solve::lambda::NoiseLevel;
@@ -66,11 +66,8 @@ impl Scene {
     #[staticmethod]
     fn load(name_or_path: &str) -> PyResult<Self> {
         let path = Path::new(name_or_path);
-        let inner = match (path.exists(), polnlos::scene::Scene::builtin(name_or_path)) {
-            (false, Some(parsed)) => parsed,
-            _ => polnlos::scene::Scene::load(path),
-        }
-        .map_err(|e| SceneError::new_err(e.to_string()))?;
+        let inner = polnlos::scene::Scene::load_or_builtin(path)
+            .map_err(|e| SceneError::new_err(e.to_string()))?;
         let name = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -421,23 +418,16 @@ fn measure_captures<'py>(
                 "{name}: exposure_us {exposure_us} must be positive"
             )));
         }
-        given.push(GivenCapture {
-            info: CaptureInfo {
-                name: name.clone(),
-                pose: get("pose")?.extract()?,
-                channels: channels_of(&get("angle")?)?,
-                frames: stack.count,
-                full_scale,
-                exposure_us,
-                region: None,
-                binning: None,
-                missing_dark: dark
-                    .is_none()
-                    .then_some("give dark frames (scene off, same exposure and region) as dark="),
-            },
+        given.push(GivenCapture::new(
+            name.clone(),
+            get("pose")?.extract()?,
+            channels_of(&get("angle")?)?,
             stack,
             dark,
-        });
+            full_scale,
+            exposure_us,
+            "give dark frames (scene off, same exposure and region) as dark=",
+        ));
     }
     let wanted = match (raw, gain) {
         (true, _) => UnitsWanted::Raw,
@@ -523,10 +513,8 @@ fn reconstruct<'py>(
     let req = SolveRequest {
         solver,
         lambda: lam,
-        rho: None,
         max_iter,
-        tol: None,
-        rcond: None,
+        ..Default::default()
     };
     req.check().map_err(|e| bad(e.to_string()))?;
     let solved = py
@@ -569,10 +557,7 @@ fn rust_reconstruct_seconds(
     let req = SolveRequest {
         solver: Solver::AdmmTv,
         lambda: Some(lam),
-        rho: None,
-        max_iter: None,
-        tol: None,
-        rcond: None,
+        ..Default::default()
     };
     req.check().map_err(|e| bad(e.to_string()))?;
     py.allow_threads(|| {

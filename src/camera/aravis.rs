@@ -456,12 +456,11 @@ impl CameraDevice for AravisCamera {
                     buffer.status()
                 );
                 stream.push_buffer(buffer);
-                let limit = if taken == 0 { first_timeout } else { timeout };
-                if last_whole.elapsed() > limit {
+                if last_whole.elapsed() > wait {
                     break Err(CameraError::Driver(format!(
                         "{} broken buffers and no whole frame in {} ms; check the network or the camera's packet size",
                         counts.broken,
-                        limit.as_millis()
+                        wait.as_millis()
                     )));
                 }
                 continue;

@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 use polnlos::files::frames::read_frames;
 use polnlos::files::npy;
 use polnlos::measure::given::{measure_given, GivenCapture, UnitsWanted};
-use polnlos::measure::CaptureInfo;
 use polnlos::scene::Channel;
 use polnlos::transport::MemoryBudget;
 
@@ -131,23 +130,16 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         } else {
             Some(read_frames(per_block(&a.dark, k, "--dark", n)?)?.stack)
         };
-        captures.push(GivenCapture {
-            info: CaptureInfo {
-                name: path.display().to_string(),
-                pose,
-                channels,
-                frames: frames.stack.count,
-                full_scale,
-                exposure_us,
-                region: None,
-                binning: None,
-                missing_dark: dark.is_none().then_some(
-                    "give dark frames (scene off, same exposure and region) with --dark",
-                ),
-            },
-            stack: frames.stack,
+        captures.push(GivenCapture::new(
+            path.display().to_string(),
+            pose,
+            channels,
+            frames.stack,
             dark,
-        });
+            full_scale,
+            exposure_us,
+            "give dark frames (scene off, same exposure and region) with --dark",
+        ));
     }
     let wanted = match (a.raw, a.gain) {
         (true, _) => UnitsWanted::Raw,

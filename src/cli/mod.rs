@@ -127,10 +127,7 @@ fn scene_text(path: &Path) -> anyhow::Result<String> {
 /// as the daemon knows them) when no such file exists; the error names the
 /// file, the key and the reason.
 fn load_scene(path: &Path) -> anyhow::Result<Scene> {
-    match builtin(path) {
-        Some(text) => Ok(Scene::from_toml_str(text)?),
-        None => Ok(Scene::load(path)?),
-    }
+    Ok(Scene::load_or_builtin(path)?)
 }
 
 /// The scene's name: its file stem.

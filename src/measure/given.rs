@@ -18,6 +18,40 @@ pub struct GivenCapture {
     pub dark: Option<FrameStack>,
 }
 
+impl GivenCapture {
+    /// One capture named `name` (how errors and warnings name it) at `pose`
+    /// through `channels`; without a dark, the warning says `how_to_dark`
+    /// (the CLI's flag, the Python argument). Region and binning are not
+    /// known: the frames must be the ones the pose's homography maps to.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        name: String,
+        pose: String,
+        channels: Vec<crate::scene::Channel>,
+        stack: FrameStack,
+        dark: Option<FrameStack>,
+        full_scale: f64,
+        exposure_us: f64,
+        how_to_dark: &'static str,
+    ) -> Self {
+        Self {
+            info: CaptureInfo {
+                name,
+                pose,
+                channels,
+                frames: stack.count,
+                full_scale,
+                exposure_us,
+                region: None,
+                binning: None,
+                missing_dark: dark.is_none().then_some(how_to_dark),
+            },
+            stack,
+            dark,
+        }
+    }
+}
+
 impl CaptureSource for GivenCapture {
     fn info(&self) -> CaptureInfo {
         self.info.clone()

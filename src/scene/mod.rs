@@ -202,6 +202,16 @@ impl Scene {
         file::parse(text)
     }
 
+    /// A scene file, or the built-in scene of that name when no such file
+    /// exists (`brewster-crossed-3x3`, as the daemon knows them): how every
+    /// front end (the CLI, the Python bindings) names a scene.
+    pub fn load_or_builtin(path: &Path) -> Result<Self, SceneError> {
+        match (path.exists(), builtin::text(&path.to_string_lossy())) {
+            (false, Some(text)) => Self::from_toml_str(text),
+            _ => Self::load(path),
+        }
+    }
+
     /// Reads, parses and validates a scene file.
     pub fn load(path: &Path) -> Result<Self, SceneError> {
         let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
