@@ -62,7 +62,7 @@ pub fn fista_tv(
 
 /// Largest eigenvalue of the symmetric `g` by power iteration (relative
 /// change below 1e-6 or 200 steps), from a positive start vector.
-fn largest_eigenvalue(g: &Mat<f64>) -> f64 {
+pub(crate) fn largest_eigenvalue(g: &Mat<f64>) -> f64 {
     let n = g.nrows();
     let mut v = Mat::<f64>::from_fn(n, 1, |_, _| 1.0 / (n as f64).sqrt());
     let mut lambda = 0.0;
@@ -83,7 +83,7 @@ fn largest_eigenvalue(g: &Mat<f64>) -> f64 {
 }
 
 /// `T^T T` as a full symmetric matrix from its lower triangle.
-fn symmetric(lower: &Mat<f64>) -> Mat<f64> {
+pub(crate) fn symmetric(lower: &Mat<f64>) -> Mat<f64> {
     let n = lower.nrows();
     Mat::from_fn(
         n,
@@ -99,7 +99,7 @@ fn symmetric(lower: &Mat<f64>) -> Mat<f64> {
 }
 
 /// Scratch buffers of the proximal step, allocated once per solve.
-struct Prox {
+pub(crate) struct Prox {
     grid: Grid,
     /// Dual variable (warm start), `2n`.
     p: Vec<f64>,
@@ -114,7 +114,7 @@ struct Prox {
 }
 
 impl Prox {
-    fn new(grid: Grid) -> Self {
+    pub(crate) fn new(grid: Grid) -> Self {
         let n = grid.count();
         Self {
             grid,
@@ -136,7 +136,7 @@ impl Prox {
     }
 
     /// `argmin_x 1/2 ||x - b||^2 + mu TV(x)` on `[0, 1]`, into `out`.
-    fn solve(&mut self, b: &[f64], mu: f64, iterations: usize, out: &mut [f64]) {
+    pub(crate) fn solve(&mut self, b: &[f64], mu: f64, iterations: usize, out: &mut [f64]) {
         if mu <= 0.0 {
             for (o, v) in out.iter_mut().zip(b) {
                 *o = v.clamp(0.0, 1.0);

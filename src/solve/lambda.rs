@@ -374,7 +374,7 @@ fn bisect(
 /// factorization unless residual balancing asks for one), and each trial
 /// started from the iterate of the nearest λ solved so far (its TV dual
 /// scaled to the new λ) instead of from zero.
-struct Path<'a> {
+pub(super) struct Path<'a> {
     t: &'a Transport,
     i: &'a [f64],
     normal: &'a Normal,
@@ -385,11 +385,11 @@ struct Path<'a> {
     /// (log10 lambda, iterate) of every trial.
     points: Vec<(f64, AdmmState)>,
     /// Every (lambda, misfit) tried, in order.
-    trials: Vec<(f64, f64)>,
+    pub(super) trials: Vec<(f64, f64)>,
 }
 
 impl<'a> Path<'a> {
-    fn new(
+    pub(super) fn new(
         t: &'a Transport,
         i: &'a [f64],
         normal: &'a Normal,
@@ -409,7 +409,7 @@ impl<'a> Path<'a> {
     }
 
     /// One ADMM-TV solve at `lambda`, recorded as (lambda, misfit).
-    fn solve(&mut self, lambda: f64) -> Result<Reconstruction, SolveError> {
+    pub(super) fn solve(&mut self, lambda: f64) -> Result<Reconstruction, SolveError> {
         let settings = AdmmSettings {
             lambda: Some(lambda),
             ..*self.settings
@@ -441,7 +441,7 @@ const SCAN_STEPS: usize = 12;
 /// Bisection steps inside the bracketing half decade (0.5 / 2^6 = 0.008 decade).
 const BISECT_STEPS: usize = 6;
 
-fn check_noise(noise: &NoiseLevel, i: &[f64]) -> Result<(), SolveError> {
+pub(super) fn check_noise(noise: &NoiseLevel, i: &[f64]) -> Result<(), SolveError> {
     if noise.variance.len() != i.len()
         || noise.variance.iter().any(|v| !(v.is_finite() && *v >= 0.0))
     {

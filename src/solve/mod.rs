@@ -19,9 +19,11 @@ pub mod metrics;
 pub mod plan;
 pub mod reconstruct;
 pub mod report;
+pub mod sapg;
 pub mod scene;
 pub mod solver;
 pub mod tv;
+pub mod whiteness;
 
 pub use admm::{admm_tv, AdmmSettings};
 pub use baseline::{least_squares, tikhonov};
