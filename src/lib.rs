@@ -89,5 +89,7 @@ pub mod scene;
 pub mod simulate;
 pub mod solve;
 #[cfg(feature = "daemon")]
+pub mod stage;
+#[cfg(feature = "daemon")]
 pub mod store;
 pub mod transport;

@@ -129,6 +129,165 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
 }
 
 #[test]
+fn a_plan_with_interim_results_solves_from_the_blocks_taken_so_far_after_each_block() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let d = Daemon::start(&rotating_bench(dir.path()), &dir.path().join("data"));
+    let long = Duration::from_secs(240);
+    let (s, body, loc) = d.post(
+        "/plans",
+        r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 2, "dark_frames": 1,
+            "reconstruct": {"truth": "letter", "interim": true}}"#,
+    );
+    assert_eq!(s, 202, "{body}");
+    let plan = wait_plan(&d, &loc.expect("Location"), &["done", "failed"], long);
+    assert_eq!(plan["state"], "done", "{plan}");
+    // One interim reconstruction after each of the first three blocks (steps
+    // 0-2), none after the last: the plan's own reconstruction is whole.
+    let interim: Vec<(u64, i64)> = plan["interim"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| {
+            (
+                r["step"].as_u64().unwrap(),
+                r["reconstruction"].as_i64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        interim.iter().map(|r| r.0).collect::<Vec<_>>(),
+        [0, 1, 2],
+        "{plan}"
+    );
+    let captures: Vec<i64> = plan["captures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["capture"].as_i64().unwrap())
+        .collect();
+    let mut psnrs = Vec::new();
+    for (k, &(_, rid)) in interim.iter().enumerate() {
+        let r = d.wait(&format!("/reconstructions/{rid}"), long);
+        assert_eq!(r["state"], "done", "{r}");
+        // The blocks captured by then, their rows only (32x32 wall elements a block).
+        assert_eq!(r["captures"], serde_json::json!(captures[..=k]), "{r}");
+        assert_eq!(r["params"]["partial"], true, "{r}");
+        assert_eq!(r["report"]["rows"], 1024 * (k + 1), "{r}");
+        let says = format!("interim: solved from {} of the scene's 4 blocks", k + 1);
+        assert!(r["report"]["warnings"].to_string().contains(&says), "{r}");
+        psnrs.push(psnr(&r));
+    }
+    let whole = d.json(&format!(
+        "/reconstructions/{}",
+        plan["reconstruction"].as_i64().unwrap()
+    ));
+    assert_eq!(whole["report"]["rows"], 4096, "{whole}");
+    assert!(whole["params"].get("partial").is_none(), "{whole}");
+    assert!(
+        !whole["report"]["warnings"].to_string().contains("interim"),
+        "{whole}"
+    );
+    psnrs.push(psnr(&whole));
+    println!("PSNR after 1, 2, 3 and 4 blocks: {psnrs:.2?} dB");
+    // Each is an image of the letter (the first block alone, crossed, scores
+    // highest: the solve weighs every row alike, and the other angles' rows
+    // carry the glare's shot noise).
+    assert!(psnrs.iter().all(|&p| p > 12.0), "{psnrs:?}");
+
+    // By hand: a partial request solves from the blocks it gives, as the
+    // plan's first interim did; without `partial` the missing blocks are named.
+    let one = format!(
+        r#"{{"scene": "brewster-rotating", "captures": [{}], "truth": "letter""#,
+        captures[0]
+    );
+    let (s, b, _) = d.post("/reconstructions", &format!("{one}}}"));
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("missing: pose A at 45°"), "{b}");
+    let r = d.run_job(
+        "/reconstructions",
+        &format!(r#"{one}, "partial": true}}"#),
+        long,
+    );
+    assert_eq!(r["state"], "done", "{r}");
+    assert_eq!(r["report"]["rows"], 1024, "{r}");
+    assert!(
+        (psnr(&r) - psnrs[0]).abs() < 1e-9,
+        "{} {}",
+        psnr(&r),
+        psnrs[0]
+    );
+}
+
+#[test]
+fn a_bench_with_a_stage_walks_every_pose_unattended_and_a_stage_that_slips_pauses_the_plan() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let stage = |slip: &str| {
+        let d = dir.path().join(format!("slip-{slip}"));
+        std::fs::create_dir_all(&d).unwrap();
+        config(
+            &d,
+            &[
+                (
+                    "[stage]\n",
+                    &format!("[stage]\nsimulated_slip_mm = {slip}\n"),
+                ),
+                ("kind = \"none\"", "kind = \"simulated\""),
+            ],
+        )
+    };
+    let long = Duration::from_secs(240);
+    let body =
+        r#"{"scene": "brewster-multi", "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#;
+    {
+        let d = Daemon::start(&stage("0"), &dir.path().join("data"));
+        assert_eq!(d.json("/stage")["kind"], "simulated");
+        let (s, b, loc) = d.post("/plans", body);
+        assert_eq!(s, 202, "{b}");
+        let accepted: serde_json::Value = serde_json::from_str(&b).unwrap();
+        assert!(
+            !accepted["steps"].to_string().contains("move the camera"),
+            "{b}"
+        );
+        // Poses B and C without a Continue: the stage moved the camera.
+        let done = wait_plan(
+            &d,
+            &loc.unwrap(),
+            &["done", "failed", "waiting_for_operator"],
+            long,
+        );
+        assert_eq!(done["state"], "done", "{done}");
+        assert_eq!(done["captures"].as_array().map(Vec::len), Some(2), "{done}");
+        let at = d.json("/stage");
+        assert_eq!(at["pose"], "C", "{at}");
+        assert!(at["last_error"].is_null(), "{at}");
+        let rid = done["reconstruction"].as_i64().unwrap();
+        assert_eq!(d.json(&format!("/reconstructions/{rid}"))["state"], "done");
+    }
+    // A stage that stops 2 mm short fails the capture, naming the miss, and
+    // the plan waits for the operator to look at the bench.
+    let d = Daemon::start(&stage("2"), &dir.path().join("data-slip"));
+    let (s, b, loc) = d.post("/plans", body);
+    assert_eq!(s, 202, "{b}");
+    let paused = wait_plan(
+        &d,
+        &loc.unwrap(),
+        &["waiting_for_operator", "done", "failed"],
+        long,
+    );
+    assert_eq!(paused["state"], "waiting_for_operator", "{paused}");
+    let prompt = paused["prompt"].as_str().unwrap_or("");
+    assert!(
+        prompt.contains("did not reach pose B") && prompt.contains("2.00 mm off"),
+        "{prompt}"
+    );
+    assert!(d.json("/stage")["last_error"]
+        .as_str()
+        .is_some_and(|e| e.contains("pose B")));
+}
+
+#[test]
 fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
     let _g = lock();
     let dir = tempfile::tempdir().unwrap();

@@ -98,6 +98,7 @@ fn the_core_names_no_service_layer() {
             for upper in [
                 "crate::camera",
                 "crate::mount",
+                "crate::stage",
                 "crate::store",
                 "crate::daemon",
                 "crate::api",

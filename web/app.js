@@ -688,6 +688,7 @@ async function showPlan(id) {
   const bar = $("#plan-progress");
   bar.max = Math.max(1, p.steps.length); bar.value = Math.min(p.step, p.steps.length);
   text($("#plan-step"), `step ${Math.min(p.step + 1, p.steps.length)} of ${p.steps.length}` +
+    (p.interim && p.interim.length ? `, interim reconstructions ${p.interim.map((r) => r.reconstruction).join(", ")}` : "") +
     (p.reconstruction ? `, reconstruction ${p.reconstruction}` : "") + (p.error ? `: ${p.error}` : ""));
   const waiting = p.state === "waiting_for_operator";
   text($("#plan-prompt"), waiting ? p.prompt : "");
@@ -705,6 +706,7 @@ $("#plan-form").addEventListener("submit", async (ev) => {
   if (f.get("truth")) body.reconstruct.truth = f.get("truth");
   const every = number(String(f.get("progressive_every") || "").trim());
   if (every) body.reconstruct.progressive_every = every;
+  if (f.get("interim")) body.reconstruct.interim = true;
   const r = await api("POST", "/plans", body);
   const msg = $("#plan-message");
   if (r.status !== 202) { alertIn(msg, tokenReason() || (r.json && r.json.detail) || `HTTP ${r.status}`); return; }

@@ -148,8 +148,13 @@ pub fn settings_json(data: &[u8]) {
 /// without a mount and a scene switch.
 pub fn plan_json(data: &[u8]) {
     if let Ok(b) = serde_json::from_slice::<polnlos::api::bodies::PlanBody>(data) {
-        for (mount, switches) in [(true, true), (false, false)] {
-            let steps = polnlos::daemon::steps_of(scene(), &b, mount, switches);
+        for (mount, stage, switches_scene) in [(true, true, true), (false, false, false)] {
+            let bench = polnlos::daemon::Automated {
+                mount,
+                stage,
+                switches_scene,
+            };
+            let steps = polnlos::daemon::steps_of(scene(), &b, bench);
             assert!(matches!(
                 steps.last(),
                 Some(polnlos::daemon::PlanStep::Reconstruct)

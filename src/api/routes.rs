@@ -103,6 +103,13 @@ pub async fn mount(State(d): St) -> Json<crate::daemon::mount::MountView> {
     Json(d.mount_now().await)
 }
 
+/// The camera stage that moves the camera between poses: its kind, the pose
+/// it last reached, the position read back, and its last error.
+#[utoipa::path(get, path = "/stage", responses((status = 200, body = crate::daemon::stage::StageView, description = "Stage state")))]
+pub async fn stage(State(d): St) -> Json<crate::daemon::stage::StageView> {
+    Json(d.stage_now())
+}
+
 /// Finds the mount angle at which the polarizer is crossed: sweeps the
 /// mount around its zero with the camera at `pose`, fits the minimum of the
 /// polarizer's intensity law to the wall's mean light, and makes it the

@@ -44,6 +44,8 @@ pub(super) struct CaptureWorker {
     pub(super) camera: Arc<CameraService>,
     /// Turns the polarizer to the capture's angle, when a mount is configured.
     pub(super) mount: Arc<super::mount::MountService>,
+    /// Moves the camera to the capture's pose, when a stage is configured.
+    pub(super) stage: Arc<super::stage::StageService>,
     pub(super) queue: Arc<CaptureQueue>,
     /// What a capture that lost frames does.
     pub(super) lost_frames: LostFrames,
@@ -114,6 +116,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         id,
         reason: e.to_string(),
     })?;
+    move_camera(w, &c).await?;
     turn_polarizer(w, &c).await?;
     wait_for_camera(&w.camera).await;
     let camera_id = w.camera.status().info.map(|i| i.id).unwrap_or_default();
@@ -325,6 +328,37 @@ async fn dark_reference(
 fn stall_limit(exposure_us: f64, n: usize, slack: std::time::Duration) -> std::time::Duration {
     let frames = 2.0 * n as f64 * (exposure_us * 1e-6).max(1e-3);
     std::time::Duration::from_secs_f64(frames) + slack
+}
+
+/// Moves the stage to the capture's pose; a bench without a stage (whose
+/// camera the operator moves, and the capture's pose is trusted) does nothing.
+async fn move_camera(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobError> {
+    if !w.stage.present() {
+        return Ok(());
+    }
+    let scene = w.jobs.scenes.scene(&c.scene)?;
+    let Some(pose) = scene.poses().iter().find(|p| p.name == c.pose).cloned() else {
+        return Err(JobError::Capture {
+            id: c.id,
+            reason: format!("scene {:?} has no pose {:?}", c.scene, c.pose),
+        });
+    };
+    let stage = w.stage.clone();
+    let moved = tokio::task::spawn_blocking(move || stage.move_to(&pose))
+        .await
+        .map_err(|e| JobError::Capture {
+            id: c.id,
+            reason: format!("the camera stage's task failed: {e}"),
+        })?;
+    let at = moved.map_err(|e| JobError::Capture {
+        id: c.id,
+        reason: e.to_string(),
+    })?;
+    tracing::info!(
+        "camera at pose {} ({at:?} m), read back from the stage",
+        c.pose
+    );
+    Ok(())
 }
 
 /// Turns the mount to the capture's polarizer angle and records the angle

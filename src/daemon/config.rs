@@ -44,6 +44,9 @@ pub struct Config {
     /// The rotation mount that turns the polarizer (none unless set).
     #[serde(default)]
     pub mount: super::mount::MountConfig,
+    /// The stage that moves the camera between poses (none unless set).
+    #[serde(default)]
+    pub stage: super::stage::StageConfig,
 }
 
 /// A retention policy: the oldest finished captures (with the
@@ -321,6 +324,7 @@ impl Config {
             )));
         }
         self.mount.check().map_err(ConfigError::Invalid)?;
+        self.stage.check().map_err(ConfigError::Invalid)?;
         if self.camera.address.is_none() && self.camera.id.is_none() {
             return Err(ConfigError::Invalid(
                 "[camera] needs address or id (polnlos never runs a broadcast discovery)".into(),

@@ -42,6 +42,7 @@ mod registry;
 pub mod requests;
 mod retention;
 pub mod scenes;
+pub mod stage;
 pub mod validate;
 
 use std::collections::BTreeMap;
@@ -59,7 +60,7 @@ pub use config::Config;
 pub use demo::DEMO_SOURCE;
 pub use events::{Event, Events, Step as ProgressiveStep};
 pub use mount_zero::{SweepPoint, ZeroFit};
-pub use plans::{steps_of, PlanError, PlanStep, PlanView};
+pub use plans::{steps_of, Automated, PlanError, PlanStep, PlanView};
 pub use progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
 pub use queue::SubmitError;
 pub use requests::{ZeroBody, ZeroLight};
@@ -202,6 +203,8 @@ pub struct Daemon {
     camera: Arc<CameraService>,
     /// The rotation mount, when one turns the polarizer.
     mount: Arc<mount::MountService>,
+    /// The camera stage, when one moves the camera between poses.
+    stage: Arc<stage::StageService>,
     /// Wakes the plan runner: a plan was posted, continued or cancelled.
     plan_wake: Arc<tokio::sync::Notify>,
     captures: Arc<CaptureQueue>,
@@ -251,6 +254,7 @@ impl Daemon {
         };
         let zero_file = store.dir().join("mount-zero.json");
         let mount = Arc::new(mount::MountService::start(&config.mount, Some(zero_file))?);
+        let stage = Arc::new(stage::StageService::start(&config.stage));
         let (captures, capture_rx) = CaptureQueue::new(config.queue.captures);
         let (reconstructions, recon_rx) =
             Queue::new("reconstruction", config.queue.reconstructions);
@@ -263,6 +267,7 @@ impl Daemon {
             calibration: Arc::new(calibration),
             camera: Arc::new(CameraService::new(handle, camera.bench, hotplug)),
             mount,
+            stage,
             plan_wake: Arc::new(tokio::sync::Notify::new()),
             captures: Arc::new(captures),
             reconstructions,
@@ -278,6 +283,7 @@ impl Daemon {
                 jobs: d.job_context(),
                 camera: d.camera.clone(),
                 mount: d.mount.clone(),
+                stage: d.stage.clone(),
                 queue: d.captures.clone(),
                 lost_frames: d.config.camera.lost_frames,
                 // Checked to be 0..=86400 by Config::validate.
@@ -350,6 +356,11 @@ impl Daemon {
             let _ = tokio::time::timeout(std::time::Duration::from_secs(2), read).await;
         }
         self.mount.view()
+    }
+
+    /// The camera stage as last seen.
+    pub fn stage_now(&self) -> stage::StageView {
+        self.stage.view()
     }
 
     /// Names of the scenes the daemon knows.

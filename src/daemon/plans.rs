@@ -17,7 +17,7 @@ use super::events::Event;
 use super::requests::{CaptureBody, PlanBody, ReconstructionBody};
 use super::{Daemon, JobKind, RequestError, SubmitError};
 use crate::scene::{Channel, Scene};
-use crate::store::{CaptureKind, JobState, PlanCapture, PlanRow, PlanState};
+use crate::store::{CaptureKind, JobState, PlanCapture, PlanInterim, PlanRow, PlanState};
 
 /// How often a plan looks at the job its step waits on.
 const POLL: Duration = Duration::from_millis(200);
@@ -83,17 +83,29 @@ pub enum PlanError {
     Submit(#[from] SubmitError),
 }
 
+/// What a bench does by itself, so that a plan needs no operator for it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Automated {
+    /// A mount turns the polarizer.
+    pub mount: bool,
+    /// A stage moves the camera between poses.
+    pub stage: bool,
+    /// The bench switches the hidden scene off for darks.
+    pub switches_scene: bool,
+}
+
 /// The steps of a plan over `scene`: its blocks in order (all angles of a
 /// pose together, poses in file order), an operator step before each pose
-/// after the first, one before each angle when no mount turns the
-/// polarizer, and operator steps around a dark capture when the bench cannot
-/// switch the hidden scene off by itself; then the reconstruction.
-pub fn steps_of(
-    scene: &Scene,
-    body: &PlanBody,
-    mount: bool,
-    switches_scene: bool,
-) -> Vec<PlanStep> {
+/// after the first when no stage moves the camera, one before each angle
+/// when no mount turns the polarizer, and operator steps around a dark
+/// capture when the bench cannot switch the hidden scene off by itself;
+/// then the reconstruction.
+pub fn steps_of(scene: &Scene, body: &PlanBody, bench: Automated) -> Vec<PlanStep> {
+    let Automated {
+        mount,
+        stage,
+        switches_scene,
+    } = bench;
     let mut steps = Vec::new();
     let mut last_pose: Option<String> = None;
     for block in crate::transport::blocks_of(scene) {
@@ -101,7 +113,7 @@ pub fn steps_of(
         if matches!(block.channel, Channel::Mosaic { deg } if deg != 0.0) {
             continue;
         }
-        if last_pose.as_ref().is_some_and(|p| *p != block.pose) {
+        if !stage && last_pose.as_ref().is_some_and(|p| *p != block.pose) {
             steps.push(PlanStep::Operator {
                 prompt: format!(
                     "move the camera to pose {}, then press Continue",
@@ -193,34 +205,60 @@ fn last_block_progressive(
     at: usize,
 ) -> Option<super::requests::ProgressiveBody> {
     let every = body.reconstruct.progressive_every?;
-    let light = |s: &PlanStep| {
-        matches!(
-            s,
-            PlanStep::Capture {
-                capture: CaptureKind::Light,
-                ..
-            }
-        )
-    };
-    let last = steps.iter().rposition(light)?;
+    let last = steps.iter().rposition(is_light)?;
     if last != at {
         return None;
     }
-    let others = steps[..at]
-        .iter()
-        .enumerate()
-        .filter(|(_, s)| light(s))
-        .filter_map(|(k, _)| plan.captures.iter().find(|c| c.step == k))
-        .map(|c| c.capture)
-        .collect();
     let r = &body.reconstruct;
     Some(super::requests::ProgressiveBody {
         every: Some(every),
-        captures: others,
+        captures: reconstruction_body(plan, body, steps, at).captures,
         lambda: r.lambda,
         max_iter: r.max_iter,
         truth: r.truth.clone(),
     })
+}
+
+/// Whether `s` is a light capture step.
+fn is_light(s: &PlanStep) -> bool {
+    matches!(
+        s,
+        PlanStep::Capture {
+            capture: CaptureKind::Light,
+            ..
+        }
+    )
+}
+
+/// The reconstruction of the light captures `plan` took in its steps before
+/// `upto`, in the scene's block order: the plan's final one when every step
+/// is before it, else an interim one from the blocks taken so far (`partial`).
+fn reconstruction_body(
+    plan: &PlanRow,
+    body: &PlanBody,
+    steps: &[PlanStep],
+    upto: usize,
+) -> ReconstructionBody {
+    let captures = steps[..upto.min(steps.len())]
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| is_light(s))
+        .filter_map(|(k, _)| plan.captures.iter().find(|c| c.step == k))
+        .map(|c| c.capture)
+        .collect();
+    let r = &body.reconstruct;
+    ReconstructionBody {
+        scene: plan.scene.clone(),
+        captures,
+        solver: r.solver,
+        lambda: r.lambda,
+        rho: None,
+        max_iter: r.max_iter,
+        tol: None,
+        rcond: None,
+        truth: r.truth.clone(),
+        partial: upto < steps.len(),
+    }
 }
 
 /// Where a step's job is.
@@ -239,11 +277,16 @@ impl Daemon {
             .scenes
             .scene(&plan.scene)
             .map_err(|e| format!("its scene is no longer known ({e})"))?;
-        let switches = self.camera.bench().switches_scene();
-        Ok((
-            body.clone(),
-            steps_of(&scene, &body, self.mount.present(), switches),
-        ))
+        Ok((body.clone(), steps_of(&scene, &body, self.bench())))
+    }
+
+    /// What this bench does by itself.
+    fn bench(&self) -> Automated {
+        Automated {
+            mount: self.mount.present(),
+            stage: self.stage.present(),
+            switches_scene: self.camera.bench().switches_scene(),
+        }
     }
 
     /// Checks a plan request (every capture it will post, as `POST
@@ -277,11 +320,11 @@ impl Daemon {
                 .into());
             }
         }
-        let switches = self.camera.bench().switches_scene();
-        let steps = steps_of(&scene, &body, self.mount.present(), switches);
+        let bench = self.bench();
+        let steps = steps_of(&scene, &body, bench);
         for step in &steps {
             // A dark capture stands in for the one a light step will name.
-            if let Some(b) = capture_body(&body.scene, &body, step, None, switches) {
+            if let Some(b) = capture_body(&body.scene, &body, step, None, bench.switches_scene) {
                 let d = self.clone();
                 tokio::task::spawn_blocking(move || d.check_capture(&b))
                     .await
@@ -380,6 +423,38 @@ impl Daemon {
         self.plan_event(id, PlanState::Cancelled, plan.step, None);
         self.plan_wake.notify_one();
         self.plan_view(id)
+    }
+
+    /// After light capture step `at` of a plan asking for `interim` results
+    /// (and not its last light step), queues a reconstruction from the blocks
+    /// taken so far, once: the image sharpens as the plan walks the scene. A
+    /// refusal is logged and the plan goes on (its captures are the point).
+    fn queue_interim(&self, plan: &mut PlanRow, body: &PlanBody, steps: &[PlanStep], at: usize) {
+        let last_light = steps.iter().rposition(is_light);
+        if !body.reconstruct.interim
+            || !steps.get(at).is_some_and(is_light)
+            || last_light == Some(at)
+            || plan.interim.iter().any(|r| r.step == at)
+        {
+            return;
+        }
+        let id = plan.id;
+        match self.submit_reconstruction(&reconstruction_body(plan, body, steps, at + 1)) {
+            Ok(r) => {
+                plan.interim.push(PlanInterim {
+                    step: at,
+                    reconstruction: r,
+                });
+                if let Err(e) = self.store.plan_interim(id, &plan.interim) {
+                    tracing::warn!(
+                        "plan-{id}: interim reconstruction-{r} not recorded: {}",
+                        self.store.describe(&e)
+                    );
+                }
+                tracing::info!("plan-{id}: interim reconstruction-{r} after step {at}");
+            }
+            Err(e) => tracing::warn!("plan-{id}: no interim reconstruction after step {at}: {e}"),
+        }
     }
 
     fn plan_event(&self, plan: i64, state: PlanState, step: usize, prompt: Option<String>) {
@@ -488,7 +563,7 @@ impl Daemon {
             tracing::info!("plan-{id} started");
             self.plan_event(id, PlanState::Running, plan.step, None);
         }
-        let switches = self.camera.bench().switches_scene();
+        let switches = self.bench().switches_scene;
         while let Some(step) = steps.get(plan.step) {
             let at = plan.step;
             match step {
@@ -549,7 +624,7 @@ impl Daemon {
                         }
                     };
                     match self.wait_job(id, JobKind::Capture, capture).await {
-                        Waited::Done => {}
+                        Waited::Done => self.queue_interim(&mut plan, &body, &steps, at),
                         // A camera lost, a mount that missed, frames lost:
                         // the bench needs a look, the plan waits for it.
                         Waited::Failed(why) => {
@@ -573,30 +648,7 @@ impl Daemon {
                     let rid = match plan.reconstruction {
                         Some(r) => r,
                         None => {
-                            let mut captures = Vec::new();
-                            for (k, s) in steps.iter().enumerate() {
-                                if let PlanStep::Capture {
-                                    capture: CaptureKind::Light,
-                                    ..
-                                } = s
-                                {
-                                    if let Some(c) = plan.captures.iter().find(|c| c.step == k) {
-                                        captures.push(c.capture);
-                                    }
-                                }
-                            }
-                            let r = &body.reconstruct;
-                            let b = ReconstructionBody {
-                                scene: plan.scene.clone(),
-                                captures,
-                                solver: r.solver,
-                                lambda: r.lambda,
-                                rho: None,
-                                max_iter: r.max_iter,
-                                tol: None,
-                                rcond: None,
-                                truth: r.truth.clone(),
-                            };
+                            let b = reconstruction_body(&plan, &body, &steps, steps.len());
                             let rid = match self.submit_reconstruction(&b) {
                                 Ok(r) => r,
                                 Err(e) => return fail(&plan, format!("step {at}: {e}")),
@@ -702,7 +754,7 @@ mod tests {
     #[test]
     fn a_bench_that_does_everything_waits_only_to_move_the_camera() {
         let scene = scene("brewster-multi");
-        let steps = steps_of(&scene, &body(2), true, true);
+        let steps = steps_of(&scene, &body(2), bench(true, false, true));
         let p = prompts(&steps);
         let first = format!("light {} Some(0.0)", scene.poses()[0].name);
         assert_eq!(p.first(), Some(&first));
@@ -717,7 +769,7 @@ mod tests {
     #[test]
     fn a_bench_set_by_hand_waits_for_each_angle_and_around_each_dark() {
         let scene = scene("brewster-rotating");
-        let steps = steps_of(&scene, &body(2), false, false);
+        let steps = steps_of(&scene, &body(2), bench(false, false, false));
         let p = prompts(&steps);
         let blocks = scene.block_count();
         assert_eq!(
@@ -752,7 +804,31 @@ mod tests {
             }
         }
         // Without darks, no scene switching.
-        let steps = steps_of(&scene, &body(0), false, false);
+        let steps = steps_of(&scene, &body(0), bench(false, false, false));
         assert!(prompts(&steps).iter().all(|s| !s.contains("hidden scene")));
+    }
+
+    fn bench(mount: bool, stage: bool, switches_scene: bool) -> Automated {
+        Automated {
+            mount,
+            stage,
+            switches_scene,
+        }
+    }
+
+    #[test]
+    fn a_bench_with_a_stage_walks_every_pose_without_the_operator() {
+        let scene = scene("brewster-multi");
+        let steps = steps_of(&scene, &body(2), bench(true, true, true));
+        let p = prompts(&steps);
+        assert!(p.iter().all(|s| !s.contains("Continue")), "{p:?}");
+        let poses: Vec<&str> = steps
+            .iter()
+            .filter_map(|s| match s {
+                PlanStep::Capture { pose, .. } => Some(pose.as_str()),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(poses, ["B", "C"]);
     }
 }

@@ -21,6 +21,7 @@ use crate::solve::lambda::NoiseLevel;
 use crate::solve::reconstruct::{reconstruct_prepared, Context};
 use crate::solve::{check_measurement, SolveRequest, Stop};
 use crate::store::{read_mean, CaptureRecord, JobState, Store};
+use crate::transport::Block;
 
 /// Takes reconstructions from the shared queue.
 pub(super) async fn reconstruction_worker(d: JobContext, rx: Arc<Mutex<mpsc::Receiver<i64>>>) {
@@ -96,25 +97,57 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     let t = d.scenes.transport(&rec.scene)?;
     let transport_seconds = t0.elapsed().as_secs_f64();
     check(cancel)?;
+    let records = read_captures(&d.store, &rec.captures)?;
+    // A partial reconstruction solves with the rows of the blocks it has.
+    let part = rec
+        .params
+        .partial
+        .then(|| Partial::of(t.blocks(), &records));
+    let t = match &part {
+        Some(p) if p.kept.is_empty() => {
+            return Err(JobError::Store(
+                "a partial reconstruction whose captures give no block of its scene".into(),
+            ))
+        }
+        Some(p) => Arc::new(t.select_blocks(&p.kept)),
+        None => t,
+    };
     let Stacked {
         mut measurement,
         mut warnings,
-    } = stack_captures(&d.store, &rec, &scene, &t, &d.scenes.pixel_maps(&rec.scene))?;
+    } = stack_records(
+        &d.store,
+        records,
+        &scene,
+        t.blocks(),
+        &d.scenes.pixel_maps(&rec.scene),
+    )?;
     let calibration = d.calibration.get(&rec.scene).copied();
     let units = to_model_units(&t, &mut measurement, calibration)?;
     warnings.extend(units.warning());
+    if let Some(p) = &part {
+        warnings.push(p.warning());
+    }
     let Measurement { i, variance: var } = measurement;
-    // The noise known, the sampling keys the file left out are chosen from it.
-    let (key, model) = match var.as_deref() {
-        Some(v) => d.scenes.for_noise(&rec.scene, v)?,
-        None => (rec.scene.clone(), None),
+    // The noise known, the sampling keys the file left out are chosen from it
+    // (a partial measurement's rows stand at their blocks, the others unknown).
+    let (key, model) = match (var.as_deref(), &part) {
+        (Some(v), None) => d.scenes.for_noise(&rec.scene, v)?,
+        (Some(v), Some(p)) => d
+            .scenes
+            .for_noise(&rec.scene, &p.whole_rows(v, t.wall_grid().count()))?,
+        (None, _) => (rec.scene.clone(), None),
     };
-    let t = if key == rec.scene {
-        t
-    } else {
-        d.scenes.transport(&key)?
+    let t = match (&part, key == rec.scene) {
+        (_, true) => t,
+        (None, false) => d.scenes.transport(&key)?,
+        (Some(p), false) => Arc::new(d.scenes.transport(&key)?.select_blocks(&p.kept)),
     };
-    let cond = d.scenes.conditioning(&key)?;
+    // The scene's cached conditioning and Gram are those of every block.
+    let cond = match &part {
+        None => d.scenes.conditioning(&key)?,
+        Some(_) => Arc::new(crate::solve::condition(&t)?),
+    };
     check(cancel)?;
     let solve = stored_solve(&rec)?;
     let truth = rec
@@ -131,11 +164,16 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     };
     // A solver that needs the Gram solves on the scene's cached one: only
     // `T^T i` is new.
-    let normal = if solve.solver.needs().gram {
-        check_measurement(&t, &i)?;
-        Some(Normal::with(d.scenes.gram(&key)?, &t, &i))
-    } else {
-        None
+    let normal = match (solve.solver.needs().gram, &part) {
+        (false, _) => None,
+        (true, None) => {
+            check_measurement(&t, &i)?;
+            Some(Normal::with(d.scenes.gram(&key)?, &t, &i))
+        }
+        (true, Some(_)) => {
+            check_measurement(&t, &i)?;
+            Some(Normal::of(&t, &i))
+        }
     };
     check(cancel)?;
     let solved = reconstruct_prepared(
@@ -234,17 +272,47 @@ pub(super) struct Stacked {
     pub(super) warnings: Vec<String>,
 }
 
-/// Reads the reconstruction's captures and assembles them in `T`'s block
-/// order with [`stack_records`].
-fn stack_captures(
-    store: &Store,
-    rec: &crate::store::ReconstructionRecord,
-    scene: &crate::scene::Scene,
-    t: &crate::transport::Transport,
-    maps: &PixelMaps,
-) -> Result<Stacked, JobError> {
-    let records = read_captures(store, &rec.captures)?;
-    stack_records(store, records, scene, t.blocks(), maps)
+/// The blocks a partial reconstruction's captures give, of the scene's.
+struct Partial {
+    /// Indices into the scene's blocks, ascending.
+    kept: Vec<usize>,
+    /// The scene's blocks.
+    of: usize,
+}
+
+impl Partial {
+    /// The blocks `records` serve among `blocks`.
+    fn of(blocks: &[Block], records: &[CaptureRecord]) -> Self {
+        let mut kept: Vec<usize> = records
+            .iter()
+            .flat_map(|c| Block::taken(blocks, &c.pose, &c.channels))
+            .collect();
+        kept.sort_unstable();
+        kept.dedup();
+        Self {
+            kept,
+            of: blocks.len(),
+        }
+    }
+
+    /// What the report says of it.
+    fn warning(&self) -> String {
+        format!(
+            "interim: solved from {} of the scene's {} blocks; the others are not captured yet",
+            self.kept.len(),
+            self.of
+        )
+    }
+
+    /// A per-row `v` of the kept blocks placed at their rows of the whole
+    /// scene (`n` rows a block), 0 (unknown) elsewhere.
+    fn whole_rows(&self, v: &[f64], n: usize) -> Vec<f64> {
+        let mut out = vec![0.0; self.of * n];
+        for (k, &b) in self.kept.iter().enumerate() {
+            out[b * n..(b + 1) * n].copy_from_slice(&v[k * n..(k + 1) * n]);
+        }
+        out
+    }
 }
 
 /// The solve a reconstruction row asks for: its parameters (read typed

@@ -140,6 +140,12 @@ pub struct ReconstructionBody {
     /// Known truth, as a test pattern name (`disk`, `bars`, `letter`): the
     /// report then carries PSNR, ZNCC and SSIM (e.g. against the fake camera's demo scene).
     pub truth: Option<String>,
+    /// `true`: solve from the blocks these captures give and leave the
+    /// scene's other blocks out (an interim image while blocks are still
+    /// being captured; its κ and λ are those of the fewer rows). Default
+    /// `false`: one capture for every block of the scene.
+    #[serde(default)]
+    pub partial: bool,
 }
 
 impl ReconstructionBody {
@@ -200,6 +206,11 @@ pub struct PlanReconstruct {
     pub max_iter: Option<usize>,
     /// Known truth, as a test pattern name: the report then has PSNR.
     pub truth: Option<String>,
+    /// After each light block but the last, queue a reconstruction from the
+    /// blocks captured so far (`partial`), so that the image sharpens as the
+    /// plan walks the scene; the plan lists them as `interim`.
+    #[serde(default)]
+    pub interim: bool,
     /// Re-solve the whole scene while the last block's frames accumulate,
     /// every this many frames, from the other blocks' captures and the
     /// running mean (a progressive capture; needs the scene's `[calibration]`).

@@ -24,7 +24,7 @@ pub use files::{
     CaptureFiles, FrameMeta, TMP_MARK,
 };
 pub use lock::{remove_orphans, DirLock, LOCK_FILE};
-pub use plans::{PlanCapture, PlanRow, PlanState};
+pub use plans::{PlanCapture, PlanInterim, PlanRow, PlanState};
 pub use records::{
     CaptureKind, CaptureRecord, CaptureRequest, JobState, ReconstructionParams,
     ReconstructionRecord, ReconstructionRequest,

@@ -79,6 +79,15 @@ pub struct PlanCapture {
     pub capture: i64,
 }
 
+/// An interim reconstruction a plan queued after one of its capture steps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct PlanInterim {
+    /// The capture step after which it was queued.
+    pub step: usize,
+    /// The reconstruction's id (partial: the blocks captured by then).
+    pub reconstruction: i64,
+}
+
 /// A plan as the catalogue keeps it.
 #[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct PlanRow {
@@ -99,6 +108,8 @@ pub struct PlanRow {
     pub captures: Vec<PlanCapture>,
     /// The reconstruction it queued.
     pub reconstruction: Option<i64>,
+    /// The interim reconstructions it queued (`reconstruct.interim`), in step order.
+    pub interim: Vec<PlanInterim>,
     /// Why it failed or was interrupted.
     pub error: Option<String>,
     /// When it was requested.
@@ -109,7 +120,7 @@ pub struct PlanRow {
     pub finished_at: Option<String>,
 }
 
-const PLAN_SELECT: &str = "SELECT id, scene, request, state, step, prompt, captures, reconstruction, error, created_at, started_at, finished_at FROM plans";
+const PLAN_SELECT: &str = "SELECT id, scene, request, state, step, prompt, captures, reconstruction, error, created_at, started_at, finished_at, interim FROM plans";
 
 fn plan_row(r: &Row<'_>) -> rusqlite::Result<PlanRow> {
     Ok(PlanRow {
@@ -125,6 +136,7 @@ fn plan_row(r: &Row<'_>) -> rusqlite::Result<PlanRow> {
         created_at: r.get(9)?,
         started_at: r.get(10)?,
         finished_at: r.get(11)?,
+        interim: json_column(r, 12)?.unwrap_or_default(),
     })
 }
 
@@ -204,6 +216,18 @@ impl Store {
         })
     }
 
+    /// Records the interim reconstructions a plan queued.
+    pub fn plan_interim(&self, id: i64, interim: &[PlanInterim]) -> Result<(), StoreError> {
+        let interim = serde_json::to_string(interim).unwrap_or_else(|_| "[]".into());
+        self.with(|c| {
+            c.execute(
+                "UPDATE plans SET interim = ?2 WHERE id = ?1",
+                params![id, interim],
+            )
+            .map(|_| ())
+        })
+    }
+
     /// Records the reconstruction a plan queued.
     pub fn plan_reconstruction(&self, id: i64, reconstruction: i64) -> Result<(), StoreError> {
         self.with(|c| {
@@ -257,6 +281,13 @@ mod tests {
             }]
         );
         assert!(p.prompt.unwrap().contains("pose B"));
+        assert!(p.interim.is_empty());
+        let interim = [PlanInterim {
+            step: 0,
+            reconstruction: 7,
+        }];
+        store.plan_interim(id, &interim).unwrap();
+        assert_eq!(store.plan(id).unwrap().unwrap().interim, interim);
         assert!(store
             .plan_state(id, PlanState::Cancelled, None, None)
             .unwrap());

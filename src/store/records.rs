@@ -391,6 +391,10 @@ pub struct ReconstructionParams {
     pub solve: SolveRequest,
     /// Known truth, as a test pattern name.
     pub truth: Option<String>,
+    /// Solved from the blocks its captures give, the scene's other blocks
+    /// left out (an interim result while a plan captures).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub partial: bool,
 }
 
 impl Default for ReconstructionParams {
@@ -413,6 +417,7 @@ impl ReconstructionParams {
             version: Self::VERSION,
             solve,
             truth,
+            partial: false,
         }
     }
 }

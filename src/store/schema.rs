@@ -48,7 +48,8 @@ CREATE TABLE IF NOT EXISTS plans (
     error TEXT,
     created_at TEXT NOT NULL,
     started_at TEXT,
-    finished_at TEXT
+    finished_at TEXT,
+    interim TEXT NOT NULL DEFAULT '[]'
 );
 CREATE TABLE IF NOT EXISTS issued_ids (
     kind TEXT PRIMARY KEY,
@@ -163,6 +164,14 @@ pub(super) fn migrate(conn: &Connection) -> rusqlite::Result<()> {
         conn.execute_batch(SETTINGS_TO_DOCUMENT).inspect_err(|_| {
             let _ = conn.execute_batch("ROLLBACK");
         })?;
+    }
+    // Plans from before interim reconstructions have none.
+    let mut st = conn.prepare("PRAGMA table_info(plans)")?;
+    let plan_has: Vec<String> = st
+        .query_map([], |r| r.get::<_, String>(1))?
+        .collect::<rusqlite::Result<_>>()?;
+    if !plan_has.iter().any(|c| c == "interim") {
+        conn.execute_batch("ALTER TABLE plans ADD COLUMN interim TEXT NOT NULL DEFAULT '[]'")?;
     }
     if !has.iter().any(|c| c == "channels") {
         conn.execute_batch(ANGLE_TO_CHANNELS).inspect_err(|_| {
@@ -338,5 +347,28 @@ mod tests {
             store.capture(3).unwrap().channels,
             vec![Channel::Sheet { deg: 22.5 }]
         );
+    }
+
+    #[test]
+    fn a_plan_from_before_interim_reconstructions_reads_back_with_none() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
+            raw.execute_batch(FIRST_RELEASE).unwrap();
+            raw.execute_batch(
+                "CREATE TABLE plans (id INTEGER PRIMARY KEY AUTOINCREMENT, scene TEXT NOT NULL,
+                 request TEXT NOT NULL, state TEXT NOT NULL, step INTEGER NOT NULL DEFAULT 0,
+                 prompt TEXT, captures TEXT NOT NULL DEFAULT '[]', reconstruction INTEGER,
+                 error TEXT, created_at TEXT NOT NULL, started_at TEXT, finished_at TEXT);
+                 INSERT INTO plans (scene, request, state, step, captures, reconstruction, created_at)
+                 VALUES ('brewster-rotating', '{}', 'done', 9, '[{\"step\":0,\"capture\":4}]', 5, '2026-01-01T00:00:00.000Z');",
+            )
+            .unwrap();
+        }
+        let store = Store::open(dir.path()).unwrap();
+        let p = store.plan(1).unwrap().expect("the old plan");
+        assert_eq!((p.step, p.reconstruction), (9, Some(5)));
+        assert_eq!(p.captures.len(), 1);
+        assert!(p.interim.is_empty());
     }
 }

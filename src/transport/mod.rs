@@ -262,6 +262,32 @@ impl Transport {
         b * n..(b + 1) * n
     }
 
+    /// The rows of blocks `keep` (indices into [`Transport::blocks`], in
+    /// ascending order): the `T` of a measurement that has only those blocks.
+    ///
+    /// Why: an interim reconstruction while a plan is still capturing solves
+    /// with the blocks taken so far (MODEL.md's row order is kept).
+    pub fn select_blocks(&self, keep: &[usize]) -> Transport {
+        let n = self.wall_grid.count();
+        let rows = keep.len() * n;
+        let mut data = Vec::with_capacity(rows * self.cols);
+        for k in 0..self.cols {
+            let col = self.col(k);
+            for &b in keep {
+                data.extend_from_slice(&col[self.block_rows(b)]);
+            }
+        }
+        let blocks = keep.iter().map(|&b| self.blocks[b].clone()).collect();
+        Transport::from_col_major(
+            rows,
+            self.cols,
+            data,
+            blocks,
+            self.wall_grid,
+            self.scene_grid,
+        )
+    }
+
     /// `i = T l`: the noiseless measurement of scene `l` (MODEL.md Eq. 2).
     pub fn apply(&self, l: &[f64]) -> Vec<f64> {
         assert_eq!(l.len(), self.cols, "scene vector length");
@@ -314,6 +340,27 @@ mod tests {
             "{e}"
         );
         assert!(build(&scene, MemoryBudget::new(64 << 20)).is_ok());
+    }
+
+    #[test]
+    fn selected_blocks_are_the_rows_of_those_blocks_in_order() {
+        let scene = crate::scene::Scene::builtin("brewster-rotating-3x3")
+            .and_then(Result::ok)
+            .expect("built-in scene");
+        let t = build(&scene, MemoryBudget::new(1 << 30)).expect("T");
+        assert_eq!(t.blocks().len(), 4);
+        let s = t.select_blocks(&[1, 3]);
+        let n = t.wall_grid().count();
+        assert_eq!((s.rows(), s.cols()), (2 * n, t.cols()));
+        assert_eq!(s.blocks(), &[t.blocks()[1].clone(), t.blocks()[3].clone()]);
+        for k in 0..t.cols() {
+            for j in 0..n {
+                assert_eq!(s.get(j, k), t.get(n + j, k));
+                assert_eq!(s.get(n + j, k), t.get(3 * n + j, k));
+            }
+        }
+        // Every block kept is T itself.
+        assert_eq!(t.select_blocks(&[0, 1, 2, 3]).col_major(), t.col_major());
     }
 
     #[test]

@@ -42,8 +42,9 @@ pub(super) fn label(b: &Block) -> String {
 }
 
 /// Checks a reconstruction request: solver parameters, the truth's name, and
-/// one done light capture of this scene for every (pose, angle) block, taken
-/// at the frame the pose's homography maps to. `capture` looks captures up.
+/// one done light capture of this scene for every (pose, angle) block (for
+/// a `partial` request, for the blocks it gives, at least one), taken at the
+/// frame the pose's homography maps to. `capture` looks captures up.
 pub fn reconstruction(
     b: &ReconstructionBody,
     scene: &Scene,
@@ -67,7 +68,13 @@ pub fn reconstruction(
         cover(&mut covered, &served, &blocks, "")?;
     }
     let missing = uncovered(&covered, &blocks);
-    if !missing.is_empty() {
+    if b.partial && b.captures.is_empty() {
+        return Err(invalid(format!(
+            "a partial reconstruction of scene {:?} needs at least one capture",
+            b.scene
+        )));
+    }
+    if !missing.is_empty() && !b.partial {
         return Err(invalid(format!(
             "scene {:?} has {} (pose, polarizer) blocks ({}); give one capture for each (a polarizer-mosaic capture gives its pose's four); missing: {}",
             b.scene,
@@ -80,7 +87,11 @@ pub fn reconstruction(
         scene: b.scene.clone(),
         captures: b.captures.clone(),
         solver: b.solver.name().to_string(),
-        params: ReconstructionParams::new(solve, b.truth.clone()),
+        params: ReconstructionParams {
+            // A partial request that gives every block is a whole one.
+            partial: !missing.is_empty(),
+            ..ReconstructionParams::new(solve, b.truth.clone())
+        },
     })
 }
 
@@ -172,6 +183,20 @@ mod tests {
         assert!(err(&[1]).contains("missing: pose C at 0°"));
         assert!(err(&[1, 1]).contains("two captures for block pose B at 0°"));
         assert!(err(&[1, 9]).contains("no capture with id 9"));
+        // Partial: the blocks given are enough, and only an incomplete set is marked so.
+        let partial = |ids: &[i64]| {
+            let mut b = reconstruction_body(ids);
+            b.partial = true;
+            reconstruction(&b, &s, lookup)
+        };
+        assert!(partial(&[1]).expect("one block of two").params.partial);
+        assert!(!partial(&[1, 2]).expect("every block").params.partial);
+        assert!(
+            matches!(partial(&[]), Err(RequestError::Invalid(m)) if m.contains("at least one capture"))
+        );
+        assert!(
+            matches!(partial(&[1, 1]), Err(RequestError::Invalid(m)) if m.contains("two captures"))
+        );
         // A catalogue that cannot be read is passed on, not called a missing capture.
         let unreadable = |_| Err(RequestError::Store("disk I/O error".into()));
         let r = reconstruction(&reconstruction_body(&[1, 2]), &s, unreadable);
