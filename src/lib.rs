@@ -85,6 +85,10 @@ pub mod measure;
 #[cfg(feature = "daemon")]
 pub mod mount;
 pub mod optics;
+#[cfg(feature = "daemon")]
+pub(crate) mod pty;
+#[cfg(feature = "daemon")]
+pub mod relay;
 pub mod scene;
 pub mod simulate;
 pub mod solve;

@@ -49,9 +49,12 @@ fn daemon_exit_code(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
         Some(DaemonError::Fake(polnlos::camera::fake::FakeError::AddressInUse { .. })) => {
             return Some(USAGE)
         }
-        Some(DaemonError::Demo(_) | DaemonError::Fake(_) | DaemonError::Mount(_)) => {
-            return Some(FAILED)
-        }
+        Some(
+            DaemonError::Demo(_)
+            | DaemonError::Fake(_)
+            | DaemonError::Mount(_)
+            | DaemonError::Light(_),
+        ) => return Some(FAILED),
         None => cause.downcast_ref::<StoreError>(),
     };
     if let Some(s) = store {

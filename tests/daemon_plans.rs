@@ -288,6 +288,77 @@ fn a_bench_with_a_stage_walks_every_pose_unattended_and_a_stage_that_slips_pause
 }
 
 #[test]
+fn a_relay_switches_the_scene_off_for_darks_so_a_plan_needs_no_operator_for_them() {
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let long = Duration::from_secs(240);
+    let body = r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 2, "dark_frames": 1,
+        "reconstruct": {"truth": "letter"}}"#;
+    // A bench that cannot switch its scene: without a relay the plan asks.
+    let by_hand = [
+        (
+            "scene = \"brewster-crossed\"",
+            "scene = \"brewster-rotating\"",
+        ),
+        (
+            "bench_switches_scene = true",
+            "bench_switches_scene = false",
+        ),
+    ];
+    {
+        let d = Daemon::start(&config(dir.path(), &by_hand), &dir.path().join("data"));
+        let (s, b, _) = d.post("/plans", body);
+        assert_eq!(s, 202, "{b}");
+        assert!(b.contains("switch the hidden scene off"), "{b}");
+    }
+    // With the relay, the captures take their dark frames themselves.
+    let relay = dir.path().join("relay");
+    std::fs::create_dir_all(&relay).unwrap();
+    let mut edits = by_hand.to_vec();
+    edits.push(("[light]\n", "[light]\nrelay = 2\n"));
+    edits.push((
+        "kind = \"none\"\n# port = \"/dev/ttyACM0\"",
+        "kind = \"simulated\"\n# port = \"/dev/ttyACM0\"",
+    ));
+    let d = Daemon::start(&config(&relay, &edits), &relay.join("data"));
+    let light = d.json("/light");
+    assert_eq!(
+        (
+            light["kind"].as_str(),
+            light["relay"].as_u64(),
+            light["on"].as_bool()
+        ),
+        (Some("simulated"), Some(2), Some(true)),
+        "{light}"
+    );
+    let (s, b, loc) = d.post("/plans", body);
+    assert_eq!(s, 202, "{b}");
+    assert!(!b.contains("hidden scene"), "{b}");
+    let done = wait_plan(
+        &d,
+        &loc.unwrap(),
+        &["done", "failed", "waiting_for_operator"],
+        long,
+    );
+    assert_eq!(done["state"], "done", "{done}");
+    for c in done["captures"].as_array().unwrap() {
+        let c = d.json(&format!("/captures/{}", c["capture"]));
+        assert_eq!(
+            (c["state"].as_str(), c["dark_frames"].as_u64()),
+            (Some("done"), Some(1)),
+            "{c}"
+        );
+    }
+    let r = d.json(&format!("/reconstructions/{}", done["reconstruction"]));
+    assert_eq!(r["state"], "done", "{r}");
+    // The darks were dark: the letter is recovered as on the fake bench's own switch.
+    println!("PSNR with the relay's darks: {:.2} dB", psnr(&r));
+    assert!(psnr(&r) > 15.0, "{r}");
+    // Lit again after the last dark.
+    assert_eq!(d.json("/light")["on"], true);
+}
+
+#[test]
 fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
     let _g = lock();
     let dir = tempfile::tempdir().unwrap();

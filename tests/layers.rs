@@ -99,6 +99,7 @@ fn the_core_names_no_service_layer() {
                 "crate::camera",
                 "crate::mount",
                 "crate::stage",
+                "crate::relay",
                 "crate::store",
                 "crate::daemon",
                 "crate::api",

@@ -77,6 +77,7 @@ fn all_routes() -> OpenApiRouter<Arc<Daemon>> {
         .routes(routes!(routes::mount))
         .routes(routes!(routes::mount_zero))
         .routes(routes!(routes::stage))
+        .routes(routes!(routes::light))
         .routes(routes!(routes::post_plan, routes::list_plans))
         .routes(routes!(routes::get_plan, routes::cancel_plan))
         .routes(routes!(routes::continue_plan))

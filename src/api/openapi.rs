@@ -55,6 +55,8 @@ use crate::daemon::Daemon;
         crate::daemon::mount::MountKind,
         crate::daemon::stage::StageView,
         crate::daemon::stage::StageKind,
+        crate::daemon::light::LightView,
+        crate::daemon::light::LightKind,
         crate::daemon::ZeroBody,
         crate::daemon::ZeroFit,
         crate::daemon::SweepPoint,

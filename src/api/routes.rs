@@ -103,6 +103,13 @@ pub async fn mount(State(d): St) -> Json<crate::daemon::mount::MountView> {
     Json(d.mount_now().await)
 }
 
+/// The relay that switches the hidden scene's light for dark frames: its
+/// kind, port and relay, whether the light was on when last read, and its last error.
+#[utoipa::path(get, path = "/light", responses((status = 200, body = crate::daemon::light::LightView, description = "Light switch state")))]
+pub async fn light(State(d): St) -> Json<crate::daemon::light::LightView> {
+    Json(d.light_now())
+}
+
 /// The camera stage that moves the camera between poses: its kind, the pose
 /// it last reached, the position read back, and its last error.
 #[utoipa::path(get, path = "/stage", responses((status = 200, body = crate::daemon::stage::StageView, description = "Stage state")))]

@@ -96,7 +96,7 @@ impl Daemon {
             sensor: info.map(|i| i.limits),
             defaults: self.camera.capture_defaults(info),
             pixel_formats: info.map(|i| i.pixel_formats.clone()),
-            bench_switches_scene: self.camera.bench().switches_scene(),
+            bench_switches_scene: self.switches_scene(),
             max_frames: self.config.queue.max_frames_per_capture,
         }
     }

@@ -46,6 +46,8 @@ pub(super) struct CaptureWorker {
     pub(super) mount: Arc<super::mount::MountService>,
     /// Moves the camera to the capture's pose, when a stage is configured.
     pub(super) stage: Arc<super::stage::StageService>,
+    /// Switches the hidden scene's light, when a relay is configured.
+    pub(super) light: Arc<super::light::LightService>,
     pub(super) queue: Arc<CaptureQueue>,
     /// What a capture that lost frames does.
     pub(super) lost_frames: LostFrames,
@@ -140,9 +142,10 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     };
     let spec = w.queue.take_progressive(id);
     let (dark, dark_counts) = dark_reference(w, &c, &stream).await?;
-    let scene_off = meta.kind == CaptureKind::Dark && w.camera.bench().switches_scene();
+    let scene_off =
+        meta.kind == CaptureKind::Dark && (w.light.present() || w.camera.bench().switches_scene());
     if scene_off {
-        w.camera.bench().scene_on(false);
+        scene_light(w, id, false).await?;
     }
     let target = meta.kind == CaptureKind::Target;
     if target {
@@ -170,9 +173,11 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
             let counts = dark_counts + light;
             lost(w, id, counts).map(|()| (f, counts))
         });
-    if scene_off {
-        w.camera.bench().scene_on(true);
-    }
+    let relit = if scene_off {
+        scene_light(w, id, true).await
+    } else {
+        Ok(())
+    };
     if target {
         w.camera.bench().show_target(false);
     }
@@ -182,7 +187,9 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     if let Some((tx, steps)) = progressive {
         finish_progressive(w, id, frames.as_ref().ok().map(|(f, _)| f), tx, steps).await;
     }
-    let (frames, counts) = match frames {
+    // Frames taken while the scene may not have come back on are kept only
+    // when it did.
+    let (frames, counts) = match frames.and_then(|f| relit.map(|()| f)) {
         Ok(f) => f,
         Err(e) => {
             // Cancelled or failed: its dark frames are of no use either.
@@ -288,10 +295,10 @@ async fn dark_reference(
     stream: &Stream<'_>,
 ) -> Result<(Option<(Frame, Option<Frame>)>, FrameCounts), JobError> {
     if c.dark_frames > 0 {
-        w.camera.bench().scene_on(false);
+        scene_light(w, c.id, false).await?;
         let n = c.dark_frames as usize;
         let r = stream.take(CaptureFiles::DARK, "dark", n, 0, None).await;
-        w.camera.bench().scene_on(true);
+        scene_light(w, c.id, true).await?;
         let (st, counts) = r.map_err(|e| match e {
             JobError::Cancelled => JobError::Cancelled,
             e => JobError::Capture {
@@ -328,6 +335,32 @@ async fn dark_reference(
 fn stall_limit(exposure_us: f64, n: usize, slack: std::time::Duration) -> std::time::Duration {
     let frames = 2.0 * n as f64 * (exposure_us * 1e-6).max(1e-3);
     std::time::Duration::from_secs_f64(frames) + slack
+}
+
+/// Switches the hidden scene's light for capture `id`: through the relay
+/// when there is one (the bench then shows what the relay reads back), else
+/// through the bench's own switch (or the operator, who was asked).
+async fn scene_light(w: &CaptureWorker, id: i64, on: bool) -> Result<(), JobError> {
+    if !w.light.present() {
+        w.camera.bench().scene_on(on);
+        return Ok(());
+    }
+    let light = w.light.clone();
+    let read = tokio::task::spawn_blocking(move || light.set(on))
+        .await
+        .map_err(|e| JobError::Capture {
+            id,
+            reason: format!("the light relay's task failed: {e}"),
+        })?
+        .map_err(|e| JobError::Capture {
+            id,
+            reason: format!(
+                "the hidden scene could not be switched {}: {e}",
+                if on { "on" } else { "off" }
+            ),
+        })?;
+    w.camera.bench().scene_on(read);
+    Ok(())
 }
 
 /// Moves the stage to the capture's pose; a bench without a stage (whose

@@ -47,6 +47,9 @@ pub struct Config {
     /// The stage that moves the camera between poses (none unless set).
     #[serde(default)]
     pub stage: super::stage::StageConfig,
+    /// The relay that switches the hidden scene's light (none unless set).
+    #[serde(default)]
+    pub light: super::light::LightConfig,
 }
 
 /// A retention policy: the oldest finished captures (with the
@@ -325,6 +328,7 @@ impl Config {
         }
         self.mount.check().map_err(ConfigError::Invalid)?;
         self.stage.check().map_err(ConfigError::Invalid)?;
+        self.light.check().map_err(ConfigError::Invalid)?;
         if self.camera.address.is_none() && self.camera.id.is_none() {
             return Err(ConfigError::Invalid(
                 "[camera] needs address or id (polnlos never runs a broadcast discovery)".into(),

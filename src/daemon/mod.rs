@@ -31,6 +31,7 @@ pub mod events;
 mod flatten;
 mod integral;
 mod jobs;
+pub mod light;
 pub mod metrics;
 pub mod mount;
 mod mount_zero;
@@ -105,6 +106,9 @@ pub enum DaemonError {
     /// The simulated rotation mount did not start.
     #[error(transparent)]
     Mount(#[from] crate::mount::MountError),
+    /// The simulated relay did not start.
+    #[error(transparent)]
+    Light(#[from] crate::relay::RelayError),
 }
 
 /// The daemon's camera: how to open it, the bench around it, and the
@@ -205,6 +209,8 @@ pub struct Daemon {
     mount: Arc<mount::MountService>,
     /// The camera stage, when one moves the camera between poses.
     stage: Arc<stage::StageService>,
+    /// The relay that switches the hidden scene's light, when there is one.
+    light: Arc<light::LightService>,
     /// Wakes the plan runner: a plan was posted, continued or cancelled.
     plan_wake: Arc<tokio::sync::Notify>,
     captures: Arc<CaptureQueue>,
@@ -255,6 +261,7 @@ impl Daemon {
         let zero_file = store.dir().join("mount-zero.json");
         let mount = Arc::new(mount::MountService::start(&config.mount, Some(zero_file))?);
         let stage = Arc::new(stage::StageService::start(&config.stage));
+        let light = Arc::new(light::LightService::start(&config.light)?);
         let (captures, capture_rx) = CaptureQueue::new(config.queue.captures);
         let (reconstructions, recon_rx) =
             Queue::new("reconstruction", config.queue.reconstructions);
@@ -268,6 +275,7 @@ impl Daemon {
             camera: Arc::new(CameraService::new(handle, camera.bench, hotplug)),
             mount,
             stage,
+            light,
             plan_wake: Arc::new(tokio::sync::Notify::new()),
             captures: Arc::new(captures),
             reconstructions,
@@ -284,6 +292,7 @@ impl Daemon {
                 camera: d.camera.clone(),
                 mount: d.mount.clone(),
                 stage: d.stage.clone(),
+                light: d.light.clone(),
                 queue: d.captures.clone(),
                 lost_frames: d.config.camera.lost_frames,
                 // Checked to be 0..=86400 by Config::validate.
@@ -356,6 +365,17 @@ impl Daemon {
             let _ = tokio::time::timeout(std::time::Duration::from_secs(2), read).await;
         }
         self.mount.view()
+    }
+
+    /// The relay that switches the hidden scene's light, as last seen.
+    pub fn light_now(&self) -> light::LightView {
+        self.light.view()
+    }
+
+    /// Whether the bench switches the hidden scene off for dark frames by
+    /// itself (a relay, or the fake bench's own switch); else the operator does.
+    fn switches_scene(&self) -> bool {
+        self.light.present() || self.camera.bench().switches_scene()
     }
 
     /// The camera stage as last seen.

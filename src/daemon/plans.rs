@@ -285,7 +285,7 @@ impl Daemon {
         Automated {
             mount: self.mount.present(),
             stage: self.stage.present(),
-            switches_scene: self.camera.bench().switches_scene(),
+            switches_scene: self.switches_scene(),
         }
     }
 

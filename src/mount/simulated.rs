@@ -6,7 +6,7 @@
 //! cable pulled.
 
 use std::io::{Read, Write};
-use std::os::fd::{FromRawFd, OwnedFd};
+use std::os::fd::OwnedFd;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -50,35 +50,13 @@ pub struct SimulatedEll14 {
 impl SimulatedEll14 {
     /// Starts the device on a new pseudo-terminal at address `0`.
     pub fn start() -> std::io::Result<Self> {
-        let (mut master, mut slave) = (-1, -1);
-        // SAFETY: openpty writes two descriptors into the given places (valid
-        // i32s) and reads no name, termios or window size (null pointers
-        // are allowed for those).
-        let r = unsafe {
-            libc::openpty(
-                &mut master,
-                &mut slave,
-                std::ptr::null_mut(),
-                std::ptr::null(),
-                std::ptr::null(),
-            )
-        };
-        if r != 0 || master < 0 || slave < 0 {
-            return Err(std::io::Error::last_os_error());
-        }
-        // SAFETY: both descriptors were just opened by openpty (checked
-        // above) and are owned by nothing else.
-        let (master, slave) =
-            unsafe { (OwnedFd::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };
-        let path = pty_path(&slave)?;
-        raw_mode(&slave)?;
+        let (port, slave, path) = crate::pty::open()?;
         let state = Arc::new(Mutex::new(State {
             pulses: 0,
             fault: Fault::None,
         }));
         let stop = Arc::new(AtomicBool::new(false));
         let (st, halt) = (state.clone(), stop.clone());
-        let port = std::fs::File::from(master);
         let thread = std::thread::Builder::new()
             .name("sim-ell14".into())
             .spawn(move || serve(port, &st, &halt))?;
@@ -125,54 +103,13 @@ impl Drop for SimulatedEll14 {
     }
 }
 
-/// The path of the pty whose slave side is `slave`.
-fn pty_path(slave: &OwnedFd) -> std::io::Result<String> {
-    use std::os::fd::AsRawFd;
-    let mut buf = [0u8; 128];
-    // SAFETY: `slave` is an open descriptor; ttyname_r writes at most
-    // `buf.len()` bytes (a NUL-terminated name) into `buf`.
-    let r = unsafe { libc::ttyname_r(slave.as_raw_fd(), buf.as_mut_ptr().cast(), buf.len()) };
-    if r != 0 {
-        return Err(std::io::Error::from_raw_os_error(r));
-    }
-    let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
-    Ok(String::from_utf8_lossy(&buf[..end]).into_owned())
-}
-
-/// Puts the pty in raw mode: no echo, no line editing, bytes as they come.
-fn raw_mode(slave: &OwnedFd) -> std::io::Result<()> {
-    use std::os::fd::AsRawFd;
-    // SAFETY: termios is plain data; tcgetattr fills it from the open
-    // descriptor before it is read.
-    let mut t: libc::termios = unsafe { std::mem::zeroed() };
-    // SAFETY: `slave` is open; `t` is a valid termios to fill.
-    if unsafe { libc::tcgetattr(slave.as_raw_fd(), &mut t) } != 0 {
-        return Err(std::io::Error::last_os_error());
-    }
-    // SAFETY: `t` was filled by tcgetattr above.
-    unsafe { libc::cfmakeraw(&mut t) };
-    // SAFETY: `slave` is open; `t` is a valid termios.
-    if unsafe { libc::tcsetattr(slave.as_raw_fd(), libc::TCSANOW, &t) } != 0 {
-        return Err(std::io::Error::last_os_error());
-    }
-    Ok(())
-}
-
 /// Reads commands on the master side and answers them until told to stop.
 fn serve(mut port: std::fs::File, state: &Mutex<State>, stop: &AtomicBool) {
-    use std::os::fd::AsRawFd;
     let mut pending = String::new();
     let mut buf = [0u8; 64];
     while !stop.load(Ordering::SeqCst) {
         // Wait for input at most 20 ms, so that a stop is seen.
-        let mut poll = libc::pollfd {
-            fd: port.as_raw_fd(),
-            events: libc::POLLIN,
-            revents: 0,
-        };
-        // SAFETY: one valid pollfd for an open descriptor.
-        let ready = unsafe { libc::poll(&mut poll, 1, 20) };
-        if ready <= 0 {
+        if !crate::pty::readable(&port, 20) {
             continue;
         }
         let n = match port.read(&mut buf) {
