@@ -86,10 +86,10 @@ pub mod measure;
 pub mod mount;
 pub mod optics;
 #[cfg(feature = "daemon")]
-pub(crate) mod pty;
-#[cfg(feature = "daemon")]
 pub mod relay;
 pub mod scene;
+#[cfg(feature = "daemon")]
+pub(crate) mod serial;
 pub mod simulate;
 pub mod solve;
 #[cfg(feature = "daemon")]

@@ -149,17 +149,10 @@ impl Elliptec<Box<dyn serialport::SerialPort>> {
     /// Opens the mount at `path` (e.g. `/dev/ttyUSB0`) with device address
     /// `address` (`0` unless it was changed), and reads its information.
     pub fn open(path: &str, address: char) -> Result<Self, MountError> {
-        let port = serialport::new(path, BAUD)
-            .data_bits(serialport::DataBits::Eight)
-            .parity(serialport::Parity::None)
-            .stop_bits(serialport::StopBits::One)
-            .flow_control(serialport::FlowControl::None)
-            .timeout(Duration::from_millis(20))
-            .open()
-            .map_err(|e| MountError::Open {
-                port: path.to_string(),
-                reason: e.to_string(),
-            })?;
+        let port = crate::serial::open(path, BAUD).map_err(|e| MountError::Open {
+            port: path.to_string(),
+            reason: e.to_string(),
+        })?;
         Self::with_port(port, path, address)
     }
 }

@@ -5,11 +5,9 @@
 //! faults: no reply, an error reply, a move that lands off target, a
 //! cable pulled.
 
-use std::io::{Read, Write};
-use std::os::fd::OwnedFd;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+
+use crate::serial::PtyDevice;
 
 /// Pulses per turn of the simulated ELL14 (the real one's).
 pub const PULSES: u32 = 143_360;
@@ -39,39 +37,36 @@ struct State {
 /// A running simulated ELL14; stops (the cable pulled) when dropped or
 /// [`SimulatedEll14::unplug`]ged.
 pub struct SimulatedEll14 {
-    path: String,
+    device: PtyDevice,
     state: Arc<Mutex<State>>,
-    stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
-    /// The slave side, held so the pty stays up between the driver's opens.
-    _slave: Option<OwnedFd>,
 }
 
 impl SimulatedEll14 {
     /// Starts the device on a new pseudo-terminal at address `0`.
     pub fn start() -> std::io::Result<Self> {
-        let (port, slave, path) = crate::pty::open()?;
         let state = Arc::new(Mutex::new(State {
             pulses: 0,
             fault: Fault::None,
         }));
-        let stop = Arc::new(AtomicBool::new(false));
-        let (st, halt) = (state.clone(), stop.clone());
-        let thread = std::thread::Builder::new()
-            .name("sim-ell14".into())
-            .spawn(move || serve(port, &st, &halt))?;
-        Ok(Self {
-            path,
-            state,
-            stop,
-            thread: Some(thread),
-            _slave: Some(slave),
-        })
+        let st = state.clone();
+        let mut pending = String::new();
+        let device = PtyDevice::start("sim-ell14", move |bytes| {
+            pending.extend(bytes.iter().map(|&b| b as char));
+            let mut out = Vec::new();
+            while let Some((cmd, rest)) = take_command(&pending) {
+                if let Some(r) = answer(&cmd, &st) {
+                    out.extend_from_slice(format!("{r}\r\n").as_bytes());
+                }
+                pending = rest;
+            }
+            out
+        })?;
+        Ok(Self { device, state })
     }
 
     /// The serial port's path to open (`/dev/pts/N`).
     pub fn path(&self) -> &str {
-        &self.path
+        self.device.path()
     }
 
     /// The angle the device is at, degrees in [0, 360).
@@ -89,46 +84,7 @@ impl SimulatedEll14 {
 
     /// Pulls the cable: the device stops and its pty closes.
     pub fn unplug(&mut self) {
-        self.stop.store(true, Ordering::SeqCst);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
-        self._slave = None;
-    }
-}
-
-impl Drop for SimulatedEll14 {
-    fn drop(&mut self) {
-        self.unplug();
-    }
-}
-
-/// Reads commands on the master side and answers them until told to stop.
-fn serve(mut port: std::fs::File, state: &Mutex<State>, stop: &AtomicBool) {
-    let mut pending = String::new();
-    let mut buf = [0u8; 64];
-    while !stop.load(Ordering::SeqCst) {
-        // Wait for input at most 20 ms, so that a stop is seen.
-        if !crate::pty::readable(&port, 20) {
-            continue;
-        }
-        let n = match port.read(&mut buf) {
-            Ok(0) | Err(_) => {
-                // The driver closed its side: wait for the next open.
-                std::thread::sleep(Duration::from_millis(20));
-                continue;
-            }
-            Ok(n) => n,
-        };
-        pending.extend(buf[..n].iter().map(|&b| b as char));
-        while let Some((cmd, rest)) = take_command(&pending) {
-            let reply = answer(&cmd, state);
-            pending = rest;
-            if let Some(r) = reply {
-                let _ = port.write_all(format!("{r}\r\n").as_bytes());
-                let _ = port.flush();
-            }
-        }
+        self.device.unplug();
     }
 }
 

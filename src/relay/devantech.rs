@@ -51,17 +51,10 @@ impl Devantech<Box<dyn serialport::SerialPort>> {
     /// Opens the module at `path` (e.g. `/dev/ttyACM0`), reads which module
     /// it is, and checks that it has relay `relay` (1-8).
     pub fn open(path: &str, relay: u8) -> Result<Self, RelayError> {
-        let port = serialport::new(path, BAUD)
-            .data_bits(serialport::DataBits::Eight)
-            .parity(serialport::Parity::None)
-            .stop_bits(serialport::StopBits::One)
-            .flow_control(serialport::FlowControl::None)
-            .timeout(Duration::from_millis(20))
-            .open()
-            .map_err(|e| RelayError::Open {
-                port: path.to_string(),
-                reason: e.to_string(),
-            })?;
+        let port = crate::serial::open(path, BAUD).map_err(|e| RelayError::Open {
+            port: path.to_string(),
+            reason: e.to_string(),
+        })?;
         Self::with_port(port, path, relay)
     }
 }

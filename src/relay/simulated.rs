@@ -5,11 +5,9 @@
 //! relay 1) and can play faults: no reply, a relay that does not switch, a
 //! cable pulled.
 
-use std::io::{Read, Write};
-use std::os::fd::OwnedFd;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+
+use crate::serial::PtyDevice;
 
 /// The module id a USB-RLY02 answers (`0x5A`'s first byte).
 pub const MODULE_ID: u8 = 10;
@@ -35,39 +33,27 @@ struct State {
 /// A running simulated USB-RLY02; stops (the cable pulled) when dropped or
 /// [`SimulatedRelay::unplug`]ged.
 pub struct SimulatedRelay {
-    path: String,
+    device: PtyDevice,
     state: Arc<Mutex<State>>,
-    stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
-    /// The slave side, held so the pty stays up between the driver's opens.
-    _slave: Option<OwnedFd>,
 }
 
 impl SimulatedRelay {
     /// Starts the module on a new pseudo-terminal, its relays off.
     pub fn start() -> std::io::Result<Self> {
-        let (port, slave, path) = crate::pty::open()?;
         let state = Arc::new(Mutex::new(State {
             relays: 0,
             fault: Fault::None,
         }));
-        let stop = Arc::new(AtomicBool::new(false));
-        let (st, halt) = (state.clone(), stop.clone());
-        let thread = std::thread::Builder::new()
-            .name("sim-usb-rly02".into())
-            .spawn(move || serve(port, &st, &halt))?;
-        Ok(Self {
-            path,
-            state,
-            stop,
-            thread: Some(thread),
-            _slave: Some(slave),
-        })
+        let st = state.clone();
+        let device = PtyDevice::start("sim-usb-rly02", move |bytes| {
+            bytes.iter().flat_map(|&c| answer(c, &st)).collect()
+        })?;
+        Ok(Self { device, state })
     }
 
     /// The serial port's path to open (`/dev/pts/N`).
     pub fn path(&self) -> &str {
-        &self.path
+        self.device.path()
     }
 
     /// Whether relay `relay` (1 or 2) is energized.
@@ -85,42 +71,7 @@ impl SimulatedRelay {
 
     /// Pulls the cable: the module stops and its pty closes.
     pub fn unplug(&mut self) {
-        self.stop.store(true, Ordering::SeqCst);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
-        self._slave = None;
-    }
-}
-
-impl Drop for SimulatedRelay {
-    fn drop(&mut self) {
-        self.unplug();
-    }
-}
-
-/// Reads command bytes on the master side and answers them until told to stop.
-fn serve(mut port: std::fs::File, state: &Mutex<State>, stop: &AtomicBool) {
-    let mut buf = [0u8; 64];
-    while !stop.load(Ordering::SeqCst) {
-        if !crate::pty::readable(&port, 20) {
-            continue;
-        }
-        let n = match port.read(&mut buf) {
-            Ok(0) | Err(_) => {
-                // The driver closed its side: wait for the next open.
-                std::thread::sleep(Duration::from_millis(20));
-                continue;
-            }
-            Ok(n) => n,
-        };
-        for &command in &buf[..n] {
-            let reply = answer(command, state);
-            if !reply.is_empty() {
-                let _ = port.write_all(&reply);
-                let _ = port.flush();
-            }
-        }
+        self.device.unplug();
     }
 }
 
