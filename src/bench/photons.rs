@@ -20,10 +20,12 @@ use crate::scene::{FrameGeometry, Scene, WallSampling};
 use crate::simulate::camera::expose;
 use crate::simulate::patterns::Pattern;
 use crate::simulate::unpolarized_peak;
+use crate::solve::admm::admm_tv_prepared;
+use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::metrics::compare;
-use crate::solve::reconstruct::Context;
-use crate::solve::{condition, reconstruct, SolveRequest};
+use crate::solve::reconstruct::{Context, AUTO_MAX_ITER};
+use crate::solve::{condition, reconstruct, AdmmSettings, SolveRequest};
 use crate::transport::{build, MemoryBudget, Transport};
 
 /// Photo-electrons at the brightest unpolarized pixel, per step a factor of
@@ -110,6 +112,11 @@ fn centre_samples(
 
 /// PSNR of `i` (variance `var`) reconstructed with `t` against `truth`.
 fn psnr(t: &Transport, i: &[f64], var: Vec<f64>, truth: &[f64]) -> Result<f64, BenchError> {
+    Ok(auto(t, i, var, truth)?.0)
+}
+
+/// PSNR and λ (relative to `mean(diag(T^T T))`) of the automatic λ.
+fn auto(t: &Transport, i: &[f64], var: Vec<f64>, truth: &[f64]) -> Result<(f64, f64), BenchError> {
     let cond = condition(t)?;
     let solved = reconstruct(
         t,
@@ -119,7 +126,102 @@ fn psnr(t: &Transport, i: &[f64], var: Vec<f64>, truth: &[f64]) -> Result<f64, B
         &SolveRequest::default(),
         Context::default(),
     )?;
-    Ok(compare(t.scene_grid(), truth, &solved.image).psnr_db)
+    let lambda = solved
+        .report
+        .lambda_choice
+        .as_ref()
+        .map_or(f64::NAN, |c| c.lambda / t.mean_column_norm2());
+    Ok((
+        compare(t.scene_grid(), truth, &solved.image).psnr_db,
+        lambda,
+    ))
+}
+
+/// The crossed bench both ways: the scenes and transports of the two paths.
+struct Bench {
+    name: String,
+    centre: Scene,
+    pixels: Scene,
+    t_centre: Transport,
+    t_pixels: Transport,
+}
+
+/// One measurement, `(i, variance)`.
+type Measurement = (Vec<f64>, Vec<f64>);
+
+impl Bench {
+    fn new(name: &str, budget: MemoryBudget) -> Result<Self, BenchError> {
+        let base = super::builtin(name)?;
+        let centre = super::edit(name, base.clone(), |s| {
+            s.wall.sampling = WallSampling::Uniform;
+            s.wall.plane.supersample = 1;
+        })?;
+        let pixels = super::edit(name, base, |s| s.wall.sampling = WallSampling::Pixels)?;
+        let (t_centre, t_pixels) = (build(&centre, budget)?, build(&pixels, budget)?);
+        Ok(Self {
+            name: name.into(),
+            centre,
+            pixels,
+            t_centre,
+            t_pixels,
+        })
+    }
+
+    /// The truth of `pattern`, its unpolarized peak and its clean frame.
+    fn frame(
+        &self,
+        pattern: Pattern,
+        budget: MemoryBudget,
+    ) -> Result<(Vec<f64>, f64, Frame), BenchError> {
+        let truth = pattern.render(self.pixels.hidden().plane.grid);
+        let peak = unpolarized_peak(&self.pixels, &self.t_pixels, &truth, budget)?;
+        let clean =
+            crate::simulate::camera::render(&self.pixels, &truth, FrameGeometry::plain(512, 512))
+                .into_iter()
+                .find_map(|(_, f)| f)
+                .ok_or_else(|| BenchError::Scene {
+                    name: self.name.clone(),
+                    reason: "its pose has no homography to render frames through".into(),
+                })?;
+        Ok((truth, peak, clean))
+    }
+
+    /// The frame `clean` exposed at `scale` with noise seed `seed`, measured
+    /// the revision-2 way and the revision-3 way.
+    fn measure(
+        &self,
+        clean: &Frame,
+        scale: f64,
+        seed: u64,
+    ) -> Result<(Measurement, Measurement), BenchError> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let (mean, variance) = expose(clean, scale, READ_NOISE, &mut rng);
+        let old = centre_samples(&self.centre, &mean, &variance, scale).ok_or_else(|| {
+            BenchError::Scene {
+                name: self.name.clone(),
+                reason: "a wall element's centre is imaged off the frame".into(),
+            }
+        })?;
+        let capture = CaptureFrames {
+            name: "frame".into(),
+            pose: self.pixels.poses()[0].name.clone(),
+            channels: vec![self.t_pixels.blocks()[0].channel],
+            mean,
+            variance: Some(variance),
+            frames: 1,
+            full_scale: scale,
+            exposure_us: 1.0,
+            offset: [0, 0],
+            binning: [1, 1],
+        };
+        let m = assemble(&self.pixels, self.t_pixels.blocks(), &[capture]).map_err(|e| {
+            BenchError::Scene {
+                name: self.name.clone(),
+                reason: e.to_string(),
+            }
+        })?;
+        Ok((old, (m.i, m.variance.unwrap_or_default())))
+    }
 }
 
 /// The comparison on the built-in scene `name` (one pose with a
@@ -129,59 +231,17 @@ pub fn photons_report(
     budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Photons, BenchError> {
-    let base = super::builtin(name)?;
-    let centre = super::edit(name, base.clone(), |s| {
-        s.wall.sampling = WallSampling::Uniform;
-        s.wall.plane.supersample = 1;
-    })?;
-    let pixels = super::edit(name, base, |s| s.wall.sampling = WallSampling::Pixels)?;
-    let (t_centre, t_pixels) = (build(&centre, budget)?, build(&pixels, budget)?);
-    let channel = t_pixels.blocks()[0].channel;
+    let bench = Bench::new(name, budget)?;
     let mut rows = Vec::new();
     for pattern in PATTERNS {
-        let truth = pattern.render(pixels.hidden().plane.grid);
-        let peak = unpolarized_peak(&pixels, &t_pixels, &truth, budget)?;
-        let clean =
-            crate::simulate::camera::render(&pixels, &truth, FrameGeometry::plain(512, 512))
-                .into_iter()
-                .find_map(|(_, f)| f)
-                .ok_or_else(|| BenchError::Scene {
-                    name: name.into(),
-                    reason: "its pose has no homography to render frames through".into(),
-                })?;
+        let (truth, peak, clean) = bench.frame(pattern, budget)?;
         for photons in PHOTONS {
             let scale = photons / peak.max(1e-300);
             let (mut old, mut new) = (0.0, 0.0);
             for seed in 0..SEEDS {
-                let mut rng = ChaCha8Rng::seed_from_u64(seed);
-                let (mean, variance) = expose(&clean, scale, READ_NOISE, &mut rng);
-                let (i, var) =
-                    centre_samples(&centre, &mean, &variance, scale).ok_or_else(|| {
-                        BenchError::Scene {
-                            name: name.into(),
-                            reason: "a wall element's centre is imaged off the frame".into(),
-                        }
-                    })?;
-                old += psnr(&t_centre, &i, var, &truth)?;
-                let capture = CaptureFrames {
-                    name: "frame".into(),
-                    pose: pixels.poses()[0].name.clone(),
-                    channels: vec![channel],
-                    mean,
-                    variance: Some(variance),
-                    frames: 1,
-                    full_scale: scale,
-                    exposure_us: 1.0,
-                    offset: [0, 0],
-                    binning: [1, 1],
-                };
-                let m = assemble(&pixels, t_pixels.blocks(), &[capture]).map_err(|e| {
-                    BenchError::Scene {
-                        name: name.into(),
-                        reason: e.to_string(),
-                    }
-                })?;
-                new += psnr(&t_pixels, &m.i, m.variance.unwrap_or_default(), &truth)?;
+                let ((i, var), (i_new, var_new)) = bench.measure(&clean, scale, seed)?;
+                old += psnr(&bench.t_centre, &i, var, &truth)?;
+                new += psnr(&bench.t_pixels, &i_new, var_new, &truth)?;
             }
             rows.push(PhotonsRow {
                 pattern: pattern.name().into(),
@@ -198,6 +258,105 @@ pub fn photons_report(
         seeds: SEEDS,
         rows,
     })
+}
+
+/// One path at one exposure: the automatic λ against a grid of λs chosen
+/// with the truth ([`best_lambda`]). λs are relative to `mean(diag(T^T T))`.
+#[derive(Debug, Clone, Serialize)]
+pub struct BestLambdaRow {
+    /// Pattern name.
+    pub pattern: String,
+    /// Electrons at the brightest unpolarized pixel.
+    pub photons: f64,
+    /// "revision 2" (centre samples) or "revision 3" (pixel means).
+    pub path: &'static str,
+    /// PSNR with the automatic λ, mean over the seeds (as [`photons_report`]), dB.
+    pub auto_db: f64,
+    /// The automatic λs, geometric mean over the seeds.
+    pub auto_lambda: f64,
+    /// Mean over the seeds of each seed's best PSNR on the grid, dB.
+    pub best_per_seed_db: f64,
+    /// The best seed-mean PSNR at one λ of the grid, dB.
+    pub best_common_db: f64,
+    /// That λ.
+    pub best_common_lambda: f64,
+    /// Whether that λ is the grid's first or last.
+    pub at_grid_edge: bool,
+}
+
+/// The automatic λ against the best λ of the grid `log10(λ / mean(diag(T^T
+/// T)))` from `lo` to `hi` in `steps` equal steps, on the frames of
+/// [`photons_report`] (same exposures, seeds and measurements) for
+/// `pattern` at each of `photons`, both paths. Each grid λ is a cold
+/// ADMM-TV solve with the automatic λ's iteration cap.
+pub fn best_lambda(
+    name: &str,
+    budget: MemoryBudget,
+    pattern: Pattern,
+    photons: &[f64],
+    (lo, hi, steps): (f64, f64, usize),
+) -> Result<Vec<BestLambdaRow>, BenchError> {
+    let bench = Bench::new(name, budget)?;
+    let (truth, peak, clean) = bench.frame(pattern, budget)?;
+    let grid: Vec<f64> = (0..=steps)
+        .map(|k| 10f64.powf(lo + (hi - lo) * k as f64 / steps.max(1) as f64))
+        .collect();
+    let mut rows = Vec::new();
+    for &p in photons {
+        let scale = p / peak.max(1e-300);
+        // Per path: sums of the automatic PSNR and log λ, of each seed's
+        // best, and of the PSNR at every grid λ.
+        let mut sums = [
+            (0.0, 0.0, 0.0, vec![0.0; grid.len()]),
+            (0.0, 0.0, 0.0, vec![0.0; grid.len()]),
+        ];
+        for seed in 0..SEEDS {
+            let (old, new) = bench.measure(&clean, scale, seed)?;
+            for (k, (t, (i, var))) in [(&bench.t_centre, old), (&bench.t_pixels, new)]
+                .into_iter()
+                .enumerate()
+            {
+                let (db, lambda) = auto(t, &i, var, &truth)?;
+                let unit = t.mean_column_norm2();
+                let normal = Normal::new(t.as_mat(), &i);
+                let mut best = f64::NEG_INFINITY;
+                for (g, &rel) in grid.iter().enumerate() {
+                    let settings = AdmmSettings {
+                        lambda: Some(rel * unit),
+                        max_iter: AUTO_MAX_ITER,
+                        ..Default::default()
+                    };
+                    let image = admm_tv_prepared(t, &i, &normal, &settings)?.image;
+                    let psnr = compare(t.scene_grid(), &truth, &image).psnr_db;
+                    best = best.max(psnr);
+                    sums[k].3[g] += psnr;
+                }
+                sums[k].0 += db;
+                sums[k].1 += lambda.ln();
+                sums[k].2 += best;
+            }
+        }
+        let n = SEEDS as f64;
+        for (k, (db, ln_lambda, best, at)) in sums.into_iter().enumerate() {
+            let (g, common) = at
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.total_cmp(b.1))
+                .map_or((0, f64::NAN), |(g, s)| (g, s / n));
+            rows.push(BestLambdaRow {
+                pattern: pattern.name().into(),
+                photons: p,
+                path: ["revision 2", "revision 3"][k],
+                auto_db: db / n,
+                auto_lambda: (ln_lambda / n).exp(),
+                best_per_seed_db: best / n,
+                best_common_db: common,
+                best_common_lambda: grid[g],
+                at_grid_edge: g == 0 || g + 1 == grid.len(),
+            });
+        }
+    }
+    Ok(rows)
 }
 
 /// PSNR against photons, one panel per pattern, both paths.
