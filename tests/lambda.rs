@@ -372,18 +372,13 @@ fn lambda_rules_on_camera_frames() {
         let scale = case.photons / peak;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(case.seed);
         let (mean, variance) = expose(&clean, scale, 5.0, &mut rng);
-        let capture = CaptureFrames {
-            name: "frame".into(),
-            pose: s.poses()[0].name.clone(),
-            channels: vec![t.blocks()[0].channel],
-            mean,
-            variance: Some(variance),
-            frames: 1,
-            full_scale: scale,
-            exposure_us: 1.0,
-            offset: [0, 0],
-            binning: [1, 1],
-        };
+        let capture = CaptureFrames::exposure(
+            "frame".into(),
+            s.poses()[0].name.clone(),
+            vec![t.blocks()[0].channel],
+            (mean, variance),
+            scale,
+        );
         let m = assemble(s, t.blocks(), &[capture]).unwrap();
         let i = &m.i;
         let noise = NoiseLevel::measured(m.variance.clone().unwrap());

@@ -218,18 +218,13 @@ fn reconstruct_shots(
                 }
             }
             // Digital numbers are electrons: full scale `scale` puts i in units of T l.
-            CaptureFrames {
-                name: format!("shot {k}"),
-                pose: pose.clone(),
-                channels: shot.channels.clone(),
-                mean,
-                variance: Some(variance),
-                frames: 1,
-                full_scale: scale,
-                exposure_us: 1.0,
-                offset: [0, 0],
-                binning: [1, 1],
-            }
+            CaptureFrames::exposure(
+                format!("shot {k}"),
+                pose.clone(),
+                shot.channels.clone(),
+                (mean, variance),
+                scale,
+            )
         })
         .collect();
     let blocks = crate::transport::blocks_of(scene);

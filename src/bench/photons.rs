@@ -202,18 +202,13 @@ impl Bench {
                 reason: "a wall element's centre is imaged off the frame".into(),
             }
         })?;
-        let capture = CaptureFrames {
-            name: "frame".into(),
-            pose: self.pixels.poses()[0].name.clone(),
-            channels: vec![self.t_pixels.blocks()[0].channel],
-            mean,
-            variance: Some(variance),
-            frames: 1,
-            full_scale: scale,
-            exposure_us: 1.0,
-            offset: [0, 0],
-            binning: [1, 1],
-        };
+        let capture = CaptureFrames::exposure(
+            "frame".into(),
+            self.pixels.poses()[0].name.clone(),
+            vec![self.t_pixels.blocks()[0].channel],
+            (mean, variance),
+            scale,
+        );
         let m = assemble(&self.pixels, self.t_pixels.blocks(), &[capture]).map_err(|e| {
             BenchError::Scene {
                 name: self.name.clone(),

@@ -38,6 +38,33 @@ pub struct CaptureFrames {
 }
 
 impl CaptureFrames {
+    /// One simulated exposure of the whole sensor, in electrons (its mean
+    /// and variance, e.g. from `simulate::camera::expose`): full scale
+    /// `scale` (the electrons of the unpolarized peak) puts `i` in units of `T l`.
+    ///
+    /// Why: the bench's camera-frame comparisons measure their frames as a
+    /// capture is measured, through [`assemble`].
+    pub fn exposure(
+        name: String,
+        pose: String,
+        channels: Vec<Channel>,
+        (mean, variance): (Frame, Frame),
+        scale: f64,
+    ) -> Self {
+        Self {
+            name,
+            pose,
+            channels,
+            mean,
+            variance: Some(variance),
+            frames: 1,
+            full_scale: scale,
+            exposure_us: 1.0,
+            offset: [0, 0],
+            binning: [1, 1],
+        }
+    }
+
     /// Whether it holds `block`: taken at its pose, through its analyzer.
     pub fn serves(&self, block: &Block) -> bool {
         block.taken_by(&self.pose, &self.channels)
