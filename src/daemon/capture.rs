@@ -142,8 +142,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     };
     let spec = w.queue.take_progressive(id);
     let (dark, dark_counts) = dark_reference(w, &c, &stream).await?;
-    let scene_off =
-        meta.kind == CaptureKind::Dark && (w.light.present() || w.camera.bench().switches_scene());
+    let scene_off = meta.kind == CaptureKind::Dark && w.light.switches_scene(w.camera.bench());
     if scene_off {
         scene_light(w, id, false).await?;
     }
@@ -337,6 +336,22 @@ fn stall_limit(exposure_us: f64, n: usize, slack: std::time::Duration) -> std::t
     std::time::Duration::from_secs_f64(frames) + slack
 }
 
+/// Runs a bench device's blocking command (serial I/O of up to seconds) off
+/// the runtime for capture `id`; a task that did not finish fails the
+/// capture naming `device`, and the command's own result is the caller's.
+async fn off_runtime<T: Send + 'static>(
+    id: i64,
+    device: &str,
+    command: impl FnOnce() -> T + Send + 'static,
+) -> Result<T, JobError> {
+    tokio::task::spawn_blocking(command)
+        .await
+        .map_err(|e| JobError::Capture {
+            id,
+            reason: format!("the {device}'s task failed: {e}"),
+        })
+}
+
 /// Switches the hidden scene's light for capture `id`: through the relay
 /// when there is one (the bench then shows what the relay reads back), else
 /// through the bench's own switch (or the operator, who was asked).
@@ -346,12 +361,8 @@ async fn scene_light(w: &CaptureWorker, id: i64, on: bool) -> Result<(), JobErro
         return Ok(());
     }
     let light = w.light.clone();
-    let read = tokio::task::spawn_blocking(move || light.set(on))
-        .await
-        .map_err(|e| JobError::Capture {
-            id,
-            reason: format!("the light relay's task failed: {e}"),
-        })?
+    let read = off_runtime(id, "light relay", move || light.set(on))
+        .await?
         .map_err(|e| JobError::Capture {
             id,
             reason: format!(
@@ -377,12 +388,7 @@ async fn move_camera(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobErro
         });
     };
     let stage = w.stage.clone();
-    let moved = tokio::task::spawn_blocking(move || stage.move_to(&pose))
-        .await
-        .map_err(|e| JobError::Capture {
-            id: c.id,
-            reason: format!("the camera stage's task failed: {e}"),
-        })?;
+    let moved = off_runtime(c.id, "camera stage", move || stage.move_to(&pose)).await?;
     let at = moved.map_err(|e| JobError::Capture {
         id: c.id,
         reason: e.to_string(),
@@ -402,12 +408,7 @@ async fn turn_polarizer(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobE
         return Ok(());
     };
     let mount = w.mount.clone();
-    let turned = tokio::task::spawn_blocking(move || mount.turn_to(deg))
-        .await
-        .map_err(|e| JobError::Capture {
-            id: c.id,
-            reason: format!("the rotation mount's task failed: {e}"),
-        })?;
+    let turned = off_runtime(c.id, "rotation mount", move || mount.turn_to(deg)).await?;
     let measured = turned.map_err(|e| JobError::Capture {
         id: c.id,
         reason: format!("the polarizer could not be turned to {deg}° from crossed: {e}"),

@@ -142,6 +142,12 @@ impl LightService {
         self.config.kind != LightKind::None
     }
 
+    /// Whether dark frames need no operator on a bench with this switch:
+    /// a relay, or `bench`'s own switch (the fake bench's).
+    pub fn switches_scene(&self, bench: &dyn crate::camera::fake::Bench) -> bool {
+        self.present() || bench.switches_scene()
+    }
+
     /// Switches the light and returns the state read back, or why it could
     /// not (blocking: serial I/O of up to a second). A failure closes the
     /// module, to be opened again at the next switch.

@@ -375,7 +375,7 @@ impl Daemon {
     /// Whether the bench switches the hidden scene off for dark frames by
     /// itself (a relay, or the fake bench's own switch); else the operator does.
     fn switches_scene(&self) -> bool {
-        self.light.present() || self.camera.bench().switches_scene()
+        self.light.switches_scene(self.camera.bench())
     }
 
     /// The camera stage as last seen.

@@ -164,16 +164,14 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     };
     // A solver that needs the Gram solves on the scene's cached one: only
     // `T^T i` is new.
-    let normal = match (solve.solver.needs().gram, &part) {
-        (false, _) => None,
-        (true, None) => {
-            check_measurement(&t, &i)?;
-            Some(Normal::with(d.scenes.gram(&key)?, &t, &i))
-        }
-        (true, Some(_)) => {
-            check_measurement(&t, &i)?;
-            Some(Normal::of(&t, &i))
-        }
+    let normal = if solve.solver.needs().gram {
+        check_measurement(&t, &i)?;
+        Some(match &part {
+            None => Normal::with(d.scenes.gram(&key)?, &t, &i),
+            Some(_) => Normal::of(&t, &i),
+        })
+    } else {
+        None
     };
     check(cancel)?;
     let solved = reconstruct_prepared(
