@@ -34,6 +34,16 @@ fn wait_plan(d: &Daemon, loc: &str, states: &[&str], within: Duration) -> serde_
     }
 }
 
+/// The ids of the captures plan `plan` took, in step order.
+fn plan_captures(plan: &serde_json::Value) -> Vec<i64> {
+    plan["captures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["capture"].as_i64().unwrap())
+        .collect()
+}
+
 fn psnr(r: &serde_json::Value) -> f64 {
     r["report"]["metrics"]["psnr_db"]
         .as_f64()
@@ -62,12 +72,7 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
     );
     let plan = wait_plan(&d, &loc, &["done", "failed", "cancelled"], long);
     assert_eq!(plan["state"], "done", "{plan}");
-    let captures: Vec<i64> = plan["captures"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| c["capture"].as_i64().unwrap())
-        .collect();
+    let captures = plan_captures(&plan);
     assert_eq!(captures.len(), 4, "{plan}");
     for (id, angle) in captures.iter().zip([0.0, 45.0, 90.0, 135.0]) {
         let c = d.json(&format!("/captures/{id}"));
@@ -160,12 +165,7 @@ fn a_plan_with_interim_results_solves_from_the_blocks_taken_so_far_after_each_bl
         [0, 1, 2],
         "{plan}"
     );
-    let captures: Vec<i64> = plan["captures"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| c["capture"].as_i64().unwrap())
-        .collect();
+    let captures = plan_captures(&plan);
     let mut psnrs = Vec::new();
     for (k, &(_, rid)) in interim.iter().enumerate() {
         let r = d.wait(&format!("/reconstructions/{rid}"), long);
@@ -459,12 +459,7 @@ fn sigkill_in_the_middle_of_a_plan_loses_no_capture_and_repeats_none() {
     let d = Daemon::start(&cfg, &data);
     let plan = wait_plan(&d, &loc, &["done", "failed", "interrupted"], long);
     assert_eq!(plan["state"], "done", "{plan}");
-    let ids: Vec<i64> = plan["captures"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| c["capture"].as_i64().unwrap())
-        .collect();
+    let ids = plan_captures(&plan);
     assert_eq!(ids.len(), 4, "{plan}");
     assert_eq!(
         ids[0], first,
