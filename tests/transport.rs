@@ -104,10 +104,22 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                     {
                         continue;
                     }
-                    let g = match scene.hidden().emitter {
+                    let mut g = match scene.hidden().emitter {
                         Emitter::Lambertian => s.normal.dot(&(c - sp).normalize()).max(0.0),
                         Emitter::Isotropic => 1.0,
                     };
+                    // A monitor's falloff as Saunders et al. write it:
+                    // cos(atan(offset along the axis / distance along the normal)).
+                    if let Some([nu, nv]) = scene.hidden().lobe {
+                        let d = c - sp;
+                        let along = s.normal.dot(&d);
+                        g *= if along > 0.0 {
+                            (s.u.dot(&d) / along).atan().cos().powf(nu)
+                                * (s.v.dot(&d) / along).atan().cos().powf(nv)
+                        } else {
+                            0.0
+                        };
+                    }
                     let alpha = brdf.alpha;
                     let h = (w_i + w_o).normalize();
                     let nh = n.dot(&h);
@@ -244,6 +256,41 @@ fn the_revision_2_keys_match_the_literal_model() {
                 assert_matches_reference(&scene, &t, &format!("{name} {model} {diffuse}"));
             }
         }
+    }
+}
+
+#[test]
+fn a_screen_lobe_matches_the_literal_model_and_narrows_the_columns() {
+    // The occluder bench with a monitor's lobe (cos^1 along u, cos^18 along v).
+    let name = "occluder-crossed-3x3";
+    let text = std::fs::read_to_string(scenes_dir().join(format!("{name}.toml"))).unwrap();
+    let lobed = text.replacen("[scene]\n", "[scene]\nlobe = [1.0, 18.0]\n", 1);
+    assert_ne!(lobed, text);
+    let scene = Scene::from_toml_str(&lobed).unwrap();
+    assert_eq!(scene.hidden().lobe, Some([1.0, 18.0]));
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
+    assert_matches_reference(&scene, &t, "lobe");
+    let plain = build(&load(name), MemoryBudget::DEFAULT).unwrap();
+    // Every entry is weakened (or zero), none strengthened.
+    for k in 0..t.cols() {
+        for (a, b) in t.col(k).iter().zip(plain.col(k)) {
+            assert!(*a <= *b * (1.0 + 1e-12) && *a >= 0.0);
+        }
+    }
+    assert!(t.mean_column_norm2() < 0.9 * plain.mean_column_norm2());
+    // A lobe of [0, 0] is no lobe; a negative or huge exponent is refused, naming the key.
+    let none = Scene::from_toml_str(&text.replacen("[scene]\n", "[scene]\nlobe = [0.0, 0.0]\n", 1))
+        .unwrap();
+    assert_eq!(none.hidden().lobe, None);
+    for bad in ["[-1.0, 2.0]", "[1.0, 1e9]", "[1.0, nan]"] {
+        let e = Scene::from_toml_str(&text.replacen(
+            "[scene]\n",
+            &format!("[scene]\nlobe = {bad}\n"),
+            1,
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("scene.lobe"), "{bad}: {e}");
     }
 }
 

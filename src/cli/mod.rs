@@ -7,6 +7,7 @@ mod calibrate;
 mod cond;
 mod measure;
 mod pattern;
+mod photo;
 mod plan;
 mod progress;
 mod reconstruct;

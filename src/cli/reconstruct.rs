@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::solve::lambda::NoiseLevel;
+use polnlos::solve::photo::DataTerm;
 use polnlos::solve::reconstruct::{SolveRequest, Solver};
 use polnlos::solve::scene::{reconstruct_scene, SceneInput};
 use polnlos::solve::AdmmSettings;
@@ -63,9 +64,25 @@ pub struct Args {
     /// fraction of the time.
     #[arg(long = "full-spectrum")]
     full_spectrum: bool,
-    /// Truth image (.npy or PNG) to compute PSNR, ZNCC and SSIM against.
+    /// Truth image (.npy or PNG) to compute PSNR, ZNCC and SSIM against
+    /// (with --photo: a .npy of [nv, nu] or [nv, nu, C]).
     #[arg(long, value_name = "FILE")]
     truth: Option<PathBuf>,
+    /// The measurement is a photograph whose gain and ambient light are
+    /// unknown: fit them with the scene (docs/realphoto.md). The measurement
+    /// may be [rows] or [rows, C], one column per colour channel; one T
+    /// serves every channel. --max-iter caps each ADMM stage (default 150).
+    #[arg(long, conflicts_with_all = ["noise_from", "variance", "solver", "rho", "rcond", "full_spectrum"])]
+    photo: bool,
+    /// With --photo: what the data term fits (differences: blind to a
+    /// constant background per block and a smooth model error).
+    #[arg(
+        long = "data-term",
+        value_enum,
+        requires = "photo",
+        default_value = "differences"
+    )]
+    data_term: DataTerm,
 }
 
 /// `--lambda`: a number or `auto`.
@@ -108,6 +125,23 @@ fn noise_from(path: &std::path::Path, measurement: &[f64]) -> anyhow::Result<Noi
 }
 
 pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
+    if a.photo {
+        return super::photo::run(
+            super::photo::Args {
+                scene: a.scene,
+                measurement: a.measurement,
+                out: a.out,
+                truth: a.truth,
+                data_term: a.data_term,
+                lambda: match a.lambda {
+                    Some(LambdaArg::Value(l)) => Some(l),
+                    _ => None,
+                },
+                iterations: a.max_iter,
+            },
+            budget,
+        );
+    }
     let scene = super::load_scene(&a.scene)?;
     let meas = npy::read(&a.measurement)?;
     let sgrid = scene.hidden().plane.grid;

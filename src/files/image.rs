@@ -98,6 +98,21 @@ pub fn write_png16(
     super::write_atomic(path, &bytes)
 }
 
+/// Writes 8-bit RGB pixels (interleaved, rows top first) as a PNG, atomically.
+pub fn write_png_rgb8(
+    path: &Path,
+    width: usize,
+    height: usize,
+    pixels: &[u8],
+) -> Result<(), FileError> {
+    let buf = image::RgbImage::from_raw(width as u32, height as u32, pixels.to_vec())
+        .ok_or_else(|| FileError::format(path, "pixel count does not match the image size"))?;
+    let mut out = std::io::Cursor::new(Vec::new());
+    buf.write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| FileError::format(path, e.to_string()))?;
+    super::write_atomic(path, &out.into_inner())
+}
+
 /// Maps [0, 1] to the full 16-bit range (values outside are clipped).
 pub fn unit_to_u16(values: &[f64]) -> Vec<u16> {
     values

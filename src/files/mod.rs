@@ -48,7 +48,8 @@ impl FileError {
             source,
         }
     }
-    pub(crate) fn format(path: &std::path::Path, reason: impl Into<String>) -> Self {
+    /// A file whose content is wrong: its path and what is wrong with it.
+    pub fn format(path: &std::path::Path, reason: impl Into<String>) -> Self {
         FileError::Format {
             path: path.to_path_buf(),
             reason: reason.into(),

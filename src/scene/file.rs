@@ -53,6 +53,7 @@ struct RawScenePlane {
     supersample: Option<i64>,
     #[serde(default = "lambertian")]
     emitter: Emitter,
+    lobe: Option<[f64; 2]>,
     polarization: Option<[f64; 3]>,
 }
 
@@ -100,6 +101,9 @@ fn unit() -> f64 {
 fn lambertian() -> Emitter {
     Emitter::Lambertian
 }
+
+/// Largest exponent of a `lobe`: cos^1000 is already a 3-degree beam.
+const MAX_LOBE: f64 = 1000.0;
 
 /// Largest grid side accepted; a typo like `grid = [32000, 32000]` should be an
 /// error, not an attempt to allocate a terabyte.
@@ -167,6 +171,7 @@ impl From<SceneParts> for RawFile {
                 supersample: (!left_out.scene_supersample || s.supersample != 1)
                     .then(|| count(s.supersample)),
                 emitter: p.hidden.emitter,
+                lobe: p.hidden.lobe,
                 polarization: p.hidden.polarization.map(array),
             },
             pose: p
@@ -556,6 +561,19 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         .polarization
         .map(|p| direction("scene.polarization", p))
         .transpose()?;
+    if let Some(l) = s.lobe {
+        if !l
+            .iter()
+            .all(|n| n.is_finite() && (0.0..=MAX_LOBE).contains(n))
+        {
+            return Err(SceneError::invalid(
+                "scene.lobe",
+                l,
+                "must be two exponents [n_u, n_v], each from 0 to 1000 (a monitor: about [1, 18])",
+            ));
+        }
+    }
+    let lobe = s.lobe.filter(|l| l.iter().any(|n| *n != 0.0));
 
     if raw.pose.is_empty() {
         return Err(SceneError::invalid(
@@ -738,6 +756,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
         hidden: HiddenScene {
             plane: scene_plane,
             emitter: s.emitter,
+            lobe,
             polarization,
         },
         poses,

@@ -101,6 +101,12 @@ pub struct HiddenScene {
     pub plane: Plane,
     /// Angular emission lobe.
     pub emitter: Emitter,
+    /// Extra falloff `cos^n_u(theta_u) cos^n_v(theta_v)` of a screen whose
+    /// brightness drops off axis (a monitor), `[n_u, n_v]`; `None`: none.
+    /// `theta_u` is the angle of the ray to the wall from the normal within
+    /// the plane (normal, u), likewise `theta_v`: a monitor is often
+    /// narrow vertically and wide horizontally (docs/realphoto.md).
+    pub lobe: Option<[f64; 2]>,
     /// Field direction of a linearly polarized scene (unit), if any (MODEL.md Eq. 11).
     pub polarization: Option<Vec3>,
 }

@@ -36,6 +36,10 @@ pub struct AdmmSettings<'a> {
     pub rho: Option<f64>,
     /// Iteration cap.
     pub max_iter: usize,
+    /// Upper bound of the box `0 <= l <= upper`: 1 for radiance in MODEL.md
+    /// units (Eq. 12); `f64::INFINITY` when the gain is unknown and `l` is
+    /// in the measurement's own units (docs/realphoto.md).
+    pub upper: f64,
     /// Relative tolerance `eps_rel`; the absolute one is `tol * 1e-2`.
     pub tol: f64,
     /// Ends the solve early with [`SolveError::Stopped`] when raised.
@@ -48,6 +52,7 @@ impl Default for AdmmSettings<'_> {
             lambda: None,
             rho: None,
             max_iter: 500,
+            upper: 1.0,
             tol: 1e-4,
             stop: Stop::default(),
         }
@@ -228,6 +233,13 @@ pub fn admm_tv_warm(
         LAMBDA_REL * unit
     });
     check_lambda(lambda)?;
+    if settings.upper.is_nan() || settings.upper <= 0.0 {
+        return Err(SolveError::Parameter {
+            name: "upper",
+            value: settings.upper,
+            reason: "must be > 0 (infinite: no upper bound)",
+        });
+    }
     if !(rho > 0.0 && rho.is_finite()) {
         return Err(SolveError::Parameter {
             name: "rho",
@@ -315,7 +327,7 @@ pub fn admm_tv_warm(
         dual.iter_mut().for_each(|d| *d = 0.0);
         add_divergence_adjoint(grid, &w1, &mut dual);
         for k in 0..n {
-            let nz = (l[k] + u2[k]).clamp(0.0, 1.0);
+            let nz = (l[k] + u2[k]).clamp(0.0, settings.upper);
             dual[k] += nz - z2[k];
             z2[k] = nz;
             z_norm2 += nz * nz;

@@ -16,6 +16,7 @@ pub mod json;
 pub mod lambda;
 pub mod lowrank;
 pub mod metrics;
+pub mod photo;
 pub mod plan;
 pub mod reconstruct;
 pub mod report;

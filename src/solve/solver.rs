@@ -128,6 +128,7 @@ impl SolveRequest {
                 .unwrap_or(if auto { AUTO_MAX_ITER } else { d.max_iter }),
             tol: self.tol.unwrap_or(d.tol),
             stop,
+            ..d
         }
     }
 }

@@ -534,6 +534,12 @@ impl Parts {
             n: scene.wall().plane.normal,
             n_s: hidden.plane.normal,
             lambertian: hidden.emitter == Emitter::Lambertian,
+            lobe: hidden.lobe.map(|[nu, nv]| Lobe {
+                u: hidden.plane.u,
+                v: hidden.plane.v,
+                nu,
+                nv,
+            }),
             weight: hidden.plane.element_area() / ms as f64,
             brdf,
             diffuse: brdf.kd / PI,
@@ -562,6 +568,14 @@ pub(super) fn columns_mut(
         .enumerate()
 }
 
+/// A screen's off-axis falloff (scene `lobe`): its in-plane axes and exponents.
+struct Lobe {
+    u: Vec3,
+    v: Vec3,
+    nu: f64,
+    nv: f64,
+}
+
 /// Everything a column needs, shared read-only by all tasks.
 struct Ctx<'a> {
     scene: &'a Scene,
@@ -574,6 +588,8 @@ struct Ctx<'a> {
     n: Vec3,
     n_s: Vec3,
     lambertian: bool,
+    /// The screen's off-axis falloff, when the file asks for one.
+    lobe: Option<Lobe>,
     weight: f64,
     brdf: crate::optics::Brdf,
     /// `kd / pi`; 0 without a diffuse term.
@@ -597,6 +613,9 @@ fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
             c.brdf.alpha,
             c.weight,
         );
+        if let Some(lobe) = &c.lobe {
+            sc.lobe(lobe, &c.n_s);
+        }
         if c.fresnel_in {
             sc.transmittance_in(c.brdf.eta);
         }
@@ -738,6 +757,29 @@ impl Scratch {
             } else {
                 0.0
             };
+        }
+    }
+
+    /// Multiplies `base` by the screen's `cos^nu(theta_u) cos^nv(theta_v)`
+    /// (scene `lobe`): `cos theta_u = (n_s.d) / |(n_s.d, u.d)|` for the ray
+    /// `d = -w_i` from the screen to the wall sample, likewise for `v`.
+    #[inline(always)]
+    fn lobe(&mut self, lobe: &Lobe, n_s: &Vec3) {
+        let len = self.base.len();
+        let (wx, wy, wz) = (&self.w_i.x[..len], &self.w_i.y[..len], &self.w_i.z[..len]);
+        let base = &mut self.base[..len];
+        let (u, v) = (&lobe.u, &lobe.v);
+        for j in 0..len {
+            let dn = -(n_s.x * wx[j] + n_s.y * wy[j] + n_s.z * wz[j]);
+            let du = u.x * wx[j] + u.y * wy[j] + u.z * wz[j];
+            let dv = v.x * wx[j] + v.y * wy[j] + v.z * wz[j];
+            let (cu2, cv2) = (dn * dn / (dn * dn + du * du), dn * dn / (dn * dn + dv * dv));
+            let f = if dn > 0.0 {
+                cu2.powf(0.5 * lobe.nu) * cv2.powf(0.5 * lobe.nv)
+            } else {
+                0.0
+            };
+            base[j] *= f;
         }
     }
 

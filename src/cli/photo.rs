@@ -1,0 +1,152 @@
+//! `polnlos reconstruct --photo`: a photograph with unknown gain and ambient
+//! light, every colour channel through one `T` (docs/realphoto.md).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use polnlos::files::{image, json, npy, FileError};
+use polnlos::solve::photo::{reconstruct_photo, split_channels, DataTerm, PhotoSettings};
+use polnlos::transport::MemoryBudget;
+
+/// What `reconstruct --photo` was given.
+pub struct Args {
+    pub scene: PathBuf,
+    pub measurement: PathBuf,
+    pub out: PathBuf,
+    pub truth: Option<PathBuf>,
+    pub data_term: DataTerm,
+    pub lambda: Option<f64>,
+    pub iterations: Option<usize>,
+}
+
+/// The report of a photo's reconstruction: the scene, `T`'s cost and the fit.
+#[derive(serde::Serialize)]
+struct Report<'a> {
+    scene: String,
+    transport_seconds: f64,
+    total_seconds: f64,
+    #[serde(flatten)]
+    result: &'a polnlos::solve::photo::PhotoResult,
+}
+
+pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let scene = super::load_scene(&a.scene)?;
+    let grid = scene.hidden().plane.grid;
+    let meas = npy::read(&a.measurement)?;
+    let rows = scene.rows();
+    let channels = split_channels(&meas.shape, &meas.data, rows)
+        .map_err(|e| FileError::format(&a.measurement, e))?;
+    let truth = a
+        .truth
+        .as_ref()
+        .map(|p| truth_channels(p, grid, channels.len()))
+        .transpose()?;
+    super::out_dir(&a.out)?;
+    let pb = super::progress::bar(scene.cols(), "building T");
+    let t0 = Instant::now();
+    let t = polnlos::transport::build_with_progress(&scene, budget, &|done| {
+        pb.set_position(done as u64)
+    })?;
+    pb.finish_and_clear();
+    let transport_seconds = t0.elapsed().as_secs_f64();
+    let d = PhotoSettings::default();
+    let settings = PhotoSettings {
+        data_term: a.data_term,
+        lambda: a.lambda,
+        iterations: a.iterations.unwrap_or(d.iterations),
+        ..d
+    };
+    let result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;
+    let c = result.channels.len();
+    let n = grid.count();
+    let interleave = |f: &dyn Fn(usize, usize) -> f64| -> Vec<f64> {
+        (0..n)
+            .flat_map(|k| (0..c).map(move |ch| (k, ch)))
+            .map(|(k, ch)| f(k, ch))
+            .collect()
+    };
+    let image = interleave(&|k, ch| result.channels[ch].image[k]);
+    let x = interleave(&|k, ch| result.channels[ch].x[k]);
+    npy::write_f64(&a.out.join("recovered.npy"), &[grid.nv, grid.nu, c], &image)?;
+    npy::write_f64(&a.out.join("fitted.npy"), &[grid.nv, grid.nu, c], &x)?;
+    if c == 3 {
+        let rgb: Vec<u8> = image
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
+        image::write_png_rgb8(&a.out.join("recovered.png"), grid.nu, grid.nv, &rgb)?;
+    } else {
+        let first: Vec<f64> = result.channels[0].image.clone();
+        image::write_png16(
+            &a.out.join("recovered.png"),
+            grid.nu,
+            grid.nv,
+            &image::unit_to_u16(&first),
+        )?;
+    }
+    let report = Report {
+        scene: super::scene_name(&a.scene),
+        transport_seconds,
+        total_seconds: start.elapsed().as_secs_f64(),
+        result: &result,
+    };
+    json::write(&a.out.join("report.json"), &report)?;
+    for (k, ch) in result.channels.iter().enumerate() {
+        println!(
+            "channel {k}: gain {:.4e}, background {} (± {}), lambda {:.3e}, residual rms {:.3e}",
+            ch.gain,
+            fmt(&ch.background),
+            fmt(&ch.background_sd),
+            ch.lambda,
+            ch.residual_sd
+        );
+    }
+    if let Some(m) = &result.metrics {
+        println!(
+            "PSNR {:.2} dB ({:.2} dB after each channel's affine fit), ZNCC {:.4}, SSIM {:.4}",
+            m.psnr_db, m.psnr_affine_db, m.zncc, m.ssim
+        );
+    }
+    println!(
+        "recovered {}x{} scene, {c} channel(s), into {} in {:.2} s (T {:.2} s)",
+        grid.nu,
+        grid.nv,
+        a.out.display(),
+        report.total_seconds,
+        transport_seconds
+    );
+    Ok(())
+}
+
+fn fmt(v: &[f64]) -> String {
+    v.iter()
+        .map(|x| format!("{x:.4e}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The truth as channels on `grid`: a .npy of [nv, nu] (every channel
+/// alike) or [nv, nu, C].
+fn truth_channels(
+    path: &std::path::Path,
+    grid: polnlos::scene::Grid,
+    c: usize,
+) -> anyhow::Result<Vec<Vec<f64>>> {
+    let a = npy::read(path)?;
+    let n = grid.count();
+    match a.shape.as_slice() {
+        [h, w] if (*h, *w) == (grid.nv, grid.nu) => Ok(vec![a.data; c]),
+        [h, w, k] if (*h, *w, *k) == (grid.nv, grid.nu, c) => {
+            Ok((0..c).map(|ch| (0..n).map(|j| a.data[j * c + ch]).collect()).collect())
+        }
+        s => Err(FileError::format(
+            path,
+            format!(
+                "shape {s:?} is neither [{}, {}] nor [{}, {}, {c}] (the scene grid, one value per channel)",
+                grid.nv, grid.nu, grid.nv, grid.nu
+            ),
+        )
+        .into()),
+    }
+}

@@ -1,0 +1,662 @@
+//! A photograph's reconstruction: a real camera's unknown gain and ambient
+//! light, and a data term blind to what the model cannot know
+//! (docs/realphoto.md, a proposal beside MODEL.md Eq. 12).
+//!
+//! Why: a real photo carries ambient light and a smooth model error (the
+//! wall's true reflectance, the screen's true lobe) that the raw-value data
+//! term of Eq. 12 fits as if they were scene light: on Saunders et al.'s
+//! chair photo that costs about 2 dB and 0.15 ZNCC. First differences of each
+//! block's wall image cancel a constant background and most of a smooth
+//! error; the unknown gain then only scales `l`, so `l >= 0` is solved
+//! without the upper bound and scaled afterwards.
+//!
+//! The model is `i = g T l + b` per block and colour channel. Fitting
+//! `||D (i - T x)||^2 + lambda TV(x)` over `x = g l >= 0` gives `x`; `g` is
+//! the 99th percentile of `x` (the brightest scene element the data
+//! resolves maps to 1) and `b` the block's mean of `i - T x`. λ comes from
+//! the photo alone: the misfit of the non-negative least-squares fit (λ = 0)
+//! is the model error plus noise, and λ is raised until the misfit grows by
+//! the degrees of freedom the scene's unknowns had taken
+//! (`M / (M - n)`), a discrepancy principle on the error the model leaves.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::admm::{admm_tv_warm, AdmmSettings, AdmmState};
+use super::fista::{largest_eigenvalue, symmetric};
+use super::gram::{Gram, Normal};
+use super::tv::gradient;
+use super::{check_measurement, SolveError, Stop};
+use crate::transport::Transport;
+
+/// What a photo's data term fits.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum DataTerm {
+    /// `||i - g T l - b||^2` over the raw values (the background a constant
+    /// per block, fitted with `l`).
+    Values,
+    /// `||D (i - T x)||^2`, `D` the first differences of each block's wall
+    /// image along u and along v: blind to a constant background per block.
+    Differences,
+}
+
+/// Percentile of `x` that the gain maps to 1 (robust against a few hot elements).
+pub const GAIN_PERCENTILE: f64 = 0.99;
+/// ADMM penalty in units of the largest eigenvalue of the data term's Gram:
+/// fixed, so that one factorization serves every λ trial and channel.
+const RHO_REL: f64 = 0.1;
+/// λ is searched over `2 sigma sqrt(eig_max) x 10^[LOG_LO, LOG_HI]`, the
+/// scale at which TV and the data term weigh alike (docs/realphoto.md).
+const LOG_LO: f64 = -3.0;
+const LOG_HI: f64 = 2.0;
+/// Bisection steps on log λ (5 decades / 2^9: 0.01 decade).
+const BISECTIONS: usize = 9;
+
+/// How a photo is reconstructed; `Default` is the data-driven setting.
+#[derive(Debug, Clone, Copy)]
+pub struct PhotoSettings<'a> {
+    /// What the data term fits.
+    pub data_term: DataTerm,
+    /// TV weight in the data term's units; `None`: the discrepancy rule.
+    pub lambda: Option<f64>,
+    /// ADMM iterations of the λ = 0 fit and of the final solve; each
+    /// bisection step takes a third of them, warm-started.
+    pub iterations: usize,
+    /// Ends the solve early when raised.
+    pub stop: Stop<'a>,
+}
+
+impl Default for PhotoSettings<'_> {
+    fn default() -> Self {
+        Self {
+            data_term: DataTerm::Differences,
+            lambda: None,
+            iterations: 150,
+            stop: Stop::default(),
+        }
+    }
+}
+
+/// One colour channel of a photo's reconstruction.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PhotoChannel {
+    /// `l = x / g` clipped to [0, 1], row-major on the scene grid.
+    #[serde(skip)]
+    pub image: Vec<f64>,
+    /// `x = g l` in measurement units per unit of `T`.
+    #[serde(skip)]
+    pub x: Vec<f64>,
+    /// Fitted gain `g` (measurement units per unit of `T` at `l = 1`).
+    pub gain: f64,
+    /// Fitted ambient background per block (measurement units).
+    pub background: Vec<f64>,
+    /// Standard error of each block's background (the residual's spread
+    /// over the block's rows).
+    pub background_sd: Vec<f64>,
+    /// TV weight used.
+    pub lambda: f64,
+    /// How λ was chosen.
+    pub lambda_rule: String,
+    /// Misfit of the data term at the result.
+    pub misfit: f64,
+    /// Misfit of the λ = 0 fit (model error plus noise).
+    pub misfit_floor: f64,
+    /// Rows of the data term that carry data.
+    pub rows: usize,
+    /// Unknowns (scene elements).
+    pub unknowns: usize,
+    /// RMS of the misfit the model leaves per row, `sqrt(floor / (rows - unknowns))`.
+    pub residual_sd: f64,
+    /// ADMM iterations, all trials included.
+    pub iterations: usize,
+    /// Seconds for this channel (the shared Gram excluded).
+    pub seconds: f64,
+}
+
+/// The data term's matrix for a transport: formed once, it serves every
+/// colour channel of the photos taken with that `T`.
+pub struct PhotoModel {
+    data_term: DataTerm,
+    /// `D T` (or `T` with a constant column per block for raw values).
+    k: Transport,
+    gram: Arc<Gram>,
+    /// Largest eigenvalue of `K^T K`.
+    eig_max: f64,
+    /// Rows of `K` that carry data.
+    rows: usize,
+    /// Seconds to form `K`, its Gram and `eig_max`.
+    pub seconds: f64,
+}
+
+impl PhotoModel {
+    /// Forms the data term's matrix and Gram for `t`.
+    pub fn new(t: &Transport, data_term: DataTerm) -> Self {
+        let start = Instant::now();
+        let (k, rows) = match data_term {
+            DataTerm::Differences => (differences(t), difference_rows(t)),
+            DataTerm::Values => (centred_columns(t), t.rows()),
+        };
+        let gram = Gram::new(k.as_mat());
+        let eig_max = largest_eigenvalue(&symmetric(&gram.lower));
+        Self {
+            data_term,
+            k,
+            gram: Arc::new(gram),
+            eig_max,
+            rows,
+            seconds: start.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// The data term this model fits.
+    pub fn data_term(&self) -> DataTerm {
+        self.data_term
+    }
+
+    /// Reconstructs one channel `i` (one value per row of `t`, the `T` this
+    /// model was formed from).
+    pub fn channel(
+        &self,
+        t: &Transport,
+        i: &[f64],
+        settings: &PhotoSettings<'_>,
+    ) -> Result<PhotoChannel, SolveError> {
+        check_measurement(t, i)?;
+        if settings.iterations == 0 {
+            return Err(SolveError::Parameter {
+                name: "iterations",
+                value: 0.0,
+                reason: "must be at least 1",
+            });
+        }
+        let start = Instant::now();
+        let y = match self.data_term {
+            DataTerm::Differences => difference_values(t, i),
+            DataTerm::Values => centred(t, i),
+        };
+        let normal = Normal::with(self.gram.clone(), &self.k, &y);
+        let rho = RHO_REL * self.eig_max.max(f64::MIN_POSITIVE);
+        let admm = |lambda: f64, max_iter: usize| AdmmSettings {
+            lambda: Some(lambda),
+            rho: Some(rho),
+            max_iter,
+            upper: f64::INFINITY,
+            tol: 1e-6,
+            stop: settings.stop,
+        };
+        let mut state = AdmmState::default();
+        let mut iterations = 0;
+        let floor = admm_tv_warm(
+            &self.k,
+            &y,
+            &normal,
+            &admm(0.0, settings.iterations),
+            &mut state,
+        )?;
+        iterations += floor.stats.iterations;
+        let floor_misfit = floor.stats.data_misfit;
+        let n = t.cols();
+        let dof = self.rows.saturating_sub(n).max(1);
+        let residual_sd = (floor_misfit / dof as f64).sqrt();
+        let (lambda, rule) = match settings.lambda {
+            Some(l) => (l, "given".to_string()),
+            None => {
+                let target = floor_misfit * self.rows as f64 / dof as f64;
+                let scale = 2.0 * residual_sd * self.eig_max.sqrt();
+                let (mut lo, mut hi) = (LOG_LO, LOG_HI);
+                let step = (settings.iterations / 3).max(1);
+                for _ in 0..BISECTIONS {
+                    let mid = 0.5 * (lo + hi);
+                    let r = admm_tv_warm(
+                        &self.k,
+                        &y,
+                        &normal,
+                        &admm(scale * 10f64.powf(mid), step),
+                        &mut state,
+                    )?;
+                    iterations += r.stats.iterations;
+                    if r.stats.data_misfit < target {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                (
+                    scale * 10f64.powf(0.5 * (lo + hi)),
+                    format!(
+                        "discrepancy on the model's own misfit: the λ = 0 misfit {floor_misfit:.4e} times {} / {dof} rows",
+                        self.rows
+                    ),
+                )
+            }
+        };
+        let last = admm_tv_warm(
+            &self.k,
+            &y,
+            &normal,
+            &admm(lambda, settings.iterations),
+            &mut state,
+        )?;
+        iterations += last.stats.iterations;
+        let x = last.image;
+        let gain = percentile(&x, GAIN_PERCENTILE);
+        let image = x
+            .iter()
+            .map(|v| {
+                if gain > 0.0 {
+                    (v / gain).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let (background, background_sd) = backgrounds(t, i, &x);
+        Ok(PhotoChannel {
+            image,
+            x,
+            gain,
+            background,
+            background_sd,
+            lambda,
+            lambda_rule: rule,
+            misfit: last.stats.data_misfit,
+            misfit_floor: floor_misfit,
+            rows: self.rows,
+            unknowns: n,
+            residual_sd,
+            iterations,
+            seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+}
+
+/// A photo's reconstruction, every channel, and what it cost.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PhotoResult {
+    /// The data term fitted.
+    pub data_term: DataTerm,
+    /// Each channel's fit, in the measurement's channel order.
+    pub channels: Vec<PhotoChannel>,
+    /// Against the truth, when one was given.
+    pub metrics: Option<PhotoMetrics>,
+    /// Seconds to form the data term's matrix and Gram (once for all channels).
+    pub model_seconds: f64,
+    /// Seconds for the channels (solved in parallel).
+    pub solve_seconds: f64,
+}
+
+/// Reconstructs every channel of a photo taken through `t` with one data
+/// term, one Gram and one penalty; `truth` (channel by channel on the scene
+/// grid) adds the metrics.
+pub fn reconstruct_photo(
+    t: &Transport,
+    channels: &[Vec<f64>],
+    truth: Option<&[Vec<f64>]>,
+    settings: &PhotoSettings<'_>,
+) -> Result<PhotoResult, SolveError> {
+    let model = PhotoModel::new(t, settings.data_term);
+    let start = Instant::now();
+    let fits = channels
+        .par_iter()
+        .map(|i| model.channel(t, i, settings))
+        .collect::<Result<Vec<_>, _>>()?;
+    let solve_seconds = start.elapsed().as_secs_f64();
+    let metrics = truth.map(|truth| {
+        let images: Vec<Vec<f64>> = fits.iter().map(|c| c.image.clone()).collect();
+        photo_metrics(t.scene_grid(), truth, &images)
+    });
+    Ok(PhotoResult {
+        data_term: settings.data_term,
+        channels: fits,
+        metrics,
+        model_seconds: model.seconds,
+        solve_seconds,
+    })
+}
+
+/// The channels of a measurement array: `[rows]` is one channel, `[rows, C]`
+/// (C from 1 to 4, interleaved as NumPy stores it) is C channels that share
+/// one `T` (a colour photo's R, G, B).
+pub fn split_channels(shape: &[usize], data: &[f64], rows: usize) -> Result<Vec<Vec<f64>>, String> {
+    let c = match shape {
+        [n] if *n == rows => 1,
+        [n, c] if *n == rows && (1..=4).contains(c) => *c,
+        s => {
+            return Err(format!(
+                "shape {s:?} is neither [{rows}] nor [{rows}, C] with C from 1 to 4 (one row per row of T, one column per colour channel)"
+            ))
+        }
+    };
+    if data.len() != rows * c {
+        return Err(format!(
+            "holds {} values where its shape says {}",
+            data.len(),
+            rows * c
+        ));
+    }
+    if let Some(v) = data.iter().find(|v| !v.is_finite()) {
+        return Err(format!("holds the non-finite value {v}"));
+    }
+    Ok((0..c)
+        .map(|ch| data.iter().skip(ch).step_by(c).copied().collect())
+        .collect())
+}
+
+/// Image metrics of a colour result against its truth over all channels
+/// (peak 1): PSNR as it is and after each channel's best affine map
+/// `a x + b` onto the truth (what a display's gain and offset could fix),
+/// ZNCC of all values, SSIM averaged over the channels.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct PhotoMetrics {
+    /// PSNR of the result as it is, dB.
+    pub psnr_db: f64,
+    /// PSNR after each channel's best affine fit, dB.
+    pub psnr_affine_db: f64,
+    /// Zero-mean normalized cross-correlation over every value.
+    pub zncc: f64,
+    /// Mean SSIM of the channels.
+    pub ssim: f64,
+}
+
+/// [`PhotoMetrics`] of `image` against `truth`, both channel by channel on `grid`.
+pub fn photo_metrics(
+    grid: crate::scene::Grid,
+    truth: &[Vec<f64>],
+    image: &[Vec<f64>],
+) -> PhotoMetrics {
+    use super::metrics::{psnr, ssim, zncc};
+    let flat = |v: &[Vec<f64>]| v.concat();
+    let fitted: Vec<Vec<f64>> = truth
+        .iter()
+        .zip(image)
+        .map(|(t, x)| affine_fit(t, x))
+        .collect();
+    PhotoMetrics {
+        psnr_db: psnr(&flat(truth), &flat(image)),
+        psnr_affine_db: psnr(&flat(truth), &flat(&fitted)),
+        zncc: zncc(&flat(truth), &flat(image)),
+        ssim: truth
+            .iter()
+            .zip(image)
+            .map(|(t, x)| ssim(grid, t, x))
+            .sum::<f64>()
+            / truth.len().max(1) as f64,
+    }
+}
+
+/// `a x + b` with `a, b` the least-squares fit of `x` to `truth`.
+fn affine_fit(truth: &[f64], x: &[f64]) -> Vec<f64> {
+    let n = x.len().max(1) as f64;
+    let (mx, mt) = (x.iter().sum::<f64>() / n, truth.iter().sum::<f64>() / n);
+    let sxx: f64 = x.iter().map(|v| (v - mx) * (v - mx)).sum();
+    let sxt: f64 = x.iter().zip(truth).map(|(v, t)| (v - mx) * (t - mt)).sum();
+    let a = if sxx > 0.0 { sxt / sxx } else { 0.0 };
+    x.iter().map(|v| mt + a * (v - mx)).collect()
+}
+
+/// `D T`: each column's first differences along u (`rows` of a block) then
+/// along v, block by block, as [`gradient`] lays them out; each block of `T`
+/// becomes two blocks of `D T` with its label (u-differences, v-differences).
+/// The last column's u-differences and the last row's v-differences are 0
+/// (Neumann), rows that carry no data and weigh nothing.
+pub fn differences(t: &Transport) -> Transport {
+    let grid = t.wall_grid();
+    let nw = grid.count();
+    let rows = 2 * t.rows();
+    let mut data = vec![0.0; rows * t.cols()];
+    data.par_chunks_mut(rows.max(1))
+        .enumerate()
+        .for_each(|(k, out)| {
+            for (col, out) in t.col(k).chunks(nw).zip(out.chunks_mut(2 * nw)) {
+                gradient(grid, col, out);
+            }
+        });
+    let blocks = t
+        .blocks()
+        .iter()
+        .flat_map(|b| [b.clone(), b.clone()])
+        .collect();
+    Transport::from_col_major(rows, t.cols(), data, blocks, grid, t.scene_grid())
+}
+
+/// `D i` laid out as [`differences`] lays out `D T`.
+pub fn difference_values(t: &Transport, i: &[f64]) -> Vec<f64> {
+    let nw = t.wall_grid().count();
+    let mut out = vec![0.0; 2 * i.len()];
+    for (b, o) in i.chunks(nw).zip(out.chunks_mut(2 * nw)) {
+        gradient(t.wall_grid(), b, o);
+    }
+    out
+}
+
+/// Rows of `D T` that carry data: `(nu - 1) nv + nu (nv - 1)` per block.
+fn difference_rows(t: &Transport) -> usize {
+    let g = t.wall_grid();
+    t.blocks().len() * (g.nu.saturating_sub(1) * g.nv + g.nu * g.nv.saturating_sub(1))
+}
+
+/// `i` less each block's mean: with the same done to `T`'s columns
+/// ([`centred_columns`]) the background drops out of a raw-value fit exactly
+/// (its least-squares value is the block's mean residual).
+fn centred(t: &Transport, i: &[f64]) -> Vec<f64> {
+    let nw = t.wall_grid().count();
+    i.chunks(nw)
+        .flat_map(|b| {
+            let m = b.iter().sum::<f64>() / b.len() as f64;
+            b.iter().map(move |v| v - m)
+        })
+        .collect()
+}
+
+/// `T` with each column's mean over each block taken out.
+fn centred_columns(t: &Transport) -> Transport {
+    let mut data = Vec::with_capacity(t.rows() * t.cols());
+    for k in 0..t.cols() {
+        data.extend(centred(t, t.col(k)));
+    }
+    Transport::from_col_major(
+        t.rows(),
+        t.cols(),
+        data,
+        t.blocks().to_vec(),
+        t.wall_grid(),
+        t.scene_grid(),
+    )
+}
+
+/// Each block's background `mean(i - T x)` and its standard error.
+fn backgrounds(t: &Transport, i: &[f64], x: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let nw = t.wall_grid().count();
+    let r: Vec<f64> = t.apply(x).iter().zip(i).map(|(p, m)| m - p).collect();
+    r.chunks(nw)
+        .map(|b| {
+            let n = b.len() as f64;
+            let m = b.iter().sum::<f64>() / n;
+            let var = b.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (n - 1.0).max(1.0);
+            (m, (var / n).sqrt())
+        })
+        .unzip()
+}
+
+/// The `p` quantile of `x` (nearest rank); 0 for an empty `x`.
+fn percentile(x: &[f64], p: f64) -> f64 {
+    if x.is_empty() {
+        return 0.0;
+    }
+    let mut v = x.to_vec();
+    v.sort_by(f64::total_cmp);
+    let k = ((p * (v.len() - 1) as f64).round() as usize).min(v.len() - 1);
+    v[k]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::Grid;
+    use crate::transport::Block;
+
+    fn transport(
+        rows_grid: Grid,
+        scene: Grid,
+        blocks: usize,
+        f: impl Fn(usize, usize) -> f64,
+    ) -> Transport {
+        let rows = blocks * rows_grid.count();
+        let cols = scene.count();
+        let data = (0..cols)
+            .flat_map(|k| (0..rows).map(move |j| (j, k)))
+            .map(|(j, k)| f(j, k))
+            .collect();
+        let block = Block {
+            pose: "A".into(),
+            channel: crate::scene::Channel::None,
+        };
+        Transport::from_col_major(rows, cols, data, vec![block; blocks], rows_grid, scene)
+    }
+
+    #[test]
+    fn channels_are_split_from_rows_or_rows_by_colours() {
+        let one = split_channels(&[3], &[1.0, 2.0, 3.0], 3).unwrap();
+        assert_eq!(one, vec![vec![1.0, 2.0, 3.0]]);
+        let rgb = split_channels(&[2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0], 2).unwrap();
+        assert_eq!(rgb, vec![vec![1.0, 4.0], vec![2.0, 5.0], vec![3.0, 6.0]]);
+        assert!(split_channels(&[2, 5], &[0.0; 10], 2).is_err());
+        assert!(split_channels(&[4], &[0.0; 4], 3).is_err());
+        assert!(split_channels(&[2], &[0.0, f64::NAN], 2)
+            .unwrap_err()
+            .contains("NaN"));
+    }
+
+    #[test]
+    fn the_affine_psnr_forgives_gain_and_offset_only() {
+        let g = Grid { nu: 8, nv: 8 };
+        let truth: Vec<f64> = (0..64).map(|k| ((k * 37) % 11) as f64 / 10.0).collect();
+        let scaled: Vec<f64> = truth.iter().map(|v| 0.3 * v + 0.2).collect();
+        let m = photo_metrics(g, std::slice::from_ref(&truth), &[scaled]);
+        assert!(m.psnr_affine_db > 100.0 && m.psnr_db < 20.0, "{m:?}");
+        assert!((m.zncc - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn differences_of_t_are_the_differences_of_each_column_per_block() {
+        let (wall, scene) = (Grid { nu: 3, nv: 2 }, Grid { nu: 2, nv: 1 });
+        let t = transport(wall, scene, 2, |j, k| (j * j + 3 * k) as f64);
+        let d = differences(&t);
+        assert_eq!((d.rows(), d.cols(), d.blocks().len()), (24, 2, 4));
+        for k in 0..2 {
+            let want = difference_values(&t, t.col(k));
+            assert_eq!(d.col(k), &want[..]);
+        }
+        // Block 1 (rows 6..12 of T), element (iu 1, iv 0): u-difference
+        // T[8] - T[7] and v-difference T[10] - T[7].
+        let col = t.col(1);
+        assert_eq!(d.get(12 + 1, 1), col[8] - col[7]);
+        assert_eq!(d.get(12 + 6 + 1, 1), col[10] - col[7]);
+        assert_eq!(difference_rows(&t), 2 * (2 * 2 + 3));
+    }
+
+    #[test]
+    fn a_background_per_block_drops_out_of_the_differences() {
+        let t = transport(Grid { nu: 4, nv: 4 }, Grid { nu: 1, nv: 1 }, 2, |j, _| {
+            (j as f64).sin()
+        });
+        let i: Vec<f64> = t.col(0).iter().map(|v| 3.0 * v).collect();
+        let shifted: Vec<f64> = i
+            .iter()
+            .enumerate()
+            .map(|(j, v)| v + if j < 16 { 5.0 } else { -2.0 })
+            .collect();
+        let (a, b) = (difference_values(&t, &i), difference_values(&t, &shifted));
+        assert!(
+            a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-12),
+            "{a:?} {b:?}"
+        );
+        assert!(a.iter().any(|x| x.abs() > 0.1));
+    }
+
+    #[test]
+    fn a_photo_with_gain_and_background_gives_them_back() {
+        // A 12x12 wall, a 3x3 scene, one block; smooth positive columns.
+        let (wall, scene) = (Grid { nu: 12, nv: 12 }, Grid { nu: 3, nv: 3 });
+        let t = transport(wall, scene, 1, |j, k| {
+            let (u, v) = ((j % 12) as f64, (j / 12) as f64);
+            let (su, sv) = ((k % 3) as f64 * 5.0, (k / 3) as f64 * 5.0);
+            1.0 / (1.0 + 0.05 * ((u - su).powi(2) + (v - sv).powi(2)))
+        });
+        let l = [0.2, 1.0, 0.0, 0.5, 0.7, 0.1, 0.0, 0.3, 0.9];
+        let (g, b) = (40.0, 7.5);
+        let i: Vec<f64> = t.apply(&l).iter().map(|v| g * v + b).collect();
+        let model = PhotoModel::new(&t, DataTerm::Differences);
+        let r = model
+            .channel(
+                &t,
+                &i,
+                &PhotoSettings {
+                    lambda: Some(0.0),
+                    iterations: 3000,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+        for (x, want) in r.x.iter().zip(&l) {
+            assert!((x - g * want).abs() < 0.05 * g, "{:?}", r.x);
+        }
+        assert!((r.background[0] - b).abs() < 0.05, "{:?}", r.background);
+        // The raw-value model finds the same background.
+        let model = PhotoModel::new(&t, DataTerm::Values);
+        let r = model
+            .channel(
+                &t,
+                &i,
+                &PhotoSettings {
+                    lambda: Some(0.0),
+                    iterations: 3000,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+        assert!((r.background[0] - b).abs() < 0.05, "{:?}", r.background);
+    }
+
+    #[test]
+    fn the_automatic_lambda_lies_inside_its_bracket_and_bad_settings_are_errors() {
+        let (wall, scene) = (Grid { nu: 10, nv: 10 }, Grid { nu: 4, nv: 4 });
+        let t = transport(wall, scene, 1, |j, k| {
+            let (u, v) = ((j % 10) as f64, (j / 10) as f64);
+            let (su, sv) = ((k % 4) as f64 * 3.0, (k / 4) as f64 * 3.0);
+            1.0 / (1.0 + 0.1 * ((u - su).powi(2) + (v - sv).powi(2)))
+        });
+        let l: Vec<f64> = (0..16)
+            .map(|k| if k % 5 == 0 { 1.0 } else { 0.2 })
+            .collect();
+        let i: Vec<f64> = t
+            .apply(&l)
+            .iter()
+            .enumerate()
+            .map(|(j, v)| v + 0.01 * ((j * 7919 % 13) as f64 - 6.0))
+            .collect();
+        let model = PhotoModel::new(&t, DataTerm::Differences);
+        let r = model.channel(&t, &i, &PhotoSettings::default()).unwrap();
+        assert!(r.lambda > 0.0 && r.lambda.is_finite());
+        assert!(
+            r.misfit >= r.misfit_floor * 0.99,
+            "{} < {}",
+            r.misfit,
+            r.misfit_floor
+        );
+        assert!(r.image.iter().all(|v| (0.0..=1.0).contains(v)));
+        let bad = PhotoSettings {
+            iterations: 0,
+            ..Default::default()
+        };
+        assert!(model.channel(&t, &i, &bad).is_err());
+        assert!(model
+            .channel(&t, &i[1..], &PhotoSettings::default())
+            .is_err());
+    }
+}
