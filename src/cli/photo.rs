@@ -92,10 +92,14 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         result: &result,
     };
     json::write(&a.out.join("report.json"), &report)?;
+    for w in &result.warnings {
+        eprintln!("warning: {w}");
+    }
     for (k, ch) in result.channels.iter().enumerate() {
         println!(
-            "channel {k}: gain {:.4e}, background {} (± {}), lambda {:.3e}, residual rms {:.3e}",
+            "channel {k}: gain {:.4e} (± {:.1e}), background {} (± {}), lambda {:.3e}, residual rms {:.3e}",
             ch.gain,
+            ch.gain_sd,
             fmt(&ch.background),
             fmt(&ch.background_sd),
             ch.lambda,

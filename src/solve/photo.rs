@@ -93,10 +93,14 @@ pub struct PhotoChannel {
     pub x: Vec<f64>,
     /// Fitted gain `g` (measurement units per unit of `T` at `l = 1`).
     pub gain: f64,
+    /// Uncertainty of the gain: how far the λ = 0 fit's gain lies from it
+    /// (the regularization's bias dominates the noise here).
+    pub gain_sd: f64,
     /// Fitted ambient background per block (measurement units).
     pub background: Vec<f64>,
-    /// Standard error of each block's background (the residual's spread
-    /// over the block's rows).
+    /// Uncertainty of each block's background: the standard error of the
+    /// block's mean residual and the shift from the λ = 0 fit's background,
+    /// added in quadrature.
     pub background_sd: Vec<f64>,
     /// TV weight used.
     pub lambda: f64,
@@ -116,6 +120,83 @@ pub struct PhotoChannel {
     pub iterations: usize,
     /// Seconds for this channel (the shared Gram excluded).
     pub seconds: f64,
+}
+
+/// A flip of every block's wall image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Flip {
+    /// As the file holds it.
+    AsGiven,
+    /// Mirrored along u (the photo's columns reversed).
+    MirroredU,
+    /// Mirrored along v (the photo's rows reversed).
+    MirroredV,
+    /// Both (turned by 180 degrees).
+    Turned,
+}
+
+impl Flip {
+    /// Every flip, in the order of [`Orientation::misfit`].
+    pub const ALL: [Flip; 4] = [
+        Flip::AsGiven,
+        Flip::MirroredU,
+        Flip::MirroredV,
+        Flip::Turned,
+    ];
+
+    fn words(self) -> &'static str {
+        match self {
+            Flip::AsGiven => "as given",
+            Flip::MirroredU => "mirrored along u (columns reversed)",
+            Flip::MirroredV => "mirrored along v (rows reversed)",
+            Flip::Turned => "turned by 180 degrees",
+        }
+    }
+
+    /// `i` with every block's wall image flipped.
+    pub fn apply(self, grid: crate::scene::Grid, i: &[f64]) -> Vec<f64> {
+        let (nu, nv) = (grid.nu, grid.nv);
+        let (fu, fv) = match self {
+            Flip::AsGiven => (false, false),
+            Flip::MirroredU => (true, false),
+            Flip::MirroredV => (false, true),
+            Flip::Turned => (true, true),
+        };
+        i.chunks(grid.count())
+            .flat_map(|b| {
+                (0..nv).flat_map(move |iv| {
+                    (0..nu).map(move |iu| {
+                        let (su, sv) = (
+                            if fu { nu - 1 - iu } else { iu },
+                            if fv { nv - 1 - iv } else { iv },
+                        );
+                        b[sv * nu + su]
+                    })
+                })
+            })
+            .collect()
+    }
+}
+
+/// The misfit of a non-negative fit (λ = 0) of the photo's channels summed,
+/// as given and under each [`Flip`]: the right orientation fits best.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct Orientation {
+    /// Misfit per flip, in [`Flip::ALL`]'s order.
+    pub misfit: [f64; 4],
+    /// The flip that fits best.
+    pub best: Flip,
+}
+
+/// A non-negative fit at λ = 0 and what the next solve on its data reuses.
+struct Floor {
+    misfit: f64,
+    x: Vec<f64>,
+    iterations: usize,
+    state: AdmmState,
+    normal: Normal,
+    y: Vec<f64>,
 }
 
 /// The data term's matrix for a transport: formed once, it serves every
@@ -153,6 +234,85 @@ impl PhotoModel {
         }
     }
 
+    /// [`Orientation`] of a photo's channels (summed).
+    pub fn orientation(
+        &self,
+        t: &Transport,
+        channels: &[Vec<f64>],
+        settings: &PhotoSettings<'_>,
+    ) -> Result<Orientation, SolveError> {
+        let mut sum = vec![0.0; t.rows()];
+        for c in channels {
+            check_measurement(t, c)?;
+            sum.iter_mut().zip(c).for_each(|(s, v)| *s += v);
+        }
+        let mut misfit = [0.0; 4];
+        for (m, flip) in misfit.iter_mut().zip(Flip::ALL) {
+            let i = flip.apply(t.wall_grid(), &sum);
+            *m = self.floor(t, &i, settings)?.misfit;
+        }
+        let best = Flip::ALL[(0..4)
+            .min_by(|&a, &b| misfit[a].total_cmp(&misfit[b]))
+            .unwrap_or(0)];
+        Ok(Orientation { misfit, best })
+    }
+
+    /// The data term's right side for `i`.
+    fn data(&self, t: &Transport, i: &[f64]) -> Vec<f64> {
+        match self.data_term {
+            DataTerm::Differences => difference_values(t, i),
+            DataTerm::Values => centred(t, i),
+        }
+    }
+
+    /// ADMM settings at `lambda` with this model's fixed penalty.
+    fn admm<'a>(&self, lambda: f64, max_iter: usize, stop: Stop<'a>) -> AdmmSettings<'a> {
+        AdmmSettings {
+            lambda: Some(lambda),
+            rho: Some(RHO_REL * self.eig_max.max(f64::MIN_POSITIVE)),
+            max_iter,
+            upper: f64::INFINITY,
+            tol: 1e-6,
+            stop,
+        }
+    }
+
+    /// The non-negative fit of `i` at λ = 0, and what the next solve on the
+    /// same data starts from.
+    fn floor(
+        &self,
+        t: &Transport,
+        i: &[f64],
+        settings: &PhotoSettings<'_>,
+    ) -> Result<Floor, SolveError> {
+        check_measurement(t, i)?;
+        if settings.iterations == 0 {
+            return Err(SolveError::Parameter {
+                name: "iterations",
+                value: 0.0,
+                reason: "must be at least 1",
+            });
+        }
+        let y = self.data(t, i);
+        let normal = Normal::with(self.gram.clone(), &self.k, &y);
+        let mut state = AdmmState::default();
+        let r = admm_tv_warm(
+            &self.k,
+            &y,
+            &normal,
+            &self.admm(0.0, settings.iterations, settings.stop),
+            &mut state,
+        )?;
+        Ok(Floor {
+            misfit: r.stats.data_misfit,
+            x: r.image,
+            iterations: r.stats.iterations,
+            state,
+            normal,
+            y,
+        })
+    }
+
     /// The data term this model fits.
     pub fn data_term(&self) -> DataTerm {
         self.data_term
@@ -166,40 +326,16 @@ impl PhotoModel {
         i: &[f64],
         settings: &PhotoSettings<'_>,
     ) -> Result<PhotoChannel, SolveError> {
-        check_measurement(t, i)?;
-        if settings.iterations == 0 {
-            return Err(SolveError::Parameter {
-                name: "iterations",
-                value: 0.0,
-                reason: "must be at least 1",
-            });
-        }
         let start = Instant::now();
-        let y = match self.data_term {
-            DataTerm::Differences => difference_values(t, i),
-            DataTerm::Values => centred(t, i),
-        };
-        let normal = Normal::with(self.gram.clone(), &self.k, &y);
-        let rho = RHO_REL * self.eig_max.max(f64::MIN_POSITIVE);
-        let admm = |lambda: f64, max_iter: usize| AdmmSettings {
-            lambda: Some(lambda),
-            rho: Some(rho),
-            max_iter,
-            upper: f64::INFINITY,
-            tol: 1e-6,
-            stop: settings.stop,
-        };
-        let mut state = AdmmState::default();
-        let mut iterations = 0;
-        let floor = admm_tv_warm(
-            &self.k,
-            &y,
-            &normal,
-            &admm(0.0, settings.iterations),
-            &mut state,
-        )?;
-        iterations += floor.stats.iterations;
-        let floor_misfit = floor.stats.data_misfit;
+        let Floor {
+            misfit: floor_misfit,
+            x: x0,
+            mut iterations,
+            mut state,
+            normal,
+            y,
+        } = self.floor(t, i, settings)?;
+        let admm = |lambda: f64, max_iter: usize| self.admm(lambda, max_iter, settings.stop);
         let n = t.cols();
         let dof = self.rows.saturating_sub(n).max(1);
         let residual_sd = (floor_misfit / dof as f64).sqrt();
@@ -255,11 +391,19 @@ impl PhotoModel {
                 }
             })
             .collect();
-        let (background, background_sd) = backgrounds(t, i, &x);
+        let (background, se) = backgrounds(t, i, &x);
+        let (background0, _) = backgrounds(t, i, &x0);
+        let background_sd = se
+            .iter()
+            .zip(background.iter().zip(&background0))
+            .map(|(se, (b, b0))| se.hypot(b - b0))
+            .collect();
+        let gain_sd = (percentile(&x0, GAIN_PERCENTILE) - gain).abs();
         Ok(PhotoChannel {
             image,
             x,
             gain,
+            gain_sd,
             background,
             background_sd,
             lambda,
@@ -284,6 +428,11 @@ pub struct PhotoResult {
     pub channels: Vec<PhotoChannel>,
     /// Against the truth, when one was given.
     pub metrics: Option<PhotoMetrics>,
+    /// How the photo fits as given and flipped (a photo in the wrong row or
+    /// column order still correlates with `T l`, and reconstructs a mirrored scene).
+    pub orientation: Orientation,
+    /// What is wrong, in words (empty when nothing is).
+    pub warnings: Vec<String>,
     /// Seconds to form the data term's matrix and Gram (once for all channels).
     pub model_seconds: f64,
     /// Seconds for the channels (solved in parallel).
@@ -301,6 +450,15 @@ pub fn reconstruct_photo(
 ) -> Result<PhotoResult, SolveError> {
     let model = PhotoModel::new(t, settings.data_term);
     let start = Instant::now();
+    let orientation = model.orientation(t, channels, settings)?;
+    let mut warnings = Vec::new();
+    if orientation.best != Flip::AsGiven {
+        warnings.push(format!(
+            "the photo fits T better {} (misfit {:.3} of the one as given): check its row order and the scene's wall u_axis and normal (docs/realphoto.md, \"Orientation\")",
+            orientation.best.words(),
+            orientation.misfit[orientation.best as usize] / orientation.misfit[0]
+        ));
+    }
     let fits = channels
         .par_iter()
         .map(|i| model.channel(t, i, settings))
@@ -314,6 +472,8 @@ pub fn reconstruct_photo(
         data_term: settings.data_term,
         channels: fits,
         metrics,
+        orientation,
+        warnings,
         model_seconds: model.seconds,
         solve_seconds,
     })
@@ -517,6 +677,24 @@ mod tests {
             channel: crate::scene::Channel::None,
         };
         Transport::from_col_major(rows, cols, data, vec![block; blocks], rows_grid, scene)
+    }
+
+    #[test]
+    fn flips_reverse_columns_rows_or_both_in_every_block() {
+        let g = Grid { nu: 3, nv: 2 };
+        let i: Vec<f64> = (0..12).map(f64::from).collect();
+        assert_eq!(Flip::AsGiven.apply(g, &i), i);
+        assert_eq!(
+            Flip::MirroredU.apply(g, &i),
+            [2.0, 1.0, 0.0, 5.0, 4.0, 3.0, 8.0, 7.0, 6.0, 11.0, 10.0, 9.0]
+        );
+        assert_eq!(
+            Flip::MirroredV.apply(g, &i),
+            [3.0, 4.0, 5.0, 0.0, 1.0, 2.0, 9.0, 10.0, 11.0, 6.0, 7.0, 8.0]
+        );
+        for f in Flip::ALL {
+            assert_eq!(f.apply(g, &f.apply(g, &i)), i, "{f:?}");
+        }
     }
 
     #[test]
