@@ -837,4 +837,21 @@ mod tests {
             .channel(&t, &i[1..], &PhotoSettings::default())
             .is_err());
     }
+
+    proptest::proptest! {
+        /// Any shape and values: split or refused, never a panic, and what
+        /// is accepted is one finite value per row and channel.
+        #[test]
+        fn any_measurement_array_is_split_or_refused(
+            shape in proptest::collection::vec(0usize..40, 0..4),
+            rows in 0usize..40,
+            data in proptest::collection::vec(proptest::prelude::any::<f64>(), 0..200),
+        ) {
+            if let Ok(ch) = split_channels(&shape, &data, rows) {
+                proptest::prop_assert!((1..=4).contains(&ch.len()));
+                proptest::prop_assert!(ch.iter().all(|c| c.len() == rows && c.iter().all(|v| v.is_finite())));
+                proptest::prop_assert_eq!(ch.len() * rows, data.len());
+            }
+        }
+    }
 }
