@@ -1186,7 +1186,7 @@ polarizer_deg = [0.0, 90.0]
 
     /// BASE with one mesh occluder line `occluder` in a scene file written
     /// to a temporary folder beside `files` (name, content).
-    fn with_mesh(occluder: &str, files: &[(&str, &[u8])]) -> Result<Scene, SceneError> {
+    fn with_mesh(occluder: &str, files: Files) -> Result<Scene, SceneError> {
         let dir = tempfile::tempdir().unwrap();
         for (name, bytes) in files {
             std::fs::write(dir.path().join(name), bytes).unwrap();
@@ -1195,6 +1195,9 @@ polarizer_deg = [0.0, 90.0]
         std::fs::write(&path, format!("{BASE}\n[[occluder]]\n{occluder}\n")).unwrap();
         Scene::load(&path)
     }
+
+    /// Files (name, content) written beside a scene file.
+    type Files<'a> = &'a [(&'a str, &'a [u8])];
 
     const TRIANGLE: &[u8] = b"v -0.2 -0.05 0.1\nv -0.2 0.05 0.1\nv -0.15 0.0 0.12\nf 1 2 3\n";
 
@@ -1233,7 +1236,8 @@ polarizer_deg = [0.0, 90.0]
             b
         };
         let far = b"v 1e5 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n";
-        let cases: [(&str, &[(&str, &[u8])], &str, &str); 11] = [
+        // (occluder keys, files beside the scene, key named, words in the message)
+        let cases: [(&str, Files, &str, &str); 11] = [
             ("mesh = \"none.obj\"", &[], "occluder[0].mesh", "none.obj"),
             (
                 "mesh = \"e.obj\"",

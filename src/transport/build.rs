@@ -8,8 +8,7 @@
 //! pose the specular lobe and per angle the polarizer factor. Only what the
 //! scene turns on runs: occlusion tests with occluders (only on the wall
 //! samples inside each occluder's projected shadow box, see `shadow`), the
-//! Jones path with a
-//! polarized source, the diffuse term with `kd > 0`. The `fresnel` diffuse
+//! Jones path with a polarized source, the diffuse term with `kd > 0`. The `fresnel` diffuse
 //! term (MODEL.md revision 2) factors into `T_in` of the incident direction
 //! (per scene sample) and an exit factor of the pose and angle (per wall
 //! sample, computed once), so it costs one Fresnel evaluation per entry.

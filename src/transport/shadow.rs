@@ -187,7 +187,7 @@ impl Shadows {
     /// `None` when the projection is unbounded (a hull point at or above
     /// `s`'s height over the wall).
     fn shadow_box(&self, s: &Vec3, hs: f64, k: usize) -> Option<Box2> {
-        if !(hs > 0.0) {
+        if hs.is_nan() || hs <= 0.0 {
             return None;
         }
         let mut b = [
@@ -204,7 +204,7 @@ impl Shadows {
         for x in hull {
             let hx = self.n.dot(&(x - self.origin));
             let gap = hs - hx;
-            if !(gap > 1e-9 * hs) {
+            if gap.is_nan() || gap <= 1e-9 * hs {
                 return None;
             }
             let lambda = hs / gap;
