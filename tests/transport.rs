@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 use nalgebra::Vector3;
 use polnlos::optics::{DiffuseModel, PolarizerModel};
-use polnlos::scene::{Emitter, Scene};
+use polnlos::scene::{Emitter, Occluder, Scene};
 use polnlos::solve::condition;
 use polnlos::transport::{build, MemoryBudget, Transport};
 
@@ -35,6 +35,35 @@ fn fresnel(phi: f64, eta: f64) -> (f64, f64) {
         ((phi - pt).sin() / (phi + pt).sin()).powi(2),
         ((phi - pt).tan() / (phi + pt).tan()).powi(2),
     )
+}
+
+/// Whether the open segment s -> c meets the closed triangle (a, b, e),
+/// its edges widened by 0.5e-12 of an edge (half the rect's 1e-12 of a
+/// half-extent): Moller-Trumbore, written apart from the library's test.
+fn triangle_literal([a, b, e]: &[V; 3], s: &V, c: &V) -> bool {
+    let (e1, e2, d) = (b - a, e - a, c - s);
+    let h = d.cross(&e2);
+    let det = e1.dot(&h);
+    // Parallel to the plane, or in it: not blocked (MODEL.md "Edge cases").
+    if det.abs() <= 1e-14 * e1.cross(&e2).norm() * d.norm() {
+        return false;
+    }
+    let sa = s - a;
+    let u = sa.dot(&h) / det;
+    let q = sa.cross(&e1);
+    let v = d.dot(&q) / det;
+    let t = e2.dot(&q) / det;
+    let tol = 0.5e-12;
+    t > 0.0 && t < 1.0 && u >= -tol && v >= -tol && u + v <= 1.0 + tol
+}
+
+/// `V(s, c) = 0`: a mesh through its triangles one by one, rects and balls
+/// through the library's test.
+fn blocked_by(oc: &Occluder, s: &V, c: &V) -> bool {
+    match oc {
+        Occluder::Mesh(m) => m.triangles().iter().any(|t| triangle_literal(t, s, c)),
+        other => other.blocks(s, c),
+    }
 }
 
 /// MODEL.md "One entry of T", written as literally as possible.
@@ -100,7 +129,7 @@ fn reference(scene: &Scene, block: usize, j: usize, k: usize) -> f64 {
                     let w_o = (o - c).normalize();
                     if n.dot(&w_i) <= 0.0
                         || n.dot(&w_o) <= 0.0
-                        || scene.occluders().iter().any(|oc| oc.blocks(&sp, &c))
+                        || scene.occluders().iter().any(|oc| blocked_by(oc, &sp, &c))
                     {
                         continue;
                     }
@@ -865,4 +894,155 @@ fn the_adaptive_and_active_builders_read_a_mosaic_as_its_sheets() {
         crossed(&c),
         crossed(&b)
     );
+}
+
+/// `a` equals `b` entry by entry to 1e-12 of the entry.
+fn assert_same_to_1e12(a: &Transport, b: &Transport, label: &str) {
+    assert_eq!((a.rows(), a.cols()), (b.rows(), b.cols()), "{label}");
+    for (i, (x, y)) in a.col_major().iter().zip(b.col_major()).enumerate() {
+        assert!(
+            (x - y).abs() <= 1e-12 * y.abs(),
+            "{label}: entry {i}: {x:e} vs {y:e}"
+        );
+    }
+}
+
+/// How many entries an occluder zeroes: zero in `t`, positive in `open`.
+fn shadowed(t: &Transport, open: &Transport) -> usize {
+    t.col_major()
+        .iter()
+        .zip(open.col_major())
+        .filter(|(x, y)| **x == 0.0 && **y > 0.0)
+        .count()
+}
+
+/// A Wavefront OBJ of planar quads (corners in order around each), every
+/// coordinate written with all its digits.
+fn obj_of_quads(quads: &[[V; 4]]) -> String {
+    let mut text = String::from("# quads\n");
+    for q in quads {
+        for p in q {
+            text += &format!("v {:?} {:?} {:?}\n", p.x, p.y, p.z);
+        }
+    }
+    for k in 0..quads.len() {
+        let b = 4 * k;
+        text += &format!("f {} {}/1 {}//1 {}/1/1\n", b + 1, b + 2, b + 3, b + 4);
+    }
+    text
+}
+
+/// A rect's corners in order around it.
+fn corners(center: V, half_u: V, half_v: V) -> [V; 4] {
+    [
+        center - half_u - half_v,
+        center + half_u - half_v,
+        center + half_u + half_v,
+        center - half_u + half_v,
+    ]
+}
+
+#[test]
+fn a_mesh_occluder_blocks_what_the_same_rects_block() {
+    let name = "occluder-crossed-3x3";
+    let text = std::fs::read_to_string(scenes_dir().join(format!("{name}.toml"))).unwrap();
+    let open_text = text.split("[[occluder]]").next().unwrap().to_string();
+    let open = build(
+        &Scene::from_toml_str(&open_text).unwrap(),
+        MemoryBudget::DEFAULT,
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+
+    // The bench's square as two triangles (the diagonal crosses its shadow).
+    let rects = load(name);
+    let Occluder::Rect {
+        center,
+        half_u,
+        half_v,
+    } = rects.occluders()[0]
+    else {
+        panic!("a rect")
+    };
+    std::fs::write(
+        dir.path().join("square.obj"),
+        obj_of_quads(&[corners(center, half_u, half_v)]),
+    )
+    .unwrap();
+    let mesh_text = format!("{open_text}[[occluder]]\nmesh = \"square.obj\"\n");
+    let mesh = Scene::from_toml_str_in(&mesh_text, dir.path()).unwrap();
+    let (t_rect, t_mesh) = (
+        build(&rects, MemoryBudget::DEFAULT).unwrap(),
+        build(&mesh, MemoryBudget::DEFAULT).unwrap(),
+    );
+    assert_same_to_1e12(&t_mesh, &t_rect, "square");
+    assert!(
+        shadowed(&t_rect, &open) > 50,
+        "{}",
+        shadowed(&t_rect, &open)
+    );
+    assert_matches_reference(&mesh, &t_mesh, "square as triangles");
+
+    // A box as 6 rects and as its 12-triangle mesh.
+    let (c, h) = (V::new(-0.187, 0.0, 0.125), [0.02, 0.03, 0.025]);
+    let axis = |i: usize| V::ith(i, h[i]);
+    let mut rect_text = open_text.clone();
+    let mut faces = Vec::new();
+    for i in 0..3 {
+        for sign in [-1.0, 1.0] {
+            let (u, v) = (axis((i + 1) % 3), axis((i + 2) % 3));
+            let f = c + axis(i) * sign;
+            rect_text += &format!(
+                "[[occluder]]\nrect = {{ center = [{:?}, {:?}, {:?}], half_u = [{:?}, {:?}, {:?}], half_v = [{:?}, {:?}, {:?}] }}\n",
+                f.x, f.y, f.z, u.x, u.y, u.z, v.x, v.y, v.z
+            );
+            faces.push(corners(f, u, v));
+        }
+    }
+    std::fs::write(dir.path().join("box.obj"), obj_of_quads(&faces)).unwrap();
+    let boxed = Scene::from_toml_str(&rect_text).unwrap();
+    let mesh_text = format!("{open_text}[[occluder]]\nmesh = \"box.obj\"\n");
+    let mesh = Scene::from_toml_str_in(&mesh_text, dir.path()).unwrap();
+    let Occluder::Mesh(m) = &mesh.occluders()[0] else {
+        panic!("a mesh")
+    };
+    assert_eq!(m.triangles().len(), 12);
+    let (t_rect, t_mesh) = (
+        build(&boxed, MemoryBudget::DEFAULT).unwrap(),
+        build(&mesh, MemoryBudget::DEFAULT).unwrap(),
+    );
+    assert_same_to_1e12(&t_mesh, &t_rect, "box");
+    assert!(
+        shadowed(&t_rect, &open) > 50,
+        "{}",
+        shadowed(&t_rect, &open)
+    );
+    assert_matches_reference(&mesh, &t_mesh, "box as triangles");
+}
+
+#[test]
+fn the_chair_photo_scene_with_its_chair_as_a_mesh_is_the_same_t() {
+    // The 12 rects of config/photos/saunders-chair.toml against
+    // tests/data/saunders-chair/chair.obj (the same quads as 24 triangles), on
+    // the full wall with one sample per monitor block.
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/photos");
+    let text = std::fs::read_to_string(dir.join("saunders-chair.toml")).unwrap();
+    let reduced = text.replacen("supersample = 2", "supersample = 1", 1);
+    assert_ne!(reduced, text);
+    let head = reduced.split("[[occluder]]").next().unwrap();
+    let mesh_text =
+        format!("{head}[[occluder]]\nmesh = \"../../tests/data/saunders-chair/chair.obj\"\n");
+    let rects = Scene::from_toml_str_in(&reduced, &dir).unwrap();
+    let mesh = Scene::from_toml_str_in(&mesh_text, &dir).unwrap();
+    assert_eq!(rects.occluders().len(), 12);
+    let Occluder::Mesh(m) = &mesh.occluders()[0] else {
+        panic!("a mesh")
+    };
+    assert_eq!(m.triangles().len(), 24);
+    let open = build(&Scene::from_toml_str(head).unwrap(), MemoryBudget::DEFAULT).unwrap();
+    let t_rect = build(&rects, MemoryBudget::DEFAULT).unwrap();
+    let t_mesh = build(&mesh, MemoryBudget::DEFAULT).unwrap();
+    assert_same_to_1e12(&t_mesh, &t_rect, "chair");
+    let dark = shadowed(&t_rect, &open);
+    assert!(dark > 100_000, "{dark}");
 }

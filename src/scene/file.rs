@@ -1,7 +1,12 @@
 //! The TOML schema of a scene file and its validation into a [`Scene`].
 
+use std::path::Path;
+use std::sync::Arc;
+
 use serde::Deserialize;
 
+use super::mesh::{self, MeshError};
+use super::occluder::{Mesh, MeshSource};
 use super::{
     crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography, LeftOut, Mosaic,
     MosaicLayout, Occluder, Plane, Pose, Scene, SceneError, SceneParts, Wall, WallSampling,
@@ -73,11 +78,21 @@ struct RawPose {
     binning: Option<[i64; 2]>,
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 struct RawOccluder {
     rect: Option<RawRect>,
     sphere: Option<RawSphere>,
+    /// An OBJ or STL file, relative to the scene file's folder.
+    mesh: Option<String>,
+    /// The mesh's unit in metres (`0.001` for millimetres); default 1.
+    scale: Option<f64>,
+    /// Added to every mesh vertex after `scale`, metres.
+    offset: Option<[f64; 3]>,
+    /// The mesh already read and checked: an edited scene keeps its
+    /// triangles instead of reading the file again.
+    #[serde(skip)]
+    loaded: Option<Arc<Mesh>>,
 }
 
 #[derive(Deserialize)]
@@ -115,19 +130,20 @@ const MAX_GRID: i64 = 4096;
 /// on the wall is checked with `T` itself.
 const MAX_SUPERSAMPLE: i64 = 32;
 
-pub(super) fn parse(text: &str) -> Result<Scene, SceneError> {
+/// Parses and validates scene text whose relative paths (`mesh`) are in `dir`.
+pub(super) fn parse(text: &str, dir: &Path) -> Result<Scene, SceneError> {
     let raw: RawFile = toml::from_str(text).map_err(|e| SceneError::Parse {
         path: None,
         message: e.to_string().trim_end().to_string(),
     })?;
-    validate(raw)
+    validate(raw, dir)
 }
 
 /// Validates the parts of an edited scene exactly as a file is validated: they
 /// are written back in the file's terms (the values a file gives, not the
 /// derived ones) and read again.
 pub(super) fn revalidate(parts: SceneParts) -> Result<Scene, SceneError> {
-    validate(RawFile::from(parts))
+    validate(RawFile::from(parts), Path::new(""))
 }
 
 /// A count in the file's integer type; one too large for it stays too large.
@@ -207,14 +223,21 @@ impl From<SceneParts> for RawFile {
                             half_u: array(half_u),
                             half_v: array(half_v),
                         }),
-                        sphere: None,
+                        ..RawOccluder::default()
                     },
                     Occluder::Sphere { center, radius } => RawOccluder {
-                        rect: None,
                         sphere: Some(RawSphere {
                             center: array(center),
                             radius,
                         }),
+                        ..RawOccluder::default()
+                    },
+                    Occluder::Mesh(mesh) => RawOccluder {
+                        mesh: Some(mesh.source().path.clone()),
+                        scale: mesh.source().scale,
+                        offset: mesh.source().offset,
+                        loaded: Some(mesh),
+                        ..RawOccluder::default()
                     },
                 })
                 .collect(),
@@ -294,6 +317,46 @@ fn plane(
         },
         supersample: m as usize,
     })
+}
+
+/// A `mesh` occluder: the OBJ or STL file at `path` (relative to `dir`, the
+/// scene file's folder), its vertices times `scale` plus `offset`; whatever
+/// is wrong with the keys or the file is an error naming `occluder[i].mesh`
+/// (or `.scale`, `.offset`).
+fn mesh_occluder(
+    key: &dyn Fn(&str) -> String,
+    dir: &Path,
+    path: String,
+    scale: Option<f64>,
+    offset: Option<[f64; 3]>,
+) -> Result<Mesh, SceneError> {
+    let factor = scale.unwrap_or(1.0);
+    if !(factor.is_finite() && factor > 0.0) {
+        return Err(SceneError::invalid(
+            key("scale"),
+            factor,
+            "must be a finite number > 0 (metres per mesh unit, e.g. 0.001 for millimetres)",
+        ));
+    }
+    let shift = point(&key("offset"), offset.unwrap_or([0.0; 3]))?;
+    if path.trim().is_empty() {
+        return Err(SceneError::invalid(
+            key("mesh"),
+            &path,
+            "must name an .obj or .stl file",
+        ));
+    }
+    let bad = |e: MeshError| SceneError::invalid(key("mesh"), &path, e.to_string());
+    let raw = mesh::read(&dir.join(&path)).map_err(bad)?;
+    let triangles = mesh::place(&raw, factor, shift).map_err(bad)?;
+    Ok(Mesh::new(
+        triangles,
+        MeshSource {
+            path,
+            scale,
+            offset,
+        },
+    ))
 }
 
 /// Largest refractive index accepted for the wall (germanium, the highest
@@ -485,7 +548,7 @@ fn polarizer_model(t: Option<toml::Table>) -> Result<PolarizerModel, SceneError>
         })
 }
 
-fn validate(raw: RawFile) -> Result<Scene, SceneError> {
+fn validate(raw: RawFile, dir: &Path) -> Result<Scene, SceneError> {
     let polarizer = polarizer_model(raw.polarizer)?;
     let w = raw.wall;
     let left_out = LeftOut {
@@ -691,8 +754,24 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
     let mut occluders = Vec::with_capacity(raw.occluder.len());
     for (i, o) in raw.occluder.into_iter().enumerate() {
         let key = |k: &str| format!("occluder[{i}].{k}");
-        match (o.rect, o.sphere) {
-            (Some(r), None) => {
+        if o.mesh.is_none() {
+            let only = "belongs to a mesh occluder (mesh = \"file.obj\"); remove it or add mesh";
+            if let Some(v) = o.scale {
+                return Err(SceneError::invalid(key("scale"), v, only));
+            }
+            if let Some(v) = o.offset {
+                return Err(SceneError::invalid(key("offset"), v, only));
+            }
+        }
+        match (o.rect, o.sphere, o.mesh) {
+            (None, None, Some(path)) => {
+                let mesh = match o.loaded {
+                    Some(mesh) => mesh,
+                    None => Arc::new(mesh_occluder(&key, dir, path, o.scale, o.offset)?),
+                };
+                occluders.push(Occluder::Mesh(mesh));
+            }
+            (Some(r), None, None) => {
                 let center = point(&key("rect.center"), r.center)?;
                 let half_u = point(&key("rect.half_u"), r.half_u)?;
                 let half_v = point(&key("rect.half_v"), r.half_v)?;
@@ -713,7 +792,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
                     half_v,
                 });
             }
-            (None, Some(sp)) => {
+            (None, Some(sp), None) => {
                 let center = point(&key("sphere.center"), sp.center)?;
                 if !(sp.radius > 0.0 && sp.radius.is_finite()) {
                     return Err(SceneError::invalid(
@@ -731,7 +810,7 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
                 return Err(SceneError::invalid(
                     key(""),
                     "",
-                    "give exactly one of rect = {...} or sphere = {...}",
+                    "give exactly one of rect = {...}, sphere = {...} or mesh = \"file.obj\"",
                 ));
             }
         }
@@ -770,6 +849,11 @@ fn validate(raw: RawFile) -> Result<Scene, SceneError> {
 mod tests {
     use super::*;
     use crate::scene::Channel;
+
+    /// A scene from text, relative paths in the current directory.
+    fn parse(text: &str) -> Result<Scene, SceneError> {
+        super::parse(text, Path::new(""))
+    }
 
     const BASE: &str = r#"
 [wall]
@@ -1098,6 +1182,137 @@ polarizer_deg = [0.0, 90.0]
             let e = s.clone().edit(change).unwrap_err();
             assert_eq!(e.key(), Some(key), "{e}");
         }
+    }
+
+    /// BASE with one mesh occluder line `occluder` in a scene file written
+    /// to a temporary folder beside `files` (name, content).
+    fn with_mesh(occluder: &str, files: Files) -> Result<Scene, SceneError> {
+        let dir = tempfile::tempdir().unwrap();
+        for (name, bytes) in files {
+            std::fs::write(dir.path().join(name), bytes).unwrap();
+        }
+        let path = dir.path().join("scene.toml");
+        std::fs::write(&path, format!("{BASE}\n[[occluder]]\n{occluder}\n")).unwrap();
+        Scene::load(&path)
+    }
+
+    /// Files (name, content) written beside a scene file.
+    type Files<'a> = &'a [(&'a str, &'a [u8])];
+
+    const TRIANGLE: &[u8] = b"v -0.2 -0.05 0.1\nv -0.2 0.05 0.1\nv -0.15 0.0 0.12\nf 1 2 3\n";
+
+    #[test]
+    fn a_mesh_is_read_beside_the_scene_file_and_survives_an_edit() {
+        let s = with_mesh(
+            "mesh = \"sub/tri.obj\"\nscale = 2.0\noffset = [0.1, 0.0, 0.0]",
+            &[],
+        );
+        let e = s.unwrap_err();
+        assert_eq!(e.key(), Some("occluder[0].mesh"), "{e}");
+        assert!(e.to_string().contains("sub/tri.obj"), "{e}");
+
+        let s = with_mesh(
+            "mesh = \"tri.obj\"\nscale = 2.0\noffset = [0.1, 0.0, 0.0]",
+            &[("tri.obj", TRIANGLE)],
+        )
+        .unwrap();
+        let Occluder::Mesh(m) = &s.occluders()[0] else {
+            panic!("a mesh")
+        };
+        assert_eq!(m.triangles().len(), 1);
+        assert!((m.triangles()[0][0] - Vec3::new(-0.3, -0.1, 0.2)).norm() < 1e-15);
+        assert_eq!(m.source().path, "tri.obj");
+        // An edit keeps the triangles without the file (the folder is gone).
+        let again = s.clone().edit(|_| {}).unwrap();
+        assert_eq!(again.occluders(), s.occluders());
+    }
+
+    #[test]
+    fn what_a_mesh_gets_wrong_is_named() {
+        let binary_short = {
+            let mut b = vec![0u8; 80];
+            b.extend(3u32.to_le_bytes());
+            b.extend([0u8; 60]);
+            b
+        };
+        let far = b"v 1e5 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n";
+        // (occluder keys, files beside the scene, key named, words in the message)
+        let cases: [(&str, Files, &str, &str); 11] = [
+            ("mesh = \"none.obj\"", &[], "occluder[0].mesh", "none.obj"),
+            (
+                "mesh = \"e.obj\"",
+                &[("e.obj", b"v 0 0 0\n")],
+                "occluder[0].mesh",
+                "no triangles",
+            ),
+            (
+                "mesh = \"i.obj\"",
+                &[("i.obj", b"v 0 0 0\nf 1 2 3\n")],
+                "occluder[0].mesh",
+                "out of range",
+            ),
+            (
+                "mesh = \"n.obj\"",
+                &[("n.obj", b"v nan 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n")],
+                "occluder[0].mesh",
+                "finite",
+            ),
+            (
+                "mesh = \"f.obj\"",
+                &[("f.obj", far)],
+                "occluder[0].mesh",
+                "within",
+            ),
+            (
+                "mesh = \"s.stl\"",
+                &[("s.stl", &binary_short)],
+                "occluder[0].mesh",
+                "binary STL",
+            ),
+            (
+                "mesh = \"t.ply\"",
+                &[("t.ply", TRIANGLE)],
+                "occluder[0].mesh",
+                ".obj",
+            ),
+            (
+                "mesh = \"t.obj\"\nscale = 0.0",
+                &[("t.obj", TRIANGLE)],
+                "occluder[0].scale",
+                "> 0",
+            ),
+            (
+                "mesh = \"t.obj\"\noffset = [0.0, 1e400, 0.0]",
+                &[("t.obj", TRIANGLE)],
+                "",
+                "offset",
+            ),
+            (
+                "sphere = { center = [0.0, 0.0, 0.1], radius = 0.01 }\nscale = 2.0",
+                &[],
+                "occluder[0].scale",
+                "mesh",
+            ),
+            (
+                "sphere = { center = [0.0, 0.0, 0.1], radius = 0.01 }\nmesh = \"t.obj\"",
+                &[("t.obj", TRIANGLE)],
+                "occluder[0].",
+                "exactly one",
+            ),
+        ];
+        for (occluder, files, key, says) in cases {
+            let e = with_mesh(occluder, files).unwrap_err();
+            if !key.is_empty() {
+                assert_eq!(e.key(), Some(key), "{occluder}: {e}");
+            }
+            assert!(e.to_string().contains(says), "{occluder}: {e}");
+        }
+        // A directory is no mesh.
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("d.obj")).unwrap();
+        let text = format!("{BASE}\n[[occluder]]\nmesh = \"d.obj\"\n");
+        let e = Scene::from_toml_str_in(&text, dir.path()).unwrap_err();
+        assert_eq!(e.key(), Some("occluder[0].mesh"), "{e}");
     }
 
     proptest::proptest! {

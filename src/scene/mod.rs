@@ -11,6 +11,7 @@ mod error;
 mod file;
 pub mod footprint;
 pub mod homography;
+pub mod mesh;
 pub mod occluder;
 pub mod plane;
 
@@ -23,7 +24,7 @@ pub use analyzer::{
 pub use error::SceneError;
 pub use footprint::{effective_pixels, FootprintError, FrameGeometry, PixelMap};
 pub use homography::Homography;
-pub use occluder::Occluder;
+pub use occluder::{Mesh, MeshSource, Occluder};
 pub use plane::{Grid, Plane};
 
 use crate::optics::{Brdf, PolarizerModel, Vec3};
@@ -204,8 +205,18 @@ impl Scene {
     }
 
     /// Parses and validates a scene from TOML text.
+    ///
+    /// A relative `mesh` path is read from the current directory, as a
+    /// relative path given on a command line is; [`Scene::from_toml_str_in`]
+    /// names the folder instead.
     pub fn from_toml_str(text: &str) -> Result<Self, SceneError> {
-        file::parse(text)
+        file::parse(text, Path::new(""))
+    }
+
+    /// Parses and validates scene text as if it were a file in `dir`: a
+    /// relative `mesh` path is read from there (an absolute one as it is).
+    pub fn from_toml_str_in(text: &str, dir: &Path) -> Result<Self, SceneError> {
+        file::parse(text, dir)
     }
 
     /// A scene file, or the built-in scene of that name when no such file
@@ -224,7 +235,8 @@ impl Scene {
             path: path.to_path_buf(),
             source,
         })?;
-        Self::from_toml_str(&text).map_err(|e| e.in_file(path))
+        let dir = path.parent().unwrap_or(Path::new(""));
+        Self::from_toml_str_in(&text, dir).map_err(|e| e.in_file(path))
     }
 
     /// The same scene changed by `change`, validated again as a scene file is:

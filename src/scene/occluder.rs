@@ -1,10 +1,18 @@
 //! Occluders between the hidden scene and the wall (MODEL.md `V(s, c)`):
-//! closed parallelograms and closed balls against the open segment s -> c.
+//! closed parallelograms, closed balls and closed triangle meshes against
+//! the open segment s -> c.
+
+use std::sync::Arc;
 
 use crate::optics::Vec3;
 
+/// How far outside its edges a triangle still blocks, in barycentric units
+/// (fractions of an edge): half the rectangle's `1e-12` of a half-extent, so
+/// that a rectangle written as two triangles blocks what the rectangle blocks.
+const TRIANGLE_TOLERANCE: f64 = 0.5e-12;
+
 /// A blocker of light paths.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Occluder {
     /// Parallelogram `center + a half_u + b half_v`, `|a|, |b| <= 1`.
     Rect {
@@ -22,13 +30,98 @@ pub enum Occluder {
         /// Radius, metres.
         radius: f64,
     },
+    /// Closed triangles read from an OBJ or STL file (scene key `mesh`).
+    Mesh(Arc<Mesh>),
+}
+
+/// A triangle mesh occluder: its triangles in metres and where they came from.
+#[derive(Clone, PartialEq)]
+pub struct Mesh {
+    triangles: Vec<[Vec3; 3]>,
+    source: MeshSource,
+}
+
+/// The scene file's keys of a mesh occluder, as written: kept so that an
+/// edited scene is written back with the same keys.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshSource {
+    /// `mesh`: the path as the scene file gives it.
+    pub path: String,
+    /// `scale`, when given.
+    pub scale: Option<f64>,
+    /// `offset`, when given.
+    pub offset: Option<[f64; 3]>,
+}
+
+impl Mesh {
+    /// A mesh of these triangles (non-degenerate, in metres), read from `source`.
+    pub fn new(triangles: Vec<[Vec3; 3]>, source: MeshSource) -> Self {
+        Mesh { triangles, source }
+    }
+
+    /// Its triangles, metres.
+    pub fn triangles(&self) -> &[[Vec3; 3]] {
+        &self.triangles
+    }
+
+    /// The scene file's keys it was read from.
+    pub fn source(&self) -> &MeshSource {
+        &self.source
+    }
+}
+
+impl std::fmt::Debug for Mesh {
+    /// The source and the count: a million triangles do not belong in a log line.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Mesh")
+            .field("source", &self.source)
+            .field("triangles", &self.triangles.len())
+            .finish()
+    }
+}
+
+/// Where the open segment `s + t d`, `0 < t < 1`, crosses the plane through
+/// `origin` spanned by `e1`, `e2`: its coordinates `(a, b)` in that (possibly
+/// skew) basis, or `None` when it does not cross or lies in the plane.
+#[inline]
+fn plane_hit(origin: &Vec3, e1: &Vec3, e2: &Vec3, s: &Vec3, d: &Vec3) -> Option<(f64, f64)> {
+    let m = e1.cross(e2);
+    let denom = m.dot(d);
+    if denom.abs() <= 1e-14 * m.norm() * d.norm() {
+        return None;
+    }
+    let t = m.dot(&(origin - s)) / denom;
+    if t <= 0.0 || t >= 1.0 {
+        return None;
+    }
+    // Solve p = a e1 + b e2 in the (possibly skew) edge basis.
+    let p = s + d * t - origin;
+    let (uu, uv, vv) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let (pu, pv) = (p.dot(e1), p.dot(e2));
+    let det = uu * vv - uv * uv;
+    Some(((pu * vv - pv * uv) / det, (pv * uu - pu * uv) / det))
+}
+
+/// Whether the open segment from `s` to `s + d` meets the closed triangle
+/// `tri`, its edges widened by [`TRIANGLE_TOLERANCE`].
+#[inline]
+pub fn triangle_blocks(tri: &[Vec3; 3], s: &Vec3, d: &Vec3) -> bool {
+    let (e1, e2) = (tri[1] - tri[0], tri[2] - tri[0]);
+    match plane_hit(&tri[0], &e1, &e2, s, d) {
+        Some((a, b)) => {
+            a >= -TRIANGLE_TOLERANCE
+                && b >= -TRIANGLE_TOLERANCE
+                && a + b <= 1.0 + TRIANGLE_TOLERANCE
+        }
+        None => false,
+    }
 }
 
 impl Occluder {
     /// Whether the open segment from `s` to `c` meets the occluder.
     ///
     /// A segment that touches only at an end point, or that lies in a
-    /// rectangle's plane, is not blocked (MODEL.md "Edge cases").
+    /// rectangle's or a triangle's plane, is not blocked (MODEL.md "Edge cases").
     pub fn blocks(&self, s: &Vec3, c: &Vec3) -> bool {
         let d = c - s;
         match *self {
@@ -36,30 +129,13 @@ impl Occluder {
                 center,
                 half_u,
                 half_v,
-            } => {
-                let m = half_u.cross(&half_v);
-                let denom = m.dot(&d);
-                if denom.abs() <= 1e-14 * m.norm() * d.norm() {
-                    return false;
+            } => match plane_hit(&center, &half_u, &half_v, s, &d) {
+                Some((a, b)) => {
+                    let tol = 1e-12;
+                    a.abs() <= 1.0 + tol && b.abs() <= 1.0 + tol
                 }
-                let t = m.dot(&(center - s)) / denom;
-                if t <= 0.0 || t >= 1.0 {
-                    return false;
-                }
-                // Solve p = a half_u + b half_v in the (possibly skew) edge basis.
-                let p = s + d * t - center;
-                let (uu, uv, vv) = (
-                    half_u.dot(&half_u),
-                    half_u.dot(&half_v),
-                    half_v.dot(&half_v),
-                );
-                let (pu, pv) = (p.dot(&half_u), p.dot(&half_v));
-                let det = uu * vv - uv * uv;
-                let a = (pu * vv - pv * uv) / det;
-                let b = (pv * uu - pu * uv) / det;
-                let tol = 1e-12;
-                a.abs() <= 1.0 + tol && b.abs() <= 1.0 + tol
-            }
+                None => false,
+            },
             Occluder::Sphere { center, radius } => {
                 let dd = d.norm_squared();
                 let t = (center - s).dot(&d) / dd;
@@ -73,6 +149,7 @@ impl Occluder {
                     (e - center).norm_squared() < r2
                 }
             }
+            Occluder::Mesh(ref mesh) => mesh.triangles.iter().any(|t| triangle_blocks(t, s, &d)),
         }
     }
 }
@@ -134,5 +211,46 @@ mod tests {
         assert!(!o.blocks(&Vec3::new(0.5, 0.0, 0.0), &Vec3::new(1.0, 0.0, 0.0)));
         // Starts inside.
         assert!(o.blocks(&Vec3::new(0.2, 0.0, 0.0), &Vec3::new(1.0, 0.0, 0.0)));
+    }
+
+    /// The square of `square()` as two triangles split along a diagonal.
+    fn two_triangles() -> Occluder {
+        let q = |x: f64, y: f64| Vec3::new(x, y, 0.5);
+        let (a, b, c, d) = (q(-0.1, -0.1), q(0.1, -0.1), q(0.1, 0.1), q(-0.1, 0.1));
+        Occluder::Mesh(Arc::new(Mesh::new(
+            vec![[a, b, c], [a, c, d]],
+            MeshSource {
+                path: "square.obj".into(),
+                scale: None,
+                offset: None,
+            },
+        )))
+    }
+
+    #[test]
+    fn triangles_block_like_the_rect_they_tile_even_through_the_diagonal() {
+        let (rect, mesh) = (square(), two_triangles());
+        let down = |x: f64, y: f64| (Vec3::new(x, y, 1.0), Vec3::new(x, y, 0.0));
+        // On the diagonal, on the edges and corners, just inside and outside.
+        let mut xs: Vec<f64> = vec![-0.1, 0.1, 0.0, 0.05, -0.0999999999999, 0.1000000000001];
+        xs.extend((0..41).map(|k| -0.12 + 0.006 * k as f64));
+        for &x in &xs {
+            for &y in &xs {
+                let (s, c) = down(x, y);
+                assert_eq!(rect.blocks(&s, &c), mesh.blocks(&s, &c), "({x}, {y})");
+                // Oblique rays too.
+                let o = Vec3::new(0.3, -0.2, 1.0);
+                assert_eq!(
+                    rect.blocks(&o, &c),
+                    mesh.blocks(&o, &c),
+                    "from o to ({x}, {y})"
+                );
+            }
+        }
+        let (s, c) = down(0.05, 0.05);
+        assert!(mesh.blocks(&s, &c));
+        assert!(!mesh.blocks(&Vec3::new(0.0, 0.0, 1.0), &Vec3::new(0.0, 0.0, 0.5)));
+        assert!(!mesh.blocks(&Vec3::new(-1.0, 0.0, 0.5), &Vec3::new(1.0, 0.0, 0.5)));
+        assert!(!mesh.blocks(&Vec3::new(0.3, 0.0, 1.0), &Vec3::new(0.3, 0.0, 0.0)));
     }
 }

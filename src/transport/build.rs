@@ -6,8 +6,9 @@
 //! sub-sample the column is then filled in two branch-free passes over the
 //! wall samples that the compiler vectorizes: the incident geometry, then per
 //! pose the specular lobe and per angle the polarizer factor. Only what the
-//! scene turns on runs: occlusion tests with occluders, the Jones path with a
-//! polarized source, the diffuse term with `kd > 0`. The `fresnel` diffuse
+//! scene turns on runs: occlusion tests with occluders (only on the wall
+//! samples inside each occluder's projected shadow box, see `shadow`), the
+//! Jones path with a polarized source, the diffuse term with `kd > 0`. The `fresnel` diffuse
 //! term (MODEL.md revision 2) factors into `T_in` of the incident direction
 //! (per scene sample) and an exit factor of the pose and angle (per wall
 //! sample, computed once), so it costs one Fresnel evaluation per entry.
@@ -17,6 +18,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
+use super::shadow::Shadows;
 use super::{Block, MemoryBudget, Transport, TransportError};
 use crate::optics::brdf::Direction;
 use crate::optics::polarizer::{analyzer_factor, partial_analyzer_factor};
@@ -410,6 +412,8 @@ struct Parts {
     views: Vec<PoseView>,
     wall_soa: Soa,
     scene_pts: Vec<Vec3>,
+    /// The occluders' pieces against the wall samples; `None` without occluders.
+    shadows: Option<Shadows>,
 }
 
 impl Parts {
@@ -507,6 +511,7 @@ impl Parts {
             views,
             wall_soa,
             scene_pts: scene.hidden().plane.sample_points(),
+            shadows: Shadows::new(scene.occluders(), &wall.plane, &samples.points),
         }
     }
 
@@ -529,6 +534,7 @@ impl Parts {
             wall_pts: &samples.points,
             wall_soa: &self.wall_soa,
             scene_pts: &self.scene_pts,
+            shadows: self.shadows.as_ref(),
             ms,
             n_wall: samples.rows_per_block,
             n: scene.wall().plane.normal,
@@ -583,6 +589,8 @@ struct Ctx<'a> {
     wall_pts: &'a [Vec3],
     wall_soa: &'a Soa,
     scene_pts: &'a [Vec3],
+    /// Which wall samples the occluders block, per scene point.
+    shadows: Option<&'a Shadows>,
     ms: usize,
     n_wall: usize,
     n: Vec3,
@@ -619,12 +627,8 @@ fn fill_column<'a>(sc: &mut Scratch, col: &mut [f64], k: usize, c: &Ctx<'a>) {
         if c.fresnel_in {
             sc.transmittance_in(c.brdf.eta);
         }
-        if !c.scene.occluders().is_empty() {
-            for (ws, p) in c.wall_pts.iter().enumerate() {
-                if sc.base[ws] != 0.0 && c.scene.occluders().iter().any(|o| o.blocks(s, p)) {
-                    sc.base[ws] = 0.0;
-                }
-            }
+        if let Some(shadows) = c.shadows {
+            shadows.shade(s, c.wall_pts, &mut sc.base);
         }
         for view in c.views {
             if let Some(e_src) = c.scene.hidden().polarization.as_ref() {

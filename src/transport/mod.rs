@@ -8,6 +8,7 @@ pub mod active;
 pub mod adaptive;
 mod build;
 pub mod choose;
+mod shadow;
 
 pub use adaptive::{build_adaptive, AdaptiveStats};
 pub use build::{blocks_of, build, build_elements, build_with_progress, radiance_at};
