@@ -1,7 +1,7 @@
 //! The `polnlos` binary end to end on the shipped scenes: every subcommand,
 //! its files and JSON, and its errors for bad input.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use polnlos::files::{image, npy};
@@ -1241,6 +1241,26 @@ fn a_mosaic_frame_measures_to_its_four_blocks_in_angle_order() {
     assert!(e.contains("`none` or `mosaic`"), "{e}");
 }
 
+/// `polnlos reconstruct` of the chair photo's scene with `--photo`.
+fn reconstruct_photo(measurement: &Path, out: &Path, truth: Option<&Path>) -> Output {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let scene = root.join("config/photos/saunders-chair.toml");
+    let mut args = vec![
+        "reconstruct".to_string(),
+        scene.display().to_string(),
+        "--photo".into(),
+        "--measurement".into(),
+        measurement.display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+    ];
+    if let Some(t) = truth {
+        args.extend(["--truth".into(), t.display().to_string()]);
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    polnlos(&args)
+}
+
 /// Saunders et al.'s chair photo (tests/data/saunders-chair, imported by
 /// validation/saunders/convert.py): gain, background and λ from the photo
 /// alone, three colour channels through one T, against the monitor's image.
@@ -1249,19 +1269,11 @@ fn a_real_colour_photo_reconstructs_with_gain_background_and_lambda_from_itself(
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let data = root.join("tests/data/saunders-chair");
     let out = tempfile::tempdir().unwrap();
-    let s = ok(&polnlos(&[
-        "reconstruct",
-        root.join("config/photos/saunders-chair.toml")
-            .to_str()
-            .unwrap(),
-        "--photo",
-        "--measurement",
-        data.join("measurement.npy").to_str().unwrap(),
-        "--truth",
-        data.join("truth.npy").to_str().unwrap(),
-        "--out",
-        out.path().to_str().unwrap(),
-    ]));
+    let s = ok(&reconstruct_photo(
+        &data.join("measurement.npy"),
+        out.path(),
+        Some(&data.join("truth.npy")),
+    ));
     assert!(s.contains("3 channel(s)"), "{s}");
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.path().join("report.json")).unwrap())
@@ -1318,17 +1330,7 @@ fn a_real_colour_photo_reconstructs_with_gain_background_and_lambda_from_itself(
         .collect();
     let m = out.path().join("mirrored.npy");
     npy::write_f64(&m, &[126 * 126, 3], &mirrored).unwrap();
-    let run = polnlos(&[
-        "reconstruct",
-        root.join("config/photos/saunders-chair.toml")
-            .to_str()
-            .unwrap(),
-        "--photo",
-        "--measurement",
-        m.to_str().unwrap(),
-        "--out",
-        out.path().join("mirrored").to_str().unwrap(),
-    ]);
+    let run = reconstruct_photo(&m, &out.path().join("mirrored"), None);
     ok(&run);
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(
