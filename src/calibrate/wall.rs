@@ -495,25 +495,6 @@ fn warnings_push_model(fit: &mut WallFit, used: PolarizerModel, alt: &PolarizerM
     ));
 }
 
-/// [`fit`] from the scene file's own wall material, with the gain that best
-/// scales that material's prediction onto `i` (linear least squares).
-pub fn fit_from_scene(
-    scene: &Scene,
-    source: &PointSource,
-    i: &[f64],
-    budget: MemoryBudget,
-) -> Result<WallFit, WallFitError> {
-    fit_sources_from_scene(
-        scene,
-        &[SourceMeasurement {
-            source: *source,
-            i,
-            variance: None,
-        }],
-        budget,
-    )
-}
-
 /// [`fit_sources`] from the scene file's own wall material, with the gain
 /// that best scales that material's predictions onto the measurements.
 pub fn fit_sources_from_scene(

@@ -39,12 +39,6 @@ impl Daemon {
         });
         Ok(())
     }
-
-    /// Applies the retention policy once: deletes the captures the policy
-    /// names (a capture a job holds is skipped); returns those deleted.
-    pub fn apply_retention(&self) -> Result<Vec<i64>, StoreError> {
-        apply(&self.store, &self.events, &self.config.retention)
-    }
 }
 
 /// Deletes capture `id` (with the reconstructions using it when asked) and

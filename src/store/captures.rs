@@ -113,18 +113,6 @@ impl Store {
         })
     }
 
-    /// The capture running now, if any.
-    pub fn running_capture(&self) -> Result<Option<i64>, StoreError> {
-        self.with(|c| {
-            c.query_row(
-                "SELECT id FROM captures WHERE state = 'running' ORDER BY id DESC LIMIT 1",
-                [],
-                |r| r.get(0),
-            )
-            .optional()
-        })
-    }
-
     /// Deletes capture `id`: its row (and, with `with_reconstructions`, the
     /// rows of the reconstructions that use it) in one transaction, then
     /// their folders. Refused while it (or one of those reconstructions) is
