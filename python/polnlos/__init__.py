@@ -16,7 +16,7 @@ the CLI agree to the last bit; the heavy calls release the GIL.
 from __future__ import annotations
 
 import warnings as _warnings
-from typing import Any, Optional, Sequence, Union
+import typing as _t
 
 import numpy as _np
 
@@ -49,7 +49,7 @@ __all__ = [
 __version__ = "0.1.0"
 
 
-def cond(T: Union[_np.ndarray, Scene]) -> dict:
+def cond(T: _t.Union[_np.ndarray, Scene]) -> dict:
     """Singular values, condition number kappa and numerical rank of T (or of
     a scene's T), as `polnlos cond --json` reports them."""
     if isinstance(T, Scene):
@@ -57,14 +57,14 @@ def cond(T: Union[_np.ndarray, Scene]) -> dict:
     return _polnlos.cond(_np.ascontiguousarray(T, dtype=_np.float64))
 
 
-def _f64(a: Any) -> Optional[_np.ndarray]:
+def _f64(a: _t.Any) -> _t.Optional[_np.ndarray]:
     """`a` as a C-contiguous float64 array: no copy when it is one already."""
     return None if a is None else _np.ascontiguousarray(a, dtype=_np.float64)
 
 
-def simulate(scene: Scene, truth: Any, photons: Optional[float] = None,
-             read_noise: Optional[float] = None, bits: Optional[int] = None,
-             seed: Optional[int] = None) -> tuple:
+def simulate(scene: Scene, truth: _t.Any, photons: _t.Optional[float] = None,
+             read_noise: _t.Optional[float] = None, bits: _t.Optional[int] = None,
+             seed: _t.Optional[int] = None) -> tuple:
     """A simulated measurement of `truth` (radiance in [0, 1] on the scene
     grid) through the scene's T and a camera, as `polnlos simulate`: returns
     `(measurement, info)`; `info` holds the camera model, `electrons_per_unit`,
@@ -75,9 +75,9 @@ def simulate(scene: Scene, truth: Any, photons: Optional[float] = None,
     return _polnlos.simulate(scene, _f64(truth), **kw)
 
 
-def reconstruct(scene: Scene, measurement: Any, lam: Optional[float] = None,
-                variance: Any = None, solver: str = "admm-tv", truth: Any = None,
-                max_iter: Optional[int] = None, full_spectrum: bool = False) -> tuple:
+def reconstruct(scene: Scene, measurement: _t.Any, lam: _t.Optional[float] = None,
+                variance: _t.Any = None, solver: str = "admm-tv", truth: _t.Any = None,
+                max_iter: _t.Optional[int] = None, full_spectrum: bool = False) -> tuple:
     """The hidden scene from `measurement`, as `polnlos reconstruct`: returns
     `(image, report)`, the image on the scene grid and report.json as a dict.
 
@@ -91,7 +91,7 @@ def reconstruct(scene: Scene, measurement: Any, lam: Optional[float] = None,
                                 full_spectrum=full_spectrum)
 
 
-def _per_capture(value: Any, k: int, n: int, name: str) -> Any:
+def _per_capture(value: _t.Any, k: int, n: int, name: str) -> _t.Any:
     """One value for all captures, or the k-th of one per capture."""
     if isinstance(value, (list, tuple)):
         if len(value) == 1:
@@ -107,13 +107,13 @@ def _per_capture(value: Any, k: int, n: int, name: str) -> Any:
 
 def measure(
     scene: Scene,
-    frames: Union[_np.ndarray, Sequence[_np.ndarray]],
-    pose: Union[str, Sequence[str]],
-    angle: Union[float, str, Sequence[Union[float, str]]],
-    exposure_us: Union[float, Sequence[float]],
-    dark: Optional[Union[_np.ndarray, Sequence[_np.ndarray]]] = None,
-    full_scale: Optional[Union[float, Sequence[float]]] = None,
-    gain: Optional[float] = None,
+    frames: _t.Union[_np.ndarray, _t.Sequence[_np.ndarray]],
+    pose: _t.Union[str, _t.Sequence[str]],
+    angle: _t.Union[float, str, _t.Sequence[_t.Union[float, str]]],
+    exposure_us: _t.Union[float, _t.Sequence[float]],
+    dark: _t.Optional[_t.Union[_np.ndarray, _t.Sequence[_np.ndarray]]] = None,
+    full_scale: _t.Optional[_t.Union[float, _t.Sequence[float]]] = None,
+    gain: _t.Optional[float] = None,
     raw: bool = False,
 ) -> tuple:
     """Camera frames to the measurement `i` and its variance, as `polnlos

@@ -202,3 +202,9 @@ def test_the_gil_is_released_while_rust_works():
     # would leave it a tick or two).
     assert took > 0.05, took
     assert len(ticks) > 20, (len(ticks), took)
+
+
+def test_the_namespace_holds_polnlos_names_not_typing_helpers():
+    """`polnlos.<tab>` shows the package's own names, not typing's."""
+    assert not {"Any", "Optional", "Sequence", "Union"} & set(dir(polnlos))
+    assert {"reconstruct", "simulate", "Client"} <= set(dir(polnlos))
