@@ -817,6 +817,9 @@ fn the_page_runs_a_scene_and_asks_the_operator_to_move_the_camera() {
         let step = text(&c, "#plan-step").await;
         assert!(step.contains("reconstruction"), "{step}");
         assert_eq!(text(&c, "#plan-prompt").await, "");
+        // End the session: chromedriver is killed on drop, and a browser it
+        // still drove would outlive the suite.
+        c.close().await.unwrap();
     });
     let plan = page.d.json("/plans/1");
     assert_eq!(plan["state"], "done", "{plan}");
