@@ -1,23 +1,13 @@
 //! `polnlos reconstruct --photo`: a photograph with unknown gain and ambient
 //! light, every colour channel through one `T` (docs/realphoto.md).
 
-use std::path::PathBuf;
 use std::time::Instant;
 
 use polnlos::files::{image, json, npy, FileError};
-use polnlos::solve::photo::{reconstruct_photo, split_channels, DataTerm, PhotoSettings};
-use polnlos::transport::MemoryBudget;
+use polnlos::solve::photo::{reconstruct_photo, split_channels, PhotoSettings};
 
-/// What `reconstruct --photo` was given.
-pub struct Args {
-    pub scene: PathBuf,
-    pub measurement: PathBuf,
-    pub out: PathBuf,
-    pub truth: Option<PathBuf>,
-    pub data_term: DataTerm,
-    pub lambda: Option<f64>,
-    pub iterations: Option<usize>,
-}
+use super::reconstruct::{Args, LambdaArg};
+use polnlos::transport::MemoryBudget;
 
 /// The report of a photo's reconstruction: the scene, `T`'s cost and the fit.
 #[derive(serde::Serialize)]
@@ -29,6 +19,8 @@ struct Report<'a> {
     result: &'a polnlos::solve::photo::PhotoResult,
 }
 
+/// `reconstruct --photo`: `a` as `reconstruct` parsed it (clap refuses the
+/// options a photo does not take).
 pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let start = Instant::now();
     let scene = super::load_scene(&a.scene)?;
@@ -53,8 +45,8 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let d = PhotoSettings::default();
     let settings = PhotoSettings {
         data_term: a.data_term,
-        lambda: a.lambda,
-        iterations: a.iterations.unwrap_or(d.iterations),
+        lambda: a.lambda.and_then(LambdaArg::value),
+        iterations: a.max_iter.unwrap_or(d.iterations),
         ..d
     };
     let result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;

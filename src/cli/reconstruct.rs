@@ -19,13 +19,13 @@ polnlos reconstruct config/scenes/brewster-crossed.toml --measurement sim/measur
 )]
 pub struct Args {
     /// Scene file (TOML) the measurement was taken with.
-    scene: PathBuf,
+    pub(super) scene: PathBuf,
     /// Measurement vector i (.npy, one value per row of T).
     #[arg(long, value_name = "FILE")]
-    measurement: PathBuf,
+    pub(super) measurement: PathBuf,
     /// Output folder.
     #[arg(long, value_name = "DIR")]
-    out: PathBuf,
+    pub(super) out: PathBuf,
     /// Solver.
     #[arg(long, value_enum, default_value = "admm-tv")]
     solver: Solver,
@@ -35,7 +35,7 @@ pub struct Args {
     /// measurement's residual outside range(T). Tikhonov's default is 1e-3 x
     /// mean diagonal of T^T T.
     #[arg(long, value_name = "L|auto")]
-    lambda: Option<LambdaArg>,
+    pub(super) lambda: Option<LambdaArg>,
     /// simulate.json whose camera model (photons, read noise, bits) gives the
     /// noise level for the automatic lambda.
     #[arg(long = "noise-from", value_name = "FILE", conflicts_with = "variance")]
@@ -49,7 +49,7 @@ pub struct Args {
     rho: Option<f64>,
     /// ADMM / FISTA iteration cap (default 500; 5000 with an automatic lambda).
     #[arg(long = "max-iter", value_name = "N")]
-    max_iter: Option<usize>,
+    pub(super) max_iter: Option<usize>,
     /// ADMM relative tolerance on the primal/dual residuals (FISTA: on the
     /// relative change of l between iterations).
     #[arg(long, value_name = "T", default_value_t = AdmmSettings::default().tol)]
@@ -67,7 +67,7 @@ pub struct Args {
     /// Truth image (.npy or PNG) to compute PSNR, ZNCC and SSIM against
     /// (with --photo: a .npy of [nv, nu] or [nv, nu, C]).
     #[arg(long, value_name = "FILE")]
-    truth: Option<PathBuf>,
+    pub(super) truth: Option<PathBuf>,
     /// The measurement is a photograph whose gain and ambient light are
     /// unknown: fit them with the scene (docs/realphoto.md). The measurement
     /// may be [rows] or [rows, C], one column per colour channel; one T
@@ -82,14 +82,24 @@ pub struct Args {
         requires = "photo",
         default_value = "differences"
     )]
-    data_term: DataTerm,
+    pub(super) data_term: DataTerm,
 }
 
 /// `--lambda`: a number or `auto`.
 #[derive(Debug, Clone, Copy)]
-enum LambdaArg {
+pub(super) enum LambdaArg {
     Auto,
     Value(f64),
+}
+
+impl LambdaArg {
+    /// The number given; `None` for `auto` (chosen from the data).
+    pub(super) fn value(self) -> Option<f64> {
+        match self {
+            LambdaArg::Value(l) => Some(l),
+            LambdaArg::Auto => None,
+        }
+    }
 }
 
 impl std::str::FromStr for LambdaArg {
@@ -126,21 +136,7 @@ fn noise_from(path: &std::path::Path, measurement: &[f64]) -> anyhow::Result<Noi
 
 pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     if a.photo {
-        return super::photo::run(
-            super::photo::Args {
-                scene: a.scene,
-                measurement: a.measurement,
-                out: a.out,
-                truth: a.truth,
-                data_term: a.data_term,
-                lambda: match a.lambda {
-                    Some(LambdaArg::Value(l)) => Some(l),
-                    _ => None,
-                },
-                iterations: a.max_iter,
-            },
-            budget,
-        );
+        return super::photo::run(a, budget);
     }
     let scene = super::load_scene(&a.scene)?;
     let meas = npy::read(&a.measurement)?;
@@ -164,10 +160,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     }
     let req = SolveRequest {
         solver: a.solver,
-        lambda: match a.lambda {
-            Some(LambdaArg::Value(l)) => Some(l),
-            _ => None,
-        },
+        lambda: a.lambda.and_then(LambdaArg::value),
         rho: a.rho,
         max_iter: a.max_iter,
         tol: Some(a.tol),

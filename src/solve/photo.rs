@@ -313,11 +313,6 @@ impl PhotoModel {
         })
     }
 
-    /// The data term this model fits.
-    pub fn data_term(&self) -> DataTerm {
-        self.data_term
-    }
-
     /// Reconstructs one channel `i` (one value per row of `t`, the `T` this
     /// model was formed from).
     pub fn channel(
