@@ -942,6 +942,19 @@ fn corners(center: V, half_u: V, half_v: V) -> [V; 4] {
     ]
 }
 
+/// A scene's rects and the same shape as a mesh give one `T` (to 1e-12),
+/// which casts a shadow (over 50 entries darker than `open`, the scene
+/// without occluders) and matches the literal model.
+fn same_shadow(rects: &Scene, mesh: &Scene, open: &Transport, label: &str) {
+    let (t_rect, t_mesh) = (
+        build(rects, MemoryBudget::DEFAULT).unwrap(),
+        build(mesh, MemoryBudget::DEFAULT).unwrap(),
+    );
+    assert_same_to_1e12(&t_mesh, &t_rect, label);
+    assert!(shadowed(&t_rect, open) > 50, "{}", shadowed(&t_rect, open));
+    assert_matches_reference(mesh, &t_mesh, &format!("{label} as triangles"));
+}
+
 #[test]
 fn a_mesh_occluder_blocks_what_the_same_rects_block() {
     let name = "occluder-crossed-3x3";
@@ -971,17 +984,7 @@ fn a_mesh_occluder_blocks_what_the_same_rects_block() {
     .unwrap();
     let mesh_text = format!("{open_text}[[occluder]]\nmesh = \"square.obj\"\n");
     let mesh = Scene::from_toml_str_in(&mesh_text, dir.path()).unwrap();
-    let (t_rect, t_mesh) = (
-        build(&rects, MemoryBudget::DEFAULT).unwrap(),
-        build(&mesh, MemoryBudget::DEFAULT).unwrap(),
-    );
-    assert_same_to_1e12(&t_mesh, &t_rect, "square");
-    assert!(
-        shadowed(&t_rect, &open) > 50,
-        "{}",
-        shadowed(&t_rect, &open)
-    );
-    assert_matches_reference(&mesh, &t_mesh, "square as triangles");
+    same_shadow(&rects, &mesh, &open, "square");
 
     // A box as 6 rects and as its 12-triangle mesh.
     let (c, h) = (V::new(-0.187, 0.0, 0.125), [0.02, 0.03, 0.025]);
@@ -1007,17 +1010,7 @@ fn a_mesh_occluder_blocks_what_the_same_rects_block() {
         panic!("a mesh")
     };
     assert_eq!(m.triangles().len(), 12);
-    let (t_rect, t_mesh) = (
-        build(&boxed, MemoryBudget::DEFAULT).unwrap(),
-        build(&mesh, MemoryBudget::DEFAULT).unwrap(),
-    );
-    assert_same_to_1e12(&t_mesh, &t_rect, "box");
-    assert!(
-        shadowed(&t_rect, &open) > 50,
-        "{}",
-        shadowed(&t_rect, &open)
-    );
-    assert_matches_reference(&mesh, &t_mesh, "box as triangles");
+    same_shadow(&boxed, &mesh, &open, "box");
 }
 
 #[test]

@@ -655,6 +655,20 @@ mod tests {
     use crate::scene::Grid;
     use crate::transport::Block;
 
+    /// One block of smooth bumps: scene element `k` lights the wall
+    /// around its own spot (`spacing` wall elements apart) with a Lorentzian
+    /// of `width`.
+    fn bumps(wall: Grid, scene: Grid, spacing: f64, width: f64) -> Transport {
+        transport(wall, scene, 1, |j, k| {
+            let (u, v) = ((j % wall.nu) as f64, (j / wall.nu) as f64);
+            let (su, sv) = (
+                (k % scene.nu) as f64 * spacing,
+                (k / scene.nu) as f64 * spacing,
+            );
+            1.0 / (1.0 + width * ((u - su).powi(2) + (v - sv).powi(2)))
+        })
+    }
+
     fn transport(
         rows_grid: Grid,
         scene: Grid,
@@ -756,11 +770,7 @@ mod tests {
     fn a_photo_with_gain_and_background_gives_them_back() {
         // A 12x12 wall, a 3x3 scene, one block; smooth positive columns.
         let (wall, scene) = (Grid { nu: 12, nv: 12 }, Grid { nu: 3, nv: 3 });
-        let t = transport(wall, scene, 1, |j, k| {
-            let (u, v) = ((j % 12) as f64, (j / 12) as f64);
-            let (su, sv) = ((k % 3) as f64 * 5.0, (k / 3) as f64 * 5.0);
-            1.0 / (1.0 + 0.05 * ((u - su).powi(2) + (v - sv).powi(2)))
-        });
+        let t = bumps(wall, scene, 5.0, 0.05);
         let l = [0.2, 1.0, 0.0, 0.5, 0.7, 0.1, 0.0, 0.3, 0.9];
         let (g, b) = (40.0, 7.5);
         let i: Vec<f64> = t.apply(&l).iter().map(|v| g * v + b).collect();
@@ -790,11 +800,7 @@ mod tests {
     #[test]
     fn the_automatic_lambda_lies_inside_its_bracket_and_bad_settings_are_errors() {
         let (wall, scene) = (Grid { nu: 10, nv: 10 }, Grid { nu: 4, nv: 4 });
-        let t = transport(wall, scene, 1, |j, k| {
-            let (u, v) = ((j % 10) as f64, (j / 10) as f64);
-            let (su, sv) = ((k % 4) as f64 * 3.0, (k / 4) as f64 * 3.0);
-            1.0 / (1.0 + 0.1 * ((u - su).powi(2) + (v - sv).powi(2)))
-        });
+        let t = bumps(wall, scene, 3.0, 0.1);
         let l: Vec<f64> = (0..16)
             .map(|k| if k % 5 == 0 { 1.0 } else { 0.2 })
             .collect();
