@@ -91,6 +91,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Cond(a) => cond::run(a, budget),
         Command::Simulate(a) => simulate::run(a, budget),
         Command::Measure(a) => measure::run(a, budget),
+        Command::Reconstruct(a) if a.photo => photo::run(a, budget),
         Command::Reconstruct(a) => reconstruct::run(a, budget),
         Command::Pattern(a) => pattern::run(a),
         Command::Calibrate(a) => calibrate::run(a, budget),

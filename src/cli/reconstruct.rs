@@ -73,7 +73,7 @@ pub struct Args {
     /// may be [rows] or [rows, C], one column per colour channel; one T
     /// serves every channel. --max-iter caps each ADMM stage (default 150).
     #[arg(long, conflicts_with_all = ["noise_from", "variance", "solver", "rho", "rcond", "full_spectrum"])]
-    photo: bool,
+    pub(super) photo: bool,
     /// With --photo: what the data term fits (differences: blind to a
     /// constant background per block and a smooth model error).
     #[arg(
@@ -134,10 +134,9 @@ fn noise_from(path: &std::path::Path, measurement: &[f64]) -> anyhow::Result<Noi
     ))
 }
 
+/// `reconstruct` without `--photo` (the CLI's dispatch sends `--photo` to
+/// `cli/photo.rs`, which reads these same arguments).
 pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
-    if a.photo {
-        return super::photo::run(a, budget);
-    }
     let scene = super::load_scene(&a.scene)?;
     let meas = npy::read(&a.measurement)?;
     let sgrid = scene.hidden().plane.grid;
