@@ -24,7 +24,7 @@
 //!   no HTTP) and [`api`] (the HTTP routes, guard and server loop over it).
 //!   With [`camera`], [`mount`] and [`store`] they are the cargo feature `daemon` (on by
 //!   default): without it the crate is the core, [`files`] and the offline
-//!   tools, and links no system library (`tests/layers.rs` holds `cargo
+//!   tools, and links no system library (`tests/core/layers.rs` holds `cargo
 //!   tree` to that).
 //! - **Reports**: `bench` (the reports of `polnlos bench`; cargo feature
 //!   `bench`, on by default, off the daemon's path).
@@ -55,7 +55,7 @@
 //!   (`web/index.html`). The capture request and `PUT /camera/settings`
 //!   embed `CameraSettings`, the catalogue stores it as one versioned
 //!   document, and the API's records, the frame files and the page's camera
-//!   table all take it from there; `tests/layers.rs` holds the request, the
+//!   table all take it from there; `tests/core/layers.rs` holds the request, the
 //!   camera and the store to those two declarations.
 //! - **A catalogue column** (3 files): its declaration in
 //!   `src/store/schema.rs` (`SCHEMA`, and `ADDED_CAPTURE_COLUMNS` for

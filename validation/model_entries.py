@@ -1,5 +1,5 @@
 # MODEL.md revision 2 read literally, Python's math module only: the entries
-# of T that tests/transport.rs holds polnlos to (entries_computed_independently_in_python).
+# of T that tests/core/transport.rs holds polnlos to (entries_computed_independently_in_python).
 # Usage: python3 validation/model_entries.py   (from the repository's root)
 import math, os, tomllib, sys
 def sub(a,b): return [a[i]-b[i] for i in range(3)]

@@ -1,7 +1,7 @@
 //! The parsers a file or a client can reach, as fuzz entry points: each takes
 //! arbitrary bytes and must return (a value or a named error), never panic,
 //! abort or allocate by a size it was told. Shared by the cargo-fuzz targets
-//! in this folder and by `tests/fuzz.rs`, which runs them over the corpus and
+//! in this folder and by `tests/daemon/fuzz.rs`, which runs them over the corpus and
 //! a fixed-seed batch of mutations in the ordinary test suite.
 
 #![allow(dead_code)]

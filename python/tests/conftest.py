@@ -1,5 +1,5 @@
 """Shared fixtures: the `polnlos` binary the bindings are compared with, and
-the daemon the client talks to (both handed in by tests/python.rs)."""
+the daemon the client talks to (both handed in by tests/daemon/python.rs)."""
 
 import os
 import shutil
@@ -13,7 +13,7 @@ def cli():
     """Runs the polnlos CLI (POLNLOS_BIN, else `polnlos` on PATH)."""
     exe = os.environ.get("POLNLOS_BIN") or shutil.which("polnlos")
     if not exe:
-        pytest.fail("set POLNLOS_BIN to the polnlos binary (tests/python.rs does)")
+        pytest.fail("set POLNLOS_BIN to the polnlos binary (tests/daemon/python.rs does)")
 
     def run(*args):
         r = subprocess.run([exe, *map(str, args)], capture_output=True, text=True, timeout=600)
@@ -28,5 +28,5 @@ def daemon_url():
     """The URL of a running `polnlos serve` with the fake camera."""
     url = os.environ.get("POLNLOS_URL")
     if not url:
-        pytest.fail("set POLNLOS_URL to a running polnlos daemon (tests/python.rs starts one)")
+        pytest.fail("set POLNLOS_URL to a running polnlos daemon (tests/daemon/python.rs starts one)")
     return url

@@ -1,5 +1,5 @@
 """The client against a real daemon (`polnlos serve` with Aravis's fake
-camera on 127.0.0.1, started by tests/python.rs): captures, a
+camera on 127.0.0.1, started by tests/daemon/python.rs): captures, a
 reconstruction, downloads as arrays, the event stream and errors."""
 
 import queue

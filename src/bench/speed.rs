@@ -71,7 +71,7 @@ pub const BUDGETS: [usize; 6] = [10, 25, 50, 100, 200, 500];
 pub const TOLERANCES: [f64; 3] = [1e-2, 1e-3, 1e-4];
 
 /// Photo-electrons at the brightest element (see [`EXPOSURES`]), read noise
-/// 5 e-, 12 bits: the round-trip bench of tests/roundtrip.rs.
+/// 5 e-, 12 bits: the round-trip bench of tests/daemon/roundtrip.rs.
 pub const PHOTONS: f64 = 2e4;
 
 /// One timed solve.

@@ -24,7 +24,7 @@ const MIN_BUFFERS: usize = 8;
 /// ...and at most this many...
 const MAX_BUFFERS: usize = 32;
 /// ...within this much memory (the daemon's memory must not grow with a
-/// capture's frame count: tests/daemon_hostile.rs holds it to 64 MiB).
+/// capture's frame count: tests/daemon/hostile.rs holds it to 64 MiB).
 const BUFFER_BYTES: usize = 16 << 20;
 
 /// Seconds a first frame may be late beyond its period (AcquisitionStart,

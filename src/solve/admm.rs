@@ -60,7 +60,7 @@ impl Default for AdmmSettings<'_> {
 }
 
 /// Default relative TV weight, `lambda = LAMBDA_REL * mean(diag(T^T T))`: the
-/// best of 1e-3..1 on the 16x16 Brewster bench at 2e4 photons (see tests/roundtrip.rs).
+/// best of 1e-3..1 on the 16x16 Brewster bench at 2e4 photons (see tests/daemon/roundtrip.rs).
 pub const LAMBDA_REL: f64 = 1e-2;
 
 /// Smallest default starting penalty, relative to `mean(diag(T^T T))`: below

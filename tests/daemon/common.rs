@@ -9,7 +9,7 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 /// Aravis state is global and the fake camera owns 127.0.0.1's GVCP port:
-/// one daemon test at a time.
+/// one test at a time uses Aravis, in-process (`camera.rs`) or in a daemon.
 pub static ARAVIS: Mutex<()> = Mutex::new(());
 
 pub fn lock() -> std::sync::MutexGuard<'static, ()> {
@@ -36,78 +36,26 @@ pub fn config(dir: &Path, edits: &[(&str, &str)]) -> PathBuf {
     p
 }
 
-/// A running daemon; killed on drop.
-pub struct Daemon {
-    pub child: Child,
+/// HTTP to a daemon on 127.0.0.1: its address, a client and the bearer
+/// token it sends (if any).
+pub struct Client {
     pub base: String,
     pub agent: ureq::Agent,
     pub token: Option<String>,
 }
 
-impl Daemon {
-    /// Starts `polnlos serve` and waits for /health.
-    pub fn start(config: &Path, data: &Path) -> Self {
-        Self::start_with(Command::new(env!("CARGO_BIN_EXE_polnlos")), config, data)
-    }
-
-    pub fn start_with(cmd: Command, config: &Path, data: &Path) -> Self {
-        Self::spawn(cmd, config, data, true)
-    }
-
-    /// Starts `polnlos serve` and returns as soon as /health answers,
-    /// camera connected or not (what a script that starts the daemon and
-    /// posts at once sees).
-    pub fn start_answering(config: &Path, data: &Path) -> Self {
-        Self::spawn(
-            Command::new(env!("CARGO_BIN_EXE_polnlos")),
-            config,
-            data,
-            false,
-        )
-    }
-
-    fn spawn(mut cmd: Command, config: &Path, data: &Path, camera: bool) -> Self {
-        let port = free_port();
-        let log = std::fs::File::create(data.with_extension("log")).unwrap();
-        let child = cmd
-            .args(["serve", "--config"])
-            .arg(config)
-            .args(["--bind", &format!("127.0.0.1:{port}"), "--data-dir"])
-            .arg(data)
-            .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .expect("spawn polnlos serve");
+impl Client {
+    fn on_port(port: u16) -> Self {
         let agent: ureq::Agent = ureq::Agent::config_builder()
             .http_status_as_error(false)
             .timeout_global(Some(Duration::from_secs(30)))
             .build()
             .into();
-        let mut d = Self {
-            child,
+        Self {
             base: format!("http://127.0.0.1:{port}"),
             agent,
             token: None,
-        };
-        let t = Instant::now();
-        loop {
-            let (status, body) = d.get("/health");
-            if status == 200 && (!camera || body.contains("\"camera_connected\":true")) {
-                break;
-            }
-            if let Ok(Some(status)) = d.child.try_wait() {
-                panic!(
-                    "daemon exited with {status}: {}",
-                    std::fs::read_to_string(data.with_extension("log")).unwrap_or_default()
-                );
-            }
-            assert!(
-                t.elapsed() < Duration::from_secs(30),
-                "daemon did not come up"
-            );
-            std::thread::sleep(Duration::from_millis(100));
         }
-        d
     }
 
     pub fn get(&self, path: &str) -> (u16, String) {
@@ -250,6 +198,74 @@ impl Daemon {
             std::thread::sleep(Duration::from_millis(100));
         }
     }
+}
+
+/// A `polnlos serve` process; killed on drop. For tests whose point is the
+/// process (signals, start-up refusals, a second daemon, its memory) or
+/// Aravis's fake camera; the others use [`InProcess`].
+pub struct Daemon {
+    pub child: Child,
+    client: Client,
+}
+
+impl Daemon {
+    /// Starts `polnlos serve` and waits for /health.
+    pub fn start(config: &Path, data: &Path) -> Self {
+        Self::start_with(Command::new(env!("CARGO_BIN_EXE_polnlos")), config, data)
+    }
+
+    pub fn start_with(cmd: Command, config: &Path, data: &Path) -> Self {
+        Self::spawn(cmd, config, data, true)
+    }
+
+    /// Starts `polnlos serve` and returns as soon as /health answers,
+    /// camera connected or not (what a script that starts the daemon and
+    /// posts at once sees).
+    pub fn start_answering(config: &Path, data: &Path) -> Self {
+        Self::spawn(
+            Command::new(env!("CARGO_BIN_EXE_polnlos")),
+            config,
+            data,
+            false,
+        )
+    }
+
+    fn spawn(mut cmd: Command, config: &Path, data: &Path, camera: bool) -> Self {
+        let port = free_port();
+        let log = std::fs::File::create(data.with_extension("log")).unwrap();
+        let child = cmd
+            .args(["serve", "--config"])
+            .arg(config)
+            .args(["--bind", &format!("127.0.0.1:{port}"), "--data-dir"])
+            .arg(data)
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .expect("spawn polnlos serve");
+        let mut d = Self {
+            child,
+            client: Client::on_port(port),
+        };
+        let t = Instant::now();
+        loop {
+            let (status, body) = d.get("/health");
+            if status == 200 && (!camera || body.contains("\"camera_connected\":true")) {
+                break;
+            }
+            if let Ok(Some(status)) = d.child.try_wait() {
+                panic!(
+                    "daemon exited with {status}: {}",
+                    std::fs::read_to_string(data.with_extension("log")).unwrap_or_default()
+                );
+            }
+            assert!(
+                t.elapsed() < Duration::from_secs(30),
+                "daemon did not come up"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        d
+    }
 
     pub fn pid(&self) -> u32 {
         self.child.id()
@@ -269,5 +285,113 @@ impl Drop for Daemon {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+    }
+}
+
+impl std::ops::Deref for Daemon {
+    type Target = Client;
+    fn deref(&self) -> &Client {
+        &self.client
+    }
+}
+
+impl std::ops::DerefMut for Daemon {
+    fn deref_mut(&mut self) -> &mut Client {
+        &mut self.client
+    }
+}
+
+/// A daemon in this test process on the synthetic camera (no Aravis, so no
+/// lock: these run side by side), serving real HTTP on 127.0.0.1 through
+/// `polnlos::api::run`, as `polnlos serve` does. Stopped and drained on drop.
+pub struct InProcess {
+    client: Client,
+    pub daemon: std::sync::Arc<polnlos::daemon::Daemon>,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl InProcess {
+    /// Starts the daemon `config` describes, on `data`, with the synthetic
+    /// camera showing the config's demo scene; returns once the camera is
+    /// connected.
+    pub fn start(config: &Path, data: &Path) -> Self {
+        use polnlos::daemon::scenes::Scenes;
+        use polnlos::daemon::{CameraSetup, Config};
+        let mut cfg = Config::load(config).expect("config");
+        cfg.data_dir = data.to_path_buf();
+        cfg.validate().expect("valid config");
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let thread = std::thread::spawn(move || {
+            let rt = tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()
+                .expect("runtime");
+            rt.block_on(async move {
+                let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+                    .await
+                    .expect("bind 127.0.0.1");
+                let port = listener.local_addr().expect("local address").port();
+                let store = polnlos::store::Store::open(&cfg.data_dir).expect("data directory");
+                let scenes = std::sync::Arc::new(
+                    Scenes::load(&cfg.scene_files, polnlos::transport::MemoryBudget::DEFAULT)
+                        .expect("scenes"),
+                );
+                let camera = CameraSetup::synthetic(&cfg, &scenes)
+                    .await
+                    .expect("synthetic camera");
+                let d = polnlos::daemon::Daemon::start_with(cfg, store, scenes, camera)
+                    .await
+                    .expect("daemon starts");
+                let _ = ready_tx.send((port, d.clone()));
+                polnlos::api::run(listener, d, async {
+                    let _ = stop_rx.await;
+                })
+                .await
+                .expect("HTTP server");
+            });
+        });
+        let (port, daemon) = ready_rx.recv().expect("in-process daemon did not start");
+        let s = Self {
+            client: Client::on_port(port),
+            daemon,
+            stop: Some(stop_tx),
+            thread: Some(thread),
+        };
+        let t = Instant::now();
+        while !s.daemon.camera().status().connected {
+            assert!(
+                t.elapsed() < Duration::from_secs(30),
+                "camera did not connect"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        s
+    }
+}
+
+impl std::ops::Deref for InProcess {
+    type Target = Client;
+    fn deref(&self) -> &Client {
+        &self.client
+    }
+}
+
+impl std::ops::DerefMut for InProcess {
+    fn deref_mut(&mut self) -> &mut Client {
+        &mut self.client
+    }
+}
+
+impl Drop for InProcess {
+    fn drop(&mut self) {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
     }
 }

@@ -5,11 +5,9 @@
 //! sheet of the same total exposure. Real HTTP on 127.0.0.1, the real
 //! catalogue, real Aravis.
 
-mod common;
-
 use std::time::Duration;
 
-use common::{config, lock, Daemon};
+use crate::common::{config, lock, Daemon};
 
 /// The fake camera shows the rotating bench's letter, as a `sensor` camera.
 fn bench(dir: &std::path::Path, sensor: &str) -> std::path::PathBuf {

@@ -1,6 +1,6 @@
 //! The daemon and its router in-process, on the synthetic camera: no socket,
 //! no Aravis. What goes through real HTTP and the Aravis fake camera is in
-//! `tests/daemon.rs`; this shows the library entry points are enough to run
+//! `tests/daemon/service.rs`; this shows the library entry points are enough to run
 //! the whole service with any frame source.
 
 use std::sync::Arc;

@@ -4,11 +4,9 @@
 //! the operator to move the camera; a SIGKILL in the middle loses no finished
 //! capture and repeats none. Real HTTP on 127.0.0.1, the real catalogue.
 
-mod common;
-
 use std::time::{Duration, Instant};
 
-use common::{config, lock, Daemon};
+use crate::common::{config, lock, Client, Daemon, InProcess};
 
 /// The fake camera shows the rotating bench's letter.
 fn rotating_bench(dir: &std::path::Path) -> std::path::PathBuf {
@@ -22,7 +20,7 @@ fn rotating_bench(dir: &std::path::Path) -> std::path::PathBuf {
 }
 
 /// Waits until plan `loc` is in one of `states`.
-fn wait_plan(d: &Daemon, loc: &str, states: &[&str], within: Duration) -> serde_json::Value {
+fn wait_plan(d: &Client, loc: &str, states: &[&str], within: Duration) -> serde_json::Value {
     let t = Instant::now();
     loop {
         let v = d.json(loc);
@@ -52,9 +50,8 @@ fn psnr(r: &serde_json::Value) -> f64 {
 
 #[test]
 fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
-    let d = Daemon::start(&rotating_bench(dir.path()), &dir.path().join("data"));
+    let d = InProcess::start(&rotating_bench(dir.path()), &dir.path().join("data"));
     let long = Duration::from_secs(240);
     let (s, body, loc) = d.post(
         "/plans",
@@ -135,9 +132,8 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
 
 #[test]
 fn a_plan_with_interim_results_solves_from_the_blocks_taken_so_far_after_each_block() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
-    let d = Daemon::start(&rotating_bench(dir.path()), &dir.path().join("data"));
+    let d = InProcess::start(&rotating_bench(dir.path()), &dir.path().join("data"));
     let long = Duration::from_secs(240);
     let (s, body, loc) = d.post(
         "/plans",
@@ -221,7 +217,6 @@ fn a_plan_with_interim_results_solves_from_the_blocks_taken_so_far_after_each_bl
 
 #[test]
 fn a_bench_with_a_stage_walks_every_pose_unattended_and_a_stage_that_slips_pauses_the_plan() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let stage = |slip: &str| {
         let d = dir.path().join(format!("slip-{slip}"));
@@ -241,7 +236,7 @@ fn a_bench_with_a_stage_walks_every_pose_unattended_and_a_stage_that_slips_pause
     let body =
         r#"{"scene": "brewster-multi", "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#;
     {
-        let d = Daemon::start(&stage("0"), &dir.path().join("data"));
+        let d = InProcess::start(&stage("0"), &dir.path().join("data"));
         assert_eq!(d.json("/stage")["kind"], "simulated");
         let (s, b, loc) = d.post("/plans", body);
         assert_eq!(s, 202, "{b}");
@@ -267,7 +262,7 @@ fn a_bench_with_a_stage_walks_every_pose_unattended_and_a_stage_that_slips_pause
     }
     // A stage that stops 2 mm short fails the capture, naming the miss, and
     // the plan waits for the operator to look at the bench.
-    let d = Daemon::start(&stage("2"), &dir.path().join("data-slip"));
+    let d = InProcess::start(&stage("2"), &dir.path().join("data-slip"));
     let (s, b, loc) = d.post("/plans", body);
     assert_eq!(s, 202, "{b}");
     let paused = wait_plan(
@@ -360,10 +355,9 @@ fn a_relay_switches_the_scene_off_for_darks_so_a_plan_needs_no_operator_for_them
 
 #[test]
 fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[]);
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     let long = Duration::from_secs(240);
     let body =
         r#"{"scene": "brewster-multi", "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#;
@@ -492,7 +486,6 @@ fn sigkill_in_the_middle_of_a_plan_loses_no_capture_and_repeats_none() {
 #[test]
 fn a_mount_that_slips_pauses_the_plan_and_continue_takes_the_block_again() {
     use polnlos::mount::simulated::{Fault, SimulatedEll14};
-    let _g = lock();
     let device = SimulatedEll14::start().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let port = format!("kind = \"elliptec\"\nport = \"{}\"", device.path());
@@ -506,7 +499,7 @@ fn a_mount_that_slips_pauses_the_plan_and_continue_takes_the_block_again() {
             ),
         ],
     );
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     let long = Duration::from_secs(240);
     // 796 of the ELL14's 143360 pulses per turn: 2 degrees off.
     device.set_fault(Fault::Slip(796));

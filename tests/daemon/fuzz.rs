@@ -4,7 +4,7 @@
 //! crash a client or a file could cause. Longer, coverage-guided runs:
 //! `cargo fuzz run <target>` in `fuzz/` (see the README).
 
-#[path = "../fuzz/fuzz_targets/parsers.rs"]
+#[path = "../../fuzz/fuzz_targets/parsers.rs"]
 mod parsers;
 
 use rand::{Rng, SeedableRng};

@@ -2,12 +2,10 @@
 //! and coming back, a SIGKILL during a capture, a full data disk, an unusable
 //! data directory. Real Aravis, real HTTP on 127.0.0.1, the real database file.
 
-mod common;
-
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::{config, lock, Daemon};
+use crate::common::{config, lock, Client, Daemon};
 use polnlos::camera::fake::FakeBench;
 use polnlos::camera::Frame;
 
@@ -24,7 +22,7 @@ fn external_fake() -> FakeBench {
     .unwrap()
 }
 
-fn wait_camera(d: &Daemon, connected: bool, within: Duration) -> bool {
+fn wait_camera(d: &Client, connected: bool, within: Duration) -> bool {
     let t = Instant::now();
     while t.elapsed() < within {
         if d.json("/camera")["connected"] == connected {
@@ -88,7 +86,7 @@ fn the_camera_stops_mid_capture_the_job_fails_and_the_daemon_reconnects() {
 
 /// A first short capture done (its `mean.tiff` returned), then `long`
 /// posted and running with at least `frames` taken (its location returned).
-fn done_then_running(d: &Daemon, long: &str, frames: i64) -> (Vec<u8>, String) {
+fn done_then_running(d: &Client, long: &str, frames: i64) -> (Vec<u8>, String) {
     let done = d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 3}"#, Duration::from_secs(20));
     assert_eq!(done["state"], "done");
     let (_, mean) = d.get_bytes("/captures/1/mean.tiff");

@@ -3,12 +3,10 @@
 //! `polnlos serve` on 127.0.0.1 with Aravis's fake camera. `.ci/run`
 //! installs chromium and chromium-driver.
 
-mod common;
-
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{config, free_port, lock, Daemon};
+use crate::common::{config, free_port, InProcess};
 use fantoccini::{Client, ClientBuilder, Locator};
 
 /// chromedriver on a free loopback port, stopped on drop.
@@ -116,12 +114,12 @@ async fn image_loaded(c: &Client, css: &str) -> bool {
         .unwrap_or(false)
 }
 
-/// The daemon against Aravis's fake camera, chromedriver and a runtime to
-/// drive them, holding the Aravis lock (one fake camera at a time).
+/// The daemon (in this process, on the synthetic camera: the camera path
+/// through Aravis is `service.rs`'s and `camera.rs`'s), chromedriver and a
+/// runtime to drive them.
 struct Page {
-    _g: std::sync::MutexGuard<'static, ()>,
     dir: tempfile::TempDir,
-    d: Daemon,
+    d: InProcess,
     driver: Driver,
     rt: tokio::runtime::Runtime,
 }
@@ -133,22 +131,15 @@ impl Page {
 
     /// The page of a daemon whose configuration has these edits.
     fn start_with(edits: &[(&str, &str)]) -> Self {
-        let g = lock();
         let dir = tempfile::tempdir().unwrap();
         let cfg = config(dir.path(), edits);
-        let d = Daemon::start(&cfg, &dir.path().join("data"));
+        let d = InProcess::start(&cfg, &dir.path().join("data"));
         let driver = Driver::start();
         let rt = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()
             .unwrap();
-        Self {
-            _g: g,
-            dir,
-            d,
-            driver,
-            rt,
-        }
+        Self { dir, d, driver, rt }
     }
 
     /// A chromium session on the page, once it shows the camera connected.

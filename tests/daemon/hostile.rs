@@ -4,13 +4,13 @@
 //! malformed HTTP, rebinding hosts, memory that grew with the frame count.
 //! Everything over real HTTP on 127.0.0.1 with the Aravis fake camera.
 
-mod common;
+use crate::common;
 
 use std::io::Write;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{config, lock, Daemon};
+use crate::common::{config, lock, Client, Daemon, InProcess};
 use rand::{Rng, SeedableRng};
 
 const CAPTURE: &str =
@@ -24,6 +24,15 @@ fn start(edits: &[(&str, &str)]) -> (tempfile::TempDir, Daemon) {
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), edits);
     let d = Daemon::start(&cfg, &dir.path().join("data"));
+    (dir, d)
+}
+
+/// A daemon on the synthetic camera in this process, for tests of the HTTP
+/// edges that need neither Aravis nor a process of their own.
+fn start_in_process(edits: &[(&str, &str)]) -> (tempfile::TempDir, InProcess) {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), edits);
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     (dir, d)
 }
 
@@ -286,7 +295,7 @@ fn a_second_daemon_on_the_same_data_dir_exits_2_and_leaves_the_first_alone() {
 }
 
 /// The daemon's count of connections it closed at once (`/metrics`).
-fn refused_total(d: &Daemon) -> f64 {
+fn refused_total(d: &Client) -> f64 {
     let (_, metrics) = d.get("/metrics");
     metrics
         .lines()
@@ -314,8 +323,7 @@ fn serve_once(cfg: &std::path::Path, data: &std::path::Path) -> std::process::Ou
 
 #[test]
 fn http_edges_answer_json_and_never_wrap() {
-    let _g = lock();
-    let (_dir, d) = start(&[]);
+    let (_dir, d) = start_in_process(&[]);
     let c = d.run_job("/captures", &capture(""), Duration::from_secs(30));
     assert_eq!(c["state"], "done");
     for (path, status) in [
@@ -423,8 +431,7 @@ fn slow_and_idle_clients_are_cut_off_and_connections_are_capped() {
 
 #[test]
 fn one_client_holding_idle_sockets_does_not_lock_the_others_out() {
-    let _g = lock();
-    let (_dir, d) = start(&[]);
+    let (_dir, d) = start_in_process(&[]);
     let port: u16 = d.base.rsplit(':').next().unwrap().parse().unwrap();
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     // One peer (127.0.0.2) keeps 300 idle sockets open, reopening each as
@@ -527,8 +534,7 @@ fn frames_stream_to_disk_so_memory_does_not_grow_with_the_frame_count() {
 
 #[test]
 fn random_bodies_from_a_hostile_client_never_get_a_5xx() {
-    let _g = lock();
-    let (_dir, d) = start(&[]);
+    let (_dir, d) = start_in_process(&[]);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
     let values = [
         "0",

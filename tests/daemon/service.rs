@@ -1,11 +1,9 @@
 //! `polnlos serve` end to end over real HTTP on 127.0.0.1, with Aravis's
 //! GigE Vision fake camera showing the demo hidden scene.
 
-mod common;
-
 use std::time::{Duration, Instant};
 
-use common::{config, lock, Daemon};
+use crate::common::{config, lock, Client, Daemon, InProcess};
 use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::solve::metrics;
@@ -21,7 +19,7 @@ fn truth(scene: &str) -> (polnlos::scene::Grid, Vec<f64>) {
     (grid, Pattern::Letter.render(grid))
 }
 
-fn recovered(d: &Daemon, id: i64) -> Vec<f64> {
+fn recovered(d: &Client, id: i64) -> Vec<f64> {
     let (s, bytes) = d.get_bytes(&format!("/reconstructions/{id}/recovered.npy"));
     assert_eq!(s, 200);
     let dir = tempfile::tempdir().unwrap();
@@ -35,7 +33,7 @@ fn recovered(d: &Daemon, id: i64) -> Vec<f64> {
 /// reconstruction's report names), gives the measurement the daemon solved
 /// (the same assembly code), block by block, given in reverse order.
 fn offline_measure_matches_the_daemon(
-    d: &Daemon,
+    d: &Client,
     scene: &str,
     ids: &[i64],
     daemon_i: &[f64],
@@ -270,7 +268,7 @@ fn capture_every_block_reconstruct_and_fetch() {
 /// Every operation the document names answers its errors as `ErrorBody`,
 /// and the bearer scheme is declared. The operations are read from the
 /// document, which the router generates from the routes it serves (and
-/// `tests/in_process.rs` holds the two equal), so a new route is checked
+/// `tests/daemon/in_process.rs` holds the two equal), so a new route is checked
 /// without being listed here.
 fn openapi_is_complete(spec: &serde_json::Value) {
     assert_eq!(
@@ -305,13 +303,12 @@ fn openapi_is_complete(spec: &serde_json::Value) {
 
 #[test]
 fn bad_requests_get_a_reason_never_a_500() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(
         dir.path(),
         &[("max_body_bytes = 65536", "max_body_bytes = 4096")],
     );
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     let cases: Vec<(&str, String, u16, &str)> = vec![
         ("/captures", "{not json".into(), 400, "malformed_json"),
         ("/captures", r#"{"scene": "brewster-crossed"}"#.into(), 422, "invalid_request"),
@@ -375,10 +372,9 @@ fn bad_requests_get_a_reason_never_a_500() {
 
 #[test]
 fn a_token_guards_every_mutating_request() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[("token = \"\"", "token = \"s3cret\"")]);
-    let mut d = Daemon::start(&cfg, &dir.path().join("data"));
+    let mut d = InProcess::start(&cfg, &dir.path().join("data"));
     let body =
         r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 1000}"#;
     let (s, b, _) = d.post("/captures", body);
@@ -404,7 +400,7 @@ fn a_token_guards_every_mutating_request() {
             ("public_reads = false", "public_reads = true"),
         ],
     );
-    let d = Daemon::start(&cfg, &dir.path().join("data2"));
+    let d = InProcess::start(&cfg, &dir.path().join("data2"));
     assert_eq!(d.get("/captures").0, 200);
     assert_eq!(d.post("/captures", body).0, 401);
 }
@@ -481,10 +477,9 @@ fn a_full_queue_answers_429_and_a_bounded_load_sees_nothing_else() {
 #[test]
 fn events_report_frames_and_job_states() {
     use std::io::BufRead;
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[]);
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     let agent: ureq::Agent = ureq::Agent::config_builder()
         .timeout_global(Some(Duration::from_secs(15)))
         .build()
@@ -575,10 +570,9 @@ fn camera_settings_are_validated_and_applied() {
 
 #[test]
 fn a_capture_s_settings_do_not_leak_into_the_next() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[]);
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     let before = d.json("/camera")["capture_defaults"].clone();
     assert_eq!(before["pixel_format"], "Mono16", "{before}");
     // One capture states Mono8, 5 ms, gain 2 ...
@@ -615,10 +609,9 @@ fn a_capture_s_settings_do_not_leak_into_the_next() {
 
 #[test]
 fn auto_exposure_reaches_the_planned_signal() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[]);
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
 
     // The plan of the rotating bench: one block per angle, the crossed one darkest.
     let plan = d.json("/scenes/brewster-rotating-3x3/exposure");
@@ -707,10 +700,9 @@ fn auto_exposure_reaches_the_planned_signal() {
 
 #[test]
 fn one_reconstruction_path_fista_and_lambda_from_a_single_frame() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[]);
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     // One frame: no frame-to-frame variance, so the noise comes from the residual.
     let c = d.run_job(
         "/captures",
@@ -1110,11 +1102,10 @@ fn param(v: &serde_json::Value, k: &str) -> f64 {
 
 #[test]
 fn captures_and_reconstructions_can_be_deleted_with_their_files() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[]);
     let data = dir.path().join("data");
-    let d = Daemon::start(&cfg, &data);
+    let d = InProcess::start(&cfg, &data);
     let capture = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#;
     for _ in 0..2 {
         let c = d.run_job("/captures", capture, Duration::from_secs(20));
@@ -1185,7 +1176,7 @@ fn captures_and_reconstructions_can_be_deleted_with_their_files() {
     drop(d);
     std::fs::rename(&kept, kept.with_file_name(format!("{}.deleting", c["id"]))).unwrap();
     std::fs::create_dir_all(data.join("captures/999.deleting")).unwrap();
-    let d = Daemon::start(&cfg, &data);
+    let d = InProcess::start(&cfg, &data);
     assert!(
         kept.join("mean.tiff").is_file(),
         "the kept capture's files came back"
@@ -1200,7 +1191,7 @@ fn captures_and_reconstructions_can_be_deleted_with_their_files() {
     assert_eq!(next["id"].as_i64(), Some(newest + 1), "{next}");
     assert_eq!(d.delete(&format!("/captures/{}", newest + 1)).0, 200);
     drop(d);
-    let d = Daemon::start(&cfg, &data);
+    let d = InProcess::start(&cfg, &data);
     let after = d.run_job("/captures", capture, Duration::from_secs(20));
     assert_eq!(after["id"].as_i64(), Some(newest + 2), "{after}");
     let again = d.run_job(
@@ -1221,7 +1212,6 @@ fn captures_and_reconstructions_can_be_deleted_with_their_files() {
 #[test]
 fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
     use std::io::BufRead;
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     // 3 MiB for all data, checked every 0.2 s; a 256x256 capture of 4 frames
     // and 2 dark frames takes about 1.3 MB.
@@ -1233,7 +1223,7 @@ fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
         ],
     );
     let data = dir.path().join("data");
-    let d = Daemon::start(&cfg, &data);
+    let d = InProcess::start(&cfg, &data);
     let agent: ureq::Agent = ureq::Agent::config_builder()
         .timeout_global(Some(Duration::from_secs(40)))
         .build()
@@ -1262,7 +1252,7 @@ fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
         let c = d.run_job("/captures", small, Duration::from_secs(20));
         assert_eq!(c["state"], "done", "{c}");
     }
-    let ids = |d: &Daemon| -> Vec<i64> {
+    let ids = |d: &Client| -> Vec<i64> {
         d.json("/captures")
             .as_array()
             .unwrap()
@@ -1304,10 +1294,9 @@ fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
 
 #[test]
 fn the_live_view_shows_a_fresh_frame_before_any_capture_with_its_levels() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[]);
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     assert_eq!(d.json("/camera")["connected"], true);
     // Without live=true there is no frame before a capture...
     assert_eq!(d.get("/camera/frame.png").0, 404);

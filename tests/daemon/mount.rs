@@ -4,18 +4,15 @@
 //! that slips, answers an error or is unplugged fails the capture with the
 //! angles named, and the daemon goes on. Real HTTP on 127.0.0.1.
 
-mod common;
-
 use std::time::Duration;
 
-use common::{config, lock, Daemon};
+use crate::common::{config, InProcess};
 use polnlos::mount::simulated::{Fault, SimulatedEll14};
 
 const CAPTURE: &str = r#"{"scene": "brewster-rotating", "pose": "A", "polarizer_deg": 45, "exposure_us": 1000, "frames": 1}"#;
 
 #[test]
 fn captures_turn_the_mount_record_the_angle_read_back_and_fail_when_it_slips() {
-    let _g = lock();
     let mut device = SimulatedEll14::start().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let port = format!("kind = \"elliptec\"\nport = \"{}\"", device.path());
@@ -30,7 +27,7 @@ fn captures_turn_the_mount_record_the_angle_read_back_and_fail_when_it_slips() {
             ),
         ],
     );
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     let long = Duration::from_secs(30);
 
     // Turned to zero + 45 = 55 degrees on the mount, read back, recorded.
@@ -89,7 +86,6 @@ fn captures_turn_the_mount_record_the_angle_read_back_and_fail_when_it_slips() {
 
 #[test]
 fn the_shipped_daemon_turns_its_simulated_mount() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(
         dir.path(),
@@ -98,7 +94,7 @@ fn the_shipped_daemon_turns_its_simulated_mount() {
             "scene = \"brewster-rotating\"",
         )],
     );
-    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
     let c = d.run_job("/captures", CAPTURE, Duration::from_secs(30));
     assert_eq!(c["state"], "done", "{c}");
     let measured = c["polarizer_measured_deg"].as_f64().unwrap();
@@ -121,7 +117,6 @@ fn wall_mean(data: &std::path::Path, id: i64) -> f64 {
 
 #[test]
 fn an_uncalibrated_mount_shows_in_the_frames_and_the_sweep_finds_its_zero() {
-    let _g = lock();
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     // The simulated polarizer is really crossed at mount angle 4; the
@@ -136,7 +131,7 @@ fn an_uncalibrated_mount_shows_in_the_frames_and_the_sweep_finds_its_zero() {
             ),
         ],
     );
-    let d = Daemon::start(&cfg, &data);
+    let d = InProcess::start(&cfg, &data);
     let long = Duration::from_secs(60);
     let crossed = r#"{"scene": "brewster-rotating", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#;
     let before = d.run_job("/captures", crossed, long);
@@ -166,7 +161,7 @@ fn an_uncalibrated_mount_shows_in_the_frames_and_the_sweep_finds_its_zero() {
 
     // Kept across a restart, and shown.
     drop(d);
-    let d = Daemon::start(&cfg, &data);
+    let d = InProcess::start(&cfg, &data);
     let m = d.json("/mount");
     assert!((m["zero_deg"].as_f64().unwrap() - zero).abs() < 1e-9, "{m}");
     assert!(
