@@ -300,6 +300,12 @@ function captureRow(c) {
     frames.append(el("div", { class: "lost warning", title: "frames the camera sent that never arrived (dropped) or arrived incomplete (broken)" },
       `lost ${fc.dropped} dropped, ${fc.broken} broken`));
   }
+  // Pixels at full scale (clipping): their means are biased low.
+  const cl = c.clipping;
+  if (cl && cl.saturated > 0) {
+    frames.append(el("div", { class: "saturated warning", title: "pixels at the camera's full scale: their values are only lower bounds; lower the exposure" },
+      `saturated: ${cl.saturated} px in one frame (${(100 * cl.saturated / Math.max(cl.pixels, 1)).toFixed(2)} %), ${cl.frames_saturated} frames`));
+  }
   const files = [["mean", `/captures/${c.id}/mean.tiff`, `capture-${c.id}-mean.tiff`],
     ["frames", `/captures/${c.id}/frame.tiff`, `capture-${c.id}-frames.tiff`]];
   if (c.dark_frames > 0) files.push(["dark", `/captures/${c.id}/dark.tiff`, `capture-${c.id}-dark.tiff`]);

@@ -196,6 +196,8 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
             return Err(e);
         }
     };
+    let clipping = frames.clipping;
+    saturated(id, &c, clipping);
     let store = w.jobs.store.clone();
     tokio::task::spawn_blocking(move || {
         write_summary(&dir, &frames, dark.as_ref(), dark_variance.as_ref(), &meta)
@@ -211,8 +213,25 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     let counters = serde_json::to_string(&w.camera.status().counters).unwrap_or_default();
     w.jobs
         .store
-        .capture_done(id, &camera_id, &counters, counts)
+        .capture_done(id, &camera_id, &counters, counts, clipping)
         .map_err(store_err)
+}
+
+/// Says in the log when a capture's frames reached full scale (the record
+/// keeps the counts): those pixels' means are biased low.
+fn saturated(id: i64, c: &CaptureRecord, clipping: crate::measure::Clipping) {
+    if clipping.saturated == 0 {
+        return;
+    }
+    tracing::warn!(
+        capture = id,
+        "capture-{id} saturated: up to {} of {} pixels at full scale in one frame ({:.2} %), in {} frames; lower exposure_us (GET /scenes/{}/exposure plans one per block)",
+        clipping.saturated,
+        clipping.pixels,
+        100.0 * clipping.saturated_share(),
+        clipping.frames_saturated,
+        c.scene
+    );
 }
 
 /// Applies the lost-frames policy to a capture's counts: a warning in the

@@ -7,6 +7,63 @@
 use super::MeasureError;
 use crate::measure::Frame;
 
+/// Pixels at the ends of the camera's range in a stack of raw frames.
+///
+/// Why: a pixel at full scale says only "at least this much"; a mean over it
+/// is biased low and nothing downstream can tell, so a capture says how many
+/// it had (issue 38: 28,600 saturated pixels in one frame went unreported).
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    utoipa::ToSchema,
+)]
+pub struct Clipping {
+    /// The most pixels at full scale (`2^bits - 1`) in any one frame.
+    pub saturated: u64,
+    /// The most pixels at zero in any one frame.
+    pub zero: u64,
+    /// Frames with at least one pixel at full scale.
+    pub frames_saturated: u64,
+    /// Pixels per frame (the share's denominator).
+    pub pixels: u64,
+}
+
+impl Clipping {
+    /// The largest share of one frame's pixels at full scale, 0..1.
+    pub fn saturated_share(&self) -> f64 {
+        if self.pixels == 0 {
+            0.0
+        } else {
+            self.saturated as f64 / self.pixels as f64
+        }
+    }
+
+    /// Counts one frame of raw values whose full scale is `2^bits - 1`
+    /// (bits outside 1..=16, which no camera reports, count against 65535).
+    fn count(&mut self, pixels: &[u16], bits: u32) {
+        let full = if (1..=16).contains(&bits) {
+            ((1u32 << bits) - 1) as u16
+        } else {
+            u16::MAX
+        };
+        let (mut at_full, mut at_zero) = (0u64, 0u64);
+        for &p in pixels {
+            at_full += u64::from(p >= full);
+            at_zero += u64::from(p == 0);
+        }
+        self.saturated = self.saturated.max(at_full);
+        self.zero = self.zero.max(at_zero);
+        self.frames_saturated += u64::from(at_full > 0);
+        self.pixels = pixels.len() as u64;
+    }
+}
+
 /// The running mean and variance of a stack of equal-size frames (Welford),
 /// so that a capture of any length holds two images in memory, not its frames.
 #[derive(Debug, Clone, PartialEq)]
@@ -20,6 +77,8 @@ pub struct FrameStack {
     /// Per-pixel mean, DN.
     pub mean: Vec<f64>,
     m2: Vec<f64>,
+    /// Pixels at the ends of the range, of the frames added by [`Self::push_raw`].
+    pub clipping: Clipping,
 }
 
 impl FrameStack {
@@ -31,7 +90,15 @@ impl FrameStack {
             count: 0,
             mean: vec![0.0; width * height],
             m2: vec![0.0; width * height],
+            clipping: Clipping::default(),
         }
+    }
+
+    /// Adds one frame of a camera's raw values, `bits` deep, counting its
+    /// pixels at full scale and at zero ([`Clipping`]).
+    pub fn push_raw(&mut self, pixels: &[u16], bits: u32) {
+        self.clipping.count(pixels, bits);
+        self.push(pixels);
     }
 
     /// Adds one frame of raw pixel values (its length is the caller's to
@@ -108,6 +175,33 @@ mod tests {
             pixels: vec![5.0, 10.0],
         };
         assert_eq!(st.mean_minus(Some(&dark)).unwrap().pixels, vec![100.0, 0.0]);
+    }
+
+    #[test]
+    fn clipped_pixels_are_counted_against_the_frames_own_bit_depth() {
+        let mut st = FrameStack::new(4, 1);
+        // 12-bit frames: 4095 is full scale, 4094 is not.
+        st.push_raw(&[4095, 4094, 0, 7], 12);
+        st.push_raw(&[4095, 4095, 0, 0], 12);
+        st.push_raw(&[1, 2, 3, 4], 12);
+        assert_eq!(
+            st.clipping,
+            Clipping {
+                saturated: 2,
+                zero: 2,
+                frames_saturated: 2,
+                pixels: 4
+            }
+        );
+        assert_eq!(st.clipping.saturated_share(), 0.5);
+        assert_eq!(st.mean[0], (4095.0 + 4095.0 + 1.0) / 3.0);
+        // 8-bit values are saturated at 255; 16-bit at 65535.
+        let mut st = FrameStack::new(2, 1);
+        st.push_raw(&[255, 65535], 8);
+        assert_eq!(st.clipping.saturated, 2);
+        let mut st = FrameStack::new(2, 1);
+        st.push_raw(&[255, 65534], 16);
+        assert_eq!(st.clipping.saturated, 0);
     }
 
     #[test]

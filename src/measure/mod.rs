@@ -13,7 +13,7 @@ pub mod mosaic;
 mod stack;
 
 pub use assemble::{assemble, assemble_with, match_blocks, to_model_units, CaptureFrames, Units};
-pub use average::FrameStack;
+pub use average::{Clipping, FrameStack};
 pub use frame::Frame;
 pub use load::{load, CaptureInfo, CaptureSource};
 pub use stack::{stack, with_rounding_bias, BlockFrames, Measurement, PixelMaps};

@@ -75,12 +75,14 @@ impl Store {
         camera_id: &str,
         counters: &str,
         frames: crate::camera::FrameCounts,
+        clipping: crate::measure::Clipping,
     ) -> Result<(), StoreError> {
         let frames = serde_json::to_string(&frames).unwrap_or_default();
+        let clipping = serde_json::to_string(&clipping).unwrap_or_default();
         self.with(|c| {
             c.execute(
-                "UPDATE captures SET state = 'done', finished_at = ?2, camera_id = ?3, counters = ?4, frame_counts = ?5, error = NULL WHERE id = ?1",
-                params![id, now(), camera_id, counters, frames],
+                "UPDATE captures SET state = 'done', finished_at = ?2, camera_id = ?3, counters = ?4, frame_counts = ?5, clipping = ?6, error = NULL WHERE id = ?1",
+                params![id, now(), camera_id, counters, frames, clipping],
             )
             .map(|_| ())
         })

@@ -196,7 +196,7 @@ fn encode_stream<W: std::io::Write + std::io::Seek, K: tiff::encoder::TiffKind>(
             .write_tag(Tag::Software, "polnlos")
             .map_err(|e| tiff_err(path, e))?;
         img.write_data(&f.pixels).map_err(|e| tiff_err(path, e))?;
-        st.push(&f.pixels);
+        st.push_raw(&f.pixels, f.bits);
         on_frame(st);
     }
     match stack {

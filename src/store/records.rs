@@ -225,9 +225,13 @@ pub struct CaptureRecord {
     /// and got broken; null for captures not done, and for those made
     /// before it was recorded.
     pub frame_counts: Option<crate::camera::FrameCounts>,
+    /// Pixels at full scale and at zero in this capture's light frames (the
+    /// most in one frame); null for captures not done, and for those made
+    /// before it was recorded.
+    pub clipping: Option<crate::measure::Clipping>,
 }
 
-pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, channels, settings, frames, dark_frames, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, dark_capture, frame_counts, polarizer_measured_deg FROM captures";
+pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, channels, settings, frames, dark_frames, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, dark_capture, frame_counts, polarizer_measured_deg, clipping FROM captures";
 
 /// What the `settings` column holds: a capture's camera settings as one
 /// typed JSON document, with the version of its layout.
@@ -318,6 +322,7 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         dark_capture: r.get(16)?,
         frame_counts: json_column(r, 17)?,
         polarizer_measured_deg: r.get(18)?,
+        clipping: json_column(r, 19)?,
     })
 }
 

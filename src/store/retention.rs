@@ -105,7 +105,13 @@ mod tests {
         std::fs::write(dir.join("mean.tiff"), vec![0u8; bytes]).unwrap();
         assert!(store.capture_running(id).unwrap());
         store
-            .capture_done(id, "cam", "{}", crate::camera::FrameCounts::default())
+            .capture_done(
+                id,
+                "cam",
+                "{}",
+                crate::camera::FrameCounts::default(),
+                crate::measure::Clipping::default(),
+            )
             .unwrap();
         id
     }

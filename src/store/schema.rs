@@ -76,7 +76,7 @@ END;
 
 /// Columns added to `captures` after the first release: (column, the
 /// statement that adds it).
-const ADDED_CAPTURE_COLUMNS: [(&str, &str); 4] = [
+const ADDED_CAPTURE_COLUMNS: [(&str, &str); 5] = [
     (
         "kind",
         "ALTER TABLE captures ADD COLUMN kind TEXT NOT NULL DEFAULT 'light'",
@@ -93,6 +93,7 @@ const ADDED_CAPTURE_COLUMNS: [(&str, &str); 4] = [
         "polarizer_measured_deg",
         "ALTER TABLE captures ADD COLUMN polarizer_measured_deg REAL",
     ),
+    ("clipping", "ALTER TABLE captures ADD COLUMN clipping TEXT"),
 ];
 
 /// Catalogues from before the settings document kept a capture's camera

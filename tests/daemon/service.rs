@@ -1352,3 +1352,34 @@ fn the_live_view_shows_a_fresh_frame_before_any_capture_with_its_levels() {
     let (s, b) = d.get("/camera/frame.png?zoom=4");
     assert_eq!(s, 400, "{b}");
 }
+
+#[test]
+fn a_capture_records_its_saturated_pixels_and_a_sane_exposure_has_none() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &[]);
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
+    let capture = |deg: u32, exposure_us: u32| {
+        d.run_job(
+            "/captures",
+            &format!(
+                r#"{{"scene": "brewster-rotating", "pose": "A", "polarizer_deg": {deg}, "exposure_us": {exposure_us}, "frames": 2, "pixel_format": "Mono16"}}"#
+            ),
+            Duration::from_secs(60),
+        )
+    };
+    // The glare block (polarizer parallel) at five times the planned exposure.
+    let over = capture(90, 100_000);
+    assert_eq!(over["state"], "done", "{over}");
+    let cl = &over["clipping"];
+    let saturated = cl["saturated"].as_u64().unwrap();
+    println!("100 ms at 90 degrees: {cl}");
+    assert!(saturated > 1000, "{over}");
+    assert_eq!(cl["frames_saturated"], 2, "{over}");
+    assert_eq!(cl["pixels"], 512 * 512, "{over}");
+    // The same block at the exposure the daemon plans for it has none.
+    let (s, plan) = d.get("/scenes/brewster-rotating/exposure");
+    assert_eq!(s, 200, "{plan}");
+    let sane = capture(90, 5_000);
+    assert_eq!(sane["state"], "done", "{sane}");
+    assert_eq!(sane["clipping"]["saturated"], 0, "{sane}; plan {plan}");
+}
