@@ -112,6 +112,7 @@ pub(crate) mod fixtures {
             counters: None,
             frames_taken: 1,
             frame_counts: None,
+            clipping: None,
         }
     }
 }
