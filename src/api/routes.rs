@@ -646,6 +646,8 @@ pub async fn events(State(d): St) -> Sse<impl Stream<Item = Result<SseEvent, Inf
         let e = e.ok()?;
         SseEvent::default().json_data(&e).ok().map(Ok)
     });
+    // The stream ends when the server stops, so a listener does not hold the shutdown.
+    let stream = futures_util::StreamExt::take_until(stream, d.streams_closed());
     Sse::new(stream).keep_alive(KeepAlive::default())
 }
 

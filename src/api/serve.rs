@@ -119,6 +119,11 @@ pub async fn run(
 ) -> std::io::Result<()> {
     let limits = Limits::of(&daemon.config().http);
     let app = super::router(daemon.clone());
+    let closing = daemon.clone();
+    let shutdown = async move {
+        shutdown.await;
+        closing.close_streams();
+    };
     let result = serve(listener, app, limits, shutdown).await;
     daemon.drain(JOB_DRAIN).await;
     result

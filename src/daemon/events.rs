@@ -2,25 +2,50 @@
 //! deletions, camera state changes.
 //! [`Events`] is the sending side every service holds a clone of.
 
+use std::sync::Arc;
+
 use serde::Serialize;
-use tokio::sync::broadcast;
+use tokio::sync::{broadcast, watch};
 
 use crate::store::JobState;
 
 /// The event stream's sending side: cloned into each service that announces
 /// something, so none of them needs the whole daemon to do it.
 #[derive(Debug, Clone)]
-pub struct Events(broadcast::Sender<Event>);
+pub struct Events {
+    sender: broadcast::Sender<Event>,
+    /// True once the HTTP server stops: open event streams end then.
+    closed: Arc<watch::Sender<bool>>,
+}
 
 impl Events {
     /// A stream that keeps the last `capacity` events for slow listeners.
     pub fn new(capacity: usize) -> Self {
-        Self(broadcast::channel(capacity).0)
+        Self {
+            sender: broadcast::channel(capacity).0,
+            closed: Arc::new(watch::channel(false).0),
+        }
     }
 
     /// Publishes an event (nobody listening is fine).
     pub fn emit(&self, e: Event) {
-        let _ = self.0.send(e);
+        let _ = self.sender.send(e);
+    }
+
+    /// Ends every open event stream (and any opened later).
+    ///
+    /// Why: a stream never ends by itself, and the server's shutdown waits
+    /// for open responses; `GET /events` clients held a SIGTERM 5 s longer.
+    pub fn close(&self) {
+        self.closed.send_replace(true);
+    }
+
+    /// Resolves once [`Events::close`] was called.
+    pub fn closed(&self) -> impl std::future::Future<Output = ()> + Send + 'static {
+        let mut rx = self.closed.subscribe();
+        async move {
+            let _ = rx.wait_for(|c| *c).await;
+        }
     }
 
     /// Publishes a job's change of state.
@@ -30,7 +55,7 @@ impl Events {
 
     /// Events from now on.
     pub fn subscribe(&self) -> broadcast::Receiver<Event> {
-        self.0.subscribe()
+        self.sender.subscribe()
     }
 }
 

@@ -407,6 +407,16 @@ impl Daemon {
         self.events.subscribe()
     }
 
+    /// Ends the open event streams (the HTTP server is stopping).
+    pub fn close_streams(&self) {
+        self.events.close();
+    }
+
+    /// Resolves once [`Daemon::close_streams`] was called.
+    pub fn streams_closed(&self) -> impl std::future::Future<Output = ()> + Send + 'static {
+        self.events.closed()
+    }
+
     /// Stops the camera thread.
     pub fn shutdown(&self) {
         self.camera.shutdown();

@@ -407,3 +407,50 @@ fn captures_posted_as_the_daemon_starts_on_a_busy_machine_finish_and_lose_no_fra
         "{c}"
     );
 }
+
+#[test]
+fn sigterm_with_an_event_stream_open_ends_the_stream_and_does_not_wait_for_it() {
+    use std::io::{Read, Write};
+    let _g = lock();
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let cfg = config(dir.path(), &[]);
+    let mut d = Daemon::start(&cfg, &data);
+    // A page or a script listening to GET /events, as the issue found it.
+    let addr = d.base.trim_start_matches("http://").to_string();
+    let mut sse = std::net::TcpStream::connect(&addr).unwrap();
+    sse.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+    sse.write_all(format!("GET /events HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
+        .unwrap();
+    let mut head = [0u8; 256];
+    let n = sse.read(&mut head).unwrap();
+    let head = String::from_utf8_lossy(&head[..n]).to_string();
+    assert!(head.starts_with("HTTP/1.1 200"), "{head}");
+    assert!(head.contains("text/event-stream"), "{head}");
+    let term = Command::new("kill")
+        .args(["-TERM", &d.pid().to_string()])
+        .status()
+        .unwrap();
+    assert!(term.success());
+    // The stream ends (end of file), not cut off by the drain's timeout.
+    let mut rest = Vec::new();
+    sse.read_to_end(&mut rest)
+        .expect("the event stream ends when the daemon stops");
+    let t = Instant::now();
+    let status = loop {
+        if let Some(s) = d.child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "no exit after SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "{status}");
+    let log = std::fs::read_to_string(data.with_extension("log")).unwrap_or_default();
+    assert!(
+        !log.contains("still busy after"),
+        "the shutdown waited for the event stream:\n{log}"
+    );
+}
