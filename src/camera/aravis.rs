@@ -13,7 +13,8 @@ use aravis::prelude::*;
 use aravis::{AcquisitionMode, BufferStatus, Camera};
 
 use super::device::{
-    CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameIds, FrameSink, RawFrame,
+    BrokenLog, CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameIds, FrameSink,
+    RawFrame,
 };
 use super::settings::{Acquisition, PixelFormat, SensorLimits, TriggerMode};
 
@@ -425,6 +426,7 @@ impl CameraDevice for AravisCamera {
         let mut taken = 0;
         let mut counts = FrameCounts::default();
         let mut ids = FrameIds::default();
+        let mut broken_log = BrokenLog::default();
         // Broken buffers count as frames that did not arrive: the capture
         // fails when no whole frame came within the frame timeout.
         let mut last_whole = Instant::now();
@@ -450,11 +452,11 @@ impl CameraDevice for AravisCamera {
             if buffer.status() != BufferStatus::Success {
                 counts.broken += 1;
                 self.counters.failed += 1;
-                tracing::warn!(
-                    "frame {} arrived broken ({:?}); waiting for the next",
-                    buffer.frame_id(),
-                    buffer.status()
-                );
+                if let Some(line) =
+                    broken_log.note(buffer.frame_id(), &format!("{:?}", buffer.status()))
+                {
+                    tracing::warn!("{line}");
+                }
                 stream.push_buffer(buffer);
                 if last_whole.elapsed() > wait {
                     break Err(CameraError::Driver(format!(
@@ -485,6 +487,9 @@ impl CameraDevice for AravisCamera {
             }
         };
         let _ = c.stop_acquisition();
+        if let Some(line) = broken_log.summary() {
+            tracing::warn!("{line}");
+        }
         let (_, _, underruns) = stream.statistics();
         self.counters.underruns += underruns;
         self.counters.missing_packets += stream.info_uint64_by_name("n_missing_packets");

@@ -91,6 +91,46 @@ impl FrameIds {
     }
 }
 
+/// What the log says about one acquisition's broken buffers: the first in
+/// full, the rest once, summed, when the acquisition ends.
+///
+/// Why: a lossy link breaks buffers in bursts; one line per buffer (28
+/// identical "frame 0 arrived broken" lines in one idle burst) buries the
+/// line that matters.
+#[derive(Debug, Default)]
+pub struct BrokenLog {
+    count: u64,
+    /// The statuses of the buffers after the first, in the order first seen.
+    statuses: Vec<String>,
+}
+
+impl BrokenLog {
+    /// Notes a broken buffer; returns the line to log for the first one.
+    pub fn note(&mut self, frame_id: u64, status: &str) -> Option<String> {
+        self.count += 1;
+        if self.count == 1 {
+            return Some(format!(
+                "frame {frame_id} arrived broken ({status}); waiting for the next (later ones are summed when the acquisition ends)"
+            ));
+        }
+        if !self.statuses.iter().any(|s| s == status) {
+            self.statuses.push(status.to_string());
+        }
+        None
+    }
+
+    /// The line to log when the acquisition ends, when more than one broke.
+    pub fn summary(&self) -> Option<String> {
+        (self.count > 1).then(|| {
+            format!(
+                "{} more buffers of this acquisition arrived broken ({})",
+                self.count - 1,
+                self.statuses.join(", ")
+            )
+        })
+    }
+}
+
 /// How many frame ids lie strictly between two frames' ids, or None when
 /// `id` does not come after `previous` (a late frame, or a count that
 /// restarted). GigE Vision 1 block ids are 16-bit and wrap from 65535 to 1
@@ -292,6 +332,35 @@ mod tests {
         assert_eq!(frames_between(3, 65530), None);
         assert_eq!(frames_between(300, 1), None);
         assert_eq!(frames_between(9, 9), None);
+    }
+
+    #[test]
+    fn a_burst_of_broken_buffers_is_one_line_and_one_summary() {
+        let mut log = BrokenLog::default();
+        assert_eq!(log.summary(), None);
+        let first = log.note(0, "MissingPackets");
+        assert_eq!(
+            first.as_deref(),
+            Some("frame 0 arrived broken (MissingPackets); waiting for the next (later ones are summed when the acquisition ends)")
+        );
+        assert_eq!(log.summary(), None);
+        let rest: Vec<_> = (0..27)
+            .map(|k| {
+                log.note(
+                    0,
+                    if k % 9 == 0 {
+                        "Timeout"
+                    } else {
+                        "MissingPackets"
+                    },
+                )
+            })
+            .collect();
+        assert!(rest.iter().all(Option::is_none));
+        assert_eq!(
+            log.summary().as_deref(),
+            Some("27 more buffers of this acquisition arrived broken (Timeout, MissingPackets)")
+        );
     }
 
     #[test]
