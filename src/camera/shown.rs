@@ -158,9 +158,17 @@ pub struct Shown {
 
 impl Shown {
     /// A bench showing `images` (scaled to `reference_exposure_us`), the
-    /// scene lit, the target away, nothing selected.
+    /// scene lit, the target away, its first block selected.
+    ///
+    /// Why a block from the start: an idle camera on a real bench sees the
+    /// lit wall, and the live view is for aiming before the first capture
+    /// (with nothing selected it showed the dark level, a flat grey).
     pub fn new(images: BenchImages, reference_exposure_us: f64) -> Self {
-        Self {
+        let first = images
+            .scene
+            .first()
+            .map(|(pose, deg, _)| (pose.clone(), *deg));
+        let shown = Self {
             frames: Images::new(images.scene),
             targets: Images::new(images.target),
             sources: Images::new(images.source),
@@ -172,7 +180,11 @@ impl Shown {
             dark_level: 0.01,
             counter: AtomicU64::new(0),
             mosaic: None,
+        };
+        if let Some((pose, deg)) = first {
+            shown.select(&pose, deg);
         }
+        shown
     }
 
     /// The same bench seen by a camera whose sensor has a polarizer mosaic:

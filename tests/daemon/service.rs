@@ -1330,8 +1330,9 @@ fn the_live_view_shows_a_fresh_frame_before_any_capture_with_its_levels() {
     );
     assert!(high - low >= 127 && h_hi - h_lo >= 127, "{levels}");
     assert!(h_lo <= low && high <= h_hi.max(high), "{levels}");
-    // The idle frame is the camera's offset and a DN of noise: auto-contrast
-    // shows it as a flat grey, not as black and white noise.
+    // The idle camera sees the lit wall, as on a real bench (issue 38: it
+    // showed the dark level, a flat grey, until the first capture), so the
+    // view can aim: stretched, the wall's image spans most of the range.
     let (s, stretched) = d.get_bytes("/camera/frame.png?live=true&stretch=true");
     assert_eq!(s, 200);
     let range16 = |png: &[u8]| {
@@ -1340,10 +1341,8 @@ fn the_live_view_shows_a_fresh_frame_before_any_capture_with_its_levels() {
         (*v.iter().min().unwrap(), *v.iter().max().unwrap())
     };
     let (lo, hi) = range16(&stretched);
-    assert!(
-        lo > 0 && hi < 65535 && hi - lo < 2000,
-        "{lo}..{hi}: {levels}"
-    );
+    println!("idle live view, stretched: {lo}..{hi}; levels {levels}");
+    assert!(hi - lo > 30_000, "{lo}..{hi}: {levels}");
     assert!(
         range16(&plain).1 < 65535,
         "the crossed frame does not reach full scale"
