@@ -382,7 +382,11 @@ mod tests {
     #[test]
     fn the_selected_block_is_shown_in_proportion_to_the_exposure() {
         let s = bench();
-        // Nothing selected: the dark level only (0.01 of full scale).
+        // The first block is selected from the start (an idle camera sees
+        // the lit wall): 0.5 of full scale plus the dark level's 0.01.
+        assert!((mean(&s, 1000.0) - 510.0).abs() <= 0.5);
+        // A pose the bench has no image of: the dark level only.
+        s.select("Z", Some(0.0));
         assert!((mean(&s, 1000.0) - 10.0).abs() <= 0.5);
         s.select("A", Some(0.0));
         assert!((mean(&s, 1000.0) - 510.0).abs() <= 0.5);
