@@ -607,7 +607,51 @@ async function resync() {
 
 // ---- forms ----
 
-function number(v) { return v === "" || v === null ? undefined : Number(v); }
+// A form field that does not hold what it must: named beside the field,
+// and nothing is sent.
+class FieldError extends Error {}
+
+// Reads numeric field `name` of `form`: undefined when empty, its number
+// when it is one ("auto" where `auto`); anything else marks the field with
+// why and throws, so unreadable input never turns into a default (issue 38:
+// frames "abc" ran a plan of 1 frame, exposure "50ms" became 20000 us).
+function numeric(form, name, { integer = false, auto = false } = {}) {
+  const input = form.querySelector(`[name=${name}]`);
+  if (!input) return undefined;
+  clearFieldError(input);
+  const raw = String(input.value).trim();
+  if (raw === "") return undefined;
+  if (auto && raw === "auto") return "auto";
+  const v = Number(raw);
+  if (!Number.isFinite(v) || (integer && !Number.isInteger(v))) {
+    const want = integer ? "a whole number" : "a number";
+    const why = `${name}: "${raw}" is not ${want}${auto ? " or auto" : ""}`;
+    input.classList.add("invalid");
+    input.setAttribute("aria-invalid", "true");
+    input.after(el("span", { class: "field-error" }, why));
+    throw new FieldError(why);
+  }
+  return v;
+}
+
+function clearFieldError(input) {
+  input.classList.remove("invalid");
+  input.removeAttribute("aria-invalid");
+  const next = input.nextElementSibling;
+  if (next && next.classList.contains("field-error")) next.remove();
+}
+
+// Runs `build` (which reads the form's fields); a FieldError shows in `msg`
+// and gives null, so that the caller sends nothing.
+function fields(msg, build) {
+  try {
+    return build();
+  } catch (e) {
+    if (!(e instanceof FieldError)) throw e;
+    alertIn(msg, `not sent: ${e.message}`);
+    return null;
+  }
+}
 
 async function submitCapture(kind) {
   const f = new FormData($("#capture-form"));
@@ -615,28 +659,34 @@ async function submitCapture(kind) {
     alertIn($("#capture-message"), tokenReason() || "no scene to choose: the daemon has not sent its scene list (see the message at the top)");
     return;
   }
-  const exposure = String(f.get("exposure_us")).trim();
-  const body = {
-    kind, scene: f.get("scene"), pose: f.get("pose"),
-    polarizer_deg: f.get("polarizer_deg") === "" ? null : Number(f.get("polarizer_deg")),
-    frames: number(f.get("frames")),
-    dark_frames: number(f.get("dark_frames")) || 0,
-  };
-  if (exposure === "auto") body.exposure = "auto"; else body.exposure_us = number(exposure);
-  // Camera settings (inputs marked data-setting): sent when filled, else the capture defaults apply.
-  for (const input of $("#capture-form").querySelectorAll("[data-setting]")) {
-    const v = input.value.trim();
-    if (v !== "") body[input.name] = input.dataset.setting === "number" ? Number(v) : v;
-  }
-  const dark = String(f.get("dark_capture") || "").trim();
-  if (kind !== "dark" && dark) { body.dark_capture = Number(dark); body.dark_frames = 0; }
-  if (kind === "dark") body.dark_frames = 0;
-  if (f.get("progressive") && kind === "light") {
-    body.progressive = { every: number(f.get("every")) };
-    if (f.get("truth")) body.progressive.truth = f.get("truth");
-  }
-  const r = await api("POST", "/captures", body);
+  const form = $("#capture-form");
   const msg = $("#capture-message");
+  const body = fields(msg, () => {
+    const exposure = numeric(form, "exposure_us", { auto: true });
+    const polarizer = numeric(form, "polarizer_deg");
+    const b = {
+      kind, scene: f.get("scene"), pose: f.get("pose"),
+      polarizer_deg: polarizer === undefined ? null : polarizer,
+      frames: numeric(form, "frames", { integer: true }),
+      dark_frames: numeric(form, "dark_frames", { integer: true }) || 0,
+    };
+    if (exposure === "auto") b.exposure = "auto"; else b.exposure_us = exposure;
+    // Camera settings (inputs marked data-setting): sent when filled, else the capture defaults apply.
+    for (const input of form.querySelectorAll("[data-setting]")) {
+      const v = input.value.trim();
+      if (v !== "") b[input.name] = input.dataset.setting === "number" ? numeric(form, input.name) : v;
+    }
+    const dark = numeric(form, "dark_capture", { integer: true });
+    if (kind !== "dark" && dark !== undefined) { b.dark_capture = dark; b.dark_frames = 0; }
+    if (kind === "dark") b.dark_frames = 0;
+    if (f.get("progressive") && kind === "light") {
+      b.progressive = { every: numeric(form, "every", { integer: true }) };
+      if (f.get("truth")) b.progressive.truth = f.get("truth");
+    }
+    return b;
+  });
+  if (!body) return;
+  const r = await api("POST", "/captures", body);
   if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
   noteIn(msg, `queued ${r.json.job}` + (r.json.exposure_us ? ` (${r.json.exposure_us} µs, ${r.json.frames} frames)` : ""));
   if (kind === "dark") {
@@ -656,18 +706,22 @@ $("#take-dark").addEventListener("click", () => submitCapture("dark"));
 $("#reconstruction-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   const f = new FormData(ev.target);
-  const body = {
-    scene: f.get("scene"),
-    captures: ids(f.get("captures")),
-    solver: f.get("solver"),
-  };
-  if (f.get("truth")) body.truth = f.get("truth");
-  const lambda = String(f.get("lambda") || "").trim();
-  if (lambda && lambda !== "auto") body.lambda = Number(lambda);
-  const iters = String(f.get("max_iter") || "").trim();
-  if (iters) body.max_iter = Number(iters);
-  const r = await api("POST", "/reconstructions", body);
   const msg = $("#reconstruction-message");
+  const body = fields(msg, () => {
+    const b = {
+      scene: f.get("scene"),
+      captures: ids(f.get("captures")),
+      solver: f.get("solver"),
+    };
+    if (f.get("truth")) b.truth = f.get("truth");
+    const lambda = numeric(ev.target, "lambda", { auto: true });
+    if (lambda !== undefined && lambda !== "auto") b.lambda = lambda;
+    const iters = numeric(ev.target, "max_iter", { integer: true });
+    if (iters !== undefined) b.max_iter = iters;
+    return b;
+  });
+  if (!body) return;
+  const r = await api("POST", "/reconstructions", body);
   if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
   noteIn(msg, `queued ${r.json.job}`);
   const x = await api("GET", `/reconstructions/${r.json.id}`);
@@ -705,16 +759,25 @@ async function showPlan(id) {
 $("#plan-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   const f = new FormData(ev.target);
-  const exposure = String(f.get("exposure_us")).trim();
-  const body = { scene: f.get("scene"), frames: number(f.get("frames")), dark_frames: number(f.get("dark_frames")) || 0 };
-  if (exposure === "auto") body.exposure = "auto"; else body.exposure_us = number(exposure);
-  body.reconstruct = {};
-  if (f.get("truth")) body.reconstruct.truth = f.get("truth");
-  const every = number(String(f.get("progressive_every") || "").trim());
-  if (every) body.reconstruct.progressive_every = every;
-  if (f.get("interim")) body.reconstruct.interim = true;
-  const r = await api("POST", "/plans", body);
+  const form = ev.target;
   const msg = $("#plan-message");
+  const body = fields(msg, () => {
+    const exposure = numeric(form, "exposure_us", { auto: true });
+    const b = {
+      scene: f.get("scene"),
+      frames: numeric(form, "frames", { integer: true }),
+      dark_frames: numeric(form, "dark_frames", { integer: true }) || 0,
+    };
+    if (exposure === "auto") b.exposure = "auto"; else b.exposure_us = exposure;
+    b.reconstruct = {};
+    if (f.get("truth")) b.reconstruct.truth = f.get("truth");
+    const every = numeric(form, "progressive_every", { integer: true });
+    if (every) b.reconstruct.progressive_every = every;
+    if (f.get("interim")) b.reconstruct.interim = true;
+    return b;
+  });
+  if (!body) return;
+  const r = await api("POST", "/plans", body);
   if (r.status !== 202) { alertIn(msg, tokenReason() || (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
   noteIn(msg, `plan ${r.json.id} queued: ${r.json.steps.length} steps`);
   showPlan(r.json.id);

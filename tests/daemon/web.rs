@@ -815,3 +815,61 @@ fn the_page_runs_a_scene_and_asks_the_operator_to_move_the_camera() {
     let plan = page.d.json("/plans/1");
     assert_eq!(plan["state"], "done", "{plan}");
 }
+
+#[test]
+fn the_forms_refuse_unreadable_numbers_beside_the_field_and_send_nothing() {
+    let page = Page::start();
+    page.rt.block_on(async {
+        let c = page.open().await;
+        let long = Duration::from_secs(60);
+        until("the scene list", long, || async {
+            let n = js(
+                &c,
+                "return document.querySelectorAll('#plan-form select[name=scene] option').length;",
+            )
+            .await;
+            (n.as_u64().unwrap_or(0) > 0).then_some(())
+        })
+        .await;
+        // The inputs of the issue: each refused, naming the field and the text.
+        for (form, field, typed, message, says) in [
+            ("#plan-form", "frames", "abc", "#plan-message", "frames: \"abc\" is not a whole number"),
+            ("#plan-form", "dark_frames", "two", "#plan-message", "dark_frames: \"two\" is not a whole number"),
+            ("#capture-form", "exposure_us", "50ms", "#capture-message", "exposure_us: \"50ms\" is not a number or auto"),
+        ] {
+            set(&c, &format!("{form} [name={field}]"), typed).await;
+            let button = if form == "#plan-form" { "#run-plan" } else { "#start-capture" };
+            click(&c, button).await;
+            let shown = until("the refusal", long, || async {
+                let t = text(&c, message).await;
+                t.contains(says).then_some(t)
+            })
+            .await;
+            assert!(shown.starts_with("not sent"), "{shown}");
+            let beside = js(
+                &c,
+                &format!("const i = document.querySelector('{form} [name={field}]'); const n = i.nextElementSibling; return n && n.classList.contains('field-error') ? n.textContent : null;"),
+            )
+            .await;
+            assert_eq!(beside.as_str(), Some(says), "{form} {field}");
+            // Put a good value back for the next case.
+            let good = if field == "exposure_us" { "20000" } else { "1" };
+            set(&c, &format!("{form} [name={field}]"), good).await;
+        }
+        // Nothing was queued; a good form then goes, and its mark is gone.
+        assert_eq!(page.d.json("/plans").as_array().map(Vec::len), Some(0));
+        assert_eq!(page.d.json("/captures").as_array().map(Vec::len), Some(0));
+        set(&c, "#plan-form [name=frames]", "2").await;
+        click(&c, "#run-plan").await;
+        until("the plan to be queued", long, || async {
+            text(&c, "#plan-message")
+                .await
+                .contains("plan 1 queued")
+                .then_some(())
+        })
+        .await;
+        let marks = js(&c, "return document.querySelectorAll('#plan-form .field-error').length;").await;
+        assert_eq!(marks.as_u64(), Some(0));
+        c.close().await.unwrap();
+    });
+}
