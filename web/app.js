@@ -47,12 +47,24 @@ function headers(json) {
   return h;
 }
 
+// What the page says when the daemon does not answer at all (stopped,
+// restarting, or the network): not the browser's "TypeError: Failed to fetch".
+function unreachable() {
+  return `the daemon at ${location.host} does not answer: is it running? (systemctl status polnlos); the page retries every 15 s`;
+}
+
 async function api(method, path, body) {
-  const r = await fetch(path, {
-    method,
-    headers: headers(body !== undefined),
-    body: body === undefined ? undefined : JSON.stringify(body),
-  });
+  let r;
+  try {
+    r = await fetch(path, {
+      method,
+      headers: headers(body !== undefined),
+      body: body === undefined ? undefined : JSON.stringify(body),
+    });
+  } catch (_) {
+    // No answer: status 0 with the reason as the detail every caller shows.
+    return { status: 0, json: { detail: unreachable() }, headers: new Headers() };
+  }
   let json = null;
   try { json = await r.json(); } catch (_) { /* not JSON */ }
   const out = { status: r.status, json, headers: r.headers };
@@ -151,7 +163,7 @@ function downloads(items) {
 
 async function refreshCamera() {
   const h = await api("GET", "/health");
-  text($("#health"), h.status === 200 ? (h.json.camera_connected ? "camera connected" : "camera not connected") : "daemon unreachable");
+  text($("#health"), h.status === 200 ? (h.json.camera_connected ? "camera connected" : "camera not connected") : h.status === 0 ? unreachable() : `health: HTTP ${h.status}`);
   const c = await api("GET", "/camera");
   if (c.status !== 200) {
     text($("#camera-status"), (c.status === 401 && tokenReason()) || (c.json && c.json.detail) || `HTTP ${c.status}`);
@@ -592,7 +604,7 @@ async function resync() {
   try {
     await Promise.all([refreshCamera(), loadCaptures(), loadReconstructions(), showPlan()]);
   } catch (e) {
-    text($("#health"), `error: ${e}`);
+    text($("#health"), e instanceof TypeError ? unreachable() : `error: ${e}`);
   } finally {
     syncing = false;
   }

@@ -385,13 +385,21 @@ impl std::ops::DerefMut for InProcess {
     }
 }
 
-impl Drop for InProcess {
-    fn drop(&mut self) {
+impl InProcess {
+    /// Stops the server and drains the daemon; its port then refuses
+    /// connections, as a daemon that went away does.
+    pub fn stop(&mut self) {
         if let Some(stop) = self.stop.take() {
             let _ = stop.send(());
         }
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
+    }
+}
+
+impl Drop for InProcess {
+    fn drop(&mut self) {
+        self.stop();
     }
 }

@@ -873,3 +873,31 @@ fn the_forms_refuse_unreadable_numbers_beside_the_field_and_send_nothing() {
         c.close().await.unwrap();
     });
 }
+
+#[test]
+fn a_daemon_that_went_away_is_named_not_a_browser_type_error() {
+    let mut page = Page::start();
+    let c = page.rt.block_on(page.open());
+    page.d.stop();
+    page.rt.block_on(async {
+        let long = Duration::from_secs(30);
+        set(&c, "#plan-form [name=frames]", "2").await;
+        click(&c, "#run-plan").await;
+        let said = until("the plan form's answer", long, || async {
+            let t = text(&c, "#plan-message").await;
+            (!t.is_empty()).then_some(t)
+        })
+        .await;
+        assert!(said.contains("does not answer: is it running?"), "{said}");
+        assert!(!said.contains("TypeError"), "{said}");
+        // The page's own poll says the same at the top.
+        js(&c, "resync(); return null;").await;
+        let health = until("the header", long, || async {
+            let t = text(&c, "#health").await;
+            t.contains("does not answer").then_some(t)
+        })
+        .await;
+        assert!(!health.contains("TypeError"), "{health}");
+        c.close().await.unwrap();
+    });
+}
