@@ -567,6 +567,7 @@ async function onEvent(v) {
     refreshCamera();
   } else if (v.type === "plan") {
     showPlan(v.plan);
+    loadPlans();
   }
 }
 
@@ -602,7 +603,7 @@ async function resync() {
   if (syncing) return;
   syncing = true;
   try {
-    await Promise.all([refreshCamera(), loadCaptures(), loadReconstructions(), showPlan()]);
+    await Promise.all([refreshCamera(), loadCaptures(), loadReconstructions(), showPlan(), loadPlans()]);
   } catch (e) {
     text($("#health"), e instanceof TypeError ? unreachable() : `error: ${e}`);
   } finally {
@@ -743,13 +744,16 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
 // ---- plans ----
 
 let shownPlan = null;
-// Shows plan `id` (the newest when none is given): its state, its progress
-// across steps, and the operator's prompt with Continue while it waits.
+// Shows plan `id` (when none is given: one waiting for the operator, else
+// the newest, so that a reload finds a waiting plan behind a newer queued
+// one): its state, its progress across steps, and the operator's prompt
+// with Continue while it waits.
 async function showPlan(id) {
   if (id === undefined) {
-    const r = await api("GET", "/plans?limit=1");
+    const r = await api("GET", `/plans?limit=${PLANS_LISTED}`);
     if (r.status !== 200 || !r.json.length) return;
-    id = r.json[0].id;
+    const waiting = r.json.find((p) => p.state === "waiting_for_operator");
+    id = (waiting || r.json[0]).id;
   }
   const r = await api("GET", `/plans/${id}`);
   if (r.status !== 200) return;
@@ -793,7 +797,48 @@ $("#plan-form").addEventListener("submit", async (ev) => {
   if (r.status !== 202) { alertIn(msg, tokenReason() || (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
   noteIn(msg, `plan ${r.json.id} queued: ${r.json.steps.length} steps`);
   showPlan(r.json.id);
+  loadPlans();
 });
+// Recent plans, each with its own Continue and Cancel, and a badge in the
+// header (and the window's title) while any waits for the operator: a
+// waiting plan cannot hide behind a newer one (issue 38).
+const PLANS_LISTED = 20;
+async function loadPlans() {
+  const r = await api("GET", `/plans?limit=${PLANS_LISTED}`);
+  if (r.status !== 200) return;
+  $("#plans tbody").replaceChildren(...r.json.map(planRow));
+  const waiting = r.json.filter((p) => p.state === "waiting_for_operator");
+  const badge = $("#plan-badge");
+  badge.hidden = waiting.length === 0;
+  text(badge, waiting.length ? `plan ${waiting.map((p) => p.id).join(", ")} waiting for you` : "");
+  document.title = waiting.length ? `(plan ${waiting[0].id} waiting) polnlos` : "polnlos";
+}
+
+function planRow(p) {
+  const actions = el("td", {});
+  if (p.state === "waiting_for_operator") {
+    const b = el("button", { type: "button", class: "plan-continue", "data-plan": String(p.id) }, "Continue");
+    b.addEventListener("click", () => planAction(p.id, "continue"));
+    actions.append(b);
+  }
+  if (["queued", "running", "waiting_for_operator"].includes(p.state)) {
+    const b = el("button", { type: "button", class: "plan-cancel", "data-plan": String(p.id) }, "Cancel");
+    b.addEventListener("click", () => planAction(p.id, "cancel"));
+    actions.append(b);
+  }
+  return el("tr", { id: `plan-row-${p.id}`, class: p.state },
+    el("td", {}, String(p.id)), el("td", {}, p.scene), el("td", { class: "state" }, p.state.replaceAll("_", " ")),
+    el("td", {}, String(p.step + 1)), el("td", { class: "prompt" }, p.state === "waiting_for_operator" ? (p.prompt || "") : ""),
+    actions);
+}
+
+async function planAction(id, what) {
+  const r = what === "continue" ? await api("POST", `/plans/${id}/continue`) : await api("DELETE", `/plans/${id}`);
+  if (r.status >= 400 || r.status === 0) alertIn($("#plan-message"), (r.json && r.json.detail) || `HTTP ${r.status}`);
+  showPlan(id);
+  loadPlans();
+}
+
 $("#plan-continue").addEventListener("click", async () => {
   const r = await api("POST", `/plans/${shownPlan}/continue`);
   if (r.status >= 400) alertIn($("#plan-message"), (r.json && r.json.detail) || `HTTP ${r.status}`);

@@ -901,3 +901,59 @@ fn a_daemon_that_went_away_is_named_not_a_browser_type_error() {
         c.close().await.unwrap();
     });
 }
+
+#[test]
+fn a_waiting_plan_behind_a_newer_one_survives_a_reload_and_continues_from_the_list() {
+    let page = Page::start();
+    page.rt.block_on(async {
+        let c = page.open().await;
+        let long = Duration::from_secs(120);
+        // Plan 1 waits for the operator at pose C; plan 2 queues behind it.
+        let (s, b, _) = page.d.post(
+            "/plans",
+            r#"{"scene": "brewster-multi", "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#,
+        );
+        assert_eq!(s, 202, "{b}");
+        let (s, b, _) = page.d.post(
+            "/plans",
+            r#"{"scene": "brewster-crossed", "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#,
+        );
+        assert_eq!(s, 202, "{b}");
+        let t = std::time::Instant::now();
+        while page.d.json("/plans/1")["state"] != "waiting_for_operator" {
+            assert!(t.elapsed() < long, "plan 1 never waited");
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+        c.refresh().await.expect("reload");
+        // After the reload: the badge, the list's row with its prompt and
+        // Continue, and the plan panel on plan 1, not on the newer plan 2.
+        let badge = until("the header badge", long, || async {
+            let t = text(&c, "#plan-badge").await;
+            (!t.is_empty()).then_some(t)
+        })
+        .await;
+        assert_eq!(badge, "plan 1 waiting for you");
+        let title = js(&c, "return document.title;").await;
+        assert_eq!(title.as_str(), Some("(plan 1 waiting) polnlos"));
+        let prompt = text(&c, "#plan-row-1 .prompt").await;
+        assert!(prompt.contains("pose C"), "{prompt}");
+        assert_eq!(text(&c, "#plan-row-2 .state").await, "queued");
+        let shown = until("the plan panel", long, || async {
+            let t = text(&c, "#plan-title").await;
+            (!t.is_empty()).then_some(t)
+        })
+        .await;
+        assert!(shown.starts_with("plan 1 "), "{shown}");
+        click(&c, "#plan-row-1 .plan-continue").await;
+        let t = std::time::Instant::now();
+        loop {
+            let st = page.d.json("/plans/1")["state"].clone();
+            if st == "done" {
+                break;
+            }
+            assert!(t.elapsed() < long, "plan 1 is {st}");
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+        c.close().await.unwrap();
+    });
+}
