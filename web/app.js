@@ -133,9 +133,12 @@ function noteIn(target, message) { target.className = "message"; text(target, me
 const block = (c) => {
   if (c.channels.length > 1) return `${c.pose} (polarizer mosaic, ${c.channels.length} blocks)`;
   const ch = c.channels[0];
-  return ch.analyzer === "none" ? `${c.pose} (no polarizer)` : ch.analyzer === "sheet" ? `${c.pose} at ${ch.deg}°` : `${c.pose} mosaic ${ch.deg}°`;
+  return ch.analyzer === "none" ? `${c.pose} (no polarizer)` : ch.analyzer === "sheet" ? `${c.pose} at ${ch.deg}°${measured(c)}` : `${c.pose} mosaic ${ch.deg}°`;
 };
 const active = (s) => s === "queued" || s === "running";
+// The angle the mount read back, beside the angle asked for, when it differs in print.
+const measured = (c) => (c.polarizer_measured_deg === null || c.polarizer_measured_deg === undefined)
+  ? "" : ` (measured ${c.polarizer_measured_deg.toFixed(2)}°)`;
 // "2, 3" or "2 3" → [2, 3].
 const ids = (v) => String(v).split(/[ ,]+/).filter((s) => s).map(Number);
 
@@ -540,6 +543,8 @@ async function cancel(job) {
 async function onEvent(v) {
   const [kind, id] = String(v.job || "").split("-");
   if (v.type === "job") {
+    // A capture turns the mount, moves the stage, switches the light: read them back.
+    if (v.state !== "running" && kind === "capture") refreshRig();
     const r = await api("GET", `/${kind}s/${id}`);
     if (r.status !== 200) return;
     if (kind === "capture" && !active(r.json.state)) taken.delete(r.json.id);
@@ -603,7 +608,7 @@ async function resync() {
   if (syncing) return;
   syncing = true;
   try {
-    await Promise.all([refreshCamera(), loadCaptures(), loadReconstructions(), showPlan(), loadPlans()]);
+    await Promise.all([refreshCamera(), refreshRig(), loadCaptures(), loadReconstructions(), showPlan(), loadPlans()]);
   } catch (e) {
     text($("#health"), e instanceof TypeError ? unreachable() : `error: ${e}`);
   } finally {
@@ -799,6 +804,44 @@ $("#plan-form").addEventListener("submit", async (ev) => {
   showPlan(r.json.id);
   loadPlans();
 });
+// ---- the rig ----
+
+// The bench's devices as the daemon reads them back: the mount (the
+// polarizer's measured angle, its zero and where the zero came from), the
+// stage and the light relay, each with its last error (issue 38: none of
+// it was on the page).
+async function refreshRig() {
+  const [m, s, l] = await Promise.all([api("GET", "/mount"), api("GET", "/stage"), api("GET", "/light")]);
+  const err = (v) => v.last_error ? `; last error: ${v.last_error}` : "";
+  const cell = (row, r, say) => text($(`#${row} .state`), r.status === 200 ? say(r.json) : (r.json && r.json.detail) || `HTTP ${r.status}`);
+  cell("rig-mount", m, (v) => v.kind === "none" ? "none: the polarizer is turned by hand, polarizer_deg trusted"
+    : `${v.kind}${v.connected ? "" : " (not connected)"}: polarizer at ${v.polarizer_deg === null ? "?" : v.polarizer_deg.toFixed(2)}° measured`
+      + ` (mount ${v.position_deg === null ? "?" : v.position_deg.toFixed(2)}°), zero ${v.zero_deg.toFixed(2)}° from ${v.zero_source}${err(v)}`);
+  cell("rig-stage", s, (v) => v.kind === "none" ? "none: the operator moves the camera between poses"
+    : `${v.kind}: at pose ${v.pose || "?"}${v.position_m ? ` (${v.position_m.map((x) => x.toFixed(3)).join(", ")} m)` : ""}${err(v)}`);
+  cell("rig-light", l, (v) => v.kind === "none" ? "none: the hidden scene's light is switched by hand"
+    : `${v.kind} relay ${v.relay}: ${v.on === null ? "unknown" : v.on ? "lit" : "dark"}${err(v)}`);
+  $("#mount-zero-form").hidden = !(m.status === 200 && m.json.kind !== "none");
+}
+
+$("#mount-zero-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const form = ev.target;
+  const msg = $("#rig-message");
+  const body = fields(msg, () => ({
+    scene: new FormData(form).get("scene"),
+    pose: String(new FormData(form).get("pose")).trim(),
+    exposure_us: numeric(form, "exposure_us"),
+    frames: numeric(form, "frames", { integer: true }),
+  }));
+  if (!body) return;
+  noteIn(msg, "sweeping the mount around its zero…");
+  const r = await api("POST", "/mount/zero", body);
+  if (r.status !== 200) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
+  noteIn(msg, `zero found: ${Number(r.json.zero_deg).toFixed(3)}°, now in force`);
+  refreshRig();
+});
+
 // Recent plans, each with its own Continue and Cancel, and a badge in the
 // header (and the window's title) while any waits for the operator: a
 // waiting plan cannot hide behind a newer one (issue 38).

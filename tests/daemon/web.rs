@@ -957,3 +957,55 @@ fn a_waiting_plan_behind_a_newer_one_survives_a_reload_and_continues_from_the_li
         c.close().await.unwrap();
     });
 }
+
+#[test]
+fn the_rig_panel_shows_the_mount_s_measured_angle_and_the_captures_table_too() {
+    let page = Page::start_with(&[(
+        "scene = \"brewster-crossed\"",
+        "scene = \"brewster-rotating\"",
+    )]);
+    page.rt.block_on(async {
+        let c = page.open().await;
+        let long = Duration::from_secs(60);
+        let mount = until("the mount's row", long, || async {
+            let t = text(&c, "#rig-mount .state").await;
+            t.starts_with("simulated").then_some(t)
+        })
+        .await;
+        assert!(mount.contains("zero 0.00°"), "{mount}");
+        assert_eq!(
+            text(&c, "#rig-stage .state").await,
+            "none: the operator moves the camera between poses"
+        );
+        assert!(text(&c, "#rig-light .state").await.starts_with("none"));
+        let zero_form = js(
+            &c,
+            "return document.querySelector('#mount-zero-form').hidden;",
+        )
+        .await;
+        assert_eq!(zero_form.as_bool(), Some(false), "a mount offers Find zero");
+        choose(&c, "#capture-form select[name=scene]", "brewster-rotating").await;
+        let state = capture(
+            &c,
+            1,
+            &[
+                ("polarizer_deg", "45"),
+                ("frames", "2"),
+                ("dark_frames", "0"),
+            ],
+            long,
+        )
+        .await;
+        assert_eq!(state, "done");
+        // The mount turned: the rig panel and the capture's row say where it is.
+        let mount = until("the mount at 45", long, || async {
+            let t = text(&c, "#rig-mount .state").await;
+            t.contains("polarizer at 45.00° measured").then_some(t)
+        })
+        .await;
+        assert!(mount.contains("(mount 45.00°)"), "{mount}");
+        let row = text(&c, "#capture-1").await;
+        assert!(row.contains("A at 45° (measured 45.00°)"), "{row}");
+        c.close().await.unwrap();
+    });
+}
