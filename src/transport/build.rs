@@ -1017,7 +1017,98 @@ impl Scratch {
 
 #[cfg(test)]
 mod tests {
-    use super::HalfPower;
+    use super::*;
+
+    fn scene(name: &str) -> Scene {
+        Scene::builtin(name)
+            .expect("a built-in scene")
+            .expect("it parses")
+    }
+
+    /// A scene image with every element different (none zero), so that a
+    /// column taken twice or left out changes `T l`.
+    fn image(n: usize) -> Vec<f64> {
+        (0..n)
+            .map(|k| 0.2 + 0.7 * ((k * 37 % 101) as f64 / 101.0))
+            .collect()
+    }
+
+    #[test]
+    fn blocks_stack_poses_then_their_angles_in_file_order() {
+        let s = scene("brewster-multi-3x3");
+        let blocks = blocks_of(&s);
+        assert_eq!(blocks.len(), s.block_count());
+        let expected: Vec<(String, Vec<crate::scene::Channel>)> = s
+            .poses()
+            .iter()
+            .map(|p| (p.name.clone(), p.channels()))
+            .collect();
+        let mut k = 0;
+        for (pose, channels) in &expected {
+            for ch in channels {
+                assert_eq!(&blocks[k].pose, pose, "block {k}");
+                assert_eq!(&blocks[k].channel, ch, "block {k}");
+                k += 1;
+            }
+        }
+        assert_eq!(k, blocks.len());
+        assert!(
+            expected.len() > 1,
+            "the test needs a scene of several poses"
+        );
+    }
+
+    #[test]
+    fn t_applied_without_the_matrix_is_the_built_matrix_times_l() {
+        for name in ["brewster-rotating-3x3", "occluder-multi-3x3"] {
+            let s = scene(name);
+            let t = build(&s, MemoryBudget::DEFAULT).expect("T");
+            let l = image(t.cols());
+            let samples = WallSamples::of_scene(&s, MemoryBudget::DEFAULT).expect("samples");
+            let free = apply_rows(&s, &samples, &l);
+            let full = t.apply(&l);
+            assert_eq!(free.len(), full.len(), "{name}");
+            let scale = full.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(scale > 0.0, "{name}: T l is zero");
+            for (j, (a, b)) in free.iter().zip(&full).enumerate() {
+                assert!(
+                    (a - b).abs() <= 1e-12 * scale,
+                    "{name} row {j}: {a:e} vs {b:e}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn rows_of_chosen_elements_are_those_rows_of_t_in_every_block() {
+        let s = scene("brewster-rotating-3x3");
+        let t = build(&s, MemoryBudget::DEFAULT).expect("T");
+        let nw = s.wall().plane.grid.count();
+        let elements = [0, nw / 2, nw - 1];
+        let data = build_elements(&s, &elements, MemoryBudget::DEFAULT).expect("rows");
+        let rows = s.block_count() * elements.len();
+        assert_eq!(data.len(), rows * t.cols());
+        for b in 0..s.block_count() {
+            for (e, &j) in elements.iter().enumerate() {
+                let r = b * elements.len() + e;
+                for k in 0..t.cols() {
+                    let (got, want) = (data[k * rows + r], t.get(b * nw + j, k));
+                    assert!(
+                        (got - want).abs() <= 1e-12 * want.abs().max(1e-300),
+                        "block {b} element {j} column {k}: {got:e} vs {want:e}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn an_element_beyond_the_wall_is_refused_naming_it() {
+        let s = scene("brewster-crossed-3x3");
+        let n = s.wall().plane.grid.count();
+        let e = build_elements(&s, &[0, n], MemoryBudget::DEFAULT).unwrap_err();
+        assert!(e.to_string().contains(&n.to_string()), "{e}");
+    }
 
     #[test]
     fn half_powers_agree_with_powf() {
