@@ -338,7 +338,8 @@ pub(super) fn stack_records(
     blocks: &[crate::transport::Block],
     maps: &PixelMaps,
 ) -> Result<Stacked, JobError> {
-    let mut warnings = Vec::new();
+    // Saturation first: it biases the measurement before any model question.
+    let mut warnings: Vec<String> = records.iter().filter_map(saturation_warning).collect();
     let captures = records
         .into_iter()
         .map(|c| load_capture(store, c, scene, &mut warnings))
@@ -348,6 +349,21 @@ pub(super) fn stack_records(
         measurement,
         warnings,
     })
+}
+
+/// What a reconstruction must say about a capture whose frames reached full
+/// scale (its `clipping`): those pixels' means are lower bounds.
+fn saturation_warning(c: &CaptureRecord) -> Option<String> {
+    let cl = c.clipping.filter(|cl| cl.saturated > 0)?;
+    Some(format!(
+        "capture {} saturated: {} of {} pixels at full scale in one frame ({:.2} %), in {} of its frames; their values are lower bounds and bias the measurement low: take it again at a lower exposure_us (GET /scenes/{}/exposure plans one per block)",
+        c.id,
+        cl.saturated,
+        cl.pixels,
+        100.0 * cl.saturated_share(),
+        cl.frames_saturated,
+        c.scene
+    ))
 }
 
 /// The catalogue records of `ids`, each read once. A catalogue that cannot

@@ -1382,3 +1382,52 @@ fn a_capture_records_its_saturated_pixels_and_a_sane_exposure_has_none() {
     assert_eq!(sane["state"], "done", "{sane}");
     assert_eq!(sane["clipping"]["saturated"], 0, "{sane}; plan {plan}");
 }
+
+#[test]
+fn a_reconstruction_from_saturated_captures_says_so_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(
+        dir.path(),
+        &[(
+            "scene = \"brewster-crossed\"",
+            "scene = \"brewster-rotating\"",
+        )],
+    );
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
+    let long = Duration::from_secs(120);
+    let mut ids = Vec::new();
+    for (deg, exposure_us) in [(0, 100_000), (45, 100_000), (90, 100_000), (135, 100_000)] {
+        let c = d.run_job(
+            "/captures",
+            &format!(r#"{{"scene": "brewster-rotating", "pose": "A", "polarizer_deg": {deg}, "exposure_us": {exposure_us}, "frames": 2, "dark_frames": 1}}"#),
+            long,
+        );
+        assert_eq!(c["state"], "done", "{c}");
+        ids.push(c["id"].as_i64().unwrap());
+    }
+    let r = d.run_job(
+        "/reconstructions",
+        &format!(r#"{{"scene": "brewster-rotating", "captures": {ids:?}, "truth": "letter"}}"#),
+        long,
+    );
+    assert_eq!(r["state"], "done", "{r}");
+    let warnings: Vec<String> = r["report"]["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|w| w.as_str().unwrap().to_string())
+        .collect();
+    // The crossed block (0 degrees) did not saturate; the other three did,
+    // and their warnings lead, in capture order.
+    let saturated: Vec<&String> = warnings
+        .iter()
+        .filter(|w| w.contains("saturated"))
+        .collect();
+    assert_eq!(saturated.len(), 3, "{warnings:#?}");
+    for (w, id) in warnings.iter().take(3).zip(&ids[1..]) {
+        assert!(
+            w.starts_with(&format!("capture {id} saturated: ")) && w.contains("lower exposure_us"),
+            "{warnings:#?}"
+        );
+    }
+}
