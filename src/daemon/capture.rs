@@ -51,6 +51,8 @@ pub(super) struct CaptureWorker {
     pub(super) queue: Arc<CaptureQueue>,
     /// What a capture that lost frames does.
     pub(super) lost_frames: LostFrames,
+    /// What a capture with saturated pixels does, above which share of a frame.
+    pub(super) saturated: (super::config::Saturated, f64),
     /// How far beyond twice its frames' time an acquisition may run.
     pub(super) stall_slack: std::time::Duration,
 }
@@ -197,7 +199,10 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         }
     };
     let clipping = frames.clipping;
-    saturated(id, &c, clipping);
+    if let Err(e) = saturated(w, id, &c, clipping) {
+        crate::store::remove_raw(&dir);
+        return Err(e);
+    }
     let store = w.jobs.store.clone();
     tokio::task::spawn_blocking(move || {
         write_summary(&dir, &frames, dark.as_ref(), dark_variance.as_ref(), &meta)
@@ -217,21 +222,38 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         .map_err(store_err)
 }
 
-/// Says in the log when a capture's frames reached full scale (the record
-/// keeps the counts): those pixels' means are biased low.
-fn saturated(id: i64, c: &CaptureRecord, clipping: crate::measure::Clipping) {
-    if clipping.saturated == 0 {
-        return;
+/// Applies the saturation policy to a capture's frames: beyond the
+/// configured share of a frame at full scale, a warning in the log (the
+/// record keeps the counts) or the capture's failure; those pixels' means
+/// are biased low.
+fn saturated(
+    w: &CaptureWorker,
+    id: i64,
+    c: &CaptureRecord,
+    clipping: crate::measure::Clipping,
+) -> Result<(), JobError> {
+    let (policy, share) = w.saturated;
+    if clipping.saturated == 0 || clipping.saturated_share() <= share {
+        return Ok(());
     }
-    tracing::warn!(
-        capture = id,
-        "capture-{id} saturated: up to {} of {} pixels at full scale in one frame ({:.2} %), in {} frames; lower exposure_us (GET /scenes/{}/exposure plans one per block)",
+    let what = format!(
+        "saturated: up to {} of {} pixels at full scale in one frame ({:.2} %), in {} frames; lower exposure_us (GET /scenes/{}/exposure plans one per block)",
         clipping.saturated,
         clipping.pixels,
         100.0 * clipping.saturated_share(),
         clipping.frames_saturated,
         c.scene
     );
+    match policy {
+        super::config::Saturated::Warn => {
+            tracing::warn!(capture = id, "capture-{id} {what}");
+            Ok(())
+        }
+        super::config::Saturated::Fail => Err(JobError::Capture {
+            id,
+            reason: format!("{what}, or set [camera] saturated = \"warn\" to keep such captures"),
+        }),
+    }
 }
 
 /// Applies the lost-frames policy to a capture's counts: a warning in the

@@ -116,6 +116,27 @@ pub struct CameraConfig {
     /// its capture fails as stalled (and the queue goes on).
     #[serde(default = "stall_slack")]
     pub stall_slack_s: f64,
+    /// What a capture does whose frames have more than `saturated_share` of
+    /// a frame's pixels at full scale.
+    #[serde(default)]
+    pub saturated: Saturated,
+    /// The share of one frame's pixels at full scale (0..1) above which
+    /// `saturated` applies; 0: any saturated pixel.
+    #[serde(default)]
+    pub saturated_share: f64,
+}
+
+/// What a capture with saturated pixels does: their values are lower
+/// bounds, so its measurement is biased low where they fall (issue 38).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Saturated {
+    /// Keep the capture; its record counts them, the log and the
+    /// reconstructions that use it warn.
+    #[default]
+    Warn,
+    /// Fail the capture, naming the count, so that it is taken again.
+    Fail,
 }
 
 fn stall_slack() -> f64 {
@@ -307,6 +328,12 @@ impl Config {
                 "camera.stall_slack_s = {slack}: give 0 to 86400 seconds"
             )));
         }
+        let share = self.camera.saturated_share;
+        if !(share.is_finite() && (0.0..=1.0).contains(&share)) {
+            return Err(ConfigError::Invalid(format!(
+                "camera.saturated_share = {share}: give a share of a frame's pixels from 0 (any saturated pixel) to 1"
+            )));
+        }
         let r = &self.retention;
         if !(r.max_age_days.is_finite() && (0.0..=36_500.0).contains(&r.max_age_days)) {
             return Err(ConfigError::Invalid(format!(
@@ -447,6 +474,14 @@ mod tests {
             c.camera.stall_slack_s = bad;
             let e = c.validate().unwrap_err().to_string();
             assert!(e.contains("camera.stall_slack_s"), "{e}");
+        }
+        assert_eq!(c.camera.saturated, Saturated::Warn);
+        assert_eq!(c.camera.saturated_share, 0.0);
+        for bad in [f64::NAN, -0.1, 1.5] {
+            let mut c = Config::embedded();
+            c.camera.saturated_share = bad;
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains("camera.saturated_share"), "{e}");
         }
     }
 

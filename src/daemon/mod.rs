@@ -295,6 +295,8 @@ impl Daemon {
                 light: d.light.clone(),
                 queue: d.captures.clone(),
                 lost_frames: d.config.camera.lost_frames,
+                // Checked to be 0..=1 by Config::validate.
+                saturated: (d.config.camera.saturated, d.config.camera.saturated_share),
                 // Checked to be 0..=86400 by Config::validate.
                 stall_slack: std::time::Duration::from_secs_f64(
                     d.config.camera.stall_slack_s.clamp(0.0, 86_400.0),

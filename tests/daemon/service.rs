@@ -1431,3 +1431,38 @@ fn a_reconstruction_from_saturated_captures_says_so_first() {
         );
     }
 }
+
+#[test]
+fn a_capture_saturated_beyond_the_configured_share_fails_when_told_to() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(
+        dir.path(),
+        &[
+            ("saturated = \"warn\"", "saturated = \"fail\""),
+            ("saturated_share = 0.0", "saturated_share = 0.08"),
+        ],
+    );
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
+    let capture = |deg: u32| {
+        d.run_job(
+            "/captures",
+            &format!(r#"{{"scene": "brewster-rotating", "pose": "A", "polarizer_deg": {deg}, "exposure_us": 100000, "frames": 2}}"#),
+            Duration::from_secs(60),
+        )
+    };
+    // The glare block: 28,604 of 262,144 pixels (10.9 %) saturated, over 8 %.
+    let over = capture(90);
+    assert_eq!(over["state"], "failed", "{over}");
+    let error = over["error"].as_str().unwrap();
+    assert!(
+        error.contains("28604 of 262144 pixels at full scale"),
+        "{error}"
+    );
+    assert!(error.contains("saturated = \"warn\""), "{error}");
+    let (s, _) = d.get(&format!("/captures/{}/frame.tiff", over["id"]));
+    assert_eq!(s, 404, "a failed capture keeps no frames");
+    // 45 degrees: 13,802 pixels (5.3 %), under the share: kept, counted.
+    let under = capture(45);
+    assert_eq!(under["state"], "done", "{under}");
+    assert_eq!(under["clipping"]["saturated"], 13802, "{under}");
+}
