@@ -338,7 +338,7 @@ function captureRow(c) {
   return el("tr", { id: `capture-${c.id}` },
     el("td", {}, String(c.id)),
     el("td", { class: `kind kind-${c.kind}` }, c.kind),
-    el("td", {}, `${c.scene}, ${block(c)}${dark}`),
+    el("td", {}, `${c.scene}, ${block(c)}${dark}`, planMark(planOf.captures.get(c.id))),
     el("td", { class: `state state-${c.state}` }, c.state + (c.error ? `: ${c.error}` : "")),
     frames, progressiveCell(c.id), el("td", {}, c.state === "done" ? downloads(files) : ""), actions);
 }
@@ -448,7 +448,7 @@ function reconstructionItem(x) {
   figs.append(colorBar());
   const warnings = ((x.report || {}).warnings || []).map((w) => el("li", { class: "warning" }, w));
   const info = el("div", { class: "info" },
-    el("div", {}, el("strong", {}, `#${x.id} ${x.scene} `), el("span", { class: `state state-${x.state}` }, x.state)),
+    el("div", {}, el("strong", {}, `#${x.id} ${x.scene} `), el("span", { class: `state state-${x.state}` }, x.state), planMark(planOf.reconstructions.get(x.id))),
     el("pre", { class: "report" }, reportLines(x)));
   if (warnings.length) info.append(el("ul", { class: "warnings" }, ...warnings));
   if (active(x.state)) {
@@ -842,6 +842,33 @@ $("#mount-zero-form").addEventListener("submit", async (ev) => {
   refreshRig();
 });
 
+// Which recent plan took each capture and queued each reconstruction, so
+// that their rows say so (issue 38: nothing tied them to their plan).
+const planOf = { captures: new Map(), reconstructions: new Map() };
+function planMark(plan) {
+  return plan === undefined ? "" : el("span", { class: "plan-mark", title: "taken by this plan (see the plans list)" }, ` · plan ${plan}`);
+}
+
+// Records the plans' captures and reconstructions and redraws the rows
+// whose plan became known.
+function notePlans(plans) {
+  const captures = new Map();
+  const reconstructions = new Map();
+  for (const p of plans) {
+    p.captures.forEach((c) => captures.set(c.capture, p.id));
+    p.interim.forEach((r) => reconstructions.set(r.reconstruction, p.id));
+    if (p.reconstruction !== null && p.reconstruction !== undefined) reconstructions.set(p.reconstruction, p.id);
+  }
+  const redraw = (kind, next, old, draw) => next.forEach((plan, id) => {
+    if (old.get(id) === plan) return;
+    old.set(id, plan);
+    const json = seen.get(`${kind}-${id}`);
+    if (json) draw(JSON.parse(json), true);
+  });
+  redraw("capture", captures, planOf.captures, upsertCapture);
+  redraw("reconstruction", reconstructions, planOf.reconstructions, upsertReconstruction);
+}
+
 // Recent plans, each with its own Continue and Cancel, and a badge in the
 // header (and the window's title) while any waits for the operator: a
 // waiting plan cannot hide behind a newer one (issue 38).
@@ -850,6 +877,7 @@ async function loadPlans() {
   const r = await api("GET", `/plans?limit=${PLANS_LISTED}`);
   if (r.status !== 200) return;
   $("#plans tbody").replaceChildren(...r.json.map(planRow));
+  notePlans(r.json);
   const waiting = r.json.filter((p) => p.state === "waiting_for_operator");
   const badge = $("#plan-badge");
   badge.hidden = waiting.length === 0;

@@ -1055,7 +1055,23 @@ fn a_saturated_plan_s_captures_are_flagged_on_the_page_with_their_counts() {
             } else {
                 assert!(!flag.contains("saturated"), "{id}: {flag}");
             }
+            // Each row names the plan that took it.
+            let row = until(&format!("capture {id}'s plan"), long, || async {
+                let row = text(&c, &format!("#capture-{id}")).await;
+                row.contains("· plan 1").then_some(row)
+            })
+            .await;
+            assert!(row.contains("brewster-rotating"), "{row}");
         }
+        // And the plan's reconstruction names it too.
+        let rid = plan["reconstruction"].as_i64().unwrap();
+        until("the reconstruction's plan", long, || async {
+            text(&c, &format!("#reconstruction-{rid}"))
+                .await
+                .contains("· plan 1")
+                .then_some(())
+        })
+        .await;
         c.close().await.unwrap();
     });
 }
