@@ -305,6 +305,15 @@ impl FakeBench {
         })
     }
 
+    /// Gives the camera a sensor's shot and read noise (see
+    /// [`Shown::set_sensor_noise`]); without it its frames carry only dither.
+    pub fn with_sensor_noise(self, full_well_e: f64, read_noise_e: f64) -> Self {
+        self.shared()
+            .shown
+            .set_sensor_noise(full_well_e, read_noise_e);
+        self
+    }
+
     /// Plays a bench whose hidden scene an operator switches by hand: dark
     /// frames then need an explicit dark capture (the scene stays lit unless
     /// a dark capture asks for it).

@@ -154,6 +154,17 @@ pub struct Shown {
     counter: AtomicU64,
     /// The sensor's polarizer mosaic, when the bench's camera has one.
     mosaic: Option<MosaicLayout>,
+    /// Shot and read noise of the sensor, when set ([`Shown::set_sensor_noise`]).
+    noise: std::sync::OnceLock<SensorNoise>,
+}
+
+/// A sensor's noise: photon shot noise from its full well, and read noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SensorNoise {
+    /// Electrons at full scale.
+    full_well_e: f64,
+    /// Read noise, electrons RMS.
+    read_noise_e: f64,
 }
 
 impl Shown {
@@ -180,6 +191,7 @@ impl Shown {
             dark_level: 0.01,
             counter: AtomicU64::new(0),
             mosaic: None,
+            noise: std::sync::OnceLock::new(),
         };
         if let Some((pose, deg)) = first {
             shown.select(&pose, deg);
@@ -192,6 +204,27 @@ impl Shown {
     pub fn with_mosaic(mut self, layout: Option<MosaicLayout>) -> Self {
         self.mosaic = layout;
         self
+    }
+
+    /// Gives the camera a sensor's noise: each pixel's electrons
+    /// (`full_well_e` at full scale) with their shot noise, plus
+    /// `read_noise_e`, as a real camera's frames have (the first call wins).
+    ///
+    /// Why: without it a frame's only noise is the ±0.5 DN dither, a
+    /// thousand times less than a real sensor's shot noise at half scale,
+    /// and the model check then measures the rendering's quadrature instead
+    /// of the model (issue 38: the demo's rotating plan left 24.6x the noise).
+    pub fn set_sensor_noise(&self, full_well_e: f64, read_noise_e: f64) {
+        if full_well_e.is_finite()
+            && full_well_e > 0.0
+            && read_noise_e.is_finite()
+            && read_noise_e >= 0.0
+        {
+            let _ = self.noise.set(SensorNoise {
+                full_well_e,
+                read_noise_e,
+            });
+        }
     }
 
     /// Moves the bench to `pose` with the polarizer at `polarizer_deg`
@@ -255,11 +288,24 @@ impl Shown {
             }
         });
         let frame = frame.as_deref();
+        // Electrons per DN and the read noise in DN², when the sensor is noisy.
+        let noise = self.noise.get().map(|n| {
+            (
+                n.full_well_e / full,
+                (n.read_noise_e * full / n.full_well_e).powi(2),
+            )
+        });
         let mut seed = self
             .counter
             .fetch_add(1, Ordering::Relaxed)
             .wrapping_mul(0x9E37_79B9_7F4A_7C15)
             | 1;
+        let mut uniform = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
         for y in 0..h {
             for x in 0..w {
                 let signal = frame
@@ -271,13 +317,16 @@ impl Shown {
                             .map(|&p| f64::from(p))
                     })
                     .unwrap_or(0.0);
-                seed ^= seed << 13;
-                seed ^= seed >> 7;
-                seed ^= seed << 17;
-                let dither = (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
-                let v = ((self.dark_level + signal) * scale * full + dither)
-                    .round()
-                    .clamp(0.0, full);
+                let dither = uniform() - 0.5;
+                let mean = (self.dark_level + signal) * scale * full;
+                // Shot noise (variance = electrons, in DN²: mean / e_per_dn) and
+                // read noise, Gaussian (Box-Muller); the electrons are many.
+                let shot = noise.map_or(0.0, |(e_per_dn, read_dn2)| {
+                    let sd = (mean.max(0.0) / e_per_dn + read_dn2).sqrt();
+                    let (u1, u2) = (uniform().max(f64::MIN_POSITIVE), uniform());
+                    sd * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+                });
+                let v = (mean + shot + dither).round().clamp(0.0, full);
                 put(y * w + x, v);
             }
         }
@@ -393,6 +442,40 @@ mod tests {
         assert!((mean(&s, 500.0) - 255.0).abs() <= 0.5);
         s.scene_on(false);
         assert!((mean(&s, 1000.0) - 10.0).abs() <= 0.5);
+    }
+
+    #[test]
+    fn a_sensor_s_noise_is_its_shot_noise_plus_its_read_noise() {
+        let s = bench();
+        // 4000 DN full scale, 16,000 e- full well: 4 e- per DN. The pixels
+        // sit at 0.51 of full scale, 2040 DN = 8160 e-: shot variance
+        // 8160 e-² = 510 DN², read noise 40 e- = 10 DN: 100 DN² more.
+        s.set_sensor_noise(16_000.0, 40.0);
+        let (mut n, mut sum, mut sum2) = (0.0, 0.0, 0.0);
+        for _ in 0..400 {
+            s.expose((4, 2, 0, 0), 4000.0, 1000.0, 0.0, |_, v| {
+                n += 1.0;
+                sum += v;
+                sum2 += v * v;
+            });
+        }
+        let mean = sum / n;
+        let var = sum2 / n - mean * mean;
+        assert!((mean - 2040.0).abs() < 2.0, "{mean}");
+        // 610 DN² plus the dither's and the rounding's 1/6; 3200 samples
+        // give the variance to about 2.5 %.
+        assert!((var / 610.2 - 1.0).abs() < 0.1, "{var}");
+        // Without it, only the dither and the rounding: under 1 DN².
+        let quiet = bench();
+        let (mut n, mut sum, mut sum2) = (0.0, 0.0, 0.0);
+        for _ in 0..100 {
+            quiet.expose((4, 2, 0, 0), 4000.0, 1000.0, 0.0, |_, v| {
+                n += 1.0;
+                sum += v;
+                sum2 += v * v;
+            });
+        }
+        assert!(sum2 / n - (sum / n).powi(2) < 1.0);
     }
 
     #[test]

@@ -176,6 +176,10 @@ pub struct DemoConfig {
     /// by itself (false: it plays a bench switched by hand).
     #[serde(default = "yes")]
     pub bench_switches_scene: bool,
+    /// Whether the fake camera's frames carry the shot and read noise of
+    /// `[camera] full_well_e` and `read_noise_e` (else only ±0.5 DN dither).
+    #[serde(default)]
+    pub sensor_noise: bool,
 }
 
 fn yes() -> bool {

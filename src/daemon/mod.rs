@@ -146,6 +146,10 @@ impl CameraSetup {
             if !config.demo.bench_switches_scene {
                 fake = fake.operated_by_hand();
             }
+            if config.demo.sensor_noise {
+                fake =
+                    fake.with_sensor_noise(config.camera.full_well_e, config.camera.read_noise_e);
+            }
             tracing::info!(
                 address,
                 sensor = ?config.camera.fake_sensor,
@@ -172,7 +176,10 @@ impl CameraSetup {
     /// involved (see [`crate::camera::synthetic`]).
     pub async fn synthetic(config: &Config, scenes: &Arc<Scenes>) -> Result<Self, DaemonError> {
         let (frames, c) = demo_frames(&config.demo, scenes).await?;
-        let bench = SyntheticBench::new(frames, DEMO_REFERENCE_EXPOSURE_US);
+        let mut bench = SyntheticBench::new(frames, DEMO_REFERENCE_EXPOSURE_US);
+        if config.demo.sensor_noise {
+            bench = bench.with_sensor_noise(config.camera.full_well_e, config.camera.read_noise_e);
+        }
         Ok(Self {
             opener: bench.opener(),
             bench: Arc::new(bench),

@@ -529,3 +529,50 @@ fn a_mount_that_slips_pauses_the_plan_and_continue_takes_the_block_again() {
     assert_eq!(d.json(&format!("/captures/{failed}"))["state"], "failed");
     assert_eq!(done["captures"].as_array().map(Vec::len), Some(4), "{done}");
 }
+
+#[test]
+fn with_a_real_sensor_s_noise_the_readme_s_demo_is_explained_by_its_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(
+        dir.path(),
+        &[("sensor_noise = false", "sensor_noise = true")],
+    );
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
+    let long = Duration::from_secs(240);
+    let misfit = |r: &serde_json::Value| {
+        r["report"]["model_check"]["misfit_to_noise"]
+            .as_f64()
+            .unwrap_or(f64::NAN)
+    };
+    // The README's single crossed capture and its rotating plan.
+    let c = d.run_job(
+        "/captures",
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 4, "dark_frames": 2}"#,
+        long,
+    );
+    assert_eq!(c["state"], "done", "{c}");
+    let crossed = d.run_job(
+        "/reconstructions",
+        &format!(
+            r#"{{"scene": "brewster-crossed", "captures": [{}], "truth": "letter"}}"#,
+            c["id"]
+        ),
+        long,
+    );
+    let (s, body, loc) = d.post(
+        "/plans",
+        r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 4, "dark_frames": 1, "reconstruct": {"truth": "letter"}}"#,
+    );
+    assert_eq!(s, 202, "{body}");
+    let plan = wait_plan(&d, &loc.unwrap(), &["done", "failed", "cancelled"], long);
+    assert_eq!(plan["state"], "done", "{plan}");
+    let rotating = d.json(&format!("/reconstructions/{}", plan["reconstruction"]));
+    let (mc, mr) = (misfit(&crossed), misfit(&rotating));
+    println!("misfit to noise with sensor noise: crossed {mc:.2}x, rotating plan {mr:.2}x");
+    assert!(mc <= 1.5, "crossed: {}", crossed["report"]);
+    assert!(mr <= 1.5, "rotating: {}", rotating["report"]);
+    for r in [&crossed, &rotating] {
+        let w = r["report"]["warnings"].to_string();
+        assert!(!w.contains("does not explain"), "{w}");
+    }
+}
