@@ -550,12 +550,29 @@ fn polarizer_model(t: Option<toml::Table>) -> Result<PolarizerModel, SceneError>
 
 fn validate(raw: RawFile, dir: &Path) -> Result<Scene, SceneError> {
     let polarizer = polarizer_model(raw.polarizer)?;
-    let w = raw.wall;
     let left_out = LeftOut {
-        wall_supersample: w.supersample.is_none(),
+        wall_supersample: raw.wall.supersample.is_none(),
         scene_supersample: raw.scene.supersample.is_none(),
-        sampling: w.sampling.is_none(),
+        sampling: raw.wall.sampling.is_none(),
     };
+    let wall = validate_wall(raw.wall)?;
+    let hidden = validate_hidden(raw.scene, &wall.plane)?;
+    let poses = validate_poses(raw.pose, &wall.plane, &hidden.plane)?;
+    let occluders = validate_occluders(raw.occluder, dir)?;
+    check_pixel_sampling(wall.sampling, &poses)?;
+    Ok(Scene {
+        wall,
+        hidden,
+        poses,
+        occluders,
+        polarizer,
+        left_out,
+    })
+}
+
+/// `[wall]`: its plane, its BRDF (roughness, index, weights, diffuse model) and its sampling.
+/// The first section checked, so its errors come before any of `[scene]`'s, as they always have.
+fn validate_wall(w: RawWall) -> Result<Wall, SceneError> {
     let sampling = wall_sampling(w.sampling)?;
     let wall_plane = plane(
         "wall",
@@ -592,8 +609,16 @@ fn validate(raw: RawFile, dir: &Path) -> Result<Scene, SceneError> {
         kd: w.kd,
         diffuse: diffuse_model(w.diffuse)?,
     };
+    Ok(Wall {
+        plane: wall_plane,
+        brdf,
+        sampling,
+    })
+}
 
-    let s = raw.scene;
+/// `[scene]`: the emitting plane, which must be in front of `wall`, with its lobe and polarization.
+/// The side checks need the wall's plane, so this runs after [`validate_wall`].
+fn validate_hidden(s: RawScenePlane, wall: &Plane) -> Result<HiddenScene, SceneError> {
     let scene_plane = plane(
         "scene",
         s.center,
@@ -603,8 +628,8 @@ fn validate(raw: RawFile, dir: &Path) -> Result<Scene, SceneError> {
         s.grid,
         s.supersample.unwrap_or(1),
     )?;
-    let n = wall_plane.normal;
-    let c0 = wall_plane.center;
+    let n = wall.normal;
+    let c0 = wall.center;
     let s0 = scene_plane.center;
     if n.dot(&(s0 - c0)) <= 0.0 {
         return Err(SceneError::invalid(
@@ -637,185 +662,257 @@ fn validate(raw: RawFile, dir: &Path) -> Result<Scene, SceneError> {
         }
     }
     let lobe = s.lobe.filter(|l| l.iter().any(|n| *n != 0.0));
+    Ok(HiddenScene {
+        plane: scene_plane,
+        emitter: s.emitter,
+        lobe,
+        polarization,
+    })
+}
 
-    if raw.pose.is_empty() {
+/// `[[pose]]`: at least one, each checked in file order against the earlier ones.
+/// Names must be unique, so each pose is validated knowing the poses before it.
+fn validate_poses(raw: Vec<RawPose>, wall: &Plane, scene: &Plane) -> Result<Vec<Pose>, SceneError> {
+    if raw.is_empty() {
         return Err(SceneError::invalid(
             "pose",
             "[]",
             "at least one [[pose]] is required",
         ));
     }
-    let mut poses = Vec::with_capacity(raw.pose.len());
-    for (i, p) in raw.pose.into_iter().enumerate() {
-        let key = |k: &str| format!("pose[{i}].{k}");
-        let name = p.name.trim().to_string();
-        if name.is_empty()
-            || name.len() > 64
-            || !name
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
-        {
+    let mut poses = Vec::with_capacity(raw.len());
+    for (i, p) in raw.into_iter().enumerate() {
+        let pose = validate_pose(i, p, &poses, wall, scene)?;
+        poses.push(pose);
+    }
+    Ok(poses)
+}
+
+/// `pose[i]`: its name, camera (in front of the wall), analyzers, homography and frame.
+/// One pose's keys together, so every error names `pose[i].key` as before.
+fn validate_pose(
+    i: usize,
+    p: RawPose,
+    earlier: &[Pose],
+    wall: &Plane,
+    scene: &Plane,
+) -> Result<Pose, SceneError> {
+    let key = |k: &str| format!("pose[{i}].{k}");
+    let name = pose_name(&key, &p.name, earlier)?;
+    let camera = point(&key("camera"), p.camera)?;
+    if wall.normal.dot(&(camera - wall.center)) <= 0.0 {
+        return Err(SceneError::invalid(
+            key("camera"),
+            p.camera,
+            format!("pose {name:?}: the camera is on or behind the wall"),
+        ));
+    }
+    let mosaic = mosaic(&key, &p)?;
+    let analyzers = pose_analyzers(
+        &key,
+        &p,
+        &name,
+        mosaic.as_ref(),
+        &wall.center,
+        &scene.center,
+        &camera,
+    )?;
+    let homography = match p.homography {
+        None => None,
+        Some(h) => Some(Homography::new(h).ok_or_else(|| {
+            SceneError::invalid(
+                key("homography"),
+                h,
+                "must be a finite, invertible 3x3 matrix",
+            )
+        })?),
+    };
+    let frame = camera_frame(&key, p.region, p.binning)?;
+    if let (Some(_), Some(f)) = (&mosaic, &frame) {
+        if f.binning != [1, 1] {
             return Err(SceneError::invalid(
-                key("name"),
-                &p.name,
-                "must be 1-64 letters, digits, '-', '_' or '.'",
+                key("binning"),
+                f.binning,
+                "must be [1, 1] on a pose with analyzer = \"mosaic\": a binned pixel mixes the micro-polarizers of a 2x2 cell",
             ));
         }
-        if poses.iter().any(|q: &Pose| q.name == name) {
-            return Err(SceneError::invalid(
-                key("name"),
-                &name,
-                "is used by an earlier pose; names must be unique",
-            ));
-        }
-        let camera = point(&key("camera"), p.camera)?;
-        if n.dot(&(camera - c0)) <= 0.0 {
-            return Err(SceneError::invalid(
-                key("camera"),
-                p.camera,
-                format!("pose {name:?}: the camera is on or behind the wall"),
-            ));
-        }
-        let mosaic = mosaic(&key, &p)?;
-        let polarizer_deg = p.polarizer_deg.clone().unwrap_or_default();
-        let mut analyzers = Vec::with_capacity(polarizer_deg.len());
-        if (!polarizer_deg.is_empty() || mosaic.is_some())
-            && crossed_axis(&c0, &s0, &camera).is_none()
-        {
-            let k = if mosaic.is_some() {
-                "analyzer"
-            } else {
-                "polarizer_deg"
-            };
-            return Err(SceneError::invalid(
-                key(k),
-                &p.polarizer_deg,
-                format!("pose {name:?}: the crossed axis is undefined because the camera, the wall centre and the scene centre are collinear"),
-            ));
-        }
-        if let Some(m) = &mosaic {
-            // The crossed axis exists (checked above), so every angle has a micro-polarizer.
-            analyzers.extend(Analyzer::mosaic(&c0, &s0, &camera, m).into_iter().flatten());
-        }
-        for (k, &deg) in polarizer_deg.iter().enumerate() {
-            if !(-360.0..=360.0).contains(&deg) {
-                return Err(SceneError::invalid(
-                    key("polarizer_deg"),
-                    &polarizer_deg,
-                    "angles must be degrees from -360 to 360",
-                ));
-            }
-            // A linear polarizer at a and at a + 180 degrees is the same setting.
-            if let Some(&earlier) = polarizer_deg[..k]
-                .iter()
-                .find(|&&e| same_polarizer_setting(e, deg))
-            {
-                return Err(SceneError::invalid(
-                    key("polarizer_deg"),
-                    &polarizer_deg,
-                    format!("{deg} and {earlier} degrees are the same polarizer setting (angles repeat every 180 degrees); list each setting once"),
-                ));
-            }
-            // The crossed axis exists (checked above), so every angle has a sheet.
-            if let Some(a) = Analyzer::at(&c0, &s0, &camera, deg) {
-                analyzers.push(a);
-            }
-        }
-        let homography = match p.homography {
-            None => None,
-            Some(h) => Some(Homography::new(h).ok_or_else(|| {
-                SceneError::invalid(
-                    key("homography"),
-                    h,
-                    "must be a finite, invertible 3x3 matrix",
-                )
-            })?),
+    }
+    Ok(Pose {
+        name,
+        camera,
+        analyzers,
+        mosaic,
+        homography,
+        frame,
+    })
+}
+
+/// A pose's name, trimmed: 1-64 letters, digits, '-', '_' or '.', unused by `earlier`.
+/// Captures and API requests name poses, so a name must be safe and unambiguous.
+fn pose_name(
+    key: &dyn Fn(&str) -> String,
+    raw: &str,
+    earlier: &[Pose],
+) -> Result<String, SceneError> {
+    let name = raw.trim().to_string();
+    if name.is_empty()
+        || name.len() > 64
+        || !name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+    {
+        return Err(SceneError::invalid(
+            key("name"),
+            raw,
+            "must be 1-64 letters, digits, '-', '_' or '.'",
+        ));
+    }
+    if earlier.iter().any(|q| q.name == name) {
+        return Err(SceneError::invalid(
+            key("name"),
+            &name,
+            "is used by an earlier pose; names must be unique",
+        ));
+    }
+    Ok(name)
+}
+
+/// A pose's analyzers in block order: the mosaic's micro-polarizers, then the sheet's angles.
+/// Both need the crossed axis of camera `o`, wall centre `c0` and scene centre `s0`, checked first.
+fn pose_analyzers(
+    key: &dyn Fn(&str) -> String,
+    p: &RawPose,
+    name: &str,
+    mosaic: Option<&Mosaic>,
+    c0: &Vec3,
+    s0: &Vec3,
+    camera: &Vec3,
+) -> Result<Vec<Analyzer>, SceneError> {
+    let polarizer_deg = p.polarizer_deg.clone().unwrap_or_default();
+    let mut analyzers = Vec::with_capacity(polarizer_deg.len());
+    if (!polarizer_deg.is_empty() || mosaic.is_some()) && crossed_axis(c0, s0, camera).is_none() {
+        let k = if mosaic.is_some() {
+            "analyzer"
+        } else {
+            "polarizer_deg"
         };
-        let frame = camera_frame(&key, p.region, p.binning)?;
-        if let (Some(_), Some(f)) = (&mosaic, &frame) {
-            if f.binning != [1, 1] {
-                return Err(SceneError::invalid(
-                    key("binning"),
-                    f.binning,
-                    "must be [1, 1] on a pose with analyzer = \"mosaic\": a binned pixel mixes the micro-polarizers of a 2x2 cell",
-                ));
-            }
-        }
-        poses.push(Pose {
-            name,
-            camera,
-            analyzers,
-            mosaic,
-            homography,
-            frame,
-        });
+        return Err(SceneError::invalid(
+            key(k),
+            &p.polarizer_deg,
+            format!("pose {name:?}: the crossed axis is undefined because the camera, the wall centre and the scene centre are collinear"),
+        ));
     }
-
-    let mut occluders = Vec::with_capacity(raw.occluder.len());
-    for (i, o) in raw.occluder.into_iter().enumerate() {
-        let key = |k: &str| format!("occluder[{i}].{k}");
-        if o.mesh.is_none() {
-            let only = "belongs to a mesh occluder (mesh = \"file.obj\"); remove it or add mesh";
-            if let Some(v) = o.scale {
-                return Err(SceneError::invalid(key("scale"), v, only));
-            }
-            if let Some(v) = o.offset {
-                return Err(SceneError::invalid(key("offset"), v, only));
-            }
+    if let Some(m) = mosaic {
+        // The crossed axis exists (checked above), so every angle has a micro-polarizer.
+        analyzers.extend(Analyzer::mosaic(c0, s0, camera, m).into_iter().flatten());
+    }
+    for (k, &deg) in polarizer_deg.iter().enumerate() {
+        if !(-360.0..=360.0).contains(&deg) {
+            return Err(SceneError::invalid(
+                key("polarizer_deg"),
+                &polarizer_deg,
+                "angles must be degrees from -360 to 360",
+            ));
         }
-        match (o.rect, o.sphere, o.mesh) {
-            (None, None, Some(path)) => {
-                let mesh = match o.loaded {
-                    Some(mesh) => mesh,
-                    None => Arc::new(mesh_occluder(&key, dir, path, o.scale, o.offset)?),
-                };
-                occluders.push(Occluder::Mesh(mesh));
-            }
-            (Some(r), None, None) => {
-                let center = point(&key("rect.center"), r.center)?;
-                let half_u = point(&key("rect.half_u"), r.half_u)?;
-                let half_v = point(&key("rect.half_v"), r.half_v)?;
-                if half_u.cross(&half_v).norm()
-                    <= 1e-12 * half_u.norm().max(1e-300) * half_v.norm().max(1e-300)
-                    || half_u.norm() == 0.0
-                    || half_v.norm() == 0.0
-                {
-                    return Err(SceneError::invalid(
-                        key("rect"),
-                        (r.half_u, r.half_v),
-                        "half_u and half_v must be non-zero and not parallel",
-                    ));
-                }
-                occluders.push(Occluder::Rect {
-                    center,
-                    half_u,
-                    half_v,
-                });
-            }
-            (None, Some(sp), None) => {
-                let center = point(&key("sphere.center"), sp.center)?;
-                if !(sp.radius > 0.0 && sp.radius.is_finite()) {
-                    return Err(SceneError::invalid(
-                        key("sphere.radius"),
-                        sp.radius,
-                        "must be positive metres",
-                    ));
-                }
-                occluders.push(Occluder::Sphere {
-                    center,
-                    radius: sp.radius,
-                });
-            }
-            _ => {
-                return Err(SceneError::invalid(
-                    key(""),
-                    "",
-                    "give exactly one of rect = {...}, sphere = {...} or mesh = \"file.obj\"",
-                ));
-            }
+        // A linear polarizer at a and at a + 180 degrees is the same setting.
+        if let Some(&earlier) = polarizer_deg[..k]
+            .iter()
+            .find(|&&e| same_polarizer_setting(e, deg))
+        {
+            return Err(SceneError::invalid(
+                key("polarizer_deg"),
+                &polarizer_deg,
+                format!("{deg} and {earlier} degrees are the same polarizer setting (angles repeat every 180 degrees); list each setting once"),
+            ));
+        }
+        // The crossed axis exists (checked above), so every angle has a sheet.
+        if let Some(a) = Analyzer::at(c0, s0, camera, deg) {
+            analyzers.push(a);
         }
     }
+    Ok(analyzers)
+}
 
+/// `[[occluder]]`: each checked in file order, meshes read from `dir` unless already loaded.
+/// Kept apart from the poses: occluders need nothing from the other sections.
+fn validate_occluders(raw: Vec<RawOccluder>, dir: &Path) -> Result<Vec<Occluder>, SceneError> {
+    let mut occluders = Vec::with_capacity(raw.len());
+    for (i, o) in raw.into_iter().enumerate() {
+        occluders.push(validate_occluder(i, o, dir)?);
+    }
+    Ok(occluders)
+}
+
+/// `occluder[i]`: exactly one of a rect, a sphere or a mesh (with its `scale` and `offset`).
+/// One occluder's keys together, so every error names `occluder[i].key` as before.
+fn validate_occluder(i: usize, o: RawOccluder, dir: &Path) -> Result<Occluder, SceneError> {
+    let key = |k: &str| format!("occluder[{i}].{k}");
+    if o.mesh.is_none() {
+        let only = "belongs to a mesh occluder (mesh = \"file.obj\"); remove it or add mesh";
+        if let Some(v) = o.scale {
+            return Err(SceneError::invalid(key("scale"), v, only));
+        }
+        if let Some(v) = o.offset {
+            return Err(SceneError::invalid(key("offset"), v, only));
+        }
+    }
+    match (o.rect, o.sphere, o.mesh) {
+        (None, None, Some(path)) => {
+            let mesh = match o.loaded {
+                Some(mesh) => mesh,
+                None => Arc::new(mesh_occluder(&key, dir, path, o.scale, o.offset)?),
+            };
+            Ok(Occluder::Mesh(mesh))
+        }
+        (Some(r), None, None) => rect_occluder(&key, r),
+        (None, Some(sp), None) => {
+            let center = point(&key("sphere.center"), sp.center)?;
+            if !(sp.radius > 0.0 && sp.radius.is_finite()) {
+                return Err(SceneError::invalid(
+                    key("sphere.radius"),
+                    sp.radius,
+                    "must be positive metres",
+                ));
+            }
+            Ok(Occluder::Sphere {
+                center,
+                radius: sp.radius,
+            })
+        }
+        _ => Err(SceneError::invalid(
+            key(""),
+            "",
+            "give exactly one of rect = {...}, sphere = {...} or mesh = \"file.obj\"",
+        )),
+    }
+}
+
+/// A `rect` occluder: finite centre and half-axes, non-zero and not parallel.
+/// Parallel or zero half-axes span no area, so the rectangle would cast no shadow.
+fn rect_occluder(key: &dyn Fn(&str) -> String, r: RawRect) -> Result<Occluder, SceneError> {
+    let center = point(&key("rect.center"), r.center)?;
+    let half_u = point(&key("rect.half_u"), r.half_u)?;
+    let half_v = point(&key("rect.half_v"), r.half_v)?;
+    if half_u.cross(&half_v).norm() <= 1e-12 * half_u.norm().max(1e-300) * half_v.norm().max(1e-300)
+        || half_u.norm() == 0.0
+        || half_v.norm() == 0.0
+    {
+        return Err(SceneError::invalid(
+            key("rect"),
+            (r.half_u, r.half_v),
+            "half_u and half_v must be non-zero and not parallel",
+        ));
+    }
+    Ok(Occluder::Rect {
+        center,
+        half_u,
+        half_v,
+    })
+}
+
+/// `sampling = "pixels"` needs every pose's homography.
+/// Rows over an element's pixels map the wall to the image through it (MODEL.md "Rows that match the measurement").
+fn check_pixel_sampling(sampling: WallSampling, poses: &[Pose]) -> Result<(), SceneError> {
     if sampling == WallSampling::Pixels {
         if let Some(i) = poses.iter().position(|p| p.homography.is_none()) {
             return Err(SceneError::invalid(
@@ -825,24 +922,7 @@ fn validate(raw: RawFile, dir: &Path) -> Result<Scene, SceneError> {
             ));
         }
     }
-
-    Ok(Scene {
-        wall: Wall {
-            plane: wall_plane,
-            brdf,
-            sampling,
-        },
-        hidden: HiddenScene {
-            plane: scene_plane,
-            emitter: s.emitter,
-            lobe,
-            polarization,
-        },
-        poses,
-        occluders,
-        polarizer,
-        left_out,
-    })
+    Ok(())
 }
 
 #[cfg(test)]
