@@ -277,6 +277,21 @@ impl PixelMap {
         cell: Option<[u32; 2]>,
         pose: &str,
     ) -> Result<Self, FootprintError> {
+        let g = geometry.unwrap_or(FrameGeometry::plain(0, 0));
+        let lattice = Self::lattice(h, wall, &g, pose)?;
+        let rows = Self::hits(h, wall, geometry, &g, cell, lattice);
+        let counts = Self::counts(&rows, wall, &g, pose)?;
+        Ok(Self::assemble(rows, &counts, geometry))
+    }
+
+    /// The lattice indices `[(x0, x1), (y0, y1)]` of the wall's image bounding box in `g`.
+    /// Bounds the scan, and refuses a homography that images the wall larger than any sensor.
+    fn lattice(
+        h: &Homography,
+        wall: &Plane,
+        g: &FrameGeometry,
+        pose: &str,
+    ) -> Result<[(i64, i64); 2], FootprintError> {
         let [hu, hv] = [wall.size[0] / 2.0, wall.size[1] / 2.0];
         let mut lo = [f64::INFINITY; 2];
         let mut hi = [f64::NEG_INFINITY; 2];
@@ -292,7 +307,6 @@ impl PixelMap {
             lo = [lo[0].min(x), lo[1].min(y)];
             hi = [hi[0].max(x), hi[1].max(y)];
         }
-        let g = geometry.unwrap_or(FrameGeometry::plain(0, 0));
         let (x0, x1) = g.indices(0, lo[0], hi[0]);
         let (y0, y1) = g.indices(1, lo[1], hi[1]);
         let points = ((x1 - x0 + 1).max(0) as u64).saturating_mul((y1 - y0 + 1).max(0) as u64);
@@ -303,6 +317,20 @@ impl PixelMap {
                 max: MAX_LATTICE_POINTS,
             });
         }
+        Ok([(x0, x1), (y0, y1)])
+    }
+
+    /// Per lattice row of `lattice`: the hits inside the frame, and the elements seen outside it.
+    /// Each pixel centre goes through `H^-1` to its wall element and footprint area (MODEL.md "From camera frames to i").
+    fn hits(
+        h: &Homography,
+        wall: &Plane,
+        geometry: Option<FrameGeometry>,
+        g: &FrameGeometry,
+        cell: Option<[u32; 2]>,
+        lattice: [(i64, i64); 2],
+    ) -> Vec<(Vec<Hit>, Vec<u32>)> {
+        let [(x0, x1), (y0, y1)] = lattice;
         let (nu, nv) = (wall.grid.nu, wall.grid.nv);
         let inv = h.inverse_matrix();
         let det = h.inverse_determinant().abs();
@@ -327,7 +355,7 @@ impl PixelMap {
             cell.is_none_or(|cell| (c.round() as i64).rem_euclid(2) == i64::from(cell[a]))
         };
         // Per lattice row: the hits inside the frame, and the elements seen outside it.
-        let rows: Vec<(Vec<Hit>, Vec<u32>)> = (y0..=y1)
+        (y0..=y1)
             .into_par_iter()
             .map(|yi| {
                 let mut hits = Vec::new();
@@ -360,11 +388,21 @@ impl PixelMap {
                 }
                 (hits, outside)
             })
-            .collect();
+            .collect()
+    }
+
+    /// Pixels per wall element in `rows`, once every element holds one and none is cut by the frame.
+    /// A mean over part of an element, or over none of it, would not be that element's `i_j`.
+    fn counts(
+        rows: &[(Vec<Hit>, Vec<u32>)],
+        wall: &Plane,
+        g: &FrameGeometry,
+        pose: &str,
+    ) -> Result<Vec<usize>, FootprintError> {
         let n = wall.grid.count();
         let mut counts = vec![0usize; n];
         let mut cut = vec![false; n];
-        for (hits, outside) in &rows {
+        for (hits, outside) in rows {
             hits.iter().for_each(|h| counts[h.element as usize] += 1);
             outside.iter().for_each(|&e| cut[e as usize] = true);
         }
@@ -397,9 +435,20 @@ impl PixelMap {
                 iv,
             });
         }
+        Ok(counts)
+    }
+
+    /// The map in compressed rows from `rows`' hits, with weights `a_p / sum a_p` per element.
+    /// Element-major order lets [`PixelMap::average`] sum each element's pixels in one slice.
+    fn assemble(
+        rows: Vec<(Vec<Hit>, Vec<u32>)>,
+        counts: &[usize],
+        geometry: Option<FrameGeometry>,
+    ) -> Self {
+        let n = counts.len();
         let mut starts = Vec::with_capacity(n + 1);
         starts.push(0);
-        for c in &counts {
+        for c in counts {
             starts.push(starts[starts.len() - 1] + c);
         }
         let total = starts[n];
@@ -425,13 +474,13 @@ impl PixelMap {
             let sum: f64 = weights[r.clone()].iter().sum();
             weights[r].iter_mut().for_each(|w| *w /= sum);
         }
-        Ok(Self {
+        Self {
             starts,
             pixels,
             weights,
             points: pts,
             geometry,
-        })
+        }
     }
 }
 
