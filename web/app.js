@@ -237,12 +237,20 @@ async function refreshLive() {
   }
 }
 
+// Zoom in sensor pixels: 1x shows one screen pixel per frame pixel (the
+// whole 512 px frame, not half of it), and every zoom opens on the frame's
+// centre, where the wall is aimed, not on its top-left corner (issue 38).
 function applyZoom() {
   const z = Number($("#zoom").value);
-  $("#live").style.width = `${256 * z}px`;
-  $("#live").style.height = "auto";
+  const img = $("#live");
+  img.style.width = `${(img.naturalWidth || 512) * z}px`;
+  img.style.height = "auto";
+  const box = $("#live-box");
+  box.scrollLeft = Math.max(0, (box.scrollWidth - box.clientWidth) / 2);
+  box.scrollTop = Math.max(0, (box.scrollHeight - box.clientHeight) / 2);
 }
 $("#zoom").addEventListener("change", applyZoom);
+$("#live").addEventListener("load", () => { if (!$("#live").dataset.sized) { $("#live").dataset.sized = "1"; applyZoom(); } });
 $("#stretch").addEventListener("change", refreshLive);
 $("#view").addEventListener("change", refreshLive);
 $("#live-on").addEventListener("change", () => { if ($("#live-on").checked) refreshLive(); });

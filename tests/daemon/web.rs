@@ -598,10 +598,16 @@ fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_delete
         println!("an idle page in 6 s: {} requests: {requests:?}", requests.len());
         assert!(requests.len() <= 12, "more than 2 requests a second: {requests:?}");
         assert!(requests.iter().filter(|r| r.starts_with("/camera/frame.png?live=true")).count() >= 3, "{requests:?}");
-        // Zoom: the live frame at 4x its panel width, scrollable.
+        // Zoom in sensor pixels: 1x is the whole 512 px frame, one screen
+        // pixel each (it showed half); 4x is 2048 px, scrollable, and opens
+        // on the frame's centre (it opened on the black top-left corner).
+        assert_eq!(js(&c, "return document.querySelector('#live').clientWidth;").await, 512);
         choose(&c, "#zoom", "4").await;
         js(&c, "document.querySelector('#zoom').dispatchEvent(new Event('change')); return true;").await;
-        assert_eq!(js(&c, "return document.querySelector('#live').clientWidth;").await, 1024);
+        assert_eq!(js(&c, "return document.querySelector('#live').clientWidth;").await, 2048);
+        let centred = js(&c, "const b = document.querySelector('#live-box'); return [b.scrollLeft, (b.scrollWidth - b.clientWidth) / 2, b.scrollTop, (b.scrollHeight - b.clientHeight) / 2];").await;
+        let v: Vec<f64> = serde_json::from_value(centred).unwrap();
+        assert!(v[1] > 0.0 && (v[0] - v[1]).abs() <= 1.0 && (v[2] - v[3]).abs() <= 1.0, "{v:?}");
         // A selection in a report survives the page's updates (no redraw without a change).
         js(&c, "const r = document.querySelector('#reconstruction-1 .report'); getSelection().selectAllChildren(r); return true;").await;
         tokio::time::sleep(Duration::from_secs(3)).await;
