@@ -407,7 +407,8 @@ async function deleteCapture(id, withReconstructions) {
     r.json.reconstructions.forEach(removeReconstruction);
     return;
   }
-  alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`);
+  // The API's way out (a query string) is the button below on the page.
+  alertIn(msg, ((r.json && r.json.detail) || `HTTP ${r.status}`).replace(/, or ask for \?with_reconstructions=true$/, ""));
   if (r.status === 409 && !withReconstructions && /reconstructions? [0-9, ]+ uses?/.test(msg.textContent)) {
     const b = twoStep("delete it with them", "Really delete them all?", () => deleteCapture(id, true));
     b.id = "delete-with-reconstructions";

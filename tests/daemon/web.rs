@@ -1081,3 +1081,53 @@ fn a_saturated_plan_s_captures_are_flagged_on_the_page_with_their_counts() {
         c.close().await.unwrap();
     });
 }
+
+#[test]
+fn deleting_a_capture_a_reconstruction_uses_offers_a_button_not_a_query_string() {
+    let page = Page::start();
+    let long = Duration::from_secs(60);
+    let c = page.d.run_job(
+        "/captures",
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 2}"#,
+        long,
+    );
+    assert_eq!(c["state"], "done", "{c}");
+    let r = page.d.run_job(
+        "/reconstructions",
+        r#"{"scene": "brewster-crossed", "captures": [1]}"#,
+        long,
+    );
+    assert_eq!(r["state"], "done", "{r}");
+    page.rt.block_on(async {
+        let c = page.open().await;
+        until("capture 1's row", long, || async {
+            (!text(&c, "#capture-1").await.is_empty()).then_some(())
+        })
+        .await;
+        // Delete, then Really delete?
+        click(&c, "#capture-1 button.delete").await;
+        click(&c, "#capture-1 button.delete").await;
+        let said = until("the refusal", long, || async {
+            let t = text(&c, "#captures-message").await;
+            t.contains("uses it").then_some(t)
+        })
+        .await;
+        assert!(!said.contains("?with_reconstructions"), "{said}");
+        assert!(said.contains("reconstruction 1 uses it"), "{said}");
+        // The way out is the button: twice, and both are gone.
+        click(&c, "#delete-with-reconstructions").await;
+        click(&c, "#delete-with-reconstructions").await;
+        until("the deletion", long, || async {
+            text(&c, "#captures-message")
+                .await
+                .contains("deleted capture 1 and reconstruction 1")
+                .then_some(())
+        })
+        .await;
+        c.close().await.unwrap();
+    });
+    let (s, _) = page.d.get("/captures/1");
+    assert_eq!(s, 404);
+    let (s, _) = page.d.get("/reconstructions/1");
+    assert_eq!(s, 404);
+}
