@@ -210,6 +210,20 @@ function drawHistogram(levels) {
   cv.title = `histogram over ${lo}–${hi} DN of ${levels.full_scale} (log counts)`;
 }
 
+// The live view's levels in the units of what it shows: DN and saturation
+// for the frame itself; DoLP in % and AoLP in degrees for the Stokes views,
+// whose 16 bits encode 0..1 and -90..90 degrees, where "saturated" and "DN"
+// mean nothing (issue 38); their saturation is the raw view's.
+function levelsText(levels, view) {
+  const full = levels.full_scale;
+  if (view === "dolp" || view === "aolp") {
+    const v = view === "dolp" ? (x) => `${(100 * x / full).toFixed(1)} %` : (x) => `${(180 * x / full - 90).toFixed(1)}°`;
+    return `${view === "dolp" ? "DoLP" : "AoLP"} peak ${v(levels.peak * full)} · stretch ${v(levels.low)}–${v(levels.high)} · histogram ${v(levels.histogram_low)}–${v(levels.histogram_high)}, log counts · saturation: see the raw view`;
+  }
+  const sat = levels.saturated > 0 ? ` · ${(100 * levels.saturated).toFixed(2)} % saturated` : " · none saturated";
+  return `peak ${(100 * levels.peak).toFixed(1)} % of full scale${sat} · stretch ${levels.low}–${levels.high} DN of ${full} · histogram ${levels.histogram_low}–${levels.histogram_high} DN, log counts`;
+}
+
 let liveBusy = false;
 async function refreshLive() {
   if (liveBusy) return;
@@ -227,10 +241,9 @@ async function refreshLive() {
     text($("#live-caption"), `frame at ${new Date().toLocaleTimeString()}` + (stretch ? " (auto-contrast)" : " (full scale)"));
     if (levels) {
       drawHistogram(levels);
-      const sat = levels.saturated > 0 ? ` · ${(100 * levels.saturated).toFixed(2)} % saturated` : " · none saturated";
       const lv = $("#levels");
-      lv.className = levels.saturated > 0 ? "warning" : "";
-      text(lv, `peak ${(100 * levels.peak).toFixed(1)} % of full scale${sat} · stretch ${levels.low}–${levels.high} DN of ${levels.full_scale} · histogram ${levels.histogram_low}–${levels.histogram_high} DN, log counts`);
+      lv.className = view === "raw" && levels.saturated > 0 ? "warning" : "";
+      text(lv, levelsText(levels, view));
     }
   } finally {
     liveBusy = false;

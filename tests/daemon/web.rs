@@ -1131,3 +1131,34 @@ fn deleting_a_capture_a_reconstruction_uses_offers_a_button_not_a_query_string()
     let (s, _) = page.d.get("/reconstructions/1");
     assert_eq!(s, 404);
 }
+
+#[test]
+fn the_stokes_views_give_their_levels_in_their_own_units_not_dn() {
+    let page = Page::start();
+    page.rt.block_on(async {
+        let c = page.open().await;
+        let levels = r#"{"full_scale": 65535, "peak": 0.5, "saturated": 0.2, "low": 0, "high": 32768, "histogram_low": 0, "histogram_high": 65535}"#;
+        let say = |view: &'static str| {
+            let c = &c;
+            async move {
+                js(c, &format!("return levelsText({levels}, {view:?});"))
+                    .await
+                    .as_str()
+                    .unwrap_or_default()
+                    .to_string()
+            }
+        };
+        let dolp = say("dolp").await;
+        assert!(dolp.starts_with("DoLP peak 50.0 %"), "{dolp}");
+        assert!(dolp.contains("stretch 0.0 %–50.0 %"), "{dolp}");
+        assert!(!dolp.contains("DN") && !dolp.contains("% saturated"), "{dolp}");
+        let aolp = say("aolp").await;
+        assert!(aolp.starts_with("AoLP peak 0.0°"), "{aolp}");
+        assert!(aolp.contains("histogram -90.0°–90.0°"), "{aolp}");
+        assert!(!aolp.contains("DN") && !aolp.contains("% saturated"), "{aolp}");
+        // The frame itself keeps DN and its saturated share.
+        let raw = say("raw").await;
+        assert!(raw.contains("20.00 % saturated") && raw.contains("DN of 65535"), "{raw}");
+        c.close().await.unwrap();
+    });
+}
