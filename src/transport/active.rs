@@ -67,6 +67,48 @@ pub fn build_active(
     setup: &ActiveSetup,
     budget: MemoryBudget,
 ) -> Result<ActiveTransport, TransportError> {
+    check_setup(scene, setup)?;
+    let wall = &scene.wall().plane;
+    let p = wall.point(setup.spot.0, setup.spot.1);
+    let patches = element_centres(wall);
+    let voxels = element_centres(&scene.hidden().plane);
+    let n_wall = patches.len();
+    let n_vox = voxels.len();
+
+    let (d0, d1) = path_range(&p, &voxels, &patches);
+    let bins = ((d1 - d0) / setup.bin_width).floor() as usize + 1;
+    let blocks = blocks_of(scene);
+    let per_block = n_wall * bins;
+    let rows = per_block * blocks.len();
+    super::check_size(budget, rows, n_vox, bins * blocks.len(), 0.0)?;
+
+    let views = block_views(scene, &p, &patches);
+    let time = TimeBins {
+        d0,
+        width: setup.bin_width,
+        count: bins,
+    };
+    let data = fill_columns(scene, &p, &voxels, &patches, &views, &time, rows);
+    Ok(ActiveTransport {
+        t: Transport::from_col_major(
+            rows,
+            n_vox,
+            data,
+            blocks,
+            Grid {
+                nu: bins,
+                nv: n_wall,
+            },
+            scene.hidden().plane.grid,
+        ),
+        bins,
+        d0,
+    })
+}
+
+/// Refuses a bin width that is not a positive length, `"pixels"` wall sampling, and a spot off the wall.
+/// Checked before anything is computed, so a bad set-up is a named error, not a wrong matrix.
+fn check_setup(scene: &Scene, setup: &ActiveSetup) -> Result<(), TransportError> {
     if !(setup.bin_width > 0.0 && setup.bin_width.is_finite()) {
         return Err(TransportError::Parameter {
             name: "bin-width",
@@ -86,46 +128,53 @@ pub fn build_active(
             reason: "the laser spot must lie on the wall",
         });
     }
-    let n = wall.normal;
-    let brdf = scene.wall().brdf;
-    let p = wall.point(setup.spot.0, setup.spot.1);
-    let patches: Vec<Vec3> = {
-        let mut c = wall.clone();
-        c.supersample = 1;
-        c.sample_points()
-    };
-    let voxels: Vec<Vec3> = {
-        let mut s = scene.hidden().plane.clone();
-        s.supersample = 1;
-        s.sample_points()
-    };
-    let area = scene.hidden().plane.element_area();
-    let n_wall = patches.len();
-    let n_vox = voxels.len();
+    Ok(())
+}
 
+/// The centre of every element of `plane` (its sample points at supersample 1).
+/// The active model takes each wall patch and each voxel as one point, not an average.
+fn element_centres(plane: &crate::scene::Plane) -> Vec<Vec3> {
+    let mut c = plane.clone();
+    c.supersample = 1;
+    c.sample_points()
+}
+
+/// The shortest and longest path `|p - x| + |x - c|` over voxels `x` and wall patches `c`.
+/// The shortest is `d0`, the start of bin 0; with the longest they fix the number of bins.
+fn path_range(p: &Vec3, voxels: &[Vec3], patches: &[Vec3]) -> (f64, f64) {
     let path = |x: &Vec3, c: &Vec3| (x - p).norm() + (x - c).norm();
     let (mut d0, mut d1) = (f64::INFINITY, f64::NEG_INFINITY);
-    for x in &voxels {
-        for c in &patches {
+    for x in voxels {
+        for c in patches {
             let d = path(x, c);
             d0 = d0.min(d);
             d1 = d1.max(d);
         }
     }
-    let bins = ((d1 - d0) / setup.bin_width).floor() as usize + 1;
-    let blocks = blocks_of(scene);
-    let per_block = n_wall * bins;
-    let rows = per_block * blocks.len();
-    super::check_size(budget, rows, n_vox, bins * blocks.len(), 0.0)?;
+    (d0, d1)
+}
 
-    // Per block, computed once: the direction from the spot to the laser and,
-    // per patch, the direction to the camera and the effective analyzer axis.
-    struct BlockView {
-        w_l: Vec3,
-        analyzer: Option<crate::scene::Analyzer>,
-        to_camera: Vec<(Vec3, Option<Vec3>)>,
-    }
-    let views: Vec<BlockView> = scene
+/// The time axis: `d0` at the start of bin 0, bin `width` and `count` bins, metres of path.
+/// Kept together because every entry's bin is computed from all three.
+struct TimeBins {
+    d0: f64,
+    width: f64,
+    count: usize,
+}
+
+/// Per block, computed once: the direction from the spot to the laser and,
+/// per patch, the direction to the camera and the effective analyzer axis.
+struct BlockView {
+    w_l: Vec3,
+    analyzer: Option<crate::scene::Analyzer>,
+    to_camera: Vec<(Vec3, Option<Vec3>)>,
+}
+
+/// One [`BlockView`] per block of `scene`, in block order, for spot `p` and wall `patches`.
+/// Computed once, outside the per-voxel loop, which only reads them.
+fn block_views(scene: &Scene, p: &Vec3, patches: &[Vec3]) -> Vec<BlockView> {
+    let p = *p;
+    scene
         .poses()
         .iter()
         .flat_map(|pose| {
@@ -136,7 +185,6 @@ pub fn build_active(
             };
             let model = scene.polarizer();
             let cam = pose.camera;
-            let patches = &patches;
             axes.into_iter().map(move |q| BlockView {
                 w_l: (cam - p).normalize(),
                 analyzer: q,
@@ -150,9 +198,27 @@ pub fn build_active(
                     .collect(),
             })
         })
-        .collect();
+        .collect()
+}
 
-    let mut data = vec![0.0; rows * n_vox];
+/// The column-major entries of `T`, one voxel per column in parallel (the formula of this module's doc).
+/// The first bounce is computed once per voxel and block, the camera-side bounce per patch and block.
+fn fill_columns(
+    scene: &Scene,
+    p: &Vec3,
+    voxels: &[Vec3],
+    patches: &[Vec3],
+    views: &[BlockView],
+    time: &TimeBins,
+    rows: usize,
+) -> Vec<f64> {
+    let p = *p;
+    let n = scene.wall().plane.normal;
+    let brdf = scene.wall().brdf;
+    let area = scene.hidden().plane.element_area();
+    let (d0, bins) = (time.d0, time.count);
+    let per_block = patches.len() * bins;
+    let mut data = vec![0.0; rows * voxels.len()];
     super::build::columns_mut(&mut data, rows).for_each(|(k, col)| {
         let x = voxels[k];
         let to_x = x - p;
@@ -182,7 +248,7 @@ pub fn build_active(
             if cos <= 0.0 || scene.occluders().iter().any(|o| o.blocks(&x, c)) {
                 continue;
             }
-            let b = (((r_px + r - d0) / setup.bin_width).floor() as usize).min(bins - 1);
+            let b = (((r_px + r - d0) / time.width).floor() as usize).min(bins - 1);
             for (blk, v) in views.iter().enumerate() {
                 if first[blk] == 0.0 {
                     continue;
@@ -208,21 +274,7 @@ pub fn build_active(
             }
         }
     });
-    Ok(ActiveTransport {
-        t: Transport::from_col_major(
-            rows,
-            n_vox,
-            data,
-            blocks,
-            Grid {
-                nu: bins,
-                nv: n_wall,
-            },
-            scene.hidden().plane.grid,
-        ),
-        bins,
-        d0,
-    })
+    data
 }
 
 #[cfg(test)]
