@@ -236,14 +236,7 @@ fn saturated(
     if clipping.saturated == 0 || clipping.saturated_share() <= share {
         return Ok(());
     }
-    let what = format!(
-        "saturated: up to {} of {} pixels at full scale in one frame ({:.2} %), in {} frames; lower exposure_us (GET /scenes/{}/exposure plans one per block)",
-        clipping.saturated,
-        clipping.pixels,
-        100.0 * clipping.saturated_share(),
-        clipping.frames_saturated,
-        c.scene
-    );
+    let what = format!("saturated: {}", clipping.saturation(&c.scene));
     match policy {
         super::config::Saturated::Warn => {
             tracing::warn!(capture = id, "capture-{id} {what}");

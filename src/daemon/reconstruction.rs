@@ -356,13 +356,9 @@ pub(super) fn stack_records(
 fn saturation_warning(c: &CaptureRecord) -> Option<String> {
     let cl = c.clipping.filter(|cl| cl.saturated > 0)?;
     Some(format!(
-        "capture {} saturated: {} of {} pixels at full scale in one frame ({:.2} %), in {} of its frames; their values are lower bounds and bias the measurement low: take it again at a lower exposure_us (GET /scenes/{}/exposure plans one per block)",
+        "capture {} saturated: {}; their values are lower bounds and bias the measurement low",
         c.id,
-        cl.saturated,
-        cl.pixels,
-        100.0 * cl.saturated_share(),
-        cl.frames_saturated,
-        c.scene
+        cl.saturation(&c.scene)
     ))
 }
 

@@ -44,6 +44,18 @@ impl Clipping {
         }
     }
 
+    /// The saturation in words, with what to do about it: one text for the
+    /// capture's log or failure and for the reconstructions that use it.
+    pub fn saturation(&self, scene: &str) -> String {
+        format!(
+            "{} of {} pixels at full scale in one frame ({:.2} %), in {} frames; lower exposure_us (GET /scenes/{scene}/exposure plans one per block)",
+            self.saturated,
+            self.pixels,
+            100.0 * self.saturated_share(),
+            self.frames_saturated,
+        )
+    }
+
     /// Counts one frame of raw values whose full scale is `2^bits - 1`
     /// (bits outside 1..=16, which no camera reports, count against 65535).
     fn count(&mut self, pixels: &[u16], bits: u32) {
