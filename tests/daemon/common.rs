@@ -186,6 +186,19 @@ impl Client {
         self.wait(&loc, within)
     }
 
+    /// Waits until plan `loc` is in one of `states`; the plan.
+    pub fn wait_plan(&self, loc: &str, states: &[&str], within: Duration) -> serde_json::Value {
+        let t = Instant::now();
+        loop {
+            let v = self.json(loc);
+            if states.iter().any(|s| v["state"] == *s) {
+                return v;
+            }
+            assert!(t.elapsed() < within, "{loc}: {v}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
     pub fn wait(&self, loc: &str, within: Duration) -> serde_json::Value {
         let t = Instant::now();
         loop {
@@ -265,6 +278,27 @@ impl Daemon {
             std::thread::sleep(Duration::from_millis(100));
         }
         d
+    }
+
+    /// Sends SIGTERM (what systemd sends on `systemctl stop`) and waits up
+    /// to 30 s for the daemon to exit; its exit status.
+    pub fn terminate(&mut self) -> std::process::ExitStatus {
+        let term = Command::new("kill")
+            .args(["-TERM", &self.pid().to_string()])
+            .status()
+            .unwrap();
+        assert!(term.success());
+        let t = Instant::now();
+        loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                return s;
+            }
+            assert!(
+                t.elapsed() < Duration::from_secs(30),
+                "the daemon did not stop within 30 s of SIGTERM"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 
     pub fn pid(&self) -> u32 {

@@ -160,23 +160,7 @@ fn sigterm_during_a_capture_interrupts_it_and_drains_before_exit() {
     );
     assert_eq!(s, 202);
     let queued = queued.unwrap();
-    // What systemd sends on `systemctl stop`.
-    let term = Command::new("kill")
-        .args(["-TERM", &d.pid().to_string()])
-        .status()
-        .unwrap();
-    assert!(term.success());
-    let t = Instant::now();
-    let status = loop {
-        if let Some(s) = d.child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(30),
-            "the daemon did not stop within 30 s of SIGTERM"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let status = d.terminate();
     assert!(status.success(), "{status}");
     // The catalogue as the stopped daemon left it, before any restart's
     // recovery: the running capture was stopped and recorded by the daemon
@@ -427,27 +411,18 @@ fn sigterm_with_an_event_stream_open_ends_the_stream_and_does_not_wait_for_it() 
     let head = String::from_utf8_lossy(&head[..n]).to_string();
     assert!(head.starts_with("HTTP/1.1 200"), "{head}");
     assert!(head.contains("text/event-stream"), "{head}");
-    let term = Command::new("kill")
-        .args(["-TERM", &d.pid().to_string()])
-        .status()
-        .unwrap();
-    assert!(term.success());
-    // The stream ends (end of file), not cut off by the drain's timeout.
-    let mut rest = Vec::new();
-    sse.read_to_end(&mut rest)
-        .expect("the event stream ends when the daemon stops");
-    let t = Instant::now();
-    let status = loop {
-        if let Some(s) = d.child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(30),
-            "no exit after SIGTERM"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    // The stream ends (end of file), not cut off by the drain's timeout:
+    // read on a thread while the daemon stops.
+    let reader = std::thread::spawn(move || {
+        let mut rest = Vec::new();
+        sse.read_to_end(&mut rest).map(|_| ())
+    });
+    let status = d.terminate();
     assert!(status.success(), "{status}");
+    reader
+        .join()
+        .unwrap()
+        .expect("the event stream ends when the daemon stops");
     let log = std::fs::read_to_string(data.with_extension("log")).unwrap_or_default();
     assert!(
         !log.contains("still busy after"),

@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::common::{config, lock, Client, Daemon, InProcess};
+use crate::common::{config, lock, Daemon, InProcess};
 
 /// The fake camera shows the rotating bench's letter.
 fn rotating_bench(dir: &std::path::Path) -> std::path::PathBuf {
@@ -17,19 +17,6 @@ fn rotating_bench(dir: &std::path::Path) -> std::path::PathBuf {
             "scene = \"brewster-rotating\"",
         )],
     )
-}
-
-/// Waits until plan `loc` is in one of `states`.
-fn wait_plan(d: &Client, loc: &str, states: &[&str], within: Duration) -> serde_json::Value {
-    let t = Instant::now();
-    loop {
-        let v = d.json(loc);
-        if states.iter().any(|s| v["state"] == *s) {
-            return v;
-        }
-        assert!(t.elapsed() < within, "{loc}: {v}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
 }
 
 /// The ids of the captures plan `plan` took, in step order.
@@ -67,7 +54,7 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
         Some(5),
         "{body}"
     );
-    let plan = wait_plan(&d, &loc, &["done", "failed", "cancelled"], long);
+    let plan = d.wait_plan(&loc, &["done", "failed", "cancelled"], long);
     assert_eq!(plan["state"], "done", "{plan}");
     let captures = plan_captures(&plan);
     assert_eq!(captures.len(), 4, "{plan}");
@@ -141,7 +128,7 @@ fn a_plan_with_interim_results_solves_from_the_blocks_taken_so_far_after_each_bl
             "reconstruct": {"truth": "letter", "interim": true}}"#,
     );
     assert_eq!(s, 202, "{body}");
-    let plan = wait_plan(&d, &loc.expect("Location"), &["done", "failed"], long);
+    let plan = d.wait_plan(&loc.expect("Location"), &["done", "failed"], long);
     assert_eq!(plan["state"], "done", "{plan}");
     // One interim reconstruction after each of the first three blocks (steps
     // 0-2), none after the last: the plan's own reconstruction is whole.
@@ -246,8 +233,7 @@ fn a_bench_with_a_stage_walks_every_pose_unattended_and_a_stage_that_slips_pause
             "{b}"
         );
         // Poses B and C without a Continue: the stage moved the camera.
-        let done = wait_plan(
-            &d,
+        let done = d.wait_plan(
             &loc.unwrap(),
             &["done", "failed", "waiting_for_operator"],
             long,
@@ -265,8 +251,7 @@ fn a_bench_with_a_stage_walks_every_pose_unattended_and_a_stage_that_slips_pause
     let d = InProcess::start(&stage("2"), &dir.path().join("data-slip"));
     let (s, b, loc) = d.post("/plans", body);
     assert_eq!(s, 202, "{b}");
-    let paused = wait_plan(
-        &d,
+    let paused = d.wait_plan(
         &loc.unwrap(),
         &["waiting_for_operator", "done", "failed"],
         long,
@@ -329,8 +314,7 @@ fn a_relay_switches_the_scene_off_for_darks_so_a_plan_needs_no_operator_for_them
     let (s, b, loc) = d.post("/plans", body);
     assert_eq!(s, 202, "{b}");
     assert!(!b.contains("hidden scene"), "{b}");
-    let done = wait_plan(
-        &d,
+    let done = d.wait_plan(
         &loc.unwrap(),
         &["done", "failed", "waiting_for_operator"],
         long,
@@ -366,7 +350,7 @@ fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
     let loc = loc.unwrap();
     // Pose B's block first (the camera starts at the first pose), then the
     // prompt to move it to pose C.
-    let waiting = wait_plan(&d, &loc, &["waiting_for_operator", "failed"], long);
+    let waiting = d.wait_plan(&loc, &["waiting_for_operator", "failed"], long);
     assert_eq!(waiting["state"], "waiting_for_operator", "{waiting}");
     assert!(
         waiting["prompt"].as_str().unwrap_or("").contains("pose C"),
@@ -375,7 +359,7 @@ fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
     assert_eq!(waiting["captures"].as_array().map(Vec::len), Some(1));
     let (s, b, _) = d.post(&format!("{loc}/continue"), "{}");
     assert_eq!(s, 200, "{b}");
-    let done = wait_plan(&d, &loc, &["done", "failed"], long);
+    let done = d.wait_plan(&loc, &["done", "failed"], long);
     assert_eq!(done["state"], "done", "{done}");
     assert_eq!(done["captures"].as_array().map(Vec::len), Some(2), "{done}");
     let rid = done["reconstruction"].as_i64().unwrap();
@@ -387,7 +371,7 @@ fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
     let (s, b, loc) = d.post("/plans", body);
     assert_eq!(s, 202, "{b}");
     let loc = loc.unwrap();
-    let waiting = wait_plan(&d, &loc, &["waiting_for_operator", "failed"], long);
+    let waiting = d.wait_plan(&loc, &["waiting_for_operator", "failed"], long);
     let first = waiting["captures"][0]["capture"].as_i64().unwrap();
     let (s, b) = d.delete(&loc);
     assert_eq!(s, 200, "{b}");
@@ -451,7 +435,7 @@ fn sigkill_in_the_middle_of_a_plan_loses_no_capture_and_repeats_none() {
     drop(d);
     let first = before["captures"][0]["capture"].as_i64().unwrap();
     let d = Daemon::start(&cfg, &data);
-    let plan = wait_plan(&d, &loc, &["done", "failed", "interrupted"], long);
+    let plan = d.wait_plan(&loc, &["done", "failed", "interrupted"], long);
     assert_eq!(plan["state"], "done", "{plan}");
     let ids = plan_captures(&plan);
     assert_eq!(ids.len(), 4, "{plan}");
@@ -509,7 +493,7 @@ fn a_mount_that_slips_pauses_the_plan_and_continue_takes_the_block_again() {
     );
     assert_eq!(s, 202, "{b}");
     let loc = loc.unwrap();
-    let paused = wait_plan(&d, &loc, &["waiting_for_operator", "failed", "done"], long);
+    let paused = d.wait_plan(&loc, &["waiting_for_operator", "failed", "done"], long);
     assert_eq!(paused["state"], "waiting_for_operator", "{paused}");
     let prompt = paused["prompt"].as_str().unwrap_or("");
     assert!(
@@ -522,7 +506,7 @@ fn a_mount_that_slips_pauses_the_plan_and_continue_takes_the_block_again() {
     device.set_fault(Fault::None);
     let (s, b, _) = d.post(&format!("{loc}/continue"), "{}");
     assert_eq!(s, 200, "{b}");
-    let done = wait_plan(&d, &loc, &["done", "failed", "waiting_for_operator"], long);
+    let done = d.wait_plan(&loc, &["done", "failed", "waiting_for_operator"], long);
     assert_eq!(done["state"], "done", "{done}");
     let first = done["captures"][0]["capture"].as_i64().unwrap();
     assert_ne!(first, failed, "{done}");
@@ -564,7 +548,7 @@ fn with_a_real_sensor_s_noise_the_readme_s_demo_is_explained_by_its_model() {
         r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 4, "dark_frames": 1, "reconstruct": {"truth": "letter"}}"#,
     );
     assert_eq!(s, 202, "{body}");
-    let plan = wait_plan(&d, &loc.unwrap(), &["done", "failed", "cancelled"], long);
+    let plan = d.wait_plan(&loc.unwrap(), &["done", "failed", "cancelled"], long);
     assert_eq!(plan["state"], "done", "{plan}");
     let rotating = d.json(&format!("/reconstructions/{}", plan["reconstruction"]));
     let (mc, mr) = (misfit(&crossed), misfit(&rotating));

@@ -925,11 +925,8 @@ fn a_waiting_plan_behind_a_newer_one_survives_a_reload_and_continues_from_the_li
             r#"{"scene": "brewster-crossed", "exposure_us": 20000, "frames": 2, "dark_frames": 1}"#,
         );
         assert_eq!(s, 202, "{b}");
-        let t = std::time::Instant::now();
-        while page.d.json("/plans/1")["state"] != "waiting_for_operator" {
-            assert!(t.elapsed() < long, "plan 1 never waited");
-            tokio::time::sleep(Duration::from_millis(200)).await;
-        }
+        page.d
+            .wait_plan("/plans/1", &["waiting_for_operator"], long);
         c.refresh().await.expect("reload");
         // After the reload: the badge, the list's row with its prompt and
         // Continue, and the plan panel on plan 1, not on the newer plan 2.
@@ -951,15 +948,7 @@ fn a_waiting_plan_behind_a_newer_one_survives_a_reload_and_continues_from_the_li
         .await;
         assert!(shown.starts_with("plan 1 "), "{shown}");
         click(&c, "#plan-row-1 .plan-continue").await;
-        let t = std::time::Instant::now();
-        loop {
-            let st = page.d.json("/plans/1")["state"].clone();
-            if st == "done" {
-                break;
-            }
-            assert!(t.elapsed() < long, "plan 1 is {st}");
-            tokio::time::sleep(Duration::from_millis(200)).await;
-        }
+        page.d.wait_plan("/plans/1", &["done"], long);
         c.close().await.unwrap();
     });
 }
@@ -1031,12 +1020,7 @@ fn a_saturated_plan_s_captures_are_flagged_on_the_page_with_their_counts() {
             r#"{"scene": "brewster-rotating", "exposure_us": 100000, "frames": 2, "dark_frames": 1}"#,
         );
         assert_eq!(s, 202, "{b}");
-        let t = std::time::Instant::now();
-        while page.d.json("/plans/1")["state"] != "done" {
-            assert!(t.elapsed() < long, "plan 1 did not finish");
-            tokio::time::sleep(Duration::from_millis(200)).await;
-        }
-        let plan = page.d.json("/plans/1");
+        let plan = page.d.wait_plan("/plans/1", &["done"], long);
         let ids: Vec<i64> = plan["captures"]
             .as_array()
             .unwrap()
