@@ -630,7 +630,7 @@ async function resync() {
   if (syncing) return;
   syncing = true;
   try {
-    await Promise.all([refreshCamera(), refreshRig(), loadCaptures(), loadReconstructions(), showPlan(), loadPlans()]);
+    await Promise.all([refreshCamera(), refreshRig(), loadCaptures(), loadReconstructions(), loadPlans(true)]);
   } catch (e) {
     text($("#health"), e instanceof TypeError ? unreachable() : `error: ${e}`);
   } finally {
@@ -771,17 +771,9 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
 // ---- plans ----
 
 let shownPlan = null;
-// Shows plan `id` (when none is given: one waiting for the operator, else
-// the newest, so that a reload finds a waiting plan behind a newer queued
-// one): its state, its progress across steps, and the operator's prompt
-// with Continue while it waits.
+// Shows plan `id`: its state, its progress across steps, and the
+// operator's prompt with Continue while it waits.
 async function showPlan(id) {
-  if (id === undefined) {
-    const r = await api("GET", `/plans?limit=${PLANS_LISTED}`);
-    if (r.status !== 200 || !r.json.length) return;
-    const waiting = r.json.find((p) => p.state === "waiting_for_operator");
-    id = (waiting || r.json[0]).id;
-  }
   const r = await api("GET", `/plans/${id}`);
   if (r.status !== 200) return;
   const p = r.json;
@@ -894,13 +886,16 @@ function notePlans(plans) {
 // Recent plans, each with its own Continue and Cancel, and a badge in the
 // header (and the window's title) while any waits for the operator: a
 // waiting plan cannot hide behind a newer one (issue 38).
+// With `show`, the plan panel shows one waiting for the operator, else the
+// newest (a reload then finds a waiting plan behind a newer queued one).
 const PLANS_LISTED = 20;
-async function loadPlans() {
+async function loadPlans(show) {
   const r = await api("GET", `/plans?limit=${PLANS_LISTED}`);
   if (r.status !== 200) return;
   $("#plans tbody").replaceChildren(...r.json.map(planRow));
   notePlans(r.json);
   const waiting = r.json.filter((p) => p.state === "waiting_for_operator");
+  if (show && r.json.length) await showPlan((waiting[0] || r.json[0]).id);
   const badge = $("#plan-badge");
   badge.hidden = waiting.length === 0;
   text(badge, waiting.length ? `plan ${waiting.map((p) => p.id).join(", ")} waiting for you` : "");
