@@ -473,6 +473,8 @@ function reconstructionItem(x) {
     el("div", {}, el("strong", {}, `#${x.id} ${x.scene} `), el("span", { class: `state state-${x.state}` }, x.state), planMark(planOf.reconstructions.get(x.id))),
     el("pre", { class: "report" }, reportLines(x)));
   if (warnings.length) info.append(el("ul", { class: "warnings" }, ...warnings));
+  const notes = ((x.report || {}).notes || []).map((n) => el("li", { class: "note" }, n));
+  if (notes.length) info.append(el("details", { class: "notes" }, el("summary", {}, `${notes.length} note${notes.length > 1 ? "s" : ""} on this bench`), el("ul", {}, ...notes)));
   if (active(x.state)) {
     const b = el("button", { class: "cancel" }, "Cancel");
     b.addEventListener("click", () => cancel(`reconstruction-${x.id}`));
@@ -852,7 +854,7 @@ $("#mount-zero-form").addEventListener("submit", async (ev) => {
   noteIn(msg, "sweeping the mount around its zero…");
   const r = await api("POST", "/mount/zero", body);
   if (r.status !== 200) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
-  noteIn(msg, `zero found: ${Number(r.json.zero_deg).toFixed(3)}°, now in force`);
+  noteIn(msg, `zero found: ${Number(r.json.zero_deg).toFixed(3)}°${r.json.zero_sigma_deg === null ? "" : ` ± ${Number(r.json.zero_sigma_deg).toFixed(3)}°`}, now in force`);
   refreshRig();
 });
 

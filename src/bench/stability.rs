@@ -9,7 +9,7 @@ use super::{builtin, edit, BenchError};
 use crate::scene::{Grid, Scene, SceneParts};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
-use crate::solve::report::{conditioning_warnings, mean_snr, snr_warnings};
+use crate::solve::report::{conditioning_notes, mean_snr, snr_warnings};
 use crate::solve::{admm_tv, condition, metrics, AdmmSettings};
 use crate::transport::{build, MemoryBudget};
 
@@ -168,7 +168,7 @@ pub fn stability_table(
         };
         let r = admm_tv(&t, &sim.measurement, &settings)?;
         let cond = condition(&t)?;
-        let mut warnings = conditioning_warnings(&cond);
+        let mut warnings = conditioning_notes(&cond);
         warnings.extend(snr_warnings(snr));
         warnings.extend(r.stats.warnings.iter().cloned());
         rows.push(StabilityRow {

@@ -48,11 +48,12 @@ pub enum WallFitError {
         rows: usize,
     },
     /// The best fit leaves too much of one source's measurement unexplained.
-    #[error("the point-source model leaves {percent:.0}% of the measurement of the source at ({u}, {v}) m unexplained (at most {limit:.0}% is accepted): the source position or the poses' homographies do not match the capture, so no wall parameters are reported", u = at.u, v = at.v)]
+    #[error("the point-source model leaves {percent:.0}% of the measurement of the source at ({u}, {v}) m unexplained beyond the noise (at most {limit:.0}% is accepted): the source position or the poses' homographies do not match the capture, so no wall parameters are reported", u = at.u, v = at.v)]
     Unexplained {
         /// Where that source was.
         at: PointSource,
-        /// `100 ||i - model|| / ||i||` for that source.
+        /// `100 ||i - model|| / ||i||` for that source, less the noise's share
+        /// when the noise is known ([`MAX_RELATIVE_RESIDUAL`]).
         percent: f64,
         /// The accepted limit, percent.
         limit: f64,
@@ -61,8 +62,9 @@ pub enum WallFitError {
 
 /// Side of the small square that stands for the point source, metres.
 const SOURCE_SIDE_M: f64 = 0.005;
-/// Largest relative residual `||i - model|| / ||i||` of an accepted fit,
-/// for every source position.
+/// Largest relative residual of an accepted fit, for every source position:
+/// `sqrt(max(0, ||i - model||^2 - sum var)) / ||i||`, the part beyond the
+/// noise when the frame-to-frame variance is known, else `||i - model|| / ||i||`.
 pub const MAX_RELATIVE_RESIDUAL: f64 = 0.25;
 /// Most source positions in one fit (each costs one transport per model
 /// evaluation).
@@ -365,11 +367,21 @@ fn levenberg_marquardt(
     let sol = solve(scene, sets, &i, start, first, budget)?;
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     let relative_residual = sol.cost.sqrt() / norm(&i).max(1e-300);
+    // What the model leaves unexplained beyond the noise: the residual's
+    // energy less the noise's expected share (the sum of the variances),
+    // so a faint source under shot noise is not mistaken for a bad model.
     let source_residuals: Vec<f64> = sol
         .r
         .chunks(rows)
         .zip(sets)
-        .map(|(rs, set)| norm(rs) / norm(set.i).max(1e-300))
+        .map(|(rs, set)| {
+            let noise: f64 = set
+                .variance
+                .filter(|v| v.len() == rows)
+                .map_or(0.0, |v| v.iter().sum());
+            let ss: f64 = rs.iter().map(|x| x * x).sum();
+            (ss - noise).max(0.0).sqrt() / norm(set.i).max(1e-300)
+        })
         .collect();
     // The worst-explained source is the one to name: a misplaced one drags
     // the joint fit, so the others may exceed the limit too, but by less.
@@ -824,5 +836,32 @@ mod tests {
             "{:?}",
             bad.warnings
         );
+    }
+    #[test]
+    fn a_faint_source_under_known_noise_is_fitted_and_the_same_without_its_noise_refused() {
+        // Noise of 250 % of the peak (uniform): the residual is mostly noise.
+        // Known, it is discounted and the fit is accepted; unknown, the same
+        // residual reads as a model that does not fit.
+        let s = scene();
+        let source = PointSource { u: 0.03, v: -0.02 };
+        let clean = predict(&s, &source, &TRUTH, MemoryBudget::DEFAULT).expect("model");
+        let peak = clean.iter().copied().fold(0.0, f64::max);
+        let i = noisy(&clean, 2.5);
+        let var = vec![(2.5 * peak).powi(2) / 12.0; i.len()];
+        let known = [SourceMeasurement {
+            source,
+            i: &i,
+            variance: Some(&var),
+        }];
+        let good = fit_sources(&s, &known, TRUTH, MemoryBudget::DEFAULT).expect("within the noise");
+        assert!(good.relative_residual > MAX_RELATIVE_RESIDUAL, "{good:?}");
+        let unknown = [SourceMeasurement {
+            variance: None,
+            ..known[0]
+        }];
+        assert!(matches!(
+            fit_sources(&s, &unknown, TRUTH, MemoryBudget::DEFAULT),
+            Err(WallFitError::Unexplained { percent, .. }) if percent > 100.0 * MAX_RELATIVE_RESIDUAL
+        ));
     }
 }

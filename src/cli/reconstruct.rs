@@ -227,6 +227,9 @@ fn print_summary(report: &polnlos::solve::report::Report) {
     for w in &report.warnings {
         eprintln!("warning: {w}");
     }
+    for n in &report.notes {
+        eprintln!("note: {n}");
+    }
     if let Some(c) = &report.lambda_choice {
         println!(
             "lambda {:.3e} (resolved-discrepancy rule, noise from {}, variance {:.3e})",

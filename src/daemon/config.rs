@@ -178,7 +178,7 @@ pub struct DemoConfig {
     pub bench_switches_scene: bool,
     /// Whether the fake camera's frames carry the shot and read noise of
     /// `[camera] full_well_e` and `read_noise_e` (else only ±0.5 DN dither).
-    #[serde(default)]
+    #[serde(default = "yes")]
     pub sensor_noise: bool,
 }
 

@@ -114,7 +114,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     };
     let Stacked {
         mut measurement,
-        mut warnings,
+        warnings,
     } = stack_records(
         &d.store,
         records,
@@ -124,9 +124,9 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     )?;
     let calibration = d.calibration.get(&rec.scene).copied();
     let units = to_model_units(&t, &mut measurement, calibration)?;
-    warnings.extend(units.warning());
+    let mut notes: Vec<String> = units.note().into_iter().collect();
     if let Some(p) = &part {
-        warnings.push(p.warning());
+        notes.push(p.note());
     }
     let Measurement { i, variance: var } = measurement;
     // The noise known, the sampling keys the file left out are chosen from it
@@ -195,6 +195,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     let measurement = i;
     check(cancel)?;
     report.warnings.splice(0..0, warnings);
+    report.notes.splice(0..0, notes);
     let grid = t.scene_grid();
     let dir = d.store.reconstruction_dir(id);
     std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
@@ -217,7 +218,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     .map_err(file)?;
     json::write(&dir.join("report.json"), &report).map_err(file)?;
     tracing::info!(
-        "{} rows x {} unknowns, {} iterations{}{}; {} warnings",
+        "{} rows x {} unknowns, {} iterations{}{}; {} warnings, {} notes",
         report.rows,
         report.cols,
         report.solver.iterations,
@@ -231,7 +232,8 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
             .as_ref()
             .map(|m| format!(", PSNR {:.2} dB", m.psnr_db))
             .unwrap_or_default(),
-        report.warnings.len()
+        report.warnings.len(),
+        report.notes.len()
     );
     let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
     d.store
@@ -293,8 +295,8 @@ impl Partial {
         }
     }
 
-    /// What the report says of it.
-    fn warning(&self) -> String {
+    /// What the report notes of it.
+    fn note(&self) -> String {
         format!(
             "interim: solved from {} of the scene's {} blocks; the others are not captured yet",
             self.kept.len(),

@@ -215,8 +215,9 @@ impl Units {
         }
     }
 
-    /// What a user should be told about it, if anything.
-    pub fn warning(self) -> Option<String> {
+    /// What a user should be told about it, if anything: a note (a fact
+    /// about the bench, not a fault of this result).
+    pub fn note(self) -> Option<String> {
         match self {
             Units::Calibrated(_) => None,
             Units::Estimated(_) => Some("no radiometric calibration for this scene: the measurement was scaled so that the brightest element is about 1".to_string()),
@@ -359,7 +360,7 @@ mod tests {
             (c.i[3] - i[3]).abs() < 1e-12 && (c.variance.unwrap()[0] - 4.0 / 1600.0).abs() < 1e-15
         );
         let units = to_model_units(&t, &mut m, None).unwrap();
-        assert!(units.warning().is_some());
+        assert!(units.note().is_some());
         // A flat 0.5 scene scaled so its brightest element is about 1.
         let ratio = m.i[3] / i[3];
         assert!((ratio - 2.0).abs() < 0.1, "{ratio}");

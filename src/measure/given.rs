@@ -161,7 +161,7 @@ pub fn measure_given(
     };
     if let Some(u) = units {
         u.apply(&mut measurement);
-        if let Some(w) = u.warning() {
+        if let Some(w) = u.note() {
             warnings.push(format!(
                 "{w}; give the bench's radiometric gain for absolute units"
             ));

@@ -180,6 +180,25 @@ impl IntensityLaw {
     pub fn value(coefficients: [f64; 3], deg: f64) -> f64 {
         Self::basis(deg).dot(&nalgebra::Vector3::from(coefficients))
     }
+
+    /// Standard error, degrees, of the law's extremum angle `atan2(c, b) / 2`
+    /// when each value carries noise of `variance`: the coefficients'
+    /// covariance `variance (A^T A)^-1` through the angle's gradient.
+    ///
+    /// Why: a sweep's minimum is only as good as its noise lets it be; the
+    /// mount's zero is reported with it.
+    pub fn extremum_sigma_deg(&self, coefficients: [f64; 3], variance: f64) -> f64 {
+        let [_, b, c] = coefficients;
+        let r2 = b * b + c * c;
+        if r2 <= 0.0 {
+            return f64::INFINITY;
+        }
+        let g = nalgebra::Vector3::new(0.0, -c, b) / (2.0 * r2);
+        (variance * (g.transpose() * self.inverse * g)[(0, 0)])
+            .max(0.0)
+            .sqrt()
+            .to_degrees()
+    }
 }
 
 #[cfg(test)]

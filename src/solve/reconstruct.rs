@@ -90,7 +90,7 @@ pub fn reconstruct_prepared(
         None if auto => NoiseLevel::from_residual_with(t, i, normal),
         None => None,
     };
-    let mut warnings = Vec::new();
+    let (mut warnings, mut notes) = (Vec::new(), Vec::new());
     let mut lambda_choice: Option<LambdaChoice> = None;
     // An automatic λ: the resolved-discrepancy rule on ADMM-TV (FISTA-TV
     // minimizes the same objective, so it takes the λ that rule chose).
@@ -108,7 +108,7 @@ pub fn reconstruct_prepared(
                 lambda_choice = Some(choice);
                 admm_result = Some(r);
             }
-            None => warnings.push(format!(
+            None => notes.push(format!(
                 "λ is the fixed default: the measurement has too few rows beyond T's columns ({} x {}) to estimate its noise, and no noise level was given",
                 t.rows(),
                 t.cols()
@@ -129,7 +129,7 @@ pub fn reconstruct_prepared(
     };
     if let Some(n) = &noise {
         warnings.extend(snr_warnings(mean_snr(i, &n.variance)));
-        warnings.extend(grid_warning(t, cond, n));
+        notes.extend(grid_note(t, cond, n));
     }
     let model_check = noise
         .as_ref()
@@ -146,6 +146,7 @@ pub fn reconstruct_prepared(
         lambda_choice,
     );
     report.warnings.splice(0..0, warnings);
+    report.notes.extend(notes);
     report.model_check = model_check;
     Ok(Solved { image, report })
 }
@@ -173,10 +174,10 @@ fn model_check(
     Some(Adequacy::of(&r, Some(&noise.variance), t.cols()))
 }
 
-/// The warning when the scene grid is finer than the noise supports: the
+/// The note when the scene grid is finer than the noise supports: the
 /// least-squares RMS error `sigma sqrt(mean 1/s_i^2)` over the `PLAN_TOLERANCE`
 /// (the `polnlos plan` rule).
-fn grid_warning(t: &Transport, cond: &Conditioning, noise: &NoiseLevel) -> Option<String> {
+fn grid_note(t: &Transport, cond: &Conditioning, noise: &NoiseLevel) -> Option<String> {
     let amp = cond.noise_amplification(noise.mean_variance().sqrt());
     (amp > PLAN_TOLERANCE).then(|| {
         format!(

@@ -77,14 +77,20 @@ pub struct Report {
     /// measurement was given in units of `T l`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gain: Option<Gain>,
-    /// Warnings from every stage (solver, conditioning).
+    /// Something is wrong with this result: the model does not explain the
+    /// measurement, pixels saturated, frames lost, the solver stopped short.
     pub warnings: Vec<String>,
+    /// Facts about the bench that hold for any result from it: the
+    /// conditioning of `T`, a grid finer than the noise supports, a default
+    /// λ. Why apart: a warning must stand out, and it cannot when every
+    /// result carries these.
+    pub notes: Vec<String>,
 }
 
 impl Report {
     /// Assembles the report of a finished solve: layout from `T`, the
-    /// conditioning summary, metrics against `truth` when given, and every
-    /// warning (conditioning first, then the solver's).
+    /// conditioning summary, metrics against `truth` when given, the
+    /// solver's warnings and the conditioning's notes.
     pub fn new(
         scene: String,
         t: &crate::transport::Transport,
@@ -94,8 +100,7 @@ impl Report {
         truth: Option<&[f64]>,
         lambda_choice: Option<super::lambda::LambdaChoice>,
     ) -> Self {
-        let mut warnings = conditioning_warnings(cond);
-        warnings.extend(rec.stats.warnings.iter().cloned());
+        let warnings = rec.stats.warnings.clone();
         Self {
             scene,
             scene_grid: t.scene_grid(),
@@ -112,12 +117,13 @@ impl Report {
             model: None,
             gain: None,
             warnings,
+            notes: conditioning_notes(cond),
         }
     }
 }
 
-/// Warnings that the conditioning of `T` implies for any result.
-pub fn conditioning_warnings(c: &Conditioning) -> Vec<String> {
+/// Notes that the conditioning of `T` implies for any result.
+pub fn conditioning_notes(c: &Conditioning) -> Vec<String> {
     if c.is_rank_deficient() {
         let resolution = if c.from_gram {
             format!(

@@ -198,7 +198,7 @@ async fn progressive_reconstruction_converges_while_frames_arrive() {
     let dir = tempfile::tempdir().expect("temp dir");
     let d = daemon_showing(dir.path(), "brewster-crossed", "disk").await;
     // Mono8 at 1/5 of the reference exposure: the peak is about 40 DN, so
-    // the +-0.5 DN dither of every frame is noise that averaging reduces.
+    // the sensor's noise of every frame is what averaging reduces.
     let capture = serde_json::json!({ "scene": "brewster-crossed", "pose": "A",
         "polarizer_deg": 0, "exposure_us": 4000, "frames": 60, "dark_frames": 8,
         "pixel_format": "Mono8",

@@ -140,17 +140,20 @@ fn an_uncalibrated_mount_shows_in_the_frames_and_the_sweep_finds_its_zero() {
 
     let (s, b, _) = d.post(
         "/mount/zero",
-        r#"{"scene": "brewster-rotating", "pose": "A", "exposure_us": 20000, "span_deg": 10, "step_deg": 2}"#,
+        r#"{"scene": "brewster-rotating", "pose": "A", "exposure_us": 20000, "span_deg": 30, "step_deg": 5, "frames": 8}"#,
     );
     assert_eq!(s, 200, "{b}");
     let fit: serde_json::Value = serde_json::from_str(&b).unwrap();
     let zero = fit["zero_deg"].as_f64().unwrap();
     println!(
-        "zero found at {zero:.3} deg (truth 4), residual {}",
-        fit["relative_residual"]
+        "zero found at {zero:.3} ± {} deg (truth 4), residual {}",
+        fit["zero_sigma_deg"], fit["relative_residual"]
     );
-    assert!((zero - 4.0).abs() < 0.2, "{fit}");
-    assert_eq!(fit["sweep"].as_array().map(Vec::len), Some(11), "{fit}");
+    // Within 3 of its own standard errors, and those small enough to cross by.
+    let sigma = fit["zero_sigma_deg"].as_f64().unwrap();
+    assert!((zero - 4.0).abs() < 3.0 * sigma, "{fit}");
+    assert!(sigma < 0.5, "{fit}");
+    assert_eq!(fit["sweep"].as_array().map(Vec::len), Some(13), "{fit}");
 
     // Crossed now means crossed: less light than through the 4-degree error.
     let after = d.run_job("/captures", crossed, long);

@@ -143,8 +143,8 @@ fn capture_every_block_reconstruct_and_fetch() {
         assert_eq!(r["state"], "done", "{r}");
         assert!(r["kappa"].as_f64().unwrap() > 1.0);
         // No lambda in the request and 4 frames per capture: lambda comes from
-        // the frame-to-frame noise. The fake camera's noise is only +-0.5 DN of
-        // dither, so lambda is small and ADMM may reach its cap: then it says so.
+        // the frame-to-frame noise (the fake camera's shot and read noise);
+        // should ADMM reach its cap, it says so.
         assert_eq!(
             r["report"]["lambda_choice"]["rule"], "resolved-discrepancy",
             "{r}"
@@ -158,11 +158,11 @@ fn capture_every_block_reconstruct_and_fetch() {
         );
         // kappa ~1e8: the frame-to-frame noise cannot support an 8x8 least-squares estimate.
         assert!(
-            r["report"]["warnings"]
+            r["report"]["notes"]
                 .to_string()
                 .contains("finer than this measurement supports"),
             "{}",
-            r["report"]["warnings"]
+            r["report"]["notes"]
         );
         let img = recovered(&d, r["id"].as_i64().unwrap());
         let (grid, t) = truth(scene);
@@ -212,8 +212,8 @@ fn capture_every_block_reconstruct_and_fetch() {
         }
         println!("{}", report.last().unwrap());
         // The bound: clearly better than the best featureless guess (the truth's
-        // own mean everywhere), by 3 dB; the fake camera adds only +-0.5 DN of
-        // dither, so what limits the result is kappa(T) ~ 1e8 of the 8x8 scene.
+        // own mean everywhere), by 3 dB; what limits the result is the sensor's
+        // noise through kappa(T) ~ 1e8 of the 8x8 scene.
         let mean = t.iter().sum::<f64>() / t.len() as f64;
         let grey = metrics::psnr(&t, &vec![mean; t.len()]);
         assert!(
@@ -234,9 +234,9 @@ fn capture_every_block_reconstruct_and_fetch() {
     );
     assert_eq!(r["state"], "done", "{r}");
     assert!(
-        !r["report"]["warnings"].to_string().contains("finer than"),
+        !r["report"]["notes"].to_string().contains("finer than"),
         "{}",
-        r["report"]["warnings"]
+        r["report"]["notes"]
     );
     let jobs = d.json("/jobs/capture-1");
     assert_eq!(jobs["job"], "capture-1");
@@ -720,8 +720,17 @@ fn one_reconstruction_path_fista_and_lambda_from_a_single_frame() {
         assert_eq!(r["report"]["solver"]["lambda"], choice["lambda"]);
         let psnr = r["report"]["metrics"]["psnr_db"].as_f64().unwrap();
         println!("{solver}: PSNR {psnr:.2} dB, lambda {}", choice["lambda"]);
-        // ADMM 18.0 dB measured (the 4-frame, frame-variance path: 18.2 dB).
-        assert!(psnr > 15.0, "{solver}: {psnr} dB");
+        // One 20 ms frame under the sensor's shot and read noise (ADMM 13.8 dB
+        // measured): clearly better than the best featureless guess, the
+        // truth's own mean everywhere.
+        let (_, t) = truth("brewster-crossed");
+        let mean = t.iter().sum::<f64>() / t.len() as f64;
+        let grey = metrics::psnr(&t, &vec![mean; t.len()]);
+        println!("uniform guess {grey:.2} dB");
+        assert!(
+            psnr > grey + 3.0,
+            "{solver}: {psnr} dB, uniform guess {grey:.2} dB"
+        );
     }
     // Without dark subtraction the camera's dark level is an offset T cannot
     // fit: the report says so.
@@ -989,13 +998,16 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = config(dir.path(), &[]);
     let d = Daemon::start(&cfg, &dir.path().join("data"));
-    // A done source capture of pose A (crossed), 20 ms per frame.
+    // A done source capture of pose A (crossed), 20 ms per frame. The 5 mm
+    // source lights the wall faintly: under the sensor's noise 32 frames
+    // cannot tell its position from another, 320 can (6.4 s of light; 200 ms
+    // frames would do as well but stall under the suite's load).
     let source_capture = |frames: u32, dark_frames: u32| {
-        let c = d.run_job("/captures", &format!(r#"{{"kind": "source", "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": {frames}, "dark_frames": {dark_frames}}}"#), Duration::from_secs(30));
+        let c = d.run_job("/captures", &format!(r#"{{"kind": "source", "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": {frames}, "dark_frames": {dark_frames}}}"#), Duration::from_secs(60));
         assert_eq!(c["state"], "done", "{c}");
     };
     // The fake bench's point source at [0.03, -0.02], seen from pose A.
-    source_capture(32, 8);
+    source_capture(320, 32);
     let (s, b, _) = d.post(
         "/calibrations/wall",
         r#"{"scene": "brewster-crossed", "captures": [1], "source": [0.03, -0.02]}"#,
@@ -1014,26 +1026,30 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     assert!((p("alpha") - 0.3).abs() < 0.03, "{v}");
     assert!((p("ior") - 1.5).abs() < 0.1, "{v}");
     assert!(p("kd") < 0.01, "{v}");
-    assert!((p("gain") / configured - 1.0).abs() < 0.05, "{v}");
+    // The gain within 3 of its reported standard errors (12 % measured: the
+    // 32 dark frames' noise dominates), and those errors small enough to
+    // calibrate with.
+    let sigma_gain = v["fit"]["sigma"]["gain"].as_f64().unwrap();
+    assert!((p("gain") - configured).abs() < 3.0 * sigma_gain, "{v}");
+    assert!(sigma_gain < 0.15 * configured, "{v}");
     assert_eq!(v["warnings"], serde_json::json!([]), "{v}");
     assert!(
         v["fit"].get("warnings").is_none(),
         "said once, at the top: {v}"
     );
-    // 32 frames: the model check is against the frame variance, and the
-    // fake bench (rendered with the absorbing sheet) is explained by it,
-    // clearly better than by the transmitting reading.
+    // 320 frames: the model check is against the frame variance, and the
+    // fake bench (rendered with the absorbing sheet) is explained by it; the
+    // transmitting reading fits no better (under this noise the two differ
+    // by less than chi2/dof's own spread, sqrt(2 / dof) = 0.044).
     let check = &v["fit"]["model_check"];
     assert_eq!(check["explained"], true, "{check}");
     let models = v["fit"]["polarizer_models"].as_array().unwrap();
     assert_eq!(models[0]["model"], "absorbing", "{v}");
     assert_eq!(models[0]["used"], true, "{v}");
     assert_eq!(models[1]["model"], "transmitting", "{v}");
-    assert!(
-        models[1]["relative_residual"].as_f64().unwrap()
-            > models[0]["relative_residual"].as_f64().unwrap(),
-        "{v}"
-    );
+    let chi2 = |m: &serde_json::Value| m["chi2_per_dof"].as_f64().unwrap_or(f64::NAN);
+    let spread = (2.0 / check["dof"].as_f64().unwrap_or(1.0)).sqrt();
+    assert!(chi2(&models[1]) > chi2(&models[0]) - 2.0 * spread, "{v}");
     // The wrong source position is refused, not fitted.
     let (s, b, _) = d.post(
         "/calibrations/wall",
@@ -1044,7 +1060,7 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     assert!(!b.contains("dots"), "{b}");
     // Two captures of the source, given as two positions (the fake bench has
     // one): fitted together, each position with its own residual.
-    source_capture(32, 8);
+    source_capture(320, 32);
     let two = r#"{"scene": "brewster-crossed", "sources": [{"source": [0.03, -0.02], "captures": [1]}, {"source": [0.03, -0.02], "captures": [2]}]}"#;
     let (s, b, _) = d.post("/calibrations/wall", two);
     assert_eq!(s, 200, "{b}");
@@ -1052,8 +1068,10 @@ fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     let positions = v["positions"].as_array().unwrap();
     assert_eq!(positions.len(), 2, "{v}");
     assert_eq!(positions[1]["captures"], serde_json::json!([2]), "{v}");
+    // Each within the accepted 25 % beyond the noise (11 % and 16 %
+    // measured; the wrong position above is refused).
     for p in positions {
-        assert!(p["relative_residual"].as_f64().unwrap() < 0.1, "{v}");
+        assert!(p["relative_residual"].as_f64().unwrap() < 0.25, "{v}");
     }
     assert_eq!(v["captures"], serde_json::json!([1, 2]), "{v}");
     assert!((param(&v, "alpha") - 0.3).abs() < 0.03, "{v}");
@@ -1450,19 +1468,28 @@ fn a_capture_saturated_beyond_the_configured_share_fails_when_told_to() {
             Duration::from_secs(60),
         )
     };
-    // The glare block: 28,604 of 262,144 pixels (10.9 %) saturated, over 8 %.
+    // The glare block: about 28,600 of 262,144 pixels (10.9 %) saturated,
+    // over 8 % (the count moves with the sensor's noise by a few hundred).
     let over = capture(90);
     assert_eq!(over["state"], "failed", "{over}");
     let error = over["error"].as_str().unwrap();
-    assert!(
-        error.contains("28604 of 262144 pixels at full scale"),
-        "{error}"
-    );
+    let count = |text: &str| -> u64 {
+        let head = text
+            .split(" of 262144 pixels at full scale")
+            .next()
+            .unwrap_or("");
+        head.rsplit(' ')
+            .next()
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(0)
+    };
+    assert!((27_000..30_500).contains(&count(error)), "{error}");
     assert!(error.contains("saturated = \"warn\""), "{error}");
     let (s, _) = d.get(&format!("/captures/{}/frame.tiff", over["id"]));
     assert_eq!(s, 404, "a failed capture keeps no frames");
-    // 45 degrees: 13,802 pixels (5.3 %), under the share: kept, counted.
+    // 45 degrees: about 13,800 pixels (5.3 %), under the share: kept, counted.
     let under = capture(45);
     assert_eq!(under["state"], "done", "{under}");
-    assert_eq!(under["clipping"]["saturated"], 13802, "{under}");
+    let n = under["clipping"]["saturated"].as_u64().unwrap_or(0);
+    assert!((12_500..15_000).contains(&n), "{under}");
 }
