@@ -1008,7 +1008,7 @@ fn the_rig_panel_shows_the_mount_s_measured_angle_and_the_captures_table_too() {
 }
 
 #[test]
-fn a_saturated_plan_s_captures_are_flagged_on_the_page_with_their_counts() {
+fn a_saturated_plan_is_flagged_on_the_page_with_its_counts_and_a_clean_plan_has_no_warning() {
     let page = Page::start_with(&[(
         "scene = \"brewster-crossed\"",
         "scene = \"brewster-rotating\"",
@@ -1055,7 +1055,8 @@ fn a_saturated_plan_s_captures_are_flagged_on_the_page_with_their_counts() {
             .await;
             assert!(row.contains("brewster-rotating"), "{row}");
         }
-        // And the plan's reconstruction names it too.
+        // And the plan's reconstruction names it too, its first warning the
+        // saturation (loud: a list of warnings).
         let rid = plan["reconstruction"].as_i64().unwrap();
         until("the reconstruction's plan", long, || async {
             text(&c, &format!("#reconstruction-{rid}"))
@@ -1064,6 +1065,31 @@ fn a_saturated_plan_s_captures_are_flagged_on_the_page_with_their_counts() {
                 .then_some(())
         })
         .await;
+        let first = text(&c, &format!("#reconstruction-{rid} .warnings li")).await;
+        assert!(first.contains("saturated"), "{first}");
+
+        // The README's plan at a sane exposure: no warning on the page, its
+        // notes (kappa, the grid) folded away.
+        let (s, b, _) = page.d.post(
+            "/plans",
+            r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 4, "dark_frames": 1, "reconstruct": {"truth": "letter"}}"#,
+        );
+        assert_eq!(s, 202, "{b}");
+        let clean = page.d.wait_plan("/plans/2", &["done"], long);
+        let rid = clean["reconstruction"].as_i64().unwrap();
+        js(&c, "resync(); return null;").await;
+        let notes = until("the clean result's notes", long, || async {
+            let n = text(&c, &format!("#reconstruction-{rid} .notes summary")).await;
+            (!n.is_empty()).then_some(n)
+        })
+        .await;
+        assert!(notes.contains("notes on this bench"), "{notes}");
+        let shown = js(
+            &c,
+            &format!("return document.querySelectorAll('#reconstruction-{rid} .warnings, #reconstruction-{rid} .warning').length;"),
+        )
+        .await;
+        assert_eq!(shown, serde_json::json!(0), "a clean result shows no warning");
         c.close().await.unwrap();
     });
 }
