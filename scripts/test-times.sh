@@ -2,7 +2,7 @@
 # Per-test times of the whole suite (docs/test-times.md): builds what
 # `cargo test --locked` builds, then runs each test binary one after the
 # other as cargo does (working directory: the crate root), with libtest's
-# JSON report and its per-test times. Writes OUT/<binary>.json and
+# JSON report and its per-test times (four test threads, as .cargo/config.toml sets). Writes OUT/<binary>.json and
 # OUT/binaries.txt (wall seconds per binary).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -22,7 +22,7 @@ for line in sys.stdin:
 ' > "$out/bins.txt"
 while read -r name exe; do
   start=$(date +%s.%N)
-  RUSTC_BOOTSTRAP=1 "$exe" -Zunstable-options --format json --report-time \
+  RUST_TEST_THREADS=${RUST_TEST_THREADS:-4} RUSTC_BOOTSTRAP=1 "$exe" -Zunstable-options --format json --report-time \
     > "$out/$name.json" 2> "$out/$name.err" < /dev/null || true
   end=$(date +%s.%N)
   python3 -c "print('$name', round($end - $start, 1))" | tee -a "$out/binaries.txt"

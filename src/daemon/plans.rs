@@ -614,6 +614,12 @@ impl Daemon {
                                 Some(Err(e)) => return fail(&plan, format!("step {at}: {e}")),
                                 None => return,
                             };
+                            for old in plan.captures.iter().filter(|o| o.step == at) {
+                                let said = format!("plan {id} took this step again as capture {c}");
+                                if let Err(e) = self.store.capture_retaken(old.capture, &said) {
+                                    tracing::warn!("plan-{id}: capture-{}: {e}", old.capture);
+                                }
+                            }
                             plan.captures.retain(|c| c.step != at);
                             plan.captures.push(PlanCapture {
                                 step: at,

@@ -99,6 +99,21 @@ impl Store {
         })
     }
 
+    /// Adds to an interrupted or failed capture's reason that its plan took
+    /// the step again (`retaken`: "plan 3 took this step again as capture 9").
+    ///
+    /// Why: "submit it again" on a capture its plan already retook sends the
+    /// user after work that is done.
+    pub fn capture_retaken(&self, id: i64, retaken: &str) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET error = COALESCE(error || '; ', '') || ?2 WHERE id = ?1 AND state IN ('interrupted', 'failed')",
+                params![id, retaken],
+            )
+            .map(|_| ())
+        })
+    }
+
     /// One capture.
     pub fn capture(&self, id: i64) -> Result<CaptureRecord, StoreError> {
         self.with(|c| {

@@ -304,7 +304,7 @@ fn frame_cases() -> Vec<FrameCase> {
 /// al. 2020) against the best of a quarter-decade λ grid chosen with the
 /// truth, on 16x16 scenes through camera frames. Prints the table of
 /// docs/lambda.md. About 15-30 min on 2 cores:
-/// `cargo test --release --no-default-features --test core lambda:: -- --ignored --nocapture lambda_rules_on_camera_frames`
+/// `cargo test --release --no-default-features --test suite offline::lambda:: -- --ignored --nocapture lambda_rules_on_camera_frames`
 #[test]
 #[ignore]
 fn lambda_rules_on_camera_frames() {

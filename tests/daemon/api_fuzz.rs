@@ -9,7 +9,7 @@
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::common::{config, Client, InProcess};
+use crate::daemon::common::{config, Client, InProcess};
 
 /// Runs schemathesis against `d` (with `extra` arguments) and returns its
 /// exit status and output; fails the test if it overruns its bound.

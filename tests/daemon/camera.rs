@@ -68,7 +68,7 @@ fn at_open() -> Acquisition {
 
 #[test]
 fn frames_show_the_selected_block_and_scale_with_exposure() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     let fake = bench();
     fake.select("A", Some(0.0));
     let cam = handle();
@@ -129,7 +129,7 @@ fn frames_show_the_selected_block_and_scale_with_exposure() {
 
 #[test]
 fn a_two_second_exposure_does_not_time_out() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     let fake = bench();
     fake.select("A", Some(0.0));
     let cam = handle();
@@ -152,7 +152,7 @@ fn a_two_second_exposure_does_not_time_out() {
 
 #[test]
 fn out_of_range_settings_name_the_feature() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     let _fake = bench();
     let mut cam = AravisCamera::open(ADDR).unwrap();
     let e = cam
@@ -184,7 +184,7 @@ fn out_of_range_settings_name_the_feature() {
 
 #[test]
 fn a_camera_that_vanishes_mid_capture_fails_the_capture_and_comes_back() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     let fake = bench();
     let cam = handle();
     assert!(wait_connected(&cam, true, Duration::from_secs(5)));
@@ -217,7 +217,7 @@ fn a_camera_that_vanishes_mid_capture_fails_the_capture_and_comes_back() {
 
 #[test]
 fn regions_beyond_the_sensor_are_refused_before_aravis_and_the_camera_reads_back() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     let fake = bench();
     fake.select("A", Some(0.0));
     let mut cam = AravisCamera::open(ADDR).unwrap();
@@ -273,7 +273,7 @@ fn regions_beyond_the_sensor_are_refused_before_aravis_and_the_camera_reads_back
 #[test]
 fn the_fill_callback_never_writes_past_its_buffer_whatever_the_registers_say() {
     use aravis::prelude::*;
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     let fake = bench();
     fake.select("A", Some(0.0));
     // A client that bypasses polnlos (arv-tool, another program) writes a
@@ -322,7 +322,7 @@ fn usb_hot_plug_watching_is_harmless_without_usb_cameras() {
 
 #[test]
 fn software_trigger_delivers_one_frame_per_trigger() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     let fake = bench();
     fake.select("A", Some(0.0));
     let mut cam = AravisCamera::open(ADDR).unwrap();
@@ -399,7 +399,7 @@ fn id_span(ids: &[u64]) -> u64 {
 
 #[test]
 fn a_200_frame_capture_loses_no_frame_and_short_fast_captures_neither() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     let (counts, ids, cam, _fake) = fast_frames(200, Duration::ZERO);
     assert_eq!((counts.dropped, counts.broken), (0, 0), "{counts:?}");
     // Consecutive ids (16-bit, wrapping past 0): none went missing.
@@ -423,7 +423,7 @@ fn a_200_frame_capture_loses_no_frame_and_short_fast_captures_neither() {
 
 #[test]
 fn broken_frames_of_a_lossy_link_are_waited_past_and_a_link_that_breaks_all_fails_with_advice() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     let (mut fake, cam) = showing_a();
     let settings = Acquisition {
         exposure_us: 10_000.0,
@@ -456,7 +456,7 @@ fn broken_frames_of_a_lossy_link_are_waited_past_and_a_link_that_breaks_all_fail
 
 #[test]
 fn frames_a_slow_reader_makes_the_camera_drop_are_counted_as_dropped() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     // A reader that takes 15 ms per frame while the camera sends one every
     // few milliseconds: the stream's buffers (32 of these 512 KiB frames)
     // run out and frames are lost.
@@ -474,7 +474,7 @@ fn frames_a_slow_reader_makes_the_camera_drop_are_counted_as_dropped() {
 
 #[test]
 fn a_loopback_address_no_interface_holds_is_named_with_how_to_add_it() {
-    let _g = crate::common::lock();
+    let _g = crate::daemon::common::lock();
     // Linux routes all of 127/8 to lo, yet only 127.0.0.1 is lo's own.
     assert_eq!(
         polnlos::camera::fake::interface_has("127.0.0.1".parse().unwrap()),

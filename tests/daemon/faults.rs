@@ -5,7 +5,7 @@
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use crate::common::{config, lock, Client, Daemon};
+use crate::daemon::common::{config, lock, Client, Daemon};
 use polnlos::camera::fake::FakeBench;
 use polnlos::camera::Frame;
 

@@ -4,13 +4,13 @@
 //! malformed HTTP, rebinding hosts, memory that grew with the frame count.
 //! Everything over real HTTP on 127.0.0.1 with the Aravis fake camera.
 
-use crate::common;
+use crate::daemon::common;
 
 use std::io::Write;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::common::{config, lock, Client, Daemon, InProcess};
+use crate::daemon::common::{config, lock, Client, Daemon, InProcess};
 use rand::{Rng, SeedableRng};
 
 const CAPTURE: &str =

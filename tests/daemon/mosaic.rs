@@ -7,7 +7,7 @@
 
 use std::time::Duration;
 
-use crate::common::{config, lock, Daemon};
+use crate::daemon::common::{config, lock, Daemon};
 
 /// The fake camera shows the rotating bench's letter, as a `sensor` camera.
 fn bench(dir: &std::path::Path, sensor: &str) -> std::path::PathBuf {

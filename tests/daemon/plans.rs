@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::common::{config, lock, Daemon, InProcess};
+use crate::daemon::common::{config, lock, Daemon, InProcess};
 
 /// The fake camera shows the rotating bench's letter.
 fn rotating_bench(dir: &std::path::Path) -> std::path::PathBuf {
@@ -463,6 +463,21 @@ fn sigkill_in_the_middle_of_a_plan_loses_no_capture_and_repeats_none() {
         others.len() <= 1 && others.iter().all(|c| c["state"] == "interrupted"),
         "{all}"
     );
+    // The one the kill cut short says its plan took it again, and as which.
+    for c in others {
+        let error = c["error"].as_str().unwrap_or("");
+        let again = format!("plan {} took this step again as capture ", plan["id"]);
+        assert!(
+            error.contains("submit it again") && error.contains(&again),
+            "{c}"
+        );
+        let by: i64 = error
+            .rsplit(' ')
+            .next()
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(0);
+        assert!(ids.contains(&by), "{c} {ids:?}");
+    }
     let rid = plan["reconstruction"].as_i64().unwrap();
     assert_eq!(d.json(&format!("/reconstructions/{rid}"))["state"], "done");
 }

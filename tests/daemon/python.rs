@@ -6,7 +6,7 @@
 //! Needs what the README's set-up line installs: python3 with maturin,
 //! pytest, nbclient and ipykernel.
 
-use crate::common::{config, InProcess};
+use crate::daemon::common::{config, InProcess};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

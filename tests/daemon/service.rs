@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::common::{config, lock, Client, Daemon, InProcess};
+use crate::daemon::common::{config, lock, Client, Daemon, InProcess};
 use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::solve::metrics;

@@ -6,7 +6,7 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::common::{config, free_port, InProcess};
+use crate::daemon::common::{config, free_port, InProcess};
 use fantoccini::{Client, ClientBuilder, Locator};
 
 /// chromedriver on a free loopback port, stopped on drop.
