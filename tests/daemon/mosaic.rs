@@ -146,8 +146,20 @@ fn one_mosaic_frame_per_pose_reconstructs_as_well_as_four_sheet_captures() {
     let steps: serde_json::Value = serde_json::from_str(&steps).unwrap();
     let steps = steps.as_array().cloned().unwrap_or_default();
     assert_eq!(steps.len(), 2, "{steps:?}");
+    // Its last step is the reconstruction of that same capture (another
+    // capture carries other noise: 16.0-16.8 dB measured between runs).
     let last = steps[1]["psnr_db"].as_f64().unwrap();
-    assert!((last - mosaic_psnr).abs() <= 1.0, "{last} vs {mosaic_psnr}");
+    let same = d.run_job(
+        "/reconstructions",
+        &format!(
+            r#"{{"scene": "brewster-mosaic", "captures": [{}], "truth": "letter"}}"#,
+            p["id"]
+        ),
+        long,
+    );
+    assert_eq!(same["state"], "done", "{same}");
+    let same = psnr(&same);
+    assert!((last - same).abs() <= 0.5, "{last} vs {same}");
 
     // A plan of the mosaic scene takes one capture for the pose's four blocks.
     let (s, body, loc) = d.post(

@@ -579,3 +579,55 @@ fn the_readme_s_demo_is_explained_by_its_model_under_the_sensor_s_noise() {
         );
     }
 }
+
+#[test]
+fn an_auto_exposure_plan_exposes_each_block_for_its_own_light_and_saturates_none() {
+    // The rotating bench's blocks differ by the glare the polarizer lets
+    // through: one exposure for all saturates the 90-degree block at 100 ms
+    // (issue 38); "auto" plans each block's own.
+    let dir = tempfile::tempdir().unwrap();
+    let d = InProcess::start(&rotating_bench(dir.path()), &dir.path().join("data"));
+    let (s, body, loc) = d.post(
+        "/plans",
+        r#"{"scene": "brewster-rotating", "exposure": "auto", "frames": 2, "dark_frames": 1, "reconstruct": {"truth": "letter"}}"#,
+    );
+    assert_eq!(s, 202, "{body}");
+    let plan = d.wait_plan(
+        &loc.unwrap(),
+        &["done", "failed", "cancelled"],
+        Duration::from_secs(240),
+    );
+    assert_eq!(plan["state"], "done", "{plan}");
+    let captures: Vec<serde_json::Value> = plan_captures(&plan)
+        .iter()
+        .map(|id| d.json(&format!("/captures/{id}")))
+        .filter(|c| c["kind"] == "light")
+        .collect();
+    assert_eq!(captures.len(), 4, "{plan}");
+    let exposure = |deg: f64| {
+        captures
+            .iter()
+            .find(|c| c["channels"][0]["deg"].as_f64() == Some(deg))
+            .and_then(|c| c["exposure_us"].as_f64())
+            .unwrap_or(f64::NAN)
+    };
+    println!(
+        "auto exposures: 0° {} us, 45° {} us, 90° {} us, 135° {} us",
+        exposure(0.0),
+        exposure(45.0),
+        exposure(90.0),
+        exposure(135.0)
+    );
+    // The crossed block gets the longest exposure, the glare block the shortest.
+    assert!(exposure(0.0) > 2.0 * exposure(90.0), "{captures:?}");
+    for c in &captures {
+        assert_eq!(c["clipping"]["saturated"], 0, "{c}");
+    }
+    let r = d.json(&format!("/reconstructions/{}", plan["reconstruction"]));
+    assert_eq!(r["state"], "done", "{r}");
+    assert!(
+        !r["report"]["warnings"].to_string().contains("saturated"),
+        "{}",
+        r["report"]
+    );
+}
