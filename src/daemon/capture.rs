@@ -97,8 +97,14 @@ impl CaptureWorker {
                 Err(e) => Err(JobError::Store(w.jobs.store.describe(&e))),
             };
             drop(lease);
+            let store = &w.jobs.store;
+            let result = result.and_then(|t| {
+                store
+                    .capture_done(id, &t.camera_id, &t.counters, t.counts, t.clipping)
+                    .map_err(|e| JobError::Store(store.describe(&e)))
+            });
             w.queue.release(id);
-            let (m, store) = (&w.jobs.metrics, &w.jobs.store);
+            let m = &w.jobs.metrics;
             let counters = (&m.captures_done, &m.captures_failed, &m.capture_micros);
             finish_job(&w.jobs, job, start, result, counters, |end| match end {
                 Ending::Failed(e) => store.capture_failed(id, e),
@@ -109,7 +115,19 @@ impl CaptureWorker {
     }
 }
 
-async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
+/// What a capture's record gets once its files are durable and the camera
+/// is released ([`run_capture`]'s result).
+struct Taken {
+    camera_id: String,
+    counters: String,
+    counts: FrameCounts,
+    clipping: crate::measure::Clipping,
+}
+
+/// Takes capture `id` and writes its files; the caller records it done
+/// after releasing the camera, so that a client told "done" finds the
+/// camera free (a settings change right after a capture once got 409).
+async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<Taken, JobError> {
     let store_err = |e: crate::store::StoreError| JobError::Store(w.jobs.store.describe(&e));
     let c = w.jobs.store.capture(id).map_err(store_err)?;
     w.jobs
@@ -216,10 +234,12 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         counts.broken
     );
     let counters = serde_json::to_string(&w.camera.status().counters).unwrap_or_default();
-    w.jobs
-        .store
-        .capture_done(id, &camera_id, &counters, counts, clipping)
-        .map_err(store_err)
+    Ok(Taken {
+        camera_id,
+        counters,
+        counts,
+        clipping,
+    })
 }
 
 /// Applies the saturation policy to a capture's frames: beyond the
