@@ -244,6 +244,7 @@ impl Daemon {
                 &scene,
                 &blocks,
                 &self.scenes.pixel_maps(scene_name),
+                false,
             )
             .map_err(|e| invalid(e.to_string()))?;
             let m = stacked.measurement;

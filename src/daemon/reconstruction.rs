@@ -114,14 +114,30 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     };
     let Stacked {
         mut measurement,
-        warnings,
+        mut warnings,
     } = stack_records(
         &d.store,
         records,
         &scene,
         t.blocks(),
         &d.scenes.pixel_maps(&rec.scene),
+        true,
     )?;
+    // Elements too saturated to measure: their rows of T and i are zero (no
+    // part in any fit) and their variance 0 (no part in the noise).
+    let missing = unmeasured_rows(&mut measurement);
+    if !missing.is_empty() {
+        warnings.push(format!(
+            "{} of {} wall elements were not measured (a pixel of theirs saturated) and are left out of the fit",
+            missing.len(),
+            measurement.i.len()
+        ));
+    }
+    let t = if missing.is_empty() {
+        t
+    } else {
+        Arc::new(t.with_rows_zeroed(&missing))
+    };
     let calibration = d.calibration.get(&rec.scene).copied();
     let units = to_model_units(&t, &mut measurement, calibration)?;
     let mut notes: Vec<String> = units.note().into_iter().collect();
@@ -143,10 +159,17 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         (None, false) => d.scenes.transport(&key)?,
         (Some(p), false) => Arc::new(d.scenes.transport(&key)?.select_blocks(&p.kept)),
     };
-    // The scene's cached conditioning and Gram are those of every block.
-    let cond = match &part {
-        None => d.scenes.conditioning(&key)?,
-        Some(_) => Arc::new(crate::solve::condition(&t)?),
+    let t = if missing.is_empty() || key == rec.scene {
+        t
+    } else {
+        Arc::new(t.with_rows_zeroed(&missing))
+    };
+    // The scene's cached conditioning and Gram are those of every row of
+    // every block.
+    let whole = part.is_none() && missing.is_empty();
+    let cond = match whole {
+        true => d.scenes.conditioning(&key)?,
+        false => Arc::new(crate::solve::condition(&t)?),
     };
     check(cancel)?;
     let solve = stored_solve(&rec)?;
@@ -166,9 +189,9 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     // `T^T i` is new.
     let normal = if solve.solver.needs().gram {
         check_measurement(&t, &i)?;
-        Some(match &part {
-            None => Normal::with(d.scenes.gram(&key)?, &t, &i),
-            Some(_) => Normal::of(&t, &i),
+        Some(match whole {
+            true => Normal::with(d.scenes.gram(&key)?, &t, &i),
+            false => Normal::of(&t, &i),
         })
     } else {
         None
@@ -339,12 +362,19 @@ pub(super) fn stack_records(
     scene: &crate::scene::Scene,
     blocks: &[crate::transport::Block],
     maps: &PixelMaps,
+    in_range: bool,
 ) -> Result<Stacked, JobError> {
     // Saturation first: it biases the measurement before any model question.
-    let mut warnings: Vec<String> = records.iter().filter_map(saturation_warning).collect();
+    let mut warnings: Vec<String> = records
+        .iter()
+        .filter_map(|c| saturation_warning(c, in_range))
+        .collect();
     let captures = records
         .into_iter()
-        .map(|c| load_capture(store, c, scene, &mut warnings))
+        .map(|c| match in_range {
+            true => load_capture_in_range(store, c, scene, &mut warnings),
+            false => load_capture(store, c, scene, &mut warnings),
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let measurement = assemble_with(scene, blocks, &captures, maps)?;
     Ok(Stacked {
@@ -353,12 +383,30 @@ pub(super) fn stack_records(
     })
 }
 
+/// The rows of `m` that were not measured (NaN: an element with a pixel
+/// saturated in some frame), set to 0 with variance 0; returns their indices.
+fn unmeasured_rows(m: &mut Measurement) -> Vec<usize> {
+    let missing: Vec<usize> = (0..m.i.len()).filter(|&j| !m.i[j].is_finite()).collect();
+    for &j in &missing {
+        m.i[j] = 0.0;
+        if let Some(v) = m.variance.as_mut().and_then(|v| v.get_mut(j)) {
+            *v = 0.0;
+        }
+    }
+    missing
+}
+
 /// What a reconstruction must say about a capture whose frames reached full
 /// scale (its `clipping`): those pixels' means are lower bounds.
-fn saturation_warning(c: &CaptureRecord) -> Option<String> {
+fn saturation_warning(c: &CaptureRecord, in_range: bool) -> Option<String> {
     let cl = c.clipping.filter(|cl| cl.saturated > 0)?;
+    let what = if in_range {
+        "their values are lower bounds: they are left out of their elements' means"
+    } else {
+        "their values are lower bounds and bias the measurement low"
+    };
     Some(format!(
-        "capture {} saturated: {}; their values are lower bounds and bias the measurement low",
+        "capture {} saturated: {}; {what}",
         c.id,
         cl.saturation(&c.scene)
     ))
@@ -381,6 +429,8 @@ struct StoredCapture<'a> {
     store: &'a Store,
     record: CaptureRecord,
     info: CaptureInfo,
+    /// Whether its mean leaves out (NaN) the pixels saturated in any frame.
+    in_range: bool,
 }
 
 impl<'a> StoredCapture<'a> {
@@ -412,6 +462,7 @@ impl<'a> StoredCapture<'a> {
             store,
             record,
             info,
+            in_range: false,
         })
     }
 }
@@ -423,7 +474,12 @@ impl CaptureSource for StoredCapture<'_> {
 
     fn mean(&self) -> Result<Frame, String> {
         let dir = self.store.capture_dir(self.record.id);
-        read_mean(&dir).map_err(|e| self.store.describe(&e))
+        let read = if self.in_range {
+            crate::store::read_mean_in_range(&dir)
+        } else {
+            read_mean(&dir)
+        };
+        read.map_err(|e| self.store.describe(&e))
     }
 
     fn variance(&self) -> Result<Option<Frame>, String> {
@@ -441,6 +497,19 @@ pub(super) fn load_capture(
     warnings: &mut Vec<String>,
 ) -> Result<CaptureFrames, JobError> {
     Ok(load(scene, &StoredCapture::new(store, record)?, warnings)?)
+}
+
+/// [`load_capture`] with the pixels saturated in any frame left out of the
+/// mean (NaN), for a measurement that drops what it cannot trust.
+fn load_capture_in_range(
+    store: &Store,
+    record: CaptureRecord,
+    scene: &crate::scene::Scene,
+    warnings: &mut Vec<String>,
+) -> Result<CaptureFrames, JobError> {
+    let mut source = StoredCapture::new(store, record)?;
+    source.in_range = true;
+    Ok(load(scene, &source, warnings)?)
 }
 
 #[cfg(test)]

@@ -59,11 +59,7 @@ impl Clipping {
     /// Counts one frame of raw values whose full scale is `2^bits - 1`
     /// (bits outside 1..=16, which no camera reports, count against 65535).
     fn count(&mut self, pixels: &[u16], bits: u32) {
-        let full = if (1..=16).contains(&bits) {
-            ((1u32 << bits) - 1) as u16
-        } else {
-            u16::MAX
-        };
+        let full = full_scale(bits);
         let (mut at_full, mut at_zero) = (0u64, 0u64);
         for &p in pixels {
             at_full += u64::from(p >= full);
@@ -73,6 +69,16 @@ impl Clipping {
         self.zero = self.zero.max(at_zero);
         self.frames_saturated += u64::from(at_full > 0);
         self.pixels = pixels.len() as u64;
+    }
+}
+
+/// Full scale of raw values `bits` deep (bits outside 1..=16, which no
+/// camera reports, count against 65535).
+fn full_scale(bits: u32) -> u16 {
+    if (1..=16).contains(&bits) {
+        ((1u32 << bits) - 1) as u16
+    } else {
+        u16::MAX
     }
 }
 
@@ -91,6 +97,9 @@ pub struct FrameStack {
     m2: Vec<f64>,
     /// Pixels at the ends of the range, of the frames added by [`Self::push_raw`].
     pub clipping: Clipping,
+    /// Which pixels were at full scale in at least one frame added by
+    /// [`Self::push_raw`]; empty until one was.
+    saturated: Vec<bool>,
 }
 
 impl FrameStack {
@@ -103,14 +112,34 @@ impl FrameStack {
             mean: vec![0.0; width * height],
             m2: vec![0.0; width * height],
             clipping: Clipping::default(),
+            saturated: Vec::new(),
         }
     }
 
     /// Adds one frame of a camera's raw values, `bits` deep, counting its
     /// pixels at full scale and at zero ([`Clipping`]).
     pub fn push_raw(&mut self, pixels: &[u16], bits: u32) {
+        let before = self.clipping.frames_saturated;
         self.clipping.count(pixels, bits);
+        if self.clipping.frames_saturated > before {
+            let full = full_scale(bits);
+            if self.saturated.is_empty() {
+                self.saturated = vec![false; self.width * self.height];
+            }
+            for (s, &p) in self.saturated.iter_mut().zip(pixels) {
+                *s |= p >= full;
+            }
+        }
         self.push(pixels);
+    }
+
+    /// Which pixels were at full scale in at least one frame ([`Self::push_raw`]),
+    /// `None` when none was.
+    ///
+    /// Why: such a pixel's mean is only a lower bound; a measurement leaves
+    /// it out of its element's mean (issue 38).
+    pub fn saturated_pixels(&self) -> Option<&[bool]> {
+        (!self.saturated.is_empty()).then_some(self.saturated.as_slice())
     }
 
     /// Adds one frame of raw pixel values (its length is the caller's to
@@ -225,5 +254,17 @@ mod tests {
             e.to_string(),
             "the dark frame is 1x2 but the frames are 2x1; take the dark with the same region and binning"
         );
+    }
+
+    #[test]
+    fn pixels_at_full_scale_in_any_frame_are_marked() {
+        let mut st = FrameStack::new(3, 1);
+        st.push_raw(&[4095, 10, 20], 12);
+        assert_eq!(st.saturated_pixels(), Some(&[true, false, false][..]));
+        st.push_raw(&[100, 10, 4095], 12);
+        assert_eq!(st.saturated_pixels(), Some(&[true, false, true][..]));
+        let mut clean = FrameStack::new(2, 1);
+        clean.push_raw(&[4094, 0], 12);
+        assert_eq!(clean.saturated_pixels(), None);
     }
 }

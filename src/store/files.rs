@@ -52,6 +52,9 @@ impl CaptureFiles {
     pub const VARIANCE: &'static str = "variance.tiff";
     /// 16-bit PNG preview of the mean, scaled to its maximum.
     pub const PREVIEW: &'static str = "preview.png";
+    /// 32-bit float, 1 where a pixel was at full scale in any frame, else 0;
+    /// written only when one was.
+    pub const SATURATED: &'static str = "saturated.tiff";
 }
 
 /// Removes the raw frame files (`frames.tiff`, `dark.tiff`) of a capture
@@ -239,6 +242,15 @@ pub fn write_summary(
         let desc = serde_json::json!({"polnlos": "variance of the mean", "frames": frames.count, "meta": meta}).to_string();
         write_float_tiff(&dir.join(CaptureFiles::VARIANCE), &var, &desc)?;
     }
+    if let Some(sat) = frames.saturated_pixels() {
+        let mask = Frame {
+            width: frames.width,
+            height: frames.height,
+            pixels: sat.iter().map(|&s| if s { 1.0 } else { 0.0 }).collect(),
+        };
+        let desc = serde_json::json!({"polnlos": "saturated in any frame", "frames": frames.count, "meta": meta}).to_string();
+        write_float_tiff(&dir.join(CaptureFiles::SATURATED), &mask, &desc)?;
+    }
     let values: Vec<f64> = mean.pixels.iter().map(|&v| f64::from(v)).collect();
     image::write_png16(
         &dir.join(CaptureFiles::PREVIEW),
@@ -336,6 +348,34 @@ fn variance_from_pages(dir: &Path) -> Result<Option<Frame>, StoreError> {
 /// Reads a capture's mean frame back.
 pub fn read_mean(dir: &Path) -> Result<Frame, StoreError> {
     read_float_tiff(&dir.join(CaptureFiles::MEAN))
+}
+
+/// Reads a capture's mean with the pixels that were at full scale in any
+/// frame set to NaN (not measured), when it recorded any.
+///
+/// Why: a saturated pixel's mean is a lower bound, and an element's mean
+/// over it is biased low; the measurement leaves it out.
+pub fn read_mean_in_range(dir: &Path) -> Result<Frame, StoreError> {
+    let mut mean = read_mean(dir)?;
+    let path = dir.join(CaptureFiles::SATURATED);
+    if path.exists() {
+        let mask = read_float_tiff(&path)?;
+        if mask.pixels.len() != mean.pixels.len() {
+            return Err(StoreError::File(FileError::format(
+                &path,
+                format!(
+                    "{}x{} pixels, but the mean is {}x{}",
+                    mask.width, mask.height, mean.width, mean.height
+                ),
+            )));
+        }
+        for (m, &s) in mean.pixels.iter_mut().zip(&mask.pixels) {
+            if s != 0.0 {
+                *m = f32::NAN;
+            }
+        }
+    }
+    Ok(mean)
 }
 
 /// Reads a single-page 32-bit float TIFF.

@@ -20,8 +20,8 @@ use std::sync::Mutex;
 use rusqlite::{params, Connection};
 
 pub use files::{
-    capture_bytes, read_mean, read_mean_variance, remove_raw, write_frames, write_summary,
-    CaptureFiles, FrameMeta, TMP_MARK,
+    capture_bytes, read_mean, read_mean_in_range, read_mean_variance, remove_raw, write_frames,
+    write_summary, CaptureFiles, FrameMeta, TMP_MARK,
 };
 pub use lock::{remove_orphans, DirLock, LOCK_FILE};
 pub use plans::{PlanCapture, PlanInterim, PlanRow, PlanState};

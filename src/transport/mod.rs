@@ -289,6 +289,27 @@ impl Transport {
         )
     }
 
+    /// A copy with the rows `drop` (indices in `0..rows`, others ignored)
+    /// all zero: rows whose measurement is missing (a saturated element)
+    /// then add nothing to any fit, and the block layout stays.
+    pub fn with_rows_zeroed(&self, drop: &[usize]) -> Transport {
+        let mut data = self.data.clone();
+        for k in 0..self.cols {
+            let col = &mut data[k * self.rows..(k + 1) * self.rows];
+            for &j in drop.iter().filter(|&&j| j < self.rows) {
+                col[j] = 0.0;
+            }
+        }
+        Transport::from_col_major(
+            self.rows,
+            self.cols,
+            data,
+            self.blocks.clone(),
+            self.wall_grid,
+            self.scene_grid,
+        )
+    }
+
     /// `i = T l`: the noiseless measurement of scene `l` (MODEL.md Eq. 2).
     pub fn apply(&self, l: &[f64]) -> Vec<f64> {
         assert_eq!(l.len(), self.cols, "scene vector length");
