@@ -481,8 +481,12 @@ function reconstructionItem(x) {
     info.append(b);
   } else {
     if (x.state === "done") {
+      const grid = (x.report || {}).scene_grid || {};
+      const side = Math.max(grid.nu || 0, grid.nv || 0);
+      const scale = side > 0 ? Math.max(1, Math.floor(512 / side)) : 32;
       info.append(downloads([
         ["image.png", `/reconstructions/${x.id}/image.png`, `reconstruction-${x.id}.png`],
+        [`image.png ×${scale}`, `/reconstructions/${x.id}/image.png?scale=${scale}`, `reconstruction-${x.id}-x${scale}.png`],
         ["recovered.npy", `/reconstructions/${x.id}/recovered.npy`, `reconstruction-${x.id}-recovered.npy`],
         ["measurement.npy", `/reconstructions/${x.id}/measurement.npy`, `reconstruction-${x.id}-measurement.npy`],
         ["report.json", `/reconstructions/${x.id}/report.json`, `reconstruction-${x.id}-report.json`],

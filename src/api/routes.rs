@@ -531,13 +531,36 @@ async fn recon_file(
     .await
 }
 
-/// Recovered image, 16-bit PNG.
-#[utoipa::path(get, path = "/reconstructions/{id}/image.png", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number")), responses((status = 200, content_type = "image/png", description = "Recovered image"), (status = 404, body = ErrorBody, description = "No such reconstruction, or its file is not written yet")))]
+/// `?scale=8` of `GET /reconstructions/{id}/image.png`.
+#[derive(Debug, Default, serde::Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+pub struct ImageQuery {
+    /// Enlarge each scene element to a `scale` x `scale` block of pixels
+    /// (1 to 4096 / the image's longest side); absent: one pixel each.
+    scale: Option<u32>,
+}
+
+/// Recovered image, 16-bit PNG, one pixel per scene element or enlarged.
+#[utoipa::path(get, path = "/reconstructions/{id}/image.png", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number"), ImageQuery), responses((status = 200, content_type = "image/png", description = "Recovered image"), (status = 404, body = ErrorBody, description = "No such reconstruction, or its file is not written yet"), (status = 422, body = ErrorBody, description = "A scale out of range")))]
 pub async fn reconstruction_image(
     State(d): St,
     Path(id): Path<String>,
+    Query(q): Query<ImageQuery>,
 ) -> Result<Response, ApiError> {
-    recon_file(&d, &id, "image.png", "image/png").await
+    let Some(k) = q.scale else {
+        return recon_file(&d, &id, "image.png", "image/png").await;
+    };
+    let id = parse_id(&id, "reconstruction")?;
+    d.store().reconstruction(id)?;
+    let path = d.store().reconstruction_dir(id).join("image.png");
+    let png = tokio::fs::read(&path)
+        .await
+        .map_err(|_| ApiError::not_found(format!("reconstruction {id} has no image.png yet")))?;
+    let scaled = tokio::task::spawn_blocking(move || crate::files::image::scale_png16(&png, k))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))?
+        .map_err(ApiError::invalid)?;
+    Ok(([(header::CONTENT_TYPE, "image/png")], scaled).into_response())
 }
 
 /// The known truth the reconstruction was asked to compare with, on its

@@ -73,6 +73,37 @@ fn read_float_tiff(path: &Path) -> Result<Option<Gray>, FileError> {
     }
 }
 
+/// The largest side, pixels, of an image scaled by [`scale_png16`].
+pub const MAX_SCALED_SIDE: u32 = 4096;
+
+/// A 16-bit grey PNG enlarged `k` times, each pixel a `k` x `k` block
+/// (nearest neighbour: no value is invented between the scene's elements).
+///
+/// Why: a reconstruction of an 8x8 scene is an 8x8 PNG, too small to look
+/// at in an image viewer. `k` must be at least 1 and the result at most
+/// [`MAX_SCALED_SIDE`] on a side; the error says what is allowed.
+pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, String> {
+    let img = image::load_from_memory(png)
+        .map_err(|e| format!("cannot decode the stored PNG: {e}"))?
+        .to_luma16();
+    let (w, h) = img.dimensions();
+    let longest = w.max(h).max(1);
+    let most = (MAX_SCALED_SIDE / longest).max(1);
+    if k == 0 || k > most {
+        return Err(format!(
+            "scale = {k}: give a whole number from 1 to {most} (the {w}x{h} image may grow to {MAX_SCALED_SIDE} pixels a side)"
+        ));
+    }
+    let (sw, sh) = ((w * k) as usize, (h * k) as usize);
+    let k = k as usize;
+    let src = img.as_raw();
+    let pixels: Vec<u16> = (0..sh)
+        .flat_map(|y| (0..sw).map(move |x| (x, y)))
+        .map(|(x, y)| src[(y / k) * w as usize + x / k])
+        .collect();
+    encode_png16(sw, sh, &pixels)
+}
+
 /// Encodes 16-bit grey pixels as PNG bytes.
 pub fn encode_png16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, String> {
     let buf = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(
@@ -229,5 +260,24 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("32-bit float TIFF"), "{e}");
+    }
+
+    #[test]
+    fn a_scaled_png_repeats_each_pixel_in_a_block_and_refuses_a_bad_scale() {
+        let png = encode_png16(2, 1, &[100, 60000]).unwrap();
+        let big = scale_png16(&png, 3).unwrap();
+        let img = image::load_from_memory(&big).unwrap().to_luma16();
+        assert_eq!(img.dimensions(), (6, 3));
+        for y in 0..3 {
+            for x in 0..6 {
+                let want = if x < 3 { 100 } else { 60000 };
+                assert_eq!(img.get_pixel(x, y).0[0], want, "({x}, {y})");
+            }
+        }
+        assert!(scale_png16(&png, 0).unwrap_err().contains("from 1 to 2048"));
+        assert!(scale_png16(&png, 2049).is_err());
+        assert!(scale_png16(b"not a png", 2)
+            .unwrap_err()
+            .contains("cannot decode"));
     }
 }

@@ -184,6 +184,24 @@ fn capture_every_block_reconstruct_and_fetch() {
         ));
         let (s, png) = d.get_bytes(&format!("/reconstructions/{}/image.png", r["id"]));
         assert_eq!((s, &png[1..4]), (200, &b"PNG"[..]));
+        // Enlarged for a viewer: each element a 16x16 block, the same values.
+        let (s, big) = d.get_bytes(&format!("/reconstructions/{}/image.png?scale=16", r["id"]));
+        assert_eq!(s, 200);
+        let (small, big) = (
+            image::load_from_memory(&png).unwrap().to_luma16(),
+            image::load_from_memory(&big).unwrap().to_luma16(),
+        );
+        assert_eq!(big.dimensions(), (small.width() * 16, small.height() * 16));
+        assert!(big
+            .enumerate_pixels()
+            .all(|(x, y, p)| p == small.get_pixel(x / 16, y / 16)));
+        for bad in ["0", "100000", "two"] {
+            let (s, b) = d.get(&format!(
+                "/reconstructions/{}/image.png?scale={bad}",
+                r["id"]
+            ));
+            assert_eq!(s, if bad == "two" { 400 } else { 422 }, "{bad}: {b}");
+        }
         // The truth it was compared with, on the scene grid, at the same scale.
         let (s, png) = d.get_bytes(&format!("/reconstructions/{}/truth.png", r["id"]));
         assert_eq!((s, &png[1..4]), (200, &b"PNG"[..]));

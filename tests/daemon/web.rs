@@ -645,6 +645,10 @@ fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_delete
         let got = downloaded(&c, "#reconstruction-1 button.download[data-path$='report.json']").await;
         assert_eq!(got["status"], 200, "{got}");
         assert!(got["bytes"].as_u64().unwrap() > 100, "{got}");
+        // The 8x8 image enlarged 64 times (512 px), for a viewer.
+        let got = downloaded(&c, "#reconstruction-1 button.download[data-path$='image.png?scale=64']").await;
+        assert_eq!(got["status"], 200, "{got}");
+        assert!(got["bytes"].as_u64().unwrap() > 1000, "{got}");
         let got = downloaded(&c, "#capture-1 button.download[data-path$='mean.tiff']").await;
         assert_eq!(got["status"], 200, "{got}");
         assert!(got["bytes"].as_u64().unwrap() >= 512 * 512 * 4, "a 512x512 float TIFF: {got}");
