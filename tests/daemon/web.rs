@@ -1023,7 +1023,7 @@ fn a_saturated_plan_is_flagged_on_the_page_with_its_counts_and_a_clean_plan_has_
         // The issue's plan: 100 ms where the glare block wants about 6 ms.
         let (s, b, _) = page.d.post(
             "/plans",
-            r#"{"scene": "brewster-rotating", "exposure_us": 100000, "frames": 2, "dark_frames": 1}"#,
+            r#"{"scene": "brewster-rotating", "exposure_us": 100000, "frames": 2, "dark_frames": 1, "reconstruct": {"truth": "letter"}}"#,
         );
         assert_eq!(s, 202, "{b}");
         let plan = page.d.wait_plan("/plans/1", &["done"], long);
@@ -1094,6 +1094,15 @@ fn a_saturated_plan_is_flagged_on_the_page_with_its_counts_and_a_clean_plan_has_
         )
         .await;
         assert_eq!(shown, serde_json::json!(0), "a clean result shows no warning");
+        // The saturated plan, from its pixels in range, within 1 dB of it.
+        let psnr = |rid: &serde_json::Value| {
+            page.d.json(&format!("/reconstructions/{rid}"))["report"]["metrics"]["psnr_db"]
+                .as_f64()
+                .unwrap_or(f64::NAN)
+        };
+        let (saturated, sane) = (psnr(&plan["reconstruction"]), psnr(&clean["reconstruction"]));
+        println!("100 ms plan {saturated:.2} dB, 20 ms plan {sane:.2} dB");
+        assert!(saturated >= sane - 1.0, "{saturated} vs {sane}");
         c.close().await.unwrap();
     });
 }
