@@ -231,13 +231,13 @@ pub struct ZeroBody {
     /// each inheriting the capture defaults when absent, as in `POST /captures`.
     #[serde(flatten, deserialize_with = "super::flatten::named")]
     pub settings: CameraSettings,
-    /// Frames averaged per angle (1-100, default 2).
+    /// Frames averaged per angle (1-100, default 8).
     #[serde(default, deserialize_with = "super::integral::opt_count")]
     #[schema(minimum = 1, maximum = 100)]
     pub frames: Option<usize>,
-    /// Half-width of the sweep around the current zero, degrees (1-45, default 10).
+    /// Half-width of the sweep around the current zero, degrees (1-45, default 30).
     pub span_deg: Option<f64>,
-    /// Step of the sweep, degrees (0.1-10, default 2).
+    /// Step of the sweep, degrees (0.1-10, default 5).
     pub step_deg: Option<f64>,
     /// The light swept: `source` (default), the calibration point source
     /// near the hidden scene's centre (as for a wall calibration), or

@@ -140,7 +140,7 @@ fn an_uncalibrated_mount_shows_in_the_frames_and_the_sweep_finds_its_zero() {
 
     let (s, b, _) = d.post(
         "/mount/zero",
-        r#"{"scene": "brewster-rotating", "pose": "A", "exposure_us": 20000, "span_deg": 30, "step_deg": 5, "frames": 8}"#,
+        r#"{"scene": "brewster-rotating", "pose": "A", "exposure_us": 20000}"#,
     );
     assert_eq!(s, 200, "{b}");
     let fit: serde_json::Value = serde_json::from_str(&b).unwrap();
@@ -149,7 +149,8 @@ fn an_uncalibrated_mount_shows_in_the_frames_and_the_sweep_finds_its_zero() {
         "zero found at {zero:.3} ± {} deg (truth 4), residual {}",
         fit["zero_sigma_deg"], fit["relative_residual"]
     );
-    // Within 3 of its own standard errors, and those small enough to cross by.
+    // The default sweep (±30° in 5° steps, 8 frames): within 3 of its own
+    // standard errors, and those small enough to cross by.
     let sigma = fit["zero_sigma_deg"].as_f64().unwrap();
     assert!((zero - 4.0).abs() < 3.0 * sigma, "{fit}");
     assert!(sigma < 0.5, "{fit}");
