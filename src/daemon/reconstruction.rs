@@ -126,13 +126,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     // Elements too saturated to measure: their rows of T and i are zero (no
     // part in any fit) and their variance 0 (no part in the noise).
     let missing = unmeasured_rows(&mut measurement);
-    if !missing.is_empty() {
-        warnings.push(format!(
-            "{} of {} wall elements were not measured (a pixel of theirs saturated) and are left out of the fit",
-            missing.len(),
-            measurement.i.len()
-        ));
-    }
+    warnings.extend(unmeasured_warning(&missing, measurement.i.len()));
     let t = if missing.is_empty() {
         t
     } else {
@@ -187,14 +181,9 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     };
     // A solver that needs the Gram solves on the scene's cached one: only
     // `T^T i` is new.
-    let normal = if solve.solver.needs().gram {
-        check_measurement(&t, &i)?;
-        Some(match whole {
-            true => Normal::with(d.scenes.gram(&key)?, &t, &i),
-            false => Normal::of(&t, &i),
-        })
-    } else {
-        None
+    let normal = match solve.solver.needs().gram {
+        true => Some(normal_for(d, &key, whole, &t, &i)?),
+        false => None,
     };
     check(cancel)?;
     let solved = reconstruct_prepared(
@@ -208,38 +197,76 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     )?;
     let (image, mut report) = (solved.image, solved.report);
     report.model = model;
-    report.gain = Some(crate::solve::report::Gain {
+    report.gain = Some(gain_of(units));
+    let measurement = i;
+    check(cancel)?;
+    report.warnings.splice(0..0, warnings);
+    report.notes.splice(0..0, notes);
+    write_result(d, id, t.scene_grid(), &image, &measurement, &report)?;
+    let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
+    d.store
+        .reconstruction_done(id, cond.kappa, &text)
+        .map_err(store)
+}
+
+/// `T^T T` and `T^T i` for a solver that needs the Gram: the scene's cached
+/// Gram when `T` has every row of every block (`whole`), else formed anew.
+fn normal_for(
+    d: &JobContext,
+    key: &str,
+    whole: bool,
+    t: &crate::transport::Transport,
+    i: &[f64],
+) -> Result<Normal, JobError> {
+    check_measurement(t, i)?;
+    Ok(match whole {
+        true => Normal::with(d.scenes.gram(key)?, t, i),
+        false => Normal::of(t, i),
+    })
+}
+
+/// The gain a measurement was divided by, and where it came from, for the report.
+fn gain_of(units: crate::measure::Units) -> crate::solve::report::Gain {
+    crate::solve::report::Gain {
         value: units.factor(),
         source: match units {
             crate::measure::Units::Calibrated(_) => "calibration",
             crate::measure::Units::Estimated(_) => "estimated",
         },
-    });
-    let measurement = i;
-    check(cancel)?;
-    report.warnings.splice(0..0, warnings);
-    report.notes.splice(0..0, notes);
-    let grid = t.scene_grid();
+    }
+}
+
+/// Writes a finished reconstruction's files (the image as `.npy` and PNG,
+/// the measurement it solved, the report) and logs its summary; the record
+/// is marked done only after they are durable.
+fn write_result(
+    d: &JobContext,
+    id: i64,
+    grid: crate::scene::Grid,
+    image: &[f64],
+    measurement: &[f64],
+    report: &crate::solve::report::Report,
+) -> Result<(), JobError> {
     let dir = d.store.reconstruction_dir(id);
     std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
     let file = |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
-    npy::write_f64(&dir.join("recovered.npy"), &[grid.nv, grid.nu], &image).map_err(file)?;
+    npy::write_f64(&dir.join("recovered.npy"), &[grid.nv, grid.nu], image).map_err(file)?;
     // The stacked measurement it solved (units of T l, MODEL.md row order),
     // so a user can re-solve it offline with `polnlos reconstruct`.
     npy::write_f64(
         &dir.join("measurement.npy"),
         &[measurement.len()],
-        &measurement,
+        measurement,
     )
     .map_err(file)?;
     image::write_png16(
         &dir.join("image.png"),
         grid.nu,
         grid.nv,
-        &image::unit_to_u16(&image),
+        &image::unit_to_u16(image),
     )
     .map_err(file)?;
-    json::write(&dir.join("report.json"), &report).map_err(file)?;
+    json::write(&dir.join("report.json"), report).map_err(file)?;
     tracing::info!(
         "{} rows x {} unknowns, {} iterations{}{}; {} warnings, {} notes",
         report.rows,
@@ -258,10 +285,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         report.warnings.len(),
         report.notes.len()
     );
-    let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
-    d.store
-        .reconstruction_done(id, cond.kappa, &text)
-        .map_err(store)
+    Ok(())
 }
 
 impl Daemon {
@@ -394,6 +418,16 @@ fn unmeasured_rows(m: &mut Measurement) -> Vec<usize> {
         }
     }
     missing
+}
+
+/// What the report says of `missing` rows out of `rows`, if any.
+fn unmeasured_warning(missing: &[usize], rows: usize) -> Option<String> {
+    (!missing.is_empty()).then(|| {
+        format!(
+            "{} of {rows} wall elements were not measured (a pixel of theirs saturated) and are left out of the fit",
+            missing.len()
+        )
+    })
 }
 
 /// What a reconstruction must say about a capture whose frames reached full
