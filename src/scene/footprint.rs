@@ -9,12 +9,6 @@ use rayon::prelude::*;
 
 use super::{Homography, Plane};
 
-/// The least share of an element's pixel weight that must be in range
-/// (finite) for the element to be measured ([`PixelMap::average`]): all of
-/// it. Why: `T`'s row is the mean over the whole element, and the pixels
-/// that saturate are its brightest; a mean over the rest is biased low (at
-/// 1/2 the 100 ms rotating plan's fit left 7.6x the noise unexplained).
-pub const MIN_IN_RANGE: f64 = 1.0;
 /// Most lattice points one map may look at (the wall's image bounding box):
 /// a 16k x 16k sensor. A homography that images the wall larger than that is
 /// refused before anything is allocated.
@@ -248,10 +242,11 @@ impl PixelMap {
     /// `values` and, when given, per-pixel `variance` (MODEL.md `i_j`,
     /// `var_j` with `w_p = a_p / sum a_p`), in one pass over the pixels.
     ///
-    /// A pixel whose value is not finite (NaN: saturated, not measured) is
-    /// left out and the element's weights renormalized over the rest; an
-    /// element that keeps less than [`MIN_IN_RANGE`] of its weight is NaN
-    /// (not measured). Why: a saturated pixel's mean is only a lower bound.
+    /// An element with a NaN pixel (saturated: not measured) is NaN, mean
+    /// and variance. Why not a mean over the rest: `T`'s row is the whole
+    /// element's mean and the pixels that saturate are its brightest, so a
+    /// mean over the others is biased low (with "half of them in range" the
+    /// 100 ms rotating captures left 7.6x the noise unexplained).
     ///
     /// # Panics
     /// When `values` (or `variance`) is shorter than the frame this map was
@@ -261,43 +256,32 @@ impl PixelMap {
         values: &[f32],
         variance: Option<&(dyn Fn(usize) -> f64 + Sync)>,
     ) -> (Vec<f64>, Option<Vec<f64>>) {
-        // One weighted sum per element over its pixels, in parallel:
-        // (sum w x, sum w^2 var, weight in range, whole weight).
-        let sums: Vec<[f64; 4]> = (0..self.elements())
-            .into_par_iter()
-            .with_min_len(64)
-            .map(|j| {
-                let r = self.range(j);
-                let mut acc = [0.0; 4];
-                for (&p, &w) in self.pixels[r.clone()].iter().zip(&self.weights[r]) {
-                    acc[3] += w;
-                    let x = f64::from(values[p]);
-                    if x.is_finite() {
-                        acc[0] += w * x;
-                        acc[1] += variance.map_or(0.0, |var| w * w * var(p));
-                        acc[2] += w;
-                    }
-                }
-                acc
-            })
-            .collect();
-        let kept = |a: &[f64; 4]| {
-            if a[2] == a[3] {
-                Some(1.0)
-            } else if a[2] >= MIN_IN_RANGE * a[3] * (1.0 - 1e-12) && a[2] > 0.0 {
-                Some(a[3] / a[2])
-            } else {
-                None
-            }
-        };
-        let means = sums
-            .iter()
-            .map(|a| kept(a).map_or(f64::NAN, |k| a[0] * k))
-            .collect();
-        let variances = variance.map(|_| {
-            sums.iter()
-                .map(|a| kept(a).map_or(f64::NAN, |k| a[1] * k * k))
+        // One weighted sum per element over its pixels, in parallel.
+        let per_element = |term: &(dyn Fn(usize, f64) -> f64 + Sync)| -> Vec<f64> {
+            (0..self.elements())
+                .into_par_iter()
+                .with_min_len(64)
+                .map(|j| {
+                    let r = self.range(j);
+                    self.pixels[r.clone()]
+                        .iter()
+                        .zip(&self.weights[r])
+                        .map(|(&p, &w)| term(p, w))
+                        .sum()
+                })
                 .collect()
+        };
+        // A NaN pixel makes its element's sum NaN by itself; its variance
+        // follows the mean.
+        let means = per_element(&|p, w| w * f64::from(values[p]));
+        let variances = variance.map(|var| {
+            let mut v = per_element(&|p, w| w * w * var(p));
+            for (v, m) in v.iter_mut().zip(&means) {
+                if m.is_nan() {
+                    *v = f64::NAN;
+                }
+            }
+            v
         });
         (means, variances)
     }
