@@ -36,6 +36,13 @@ pub fn config(dir: &Path, edits: &[(&str, &str)]) -> PathBuf {
     p
 }
 
+/// A reconstruction record's PSNR against its truth (NaN without one).
+pub fn psnr(r: &serde_json::Value) -> f64 {
+    r["report"]["metrics"]["psnr_db"]
+        .as_f64()
+        .unwrap_or(f64::NAN)
+}
+
 /// HTTP to a daemon on 127.0.0.1: its address, a client and the bearer
 /// token it sends (if any).
 pub struct Client {

@@ -7,7 +7,7 @@
 
 use std::time::Duration;
 
-use crate::daemon::common::{config, lock, Daemon};
+use crate::daemon::common::{config, lock, psnr, Daemon};
 
 /// The fake camera shows the rotating bench's letter, as a `sensor` camera.
 fn bench(dir: &std::path::Path, sensor: &str) -> std::path::PathBuf {
@@ -24,12 +24,6 @@ fn bench(dir: &std::path::Path, sensor: &str) -> std::path::PathBuf {
             ),
         ],
     )
-}
-
-fn psnr(r: &serde_json::Value) -> f64 {
-    r["report"]["metrics"]["psnr_db"]
-        .as_f64()
-        .unwrap_or(f64::NAN)
 }
 
 const EXPOSURE_US: f64 = 20000.0;

@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, lock, Daemon, InProcess};
+use crate::daemon::common::{config, lock, psnr, Daemon, InProcess};
 
 /// The fake camera shows the rotating bench's letter.
 fn rotating_bench(dir: &std::path::Path) -> std::path::PathBuf {
@@ -27,12 +27,6 @@ fn plan_captures(plan: &serde_json::Value) -> Vec<i64> {
         .iter()
         .map(|c| c["capture"].as_i64().unwrap())
         .collect()
-}
-
-fn psnr(r: &serde_json::Value) -> f64 {
-    r["report"]["metrics"]["psnr_db"]
-        .as_f64()
-        .unwrap_or(f64::NAN)
 }
 
 #[test]

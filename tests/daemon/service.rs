@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, lock, Client, Daemon, InProcess};
+use crate::daemon::common::{config, lock, psnr, Client, Daemon, InProcess};
 use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::solve::metrics;
@@ -1492,11 +1492,6 @@ fn a_reconstruction_from_saturated_captures_says_so_first() {
         long,
     );
     assert_eq!(clean["state"], "done", "{clean}");
-    let psnr = |r: &serde_json::Value| {
-        r["report"]["metrics"]["psnr_db"]
-            .as_f64()
-            .unwrap_or(f64::NAN)
-    };
     println!(
         "saturated 100 ms captures, in-range pixels: {:.2} dB (model check {}); 20 ms: {:.2} dB",
         psnr(&r),

@@ -6,7 +6,7 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, free_port, InProcess};
+use crate::daemon::common::{config, free_port, psnr, InProcess};
 use fantoccini::{Client, ClientBuilder, Locator};
 
 /// chromedriver on a free loopback port, stopped on drop.
@@ -1095,12 +1095,8 @@ fn a_saturated_plan_is_flagged_on_the_page_with_its_counts_and_a_clean_plan_has_
         .await;
         assert_eq!(shown, serde_json::json!(0), "a clean result shows no warning");
         // The saturated plan, from its pixels in range, within 1 dB of it.
-        let psnr = |rid: &serde_json::Value| {
-            page.d.json(&format!("/reconstructions/{rid}"))["report"]["metrics"]["psnr_db"]
-                .as_f64()
-                .unwrap_or(f64::NAN)
-        };
-        let (saturated, sane) = (psnr(&plan["reconstruction"]), psnr(&clean["reconstruction"]));
+        let of = |rid: &serde_json::Value| psnr(&page.d.json(&format!("/reconstructions/{rid}")));
+        let (saturated, sane) = (of(&plan["reconstruction"]), of(&clean["reconstruction"]));
         println!("100 ms plan {saturated:.2} dB, 20 ms plan {sane:.2} dB");
         assert!(saturated >= sane - 1.0, "{saturated} vs {sane}");
         c.close().await.unwrap();
