@@ -77,6 +77,7 @@ const MAX_REFACTOR: usize = 20;
 
 /// The factor of `T^T T + rho (D^T D + I)`: a dense Cholesky, or through
 /// the Gram's low-rank form (the Cholesky of an `r x r` matrix, Woodbury).
+#[derive(Clone)]
 pub(crate) enum Factor {
     Dense(Llt<f64>),
     LowRank(Llt<f64>),
@@ -142,7 +143,7 @@ pub fn admm_tv(
 /// factor with its penalty. Solving a sequence of close measurements (the
 /// running mean of a capture) from the previous state needs no new
 /// factorization and few iterations.
-#[derive(Default)]
+#[derive(Default, Clone)]
 pub struct AdmmState {
     factor: Option<(f64, Factor)>,
     l: Vec<f64>,

@@ -8,6 +8,7 @@
 mod cli;
 mod lambda;
 mod layers;
+mod photo;
 #[cfg(feature = "bench")]
 mod rendered;
 mod rev3;
