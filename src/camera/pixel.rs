@@ -16,6 +16,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::measure::colour::BayerPattern;
 use crate::scene::MosaicLayout;
 
 /// Pixel formats polnlos reads: monochrome, and the raw mosaic of
@@ -55,6 +56,38 @@ pub enum PixelFormat {
     Polarized12p,
     /// FLIR: Polarsens mosaic, 16 bits.
     Polarized16,
+    /// Bayer RG colour filter, raw, 8 bits.
+    BayerRG8,
+    /// Bayer RG colour filter, raw, 10 bits in 16-bit little-endian words.
+    BayerRG10,
+    /// Bayer RG colour filter, raw, 12 bits in 16-bit little-endian words.
+    BayerRG12,
+    /// Bayer RG colour filter, raw, 16 bits, little-endian.
+    BayerRG16,
+    /// Bayer GR colour filter, raw, 8 bits.
+    BayerGR8,
+    /// Bayer GR colour filter, raw, 10 bits in 16-bit little-endian words.
+    BayerGR10,
+    /// Bayer GR colour filter, raw, 12 bits in 16-bit little-endian words.
+    BayerGR12,
+    /// Bayer GR colour filter, raw, 16 bits, little-endian.
+    BayerGR16,
+    /// Bayer GB colour filter, raw, 8 bits.
+    BayerGB8,
+    /// Bayer GB colour filter, raw, 10 bits in 16-bit little-endian words.
+    BayerGB10,
+    /// Bayer GB colour filter, raw, 12 bits in 16-bit little-endian words.
+    BayerGB12,
+    /// Bayer GB colour filter, raw, 16 bits, little-endian.
+    BayerGB16,
+    /// Bayer BG colour filter, raw, 8 bits.
+    BayerBG8,
+    /// Bayer BG colour filter, raw, 10 bits in 16-bit little-endian words.
+    BayerBG10,
+    /// Bayer BG colour filter, raw, 12 bits in 16-bit little-endian words.
+    BayerBG12,
+    /// Bayer BG colour filter, raw, 16 bits, little-endian.
+    BayerBG16,
 }
 
 /// How a format lays its pixels out in a buffer.
@@ -62,6 +95,8 @@ pub enum PixelFormat {
 pub enum Layout {
     /// One byte per pixel.
     Bits8,
+    /// 10 significant bits in 16-bit little-endian words.
+    Bits10In16,
     /// 12 significant bits in 16-bit little-endian words.
     Bits12In16,
     /// Two pixels in three bytes, least significant bits first (PFNC `Mono12p`):
@@ -105,7 +140,7 @@ impl std::fmt::Display for Needed {
 
 impl PixelFormat {
     /// Every format polnlos reads, in the order errors list them.
-    pub const ALL: [PixelFormat; 16] = [
+    pub const ALL: [PixelFormat; 32] = [
         PixelFormat::Mono8,
         PixelFormat::Mono12,
         PixelFormat::Mono12p,
@@ -122,6 +157,22 @@ impl PixelFormat {
         PixelFormat::Polarized8,
         PixelFormat::Polarized12p,
         PixelFormat::Polarized16,
+        PixelFormat::BayerRG8,
+        PixelFormat::BayerRG10,
+        PixelFormat::BayerRG12,
+        PixelFormat::BayerRG16,
+        PixelFormat::BayerGR8,
+        PixelFormat::BayerGR10,
+        PixelFormat::BayerGR12,
+        PixelFormat::BayerGR16,
+        PixelFormat::BayerGB8,
+        PixelFormat::BayerGB10,
+        PixelFormat::BayerGB12,
+        PixelFormat::BayerGB16,
+        PixelFormat::BayerBG8,
+        PixelFormat::BayerBG10,
+        PixelFormat::BayerBG12,
+        PixelFormat::BayerBG16,
     ];
 
     /// The GenICam name.
@@ -143,6 +194,22 @@ impl PixelFormat {
             PixelFormat::Polarized8 => "Polarized8",
             PixelFormat::Polarized12p => "Polarized12p",
             PixelFormat::Polarized16 => "Polarized16",
+            PixelFormat::BayerRG8 => "BayerRG8",
+            PixelFormat::BayerRG10 => "BayerRG10",
+            PixelFormat::BayerRG12 => "BayerRG12",
+            PixelFormat::BayerRG16 => "BayerRG16",
+            PixelFormat::BayerGR8 => "BayerGR8",
+            PixelFormat::BayerGR10 => "BayerGR10",
+            PixelFormat::BayerGR12 => "BayerGR12",
+            PixelFormat::BayerGR16 => "BayerGR16",
+            PixelFormat::BayerGB8 => "BayerGB8",
+            PixelFormat::BayerGB10 => "BayerGB10",
+            PixelFormat::BayerGB12 => "BayerGB12",
+            PixelFormat::BayerGB16 => "BayerGB16",
+            PixelFormat::BayerBG8 => "BayerBG8",
+            PixelFormat::BayerBG10 => "BayerBG10",
+            PixelFormat::BayerBG12 => "BayerBG12",
+            PixelFormat::BayerBG16 => "BayerBG16",
         }
     }
 
@@ -151,10 +218,14 @@ impl PixelFormat {
         use PixelFormat::*;
         match self {
             Mono8 | PolarizeMono8 | PolarizedMono8 | Polarized8 => Layout::Bits8,
+            BayerRG8 | BayerGR8 | BayerGB8 | BayerBG8 => Layout::Bits8,
+            BayerRG10 | BayerGR10 | BayerGB10 | BayerBG10 => Layout::Bits10In16,
             Mono12 | PolarizeMono12 => Layout::Bits12In16,
+            BayerRG12 | BayerGR12 | BayerGB12 | BayerBG12 => Layout::Bits12In16,
             Mono12p | PolarizeMono12p | PolarizedMono12p | Polarized12p => Layout::Packed12p,
             PolarizeMono12Packed | PolarizedMono12Packed => Layout::Packed12GigE,
             Mono16 | PolarizeMono16 | PolarizedMono16 | Polarized16 => Layout::Bits16,
+            BayerRG16 | BayerGR16 | BayerGB16 | BayerBG16 => Layout::Bits16,
         }
     }
 
@@ -163,8 +234,32 @@ impl PixelFormat {
     pub fn mosaic(self) -> Option<MosaicLayout> {
         use PixelFormat::*;
         match self {
-            Mono8 | Mono12 | Mono12p | Mono16 => None,
-            _ => Some(MosaicLayout::Polarsens),
+            PolarizeMono8
+            | PolarizeMono12
+            | PolarizeMono12p
+            | PolarizeMono12Packed
+            | PolarizeMono16
+            | PolarizedMono8
+            | PolarizedMono12p
+            | PolarizedMono12Packed
+            | PolarizedMono16
+            | Polarized8
+            | Polarized12p
+            | Polarized16 => Some(MosaicLayout::Polarsens),
+            _ => None,
+        }
+    }
+
+    /// The Bayer filter of a colour sensor the format reads out raw, `None`
+    /// for a sensor without one.
+    pub fn bayer(self) -> Option<BayerPattern> {
+        use PixelFormat::*;
+        match self {
+            BayerRG8 | BayerRG10 | BayerRG12 | BayerRG16 => Some(BayerPattern::RG),
+            BayerGR8 | BayerGR10 | BayerGR12 | BayerGR16 => Some(BayerPattern::GR),
+            BayerGB8 | BayerGB10 | BayerGB12 | BayerGB16 => Some(BayerPattern::GB),
+            BayerBG8 | BayerBG10 | BayerBG12 | BayerBG16 => Some(BayerPattern::BG),
+            _ => None,
         }
     }
 
@@ -183,6 +278,7 @@ impl PixelFormat {
     pub fn bits(self) -> u32 {
         match self.layout() {
             Layout::Bits8 => 8,
+            Layout::Bits10In16 => 10,
             Layout::Bits12In16 | Layout::Packed12p | Layout::Packed12GigE => 12,
             Layout::Bits16 => 16,
         }
@@ -208,7 +304,7 @@ impl PixelFormat {
         let pixels = width.checked_mul(height)?;
         match self.layout() {
             Layout::Bits8 => Some(pixels),
-            Layout::Bits12In16 | Layout::Bits16 => pixels.checked_mul(2),
+            Layout::Bits10In16 | Layout::Bits12In16 | Layout::Bits16 => pixels.checked_mul(2),
             Layout::Packed12p | Layout::Packed12GigE => {
                 pixels.checked_mul(3).map(|b| b.div_ceil(2))
             }
@@ -245,7 +341,7 @@ impl PixelFormat {
         };
         Ok(match self.layout() {
             Layout::Bits8 => data.iter().map(|&b| u16::from(b)).collect(),
-            Layout::Bits12In16 | Layout::Bits16 => data
+            Layout::Bits10In16 | Layout::Bits12In16 | Layout::Bits16 => data
                 .chunks_exact(2)
                 .map(|p| u16::from_le_bytes([p[0], p[1]]))
                 .collect(),
@@ -273,6 +369,26 @@ mod tests {
             assert_eq!(f.mosaic(), Some(MosaicLayout::Polarsens), "{f:?}");
         }
         assert_eq!(PixelFormat::PolarizeMono12Packed.bits(), 12);
+        // Aravis's Bayer names: a colour filter, no polarizer mosaic.
+        for (name, pattern, bits) in [
+            ("BayerRG8", BayerPattern::RG, 8),
+            ("BayerGR10", BayerPattern::GR, 10),
+            ("BayerGB12", BayerPattern::GB, 12),
+            ("BayerBG16", BayerPattern::BG, 16),
+        ] {
+            let f = PixelFormat::from_name(name).unwrap();
+            assert_eq!(
+                (f.bayer(), f.mosaic(), f.bits()),
+                (Some(pattern), None, bits)
+            );
+        }
+        assert_eq!(PixelFormat::Mono12.bayer(), None);
+        assert_eq!(PixelFormat::Polarized16.bayer(), None);
+        assert_eq!(PixelFormat::BayerRG10.full_scale(), 1023.0);
+        assert_eq!(
+            PixelFormat::BayerRG10.decode(&[0xff, 0x03, 0x01, 0x00], 2, 1),
+            Ok(vec![1023, 1])
+        );
     }
 
     #[test]

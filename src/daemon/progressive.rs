@@ -281,6 +281,9 @@ impl Solver {
             exposure_us: self.acquisition.exposure_us,
             offset: [self.acquisition.region[0], self.acquisition.region[1]],
             binning: self.acquisition.binning,
+            // An interim solve measures every pixel: a colour camera's raw
+            // mean, as its grey.
+            bayer: None,
         };
         let mut m = assemble_with(&self.scene, &blocks, &[own], &self.maps)?;
         Units::Calibrated(self.calibration).apply(&mut m);

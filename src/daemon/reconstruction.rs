@@ -491,6 +491,7 @@ impl<'a> StoredCapture<'a> {
             binning: s.binning,
             missing_dark: (!dark)
                 .then_some("take dark_frames, or a dark capture named in dark_capture"),
+            bayer: pixel_format.bayer(),
         };
         Ok(Self {
             store,

@@ -5,9 +5,10 @@
 //! Why one function: the daemon (from its store) and `polnlos measure` (from
 //! a user's TIFF files) must give the same `i` for the same frames.
 
+use super::colour::{BayerPattern, Colour};
 use super::{stack, BlockFrames, MeasureError, Measurement, PixelMaps};
 use crate::measure::Frame;
-use crate::scene::{Channel, Scene};
+use crate::scene::{Cells, Channel, Scene};
 use crate::transport::{Block, Transport};
 
 /// One capture as the measurement needs it: where it was taken and its
@@ -35,6 +36,8 @@ pub struct CaptureFrames {
     pub offset: [u32; 2],
     /// The frame's binning (`[1, 1]` when unknown).
     pub binning: [u32; 2],
+    /// The sensor's Bayer filter, for a colour camera's raw frames.
+    pub bayer: Option<BayerPattern>,
 }
 
 impl CaptureFrames {
@@ -62,6 +65,7 @@ impl CaptureFrames {
             exposure_us: 1.0,
             offset: [0, 0],
             binning: [1, 1],
+            bayer: None,
         }
     }
 
@@ -147,6 +151,19 @@ pub fn assemble_with(
     captures: &[CaptureFrames],
     maps: &PixelMaps,
 ) -> Result<Measurement, MeasureError> {
+    assemble_colour(scene, blocks, captures, maps, None)
+}
+
+/// [`assemble_with`] over the pixels of one `colour` of each capture's
+/// Bayer filter (`None`: every pixel): one channel of a colour measurement.
+/// A capture without a Bayer filter cannot give a colour.
+pub fn assemble_colour(
+    scene: &Scene,
+    blocks: &[Block],
+    captures: &[CaptureFrames],
+    maps: &PixelMaps,
+    colour: Option<Colour>,
+) -> Result<Measurement, MeasureError> {
     let order = match_blocks(blocks, captures)?;
     let mut homographies = Vec::with_capacity(order.len());
     for (block, &k) in blocks.iter().zip(&order) {
@@ -171,17 +188,38 @@ pub fn assemble_with(
                 ),
             });
         }
-        homographies.push((h, cell));
+        let cells = match (colour, c.bayer) {
+            (None, _) => Cells::from(cell),
+            (Some(colour), Some(bayer)) => Cells::from(cell).and(bayer.cells(colour)),
+            (Some(colour), None) => {
+                return Err(MeasureError::Capture {
+                    capture: c.name.clone(),
+                    reason: format!(
+                        "it has no Bayer filter, so it has no {colour:?} channel; measure a colour camera's raw frames, or all channels of this one together"
+                    ),
+                })
+            }
+        };
+        if colour.is_some() && c.binning != [1, 1] {
+            return Err(MeasureError::Capture {
+                capture: c.name.clone(),
+                reason: format!(
+                    "it was binned {:?}, but its sensor has a Bayer filter: a binned pixel mixes its colours; capture with binning [1, 1]",
+                    c.binning
+                ),
+            });
+        }
+        homographies.push((h, cells));
     }
     let frames: Vec<BlockFrames<'_>> = order
         .iter()
         .zip(&homographies)
-        .map(|(&k, (h, cell))| {
+        .map(|(&k, (h, cells))| {
             let c = &captures[k];
             BlockFrames {
                 pose: &c.pose,
                 homography: h,
-                cell: *cell,
+                cells: *cells,
                 mean: &c.mean,
                 variance: c.variance.as_ref(),
                 frames: c.frames,
@@ -288,6 +326,7 @@ mod tests {
             exposure_us: 10.0,
             offset: [0, 0],
             binning: [1, 1],
+            bayer: None,
         }
     }
 
@@ -336,6 +375,57 @@ mod tests {
         all.push(capture("stray", "B", Channel::Sheet { deg: 33.0 }, 1.0));
         let e = assemble(&s, &blocks, &all).unwrap_err().to_string();
         assert!(e.contains("stray was taken at B-pol33"), "{e}");
+    }
+
+    #[test]
+    fn each_colour_of_a_bayer_capture_averages_its_own_pixels() {
+        let s = scene();
+        let blocks = crate::transport::blocks_of(&s);
+        // A raw frame whose red pixels read 100, green 200, blue 300.
+        let captures: Vec<_> = blocks
+            .iter()
+            .map(|b| {
+                let mut c = capture("raw", &b.pose, b.channel, 0.0);
+                c.bayer = Some(BayerPattern::GR);
+                for y in 0..512 {
+                    for x in 0..512 {
+                        c.mean.pixels[y * 512 + x] =
+                            match BayerPattern::GR.colour_at(x as i64, y as i64) {
+                                Colour::Red => 100.0,
+                                Colour::Green => 200.0,
+                                Colour::Blue => 300.0,
+                            };
+                    }
+                }
+                c
+            })
+            .collect();
+        let maps = PixelMaps::default();
+        for (colour, want) in Colour::ALL.into_iter().zip([100.0, 200.0, 300.0]) {
+            let m = assemble_colour(&s, &blocks, &captures, &maps, Some(colour)).unwrap();
+            let want = want / 1000.0 / 10.0;
+            assert!(
+                m.i.iter().all(|v| (v - want).abs() < 1e-12),
+                "{colour:?}: {:?}",
+                &m.i[..3]
+            );
+        }
+        // All pixels together: a footprint-weighted mix, between red and blue.
+        let all = assemble_with(&s, &blocks, &captures, &maps).unwrap();
+        assert!(
+            all.i.iter().all(|v| *v > 0.0105 && *v < 0.0295),
+            "{:?}",
+            &all.i[..3]
+        );
+        // A monochrome capture has no colour; a binned Bayer frame mixes them.
+        let mut mono = captures.clone();
+        mono[0].bayer = None;
+        let e = assemble_colour(&s, &blocks, &mono, &maps, Some(Colour::Red)).unwrap_err();
+        assert!(e.to_string().contains("no Bayer filter"), "{e}");
+        let mut binned = captures;
+        binned[0].binning = [2, 2];
+        let e = assemble_colour(&s, &blocks, &binned, &maps, Some(Colour::Blue)).unwrap_err();
+        assert!(e.to_string().contains("binning [1, 1]"), "{e}");
     }
 
     #[test]

@@ -45,6 +45,7 @@ impl GivenCapture {
                 region: None,
                 binning: None,
                 missing_dark: dark.is_none().then_some(how_to_dark),
+                bayer: None,
             },
             stack,
             dark,

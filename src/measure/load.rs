@@ -29,6 +29,8 @@ pub struct CaptureInfo {
     /// `None` when a dark level was subtracted from its mean; else how to
     /// take one next time (the daemon's and the CLI's ways differ).
     pub missing_dark: Option<&'static str>,
+    /// The sensor's Bayer filter, for a colour camera's raw frames.
+    pub bayer: Option<crate::measure::colour::BayerPattern>,
 }
 
 /// Where a capture's averaged frames are read from.
@@ -98,6 +100,7 @@ pub fn load(
         exposure_us: info.exposure_us,
         offset: info.region.map_or([0, 0], |r| [r[0], r[1]]),
         binning: info.binning.unwrap_or([1, 1]),
+        bayer: info.bayer,
     })
 }
 
@@ -138,6 +141,7 @@ mod tests {
                 region,
                 binning: None,
                 missing_dark: Some("take dark frames"),
+                bayer: None,
             },
             size,
         }

@@ -4,6 +4,7 @@
 
 mod assemble;
 mod average;
+pub mod colour;
 pub mod exposure;
 mod frame;
 pub mod given;
@@ -12,7 +13,9 @@ mod load;
 pub mod mosaic;
 mod stack;
 
-pub use assemble::{assemble, assemble_with, match_blocks, to_model_units, CaptureFrames, Units};
+pub use assemble::{
+    assemble, assemble_colour, assemble_with, match_blocks, to_model_units, CaptureFrames, Units,
+};
 pub use average::{Clipping, FrameStack};
 pub use frame::Frame;
 pub use load::{load, CaptureInfo, CaptureSource};

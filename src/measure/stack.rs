@@ -18,7 +18,7 @@ use std::sync::{Arc, Mutex};
 
 use super::MeasureError;
 use crate::measure::Frame;
-use crate::scene::{FrameGeometry, Homography, PixelMap, Plane};
+use crate::scene::{Cells, FrameGeometry, Homography, PixelMap, Plane};
 
 /// One (pose, polarizer angle) block's frames, as a capture gives them.
 #[derive(Debug, Clone, Copy)]
@@ -27,9 +27,9 @@ pub struct BlockFrames<'a> {
     pub pose: &'a str,
     /// The pose's camera→wall homography.
     pub homography: &'a Homography,
-    /// For a mosaic block, the sensor column and row mod 2 of its
-    /// micro-polarizer's pixels (the only ones it averages); `None`: all.
-    pub cell: Option<[u32; 2]>,
+    /// The pixels it averages: a mosaic block's micro-polarizer, a colour
+    /// of a Bayer filter, or [`Cells::ALL`].
+    pub cells: Cells,
     /// Mean dark-subtracted frame, DN.
     pub mean: &'a Frame,
     /// Variance of the mean frame, DN², when the capture had 2 frames or more.
@@ -57,8 +57,8 @@ impl BlockFrames<'_> {
     }
 }
 
-/// What a pixel map is made for: pose, frame and mosaic cell.
-type MapKey = (String, FrameGeometry, Option<[u32; 2]>);
+/// What a pixel map is made for: pose, frame and the cells it averages.
+type MapKey = (String, FrameGeometry, Cells);
 
 /// A stacked measurement.
 #[derive(Debug, Clone, PartialEq)]
@@ -85,13 +85,13 @@ impl PixelMaps {
         h: &Homography,
         wall: &Plane,
         geometry: FrameGeometry,
-        cell: Option<[u32; 2]>,
+        cells: Cells,
     ) -> Result<Arc<PixelMap>, MeasureError> {
-        let key = (pose.to_string(), geometry, cell);
+        let key = (pose.to_string(), geometry, cells);
         if let Some(m) = self.lock().get(&key) {
             return Ok(Arc::clone(m));
         }
-        let map = Arc::new(PixelMap::cell_frame(h, wall, geometry, cell, pose)?);
+        let map = Arc::new(PixelMap::cell_frame(h, wall, geometry, cells, pose)?);
         self.lock().insert(key, Arc::clone(&map));
         Ok(map)
     }
@@ -117,7 +117,7 @@ pub fn stack(
     let mut i = Vec::with_capacity(blocks.len() * wall.grid.count());
     let mut variance = Some(Vec::with_capacity(i.capacity()));
     for b in blocks {
-        let map = maps.get(b.pose, b.homography, wall, b.geometry(), b.cell)?;
+        let map = maps.get(b.pose, b.homography, wall, b.geometry(), b.cells)?;
         if let Some(v) = b.variance {
             if (v.width, v.height) != (b.mean.width, b.mean.height) {
                 return Err(MeasureError::VarianceSize {
@@ -187,7 +187,7 @@ mod tests {
         let block = |mean, variance, exposure_us| BlockFrames {
             pose: "B",
             homography: &h,
-            cell: None,
+            cells: Cells::ALL,
             mean,
             variance,
             frames: 8,
@@ -209,7 +209,7 @@ mod tests {
         assert!(m.i.iter().all(|v| (v - 0.1).abs() < 1e-12), "{:?}", m.i);
         // 4 DN² per pixel, averaged over element 0's pixels: 4 sum w_p².
         let map = maps
-            .get("B", &h, &w, FrameGeometry::plain(512, 512), None)
+            .get("B", &h, &w, FrameGeometry::plain(512, 512), Cells::ALL)
             .expect("cached");
         let w2: f64 = map.weights()[map.range(0)].iter().map(|w| w * w).sum();
         assert!(w2 < 1.0 / 20.0, "element 0 has dozens of pixels: {w2}");
@@ -250,7 +250,7 @@ mod tests {
         let b = BlockFrames {
             pose: "B",
             homography: &h,
-            cell: None,
+            cells: Cells::ALL,
             mean: &f,
             variance: Some(&var),
             frames: 1,
@@ -315,7 +315,7 @@ mod tests {
             let b = BlockFrames {
                 pose: "B",
                 homography: &h,
-                cell: None,
+                cells: Cells::ALL,
                 mean: &f,
                 variance: Some(&var),
                 frames: 1,
@@ -332,7 +332,7 @@ mod tests {
             reported = m.variance.expect("given");
         }
         let map = maps
-            .get("B", &h, &w, FrameGeometry::plain(512, 512), None)
+            .get("B", &h, &w, FrameGeometry::plain(512, 512), Cells::ALL)
             .expect("cached");
         let (mut ratio, mut worst) = (0.0, 0.0f64);
         for j in 0..n {
@@ -376,7 +376,7 @@ mod tests {
         let block = BlockFrames {
             pose: "B",
             homography: &h,
-            cell: None,
+            cells: Cells::ALL,
             mean: &small,
             variance: None,
             frames: 1,

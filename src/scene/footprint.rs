@@ -14,6 +14,57 @@ use super::{Homography, Plane};
 /// refused before anything is allocated.
 pub const MAX_LATTICE_POINTS: u64 = 1 << 28;
 
+/// A set of the four positions of a sensor's 2x2 pattern, `(column mod 2,
+/// row mod 2)` in sensor coordinates: the pixels behind one micro-polarizer
+/// of a mosaic, or behind one colour of a Bayer filter (green has two).
+///
+/// Why a set: a Bayer filter's green is two of the four positions, and a
+/// colour channel of a mosaic block is the two patterns' intersection.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Cells(u8);
+
+impl Cells {
+    /// Every pixel.
+    pub const ALL: Cells = Cells(0b1111);
+
+    /// The pixels at column and row `cell` mod 2.
+    pub fn one(cell: [u32; 2]) -> Self {
+        Cells(1 << ((cell[1] % 2) * 2 + cell[0] % 2))
+    }
+
+    /// The pixels at any of `cells`.
+    pub fn any(cells: &[[u32; 2]]) -> Self {
+        Cells(cells.iter().fold(0, |m, &c| m | Self::one(c).0))
+    }
+
+    /// The pixels in both sets.
+    pub fn and(self, other: Cells) -> Self {
+        Cells(self.0 & other.0)
+    }
+
+    /// Whether the set holds every pixel (no pattern to follow).
+    pub fn is_all(self) -> bool {
+        self.0 == Self::ALL.0
+    }
+
+    /// Whether sensor row `y` holds a pixel of the set.
+    pub fn in_row(self, y: i64) -> bool {
+        self.0 & (0b11 << (y.rem_euclid(2) * 2)) != 0
+    }
+
+    /// Whether sensor pixel `(x, y)` is in the set.
+    pub fn contains(self, x: i64, y: i64) -> bool {
+        self.0 & (1 << (y.rem_euclid(2) * 2 + x.rem_euclid(2))) != 0
+    }
+}
+
+impl From<Option<[u32; 2]>> for Cells {
+    /// A mosaic block's one cell, or every pixel.
+    fn from(cell: Option<[u32; 2]>) -> Self {
+        cell.map_or(Cells::ALL, Cells::one)
+    }
+}
+
 /// Where a frame's pixels lie on the sensor: its region's offset and size
 /// and its binning (MODEL.md: binned pixel `(X, Y)` of a region starting at
 /// `(x0, y0)` has its centre at `(x0 + b X + (b - 1)/2, y0 + b Y + (b - 1)/2)`
@@ -160,38 +211,38 @@ impl PixelMap {
         geometry: FrameGeometry,
         pose: &str,
     ) -> Result<Self, FootprintError> {
-        Self::make(h, wall, Some(geometry), None, pose)
+        Self::make(h, wall, Some(geometry), Cells::ALL, pose)
     }
 
     /// Every integer point of the (unbounded) image plane whose `H^-1` lies in
     /// an element of `wall`, with its wall coordinates: the samples of the
     /// `"pixels"` rows of `T`.
     pub fn plane(h: &Homography, wall: &Plane, pose: &str) -> Result<Self, FootprintError> {
-        Self::make(h, wall, None, None, pose)
+        Self::make(h, wall, None, Cells::ALL, pose)
     }
 
-    /// [`PixelMap::frame`] over the pixels of one micro-polarizer of a mosaic
-    /// only: those at sensor column and row `cell` mod 2 (MODEL.md "On-chip
-    /// polarizer mosaic"; `None`: every pixel).
+    /// [`PixelMap::frame`] over the pixels in `cells` only: one
+    /// micro-polarizer of a mosaic (MODEL.md "On-chip polarizer mosaic"), one
+    /// colour of a Bayer filter, or both ([`Cells::ALL`]: every pixel).
     pub fn cell_frame(
         h: &Homography,
         wall: &Plane,
         geometry: FrameGeometry,
-        cell: Option<[u32; 2]>,
+        cells: Cells,
         pose: &str,
     ) -> Result<Self, FootprintError> {
-        Self::make(h, wall, Some(geometry), cell, pose)
+        Self::make(h, wall, Some(geometry), cells, pose)
     }
 
-    /// [`PixelMap::plane`] over the integer points at column and row `cell`
-    /// mod 2 only: the samples of a mosaic block's `"pixels"` rows.
+    /// [`PixelMap::plane`] over the integer points in `cells` only: the
+    /// samples of a mosaic block's `"pixels"` rows.
     pub fn cell_plane(
         h: &Homography,
         wall: &Plane,
-        cell: Option<[u32; 2]>,
+        cells: Cells,
         pose: &str,
     ) -> Result<Self, FootprintError> {
-        Self::make(h, wall, None, cell, pose)
+        Self::make(h, wall, None, cells, pose)
     }
 
     /// Elements mapped.
@@ -290,12 +341,12 @@ impl PixelMap {
         h: &Homography,
         wall: &Plane,
         geometry: Option<FrameGeometry>,
-        cell: Option<[u32; 2]>,
+        cells: Cells,
         pose: &str,
     ) -> Result<Self, FootprintError> {
         let g = geometry.unwrap_or(FrameGeometry::plain(0, 0));
         let lattice = Self::lattice(h, wall, &g, pose)?;
-        let rows = Self::hits(h, wall, geometry, &g, cell, lattice);
+        let rows = Self::hits(h, wall, geometry, &g, cells, lattice);
         let counts = Self::counts(&rows, wall, &g, pose)?;
         Ok(Self::assemble(rows, &counts, geometry))
     }
@@ -343,7 +394,7 @@ impl PixelMap {
         wall: &Plane,
         geometry: Option<FrameGeometry>,
         g: &FrameGeometry,
-        cell: Option<[u32; 2]>,
+        cells: Cells,
         lattice: [(i64, i64); 2],
     ) -> Vec<(Vec<Hit>, Vec<u32>)> {
         let [(x0, x1), (y0, y1)] = lattice;
@@ -365,11 +416,10 @@ impl PixelMap {
         let inside = |x: i64, y: i64| {
             geometry.is_none() || (0..width).contains(&x) && (0..height).contains(&y)
         };
-        // A mosaic block sees the pixels of its micro-polarizer only (sensor
-        // coordinates are whole numbers there: a mosaic frame is not binned).
-        let on_cell = |a: usize, c: f64| {
-            cell.is_none_or(|cell| (c.round() as i64).rem_euclid(2) == i64::from(cell[a]))
-        };
+        // A mosaic block, or a colour of a Bayer filter, sees its own cells'
+        // pixels only (sensor coordinates are whole numbers there: such a
+        // frame is not binned).
+        let on_cell = |x: f64, y: f64| cells.contains(x.round() as i64, y.round() as i64);
         // Per lattice row: the hits inside the frame, and the elements seen outside it.
         (y0..=y1)
             .into_par_iter()
@@ -377,11 +427,11 @@ impl PixelMap {
                 let mut hits = Vec::new();
                 let mut outside = Vec::new();
                 let y = g.sensor(1, yi);
-                if !on_cell(1, y) {
+                if !cells.in_row(y.round() as i64) {
                     return (hits, outside);
                 }
                 for xi in x0..=x1 {
-                    if !on_cell(0, g.sensor(0, xi)) {
+                    if !on_cell(g.sensor(0, xi), y) {
                         continue;
                     }
                     let Some((element, area, point)) = element_of(g.sensor(0, xi), y) else {
@@ -520,7 +570,7 @@ pub fn effective_pixels(scene: &super::Scene) -> Result<Option<Vec<f64>>, Footpr
         let mut made: Vec<(Option<[u32; 2]>, Vec<f64>)> = Vec::new();
         for cell in cells {
             if !made.iter().any(|(c, _)| *c == cell) {
-                let map = PixelMap::cell_plane(h, plane, cell, &pose.name)?;
+                let map = PixelMap::cell_plane(h, plane, cell.into(), &pose.name)?;
                 made.push((
                     cell,
                     (0..map.elements())

@@ -22,7 +22,7 @@ pub use analyzer::{
     MOSAIC_DEGREES,
 };
 pub use error::SceneError;
-pub use footprint::{effective_pixels, FootprintError, FrameGeometry, PixelMap};
+pub use footprint::{effective_pixels, Cells, FootprintError, FrameGeometry, PixelMap};
 pub use homography::Homography;
 pub use occluder::{Mesh, MeshSource, Occluder};
 pub use plane::{Grid, Plane};

@@ -114,6 +114,7 @@ mod tests {
             exposure_us: 1.0,
             offset: [0, 0],
             binning: [1, 1],
+            bayer: None,
         };
         let m = assemble(scene, &[block], &[capture]).expect("the wall is in the frame");
         let t = crate::transport::build(scene, MemoryBudget::DEFAULT).expect("T");

@@ -177,7 +177,7 @@ impl WallSamples {
                 None => vec![(0..pose.block_count(), None)],
             };
             for (blocks, cell) in groups {
-                let map = PixelMap::cell_plane(h, plane, cell, &pose.name)?;
+                let map = PixelMap::cell_plane(h, plane, cell.into(), &pose.name)?;
                 let pixels: usize = elements.iter().map(|&j| map.range(j).len()).sum();
                 // Each sample keeps its point, row and weight, and per pose the scratch arrays.
                 super::check_size(

@@ -183,6 +183,7 @@ fn frames_with_per_pixel_noise_carry_a_variance_the_model_check_confirms() {
                 exposure_us: 1.0,
                 offset: [0, 0],
                 binning: [1, 1],
+                bayer: None,
             };
             (block, capture)
         })

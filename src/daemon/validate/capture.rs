@@ -132,20 +132,11 @@ fn channels(
                     pose.name
                 )));
             }
-            if a.binning != [1, 1] {
-                return Err(invalid(format!(
-                    "binning = {:?}: a binned pixel of a polarizer-mosaic camera ({format}) mixes the four micro-polarizers of its 2x2 cell; use binning [1, 1]",
-                    a.binning
-                )));
-            }
-            if a.region[0] % 2 != 0 || a.region[1] % 2 != 0 {
-                return Err(invalid(format!(
-                    "region = {:?}: on a polarizer-mosaic camera ({format}) the region's x and y offsets must be even, or the 2x2 micro-polarizer pattern starts on another angle; use [{}, {}, ...]",
-                    a.region,
-                    a.region[0] & !1,
-                    a.region[1] & !1
-                )));
-            }
+            check_whole_cells(
+                a,
+                "polarizer-mosaic camera",
+                "the four micro-polarizers of its 2x2 cell",
+            )?;
             Ok(Channel::mosaic().to_vec())
         }
         (Some(_), None) => Err(invalid(format!(
@@ -169,9 +160,36 @@ fn channels(
         ))),
         (None, None) => {
             check_sheet(scene_name, pose, polarizer_deg)?;
+            if a.pixel_format.bayer().is_some() {
+                check_whole_cells(a, "colour (Bayer) camera", "its 2x2 cell's colours")?;
+            }
             Ok(vec![Channel::sheet(polarizer_deg)])
         }
     }
+}
+
+/// Checks that a camera with a 2x2 pattern on its sensor (a `kind` whose
+/// cell holds `cell`) reads whole cells: unbinned, at an even offset.
+///
+/// Why: a binned pixel mixes the cell's pixels, and an odd offset starts
+/// the pattern on another of them.
+fn check_whole_cells(a: &Acquisition, kind: &str, cell: &str) -> Result<(), RequestError> {
+    let format = a.pixel_format.name();
+    if a.binning != [1, 1] {
+        return Err(invalid(format!(
+            "binning = {:?}: a binned pixel of a {kind} ({format}) mixes {cell}; use binning [1, 1]",
+            a.binning
+        )));
+    }
+    if a.region[0] % 2 != 0 || a.region[1] % 2 != 0 {
+        return Err(invalid(format!(
+            "region = {:?}: on a {kind} ({format}) the region's x and y offsets must be even, or the 2x2 pattern starts on another pixel of {cell}; use [{}, {}, ...]",
+            a.region,
+            a.region[0] & !1,
+            a.region[1] & !1
+        )));
+    }
+    Ok(())
 }
 
 /// Checks that `polarizer_deg` is a setting of the pose's sheet (or absent
@@ -368,7 +386,10 @@ mod tests {
         };
         let m = message(with("Mono12p"));
         assert!(m.contains("\"Mono12p\""), "{m}");
-        assert!(m.contains("it offers Mono8, Mono16 of the formats"), "{m}");
+        assert!(
+            m.contains("it offers Mono8, Mono16, BayerRG8 of the formats"),
+            "{m}"
+        );
         assert_eq!(
             with("Mono8").expect("listed").acquisition.pixel_format,
             PixelFormat::Mono8
@@ -381,6 +402,36 @@ mod tests {
             "exposure_us": 5000.0, "pixel_format": "Mono12p"
         }));
         assert!(capture(&b, &scene(), &open, no_plan, |_| Ok(None)).is_ok());
+    }
+
+    #[test]
+    fn a_bayer_capture_reads_whole_colour_cells() {
+        let with = |extra: serde_json::Value| {
+            let mut b = serde_json::json!({
+                "scene": "brewster-multi-3x3", "pose": "B", "polarizer_deg": 0.0,
+                "exposure_us": 5000.0, "pixel_format": "BayerRG8"
+            });
+            b.as_object_mut()
+                .unwrap()
+                .extend(extra.as_object().unwrap().clone());
+            let mut c = cam();
+            c.sensor = Some(SensorLimits {
+                sensor: [512, 512],
+                max_binning: [4, 4],
+                ..SensorLimits::default()
+            });
+            capture(&body(b), &scene(), &c, no_plan, |_| Ok(None))
+        };
+        assert!(with(serde_json::json!({})).is_ok());
+        let m = message(with(
+            serde_json::json!({ "binning": [2, 2], "region": [0, 0, 256, 256] }),
+        ));
+        assert!(
+            m.contains("colour (Bayer) camera (BayerRG8) mixes its 2x2 cell's colours"),
+            "{m}"
+        );
+        let m = message(with(serde_json::json!({ "region": [1, 0, 256, 256] })));
+        assert!(m.contains("offsets must be even"), "{m}");
     }
 
     #[test]
