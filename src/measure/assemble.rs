@@ -154,9 +154,11 @@ pub fn assemble_with(
     assemble_colour(scene, blocks, captures, maps, None)
 }
 
-/// [`assemble_with`] over the pixels of one `colour` of each capture's
-/// Bayer filter (`None`: every pixel): one channel of a colour measurement.
-/// A capture without a Bayer filter cannot give a colour.
+/// [`assemble_with`] for one `colour` of each capture's Bayer filter
+/// (`None`: every pixel as it is): each element's pixels take that colour's
+/// value interpolated from its own pixels ([`crate::scene::PixelMap::interpolated`]),
+/// one channel of a colour measurement. A capture without a Bayer filter
+/// cannot give a colour.
 pub fn assemble_colour(
     scene: &Scene,
     blocks: &[Block],
@@ -188,9 +190,9 @@ pub fn assemble_colour(
                 ),
             });
         }
-        let cells = match (colour, c.bayer) {
-            (None, _) => Cells::from(cell),
-            (Some(colour), Some(bayer)) => Cells::from(cell).and(bayer.cells(colour)),
+        let colour_cells = match (colour, c.bayer) {
+            (None, _) => None,
+            (Some(colour), Some(bayer)) => Some(bayer.cells(colour)),
             (Some(colour), None) => {
                 return Err(MeasureError::Capture {
                     capture: c.name.clone(),
@@ -209,17 +211,18 @@ pub fn assemble_colour(
                 ),
             });
         }
-        homographies.push((h, cells));
+        homographies.push((h, Cells::from(cell), colour_cells));
     }
     let frames: Vec<BlockFrames<'_>> = order
         .iter()
         .zip(&homographies)
-        .map(|(&k, (h, cells))| {
+        .map(|(&k, (h, cells, colour))| {
             let c = &captures[k];
             BlockFrames {
                 pose: &c.pose,
                 homography: h,
                 cells: *cells,
+                colour: *colour,
                 mean: &c.mean,
                 variance: c.variance.as_ref(),
                 frames: c.frames,

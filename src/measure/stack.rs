@@ -27,9 +27,13 @@ pub struct BlockFrames<'a> {
     pub pose: &'a str,
     /// The pose's camera→wall homography.
     pub homography: &'a Homography,
-    /// The pixels it averages: a mosaic block's micro-polarizer, a colour
-    /// of a Bayer filter, or [`Cells::ALL`].
+    /// The pixels it averages: a mosaic block's micro-polarizer, or
+    /// [`Cells::ALL`].
     pub cells: Cells,
+    /// For one colour of a Bayer sensor, that colour's pixels: every pixel
+    /// of the element then takes its value from them by interpolation
+    /// ([`PixelMap::interpolated`]).
+    pub colour: Option<Cells>,
     /// Mean dark-subtracted frame, DN.
     pub mean: &'a Frame,
     /// Variance of the mean frame, DN², when the capture had 2 frames or more.
@@ -58,7 +62,7 @@ impl BlockFrames<'_> {
 }
 
 /// What a pixel map is made for: pose, frame and the cells it averages.
-type MapKey = (String, FrameGeometry, Cells);
+type MapKey = (String, FrameGeometry, Cells, Option<Cells>);
 
 /// A stacked measurement.
 #[derive(Debug, Clone, PartialEq)]
@@ -86,12 +90,23 @@ impl PixelMaps {
         wall: &Plane,
         geometry: FrameGeometry,
         cells: Cells,
+        colour: Option<Cells>,
     ) -> Result<Arc<PixelMap>, MeasureError> {
-        let key = (pose.to_string(), geometry, cells);
+        let key = (pose.to_string(), geometry, cells, colour);
         if let Some(m) = self.lock().get(&key) {
             return Ok(Arc::clone(m));
         }
-        let map = Arc::new(PixelMap::cell_frame(h, wall, geometry, cells, pose)?);
+        let map = PixelMap::cell_frame(h, wall, geometry, cells, pose)?;
+        let map = Arc::new(match colour {
+            None => map,
+            Some(colour) => map.interpolated(colour).ok_or_else(|| MeasureError::Capture {
+                capture: format!("pose {pose:?}"),
+                reason: format!(
+                    "its frames are binned {:?}: a binned pixel of a colour sensor mixes its colours; capture with binning [1, 1]",
+                    geometry.binning
+                ),
+            })?,
+        });
         self.lock().insert(key, Arc::clone(&map));
         Ok(map)
     }
@@ -117,7 +132,7 @@ pub fn stack(
     let mut i = Vec::with_capacity(blocks.len() * wall.grid.count());
     let mut variance = Some(Vec::with_capacity(i.capacity()));
     for b in blocks {
-        let map = maps.get(b.pose, b.homography, wall, b.geometry(), b.cells)?;
+        let map = maps.get(b.pose, b.homography, wall, b.geometry(), b.cells, b.colour)?;
         if let Some(v) = b.variance {
             if (v.width, v.height) != (b.mean.width, b.mean.height) {
                 return Err(MeasureError::VarianceSize {
@@ -188,6 +203,7 @@ mod tests {
             pose: "B",
             homography: &h,
             cells: Cells::ALL,
+            colour: None,
             mean,
             variance,
             frames: 8,
@@ -209,7 +225,14 @@ mod tests {
         assert!(m.i.iter().all(|v| (v - 0.1).abs() < 1e-12), "{:?}", m.i);
         // 4 DN² per pixel, averaged over element 0's pixels: 4 sum w_p².
         let map = maps
-            .get("B", &h, &w, FrameGeometry::plain(512, 512), Cells::ALL)
+            .get(
+                "B",
+                &h,
+                &w,
+                FrameGeometry::plain(512, 512),
+                Cells::ALL,
+                None,
+            )
             .expect("cached");
         let w2: f64 = map.weights()[map.range(0)].iter().map(|w| w * w).sum();
         assert!(w2 < 1.0 / 20.0, "element 0 has dozens of pixels: {w2}");
@@ -251,6 +274,7 @@ mod tests {
             pose: "B",
             homography: &h,
             cells: Cells::ALL,
+            colour: None,
             mean: &f,
             variance: Some(&var),
             frames: 1,
@@ -316,6 +340,7 @@ mod tests {
                 pose: "B",
                 homography: &h,
                 cells: Cells::ALL,
+                colour: None,
                 mean: &f,
                 variance: Some(&var),
                 frames: 1,
@@ -332,7 +357,14 @@ mod tests {
             reported = m.variance.expect("given");
         }
         let map = maps
-            .get("B", &h, &w, FrameGeometry::plain(512, 512), Cells::ALL)
+            .get(
+                "B",
+                &h,
+                &w,
+                FrameGeometry::plain(512, 512),
+                Cells::ALL,
+                None,
+            )
             .expect("cached");
         let (mut ratio, mut worst) = (0.0, 0.0f64);
         for j in 0..n {
@@ -377,6 +409,7 @@ mod tests {
             pose: "B",
             homography: &h,
             cells: Cells::ALL,
+            colour: None,
             mean: &small,
             variance: None,
             frames: 1,

@@ -245,6 +245,82 @@ impl PixelMap {
         Self::make(h, wall, None, cells, pose)
     }
 
+    /// This frame map with each pixel's value taken from the pixels of
+    /// `cells` alone, by bilinear interpolation of its nearest ones (its own
+    /// value where it is in `cells`; only pixels of the map, which image the
+    /// wall, interpolate): one colour of a Bayer filter averaged over the
+    /// whole element. `None` for a plane map or a binned frame.
+    ///
+    /// Why: the pixels of one colour sit half a pixel off the element's
+    /// centroid, so their plain mean is biased where the wall image has a
+    /// gradient (by more than the noise on the colour bench of
+    /// `tests/core/colour.rs`); interpolated, a linear gradient is exact.
+    /// Each element's value is still a weighted sum of its colour's pixels,
+    /// so its variance propagates as before.
+    pub fn interpolated(&self, cells: Cells) -> Option<Self> {
+        let g = self.geometry.filter(|g| g.binning == [1, 1])?;
+        let [w, h] = [g.size[0] as i64, g.size[1] as i64];
+        let [ox, oy] = [i64::from(g.offset[0]), i64::from(g.offset[1])];
+        // Only pixels that image the wall interpolate: past its edge a
+        // pixel sees something else.
+        let mut on_wall = vec![false; self.geometry.map_or(0, |g| g.size[0] * g.size[1])];
+        for &p in &self.pixels {
+            on_wall[p] = true;
+        }
+        let inside = |x: i64, y: i64| (0..w).contains(&x) && (0..h).contains(&y);
+        let of = |x: i64, y: i64| {
+            cells.contains(ox + x, oy + y) && inside(x, y) && on_wall[(y * w + x) as usize]
+        };
+        // The pixels of `cells` that interpolate frame pixel (x, y), equally weighted.
+        let sources = |x: i64, y: i64| -> Vec<(i64, i64)> {
+            if of(x, y) {
+                return vec![(x, y)];
+            }
+            let near: Vec<(i64, i64)> = [(x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)]
+                .into_iter()
+                .filter(|&(a, b)| of(a, b))
+                .collect();
+            if !near.is_empty() {
+                return near;
+            }
+            [
+                (x - 1, y - 1),
+                (x + 1, y - 1),
+                (x - 1, y + 1),
+                (x + 1, y + 1),
+            ]
+            .into_iter()
+            .filter(|&(a, b)| of(a, b))
+            .collect()
+        };
+        let mut starts = vec![0];
+        let (mut pixels, mut weights) = (Vec::new(), Vec::new());
+        for j in 0..self.elements() {
+            let mut acc: std::collections::BTreeMap<usize, f64> = Default::default();
+            for k in self.range(j) {
+                let p = self.pixels[k] as i64;
+                let from = sources(p % w, p / w);
+                let share = self.weights[k] / from.len().max(1) as f64;
+                for (a, b) in from {
+                    *acc.entry((b * w + a) as usize).or_default() += share;
+                }
+            }
+            let total: f64 = acc.values().sum();
+            for (p, wt) in acc {
+                pixels.push(p);
+                weights.push(wt / total);
+            }
+            starts.push(pixels.len());
+        }
+        Some(Self {
+            starts,
+            pixels,
+            weights,
+            points: Vec::new(),
+            geometry: self.geometry,
+        })
+    }
+
     /// Elements mapped.
     pub fn elements(&self) -> usize {
         self.starts.len() - 1
@@ -636,6 +712,63 @@ mod tests {
         let w1: f64 = map.range(1).map(|k| map.weights[k].powi(2) * 4.0).sum();
         assert!((means[1] - 100.0).abs() < 1e-9, "{}", means[1]);
         assert_eq!(vars[1], w1);
+    }
+
+    #[test]
+    fn one_colours_interpolated_mean_of_a_linear_frame_is_the_whole_mean() {
+        let (h, wall) = bench();
+        let g = FrameGeometry {
+            offset: [2, 4],
+            size: [512, 512],
+            binning: [1, 1],
+        };
+        let map = PixelMap::frame(&h, &wall, g, "A").expect("the wall is in the frame");
+        // A linear gradient: every pixel's interpolation from its
+        // neighbours of one colour is exact, so is each element's mean.
+        let values: Vec<f32> = (0..512 * 512)
+            .map(|p| (1000 + 3 * (p % 512) + 5 * (p / 512)) as f32)
+            .collect();
+        let (whole, _) = map.average(&values, None);
+        let red = Cells::one([1, 0]);
+        let green = Cells::any(&[[0, 0], [1, 1]]);
+        for cells in [red, green] {
+            let m = map.interpolated(cells).expect("an unbinned frame map");
+            assert_eq!(m.elements(), map.elements());
+            // Only that colour's pixels carry weight, summing to 1 per element.
+            let sx = |p: usize| 2 + (p % 512) as i64;
+            let sy = |p: usize| 4 + (p / 512) as i64;
+            assert!(m.pixels.iter().all(|&p| cells.contains(sx(p), sy(p))));
+            for j in 0..m.elements() {
+                let sum: f64 = m.range(j).map(|k| m.weights[k]).sum();
+                assert!((sum - 1.0).abs() < 1e-12, "{sum}");
+            }
+            let (means, _) = m.average(&values, None);
+            let worst = means
+                .iter()
+                .zip(&whole)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            // Interior elements exactly; an element at the wall's edge
+            // interpolates one-sided there (measured: a fraction of a DN).
+            let interior = (0..wall.grid.nv)
+                .flat_map(|v| (0..wall.grid.nu).map(move |u| (u, v)))
+                .filter(|&(u, v)| u > 0 && v > 0 && u + 1 < wall.grid.nu && v + 1 < wall.grid.nv)
+                .map(|(u, v)| (means[wall.grid.index(u, v)] - whole[wall.grid.index(u, v)]).abs())
+                .fold(0.0, f64::max);
+            assert!(interior < 1e-6, "{interior}");
+            assert!(worst < 3.0, "{worst}");
+        }
+        // The plain mean over red's own pixels is off by the half pixel.
+        let plain = PixelMap::cell_frame(&h, &wall, g, red, "A").expect("red pixels");
+        let (means, _) = plain.average(&values, None);
+        assert!((means[100] - whole[100]).abs() > 1.0);
+        let binned = FrameGeometry {
+            binning: [2, 2],
+            size: [256, 256],
+            offset: [0, 0],
+        };
+        let map = PixelMap::frame(&h, &wall, binned, "A").expect("binned");
+        assert!(map.interpolated(red).is_none());
     }
 
     #[test]

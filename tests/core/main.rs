@@ -6,6 +6,7 @@
 //! binary's tests side by side (docs/test-times.md).
 
 mod cli;
+mod colour;
 mod lambda;
 mod layers;
 mod photo;
