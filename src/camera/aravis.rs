@@ -136,14 +136,15 @@ impl AravisCamera {
         };
         let mut current =
             Acquisition::defaults_at([to_u32(x), to_u32(y), to_u32(w), to_u32(h)], binning);
-        // A polarization camera keeps its raw-mosaic format: the default
-        // monochrome one would read the same mosaic under a name that hides it.
+        // A polarization or colour camera keeps its raw-mosaic format: the
+        // default monochrome one would read the same mosaic (or a grey the
+        // camera made of it) under a name that hides it.
         if let Some(own) = cam
             .camera
             .pixel_format_as_string()
             .ok()
             .and_then(|f| PixelFormat::from_name(f.as_str()))
-            .filter(|f| f.mosaic().is_some())
+            .filter(|f| f.mosaic().is_some() || f.bayer().is_some())
         {
             current.pixel_format = own;
         }

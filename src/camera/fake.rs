@@ -92,6 +92,10 @@ pub enum FakeSensor {
     /// cameras do (PixelFormat `PolarizeMono8`, `PolarizeMono16`), its
     /// 0-degree micro-polarizers at crossed, ideal.
     Polarsens,
+    /// A colour sensor behind an RGGB Bayer filter, read out raw
+    /// (`BayerRG16`, also `BayerRG8`): each pixel sees the wall through its
+    /// colour's filter ([`super::shown::BAYER_RESPONSE`]).
+    Bayer,
 }
 
 /// Aravis's own fake-camera description (0.8.26) with Lucid's two
@@ -99,6 +103,13 @@ pub enum FakeSensor {
 /// `PolarizeMono16` 0x81100007): the fake camera then lists, sets and reads
 /// them back like any format, and its payload follows their bit depth.
 const POLARSENS_XML: &str = include_str!("fake_polarsens.xml");
+
+/// Aravis's own fake-camera description (0.8.26) with `BayerRG16`
+/// (0x01100011) added beside its 8-bit Bayer formats.
+const BAYER_XML: &str = include_str!("fake_bayer.xml");
+
+/// `BayerRG16`'s GenICam value (PFNC).
+const BAYER_RG16: u32 = 0x0110_0011;
 
 /// The fake camera's PixelFormat register (Aravis `ARV_FAKE_CAMERA_REGISTER_PIXEL_FORMAT`).
 const PIXEL_FORMAT_REGISTER: u32 = 0x128;
@@ -239,14 +250,19 @@ impl FakeBench {
                 });
             }
         }
-        let description = match sensor {
+        let xml = match sensor {
             FakeSensor::Mono => None,
-            FakeSensor::Polarsens => {
+            FakeSensor::Polarsens => Some(("polarsens", POLARSENS_XML)),
+            FakeSensor::Bayer => Some(("bayer", BAYER_XML)),
+        };
+        let description = match xml {
+            None => None,
+            Some((name, xml)) => {
                 let path = std::env::temp_dir().join(format!(
-                    "polnlos-fake-polarsens-{}-{serial}.xml",
+                    "polnlos-fake-{name}-{}-{serial}.xml",
                     std::process::id()
                 ));
-                std::fs::write(&path, POLARSENS_XML)
+                std::fs::write(&path, xml)
                     .map_err(|e| FakeError::Description(format!("{}: {e}", path.display())))?;
                 Some(Removed(path))
             }
@@ -260,23 +276,30 @@ impl FakeBench {
             .ok_or_else(|| FakeError::NotRunning(address.to_string()))?;
         let camera: *mut aravis_sys::ArvFakeCamera =
             aravis::glib::translate::ToGlibPtr::to_glib_none(&fake).0;
-        let mosaic = match sensor {
-            FakeSensor::Mono => None,
-            FakeSensor::Polarsens => {
-                // SAFETY: `camera` is the live fake camera of `gv`; writing one
-                // of its registers only changes its register memory.
-                unsafe {
-                    aravis_sys::arv_fake_camera_write_register(
-                        camera,
-                        PIXEL_FORMAT_REGISTER,
-                        POLARIZE_MONO16,
-                    );
-                }
-                Some(crate::scene::MosaicLayout::Polarsens)
-            }
+        let (format, mosaic, bayer) = match sensor {
+            FakeSensor::Mono => (None, None, None),
+            FakeSensor::Polarsens => (
+                Some(POLARIZE_MONO16),
+                Some(crate::scene::MosaicLayout::Polarsens),
+                None,
+            ),
+            FakeSensor::Bayer => (
+                Some(BAYER_RG16),
+                None,
+                Some(crate::measure::colour::BayerPattern::RG),
+            ),
         };
+        if let Some(format) = format {
+            // SAFETY: `camera` is the live fake camera of `gv`; writing one
+            // of its registers only changes its register memory.
+            unsafe {
+                aravis_sys::arv_fake_camera_write_register(camera, PIXEL_FORMAT_REGISTER, format);
+            }
+        }
         let shared = Arc::new(Shared {
-            shown: Shown::new(images, reference_exposure_us).with_mosaic(mosaic),
+            shown: Shown::new(images, reference_exposure_us)
+                .with_mosaic(mosaic)
+                .with_bayer(bayer),
             camera,
         });
         let ptr = Arc::into_raw(shared);

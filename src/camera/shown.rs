@@ -8,8 +8,14 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use super::Frame;
+use crate::measure::colour::BayerPattern;
 use crate::optics::polarizer::IntensityLaw;
 use crate::scene::{MosaicLayout, MOSAIC_DEGREES};
+
+/// What a colour sensor's red, green and blue pixels record of the demo's
+/// grey scene, relative to a monochrome pixel: a colour CMOS sensor's
+/// typical response to white light through its filters.
+pub const BAYER_RESPONSE: [f64; 3] = [0.55, 1.0, 0.7];
 
 /// Key of a block: pose name and polarizer angle in millidegrees (None: no polarizer).
 fn key(pose: &str, deg: Option<f64>) -> String {
@@ -154,6 +160,8 @@ pub struct Shown {
     counter: AtomicU64,
     /// The sensor's polarizer mosaic, when the bench's camera has one.
     mosaic: Option<MosaicLayout>,
+    /// The sensor's Bayer filter, when the bench's camera is a colour one.
+    bayer: Option<BayerPattern>,
     /// Shot and read noise of the sensor, when set ([`Shown::set_sensor_noise`]).
     noise: std::sync::OnceLock<SensorNoise>,
 }
@@ -191,6 +199,7 @@ impl Shown {
             dark_level: 0.01,
             counter: AtomicU64::new(0),
             mosaic: None,
+            bayer: None,
             noise: std::sync::OnceLock::new(),
         };
         if let Some((pose, deg)) = first {
@@ -203,6 +212,13 @@ impl Shown {
     /// a block without a sheet shows each pixel through its micro-polarizer.
     pub fn with_mosaic(mut self, layout: Option<MosaicLayout>) -> Self {
         self.mosaic = layout;
+        self
+    }
+
+    /// The same bench seen by a colour camera: each pixel through its
+    /// colour's filter of `pattern` ([`BAYER_RESPONSE`]).
+    pub fn with_bayer(mut self, pattern: Option<BayerPattern>) -> Self {
+        self.bayer = pattern;
         self
     }
 
@@ -317,6 +333,13 @@ impl Shown {
                             .map(|&p| f64::from(p))
                     })
                     .unwrap_or(0.0);
+                let signal = match self.bayer {
+                    Some(p) => {
+                        let c = p.colour_at((ox + x) as i64, (oy + y) as i64);
+                        signal * BAYER_RESPONSE[c as usize]
+                    }
+                    None => signal,
+                };
                 let dither = uniform() - 0.5;
                 let mean = (self.dark_level + signal) * scale * full;
                 // Shot noise (variance = electrons, in DN²: mean / e_per_dn) and

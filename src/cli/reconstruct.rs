@@ -139,6 +139,15 @@ fn noise_from(path: &std::path::Path, measurement: &[f64]) -> anyhow::Result<Noi
 pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let meas = npy::read(&a.measurement)?;
+    if let [rows, c] = meas.shape[..] {
+        if c > 1 {
+            return Err(super::Usage(format!(
+                "{} holds {c} colour channels ([{rows}, {c}], a colour camera's measurement): `reconstruct --photo` solves them together with one T; for the calibrated model, give one channel's column as its own .npy",
+                a.measurement.display()
+            ))
+            .into());
+        }
+    }
     let sgrid = scene.hidden().plane.grid;
     let truth = a
         .truth

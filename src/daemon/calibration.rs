@@ -245,6 +245,7 @@ impl Daemon {
                 &blocks,
                 &self.scenes.pixel_maps(scene_name),
                 false,
+                false,
             )
             .map_err(|e| invalid(e.to_string()))?;
             let m = stacked.measurement;

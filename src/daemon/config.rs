@@ -95,8 +95,9 @@ pub struct CameraConfig {
     /// Start Aravis's GigE Vision fake camera on `address`.
     #[serde(default)]
     pub fake: bool,
-    /// The sensor the fake camera plays: `"mono"`, or `"polarsens"` (a
-    /// polarizer-mosaic camera presenting Lucid's PolarizeMono8/16 formats).
+    /// The sensor the fake camera plays: `"mono"`, `"polarsens"` (a
+    /// polarizer-mosaic camera presenting Lucid's PolarizeMono8/16 formats)
+    /// or `"bayer"` (a colour camera, raw BayerRG16).
     #[serde(default)]
     pub fake_sensor: crate::camera::fake::FakeSensor,
     /// IP address to open the camera at.

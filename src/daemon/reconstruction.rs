@@ -13,8 +13,8 @@ use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::Daemon;
 use crate::files::{image, json, npy};
 use crate::measure::{
-    assemble_with, load, to_model_units, CaptureFrames, CaptureInfo, CaptureSource, Frame,
-    Measurement, PixelMaps,
+    assemble_colour, assemble_with, load, to_model_units, CaptureFrames, CaptureInfo,
+    CaptureSource, Frame, Measurement, PixelMaps,
 };
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
@@ -112,101 +112,205 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         Some(p) => Arc::new(t.select_blocks(&p.kept)),
         None => t,
     };
-    let Stacked {
-        mut measurement,
-        mut warnings,
-    } = stack_records(
+    let stacked = stack_records(
         &d.store,
         records,
         &scene,
         t.blocks(),
         &d.scenes.pixel_maps(&rec.scene),
         true,
+        true,
     )?;
-    // Elements too saturated to measure: their rows of T and i are zero (no
-    // part in any fit) and their variance 0 (no part in the noise).
-    let missing = unmeasured_rows(&mut measurement);
-    warnings.extend(unmeasured_warning(&missing, measurement.i.len()));
-    let t = if missing.is_empty() {
-        t
-    } else {
-        Arc::new(t.with_rows_zeroed(&missing))
-    };
-    let calibration = d.calibration.get(&rec.scene).copied();
-    let units = to_model_units(&t, &mut measurement, calibration)?;
-    let mut notes: Vec<String> = units.note().into_iter().collect();
-    if let Some(p) = &part {
-        notes.push(p.note());
-    }
-    let Measurement { i, variance: var } = measurement;
-    // The noise known, the sampling keys the file left out are chosen from it
-    // (a partial measurement's rows stand at their blocks, the others unknown).
-    let (key, model) = match (var.as_deref(), &part) {
-        (Some(v), None) => d.scenes.for_noise(&rec.scene, v)?,
-        (Some(v), Some(p)) => d
-            .scenes
-            .for_noise(&rec.scene, &p.whole_rows(v, t.wall_grid().count()))?,
-        (None, _) => (rec.scene.clone(), None),
-    };
-    let t = match (&part, key == rec.scene) {
-        (_, true) => t,
-        (None, false) => d.scenes.transport(&key)?,
-        (Some(p), false) => Arc::new(d.scenes.transport(&key)?.select_blocks(&p.kept)),
-    };
-    let t = if missing.is_empty() || key == rec.scene {
-        t
-    } else {
-        Arc::new(t.with_rows_zeroed(&missing))
-    };
-    // The scene's cached conditioning and Gram are those of every row of
-    // every block.
-    let whole = part.is_none() && missing.is_empty();
-    let cond = match whole {
-        true => d.scenes.conditioning(&key)?,
-        false => Arc::new(crate::solve::condition(&t)?),
-    };
-    check(cancel)?;
-    let solve = stored_solve(&rec)?;
-    let truth = rec
-        .params
-        .truth
-        .as_deref()
-        .and_then(crate::simulate::patterns::Pattern::from_name)
-        .map(|pat| pat.render(t.scene_grid()));
-    let context = Context {
-        scene: rec.scene.clone(),
+    let job = Job {
+        d,
+        rec: &rec,
+        t: &t,
+        part: part.as_ref(),
         transport_seconds,
-        truth: truth.as_deref(),
-        stop: Stop::on(cancel),
+        cancel,
     };
-    // A solver that needs the Gram solves on the scene's cached one: only
-    // `T^T i` is new.
-    let normal = match solve.solver.needs().gram {
-        true => Some(normal_for(d, &key, whole, &t, &i)?),
-        false => None,
+    let (image, measurement, mut report, kappa) = match stacked.colours {
+        None => {
+            let s = job.solve(stacked.measurement)?;
+            (s.image, s.i, s.report, s.kappa)
+        }
+        Some(colours) => {
+            let solved = colours
+                .into_iter()
+                .map(|m| job.solve(m))
+                .collect::<Result<Vec<_>, _>>()?;
+            colour_result(solved)
+        }
     };
-    check(cancel)?;
-    let solved = reconstruct_prepared(
-        &t,
-        &i,
-        var.map(NoiseLevel::measured),
-        &cond,
-        normal.as_ref(),
-        &solve,
-        context,
-    )?;
-    let (image, mut report) = (solved.image, solved.report);
-    report.model = model;
-    report.gain = Some(gain_of(units));
-    let measurement = i;
-    check(cancel)?;
-    report.warnings.splice(0..0, warnings);
-    report.notes.splice(0..0, notes);
+    report.warnings.splice(0..0, stacked.warnings);
     write_result(d, id, t.scene_grid(), &image, &measurement, &report)?;
     let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
-    d.store
-        .reconstruction_done(id, cond.kappa, &text)
-        .map_err(store)
+    d.store.reconstruction_done(id, kappa, &text).map_err(store)
+}
+
+/// What solving one measurement of a reconstruction needs beside it.
+struct Job<'a> {
+    d: &'a JobContext,
+    rec: &'a crate::store::ReconstructionRecord,
+    /// `T` of the scene, the blocks a partial reconstruction keeps.
+    t: &'a Arc<crate::transport::Transport>,
+    part: Option<&'a Partial>,
+    transport_seconds: f64,
+    cancel: &'a AtomicBool,
+}
+
+/// One measurement solved: the image, the measurement in units of `T l`,
+/// the report and `kappa(T)`.
+struct Solution {
+    image: Vec<f64>,
+    i: Vec<f64>,
+    report: crate::solve::report::Report,
+    kappa: f64,
+}
+
+impl Job<'_> {
+    /// Solves `measurement` (fractions of full scale per µs, one value per
+    /// row of `t`): unmeasured rows dropped, units, the sampling chosen from
+    /// the noise, the conditioning and Gram, the solver the record asks for.
+    fn solve(&self, mut measurement: Measurement) -> Result<Solution, JobError> {
+        let (d, rec) = (self.d, self.rec);
+        check(self.cancel)?;
+        // Elements too saturated to measure: their rows of T and i are zero (no
+        // part in any fit) and their variance 0 (no part in the noise).
+        let missing = unmeasured_rows(&mut measurement);
+        let mut warnings: Vec<String> = unmeasured_warning(&missing, measurement.i.len())
+            .into_iter()
+            .collect();
+        let t = match missing.is_empty() {
+            true => self.t.clone(),
+            false => Arc::new(self.t.with_rows_zeroed(&missing)),
+        };
+        let calibration = d.calibration.get(&rec.scene).copied();
+        let units = to_model_units(&t, &mut measurement, calibration)?;
+        let mut notes: Vec<String> = units.note().into_iter().collect();
+        if let Some(p) = self.part {
+            notes.push(p.note());
+        }
+        let Measurement { i, variance: var } = measurement;
+        // The noise known, the sampling keys the file left out are chosen from it
+        // (a partial measurement's rows stand at their blocks, the others unknown).
+        let (key, model) = match (var.as_deref(), self.part) {
+            (Some(v), None) => d.scenes.for_noise(&rec.scene, v)?,
+            (Some(v), Some(p)) => d
+                .scenes
+                .for_noise(&rec.scene, &p.whole_rows(v, t.wall_grid().count()))?,
+            (None, _) => (rec.scene.clone(), None),
+        };
+        let t = match (self.part, key == rec.scene) {
+            (_, true) => t,
+            (None, false) => d.scenes.transport(&key)?,
+            (Some(p), false) => Arc::new(d.scenes.transport(&key)?.select_blocks(&p.kept)),
+        };
+        let t = if missing.is_empty() || key == rec.scene {
+            t
+        } else {
+            Arc::new(t.with_rows_zeroed(&missing))
+        };
+        // The scene's cached conditioning and Gram are those of every row of
+        // every block.
+        let whole = self.part.is_none() && missing.is_empty();
+        let cond = match whole {
+            true => d.scenes.conditioning(&key)?,
+            false => Arc::new(crate::solve::condition(&t)?),
+        };
+        check(self.cancel)?;
+        let solve = stored_solve(rec)?;
+        let truth = rec
+            .params
+            .truth
+            .as_deref()
+            .and_then(crate::simulate::patterns::Pattern::from_name)
+            .map(|pat| pat.render(t.scene_grid()));
+        let context = Context {
+            scene: rec.scene.clone(),
+            transport_seconds: self.transport_seconds,
+            truth: truth.as_deref(),
+            stop: Stop::on(self.cancel),
+        };
+        // A solver that needs the Gram solves on the scene's cached one: only
+        // `T^T i` is new.
+        let normal = match solve.solver.needs().gram {
+            true => Some(normal_for(d, &key, whole, &t, &i)?),
+            false => None,
+        };
+        check(self.cancel)?;
+        let solved = reconstruct_prepared(
+            &t,
+            &i,
+            var.map(NoiseLevel::measured),
+            &cond,
+            normal.as_ref(),
+            &solve,
+            context,
+        )?;
+        let mut report = solved.report;
+        report.model = model;
+        report.gain = Some(gain_of(units));
+        warnings.append(&mut report.warnings);
+        report.warnings = warnings;
+        notes.append(&mut report.notes);
+        report.notes = notes;
+        check(self.cancel)?;
+        Ok(Solution {
+            image: solved.image,
+            i,
+            report,
+            kappa: cond.kappa,
+        })
+    }
+}
+
+/// The red, green and blue solutions of a colour camera's captures as one
+/// result: the images and measurements interleaved per element (`[.., 3]`),
+/// and green's report (the colour with the most pixels) carrying every
+/// colour's own fit in `colours`, their metrics combined, their warnings
+/// (named by colour where not all three have one) and their notes.
+fn colour_result(solved: Vec<Solution>) -> (Vec<f64>, Vec<f64>, crate::solve::report::Report, f64) {
+    use crate::measure::colour::Colour;
+    use crate::solve::report::ColourReport;
+    let interleave = |f: &dyn Fn(&Solution) -> &Vec<f64>| -> Vec<f64> {
+        let n = f(&solved[0]).len();
+        (0..n)
+            .flat_map(|k| solved.iter().map(move |s| f(s)[k]))
+            .collect()
+    };
+    let image = interleave(&|s| &s.image);
+    let i = interleave(&|s| &s.i);
+    let kappa = solved[1].kappa;
+    let mut report = solved[1].report.clone();
+    report.colours = solved
+        .iter()
+        .zip(Colour::ALL)
+        .map(|(s, colour)| ColourReport::of(colour, &s.report))
+        .collect();
+    report.metrics = crate::solve::report::ColourReport::combined(&report.colours);
+    let mut warnings = Vec::new();
+    for (s, colour) in solved.iter().zip(Colour::ALL) {
+        for w in &s.report.warnings {
+            let everywhere = solved.iter().all(|o| o.report.warnings.contains(w));
+            let w = match everywhere {
+                true => w.clone(),
+                false => format!("{}: {w}", format!("{colour:?}").to_lowercase()),
+            };
+            if !warnings.contains(&w) {
+                warnings.push(w);
+            }
+        }
+    }
+    report.warnings = warnings;
+    let mut notes = Vec::new();
+    for n in solved.iter().flat_map(|s| &s.report.notes) {
+        if !notes.contains(n) {
+            notes.push(n.clone());
+        }
+    }
+    report.notes = notes;
+    (image, i, report, kappa)
 }
 
 /// `T^T T` and `T^T i` for a solver that needs the Gram: the scene's cached
@@ -250,21 +354,39 @@ fn write_result(
     let dir = d.store.reconstruction_dir(id);
     std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
     let file = |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
-    npy::write_f64(&dir.join("recovered.npy"), &[grid.nv, grid.nu], image).map_err(file)?;
+    // A colour result holds red, green and blue per element.
+    let c = report.colours.len().max(1);
+    let shape = |n: usize| match c {
+        1 => vec![n],
+        _ => vec![n, c],
+    };
+    let mut image_shape = vec![grid.nv, grid.nu];
+    if c > 1 {
+        image_shape.push(c);
+    }
+    npy::write_f64(&dir.join("recovered.npy"), &image_shape, image).map_err(file)?;
     // The stacked measurement it solved (units of T l, MODEL.md row order),
     // so a user can re-solve it offline with `polnlos reconstruct`.
     npy::write_f64(
         &dir.join("measurement.npy"),
-        &[measurement.len()],
+        &shape(measurement.len() / c),
         measurement,
     )
     .map_err(file)?;
-    image::write_png16(
-        &dir.join("image.png"),
-        grid.nu,
-        grid.nv,
-        &image::unit_to_u16(image),
-    )
+    match c {
+        1 => image::write_png16(
+            &dir.join("image.png"),
+            grid.nu,
+            grid.nv,
+            &image::unit_to_u16(image),
+        ),
+        _ => image::write_png_rgb16(
+            &dir.join("image.png"),
+            grid.nu,
+            grid.nv,
+            &image::unit_to_u16(image),
+        ),
+    }
     .map_err(file)?;
     json::write(&dir.join("report.json"), report).map_err(file)?;
     tracing::info!(
@@ -316,6 +438,9 @@ impl Daemon {
 /// the user should know about the captures.
 pub(super) struct Stacked {
     pub(super) measurement: Measurement,
+    /// Red, green and blue, each over its own pixels, when every capture
+    /// came from a colour camera and they were asked for.
+    pub(super) colours: Option<Vec<Measurement>>,
     pub(super) warnings: Vec<String>,
 }
 
@@ -379,7 +504,8 @@ fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest
 /// Captures (each at its own pose) assembled into the measurement of
 /// `blocks` with [`crate::measure::assemble_with`] and the scene's pixel
 /// `maps`, in fractions of full scale per µs; the variance comes with it
-/// when every capture has 2 frames or more.
+/// when every capture has 2 frames or more. With `colours`, and every
+/// capture from a colour camera, each colour's measurement too.
 pub(super) fn stack_records(
     store: &Store,
     records: Vec<CaptureRecord>,
@@ -387,6 +513,7 @@ pub(super) fn stack_records(
     blocks: &[crate::transport::Block],
     maps: &PixelMaps,
     in_range: bool,
+    colours: bool,
 ) -> Result<Stacked, JobError> {
     // Saturation first: it biases the measurement before any model question.
     let mut warnings: Vec<String> = records
@@ -401,8 +528,18 @@ pub(super) fn stack_records(
         })
         .collect::<Result<Vec<_>, _>>()?;
     let measurement = assemble_with(scene, blocks, &captures, maps)?;
+    let colours = match colours && captures.iter().all(|c| c.bayer.is_some()) {
+        true => Some(
+            crate::measure::colour::Colour::ALL
+                .into_iter()
+                .map(|c| assemble_colour(scene, blocks, &captures, maps, Some(c)))
+                .collect::<Result<Vec<_>, _>>()?,
+        ),
+        false => None,
+    };
     Ok(Stacked {
         measurement,
+        colours,
         warnings,
     })
 }

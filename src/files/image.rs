@@ -83,9 +83,12 @@ pub const MAX_SCALED_SIDE: u32 = 4096;
 /// at in an image viewer. `k` must be at least 1 and the result at most
 /// [`MAX_SCALED_SIDE`] on a side; the error says what is allowed.
 pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, String> {
-    let img = image::load_from_memory(png)
-        .map_err(|e| format!("cannot decode the stored PNG: {e}"))?
-        .to_luma16();
+    let img =
+        image::load_from_memory(png).map_err(|e| format!("cannot decode the stored PNG: {e}"))?;
+    if img.color().has_color() {
+        return scale_rgb16(&img.to_rgb16(), k);
+    }
+    let img = img.to_luma16();
     let (w, h) = img.dimensions();
     let longest = w.max(h).max(1);
     let most = (MAX_SCALED_SIDE / longest).max(1);
@@ -102,6 +105,26 @@ pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, String> {
         .map(|(x, y)| src[(y / k) * w as usize + x / k])
         .collect();
     encode_png16(sw, sh, &pixels)
+}
+
+/// [`scale_png16`] of a colour image.
+fn scale_rgb16(
+    img: &image::ImageBuffer<image::Rgb<u16>, Vec<u16>>,
+    k: u32,
+) -> Result<Vec<u8>, String> {
+    let (w, h) = img.dimensions();
+    let most = (MAX_SCALED_SIDE / w.max(h).max(1)).max(1);
+    if k == 0 || k > most {
+        return Err(format!(
+            "scale = {k}: give a whole number from 1 to {most} (the {w}x{h} image may grow to {MAX_SCALED_SIDE} pixels a side)"
+        ));
+    }
+    let scaled = image::imageops::resize(img, w * k, h * k, image::imageops::FilterType::Nearest);
+    let mut out = std::io::Cursor::new(Vec::new());
+    scaled
+        .write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| e.to_string())?;
+    Ok(out.into_inner())
 }
 
 /// Encodes 16-bit grey pixels as PNG bytes.
@@ -138,6 +161,26 @@ pub fn write_png_rgb8(
 ) -> Result<(), FileError> {
     let buf = image::RgbImage::from_raw(width as u32, height as u32, pixels.to_vec())
         .ok_or_else(|| FileError::format(path, "pixel count does not match the image size"))?;
+    let mut out = std::io::Cursor::new(Vec::new());
+    buf.write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| FileError::format(path, e.to_string()))?;
+    super::write_atomic(path, &out.into_inner())
+}
+
+/// Writes 16-bit RGB pixels (interleaved) as a PNG, atomically: a colour
+/// camera's reconstruction.
+pub fn write_png_rgb16(
+    path: &Path,
+    width: usize,
+    height: usize,
+    pixels: &[u16],
+) -> Result<(), FileError> {
+    let buf = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_raw(
+        width as u32,
+        height as u32,
+        pixels.to_vec(),
+    )
+    .ok_or_else(|| FileError::format(path, "pixel count does not match the image size"))?;
     let mut out = std::io::Cursor::new(Vec::new());
     buf.write_to(&mut out, image::ImageFormat::Png)
         .map_err(|e| FileError::format(path, e.to_string()))?;

@@ -1,10 +1,11 @@
 //! A colour sensor's Bayer filter: which of a 2x2 cell's pixels see red,
-//! green and blue, so each colour's measurement averages its own pixels.
+//! green and blue, so each colour's measurement is made from its own pixels.
 //!
-//! Why no demosaicing: a wall element spans many pixels, so each colour's
-//! mean over its own pixels is already that element's value for the colour
-//! (as a polarizer mosaic's angles are measured, MODEL.md "On-chip polarizer
-//! mosaic"); interpolated pixels would only correlate the noise.
+//! Each element's value for a colour is the mean over all its pixels of
+//! that colour bilinearly interpolated from its own pixels
+//! ([`crate::scene::PixelMap::interpolated`]): a weighted sum of the
+//! colour's pixels, centred on the element as `T`'s row is (their plain
+//! mean sits half a pixel off).
 
 use crate::scene::Cells;
 

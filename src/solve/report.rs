@@ -85,6 +85,66 @@ pub struct Report {
     /// λ. Why apart: a warning must stand out, and it cannot when every
     /// result carries these.
     pub notes: Vec<String>,
+    /// A colour camera's result: each colour's own fit, red, green, blue
+    /// (the rest of the report is green's, its metrics all three's).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub colours: Vec<ColourReport>,
+}
+
+/// One colour of a colour camera's reconstruction, fitted on its own.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ColourReport {
+    /// Which colour.
+    pub colour: crate::measure::colour::Colour,
+    /// Metrics against the truth, when one was given.
+    pub metrics: Option<Metrics>,
+    /// How its λ was chosen.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lambda_choice: Option<super::lambda::LambdaChoice>,
+    /// Whether `T` explains this colour's measurement.
+    pub model_check: Option<super::adequacy::Adequacy>,
+    /// The gain its measurement was divided by.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gain: Option<Gain>,
+    /// Solver statistics.
+    pub solver: SolveStats,
+    /// What is wrong with this colour's result.
+    pub warnings: Vec<String>,
+}
+
+impl ColourReport {
+    /// The colour's part of its own full `report`.
+    pub fn of(colour: crate::measure::colour::Colour, report: &Report) -> Self {
+        Self {
+            colour,
+            metrics: report.metrics,
+            lambda_choice: report.lambda_choice.clone(),
+            model_check: report.model_check,
+            gain: report.gain,
+            solver: report.solver.clone(),
+            warnings: report.warnings.clone(),
+        }
+    }
+
+    /// The metrics of all colours together: PSNR of their mean squared
+    /// error, and the mean ZNCC and SSIM; `None` without a truth.
+    pub fn combined(colours: &[ColourReport]) -> Option<Metrics> {
+        let all: Vec<&Metrics> = colours
+            .iter()
+            .map(|c| c.metrics.as_ref())
+            .collect::<Option<_>>()?;
+        let n = all.len().max(1) as f64;
+        let mse = all
+            .iter()
+            .map(|m| 10f64.powf(-m.psnr_db / 10.0))
+            .sum::<f64>()
+            / n;
+        Some(Metrics {
+            psnr_db: -10.0 * mse.log10(),
+            zncc: all.iter().map(|m| m.zncc).sum::<f64>() / n,
+            ssim: all.iter().map(|m| m.ssim).sum::<f64>() / n,
+        })
+    }
 }
 
 impl Report {
@@ -118,6 +178,7 @@ impl Report {
             gain: None,
             warnings,
             notes: conditioning_notes(cond),
+            colours: Vec::new(),
         }
     }
 }

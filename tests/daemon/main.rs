@@ -10,6 +10,7 @@ mod common;
 
 mod api_fuzz;
 mod camera;
+mod colour;
 mod faults;
 mod fuzz;
 mod hostile;

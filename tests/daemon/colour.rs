@@ -1,0 +1,105 @@
+//! A colour camera through the daemon (issue 37): Aravis's fake camera
+//! playing a colour sensor behind an RGGB Bayer filter (`[camera]
+//! fake_sensor = "bayer"`, `BayerRG16`) gives a colour reconstruction from
+//! one capture, each colour measured from its own pixels, and each colour as
+//! good as a monochrome capture of the same exposure allows for the photons
+//! that colour's pixels receive. Real HTTP on 127.0.0.1, the real
+//! catalogue, real Aravis.
+
+use std::time::Duration;
+
+use crate::daemon::common::{config, lock, psnr, Daemon};
+
+/// The fake camera shows the crossed bench's letter, as a `sensor` camera.
+fn bench(dir: &std::path::Path, sensor: &str) -> std::path::PathBuf {
+    config(
+        dir,
+        &[(
+            "fake_sensor = \"mono\"",
+            &format!("fake_sensor = \"{sensor}\""),
+        )],
+    )
+}
+
+/// One capture of the crossed bench and its reconstruction against the letter.
+fn capture_and_reconstruct(d: &Daemon) -> serde_json::Value {
+    let long = Duration::from_secs(240);
+    let c = d.run_job(
+        "/captures",
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 8, "dark_frames": 2}"#,
+        long,
+    );
+    assert_eq!(c["state"], "done", "{c}");
+    let r = d.run_job(
+        "/reconstructions",
+        &format!(
+            r#"{{"scene": "brewster-crossed", "captures": [{}], "truth": "letter"}}"#,
+            c["id"]
+        ),
+        long,
+    );
+    assert_eq!(r["state"], "done", "{r}");
+    r
+}
+
+#[test]
+fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
+    let _g = lock();
+    let mono = {
+        let dir = tempfile::tempdir().unwrap();
+        let d = Daemon::start(&bench(dir.path(), "mono"), &dir.path().join("data"));
+        let r = capture_and_reconstruct(&d);
+        assert!(r["report"]["colours"].is_null(), "{r}");
+        psnr(&r)
+    };
+
+    let dir = tempfile::tempdir().unwrap();
+    let d = Daemon::start(&bench(dir.path(), "bayer"), &dir.path().join("data"));
+    let cam = d.json("/camera");
+    assert_eq!(
+        cam["info"]["settings"]["pixel_format"], "BayerRG16",
+        "{cam}"
+    );
+    assert!(cam["info"]["mosaic"].is_null(), "{cam}");
+    let r = capture_and_reconstruct(&d);
+    let colours = r["report"]["colours"].as_array().expect("a colour report");
+    let names: Vec<&str> = colours
+        .iter()
+        .map(|c| c["colour"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["red", "green", "blue"], "{r}");
+    // The photons a colour's pixels get against a monochrome pixel's: their
+    // share of a Bayer cell times the filter's response (0.55, 1, 0.7).
+    let photons: [f64; 3] = [0.25 * 0.55, 0.5, 0.25 * 0.7];
+    let mut got = Vec::new();
+    for (c, share) in colours.iter().zip(photons) {
+        let p = c["metrics"]["psnr_db"].as_f64().unwrap();
+        got.push(p);
+        // Behind the monochrome capture by no more than the noise those
+        // fewer photons add, 10 log10(1 / share) dB, plus 0.5 dB.
+        let allowance = 10.0 * (1.0 / share).log10() + 0.5;
+        assert!(
+            p > mono - allowance,
+            "{}: {p:.2} dB, mono {mono:.2} dB, allowance {allowance:.1} dB",
+            c["colour"]
+        );
+        assert!(c["model_check"].is_object(), "{c}");
+    }
+    println!(
+        "PSNR: mono {mono:.2} dB, red/green/blue {got:.2?} dB, all {:.2} dB",
+        psnr(&r)
+    );
+    // The result is a colour image: [nv, nu, 3] values and an RGB PNG.
+    let id = r["id"].as_i64().unwrap();
+    let (s, png) = d.get_bytes(&format!("/reconstructions/{id}/image.png"));
+    assert_eq!(s, 200);
+    // PNG colour type (byte 25 of the IHDR): 2 is RGB; bit depth 16.
+    assert_eq!((png[24], png[25]), (16, 2), "bit depth and colour type");
+    let (s, scaled) = d.get_bytes(&format!("/reconstructions/{id}/image.png?scale=4"));
+    assert_eq!(s, 200);
+    assert_eq!(scaled[25], 2, "a scaled colour image stays colour");
+    let (s, npy) = d.get_bytes(&format!("/reconstructions/{id}/recovered.npy"));
+    assert_eq!(s, 200);
+    let header = String::from_utf8_lossy(&npy[..128.min(npy.len())]).into_owned();
+    assert!(header.contains("'shape': (8, 8, 3,"), "{header}");
+}
