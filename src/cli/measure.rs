@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use polnlos::files::frames::read_frames;
 use polnlos::files::npy;
+use polnlos::measure::colour::BayerPattern;
 use polnlos::measure::given::{measure_given, GivenCapture, UnitsWanted};
 use polnlos::scene::Channel;
 use polnlos::transport::MemoryBudget;
@@ -60,9 +61,28 @@ pub struct Args {
     /// instead of units of T l.
     #[arg(long)]
     raw: bool,
+    /// The frames are a colour camera's raw Bayer frames with this pattern
+    /// (the first row's colours: RG for RGGB, GR, GB, BG, as the camera's
+    /// pixel format names it): red, green and blue are measured each from
+    /// its own pixels into a [rows, 3] measurement.
+    #[arg(long, value_name = "RG|GR|GB|BG", value_parser = parse_bayer)]
+    bayer: Option<BayerPattern>,
     /// Output measurement (.npy).
     #[arg(long, value_name = "FILE")]
     out: PathBuf,
+}
+
+/// `--bayer`: a Bayer pattern by its first row's colours.
+fn parse_bayer(s: &str) -> Result<BayerPattern, String> {
+    match s.to_ascii_uppercase().as_str() {
+        "RG" | "RGGB" => Ok(BayerPattern::RG),
+        "GR" | "GRBG" => Ok(BayerPattern::GR),
+        "GB" | "GBRG" => Ok(BayerPattern::GB),
+        "BG" | "BGGR" => Ok(BayerPattern::BG),
+        _ => Err(format!(
+            "{s:?} is not a Bayer pattern; give RG, GR, GB or BG (the colours of the sensor's first row, as BayerRG16 names RG)"
+        )),
+    }
 }
 
 /// `--angle`: degrees, `none` or `mosaic`: the blocks the frames hold.
@@ -130,16 +150,19 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         } else {
             Some(read_frames(per_block(&a.dark, k, "--dark", n)?)?.stack)
         };
-        captures.push(GivenCapture::new(
-            path.display().to_string(),
-            pose,
-            channels,
-            frames.stack,
-            dark,
-            full_scale,
-            exposure_us,
-            "give dark frames (scene off, same exposure and region) with --dark",
-        ));
+        captures.push(
+            GivenCapture::new(
+                path.display().to_string(),
+                pose,
+                channels,
+                frames.stack,
+                dark,
+                full_scale,
+                exposure_us,
+                "give dark frames (scene off, same exposure and region) with --dark",
+            )
+            .with_bayer(a.bayer),
+        );
     }
     let wanted = match (a.raw, a.gain) {
         (true, _) => UnitsWanted::Raw,
@@ -164,14 +187,17 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         eprintln!("warning: {w}");
     }
     let measured = measured?;
+    if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        super::out_dir(&parent.to_path_buf())?;
+    }
+    if let Some(colours) = measured.colours {
+        return write_colours(&a.out, &colours, scene.wall().plane.grid.count());
+    }
     let (m, blocks) = (measured.measurement, measured.blocks);
     let units = match measured.units {
         None => "fractions of full scale per microsecond".to_string(),
         Some(u) => format!("units of T l (divided by {:.6e})", u.factor()),
     };
-    if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        super::out_dir(&parent.to_path_buf())?;
-    }
     npy::write_f64(&a.out, &[m.i.len()], &m.i)?;
     let labels: Vec<String> = blocks.iter().map(|b| b.label()).collect();
     println!(
@@ -186,6 +212,50 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         Some(v) => {
             let p = variance_path(&a.out);
             npy::write_f64(&p, &[v.len()], v)?;
+            println!("wrote {} (variance of each value)", p.display());
+        }
+        None => println!("no variance: a block has fewer than 2 frames"),
+    }
+    Ok(())
+}
+
+/// Writes a colour measurement, red, green and blue per row (`[rows, 3]`),
+/// and its variance beside it when every colour has one.
+fn write_colours(
+    out: &Path,
+    colours: &[(
+        polnlos::measure::Measurement,
+        Option<polnlos::measure::Units>,
+    )],
+    wall_elements: usize,
+) -> anyhow::Result<()> {
+    let rows = colours[0].0.i.len();
+    let c = colours.len();
+    let interleave = |f: &dyn Fn(&polnlos::measure::Measurement) -> Option<&Vec<f64>>| {
+        let all: Option<Vec<&Vec<f64>>> = colours.iter().map(|(m, _)| f(m)).collect();
+        all.map(|all| {
+            (0..rows)
+                .flat_map(|j| all.iter().map(move |v| v[j]))
+                .collect::<Vec<f64>>()
+        })
+    };
+    if let Some(i) = interleave(&|m| Some(&m.i)) {
+        npy::write_f64(out, &[rows, c], &i)?;
+    }
+    let units: Vec<String> = colours
+        .iter()
+        .map(|(_, u)| u.map_or("raw".to_string(), |u| format!("{:.6e}", u.factor())))
+        .collect();
+    println!(
+        "wrote {} ({rows} rows x {c} colours, red green blue; {} blocks of {wall_elements} wall elements), each colour from its own pixels; divided by {}",
+        out.display(),
+        rows / wall_elements.max(1),
+        units.join(" / ")
+    );
+    match interleave(&|m| m.variance.as_ref()) {
+        Some(v) => {
+            let p = variance_path(out);
+            npy::write_f64(&p, &[rows, c], &v)?;
             println!("wrote {} (variance of each value)", p.display());
         }
         None => println!("no variance: a block has fewer than 2 frames"),

@@ -53,6 +53,14 @@ impl GivenCapture {
     }
 }
 
+impl GivenCapture {
+    /// The same capture from a colour camera's raw frames behind `pattern`.
+    pub fn with_bayer(mut self, pattern: Option<super::colour::BayerPattern>) -> Self {
+        self.info.bayer = pattern;
+        self
+    }
+}
+
 impl CaptureSource for GivenCapture {
     fn info(&self) -> CaptureInfo {
         self.info.clone()
@@ -108,6 +116,10 @@ pub struct Measured {
     pub blocks: Vec<Block>,
     /// The units applied, when any (`None` for [`UnitsWanted::Raw`]).
     pub units: Option<Units>,
+    /// When every capture came from a colour camera: red, green and blue,
+    /// each measured from its own pixels and put in the units asked for
+    /// (an estimated scale per colour), with that colour's units.
+    pub colours: Option<Vec<(Measurement, Option<Units>)>>,
 }
 
 /// Why given captures could not be measured.
@@ -150,27 +162,50 @@ pub fn measure_given(
         .map(|c| load(scene, c, warnings))
         .collect::<Result<Vec<_>, _>>()?;
     let blocks = crate::transport::blocks_of(scene);
-    let mut measurement = assemble(scene, &blocks, &loaded)?;
-    let units = match units {
-        UnitsWanted::Raw => None,
-        UnitsWanted::Gain(g) => Some(Units::Calibrated(g)),
-        // Only the estimated scale needs T.
-        UnitsWanted::Estimated => Some(Units::estimate(
-            &crate::transport::build_with_progress(scene, budget, progress)?,
-            &measurement,
-        )?),
+    let measurement = assemble(scene, &blocks, &loaded)?;
+    let colours = match !loaded.is_empty() && loaded.iter().all(|c| c.bayer.is_some()) {
+        true => Some(
+            super::colour::Colour::ALL
+                .into_iter()
+                .map(|c| {
+                    let maps = super::PixelMaps::default();
+                    super::assemble_colour(scene, &blocks, &loaded, &maps, Some(c))
+                })
+                .collect::<Result<Vec<_>, _>>()?,
+        ),
+        false => None,
     };
-    if let Some(u) = units {
-        u.apply(&mut measurement);
-        if let Some(w) = u.note() {
-            warnings.push(format!(
-                "{w}; give the bench's radiometric gain for absolute units"
-            ));
+    // Only the estimated scale needs T, built once for every colour.
+    let t = match units {
+        UnitsWanted::Estimated => Some(crate::transport::build_with_progress(
+            scene, budget, progress,
+        )?),
+        _ => None,
+    };
+    let in_units = |mut m: Measurement| -> Result<(Measurement, Option<Units>), GivenError> {
+        let u = match (units, &t) {
+            (UnitsWanted::Gain(g), _) => Some(Units::Calibrated(g)),
+            (UnitsWanted::Estimated, Some(t)) => Some(Units::estimate(t, &m)?),
+            _ => None,
+        };
+        if let Some(u) = u {
+            u.apply(&mut m);
         }
+        Ok((m, u))
+    };
+    let (measurement, units) = in_units(measurement)?;
+    if let Some(w) = units.and_then(Units::note) {
+        warnings.push(format!(
+            "{w}; give the bench's radiometric gain for absolute units"
+        ));
     }
+    let colours = colours
+        .map(|all| all.into_iter().map(in_units).collect::<Result<Vec<_>, _>>())
+        .transpose()?;
     Ok(Measured {
         measurement,
         blocks,
         units,
+        colours,
     })
 }

@@ -1241,6 +1241,91 @@ fn a_mosaic_frame_measures_to_its_four_blocks_in_angle_order() {
     assert!(e.contains("`none` or `mosaic`"), "{e}");
 }
 
+#[test]
+fn a_bayer_frame_measures_to_red_green_and_blue_per_row() {
+    use tiff::encoder::{colortype, TiffEncoder};
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_str().unwrap().to_string();
+    // GRBG: G R on even rows, B G on odd ones; two frames each, for a variance.
+    let level = |x: usize, y: usize, k: u16| match (y % 2, x % 2) {
+        (0, 1) => 1000 + k,
+        (1, 0) => 3000 + k,
+        _ => 2000 + k,
+    };
+    {
+        let mut f = std::fs::File::create(p("raw.tiff")).unwrap();
+        let mut enc = TiffEncoder::new(&mut f).unwrap();
+        for k in 0..2u16 {
+            let px: Vec<u16> = (0..512 * 512)
+                .map(|q| level(q % 512, q / 512, 2 * k))
+                .collect();
+            enc.write_image::<colortype::Gray16>(512, 512, &px).unwrap();
+        }
+    }
+    let out = p("i.npy");
+    let s = scene("brewster-crossed").to_str().unwrap().to_string();
+    let args = |bayer: &str| {
+        polnlos(&[
+            "measure",
+            &s,
+            "--frames",
+            &p("raw.tiff"),
+            "--pose",
+            "A",
+            "--angle",
+            "0",
+            "--exposure-us",
+            "1000",
+            "--raw",
+            "--bayer",
+            bayer,
+            "--out",
+            &out,
+        ])
+    };
+    let stdout = ok(&args("GR"));
+    assert!(
+        stdout.contains("1024 rows x 3 colours, red green blue"),
+        "{stdout}"
+    );
+    let m = npy::read(std::path::Path::new(&out)).unwrap();
+    assert_eq!(m.shape, vec![1024, 3]);
+    let unit = 1.0 / 65535.0 / 1000.0;
+    for (c, want) in [1001.0, 2001.0, 3001.0].into_iter().enumerate() {
+        assert!(
+            m.data
+                .iter()
+                .skip(c)
+                .step_by(3)
+                .all(|v| (v - want * unit).abs() < 1e-9),
+            "colour {c}: {:?}",
+            &m.data[..6]
+        );
+    }
+    let v = npy::read(&dir.path().join("i.variance.npy")).unwrap();
+    assert_eq!(v.shape, vec![1024, 3]);
+    // The wrong pattern reads green where red is.
+    ok(&args("RG"));
+    let m = npy::read(std::path::Path::new(&out)).unwrap();
+    assert!(
+        (m.data[0] - 2001.0 * unit).abs() < 1e-9,
+        "{:?}",
+        &m.data[..3]
+    );
+    let e = usage(&args("RGB"));
+    assert!(e.contains("give RG, GR, GB or BG"), "{e}");
+    // The plain reconstruction refuses the colours, naming --photo.
+    let e = usage(&polnlos(&[
+        "reconstruct",
+        &s,
+        "--measurement",
+        &out,
+        "--out",
+        &p("rec"),
+    ]));
+    assert!(e.contains("reconstruct --photo"), "{e}");
+}
+
 /// `polnlos reconstruct` of the chair photo's scene with `--photo`.
 fn reconstruct_photo(measurement: &Path, out: &Path, truth: Option<&Path>) -> Output {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
