@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use polnlos::files::frames::read_frames;
 use polnlos::files::npy;
 use polnlos::measure::colour::BayerPattern;
-use polnlos::measure::given::{measure_given, GivenCapture, UnitsWanted};
+use polnlos::measure::given::{measure_given_sets, GivenCapture, UnitsWanted};
 use polnlos::scene::Channel;
 use polnlos::transport::MemoryBudget;
 
@@ -120,7 +120,9 @@ fn variance_path(out: &Path) -> PathBuf {
 pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
     let n = a.frames.len();
-    let mut captures = Vec::with_capacity(n);
+    // One set of captures per colour plane: one for grey (or raw Bayer)
+    // frames, three for RGB frames.
+    let mut sets: Vec<Vec<GivenCapture>> = Vec::new();
     for (k, path) in a.frames.iter().enumerate() {
         let pose = per_block(&a.pose, k, "--pose", n)?.clone();
         let AngleArg(channels) = per_block(&a.angle, k, "--angle", n)?.clone();
@@ -148,21 +150,49 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         let dark = if a.dark.is_empty() {
             None
         } else {
-            Some(read_frames(per_block(&a.dark, k, "--dark", n)?)?.stack)
+            Some(read_frames(per_block(&a.dark, k, "--dark", n)?)?)
         };
-        captures.push(
-            GivenCapture::new(
-                path.display().to_string(),
-                pose,
-                channels,
-                frames.stack,
-                dark,
-                full_scale,
-                exposure_us,
-                "give dark frames (scene off, same exposure and region) with --dark",
-            )
-            .with_bayer(a.bayer),
-        );
+        let planes = match (frames.colours, a.bayer) {
+            (Some(_), Some(_)) => {
+                return Err(super::Usage(format!(
+                    "{} is an RGB image, already demosaiced: leave out --bayer (it is for a colour camera's raw grey frames)",
+                    path.display()
+                ))
+                .into())
+            }
+            (Some(c), None) => c,
+            (None, _) => vec![frames.stack],
+        };
+        if !sets.is_empty() && sets.len() != planes.len() {
+            return Err(super::Usage(format!(
+                "{} has {} colour plane(s) but the frames before it {}: give every --frames as RGB or every one grey",
+                path.display(),
+                planes.len(),
+                sets.len()
+            ))
+            .into());
+        }
+        sets.resize_with(planes.len(), Vec::new);
+        for (c, plane) in planes.into_iter().enumerate() {
+            // An RGB dark subtracts per colour; a grey one from every colour.
+            let dark = dark.as_ref().map(|d| match &d.colours {
+                Some(dc) => dc.get(c).cloned().unwrap_or_else(|| d.stack.clone()),
+                None => d.stack.clone(),
+            });
+            sets[c].push(
+                GivenCapture::new(
+                    path.display().to_string(),
+                    pose.clone(),
+                    channels.clone(),
+                    plane,
+                    dark,
+                    full_scale,
+                    exposure_us,
+                    "give dark frames (scene off, same exposure and region) with --dark",
+                )
+                .with_bayer(a.bayer),
+            );
+        }
     }
     let wanted = match (a.raw, a.gain) {
         (true, _) => UnitsWanted::Raw,
@@ -174,9 +204,10 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     };
     let pb = super::progress::bar(scene.cols(), "building T");
     let mut warnings = Vec::new();
-    let measured = measure_given(
+    let refs: Vec<&[GivenCapture]> = sets.iter().map(Vec::as_slice).collect();
+    let measured = measure_given_sets(
         &scene,
-        &captures,
+        &refs,
         wanted,
         budget,
         &|done| pb.set_position(done as u64),
@@ -186,12 +217,21 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     for w in &warnings {
         eprintln!("warning: {w}");
     }
-    let measured = measured?;
+    let mut measured = measured?;
     if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
         super::out_dir(&parent.to_path_buf())?;
     }
+    let wall = scene.wall().plane.grid.count();
+    if measured.len() > 1 {
+        let planes: Vec<_> = measured
+            .into_iter()
+            .map(|m| (m.measurement, m.units))
+            .collect();
+        return write_colours(&a.out, &planes, wall);
+    }
+    let measured = measured.swap_remove(0);
     if let Some(colours) = measured.colours {
-        return write_colours(&a.out, &colours, scene.wall().plane.grid.count());
+        return write_colours(&a.out, &colours, wall);
     }
     let (m, blocks) = (measured.measurement, measured.blocks);
     let units = match measured.units {

@@ -25,6 +25,8 @@ pub struct FrameFile {
     /// Bits per pixel of the integer pages (8 or 16, or the camera's depth
     /// a polnlos frame file states); `None` for a float mean.
     pub bits: Option<u32>,
+    /// An RGB file's red, green and blue frames (`stack` then holds green).
+    pub colours: Option<Vec<FrameStack>>,
 }
 
 impl FrameFile {
@@ -60,6 +62,7 @@ fn decode_from<R: std::io::Read + std::io::Seek>(
     let mut dec = tiff::decoder::Decoder::new(reader).map_err(bad)?;
     let described = described_bits(&mut dec);
     let mut stack: Option<FrameStack> = None;
+    let mut colours: Option<Vec<FrameStack>> = None;
     let mut bits = None;
     for page in 0usize.. {
         let (w, h) = dec.dimensions().map_err(bad)?;
@@ -88,10 +91,22 @@ fn decode_from<R: std::io::Read + std::io::Seek>(
         let not_grey = || {
             FileError::format(
                 path,
-                format!("page {page} is not a grey frame of page 0's type; use one grey channel, 8 or 16 bits per pixel (or a single 32-bit float page)"),
+                format!("page {page} is not a frame of page 0's type; use one grey channel or RGB, 8 or 16 bits per pixel (or a single 32-bit float grey page)"),
             )
         };
+        let rgb = matches!(dec.colortype().map_err(bad)?, tiff::ColorType::RGB(_));
+        if rgb != colours.is_some() && page > 0 {
+            return Err(not_grey());
+        }
         let value_bits = match dec.read_image().map_err(bad)? {
+            tiff::decoder::DecodingResult::U8(v) if rgb && v.len() == 3 * n => {
+                push_rgb(&mut colours, st, &v);
+                Some(8)
+            }
+            tiff::decoder::DecodingResult::U16(v) if rgb && v.len() == 3 * n => {
+                push_rgb(&mut colours, st, &v);
+                Some(16)
+            }
             tiff::decoder::DecodingResult::U8(v) if v.len() == n => {
                 st.push(&v);
                 Some(8)
@@ -125,7 +140,33 @@ fn decode_from<R: std::io::Read + std::io::Seek>(
     // 8- to 16-bit camera data in 16-bit pages (the daemon's frame.tiff):
     // the page's own description says the camera's bit depth.
     let bits = bits.map(|b| described.filter(|d| (1..=b).contains(d)).unwrap_or(b));
-    Ok(FrameFile { stack, bits })
+    let stack = match &colours {
+        Some(c) => c[1].clone(),
+        None => stack,
+    };
+    Ok(FrameFile {
+        stack,
+        bits,
+        colours,
+    })
+}
+
+/// Adds an RGB page (interleaved) to the red, green and blue stacks, made
+/// at `like`'s size on the first page.
+fn push_rgb<T: Copy + Into<f64>>(
+    colours: &mut Option<Vec<FrameStack>>,
+    like: &FrameStack,
+    v: &[T],
+) {
+    let c = colours.get_or_insert_with(|| {
+        (0..3)
+            .map(|_| FrameStack::new(like.width, like.height))
+            .collect()
+    });
+    for (k, s) in c.iter_mut().enumerate() {
+        let plane: Vec<T> = v.iter().skip(k).step_by(3).copied().collect();
+        s.push(&plane);
+    }
 }
 
 /// The camera's bits per pixel as a polnlos frame file's page description

@@ -152,30 +152,58 @@ pub fn measure_given(
     progress: &(dyn Fn(usize) + Sync),
     warnings: &mut Vec<String>,
 ) -> Result<Measured, GivenError> {
+    let mut all = measure_given_sets(
+        scene,
+        std::slice::from_ref(&captures),
+        units,
+        budget,
+        progress,
+        warnings,
+    )?;
+    // One set in, one measurement out.
+    Ok(all.swap_remove(0))
+}
+
+/// [`measure_given`] of several sets of captures of the same blocks (the
+/// colour planes of RGB frames), `T` built at most once for them all.
+pub fn measure_given_sets(
+    scene: &Scene,
+    sets: &[&[GivenCapture]],
+    units: UnitsWanted,
+    budget: MemoryBudget,
+    progress: &(dyn Fn(usize) + Sync),
+    warnings: &mut Vec<String>,
+) -> Result<Vec<Measured>, GivenError> {
     if let UnitsWanted::Gain(g) = units {
         if !(g.is_finite() && g > 0.0) {
             return Err(GivenError::Gain(g));
         }
     }
-    let loaded = captures
-        .iter()
-        .map(|c| load(scene, c, warnings))
-        .collect::<Result<Vec<_>, _>>()?;
     let blocks = crate::transport::blocks_of(scene);
-    let measurement = assemble(scene, &blocks, &loaded)?;
-    let colours = match !loaded.is_empty() && loaded.iter().all(|c| c.bayer.is_some()) {
-        true => Some(
-            super::colour::Colour::ALL
-                .into_iter()
-                .map(|c| {
-                    let maps = super::PixelMaps::default();
-                    super::assemble_colour(scene, &blocks, &loaded, &maps, Some(c))
-                })
-                .collect::<Result<Vec<_>, _>>()?,
-        ),
-        false => None,
-    };
-    // Only the estimated scale needs T, built once for every colour.
+    // Every set measured first: a capture that does not fit is an error
+    // before T is built.
+    let mut measured = Vec::with_capacity(sets.len());
+    for captures in sets {
+        let loaded = captures
+            .iter()
+            .map(|c| load(scene, c, warnings))
+            .collect::<Result<Vec<_>, _>>()?;
+        let grey = assemble(scene, &blocks, &loaded)?;
+        let colours = match !loaded.is_empty() && loaded.iter().all(|c| c.bayer.is_some()) {
+            true => {
+                let maps = super::PixelMaps::default();
+                Some(
+                    super::colour::Colour::ALL
+                        .into_iter()
+                        .map(|c| super::assemble_colour(scene, &blocks, &loaded, &maps, Some(c)))
+                        .collect::<Result<Vec<_>, _>>()?,
+                )
+            }
+            false => None,
+        };
+        measured.push((grey, colours));
+    }
+    // Only the estimated scale needs T, built once for every set and colour.
     let t = match units {
         UnitsWanted::Estimated => Some(crate::transport::build_with_progress(
             scene, budget, progress,
@@ -193,19 +221,27 @@ pub fn measure_given(
         }
         Ok((m, u))
     };
-    let (measurement, units) = in_units(measurement)?;
-    if let Some(w) = units.and_then(Units::note) {
+    let mut out = Vec::with_capacity(sets.len());
+    for (grey, colours) in measured {
+        let (measurement, units) = in_units(grey)?;
+        let colours = colours
+            .map(|all| {
+                all.into_iter()
+                    .map(&in_units)
+                    .collect::<Result<Vec<_>, _>>()
+            })
+            .transpose()?;
+        out.push(Measured {
+            measurement,
+            blocks: blocks.clone(),
+            units,
+            colours,
+        });
+    }
+    if let Some(w) = out.first().and_then(|m| m.units).and_then(Units::note) {
         warnings.push(format!(
             "{w}; give the bench's radiometric gain for absolute units"
         ));
     }
-    let colours = colours
-        .map(|all| all.into_iter().map(in_units).collect::<Result<Vec<_>, _>>())
-        .transpose()?;
-    Ok(Measured {
-        measurement,
-        blocks,
-        units,
-        colours,
-    })
+    Ok(out)
 }

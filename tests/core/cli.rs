@@ -1314,6 +1314,54 @@ fn a_bayer_frame_measures_to_red_green_and_blue_per_row() {
     );
     let e = usage(&args("RGB"));
     assert!(e.contains("give RG, GR, GB or BG"), "{e}");
+    // The same colours demosaiced by the camera, as an RGB TIFF.
+    {
+        let mut f = std::fs::File::create(p("rgb.tiff")).unwrap();
+        let mut enc = TiffEncoder::new(&mut f).unwrap();
+        for k in 0..2u16 {
+            let px: Vec<u16> = (0..512 * 512)
+                .flat_map(|_| [1000 + 2 * k, 2000 + 2 * k, 3000 + 2 * k])
+                .collect();
+            enc.write_image::<colortype::RGB16>(512, 512, &px).unwrap();
+        }
+    }
+    let rgb_tiff = p("rgb.tiff");
+    let rgb = |extra: &[&str]| {
+        let mut args = vec![
+            "measure",
+            &s,
+            "--frames",
+            &rgb_tiff,
+            "--pose",
+            "A",
+            "--angle",
+            "0",
+            "--exposure-us",
+            "1000",
+            "--raw",
+            "--out",
+            &out,
+        ];
+        args.extend_from_slice(extra);
+        polnlos(&args)
+    };
+    let stdout = ok(&rgb(&[]));
+    assert!(stdout.contains("1024 rows x 3 colours"), "{stdout}");
+    let m = npy::read(std::path::Path::new(&out)).unwrap();
+    assert_eq!(m.shape, vec![1024, 3]);
+    for (c, want) in [1001.0, 2001.0, 3001.0].into_iter().enumerate() {
+        assert!(
+            m.data
+                .iter()
+                .skip(c)
+                .step_by(3)
+                .all(|v| (v - want * unit).abs() < 1e-9),
+            "RGB colour {c}: {:?}",
+            &m.data[..6]
+        );
+    }
+    let e = usage(&rgb(&["--bayer", "RG"]));
+    assert!(e.contains("already demosaiced"), "{e}");
     // The plain reconstruction refuses the colours, naming --photo.
     let e = usage(&polnlos(&[
         "reconstruct",
