@@ -130,6 +130,15 @@ fn code_of(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
             polnlos::simulate::SimulateError::Black => INPUT,
         });
     }
+    if let Some(o) = cause.downcast_ref::<polnlos::calibrate::occluder::OccluderError>() {
+        use polnlos::calibrate::occluder::OccluderError as E;
+        return match o {
+            E::Index { .. } | E::NoneSelected | E::Parameter { .. } => Some(USAGE),
+            E::Transport(t) => code_of(t),
+            E::Solve(s) => code_of(s),
+            _ => Some(INPUT),
+        };
+    }
     if cause.is::<polnlos::calibrate::geometry::CalibrationError>()
         || cause.is::<polnlos::calibrate::wall::WallFitError>()
         || cause.is::<polnlos::measure::MeasureError>()

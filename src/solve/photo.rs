@@ -313,6 +313,17 @@ impl PhotoModel {
         })
     }
 
+    /// The misfit of the non-negative fit of `i` at λ = 0 (the model's own
+    /// error): how well a `T` explains a photo, blind to its gain and background.
+    pub fn floor_misfit(
+        &self,
+        t: &Transport,
+        i: &[f64],
+        settings: &PhotoSettings<'_>,
+    ) -> Result<f64, SolveError> {
+        Ok(self.floor(t, i, settings)?.misfit)
+    }
+
     /// Reconstructs one channel `i` (one value per row of `t`, the `T` this
     /// model was formed from).
     pub fn channel(

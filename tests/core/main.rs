@@ -9,6 +9,7 @@ mod cli;
 mod colour;
 mod lambda;
 mod layers;
+mod occluder;
 mod photo;
 #[cfg(feature = "bench")]
 mod rendered;
