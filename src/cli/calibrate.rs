@@ -193,7 +193,7 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
         )
     };
     eprintln!(
-        "occluders {:?}: translation {} (± {}), corner {:?} -> [{:.4}, {:.4}, {:.4}] m",
+        "occluders {:?}: translation {} (± {} from the noise alone), corner {:?} -> [{:.4}, {:.4}, {:.4}] m",
         f.selected,
         mm(f.translation),
         mm(f.sd),
@@ -212,6 +212,9 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
         f.steps[0] * 1e3,
         f.steps[1] * 1e3,
         f.seconds
+    );
+    eprintln!(
+        "warning: the fit's error can be far larger than that: the objective is rough at the scale of a shadow pitch (point-source shadows in T), and on the chair photo the fit ended 16 mm from the measured position; check the moved scene's misfit and shadows before using it (docs/realphoto.md, \"Placing the occluders\")"
     );
     if let Some(p) = &a.report {
         polnlos::files::json::write(p, &f)?;
