@@ -179,9 +179,15 @@ async function refreshCamera() {
   const k = cam.counters || {};
   // Every setting the camera reads back, by its API name (a new setting shows without a change here).
   const mosaic = cam.info && cam.info.mosaic;
-  $("#view-box").hidden = !mosaic;
+  const bayer = cam.info && cam.info.bayer;
+  $("#view-box").hidden = !mosaic && !bayer;
+  // Each sensor's own views: the Stokes images of a mosaic, the colours of a Bayer filter.
+  for (const o of $("#view").options) {
+    o.hidden = o.value !== "raw" && (o.value === "colour" ? !bayer : !mosaic);
+  }
+  if ($("#view").selectedOptions[0] && $("#view").selectedOptions[0].hidden) $("#view").value = "raw";
   const rows = [
-    ["sensor", mosaic ? `polarizer mosaic (${mosaic}): 0/45/90/135° in one frame` : "monochrome"],
+    ["sensor", mosaic ? `polarizer mosaic (${mosaic}): 0/45/90/135° in one frame` : bayer ? `colour, Bayer ${bayer} (raw; results in colour)` : "monochrome"],
     ...Object.entries(s).map(([name, v]) => [name.replaceAll("_", " "), Array.isArray(v) ? JSON.stringify(v) : v]),
     ["since the daemon started:", ""],
     ["frames received", k.completed], ["broken frames", k.failed],

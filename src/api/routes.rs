@@ -162,6 +162,9 @@ pub async fn camera_frame(State(d): St, Query(q): Query<FrameQuery>) -> Result<R
     let frame = frame.ok_or_else(|| {
         ApiError::not_found("no frame yet: the camera has delivered none (is it connected?)")
     })?;
+    if q.view == crate::measure::mosaic::View::Colour {
+        return colour_frame(&d, frame, q.stretch).await;
+    }
     // The Stokes views read the mosaic the camera's settings say the frame holds.
     let mosaic = match q.view {
         crate::measure::mosaic::View::Raw => None,
@@ -192,6 +195,50 @@ pub async fn camera_frame(State(d): St, Query(q): Query<FrameQuery>) -> Result<R
             .ok_or_else(|| "the frame has no pixels".to_string())?;
         let shown = crate::measure::levels::display_u16(&pixels, &levels, q.stretch);
         let png = crate::files::image::encode_png16(width, height, &shown)?;
+        Ok::<_, String>((png, levels))
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))?
+    .map_err(ApiError::internal)?;
+    let levels = serde_json::to_string(&levels).map_err(|e| ApiError::internal(e.to_string()))?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png".to_string()),
+            (header::CACHE_CONTROL, "no-store".to_string()),
+            (header::HeaderName::from_static("polnlos-levels"), levels),
+        ],
+        png,
+    )
+        .into_response())
+}
+
+/// `GET /camera/frame.png?view=colour`: a colour camera's raw `frame` in
+/// colour, one RGB pixel per 2x2 cell, every channel on one stretch; 422
+/// for a camera without a Bayer filter.
+async fn colour_frame(
+    d: &Daemon,
+    frame: Arc<crate::camera::RawFrame>,
+    stretch: bool,
+) -> Result<Response, ApiError> {
+    let settings = d.camera().status().info.map(|i| i.settings);
+    let pattern = settings.and_then(|s| s.pixel_format.bayer()).ok_or_else(|| {
+        ApiError::invalid(format!(
+            "view=colour is for a colour camera reading out its raw Bayer frames; this camera reads out {} (use view=raw, or a Bayer pixel_format)",
+            settings.map_or("no frames yet".to_string(), |s| s.pixel_format.name().to_string())
+        ))
+    })?;
+    let region = settings.map_or([0, 0, 0, 0], |s| s.region);
+    let (png, levels) = tokio::task::spawn_blocking(move || {
+        let (w, h, rgb) = crate::measure::colour::cells_rgb(
+            &frame.pixels,
+            (frame.width, frame.height),
+            pattern,
+            [region[0], region[1]],
+        );
+        let levels = crate::measure::levels::levels(&rgb, frame.bits)
+            .ok_or_else(|| "the frame has no whole 2x2 cell".to_string())?;
+        let shown = crate::measure::levels::display_u16(&rgb, &levels, stretch);
+        let png = crate::files::image::encode_png_rgb16(w, h, &shown)?;
         Ok::<_, String>((png, levels))
     })
     .await

@@ -333,6 +333,7 @@ impl CameraDevice for AravisCamera {
                 .frame_rate_feature
                 .and_then(|f| self.float_bounds(f).ok()),
             mosaic: PixelFormat::sensor_mosaic(&pixel_formats, settings.pixel_format),
+            bayer: settings.pixel_format.bayer(),
             pixel_formats,
             limits: self.limits,
             settings,

@@ -204,6 +204,10 @@ pub struct CameraInfo {
     /// plain sensor. A capture of a mosaic pose needs such a format.
     #[schema(value_type = Option<String>)]
     pub mosaic: Option<crate::scene::MosaicLayout>,
+    /// The Bayer filter of a colour camera reading out its raw frames
+    /// (the pattern its current pixel format names); null otherwise.
+    #[schema(value_type = Option<String>)]
+    pub bayer: Option<crate::measure::colour::BayerPattern>,
     /// Region and binning limits, read from the feature nodes.
     pub limits: SensorLimits,
     /// Settings read back from the camera (not what was asked for).

@@ -127,6 +127,7 @@ impl CameraDevice for SyntheticCamera {
             frame_rate: None,
             pixel_formats: vec!["Mono8".into(), "Mono16".into()],
             mosaic: None,
+            bayer: None,
             limits: Self::limits(),
             settings: self.settings(),
         })

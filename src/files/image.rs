@@ -127,6 +127,20 @@ fn scale_rgb16(
     Ok(out.into_inner())
 }
 
+/// Encodes 16-bit RGB pixels (interleaved) as PNG bytes.
+pub fn encode_png_rgb16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, String> {
+    let buf = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_raw(
+        width as u32,
+        height as u32,
+        pixels.to_vec(),
+    )
+    .ok_or_else(|| "pixel count does not match the image size".to_string())?;
+    let mut out = std::io::Cursor::new(Vec::new());
+    buf.write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| e.to_string())?;
+    Ok(out.into_inner())
+}
+
 /// Encodes 16-bit grey pixels as PNG bytes.
 pub fn encode_png16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, String> {
     let buf = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(

@@ -82,6 +82,40 @@ impl BayerPattern {
     }
 }
 
+/// A raw Bayer frame (`pixels`, `width` x `height`, its first pixel at
+/// sensor column and row `offset`) in colour at half resolution: each whole
+/// 2x2 cell one RGB pixel, red, the mean of its two greens and blue,
+/// interleaved. Cells start at the first pixel with even sensor coordinates.
+///
+/// Why cells: the live view shows what the camera measured, not a
+/// demosaicing guess, as the polarizer mosaic's Stokes views do.
+pub fn cells_rgb(
+    pixels: &[u16],
+    (width, height): (usize, usize),
+    pattern: BayerPattern,
+    offset: [u32; 2],
+) -> (usize, usize, Vec<u16>) {
+    let (x0, y0) = ((offset[0] % 2) as usize, (offset[1] % 2) as usize);
+    let w = width.saturating_sub(x0) / 2;
+    let h = height.saturating_sub(y0) / 2;
+    let mut out = Vec::with_capacity(3 * w * h);
+    for cy in 0..h {
+        for cx in 0..w {
+            let mut sum = [0u32; 3];
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let (x, y) = (x0 + 2 * cx + dx, y0 + 2 * cy + dy);
+                let c = pattern.colour_at(
+                    i64::from(offset[0]) + x as i64,
+                    i64::from(offset[1]) + y as i64,
+                );
+                sum[c as usize] += u32::from(pixels.get(y * width + x).copied().unwrap_or(0));
+            }
+            out.extend([sum[0] as u16, (sum[1] / 2) as u16, sum[2] as u16]);
+        }
+    }
+    (w, h, out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -109,6 +143,23 @@ mod tests {
             assert_eq!(p.colour_at(-2, 4), p.colour_at(0, 0));
             assert_eq!(p.colour_at(3, -1), p.colour_at(1, 1));
         }
+    }
+
+    #[test]
+    fn a_raw_frame_shows_in_colour_one_pixel_per_cell() {
+        // GB: G B / R G; red 100, greens 200 and 220, blue 300; a 5x3 frame
+        // at an odd offset (1, 0): cells start at its second column.
+        let pattern = BayerPattern::GB;
+        let level = |x: i64, y: i64| match pattern.colour_at(x, y) {
+            Colour::Red => 100,
+            Colour::Blue => 300,
+            Colour::Green if y % 2 == 0 => 200,
+            Colour::Green => 220,
+        };
+        let pixels: Vec<u16> = (0..15).map(|k| level(1 + k % 5, k / 5)).collect();
+        let (w, h, rgb) = cells_rgb(&pixels, (5, 3), pattern, [1, 0]);
+        assert_eq!((w, h), (2, 1));
+        assert_eq!(rgb, vec![100, 210, 300, 100, 210, 300]);
     }
 
     #[test]

@@ -78,6 +78,9 @@ pub enum View {
     Dolp,
     /// The angle of linear polarization, -90 degrees black to +90 white.
     Aolp,
+    /// A colour camera's frame in colour: each whole 2x2 cell of its Bayer
+    /// filter one RGB pixel (red, the mean of the greens, blue).
+    Colour,
 }
 
 /// `view` of a raw mosaic frame (`pixels`, `width` x `height`, `bits`
@@ -101,7 +104,7 @@ pub fn view(
     };
     let s = stokes(&frame, layout, offset);
     let (image, scale, shift, bits): (&Frame, f32, f32, u32) = match view {
-        View::S0 | View::Raw => (&s.s0, 1.0, 0.0, (bits + 1).min(16)),
+        View::S0 | View::Raw | View::Colour => (&s.s0, 1.0, 0.0, (bits + 1).min(16)),
         View::Dolp => (&s.dolp, 65535.0, 0.0, 16),
         View::Aolp => (&s.aolp_deg, 65535.0 / 180.0, 90.0, 16),
     };

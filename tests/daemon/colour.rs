@@ -50,6 +50,10 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
         let d = Daemon::start(&bench(dir.path(), "mono"), &dir.path().join("data"));
         let r = capture_and_reconstruct(&d);
         assert!(r["report"]["colours"].is_null(), "{r}");
+        assert!(d.json("/camera")["info"]["bayer"].is_null());
+        let (s, b) = d.get("/camera/frame.png?live=true&view=colour");
+        assert_eq!(s, 422, "{b}");
+        assert!(b.contains("view=colour is for a colour camera"), "{b}");
         psnr(&r)
     };
 
@@ -61,6 +65,15 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
         "{cam}"
     );
     assert!(cam["info"]["mosaic"].is_null(), "{cam}");
+    assert_eq!(cam["info"]["bayer"], "RG", "{cam}");
+    // The live view in colour: one RGB pixel per 2x2 cell of the 512 px frame.
+    let (s, png) = d.get_bytes("/camera/frame.png?live=true&view=colour&stretch=true");
+    assert_eq!(s, 200);
+    let size = |png: &[u8], at: usize| {
+        u32::from_be_bytes([png[at], png[at + 1], png[at + 2], png[at + 3]])
+    };
+    assert_eq!((size(&png, 16), size(&png, 20)), (256, 256));
+    assert_eq!((png[24], png[25]), (16, 2), "16-bit RGB");
     let r = capture_and_reconstruct(&d);
     let colours = r["report"]["colours"].as_array().expect("a colour report");
     let names: Vec<&str> = colours

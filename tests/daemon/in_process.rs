@@ -368,6 +368,7 @@ impl polnlos::camera::CameraDevice for Freezing {
             frame_rate: None,
             pixel_formats: Vec::new(),
             mosaic: None,
+            bayer: None,
             limits: polnlos::camera::SensorLimits {
                 sensor: [512, 512],
                 ..Default::default()
