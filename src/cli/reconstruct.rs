@@ -186,9 +186,13 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
                 v.data.len(),
                 meas.data.len()
             );
+            // NaN where the measurement is NaN: an element not measured.
             anyhow::ensure!(
-                v.data.iter().all(|x| x.is_finite() && *x >= 0.0),
-                "{}: every variance must be finite and not negative",
+                v.data
+                    .iter()
+                    .zip(&meas.data)
+                    .all(|(x, m)| (x.is_finite() && *x >= 0.0) || m.is_nan()),
+                "{}: every variance must be finite and not negative (NaN only where the measurement is NaN)",
                 p.display()
             );
             Some(NoiseLevel::measured(v.data))

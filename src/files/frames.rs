@@ -98,21 +98,30 @@ fn decode_from<R: std::io::Read + std::io::Seek>(
         if rgb != colours.is_some() && page > 0 {
             return Err(not_grey());
         }
+        // The camera's depth (a polnlos frame file states it), else the
+        // page's: the level at which a pixel saturated.
+        let depth = |page_bits: u32| {
+            described
+                .filter(|d| (1..=page_bits).contains(d))
+                .unwrap_or(page_bits)
+        };
         let value_bits = match dec.read_image().map_err(bad)? {
             tiff::decoder::DecodingResult::U8(v) if rgb && v.len() == 3 * n => {
-                push_rgb(&mut colours, st, &v);
+                let v: Vec<u16> = v.into_iter().map(u16::from).collect();
+                push_rgb(&mut colours, st, &v, depth(8));
                 Some(8)
             }
             tiff::decoder::DecodingResult::U16(v) if rgb && v.len() == 3 * n => {
-                push_rgb(&mut colours, st, &v);
+                push_rgb(&mut colours, st, &v, depth(16));
                 Some(16)
             }
             tiff::decoder::DecodingResult::U8(v) if v.len() == n => {
-                st.push(&v);
+                let v: Vec<u16> = v.into_iter().map(u16::from).collect();
+                st.push_raw(&v, depth(8));
                 Some(8)
             }
             tiff::decoder::DecodingResult::U16(v) if v.len() == n => {
-                st.push(&v);
+                st.push_raw(&v, depth(16));
                 Some(16)
             }
             tiff::decoder::DecodingResult::F32(v) if v.len() == n && page == 0 => {
@@ -151,21 +160,17 @@ fn decode_from<R: std::io::Read + std::io::Seek>(
     })
 }
 
-/// Adds an RGB page (interleaved) to the red, green and blue stacks, made
-/// at `like`'s size on the first page.
-fn push_rgb<T: Copy + Into<f64>>(
-    colours: &mut Option<Vec<FrameStack>>,
-    like: &FrameStack,
-    v: &[T],
-) {
+/// Adds an RGB page (interleaved, `bits` deep) to the red, green and blue
+/// stacks, made at `like`'s size on the first page.
+fn push_rgb(colours: &mut Option<Vec<FrameStack>>, like: &FrameStack, v: &[u16], bits: u32) {
     let c = colours.get_or_insert_with(|| {
         (0..3)
             .map(|_| FrameStack::new(like.width, like.height))
             .collect()
     });
     for (k, s) in c.iter_mut().enumerate() {
-        let plane: Vec<T> = v.iter().skip(k).step_by(3).copied().collect();
-        s.push(&plane);
+        let plane: Vec<u16> = v.iter().skip(k).step_by(3).copied().collect();
+        s.push_raw(&plane, bits);
     }
 }
 

@@ -66,14 +66,26 @@ impl CaptureSource for GivenCapture {
         self.info.clone()
     }
 
+    /// The dark-subtracted mean, NaN at every pixel that reached full
+    /// scale in a frame: its mean is only a lower bound, and its element is
+    /// left out of the measurement (issue 38).
     fn mean(&self) -> Result<Frame, String> {
         let dark = match &self.dark {
             Some(d) => Some(d.mean_minus(None).map_err(|e| e.to_string())?),
             None => None,
         };
-        self.stack
+        let mut mean = self
+            .stack
             .mean_minus(dark.as_ref())
-            .map_err(|e| e.to_string())
+            .map_err(|e| e.to_string())?;
+        if let Some(s) = self.stack.saturated_pixels() {
+            for (p, &s) in mean.pixels.iter_mut().zip(s) {
+                if s {
+                    *p = f32::NAN;
+                }
+            }
+        }
+        Ok(mean)
     }
 
     /// The variance of the dark-subtracted mean: the frames' plus the dark's
@@ -201,6 +213,13 @@ pub fn measure_given_sets(
             }
             false => None,
         };
+        let missing = unmeasured(&grey).len();
+        if missing > 0 {
+            warnings.push(format!(
+                "{missing} of {} wall elements were not measured (a pixel of theirs reached full scale in a frame; lower the exposure): they are written as NaN, and polnlos reconstruct leaves them out",
+                grey.i.len()
+            ));
+        }
         measured.push((grey, colours));
     }
     // Only the estimated scale needs T, built once for every set and colour.
@@ -213,7 +232,18 @@ pub fn measure_given_sets(
     let in_units = |mut m: Measurement| -> Result<(Measurement, Option<Units>), GivenError> {
         let u = match (units, &t) {
             (UnitsWanted::Gain(g), _) => Some(Units::Calibrated(g)),
-            (UnitsWanted::Estimated, Some(t)) => Some(Units::estimate(t, &m)?),
+            (UnitsWanted::Estimated, Some(t)) => {
+                // Estimated from the measured rows only.
+                let missing = unmeasured(&m);
+                match missing.is_empty() {
+                    true => Some(Units::estimate(t, &m)?),
+                    false => {
+                        let mut known = m.clone();
+                        missing.iter().for_each(|&j| known.i[j] = 0.0);
+                        Some(Units::estimate(&t.with_rows_zeroed(&missing), &known)?)
+                    }
+                }
+            }
             _ => None,
         };
         if let Some(u) = u {
@@ -244,4 +274,10 @@ pub fn measure_given_sets(
         ));
     }
     Ok(out)
+}
+
+/// The rows of `m` that were not measured (NaN: an element with a pixel at
+/// full scale in some frame).
+fn unmeasured(m: &Measurement) -> Vec<usize> {
+    (0..m.i.len()).filter(|&j| !m.i[j].is_finite()).collect()
 }

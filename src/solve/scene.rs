@@ -55,6 +55,28 @@ pub fn reconstruct_scene(
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Solved, SceneSolveError> {
     req.check()?;
+    // Rows not measured (NaN: a saturated pixel, as `polnlos measure`
+    // writes them) take no part: zero in i, in T and in the variance.
+    let missing: Vec<usize> = (0..input.measurement.len())
+        .filter(|&j| !input.measurement[j].is_finite())
+        .collect();
+    let known: Vec<f64>;
+    let mut input = input;
+    if !missing.is_empty() {
+        known = input
+            .measurement
+            .iter()
+            .map(|v| if v.is_finite() { *v } else { 0.0 })
+            .collect();
+        input.measurement = &known;
+        if let Some(n) = input.noise.as_mut() {
+            missing.iter().for_each(|&j| {
+                if let Some(v) = n.variance.get_mut(j) {
+                    *v = 0.0;
+                }
+            });
+        }
+    }
     let choice = match &input.noise {
         Some(n) if scene.left_out() != Default::default() => Some(
             crate::transport::choose::choose(scene, &n.variance, budget)?,
@@ -64,6 +86,10 @@ pub fn reconstruct_scene(
     let scene = choice.as_ref().map_or(scene, |(s, _)| s);
     let start = std::time::Instant::now();
     let t = crate::transport::build_with_progress(scene, budget, progress)?;
+    let t = match missing.is_empty() {
+        true => t,
+        false => t.with_rows_zeroed(&missing),
+    };
     let transport_seconds = start.elapsed().as_secs_f64();
     // A solver that needs T^T T forms it anyway: form it once, here, and take
     // the conditioning from its low-rank form unless the full spectrum is asked for.
@@ -93,5 +119,15 @@ pub fn reconstruct_scene(
         },
     )?;
     solved.report.model = choice.map(|(_, c)| c);
+    if !missing.is_empty() {
+        solved.report.warnings.insert(
+            0,
+            format!(
+                "{} of {} wall elements were not measured (NaN in the measurement: a pixel saturated) and are left out of the fit",
+                missing.len(),
+                input.measurement.len()
+            ),
+        );
+    }
     Ok(solved)
 }

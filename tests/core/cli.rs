@@ -1374,6 +1374,76 @@ fn a_bayer_frame_measures_to_red_green_and_blue_per_row() {
     assert!(e.contains("reconstruct --photo"), "{e}");
 }
 
+#[test]
+fn saturated_pixels_leave_their_elements_out_of_measure_and_reconstruct() {
+    use tiff::encoder::{colortype, TiffEncoder};
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_str().unwrap().to_string();
+    let s = scene("brewster-crossed").to_str().unwrap().to_string();
+    // Two flat 16-bit frames, four pixels at full scale in the second.
+    let mut f = std::fs::File::create(p("frames.tiff")).unwrap();
+    {
+        let mut enc = TiffEncoder::new(&mut f).unwrap();
+        for k in 0..2u16 {
+            let mut px: Vec<u16> = (0..512 * 512).map(|q| 2000 + (q % 7) as u16 + k).collect();
+            if k == 1 {
+                for (x, y) in [(256, 256), (257, 256), (256, 257), (300, 200)] {
+                    px[y * 512 + x] = 65535;
+                }
+            }
+            enc.write_image::<colortype::Gray16>(512, 512, &px).unwrap();
+        }
+    }
+    let i = p("i.npy");
+    let run = polnlos(&[
+        "measure",
+        &s,
+        "--frames",
+        &p("frames.tiff"),
+        "--pose",
+        "A",
+        "--angle",
+        "0",
+        "--exposure-us",
+        "1000",
+        "--gain",
+        "1e-3",
+        "--out",
+        &i,
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr).into_owned();
+    ok(&run);
+    let m = npy::read(std::path::Path::new(&i)).unwrap();
+    let nan = m.data.iter().filter(|v| v.is_nan()).count();
+    // The four pixels fall in one or two wall elements.
+    assert!((1..=2).contains(&nan), "{nan}");
+    assert!(
+        stderr.contains(&format!("{nan} of 1024 wall elements were not measured")),
+        "{stderr}"
+    );
+    let v = npy::read(&dir.path().join("i.variance.npy")).unwrap();
+    assert_eq!(v.data.iter().filter(|v| v.is_nan()).count(), nan);
+    // reconstruct leaves them out and says so.
+    let run = polnlos(&[
+        "reconstruct",
+        &s,
+        "--measurement",
+        &i,
+        "--variance",
+        &p("i.variance.npy"),
+        "--out",
+        &p("rec"),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr).into_owned();
+    ok(&run);
+    assert!(
+        stderr.contains(&format!("{nan} of 1024 wall elements were not measured")),
+        "{stderr}"
+    );
+    let rec = npy::read(&dir.path().join("rec/recovered.npy")).unwrap();
+    assert!(rec.data.iter().all(|v| v.is_finite()));
+}
+
 /// `polnlos reconstruct` of the chair photo's scene with `--photo`.
 fn reconstruct_photo(measurement: &Path, out: &Path, truth: Option<&Path>) -> Output {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
