@@ -256,6 +256,11 @@ impl Job<'_> {
         notes.append(&mut report.notes);
         report.notes = notes;
         check(self.cancel)?;
+        // The stored measurement says which rows were not measured (NaN),
+        // as `polnlos measure` writes them: re-solved offline, they are
+        // left out again.
+        let mut i = i;
+        missing.iter().for_each(|&j| i[j] = f64::NAN);
         Ok(Solution {
             image: solved.image,
             i,
