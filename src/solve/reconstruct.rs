@@ -168,7 +168,10 @@ fn model_check(
         return None;
     }
     if let Some((floor, p)) = choice.and_then(|c| Some((c.floor?, c.resolved?))) {
-        return Some(Adequacy::of_misfit(floor, noise.total(), t.rows(), p));
+        // Rows of zero variance (not measured: zeroed with their rows of T)
+        // are no measurement: neither in the mean variance nor in the dof.
+        let measured = noise.variance.iter().filter(|v| **v > 0.0).count();
+        return Some(Adequacy::of_misfit(floor, noise.total(), measured, p));
     }
     let r = least_squares_residual_with(t, i, normal)?;
     Some(Adequacy::of(&r, Some(&noise.variance), t.cols()))
