@@ -132,6 +132,32 @@ fn load_scene(path: &Path) -> anyhow::Result<Scene> {
     Ok(Scene::load_or_builtin(path)?)
 }
 
+/// `scene`'s `T` through the command line's cache of built matrices
+/// (`POLNLOS_CACHE`; `off` builds every time): one build serves every call
+/// of the same scene.
+fn build_transport(
+    scene: &Scene,
+    budget: polnlos::transport::MemoryBudget,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<polnlos::files::transport_cache::Cached, polnlos::transport::TransportError> {
+    match polnlos::files::transport_cache::TransportCache::from_env() {
+        Some(cache) => cache.build(scene, budget, progress),
+        None => Ok(polnlos::files::transport_cache::Cached {
+            t: polnlos::transport::build_with_progress(scene, budget, progress)?,
+            source: "built",
+        }),
+    }
+}
+
+/// What a [`build_transport`] source means, for a note.
+fn cache_words(source: &str) -> &'static str {
+    match source {
+        "hit" => "read from the cache of built matrices (POLNLOS_CACHE=off builds it anew)",
+        "stored" => "built and kept in the cache of built matrices for the next call",
+        _ => "built",
+    }
+}
+
 /// The scene's name: its file stem.
 fn scene_name(path: &Path) -> String {
     path.file_stem()

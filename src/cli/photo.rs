@@ -14,6 +14,8 @@ use polnlos::transport::MemoryBudget;
 struct Report<'a> {
     scene: String,
     transport_seconds: f64,
+    /// Where `T` came from: `hit` (the cache), `stored` or `built`.
+    transport_cache: &'static str,
     total_seconds: f64,
     #[serde(flatten)]
     result: &'a polnlos::solve::photo::PhotoResult,
@@ -37,10 +39,9 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     super::out_dir(&a.out)?;
     let pb = super::progress::bar(scene.cols(), "building T");
     let t0 = Instant::now();
-    let t = polnlos::transport::build_with_progress(&scene, budget, &|done| {
-        pb.set_position(done as u64)
-    })?;
+    let cached = super::build_transport(&scene, budget, &|done| pb.set_position(done as u64))?;
     pb.finish_and_clear();
+    let (t, transport_cache) = (cached.t, cached.source);
     let transport_seconds = t0.elapsed().as_secs_f64();
     let d = PhotoSettings::default();
     let settings = PhotoSettings {
@@ -80,6 +81,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let report = Report {
         scene: super::scene_name(&a.scene),
         transport_seconds,
+        transport_cache,
         total_seconds: start.elapsed().as_secs_f64(),
         result: &result,
     };

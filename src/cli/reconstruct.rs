@@ -7,7 +7,7 @@ use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::solve::lambda::NoiseLevel;
 use polnlos::solve::photo::DataTerm;
 use polnlos::solve::reconstruct::{SolveRequest, Solver};
-use polnlos::solve::scene::{reconstruct_scene, SceneInput};
+use polnlos::solve::scene::{reconstruct_scene_with, SceneInput};
 use polnlos::solve::AdmmSettings;
 use polnlos::transport::MemoryBudget;
 
@@ -201,7 +201,8 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     };
     super::out_dir(&a.out)?;
     let pb = super::progress::bar(scene.cols(), "building T");
-    let solved = reconstruct_scene(
+    let cached = std::sync::Mutex::new(None);
+    let solved = reconstruct_scene_with(
         &scene,
         SceneInput {
             measurement: &meas.data,
@@ -213,8 +214,17 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         },
         &req,
         budget,
-        &|done| pb.set_position(done as u64),
+        &|s| {
+            let c = super::build_transport(s, budget, &|done| pb.set_position(done as u64))?;
+            if let Ok(mut k) = cached.lock() {
+                *k = Some(c.source);
+            }
+            Ok(c.t)
+        },
     )?;
+    if let Some(source) = cached.lock().ok().and_then(|k| *k) {
+        eprintln!("note: T {}", super::cache_words(source));
+    }
     pb.finish_and_clear();
     let (image, report) = (solved.image, solved.report);
     npy::write_f64(&a.out.join("recovered.npy"), &[sgrid.nv, sgrid.nu], &image)?;

@@ -7,6 +7,7 @@ pub mod image;
 pub mod json;
 pub mod npy;
 pub mod space;
+pub mod transport_cache;
 
 use std::path::PathBuf;
 

@@ -54,6 +54,20 @@ pub fn reconstruct_scene(
     budget: MemoryBudget,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Solved, SceneSolveError> {
+    reconstruct_scene_with(scene, input, req, budget, &|s: &Scene| {
+        crate::transport::build_with_progress(s, budget, progress)
+    })
+}
+
+/// [`reconstruct_scene`] with `T` of the scene it settles on from `build`
+/// (a cache of built matrices, in the command-line tool).
+pub fn reconstruct_scene_with(
+    scene: &Scene,
+    input: SceneInput<'_>,
+    req: &SolveRequest,
+    budget: MemoryBudget,
+    build: &dyn Fn(&Scene) -> Result<crate::transport::Transport, TransportError>,
+) -> Result<Solved, SceneSolveError> {
     req.check()?;
     // Rows not measured (NaN: a saturated pixel, as `polnlos measure`
     // writes them) take no part: zero in i, in T and in the variance.
@@ -85,7 +99,7 @@ pub fn reconstruct_scene(
     };
     let scene = choice.as_ref().map_or(scene, |(s, _)| s);
     let start = std::time::Instant::now();
-    let t = crate::transport::build_with_progress(scene, budget, progress)?;
+    let t = build(scene)?;
     let t = match missing.is_empty() {
         true => t,
         false => t.with_rows_zeroed(&missing),

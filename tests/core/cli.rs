@@ -13,9 +13,17 @@ fn scene(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("config/scenes/{name}.toml"))
 }
 
+/// `polnlos args`, with no cache of built matrices (a test writes nothing
+/// outside its own folders; `transport_cache_*` tests give their own).
 fn polnlos(args: &[&str]) -> Output {
+    polnlos_with_cache(args, "off")
+}
+
+/// `polnlos args` with `POLNLOS_CACHE=cache`.
+fn polnlos_with_cache(args: &[&str], cache: &str) -> Output {
     Command::new(env!("CARGO_BIN_EXE_polnlos"))
         .args(args)
+        .env("POLNLOS_CACHE", cache)
         .output()
         .expect("run polnlos")
 }
@@ -1445,7 +1453,7 @@ fn saturated_pixels_leave_their_elements_out_of_measure_and_reconstruct() {
 }
 
 /// `polnlos reconstruct` of the chair photo's scene with `--photo`.
-fn reconstruct_photo(measurement: &Path, out: &Path, truth: Option<&Path>) -> Output {
+fn reconstruct_photo(measurement: &Path, out: &Path, truth: Option<&Path>, cache: &Path) -> Output {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let scene = root.join("config/photos/saunders-chair.toml");
     let mut args = vec![
@@ -1461,7 +1469,7 @@ fn reconstruct_photo(measurement: &Path, out: &Path, truth: Option<&Path>) -> Ou
         args.extend(["--truth".into(), t.display().to_string()]);
     }
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    polnlos(&args)
+    polnlos_with_cache(&args, cache.to_str().unwrap())
 }
 
 /// Saunders et al.'s chair photo (tests/data/saunders-chair, imported by
@@ -1472,10 +1480,13 @@ fn a_real_colour_photo_reconstructs_with_gain_background_and_lambda_from_itself(
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let data = root.join("tests/data/saunders-chair");
     let out = tempfile::tempdir().unwrap();
+    // T (132 MB) is kept in a cache of the test's own between the calls.
+    let cache = tempfile::tempdir().unwrap();
     let s = ok(&reconstruct_photo(
         &data.join("measurement.npy"),
         out.path(),
         Some(&data.join("truth.npy")),
+        cache.path(),
     ));
     assert!(s.contains("3 channel(s)"), "{s}");
     let report: serde_json::Value =
@@ -1533,8 +1544,22 @@ fn a_real_colour_photo_reconstructs_with_gain_background_and_lambda_from_itself(
         .collect();
     let m = out.path().join("mirrored.npy");
     npy::write_f64(&m, &[126 * 126, 3], &mirrored).unwrap();
-    let run = reconstruct_photo(&m, &out.path().join("mirrored"), None);
+    let run = reconstruct_photo(&m, &out.path().join("mirrored"), None, cache.path());
     ok(&run);
+    // The second call of the scene reads T from the cache, the same matrix:
+    // its orientation check on the mirrored photo finds the same misfits
+    // the first call's did for its flips.
+    let mirrored_report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.path().join("mirrored/report.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(report["transport_cache"], "stored");
+    assert_eq!(mirrored_report["transport_cache"], "hit");
+    let m2 = &mirrored_report["orientation"]["misfit"];
+    assert!(
+        (m2[1].as_f64().unwrap() / misfit[0] - 1.0).abs() < 1e-9,
+        "{m2} against {misfit:?}"
+    );
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(
         err.contains("warning: the photo fits T better mirrored along u"),
