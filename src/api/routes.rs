@@ -200,16 +200,7 @@ pub async fn camera_frame(State(d): St, Query(q): Query<FrameQuery>) -> Result<R
     .await
     .map_err(|e| ApiError::internal(e.to_string()))?
     .map_err(ApiError::internal)?;
-    let levels = serde_json::to_string(&levels).map_err(|e| ApiError::internal(e.to_string()))?;
-    Ok((
-        [
-            (header::CONTENT_TYPE, "image/png".to_string()),
-            (header::CACHE_CONTROL, "no-store".to_string()),
-            (header::HeaderName::from_static("polnlos-levels"), levels),
-        ],
-        png,
-    )
-        .into_response())
+    live_png(png, &levels)
 }
 
 /// `GET /camera/frame.png?view=colour`: a colour camera's raw `frame` in
@@ -244,7 +235,12 @@ async fn colour_frame(
     .await
     .map_err(|e| ApiError::internal(e.to_string()))?
     .map_err(ApiError::internal)?;
-    let levels = serde_json::to_string(&levels).map_err(|e| ApiError::internal(e.to_string()))?;
+    live_png(png, &levels)
+}
+
+/// A live-view PNG with its `levels` in the `polnlos-levels` header, never cached.
+fn live_png(png: Vec<u8>, levels: &crate::measure::levels::Levels) -> Result<Response, ApiError> {
+    let levels = serde_json::to_string(levels).map_err(|e| ApiError::internal(e.to_string()))?;
     Ok((
         [
             (header::CONTENT_TYPE, "image/png".to_string()),

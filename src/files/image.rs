@@ -189,16 +189,8 @@ pub fn write_png_rgb16(
     height: usize,
     pixels: &[u16],
 ) -> Result<(), FileError> {
-    let buf = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_raw(
-        width as u32,
-        height as u32,
-        pixels.to_vec(),
-    )
-    .ok_or_else(|| FileError::format(path, "pixel count does not match the image size"))?;
-    let mut out = std::io::Cursor::new(Vec::new());
-    buf.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| FileError::format(path, e.to_string()))?;
-    super::write_atomic(path, &out.into_inner())
+    let png = encode_png_rgb16(width, height, pixels).map_err(|e| FileError::format(path, e))?;
+    super::write_atomic(path, &png)
 }
 
 /// Maps [0, 1] to the full 16-bit range (values outside are clipped).
