@@ -85,74 +85,46 @@ pub const MAX_SCALED_SIDE: u32 = 4096;
 pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, String> {
     let img =
         image::load_from_memory(png).map_err(|e| format!("cannot decode the stored PNG: {e}"))?;
-    if img.color().has_color() {
-        return scale_rgb16(&img.to_rgb16(), k);
-    }
-    let img = img.to_luma16();
-    let (w, h) = img.dimensions();
-    let longest = w.max(h).max(1);
-    let most = (MAX_SCALED_SIDE / longest).max(1);
-    if k == 0 || k > most {
-        return Err(format!(
-            "scale = {k}: give a whole number from 1 to {most} (the {w}x{h} image may grow to {MAX_SCALED_SIDE} pixels a side)"
-        ));
-    }
-    let (sw, sh) = ((w * k) as usize, (h * k) as usize);
-    let k = k as usize;
-    let src = img.as_raw();
-    let pixels: Vec<u16> = (0..sh)
-        .flat_map(|y| (0..sw).map(move |x| (x, y)))
-        .map(|(x, y)| src[(y / k) * w as usize + x / k])
-        .collect();
-    encode_png16(sw, sh, &pixels)
-}
-
-/// [`scale_png16`] of a colour image.
-fn scale_rgb16(
-    img: &image::ImageBuffer<image::Rgb<u16>, Vec<u16>>,
-    k: u32,
-) -> Result<Vec<u8>, String> {
-    let (w, h) = img.dimensions();
+    let (w, h) = (img.width(), img.height());
     let most = (MAX_SCALED_SIDE / w.max(h).max(1)).max(1);
     if k == 0 || k > most {
         return Err(format!(
             "scale = {k}: give a whole number from 1 to {most} (the {w}x{h} image may grow to {MAX_SCALED_SIDE} pixels a side)"
         ));
     }
-    let scaled = image::imageops::resize(img, w * k, h * k, image::imageops::FilterType::Nearest);
+    // A stored image is 16-bit grey or 16-bit RGB (a colour camera's): its
+    // type is kept, each pixel repeated k x k.
+    let scaled = img.resize_exact(w * k, h * k, image::imageops::FilterType::Nearest);
+    png_bytes(&scaled)
+}
+
+/// PNG bytes of an image in its own pixel type.
+fn png_bytes(img: &image::DynamicImage) -> Result<Vec<u8>, String> {
     let mut out = std::io::Cursor::new(Vec::new());
-    scaled
-        .write_to(&mut out, image::ImageFormat::Png)
+    img.write_to(&mut out, image::ImageFormat::Png)
         .map_err(|e| e.to_string())?;
     Ok(out.into_inner())
+}
+
+/// The image `width` x `height` of `pixels` (interleaved channels of type
+/// `P`), or why not.
+fn buffer<P: image::Pixel>(
+    width: usize,
+    height: usize,
+    pixels: &[P::Subpixel],
+) -> Result<image::ImageBuffer<P, Vec<P::Subpixel>>, String> {
+    image::ImageBuffer::from_raw(width as u32, height as u32, pixels.to_vec())
+        .ok_or_else(|| "pixel count does not match the image size".to_string())
 }
 
 /// Encodes 16-bit RGB pixels (interleaved) as PNG bytes.
 pub fn encode_png_rgb16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, String> {
-    let buf = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_raw(
-        width as u32,
-        height as u32,
-        pixels.to_vec(),
-    )
-    .ok_or_else(|| "pixel count does not match the image size".to_string())?;
-    let mut out = std::io::Cursor::new(Vec::new());
-    buf.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| e.to_string())?;
-    Ok(out.into_inner())
+    png_bytes(&buffer::<image::Rgb<u16>>(width, height, pixels)?.into())
 }
 
 /// Encodes 16-bit grey pixels as PNG bytes.
 pub fn encode_png16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, String> {
-    let buf = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(
-        width as u32,
-        height as u32,
-        pixels.to_vec(),
-    )
-    .ok_or_else(|| "pixel count does not match the image size".to_string())?;
-    let mut out = std::io::Cursor::new(Vec::new());
-    buf.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| e.to_string())?;
-    Ok(out.into_inner())
+    png_bytes(&buffer::<image::Luma<u16>>(width, height, pixels)?.into())
 }
 
 /// Writes 16-bit grey pixels as a PNG, atomically.
@@ -173,12 +145,10 @@ pub fn write_png_rgb8(
     height: usize,
     pixels: &[u8],
 ) -> Result<(), FileError> {
-    let buf = image::RgbImage::from_raw(width as u32, height as u32, pixels.to_vec())
-        .ok_or_else(|| FileError::format(path, "pixel count does not match the image size"))?;
-    let mut out = std::io::Cursor::new(Vec::new());
-    buf.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| FileError::format(path, e.to_string()))?;
-    super::write_atomic(path, &out.into_inner())
+    let png = buffer::<image::Rgb<u8>>(width, height, pixels)
+        .and_then(|b| png_bytes(&b.into()))
+        .map_err(|e| FileError::format(path, e))?;
+    super::write_atomic(path, &png)
 }
 
 /// Writes 16-bit RGB pixels (interleaved) as a PNG, atomically: a colour

@@ -18,8 +18,7 @@ pub const MAX_LATTICE_POINTS: u64 = 1 << 28;
 /// row mod 2)` in sensor coordinates: the pixels behind one micro-polarizer
 /// of a mosaic, or behind one colour of a Bayer filter (green has two).
 ///
-/// Why a set: a Bayer filter's green is two of the four positions, and a
-/// colour channel of a mosaic block is the two patterns' intersection.
+/// Why a set: a Bayer filter's green is two of the four positions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Cells(u8);
 
@@ -35,16 +34,6 @@ impl Cells {
     /// The pixels at any of `cells`.
     pub fn any(cells: &[[u32; 2]]) -> Self {
         Cells(cells.iter().fold(0, |m, &c| m | Self::one(c).0))
-    }
-
-    /// The pixels in both sets.
-    pub fn and(self, other: Cells) -> Self {
-        Cells(self.0 & other.0)
-    }
-
-    /// Whether the set holds every pixel (no pattern to follow).
-    pub fn is_all(self) -> bool {
-        self.0 == Self::ALL.0
     }
 
     /// Whether sensor row `y` holds a pixel of the set.
