@@ -8,25 +8,7 @@
 //! mean sits half a pixel off).
 
 use crate::scene::Cells;
-
-/// A colour channel of an RGB measurement, in the order arrays hold them.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize, utoipa::ToSchema,
-)]
-#[serde(rename_all = "lowercase")]
-pub enum Colour {
-    /// Red.
-    Red,
-    /// Green.
-    Green,
-    /// Blue.
-    Blue,
-}
-
-impl Colour {
-    /// Red, green, blue: the order of a measurement's channels and of an RGB image.
-    pub const ALL: [Colour; 3] = [Colour::Red, Colour::Green, Colour::Blue];
-}
+pub use crate::scene::Colour;
 
 /// The 2x2 pattern of a Bayer filter, named as GenICam's pixel formats name
 /// it (PFNC `BayerRG8` ...): the colours of the cell's first row, left to

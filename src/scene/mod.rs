@@ -7,6 +7,7 @@
 
 mod analyzer;
 pub mod builtin;
+mod colour;
 mod error;
 mod file;
 pub mod footprint;
@@ -21,6 +22,7 @@ pub use analyzer::{
     analyzer_axis, crossed_axis, perpendicular, Analyzer, Channel, Mosaic, MosaicLayout,
     MOSAIC_DEGREES,
 };
+pub use colour::Colour;
 pub use error::SceneError;
 pub use footprint::{effective_pixels, Cells, FootprintError, FrameGeometry, PixelMap};
 pub use homography::Homography;

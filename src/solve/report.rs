@@ -95,7 +95,7 @@ pub struct Report {
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct ColourReport {
     /// Which colour.
-    pub colour: crate::measure::colour::Colour,
+    pub colour: crate::scene::Colour,
     /// Metrics against the truth, when one was given.
     pub metrics: Option<Metrics>,
     /// How its λ was chosen.
@@ -114,7 +114,7 @@ pub struct ColourReport {
 
 impl ColourReport {
     /// The colour's part of its own full `report`.
-    pub fn of(colour: crate::measure::colour::Colour, report: &Report) -> Self {
+    pub fn of(colour: crate::scene::Colour, report: &Report) -> Self {
         Self {
             colour,
             metrics: report.metrics,
