@@ -177,10 +177,11 @@ impl Job<'_> {
         check(self.cancel)?;
         // Elements too saturated to measure: their rows of T and i are zero (no
         // part in any fit) and their variance 0 (no part in the noise).
-        let missing = unmeasured_rows(&mut measurement);
-        let mut warnings: Vec<String> = unmeasured_warning(&missing, measurement.i.len())
-            .into_iter()
-            .collect();
+        let missing = measurement.zero_unmeasured();
+        let mut warnings: Vec<String> =
+            crate::solve::unmeasured_warning(&missing, measurement.i.len())
+                .into_iter()
+                .collect();
         let t = match missing.is_empty() {
             true => self.t.clone(),
             false => Arc::new(self.t.with_rows_zeroed(&missing)),
@@ -546,29 +547,6 @@ pub(super) fn stack_records(
         measurement,
         colours,
         warnings,
-    })
-}
-
-/// The rows of `m` that were not measured (NaN: an element with a pixel
-/// saturated in some frame), set to 0 with variance 0; returns their indices.
-fn unmeasured_rows(m: &mut Measurement) -> Vec<usize> {
-    let missing: Vec<usize> = (0..m.i.len()).filter(|&j| !m.i[j].is_finite()).collect();
-    for &j in &missing {
-        m.i[j] = 0.0;
-        if let Some(v) = m.variance.as_mut().and_then(|v| v.get_mut(j)) {
-            *v = 0.0;
-        }
-    }
-    missing
-}
-
-/// What the report says of `missing` rows out of `rows`, if any.
-fn unmeasured_warning(missing: &[usize], rows: usize) -> Option<String> {
-    (!missing.is_empty()).then(|| {
-        format!(
-            "{} of {rows} wall elements were not measured (a pixel of theirs saturated) and are left out of the fit",
-            missing.len()
-        )
     })
 }
 

@@ -213,7 +213,7 @@ pub fn measure_given_sets(
             }
             false => None,
         };
-        let missing = unmeasured(&grey).len();
+        let missing = grey.i.iter().filter(|v| v.is_nan()).count();
         if missing > 0 {
             warnings.push(format!(
                 "{missing} of {} wall elements were not measured (a pixel of theirs reached full scale in a frame; lower the exposure): they are written as NaN, and polnlos reconstruct leaves them out",
@@ -234,14 +234,11 @@ pub fn measure_given_sets(
             (UnitsWanted::Gain(g), _) => Some(Units::Calibrated(g)),
             (UnitsWanted::Estimated, Some(t)) => {
                 // Estimated from the measured rows only.
-                let missing = unmeasured(&m);
+                let mut known = m.clone();
+                let missing = known.zero_unmeasured();
                 match missing.is_empty() {
                     true => Some(Units::estimate(t, &m)?),
-                    false => {
-                        let mut known = m.clone();
-                        missing.iter().for_each(|&j| known.i[j] = 0.0);
-                        Some(Units::estimate(&t.with_rows_zeroed(&missing), &known)?)
-                    }
+                    false => Some(Units::estimate(&t.with_rows_zeroed(&missing), &known)?),
                 }
             }
             _ => None,
@@ -274,10 +271,4 @@ pub fn measure_given_sets(
         ));
     }
     Ok(out)
-}
-
-/// The rows of `m` that were not measured (NaN: an element with a pixel at
-/// full scale in some frame).
-fn unmeasured(m: &Measurement) -> Vec<usize> {
-    (0..m.i.len()).filter(|&j| !m.i[j].is_finite()).collect()
 }

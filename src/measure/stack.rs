@@ -73,6 +73,14 @@ pub struct Measurement {
     pub variance: Option<Vec<f64>>,
 }
 
+impl Measurement {
+    /// Its rows that were not measured (NaN) set to 0 with variance 0
+    /// ([`crate::solve::zero_unmeasured`]); returns their indices.
+    pub fn zero_unmeasured(&mut self) -> Vec<usize> {
+        crate::solve::zero_unmeasured(&mut self.i, self.variance.as_deref_mut())
+    }
+}
+
 /// The pixel maps of a scene's poses, made once per (pose, frame geometry,
 /// mosaic cell) and shared: a map costs a pass over the wall's image, a measurement
 /// with it one pass over the frame (MODEL.md "From camera frames to i").

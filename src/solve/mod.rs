@@ -199,6 +199,31 @@ pub(crate) fn check_lambda(lambda: f64) -> Result<(), SolveError> {
     }
 }
 
+/// The rows of `i` that were not measured (NaN: a wall element with a
+/// pixel at full scale in some frame), set to 0 with their `variance` 0;
+/// returns their indices, whose rows of `T` must be zeroed too
+/// ([`Transport::with_rows_zeroed`]): no part in the fit or the noise.
+pub fn zero_unmeasured(i: &mut [f64], mut variance: Option<&mut [f64]>) -> Vec<usize> {
+    let missing: Vec<usize> = (0..i.len()).filter(|&j| !i[j].is_finite()).collect();
+    for &j in &missing {
+        i[j] = 0.0;
+        if let Some(v) = variance.as_deref_mut().and_then(|v| v.get_mut(j)) {
+            *v = 0.0;
+        }
+    }
+    missing
+}
+
+/// What a report says of `missing` rows out of `rows`, if any.
+pub fn unmeasured_warning(missing: &[usize], rows: usize) -> Option<String> {
+    (!missing.is_empty()).then(|| {
+        format!(
+            "{} of {rows} wall elements were not measured (a pixel of theirs saturated) and are left out of the fit",
+            missing.len()
+        )
+    })
+}
+
 /// Checks a measurement against `T` before a solve.
 pub fn check_measurement(t: &Transport, i: &[f64]) -> Result<(), SolveError> {
     if i.len() != t.rows() {

@@ -71,26 +71,13 @@ pub fn reconstruct_scene_with(
     req.check()?;
     // Rows not measured (NaN: a saturated pixel, as `polnlos measure`
     // writes them) take no part: zero in i, in T and in the variance.
-    let missing: Vec<usize> = (0..input.measurement.len())
-        .filter(|&j| !input.measurement[j].is_finite())
-        .collect();
-    let known: Vec<f64>;
     let mut input = input;
-    if !missing.is_empty() {
-        known = input
-            .measurement
-            .iter()
-            .map(|v| if v.is_finite() { *v } else { 0.0 })
-            .collect();
-        input.measurement = &known;
-        if let Some(n) = input.noise.as_mut() {
-            missing.iter().for_each(|&j| {
-                if let Some(v) = n.variance.get_mut(j) {
-                    *v = 0.0;
-                }
-            });
-        }
-    }
+    let mut known = input.measurement.to_vec();
+    let missing = super::zero_unmeasured(
+        &mut known,
+        input.noise.as_mut().map(|n| n.variance.as_mut_slice()),
+    );
+    input.measurement = &known;
     let choice = match &input.noise {
         Some(n) if scene.left_out() != Default::default() => Some(
             crate::transport::choose::choose(scene, &n.variance, budget)?,
@@ -133,15 +120,8 @@ pub fn reconstruct_scene_with(
         },
     )?;
     solved.report.model = choice.map(|(_, c)| c);
-    if !missing.is_empty() {
-        solved.report.warnings.insert(
-            0,
-            format!(
-                "{} of {} wall elements were not measured (NaN in the measurement: a pixel saturated) and are left out of the fit",
-                missing.len(),
-                input.measurement.len()
-            ),
-        );
+    if let Some(w) = super::unmeasured_warning(&missing, known.len()) {
+        solved.report.warnings.insert(0, w);
     }
     Ok(solved)
 }
