@@ -435,7 +435,7 @@ fn measure_captures<'py>(
         (false, None) => UnitsWanted::Estimated,
     };
     let mut warnings = Vec::new();
-    let measured = py
+    let mut measured = py
         .allow_threads(|| {
             measure_given(&scene.inner, &given, wanted, BUDGET, &|_| {}, &mut warnings)
         })
@@ -449,13 +449,14 @@ fn measure_captures<'py>(
     info.set_item("blocks", labels)?;
     info.set_item(
         "units",
-        match measured.units {
+        match measured.channels[0].1 {
             None => "fractions of full scale per microsecond".to_string(),
             Some(u) => format!("units of T l (divided by {:.6e})", u.factor()),
         },
     )?;
     info.set_item("warnings", warnings)?;
-    let m = measured.measurement;
+    // Frames given from Python have no Bayer filter: one grey channel.
+    let (m, _) = measured.channels.swap_remove(0);
     Ok((
         m.i.into_pyarray(py),
         m.variance.map(|v| v.into_pyarray(py)),

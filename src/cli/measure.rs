@@ -217,24 +217,18 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     for w in &warnings {
         eprintln!("warning: {w}");
     }
-    let mut measured = measured?;
+    let measured = measured?;
     if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
         super::out_dir(&parent.to_path_buf())?;
     }
-    let wall = scene.wall().plane.grid.count();
-    if measured.len() > 1 {
-        let planes: Vec<_> = measured
-            .into_iter()
-            .map(|m| (m.measurement, m.units))
-            .collect();
-        return write_colours(&a.out, &planes, wall);
+    let blocks = measured[0].blocks.clone();
+    // One channel per set (RGB planes) or three of one set (raw Bayer frames).
+    let mut channels: Vec<_> = measured.into_iter().flat_map(|m| m.channels).collect();
+    if channels.len() > 1 {
+        return write_colours(&a.out, &channels, scene.wall().plane.grid.count());
     }
-    let measured = measured.swap_remove(0);
-    if let Some(colours) = measured.colours {
-        return write_colours(&a.out, &colours, wall);
-    }
-    let (m, blocks) = (measured.measurement, measured.blocks);
-    let units = match measured.units {
+    let (m, units) = channels.swap_remove(0);
+    let units = match units {
         None => "fractions of full scale per microsecond".to_string(),
         Some(u) => format!("units of T l (divided by {:.6e})", u.factor()),
     };

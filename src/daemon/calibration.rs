@@ -238,7 +238,7 @@ impl Daemon {
             let captures = self.source_captures(scene_name, &scene, &p.captures)?;
             ordered.push(captures.iter().map(|c| c.id).collect());
             let blocks = crate::transport::blocks_of(&scene);
-            let stacked = super::reconstruction::stack_records(
+            let mut stacked = super::reconstruction::stack_records(
                 &self.store,
                 captures,
                 &scene,
@@ -248,7 +248,8 @@ impl Daemon {
                 false,
             )
             .map_err(|e| invalid(e.to_string()))?;
-            let m = stacked.measurement;
+            // Colours not asked for: one grey measurement.
+            let m = stacked.measurements.swap_remove(0);
             measured.push((m.i, m.variance));
             warnings.extend(stacked.warnings);
         }

@@ -13,8 +13,8 @@ use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::Daemon;
 use crate::files::{image, json, npy};
 use crate::measure::{
-    assemble_colour, assemble_with, load, to_model_units, CaptureFrames, CaptureInfo,
-    CaptureSource, Frame, Measurement, PixelMaps,
+    assemble_colour, load, to_model_units, CaptureFrames, CaptureInfo, CaptureSource, Frame,
+    Measurement, PixelMaps,
 };
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
@@ -129,18 +129,17 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         transport_seconds,
         cancel,
     };
-    let (image, measurement, mut report, kappa) = match stacked.colours {
-        None => {
-            let s = job.solve(stacked.measurement)?;
+    let mut solved = stacked
+        .measurements
+        .into_iter()
+        .map(|m| job.solve(m))
+        .collect::<Result<Vec<_>, _>>()?;
+    let (image, measurement, mut report, kappa) = match solved.len() {
+        1 => {
+            let s = solved.swap_remove(0);
             (s.image, s.i, s.report, s.kappa)
         }
-        Some(colours) => {
-            let solved = colours
-                .into_iter()
-                .map(|m| job.solve(m))
-                .collect::<Result<Vec<_>, _>>()?;
-            colour_result(solved)
-        }
+        _ => colour_result(solved),
     };
     report.warnings.splice(0..0, stacked.warnings);
     write_result(d, id, t.scene_grid(), &image, &measurement, &report)?;
@@ -443,10 +442,10 @@ impl Daemon {
 /// (with the variance of each element when every capture has it), and what
 /// the user should know about the captures.
 pub(super) struct Stacked {
-    pub(super) measurement: Measurement,
-    /// Red, green and blue, each over its own pixels, when every capture
-    /// came from a colour camera and they were asked for.
-    pub(super) colours: Option<Vec<Measurement>>,
+    /// The grey measurement over every pixel, or, when every capture came
+    /// from a colour camera and colours were asked for, red, green and blue,
+    /// each from its own pixels.
+    pub(super) measurements: Vec<Measurement>,
     pub(super) warnings: Vec<String>,
 }
 
@@ -533,19 +532,17 @@ pub(super) fn stack_records(
             false => load_capture(store, c, scene, &mut warnings),
         })
         .collect::<Result<Vec<_>, _>>()?;
-    let measurement = assemble_with(scene, blocks, &captures, maps)?;
-    let colours = match colours && captures.iter().all(|c| c.bayer.is_some()) {
-        true => Some(
-            crate::measure::colour::Colour::ALL
-                .into_iter()
-                .map(|c| assemble_colour(scene, blocks, &captures, maps, Some(c)))
-                .collect::<Result<Vec<_>, _>>()?,
-        ),
-        false => None,
-    };
+    let channels: Vec<Option<crate::measure::colour::Colour>> =
+        match colours && captures.iter().all(|c| c.bayer.is_some()) {
+            true => crate::measure::colour::Colour::ALL.map(Some).to_vec(),
+            false => vec![None],
+        };
+    let measurements = channels
+        .into_iter()
+        .map(|c| assemble_colour(scene, blocks, &captures, maps, c))
+        .collect::<Result<Vec<_>, _>>()?;
     Ok(Stacked {
-        measurement,
-        colours,
+        measurements,
         warnings,
     })
 }

@@ -4,7 +4,7 @@
 //! Why: `polnlos measure` and the Python bindings must turn the same frames
 //! into the same `i` and variance, so both call [`measure_given`].
 
-use super::{assemble, load, CaptureInfo, CaptureSource, Frame, FrameStack, Measurement, Units};
+use super::{load, CaptureInfo, CaptureSource, Frame, FrameStack, Measurement, Units};
 use crate::scene::Scene;
 use crate::transport::{Block, MemoryBudget, TransportError};
 
@@ -122,16 +122,13 @@ pub enum UnitsWanted {
 
 /// A measurement from given captures, in the scene's block order.
 pub struct Measured {
-    /// `i` and its variance.
-    pub measurement: Measurement,
+    /// `i` and its variance, each with the units applied (`None` for
+    /// [`UnitsWanted::Raw`]): one grey measurement over every pixel, or,
+    /// when every capture came from a colour camera, red, green and blue,
+    /// each from its own pixels with its own estimated scale.
+    pub channels: Vec<(Measurement, Option<Units>)>,
     /// The scene's blocks, in row order.
     pub blocks: Vec<Block>,
-    /// The units applied, when any (`None` for [`UnitsWanted::Raw`]).
-    pub units: Option<Units>,
-    /// When every capture came from a colour camera: red, green and blue,
-    /// each measured from its own pixels and put in the units asked for
-    /// (an estimated scale per colour), with that colour's units.
-    pub colours: Option<Vec<(Measurement, Option<Units>)>>,
 }
 
 /// Why given captures could not be measured.
@@ -152,7 +149,7 @@ pub enum GivenError {
 }
 
 /// Measures `captures` for `scene`: each capture read and checked
-/// ([`load`]), the blocks stacked in the scene's order ([`assemble`]) and
+/// ([`load`]), the blocks stacked in the scene's order ([`super::assemble`]) and
 /// put in the units asked for; `progress` hears how many columns of `T` are
 /// built (only the estimated units need `T`). What the user should know (no
 /// dark subtraction, estimated units) is added to `warnings`, failure or not.
@@ -200,27 +197,26 @@ pub fn measure_given_sets(
             .iter()
             .map(|c| load(scene, c, warnings))
             .collect::<Result<Vec<_>, _>>()?;
-        let grey = assemble(scene, &blocks, &loaded)?;
-        let colours = match !loaded.is_empty() && loaded.iter().all(|c| c.bayer.is_some()) {
-            true => {
-                let maps = super::PixelMaps::default();
-                Some(
-                    super::colour::Colour::ALL
-                        .into_iter()
-                        .map(|c| super::assemble_colour(scene, &blocks, &loaded, &maps, Some(c)))
-                        .collect::<Result<Vec<_>, _>>()?,
-                )
-            }
-            false => None,
-        };
-        let missing = grey.i.iter().filter(|v| v.is_nan()).count();
+        let colours: Vec<Option<super::colour::Colour>> =
+            match !loaded.is_empty() && loaded.iter().all(|c| c.bayer.is_some()) {
+                true => super::colour::Colour::ALL.map(Some).to_vec(),
+                false => vec![None],
+            };
+        let maps = super::PixelMaps::default();
+        let channels = colours
+            .into_iter()
+            .map(|c| super::assemble_colour(scene, &blocks, &loaded, &maps, c))
+            .collect::<Result<Vec<_>, _>>()?;
+        let rows = channels[0].i.len();
+        let missing = (0..rows)
+            .filter(|&j| channels.iter().any(|m| m.i[j].is_nan()))
+            .count();
         if missing > 0 {
             warnings.push(format!(
-                "{missing} of {} wall elements were not measured (a pixel of theirs reached full scale in a frame; lower the exposure): they are written as NaN, and polnlos reconstruct leaves them out",
-                grey.i.len()
+                "{missing} of {rows} wall elements were not measured (a pixel of theirs reached full scale in a frame; lower the exposure): they are written as NaN, and polnlos reconstruct leaves them out"
             ));
         }
-        measured.push((grey, colours));
+        measured.push(channels);
     }
     // Only the estimated scale needs T, built once for every set and colour.
     let t = match units {
@@ -249,23 +245,17 @@ pub fn measure_given_sets(
         Ok((m, u))
     };
     let mut out = Vec::with_capacity(sets.len());
-    for (grey, colours) in measured {
-        let (measurement, units) = in_units(grey)?;
-        let colours = colours
-            .map(|all| {
-                all.into_iter()
-                    .map(&in_units)
-                    .collect::<Result<Vec<_>, _>>()
-            })
-            .transpose()?;
+    for channels in measured {
         out.push(Measured {
-            measurement,
+            channels: channels
+                .into_iter()
+                .map(&in_units)
+                .collect::<Result<Vec<_>, _>>()?,
             blocks: blocks.clone(),
-            units,
-            colours,
         });
     }
-    if let Some(w) = out.first().and_then(|m| m.units).and_then(Units::note) {
+    let first = out.first().and_then(|m| m.channels.first());
+    if let Some(w) = first.and_then(|(_, u)| *u).and_then(Units::note) {
         warnings.push(format!(
             "{w}; give the bench's radiometric gain for absolute units"
         ));
