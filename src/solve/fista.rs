@@ -499,24 +499,38 @@ mod tests {
             assert!(matches!(e, SolveError::Stopped { iterations: 0 }), "{e}");
         }
         // Raised by another thread while the solve runs: it ends at a
-        // checkpoint short of its cap instead of running CAP iterations (seconds).
-        flag.store(false, Ordering::SeqCst);
-        std::thread::scope(|s| {
-            let raise = s.spawn(|| {
-                std::thread::sleep(std::time::Duration::from_millis(20));
-                flag.store(true, Ordering::SeqCst);
+        // checkpoint short of its cap instead of running CAP iterations
+        // (seconds). Under load the raise can come before the solve's first
+        // look at the flag (a stop at iteration 0, also a checkpoint); the
+        // raise then waits longer, until a stop lands mid-run.
+        let mut mid_run = None;
+        for delay_ms in [20, 100, 500, 2000] {
+            flag.store(false, Ordering::SeqCst);
+            let iterations = std::thread::scope(|s| {
+                let raise = s.spawn(|| {
+                    std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+                    flag.store(true, Ordering::SeqCst);
+                });
+                let got = match admm(stop) {
+                    Err(SolveError::Stopped { iterations }) => iterations,
+                    other => panic!(
+                        "expected a stop, got {:?}",
+                        other.map(|r| r.stats.iterations)
+                    ),
+                };
+                raise.join().unwrap();
+                got
             });
-            match admm(stop) {
-                Err(SolveError::Stopped { iterations }) => {
-                    assert!(iterations > 0 && iterations < CAP && iterations % Stop::EVERY == 0);
-                }
-                other => panic!(
-                    "expected a stop, got {:?}",
-                    other.map(|r| r.stats.iterations)
-                ),
+            assert!(
+                iterations < CAP && iterations % Stop::EVERY == 0,
+                "{iterations}"
+            );
+            if iterations > 0 {
+                mid_run = Some(iterations);
+                break;
             }
-            raise.join().unwrap();
-        });
+        }
+        assert!(mid_run.is_some(), "no stop landed mid-run");
         // An unraised stop changes nothing.
         flag.store(false, Ordering::SeqCst);
         let (a, b) = (fista(stop).unwrap(), fista(Stop::default()).unwrap());
