@@ -164,6 +164,11 @@ function downloads(items) {
 
 // ---- camera and live view ----
 
+// The sensor's width in unbinned pixels (GET /camera): the live view's scale.
+let sensorWidth = null;
+// The pose the stage last reached (GET /stage), when the bench has a stage.
+let stagePose = null;
+
 async function refreshCamera() {
   const h = await api("GET", "/health");
   text($("#health"), h.status === 200 ? (h.json.camera_connected ? "camera connected" : "camera not connected") : h.status === 0 ? unreachable() : `health: HTTP ${h.status}`);
@@ -180,6 +185,7 @@ async function refreshCamera() {
   // Every setting the camera reads back, by its API name (a new setting shows without a change here).
   const mosaic = cam.info && cam.info.mosaic;
   const bayer = cam.info && cam.info.bayer;
+  sensorWidth = (cam.info && cam.info.sensor && cam.info.sensor[0]) || null;
   $("#view-box").hidden = !mosaic && !bayer;
   // Each sensor's own views: the Stokes images of a mosaic, the colours of a Bayer filter.
   for (const o of $("#view").options) {
@@ -256,19 +262,45 @@ async function refreshLive() {
   }
 }
 
+// Where the wall is in the live frame: the capture form's scene and pose
+// (the stage's pose when it has one) through the pose's homography, from
+// GET /scenes/{name}/wall; null when unknown (no homography, no camera).
+async function wallAim() {
+  const form = new FormData($("#capture-form"));
+  const scene = form.get("scene");
+  if (!scene) return null;
+  const r = await api("GET", `/scenes/${encodeURIComponent(scene)}/wall`);
+  if (r.status !== 200 || !Array.isArray(r.json)) return null;
+  const pose = stagePose || String(form.get("pose") || "").trim();
+  const v = r.json.find((w) => w.pose === pose) || r.json[0];
+  return v ? { scene, ...v } : null;
+}
+
 // Zoom in sensor pixels: 1x shows one screen pixel per frame pixel (the
-// whole 512 px frame, not half of it), and every zoom opens on the frame's
-// centre, where the wall is aimed, not on its top-left corner (issue 38).
-function applyZoom() {
+// whole 512 px frame, not half of it), and every zoom opens on the wall's
+// image, where a pose's homography puts it, else on the frame's centre,
+// never on its top-left corner (issue 38).
+async function applyZoom() {
   const z = Number($("#zoom").value);
   const img = $("#live");
   img.style.width = `${(img.naturalWidth || 512) * z}px`;
   img.style.height = "auto";
   const box = $("#live-box");
-  box.scrollLeft = Math.max(0, (box.scrollWidth - box.clientWidth) / 2);
-  box.scrollTop = Math.max(0, (box.scrollHeight - box.clientHeight) / 2);
+  const aim = await wallAim();
+  // Screen pixels per unbinned sensor pixel: the live frame spans the sensor.
+  const scale = sensorWidth && img.naturalWidth ? img.clientWidth / sensorWidth : null;
+  if (aim && aim.centre && scale) {
+    box.scrollLeft = Math.max(0, aim.centre[0] * scale - box.clientWidth / 2);
+    box.scrollTop = Math.max(0, aim.centre[1] * scale - box.clientHeight / 2);
+    $("#zoom").title = `centred on the wall of ${aim.scene}, pose ${aim.pose} (its homography)`;
+  } else {
+    box.scrollLeft = Math.max(0, (box.scrollWidth - box.clientWidth) / 2);
+    box.scrollTop = Math.max(0, (box.scrollHeight - box.clientHeight) / 2);
+    $("#zoom").title = `centred on the frame${aim && aim.why ? `: ${aim.why}` : ""}`;
+  }
 }
 $("#zoom").addEventListener("change", applyZoom);
+$("#capture-form").addEventListener("change", (ev) => { if (ev.target.name === "scene" || ev.target.name === "pose") applyZoom(); });
 $("#live").addEventListener("load", () => { if (!$("#live").dataset.sized) { $("#live").dataset.sized = "1"; applyZoom(); } });
 $("#stretch").addEventListener("change", refreshLive);
 $("#view").addEventListener("change", refreshLive);
@@ -843,6 +875,7 @@ async function refreshRig() {
   cell("rig-mount", m, (v) => v.kind === "none" ? "none: the polarizer is turned by hand, polarizer_deg trusted"
     : `${v.kind}${v.connected ? "" : " (not connected)"}: polarizer at ${v.polarizer_deg === null ? "?" : v.polarizer_deg.toFixed(2)}° measured`
       + ` (mount ${v.position_deg === null ? "?" : v.position_deg.toFixed(2)}°), zero ${v.zero_deg.toFixed(2)}° from ${v.zero_source}${err(v)}`);
+  stagePose = s.status === 200 && s.json.kind !== "none" ? s.json.pose || null : null;
   cell("rig-stage", s, (v) => v.kind === "none" ? "none: the operator moves the camera between poses"
     : `${v.kind}: at pose ${v.pose || "?"}${v.position_m ? ` (${v.position_m.map((x) => x.toFixed(3)).join(", ")} m)` : ""}${err(v)}`);
   cell("rig-light", l, (v) => v.kind === "none" ? "none: the hidden scene's light is switched by hand"

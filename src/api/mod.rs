@@ -109,4 +109,5 @@ fn all_routes() -> OpenApiRouter<Arc<Daemon>> {
         .routes(routes!(routes::events))
         .routes(routes!(routes::scenes))
         .routes(routes!(routes::scene_exposure))
+        .routes(routes!(routes::scene_wall))
 }

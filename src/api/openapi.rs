@@ -69,6 +69,7 @@ use crate::daemon::Daemon;
         crate::camera::TriggerMode,
         crate::measure::exposure::ExposureTarget,
         crate::measure::exposure::BlockExposure,
+        crate::daemon::scenes::WallView,
     ))
 )]
 struct Doc;

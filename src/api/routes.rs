@@ -737,6 +737,16 @@ pub async fn scene_exposure(
     Ok(Json(plan))
 }
 
+/// Where each pose of a scene sees its wall, in sensor pixels: the live
+/// view zooms onto it.
+#[utoipa::path(get, path = "/scenes/{name}/wall", params(("name" = String, Path, description = "Scene name")), responses((status = 200, body = [crate::daemon::scenes::WallView]), (status = 404, body = ErrorBody, description = "Unknown scene")))]
+pub async fn scene_wall(
+    State(d): St,
+    Path(name): Path<String>,
+) -> Result<Json<Vec<crate::daemon::scenes::WallView>>, ApiError> {
+    Ok(Json(d.wall_views(&name)?))
+}
+
 /// Unknown path.
 pub async fn not_found(uri: axum::http::Uri) -> ApiError {
     let path: String = uri.path().chars().take(200).collect();

@@ -397,6 +397,11 @@ impl Daemon {
         self.scenes.names()
     }
 
+    /// Where each pose of scene `name` sees its wall (the live view's aim).
+    pub fn wall_views(&self, name: &str) -> Result<Vec<scenes::WallView>, RequestError> {
+        Ok(scenes::wall_views(&*self.scenes.scene(name)?))
+    }
+
     /// Names of the poses of every scene the daemon knows, sorted, once each.
     pub fn pose_names(&self) -> Vec<String> {
         let mut names: Vec<String> = self

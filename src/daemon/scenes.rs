@@ -41,6 +41,60 @@ pub enum ScenesError {
     },
 }
 
+/// Where a pose's camera sees a scene's wall, for aiming the live view at it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
+pub struct WallView {
+    /// Pose name.
+    pub pose: String,
+    /// The wall's corners (-u, -v), (+u, -v), (+u, +v), (-u, +v) in unbinned
+    /// sensor pixels through the pose's homography; null when the pose has
+    /// none (or its wall is not wholly in view), with `why`.
+    pub corners: Option<[[f64; 2]; 4]>,
+    /// The wall's centre (u, v) = (0, 0), sensor pixels; null likewise.
+    pub centre: Option<[f64; 2]>,
+    /// Why there are no corners.
+    pub why: Option<String>,
+}
+
+/// The wall as each pose of `scene` sees it, in file order.
+pub fn wall_views(scene: &Scene) -> Vec<WallView> {
+    let wall = &scene.wall().plane;
+    scene
+        .poses()
+        .iter()
+        .map(|p| {
+            let seen = match &p.homography {
+                None => Err(format!(
+                    "pose {:?} has no homography: calibrate the wall (POST /calibrations/wall) to aim at it",
+                    p.name
+                )),
+                Some(h) => crate::scene::wall_corners(h, wall, &p.name)
+                    .map_err(|e| e.to_string())
+                    .and_then(|corners| {
+                        let (x, y) = h.apply(0.0, 0.0).ok_or_else(|| {
+                            format!("pose {:?}: the wall's centre maps to infinity", p.name)
+                        })?;
+                        Ok((corners, [x, y]))
+                    }),
+            };
+            match seen {
+                Ok((corners, centre)) => WallView {
+                    pose: p.name.clone(),
+                    corners: Some(corners),
+                    centre: Some(centre),
+                    why: None,
+                },
+                Err(why) => WallView {
+                    pose: p.name.clone(),
+                    corners: None,
+                    centre: None,
+                    why: Some(why),
+                },
+            }
+        })
+        .collect()
+}
+
 /// Scenes by name, with a cache of their `T`, each built within one memory budget.
 pub struct Scenes {
     budget: MemoryBudget,
@@ -259,6 +313,38 @@ mod tests {
         let path = dir.join("large.toml");
         std::fs::write(&path, text).expect("write scene");
         path
+    }
+
+    #[test]
+    fn each_pose_sees_its_wall_where_its_homography_puts_it() {
+        let text = crate::scene::builtin::text("brewster-crossed").expect("built in");
+        let scene = Scene::from_toml_str(text).expect("scene");
+        let [v] = wall_views(&scene).try_into().expect("one pose");
+        assert_eq!(v.centre, Some([255.5, 255.5]));
+        let c = v.corners.expect("corners");
+        // The wall (0.3 m) fills part of the 512 px frame, nearer edge wider.
+        assert!(
+            c.iter().flatten().all(|x| (0.0..512.0).contains(x)),
+            "{c:?}"
+        );
+        assert!(c[0] != c[2] && (c[0][1] - c[1][1]).abs() > 10.0, "{c:?}");
+        // Shifted by 100 px: the centre follows; no homography: no aim, a reason.
+        let shifted = text.replacen(
+            "[[-425.517945, 1220.52494, 255.5], [250.943812, 0, 255.5], [-1.66543227, 0, 1]]",
+            "[[-592.061172, 1220.52494, 355.5], [250.943812, 0, 255.5], [-1.66543227, 0, 1]]",
+            1,
+        );
+        let scene = Scene::from_toml_str(&shifted).expect("scene");
+        let centre = wall_views(&scene)[0].centre.expect("centre");
+        assert!((centre[0] - 355.5).abs() < 1e-9 && (centre[1] - 255.5).abs() < 1e-9);
+        let bare = text.replacen("homography = ", "# homography = ", 1);
+        let v = &wall_views(&Scene::from_toml_str(&bare).expect("scene"))[0];
+        assert!(
+            v.centre.is_none()
+                && v.why
+                    .as_deref()
+                    .is_some_and(|w| w.contains("no homography"))
+        );
     }
 
     #[test]

@@ -101,6 +101,33 @@ impl FrameGeometry {
     }
 }
 
+/// The wall's four corners `(-u, -v), (+u, -v), (+u, +v), (-u, +v)` in the
+/// unbinned sensor coordinates `h` maps to: where a pose's camera sees the
+/// wall, to bound a pixel scan or aim a live view at it.
+pub fn wall_corners(
+    h: &Homography,
+    wall: &Plane,
+    pose: &str,
+) -> Result<[[f64; 2]; 4], FootprintError> {
+    let [hu, hv] = [wall.size[0] / 2.0, wall.size[1] / 2.0];
+    let mut out = [[0.0; 2]; 4];
+    for (k, (u, v)) in [(-hu, -hv), (hu, -hv), (hu, hv), (-hu, hv)]
+        .into_iter()
+        .enumerate()
+    {
+        let (x, y) = h
+            .apply(u, v)
+            .filter(|(x, y)| x.is_finite() && y.is_finite())
+            .ok_or_else(|| FootprintError::NotInView {
+                pose: pose.to_string(),
+                u,
+                v,
+            })?;
+        out[k] = [x, y];
+    }
+    Ok(out)
+}
+
 /// Why no pixel map could be made for a pose.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FootprintError {
@@ -424,18 +451,9 @@ impl PixelMap {
         g: &FrameGeometry,
         pose: &str,
     ) -> Result<[(i64, i64); 2], FootprintError> {
-        let [hu, hv] = [wall.size[0] / 2.0, wall.size[1] / 2.0];
         let mut lo = [f64::INFINITY; 2];
         let mut hi = [f64::NEG_INFINITY; 2];
-        for (u, v) in [(-hu, -hv), (hu, -hv), (-hu, hv), (hu, hv)] {
-            let (x, y) = h
-                .apply(u, v)
-                .filter(|(x, y)| x.is_finite() && y.is_finite())
-                .ok_or_else(|| FootprintError::NotInView {
-                    pose: pose.to_string(),
-                    u,
-                    v,
-                })?;
+        for [x, y] in wall_corners(h, wall, pose)? {
             lo = [lo[0].min(x), lo[1].min(y)];
             hi = [hi[0].max(x), hi[1].max(y)];
         }

@@ -24,7 +24,9 @@ pub use analyzer::{
 };
 pub use colour::Colour;
 pub use error::SceneError;
-pub use footprint::{effective_pixels, Cells, FootprintError, FrameGeometry, PixelMap};
+pub use footprint::{
+    effective_pixels, wall_corners, Cells, FootprintError, FrameGeometry, PixelMap,
+};
 pub use homography::Homography;
 pub use occluder::{Mesh, MeshSource, Occluder};
 pub use plane::{Grid, Plane};

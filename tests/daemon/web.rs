@@ -566,7 +566,20 @@ async fn downloaded(c: &Client, css: &str) -> serde_json::Value {
 
 #[test]
 fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_deletes() {
-    let page = Page::start();
+    // A scene whose homography puts the wall's centre at (405.5, 355.5), off
+    // the frame's centre: the built-in bench's, shifted by (150, 100) px.
+    let scenes = tempfile::tempdir().unwrap();
+    let aim = scenes.path().join("aim.toml");
+    let file = polnlos::scene::builtin::text("brewster-crossed")
+        .unwrap()
+        .replacen(
+            "[[-425.517945, 1220.52494, 255.5], [250.943812, 0, 255.5], [-1.66543227, 0, 1]]",
+            "[[-675.332786, 1220.52494, 405.5], [84.400585, 0, 355.5], [-1.66543227, 0, 1]]",
+            1,
+        );
+    std::fs::write(&aim, file).unwrap();
+    let listed = format!("scene_files = [{:?}]", aim.display().to_string());
+    let page = Page::start_with(&[("scene_files = []", &listed)]);
     // Two reconstructions of one crossed capture: automatic and a fixed λ.
     let c = page.d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 4, "dark_frames": 1}"#, Duration::from_secs(30));
     assert_eq!(c["state"], "done", "{c}");
@@ -602,14 +615,23 @@ fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_delete
         assert!(requests.iter().filter(|r| r.starts_with("/camera/frame.png?live=true")).count() >= 3, "{requests:?}");
         // Zoom in sensor pixels: 1x is the whole 512 px frame, one screen
         // pixel each (it showed half); 4x is 2048 px, scrollable, and opens
-        // on the frame's centre (it opened on the black top-left corner).
+        // on the wall's image where the capture form's scene and pose put it
+        // (it opened on the black top-left corner, then on the frame's centre).
         assert_eq!(js(&c, "return document.querySelector('#live').clientWidth;").await, 512);
+        choose(&c, "#capture-form select[name=scene]", "aim").await;
         choose(&c, "#zoom", "4").await;
         js(&c, "document.querySelector('#zoom').dispatchEvent(new Event('change')); return true;").await;
         assert_eq!(js(&c, "return document.querySelector('#live').clientWidth;").await, 2048);
-        let centred = js(&c, "const b = document.querySelector('#live-box'); return [b.scrollLeft, (b.scrollWidth - b.clientWidth) / 2, b.scrollTop, (b.scrollHeight - b.clientHeight) / 2];").await;
-        let v: Vec<f64> = serde_json::from_value(centred).unwrap();
-        assert!(v[1] > 0.0 && (v[0] - v[1]).abs() <= 1.0 && (v[2] - v[3]).abs() <= 1.0, "{v:?}");
+        let scroll = "const b = document.querySelector('#live-box'); return [b.scrollLeft, b.clientWidth, b.scrollTop, b.clientHeight];";
+        let aimed = until("the zoom on the wall", long, || async {
+            let v: Vec<f64> = serde_json::from_value(js(&c, scroll).await).unwrap();
+            let want = [405.5 * 4.0 - v[1] / 2.0, 355.5 * 4.0 - v[3] / 2.0];
+            ((v[0] - want[0]).abs() <= 1.0 && (v[2] - want[1]).abs() <= 1.0).then_some(v)
+        })
+        .await;
+        println!("zoom 4x on the wall of scene aim: scroll {aimed:?}");
+        let title = js(&c, "return document.querySelector('#zoom').title;").await;
+        assert_eq!(title, "centred on the wall of aim, pose A (its homography)");
         // A selection in a report survives the page's updates (no redraw without a change).
         js(&c, "const r = document.querySelector('#reconstruction-1 .report'); getSelection().selectAllChildren(r); return true;").await;
         tokio::time::sleep(Duration::from_secs(3)).await;
