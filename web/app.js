@@ -128,8 +128,26 @@ function el(tag, attrs, ...children) {
   children.forEach((c) => e.append(c));
   return e;
 }
-function alertIn(target, message) { target.className = "message error"; text(target, message); }
-function noteIn(target, message) { target.className = "message"; text(target, message); }
+// A status line says when it was written, and one about a job follows the
+// job ("queued capture-3 … · now done"): none keeps saying what is no longer
+// true (issue 38: stale status lines).
+const clock = () => new Date().toLocaleTimeString();
+function say(target, cls, message, job) {
+  target.className = cls;
+  target.dataset.job = job || "";
+  target.dataset.said = message;
+  text(target, `${message} (${clock()})`);
+}
+function alertIn(target, message) { say(target, "message error", message); }
+function noteIn(target, message, job) { say(target, "message", message, job); }
+// The status lines that follow `job` take its new state (and why it failed).
+function follow(job, state, why) {
+  for (const m of document.querySelectorAll(".message")) {
+    if (!job || m.dataset.job !== job) continue;
+    m.className = state === "failed" || state === "interrupted" ? "message error" : "message";
+    text(m, `${m.dataset.said} · now ${state.replaceAll("_", " ")}${why ? `: ${why}` : ""} (${clock()})`);
+  }
+}
 const block = (c) => {
   if (c.channels.length > 1) return `${c.pose} (polarizer mosaic, ${c.channels.length} blocks)`;
   const ch = c.channels[0];
@@ -613,6 +631,7 @@ async function onEvent(v) {
     if (v.state !== "running" && kind === "capture") refreshRig();
     const r = await api("GET", `/${kind}s/${id}`);
     if (r.status !== 200) return;
+    follow(v.job, r.json.state, r.json.error);
     if (kind === "capture" && !active(r.json.state)) taken.delete(r.json.id);
     if (kind === "capture") upsertCapture(r.json);
     else upsertReconstruction(r.json);
@@ -772,7 +791,7 @@ async function submitCapture(kind) {
   if (!body) return;
   const r = await api("POST", "/captures", body);
   if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
-  noteIn(msg, `queued ${r.json.job}` + (r.json.exposure_us ? ` (${r.json.exposure_us} µs, ${r.json.frames} frames)` : ""));
+  noteIn(msg, `queued ${r.json.job}` + (r.json.exposure_us ? ` (${r.json.exposure_us} µs, ${r.json.frames} frames)` : ""), r.json.job);
   if (kind === "dark") {
     $("#capture-form [name=dark_capture]").value = String(r.json.id);
     text(msg, `${msg.textContent}; switch the hidden scene back on: later captures subtract dark capture ${r.json.id}`);
@@ -807,7 +826,7 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
   if (!body) return;
   const r = await api("POST", "/reconstructions", body);
   if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
-  noteIn(msg, `queued ${r.json.job}`);
+  noteIn(msg, `queued ${r.json.job}`, r.json.job);
   const x = await api("GET", `/reconstructions/${r.json.id}`);
   if (x.status === 200) upsertReconstruction(x.json);
 });
@@ -821,6 +840,7 @@ async function showPlan(id) {
   const r = await api("GET", `/plans/${id}`);
   if (r.status !== 200) return;
   const p = r.json;
+  follow(`plan-${p.id}`, p.state, p.error);
   shownPlan = p.id;
   $("#plan-status").hidden = false;
   text($("#plan-title"), `plan ${p.id} (${p.scene}): ${p.state.replaceAll("_", " ")}`);
@@ -858,7 +878,7 @@ $("#plan-form").addEventListener("submit", async (ev) => {
   if (!body) return;
   const r = await api("POST", "/plans", body);
   if (r.status !== 202) { alertIn(msg, tokenReason() || (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
-  noteIn(msg, `plan ${r.json.id} queued: ${r.json.steps.length} steps`);
+  noteIn(msg, `plan ${r.json.id} queued: ${r.json.steps.length} steps`, `plan-${r.json.id}`);
   showPlan(r.json.id);
   loadPlans();
 });

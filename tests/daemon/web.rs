@@ -424,6 +424,14 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
             tokio::time::sleep(Duration::from_millis(50)).await;
         };
         assert_eq!(done, "done");
+        // The form's status line followed its capture to the end (it said
+        // "queued" long after the capture was done).
+        let said = until("the status line to follow", long, || async {
+            let m = text(&c, "#capture-message").await;
+            m.contains("· now done").then_some(m)
+        })
+        .await;
+        assert!(said.starts_with("queued capture-1") && said.contains(" · now done ("), "{said}");
         println!("progress seen at {partial:?} of 26 frames");
         assert!(partial.is_some(), "no intermediate progress was shown");
         // The bar never runs backwards, progressive steps arriving or not.
