@@ -1,11 +1,9 @@
-//! The camera service: the one camera, the bench around it, and who has
-//! it. It owns the settings captures inherit, `PUT /camera/settings`
+//! The camera service: the one camera and who has it. It owns the settings captures inherit, `PUT /camera/settings`
 //! (refused, not waited for, during a capture), the state `GET /camera`
 //! shows and the live view's latest frame.
 
 use std::sync::{Arc, Mutex};
 
-use crate::camera::fake::Bench;
 use crate::camera::hotplug::Hotplug;
 use crate::camera::worker::{CameraHandle, CameraStatus};
 use crate::camera::{Acquisition, CameraError, CameraInfo, CameraSettings, RawFrame};
@@ -36,11 +34,10 @@ pub struct CameraView {
     pub capture_defaults: CameraSettings,
 }
 
-/// The camera thread's handle, the bench, and the state around them; each
+/// The camera thread's handle and the state around it; each
 /// piece behind its own lock, none held across an await but the gate.
 pub struct CameraService {
     handle: CameraHandle,
-    bench: Arc<dyn Bench>,
     /// Held by a capture for its whole run: a settings change that cannot
     /// have the camera answers 409 instead of waiting.
     gate: tokio::sync::Mutex<()>,
@@ -69,14 +66,9 @@ impl Drop for CameraLease<'_> {
 impl CameraService {
     /// The service over a started camera thread; `hotplug` (kept alive
     /// here) rescans when a USB device arrives.
-    pub(crate) fn new(
-        handle: CameraHandle,
-        bench: Arc<dyn Bench>,
-        hotplug: Option<Hotplug>,
-    ) -> Self {
+    pub(crate) fn new(handle: CameraHandle, hotplug: Option<Hotplug>) -> Self {
         Self {
             handle,
-            bench,
             gate: tokio::sync::Mutex::new(()),
             holder: Mutex::new(None),
             defaults: Mutex::new(None),
@@ -88,11 +80,6 @@ impl CameraService {
     /// The camera thread (acquisition, configuration, status).
     pub(crate) fn handle(&self) -> &CameraHandle {
         &self.handle
-    }
-
-    /// The bench: pose, polarizer, scene, target and source switches.
-    pub(crate) fn bench(&self) -> &dyn Bench {
-        self.bench.as_ref()
     }
 
     /// Connection, identity, ranges, settings read back and counters now.

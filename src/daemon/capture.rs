@@ -20,6 +20,7 @@ use super::config::LostFrames;
 use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::progressive;
 use super::queue::CaptureQueue;
+use super::rig::{Rig, RigError};
 use super::Event;
 use crate::camera::{Acquisition, CameraError, Frame, FrameCounts, RawFrame};
 use crate::measure::FrameStack;
@@ -42,12 +43,9 @@ const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 pub(super) struct CaptureWorker {
     pub(super) jobs: JobContext,
     pub(super) camera: Arc<CameraService>,
-    /// Turns the polarizer to the capture's angle, when a mount is configured.
-    pub(super) mount: Arc<super::mount::MountService>,
-    /// Moves the camera to the capture's pose, when a stage is configured.
-    pub(super) stage: Arc<super::stage::StageService>,
-    /// Switches the hidden scene's light, when a relay is configured.
-    pub(super) light: Arc<super::light::LightService>,
+    /// The bench's devices: the camera to the capture's pose, the polarizer
+    /// to its angle, the hidden scene's light off for darks.
+    pub(super) rig: Arc<Rig>,
     pub(super) queue: Arc<CaptureQueue>,
     /// What a capture that lost frames does.
     pub(super) lost_frames: LostFrames,
@@ -146,12 +144,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     let dir = w.jobs.store.capture_dir(id);
     std::fs::create_dir_all(&dir)
         .map_err(|e| JobError::Store(w.jobs.store.describe_io(&dir, &e)))?;
-    // The bench at the polarizer's real angle where it knows it (the fake
-    // bench's simulated mount), else at the angle asked for.
-    let shown = c
-        .sheet_deg()
-        .map(|d| w.mount.simulated_truth_deg().unwrap_or(d));
-    w.camera.bench().select(&c.pose, shown);
+    w.rig.show_block(&c.pose, c.sheet_deg());
     let stream = Stream {
         w,
         id,
@@ -162,17 +155,17 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     };
     let spec = w.queue.take_progressive(id);
     let (dark, dark_counts) = dark_reference(w, &c, &stream).await?;
-    let scene_off = meta.kind == CaptureKind::Dark && w.light.switches_scene(w.camera.bench());
+    let scene_off = meta.kind == CaptureKind::Dark && w.rig.switches_scene();
     if scene_off {
         scene_light(w, id, false).await?;
     }
     let target = meta.kind == CaptureKind::Target;
     if target {
-        w.camera.bench().show_target(true);
+        w.rig.show_target(true);
     }
     let source = meta.kind == CaptureKind::Source;
     if source {
-        w.camera.bench().show_source(true);
+        w.rig.show_source(true);
     }
     let (n, offset) = (c.frames as usize, c.dark_frames as usize);
     let (dark, dark_variance) = dark.map_or((None, None), |(m, v)| (Some(m), v));
@@ -198,10 +191,10 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
         Ok(())
     };
     if target {
-        w.camera.bench().show_target(false);
+        w.rig.show_target(false);
     }
     if source {
-        w.camera.bench().show_source(false);
+        w.rig.show_source(false);
     }
     if let Some((tx, steps)) = progressive {
         finish_progressive(w, id, frames.as_ref().ok().map(|(f, _)| f), tx, steps).await;
@@ -390,67 +383,38 @@ fn stall_limit(exposure_us: f64, n: usize, slack: std::time::Duration) -> std::t
     std::time::Duration::from_secs_f64(frames) + slack
 }
 
-/// Runs a bench device's blocking command (serial I/O of up to seconds) off
-/// the runtime for capture `id`; a task that did not finish fails the
-/// capture naming `device`, and the command's own result is the caller's.
-async fn off_runtime<T: Send + 'static>(
-    id: i64,
-    device: &str,
-    command: impl FnOnce() -> T + Send + 'static,
-) -> Result<T, JobError> {
-    tokio::task::spawn_blocking(command)
-        .await
-        .map_err(|e| JobError::Capture {
-            id,
-            reason: format!("the {device}'s task failed: {e}"),
-        })
-}
-
-/// Switches the hidden scene's light for capture `id`: through the relay
-/// when there is one (the bench then shows what the relay reads back), else
-/// through the bench's own switch (or the operator, who was asked).
+/// Switches the hidden scene's light for capture `id` through the rig.
 async fn scene_light(w: &CaptureWorker, id: i64, on: bool) -> Result<(), JobError> {
-    if !w.light.present() {
-        w.camera.bench().scene_on(on);
-        return Ok(());
-    }
-    let light = w.light.clone();
-    let read = off_runtime(id, "light relay", move || light.set(on))
-        .await?
-        .map_err(|e| JobError::Capture {
-            id,
-            reason: format!(
-                "the hidden scene could not be switched {}: {e}",
-                if on { "on" } else { "off" }
-            ),
-        })?;
-    w.camera.bench().scene_on(read);
-    Ok(())
+    w.rig.scene_light(on).await.map_err(|e| rig_failed(id, e))
 }
 
-/// Moves the stage to the capture's pose; a bench without a stage (whose
+/// A capture failed by the rig, in its words.
+fn rig_failed(id: i64, e: RigError) -> JobError {
+    JobError::Capture {
+        id,
+        reason: e.to_string(),
+    }
+}
+
+/// Moves the camera to the capture's pose; a bench without a stage (whose
 /// camera the operator moves, and the capture's pose is trusted) does nothing.
 async fn move_camera(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobError> {
-    if !w.stage.present() {
+    if !w.rig.automated().stage {
         return Ok(());
     }
     let scene = w.jobs.scenes.scene(&c.scene)?;
-    let Some(pose) = scene.poses().iter().find(|p| p.name == c.pose).cloned() else {
+    let Some(pose) = scene.poses().iter().find(|p| p.name == c.pose) else {
         return Err(JobError::Capture {
             id: c.id,
             reason: format!("scene {:?} has no pose {:?}", c.scene, c.pose),
         });
     };
-    let stage = w.stage.clone();
-    let moved = off_runtime(c.id, "camera stage", move || stage.move_to(&pose)).await?;
-    let at = moved.map_err(|e| JobError::Capture {
-        id: c.id,
-        reason: e.to_string(),
-    })?;
-    tracing::info!(
-        "camera at pose {} ({at:?} m), read back from the stage",
-        c.pose
-    );
+    if let Some(at) = w.rig.move_to(pose).await.map_err(|e| rig_failed(c.id, e))? {
+        tracing::info!(
+            "camera at pose {} ({at:?} m), read back from the stage",
+            c.pose
+        );
+    }
     Ok(())
 }
 
@@ -458,15 +422,12 @@ async fn move_camera(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobErro
 /// read back; a capture without an angle, or a bench without a mount
 /// (whose angle is set by hand and trusted), records none.
 async fn turn_polarizer(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobError> {
-    let (Some(deg), true) = (c.sheet_deg(), w.mount.present()) else {
+    let Some(deg) = c.sheet_deg() else {
         return Ok(());
     };
-    let mount = w.mount.clone();
-    let turned = off_runtime(c.id, "rotation mount", move || mount.turn_to(deg)).await?;
-    let measured = turned.map_err(|e| JobError::Capture {
-        id: c.id,
-        reason: format!("the polarizer could not be turned to {deg}° from crossed: {e}"),
-    })?;
+    let Some(measured) = w.rig.turn_to(deg).await.map_err(|e| rig_failed(c.id, e))? else {
+        return Ok(());
+    };
     tracing::info!(
         "polarizer at {measured:.3}° from crossed (asked {deg}°), read back from the mount"
     );

@@ -43,13 +43,13 @@ pub struct Config {
     pub retention: RetentionConfig,
     /// The rotation mount that turns the polarizer (none unless set).
     #[serde(default)]
-    pub mount: super::mount::MountConfig,
+    pub mount: super::rig::mount::MountConfig,
     /// The stage that moves the camera between poses (none unless set).
     #[serde(default)]
-    pub stage: super::stage::StageConfig,
+    pub stage: super::rig::stage::StageConfig,
     /// The relay that switches the hidden scene's light (none unless set).
     #[serde(default)]
-    pub light: super::light::LightConfig,
+    pub light: super::rig::light::LightConfig,
 }
 
 /// A retention policy: the oldest finished captures (with the

@@ -31,9 +31,7 @@ pub mod events;
 mod flatten;
 mod integral;
 mod jobs;
-pub mod light;
 pub mod metrics;
-pub mod mount;
 mod mount_zero;
 mod plans;
 mod progressive;
@@ -42,8 +40,8 @@ mod reconstruction;
 mod registry;
 pub mod requests;
 mod retention;
+pub mod rig;
 pub mod scenes;
-pub mod stage;
 pub mod validate;
 
 use std::collections::BTreeMap;
@@ -61,10 +59,11 @@ pub use config::Config;
 pub use demo::DEMO_SOURCE;
 pub use events::{Event, Events, Step as ProgressiveStep};
 pub use mount_zero::{SweepPoint, ZeroFit};
-pub use plans::{steps_of, Automated, PlanError, PlanStep, PlanView};
+pub use plans::{steps_of, PlanError, PlanStep, PlanView};
 pub use progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
 pub use queue::SubmitError;
 pub use requests::{ZeroBody, ZeroLight};
+pub use rig::Automated;
 pub use validate::RequestError;
 
 use crate::camera::aravis::AravisCamera;
@@ -212,12 +211,8 @@ pub struct Daemon {
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
     calibration: Arc<BTreeMap<String, f64>>,
     camera: Arc<CameraService>,
-    /// The rotation mount, when one turns the polarizer.
-    mount: Arc<mount::MountService>,
-    /// The camera stage, when one moves the camera between poses.
-    stage: Arc<stage::StageService>,
-    /// The relay that switches the hidden scene's light, when there is one.
-    light: Arc<light::LightService>,
+    /// The bench's devices: stage, rotation mount, light relay.
+    rig: Arc<rig::Rig>,
     /// Wakes the plan runner: a plan was posted, continued or cancelled.
     plan_wake: Arc<tokio::sync::Notify>,
     captures: Arc<CaptureQueue>,
@@ -266,9 +261,12 @@ impl Daemon {
             None
         };
         let zero_file = store.dir().join("mount-zero.json");
-        let mount = Arc::new(mount::MountService::start(&config.mount, Some(zero_file))?);
-        let stage = Arc::new(stage::StageService::start(&config.stage));
-        let light = Arc::new(light::LightService::start(&config.light)?);
+        let rig = Arc::new(rig::Rig::new(
+            rig::mount::MountService::start(&config.mount, Some(zero_file))?,
+            rig::stage::StageService::start(&config.stage),
+            rig::light::LightService::start(&config.light)?,
+            camera.bench.clone(),
+        ));
         let (captures, capture_rx) = CaptureQueue::new(config.queue.captures);
         let (reconstructions, recon_rx) =
             Queue::new("reconstruction", config.queue.reconstructions);
@@ -279,10 +277,8 @@ impl Daemon {
             store: Arc::new(store),
             scenes,
             calibration: Arc::new(calibration),
-            camera: Arc::new(CameraService::new(handle, camera.bench, hotplug)),
-            mount,
-            stage,
-            light,
+            camera: Arc::new(CameraService::new(handle, hotplug)),
+            rig,
             plan_wake: Arc::new(tokio::sync::Notify::new()),
             captures: Arc::new(captures),
             reconstructions,
@@ -297,9 +293,7 @@ impl Daemon {
             let capture = capture::CaptureWorker {
                 jobs: d.job_context(),
                 camera: d.camera.clone(),
-                mount: d.mount.clone(),
-                stage: d.stage.clone(),
-                light: d.light.clone(),
+                rig: d.rig.clone(),
                 queue: d.captures.clone(),
                 lost_frames: d.config.camera.lost_frames,
                 // Checked to be 0..=1 by Config::validate.
@@ -365,31 +359,24 @@ impl Daemon {
 
     /// The rotation mount: where it is now (read from it unless a capture
     /// is turning it, then as last read).
-    pub async fn mount_now(&self) -> mount::MountView {
-        let m = self.mount.clone();
-        if m.present() {
-            let read = tokio::task::spawn_blocking(move || {
-                let _ = m.read();
-            });
-            let _ = tokio::time::timeout(std::time::Duration::from_secs(2), read).await;
-        }
-        self.mount.view()
+    pub async fn mount_now(&self) -> rig::mount::MountView {
+        self.rig.mount_view().await
     }
 
     /// The relay that switches the hidden scene's light, as last seen.
-    pub fn light_now(&self) -> light::LightView {
-        self.light.view()
+    pub fn light_now(&self) -> rig::light::LightView {
+        self.rig.light_view()
     }
 
     /// Whether the bench switches the hidden scene off for dark frames by
     /// itself (a relay, or the fake bench's own switch); else the operator does.
     fn switches_scene(&self) -> bool {
-        self.light.switches_scene(self.camera.bench())
+        self.rig.switches_scene()
     }
 
     /// The camera stage as last seen.
-    pub fn stage_now(&self) -> stage::StageView {
-        self.stage.view()
+    pub fn stage_now(&self) -> rig::stage::StageView {
+        self.rig.stage_view()
     }
 
     /// Names of the scenes the daemon knows.

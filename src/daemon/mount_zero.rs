@@ -184,7 +184,7 @@ impl Daemon {
         b: ZeroBody,
     ) -> Result<ZeroFit, SubmitError> {
         let invalid = |m: String| SubmitError::from(RequestError::Invalid(m));
-        if !self.mount.present() {
+        if !self.rig.automated().mount {
             return Err(invalid(
                 "no rotation mount is configured ([mount] kind = \"none\"): there is no zero to calibrate".into(),
             ));
@@ -228,16 +228,15 @@ impl Daemon {
             )));
         }
         let full = settings.pixel_format.full_scale();
-        let previous = self.mount.zero_deg();
-        let bench = self.camera.bench();
+        let previous = self.rig.mount().zero_deg();
         let source = b.light == ZeroLight::Source;
         if source {
-            bench.show_source(true);
+            self.rig.show_source(true);
         }
         let mut sweep = Vec::new();
         for k in -n..=n {
             let asked = k as f64 * step;
-            let mount = self.mount.clone();
+            let mount = self.rig.mount().clone();
             let read = tokio::task::spawn_blocking(move || mount.turn_to(asked))
                 .await
                 .map_err(|e| SubmitError::Internal(format!("rotation mount task: {e}")))?
@@ -246,8 +245,7 @@ impl Daemon {
                         "the sweep could not turn the polarizer to {asked}°: {e}"
                     )))
                 })?;
-            let shown = self.mount.simulated_truth_deg().unwrap_or(read);
-            self.camera.bench().select(&b.pose, Some(shown));
+            self.rig.show_block(&b.pose, Some(read));
             let got = self.sweep_frames(settings, frames).await?;
             let (sum, count) = got.iter().fold((0.0, 0usize), |(s, c), f| {
                 let (ps, pc) = central_sum(f, centre, settings.region);
@@ -262,7 +260,7 @@ impl Daemon {
             });
         }
         if source {
-            bench.show_source(false);
+            self.rig.show_source(false);
         }
         let min = crossed_minimum(&sweep).ok_or_else(|| {
             invalid("the sweep's light does not change with the angle: is the polarizer in the mount and the scene lit?".into())
@@ -275,12 +273,12 @@ impl Daemon {
         }
         let zero_deg = previous + least;
         let at = crate::store::now();
-        self.mount
+        self.rig
+            .mount()
             .set_zero(zero_deg, &at)
             .map_err(|e| SubmitError::Internal(format!("cannot keep the mount's zero: {e}")))?;
         // Back to crossed with the new zero.
-        let mount = self.mount.clone();
-        let _ = tokio::task::spawn_blocking(move || mount.turn_to(0.0)).await;
+        let _ = self.rig.turn_to(0.0).await;
         tracing::info!(
             "rotation mount: crossed at {zero_deg:.3}° ± {:.3}° (was {previous:.3}°), fit residual {:.2} %",
             min.sigma_deg,

@@ -15,6 +15,7 @@ use serde::Serialize;
 
 use super::events::Event;
 use super::requests::{CaptureBody, PlanBody, ReconstructionBody};
+use super::rig::Automated;
 use super::{Daemon, JobKind, RequestError, SubmitError};
 use crate::scene::{Channel, Scene};
 use crate::store::{CaptureKind, JobState, PlanCapture, PlanInterim, PlanRow, PlanState};
@@ -81,17 +82,6 @@ pub enum PlanError {
     /// The request itself is wrong (422/404/503 as for a capture).
     #[error(transparent)]
     Submit(#[from] SubmitError),
-}
-
-/// What a bench does by itself, so that a plan needs no operator for it.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Automated {
-    /// A mount turns the polarizer.
-    pub mount: bool,
-    /// A stage moves the camera between poses.
-    pub stage: bool,
-    /// The bench switches the hidden scene off for darks.
-    pub switches_scene: bool,
 }
 
 /// The steps of a plan over `scene`: its blocks in order (all angles of a
@@ -282,11 +272,7 @@ impl Daemon {
 
     /// What this bench does by itself.
     fn bench(&self) -> Automated {
-        Automated {
-            mount: self.mount.present(),
-            stage: self.stage.present(),
-            switches_scene: self.switches_scene(),
-        }
+        self.rig.automated()
     }
 
     /// Checks a plan request (every capture it will post, as `POST
