@@ -8,6 +8,7 @@
 //! steps took (a capture the stop interrupted is taken again; none that
 //! finished is), and plans share the one bench in the order they came.
 
+use std::ops::ControlFlow;
 use std::sync::{Arc, Weak};
 use std::time::Duration;
 
@@ -521,15 +522,38 @@ impl Daemon {
     /// Walks plan `id` from the step it is at until it ends, waits for the
     /// operator, or the daemon stops.
     async fn run_plan(self: &Arc<Self>, id: i64) {
-        let Ok(Some(mut plan)) = self.store.plan(id) else {
+        let Some((mut plan, body, steps)) = self.resume_plan(id) else {
             return;
         };
-        let fail = |plan: &PlanRow, why: String| {
-            tracing::warn!("plan-{id} failed at step {}: {why}", plan.step);
-            let _ = self
-                .store
-                .plan_state(id, PlanState::Failed, None, Some(&why));
-            self.plan_event(id, PlanState::Failed, plan.step, None);
+        let switches = self.bench().switches_scene;
+        while let Some(step) = steps.get(plan.step) {
+            let at = plan.step;
+            let walked = match step {
+                PlanStep::Operator { prompt } => {
+                    self.wait_for_operator(id, at, prompt);
+                    ControlFlow::Break(())
+                }
+                PlanStep::Capture { .. } => {
+                    self.capture_step(&mut plan, &body, &steps, at, switches)
+                        .await
+                }
+                PlanStep::Reconstruct => self.reconstruct_step(&mut plan, &body, &steps, at).await,
+            };
+            if walked.is_break() {
+                return;
+            }
+            plan.step = at + 1;
+            let _ = self.store.plan_step(id, plan.step, &plan.captures);
+            self.plan_event(id, PlanState::Running, plan.step, None);
+        }
+        self.finish_plan(&plan);
+    }
+
+    /// Plan `id`'s row, request and steps, marked running if queued; `None`: nothing to walk.
+    /// Why: a plan whose request or scene can no longer be read is interrupted, not walked.
+    fn resume_plan(&self, id: i64) -> Option<(PlanRow, PlanBody, Vec<PlanStep>)> {
+        let Ok(Some(plan)) = self.store.plan(id) else {
+            return None;
         };
         let (body, steps) = match self.plan_steps(&plan) {
             Ok(s) => s,
@@ -538,129 +562,189 @@ impl Daemon {
                     .store
                     .plan_state(id, PlanState::Interrupted, None, Some(&why));
                 self.plan_event(id, PlanState::Interrupted, plan.step, None);
-                return;
+                return None;
             }
         };
         if plan.state == PlanState::WaitingForOperator {
-            return;
+            return None;
         }
         if plan.state == PlanState::Queued {
             let _ = self.store.plan_state(id, PlanState::Running, None, None);
             tracing::info!("plan-{id} started");
             self.plan_event(id, PlanState::Running, plan.step, None);
         }
-        let switches = self.bench().switches_scene;
-        while let Some(step) = steps.get(plan.step) {
-            let at = plan.step;
-            match step {
-                PlanStep::Operator { prompt } => {
-                    let _ = self.store.plan_state(
-                        id,
-                        PlanState::WaitingForOperator,
-                        Some(prompt),
-                        None,
-                    );
-                    tracing::info!("plan-{id} waits for the operator: {prompt}");
-                    self.plan_event(id, PlanState::WaitingForOperator, at, Some(prompt.clone()));
-                    return;
-                }
-                PlanStep::Capture { dark_step, .. } => {
-                    // Resumed: a capture this step took is kept if it is done
-                    // or still going, and taken again if it did not finish.
-                    let taken = plan
-                        .captures
-                        .iter()
-                        .find(|c| c.step == at)
-                        .map(|c| c.capture)
-                        .filter(|&c| {
-                            self.store.capture(c).is_ok_and(|r| {
-                                matches!(
-                                    r.state,
-                                    JobState::Done | JobState::Queued | JobState::Running
-                                )
-                            })
-                        });
-                    let capture = match taken {
-                        Some(c) => c,
-                        None => {
-                            let dark = dark_step.and_then(|s| {
-                                plan.captures
-                                    .iter()
-                                    .find(|c| c.step == s)
-                                    .map(|c| c.capture)
-                            });
-                            let Some(mut b) =
-                                capture_body(&plan.scene, &body, step, dark, switches)
-                            else {
-                                return;
-                            };
-                            b.progressive = last_block_progressive(&body, &steps, &plan, at);
-                            let c = match self.submit_until_admitted(id, b).await {
-                                Some(Ok(c)) => c,
-                                Some(Err(e)) => return fail(&plan, format!("step {at}: {e}")),
-                                None => return,
-                            };
-                            for old in plan.captures.iter().filter(|o| o.step == at) {
-                                let said = format!("plan {id} took this step again as capture {c}");
-                                if let Err(e) = self.store.capture_retaken(old.capture, &said) {
-                                    tracing::warn!("plan-{id}: capture-{}: {e}", old.capture);
-                                }
-                            }
-                            plan.captures.retain(|c| c.step != at);
-                            plan.captures.push(PlanCapture {
-                                step: at,
-                                capture: c,
-                            });
-                            let _ = self.store.plan_step(id, at, &plan.captures);
-                            c
-                        }
-                    };
-                    match self.wait_job(id, JobKind::Capture, capture).await {
-                        Waited::Done => self.queue_interim(&mut plan, &body, &steps, at),
-                        // A camera lost, a mount that missed, frames lost:
-                        // the bench needs a look, the plan waits for it.
-                        Waited::Failed(why) => {
-                            let prompt = format!(
-                                "step {at} failed ({why}); fix the bench, then press Continue to take it again"
-                            );
-                            tracing::warn!("plan-{id} paused: {prompt}");
-                            let _ = self.store.plan_state(
-                                id,
-                                PlanState::WaitingForOperator,
-                                Some(&prompt),
-                                None,
-                            );
-                            self.plan_event(id, PlanState::WaitingForOperator, at, Some(prompt));
-                            return;
-                        }
-                        Waited::PlanEnded | Waited::Stopping => return,
-                    }
-                }
-                PlanStep::Reconstruct => {
-                    let rid = match plan.reconstruction {
-                        Some(r) => r,
-                        None => {
-                            let b = reconstruction_body(&plan, &body, &steps, steps.len());
-                            let rid = match self.submit_reconstruction(&b) {
-                                Ok(r) => r,
-                                Err(e) => return fail(&plan, format!("step {at}: {e}")),
-                            };
-                            let _ = self.store.plan_reconstruction(id, rid);
-                            plan.reconstruction = Some(rid);
-                            rid
-                        }
-                    };
-                    match self.wait_job(id, JobKind::Reconstruction, rid).await {
-                        Waited::Done => {}
-                        Waited::Failed(why) => return fail(&plan, format!("step {at}: {why}")),
-                        Waited::PlanEnded | Waited::Stopping => return,
-                    }
-                }
+        Some((plan, body, steps))
+    }
+
+    /// Puts plan `id` on hold at operator step `at`, showing its prompt.
+    /// Why: the bench cannot do this step; the operator's Continue walks on.
+    fn wait_for_operator(&self, id: i64, at: usize, prompt: &str) {
+        let _ = self
+            .store
+            .plan_state(id, PlanState::WaitingForOperator, Some(prompt), None);
+        tracing::info!("plan-{id} waits for the operator: {prompt}");
+        self.plan_event(
+            id,
+            PlanState::WaitingForOperator,
+            at,
+            Some(prompt.to_string()),
+        );
+    }
+
+    /// Runs capture step `at`: keeps or takes its capture and waits for it; `Break` stops the walk.
+    /// Why: the step resumes, retakes and pauses, cases that read best apart from the walk.
+    async fn capture_step(
+        self: &Arc<Self>,
+        plan: &mut PlanRow,
+        body: &PlanBody,
+        steps: &[PlanStep],
+        at: usize,
+        switches: bool,
+    ) -> ControlFlow<()> {
+        let capture = match self.kept_capture(plan, at) {
+            Some(c) => c,
+            None => match self.take_capture(plan, body, steps, at, switches).await {
+                Some(c) => c,
+                None => return ControlFlow::Break(()),
+            },
+        };
+        match self.wait_job(plan.id, JobKind::Capture, capture).await {
+            Waited::Done => self.queue_interim(plan, body, steps, at),
+            Waited::Failed(why) => {
+                self.pause_failed_step(plan.id, at, &why);
+                return ControlFlow::Break(());
             }
-            plan.step = at + 1;
-            let _ = self.store.plan_step(id, plan.step, &plan.captures);
-            self.plan_event(id, PlanState::Running, plan.step, None);
+            Waited::PlanEnded | Waited::Stopping => return ControlFlow::Break(()),
         }
+        ControlFlow::Continue(())
+    }
+
+    /// The capture step `at` took before a resume, if done or still going.
+    /// Why: a resumed plan keeps what its steps took; a capture that did not finish is retaken.
+    fn kept_capture(&self, plan: &PlanRow, at: usize) -> Option<i64> {
+        plan.captures
+            .iter()
+            .find(|c| c.step == at)
+            .map(|c| c.capture)
+            .filter(|&c| {
+                self.store.capture(c).is_ok_and(|r| {
+                    matches!(
+                        r.state,
+                        JobState::Done | JobState::Queued | JobState::Running
+                    )
+                })
+            })
+    }
+
+    /// Posts capture step `at`'s capture and records it in the plan; `None` stops the walk.
+    /// Why: the plan must hold the new capture (and mark the old one retaken) before it waits.
+    async fn take_capture(
+        self: &Arc<Self>,
+        plan: &mut PlanRow,
+        body: &PlanBody,
+        steps: &[PlanStep],
+        at: usize,
+        switches: bool,
+    ) -> Option<i64> {
+        let id = plan.id;
+        let step = steps.get(at)?;
+        let PlanStep::Capture { dark_step, .. } = step else {
+            return None;
+        };
+        let dark = dark_step.and_then(|s| {
+            plan.captures
+                .iter()
+                .find(|c| c.step == s)
+                .map(|c| c.capture)
+        });
+        let mut b = capture_body(&plan.scene, body, step, dark, switches)?;
+        b.progressive = last_block_progressive(body, steps, plan, at);
+        let c = match self.submit_until_admitted(id, b).await? {
+            Ok(c) => c,
+            Err(e) => {
+                self.fail_plan(plan, format!("step {at}: {e}"));
+                return None;
+            }
+        };
+        for old in plan.captures.iter().filter(|o| o.step == at) {
+            let said = format!("plan {id} took this step again as capture {c}");
+            if let Err(e) = self.store.capture_retaken(old.capture, &said) {
+                tracing::warn!("plan-{id}: capture-{}: {e}", old.capture);
+            }
+        }
+        plan.captures.retain(|c| c.step != at);
+        plan.captures.push(PlanCapture {
+            step: at,
+            capture: c,
+        });
+        let _ = self.store.plan_step(id, at, &plan.captures);
+        Some(c)
+    }
+
+    /// Puts plan `id` on hold after capture step `at` failed for `why`.
+    /// Why: a camera lost, a mount that missed, frames lost: the bench needs a look.
+    fn pause_failed_step(&self, id: i64, at: usize, why: &str) {
+        let prompt = format!(
+            "step {at} failed ({why}); fix the bench, then press Continue to take it again"
+        );
+        tracing::warn!("plan-{id} paused: {prompt}");
+        let _ = self
+            .store
+            .plan_state(id, PlanState::WaitingForOperator, Some(&prompt), None);
+        self.plan_event(id, PlanState::WaitingForOperator, at, Some(prompt));
+    }
+
+    /// Runs reconstruct step `at`: queues the reconstruction (once), waits; `Break` stops the walk.
+    /// Why: a resumed plan waits on the reconstruction it queued before the stop.
+    async fn reconstruct_step(
+        &self,
+        plan: &mut PlanRow,
+        body: &PlanBody,
+        steps: &[PlanStep],
+        at: usize,
+    ) -> ControlFlow<()> {
+        let id = plan.id;
+        let rid = match plan.reconstruction {
+            Some(r) => r,
+            None => {
+                let b = reconstruction_body(plan, body, steps, steps.len());
+                let rid = match self.submit_reconstruction(&b) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        self.fail_plan(plan, format!("step {at}: {e}"));
+                        return ControlFlow::Break(());
+                    }
+                };
+                let _ = self.store.plan_reconstruction(id, rid);
+                plan.reconstruction = Some(rid);
+                rid
+            }
+        };
+        match self.wait_job(id, JobKind::Reconstruction, rid).await {
+            Waited::Done => ControlFlow::Continue(()),
+            Waited::Failed(why) => {
+                self.fail_plan(plan, format!("step {at}: {why}"));
+                ControlFlow::Break(())
+            }
+            Waited::PlanEnded | Waited::Stopping => ControlFlow::Break(()),
+        }
+    }
+
+    /// Marks `plan` failed at the step it is at, for `why`.
+    /// Why: a refused request or a failed reconstruction is not the operator's to mend.
+    fn fail_plan(&self, plan: &PlanRow, why: String) {
+        let id = plan.id;
+        tracing::warn!("plan-{id} failed at step {}: {why}", plan.step);
+        let _ = self
+            .store
+            .plan_state(id, PlanState::Failed, None, Some(&why));
+        self.plan_event(id, PlanState::Failed, plan.step, None);
+    }
+
+    /// Marks `plan` done once it has walked every step.
+    /// Why: only a plan that has not ended becomes done (a cancel may have come first).
+    fn finish_plan(&self, plan: &PlanRow) {
+        let id = plan.id;
         if self
             .store
             .plan_state(id, PlanState::Done, None, None)

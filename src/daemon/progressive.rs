@@ -33,6 +33,7 @@ use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};
 use crate::solve::lambda::{admm_tv_resolved_prepared, NoiseLevel};
 use crate::solve::reconstruct::AUTO_MAX_ITER;
+use crate::solve::Reconstruction;
 use crate::store::CaptureRecord;
 use crate::store::Store;
 use crate::transport::Transport;
@@ -237,6 +238,16 @@ impl Solver {
     /// Solves one snapshot; returns the step and the image.
     fn step(&mut self, s: &Snapshot) -> Result<(Step, Vec<f64>), JobError> {
         let start = Instant::now();
+        let own = self.own_frames(s);
+        let noise = self.measure(own)?;
+        let (r, lambda) = self.solve(noise)?;
+        let step = self.record(s.frames, start, &r, lambda);
+        Ok((step, r.image))
+    }
+
+    /// This capture's frames at snapshot `s`: the mean less the dark, its variance plus the dark's.
+    /// Why: a step measures the running mean as a reconstruction measures a finished capture.
+    fn own_frames(&self, s: &Snapshot) -> CaptureFrames {
         let pixels = s
             .mean
             .iter()
@@ -264,13 +275,7 @@ impl Solver {
                 .map(|(k, &x)| (x + dark_var.map_or(0.0, |d| f64::from(d.pixels[k]))) as f32)
                 .collect(),
         });
-        // This capture's blocks assembled as a reconstruction assembles them.
-        let blocks: Vec<_> = self
-            .own
-            .iter()
-            .map(|&k| self.t.blocks()[k].clone())
-            .collect();
-        let own = CaptureFrames {
+        CaptureFrames {
             name: format!("capture {}", self.capture.id),
             pose: self.capture.pose.clone(),
             channels: self.capture.channels.clone(),
@@ -284,7 +289,18 @@ impl Solver {
             // An interim solve measures every pixel: a colour camera's raw
             // mean, as its grey.
             bayer: None,
-        };
+        }
+    }
+
+    /// Fills this capture's rows of the measurement from `own`; returns the noise λ is chosen by.
+    /// Why: the other blocks' rows stay as their captures set them; only this block moves.
+    fn measure(&mut self, own: CaptureFrames) -> Result<Option<NoiseLevel>, JobError> {
+        // This capture's blocks assembled as a reconstruction assembles them.
+        let blocks: Vec<_> = self
+            .own
+            .iter()
+            .map(|&k| self.t.blocks()[k].clone())
+            .collect();
         let mut m = assemble_with(&self.scene, &blocks, &[own], &self.maps)?;
         Units::Calibrated(self.calibration).apply(&mut m);
         let n = self.t.wall_grid().count();
@@ -301,6 +317,15 @@ impl Solver {
             }
             _ => None,
         };
+        Ok(noise)
+    }
+
+    /// Solves the measurement, λ resolved from `noise` if any, else warm-started; returns λ.
+    /// Why: a step is as good as reconstructing the same frames afterwards.
+    fn solve(
+        &mut self,
+        noise: Option<NoiseLevel>,
+    ) -> Result<(Reconstruction, Option<f64>), JobError> {
         // The sampling the scene file leaves out, chosen from this step's noise
         // as a reconstruction of the same frames chooses it.
         if let Some(n) = &noise {
@@ -310,7 +335,7 @@ impl Solver {
             }
         }
         self.normal.ti = adjoint(self.t.as_mat(), &self.i);
-        let (r, lambda) = match noise {
+        Ok(match noise {
             Some(noise) => {
                 let (r, choice) = admm_tv_resolved_prepared(
                     &self.t,
@@ -336,7 +361,18 @@ impl Solver {
                 let lambda = r.stats.lambda;
                 (r, lambda)
             }
-        };
+        })
+    }
+
+    /// The step of solve `r` after `frames` frames, begun at `start`, kept with the others.
+    /// Why: each step reports how far the image moved since the last one.
+    fn record(
+        &mut self,
+        frames: usize,
+        start: Instant,
+        r: &Reconstruction,
+        lambda: Option<f64>,
+    ) -> Step {
         let norm = r
             .image
             .iter()
@@ -353,7 +389,7 @@ impl Solver {
                 / norm
         });
         let step = Step {
-            frames: s.frames,
+            frames,
             iterations: r.stats.iterations,
             converged: r.stats.converged,
             change,
@@ -366,7 +402,7 @@ impl Solver {
         };
         self.previous = Some(r.image.clone());
         self.steps.push(step.clone());
-        Ok((step, r.image))
+        step
     }
 }
 
