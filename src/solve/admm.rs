@@ -21,6 +21,7 @@ use super::tv::{add_divergence_adjoint, add_laplacian_lower, gradient, total_var
 use super::{
     check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats, Stop,
 };
+use crate::scene::Grid;
 use crate::transport::Transport;
 
 /// Parameters of an ADMM-TV solve; `None` picks a default scaled to `T`.
@@ -218,9 +219,86 @@ pub fn admm_tv_warm(
     let start = Instant::now();
     let grid = t.scene_grid();
     let n = t.cols();
-    let scale = normal.scale();
-    let ti = &normal.ti;
     let gram_seconds = normal.seconds;
+    let Setup {
+        lambda,
+        rho,
+        adaptive,
+        mut warnings,
+    } = setup(normal, settings)?;
+
+    // System matrix T^T T + rho (D^T D + I), lower triangle, factorized
+    // once (again only when residual balancing changes rho); a warm start
+    // keeps the previous solve's factor and penalty.
+    let t0 = Instant::now();
+    let (rho, llt) = state.take_factor(normal, grid, n, settings.rho, rho)?;
+    let mut penalty = Penalty {
+        lambda,
+        adaptive,
+        rho,
+        llt,
+        kappa_tv: 0.5 * lambda / rho,
+        refactorizations: 0,
+        factor_seconds: t0.elapsed().as_secs_f64(),
+    };
+
+    // Iterate without allocating: every buffer is sized once here.
+    let t1 = Instant::now();
+    let mut it = Iterate::take(state, grid, n);
+    let outcome = run_iterations(normal, settings, &mut penalty, &mut it)?;
+    let iterate_seconds = t1.elapsed().as_secs_f64();
+    warnings.extend(outcome.cap_warning(settings.tol));
+
+    // The returned image is z2: feasible by construction.
+    let Penalty {
+        rho,
+        llt,
+        factor_seconds,
+        ..
+    } = penalty;
+    let image = it.store(state, rho, llt);
+    warnings.extend(flat_warning(&image, lambda));
+    let (misfit, objective) = objective_of(t, i, &image, lambda);
+    Ok(Reconstruction {
+        image,
+        stats: SolveStats {
+            solver: "admm-tv".into(),
+            lambda: Some(lambda),
+            rho: Some(rho),
+            iterations: outcome.iterations,
+            converged: outcome.converged,
+            primal_residual: Some(outcome.r_norm),
+            dual_residual: Some(outcome.s_norm),
+            objective,
+            data_misfit: misfit,
+            rank: None,
+            clipped_fraction: None,
+            gram_seconds,
+            factor_seconds,
+            iterate_seconds,
+            total_seconds: gram_seconds + start.elapsed().as_secs_f64(),
+            warnings,
+        },
+    })
+}
+
+/// The checked parameters of one solve and the warnings they raise.
+/// Why: defaults and validation read apart from the iterations they set up.
+struct Setup {
+    /// TV weight of MODEL.md Eq. 12.
+    lambda: f64,
+    /// Starting penalty (a warm start may keep its previous one).
+    rho: f64,
+    /// Whether residual balancing may change `rho` (none was given).
+    adaptive: bool,
+    /// Warnings so far.
+    warnings: Vec<String>,
+}
+
+/// Picks `lambda` and `rho` (defaults scaled to `T`) and checks them and `upper`.
+/// Why: a bad parameter is named before any factorization is paid for.
+fn setup(normal: &Normal, settings: &AdmmSettings) -> Result<Setup, SolveError> {
+    let scale = normal.scale();
     let mut warnings = Vec::new();
     if scale == 0.0 {
         warnings.push("T is all zero: no scene element lights the wall as the cameras see it; the result is the zero image".into());
@@ -228,7 +306,7 @@ pub fn admm_tv_warm(
     let unit = normal.unit();
     let lambda = settings.lambda.unwrap_or(LAMBDA_REL * unit);
     let adaptive = settings.rho.is_none();
-    let mut rho = settings.rho.unwrap_or(if lambda > 0.0 {
+    let rho = settings.rho.unwrap_or(if lambda > 0.0 {
         lambda.max(RHO_FLOOR_REL * unit)
     } else {
         LAMBDA_REL * unit
@@ -254,59 +332,180 @@ pub fn admm_tv_warm(
                 .into(),
         );
     }
+    Ok(Setup {
+        lambda,
+        rho,
+        adaptive,
+        warnings,
+    })
+}
 
-    // System matrix T^T T + rho (D^T D + I), lower triangle, factorized
-    // once (again only when residual balancing changes rho); a warm start
-    // keeps the previous solve's factor and penalty.
-    let t0 = Instant::now();
-    let same_shape = state.l.len() == n;
-    let mut llt = match state.factor.take() {
-        Some((r, f)) if same_shape && fits(normal, &f) && settings.rho.is_none_or(|x| x == r) => {
-            rho = r;
-            f
+impl AdmmState {
+    /// Takes this state's factor and penalty when they fit `normal`, `n`
+    /// unknowns and the fixed penalty if one is given, else factorizes at `rho`.
+    /// Why: a warm start then pays no Cholesky; a new `T` or penalty must.
+    fn take_factor(
+        &mut self,
+        normal: &Normal,
+        grid: Grid,
+        n: usize,
+        fixed: Option<f64>,
+        rho: f64,
+    ) -> Result<(f64, Factor), SolveError> {
+        let same_shape = self.l.len() == n;
+        match self.factor.take() {
+            Some((r, f)) if same_shape && fits(normal, &f) && fixed.is_none_or(|x| x == r) => {
+                Ok((r, f))
+            }
+            _ => Ok((rho, factorize(normal, grid, rho)?)),
         }
-        _ => factorize(normal, grid, rho)?,
-    };
-    let mut factor_seconds = t0.elapsed().as_secs_f64();
-    let mut refactorizations = 0;
+    }
+}
 
-    // Iterate without allocating: every buffer is sized once here.
-    let t1 = Instant::now();
-    let mut kappa_tv = 0.5 * lambda / rho;
-    let eps_rel = settings.tol;
-    let eps_abs = settings.tol * 1e-2;
-    let sqrt_p = ((3 * n) as f64).sqrt();
-    let sqrt_n = (n as f64).sqrt();
-    let mut l = warm(&mut state.l, n);
-    let mut dl = vec![0.0; 2 * n];
-    let mut z1 = warm(&mut state.z1, 2 * n);
-    let mut z2 = warm(&mut state.z2, n);
-    let mut u1 = warm(&mut state.u1, 2 * n);
-    let mut u2 = warm(&mut state.u2, n);
-    let mut w1 = vec![0.0; 2 * n];
-    let mut rhs = vec![0.0; n];
-    let mut dual = vec![0.0; n];
-    let mut ws = Workspace::default();
-    let (mut r_norm, mut s_norm) = (f64::INFINITY, f64::INFINITY);
-    let mut iterations = 0;
-    let mut converged = false;
-    for _ in 0..settings.max_iter {
-        settings.stop.check(iterations)?;
-        iterations += 1;
-        // l-update.
+/// The penalty `rho` with its factor and the TV threshold `lambda / 2 rho`.
+/// Why: residual balancing changes the three together and counts its cost.
+struct Penalty {
+    /// TV weight of MODEL.md Eq. 12.
+    lambda: f64,
+    /// Whether residual balancing may change `rho`.
+    adaptive: bool,
+    /// Current penalty.
+    rho: f64,
+    /// Factor of `T^T T + rho (D^T D + I)` for this `rho`.
+    llt: Factor,
+    /// Group soft-threshold of the TV splitting, `lambda / 2 rho`.
+    kappa_tv: f64,
+    /// Factorizations residual balancing made so far.
+    refactorizations: usize,
+    /// Seconds spent factorizing.
+    factor_seconds: f64,
+}
+
+impl Penalty {
+    /// Whether residual balancing looks at the residuals after `iterations`.
+    /// Why: every `BALANCE_EVERY` iterations, `MAX_REFACTOR` times at most (each costs a Cholesky).
+    fn due(&self, iterations: usize) -> bool {
+        self.adaptive && iterations % BALANCE_EVERY == 0 && self.refactorizations < MAX_REFACTOR
+    }
+
+    /// Residual balancing (Boyd et al. 2011, §3.4.1) on the primal and dual
+    /// residuals `rp`, `rd` relative to their tolerances.
+    /// Why: a fixed rho far from balance converges slowly; the scaled duals
+    /// follow rho, and a failed factorization keeps the old one.
+    fn balance(&mut self, normal: &Normal, it: &mut Iterate, rp: f64, rd: f64) {
+        let factor = if rp > BALANCE_MU * rd {
+            BALANCE_TAU
+        } else if rd > BALANCE_MU * rp {
+            1.0 / BALANCE_TAU
+        } else {
+            1.0
+        };
+        if factor != 1.0 {
+            let t2 = Instant::now();
+            if let Ok(f) = factorize(normal, it.grid, self.rho * factor) {
+                self.llt = f;
+                self.rho *= factor;
+                self.kappa_tv = 0.5 * self.lambda / self.rho;
+                it.u1
+                    .iter_mut()
+                    .chain(it.u2.iter_mut())
+                    .for_each(|u| *u /= factor);
+                self.refactorizations += 1;
+            }
+            self.factor_seconds += t2.elapsed().as_secs_f64();
+        }
+    }
+}
+
+/// The iterate (image `l`, splitting variables `z1 = D l` and `z2 = l`,
+/// scaled duals `u1`, `u2`) and the scratch buffers of one solve.
+/// Why: sized once per solve, so that the iterations run without allocating.
+struct Iterate {
+    /// The scene grid `D` differentiates on.
+    grid: Grid,
+    l: Vec<f64>,
+    /// `D l`.
+    dl: Vec<f64>,
+    z1: Vec<f64>,
+    z2: Vec<f64>,
+    u1: Vec<f64>,
+    u2: Vec<f64>,
+    /// Scratch: `z1 - u1`, then the change of `z1`.
+    w1: Vec<f64>,
+    /// Scratch: the l-update's right-hand side.
+    rhs: Vec<f64>,
+    /// Scratch: the dual residual, then `D^T u1`.
+    dual: Vec<f64>,
+    ws: Workspace,
+}
+
+impl Iterate {
+    /// `state`'s iterate when it has `n` unknowns (a warm start), else zeros.
+    /// Why: a solve of a close measurement then starts near its answer.
+    fn take(state: &mut AdmmState, grid: Grid, n: usize) -> Self {
+        Self {
+            grid,
+            l: warm(&mut state.l, n),
+            dl: vec![0.0; 2 * n],
+            z1: warm(&mut state.z1, 2 * n),
+            z2: warm(&mut state.z2, n),
+            u1: warm(&mut state.u1, 2 * n),
+            u2: warm(&mut state.u2, n),
+            w1: vec![0.0; 2 * n],
+            rhs: vec![0.0; n],
+            dual: vec![0.0; n],
+            ws: Workspace::default(),
+        }
+    }
+
+    /// l-update: `(T^T T + rho (D^T D + I)) l = T^T i + rho (D^T (z1 - u1) + z2 - u2)`.
+    /// Why: MODEL.md Eq. 12's data term plus both splittings' penalties, through `llt` (for `rho`).
+    fn update_l(&mut self, normal: &Normal, llt: &Factor, rho: f64) {
+        let Self {
+            grid,
+            l,
+            z1,
+            z2,
+            u1,
+            u2,
+            w1,
+            rhs,
+            ws,
+            ..
+        } = self;
+        let n = l.len();
+        let ti = &normal.ti;
         for k in 0..2 * n {
             w1[k] = z1[k] - u1[k];
         }
         rhs.fill(0.0);
-        add_divergence_adjoint(grid, &w1, &mut rhs);
+        add_divergence_adjoint(*grid, w1, rhs);
         for k in 0..n {
             rhs[k] = ti[k] + rho * (rhs[k] + z2[k] - u2[k]);
         }
-        solve_system(normal, &llt, rho, &mut rhs, &mut ws);
-        l.copy_from_slice(&rhs);
+        solve_system(normal, llt, rho, rhs, ws);
+        l.copy_from_slice(rhs);
+    }
 
-        // z-updates, keeping the change of z for the dual residual.
-        gradient(grid, &l, &mut dl);
+    /// z-updates: `z1` the group soft-threshold of `D l + u1` at `kappa_tv`
+    /// (MODEL.md Eq. 12's isotropic TV), `z2` the projection of `l + u2` onto
+    /// the box `[0, upper]`; returns `(||z||^2, ||A l||^2)`, `A l = (D l, l)`.
+    /// Why: keeps the change of z in `dual` (as `D^T dz1 + dz2`) for the dual residual.
+    fn update_z(&mut self, kappa_tv: f64, upper: f64) -> (f64, f64) {
+        let Self {
+            grid,
+            l,
+            dl,
+            z1,
+            z2,
+            u1,
+            u2,
+            w1,
+            dual,
+            ..
+        } = self;
+        let n = l.len();
+        gradient(*grid, l, dl);
         let mut z_norm2 = 0.0;
         let mut ax_norm2 = 0.0;
         for j in 0..n {
@@ -326,16 +525,33 @@ pub fn admm_tv_warm(
             ax_norm2 += dl[j] * dl[j] + dl[n + j] * dl[n + j];
         }
         dual.iter_mut().for_each(|d| *d = 0.0);
-        add_divergence_adjoint(grid, &w1, &mut dual);
+        add_divergence_adjoint(*grid, w1, dual);
         for k in 0..n {
-            let nz = (l[k] + u2[k]).clamp(0.0, settings.upper);
+            let nz = (l[k] + u2[k]).clamp(0.0, upper);
             dual[k] += nz - z2[k];
             z2[k] = nz;
             z_norm2 += nz * nz;
             ax_norm2 += l[k] * l[k];
         }
+        (z_norm2, ax_norm2)
+    }
 
-        // Dual ascent and residuals.
+    /// Dual ascent `u += A l - z`; returns the primal residual `||A l - z||`,
+    /// the dual residual `rho ||D^T dz1 + dz2||` and `||A^T u||`.
+    /// Why: the three norms the stopping test (Boyd §3.3.1) compares.
+    fn update_duals(&mut self, rho: f64) -> (f64, f64, f64) {
+        let Self {
+            grid,
+            l,
+            dl,
+            z1,
+            z2,
+            u1,
+            u2,
+            dual,
+            ..
+        } = self;
+        let n = l.len();
         let mut r2 = 0.0;
         for k in 0..2 * n {
             let r = dl[k] - z1[k];
@@ -347,99 +563,152 @@ pub fn admm_tv_warm(
             u2[k] += r;
             r2 += r * r;
         }
-        r_norm = r2.sqrt();
-        s_norm = rho * dual.iter().map(|d| d * d).sum::<f64>().sqrt();
+        let r_norm = r2.sqrt();
+        let s_norm = rho * dual.iter().map(|d| d * d).sum::<f64>().sqrt();
         // ||A^T u|| for the dual tolerance, reusing `dual` as scratch.
         dual.iter_mut().for_each(|d| *d = 0.0);
-        add_divergence_adjoint(grid, &u1, &mut dual);
+        add_divergence_adjoint(*grid, u1, dual);
         let atu = dual
             .iter()
-            .zip(&u2)
+            .zip(u2.iter())
             .map(|(a, b)| (a + b) * (a + b))
             .sum::<f64>()
             .sqrt();
-        let eps_pri = sqrt_p * eps_abs + eps_rel * ax_norm2.sqrt().max(z_norm2.sqrt());
+        (r_norm, s_norm, atu)
+    }
+
+    /// Leaves the iterate and the factor `llt` of `rho` in `state`; returns the image `z2`.
+    /// Why: z2 is feasible by construction; the next warm solve starts from the rest.
+    fn store(self, state: &mut AdmmState, rho: f64, llt: Factor) -> Vec<f64> {
+        let image = self.z2.clone();
+        *state = AdmmState {
+            factor: Some((rho, llt)),
+            l: self.l,
+            z1: self.z1,
+            z2: self.z2,
+            u1: self.u1,
+            u2: self.u2,
+        };
+        image
+    }
+}
+
+/// Absolute and relative tolerances of the stopping test (Boyd et al. 2011, §3.3.1).
+/// Why: fixed per solve, they turn each iteration's norms into two bounds.
+struct Tolerance {
+    eps_abs: f64,
+    eps_rel: f64,
+    /// `sqrt` of the number of constraints, `3 n`.
+    sqrt_p: f64,
+    /// `sqrt` of the number of unknowns, `n`.
+    sqrt_n: f64,
+}
+
+impl Tolerance {
+    /// Tolerances for relative tolerance `tol` (the absolute one is `tol * 1e-2`) and `n` unknowns.
+    /// Why: [`AdmmSettings::tol`] is the one number a caller gives.
+    fn new(tol: f64, n: usize) -> Self {
+        Self {
+            eps_rel: tol,
+            eps_abs: tol * 1e-2,
+            sqrt_p: ((3 * n) as f64).sqrt(),
+            sqrt_n: (n as f64).sqrt(),
+        }
+    }
+
+    /// `(eps_pri, eps_dual)` from `||A l||^2`, `||z||^2` and `||A^T u||` at penalty `rho`.
+    /// Why: the primal and dual residuals are each compared with their own bound.
+    fn bounds(&self, rho: f64, ax_norm2: f64, z_norm2: f64, atu: f64) -> (f64, f64) {
+        let eps_pri =
+            self.sqrt_p * self.eps_abs + self.eps_rel * ax_norm2.sqrt().max(z_norm2.sqrt());
         // Both terms in l units times rho: the dual residual scales with rho.
-        let eps_dual = rho * (sqrt_n * eps_abs + eps_rel * atu);
+        let eps_dual = rho * (self.sqrt_n * self.eps_abs + self.eps_rel * atu);
+        (eps_pri, eps_dual)
+    }
+}
+
+/// How the iterations ended.
+/// Why: the result's statistics and the iteration-cap warning report it.
+struct Outcome {
+    iterations: usize,
+    converged: bool,
+    /// Last primal residual.
+    r_norm: f64,
+    /// Last dual residual.
+    s_norm: f64,
+}
+
+impl Outcome {
+    /// The warning of a solve that stopped at the iteration cap, if this one did.
+    /// Why: it names the residuals and the settings that would let it converge.
+    fn cap_warning(&self, tol: f64) -> Option<String> {
+        let Outcome {
+            iterations,
+            converged,
+            r_norm,
+            s_norm,
+        } = *self;
+        if converged {
+            return None;
+        }
+        Some(format!(
+            "ADMM stopped at the iteration cap ({iterations}) before meeting tol = {}: primal residual {r_norm:.3e}, dual residual {s_norm:.3e}; raise max_iter or tol (\"max_iter\" / \"tol\" in a request, --max-iter / --tol on the command line)",
+            tol
+        ))
+    }
+}
+
+/// Iterates from `it` until the residuals meet their tolerances or
+/// `settings.max_iter` is reached, checking `settings.stop` first each time.
+/// Why: one iteration is the updates, the stopping test, then residual balancing.
+fn run_iterations(
+    normal: &Normal,
+    settings: &AdmmSettings,
+    penalty: &mut Penalty,
+    it: &mut Iterate,
+) -> Result<Outcome, SolveError> {
+    let tolerance = Tolerance::new(settings.tol, it.l.len());
+    let mut outcome = Outcome {
+        iterations: 0,
+        converged: false,
+        r_norm: f64::INFINITY,
+        s_norm: f64::INFINITY,
+    };
+    for _ in 0..settings.max_iter {
+        settings.stop.check(outcome.iterations)?;
+        outcome.iterations += 1;
+        it.update_l(normal, &penalty.llt, penalty.rho);
+        let (z_norm2, ax_norm2) = it.update_z(penalty.kappa_tv, settings.upper);
+        let (r_norm, s_norm, atu) = it.update_duals(penalty.rho);
+        outcome.r_norm = r_norm;
+        outcome.s_norm = s_norm;
+        let (eps_pri, eps_dual) = tolerance.bounds(penalty.rho, ax_norm2, z_norm2, atu);
         if r_norm <= eps_pri && s_norm <= eps_dual {
-            converged = true;
+            outcome.converged = true;
             break;
         }
         // Residual balancing, on residuals relative to their tolerances.
-        if adaptive && iterations % BALANCE_EVERY == 0 && refactorizations < MAX_REFACTOR {
-            let (rp, rd) = (r_norm / eps_pri, s_norm / eps_dual);
-            let factor = if rp > BALANCE_MU * rd {
-                BALANCE_TAU
-            } else if rd > BALANCE_MU * rp {
-                1.0 / BALANCE_TAU
-            } else {
-                1.0
-            };
-            if factor != 1.0 {
-                let t2 = Instant::now();
-                if let Ok(f) = factorize(normal, grid, rho * factor) {
-                    llt = f;
-                    rho *= factor;
-                    kappa_tv = 0.5 * lambda / rho;
-                    u1.iter_mut()
-                        .chain(u2.iter_mut())
-                        .for_each(|u| *u /= factor);
-                    refactorizations += 1;
-                }
-                factor_seconds += t2.elapsed().as_secs_f64();
-            }
+        if penalty.due(outcome.iterations) {
+            penalty.balance(normal, it, r_norm / eps_pri, s_norm / eps_dual);
         }
     }
-    let iterate_seconds = t1.elapsed().as_secs_f64();
-    if !converged {
-        warnings.push(format!(
-            "ADMM stopped at the iteration cap ({iterations}) before meeting tol = {}: primal residual {r_norm:.3e}, dual residual {s_norm:.3e}; raise max_iter or tol (\"max_iter\" / \"tol\" in a request, --max-iter / --tol on the command line)",
-            settings.tol
-        ));
-    }
+    Ok(outcome)
+}
 
-    // The returned image is z2: feasible by construction.
-    let image = z2.clone();
-    *state = AdmmState {
-        factor: Some((rho, llt)),
-        l,
-        z1,
-        z2,
-        u1,
-        u2,
-    };
+/// The warning of a flat recovered image (values within 1e-3 over more than one element).
+/// Why: a far too large lambda and a measurement without signal both look like this.
+fn flat_warning(image: &[f64], lambda: f64) -> Option<String> {
     let (lo, hi) = image
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
             (a.min(v), b.max(v))
         });
-    if n > 1 && hi - lo < 1e-3 {
-        warnings.push(format!(
+    if image.len() > 1 && hi - lo < 1e-3 {
+        return Some(format!(
             "the recovered image is flat (values {lo:.4} to {hi:.4}): lambda = {lambda:.3e} may be far too large, or the measurement carries no signal"
         ));
     }
-    let (misfit, objective) = objective_of(t, i, &image, lambda);
-    Ok(Reconstruction {
-        image,
-        stats: SolveStats {
-            solver: "admm-tv".into(),
-            lambda: Some(lambda),
-            rho: Some(rho),
-            iterations,
-            converged,
-            primal_residual: Some(r_norm),
-            dual_residual: Some(s_norm),
-            objective,
-            data_misfit: misfit,
-            rank: None,
-            clipped_fraction: None,
-            gram_seconds,
-            factor_seconds,
-            iterate_seconds,
-            total_seconds: gram_seconds + start.elapsed().as_secs_f64(),
-            warnings,
-        },
-    })
+    None
 }
 
 /// `(||i - T l||^2, ||i - T l||^2 + lambda TV(l))`, MODEL.md Eq. 12's objective.
