@@ -16,7 +16,8 @@
 
 use super::build::{blocks_of, build_rows, WallSamples};
 use super::{MemoryBudget, Transport, TransportError};
-use crate::scene::Scene;
+use crate::optics::Vec3;
+use crate::scene::{Plane, Scene};
 
 /// What an adaptive build did.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -68,27 +69,82 @@ pub fn build_adaptive(
 ) -> Result<(Transport, AdaptiveStats), TransportError> {
     check(tolerance, max_m)?;
     if scene.wall().sampling == crate::scene::WallSampling::Pixels {
-        let samples = WallSamples::of_scene(scene, budget)?;
-        let t = super::build(scene, budget)?;
-        return Ok((
-            t,
-            AdaptiveStats {
-                tolerance,
-                max_m,
-                elements_at: Vec::new(),
-                estimated_error: 0.0,
-                met: true,
-                samples: samples.points.len(),
-            },
-        ));
+        return pixel_build(scene, tolerance, max_m, budget);
     }
-    let plane = &scene.wall().plane;
-    let n_wall = plane.grid.count();
-    let blocks = scene.block_count();
-    let rows = scene.rows();
-    let cols = scene.cols();
+    let sampler = Sampler::of(scene, budget);
+    let mut build = Refinement::start(&sampler)?;
+    let budget2 = tolerance * tolerance * build.norm2;
+    loop {
+        let total: f64 = build.est.iter().sum();
+        if build.norm2 == 0.0 || total <= budget2 {
+            break;
+        }
+        let Some(pick) = pick(&build.est, &build.level, max_m, total, budget2) else {
+            break;
+        };
+        build.refine(&sampler, &pick)?;
+    }
+    Ok(build.finish(&sampler, tolerance, max_m))
+}
 
-    let samples_of = |elements: &[usize], m: usize| {
+/// The `sampling = "pixels"` build, returned as it is with its pixel count.
+/// Why: its rows already average over exactly each element's pixels.
+fn pixel_build(
+    scene: &Scene,
+    tolerance: f64,
+    max_m: usize,
+    budget: MemoryBudget,
+) -> Result<(Transport, AdaptiveStats), TransportError> {
+    let samples = WallSamples::of_scene(scene, budget)?;
+    let t = super::build(scene, budget)?;
+    Ok((
+        t,
+        AdaptiveStats {
+            tolerance,
+            max_m,
+            elements_at: Vec::new(),
+            estimated_error: 0.0,
+            met: true,
+            samples: samples.points.len(),
+        },
+    ))
+}
+
+/// The wall and the shape of `T` an adaptive build samples and fills.
+/// Why: the first build and every refinement sample elements the same way.
+struct Sampler<'s> {
+    scene: &'s Scene,
+    budget: MemoryBudget,
+    /// The wall plane (its own `supersample` unused).
+    plane: &'s Plane,
+    /// Wall elements, `plane.grid.count()`.
+    n_wall: usize,
+    /// Blocks (pose and channel) of `T`'s rows.
+    blocks: usize,
+    rows: usize,
+    cols: usize,
+}
+
+impl<'s> Sampler<'s> {
+    /// The sampler of `scene`'s wall, each build within `budget`.
+    /// Why: reads the scene's shape once for all passes.
+    fn of(scene: &'s Scene, budget: MemoryBudget) -> Self {
+        let plane = &scene.wall().plane;
+        Self {
+            scene,
+            budget,
+            plane,
+            n_wall: plane.grid.count(),
+            blocks: scene.block_count(),
+            rows: scene.rows(),
+            cols: scene.cols(),
+        }
+    }
+
+    /// World positions of the `m x m` sub-samples of each of `elements`, in order.
+    /// Why: the same sub-sample positions as MODEL.md's uniform build at `m`.
+    fn samples_of(&self, elements: &[usize], m: usize) -> Vec<Vec3> {
+        let plane = self.plane;
         let mut p = plane.clone();
         p.supersample = m;
         let mut pts = Vec::with_capacity(elements.len() * m * m);
@@ -102,82 +158,173 @@ pub fn build_adaptive(
             }
         }
         pts
-    };
+    }
 
-    let all: Vec<usize> = (0..n_wall).collect();
-    let mut data = build_rows(
-        scene,
-        budget,
-        &WallSamples::uniform(scene, samples_of(&all, 1), n_wall, 1),
-        &|_| {},
-    )?;
-    let mut samples = n_wall;
-    let norm2: f64 = data.iter().map(|v| v * v).sum();
-    let budget2 = tolerance * tolerance * norm2;
-    let mut est = indicator2(&data, rows, cols, blocks, plane.grid);
-    let mut level = vec![1usize; n_wall];
-    loop {
-        let total: f64 = est.iter().sum();
-        if norm2 == 0.0 || total <= budget2 {
+    /// Column-major rows of `T` for `elements` at `m x m` sub-samples, and
+    /// the number of samples evaluated.
+    /// Why: only these elements' samples go through the uniform build's kernel.
+    fn rows_at(&self, elements: &[usize], m: usize) -> Result<(Vec<f64>, usize), TransportError> {
+        let pts = self.samples_of(elements, m);
+        let count = pts.len();
+        let samples = WallSamples::uniform(self.scene, pts, elements.len(), m * m);
+        let rows = build_rows(self.scene, self.budget, &samples, &|_| {})?;
+        Ok((rows, count))
+    }
+}
+
+/// The elements to refine next: the largest estimates, until the rest of
+/// the total fits in half the budget; `None` when no element can be refined.
+/// Why: the other half is left for the refined elements' new estimates.
+fn pick(
+    est: &[f64],
+    level: &[usize],
+    max_m: usize,
+    total: f64,
+    budget2: f64,
+) -> Option<Vec<usize>> {
+    let mut order: Vec<usize> = (0..est.len())
+        .filter(|&j| 2 * level[j] <= max_m && est[j] > 0.0)
+        .collect();
+    if order.is_empty() {
+        return None;
+    }
+    order.sort_by(|&x, &y| est[y].total_cmp(&est[x]));
+    let mut rest = total;
+    let mut pick: Vec<usize> = Vec::new();
+    for j in order {
+        if rest <= 0.5 * budget2 {
             break;
         }
-        // Refine the largest estimates until the rest fits in half the budget.
-        let mut order: Vec<usize> = (0..n_wall)
-            .filter(|&j| 2 * level[j] <= max_m && est[j] > 0.0)
-            .collect();
-        if order.is_empty() {
-            break;
-        }
-        order.sort_by(|&x, &y| est[y].total_cmp(&est[x]));
-        let mut rest = total;
-        let mut pick: Vec<usize> = Vec::new();
-        for j in order {
-            if rest <= 0.5 * budget2 {
-                break;
-            }
-            rest -= est[j];
-            pick.push(j);
-        }
-        let mut levels: Vec<usize> = pick.iter().map(|&j| level[j]).collect();
+        rest -= est[j];
+        pick.push(j);
+    }
+    Some(pick)
+}
+
+/// An adaptive build in progress: `T`'s entries, each element's level and
+/// squared error estimate, and the samples evaluated so far.
+/// Why: each refinement pass updates the four together.
+struct Refinement {
+    /// Column-major entries of `T`.
+    data: Vec<f64>,
+    /// `||T||_F^2` of the first build, the scale of the tolerance.
+    norm2: f64,
+    /// Sub-samples per side of each element.
+    level: Vec<usize>,
+    /// Squared error estimate of each element.
+    est: Vec<f64>,
+    samples: usize,
+}
+
+impl Refinement {
+    /// Every element at `m = 1`, its estimate from the second differences.
+    /// Why: one sample per element is the cheapest start that shows where `T` varies.
+    fn start(sampler: &Sampler) -> Result<Self, TransportError> {
+        let all: Vec<usize> = (0..sampler.n_wall).collect();
+        let (data, samples) = sampler.rows_at(&all, 1)?;
+        let norm2: f64 = data.iter().map(|v| v * v).sum();
+        let est = indicator2(
+            &data,
+            sampler.rows,
+            sampler.cols,
+            sampler.blocks,
+            sampler.plane.grid,
+        );
+        Ok(Self {
+            data,
+            norm2,
+            level: vec![1usize; sampler.n_wall],
+            est,
+            samples,
+        })
+    }
+
+    /// Rebuilds the elements of `pick` at twice their level, level by level
+    /// from the coarsest (an element refined at one level may be again at the next).
+    /// Why: a level's elements share one build (the same samples per row).
+    fn refine(&mut self, sampler: &Sampler, pick: &[usize]) -> Result<(), TransportError> {
+        let mut levels: Vec<usize> = pick.iter().map(|&j| self.level[j]).collect();
         levels.sort_unstable();
         levels.dedup();
         for m in levels {
-            let group: Vec<usize> = pick.iter().copied().filter(|&j| level[j] == m).collect();
-            let m2 = 2 * m;
-            let pts = samples_of(&group, m2);
-            samples += pts.len();
-            let sub_rows = group.len() * blocks;
-            let finer = build_rows(
-                scene,
-                budget,
-                &WallSamples::uniform(scene, pts, group.len(), m2 * m2),
-                &|_| {},
-            )?;
-            let mut change = vec![0.0f64; group.len()];
-            for k in 0..cols {
-                for b in 0..blocks {
-                    for (a, &j) in group.iter().enumerate() {
-                        let new = finer[k * sub_rows + b * group.len() + a];
-                        let slot = &mut data[k * rows + b * n_wall + j];
-                        change[a] += (new - *slot) * (new - *slot);
-                        *slot = new;
-                    }
+            let group: Vec<usize> = pick
+                .iter()
+                .copied()
+                .filter(|&j| self.level[j] == m)
+                .collect();
+            self.refine_group(sampler, &group, m)?;
+        }
+        Ok(())
+    }
+
+    /// Rebuilds `group` (all at level `m`) at `2m`; each one's estimate becomes the change.
+    /// Why: the change between the two levels bounds the coarser one's error.
+    fn refine_group(
+        &mut self,
+        sampler: &Sampler,
+        group: &[usize],
+        m: usize,
+    ) -> Result<(), TransportError> {
+        let (rows, cols, blocks, n_wall) =
+            (sampler.rows, sampler.cols, sampler.blocks, sampler.n_wall);
+        let m2 = 2 * m;
+        let sub_rows = group.len() * blocks;
+        let (finer, count) = sampler.rows_at(group, m2)?;
+        self.samples += count;
+        let mut change = vec![0.0f64; group.len()];
+        for k in 0..cols {
+            for b in 0..blocks {
+                for (a, &j) in group.iter().enumerate() {
+                    let new = finer[k * sub_rows + b * group.len() + a];
+                    let slot = &mut self.data[k * rows + b * n_wall + j];
+                    change[a] += (new - *slot) * (new - *slot);
+                    *slot = new;
                 }
             }
-            for (a, &j) in group.iter().enumerate() {
-                level[j] = m2;
-                est[j] = change[a];
-            }
         }
+        for (a, &j) in group.iter().enumerate() {
+            self.level[j] = m2;
+            self.est[j] = change[a];
+        }
+        Ok(())
     }
-    let total: f64 = est.iter().sum();
-    let estimated_error = if norm2 > 0.0 {
-        (total / norm2).sqrt()
-    } else {
-        0.0
-    };
-    let m = level.iter().copied().max().unwrap_or(1);
 
+    /// `T` and the statistics of the finished build.
+    /// Why: the estimate reported is the one the refinement stopped on.
+    fn finish(self, sampler: &Sampler, tolerance: f64, max_m: usize) -> (Transport, AdaptiveStats) {
+        let total: f64 = self.est.iter().sum();
+        let estimated_error = if self.norm2 > 0.0 {
+            (total / self.norm2).sqrt()
+        } else {
+            0.0
+        };
+        let elements_at = elements_at(&self.level);
+        let t = Transport::from_col_major(
+            sampler.rows,
+            sampler.cols,
+            self.data,
+            blocks_of(sampler.scene),
+            sampler.plane.grid,
+            sampler.scene.hidden().plane.grid,
+        );
+        (
+            t,
+            AdaptiveStats {
+                tolerance,
+                max_m,
+                elements_at,
+                estimated_error,
+                met: estimated_error <= tolerance,
+                samples: self.samples,
+            },
+        )
+    }
+}
+
+/// `(m, count)` of the elements at each level `m = 1, 2, 4, ...` up to the finest.
+/// Why: [`AdaptiveStats::elements_at`] lists every level, empty ones too.
+fn elements_at(level: &[usize]) -> Vec<(usize, usize)> {
+    let m = level.iter().copied().max().unwrap_or(1);
     let mut elements_at: Vec<(usize, usize)> = Vec::new();
     let mut lv = 1;
     while lv <= m.max(1) {
@@ -185,25 +332,7 @@ pub fn build_adaptive(
         elements_at.push((lv, count));
         lv *= 2;
     }
-    let t = Transport::from_col_major(
-        rows,
-        cols,
-        data,
-        blocks_of(scene),
-        plane.grid,
-        scene.hidden().plane.grid,
-    );
-    Ok((
-        t,
-        AdaptiveStats {
-            tolerance,
-            max_m,
-            elements_at,
-            estimated_error,
-            met: estimated_error <= tolerance,
-            samples,
-        },
-    ))
+    elements_at
 }
 
 /// Squared error estimate of each element's centre value as its mean: the
