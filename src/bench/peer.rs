@@ -17,7 +17,7 @@ use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
 use crate::solve::admm::LAMBDA_REL;
 use crate::solve::{admm_tv, metrics, AdmmSettings};
-use crate::transport::{build, MemoryBudget};
+use crate::transport::{build, MemoryBudget, Transport};
 
 pub(crate) static SCRIPT: &str = include_str!("../../benches/peer/peer.py");
 
@@ -101,7 +101,34 @@ pub fn compare(
             nv: scene_grid,
         };
     })?;
-    let mut report = PeerReport {
+    let mut report = unmeasured(name, wall, scene_grid);
+    let ours = run_polnlos(&scene, budget, &mut report)?;
+
+    let version = match numpy_available() {
+        Ok(v) => v,
+        Err(reason) => {
+            report.skipped = Some(reason);
+            return Ok(report);
+        }
+    };
+    report.numpy = Some(version);
+    let json = run_peer(work, text, wall, scene_grid, &ours.measurement)?;
+    let secs = |k: &str| json[k].as_f64().unwrap_or(f64::NAN);
+    report.peer_build_seconds = secs("build_seconds");
+    report.peer_gram_seconds = secs("gram_seconds");
+    report.peer_solve_seconds = secs("factor_seconds") + secs("iterate_seconds");
+    report.build_speedup = report.peer_build_seconds / report.polnlos_build_seconds;
+    report.gram_speedup = report.peer_gram_seconds / report.polnlos_gram_seconds;
+    report.solve_speedup = report.peer_solve_seconds / report.polnlos_solve_seconds;
+
+    check_agreement(work, &ours, &mut report)?;
+    Ok(report)
+}
+
+/// A report for `name` at the given grids with nothing measured yet (every number NaN).
+/// Each stage fills its own columns; a skipped peer leaves its columns NaN.
+fn unmeasured(name: &str, wall: usize, scene_grid: usize) -> PeerReport {
+    PeerReport {
         scene: name.into(),
         wall,
         scene_grid,
@@ -120,11 +147,32 @@ pub fn compare(
         recovery_difference: f64::NAN,
         polnlos_psnr_db: f64::NAN,
         peer_psnr_db: f64::NAN,
-    };
-    let (t, build_seconds) = timed3(|| Ok(build(&scene, budget)?))?;
+    }
+}
+
+/// polnlos's side of the comparison: its `T`, the letter it simulated, the
+/// noisy measurement and its recovery from it.
+/// Kept after the timing because the peer is given this measurement and its
+/// `T` and recovery are checked against these.
+struct Ours {
+    t: Transport,
+    truth: Vec<f64>,
+    measurement: Vec<f64>,
+    image: Vec<f64>,
+}
+
+/// Times polnlos (build `T`, then Gram and factor + [`ITERATIONS`] ADMM
+/// iterations, medians of 3 runs) on the letter at 2e4 photo-electrons.
+/// Fills the report's polnlos columns and keeps what the peer is compared with.
+fn run_polnlos(
+    scene: &Scene,
+    budget: MemoryBudget,
+    report: &mut PeerReport,
+) -> Result<Ours, BenchError> {
+    let (t, build_seconds) = timed3(|| Ok(build(scene, budget)?))?;
     report.polnlos_build_seconds = build_seconds;
     let truth = Pattern::Letter.render(t.scene_grid());
-    let peak = unpolarized_peak(&scene, &t, &truth, budget)?;
+    let peak = unpolarized_peak(scene, &t, &truth, budget)?;
     let sim = NoiseModel {
         photons: 2e4,
         ..NoiseModel::default()
@@ -150,15 +198,25 @@ pub fn compare(
     report.polnlos_solve_seconds = median(runs.iter().map(|r| r.1).collect());
     let ours = admm_tv(&t, &sim.measurement, &settings)?;
     report.polnlos_psnr_db = metrics::psnr(&truth, &ours.image);
+    Ok(Ours {
+        t,
+        truth,
+        measurement: sim.measurement,
+        image: ours.image,
+    })
+}
 
-    let version = match numpy_available() {
-        Ok(v) => v,
-        Err(reason) => {
-            report.skipped = Some(reason);
-            return Ok(report);
-        }
-    };
-    report.numpy = Some(version);
+/// Writes the peer script, the scene file `text` and `measurement` into
+/// `work`, runs the peer there and returns its `peer.json` (its timings).
+/// The peer reads the same scene file and measurement so that any difference
+/// is the implementation's, not the inputs'.
+fn run_peer(
+    work: &Path,
+    text: &str,
+    wall: usize,
+    scene_grid: usize,
+    measurement: &[f64],
+) -> Result<serde_json::Value, BenchError> {
     std::fs::create_dir_all(work).map_err(|e| io(&work.display().to_string(), e))?;
     let (script, scene_file, meas) = (
         work.join("peer.py"),
@@ -167,7 +225,7 @@ pub fn compare(
     );
     std::fs::write(&script, SCRIPT).map_err(|e| io("peer.py", e))?;
     std::fs::write(&scene_file, text).map_err(|e| io("scene.toml", e))?;
-    npy::write_f64(&meas, &[sim.measurement.len()], &sim.measurement)
+    npy::write_f64(&meas, &[measurement.len()], measurement)
         .map_err(|e| io("measurement.npy", e))?;
     let out = Command::new("python3")
         .arg(&script)
@@ -186,18 +244,15 @@ pub fn compare(
             String::from_utf8_lossy(&out.stderr),
         ));
     }
-    let json: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(work.join("peer.json")).map_err(|e| io("peer.json", e))?,
-    )
-    .map_err(|e| io("peer.json", e))?;
-    let secs = |k: &str| json[k].as_f64().unwrap_or(f64::NAN);
-    report.peer_build_seconds = secs("build_seconds");
-    report.peer_gram_seconds = secs("gram_seconds");
-    report.peer_solve_seconds = secs("factor_seconds") + secs("iterate_seconds");
-    report.build_speedup = report.peer_build_seconds / report.polnlos_build_seconds;
-    report.gram_speedup = report.peer_gram_seconds / report.polnlos_gram_seconds;
-    report.solve_speedup = report.peer_solve_seconds / report.polnlos_solve_seconds;
+    serde_json::from_slice(&std::fs::read(work.join("peer.json")).map_err(|e| io("peer.json", e))?)
+        .map_err(|e| io("peer.json", e))
+}
 
+/// Reads the peer's `T.npy` and `recovered.npy` from `work` and fills the
+/// report's differences from `ours` and the peer's PSNR.
+/// Speed alone would not say the two solve the same problem; these say they do.
+fn check_agreement(work: &Path, ours: &Ours, report: &mut PeerReport) -> Result<(), BenchError> {
+    let t = &ours.t;
     let pt = npy::read(&work.join("T.npy")).map_err(|e| io("T.npy", e))?;
     if pt.shape != [t.rows(), t.cols()] {
         return Err(io(
@@ -221,8 +276,8 @@ pub fn compare(
         .zip(&ours.image)
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
-    report.peer_psnr_db = metrics::psnr(&truth, &rec.data);
-    Ok(report)
+    report.peer_psnr_db = metrics::psnr(&ours.truth, &rec.data);
+    Ok(())
 }
 
 impl super::Report for PeerReport {

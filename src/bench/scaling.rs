@@ -9,7 +9,7 @@
 //! resident set is its own (`VmHWM`).
 
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
@@ -147,109 +147,16 @@ pub fn scaling_sweep(
     std::fs::write(&script, super::peer::SCRIPT).map_err(|e| err("peer.py", e))?;
     let mut rows = Vec::new();
     for &g in grids {
-        let scene = super::edit(SCENE, Scene::from_toml_str(text)?, |s| {
-            s.wall.plane.grid = Grid { nu: wall, nv: wall };
-            s.hidden.plane.grid = Grid { nu: g, nv: g };
-        })?;
-        // The scene file the child reads: the built-in one with both grids set.
-        let toml = text
-            .replacen("grid = [32, 32]", &format!("grid = [{wall}, {wall}]"), 1)
-            .replacen("grid = [8, 8]", &format!("grid = [{g}, {g}]"), 1);
-        let dir = work.join(format!("grid-{g}"));
-        std::fs::create_dir_all(&dir).map_err(|e| err("work folder", e))?;
-        let scene_file = dir.join("scene.toml");
-        std::fs::write(&scene_file, &toml).map_err(|e| err("scene.toml", e))?;
-        let t = build(&scene, budget)?;
-        if Scene::from_toml_str(&toml)?.cols() != t.cols() {
-            return Err(err("scene grid", "the built-in scene's grids moved"));
-        }
-        let truth = Pattern::Letter.render(t.scene_grid());
-        let peak = unpolarized_peak(&scene, &t, &truth, budget)?;
-        let sim = NoiseModel {
-            photons: PHOTONS,
-            ..NoiseModel::default()
-        }
-        .apply(t.apply(&truth), peak)
-        .map_err(|source| BenchError::Simulate {
-            case: format!("scaling sweep {g}x{g}"),
-            source,
-        })?;
-        let (meas, truth_file) = (dir.join("measurement.npy"), dir.join("truth.npy"));
-        npy::write_f64(&meas, &[sim.measurement.len()], &sim.measurement)
-            .map_err(|e| err("measurement.npy", e))?;
-        npy::write_f64(&truth_file, &[g, g], &truth).map_err(|e| err("truth.npy", e))?;
-        let lambda = LAMBDA_REL * t.mean_column_norm2();
-        let (m, n) = (t.rows(), t.cols());
-        drop(t);
-
-        let reconstruct = |out: &Path, lambda: Option<f64>| {
-            let mut cmd = Command::new(exe);
-            cmd.arg("reconstruct")
-                .arg(&scene_file)
-                .arg("--measurement")
-                .arg(&meas)
-                .arg("--truth")
-                .arg(&truth_file)
-                .arg("--out")
-                .arg(out);
-            if let Some(l) = lambda {
-                cmd.args(["--lambda", &format!("{l:e}")]);
-            }
-            run_measured(cmd)
+        let input = write_inputs(text, wall, g, work, budget)?;
+        let fixed = reconstruct(exe, &input, input.dir.join("fixed"), Some(input.lambda))?;
+        let auto = reconstruct(exe, &input, input.dir.join("auto"), None)?;
+        let peer = if numpy.is_ok() {
+            Some(run_peer(&script, &input, wall)?)
+        } else {
+            None
         };
-        let (fixed_dir, auto_dir) = (dir.join("fixed"), dir.join("auto"));
-        let (fixed_seconds, fixed_rss_mb) = reconstruct(&fixed_dir, Some(lambda))?;
-        let (auto_seconds, auto_rss_mb) = reconstruct(&auto_dir, None)?;
-        let psnr = |v: &serde_json::Value| v["metrics"]["psnr_db"].as_f64();
-
-        let (mut peer_seconds, mut peer_psnr_db) = (None, None);
-        if numpy.is_ok() {
-            let out = Command::new("python3")
-                .arg(&script)
-                .arg(&scene_file)
-                .args(["--wall", &wall.to_string()])
-                .args(["--scene-grid", &g.to_string()])
-                .arg("--measurement")
-                .arg(&meas)
-                .arg("--out")
-                .arg(&dir)
-                .args(["--iterations", &PEER_ITERATIONS.to_string(), "--no-save"])
-                .output()
-                .map_err(|e| err("python3", e))?;
-            if !out.status.success() {
-                return Err(err("the NumPy peer", String::from_utf8_lossy(&out.stderr)));
-            }
-            let json: serde_json::Value = serde_json::from_slice(
-                &std::fs::read(dir.join("peer.json")).map_err(|e| err("peer.json", e))?,
-            )
-            .map_err(|e| err("peer.json", e))?;
-            let secs = |k: &str| json[k].as_f64().unwrap_or(f64::NAN);
-            peer_seconds =
-                Some(secs("gram_seconds") + secs("factor_seconds") + secs("iterate_seconds"));
-            let rec = npy::read(&dir.join("recovered.npy")).map_err(|e| err("recovered", e))?;
-            peer_psnr_db = Some(crate::solve::metrics::psnr(&truth, &rec.data));
-        }
-        let (mf, nf) = (m as f64, n as f64);
-        rows.push(ScalingRow {
-            grid: g,
-            shape: (m, n),
-            transport_seconds: report_field(&fixed_dir, |v| v["transport_seconds"].as_f64()),
-            fixed_seconds,
-            auto_seconds,
-            fixed_psnr_db: report_field(&fixed_dir, psnr),
-            auto_psnr_db: report_field(&auto_dir, psnr),
-            fixed_rss_mb,
-            auto_rss_mb,
-            rss_budget_mb: 1.5 * 8.0 * (mf * nf + nf * nf) / (1024.0 * 1024.0),
-            rank: report_field(&auto_dir, |v| v["conditioning"]["rank"].as_f64()) as usize,
-            peer_seconds,
-            peer_psnr_db,
-            floor_seconds: (2.0 * mf * nf * nf
-                + nf * nf * nf / 3.0
-                + PEER_ITERATIONS as f64 * 2.0 * nf * nf)
-                / FLOOR_RATE,
-        });
-        let _ = std::fs::remove_dir_all(&dir);
+        rows.push(scaling_row(&input, &fixed, &auto, peer));
+        let _ = std::fs::remove_dir_all(&input.dir);
         step();
     }
     Ok(Scaling {
@@ -257,6 +164,176 @@ pub fn scaling_sweep(
         rows,
         peer_skipped,
     })
+}
+
+/// One scene grid's inputs on disk, in their own folder, and what the row
+/// needs of `T` (its shape, the fixed λ) and of the truth.
+/// Both reconstructions and the peer read these same files, so they solve
+/// the same problem; `T` itself is not kept.
+struct GridInput {
+    grid: usize,
+    dir: PathBuf,
+    scene_file: PathBuf,
+    measurement: PathBuf,
+    truth_file: PathBuf,
+    truth: Vec<f64>,
+    lambda: f64,
+    shape: (usize, usize),
+}
+
+/// Writes grid `g`'s scene file, simulated measurement and truth into
+/// `work/grid-{g}`: the built-in scene with both grids set, the letter at
+/// [`PHOTONS`] photo-electrons.
+/// `T` is built here and dropped on return, so the bench does not hold it
+/// while the timed children run.
+fn write_inputs(
+    text: &str,
+    wall: usize,
+    g: usize,
+    work: &Path,
+    budget: MemoryBudget,
+) -> Result<GridInput, BenchError> {
+    let scene = super::edit(SCENE, Scene::from_toml_str(text)?, |s| {
+        s.wall.plane.grid = Grid { nu: wall, nv: wall };
+        s.hidden.plane.grid = Grid { nu: g, nv: g };
+    })?;
+    // The scene file the child reads: the built-in one with both grids set.
+    let toml = text
+        .replacen("grid = [32, 32]", &format!("grid = [{wall}, {wall}]"), 1)
+        .replacen("grid = [8, 8]", &format!("grid = [{g}, {g}]"), 1);
+    let dir = work.join(format!("grid-{g}"));
+    std::fs::create_dir_all(&dir).map_err(|e| err("work folder", e))?;
+    let scene_file = dir.join("scene.toml");
+    std::fs::write(&scene_file, &toml).map_err(|e| err("scene.toml", e))?;
+    let t = build(&scene, budget)?;
+    if Scene::from_toml_str(&toml)?.cols() != t.cols() {
+        return Err(err("scene grid", "the built-in scene's grids moved"));
+    }
+    let truth = Pattern::Letter.render(t.scene_grid());
+    let peak = unpolarized_peak(&scene, &t, &truth, budget)?;
+    let sim = NoiseModel {
+        photons: PHOTONS,
+        ..NoiseModel::default()
+    }
+    .apply(t.apply(&truth), peak)
+    .map_err(|source| BenchError::Simulate {
+        case: format!("scaling sweep {g}x{g}"),
+        source,
+    })?;
+    let (measurement, truth_file) = (dir.join("measurement.npy"), dir.join("truth.npy"));
+    npy::write_f64(&measurement, &[sim.measurement.len()], &sim.measurement)
+        .map_err(|e| err("measurement.npy", e))?;
+    npy::write_f64(&truth_file, &[g, g], &truth).map_err(|e| err("truth.npy", e))?;
+    Ok(GridInput {
+        grid: g,
+        dir,
+        scene_file,
+        measurement,
+        truth_file,
+        truth,
+        lambda: LAMBDA_REL * t.mean_column_norm2(),
+        shape: (t.rows(), t.cols()),
+    })
+}
+
+/// One `polnlos reconstruct` child: its wall seconds, peak RSS in MB and
+/// the folder it wrote its report to.
+/// The row reads the PSNR, rank and build time from that report.
+struct Run {
+    seconds: f64,
+    rss_mb: f64,
+    out: PathBuf,
+}
+
+/// Runs `polnlos reconstruct` on `input` into `out`, at `lambda` when given
+/// (automatic λ otherwise), as a measured child process.
+/// A child, so its time is end to end and its peak memory its own.
+fn reconstruct(
+    exe: &Path,
+    input: &GridInput,
+    out: PathBuf,
+    lambda: Option<f64>,
+) -> Result<Run, BenchError> {
+    let mut cmd = Command::new(exe);
+    cmd.arg("reconstruct")
+        .arg(&input.scene_file)
+        .arg("--measurement")
+        .arg(&input.measurement)
+        .arg("--truth")
+        .arg(&input.truth_file)
+        .arg("--out")
+        .arg(&out);
+    if let Some(l) = lambda {
+        cmd.args(["--lambda", &format!("{l:e}")]);
+    }
+    let (seconds, rss_mb) = run_measured(cmd)?;
+    Ok(Run {
+        seconds,
+        rss_mb,
+        out,
+    })
+}
+
+/// Runs the NumPy peer (`script`) on `input` for [`PEER_ITERATIONS`]
+/// iterations; returns its Gram + factor + iteration seconds and its PSNR, dB.
+/// Only the solve is timed, from `T` given, as the peer's build is not what
+/// this sweep compares.
+fn run_peer(script: &Path, input: &GridInput, wall: usize) -> Result<(f64, f64), BenchError> {
+    let dir = &input.dir;
+    let out = Command::new("python3")
+        .arg(script)
+        .arg(&input.scene_file)
+        .args(["--wall", &wall.to_string()])
+        .args(["--scene-grid", &input.grid.to_string()])
+        .arg("--measurement")
+        .arg(&input.measurement)
+        .arg("--out")
+        .arg(dir)
+        .args(["--iterations", &PEER_ITERATIONS.to_string(), "--no-save"])
+        .output()
+        .map_err(|e| err("python3", e))?;
+    if !out.status.success() {
+        return Err(err("the NumPy peer", String::from_utf8_lossy(&out.stderr)));
+    }
+    let json: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.join("peer.json")).map_err(|e| err("peer.json", e))?,
+    )
+    .map_err(|e| err("peer.json", e))?;
+    let secs = |k: &str| json[k].as_f64().unwrap_or(f64::NAN);
+    let seconds = secs("gram_seconds") + secs("factor_seconds") + secs("iterate_seconds");
+    let rec = npy::read(&dir.join("recovered.npy")).map_err(|e| err("recovered", e))?;
+    Ok((
+        seconds,
+        crate::solve::metrics::psnr(&input.truth, &rec.data),
+    ))
+}
+
+/// The sweep's row for `input`: the two runs, their reports, the peer's
+/// (seconds, PSNR) if it ran, the memory budget and the dense floor.
+/// Read before the grid's folder is removed, since the reports are in it.
+fn scaling_row(input: &GridInput, fixed: &Run, auto: &Run, peer: Option<(f64, f64)>) -> ScalingRow {
+    let psnr = |v: &serde_json::Value| v["metrics"]["psnr_db"].as_f64();
+    let (m, n) = input.shape;
+    let (mf, nf) = (m as f64, n as f64);
+    ScalingRow {
+        grid: input.grid,
+        shape: (m, n),
+        transport_seconds: report_field(&fixed.out, |v| v["transport_seconds"].as_f64()),
+        fixed_seconds: fixed.seconds,
+        auto_seconds: auto.seconds,
+        fixed_psnr_db: report_field(&fixed.out, psnr),
+        auto_psnr_db: report_field(&auto.out, psnr),
+        fixed_rss_mb: fixed.rss_mb,
+        auto_rss_mb: auto.rss_mb,
+        rss_budget_mb: 1.5 * 8.0 * (mf * nf + nf * nf) / (1024.0 * 1024.0),
+        rank: report_field(&auto.out, |v| v["conditioning"]["rank"].as_f64()) as usize,
+        peer_seconds: peer.map(|p| p.0),
+        peer_psnr_db: peer.map(|p| p.1),
+        floor_seconds: (2.0 * mf * nf * nf
+            + nf * nf * nf / 3.0
+            + PEER_ITERATIONS as f64 * 2.0 * nf * nf)
+            / FLOOR_RATE,
+    }
 }
 
 /// Time against the scene grid: both polnlos runs, T alone, the peer, the floor.

@@ -4,12 +4,13 @@
 
 use std::path::{Path, PathBuf};
 
-use polnlos::files::frames::read_frames;
+use polnlos::files::frames::{read_frames, FrameFile};
 use polnlos::files::npy;
 use polnlos::measure::colour::BayerPattern;
-use polnlos::measure::given::{measure_given_sets, GivenCapture, UnitsWanted};
-use polnlos::scene::Channel;
-use polnlos::transport::MemoryBudget;
+use polnlos::measure::given::{measure_given_sets, GivenCapture, Measured, UnitsWanted};
+use polnlos::measure::{FrameStack, Measurement, Units};
+use polnlos::scene::{Channel, Scene};
+use polnlos::transport::{Block, MemoryBudget};
 
 /// Turn camera frames into a measurement for `polnlos reconstruct`.
 #[derive(Debug, clap::Args)]
@@ -117,11 +118,32 @@ fn variance_path(out: &Path) -> PathBuf {
     out.with_file_name(format!("{stem}.variance.npy"))
 }
 
+/// Runs `polnlos measure`: reads the frames, measures them against the
+/// scene's `T` and writes the measurement (and its variance).
 pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let scene = super::load_scene(&a.scene)?;
+    let sets = read_captures(&a)?;
+    let wanted = units_wanted(a.raw, a.gain)?;
+    let measured = measure_sets(&scene, &sets, wanted, budget)?;
+    if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        super::out_dir(&parent.to_path_buf())?;
+    }
+    let blocks = measured[0].blocks.clone();
+    // One channel per set (RGB planes) or three of one set (raw Bayer frames).
+    let mut channels: Vec<_> = measured.into_iter().flat_map(|m| m.channels).collect();
+    if channels.len() > 1 {
+        return write_colours(&a.out, &channels, scene.wall().plane.grid.count());
+    }
+    let (m, units) = channels.swap_remove(0);
+    write_grey(&a.out, &m, units, &blocks, scene.wall().plane.grid.count())
+}
+
+/// Reads every --frames (and its --dark) into captures, one set per colour
+/// plane: one set for grey (or raw Bayer) frames, three for RGB frames.
+/// Every per-block option is checked as its frames are read, so a wrong
+/// command line is refused before `T` is built.
+fn read_captures(a: &Args) -> anyhow::Result<Vec<Vec<GivenCapture>>> {
     let n = a.frames.len();
-    // One set of captures per colour plane: one for grey (or raw Bayer)
-    // frames, three for RGB frames.
     let mut sets: Vec<Vec<GivenCapture>> = Vec::new();
     for (k, path) in a.frames.iter().enumerate() {
         let pose = per_block(&a.pose, k, "--pose", n)?.clone();
@@ -133,36 +155,13 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
             );
         }
         let frames = read_frames(path)?;
-        let full_scale = match (a.full_scale, frames.full_scale()) {
-            (Some(f), _) if f.is_finite() && f > 0.0 => f,
-            (Some(f), _) => {
-                return Err(super::Usage(format!("--full-scale {f}: must be positive")).into())
-            }
-            (None, Some(f)) => f,
-            (None, None) => {
-                return Err(super::Usage(format!(
-                    "{} is a float mean: say its full scale with --full-scale (e.g. 65535)",
-                    path.display()
-                ))
-                .into())
-            }
-        };
+        let full_scale = full_scale_of(a.full_scale, &frames, path)?;
         let dark = if a.dark.is_empty() {
             None
         } else {
             Some(read_frames(per_block(&a.dark, k, "--dark", n)?)?)
         };
-        let planes = match (frames.colours, a.bayer) {
-            (Some(_), Some(_)) => {
-                return Err(super::Usage(format!(
-                    "{} is an RGB image, already demosaiced: leave out --bayer (it is for a colour camera's raw grey frames)",
-                    path.display()
-                ))
-                .into())
-            }
-            (Some(c), None) => c,
-            (None, _) => vec![frames.stack],
-        };
+        let planes = colour_planes(frames, a.bayer, path)?;
         if !sets.is_empty() && sets.len() != planes.len() {
             return Err(super::Usage(format!(
                 "{} has {} colour plane(s) but the frames before it {}: give every --frames as RGB or every one grey",
@@ -194,19 +193,70 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
             );
         }
     }
-    let wanted = match (a.raw, a.gain) {
-        (true, _) => UnitsWanted::Raw,
+    Ok(sets)
+}
+
+/// The full scale of the frames in `path`: --full-scale when given, else
+/// their bit depth's.
+/// A float mean has no bit depth, so it needs --full-scale said.
+fn full_scale_of(given: Option<f64>, frames: &FrameFile, path: &Path) -> anyhow::Result<f64> {
+    match (given, frames.full_scale()) {
+        (Some(f), _) if f.is_finite() && f > 0.0 => Ok(f),
+        (Some(f), _) => Err(super::Usage(format!("--full-scale {f}: must be positive")).into()),
+        (None, Some(f)) => Ok(f),
+        (None, None) => Err(super::Usage(format!(
+            "{} is a float mean: say its full scale with --full-scale (e.g. 65535)",
+            path.display()
+        ))
+        .into()),
+    }
+}
+
+/// The colour planes of the frames in `path`: red, green and blue of an RGB
+/// file, or its one grey (or raw Bayer) stack.
+/// --bayer is for raw grey frames; an RGB file was demosaiced already.
+fn colour_planes(
+    frames: FrameFile,
+    bayer: Option<BayerPattern>,
+    path: &Path,
+) -> anyhow::Result<Vec<FrameStack>> {
+    match (frames.colours, bayer) {
+        (Some(_), Some(_)) => Err(super::Usage(format!(
+            "{} is an RGB image, already demosaiced: leave out --bayer (it is for a colour camera's raw grey frames)",
+            path.display()
+        ))
+        .into()),
+        (Some(c), None) => Ok(c),
+        (None, _) => Ok(vec![frames.stack]),
+    }
+}
+
+/// The units --raw and --gain ask for: raw, divided by the gain, or estimated.
+/// A gain that is not positive is refused here, as a usage error.
+fn units_wanted(raw: bool, gain: Option<f64>) -> anyhow::Result<UnitsWanted> {
+    match (raw, gain) {
+        (true, _) => Ok(UnitsWanted::Raw),
         (false, Some(g)) if !(g.is_finite() && g > 0.0) => {
-            return Err(super::Usage(format!("--gain {g}: must be positive")).into())
+            Err(super::Usage(format!("--gain {g}: must be positive")).into())
         }
-        (false, Some(g)) => UnitsWanted::Gain(g),
-        (false, None) => UnitsWanted::Estimated,
-    };
+        (false, Some(g)) => Ok(UnitsWanted::Gain(g)),
+        (false, None) => Ok(UnitsWanted::Estimated),
+    }
+}
+
+/// Measures `sets` against `scene`, with a progress bar while `T` is built.
+/// The warnings are printed before a failure is returned, as they may say why.
+fn measure_sets(
+    scene: &Scene,
+    sets: &[Vec<GivenCapture>],
+    wanted: UnitsWanted,
+    budget: MemoryBudget,
+) -> anyhow::Result<Vec<Measured>> {
     let pb = super::progress::bar(scene.cols(), "building T");
     let mut warnings = Vec::new();
     let refs: Vec<&[GivenCapture]> = sets.iter().map(Vec::as_slice).collect();
     let measured = measure_given_sets(
-        &scene,
+        scene,
         &refs,
         wanted,
         budget,
@@ -217,34 +267,36 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     for w in &warnings {
         eprintln!("warning: {w}");
     }
-    let measured = measured?;
-    if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        super::out_dir(&parent.to_path_buf())?;
-    }
-    let blocks = measured[0].blocks.clone();
-    // One channel per set (RGB planes) or three of one set (raw Bayer frames).
-    let mut channels: Vec<_> = measured.into_iter().flat_map(|m| m.channels).collect();
-    if channels.len() > 1 {
-        return write_colours(&a.out, &channels, scene.wall().plane.grid.count());
-    }
-    let (m, units) = channels.swap_remove(0);
+    Ok(measured?)
+}
+
+/// Writes a grey measurement `m` in `units` and its variance beside it when
+/// every block has one, and says what it wrote.
+/// The line names the blocks in row order, so the file can be checked against the scene.
+fn write_grey(
+    out: &Path,
+    m: &Measurement,
+    units: Option<Units>,
+    blocks: &[Block],
+    wall_elements: usize,
+) -> anyhow::Result<()> {
     let units = match units {
         None => "fractions of full scale per microsecond".to_string(),
         Some(u) => format!("units of T l (divided by {:.6e})", u.factor()),
     };
-    npy::write_f64(&a.out, &[m.i.len()], &m.i)?;
+    npy::write_f64(out, &[m.i.len()], &m.i)?;
     let labels: Vec<String> = blocks.iter().map(|b| b.label()).collect();
     println!(
         "wrote {} ({} values: {} blocks {} x {} wall elements), {units}",
-        a.out.display(),
+        out.display(),
         m.i.len(),
         blocks.len(),
         labels.join(" "),
-        scene.wall().plane.grid.count()
+        wall_elements
     );
     match &m.variance {
         Some(v) => {
-            let p = variance_path(&a.out);
+            let p = variance_path(out);
             npy::write_f64(&p, &[v.len()], v)?;
             println!("wrote {} (variance of each value)", p.display());
         }
