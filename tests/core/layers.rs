@@ -297,3 +297,110 @@ fn a_camera_setting_is_declared_in_two_structs_across_request_camera_and_store()
         .collect();
     assert_eq!(names, ["Acquisition", "CameraSettings"], "{declared:?}");
 }
+
+/// Each function of `text` (outside its test module) as (name, lines from
+/// its `fn` line to its closing brace at the same indentation).
+fn function_lengths(text: &str) -> Vec<(String, usize)> {
+    let lines: Vec<&str> = match text.find("#[cfg(test)]\nmod tests") {
+        Some(k) => &text[..k],
+        None => text,
+    }
+    .lines()
+    .collect();
+    let mut out = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        let body = line.trim_start();
+        let indent = line.len() - body.len();
+        let mut rest = body;
+        for word in [
+            "pub(crate) ",
+            "pub(super) ",
+            "pub ",
+            "async ",
+            "const ",
+            "unsafe ",
+        ] {
+            rest = rest.strip_prefix(word).unwrap_or(rest);
+        }
+        let Some(signature) = rest.strip_prefix("fn ") else {
+            continue;
+        };
+        let name: String = signature
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect();
+        // The signature ends at the first line ending in `{` (a body) or `;`
+        // (a trait method without one).
+        let Some(open) = lines[i..]
+            .iter()
+            .position(|l| l.trim_end().ends_with('{') || l.trim_end().ends_with(';'))
+        else {
+            continue;
+        };
+        if lines[i + open].trim_end().ends_with(';') {
+            continue;
+        }
+        let close = lines[i + open..].iter().position(|l| {
+            let t = l.trim_start();
+            l.len() - t.len() == indent && t.starts_with('}')
+        });
+        if let Some(close) = close {
+            out.push((name, open + close + 1));
+        }
+    }
+    out
+}
+
+#[test]
+fn function_lengths_count_from_fn_to_its_closing_brace() {
+    let text = "fn a() {\n    x;\n}\n\npub(crate) async fn b(\n    y: u8,\n) -> u8 {\n    if y > 0 {\n        1\n    } else {\n        0\n    }\n}\n    fn c();\n";
+    assert_eq!(
+        function_lengths(text),
+        [("a".to_string(), 3), ("b".to_string(), 9)]
+    );
+}
+
+#[test]
+fn no_function_in_src_is_longer_than_120_lines() {
+    // Issue 39: a reader loses the thread in a longer one; split it into
+    // named steps.
+    let mut long = Vec::new();
+    for (path, text) in sources("") {
+        for (name, n) in function_lengths(&text) {
+            if n > 120 {
+                long.push(format!("{path}: {name} ({n} lines)"));
+            }
+        }
+    }
+    assert!(long.is_empty(), "{long:#?}");
+}
+
+#[test]
+fn the_capture_worker_and_the_plans_ask_the_rig_never_a_device() {
+    // Issue 39: the capture worker drove the stage, the mount, the light
+    // relay and the fake bench itself; now `daemon/rig` owns them.
+    let workers: Vec<(String, String)> = sources("daemon")
+        .into_iter()
+        .filter(|(p, _)| p.ends_with("daemon/capture.rs") || p.ends_with("daemon/plans.rs"))
+        .collect();
+    assert_eq!(workers.len(), 2);
+    for (path, text) in workers {
+        let code = code(&text);
+        for device in [
+            "crate::mount",
+            "crate::stage",
+            "crate::relay",
+            "rig::mount",
+            "rig::stage",
+            "rig::light",
+            "MountService",
+            "StageService",
+            "LightService",
+            "Bench",
+            "camera.bench",
+            "simulated",
+        ] {
+            assert!(!code.contains(device), "{path} names {device}");
+        }
+    }
+}
