@@ -229,10 +229,9 @@ impl Daemon {
         }
         let full = settings.pixel_format.full_scale();
         let previous = self.rig.mount().zero_deg();
-        let source = b.light == ZeroLight::Source;
-        if source {
-            self.rig.show_source(true);
-        }
+        // Out again however the sweep ends (it put out the source only
+        // when it finished, so a failed sweep left the fake bench lit by it).
+        let source = (b.light == ZeroLight::Source).then(|| self.rig.source_lit());
         let mut sweep = Vec::new();
         for k in -n..=n {
             let asked = k as f64 * step;
@@ -259,9 +258,7 @@ impl Daemon {
                 mean: sum / count as f64 / full,
             });
         }
-        if source {
-            self.rig.show_source(false);
-        }
+        drop(source);
         let min = crossed_minimum(&sweep).ok_or_else(|| {
             invalid("the sweep's light does not change with the angle: is the polarizer in the mount and the scene lit?".into())
         })?;

@@ -66,9 +66,34 @@ fn captures_turn_the_mount_record_the_angle_read_back_and_fail_when_it_slips() {
     assert_eq!(c["state"], "failed", "{c}");
     assert!(c["error"].as_str().unwrap_or("").contains("error 2"), "{c}");
 
+    // A zero sweep by the calibration source that fails midway puts the
+    // source out again (it stayed lit, and every later capture saw it): a
+    // crossed capture after it sees the wall as one before it did.
+    device.set_fault(Fault::None);
+    let crossed = CAPTURE.replace("\"polarizer_deg\": 45", "\"polarizer_deg\": 0");
+    let before = d.run_job("/captures", &crossed, long);
+    assert_eq!(before["state"], "done", "{before}");
+    device.set_fault(Fault::Slip(796));
+    let (s, b, _) = d.post(
+        "/mount/zero",
+        r#"{"scene": "brewster-rotating", "pose": "A", "exposure_us": 1000, "frames": 1, "light": "source"}"#,
+    );
+    assert_eq!(s, 503, "{b}");
+    assert!(b.contains("could not turn the polarizer"), "{b}");
+    device.set_fault(Fault::None);
+    let after = d.run_job("/captures", &crossed, long);
+    assert_eq!(after["state"], "done", "{after}");
+    let data = dir.path().join("data");
+    let mean = |c: &serde_json::Value| wall_mean(&data, c["id"].as_i64().unwrap());
+    let (before, after) = (mean(&before), mean(&after));
+    println!("crossed wall mean {before:.1} DN before a failed source sweep, {after:.1} DN after");
+    assert!(
+        (after - before).abs() < 0.03 * before,
+        "{before} -> {after}"
+    );
+
     // Unplugged: the capture fails in bounded time, the daemon answers, and
     // /mount says what is wrong.
-    device.set_fault(Fault::None);
     device.unplug();
     let c = d.run_job("/captures", CAPTURE, long);
     assert_eq!(c["state"], "failed", "{c}");

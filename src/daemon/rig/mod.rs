@@ -184,6 +184,23 @@ impl Rig {
     pub fn show_source(&self, on: bool) {
         self.bench.show_source(on);
     }
+
+    /// Lights the wall with the calibration source until the guard drops,
+    /// so that a procedure that ends early (an error, a cancel) leaves the
+    /// bench as it found it.
+    pub fn source_lit(&self) -> SourceLit<'_> {
+        self.show_source(true);
+        SourceLit(self)
+    }
+}
+
+/// The calibration source lit by [`Rig::source_lit`]; dropping it puts it out.
+pub struct SourceLit<'a>(&'a Rig);
+
+impl Drop for SourceLit<'_> {
+    fn drop(&mut self) {
+        self.0.show_source(false);
+    }
 }
 
 /// Runs a device's blocking command (serial I/O of up to seconds) off the
