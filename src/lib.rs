@@ -26,8 +26,8 @@
 //!   default): without it the crate is the core, [`files`] and the offline
 //!   tools, and links no system library (`tests/core/layers.rs` holds `cargo
 //!   tree` to that).
-//! - **Reports**: `bench` (the reports of `polnlos bench`; cargo feature
-//!   `bench`, on by default, off the daemon's path).
+//! - **Reports**: `report` (the reports of `polnlos bench`; cargo feature
+//!   `report`, on by default, off the daemon's path).
 //!
 //! # Where a change goes
 //!
@@ -44,8 +44,8 @@
 //!   and one `routes!` line in `src/api/mod.rs`; the tests read it from
 //!   `/openapi.json` (docs/guide.md, "Adding a route"). A request body the
 //!   daemon checks goes in `src/daemon/requests.rs`.
-//! - **A bench report**: its file in `src/bench/` implementing
-//!   `bench::Report`, and one entry in `BenchPlan::run` (`src/bench/plan.rs`,
+//! - **A bench report**: its file in `src/report/` implementing
+//!   `report::Report`, and one entry in `BenchPlan::run` (`src/report/plan.rs`,
 //!   the one file that names every report).
 //! - **A camera setting** (3 files, counted in docs/guide.md "Where a
 //!   change goes"): its field in `Acquisition` and `CameraSettings` with
@@ -73,8 +73,6 @@
 
 #[cfg(feature = "daemon")]
 pub mod api;
-#[cfg(feature = "bench")]
-pub mod bench;
 pub mod calibrate;
 #[cfg(feature = "daemon")]
 pub mod camera;
@@ -87,6 +85,8 @@ pub mod mount;
 pub mod optics;
 #[cfg(feature = "daemon")]
 pub mod relay;
+#[cfg(feature = "report")]
+pub mod report;
 pub mod scene;
 #[cfg(feature = "daemon")]
 pub(crate) mod serial;

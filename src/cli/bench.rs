@@ -1,12 +1,12 @@
-//! `polnlos bench`: every report of [`polnlos::bench`] (Table 1, Fig. 6,
+//! `polnlos bench`: every report of [`polnlos::report`] (Table 1, Fig. 6,
 //! stability, transport accuracy against build time, active NLOS, the
 //! automatic λ against the best, the NumPy peer, speed against accuracy), each written the same way: its fields in
 //! `bench.json`, its charts as PNG and SVG, its section of `bench.md`.
 
 use std::path::PathBuf;
 
-use polnlos::bench::{charts, BenchPlan};
 use polnlos::files::{json, write_atomic};
+use polnlos::report::{charts, BenchPlan};
 use polnlos::transport::MemoryBudget;
 
 /// Write the bench reports (JSON, Markdown, charts) into a folder.
@@ -29,7 +29,7 @@ pub struct Args {
     #[arg(long)]
     quick: bool,
     /// Folder of the Mitsuba-rendered cases (validation/mitsuba/).
-    #[arg(long, value_name = "DIR", default_value = polnlos::bench::rendered::DEFAULT_DIR)]
+    #[arg(long, value_name = "DIR", default_value = polnlos::report::rendered::DEFAULT_DIR)]
     rendered: PathBuf,
 }
 

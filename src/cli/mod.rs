@@ -1,7 +1,7 @@
 //! Command-line interface: argument definitions and dispatch to one module per
 //! subcommand. Each subcommand reads files, calls the library and writes files.
 
-#[cfg(feature = "bench")]
+#[cfg(feature = "report")]
 mod bench;
 mod calibrate;
 mod cond;
@@ -65,7 +65,7 @@ enum Command {
     /// Write the bench reports: Table 1 and Fig. 6, stability, speed against
     /// accuracy, transport sampling, active NLOS, the NumPy peer (JSON,
     /// Markdown, charts).
-    #[cfg(feature = "bench")]
+    #[cfg(feature = "report")]
     Bench(bench::Args),
     /// Calibrate a bench from images (geometry: homographies from a dot target).
     Calibrate(calibrate::Args),
@@ -97,7 +97,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Calibrate(a) => calibrate::run(a, budget),
         #[cfg(feature = "daemon")]
         Command::Serve(a) => serve::run(a, budget),
-        #[cfg(feature = "bench")]
+        #[cfg(feature = "report")]
         Command::Bench(a) => bench::run(a, budget),
         Command::Plan(a) => plan::run(a, budget),
     }

@@ -509,7 +509,7 @@ fn hostile_files_get_a_named_error_not_a_panic() {
 }
 
 #[test]
-#[cfg(feature = "bench")]
+#[cfg(feature = "report")]
 fn bench_quick_writes_its_reports() {
     let dir = tempfile::tempdir().unwrap();
     ok(&polnlos(&[

@@ -509,11 +509,11 @@ fn lambda_rules_on_camera_frames() {
 /// the automatic λ against the best of a quarter-decade grid over
 /// 1e-8..1e2 x mean(diag(T^T T)) chosen with the truth, both paths, the
 /// same frames and seeds. docs/revision-3.md, "The disk at low exposure".
-#[cfg(feature = "bench")]
+#[cfg(feature = "report")]
 #[test]
 #[ignore]
 fn photons_misses_at_the_best_lambda() {
-    use polnlos::bench::photons::best_lambda;
+    use polnlos::report::photons::best_lambda;
     let start = std::time::Instant::now();
     let rows = best_lambda(
         "brewster-crossed",

@@ -104,7 +104,7 @@ fn the_core_names_no_service_layer() {
                 "crate::daemon",
                 "crate::api",
                 "crate::cli",
-                "crate::bench",
+                "crate::report",
             ] {
                 assert!(!text.contains(upper), "{path} names {upper}");
             }

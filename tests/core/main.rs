@@ -11,7 +11,7 @@ mod lambda;
 mod layers;
 mod occluder;
 mod photo;
-#[cfg(feature = "bench")]
+#[cfg(feature = "report")]
 mod rendered;
 mod rev3;
 mod stability;

@@ -10,8 +10,8 @@
 
 use std::path::PathBuf;
 
-use polnlos::bench::rendered::{agreement, reconstruct_pair, PairNoise, RenderedCase};
 use polnlos::optics::{DiffuseModel, PolarizerModel};
+use polnlos::report::rendered::{agreement, reconstruct_pair, PairNoise, RenderedCase};
 use polnlos::transport::{build, MemoryBudget};
 
 fn cases() -> Vec<RenderedCase> {
@@ -287,9 +287,9 @@ fn camera_frames_reconstruct_with_pixel_rows_at_least_as_well_as_with_centre_sam
 fn a_polarization_camera_is_compared_with_sheets_at_equal_exposure() {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/rendered/rotating/frames");
     let mut steps = 0;
-    let r = polnlos::bench::mosaic::mosaic_report(&dir, MemoryBudget::DEFAULT, &mut || steps += 1)
+    let r = polnlos::report::mosaic::mosaic_report(&dir, MemoryBudget::DEFAULT, &mut || steps += 1)
         .unwrap();
-    assert_eq!(steps, polnlos::bench::mosaic::STEPS);
+    assert_eq!(steps, polnlos::report::mosaic::STEPS);
     assert!(r.rendered_skipped.is_none(), "{:?}", r.rendered_skipped);
     for row in &r.rows {
         println!(
@@ -317,7 +317,7 @@ fn a_polarization_camera_is_compared_with_sheets_at_equal_exposure() {
             sheet.psnr_db
         );
     }
-    let md = polnlos::bench::Report::markdown(&r);
+    let md = polnlos::report::Report::markdown(&r);
     assert!(md.contains("| mosaic, extinction 100 | 1 |"), "{md}");
 }
 

@@ -156,7 +156,7 @@ pub struct Active(pub Vec<ActiveRow>);
 
 impl super::Report for Active {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![("active", serde_json::to_value(&self.0))])
+        super::shape::fields(vec![("active", serde_json::to_value(&self.0))])
     }
 
     fn charts(&self) -> Result<Vec<(String, Chart)>, ChartError> {

@@ -156,7 +156,7 @@ pub struct Sampling {
 
 impl super::Report for Sampling {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![
+        super::shape::fields(vec![
             (
                 "sampling_reference_m",
                 serde_json::to_value(self.reference_m),

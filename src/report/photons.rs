@@ -393,7 +393,7 @@ pub fn chart(r: &Photons) -> Result<Chart, ChartError> {
 
 impl super::Report for Photons {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![("photons", serde_json::to_value(self))])
+        super::shape::fields(vec![("photons", serde_json::to_value(self))])
     }
 
     fn charts(&self) -> Result<Vec<(String, Chart)>, ChartError> {

@@ -408,7 +408,7 @@ pub fn chart(r: &MosaicReport) -> Result<Chart, ChartError> {
 
 impl super::Report for MosaicReport {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![("mosaic", serde_json::to_value(self))])
+        super::shape::fields(vec![("mosaic", serde_json::to_value(self))])
     }
 
     fn charts(&self) -> Result<Vec<(String, Chart)>, ChartError> {

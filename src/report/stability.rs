@@ -193,7 +193,7 @@ pub struct Stability(pub Vec<StabilityRow>);
 
 impl super::Report for Stability {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![("stability", serde_json::to_value(&self.0))])
+        super::shape::fields(vec![("stability", serde_json::to_value(&self.0))])
     }
 
     fn charts(&self) -> Result<Vec<(String, super::charts::Chart)>, super::charts::ChartError> {

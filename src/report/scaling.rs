@@ -442,7 +442,7 @@ pub fn markdown(s: &Scaling) -> String {
 
 impl super::Report for Scaling {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![("scaling", serde_json::to_value(self))])
+        super::shape::fields(vec![("scaling", serde_json::to_value(self))])
     }
 
     fn charts(&self) -> Result<Vec<(String, Chart)>, ChartError> {

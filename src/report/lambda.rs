@@ -256,7 +256,7 @@ pub struct Lambda(pub Vec<LambdaRow>);
 
 impl super::Report for Lambda {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![("lambda", serde_json::to_value(&self.0))])
+        super::shape::fields(vec![("lambda", serde_json::to_value(&self.0))])
     }
 
     fn charts(&self) -> Result<Vec<(String, Chart)>, ChartError> {

@@ -3,7 +3,7 @@
 //! beside this one implementing [`Report`] and one entry in
 //! [`BenchPlan::run`].
 
-use super::report::Report;
+use super::shape::Report;
 use super::speed;
 use super::BenchError;
 use crate::transport::MemoryBudget;

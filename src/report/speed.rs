@@ -561,7 +561,7 @@ pub struct Speed {
 
 impl super::Report for Speed {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![
+        super::shape::fields(vec![
             ("speed_seeds", serde_json::to_value(self.seeds)),
             ("speed", serde_json::to_value(&self.summary)),
             ("speed_runs", serde_json::to_value(&self.runs)),

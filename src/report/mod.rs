@@ -13,15 +13,15 @@ pub mod peer;
 pub mod photons;
 mod plan;
 pub mod rendered;
-pub mod report;
 pub mod sampling;
 pub mod scaling;
+pub mod shape;
 pub mod speed;
 pub mod stability;
 mod tables;
 
 pub use plan::BenchPlan;
-pub use report::Report;
+pub use shape::Report;
 pub use tables::{Conditioning, Roughness};
 
 use serde::Serialize;

@@ -282,7 +282,7 @@ fn check_agreement(work: &Path, ours: &Ours, report: &mut PeerReport) -> Result<
 
 impl super::Report for PeerReport {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![("peer", serde_json::to_value(self))])
+        super::shape::fields(vec![("peer", serde_json::to_value(self))])
     }
 
     fn charts(&self) -> Result<Vec<(String, super::charts::Chart)>, super::charts::ChartError> {

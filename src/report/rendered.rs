@@ -507,7 +507,7 @@ pub fn chart(r: &Rendered) -> Result<Chart, ChartError> {
 
 impl super::Report for Rendered {
     fn json(&self) -> serde_json::Map<String, serde_json::Value> {
-        super::report::fields(vec![("rendered", serde_json::to_value(self))])
+        super::shape::fields(vec![("rendered", serde_json::to_value(self))])
     }
 
     fn charts(&self) -> Result<Vec<(String, Chart)>, ChartError> {

@@ -4,7 +4,7 @@
 use std::fmt::Write as _;
 
 use super::charts::{self, Chart, ChartError};
-use super::report::{fields, Report};
+use super::shape::{fields, Report};
 use super::{fmt_kappa, CondRow, RoughRow, CONFIGS, ROUGHNESS};
 
 /// Table 1: kappa per configuration, with and without the occluder.
