@@ -63,11 +63,17 @@
 //!   and the statements of its aggregate (`src/store/captures.rs` or
 //!   `reconstructions.rs`). Statements on either job table are written out
 //!   per table in `store::Table`; none splices a table name.
+//! - **A bench device** (a shutter, a second stage): its driver beside
+//!   `src/mount/` (a trait, the serial device, a simulated one), its
+//!   service in `src/daemon/rig/`, and the `Rig` method a capture or a plan
+//!   asks (`src/daemon/rig/mod.rs`); the capture worker names no device.
 //! - **State the daemon keeps**: a service in its own file under
 //!   `src/daemon/` that owns the state and its lock (as `queue.rs`,
 //!   `registry.rs` and `camera.rs` do); `Daemon` holds it, and a worker gets
 //!   it through `JobContext` (`src/daemon/jobs.rs`) or its own struct,
-//!   never the whole `Daemon`.
+//!   never the whole `Daemon`. One exception remains: the plan runner
+//!   (`src/daemon/plans.rs`) holds a `Weak<Daemon>`, because it posts its
+//!   captures and reconstructions through the same admission a request does.
 
 #![deny(missing_docs)]
 
