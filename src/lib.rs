@@ -13,7 +13,9 @@
 //!   axis), [`scene`] (scene files, geometry, validation), [`transport`]
 //!   (building `T`), [`solve`] (reconstruction, conditioning, metrics, λ),
 //!   [`simulate`] (noise model, patterns), [`measure`] (frames to `i`,
-//!   exposure planning), [`calibrate`] (homographies from target images).
+//!   exposure planning), [`calibrate`] (homographies from target images),
+//!   and [`integral`] (whole numbers in requests, `1` or `1.0`: the
+//!   solver's parameters and the daemon's bodies read them alike).
 //! - **I/O**: [`files`] (npy, PNG/TIFF, JSON, atomic writes, free disk and
 //!   memory), [`camera`] (the camera trait, settings and sensor limits, the
 //!   Aravis driver and its thread, the fake bench), [`mount`] (the
@@ -40,6 +42,12 @@
 //!   of `Solver::run`. The CLI's `--solver`, the API's `solver` enum, the
 //!   page's list (read from `/openapi.json`), the report and the automatic λ
 //!   all take it from there.
+//! - **A solver's parameter** (2 files): its field in `SolveRequest`
+//!   (`src/solve/solver.rs`: doc comment for the API, `#[arg]` for the CLI,
+//!   range in `check`, passed on in the solver's arm of `Solver::run`) and
+//!   the solver's own settings in its file. `POST /reconstructions`, a
+//!   plan's `reconstruct`, the stored parameters and the CLI's `reconstruct`
+//!   embed `SolveRequest`; `tests/core/layers.rs` holds them to that.
 //! - **A route**: a handler with `#[utoipa::path]` in `src/api/routes.rs`
 //!   and one `routes!` line in `src/api/mod.rs`; the tests read it from
 //!   `/openapi.json` (docs/guide.md, "Adding a route"). A request body the
@@ -85,6 +93,7 @@ pub mod camera;
 #[cfg(feature = "daemon")]
 pub mod daemon;
 pub mod files;
+pub mod integral;
 pub mod measure;
 #[cfg(feature = "daemon")]
 pub mod mount;

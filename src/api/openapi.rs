@@ -22,6 +22,7 @@ use crate::daemon::Daemon;
     components(schemas(
         super::bodies::CaptureBody,
         super::bodies::ReconstructionBody,
+        crate::solve::SolveRequest,
         super::bodies::Health,
         routes::Deleted,
         super::bodies::Accepted,

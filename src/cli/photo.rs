@@ -47,7 +47,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let settings = PhotoSettings {
         data_term: a.data_term,
         lambda: a.lambda.and_then(LambdaArg::value),
-        iterations: a.max_iter.unwrap_or(d.iterations),
+        iterations: a.solve.max_iter.unwrap_or(d.iterations),
         ..d
     };
     let result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;

@@ -8,7 +8,6 @@ use polnlos::solve::lambda::NoiseLevel;
 use polnlos::solve::photo::DataTerm;
 use polnlos::solve::reconstruct::{SolveRequest, Solver};
 use polnlos::solve::scene::{reconstruct_scene_with, SceneInput};
-use polnlos::solve::AdmmSettings;
 use polnlos::transport::MemoryBudget;
 
 /// Recover the hidden scene from a measurement.
@@ -26,9 +25,10 @@ pub struct Args {
     /// Output folder.
     #[arg(long, value_name = "DIR")]
     pub(super) out: PathBuf,
-    /// Solver.
-    #[arg(long, value_enum, default_value = "admm-tv")]
-    solver: Solver,
+    /// The solver and its parameters (--solver, --rho, --max-iter, --tol,
+    /// --rcond), declared with the API's in `solve::SolveRequest`.
+    #[command(flatten)]
+    pub(super) solve: SolveRequest,
     /// Regularization weight in MODEL.md units, or `auto` (the default for
     /// admm-tv and fista-tv): chosen from the noise by the resolved-discrepancy
     /// rule, the noise of --noise-from when given, else estimated from the
@@ -44,19 +44,6 @@ pub struct Args {
     /// it beside the measurement): the noise level for the automatic lambda.
     #[arg(long, value_name = "FILE")]
     variance: Option<PathBuf>,
-    /// ADMM penalty (default: balanced automatically).
-    #[arg(long, value_name = "R")]
-    rho: Option<f64>,
-    /// ADMM / FISTA iteration cap (default 500; 5000 with an automatic lambda).
-    #[arg(long = "max-iter", value_name = "N")]
-    pub(super) max_iter: Option<usize>,
-    /// ADMM relative tolerance on the primal/dual residuals (FISTA: on the
-    /// relative change of l between iterations).
-    #[arg(long, value_name = "T", default_value_t = AdmmSettings::default().tol)]
-    tol: f64,
-    /// Relative singular-value cut-off for --solver lsq (default: numerical rank only).
-    #[arg(long, value_name = "R")]
-    rcond: Option<f64>,
     /// Compute the full singular spectrum of T (an SVD) for the report's
     /// kappa and rank. By default a large T (512 or more scene elements, low
     /// numerical rank) takes them from T^T T, which admm-tv forms anyway: to
@@ -154,7 +141,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         .as_ref()
         .map(|p| load_grid_image(p, sgrid))
         .transpose()?;
-    if matches!(a.lambda, Some(LambdaArg::Auto)) && !a.solver.needs().lambda_from_noise {
+    if matches!(a.lambda, Some(LambdaArg::Auto)) && !a.solve.solver.needs().lambda_from_noise {
         let tv: Vec<&str> = Solver::ALL
             .iter()
             .filter(|s| s.needs().lambda_from_noise)
@@ -167,12 +154,8 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         .into());
     }
     let req = SolveRequest {
-        solver: a.solver,
         lambda: a.lambda.and_then(LambdaArg::value),
-        rho: a.rho,
-        max_iter: a.max_iter,
-        tol: Some(a.tol),
-        rcond: a.rcond,
+        ..a.solve.clone()
     };
     req.check()?;
     let noise = match (&a.noise_from, &a.variance) {

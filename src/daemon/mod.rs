@@ -29,7 +29,6 @@ pub mod config;
 mod demo;
 pub mod events;
 mod flatten;
-mod integral;
 mod jobs;
 pub mod metrics;
 mod mount_zero;

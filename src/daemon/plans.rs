@@ -204,8 +204,8 @@ fn last_block_progressive(
     Some(super::requests::ProgressiveBody {
         every: Some(every),
         captures: reconstruction_body(plan, body, steps, at).captures,
-        lambda: r.lambda,
-        max_iter: r.max_iter,
+        lambda: r.solve.lambda,
+        max_iter: r.solve.max_iter,
         truth: r.truth.clone(),
     })
 }
@@ -241,12 +241,7 @@ fn reconstruction_body(
     ReconstructionBody {
         scene: plan.scene.clone(),
         captures,
-        solver: r.solver,
-        lambda: r.lambda,
-        rho: None,
-        max_iter: r.max_iter,
-        tol: None,
-        rcond: None,
+        solve: r.solve.clone(),
         truth: r.truth.clone(),
         partial: upto < steps.len(),
     }
@@ -289,6 +284,12 @@ impl Daemon {
                 "give either exposure_us or \"exposure\": \"auto\", not both".into(),
             ))
             .into());
+        }
+        // The reconstruction's parameters now, not after every capture.
+        if let Err(e) = body.reconstruct.solve.check() {
+            return Err(
+                SubmitError::from(RequestError::Invalid(format!("reconstruct.{e}"))).into(),
+            );
         }
         if body.reconstruct.progressive_every.is_some()
             && !self.calibration.contains_key(&body.scene)

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::CameraSettings;
 use crate::measure::exposure::ExposureTarget;
-use crate::solve::{SolveRequest, Solver};
+use crate::solve::SolveRequest;
 use crate::store::CaptureKind;
 
 use super::SourcePosition;
@@ -45,17 +45,17 @@ pub struct CaptureBody {
     pub target: Option<ExposureTarget>,
     /// Frames to average (1 to `max_frames_per_capture`); default 1, or the
     /// plan's with `"exposure": "auto"`.
-    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[serde(default, deserialize_with = "crate::integral::opt_count")]
     #[schema(minimum = 1)]
     pub frames: Option<usize>,
     /// Dark frames taken within this capture with the scene switched off by
     /// the bench itself (only on a bench that can: the fake camera's). On a
     /// bench set by hand, take a `"kind": "dark"` capture instead.
-    #[serde(default, deserialize_with = "super::integral::count")]
+    #[serde(default, deserialize_with = "crate::integral::count")]
     pub dark_frames: usize,
     /// A done dark capture (same exposure, gain, pixel format, region and
     /// binning) whose mean is subtracted from this capture's.
-    #[serde(default, deserialize_with = "super::integral::opt_int")]
+    #[serde(default, deserialize_with = "crate::integral::opt_int")]
     pub dark_capture: Option<i64>,
     /// Re-solve the scene from the running mean while frames accumulate, and
     /// publish each intermediate result (event `progressive`,
@@ -83,18 +83,18 @@ pub struct SettingsBody {
 #[serde(deny_unknown_fields)]
 pub struct ProgressiveBody {
     /// Re-solve after every this many frames (default: a tenth of the frames, at least 1).
-    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[serde(default, deserialize_with = "crate::integral::opt_count")]
     #[schema(minimum = 1)]
     pub every: Option<usize>,
     /// Done light captures of the scene's other (pose, angle) blocks (none
     /// for a scene with one block, such as `brewster-crossed`).
-    #[serde(default, deserialize_with = "super::integral::ints")]
+    #[serde(default, deserialize_with = "crate::integral::ints")]
     pub captures: Vec<i64>,
     /// TV weight, MODEL.md units (default `1e-2 mean(diag(T^T T))`); the
     /// same at every step, so the steps compare.
     pub lambda: Option<f64>,
     /// Iteration cap of each step (1-100000, default 500).
-    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[serde(default, deserialize_with = "crate::integral::opt_count")]
     #[schema(minimum = 1, maximum = 100000)]
     pub max_iter: Option<usize>,
     /// Known truth, as a test pattern name: each step then has its PSNR.
@@ -116,27 +116,14 @@ pub struct ReconstructionBody {
     /// Scene name.
     pub scene: String,
     /// One finished capture per (pose, polarizer angle) block of the scene.
-    #[serde(deserialize_with = "super::integral::ints")]
+    #[serde(deserialize_with = "crate::integral::ints")]
     #[schema(min_items = 1)]
     pub captures: Vec<i64>,
-    /// `admm-tv` (default), `fista-tv`, `tikhonov` or `lsq`.
-    #[serde(default)]
-    pub solver: Solver,
-    /// Regularization weight (MODEL.md units). Default for the TV solvers:
-    /// chosen from the noise (resolved-discrepancy rule; `lambda_choice` in
-    /// the report says how), the frame-to-frame noise when every capture has
-    /// 2 frames or more, else the noise in the measurement's residual.
-    pub lambda: Option<f64>,
-    /// ADMM penalty.
-    pub rho: Option<f64>,
-    /// Iteration cap (1-100000).
-    #[serde(default, deserialize_with = "super::integral::opt_count")]
-    #[schema(minimum = 1, maximum = 100000)]
-    pub max_iter: Option<usize>,
-    /// Tolerance in (0, 1).
-    pub tol: Option<f64>,
-    /// Relative singular-value cut-off of `lsq`.
-    pub rcond: Option<f64>,
+    /// The solver and its parameters: `solver` (`admm-tv` by default),
+    /// `lambda`, `rho`, `max_iter`, `tol` and `rcond`, each absent for its
+    /// default (see `SolveRequest`).
+    #[serde(flatten, deserialize_with = "super::flatten::named")]
+    pub solve: SolveRequest,
     /// Known truth, as a test pattern name (`disk`, `bars`, `letter`): the
     /// report then carries PSNR, ZNCC and SSIM (e.g. against the fake camera's demo scene).
     pub truth: Option<String>,
@@ -146,20 +133,6 @@ pub struct ReconstructionBody {
     /// `false`: one capture for every block of the scene.
     #[serde(default)]
     pub partial: bool,
-}
-
-impl ReconstructionBody {
-    /// The solver part of the request.
-    pub fn solve_request(&self) -> SolveRequest {
-        SolveRequest {
-            solver: self.solver,
-            lambda: self.lambda,
-            rho: self.rho,
-            max_iter: self.max_iter,
-            tol: self.tol,
-            rcond: self.rcond,
-        }
-    }
 }
 
 /// `POST /plans` body: acquire every (pose, angle) block of a scene, then
@@ -178,13 +151,13 @@ pub struct PlanBody {
     /// `"auto"`: each block's exposure and frame count planned from the scene.
     pub exposure: Option<AutoExposure>,
     /// Frames per block (default 1, or the plan's with `"exposure": "auto"`).
-    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[serde(default, deserialize_with = "crate::integral::opt_count")]
     #[schema(minimum = 1)]
     pub frames: Option<usize>,
     /// Dark frames per block: taken within each capture on a bench that
     /// switches the scene off itself, else as a dark capture between two
     /// operator steps (scene off, scene on).
-    #[serde(default, deserialize_with = "super::integral::count")]
+    #[serde(default, deserialize_with = "crate::integral::count")]
     pub dark_frames: usize,
     /// The reconstruction queued when every block is captured (default: ADMM-TV, automatic λ).
     #[serde(default)]
@@ -195,15 +168,10 @@ pub struct PlanBody {
 #[derive(Debug, Clone, Default, Deserialize, Serialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PlanReconstruct {
-    /// Solver (default `admm-tv`).
-    #[serde(default)]
-    pub solver: Solver,
-    /// Regularization weight (MODEL.md units; default: chosen from the noise).
-    pub lambda: Option<f64>,
-    /// Iteration cap (1-100000).
-    #[serde(default, deserialize_with = "super::integral::opt_count")]
-    #[schema(minimum = 1, maximum = 100000)]
-    pub max_iter: Option<usize>,
+    /// The solver and its parameters, as in `POST /reconstructions`:
+    /// `solver`, `lambda`, `rho`, `max_iter`, `tol` and `rcond`.
+    #[serde(flatten, deserialize_with = "super::flatten::named")]
+    pub solve: SolveRequest,
     /// Known truth, as a test pattern name: the report then has PSNR.
     pub truth: Option<String>,
     /// After each light block but the last, queue a reconstruction from the
@@ -214,7 +182,7 @@ pub struct PlanReconstruct {
     /// Re-solve the whole scene while the last block's frames accumulate,
     /// every this many frames, from the other blocks' captures and the
     /// running mean (a progressive capture; needs the scene's `[calibration]`).
-    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[serde(default, deserialize_with = "crate::integral::opt_count")]
     #[schema(minimum = 1)]
     pub progressive_every: Option<usize>,
 }
@@ -232,7 +200,7 @@ pub struct ZeroBody {
     #[serde(flatten, deserialize_with = "super::flatten::named")]
     pub settings: CameraSettings,
     /// Frames averaged per angle (1-100, default 8).
-    #[serde(default, deserialize_with = "super::integral::opt_count")]
+    #[serde(default, deserialize_with = "crate::integral::opt_count")]
     #[schema(minimum = 1, maximum = 100)]
     pub frames: Option<usize>,
     /// Half-width of the sweep around the current zero, degrees (1-45, default 30).
@@ -269,7 +237,7 @@ pub enum ZeroLight {
 #[serde(deny_unknown_fields)]
 pub struct CalibrationBody {
     /// A done `"kind": "target"` capture of the dot target on the wall.
-    #[serde(deserialize_with = "super::integral::int")]
+    #[serde(deserialize_with = "crate::integral::int")]
     pub capture: i64,
     /// The target as TOML text (`radius_m`, `dots` in wall metres); default
     /// the shipped `config/targets/dots-5x5.toml`, which the demo bench shows.
@@ -284,7 +252,7 @@ pub struct WallCalibrationBody {
     /// Scene name (its wall, poses and hidden-scene plane).
     pub scene: String,
     /// One done `"kind": "source"` capture per (pose, angle) block.
-    #[serde(default, deserialize_with = "super::integral::ints")]
+    #[serde(default, deserialize_with = "crate::integral::ints")]
     pub captures: Vec<i64>,
     /// Source position `[u, v]`, metres from the hidden-scene plane's centre
     /// (the fake bench's source is at [0.03, -0.02]).
@@ -304,7 +272,7 @@ pub struct SourcePositionBody {
     #[schema(min_items = 2, max_items = 2)]
     pub source: [f64; 2],
     /// One done `"kind": "source"` capture per (pose, angle) block.
-    #[serde(deserialize_with = "super::integral::ints")]
+    #[serde(deserialize_with = "crate::integral::ints")]
     #[schema(min_items = 1, max_items = 64)]
     pub captures: Vec<i64>,
 }
@@ -379,6 +347,81 @@ impl WallCalibrationBody {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `json` read as the API reads a body, and its 422 detail.
+    fn body<T: serde::de::DeserializeOwned>(json: &str) -> Result<T, String> {
+        let v: serde_json::Value = serde_json::from_str(json).map_err(|e| e.to_string())?;
+        serde_path_to_error::deserialize(v).map_err(|e| match e.path().to_string().as_str() {
+            "." => e.inner().to_string(),
+            path => format!("{path}: {}", e.inner()),
+        })
+    }
+
+    #[test]
+    fn the_solver_parameters_sit_in_the_bodies_as_before_and_errors_name_them() {
+        use crate::solve::Solver;
+        let b: ReconstructionBody = body(
+            r#"{"scene": "s", "captures": [1, 2.0], "solver": "lsq", "lambda": 0.5, "rho": 2,
+                "max_iter": 40.0, "tol": 1e-3, "rcond": 0.01, "truth": "disk", "partial": true}"#,
+        )
+        .unwrap();
+        let want = SolveRequest {
+            solver: Solver::Lsq,
+            lambda: Some(0.5),
+            rho: Some(2.0),
+            max_iter: Some(40),
+            tol: Some(1e-3),
+            rcond: Some(0.01),
+        };
+        assert_eq!((&b.solve, b.captures.as_slice()), (&want, &[1, 2][..]));
+        assert!(b.partial && b.truth.as_deref() == Some("disk"));
+        let b: ReconstructionBody = body(r#"{"scene": "s", "captures": [1]}"#).unwrap();
+        assert_eq!(b.solve, SolveRequest::default());
+        // Written back with the same keys, side by side.
+        let v = serde_json::to_value(&b).unwrap();
+        for k in [
+            "scene", "captures", "solver", "lambda", "rho", "max_iter", "tol", "rcond",
+        ] {
+            assert!(v.get(k).is_some(), "{k}: {v}");
+        }
+        for (json, says) in [
+            (r#""max_iter": -1"#, "max_iter: -1 is negative"),
+            (
+                r#""max_iter": 1.5"#,
+                "max_iter: invalid value: floating point `1.5`",
+            ),
+            (r#""solver": "cg""#, "solver: unknown variant `cg`"),
+            (r#""lambda": "x""#, "lambda: invalid type: string"),
+            (r#""colour": 1"#, "unknown field `colour`"),
+        ] {
+            let e = body::<ReconstructionBody>(&format!(
+                r#"{{"scene": "s", "captures": [1], {json}}}"#
+            ))
+            .unwrap_err();
+            assert!(e.contains(says), "{json}: {e}");
+        }
+        // A plan's reconstruction takes the same parameters (rho, tol and
+        // rcond too), and reads back what it stored.
+        let p: PlanBody = body(
+            r#"{"scene": "s", "reconstruct": {"solver": "lsq", "lambda": 0.5, "rho": 2,
+                "max_iter": 40, "tol": 1e-3, "rcond": 0.01, "truth": "disk", "interim": true}}"#,
+        )
+        .unwrap();
+        assert_eq!(p.reconstruct.solve, want);
+        assert!(p.reconstruct.interim);
+        let back: PlanBody = serde_json::from_value(serde_json::to_value(&p).unwrap()).unwrap();
+        assert_eq!(back.reconstruct.solve, want);
+        let p: PlanBody = body(r#"{"scene": "s"}"#).unwrap();
+        assert_eq!(p.reconstruct.solve, SolveRequest::default());
+        for (json, says) in [
+            (r#""max_iter": -1"#, "reconstruct: max_iter: -1 is negative"),
+            (r#""colour": 1"#, "reconstruct: unknown field `colour`"),
+        ] {
+            let e = body::<PlanBody>(&format!(r#"{{"scene": "s", "reconstruct": {{{json}}}}}"#))
+                .unwrap_err();
+            assert!(e.contains(says), "{json}: {e}");
+        }
+    }
 
     fn wall(json: &str) -> Result<Vec<SourcePosition>, String> {
         serde_json::from_str::<WallCalibrationBody>(json)

@@ -5,7 +5,9 @@
 //! API's `solver` enum, and so the page's list, is this type's.
 //!
 //! A new solver: its file in `src/solve/`, and here a variant, its name,
-//! its [`Needs`] and its arm of [`Solver::run`].
+//! its [`Needs`] and its arm of [`Solver::run`]. A parameter of its own: a
+//! field of [`SolveRequest`] (the API's bodies, the stored parameters and
+//! the CLI's flags embed that struct), read in its arm of [`Solver::run`].
 
 use serde::{Deserialize, Serialize};
 
@@ -54,23 +56,72 @@ impl Solver {
     }
 }
 
-/// What to solve with: the same fields from the command line and from JSON.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+/// What to solve with: the solver and its parameters, declared here once.
+///
+/// Every front end embeds this struct rather than restating its fields:
+/// the daemon's `POST /reconstructions` body and a plan's `reconstruct`
+/// (`#[serde(flatten)]`, so the keys sit in the body itself), the stored
+/// parameters of a reconstruction (`ReconstructionParams`), and the CLI's
+/// `reconstruct` (`#[command(flatten)]`: each field's `help` is its flag's
+/// text, its doc comment the API's). A solver's new parameter is a field
+/// here, read by that solver's arm of [`Solver::run`].
+///
+/// The one exception is the CLI's `--lambda`, which also takes `auto` and
+/// goes with `--noise-from` and `--variance`: it stays in the CLI's
+/// arguments (`src/cli/reconstruct.rs`) and fills `lambda`.
+#[derive(
+    Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema, clap::Args,
+)]
 pub struct SolveRequest {
-    /// Solver (default `admm-tv`).
+    /// `admm-tv` (default), `fista-tv`, `tikhonov` or `lsq`.
     #[serde(default)]
+    #[arg(long, value_enum, default_value = "admm-tv", help = "Solver")]
     pub solver: Solver,
-    /// TV weight in MODEL.md units; absent: chosen from the noise (TV
-    /// solvers), `1e-3 x mean(diag(T^T T))` (Tikhonov).
+    /// Regularization weight (MODEL.md units). Default for the TV solvers:
+    /// chosen from the noise (resolved-discrepancy rule; `lambda_choice` in
+    /// the report says how), the frame-to-frame noise when every capture has
+    /// 2 frames or more, else the noise in the measurement's residual;
+    /// Tikhonov's: `1e-3 x mean(diag(T^T T))`.
+    #[arg(skip)]
     pub lambda: Option<f64>,
     /// ADMM penalty (default: balanced automatically).
+    #[arg(
+        long,
+        value_name = "R",
+        help = "ADMM penalty (default: balanced automatically)"
+    )]
     pub rho: Option<f64>,
     /// Iteration cap (1-100000; default 500, 5000 with an automatic λ).
+    #[serde(default, deserialize_with = "crate::integral::opt_count")]
+    #[schema(minimum = 1, maximum = 100000)]
+    #[arg(
+        long = "max-iter",
+        value_name = "N",
+        help = "ADMM / FISTA iteration cap (default 500; 5000 with an automatic lambda)"
+    )]
     pub max_iter: Option<usize>,
-    /// Tolerance in (0, 1) (default 1e-4).
+    /// Tolerance in (0, 1) (default 1e-4 for ADMM, 1e-5 for FISTA).
+    #[arg(
+        long,
+        value_name = "T",
+        default_value = cli_tol(),
+        help = "ADMM relative tolerance on the primal/dual residuals (FISTA: on the relative change of l between iterations)"
+    )]
     pub tol: Option<f64>,
     /// Relative singular-value cut-off of `lsq` (default: numerical rank).
+    #[arg(
+        long,
+        value_name = "R",
+        help = "Relative singular-value cut-off for --solver lsq (default: numerical rank only)"
+    )]
     pub rcond: Option<f64>,
+}
+
+/// The CLI's `--tol` when not given: ADMM's default, for every solver (as
+/// the CLI always had it; a request without `tol` takes each solver's own).
+fn cli_tol() -> &'static str {
+    static TOL: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    TOL.get_or_init(|| AdmmSettings::default().tol.to_string())
 }
 
 /// Iteration cap of an automatic-λ solve unless the request sets one: small

@@ -298,6 +298,87 @@ fn a_camera_setting_is_declared_in_two_structs_across_request_camera_and_store()
     assert_eq!(names, ["Acquisition", "CameraSettings"], "{declared:?}");
 }
 
+/// Every field of a struct in `src/<dir>` (test modules and comments
+/// aside) as (file, struct, field, type).
+fn struct_fields(dir: &str) -> Vec<(String, String, String, String)> {
+    let mut out = Vec::new();
+    for (path, text) in sources(dir) {
+        let mut within: Option<(String, usize)> = None;
+        for line in code(&text).lines() {
+            let l = line.trim();
+            let indent = line.len() - line.trim_start().len();
+            let head = l
+                .strip_prefix("pub ")
+                .or_else(|| l.strip_prefix("pub(crate) "))
+                .or_else(|| l.strip_prefix("pub(super) "))
+                .unwrap_or(l);
+            if let Some(rest) = head.strip_prefix("struct ") {
+                if l.ends_with('{') {
+                    let name = rest.split([' ', '<', '{']).next().unwrap_or("");
+                    within = Some((name.to_string(), indent));
+                }
+                continue;
+            }
+            let Some((name, at)) = &within else { continue };
+            if l == "}" && indent == *at {
+                within = None;
+            } else if let Some((field, ty)) = head.split_once(": ") {
+                if field.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+                    let ty = ty.trim_end_matches(',').to_string();
+                    out.push((path.clone(), name.clone(), field.to_string(), ty));
+                }
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn a_solver_parameter_is_declared_in_one_struct() {
+    // Issue 39: `solve::SolveRequest` declares the solver and its parameters
+    // once. The daemon's bodies embed it (`#[serde(flatten)]`: POST
+    // /reconstructions and a plan's `reconstruct`), the catalogue stores it
+    // (`ReconstructionParams`, flattened too) and the CLI's `reconstruct`
+    // takes its flags from it (`#[command(flatten)]`: each field's `#[arg]`
+    // carries its flag and help). A new parameter of a solver touches 2
+    // files: `src/solve/solver.rs` (the field in `SolveRequest`, with its
+    // doc comment for the API, its `#[arg]` for the CLI and its range in
+    // `check`, and the solver's arm of `Solver::run` passing it on) and the
+    // solver's own file (its settings). The one exception is the CLI's
+    // `--lambda`: it also takes `auto` (with --noise-from and --variance),
+    // so it is an argument of the CLI's `reconstruct` that fills `lambda`.
+    let all = struct_fields("");
+    let solver_choice = |ty: &str| ty == "Solver";
+    let parameters = ["rho", "rcond", "tol"];
+    let elsewhere: Vec<String> = all
+        .iter()
+        .filter(|(p, ..)| !p.contains("/src/solve/"))
+        .filter(|(_, _, f, ty)| parameters.contains(&f.as_str()) || solver_choice(ty))
+        .map(|(p, s, f, _)| format!("{p}: {s}.{f}"))
+        .collect();
+    assert!(
+        elsewhere.is_empty(),
+        "solver parameters declared outside src/solve (embed SolveRequest instead): {elsewhere:?}"
+    );
+    // In the core, the request is the one struct that picks a solver or
+    // holds rcond; rho and tol are also the settings of the solvers that
+    // use them (AdmmSettings, FistaSettings) and what they report.
+    let mut request: Vec<String> = all
+        .iter()
+        .filter(|(_, _, f, ty)| f == "rcond" || solver_choice(ty))
+        .map(|(p, s, f, _)| format!("{}: {s}.{f}", p.rsplit("/src/").next().unwrap_or(p)))
+        .collect();
+    request.sort();
+    assert_eq!(
+        request,
+        [
+            "solve/solver.rs: SolveRequest.rcond",
+            "solve/solver.rs: SolveRequest.solver"
+        ],
+        "{request:?}"
+    );
+}
+
 /// Each function of `text` (outside its test module) as (name, lines from
 /// its `fn` line to its closing brace at the same indentation).
 fn function_lengths(text: &str) -> Vec<(String, usize)> {

@@ -345,6 +345,86 @@ async fn the_router_serves_exactly_the_operations_its_document_names() {
     d.shutdown();
 }
 
+/// The property names of schema `name` in `spec`, through `$ref`s and the
+/// `allOf` a body that embeds another struct (`#[serde(flatten)]`) becomes.
+fn property_names(spec: &serde_json::Value, schema: &serde_json::Value) -> Vec<String> {
+    if let Some(r) = schema["$ref"].as_str() {
+        let name = r.trim_start_matches("#/components/schemas/");
+        return property_names(spec, &spec["components"]["schemas"][name]);
+    }
+    let mut names: Vec<String> = schema["properties"]
+        .as_object()
+        .map(|p| p.keys().cloned().collect())
+        .unwrap_or_default();
+    for part in schema["allOf"].as_array().into_iter().flatten() {
+        names.extend(property_names(spec, part));
+    }
+    names.sort();
+    names
+}
+
+/// Issue 39: the solver's parameters are declared once (`SolveRequest`) and
+/// embedded in the bodies; the document still lists each of them for the
+/// reconstruction request and for a plan's reconstruction.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_document_lists_every_solver_parameter_for_reconstructions_and_plans() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = daemon(dir.path()).await;
+    let (s, spec) = call(&d, "GET", "/openapi.json", None).await;
+    assert_eq!(s, StatusCode::OK, "{spec}");
+    let schemas = &spec["components"]["schemas"];
+    let reconstruction = property_names(&spec, &schemas["ReconstructionBody"]);
+    let plan = property_names(&spec, &schemas["PlanBody"]);
+    assert!(plan.iter().any(|p| p == "reconstruct"), "{plan:?}");
+    let plan_reconstruct = property_names(
+        &spec,
+        &schemas["PlanBody"]["allOf"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .find_map(|part| part["properties"].get("reconstruct"))
+            .cloned()
+            .unwrap_or_default(),
+    );
+    for parameter in ["solver", "lambda", "rho", "max_iter", "tol", "rcond"] {
+        for (body, names) in [
+            ("ReconstructionBody", &reconstruction),
+            ("PlanBody.reconstruct", &plan_reconstruct),
+        ] {
+            assert!(
+                names.iter().any(|n| n == parameter),
+                "{body} lacks {parameter}: {names:?}"
+            );
+        }
+    }
+    for own in ["scene", "captures", "truth", "partial"] {
+        assert!(
+            reconstruction.iter().any(|n| n == own),
+            "{reconstruction:?}"
+        );
+    }
+    // max_iter keeps its range; the bodies their required fields.
+    let max_iter = &schemas["SolveRequest"]["properties"]["max_iter"];
+    assert_eq!(
+        (max_iter["minimum"].as_f64(), max_iter["maximum"].as_f64()),
+        (Some(1.0), Some(100000.0)),
+        "{max_iter}"
+    );
+    let required: Vec<&serde_json::Value> = schemas["ReconstructionBody"]["allOf"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .flat_map(|part| part["required"].as_array().into_iter().flatten())
+        .collect();
+    assert_eq!(
+        required,
+        ["scene", "captures"],
+        "{}",
+        schemas["ReconstructionBody"]
+    );
+    d.shutdown();
+}
+
 /// A camera that stops delivering without an error while `frozen` is set
 /// (what no Aravis camera does: every Aravis wait times out), and otherwise
 /// delivers flat frames at once.

@@ -34,10 +34,27 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
     let dir = tempfile::tempdir().unwrap();
     let d = InProcess::start(&rotating_bench(dir.path()), &dir.path().join("data"));
     let long = Duration::from_secs(240);
+    // The reconstruction takes every solver parameter of `POST
+    // /reconstructions` (issue 39), checked before anything is captured.
+    for (reconstruct, says) in [
+        (r#"{"tol": 2}"#, "reconstruct.tol = 2: must be in (0, 1)"),
+        (r#"{"max_iter": 0}"#, "reconstruct.max_iter = 0"),
+        (r#"{"max_iter": -1}"#, "max_iter: -1 is negative"),
+        (r#"{"rcond": "x"}"#, "rcond: invalid type"),
+        (r#"{"colour": 1}"#, "unknown field `colour`"),
+    ] {
+        let (s, b, _) = d.post(
+            "/plans",
+            &format!(r#"{{"scene": "brewster-rotating", "exposure_us": 20000, "reconstruct": {reconstruct}}}"#),
+        );
+        assert_eq!(s, 422, "{reconstruct}: {b}");
+        assert!(b.contains(says), "{reconstruct}: {b}");
+    }
+    // rcond is lsq's: harmless to admm-tv, and stored with the reconstruction.
     let (s, body, loc) = d.post(
         "/plans",
         r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 4, "dark_frames": 1,
-            "reconstruct": {"truth": "letter", "progressive_every": 2}}"#,
+            "reconstruct": {"truth": "letter", "progressive_every": 2, "rcond": 0.25}}"#,
     );
     assert_eq!(s, 202, "{body}");
     let loc = loc.expect("Location");
@@ -80,6 +97,8 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
     let rid = plan["reconstruction"].as_i64().unwrap();
     let by_plan = d.json(&format!("/reconstructions/{rid}"));
     assert_eq!(by_plan["state"], "done", "{by_plan}");
+    assert_eq!(by_plan["params"]["rcond"], 0.25, "{by_plan}");
+    assert_eq!(by_plan["solver"], "admm-tv", "{by_plan}");
 
     // The same blocks captured by hand, one request each.
     let mut hand = Vec::new();

@@ -50,7 +50,7 @@ pub fn reconstruction(
     scene: &Scene,
     capture: impl Fn(i64) -> Result<Option<CaptureRecord>, RequestError>,
 ) -> Result<ReconstructionRequest, RequestError> {
-    let solve = b.solve_request();
+    let solve = b.solve.clone();
     solve.check().map_err(|e| invalid(e.to_string()))?;
     if let Some(t) = &b.truth {
         if crate::simulate::patterns::Pattern::from_name(t).is_none() {
@@ -86,7 +86,7 @@ pub fn reconstruction(
     Ok(ReconstructionRequest {
         scene: b.scene.clone(),
         captures: b.captures.clone(),
-        solver: b.solver.name().to_string(),
+        solver: b.solve.solver.name().to_string(),
         params: ReconstructionParams {
             // A partial request that gives every block is a whole one.
             partial: !missing.is_empty(),
@@ -230,7 +230,7 @@ mod tests {
         let r = reconstruction(&b, &s, |_| Ok(None));
         assert!(matches!(r, Err(RequestError::Invalid(m)) if m.contains("truth = \"cat\"")));
         let mut b = reconstruction_body(&[]);
-        b.tol = Some(2.0);
+        b.solve.tol = Some(2.0);
         assert!(matches!(
             reconstruction(&b, &s, |_| Ok(None)),
             Err(RequestError::Invalid(_))
