@@ -69,7 +69,8 @@
 //!   `src/store/schema.rs` (`SCHEMA`, and `ADDED_CAPTURE_COLUMNS` for
 //!   catalogues that predate it), the row type in `src/store/records.rs`,
 //!   and the statements of its aggregate (`src/store/captures.rs` or
-//!   `reconstructions.rs`). Statements on either job table are written out
+//!   `reconstructions.rs`). The row readers name each column (`SELECT *`,
+//!   `r.get("kind")`), never its position; `tests/core/layers.rs` counts. Statements on either job table are written out
 //!   per table in `store::Table`; none splices a table name.
 //! - **A bench device** (a shutter, a second stage): its driver beside
 //!   `src/mount/` (a trait, the serial device, a simulated one), its

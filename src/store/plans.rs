@@ -120,23 +120,23 @@ pub struct PlanRow {
     pub finished_at: Option<String>,
 }
 
-const PLAN_SELECT: &str = "SELECT id, scene, request, state, step, prompt, captures, reconstruction, error, created_at, started_at, finished_at, interim FROM plans";
+const PLAN_SELECT: &str = "SELECT * FROM plans";
 
 fn plan_row(r: &Row<'_>) -> rusqlite::Result<PlanRow> {
     Ok(PlanRow {
-        id: r.get(0)?,
-        scene: r.get(1)?,
-        request: json_column(r, 2)?.unwrap_or(serde_json::Value::Null),
-        state: named_column(r, 3, "plan state", PlanState::from_name)?,
-        step: r.get::<_, i64>(4)?.max(0) as usize,
-        prompt: r.get(5)?,
-        captures: json_column(r, 6)?.unwrap_or_default(),
-        reconstruction: r.get(7)?,
-        error: r.get(8)?,
-        created_at: r.get(9)?,
-        started_at: r.get(10)?,
-        finished_at: r.get(11)?,
-        interim: json_column(r, 12)?.unwrap_or_default(),
+        id: r.get("id")?,
+        scene: r.get("scene")?,
+        request: json_column(r, "request")?.unwrap_or(serde_json::Value::Null),
+        state: named_column(r, "state", "plan state", PlanState::from_name)?,
+        step: r.get::<_, i64>("step")?.max(0) as usize,
+        prompt: r.get("prompt")?,
+        captures: json_column(r, "captures")?.unwrap_or_default(),
+        reconstruction: r.get("reconstruction")?,
+        error: r.get("error")?,
+        created_at: r.get("created_at")?,
+        started_at: r.get("started_at")?,
+        finished_at: r.get("finished_at")?,
+        interim: json_column(r, "interim")?.unwrap_or_default(),
     })
 }
 

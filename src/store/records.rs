@@ -88,41 +88,43 @@ impl JobState {
     }
 }
 
-/// A damaged column of row `r`: the row is unreadable, not quietly defaulted.
+/// A damaged column `col` of row `r`: the row is unreadable, not quietly
+/// defaulted. The error carries the column's index in the row, as rusqlite's own do.
 fn damaged(
-    idx: usize,
+    r: &Row<'_>,
+    col: &str,
     what: impl Into<Box<dyn std::error::Error + Send + Sync>>,
 ) -> rusqlite::Error {
+    let idx = r.as_ref().column_index(col).unwrap_or_default();
     rusqlite::Error::FromSqlConversionFailure(idx, rusqlite::types::Type::Text, what.into())
 }
 
-/// Column `idx` as a job state; an unknown name makes the row unreadable
+/// Column `col` as a job state; an unknown name makes the row unreadable
 /// (before, it read as `failed`, hiding a done capture behind a wrong state).
-fn state_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<JobState> {
-    let s: String = r.get(idx)?;
-    JobState::parse(&s).ok_or_else(|| damaged(idx, format!("unknown job state {s:?}")))
+fn state_column(r: &Row<'_>, col: &str) -> rusqlite::Result<JobState> {
+    named_column(r, col, "job state", JobState::parse)
 }
 
-/// Column `idx` as the value `parse` reads from its text: a name this
+/// Column `col` as the value `parse` reads from its text: a name this
 /// version does not know makes the row unreadable, never a silent default.
 pub(super) fn named_column<T>(
     r: &Row<'_>,
-    idx: usize,
+    col: &str,
     what: &str,
     parse: impl Fn(&str) -> Option<T>,
 ) -> rusqlite::Result<T> {
-    let s: String = r.get(idx)?;
-    parse(&s).ok_or_else(|| damaged(idx, format!("unknown {what} {s:?}")))
+    let s: String = r.get(col)?;
+    parse(&s).ok_or_else(|| damaged(r, col, format!("unknown {what} {s:?}")))
 }
 
-/// Column `idx` as JSON, `None` when NULL; malformed JSON makes the row
+/// Column `col` as JSON, `None` when NULL; malformed JSON makes the row
 /// unreadable (before, a damaged region or report read as absent).
 pub(super) fn json_column<T: serde::de::DeserializeOwned>(
     r: &Row<'_>,
-    idx: usize,
+    col: &str,
 ) -> rusqlite::Result<Option<T>> {
-    r.get::<_, Option<String>>(idx)?
-        .map(|s| serde_json::from_str(&s).map_err(|e| damaged(idx, e)))
+    r.get::<_, Option<String>>(col)?
+        .map(|s| serde_json::from_str(&s).map_err(|e| damaged(r, col, e)))
         .transpose()
 }
 
@@ -231,7 +233,7 @@ pub struct CaptureRecord {
     pub clipping: Option<crate::measure::Clipping>,
 }
 
-pub(super) const CAPTURE_SELECT: &str = "SELECT id, scene, pose, channels, settings, frames, dark_frames, state, error, created_at, started_at, finished_at, camera_id, counters, frames_taken, kind, dark_capture, frame_counts, polarizer_measured_deg, clipping FROM captures";
+pub(super) const CAPTURE_SELECT: &str = "SELECT * FROM captures";
 
 /// What the `settings` column holds: a capture's camera settings as one
 /// typed JSON document, with the version of its layout.
@@ -264,11 +266,11 @@ impl SettingsDocument {
     }
 }
 
-/// Column `idx` as a settings document of the version this polnlos reads.
-fn settings_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<CameraSettings> {
+/// Column `col` as a settings document of the version this polnlos reads.
+fn settings_column(r: &Row<'_>, col: &str) -> rusqlite::Result<CameraSettings> {
     let doc: SettingsDocument =
-        json_column(r, idx)?.ok_or_else(|| damaged(idx, "no settings document"))?;
-    layout(idx, "settings", doc.version, SettingsDocument::VERSION)?;
+        json_column(r, col)?.ok_or_else(|| damaged(r, col, "no settings document"))?;
+    layout(r, col, "settings", doc.version, SettingsDocument::VERSION)?;
     Ok(doc.settings)
 }
 
@@ -278,23 +280,25 @@ pub(super) fn channels_document(channels: &[Channel]) -> String {
     serde_json::to_string(channels).unwrap_or_default()
 }
 
-/// Column `idx` as a capture's channels: a JSON list of at least one.
-fn channels_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<Vec<Channel>> {
-    let channels: Vec<Channel> = json_column(r, idx)?.ok_or_else(|| damaged(idx, "no channels"))?;
+/// Column `col` as a capture's channels: a JSON list of at least one.
+fn channels_column(r: &Row<'_>, col: &str) -> rusqlite::Result<Vec<Channel>> {
+    let channels: Vec<Channel> =
+        json_column(r, col)?.ok_or_else(|| damaged(r, col, "no channels"))?;
     if channels.is_empty() {
-        return Err(damaged(idx, "an empty list of channels"));
+        return Err(damaged(r, col, "an empty list of channels"));
     }
     Ok(channels)
 }
 
-/// A document in column `idx` is of the layout this polnlos reads, else
+/// A document in column `col` is of the layout this polnlos reads, else
 /// its row is damaged (a newer polnlos wrote it).
-fn layout(idx: usize, what: &str, found: u32, reads: u32) -> rusqlite::Result<()> {
+fn layout(r: &Row<'_>, col: &str, what: &str, found: u32, reads: u32) -> rusqlite::Result<()> {
     if found == reads {
         return Ok(());
     }
     Err(damaged(
-        idx,
+        r,
+        col,
         format!(
             "{what} document version {found} (this polnlos reads version {reads}): open this data directory with the polnlos that wrote it"
         ),
@@ -303,26 +307,26 @@ fn layout(idx: usize, what: &str, found: u32, reads: u32) -> rusqlite::Result<()
 
 pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
     Ok(CaptureRecord {
-        id: r.get(0)?,
-        scene: r.get(1)?,
-        pose: r.get(2)?,
-        channels: channels_column(r, 3)?,
-        settings: settings_column(r, 4)?,
-        frames: r.get(5)?,
-        dark_frames: r.get(6)?,
-        state: state_column(r, 7)?,
-        error: r.get(8)?,
-        created_at: r.get(9)?,
-        started_at: r.get(10)?,
-        finished_at: r.get(11)?,
-        camera_id: r.get(12)?,
-        counters: json_column(r, 13)?,
-        frames_taken: r.get(14)?,
-        kind: named_column(r, 15, "capture kind", CaptureKind::from_name)?,
-        dark_capture: r.get(16)?,
-        frame_counts: json_column(r, 17)?,
-        polarizer_measured_deg: r.get(18)?,
-        clipping: json_column(r, 19)?,
+        id: r.get("id")?,
+        scene: r.get("scene")?,
+        pose: r.get("pose")?,
+        channels: channels_column(r, "channels")?,
+        settings: settings_column(r, "settings")?,
+        frames: r.get("frames")?,
+        dark_frames: r.get("dark_frames")?,
+        state: state_column(r, "state")?,
+        error: r.get("error")?,
+        created_at: r.get("created_at")?,
+        started_at: r.get("started_at")?,
+        finished_at: r.get("finished_at")?,
+        camera_id: r.get("camera_id")?,
+        counters: json_column(r, "counters")?,
+        frames_taken: r.get("frames_taken")?,
+        kind: named_column(r, "kind", "capture kind", CaptureKind::from_name)?,
+        dark_capture: r.get("dark_capture")?,
+        frame_counts: json_column(r, "frame_counts")?,
+        polarizer_measured_deg: r.get("polarizer_measured_deg")?,
+        clipping: json_column(r, "clipping")?,
     })
 }
 
@@ -478,12 +482,13 @@ fn kappa_schema() -> utoipa::openapi::schema::Schema {
         .into()
 }
 
-/// Column `idx` as the parameters document of the version this polnlos
+/// Column `col` as the parameters document of the version this polnlos
 /// reads (NULL: the defaults, as rows without parameters meant).
-fn params_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<ReconstructionParams> {
-    let params: ReconstructionParams = json_column(r, idx)?.unwrap_or_default();
+fn params_column(r: &Row<'_>, col: &str) -> rusqlite::Result<ReconstructionParams> {
+    let params: ReconstructionParams = json_column(r, col)?.unwrap_or_default();
     layout(
-        idx,
+        r,
+        col,
         "parameters",
         params.version,
         ReconstructionParams::VERSION,
@@ -491,26 +496,26 @@ fn params_column(r: &Row<'_>, idx: usize) -> rusqlite::Result<ReconstructionPara
     Ok(params)
 }
 
-pub(super) const RECON_SELECT: &str = "SELECT id, scene, captures, solver, params, state, error, created_at, started_at, finished_at, kappa, report FROM reconstructions";
+pub(super) const RECON_SELECT: &str = "SELECT * FROM reconstructions";
 
 pub(super) fn recon_row(r: &Row<'_>) -> rusqlite::Result<ReconstructionRecord> {
-    let kappa: Option<String> = r.get(10)?;
+    let kappa: Option<String> = r.get("kappa")?;
     Ok(ReconstructionRecord {
-        id: r.get(0)?,
-        scene: r.get(1)?,
-        captures: json_column(r, 2)?.unwrap_or_default(),
-        solver: r.get(3)?,
-        params: params_column(r, 4)?,
-        state: state_column(r, 5)?,
-        error: r.get(6)?,
-        created_at: r.get(7)?,
-        started_at: r.get(8)?,
-        finished_at: r.get(9)?,
+        id: r.get("id")?,
+        scene: r.get("scene")?,
+        captures: json_column(r, "captures")?.unwrap_or_default(),
+        solver: r.get("solver")?,
+        params: params_column(r, "params")?,
+        state: state_column(r, "state")?,
+        error: r.get("error")?,
+        created_at: r.get("created_at")?,
+        started_at: r.get("started_at")?,
+        finished_at: r.get("finished_at")?,
         kappa: kappa.map(|k| {
             k.parse::<f64>()
                 .map(serde_json::Value::from)
                 .unwrap_or(serde_json::Value::String(k))
         }),
-        report: json_column(r, 11)?,
+        report: json_column(r, "report")?,
     })
 }

@@ -485,3 +485,44 @@ fn the_capture_worker_and_the_plans_ask_the_rig_never_a_device() {
         }
     }
 }
+
+#[test]
+fn a_catalogue_column_is_three_files_and_its_rows_are_read_by_name() {
+    // Issue 39: a capture column was read by its position in a SELECT
+    // list (column 18), so a column meant its declaration, the row type, the
+    // SELECT list in order and the reader's index. Now the record readers
+    // name each column (`SELECT *`, `r.get("kind")`), and a column is its
+    // declaration (`schema.rs`), its field and reader line (`records.rs`)
+    // and the statement that writes it (`captures.rs` or `reconstructions.rs`).
+    let store = sources("store");
+    for reader in ["fn capture_row(", "fn recon_row(", "fn plan_row("] {
+        let (path, text) = store
+            .iter()
+            .find(|(_, t)| t.contains(reader))
+            .unwrap_or_else(|| panic!("{reader} is gone"));
+        let body = &text[text.find(reader).unwrap_or(0)..];
+        let body = &body[..body.find("\n}\n").unwrap_or(body.len())];
+        for positional in ["get(", "get::<_, i64>(", "_column(r, "] {
+            for (k, _) in body.match_indices(positional) {
+                let next = body[k + positional.len()..].chars().next();
+                assert!(
+                    next.is_some_and(|c| !c.is_ascii_digit()),
+                    "{path}: {reader} reads a column by position"
+                );
+            }
+        }
+    }
+    for column in [
+        "polarizer_measured_deg",
+        "clipping",
+        "frame_counts",
+        "interim",
+    ] {
+        let files: Vec<&String> = store
+            .iter()
+            .filter(|(_, t)| code(t).contains(column))
+            .map(|(p, _)| p)
+            .collect();
+        assert!(!files.is_empty() && files.len() <= 3, "{column}: {files:?}");
+    }
+}
