@@ -60,7 +60,11 @@
 //!   its line in their `over`, `complete` and `defaults_at`
 //!   (`src/camera/settings.rs`), its feature in the device mapping
 //!   (`src/camera/aravis.rs`), and its `data-setting` input on the page
-//!   (`web/index.html`). The capture request and `PUT /camera/settings`
+//!   (`web/index.html`). A setting with a range the camera reports (gain,
+//!   a black level) is 2 files: its entry in `settings::RANGED` (name,
+//!   features, ranges; its field in `CameraRanges`) replaces the device
+//!   mapping, and the request checks, the Aravis driver and the synthetic
+//!   camera read it from there. The capture request and `PUT /camera/settings`
 //!   embed `CameraSettings`, the catalogue stores it as one versioned
 //!   document, and the API's records, the frame files and the page's camera
 //!   table all take it from there; `tests/core/layers.rs` holds the request, the

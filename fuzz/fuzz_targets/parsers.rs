@@ -75,7 +75,10 @@ pub fn capture_json(data: &[u8]) {
                 full_well_e: 1e4,
                 read_noise_e: 5.0,
             },
-            gain: Some((0.0, 10.0)),
+            ranges: Some(polnlos::camera::CameraRanges {
+                exposure_us: (10.0, 1e7),
+                ..polnlos::camera::CameraRanges::synthetic()
+            }),
             sensor: Some(LIMITS),
             defaults: CameraSettings {
                 region: Some([0, 0, 512, 512]),

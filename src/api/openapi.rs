@@ -64,6 +64,7 @@ use crate::daemon::Daemon;
         crate::daemon::ZeroLight,
         crate::camera::worker::CameraStatus,
         crate::camera::CameraInfo,
+        crate::camera::CameraRanges,
         crate::camera::Counters,
         crate::camera::SensorLimits,
         crate::camera::PixelFormat,

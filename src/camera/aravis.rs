@@ -1,7 +1,7 @@
 //! GenICam cameras through Aravis (libaravis 0.8).
 //!
 //! Features are set by their SFNC names with the older names as fallback
-//! (`ExposureTime`/`ExposureTimeAbs`, `Gain`/`GainRaw`,
+//! (the ranged settings' names in [`RANGED`], and
 //! `AcquisitionFrameRate`/`AcquisitionFrameRateAbs`), so the same code drives
 //! real cameras and Aravis's fake camera. Cameras are opened by explicit id or
 //! address only: polnlos never broadcasts a GigE Vision discovery.
@@ -16,7 +16,9 @@ use super::device::{
     BrokenLog, CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameIds, FrameSink,
     RawFrame,
 };
-use super::settings::{Acquisition, PixelFormat, SensorLimits, TriggerMode};
+use super::settings::{
+    Acquisition, CameraRanges, FeatureKind, PixelFormat, SensorLimits, TriggerMode, RANGED,
+};
 
 /// Buffers queued on the stream: at least this many whatever the frame
 /// count, so that frames arriving while earlier ones are decoded and handed
@@ -49,9 +51,8 @@ fn buffer_count(payload: usize) -> usize {
 pub struct AravisCamera {
     id: String,
     camera: Camera,
-    exposure_feature: &'static str,
-    gain_feature: &'static str,
-    gain_is_integer: bool,
+    /// The feature found for each entry of [`RANGED`], in its order.
+    ranged: Vec<(&'static str, FeatureKind)>,
     frame_rate_feature: Option<&'static str>,
     limits: SensorLimits,
     /// Settings read back after the last configure (what the camera has).
@@ -86,21 +87,18 @@ impl AravisCamera {
                 .map(|d| d.is_feature_available(name).unwrap_or(false))
                 .unwrap_or(false)
         };
-        let exposure_feature = ["ExposureTime", "ExposureTimeAbs"]
-            .into_iter()
-            .find(|n| available(n))
-            .ok_or_else(|| CameraError::MissingFeature {
-                names: "ExposureTime or ExposureTimeAbs".into(),
-            })?;
-        let (gain_feature, gain_is_integer) = if available("Gain") {
-            ("Gain", false)
-        } else if available("GainRaw") {
-            ("GainRaw", true)
-        } else {
-            return Err(CameraError::MissingFeature {
-                names: "Gain or GainRaw".into(),
-            });
-        };
+        let ranged = RANGED
+            .iter()
+            .map(|r| {
+                r.features
+                    .iter()
+                    .copied()
+                    .find(|(n, _)| available(n))
+                    .ok_or_else(|| CameraError::MissingFeature {
+                        names: r.feature_names(),
+                    })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
         let frame_rate_feature = ["AcquisitionFrameRate", "AcquisitionFrameRateAbs"]
             .into_iter()
             .find(|n| available(n));
@@ -108,9 +106,7 @@ impl AravisCamera {
         let mut cam = Self {
             id: id.to_string(),
             camera,
-            exposure_feature,
-            gain_feature,
-            gain_is_integer,
+            ranged,
             frame_rate_feature,
             limits,
             settings: Acquisition::defaults_at([0, 0, 0, 0], [1, 1]),
@@ -156,16 +152,6 @@ impl AravisCamera {
     fn read_settings(&self) -> Result<Acquisition, CameraError> {
         let c = &self.camera;
         let d = self.device()?;
-        let exposure_us = d
-            .float_feature_value(self.exposure_feature)
-            .map_err(feature_err(self.exposure_feature))?;
-        let gain = if self.gain_is_integer {
-            d.integer_feature_value(self.gain_feature)
-                .map_err(feature_err(self.gain_feature))? as f64
-        } else {
-            d.float_feature_value(self.gain_feature)
-                .map_err(feature_err(self.gain_feature))?
-        };
         let format = c
             .pixel_format_as_string()
             .map_err(feature_err("PixelFormat"))?;
@@ -196,18 +182,26 @@ impl AravisCamera {
             && c.trigger_source()
                 .map(|v| v.as_str() == "Software")
                 .unwrap_or(false);
-        Ok(Acquisition {
-            exposure_us,
-            gain,
+        let mut settings = Acquisition {
             pixel_format,
-            region: [to_u32(x), to_u32(y), to_u32(w), to_u32(h)],
-            binning,
             trigger: if software {
                 TriggerMode::Software
             } else {
                 TriggerMode::Free
             },
-        })
+            ..Acquisition::defaults_at([to_u32(x), to_u32(y), to_u32(w), to_u32(h)], binning)
+        };
+        for (r, &(feature, kind)) in RANGED.iter().zip(&self.ranged) {
+            *(r.value_mut)(&mut settings) = match kind {
+                FeatureKind::Integer => d
+                    .integer_feature_value(feature)
+                    .map_err(feature_err(feature))? as f64,
+                FeatureKind::Float => d
+                    .float_feature_value(feature)
+                    .map_err(feature_err(feature))?,
+            };
+        }
+        Ok(settings)
     }
 
     /// The current value of a string or enumeration feature (for diagnostics).
@@ -230,17 +224,24 @@ impl AravisCamera {
             .map_err(feature_err(feature))
     }
 
-    fn gain_bounds(&self) -> Result<(f64, f64), CameraError> {
+    /// Each ranged setting's range, read from its feature now.
+    fn ranges(&self) -> Result<CameraRanges, CameraError> {
         let d = self.device()?;
-        if self.gain_is_integer {
-            let (a, b) = d
-                .integer_feature_bounds(self.gain_feature)
-                .map_err(feature_err(self.gain_feature))?;
-            Ok((a as f64, b as f64))
-        } else {
-            d.float_feature_bounds(self.gain_feature)
-                .map_err(feature_err(self.gain_feature))
-        }
+        let mut found = self.ranged.iter();
+        CameraRanges::from_table(|_| {
+            let Some(&(feature, kind)) = found.next() else {
+                return Err(CameraError::Driver(
+                    "a ranged setting without a feature".into(),
+                ));
+            };
+            let range = match kind {
+                FeatureKind::Integer => d
+                    .integer_feature_bounds(feature)
+                    .map(|(a, b)| (a as f64, b as f64)),
+                FeatureKind::Float => d.float_feature_bounds(feature),
+            };
+            Ok((range.map_err(feature_err(feature))?, feature.to_string()))
+        })
     }
 
     /// Sets the frame rate to match the exposure (free run) and returns the period.
@@ -325,10 +326,7 @@ impl CameraDevice for AravisCamera {
             model,
             serial,
             sensor: c.sensor_size().map_err(driver)?,
-            exposure_us: self.float_bounds(self.exposure_feature)?,
-            exposure_feature: self.exposure_feature.into(),
-            gain: self.gain_bounds()?,
-            gain_feature: self.gain_feature.into(),
+            ranges: self.ranges()?,
             frame_rate: self
                 .frame_rate_feature
                 .and_then(|f| self.float_bounds(f).ok()),
@@ -345,10 +343,7 @@ impl CameraDevice for AravisCamera {
         let (region, binning) = (s.region, s.binning);
         self.limits.check(region, binning)?;
         let d = self.device()?;
-        let eb = self.float_bounds(self.exposure_feature)?;
-        CameraError::check_range(self.exposure_feature, s.exposure_us, eb)?;
-        let gb = self.gain_bounds()?;
-        CameraError::check_range(self.gain_feature, s.gain, gb)?;
+        CameraError::check_ranges(s, &self.ranges()?)?;
         let c = &self.camera;
         c.set_pixel_format_from_string(s.pixel_format.name())
             .map_err(feature_err("PixelFormat"))?;
@@ -361,14 +356,13 @@ impl CameraDevice for AravisCamera {
         let [x, y, w, h] = region;
         c.set_region(i(x), i(y), i(w), i(h))
             .map_err(feature_err("OffsetX/OffsetY/Width/Height"))?;
-        d.set_float_feature_value(self.exposure_feature, s.exposure_us)
-            .map_err(feature_err(self.exposure_feature))?;
-        if self.gain_is_integer {
-            d.set_integer_feature_value(self.gain_feature, s.gain.round() as i64)
-                .map_err(feature_err(self.gain_feature))?;
-        } else {
-            d.set_float_feature_value(self.gain_feature, s.gain)
-                .map_err(feature_err(self.gain_feature))?;
+        for (r, &(feature, kind)) in RANGED.iter().zip(&self.ranged) {
+            let v = (r.value)(s);
+            let set = match kind {
+                FeatureKind::Integer => d.set_integer_feature_value(feature, v.round() as i64),
+                FeatureKind::Float => d.set_float_feature_value(feature, v),
+            };
+            set.map_err(feature_err(feature))?;
         }
         match s.trigger {
             TriggerMode::Free => {

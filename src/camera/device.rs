@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use super::settings::{Acquisition, GeometryError, SensorLimits};
+use super::settings::{Acquisition, CameraRanges, GeometryError, SensorLimits, RANGED};
 
 /// One frame as the sensor delivered it (no arithmetic done yet).
 #[derive(Debug, Clone)]
@@ -187,14 +187,11 @@ pub struct CameraInfo {
     pub serial: String,
     /// Sensor size (width, height).
     pub sensor: (i32, i32),
-    /// Exposure range in microseconds and the feature that sets it.
-    pub exposure_us: (f64, f64),
-    /// Feature used for exposure (`ExposureTime` or `ExposureTimeAbs`).
-    pub exposure_feature: String,
-    /// Gain range and the feature that sets it.
-    pub gain: (f64, f64),
-    /// Feature used for gain (`Gain` or `GainRaw`).
-    pub gain_feature: String,
+    /// Each ranged setting's range and the feature that sets it
+    /// (`exposure_us` and `exposure_feature`, ...: one pair per entry of
+    /// [`super::settings::RANGED`]).
+    #[serde(flatten)]
+    pub ranges: CameraRanges,
     /// Frame-rate range, frames per second, when the camera has one.
     pub frame_rate: Option<(f64, f64)>,
     /// Pixel formats the camera offers.
@@ -291,6 +288,16 @@ impl CameraError {
                 max,
             })
         }
+    }
+
+    /// `Ok` when every ranged setting of `s` is within the camera's
+    /// `ranges`, else [`CameraError::OutOfRange`] naming the first feature out.
+    pub fn check_ranges(s: &Acquisition, ranges: &CameraRanges) -> Result<(), Self> {
+        for r in RANGED {
+            let (range, feature) = (r.range)(ranges);
+            Self::check_range(feature, (r.value)(s), range)?;
+        }
+        Ok(())
     }
 
     /// Whether the error means the camera is gone and must be reopened.

@@ -25,6 +25,6 @@ pub use device::{
 };
 pub use pixel::DecodeError;
 pub use settings::{
-    Acquisition, CameraSettings, GeometryError, MissingSettings, PixelFormat, SensorLimits,
-    TriggerMode,
+    Acquisition, CameraRanges, CameraSettings, GeometryError, MissingSettings, PixelFormat,
+    SensorLimits, TriggerMode,
 };

@@ -39,7 +39,8 @@ impl TriggerMode {
 /// one stated or not (a request, a change, the defaults, a catalogue row);
 /// this one is the same after every gap was filled. A new setting is a field
 /// in both, its line in [`CameraSettings::over`], [`CameraSettings::complete`]
-/// and [`Acquisition::defaults_at`], and its device mapping.
+/// and [`Acquisition::defaults_at`], and its device mapping (for a setting
+/// with a range the camera reports, its entry in [`RANGED`] instead).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Acquisition {
     /// Exposure per frame, microseconds.
@@ -80,6 +81,26 @@ impl Acquisition {
             trigger: other.trigger,
             ..*self
         } == *other
+    }
+
+    /// The settings [`Acquisition::same_dark_as`] compares, as a message
+    /// lists them (`exposure_us 5000, gain 0, ...`): every one but the
+    /// trigger, named as in requests.
+    pub fn dark_settings(&self) -> String {
+        let fields = match serde_json::to_value(self) {
+            Ok(serde_json::Value::Object(m)) => m,
+            _ => return format!("{self:?}"),
+        };
+        let listed: Vec<String> = fields
+            .iter()
+            .filter(|(k, _)| k.as_str() != "trigger")
+            .map(|(k, v)| match v {
+                serde_json::Value::Number(n) => format!("{k} {}", n.as_f64().unwrap_or(f64::NAN)),
+                serde_json::Value::String(s) => format!("{k} {s}"),
+                v => format!("{k} {v}"),
+            })
+            .collect();
+        listed.join(", ")
     }
 }
 
@@ -193,6 +214,151 @@ impl CameraSettings {
 
 /// Exposure polnlos accepts at all: 10 us to one hour.
 pub const EXPOSURE_RANGE_US: (f64, f64) = (10.0, 3.6e9);
+
+/// How a GenICam feature holds its value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FeatureKind {
+    /// A float node (`ExposureTime`, `Gain`).
+    Float,
+    /// An integer node (`GainRaw`): written rounded.
+    Integer,
+}
+
+/// A camera setting with a range the camera reports: its name, its GenICam
+/// features, the range polnlos accepts at all, the synthetic camera's range
+/// and where its value and its camera range sit. [`RANGED`] lists them; the
+/// request checks, the Aravis driver and the synthetic camera read them
+/// from there and name none of them.
+#[derive(Clone, Copy)]
+pub struct RangedSetting {
+    /// Its name in requests, rows and messages (`gain`).
+    pub name: &'static str,
+    /// The unit its range message ends with (` microseconds`), or nothing.
+    pub unit: &'static str,
+    /// Its features, the SFNC name first, then older names as fallback.
+    pub features: &'static [(&'static str, FeatureKind)],
+    /// What polnlos accepts whatever the camera.
+    pub accepted: (f64, f64),
+    /// The range of the in-process synthetic camera.
+    pub synthetic: (f64, f64),
+    /// Its value in settings.
+    pub value: fn(&Acquisition) -> f64,
+    /// Its value in settings, to write it.
+    pub value_mut: fn(&mut Acquisition) -> &mut f64,
+    /// The camera's range and the feature that sets it.
+    pub range: fn(&CameraRanges) -> ((f64, f64), &str),
+    /// The same, to write them.
+    pub range_mut: fn(&mut CameraRanges) -> (&mut (f64, f64), &mut String),
+}
+
+/// Every ranged camera setting: a new one (a black level) is one entry here,
+/// its field in [`Acquisition`], [`CameraSettings`] and [`CameraRanges`].
+pub const RANGED: &[RangedSetting] = &[
+    RangedSetting {
+        name: "exposure_us",
+        unit: " microseconds",
+        features: &[
+            ("ExposureTime", FeatureKind::Float),
+            ("ExposureTimeAbs", FeatureKind::Float),
+        ],
+        accepted: EXPOSURE_RANGE_US,
+        synthetic: EXPOSURE_RANGE_US,
+        value: |a| a.exposure_us,
+        value_mut: |a| &mut a.exposure_us,
+        range: |r| (r.exposure_us, r.exposure_feature.as_str()),
+        range_mut: |r| (&mut r.exposure_us, &mut r.exposure_feature),
+    },
+    RangedSetting {
+        name: "gain",
+        unit: "",
+        features: &[
+            ("Gain", FeatureKind::Float),
+            ("GainRaw", FeatureKind::Integer),
+        ],
+        accepted: (f64::NEG_INFINITY, f64::INFINITY),
+        synthetic: (0.0, 10.0),
+        value: |a| a.gain,
+        value_mut: |a| &mut a.gain,
+        range: |r| (r.gain, r.gain_feature.as_str()),
+        range_mut: |r| (&mut r.gain, &mut r.gain_feature),
+    },
+];
+
+/// The exposure's entry of [`RANGED`] (exposure plans need its range).
+pub const EXPOSURE: &RangedSetting = &RANGED[0];
+
+impl RangedSetting {
+    /// The range a capture may ask for: what polnlos accepts, within the
+    /// camera's range once the camera has reported it.
+    pub fn allowed(&self, camera: Option<&CameraRanges>) -> (f64, f64) {
+        let (mut lo, mut hi) = self.accepted;
+        if let Some(((a, b), _)) = camera.map(self.range) {
+            (lo, hi) = (lo.max(a), hi.min(b));
+        }
+        (lo, hi)
+    }
+
+    /// Its feature names as a message lists them (`Gain or GainRaw`).
+    pub fn feature_names(&self) -> String {
+        let names: Vec<&str> = self.features.iter().map(|f| f.0).collect();
+        names.join(" or ")
+    }
+}
+
+/// Checks every ranged setting of `a` against [`RangedSetting::allowed`]:
+/// the message names the setting, its value and the range.
+pub fn check_ranges(a: &Acquisition, camera: Option<&CameraRanges>) -> Result<(), String> {
+    for r in RANGED {
+        let (lo, hi) = r.allowed(camera);
+        let v = (r.value)(a);
+        if !(v >= lo && v <= hi) {
+            return Err(format!(
+                "{} = {v}: must be from {lo} to {hi}{}",
+                r.name, r.unit
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The camera's range of each ranged setting and the feature that sets it
+/// (one pair of fields per entry of [`RANGED`]), as `GET /camera` shows them.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct CameraRanges {
+    /// Exposure range in microseconds and the feature that sets it.
+    pub exposure_us: (f64, f64),
+    /// Feature used for exposure (`ExposureTime` or `ExposureTimeAbs`).
+    pub exposure_feature: String,
+    /// Gain range and the feature that sets it.
+    pub gain: (f64, f64),
+    /// Feature used for gain (`Gain` or `GainRaw`).
+    pub gain_feature: String,
+}
+
+impl CameraRanges {
+    /// Ranges filled from the table: `of` gives each setting's range and feature.
+    pub fn from_table<E>(
+        mut of: impl FnMut(&RangedSetting) -> Result<((f64, f64), String), E>,
+    ) -> Result<Self, E> {
+        let mut ranges = Self::default();
+        for r in RANGED {
+            let (range, feature) = (r.range_mut)(&mut ranges);
+            (*range, *feature) = of(r)?;
+        }
+        Ok(ranges)
+    }
+
+    /// The in-process synthetic camera's ranges (each first feature name).
+    pub fn synthetic() -> Self {
+        let filled = Self::from_table(|r| {
+            Ok::<_, std::convert::Infallible>((r.synthetic, r.features[0].0.to_string()))
+        });
+        match filled {
+            Ok(ranges) => ranges,
+            Err(never) => match never {},
+        }
+    }
+}
 
 /// What the sensor allows for region and binning, read from the camera's
 /// feature nodes when it is opened (SensorWidth/Height, Width/Height minimum
@@ -350,6 +516,64 @@ mod tests {
             (camera.region, camera.binning),
             (Some(light.region), Some(light.binning))
         );
+    }
+
+    #[test]
+    fn each_ranged_entry_reads_and_writes_its_own_field_and_one_message_checks_all() {
+        for (k, r) in RANGED.iter().enumerate() {
+            let v = 1234.5 + k as f64;
+            let mut a = Acquisition::defaults_at([0, 0, 8, 8], [1, 1]);
+            *(r.value_mut)(&mut a) = v;
+            assert_eq!(serde_json::to_value(a).unwrap()[r.name], v, "{}", r.name);
+            assert_eq!((r.value)(&a), v);
+            let stated = serde_json::to_value(CameraSettings::from(a)).unwrap();
+            assert_eq!(stated[r.name], v, "{}", r.name);
+            let mut ranges = CameraRanges::default();
+            let (range, feature) = (r.range_mut)(&mut ranges);
+            (*range, *feature) = ((v, v + 1.0), r.features[0].0.into());
+            let shown = serde_json::to_value(&ranges).unwrap();
+            assert_eq!(shown[r.name], serde_json::json!([v, v + 1.0]), "{}", r.name);
+            assert_eq!((r.range)(&ranges), ((v, v + 1.0), r.features[0].0));
+            assert!(r.allowed(Some(&ranges)).0 >= r.accepted.0);
+        }
+        let defaults = Acquisition::defaults_at([0, 0, 8, 8], [1, 1]);
+        let synthetic = CameraRanges::synthetic();
+        assert_eq!(check_ranges(&defaults, Some(&synthetic)), Ok(()));
+        assert_eq!(
+            check_ranges(
+                &Acquisition {
+                    gain: 11.0,
+                    ..defaults
+                },
+                Some(&synthetic)
+            ),
+            Err("gain = 11: must be from 0 to 10".to_string())
+        );
+        assert_eq!(
+            check_ranges(
+                &Acquisition {
+                    exposure_us: 5.0,
+                    ..defaults
+                },
+                None
+            ),
+            Err("exposure_us = 5: must be from 10 to 3600000000 microseconds".to_string())
+        );
+        assert_eq!(
+            (
+                synthetic.exposure_feature.as_str(),
+                synthetic.gain_feature.as_str()
+            ),
+            ("ExposureTime", "Gain")
+        );
+        assert_eq!(RANGED[1].feature_names(), "Gain or GainRaw");
+        let dark = defaults.dark_settings();
+        assert!(
+            dark.contains("gain 0,") && dark.contains("exposure_us 20000,"),
+            "{dark}"
+        );
+        assert!(dark.contains("pixel_format Mono16"), "{dark}");
+        assert!(!dark.contains("trigger"), "{dark}");
     }
 
     /// Aravis's fake camera: 2048 x 2048, sizes and offsets by 1, binning to 16.

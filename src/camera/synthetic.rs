@@ -10,13 +10,10 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use super::device::{FrameCounts, FrameSink};
 use super::fake::Bench;
-use super::settings::{SensorLimits, EXPOSURE_RANGE_US};
+use super::settings::{CameraRanges, SensorLimits};
 use super::shown::{BenchImages, Shown};
 use super::worker::Opener;
 use super::{Acquisition, CameraDevice, CameraError, CameraInfo, Counters, RawFrame};
-
-/// Gain range of the synthetic camera.
-const GAIN_RANGE: (f64, f64) = (0.0, 10.0);
 
 /// Sensor width and height of the synthetic camera.
 const SENSOR: u32 = 512;
@@ -120,10 +117,7 @@ impl CameraDevice for SyntheticCamera {
             model: "Synthetic".into(),
             serial: "POLNLOS-DEMO".into(),
             sensor: (SENSOR as i32, SENSOR as i32),
-            exposure_us: EXPOSURE_RANGE_US,
-            exposure_feature: "ExposureTime".into(),
-            gain: GAIN_RANGE,
-            gain_feature: "Gain".into(),
+            ranges: CameraRanges::synthetic(),
             frame_rate: None,
             pixel_formats: vec!["Mono8".into(), "Mono16".into()],
             mosaic: None,
@@ -135,8 +129,7 @@ impl CameraDevice for SyntheticCamera {
 
     fn configure(&mut self, s: &Acquisition) -> Result<(), CameraError> {
         Self::limits().check(s.region, s.binning)?;
-        CameraError::check_range("ExposureTime", s.exposure_us, EXPOSURE_RANGE_US)?;
-        CameraError::check_range("Gain", s.gain, GAIN_RANGE)?;
+        CameraError::check_ranges(s, &CameraRanges::synthetic())?;
         *self.settings.lock().unwrap_or_else(|e| e.into_inner()) = *s;
         Ok(())
     }

@@ -10,7 +10,7 @@ use super::queue::{DiskNeed, SubmitError};
 use super::requests::{AutoExposure, CaptureBody, ReconstructionBody};
 use super::validate::{self, CameraContext, ProgressiveSpec, RequestError};
 use super::Daemon;
-use crate::camera::settings::EXPOSURE_RANGE_US;
+use crate::camera::settings::EXPOSURE;
 use crate::camera::CameraInfo;
 use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
 use crate::store::{capture_bytes, CaptureRequest};
@@ -45,13 +45,8 @@ impl Daemon {
     /// The camera limits exposure planning works with: the camera's exposure
     /// range when connected (`info`), the configured sensor noise, the frame cap.
     pub fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
-        let (mut lo, mut hi) = EXPOSURE_RANGE_US;
-        if let Some(i) = info {
-            lo = lo.max(i.exposure_us.0);
-            hi = hi.min(i.exposure_us.1);
-        }
         CameraLimits {
-            exposure_us: (lo, hi),
+            exposure_us: EXPOSURE.allowed(info.map(|i| &i.ranges)),
             max_frames: self.config.queue.max_frames_per_capture,
             full_well_e: self.config.camera.full_well_e,
             read_noise_e: self.config.camera.read_noise_e,
@@ -92,7 +87,7 @@ impl Daemon {
     fn camera_context(&self, info: Option<&CameraInfo>) -> CameraContext {
         CameraContext {
             limits: self.camera_limits(info),
-            gain: info.map(|i| i.gain),
+            ranges: info.map(|i| i.ranges.clone()),
             sensor: info.map(|i| i.limits),
             defaults: self.camera.capture_defaults(info),
             pixel_formats: info.map(|i| i.pixel_formats.clone()),

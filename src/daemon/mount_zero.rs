@@ -212,13 +212,8 @@ impl Daemon {
             ))
         })?;
         let settings = self.camera.settings_on(b.settings, &info);
-        let (lo, hi) = self.camera_limits(Some(&info)).exposure_us;
+        crate::camera::settings::check_ranges(&settings, Some(&info.ranges)).map_err(invalid)?;
         let e = settings.exposure_us;
-        if !(e >= lo && e <= hi) {
-            return Err(invalid(format!(
-                "exposure_us = {e}: must be from {lo} to {hi} microseconds"
-            )));
-        }
         let n = (span / step).floor() as i64;
         let seconds = (2 * n + 1) as f64 * frames as f64 * e * 1e-6;
         if seconds > MAX_SWEEP_S {

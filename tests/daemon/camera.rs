@@ -78,8 +78,8 @@ fn frames_show_the_selected_block_and_scale_with_exposure() {
         cam.status()
     );
     let info = rt().block_on(cam.describe()).unwrap();
-    assert_eq!(info.exposure_feature, "ExposureTimeAbs");
-    assert_eq!(info.gain_feature, "GainRaw");
+    assert_eq!(info.ranges.exposure_feature, "ExposureTimeAbs");
+    assert_eq!(info.ranges.gain_feature, "GainRaw");
     // The camera opens at its own region (the fake's 512 x 512 of a 2048 sensor).
     assert_eq!(info.settings, at_open());
     assert_eq!(info.limits.sensor, [2048, 2048]);

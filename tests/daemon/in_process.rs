@@ -441,10 +441,10 @@ impl polnlos::camera::CameraDevice for Freezing {
             model: "Freezing".into(),
             serial: "1".into(),
             sensor: (512, 512),
-            exposure_us: (10.0, 1e7),
-            exposure_feature: "ExposureTime".into(),
-            gain: (0.0, 10.0),
-            gain_feature: "Gain".into(),
+            ranges: polnlos::camera::CameraRanges {
+                exposure_us: (10.0, 1e7),
+                ..polnlos::camera::CameraRanges::synthetic()
+            },
             frame_rate: None,
             pixel_formats: Vec::new(),
             mosaic: None,

@@ -1,6 +1,7 @@
 //! Checking a capture request against its scene, the camera and the bench.
 
 use super::{invalid, CameraContext, RequestError};
+use crate::camera::settings::check_ranges;
 use crate::camera::{Acquisition, CameraSettings, PixelFormat};
 use crate::daemon::requests::{AutoExposure, CaptureBody};
 use crate::measure::exposure::BlockExposure;
@@ -34,23 +35,11 @@ pub fn capture(
             "the camera has not reported its settings yet ({e}): give them, or retry when GET /camera shows it connected"
         ))
     })?;
-    let (lo, hi) = cam.limits.exposure_us;
-    let exposure_us = acquisition.exposure_us;
-    if !(exposure_us >= lo && exposure_us <= hi) {
-        return Err(invalid(format!(
-            "exposure_us = {exposure_us}: must be from {lo} to {hi} microseconds"
-        )));
-    }
+    check_ranges(&acquisition, cam.ranges.as_ref()).map_err(invalid)?;
     let frames = b
         .frames
         .unwrap_or_else(|| planned.as_ref().map_or(1, |p| p.frames));
     check_frames(b, kind, frames, cam)?;
-    if let Some((lo, hi)) = cam.gain {
-        let gain = acquisition.gain;
-        if !(gain >= lo && gain <= hi) {
-            return Err(invalid(format!("gain = {gain}: must be from {lo} to {hi}")));
-        }
-    }
     if let Some(limits) = &cam.sensor {
         limits
             .check(acquisition.region, acquisition.binning)
@@ -290,7 +279,7 @@ fn check_frames(
 
 /// Region and binning, stated or inherited, within the sensor's limits.
 /// A dark capture fits a light one when it is done, dark, and taken with the
-/// same exposure, gain, pixel format, region and binning.
+/// same settings ([`Acquisition::same_dark_as`]).
 fn check_dark_capture(c: &CaptureRecord, r: &CaptureRequest) -> Result<(), RequestError> {
     let id = c.id;
     if !c.is_dark() || c.state != JobState::Done {
@@ -304,9 +293,9 @@ fn check_dark_capture(c: &CaptureRecord, r: &CaptureRequest) -> Result<(), Reque
     let r = &r.acquisition;
     if !dark.same_dark_as(r) {
         return Err(invalid(format!(
-            "dark_capture {id} was taken at exposure_us {}, gain {}, {}, region {:?}, binning {:?}; this capture asks for {}, {}, {}, {:?}, {:?}: take a dark capture with the same settings",
-            dark.exposure_us, dark.gain, dark.pixel_format.name(), dark.region, dark.binning,
-            r.exposure_us, r.gain, r.pixel_format.name(), r.region, r.binning
+            "dark_capture {id} was taken at {}; this capture asks for {}: take a dark capture with the same settings",
+            dark.dark_settings(),
+            r.dark_settings()
         )));
     }
     Ok(())
@@ -327,7 +316,11 @@ mod tests {
                 full_well_e: 1e4,
                 read_noise_e: 5.0,
             },
-            gain: Some((0.0, 10.0)),
+            ranges: Some(crate::camera::CameraRanges {
+                exposure_us: (10.0, 1e6),
+                gain: (0.0, 10.0),
+                ..crate::camera::CameraRanges::synthetic()
+            }),
             sensor: Some(SensorLimits {
                 sensor: [512, 512],
                 ..SensorLimits::default()

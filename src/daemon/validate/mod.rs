@@ -18,7 +18,7 @@ pub use capture::capture;
 pub use progressive::{progressive, ProgressiveSpec};
 pub use reconstruction::reconstruction;
 
-use crate::camera::{CameraSettings, SensorLimits};
+use crate::camera::{CameraRanges, CameraSettings, SensorLimits};
 use crate::measure::exposure::CameraLimits;
 
 /// A request that cannot be accepted: status 404 (unknown thing), 422, or 503.
@@ -57,8 +57,8 @@ fn invalid(m: impl Into<String>) -> RequestError {
 pub struct CameraContext {
     /// Exposure range and noise (see [`super::Daemon::camera_limits`]).
     pub limits: CameraLimits,
-    /// Gain range, when the camera has reported it.
-    pub gain: Option<(f64, f64)>,
+    /// The camera's range of each ranged setting, when it has reported them.
+    pub ranges: Option<CameraRanges>,
     /// Region and binning limits, when the camera has reported them.
     pub sensor: Option<SensorLimits>,
     /// What a capture inherits for a setting it does not state.
