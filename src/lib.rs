@@ -74,8 +74,9 @@
 //!   catalogues that predate it), the row type in `src/store/records.rs`,
 //!   and the statements of its aggregate (`src/store/captures.rs` or
 //!   `reconstructions.rs`). The row readers name each column (`SELECT *`,
-//!   `r.get("kind")`), never its position; `tests/core/layers.rs` counts. Statements on either job table are written out
-//!   per table in `store::Table`; none splices a table name.
+//!   `r.get("kind")`), never its position; `tests/core/layers.rs` counts.
+//!   Statements on either job table are written out per table in
+//!   `store::Table`; none splices a table name.
 //! - **A bench device** (a shutter, a second stage): its driver beside
 //!   `src/mount/` (a trait, the serial device, a simulated one), its
 //!   service in `src/daemon/rig/`, and the `Rig` method a capture or a plan
