@@ -48,8 +48,9 @@
 //!   the solver's own settings in its file. `POST /reconstructions`, a
 //!   plan's `reconstruct`, the stored parameters and the CLI's `reconstruct`
 //!   embed `SolveRequest`; `tests/core/layers.rs` holds them to that.
-//! - **A route**: a handler with `#[utoipa::path]` in `src/api/routes.rs`
-//!   and one `routes!` line in `src/api/mod.rs`; the tests read it from
+//! - **A route**: a handler with `#[utoipa::path]` in its resource's file
+//!   under `src/api/routes/` and one `routes!` line in `src/api/mod.rs`;
+//!   the tests read it from
 //!   `/openapi.json` (docs/guide.md, "Adding a route"). A request body the
 //!   daemon checks goes in `src/daemon/requests.rs`.
 //! - **A bench report**: its file in `src/report/` implementing
