@@ -618,3 +618,25 @@ fn a_ranged_camera_setting_is_named_in_two_files() {
     assert!(named.len() <= 2, "{named:?}");
     assert_eq!(named, ["src/camera/settings.rs", "web/index.html"]);
 }
+
+#[test]
+fn a_pixel_format_is_one_file() {
+    // Issue 39: lib.rs says a pixel format is one variant in
+    // `src/camera/pixel.rs` (its name, layout, bit depth and any mosaic or
+    // Bayer pattern), and everything else reads it from there.
+    for format in ["Mono12", "BayerGB10", "PolarizedMono12p"] {
+        let named: Vec<String> = sources("")
+            .into_iter()
+            .filter(|(_, text)| {
+                let code = code(text);
+                code.match_indices(format).any(|(k, _)| {
+                    let next = code[k + format.len()..].chars().next();
+                    !next.is_some_and(|c| c.is_ascii_alphanumeric() || c == '_')
+                })
+            })
+            .map(|(p, _)| p)
+            .collect();
+        assert_eq!(named.len(), 1, "{format}: {named:?}");
+        assert!(named[0].ends_with("src/camera/pixel.rs"), "{named:?}");
+    }
+}
