@@ -20,7 +20,7 @@ use super::config::LostFrames;
 use super::jobs::{finish_job, Ending, JobContext, JobError};
 use super::progressive;
 use super::queue::CaptureQueue;
-use super::rig::{Rig, RigError};
+use super::rig::{Aid, Rig, RigError};
 use super::Event;
 use crate::camera::{Acquisition, CameraError, Frame, FrameCounts, RawFrame};
 use crate::measure::FrameStack;
@@ -159,14 +159,11 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     if scene_off {
         scene_light(w, id, false).await?;
     }
-    let target = meta.kind == CaptureKind::Target;
-    if target {
-        w.rig.show_target(true);
-    }
-    let source = meta.kind == CaptureKind::Source;
-    if source {
-        w.rig.show_source(true);
-    }
+    let aid = match meta.kind {
+        CaptureKind::Target => Some(w.rig.showing(Aid::Target)),
+        CaptureKind::Source => Some(w.rig.showing(Aid::Source)),
+        _ => None,
+    };
     let (n, offset) = (c.frames as usize, c.dark_frames as usize);
     let (dark, dark_variance) = dark.map_or((None, None), |(m, v)| (Some(m), v));
     let progressive = spec.map(|s| {
@@ -190,12 +187,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     } else {
         Ok(())
     };
-    if target {
-        w.rig.show_target(false);
-    }
-    if source {
-        w.rig.show_source(false);
-    }
+    drop(aid);
     if let Some((tx, steps)) = progressive {
         finish_progressive(w, id, frames.as_ref().ok().map(|(f, _)| f), tx, steps).await;
     }

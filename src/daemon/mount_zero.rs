@@ -12,6 +12,7 @@ use std::sync::Arc;
 use serde::Serialize;
 
 use super::requests::{ZeroBody, ZeroLight};
+use super::rig::{Aid, RigError};
 use super::{Daemon, RequestError, SubmitError};
 use crate::optics::polarizer::IntensityLaw;
 
@@ -148,6 +149,10 @@ fn central_sum(
     }
 }
 
+/// Why there is no zero to calibrate.
+const NO_MOUNT: &str =
+    "no rotation mount is configured ([mount] kind = \"none\"): there is no zero to calibrate";
+
 impl Daemon {
     /// `n` frames for one angle of a sweep; a transient camera failure
     /// (broken buffers, a late frame) is retried twice before the sweep
@@ -185,9 +190,7 @@ impl Daemon {
     ) -> Result<ZeroFit, SubmitError> {
         let invalid = |m: String| SubmitError::from(RequestError::Invalid(m));
         if !self.rig.automated().mount {
-            return Err(invalid(
-                "no rotation mount is configured ([mount] kind = \"none\"): there is no zero to calibrate".into(),
-            ));
+            return Err(invalid(NO_MOUNT.into()));
         }
         let (span, step, frames) = sweep_shape(&b).map_err(invalid)?;
         let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
@@ -226,19 +229,21 @@ impl Daemon {
         let previous = self.rig.mount().zero_deg();
         // Out again however the sweep ends (it put out the source only
         // when it finished, so a failed sweep left the fake bench lit by it).
-        let source = (b.light == ZeroLight::Source).then(|| self.rig.source_lit());
+        let source = (b.light == ZeroLight::Source).then(|| self.rig.showing(Aid::Source));
         let mut sweep = Vec::new();
         for k in -n..=n {
             let asked = k as f64 * step;
-            let mount = self.rig.mount().clone();
-            let read = tokio::task::spawn_blocking(move || mount.turn_to(asked))
-                .await
-                .map_err(|e| SubmitError::Internal(format!("rotation mount task: {e}")))?
-                .map_err(|e| {
-                    SubmitError::from(RequestError::Unavailable(format!(
-                        "the sweep could not turn the polarizer to {asked}°: {e}"
-                    )))
-                })?;
+            let read = match self.rig.turn_to(asked).await {
+                Ok(Some(read)) => read,
+                Ok(None) => return Err(invalid(NO_MOUNT.into())),
+                Err(RigError::Mount { source, .. }) => {
+                    return Err(RequestError::Unavailable(format!(
+                        "the sweep could not turn the polarizer to {asked}°: {source}"
+                    ))
+                    .into())
+                }
+                Err(e) => return Err(SubmitError::Internal(e.to_string())),
+            };
             self.rig.show_block(&b.pose, Some(read));
             let got = self.sweep_frames(settings, frames).await?;
             let (sum, count) = got.iter().fold((0.0, 0usize), |(s, c), f| {

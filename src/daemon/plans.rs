@@ -263,12 +263,7 @@ impl Daemon {
             .scenes
             .scene(&plan.scene)
             .map_err(|e| format!("its scene is no longer known ({e})"))?;
-        Ok((body.clone(), steps_of(&scene, &body, self.bench())))
-    }
-
-    /// What this bench does by itself.
-    fn bench(&self) -> Automated {
-        self.rig.automated()
+        Ok((body.clone(), steps_of(&scene, &body, self.rig.automated())))
     }
 
     /// Checks a plan request (every capture it will post, as `POST
@@ -308,7 +303,7 @@ impl Daemon {
                 .into());
             }
         }
-        let bench = self.bench();
+        let bench = self.rig.automated();
         let steps = steps_of(&scene, &body, bench);
         for step in &steps {
             // A dark capture stands in for the one a light step will name.
@@ -526,7 +521,7 @@ impl Daemon {
         let Some((mut plan, body, steps)) = self.resume_plan(id) else {
             return;
         };
-        let switches = self.bench().switches_scene;
+        let switches = self.rig.automated().switches_scene;
         while let Some(step) = steps.get(plan.step) {
             let at = plan.step;
             let walked = match step {

@@ -173,33 +173,37 @@ impl Rig {
         Ok(())
     }
 
-    /// Puts the calibration target in front of the wall (the fake bench's;
-    /// a real one is placed by the operator).
-    pub fn show_target(&self, on: bool) {
-        self.bench.show_target(on);
+    /// Puts `aid` in front of the wall (the fake bench's; a real one is
+    /// placed by the operator) until the guard drops, so that a capture or a
+    /// sweep that ends early (an error, a cancel) leaves the bench as it found it.
+    pub fn showing(&self, aid: Aid) -> Showing<'_> {
+        self.show(aid, true);
+        Showing(self, aid)
     }
 
-    /// Lights the wall with the calibration source (the fake bench's; a
-    /// real one is switched by the operator).
-    pub fn show_source(&self, on: bool) {
-        self.bench.show_source(on);
-    }
-
-    /// Lights the wall with the calibration source until the guard drops,
-    /// so that a procedure that ends early (an error, a cancel) leaves the
-    /// bench as it found it.
-    pub fn source_lit(&self) -> SourceLit<'_> {
-        self.show_source(true);
-        SourceLit(self)
+    fn show(&self, aid: Aid, on: bool) {
+        match aid {
+            Aid::Target => self.bench.show_target(on),
+            Aid::Source => self.bench.show_source(on),
+        }
     }
 }
 
-/// The calibration source lit by [`Rig::source_lit`]; dropping it puts it out.
-pub struct SourceLit<'a>(&'a Rig);
+/// A calibration aid the fake bench can show instead of the hidden scene.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Aid {
+    /// The calibration target (dots on the wall).
+    Target,
+    /// The calibration source lighting the wall.
+    Source,
+}
 
-impl Drop for SourceLit<'_> {
+/// An aid shown by [`Rig::showing`]; dropping it takes the aid away.
+pub struct Showing<'a>(&'a Rig, Aid);
+
+impl Drop for Showing<'_> {
     fn drop(&mut self) {
-        self.0.show_source(false);
+        self.0.show(self.1, false);
     }
 }
 
