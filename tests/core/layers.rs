@@ -527,6 +527,12 @@ fn a_catalogue_column_is_three_files_and_its_rows_are_read_by_name() {
     }
 }
 
+/// The identifiers (and other words) of `text`, split at everything that
+/// cannot be in one.
+fn identifiers(text: &str) -> impl Iterator<Item = &str> {
+    text.split(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+}
+
 /// The files of `src/camera`, `src/daemon`, `src/store`, `src/api` and
 /// `web/` whose code (comments and test modules aside) names the camera's
 /// gain: the word `gain` (any case), `gain_...` or `GainRaw`, as a whole
@@ -552,10 +558,7 @@ fn files_naming_gain() -> Vec<String> {
     };
     let mut out: Vec<String> = files
         .into_iter()
-        .filter(|(_, text)| {
-            text.split(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
-                .any(names_gain)
-        })
+        .filter(|(_, text)| identifiers(text).any(names_gain))
         .map(|(p, _)| {
             let p = p.replace('\\', "/");
             let root = root.display().to_string().replace('\\', "/");
@@ -627,13 +630,7 @@ fn a_pixel_format_is_one_file() {
     for format in ["Mono12", "BayerGB10", "PolarizedMono12p"] {
         let named: Vec<String> = sources("")
             .into_iter()
-            .filter(|(_, text)| {
-                let code = code(text);
-                code.match_indices(format).any(|(k, _)| {
-                    let next = code[k + format.len()..].chars().next();
-                    !next.is_some_and(|c| c.is_ascii_alphanumeric() || c == '_')
-                })
-            })
+            .filter(|(_, text)| identifiers(&code(text)).any(|w| w == format))
             .map(|(p, _)| p)
             .collect();
         assert_eq!(named.len(), 1, "{format}: {named:?}");
