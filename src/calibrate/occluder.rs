@@ -4,19 +4,18 @@
 //! Why: a passive reconstruction needs the occluder's position to a few
 //! millimetres, and a tape measure gives it to a centimetre at best; the
 //! photo itself says where the shadows fall (docs/realphoto.md, "Placing
-//! the occluders"). The misfit is that of the non-negative fit at λ = 0 of
-//! the data term of differences, blind to the photo's unknown gain and
-//! ambient light, summed over the colour channels.
+//! the occluders"). The misfit is the least-squares misfit of the data term
+//! of differences (blind to the photo's unknown gain and ambient light)
+//! summed over the colour channels, with `T` built with area shadows: exact,
+//! and continuous in the translation.
 
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
 
-use rayon::prelude::*;
-
 use crate::optics::Vec3;
-use crate::scene::{Mesh, Occluder, Scene, SceneError};
-use crate::solve::photo::{DataTerm, PhotoModel, PhotoSettings};
+use crate::scene::{Mesh, Occluder, Scene, SceneError, ShadowModel};
+use crate::solve::photo::{least_squares_misfit, DataTerm};
 use crate::solve::SolveError;
 use crate::transport::{build, MemoryBudget, TransportError};
 
@@ -85,11 +84,13 @@ pub struct OccluderOptions {
     pub step: Option<f64>,
     /// Last step, metres; `None`: one shadow pitch ([`shadow_pitch`]).
     pub min_step: Option<f64>,
-    /// Scene `supersample` of the `T` the objective builds; `None`: the
-    /// scene's own, raised to [`SUPERSAMPLE`].
+    /// Scene `supersample` of the `T` the objective builds; `None`: 1 with
+    /// area shadows (a block's visibility is then exact, only its emission
+    /// is taken at its centre), else the scene's own raised to [`SUPERSAMPLE`].
     pub supersample: Option<usize>,
-    /// ADMM iterations of each λ = 0 fit.
-    pub iterations: usize,
+    /// Shadows of the objective's `T`; area shadows by default, whatever
+    /// the scene says, for a misfit continuous in the translation.
+    pub shadows: ShadowModel,
     /// Memory budget of each `T`.
     pub budget: MemoryBudget,
 }
@@ -98,9 +99,9 @@ pub struct OccluderOptions {
 pub const RANGE: f64 = 0.05;
 /// Default first step in shadow pitches (then halved down to one pitch).
 pub const STEP_SHADOW_PITCHES: f64 = 4.0;
-/// Default scene supersample of the objective's `T`: at the chair's 2 the
-/// objective is rough by 5 % from one millimetre to the next, at 6 by 1 %
-/// (docs/realphoto.md).
+/// Default scene supersample of the objective's `T` with point shadows: at
+/// the chair's 2 the objective is rough by 5 % from one millimetre to the
+/// next, at 6 by 1 % (docs/realphoto.md).
 pub const SUPERSAMPLE: usize = 6;
 
 impl Default for OccluderOptions {
@@ -111,7 +112,7 @@ impl Default for OccluderOptions {
             step: None,
             min_step: None,
             supersample: None,
-            iterations: PhotoSettings::default().iterations,
+            shadows: ShadowModel::Area,
             budget: MemoryBudget::DEFAULT,
         }
     }
@@ -229,16 +230,18 @@ pub fn bounds(scene: &Scene, selected: &[usize]) -> ([f64; 3], [f64; 3]) {
 }
 
 /// `scene` with the selected occluders moved by `d` and the hidden scene
-/// sampled `supersample` times per side.
+/// sampled `supersample` times per side, its shadows as `shadows` says.
 pub fn moved(
     scene: &Scene,
     selected: &[usize],
     d: [f64; 3],
     supersample: usize,
+    shadows: ShadowModel,
 ) -> Result<Scene, SceneError> {
     let d = Vec3::from(d);
     scene.clone().edit(|p| {
         p.hidden.plane.supersample = supersample;
+        p.hidden.shadows = shadows;
         for &i in selected {
             match p.occluders.get_mut(i) {
                 Some(Occluder::Rect { center, .. } | Occluder::Sphere { center, .. }) => {
@@ -258,7 +261,8 @@ pub fn moved(
 }
 
 /// The objective at one translation: `T` of the moved scene, then the
-/// λ = 0 non-negative misfit of differences summed over the channels.
+/// least-squares misfit of the data term of differences, summed over the
+/// channels ([`least_squares_misfit`]).
 fn objective(
     scene: &Scene,
     selected: &[usize],
@@ -267,17 +271,11 @@ fn objective(
     supersample: usize,
     options: &OccluderOptions,
 ) -> Result<f64, OccluderError> {
-    let t = build(&moved(scene, selected, d, supersample)?, options.budget)?;
-    let model = PhotoModel::new(&t, DataTerm::Differences);
-    let settings = PhotoSettings {
-        iterations: options.iterations,
-        ..PhotoSettings::default()
-    };
-    let misfits = channels
-        .par_iter()
-        .map(|c| model.floor_misfit(&t, c, &settings))
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(misfits.iter().sum())
+    let t = build(
+        &moved(scene, selected, d, supersample, options.shadows)?,
+        options.budget,
+    )?;
+    Ok(least_squares_misfit(&t, DataTerm::Differences, channels)?)
 }
 
 /// A positive, finite option or an error naming it.
@@ -334,9 +332,10 @@ pub fn fit_occluder(
             reason: "must lie between min-step and range",
         });
     }
-    let supersample = options
-        .supersample
-        .unwrap_or(scene.hidden().plane.supersample.max(SUPERSAMPLE));
+    let supersample = options.supersample.unwrap_or(match options.shadows {
+        ShadowModel::Area => 1,
+        ShadowModel::Point => scene.hidden().plane.supersample.max(SUPERSAMPLE),
+    });
     let mut probes = Vec::new();
     let mut f = |d: [f64; 3]| {
         let v = objective(scene, &selected, channels, d, supersample, options)?;
@@ -401,9 +400,9 @@ pub struct Found {
 /// neighbour is lower, then a parabola per axis through the best point and
 /// its two neighbours for the sub-step position and the curvature.
 ///
-/// Why: `f` costs one `T` build per point and is rough below the shadow
-/// pitch, so the search moves on a lattice (no point is evaluated twice) at
-/// steps no smaller than that pitch.
+/// Why: `f` costs one `T` build per point, so the search moves on a lattice
+/// (no point is evaluated twice) down to the shadow pitch and lets the
+/// parabolas place the minimum between its points.
 pub fn search<E>(
     f: &mut dyn FnMut([f64; 3]) -> Result<f64, E>,
     step: f64,
@@ -655,7 +654,7 @@ rect = { center = [-0.05, 0.0, 0.5], half_u = [0.01, 0, 0], half_v = [0, 0.01, 0
     fn moving_occluders_moves_only_the_selected_in_the_scene_and_its_file() {
         let scene = Scene::from_toml_str(SCENE).unwrap();
         let d = [0.01, -0.02, 0.005];
-        let m = moved(&scene, &[0, 1], d, 1).unwrap();
+        let m = moved(&scene, &[0, 1], d, 1, ShadowModel::Point).unwrap();
         let text = scene_with_occluders_moved(SCENE, &[0, 1], d, Path::new("")).unwrap();
         let written = Scene::from_toml_str(&text).unwrap();
         assert_eq!(written.occluders(), m.occluders());

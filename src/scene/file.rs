@@ -9,7 +9,8 @@ use super::mesh::{self, MeshError};
 use super::occluder::{Mesh, MeshSource};
 use super::{
     crossed_axis, Analyzer, CameraFrame, Emitter, Grid, HiddenScene, Homography, LeftOut, Mosaic,
-    MosaicLayout, Occluder, Plane, Pose, Scene, SceneError, SceneParts, Wall, WallSampling,
+    MosaicLayout, Occluder, Plane, Pose, Scene, SceneError, SceneParts, ShadowModel, Wall,
+    WallSampling,
 };
 use crate::optics::{Brdf, DiffuseModel, PolarizerModel, Vec3};
 
@@ -60,6 +61,7 @@ struct RawScenePlane {
     emitter: Emitter,
     lobe: Option<[f64; 2]>,
     polarization: Option<[f64; 3]>,
+    shadows: Option<ShadowModel>,
 }
 
 #[derive(Deserialize)]
@@ -189,6 +191,7 @@ impl From<SceneParts> for RawFile {
                 emitter: p.hidden.emitter,
                 lobe: p.hidden.lobe,
                 polarization: p.hidden.polarization.map(array),
+                shadows: Some(p.hidden.shadows),
             },
             pose: p
                 .poses
@@ -667,6 +670,7 @@ fn validate_hidden(s: RawScenePlane, wall: &Plane) -> Result<HiddenScene, SceneE
         emitter: s.emitter,
         lobe,
         polarization,
+        shadows: s.shadows.unwrap_or_default(),
     })
 }
 
@@ -1192,6 +1196,22 @@ polarizer_deg = [0.0, 90.0]
         // An empty [polarizer] table is the default.
         let s = parse(&format!("{BASE}\n[polarizer]\n")).unwrap();
         assert_eq!(s.polarizer, PolarizerModel::Absorbing);
+    }
+
+    #[test]
+    fn scene_shadows_are_point_unless_the_file_says_area_and_survive_an_edit() {
+        assert_eq!(parse(BASE).unwrap().hidden.shadows, ShadowModel::Point);
+        let area = "grid = [2, 2]\nshadows = \"area\"";
+        let s = with("grid = [2, 2]", area).unwrap();
+        assert_eq!(s.hidden.shadows, ShadowModel::Area);
+        let scene = Scene::from_toml_str(&BASE.replace("grid = [2, 2]", area)).unwrap();
+        let edited = scene.edit(|p| p.hidden.plane.supersample = 2).unwrap();
+        assert_eq!(edited.hidden().shadows, ShadowModel::Area);
+        let e = with("grid = [2, 2]", "grid = [2, 2]\nshadows = \"soft\"").unwrap_err();
+        assert!(
+            e.to_string().contains("shadows") && e.to_string().contains("area"),
+            "{e}"
+        );
     }
 
     #[test]

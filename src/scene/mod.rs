@@ -43,6 +43,34 @@ pub enum Emitter {
     Isotropic,
 }
 
+/// How an occluder's shadow is computed from each hidden-scene sample
+/// (`[scene] shadows`).
+///
+/// Why: point sources (MODEL.md) cast hard shadows that jump between wall
+/// samples as an occluder moves, so a misfit over occluder positions is
+/// rough; a sample's whole cell as an area source gives a penumbra that is
+/// continuous in the occluder's position (docs/realphoto.md, "Area shadows").
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum ShadowModel {
+    /// Each sample is a point: visible or not (MODEL.md, the default).
+    #[default]
+    Point,
+    /// Each sample stands for its cell (the element's `m x m` sub-cell): the
+    /// visible fraction of the cell, exact for rects and mesh triangles.
+    Area,
+}
+
 /// The rough wall the camera sees.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Wall {
@@ -114,6 +142,8 @@ pub struct HiddenScene {
     pub lobe: Option<[f64; 2]>,
     /// Field direction of a linearly polarized scene (unit), if any (MODEL.md Eq. 11).
     pub polarization: Option<Vec3>,
+    /// Point or area shadows behind occluders.
+    pub shadows: ShadowModel,
 }
 
 /// A camera pose: where the camera is and which polarizer angles it captures.

@@ -654,6 +654,60 @@ fn affine_fit(truth: &[f64], x: &[f64]) -> Vec<f64> {
     x.iter().map(|v| mt + a * (v - mx)).collect()
 }
 
+/// Ridge of [`least_squares_misfit`]'s factorization, relative to the mean
+/// diagonal of `K^T K`: far below any entry that carries data (the chair's
+/// misfit is the same to 5 digits from 1e-9 to 1e-4, docs/realphoto.md).
+pub const LEAST_SQUARES_RIDGE: f64 = 1e-9;
+
+/// The least-squares misfit of the data term with no bound on the scene,
+/// summed over the colour channels: `sum_c min_x ||K (i_c - T x)||^2`, `K`
+/// the data term's operator (differences, or the block means taken out).
+///
+/// Why: exact (no iteration count to stop at) and smooth in `T`, so a search
+/// over the geometry compares two `T` by their model alone; blind to the
+/// gain and background, like the data term (docs/realphoto.md, "Placing the
+/// occluders").
+pub fn least_squares_misfit(
+    t: &Transport,
+    data_term: DataTerm,
+    channels: &[Vec<f64>],
+) -> Result<f64, SolveError> {
+    for c in channels {
+        check_measurement(t, c)?;
+    }
+    let k = match data_term {
+        DataTerm::Differences => differences(t),
+        DataTerm::Values => centred_columns(t),
+    };
+    let mut g = super::gram::gram_lower(k.as_mat(), super::par());
+    let ridge = LEAST_SQUARES_RIDGE * super::gram::mean_diag(&g).max(f64::MIN_POSITIVE);
+    for j in 0..k.cols() {
+        g[(j, j)] += ridge;
+    }
+    let llt = g.llt(faer::Side::Lower).map_err(|e| {
+        SolveError::Factorization(format!(
+            "Cholesky of K^T K + {ridge:e} I failed ({e:?}): the data term's columns are not independent"
+        ))
+    })?;
+    let mut total = 0.0;
+    for c in channels {
+        let y = match data_term {
+            DataTerm::Differences => difference_values(t, c),
+            DataTerm::Values => centred(t, c),
+        };
+        let ky = super::gram::adjoint(k.as_mat(), &y);
+        let rhs = faer::Mat::from_fn(k.cols(), 1, |r, _| ky[r]);
+        let x = faer::linalg::solvers::Solve::solve(&llt, &rhs);
+        let fit = k.as_mat() * &x;
+        total += y
+            .iter()
+            .enumerate()
+            .map(|(r, v)| (v - fit[(r, 0)]).powi(2))
+            .sum::<f64>();
+    }
+    Ok(total)
+}
+
 /// `D T`: each column's first differences along u (`rows` of a block) then
 /// along v, block by block, as [`gradient`] lays them out; each block of `T`
 /// becomes two blocks of `D T` with its label (u-differences, v-differences).

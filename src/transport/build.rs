@@ -23,7 +23,7 @@ use super::{Block, MemoryBudget, Transport, TransportError};
 use crate::optics::brdf::Direction;
 use crate::optics::polarizer::{analyzer_factor, partial_analyzer_factor};
 use crate::optics::{diffuse, ggx, DiffuseModel, Polarization, Vec3};
-use crate::scene::{Emitter, PixelMap, Scene, WallSampling};
+use crate::scene::{Emitter, PixelMap, Scene, ShadowModel, WallSampling};
 
 /// Three coordinate arrays, one entry per wall sample.
 #[derive(Default, Clone)]
@@ -511,7 +511,12 @@ impl Parts {
             views,
             wall_soa,
             scene_pts: scene.hidden().plane.sample_points(),
-            shadows: Shadows::new(scene.occluders(), &wall.plane, &samples.points),
+            shadows: Shadows::new(
+                scene.occluders(),
+                &wall.plane,
+                &samples.points,
+                (scene.hidden().shadows == ShadowModel::Area).then_some(&scene.hidden().plane),
+            ),
         }
     }
 

@@ -8,10 +8,20 @@
 //! wall, and the exact [`Occluder::blocks`] test runs only on the samples in
 //! that box (found through a bucket grid of the samples). It stays the only
 //! decider, so `T` is the same as testing every pair.
+//!
+//! With area shadows (`[scene] shadows = "area"`) each scene sample stands
+//! for its cell on the scene plane, and a wall sample keeps the fraction of
+//! the cell it sees: the pieces are projected from the wall sample onto the
+//! scene plane, clipped to the cell, and the area of their union is taken
+//! (see [`area`]).
 
 use crate::optics::Vec3;
 use crate::scene::occluder::triangle_blocks;
 use crate::scene::{Occluder, Plane};
+
+pub(super) mod area;
+
+use area::{Band, Cell, Cover, Polygon};
 
 /// A convex piece of an occluder.
 enum Piece {
@@ -28,6 +38,25 @@ impl Piece {
         match self {
             Piece::Whole(o) => o.blocks(s, p),
             Piece::Triangle(t) => triangle_blocks(t, s, &(p - s)),
+        }
+    }
+}
+
+impl Piece {
+    /// Its vertices in order when it is a polygon (a rect or a triangle).
+    fn polygon(&self) -> Option<Vec<Vec3>> {
+        match self {
+            Piece::Whole(Occluder::Rect {
+                center,
+                half_u,
+                half_v,
+            }) => Some(
+                [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)]
+                    .map(|(a, b)| center + half_u * a + half_v * b)
+                    .to_vec(),
+            ),
+            Piece::Triangle(t) => Some(t.to_vec()),
+            Piece::Whole(_) => None,
         }
     }
 }
@@ -111,6 +140,9 @@ pub(super) struct Shadows {
     pieces: Vec<Piece>,
     /// Points whose convex hull holds each piece.
     hulls: Vec<Vec<Vec3>>,
+    /// Each piece's vertices in order when it is a polygon (a rect or a
+    /// triangle), for area shadows.
+    polygons: Vec<Option<Vec<Vec3>>>,
     origin: Vec3,
     n: Vec3,
     u: Vec3,
@@ -119,12 +151,20 @@ pub(super) struct Shadows {
     vs: Vec<f64>,
     /// `None` when a sample is off the wall plane: then every pair is tested.
     buckets: Option<Buckets>,
+    /// The scene plane's sample cell, for area shadows; `None`: point shadows.
+    cell: Option<Cell>,
 }
 
 impl Shadows {
     /// The pieces of `occluders` against the wall samples `points` of
-    /// `plane`; `None` without an occluder.
-    pub fn new(occluders: &[Occluder], plane: &Plane, points: &[Vec3]) -> Option<Self> {
+    /// `plane`, with area shadows over the sample cells of `scene` when it
+    /// is given; `None` without an occluder.
+    pub fn new(
+        occluders: &[Occluder],
+        plane: &Plane,
+        points: &[Vec3],
+        scene: Option<&Plane>,
+    ) -> Option<Self> {
         if occluders.is_empty() {
             return None;
         }
@@ -169,9 +209,11 @@ impl Shadows {
             .iter()
             .all(|p| n.dot(&(p - origin)).abs() <= 1e-12 * extent);
         let buckets = (on_plane && !points.is_empty()).then(|| Buckets::new(&us, &vs));
+        let polygons = pieces.iter().map(Piece::polygon).collect();
         Some(Shadows {
             pieces,
             hulls,
+            polygons,
             origin,
             n,
             u,
@@ -179,6 +221,7 @@ impl Shadows {
             us,
             vs,
             buckets,
+            cell: scene.map(Cell::of),
         })
     }
 
@@ -222,8 +265,12 @@ impl Shadows {
     }
 
     /// Zeroes `base[j]` for every wall sample `j` (with `base[j] != 0`)
-    /// whose segment from `s` some occluder blocks.
+    /// whose segment from `s` some occluder blocks; with area shadows,
+    /// scales it by the fraction of `s`'s cell the sample sees.
     pub fn shade(&self, s: &Vec3, points: &[Vec3], base: &mut [f64]) {
+        if let Some(cell) = &self.cell {
+            return self.shade_area(cell, s, points, base);
+        }
         let hs = self.n.dot(&(s - self.origin));
         let len = base.len().min(points.len());
         let (us, vs) = (&self.us[..len], &self.vs[..len]);
@@ -250,6 +297,151 @@ impl Shadows {
                     {
                         base[j] = 0.0;
                     }
+                }
+            }
+        }
+    }
+
+    /// Point `x` cast from `s` onto the wall plane, in its `(u, v)`; `None`
+    /// unless `x` lies strictly between `s` and the wall.
+    fn cast(&self, s: &Vec3, x: &Vec3) -> Option<[f64; 2]> {
+        let hs = self.n.dot(&(s - self.origin));
+        let gap = hs - self.n.dot(&(x - self.origin));
+        if !(hs > 0.0 && gap > 1e-9 * hs) {
+            return None;
+        }
+        let q = s + (x - s) * (hs / gap) - self.origin;
+        Some([self.u.dot(&q), self.v.dot(&q)])
+    }
+
+    /// Piece `k`'s [`Band`] for the cell centred on `s`; `None` when the
+    /// piece is not a polygon or does not lie between the cell and the wall.
+    fn band(&self, s: &Vec3, corners: &[Vec3; 4], k: usize) -> Option<Band> {
+        let verts = self.polygons[k].as_ref()?;
+        let cast_all = |from: &Vec3| -> Option<Vec<[f64; 2]>> {
+            verts.iter().map(|x| self.cast(from, x)).collect()
+        };
+        let centre = cast_all(s)?;
+        let [a, b, c, d] = corners;
+        let corners = [cast_all(a)?, cast_all(b)?, cast_all(c)?, cast_all(d)?];
+        Band::new(&centre, &corners)
+    }
+
+    /// Area shadows ([`Shadows::shade`]): each wall sample in some piece's
+    /// shadow box from the cell's corners keeps `1 - f` of its value, `f`
+    /// the covered fraction of the cell.
+    fn shade_area(&self, cell: &Cell, s: &Vec3, points: &[Vec3], base: &mut [f64]) {
+        let len = base.len().min(points.len());
+        let corners = cell.corners(s);
+        let heights = corners.map(|c| self.n.dot(&(c - self.origin)));
+        // Each piece's shadow box over the whole cell; `None`: unbounded.
+        let boxes: Vec<Option<Box2>> = (0..self.pieces.len())
+            .map(|k| {
+                let mut b = [
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                ];
+                for (c, &h) in corners.iter().zip(&heights) {
+                    let e = self.shadow_box(c, h, k)?;
+                    b = [
+                        b[0].min(e[0]),
+                        b[1].max(e[1]),
+                        b[2].min(e[2]),
+                        b[3].max(e[3]),
+                    ];
+                }
+                Some(b)
+            })
+            .collect();
+        let bands: Vec<Option<Band>> = (0..self.pieces.len())
+            .map(|k| self.band(s, &corners, k))
+            .collect();
+        let mut polygons: Vec<Polygon> = Vec::new();
+        let mut shade_one = |j: usize, base: &mut [f64]| {
+            let (p, (u, v)) = (&points[j], (self.us[j], self.vs[j]));
+            polygons.clear();
+            for (k, piece) in self.pieces.iter().enumerate() {
+                if let Some(b) = &boxes[k] {
+                    if !(b[0]..=b[1]).contains(&u) || !(b[2]..=b[3]).contains(&v) {
+                        continue;
+                    }
+                }
+                match bands[k].as_ref().map_or(Cover::Part, |b| b.cover(u, v)) {
+                    Cover::All => {
+                        base[j] = 0.0;
+                        return;
+                    }
+                    Cover::Nothing => continue,
+                    Cover::Part => {}
+                }
+                let projected = self.polygons[k]
+                    .as_ref()
+                    .and_then(|v| cell.project(s, p, v));
+                match projected {
+                    Some(q) => {
+                        if let Some(q) = cell.clip(&q) {
+                            polygons.push(q);
+                        }
+                    }
+                    // A ball, or a piece not wholly between the two planes:
+                    // the point test at the sample decides the whole cell.
+                    None if piece.blocks(s, p) => {
+                        base[j] = 0.0;
+                        return;
+                    }
+                    None => {}
+                }
+            }
+            let covered = area::union_area(&polygons) / cell.area();
+            if covered >= 1.0 - 1e-12 {
+                base[j] = 0.0;
+            } else if covered > 0.0 {
+                base[j] *= 1.0 - covered;
+            }
+        };
+        let union = boxes.iter().try_fold(
+            [
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+            ],
+            |a, b| {
+                b.map(|b| {
+                    [
+                        a[0].min(b[0]),
+                        a[1].max(b[1]),
+                        a[2].min(b[2]),
+                        a[3].max(b[3]),
+                    ]
+                })
+            },
+        );
+        let (Some(grid), Some(b)) = (&self.buckets, union) else {
+            for j in 0..len {
+                if base[j] != 0.0 {
+                    shade_one(j, base);
+                }
+            }
+            return;
+        };
+        if b[0] > b[1] || b[2] > b[3] {
+            return;
+        }
+        let (iu0, iu1) = (grid.cell_u(b[0]), grid.cell_u(b[1]));
+        for iv in grid.cell_v(b[2])..=grid.cell_v(b[3]) {
+            let row = iv * grid.nu;
+            let run = grid.start[row + iu0] as usize..grid.start[row + iu1 + 1] as usize;
+            for &j in &grid.order[run] {
+                let j = j as usize;
+                if j < len
+                    && base[j] != 0.0
+                    && (b[0]..=b[1]).contains(&self.us[j])
+                    && (b[2]..=b[3]).contains(&self.vs[j])
+                {
+                    shade_one(j, base);
                 }
             }
         }
@@ -316,7 +508,7 @@ mod tests {
         let plane = wall();
         let points = plane.sample_points();
         let occ = occluders();
-        let shadows = Shadows::new(&occ, &plane, &points).unwrap();
+        let shadows = Shadows::new(&occ, &plane, &points, None).unwrap();
         assert!(shadows.buckets.is_some());
         let mut blocked = 0;
         for s in [
@@ -335,7 +527,7 @@ mod tests {
             }
         }
         assert!(blocked > 500, "{blocked}");
-        assert!(Shadows::new(&[], &plane, &points).is_none());
+        assert!(Shadows::new(&[], &plane, &points, None).is_none());
     }
 
     #[test]
@@ -344,13 +536,159 @@ mod tests {
         let mut points = plane.sample_points();
         points[3].z = 0.01;
         let occ = occluders();
-        let shadows = Shadows::new(&occ, &plane, &points).unwrap();
+        let shadows = Shadows::new(&occ, &plane, &points, None).unwrap();
         assert!(shadows.buckets.is_none());
         let s = Vec3::new(0.0, 0.0, 1.0);
         let mut fast = vec![1.0; points.len()];
         shadows.shade(&s, &points, &mut fast);
         for (j, p) in points.iter().enumerate() {
             assert_eq!(fast[j] == 0.0, occ.iter().any(|o| o.blocks(&s, p)));
+        }
+    }
+
+    /// The scene plane of the area tests: 8 x 8 cells at z = 1 facing the wall.
+    fn screen() -> Plane {
+        Plane {
+            center: Vec3::new(0.0, 0.0, 1.0),
+            normal: -Vec3::z(),
+            u: Vec3::x(),
+            v: -Vec3::y(),
+            size: [0.8, 0.8],
+            grid: Grid { nu: 8, nv: 8 },
+            supersample: 1,
+        }
+    }
+
+    /// Polygons wholly between the screen and the wall: a slanted rect, an
+    /// overlapping copy of it, and two mesh triangles.
+    fn polygons() -> Vec<Occluder> {
+        let tri = |a: [f64; 3], b: [f64; 3], c: [f64; 3]| [a, b, c].map(Vec3::from);
+        let rect = |x: f64| Occluder::Rect {
+            center: Vec3::new(x, 0.05, 0.3),
+            half_u: Vec3::new(0.05, 0.0, 0.02),
+            half_v: Vec3::new(0.0, 0.08, 0.0),
+        };
+        vec![
+            rect(0.0),
+            rect(0.03),
+            Occluder::Mesh(Arc::new(Mesh::new(
+                vec![
+                    tri([0.1, 0.1, 0.5], [0.2, 0.1, 0.5], [0.1, 0.2, 0.45]),
+                    tri([-0.2, 0.0, 0.1], [-0.1, 0.0, 0.6], [-0.15, 0.05, 0.3]),
+                ],
+                MeshSource {
+                    path: "t.obj".into(),
+                    scale: None,
+                    offset: None,
+                },
+            ))),
+        ]
+    }
+
+    /// Each wall sample's visible fraction of each cell, area shadows.
+    fn area_fractions(occ: &[Occluder]) -> Vec<Vec<f64>> {
+        let (plane, screen) = (wall(), screen());
+        let points = plane.sample_points();
+        let shadows = Shadows::new(occ, &plane, &points, Some(&screen)).unwrap();
+        screen
+            .sample_points()
+            .iter()
+            .map(|s| {
+                let mut f = vec![1.0; points.len()];
+                shadows.shade(s, &points, &mut f);
+                f
+            })
+            .collect()
+    }
+
+    #[test]
+    fn area_shadows_are_the_mean_of_point_shadows_over_each_cell() {
+        let occ = polygons();
+        let (plane, screen) = (wall(), screen());
+        let points = plane.sample_points();
+        let area = area_fractions(&occ);
+        let n = 16;
+        let (mut partial, mut worst, mut total) = (0, 0.0f64, 0.0);
+        for (c, s) in screen.sample_points().iter().enumerate() {
+            for (j, p) in points.iter().enumerate().step_by(3) {
+                let mut seen = 0;
+                for a in 0..n {
+                    for b in 0..n {
+                        let du = ((a as f64 + 0.5) / n as f64 - 0.5) * 0.1;
+                        let dv = ((b as f64 + 0.5) / n as f64 - 0.5) * 0.1;
+                        let q = s + screen.u * du + screen.v * dv;
+                        seen += !occ.iter().any(|o| o.blocks(&q, p)) as usize;
+                    }
+                }
+                let counted = seen as f64 / (n * n) as f64;
+                let d = (area[c][j] - counted).abs();
+                worst = worst.max(d);
+                total += d;
+                partial += (area[c][j] > 0.0 && area[c][j] < 1.0) as usize;
+            }
+        }
+        let mean = total / (points.len().div_ceil(3) * 64) as f64;
+        assert!(partial > 700, "{partial} pairs in a penumbra");
+        assert!(worst < 0.1 && mean < 2e-3, "worst {worst}, mean {mean}");
+    }
+
+    #[test]
+    fn area_shadows_move_continuously_with_the_occluder_where_point_shadows_jump() {
+        let (plane, screen) = (wall(), screen());
+        let points = plane.sample_points();
+        let shift = |d: f64| -> Vec<Occluder> {
+            polygons()
+                .into_iter()
+                .map(|o| match o {
+                    Occluder::Rect {
+                        center,
+                        half_u,
+                        half_v,
+                    } => Occluder::Rect {
+                        center: center + Vec3::new(d, 0.0, 0.0),
+                        half_u,
+                        half_v,
+                    },
+                    o => o,
+                })
+                .collect()
+        };
+        let (a, b) = (area_fractions(&shift(0.0)), area_fractions(&shift(1e-4)));
+        let step = a
+            .iter()
+            .flatten()
+            .zip(b.iter().flatten())
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+        assert!(step > 0.0 && step < 0.01, "{step}");
+        let point = |occ: &[Occluder]| -> Vec<f64> {
+            let shadows = Shadows::new(occ, &plane, &points, None).unwrap();
+            screen
+                .sample_points()
+                .iter()
+                .flat_map(|s| {
+                    let mut f = vec![1.0; points.len()];
+                    shadows.shade(s, &points, &mut f);
+                    f
+                })
+                .collect()
+        };
+        let (p, q) = (point(&shift(0.0)), point(&shift(1e-4)));
+        assert!(p.iter().zip(&q).any(|(x, y)| (x - y).abs() == 1.0));
+    }
+
+    #[test]
+    fn a_ball_or_a_piece_not_between_the_planes_shades_the_whole_cell_by_its_centre() {
+        let (plane, screen) = (wall(), screen());
+        let points = plane.sample_points();
+        let occ = occluders();
+        let shadows = Shadows::new(&occ[2..4], &plane, &points, Some(&screen)).unwrap();
+        for s in screen.sample_points() {
+            let mut f = vec![1.0; points.len()];
+            shadows.shade(&s, &points, &mut f);
+            for (j, p) in points.iter().enumerate() {
+                let blocked = occ[2..4].iter().any(|o| o.blocks(&s, p));
+                assert_eq!(f[j], if blocked { 0.0 } else { 1.0 });
+            }
         }
     }
 }
