@@ -86,9 +86,10 @@
 //!   `src/daemon/` that owns the state and its lock (as `queue.rs`,
 //!   `registry.rs` and `camera.rs` do); `Daemon` holds it, and a worker gets
 //!   it through `JobContext` (`src/daemon/jobs.rs`) or its own struct,
-//!   never the whole `Daemon`. One exception remains: the plan runner
-//!   (`src/daemon/plans.rs`) holds a `Weak<Daemon>`, because it posts its
-//!   captures and reconstructions through the same admission a request does.
+//!   never the whole `Daemon` (`tests/core/layers.rs` holds this). The plan
+//!   runner holds `Plans` (`src/daemon/plans.rs`), which posts its captures
+//!   and reconstructions through `Admission` (`src/daemon/admission.rs`),
+//!   the handle a request's admission and a cancel go through.
 
 #![deny(missing_docs)]
 

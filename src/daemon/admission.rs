@@ -1,21 +1,48 @@
-//! Admission: a request body in, a queued job out. The daemon gathers what
-//! [`super::validate`] needs (the scene, the camera's ranges and current
-//! settings, the captures named), then admits the request by queue room and,
-//! for captures, disk space.
+//! Admission: a request body in, a queued job out. [`Admission`] gathers
+//! what [`super::validate`] needs (the scene, the camera's ranges and
+//! current settings, the captures named), then admits the request by queue
+//! room and, for captures, disk space; it also cancels jobs (`cancel`).
+//!
+//! Why a handle of its own: the HTTP API and the plan runner both post
+//! captures and reconstructions; the runner holds this, never the daemon.
 
+use std::collections::BTreeMap;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
-use super::queue::{DiskNeed, SubmitError};
+use super::camera::CameraService;
+use super::events::Events;
+use super::metrics::Metrics;
+use super::queue::{CaptureQueue, DiskNeed, Queue, SubmitError};
+use super::registry::JobRegistry;
 use super::requests::{AutoExposure, CaptureBody, ReconstructionBody};
+use super::rig::Rig;
+use super::scenes::Scenes;
 use super::validate::{self, CameraContext, ProgressiveSpec, RequestError};
-use super::Daemon;
+use super::Config;
 use crate::camera::settings::EXPOSURE;
 use crate::camera::CameraInfo;
 use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
-use crate::store::{capture_bytes, CaptureRequest};
+use crate::store::{capture_bytes, CaptureRequest, Store};
 
-impl Daemon {
+/// What admitting and cancelling jobs needs: the services it reads and the
+/// queues it pushes to, shared with the daemon.
+pub(super) struct Admission {
+    pub(super) config: Arc<Config>,
+    pub(super) store: Arc<Store>,
+    pub(super) scenes: Arc<Scenes>,
+    /// Fraction of full scale per microsecond per unit of `T l`, per scene.
+    pub(super) calibration: Arc<BTreeMap<String, f64>>,
+    pub(super) camera: Arc<CameraService>,
+    pub(super) rig: Arc<Rig>,
+    pub(super) captures: Arc<CaptureQueue>,
+    pub(super) reconstructions: Queue,
+    pub(super) registry: Arc<JobRegistry>,
+    pub(super) events: Events,
+    pub(super) metrics: Arc<Metrics>,
+}
+
+impl Admission {
     /// Capture `id` from the catalogue for a request's checks: `None` when
     /// there is no such capture; a catalogue that cannot be read is a 500
     /// with the store's reason, not "no capture".
@@ -44,7 +71,7 @@ impl Daemon {
 
     /// The camera limits exposure planning works with: the camera's exposure
     /// range when connected (`info`), the configured sensor noise, the frame cap.
-    pub fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
+    pub(super) fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
         CameraLimits {
             exposure_us: EXPOSURE.allowed(info.map(|i| &i.ranges)),
             max_frames: self.config.queue.max_frames_per_capture,
@@ -55,7 +82,7 @@ impl Daemon {
 
     /// The exposure plan of every block of a scene for the camera as it is
     /// now. Builds the scene's `T` on first use: call it off the async runtime.
-    pub fn exposure_plan(
+    pub(super) fn exposure_plan(
         &self,
         scene: &str,
         target: &ExposureTarget,
@@ -91,14 +118,14 @@ impl Daemon {
             sensor: info.map(|i| i.limits),
             defaults: self.camera.capture_defaults(info),
             pixel_formats: info.map(|i| i.pixel_formats.clone()),
-            bench_switches_scene: self.switches_scene(),
+            bench_switches_scene: self.rig.switches_scene(),
             max_frames: self.config.queue.max_frames_per_capture,
         }
     }
 
     /// Validates a capture body (planning its exposure when asked, which may
     /// build the scene's `T`, off the runtime) and admits it.
-    pub async fn submit_capture(
+    pub(super) async fn submit_capture(
         self: &Arc<Self>,
         body: CaptureBody,
     ) -> Result<(i64, CaptureRequest), SubmitError> {
@@ -183,7 +210,7 @@ impl Daemon {
     }
 
     /// Validates a reconstruction body against its scene and captures and queues it.
-    pub fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
+    pub(super) fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
         let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
         let request = validate::reconstruction(b, &scene, |id| self.lookup_capture(id))?;
         let pushed = self.reconstructions.push(5, || {
@@ -208,5 +235,53 @@ impl Daemon {
             self.metrics.rejected_full.fetch_add(1, Ordering::Relaxed);
         }
         pushed
+    }
+}
+
+/// The front end's door to [`Admission`].
+impl super::Daemon {
+    /// Validates a capture body and queues it ([`Admission::submit_capture`]).
+    pub async fn submit_capture(
+        &self,
+        body: CaptureBody,
+    ) -> Result<(i64, CaptureRequest), SubmitError> {
+        self.admission.submit_capture(body).await
+    }
+
+    /// Validates a reconstruction body and queues it.
+    pub fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
+        self.admission.submit_reconstruction(b)
+    }
+
+    /// The exposure plan of every block of a scene for the camera as it is
+    /// now ([`Admission::exposure_plan`]): call it off the async runtime.
+    pub fn exposure_plan(
+        &self,
+        scene: &str,
+        target: &ExposureTarget,
+    ) -> Result<Vec<BlockExposure>, RequestError> {
+        self.admission.exposure_plan(scene, target)
+    }
+
+    /// The camera limits exposure planning works with.
+    pub fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
+        self.admission.camera_limits(info)
+    }
+
+    /// Capture `id`, which a request needs to exist.
+    pub(super) fn require_capture(
+        &self,
+        id: i64,
+    ) -> Result<crate::store::CaptureRecord, RequestError> {
+        self.admission.require_capture(id)
+    }
+
+    /// Cancels a queued or running job ([`Admission::cancel_job`]).
+    pub async fn cancel_job(
+        &self,
+        kind: super::JobKind,
+        id: i64,
+    ) -> Result<crate::store::JobState, super::CancelError> {
+        self.admission.cancel_job(kind, id).await
     }
 }

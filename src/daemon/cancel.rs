@@ -6,7 +6,7 @@
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use super::Daemon;
+use super::admission::Admission;
 use crate::store::{JobState, StoreError};
 
 /// How long `DELETE /jobs/{id}` waits for a running job to stop.
@@ -57,7 +57,7 @@ pub enum CancelError {
     Store(String),
 }
 
-impl Daemon {
+impl Admission {
     fn job_state(&self, kind: JobKind, id: i64) -> Result<JobState, CancelError> {
         let r = match kind {
             JobKind::Capture => self.store.capture(id).map(|c| c.state),
@@ -75,7 +75,7 @@ impl Daemon {
     /// Cancels a queued or running job; returns its state when this returns:
     /// `cancelled`, or still `running` if it did not stop within 5 s (it
     /// will, at its next check).
-    pub async fn cancel_job(&self, kind: JobKind, id: i64) -> Result<JobState, CancelError> {
+    pub(super) async fn cancel_job(&self, kind: JobKind, id: i64) -> Result<JobState, CancelError> {
         let job = format!("{}-{id}", kind.name());
         let state = self.job_state(kind, id)?;
         if !matches!(state, JobState::Queued | JobState::Running) {

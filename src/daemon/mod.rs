@@ -200,9 +200,10 @@ async fn demo_frames(
 
 /// The daemon as a front end sees it: the configuration and the services,
 /// each owning its state and its lock. Workers get only the services they
-/// use (`JobContext`, the camera, the capture queue), never this.
+/// use (`JobContext`, the camera, the capture queue, the plan runner's
+/// `Plans`), never this.
 pub struct Daemon {
-    config: Config,
+    config: Arc<Config>,
     /// Bearer token ("" = none).
     token: String,
     store: Arc<Store>,
@@ -212,8 +213,10 @@ pub struct Daemon {
     camera: Arc<CameraService>,
     /// The bench's devices: stage, rotation mount, light relay.
     rig: Arc<rig::Rig>,
-    /// Wakes the plan runner: a plan was posted, continued or cancelled.
-    plan_wake: Arc<tokio::sync::Notify>,
+    /// Admits and cancels captures and reconstructions.
+    admission: Arc<admission::Admission>,
+    /// The acquisition plans and their runner's state.
+    plans: Arc<plans::Plans>,
     captures: Arc<CaptureQueue>,
     reconstructions: Queue,
     registry: Arc<JobRegistry>,
@@ -270,20 +273,43 @@ impl Daemon {
         let (reconstructions, recon_rx) =
             Queue::new("reconstruction", config.queue.reconstructions);
         let pool = config.queue.reconstruction_workers;
+        let config = Arc::new(config);
+        let store = Arc::new(store);
+        let calibration = Arc::new(calibration);
+        let camera = Arc::new(CameraService::new(handle, hotplug));
+        let captures = Arc::new(captures);
+        let registry = Arc::new(JobRegistry::default());
+        let events = Events::new(1024);
+        let metrics = Arc::new(Metrics::default());
+        let admission = Arc::new(admission::Admission {
+            config: config.clone(),
+            store: store.clone(),
+            scenes: scenes.clone(),
+            calibration: calibration.clone(),
+            camera: camera.clone(),
+            rig: rig.clone(),
+            captures: captures.clone(),
+            reconstructions: reconstructions.clone(),
+            registry: registry.clone(),
+            events: events.clone(),
+            metrics: metrics.clone(),
+        });
+        let plans = Arc::new(plans::Plans::new(admission.clone()));
         let daemon = Arc::new(Self {
             config,
             token,
-            store: Arc::new(store),
+            store,
             scenes,
-            calibration: Arc::new(calibration),
-            camera: Arc::new(CameraService::new(handle, hotplug)),
+            calibration,
+            camera,
             rig,
-            plan_wake: Arc::new(tokio::sync::Notify::new()),
-            captures: Arc::new(captures),
+            admission,
+            plans,
+            captures,
             reconstructions,
-            registry: Arc::new(JobRegistry::default()),
-            events: Events::new(1024),
-            metrics: Arc::new(Metrics::default()),
+            registry,
+            events,
+            metrics,
             workers: std::sync::Mutex::new(tokio::task::JoinSet::new()),
         });
         {
@@ -319,7 +345,7 @@ impl Daemon {
                 d.config.retention.clone(),
             );
             set.spawn(until_stopped(stopped, retention));
-            set.spawn(plans::run(Arc::downgrade(d)));
+            set.spawn(plans::run(d.plans.clone()));
         }
         Ok(daemon)
     }
@@ -365,12 +391,6 @@ impl Daemon {
     /// The relay that switches the hidden scene's light, as last seen.
     pub fn light_now(&self) -> rig::light::LightView {
         self.rig.light_view()
-    }
-
-    /// Whether the bench switches the hidden scene off for dark frames by
-    /// itself (a relay, or the fake bench's own switch); else the operator does.
-    fn switches_scene(&self) -> bool {
-        self.rig.switches_scene()
     }
 
     /// The camera stage as last seen.

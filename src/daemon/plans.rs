@@ -9,7 +9,7 @@
 //! finished is), and plans share the one bench in the order they came.
 
 use std::ops::ControlFlow;
-use std::sync::{Arc, Weak};
+use std::sync::Arc;
 use std::time::Duration;
 
 use serde::Serialize;
@@ -17,8 +17,16 @@ use serde::Serialize;
 use super::events::Event;
 use super::requests::{CaptureBody, PlanBody, ReconstructionBody};
 use super::rig::Automated;
+use std::collections::BTreeMap;
+
+use super::admission::Admission;
+use super::events::Events;
+use super::registry::JobRegistry;
+use super::rig::Rig;
+use super::scenes::Scenes;
 use super::{Daemon, JobKind, RequestError, SubmitError};
 use crate::scene::{Channel, Scene};
+use crate::store::Store;
 use crate::store::{CaptureKind, JobState, PlanCapture, PlanInterim, PlanRow, PlanState};
 
 /// How often a plan looks at the job its step waits on.
@@ -255,7 +263,37 @@ enum Waited {
     Stopping,
 }
 
-impl Daemon {
+/// The plans' handle: what the runner and the plan requests share. The
+/// runner holds this, never the daemon; it posts its steps' jobs through
+/// [`Admission`] as a client would.
+pub(super) struct Plans {
+    store: Arc<Store>,
+    scenes: Arc<Scenes>,
+    rig: Arc<Rig>,
+    /// Fraction of full scale per microsecond per unit of `T l`, per scene.
+    calibration: Arc<BTreeMap<String, f64>>,
+    registry: Arc<JobRegistry>,
+    events: Events,
+    admission: Arc<Admission>,
+    /// Wakes the runner: a plan was posted, continued or cancelled.
+    wake: tokio::sync::Notify,
+}
+
+impl Plans {
+    /// The plans over the services `admission` shares with them.
+    pub(super) fn new(admission: Arc<Admission>) -> Self {
+        Self {
+            store: admission.store.clone(),
+            scenes: admission.scenes.clone(),
+            rig: admission.rig.clone(),
+            calibration: admission.calibration.clone(),
+            registry: admission.registry.clone(),
+            events: admission.events.clone(),
+            admission,
+            wake: tokio::sync::Notify::new(),
+        }
+    }
+
     fn plan_steps(&self, plan: &PlanRow) -> Result<(PlanBody, Vec<PlanStep>), String> {
         let body: PlanBody = serde_json::from_value(plan.request.clone())
             .map_err(|e| format!("its stored request cannot be read ({e})"))?;
@@ -269,7 +307,10 @@ impl Daemon {
     /// Checks a plan request (every capture it will post, as `POST
     /// /captures` would) and records it; the runner starts it when the
     /// plans before it have ended.
-    pub async fn submit_plan(self: &Arc<Self>, body: PlanBody) -> Result<PlanView, PlanError> {
+    pub(super) async fn submit_plan(
+        self: &Arc<Self>,
+        body: PlanBody,
+    ) -> Result<PlanView, PlanError> {
         let scene = self
             .scenes
             .scene(&body.scene)
@@ -308,8 +349,8 @@ impl Daemon {
         for step in &steps {
             // A dark capture stands in for the one a light step will name.
             if let Some(b) = capture_body(&body.scene, &body, step, None, bench.switches_scene) {
-                let d = self.clone();
-                tokio::task::spawn_blocking(move || d.check_capture(&b))
+                let a = self.admission.clone();
+                tokio::task::spawn_blocking(move || a.check_capture(&b))
                     .await
                     .map_err(|e| SubmitError::Internal(format!("plan validation: {e}")))?
                     .map_err(SubmitError::from)?;
@@ -323,12 +364,12 @@ impl Daemon {
             .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?;
         tracing::info!("plan-{id} queued: {}, {} steps", body.scene, steps.len());
         self.plan_event(id, PlanState::Queued, 0, None);
-        self.plan_wake.notify_one();
+        self.wake.notify_one();
         self.plan_view(id)
     }
 
     /// A plan with its steps.
-    pub fn plan_view(&self, id: i64) -> Result<PlanView, PlanError> {
+    pub(super) fn plan_view(&self, id: i64) -> Result<PlanView, PlanError> {
         let plan = self.plan_row(id)?;
         let steps = self.plan_steps(&plan).map(|(_, s)| s).unwrap_or_default();
         Ok(PlanView { plan, steps })
@@ -347,7 +388,7 @@ impl Daemon {
     }
 
     /// The operator did what the prompt asked: the plan goes on.
-    pub fn continue_plan(&self, id: i64) -> Result<PlanView, PlanError> {
+    pub(super) fn continue_plan(&self, id: i64) -> Result<PlanView, PlanError> {
         let store_err = |e| self.plan_store_error(e);
         let plan = self.plan_row(id)?;
         if plan.state != PlanState::WaitingForOperator {
@@ -371,13 +412,13 @@ impl Daemon {
             .map_err(store_err)?;
         tracing::info!("plan-{id}: the operator continued at step {}", plan.step);
         self.plan_event(id, PlanState::Running, next, None);
-        self.plan_wake.notify_one();
+        self.wake.notify_one();
         self.plan_view(id)
     }
 
     /// Cancels a plan that has not ended, and the capture or reconstruction
     /// its current step waits on; the captures it took are kept.
-    pub async fn cancel_plan(&self, id: i64) -> Result<PlanView, PlanError> {
+    pub(super) async fn cancel_plan(&self, id: i64) -> Result<PlanView, PlanError> {
         let store_err = |e| self.plan_store_error(e);
         let plan = self.plan_row(id)?;
         if plan.state.is_final()
@@ -397,14 +438,14 @@ impl Daemon {
             });
         }
         if let Some(c) = plan.captures.iter().find(|c| c.step == plan.step) {
-            let _ = self.cancel_job(JobKind::Capture, c.capture).await;
+            let _ = self.admission.cancel_job(JobKind::Capture, c.capture).await;
         }
         if let Some(r) = plan.reconstruction {
-            let _ = self.cancel_job(JobKind::Reconstruction, r).await;
+            let _ = self.admission.cancel_job(JobKind::Reconstruction, r).await;
         }
         tracing::info!("plan-{id} cancelled");
         self.plan_event(id, PlanState::Cancelled, plan.step, None);
-        self.plan_wake.notify_one();
+        self.wake.notify_one();
         self.plan_view(id)
     }
 
@@ -422,7 +463,10 @@ impl Daemon {
             return;
         }
         let id = plan.id;
-        match self.submit_reconstruction(&reconstruction_body(plan, body, steps, at + 1)) {
+        match self
+            .admission
+            .submit_reconstruction(&reconstruction_body(plan, body, steps, at + 1))
+        {
             Ok(r) => {
                 plan.interim.push(PlanInterim {
                     step: at,
@@ -467,7 +511,7 @@ impl Daemon {
         body: CaptureBody,
     ) -> Option<Result<i64, SubmitError>> {
         loop {
-            match self.submit_capture(body.clone()).await {
+            match self.admission.submit_capture(body.clone()).await {
                 Ok((c, _)) => return Some(Ok(c)),
                 Err(
                     SubmitError::Request(RequestError::Unavailable(_))
@@ -704,7 +748,7 @@ impl Daemon {
             Some(r) => r,
             None => {
                 let b = reconstruction_body(plan, body, steps, steps.len());
-                let rid = match self.submit_reconstruction(&b) {
+                let rid = match self.admission.submit_reconstruction(&b) {
                     Ok(r) => r,
                     Err(e) => {
                         self.fail_plan(plan, format!("step {at}: {e}"));
@@ -755,15 +799,14 @@ impl Daemon {
 /// Runs the plans one at a time, oldest first, until the daemon stops: a
 /// plan waiting for the operator holds the bench until it is continued or
 /// cancelled.
-pub(super) async fn run(daemon: Weak<Daemon>) {
+pub(super) async fn run(plans: Arc<Plans>) {
+    let registry = plans.registry.clone();
     loop {
-        let Some(d) = daemon.upgrade() else { return };
-        if d.registry.is_stopping() {
+        if registry.is_stopping() {
             return;
         }
-        let wake = d.plan_wake.clone();
-        let notified = wake.notified();
-        let next = d
+        let notified = plans.wake.notified();
+        let next = plans
             .store
             .unfinished_plans()
             .ok()
@@ -772,22 +815,45 @@ pub(super) async fn run(daemon: Weak<Daemon>) {
         let waiting = match next {
             None => true,
             Some(id) => {
-                d.run_plan(id).await;
-                d.store
+                plans.run_plan(id).await;
+                plans
+                    .store
                     .plan(id)
                     .ok()
                     .flatten()
                     .is_some_and(|p| p.state == PlanState::WaitingForOperator)
             }
         };
-        let mut stopped = d.registry.stopped();
-        drop(d);
+        let mut stopped = registry.stopped();
         if waiting {
             tokio::select! {
                 _ = notified => {}
                 _ = stopped.wait_for(|s| *s) => return,
             }
         }
+    }
+}
+
+/// The front end's door to [`Plans`].
+impl Daemon {
+    /// Checks a plan request and records it ([`Plans::submit_plan`]).
+    pub async fn submit_plan(&self, body: PlanBody) -> Result<PlanView, PlanError> {
+        self.plans.submit_plan(body).await
+    }
+
+    /// A plan with its steps.
+    pub fn plan_view(&self, id: i64) -> Result<PlanView, PlanError> {
+        self.plans.plan_view(id)
+    }
+
+    /// The operator did what the prompt asked: the plan goes on.
+    pub fn continue_plan(&self, id: i64) -> Result<PlanView, PlanError> {
+        self.plans.continue_plan(id)
+    }
+
+    /// Cancels a plan that has not ended ([`Plans::cancel_plan`]).
+    pub async fn cancel_plan(&self, id: i64) -> Result<PlanView, PlanError> {
+        self.plans.cancel_plan(id).await
     }
 }
 

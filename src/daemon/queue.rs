@@ -45,8 +45,9 @@ fn mib(bytes: u64) -> String {
     format!("{:.1}", bytes as f64 / (1u64 << 20) as f64)
 }
 
-/// A bounded queue of job ids for one kind of worker.
-#[derive(Debug)]
+/// A bounded queue of job ids for one kind of worker; a clone pushes to
+/// the same queue.
+#[derive(Debug, Clone)]
 pub(crate) struct Queue {
     /// `capture` or `reconstruction`, for the 429's text.
     name: &'static str,

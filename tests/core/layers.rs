@@ -457,6 +457,45 @@ fn no_function_in_src_is_longer_than_120_lines() {
 }
 
 #[test]
+fn no_daemon_worker_holds_the_daemon() {
+    // Issue 39: the plan runner held a `Weak<Daemon>`; now it holds `Plans`,
+    // which posts through `Admission` as a request does, and every worker
+    // the daemon spawns gets the services it uses.
+    let daemon = sources("daemon");
+    for (path, text) in &daemon {
+        let code = code(text);
+        for held in ["Weak<Daemon>", "Arc<Daemon>", "Arc::downgrade("] {
+            assert!(!code.contains(held), "{path} holds the daemon: {held}");
+        }
+    }
+    let (_, m) = daemon
+        .iter()
+        .find(|(p, _)| p.ends_with("daemon/mod.rs"))
+        .expect("src/daemon/mod.rs");
+    let code = code(m);
+    let spawns: Vec<&str> = code
+        .match_indices("set.spawn(")
+        .map(|(i, _)| &code[i..code[i..].find(");").map_or(code.len(), |e| i + e)])
+        .collect();
+    assert!(spawns.len() >= 5, "{spawns:#?}");
+    // `d`, `daemon` or `self` passed whole or cloned, not a field or a
+    // method's result.
+    let whole = |s: &str, name: &str| {
+        s.match_indices(name).any(|(i, _)| {
+            let before = s[..i].chars().next_back();
+            let rest = &s[i + name.len()..];
+            !before.is_some_and(|c| c.is_alphanumeric() || c == '_' || c == '.')
+                && (rest.starts_with(',') || rest.starts_with(')') || rest.starts_with(".clone()"))
+        })
+    };
+    for s in spawns {
+        for name in ["d", "daemon", "self"] {
+            assert!(!whole(s, name), "a worker gets the daemon ({name}): {s}");
+        }
+    }
+}
+
+#[test]
 fn the_capture_worker_and_the_plans_ask_the_rig_never_a_device() {
     // Issue 39: the capture worker drove the stage, the mount, the light
     // relay and the fake bench itself; now `daemon/rig` owns them.
