@@ -114,6 +114,7 @@ fn code_of(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
             | TransportError::NoHomography { .. }
             | TransportError::Footprint(_)
             | TransportError::ActivePixels
+            | TransportError::ActiveArea
             | TransportError::Choice(_) => INPUT,
         });
     }

@@ -119,6 +119,9 @@ fn check_setup(scene: &Scene, setup: &ActiveSetup) -> Result<(), TransportError>
     if scene.wall().sampling == crate::scene::WallSampling::Pixels {
         return Err(TransportError::ActivePixels);
     }
+    if scene.hidden().shadows == crate::scene::ShadowModel::Area {
+        return Err(TransportError::ActiveArea);
+    }
     let wall = &scene.wall().plane;
     let (hu, hv) = (0.5 * wall.size[0], 0.5 * wall.size[1]);
     if setup.spot.0.abs() > hu || setup.spot.1.abs() > hv {
@@ -376,5 +379,12 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("spot"), "{e}");
+        // Area shadows are a passive scene's; the active build would
+        // silently test points.
+        let area = s
+            .edit(|p| p.hidden.shadows = crate::scene::ShadowModel::Area)
+            .unwrap();
+        let e = build_active(&area, &ActiveSetup::default(), MemoryBudget::DEFAULT).unwrap_err();
+        assert!(e.to_string().contains("shadows = \"point\""), "{e}");
     }
 }

@@ -106,6 +106,9 @@ pub enum TransportError {
     /// The time-resolved build samples the wall uniformly only.
     #[error("the time-resolved (active) transport samples the wall uniformly; set wall.sampling = \"uniform\"")]
     ActivePixels,
+    /// The time-resolved build tests occluders point to point.
+    #[error("the time-resolved (active) transport tests occluders between points (the laser spot, a voxel, a wall patch); set scene.shadows = \"point\": area shadows are a passive scene's emitting cells")]
+    ActiveArea,
 }
 
 /// Bytes a dense `T` (with the working memory built alongside it) may take.
