@@ -129,6 +129,23 @@ impl Buckets {
     fn cell_v(&self, v: f64) -> usize {
         (((v - self.v0) * self.inv_v).floor().max(0.0) as usize).min(self.nv - 1)
     }
+
+    /// Calls `f` with each sample `j` (below `us.len()`) whose `(us[j],
+    /// vs[j])` lies in box `b`, found through the cells the box covers.
+    fn each_in(&self, b: &Box2, us: &[f64], vs: &[f64], mut f: impl FnMut(usize)) {
+        let (iu0, iu1) = (self.cell_u(b[0]), self.cell_u(b[1]));
+        for iv in self.cell_v(b[2])..=self.cell_v(b[3]) {
+            let row = iv * self.nu;
+            let run = self.start[row + iu0] as usize..self.start[row + iu1 + 1] as usize;
+            for &j in &self.order[run] {
+                let j = j as usize;
+                if j < us.len() && (b[0]..=b[1]).contains(&us[j]) && (b[2]..=b[3]).contains(&vs[j])
+                {
+                    f(j);
+                }
+            }
+        }
+    }
 }
 
 /// A box `[u_min, u_max, v_min, v_max]` on the wall plane.
@@ -283,22 +300,11 @@ impl Shadows {
                 }
                 continue;
             };
-            let (iu0, iu1) = (grid.cell_u(b[0]), grid.cell_u(b[1]));
-            for iv in grid.cell_v(b[2])..=grid.cell_v(b[3]) {
-                let row = iv * grid.nu;
-                let run = grid.start[row + iu0] as usize..grid.start[row + iu1 + 1] as usize;
-                for &j in &grid.order[run] {
-                    let j = j as usize;
-                    if j < len
-                        && base[j] != 0.0
-                        && (b[0]..=b[1]).contains(&us[j])
-                        && (b[2]..=b[3]).contains(&vs[j])
-                        && piece.blocks(s, &points[j])
-                    {
-                        base[j] = 0.0;
-                    }
+            grid.each_in(&b, us, vs, |j| {
+                if base[j] != 0.0 && piece.blocks(s, &points[j]) {
+                    base[j] = 0.0;
                 }
-            }
+            });
         }
     }
 
@@ -430,21 +436,11 @@ impl Shadows {
         if b[0] > b[1] || b[2] > b[3] {
             return;
         }
-        let (iu0, iu1) = (grid.cell_u(b[0]), grid.cell_u(b[1]));
-        for iv in grid.cell_v(b[2])..=grid.cell_v(b[3]) {
-            let row = iv * grid.nu;
-            let run = grid.start[row + iu0] as usize..grid.start[row + iu1 + 1] as usize;
-            for &j in &grid.order[run] {
-                let j = j as usize;
-                if j < len
-                    && base[j] != 0.0
-                    && (b[0]..=b[1]).contains(&self.us[j])
-                    && (b[2]..=b[3]).contains(&self.vs[j])
-                {
-                    shade_one(j, base);
-                }
+        grid.each_in(&b, &self.us[..len], &self.vs[..len], |j| {
+            if base[j] != 0.0 {
+                shade_one(j, base);
             }
-        }
+        });
     }
 }
 
