@@ -59,6 +59,19 @@ impl Piece {
             Piece::Whole(_) => None,
         }
     }
+
+    /// Points whose convex hull holds it: a polygon's vertices, a ball's box.
+    fn corners(&self) -> Vec<Vec3> {
+        match self {
+            Piece::Whole(Occluder::Sphere { center, radius }) => (0..8)
+                .map(|k| {
+                    let sign = |bit: usize| if k >> bit & 1 == 1 { *radius } else { -radius };
+                    center + Vec3::new(sign(0), sign(1), sign(2))
+                })
+                .collect(),
+            _ => self.polygon().unwrap_or_default(),
+        }
+    }
 }
 
 /// The wall samples sorted into a grid of cells on the wall plane, row-major,
@@ -185,39 +198,23 @@ impl Shadows {
         if occluders.is_empty() {
             return None;
         }
-        let mut pieces = Vec::new();
-        let mut hulls = Vec::new();
-        for o in occluders {
-            match o {
-                Occluder::Rect {
-                    center,
-                    half_u,
-                    half_v,
-                } => {
-                    hulls.push(
-                        [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
-                            .map(|(a, b)| center + half_u * a + half_v * b)
-                            .to_vec(),
-                    );
-                    pieces.push(Piece::Whole(o.clone()));
-                }
-                Occluder::Sphere { center, radius } => {
-                    let mut corners = Vec::with_capacity(8);
-                    for k in 0..8 {
-                        let sign = |bit: usize| if k >> bit & 1 == 1 { *radius } else { -radius };
-                        corners.push(center + Vec3::new(sign(0), sign(1), sign(2)));
-                    }
-                    hulls.push(corners);
-                    pieces.push(Piece::Whole(o.clone()));
-                }
-                Occluder::Mesh(mesh) => {
-                    for t in mesh.triangles() {
-                        hulls.push(t.to_vec());
-                        pieces.push(Piece::Triangle(*t));
-                    }
-                }
-            }
-        }
+        let pieces: Vec<Piece> = occluders
+            .iter()
+            .flat_map(|o| match o {
+                Occluder::Mesh(mesh) => mesh
+                    .triangles()
+                    .iter()
+                    .map(|t| Piece::Triangle(*t))
+                    .collect(),
+                o => vec![Piece::Whole(o.clone())],
+            })
+            .collect();
+        let polygons: Vec<Option<Vec<Vec3>>> = pieces.iter().map(Piece::polygon).collect();
+        let hulls = pieces
+            .iter()
+            .zip(&polygons)
+            .map(|(piece, polygon)| polygon.clone().unwrap_or_else(|| piece.corners()))
+            .collect();
         let (origin, n, u, v) = (plane.center, plane.normal, plane.u, plane.v);
         let us: Vec<f64> = points.iter().map(|p| u.dot(&(p - origin))).collect();
         let vs: Vec<f64> = points.iter().map(|p| v.dot(&(p - origin))).collect();
@@ -226,7 +223,6 @@ impl Shadows {
             .iter()
             .all(|p| n.dot(&(p - origin)).abs() <= 1e-12 * extent);
         let buckets = (on_plane && !points.is_empty()).then(|| Buckets::new(&us, &vs));
-        let polygons = pieces.iter().map(Piece::polygon).collect();
         Some(Shadows {
             pieces,
             hulls,
@@ -462,8 +458,23 @@ mod tests {
         }
     }
 
-    fn occluders() -> Vec<Occluder> {
+    /// A mesh of two triangles, the second reaching below some scene points.
+    fn two_triangles() -> Occluder {
         let tri = |a: [f64; 3], b: [f64; 3], c: [f64; 3]| [a, b, c].map(Vec3::from);
+        Occluder::Mesh(Arc::new(Mesh::new(
+            vec![
+                tri([0.1, 0.1, 0.5], [0.2, 0.1, 0.5], [0.1, 0.2, 0.45]),
+                tri([-0.2, 0.0, 0.1], [-0.1, 0.0, 0.6], [-0.15, 0.05, 0.3]),
+            ],
+            MeshSource {
+                path: "t.obj".into(),
+                scale: None,
+                offset: None,
+            },
+        )))
+    }
+
+    fn occluders() -> Vec<Occluder> {
         vec![
             Occluder::Rect {
                 center: Vec3::new(0.0, 0.05, 0.3),
@@ -485,17 +496,7 @@ mod tests {
                 center: Vec3::new(0.3, 0.2, 0.0),
                 radius: 0.05,
             },
-            Occluder::Mesh(Arc::new(Mesh::new(
-                vec![
-                    tri([0.1, 0.1, 0.5], [0.2, 0.1, 0.5], [0.1, 0.2, 0.45]),
-                    tri([-0.2, 0.0, 0.1], [-0.1, 0.0, 0.6], [-0.15, 0.05, 0.3]),
-                ],
-                MeshSource {
-                    path: "t.obj".into(),
-                    scale: None,
-                    offset: None,
-                },
-            ))),
+            two_triangles(),
         ]
     }
 
@@ -558,27 +559,12 @@ mod tests {
     /// Polygons wholly between the screen and the wall: a slanted rect, an
     /// overlapping copy of it, and two mesh triangles.
     fn polygons() -> Vec<Occluder> {
-        let tri = |a: [f64; 3], b: [f64; 3], c: [f64; 3]| [a, b, c].map(Vec3::from);
         let rect = |x: f64| Occluder::Rect {
             center: Vec3::new(x, 0.05, 0.3),
             half_u: Vec3::new(0.05, 0.0, 0.02),
             half_v: Vec3::new(0.0, 0.08, 0.0),
         };
-        vec![
-            rect(0.0),
-            rect(0.03),
-            Occluder::Mesh(Arc::new(Mesh::new(
-                vec![
-                    tri([0.1, 0.1, 0.5], [0.2, 0.1, 0.5], [0.1, 0.2, 0.45]),
-                    tri([-0.2, 0.0, 0.1], [-0.1, 0.0, 0.6], [-0.15, 0.05, 0.3]),
-                ],
-                MeshSource {
-                    path: "t.obj".into(),
-                    scale: None,
-                    offset: None,
-                },
-            ))),
-        ]
+        vec![rect(0.0), rect(0.03), two_triangles()]
     }
 
     /// Each wall sample's visible fraction of each cell, area shadows.
