@@ -17,16 +17,10 @@ use serde::Serialize;
 use super::events::Event;
 use super::requests::{CaptureBody, PlanBody, ReconstructionBody};
 use super::rig::Automated;
-use std::collections::BTreeMap;
 
 use super::admission::Admission;
-use super::events::Events;
-use super::registry::JobRegistry;
-use super::rig::Rig;
-use super::scenes::Scenes;
 use super::{Daemon, JobKind, RequestError, SubmitError};
 use crate::scene::{Channel, Scene};
-use crate::store::Store;
 use crate::store::{CaptureKind, JobState, PlanCapture, PlanInterim, PlanRow, PlanState};
 
 /// How often a plan looks at the job its step waits on.
@@ -267,13 +261,8 @@ enum Waited {
 /// runner holds this, never the daemon; it posts its steps' jobs through
 /// [`Admission`] as a client would.
 pub(super) struct Plans {
-    store: Arc<Store>,
-    scenes: Arc<Scenes>,
-    rig: Arc<Rig>,
-    /// Fraction of full scale per microsecond per unit of `T l`, per scene.
-    calibration: Arc<BTreeMap<String, f64>>,
-    registry: Arc<JobRegistry>,
-    events: Events,
+    /// The store, scenes, rig, calibration, registry and events plans read,
+    /// and the door their steps' jobs go through.
     admission: Arc<Admission>,
     /// Wakes the runner: a plan was posted, continued or cancelled.
     wake: tokio::sync::Notify,
@@ -283,12 +272,6 @@ impl Plans {
     /// The plans over the services `admission` shares with them.
     pub(super) fn new(admission: Arc<Admission>) -> Self {
         Self {
-            store: admission.store.clone(),
-            scenes: admission.scenes.clone(),
-            rig: admission.rig.clone(),
-            calibration: admission.calibration.clone(),
-            registry: admission.registry.clone(),
-            events: admission.events.clone(),
             admission,
             wake: tokio::sync::Notify::new(),
         }
@@ -298,10 +281,14 @@ impl Plans {
         let body: PlanBody = serde_json::from_value(plan.request.clone())
             .map_err(|e| format!("its stored request cannot be read ({e})"))?;
         let scene = self
+            .admission
             .scenes
             .scene(&plan.scene)
             .map_err(|e| format!("its scene is no longer known ({e})"))?;
-        Ok((body.clone(), steps_of(&scene, &body, self.rig.automated())))
+        Ok((
+            body.clone(),
+            steps_of(&scene, &body, self.admission.rig.automated()),
+        ))
     }
 
     /// Checks a plan request (every capture it will post, as `POST
@@ -312,6 +299,7 @@ impl Plans {
         body: PlanBody,
     ) -> Result<PlanView, PlanError> {
         let scene = self
+            .admission
             .scenes
             .scene(&body.scene)
             .map_err(|e| SubmitError::from(RequestError::from(e)))?;
@@ -328,7 +316,7 @@ impl Plans {
             );
         }
         if body.reconstruct.progressive_every.is_some()
-            && !self.calibration.contains_key(&body.scene)
+            && !self.admission.calibration.contains_key(&body.scene)
         {
             return Err(SubmitError::from(RequestError::Invalid(format!(
                 "reconstruct.progressive_every needs the radiometric calibration of scene {:?}: add it under [calibration] in the config",
@@ -344,7 +332,7 @@ impl Plans {
                 .into());
             }
         }
-        let bench = self.rig.automated();
+        let bench = self.admission.rig.automated();
         let steps = steps_of(&scene, &body, bench);
         for step in &steps {
             // A dark capture stands in for the one a light step will name.
@@ -359,9 +347,10 @@ impl Plans {
         let request = serde_json::to_value(&body)
             .map_err(|e| SubmitError::Internal(format!("plan request: {e}")))?;
         let id = self
+            .admission
             .store
             .insert_plan(&body.scene, &request)
-            .map_err(|e| SubmitError::Internal(self.store.describe(&e)))?;
+            .map_err(|e| SubmitError::Internal(self.admission.store.describe(&e)))?;
         tracing::info!("plan-{id} queued: {}, {} steps", body.scene, steps.len());
         self.plan_event(id, PlanState::Queued, 0, None);
         self.wake.notify_one();
@@ -377,14 +366,15 @@ impl Plans {
 
     /// Plan `id`'s row, or 404.
     fn plan_row(&self, id: i64) -> Result<PlanRow, PlanError> {
-        self.store
+        self.admission
+            .store
             .plan(id)
             .map_err(|e| self.plan_store_error(e))?
             .ok_or(PlanError::NotFound(id))
     }
 
     fn plan_store_error(&self, e: crate::store::StoreError) -> PlanError {
-        SubmitError::Internal(self.store.describe(&e)).into()
+        SubmitError::Internal(self.admission.store.describe(&e)).into()
     }
 
     /// The operator did what the prompt asked: the plan goes on.
@@ -404,10 +394,12 @@ impl Plans {
             Some(PlanStep::Operator { .. }) => plan.step + 1,
             _ => plan.step,
         };
-        self.store
+        self.admission
+            .store
             .plan_step(id, next, &plan.captures)
             .map_err(store_err)?;
-        self.store
+        self.admission
+            .store
             .plan_state(id, PlanState::Running, None, None)
             .map_err(store_err)?;
         tracing::info!("plan-{id}: the operator continued at step {}", plan.step);
@@ -423,6 +415,7 @@ impl Plans {
         let plan = self.plan_row(id)?;
         if plan.state.is_final()
             || !self
+                .admission
                 .store
                 .plan_state(
                     id,
@@ -472,10 +465,10 @@ impl Plans {
                     step: at,
                     reconstruction: r,
                 });
-                if let Err(e) = self.store.plan_interim(id, &plan.interim) {
+                if let Err(e) = self.admission.store.plan_interim(id, &plan.interim) {
                     tracing::warn!(
                         "plan-{id}: interim reconstruction-{r} not recorded: {}",
-                        self.store.describe(&e)
+                        self.admission.store.describe(&e)
                     );
                 }
                 tracing::info!("plan-{id}: interim reconstruction-{r} after step {at}");
@@ -485,7 +478,7 @@ impl Plans {
     }
 
     fn plan_event(&self, plan: i64, state: PlanState, step: usize, prompt: Option<String>) {
-        self.events.emit(Event::Plan {
+        self.admission.events.emit(Event::Plan {
             plan,
             state,
             step,
@@ -495,7 +488,8 @@ impl Plans {
 
     /// Whether plan `id` has ended (or is gone): a cancel while a step waits.
     fn plan_ended(&self, id: i64) -> bool {
-        self.store
+        self.admission
+            .store
             .plan(id)
             .ok()
             .flatten()
@@ -520,7 +514,7 @@ impl Plans {
                 Err(e) => return Some(Err(e)),
             }
             tokio::time::sleep(Duration::from_secs(1)).await;
-            if self.plan_ended(plan) || self.registry.is_stopping() {
+            if self.plan_ended(plan) || self.admission.registry.is_stopping() {
                 return None;
             }
         }
@@ -530,17 +524,19 @@ impl Plans {
     /// cancel) or the daemon stops.
     async fn wait_job(&self, plan: i64, kind: JobKind, id: i64) -> Waited {
         loop {
-            if self.registry.is_stopping() {
+            if self.admission.registry.is_stopping() {
                 return Waited::Stopping;
             }
             if self.plan_ended(plan) {
                 return Waited::PlanEnded;
             }
             let state = match kind {
-                JobKind::Capture => self.store.capture(id).map(|c| (c.state, c.error)),
-                JobKind::Reconstruction => {
-                    self.store.reconstruction(id).map(|r| (r.state, r.error))
-                }
+                JobKind::Capture => self.admission.store.capture(id).map(|c| (c.state, c.error)),
+                JobKind::Reconstruction => self
+                    .admission
+                    .store
+                    .reconstruction(id)
+                    .map(|r| (r.state, r.error)),
             };
             match state {
                 Ok((JobState::Done, _)) => return Waited::Done,
@@ -553,7 +549,7 @@ impl Plans {
                         e.map(|e| format!(": {e}")).unwrap_or_default()
                     ))
                 }
-                Err(e) => return Waited::Failed(self.store.describe(&e)),
+                Err(e) => return Waited::Failed(self.admission.store.describe(&e)),
             }
             tokio::time::sleep(POLL).await;
         }
@@ -565,7 +561,7 @@ impl Plans {
         let Some((mut plan, body, steps)) = self.resume_plan(id) else {
             return;
         };
-        let switches = self.rig.automated().switches_scene;
+        let switches = self.admission.rig.automated().switches_scene;
         while let Some(step) = steps.get(plan.step) {
             let at = plan.step;
             let walked = match step {
@@ -583,7 +579,10 @@ impl Plans {
                 return;
             }
             plan.step = at + 1;
-            let _ = self.store.plan_step(id, plan.step, &plan.captures);
+            let _ = self
+                .admission
+                .store
+                .plan_step(id, plan.step, &plan.captures);
             self.plan_event(id, PlanState::Running, plan.step, None);
         }
         self.finish_plan(&plan);
@@ -592,15 +591,16 @@ impl Plans {
     /// Plan `id`'s row, request and steps, marked running if queued; `None`: nothing to walk.
     /// Why: a plan whose request or scene can no longer be read is interrupted, not walked.
     fn resume_plan(&self, id: i64) -> Option<(PlanRow, PlanBody, Vec<PlanStep>)> {
-        let Ok(Some(plan)) = self.store.plan(id) else {
+        let Ok(Some(plan)) = self.admission.store.plan(id) else {
             return None;
         };
         let (body, steps) = match self.plan_steps(&plan) {
             Ok(s) => s,
             Err(why) => {
-                let _ = self
-                    .store
-                    .plan_state(id, PlanState::Interrupted, None, Some(&why));
+                let _ =
+                    self.admission
+                        .store
+                        .plan_state(id, PlanState::Interrupted, None, Some(&why));
                 self.plan_event(id, PlanState::Interrupted, plan.step, None);
                 return None;
             }
@@ -609,7 +609,10 @@ impl Plans {
             return None;
         }
         if plan.state == PlanState::Queued {
-            let _ = self.store.plan_state(id, PlanState::Running, None, None);
+            let _ = self
+                .admission
+                .store
+                .plan_state(id, PlanState::Running, None, None);
             tracing::info!("plan-{id} started");
             self.plan_event(id, PlanState::Running, plan.step, None);
         }
@@ -619,9 +622,10 @@ impl Plans {
     /// Puts plan `id` on hold at operator step `at`, showing its prompt.
     /// Why: the bench cannot do this step; the operator's Continue walks on.
     fn wait_for_operator(&self, id: i64, at: usize, prompt: &str) {
-        let _ = self
-            .store
-            .plan_state(id, PlanState::WaitingForOperator, Some(prompt), None);
+        let _ =
+            self.admission
+                .store
+                .plan_state(id, PlanState::WaitingForOperator, Some(prompt), None);
         tracing::info!("plan-{id} waits for the operator: {prompt}");
         self.plan_event(
             id,
@@ -667,7 +671,7 @@ impl Plans {
             .find(|c| c.step == at)
             .map(|c| c.capture)
             .filter(|&c| {
-                self.store.capture(c).is_ok_and(|r| {
+                self.admission.store.capture(c).is_ok_and(|r| {
                     matches!(
                         r.state,
                         JobState::Done | JobState::Queued | JobState::Running
@@ -708,7 +712,7 @@ impl Plans {
         };
         for old in plan.captures.iter().filter(|o| o.step == at) {
             let said = format!("plan {id} took this step again as capture {c}");
-            if let Err(e) = self.store.capture_retaken(old.capture, &said) {
+            if let Err(e) = self.admission.store.capture_retaken(old.capture, &said) {
                 tracing::warn!("plan-{id}: capture-{}: {e}", old.capture);
             }
         }
@@ -717,7 +721,7 @@ impl Plans {
             step: at,
             capture: c,
         });
-        let _ = self.store.plan_step(id, at, &plan.captures);
+        let _ = self.admission.store.plan_step(id, at, &plan.captures);
         Some(c)
     }
 
@@ -728,9 +732,10 @@ impl Plans {
             "step {at} failed ({why}); fix the bench, then press Continue to take it again"
         );
         tracing::warn!("plan-{id} paused: {prompt}");
-        let _ = self
-            .store
-            .plan_state(id, PlanState::WaitingForOperator, Some(&prompt), None);
+        let _ =
+            self.admission
+                .store
+                .plan_state(id, PlanState::WaitingForOperator, Some(&prompt), None);
         self.plan_event(id, PlanState::WaitingForOperator, at, Some(prompt));
     }
 
@@ -755,7 +760,7 @@ impl Plans {
                         return ControlFlow::Break(());
                     }
                 };
-                let _ = self.store.plan_reconstruction(id, rid);
+                let _ = self.admission.store.plan_reconstruction(id, rid);
                 plan.reconstruction = Some(rid);
                 rid
             }
@@ -776,6 +781,7 @@ impl Plans {
         let id = plan.id;
         tracing::warn!("plan-{id} failed at step {}: {why}", plan.step);
         let _ = self
+            .admission
             .store
             .plan_state(id, PlanState::Failed, None, Some(&why));
         self.plan_event(id, PlanState::Failed, plan.step, None);
@@ -786,6 +792,7 @@ impl Plans {
     fn finish_plan(&self, plan: &PlanRow) {
         let id = plan.id;
         if self
+            .admission
             .store
             .plan_state(id, PlanState::Done, None, None)
             .unwrap_or(false)
@@ -800,13 +807,14 @@ impl Plans {
 /// plan waiting for the operator holds the bench until it is continued or
 /// cancelled.
 pub(super) async fn run(plans: Arc<Plans>) {
-    let registry = plans.registry.clone();
+    let registry = plans.admission.registry.clone();
     loop {
         if registry.is_stopping() {
             return;
         }
         let notified = plans.wake.notified();
         let next = plans
+            .admission
             .store
             .unfinished_plans()
             .ok()
@@ -817,6 +825,7 @@ pub(super) async fn run(plans: Arc<Plans>) {
             Some(id) => {
                 plans.run_plan(id).await;
                 plans
+                    .admission
                     .store
                     .plan(id)
                     .ok()
