@@ -55,29 +55,20 @@ fn calibrate_occluder_finds_the_chair_of_a_simulated_photo_from_2_cm_off() {
     use polnlos::calibrate::occluder::{fit_occluder, moved, OccluderOptions};
     use polnlos::scene::{Scene, ShadowModel};
     use polnlos::transport::{build, MemoryBudget};
-    use rand::SeedableRng;
-    use rand_distr::{Distribution, Normal};
 
     let text = std::fs::read_to_string(root().join("config/photos/saunders-chair.toml")).unwrap();
     let text = text.replace("grid = [126, 126]", "grid = [42, 42]");
     let scene = Scene::from_toml_str(&text).unwrap();
     let all: Vec<usize> = (0..scene.occluders().len()).collect();
-    let truth = npy::read(&root().join("tests/data/saunders-chair/truth.npy")).unwrap();
-    let n = 29 * 36;
     let render = build(
         &moved(&scene, &all, [0.0; 3], 6, ShadowModel::Point).unwrap(),
         MemoryBudget::DEFAULT,
     )
     .unwrap();
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-    let channels: Vec<Vec<f64>> = (0..3)
-        .map(|c| {
-            let l: Vec<f64> = (0..n).map(|k| truth.data[3 * k + c]).collect();
-            let clean: Vec<f64> = render.apply(&l).iter().map(|v| 2e8 * v + 40.0).collect();
-            let mean = clean.iter().sum::<f64>() / clean.len() as f64;
-            let noise = Normal::new(0.0, 1e-3 * mean).unwrap();
-            clean.iter().map(|v| v + noise.sample(&mut rng)).collect()
-        })
+    let channels: Vec<Vec<f64>> = super::photo::truth()
+        .iter()
+        .enumerate()
+        .map(|(c, l)| super::photo::photo(&render, l, 2e8, 40.0, 1e-3, 11 + c as u64))
         .collect();
     let off = [0.0141, -0.0141, 0.0];
     let start = moved(&scene, &all, off, 2, ShadowModel::Point).unwrap();

@@ -16,18 +16,22 @@ use rand_distr::{Distribution, Normal};
 fn chair() -> (polnlos::transport::Transport, Vec<Vec<f64>>) {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let scene = Scene::load(&root.join("config/photos/saunders-chair.toml")).unwrap();
-    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
+    (build(&scene, MemoryBudget::DEFAULT).unwrap(), truth())
+}
+
+/// The chair photo's truth (the monitor's image), channel by channel.
+pub(super) fn truth() -> Vec<Vec<f64>> {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let truth = npy::read(&root.join("tests/data/saunders-chair/truth.npy")).unwrap();
     assert_eq!(truth.shape, vec![29, 36, 3]);
     let n = 29 * 36;
-    let channels = (0..3)
+    (0..3)
         .map(|c| (0..n).map(|k| truth.data[3 * k + c]).collect())
-        .collect();
-    (t, channels)
+        .collect()
 }
 
 /// `g T l + b` with Gaussian noise of `sd` times the channel's mean.
-fn photo(
+pub(super) fn photo(
     t: &polnlos::transport::Transport,
     l: &[f64],
     g: f64,
