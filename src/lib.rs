@@ -18,13 +18,13 @@
 //!   solver's parameters and the daemon's bodies read them alike).
 //! - **I/O**: [`files`] (npy, PNG/TIFF, JSON, atomic writes, free disk and
 //!   memory), [`camera`] (the camera trait, settings and sensor limits, the
-//!   Aravis driver and its thread, the fake bench), [`mount`] (the
-//!   motorized polarizer: the Thorlabs Elliptec driver and a simulated
-//!   Elliptec on a pseudo-terminal), [`store`] (the catalogue and capture
-//!   files).
-//! - **Service**: [`daemon`] (requests, jobs, queues, admission, lifecycle;
-//!   no HTTP) and [`api`] (the HTTP routes, guard and server loop over it).
-//!   With [`camera`], [`mount`] and [`store`] they are the cargo feature `daemon` (on by
+//!   Aravis driver and its thread, the fake bench), [`rig`] (the bench's
+//!   devices beside the camera: the rotation mount, the camera stage, the
+//!   light relay, their drivers, simulated devices and services, behind one
+//!   `Rig`), [`store`] (the catalogue and capture files).
+//! - **Service**: [`daemon`] (its `runtime`, `requests`, `jobs` and
+//!   `procedures`; no HTTP) and [`api`] (the HTTP routes, guard and server loop over it).
+//!   With [`camera`], [`rig`] and [`store`] they are the cargo feature `daemon` (on by
 //!   default): without it the crate is the core, [`files`] and the offline
 //!   tools, and links no system library (`tests/core/layers.rs` holds `cargo
 //!   tree` to that).
@@ -52,7 +52,7 @@
 //!   under `src/api/routes/` and one `routes!` line in `src/api/mod.rs`;
 //!   the tests read it from
 //!   `/openapi.json` (docs/guide.md, "Adding a route"). A request body the
-//!   daemon checks goes in `src/daemon/requests.rs`.
+//!   daemon checks goes in `src/daemon/requests/mod.rs`.
 //! - **A bench report**: its file in `src/report/` implementing
 //!   `report::Report`, and one entry in `BenchPlan::run` (`src/report/plan.rs`,
 //!   the one file that names every report).
@@ -79,16 +79,16 @@
 //!   Statements on either job table are written out per table in
 //!   `store::Table`; none splices a table name.
 //! - **A bench device** (a shutter, a second stage): its driver beside
-//!   `src/mount/` (a trait, the serial device, a simulated one), its
-//!   service in `src/daemon/rig/`, and the `Rig` method a capture or a plan
-//!   asks (`src/daemon/rig/mod.rs`); the capture worker names no device.
+//!   `src/rig/mount/` (a trait, the serial device, a simulated one, and its
+//!   `service.rs`), and the `Rig` method a capture or a plan asks
+//!   (`src/rig/mod.rs`); the capture worker names no device.
 //! - **State the daemon keeps**: a service in its own file under
-//!   `src/daemon/` that owns the state and its lock (as `queue.rs`,
+//!   `src/daemon/runtime/` that owns the state and its lock (as `queue.rs`,
 //!   `registry.rs` and `camera.rs` do); `Daemon` holds it, and a worker gets
-//!   it through `JobContext` (`src/daemon/jobs.rs`) or its own struct,
+//!   it through `JobContext` (`src/daemon/jobs/mod.rs`) or its own struct,
 //!   never the whole `Daemon` (`tests/core/layers.rs` holds this). The plan
-//!   runner holds `Plans` (`src/daemon/plans.rs`), which posts its captures
-//!   and reconstructions through `Admission` (`src/daemon/admission.rs`),
+//!   runner holds `Plans` (`src/daemon/procedures/plans.rs`), which posts its captures
+//!   and reconstructions through `Admission` (`src/daemon/requests/admission.rs`),
 //!   the handle a request's admission and a cancel go through.
 
 #![deny(missing_docs)]
@@ -103,20 +103,14 @@ pub mod daemon;
 pub mod files;
 pub mod integral;
 pub mod measure;
-#[cfg(feature = "daemon")]
-pub mod mount;
 pub mod optics;
-#[cfg(feature = "daemon")]
-pub mod relay;
 #[cfg(feature = "report")]
 pub mod report;
-pub mod scene;
 #[cfg(feature = "daemon")]
-pub(crate) mod serial;
+pub mod rig;
+pub mod scene;
 pub mod simulate;
 pub mod solve;
-#[cfg(feature = "daemon")]
-pub mod stage;
 #[cfg(feature = "daemon")]
 pub mod store;
 pub mod transport;

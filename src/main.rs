@@ -65,7 +65,7 @@ fn daemon_exit_code(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
         });
     }
     cause
-        .is::<polnlos::daemon::config::ConfigError>()
+        .is::<polnlos::daemon::runtime::config::ConfigError>()
         .then_some(INPUT)
 }
 

@@ -7,7 +7,7 @@
 #![allow(dead_code)]
 
 use polnlos::camera::{Acquisition, CameraSettings, SensorLimits};
-use polnlos::daemon::validate::{self, CameraContext};
+use polnlos::daemon::requests::validate::{self, CameraContext};
 use polnlos::measure::exposure::CameraLimits;
 use polnlos::scene::Scene;
 
@@ -224,8 +224,8 @@ fn target_toml(data: &[u8]) {
 /// port delivers it.
 pub fn elliptec_reply(data: &[u8]) {
     let line = String::from_utf8_lossy(data);
-    if let Ok(polnlos::mount::elliptec::Reply::Info(i)) =
-        polnlos::mount::elliptec::parse_reply('0', line.trim_end())
+    if let Ok(polnlos::rig::mount::elliptec::Reply::Info(i)) =
+        polnlos::rig::mount::elliptec::parse_reply('0', line.trim_end())
     {
         assert!(i.pulses > 0 && i.travel > 0);
     }

@@ -2,7 +2,7 @@
 //! routes give back, and the request bodies.
 //!
 //! The bodies are the daemon's own types ([`crate::daemon::requests`]),
-//! re-exported here: the daemon checks them ([`crate::daemon::validate`])
+//! re-exported here: the daemon checks them ([`crate::daemon::requests::validate`])
 //! without depending on the HTTP layer, and routes and the OpenAPI document
 //! name them from here as before.
 

@@ -23,7 +23,7 @@ use hyper_util::service::TowerToHyperService;
 use tokio::net::TcpListener;
 use tokio::sync::Semaphore;
 
-use crate::daemon::config::HttpConfig;
+use crate::daemon::runtime::config::HttpConfig;
 use crate::daemon::Daemon;
 
 /// Connection limits of [`serve`].

@@ -1,69 +1,19 @@
-//! The bench around the camera, and Aravis's GigE Vision fake camera set up to
-//! show the wall image of a known hidden scene.
+//! Aravis's GigE Vision fake camera set up to show the wall image of a
+//! known hidden scene, and the bench around it ([`FakeBench`], the rig's
+//! [`Bench`] for the fake camera).
 //!
 //! A capture moves the bench to a (pose, polarizer angle) and, for dark frames,
-//! turns the hidden scene off. On a real bench an operator (or a motorized
-//! stage) does that; [`ManualBench`] only logs. [`FakeBench`] runs
-//! `arv-fake-gv-camera`'s engine in this process on a loopback address and
-//! fills each frame with the wall image of the selected block, rendered by the
-//! numeric core through the pose's homography.
+//! turns the hidden scene off. [`FakeBench`] runs `arv-fake-gv-camera`'s
+//! engine in this process on a loopback address and fills each frame with
+//! the wall image of the selected block, rendered by the numeric core
+//! through the pose's homography; a bench set by hand is the rig's
+//! `ManualBench`.
 
 use std::ffi::c_void;
 use std::sync::Arc;
 
 use super::shown::{BenchImages, Shown};
-
-/// What a capture asks of the bench before acquiring.
-pub trait Bench: Send + Sync {
-    /// Puts the camera at `pose` with the polarizer at `polarizer_deg` (None: no polarizer).
-    fn select(&self, pose: &str, polarizer_deg: Option<f64>);
-    /// Turns the hidden scene on (captures) or off (dark frames).
-    fn scene_on(&self, on: bool);
-    /// Whether [`Bench::scene_on`] really switches the scene (a motorized
-    /// shutter, the fake camera); when not, dark frames need the user.
-    fn switches_scene(&self) -> bool;
-    /// Puts the calibration target on the wall (target captures) or takes
-    /// it away; on a bench set by hand the operator does.
-    fn show_target(&self, on: bool) {
-        tracing::info!(
-            on,
-            "capture expects the calibration target {} the wall",
-            if on { "on" } else { "off" }
-        );
-    }
-    /// Puts the calibration point source in place of the hidden scene, or
-    /// back; on a bench set by hand the operator does.
-    fn show_source(&self, on: bool) {
-        tracing::info!(
-            on,
-            "capture expects the calibration point source {}",
-            if on { "in place" } else { "removed" }
-        );
-    }
-}
-
-/// A bench set by hand: polnlos logs what the operator should have done.
-pub struct ManualBench;
-
-impl Bench for ManualBench {
-    fn select(&self, pose: &str, polarizer_deg: Option<f64>) {
-        tracing::info!(
-            pose,
-            ?polarizer_deg,
-            "capture expects the camera at this pose and polarizer angle"
-        );
-    }
-    fn scene_on(&self, on: bool) {
-        tracing::info!(
-            on,
-            "capture expects the hidden scene switched {}",
-            if on { "on" } else { "off" }
-        );
-    }
-    fn switches_scene(&self) -> bool {
-        false
-    }
-}
+use crate::rig::bench::Bench;
 
 /// State shared with the fill callback (which runs on Aravis's thread).
 struct Shared {

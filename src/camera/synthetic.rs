@@ -9,11 +9,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use super::device::{FrameCounts, FrameSink};
-use super::fake::Bench;
 use super::settings::{CameraRanges, SensorLimits};
 use super::shown::{BenchImages, Shown};
 use super::worker::Opener;
 use super::{Acquisition, CameraDevice, CameraError, CameraInfo, Counters, RawFrame};
+use crate::rig::bench::Bench;
 
 /// Sensor width and height of the synthetic camera.
 const SENSOR: u32 = 512;

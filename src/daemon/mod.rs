@@ -9,74 +9,64 @@
 //!
 //! - [`Daemon::start`] opens what the config names; [`Daemon::start_with`]
 //!   takes any camera ([`CameraSetup`]), e.g. the in-process synthetic one.
-//! - [`requests`]: what clients ask for (capture, reconstruction and
-//!   calibration bodies), checked by [`validate`] and admitted by
-//!   `admission` (disk space and queue room); `capture`/`reconstruction`:
-//!   the workers; `metrics`: `/metrics` samples.
-//! - The services, each owning its state and lock: `camera`
-//!   ([`CameraService`]: the camera, the bench, who holds them, the settings
-//!   captures inherit, the live view), `queue` (the bounded job queues and
-//!   the disk captures reserved), `registry` (cancel flags and the stop),
-//!   [`events`] (the event stream), [`metrics`] (counters), [`scenes`]
-//!   (scenes, their `T` and Gram, cached). Workers hold the ones they use.
+//! - Four folders, each a handful of small handles that own their state:
+//!   - [`runtime`]: the config, the bounded job queues and the disk
+//!     captures reserved, the registry (cancel flags and the stop), the
+//!     event stream, the metrics, retention, the scenes (their `T` and
+//!     Gram, cached), the camera service ([`CameraService`]: the camera,
+//!     who holds it, the settings captures inherit, the live view) and the
+//!     fake camera's demo;
+//!   - [`requests`]: what clients ask for (capture, reconstruction and
+//!     calibration bodies), checked by [`requests::validate`], admitted by
+//!     `Admission` (disk space and queue room) and cancelled through it;
+//!   - [`jobs`]: the capture, reconstruction and progressive workers and
+//!     what they share (`JobContext`);
+//!   - [`procedures`]: plans, the pose and wall calibrations and the mount's
+//!     zero, which string jobs together.
+//! - The bench's devices are the rig ([`crate::rig`]), beside the camera.
+//!   Workers hold the handles they use, never the daemon.
 
-mod admission;
-mod calibration;
-mod camera;
-mod cancel;
-mod capture;
-pub mod config;
-mod demo;
-pub mod events;
-mod flatten;
-mod jobs;
-pub mod metrics;
-mod mount_zero;
-mod plans;
-mod progressive;
-mod queue;
-mod reconstruction;
-mod registry;
+pub mod jobs;
+pub mod procedures;
 pub mod requests;
-mod retention;
-pub mod rig;
-pub mod scenes;
-pub mod validate;
+pub mod runtime;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use tokio::sync::Mutex;
 
-pub use calibration::{
+pub use crate::rig::Automated;
+pub use jobs::progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
+pub use procedures::calibration::{
     Calibrations, FittedPosition, GeometryCalibration, RadiometricGain, SourcePosition,
     WallCalibration,
 };
-pub use camera::{CameraService, CameraView, SettingsError};
-pub use cancel::{CancelError, JobKind};
-pub use config::Config;
-pub use demo::DEMO_SOURCE;
-pub use events::{Event, Events, Step as ProgressiveStep};
-pub use mount_zero::{SweepPoint, ZeroFit};
-pub use plans::{steps_of, PlanError, PlanStep, PlanView};
-pub use progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
-pub use queue::SubmitError;
+pub use procedures::mount_zero::{SweepPoint, ZeroFit};
+pub use procedures::plans::{steps_of, PlanError, PlanStep, PlanView};
+pub use requests::cancel::{CancelError, JobKind};
+pub use requests::validate::RequestError;
 pub use requests::{ZeroBody, ZeroLight};
-pub use rig::Automated;
-pub use validate::RequestError;
+pub use runtime::camera::{CameraService, CameraView, SettingsError};
+pub use runtime::config::Config;
+pub use runtime::demo::DEMO_SOURCE;
+pub use runtime::events::{Event, Events, Step as ProgressiveStep};
+pub use runtime::queue::SubmitError;
 
 use crate::camera::aravis::AravisCamera;
-use crate::camera::fake::{Bench, FakeBench, ManualBench};
+use crate::camera::fake::FakeBench;
 use crate::camera::hotplug::Hotplug;
 use crate::camera::synthetic::SyntheticBench;
 use crate::camera::worker::{CameraHandle, Opener};
 use crate::camera::CameraDevice;
+use crate::rig;
+use crate::rig::bench::{Bench, ManualBench};
 use crate::store::Store;
 use crate::transport::MemoryBudget;
-use metrics::Metrics;
-use queue::{CaptureQueue, Queue};
-use registry::JobRegistry;
-use scenes::Scenes;
+use runtime::metrics::Metrics;
+use runtime::queue::{CaptureQueue, Queue};
+use runtime::registry::JobRegistry;
+pub use runtime::scenes::Scenes;
 
 /// Exposure at which the fake camera's demo image fills 80 % of full scale
 /// (unpolarized peak), microseconds.
@@ -88,7 +78,7 @@ const DEMO_PEAK_FRACTION: f64 = 0.8;
 pub enum DaemonError {
     /// Bad configuration.
     #[error(transparent)]
-    Config(#[from] config::ConfigError),
+    Config(#[from] runtime::config::ConfigError),
     /// A scene file is wrong.
     #[error(transparent)]
     Scene(#[from] crate::scene::SceneError),
@@ -103,10 +93,10 @@ pub enum DaemonError {
     Fake(#[from] crate::camera::fake::FakeError),
     /// The simulated rotation mount did not start.
     #[error(transparent)]
-    Mount(#[from] crate::mount::MountError),
+    Mount(#[from] crate::rig::mount::MountError),
     /// The simulated relay did not start.
     #[error(transparent)]
-    Light(#[from] crate::relay::RelayError),
+    Light(#[from] crate::rig::relay::RelayError),
 }
 
 /// The daemon's camera: how to open it, the bench around it, and the
@@ -189,11 +179,11 @@ impl CameraSetup {
 
 /// The demo scene's wall images, rendered off the async runtime.
 async fn demo_frames(
-    demo: &config::DemoConfig,
+    demo: &runtime::config::DemoConfig,
     scenes: &Arc<Scenes>,
 ) -> Result<(crate::camera::BenchImages, f64), DaemonError> {
     let (scenes, demo) = (scenes.clone(), demo.clone());
-    tokio::task::spawn_blocking(move || demo::frames(&scenes, &demo))
+    tokio::task::spawn_blocking(move || runtime::demo::frames(&scenes, &demo))
         .await
         .map_err(|e| DaemonError::Demo(e.to_string()))?
 }
@@ -214,9 +204,9 @@ pub struct Daemon {
     /// The bench's devices: stage, rotation mount, light relay.
     rig: Arc<rig::Rig>,
     /// Admits and cancels captures and reconstructions.
-    admission: Arc<admission::Admission>,
+    admission: Arc<requests::admission::Admission>,
     /// The acquisition plans and their runner's state.
-    plans: Arc<plans::Plans>,
+    plans: Arc<procedures::plans::Plans>,
     captures: Arc<CaptureQueue>,
     reconstructions: Queue,
     registry: Arc<JobRegistry>,
@@ -266,7 +256,7 @@ impl Daemon {
         let rig = Arc::new(rig::Rig::new(
             rig::mount::MountService::start(&config.mount, Some(zero_file))?,
             rig::stage::StageService::start(&config.stage),
-            rig::light::LightService::start(&config.light)?,
+            rig::relay::LightService::start(&config.light)?,
             camera.bench.clone(),
         ));
         let (captures, capture_rx) = CaptureQueue::new(config.queue.captures);
@@ -281,7 +271,7 @@ impl Daemon {
         let registry = Arc::new(JobRegistry::default());
         let events = Events::new(1024);
         let metrics = Arc::new(Metrics::default());
-        let admission = Arc::new(admission::Admission {
+        let admission = Arc::new(requests::admission::Admission {
             config: config.clone(),
             store: store.clone(),
             scenes: scenes.clone(),
@@ -294,7 +284,7 @@ impl Daemon {
             events: events.clone(),
             metrics: metrics.clone(),
         });
-        let plans = Arc::new(plans::Plans::new(admission.clone()));
+        let plans = Arc::new(procedures::plans::Plans::new(admission.clone()));
         let daemon = Arc::new(Self {
             config,
             token,
@@ -315,7 +305,7 @@ impl Daemon {
         {
             let d = &daemon;
             let mut set = d.workers.lock().unwrap_or_else(|e| e.into_inner());
-            let capture = capture::CaptureWorker {
+            let capture = jobs::capture::CaptureWorker {
                 jobs: d.job_context(),
                 camera: d.camera.clone(),
                 rig: d.rig.clone(),
@@ -331,7 +321,7 @@ impl Daemon {
             set.spawn(capture.run(capture_rx));
             let shared = Arc::new(Mutex::new(recon_rx));
             for _ in 0..pool {
-                set.spawn(reconstruction::reconstruction_worker(
+                set.spawn(jobs::reconstruction::reconstruction_worker(
                     d.job_context(),
                     shared.clone(),
                 ));
@@ -339,13 +329,13 @@ impl Daemon {
             let stopped = d.registry.stopped();
             let camera = watch_camera(d.camera.clone(), d.events.clone());
             set.spawn(until_stopped(stopped.clone(), camera));
-            let retention = retention::retention_task(
+            let retention = runtime::retention::retention_task(
                 d.store.clone(),
                 d.events.clone(),
                 d.config.retention.clone(),
             );
             set.spawn(until_stopped(stopped, retention));
-            set.spawn(plans::run(d.plans.clone()));
+            set.spawn(procedures::plans::run(d.plans.clone()));
         }
         Ok(daemon)
     }
@@ -389,7 +379,7 @@ impl Daemon {
     }
 
     /// The relay that switches the hidden scene's light, as last seen.
-    pub fn light_now(&self) -> rig::light::LightView {
+    pub fn light_now(&self) -> rig::relay::LightView {
         self.rig.light_view()
     }
 
@@ -404,8 +394,8 @@ impl Daemon {
     }
 
     /// Where each pose of scene `name` sees its wall (the live view's aim).
-    pub fn wall_views(&self, name: &str) -> Result<Vec<scenes::WallView>, RequestError> {
-        Ok(scenes::wall_views(&*self.scenes.scene(name)?))
+    pub fn wall_views(&self, name: &str) -> Result<Vec<runtime::scenes::WallView>, RequestError> {
+        Ok(runtime::scenes::wall_views(&*self.scenes.scene(name)?))
     }
 
     /// Names of the poses of every scene the daemon knows, sorted, once each.

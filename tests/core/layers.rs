@@ -97,9 +97,7 @@ fn the_core_names_no_service_layer() {
         for (path, text) in sources(dir) {
             for upper in [
                 "crate::camera",
-                "crate::mount",
-                "crate::stage",
-                "crate::relay",
+                "crate::rig",
                 "crate::store",
                 "crate::daemon",
                 "crate::api",
@@ -108,6 +106,26 @@ fn the_core_names_no_service_layer() {
             ] {
                 assert!(!text.contains(upper), "{path} names {upper}");
             }
+        }
+    }
+}
+
+#[test]
+fn the_rig_names_no_camera_store_daemon_or_http_layer() {
+    // Issue 39: the bench's devices are a layer of their own beside the
+    // camera; the camera's fake bench implements the rig's `Bench`, not the
+    // other way round.
+    let files = sources("rig");
+    assert!(files.len() >= 10, "{} files under src/rig", files.len());
+    for (path, text) in files {
+        for upper in [
+            "crate::camera",
+            "crate::store",
+            "crate::daemon",
+            "crate::api",
+            "crate::cli",
+        ] {
+            assert!(!text.contains(upper), "{path} names {upper}");
         }
     }
 }
@@ -240,9 +258,9 @@ fn no_two_files_import_each_other_even_through_others() {
         }
     }
     // The check sees imports at all (so an empty answer means something).
-    let capture = src.join("daemon/capture.rs").display().to_string();
+    let capture = src.join("daemon/jobs/capture.rs").display().to_string();
     assert!(
-        edges[&capture].contains(&src.join("daemon/jobs.rs").display().to_string()),
+        edges[&capture].contains(&src.join("daemon/runtime/queue.rs").display().to_string()),
         "{:?}",
         edges[&capture]
     );
@@ -457,6 +475,41 @@ fn no_function_in_src_is_longer_than_120_lines() {
 }
 
 #[test]
+fn the_daemon_is_four_folders_under_one_mod_rs() {
+    // Issue 39: the daemon was one object in 21 files side by side; now its
+    // runtime, the requests, the jobs and the procedures are folders, and
+    // `daemon/mod.rs` only wires them.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/daemon");
+    let mut loose = Vec::new();
+    for (path, _) in sources("daemon") {
+        let rel = Path::new(&path)
+            .strip_prefix(&root)
+            .expect("under src/daemon");
+        let mut parts = rel
+            .components()
+            .map(|c| c.as_os_str().to_string_lossy().into_owned());
+        let first = parts.next().unwrap_or_default();
+        if first != "mod.rs"
+            && !["runtime", "requests", "jobs", "procedures"].contains(&first.as_str())
+        {
+            loose.push(rel.display().to_string());
+        }
+    }
+    assert!(
+        loose.is_empty(),
+        "daemon files outside its four folders: {loose:?}"
+    );
+    for (folder, file) in [
+        ("runtime", "queue.rs"),
+        ("requests", "admission.rs"),
+        ("jobs", "capture.rs"),
+        ("procedures", "plans.rs"),
+    ] {
+        assert!(root.join(folder).join(file).is_file(), "{folder}/{file}");
+    }
+}
+
+#[test]
 fn no_daemon_worker_holds_the_daemon() {
     // Issue 39: the plan runner held a `Weak<Daemon>`; now it holds `Plans`,
     // which posts through `Admission` as a request does, and every worker
@@ -498,21 +551,21 @@ fn no_daemon_worker_holds_the_daemon() {
 #[test]
 fn the_capture_worker_and_the_plans_ask_the_rig_never_a_device() {
     // Issue 39: the capture worker drove the stage, the mount, the light
-    // relay and the fake bench itself; now `daemon/rig` owns them.
+    // relay and the fake bench itself; now the rig (`src/rig`) owns them.
     let workers: Vec<(String, String)> = sources("daemon")
         .into_iter()
-        .filter(|(p, _)| p.ends_with("daemon/capture.rs") || p.ends_with("daemon/plans.rs"))
+        .filter(|(p, _)| {
+            p.ends_with("daemon/jobs/capture.rs") || p.ends_with("daemon/procedures/plans.rs")
+        })
         .collect();
     assert_eq!(workers.len(), 2);
     for (path, text) in workers {
         let code = code(&text);
         for device in [
-            "crate::mount",
-            "crate::stage",
-            "crate::relay",
             "rig::mount",
             "rig::stage",
-            "rig::light",
+            "rig::relay",
+            "rig::bench",
             "MountService",
             "StageService",
             "LightService",
@@ -645,9 +698,9 @@ fn a_ranged_camera_setting_is_named_in_two_files() {
         "src/camera/synthetic.rs",
         // The radiometric gain of the model (fitted by wall calibration,
         // configured per scene, shown with a reconstruction): another gain.
-        "src/daemon/calibration.rs",
-        "src/daemon/demo.rs",
-        "src/daemon/reconstruction.rs",
+        "src/daemon/procedures/calibration.rs",
+        "src/daemon/runtime/demo.rs",
+        "src/daemon/jobs/reconstruction.rs",
         "web/app.js",
         // The migration that moved the old `gain` column into the settings
         // document, so that old rows still read: history, not a new setting.

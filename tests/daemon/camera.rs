@@ -6,9 +6,10 @@
 use std::time::{Duration, Instant};
 
 use polnlos::camera::aravis::AravisCamera;
-use polnlos::camera::fake::{Bench, FakeBench};
+use polnlos::camera::fake::FakeBench;
 use polnlos::camera::worker::CameraHandle;
 use polnlos::camera::{Acquisition, CameraDevice, CameraError, Frame, PixelFormat};
+use polnlos::rig::bench::Bench;
 
 const ADDR: &str = "127.0.0.1";
 

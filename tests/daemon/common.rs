@@ -26,7 +26,7 @@ pub fn free_port() -> u16 {
 
 /// A config file: the embedded default with some lines replaced.
 pub fn config(dir: &Path, edits: &[(&str, &str)]) -> PathBuf {
-    let mut text = polnlos::daemon::config::DEFAULT_TOML.to_string();
+    let mut text = polnlos::daemon::runtime::config::DEFAULT_TOML.to_string();
     for (from, to) in edits {
         assert!(text.contains(from), "{from}");
         text = text.replacen(from, to, 1);
@@ -357,7 +357,7 @@ impl InProcess {
     /// camera showing the config's demo scene; returns once the camera is
     /// connected.
     pub fn start(config: &Path, data: &Path) -> Self {
-        use polnlos::daemon::scenes::Scenes;
+        use polnlos::daemon::runtime::scenes::Scenes;
         use polnlos::daemon::{CameraSetup, Config};
         let mut cfg = Config::load(config).expect("config");
         cfg.data_dir = data.to_path_buf();

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
-use polnlos::daemon::scenes::Scenes;
+use polnlos::daemon::runtime::scenes::Scenes;
 use polnlos::daemon::{CameraSetup, Config, Daemon};
 use polnlos::store::Store;
 use polnlos::transport::MemoryBudget;
@@ -508,7 +508,7 @@ async fn a_camera_that_stalls_fails_its_capture_in_bounded_time_and_the_queue_go
         opener: Box::new(move || {
             Ok(Box::new(Freezing { frozen: f.clone() }) as Box<dyn polnlos::camera::CameraDevice>)
         }),
-        bench: Arc::new(polnlos::camera::fake::ManualBench),
+        bench: Arc::new(polnlos::rig::bench::ManualBench),
         demo_calibration: None,
         watch_usb: false,
     };

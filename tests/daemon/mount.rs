@@ -7,7 +7,7 @@
 use std::time::Duration;
 
 use crate::daemon::common::{config, InProcess};
-use polnlos::mount::simulated::{Fault, SimulatedEll14};
+use polnlos::rig::mount::simulated::{Fault, SimulatedEll14};
 
 const CAPTURE: &str = r#"{"scene": "brewster-rotating", "pose": "A", "polarizer_deg": 45, "exposure_us": 1000, "frames": 1}"#;
 

@@ -4,9 +4,9 @@
 
 use std::time::{Duration, Instant};
 
-use polnlos::mount::elliptec::{Elliptec, MOVE_TIMEOUT, QUERY_TIMEOUT};
-use polnlos::mount::simulated::{Fault, SimulatedEll14, PULSES};
-use polnlos::mount::{angle_between, MountError, RotationMount};
+use polnlos::rig::mount::elliptec::{Elliptec, MOVE_TIMEOUT, QUERY_TIMEOUT};
+use polnlos::rig::mount::simulated::{Fault, SimulatedEll14, PULSES};
+use polnlos::rig::mount::{angle_between, MountError, RotationMount};
 
 #[test]
 fn the_driver_reads_the_device_homes_moves_and_reads_back() {

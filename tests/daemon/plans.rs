@@ -497,7 +497,7 @@ fn sigkill_in_the_middle_of_a_plan_loses_no_capture_and_repeats_none() {
 
 #[test]
 fn a_mount_that_slips_pauses_the_plan_and_continue_takes_the_block_again() {
-    use polnlos::mount::simulated::{Fault, SimulatedEll14};
+    use polnlos::rig::mount::simulated::{Fault, SimulatedEll14};
     let device = SimulatedEll14::start().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let port = format!("kind = \"elliptec\"\nport = \"{}\"", device.path());

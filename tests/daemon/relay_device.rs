@@ -5,9 +5,9 @@
 
 use std::time::{Duration, Instant};
 
-use polnlos::relay::devantech::{Devantech, QUERY_TIMEOUT};
-use polnlos::relay::simulated::{Fault, SimulatedRelay};
-use polnlos::relay::{LightSwitch, RelayError};
+use polnlos::rig::relay::devantech::{Devantech, QUERY_TIMEOUT};
+use polnlos::rig::relay::simulated::{Fault, SimulatedRelay};
+use polnlos::rig::relay::{LightSwitch, RelayError};
 
 #[test]
 fn the_driver_switches_each_relay_and_the_module_is_where_it_says() {

@@ -866,7 +866,7 @@ fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
         "capture-1: cancel asked while it runs",
         "capture-1 cancelled after ",
         "capture-3 started",
-        "job{id=capture-3}: polnlos::daemon::capture: 2 frames received, 0 dropped, 0 broken",
+        "job{id=capture-3}: polnlos::daemon::jobs::capture: 2 frames received, 0 dropped, 0 broken",
         "capture-3 done in ",
         "reconstruction-1 queued: brewster-crossed of captures [3], fista-tv",
         "reconstruction-1 started",

@@ -21,7 +21,7 @@ use super::bodies::{
 };
 use super::extract::{ApiJson, ApiPath as Path, ApiQuery as Query};
 use super::ApiError;
-use crate::daemon::metrics::{counter, gauge, Metrics};
+use crate::daemon::runtime::metrics::{counter, gauge, Metrics};
 use crate::daemon::{Daemon, JobKind};
 use crate::measure::exposure::BlockExposure;
 use crate::store::{CaptureFiles, CaptureRecord, JobState, Listing, ReconstructionRecord};

@@ -24,10 +24,10 @@ pub async fn scene_exposure(
 
 /// Where each pose of a scene sees its wall, in sensor pixels: the live
 /// view zooms onto it.
-#[utoipa::path(get, path = "/scenes/{name}/wall", params(("name" = String, Path, description = "Scene name")), responses((status = 200, body = [crate::daemon::scenes::WallView]), (status = 404, body = ErrorBody, description = "Unknown scene")))]
+#[utoipa::path(get, path = "/scenes/{name}/wall", params(("name" = String, Path, description = "Scene name")), responses((status = 200, body = [crate::daemon::runtime::scenes::WallView]), (status = 404, body = ErrorBody, description = "Unknown scene")))]
 pub async fn scene_wall(
     State(d): St,
     Path(name): Path<String>,
-) -> Result<Json<Vec<crate::daemon::scenes::WallView>>, ApiError> {
+) -> Result<Json<Vec<crate::daemon::runtime::scenes::WallView>>, ApiError> {
     Ok(Json(d.wall_views(&name)?))
 }

@@ -1,0 +1,160 @@
+//! What capture and reconstruction jobs share: the services a worker
+//! holds ([`JobContext`]), the job error, block labels and the bookkeeping
+//! of a job that ended.
+
+pub(crate) mod capture;
+pub(crate) mod progressive;
+pub(crate) mod reconstruction;
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use crate::daemon::runtime::events::Events;
+use crate::daemon::runtime::metrics::Metrics;
+use crate::daemon::runtime::registry::JobRegistry;
+use crate::daemon::runtime::scenes::{Scenes, ScenesError};
+use crate::scene::Channel;
+use crate::store::{JobState, Store};
+
+/// The services every job worker holds, and nothing else of the daemon:
+/// the catalogue, the scenes with their radiometric calibration, the job
+/// registry, the event stream and the counters.
+#[derive(Clone)]
+pub(in crate::daemon) struct JobContext {
+    pub(in crate::daemon) store: Arc<Store>,
+    pub(in crate::daemon) scenes: Arc<Scenes>,
+    /// Fraction of full scale per microsecond per unit of `T l`, per scene.
+    pub(in crate::daemon) calibration: Arc<BTreeMap<String, f64>>,
+    pub(in crate::daemon) registry: Arc<JobRegistry>,
+    pub(in crate::daemon) events: Events,
+    pub(in crate::daemon) metrics: Arc<Metrics>,
+}
+
+/// Why a capture or reconstruction job failed: what the job's `error` says.
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    /// The catalogue or a capture's files (the text has no absolute paths).
+    #[error("{0}")]
+    Store(String),
+    /// The camera.
+    #[error(transparent)]
+    Camera(#[from] crate::camera::CameraError),
+    /// The scene's `T` or its conditioning.
+    #[error(transparent)]
+    Scene(#[from] ScenesError),
+    /// Frames to wall measurements.
+    #[error(transparent)]
+    Measure(#[from] crate::measure::MeasureError),
+    /// The solver.
+    #[error(transparent)]
+    Solve(crate::solve::SolveError),
+    /// A capture cannot serve this reconstruction (its frame, its files).
+    #[error("capture {id}: {reason}")]
+    Capture {
+        /// The capture.
+        id: i64,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A blocking task did not finish (it panicked or was cancelled).
+    #[error("internal: {0}")]
+    Task(String),
+    /// A client cancelled the job while it ran (`DELETE /jobs/{id}`).
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// A solve stopped by its job's cancel flag is the job's cancellation.
+impl From<crate::solve::SolveError> for JobError {
+    fn from(e: crate::solve::SolveError) -> Self {
+        match e {
+            crate::solve::SolveError::Stopped { .. } => JobError::Cancelled,
+            e => JobError::Solve(e),
+        }
+    }
+}
+
+impl From<tokio::task::JoinError> for JobError {
+    fn from(e: tokio::task::JoinError) -> Self {
+        JobError::Task(e.to_string())
+    }
+}
+
+/// A block as people read it: `pose A at 0°`, `pose A without polarizer`,
+/// `pose A's 45° micro-polarizers`.
+pub(in crate::daemon) fn block_label(pose: &str, channel: Channel) -> String {
+    match channel {
+        Channel::Sheet { deg } => format!("pose {pose} at {deg}°"),
+        Channel::None => format!("pose {pose} without polarizer"),
+        Channel::Mosaic { deg } => format!("pose {pose}'s {deg}° micro-polarizers"),
+    }
+}
+
+/// What a capture yields, as people read it: its one block, or `pose A's
+/// mosaic (4 blocks)`.
+pub(in crate::daemon) fn capture_label(pose: &str, channels: &[Channel]) -> String {
+    match channels {
+        [one] => block_label(pose, *one),
+        many => format!("pose {pose}'s mosaic ({} blocks)", many.len()),
+    }
+}
+
+/// How a job that did not finish ended, for the store.
+pub(in crate::daemon) enum Ending<'a> {
+    /// With this error (paths redacted).
+    Failed(&'a str),
+    /// Cancelled by a client while it ran.
+    Cancelled,
+    /// Stopped because the daemon is stopping ([`crate::daemon::Daemon::drain`]).
+    Interrupted,
+}
+
+/// Records how a job ended: its time and done/failed counters, the failure
+/// or cancellation in the store (`record`), and the job event.
+pub(in crate::daemon) fn finish_job(
+    d: &JobContext,
+    job: String,
+    start: Instant,
+    result: Result<(), JobError>,
+    (done, failed, micros): (&AtomicU64, &AtomicU64, &AtomicU64),
+    record: impl FnOnce(Ending<'_>) -> Result<(), crate::store::StoreError>,
+) {
+    let took = start.elapsed();
+    micros.fetch_add(took.as_micros() as u64, Ordering::Relaxed);
+    let took = took.as_secs_f64();
+    d.registry.forget(&job);
+    match result {
+        Ok(()) => {
+            tracing::info!("{job} done in {took:.2} s");
+            done.fetch_add(1, Ordering::Relaxed);
+            d.events.job(job, JobState::Done, None);
+        }
+        Err(JobError::Cancelled) if d.registry.is_stopping() => {
+            tracing::info!("{job} interrupted after {took:.2} s: the daemon is stopping");
+            if let Err(se) = record(Ending::Interrupted) {
+                tracing::error!("cannot record the interruption of {job}: {se}");
+            }
+            d.events.job(job, JobState::Interrupted, None);
+        }
+        Err(JobError::Cancelled) => {
+            tracing::info!("{job} cancelled after {took:.2} s");
+            d.metrics.jobs_cancelled.fetch_add(1, Ordering::Relaxed);
+            if let Err(se) = record(Ending::Cancelled) {
+                tracing::error!("cannot record the cancellation of {job}: {se}");
+            }
+            d.events.job(job, JobState::Cancelled, None);
+        }
+        Err(e) => {
+            tracing::warn!("{job} failed after {took:.2} s: {e}");
+            // What clients read says where inside the data directory, not where it is.
+            let e = d.store.redact_paths(&e.to_string());
+            failed.fetch_add(1, Ordering::Relaxed);
+            if let Err(se) = record(Ending::Failed(&e)) {
+                tracing::error!("cannot record the failure of {job}: {se}");
+            }
+            d.events.job(job, JobState::Failed, Some(e));
+        }
+    }
+}

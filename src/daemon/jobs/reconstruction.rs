@@ -1,0 +1,711 @@
+//! The reconstruction worker: turns a reconstruction's captures into a
+//! measurement (each mean frame sampled at the wall elements through its
+//! pose's homography, stacked in MODEL.md row order, in units of `T l`) and
+//! runs [`crate::solve::reconstruct`] on it.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use tokio::sync::{mpsc, Mutex};
+
+use crate::daemon::jobs::{finish_job, Ending, JobContext, JobError};
+use crate::daemon::Daemon;
+use crate::files::{image, json, npy};
+use crate::measure::{
+    assemble_colour, load, to_model_units, CaptureFrames, CaptureInfo, CaptureSource, Frame,
+    Measurement, PixelMaps,
+};
+use crate::solve::gram::Normal;
+use crate::solve::lambda::NoiseLevel;
+use crate::solve::reconstruct::{reconstruct_prepared, Context};
+use crate::solve::{check_measurement, SolveRequest, Stop};
+use crate::store::{read_mean, CaptureRecord, JobState, Store};
+use crate::transport::Block;
+
+/// Takes reconstructions from the shared queue.
+pub(in crate::daemon) async fn reconstruction_worker(
+    d: JobContext,
+    rx: Arc<Mutex<mpsc::Receiver<i64>>>,
+) {
+    let mut stopped = d.registry.stopped();
+    loop {
+        // Biased towards the stop: a job still queued when the drain
+        // starts stays queued, however ready the queue is.
+        let id = tokio::select! {
+            biased;
+            _ = stopped.wait_for(|s| *s) => None,
+            id = async { rx.lock().await.recv().await } => id,
+        };
+        let Some(id) = id else {
+            return;
+        };
+        let job = format!("reconstruction-{id}");
+        let start = Instant::now();
+        match d.store.reconstruction_running(id) {
+            Ok(true) => {}
+            // Cancelled while it waited in the queue.
+            Ok(false) => {
+                d.registry.forget(&job);
+                continue;
+            }
+            Err(e) => {
+                tracing::error!("{job}: {e}");
+                continue;
+            }
+        }
+        d.events.job(job.clone(), JobState::Running, None);
+        tracing::info!("{job} started");
+        let (d2, cancel) = (d.clone(), d.registry.cancel_flag(&job));
+        let span = tracing::info_span!("job", id = %job);
+        let r = tokio::task::spawn_blocking(move || {
+            span.in_scope(|| run_reconstruction(&d2, id, &cancel))
+        })
+        .await
+        .map_err(JobError::from)
+        .and_then(|r| r);
+        let m = &d.metrics;
+        let counters = (
+            &m.reconstructions_done,
+            &m.reconstructions_failed,
+            &m.reconstruction_micros,
+        );
+        finish_job(&d, job, start, r, counters, |end| match end {
+            Ending::Failed(e) => d.store.reconstruction_failed(id, e),
+            Ending::Cancelled => d.store.reconstruction_cancelled(id).map(|_| ()),
+            Ending::Interrupted => d
+                .store
+                .interrupted(crate::store::Table::Reconstructions, id),
+        });
+    }
+}
+
+/// `Err(Cancelled)` once a client has cancelled the job.
+fn check(cancel: &AtomicBool) -> Result<(), JobError> {
+    if cancel.load(Ordering::SeqCst) {
+        Err(JobError::Cancelled)
+    } else {
+        Ok(())
+    }
+}
+
+/// Frames to `i` through the homographies, the solve, and the files; a
+/// cancellation is noticed between these stages and inside the solve (every
+/// [`Stop::EVERY`] iterations), and nothing is written after it.
+fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
+    let store = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
+    let rec = d.store.reconstruction(id).map_err(store)?;
+    let scene = d.scenes.scene(&rec.scene)?;
+    let t0 = Instant::now();
+    let t = d.scenes.transport(&rec.scene)?;
+    let transport_seconds = t0.elapsed().as_secs_f64();
+    check(cancel)?;
+    let records = read_captures(&d.store, &rec.captures)?;
+    // A partial reconstruction solves with the rows of the blocks it has.
+    let part = rec
+        .params
+        .partial
+        .then(|| Partial::of(t.blocks(), &records));
+    let t = match &part {
+        Some(p) if p.kept.is_empty() => {
+            return Err(JobError::Store(
+                "a partial reconstruction whose captures give no block of its scene".into(),
+            ))
+        }
+        Some(p) => Arc::new(t.select_blocks(&p.kept)),
+        None => t,
+    };
+    let stacked = stack_records(
+        &d.store,
+        records,
+        &scene,
+        t.blocks(),
+        &d.scenes.pixel_maps(&rec.scene),
+        true,
+        true,
+    )?;
+    let job = Job {
+        d,
+        rec: &rec,
+        t: &t,
+        part: part.as_ref(),
+        transport_seconds,
+        cancel,
+    };
+    let mut solved = stacked
+        .measurements
+        .into_iter()
+        .map(|m| job.solve(m))
+        .collect::<Result<Vec<_>, _>>()?;
+    let (image, measurement, mut report, kappa) = match solved.len() {
+        1 => {
+            let s = solved.swap_remove(0);
+            (s.image, s.i, s.report, s.kappa)
+        }
+        _ => colour_result(solved),
+    };
+    report.warnings.splice(0..0, stacked.warnings);
+    write_result(d, id, t.scene_grid(), &image, &measurement, &report)?;
+    let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
+    d.store.reconstruction_done(id, kappa, &text).map_err(store)
+}
+
+/// What solving one measurement of a reconstruction needs beside it.
+struct Job<'a> {
+    d: &'a JobContext,
+    rec: &'a crate::store::ReconstructionRecord,
+    /// `T` of the scene, the blocks a partial reconstruction keeps.
+    t: &'a Arc<crate::transport::Transport>,
+    part: Option<&'a Partial>,
+    transport_seconds: f64,
+    cancel: &'a AtomicBool,
+}
+
+/// One measurement solved: the image, the measurement in units of `T l`,
+/// the report and `kappa(T)`.
+struct Solution {
+    image: Vec<f64>,
+    i: Vec<f64>,
+    report: crate::solve::report::Report,
+    kappa: f64,
+}
+
+impl Job<'_> {
+    /// Solves `measurement` (fractions of full scale per µs, one value per
+    /// row of `t`): unmeasured rows dropped, units, the sampling chosen from
+    /// the noise, the conditioning and Gram, the solver the record asks for.
+    fn solve(&self, mut measurement: Measurement) -> Result<Solution, JobError> {
+        let (d, rec) = (self.d, self.rec);
+        check(self.cancel)?;
+        // Elements too saturated to measure: their rows of T and i are zero (no
+        // part in any fit) and their variance 0 (no part in the noise).
+        let missing = measurement.zero_unmeasured();
+        let mut warnings: Vec<String> =
+            crate::solve::unmeasured_warning(&missing, measurement.i.len())
+                .into_iter()
+                .collect();
+        let t = match missing.is_empty() {
+            true => self.t.clone(),
+            false => Arc::new(self.t.with_rows_zeroed(&missing)),
+        };
+        let calibration = d.calibration.get(&rec.scene).copied();
+        let units = to_model_units(&t, &mut measurement, calibration)?;
+        let mut notes: Vec<String> = units.note().into_iter().collect();
+        if let Some(p) = self.part {
+            notes.push(p.note());
+        }
+        let Measurement { i, variance: var } = measurement;
+        // The noise known, the sampling keys the file left out are chosen from it
+        // (a partial measurement's rows stand at their blocks, the others unknown).
+        let (key, model) = match (var.as_deref(), self.part) {
+            (Some(v), None) => d.scenes.for_noise(&rec.scene, v)?,
+            (Some(v), Some(p)) => d
+                .scenes
+                .for_noise(&rec.scene, &p.whole_rows(v, t.wall_grid().count()))?,
+            (None, _) => (rec.scene.clone(), None),
+        };
+        let t = match (self.part, key == rec.scene) {
+            (_, true) => t,
+            (None, false) => d.scenes.transport(&key)?,
+            (Some(p), false) => Arc::new(d.scenes.transport(&key)?.select_blocks(&p.kept)),
+        };
+        let t = if missing.is_empty() || key == rec.scene {
+            t
+        } else {
+            Arc::new(t.with_rows_zeroed(&missing))
+        };
+        // The scene's cached conditioning and Gram are those of every row of
+        // every block.
+        let whole = self.part.is_none() && missing.is_empty();
+        let cond = match whole {
+            true => d.scenes.conditioning(&key)?,
+            false => Arc::new(crate::solve::condition(&t)?),
+        };
+        check(self.cancel)?;
+        let solve = stored_solve(rec)?;
+        let truth = rec
+            .params
+            .truth
+            .as_deref()
+            .and_then(crate::simulate::patterns::Pattern::from_name)
+            .map(|pat| pat.render(t.scene_grid()));
+        let context = Context {
+            scene: rec.scene.clone(),
+            transport_seconds: self.transport_seconds,
+            truth: truth.as_deref(),
+            stop: Stop::on(self.cancel),
+        };
+        // A solver that needs the Gram solves on the scene's cached one: only
+        // `T^T i` is new.
+        let normal = match solve.solver.needs().gram {
+            true => Some(normal_for(d, &key, whole, &t, &i)?),
+            false => None,
+        };
+        check(self.cancel)?;
+        let solved = reconstruct_prepared(
+            &t,
+            &i,
+            var.map(NoiseLevel::measured),
+            &cond,
+            normal.as_ref(),
+            &solve,
+            context,
+        )?;
+        let mut report = solved.report;
+        report.model = model;
+        report.gain = Some(gain_of(units));
+        warnings.append(&mut report.warnings);
+        report.warnings = warnings;
+        notes.append(&mut report.notes);
+        report.notes = notes;
+        check(self.cancel)?;
+        // The stored measurement says which rows were not measured (NaN),
+        // as `polnlos measure` writes them: re-solved offline, they are
+        // left out again.
+        let mut i = i;
+        missing.iter().for_each(|&j| i[j] = f64::NAN);
+        Ok(Solution {
+            image: solved.image,
+            i,
+            report,
+            kappa: cond.kappa,
+        })
+    }
+}
+
+/// The red, green and blue solutions of a colour camera's captures as one
+/// result: the images and measurements interleaved per element (`[.., 3]`),
+/// and green's report (the colour with the most pixels) carrying every
+/// colour's own fit in `colours`, their metrics combined, their warnings
+/// (named by colour where not all three have one) and their notes.
+fn colour_result(solved: Vec<Solution>) -> (Vec<f64>, Vec<f64>, crate::solve::report::Report, f64) {
+    use crate::measure::colour::Colour;
+    use crate::solve::report::ColourReport;
+    let interleave = |f: &dyn Fn(&Solution) -> &Vec<f64>| -> Vec<f64> {
+        let n = f(&solved[0]).len();
+        (0..n)
+            .flat_map(|k| solved.iter().map(move |s| f(s)[k]))
+            .collect()
+    };
+    let image = interleave(&|s| &s.image);
+    let i = interleave(&|s| &s.i);
+    let kappa = solved[1].kappa;
+    let mut report = solved[1].report.clone();
+    report.colours = solved
+        .iter()
+        .zip(Colour::ALL)
+        .map(|(s, colour)| ColourReport::of(colour, &s.report))
+        .collect();
+    report.metrics = crate::solve::report::ColourReport::combined(&report.colours);
+    let mut warnings = Vec::new();
+    for (s, colour) in solved.iter().zip(Colour::ALL) {
+        for w in &s.report.warnings {
+            let everywhere = solved.iter().all(|o| o.report.warnings.contains(w));
+            let w = match everywhere {
+                true => w.clone(),
+                false => format!("{}: {w}", format!("{colour:?}").to_lowercase()),
+            };
+            if !warnings.contains(&w) {
+                warnings.push(w);
+            }
+        }
+    }
+    report.warnings = warnings;
+    let mut notes = Vec::new();
+    for n in solved.iter().flat_map(|s| &s.report.notes) {
+        if !notes.contains(n) {
+            notes.push(n.clone());
+        }
+    }
+    report.notes = notes;
+    (image, i, report, kappa)
+}
+
+/// `T^T T` and `T^T i` for a solver that needs the Gram: the scene's cached
+/// Gram when `T` has every row of every block (`whole`), else formed anew.
+fn normal_for(
+    d: &JobContext,
+    key: &str,
+    whole: bool,
+    t: &crate::transport::Transport,
+    i: &[f64],
+) -> Result<Normal, JobError> {
+    check_measurement(t, i)?;
+    Ok(match whole {
+        true => Normal::with(d.scenes.gram(key)?, t, i),
+        false => Normal::of(t, i),
+    })
+}
+
+/// The gain a measurement was divided by, and where it came from, for the report.
+fn gain_of(units: crate::measure::Units) -> crate::solve::report::Gain {
+    crate::solve::report::Gain {
+        value: units.factor(),
+        source: match units {
+            crate::measure::Units::Calibrated(_) => "calibration",
+            crate::measure::Units::Estimated(_) => "estimated",
+        },
+    }
+}
+
+/// Writes a finished reconstruction's files (the image as `.npy` and PNG,
+/// the measurement it solved, the report) and logs its summary; the record
+/// is marked done only after they are durable.
+fn write_result(
+    d: &JobContext,
+    id: i64,
+    grid: crate::scene::Grid,
+    image: &[f64],
+    measurement: &[f64],
+    report: &crate::solve::report::Report,
+) -> Result<(), JobError> {
+    let dir = d.store.reconstruction_dir(id);
+    std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
+    let file = |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
+    // A colour result holds red, green and blue per element.
+    let c = report.colours.len().max(1);
+    let shape = |n: usize| match c {
+        1 => vec![n],
+        _ => vec![n, c],
+    };
+    let mut image_shape = vec![grid.nv, grid.nu];
+    if c > 1 {
+        image_shape.push(c);
+    }
+    npy::write_f64(&dir.join("recovered.npy"), &image_shape, image).map_err(file)?;
+    // The stacked measurement it solved (units of T l, MODEL.md row order),
+    // so a user can re-solve it offline with `polnlos reconstruct`.
+    npy::write_f64(
+        &dir.join("measurement.npy"),
+        &shape(measurement.len() / c),
+        measurement,
+    )
+    .map_err(file)?;
+    match c {
+        1 => image::write_png16(
+            &dir.join("image.png"),
+            grid.nu,
+            grid.nv,
+            &image::unit_to_u16(image),
+        ),
+        _ => image::write_png_rgb16(
+            &dir.join("image.png"),
+            grid.nu,
+            grid.nv,
+            &image::unit_to_u16(image),
+        ),
+    }
+    .map_err(file)?;
+    json::write(&dir.join("report.json"), report).map_err(file)?;
+    tracing::info!(
+        "{} rows x {} unknowns, {} iterations{}{}; {} warnings, {} notes",
+        report.rows,
+        report.cols,
+        report.solver.iterations,
+        report
+            .lambda_choice
+            .as_ref()
+            .map(|l| format!(", lambda {:.3e} ({})", l.lambda, l.rule))
+            .unwrap_or_default(),
+        report
+            .metrics
+            .as_ref()
+            .map(|m| format!(", PSNR {:.2} dB", m.psnr_db))
+            .unwrap_or_default(),
+        report.warnings.len(),
+        report.notes.len()
+    );
+    Ok(())
+}
+
+impl Daemon {
+    /// The known truth of reconstruction `rec` on its scene grid as a 16-bit
+    /// PNG (0..1 to black..white, the scale of its result), when its request
+    /// named a test pattern; `Ok(None)` when it did not.
+    pub fn truth_png(
+        &self,
+        rec: &crate::store::ReconstructionRecord,
+    ) -> Result<Option<Vec<u8>>, String> {
+        let Some(pattern) = rec
+            .params
+            .truth
+            .as_deref()
+            .and_then(crate::simulate::patterns::Pattern::from_name)
+        else {
+            return Ok(None);
+        };
+        let scene = self.scenes.scene(&rec.scene).map_err(|e| e.to_string())?;
+        let grid = scene.hidden().plane.grid;
+        let truth = pattern.render(grid);
+        image::encode_png16(grid.nu, grid.nv, &image::unit_to_u16(&truth)).map(Some)
+    }
+}
+
+/// A reconstruction's measurement: the captures stacked in block order
+/// (with the variance of each element when every capture has it), and what
+/// the user should know about the captures.
+pub(in crate::daemon) struct Stacked {
+    /// The grey measurement over every pixel, or, when every capture came
+    /// from a colour camera and colours were asked for, red, green and blue,
+    /// each from its own pixels.
+    pub(in crate::daemon) measurements: Vec<Measurement>,
+    pub(in crate::daemon) warnings: Vec<String>,
+}
+
+/// The blocks a partial reconstruction's captures give, of the scene's.
+struct Partial {
+    /// Indices into the scene's blocks, ascending.
+    kept: Vec<usize>,
+    /// The scene's blocks.
+    of: usize,
+}
+
+impl Partial {
+    /// The blocks `records` serve among `blocks`.
+    fn of(blocks: &[Block], records: &[CaptureRecord]) -> Self {
+        let mut kept: Vec<usize> = records
+            .iter()
+            .flat_map(|c| Block::taken(blocks, &c.pose, &c.channels))
+            .collect();
+        kept.sort_unstable();
+        kept.dedup();
+        Self {
+            kept,
+            of: blocks.len(),
+        }
+    }
+
+    /// What the report notes of it.
+    fn note(&self) -> String {
+        format!(
+            "interim: solved from {} of the scene's {} blocks; the others are not captured yet",
+            self.kept.len(),
+            self.of
+        )
+    }
+
+    /// A per-row `v` of the kept blocks placed at their rows of the whole
+    /// scene (`n` rows a block), 0 (unknown) elsewhere.
+    fn whole_rows(&self, v: &[f64], n: usize) -> Vec<f64> {
+        let mut out = vec![0.0; self.of * n];
+        for (k, &b) in self.kept.iter().enumerate() {
+            out[b * n..(b + 1) * n].copy_from_slice(&v[k * n..(k + 1) * n]);
+        }
+        out
+    }
+}
+
+/// The solve a reconstruction row asks for: its parameters (read typed
+/// with the row: parameters that do not read back make the row unreadable,
+/// never the defaults) and its solver column.
+fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest, JobError> {
+    let solver =
+        serde_json::from_value(serde_json::Value::String(rec.solver.clone())).map_err(|_| {
+            JobError::Store(format!("solver {:?} is not one polnlos knows", rec.solver))
+        })?;
+    Ok(SolveRequest {
+        solver,
+        ..rec.params.solve.clone()
+    })
+}
+
+/// Captures (each at its own pose) assembled into the measurement of
+/// `blocks` with [`crate::measure::assemble_with`] and the scene's pixel
+/// `maps`, in fractions of full scale per µs; the variance comes with it
+/// when every capture has 2 frames or more. With `colours`, and every
+/// capture from a colour camera, each colour's measurement too.
+pub(in crate::daemon) fn stack_records(
+    store: &Store,
+    records: Vec<CaptureRecord>,
+    scene: &crate::scene::Scene,
+    blocks: &[crate::transport::Block],
+    maps: &PixelMaps,
+    in_range: bool,
+    colours: bool,
+) -> Result<Stacked, JobError> {
+    // Saturation first: it biases the measurement before any model question.
+    let mut warnings: Vec<String> = records
+        .iter()
+        .filter_map(|c| saturation_warning(c, in_range))
+        .collect();
+    let captures = records
+        .into_iter()
+        .map(|c| match in_range {
+            true => load_capture_in_range(store, c, scene, &mut warnings),
+            false => load_capture(store, c, scene, &mut warnings),
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let channels: Vec<Option<crate::measure::colour::Colour>> =
+        match colours && captures.iter().all(|c| c.bayer.is_some()) {
+            true => crate::measure::colour::Colour::ALL.map(Some).to_vec(),
+            false => vec![None],
+        };
+    let measurements = channels
+        .into_iter()
+        .map(|c| assemble_colour(scene, blocks, &captures, maps, c))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Stacked {
+        measurements,
+        warnings,
+    })
+}
+
+/// What a reconstruction must say about a capture whose frames reached full
+/// scale (its `clipping`): those pixels' means are lower bounds.
+fn saturation_warning(c: &CaptureRecord, in_range: bool) -> Option<String> {
+    let cl = c.clipping.filter(|cl| cl.saturated > 0)?;
+    let what = if in_range {
+        "their values are lower bounds: they are left out of their elements' means"
+    } else {
+        "their values are lower bounds and bias the measurement low"
+    };
+    Some(format!(
+        "capture {} saturated: {}; {what}",
+        c.id,
+        cl.saturation(&c.scene)
+    ))
+}
+
+/// The catalogue records of `ids`, each read once. A catalogue that cannot
+/// be read is that error, not "no capture".
+pub(in crate::daemon) fn read_captures(
+    store: &Store,
+    ids: &[i64],
+) -> Result<Vec<CaptureRecord>, JobError> {
+    ids.iter()
+        .map(|&id| {
+            store
+                .capture(id)
+                .map_err(|e| JobError::Store(format!("capture {id}: {}", store.describe(&e))))
+        })
+        .collect()
+}
+
+/// A done capture in the catalogue, read for a measurement from its files.
+struct StoredCapture<'a> {
+    store: &'a Store,
+    record: CaptureRecord,
+    info: CaptureInfo,
+    /// Whether its mean leaves out (NaN) the pixels saturated in any frame.
+    in_range: bool,
+}
+
+impl<'a> StoredCapture<'a> {
+    /// The capture and what it recorded; its exposure and pixel format are
+    /// needed (every capture records them; a row without is refused).
+    fn new(store: &'a Store, record: CaptureRecord) -> Result<Self, JobError> {
+        let c = &record;
+        let s = &c.settings;
+        let (Some(exposure_us), Some(pixel_format)) = (s.exposure_us, s.pixel_format) else {
+            return Err(JobError::Capture {
+                id: c.id,
+                reason: "its row records no exposure_us or pixel_format".into(),
+            });
+        };
+        let dark = c.dark_frames > 0 || c.dark_capture.is_some();
+        let info = CaptureInfo {
+            name: format!("capture {}", c.id),
+            pose: c.pose.clone(),
+            channels: c.channels.clone(),
+            frames: c.frames as usize,
+            full_scale: pixel_format.full_scale(),
+            exposure_us,
+            region: s.region,
+            binning: s.binning,
+            missing_dark: (!dark)
+                .then_some("take dark_frames, or a dark capture named in dark_capture"),
+            bayer: pixel_format.bayer(),
+        };
+        Ok(Self {
+            store,
+            record,
+            info,
+            in_range: false,
+        })
+    }
+}
+
+impl CaptureSource for StoredCapture<'_> {
+    fn info(&self) -> CaptureInfo {
+        self.info.clone()
+    }
+
+    fn mean(&self) -> Result<Frame, String> {
+        let dir = self.store.capture_dir(self.record.id);
+        let read = if self.in_range {
+            crate::store::read_mean_in_range(&dir)
+        } else {
+            read_mean(&dir)
+        };
+        read.map_err(|e| self.store.describe(&e))
+    }
+
+    fn variance(&self) -> Result<Option<Frame>, String> {
+        let dir = self.store.capture_dir(self.record.id);
+        crate::store::read_mean_variance(&dir).map_err(|e| self.store.describe(&e))
+    }
+}
+
+/// Reads a capture's mean (and variance) frame for `scene` with
+/// [`crate::measure::load`]: the same checks and warnings `polnlos measure` makes.
+pub(in crate::daemon) fn load_capture(
+    store: &Store,
+    record: CaptureRecord,
+    scene: &crate::scene::Scene,
+    warnings: &mut Vec<String>,
+) -> Result<CaptureFrames, JobError> {
+    Ok(load(scene, &StoredCapture::new(store, record)?, warnings)?)
+}
+
+/// [`load_capture`] with the pixels saturated in any frame left out of the
+/// mean (NaN), for a measurement that drops what it cannot trust.
+fn load_capture_in_range(
+    store: &Store,
+    record: CaptureRecord,
+    scene: &crate::scene::Scene,
+    warnings: &mut Vec<String>,
+) -> Result<CaptureFrames, JobError> {
+    let mut source = StoredCapture::new(store, record)?;
+    source.in_range = true;
+    Ok(load(scene, &source, warnings)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{JobState, ReconstructionParams, ReconstructionRecord};
+
+    fn row(solver: &str, params: ReconstructionParams) -> ReconstructionRecord {
+        ReconstructionRecord {
+            id: 7,
+            scene: "brewster-crossed".into(),
+            captures: vec![1],
+            solver: solver.into(),
+            params,
+            state: JobState::Queued,
+            error: None,
+            created_at: String::new(),
+            started_at: None,
+            finished_at: None,
+            kappa: None,
+            report: None,
+        }
+    }
+
+    #[test]
+    fn a_stored_request_is_solved_with_its_own_solver_column() {
+        let params = ReconstructionParams::new(
+            SolveRequest {
+                lambda: Some(0.25),
+                max_iter: Some(40),
+                ..SolveRequest::default()
+            },
+            Some("disk".into()),
+        );
+        let s = stored_solve(&row("fista-tv", params)).unwrap();
+        assert_eq!(s.solver, crate::solve::Solver::FistaTv);
+        assert_eq!((s.lambda, s.max_iter), (Some(0.25), Some(40)));
+        let e = stored_solve(&row("sgd", ReconstructionParams::default())).unwrap_err();
+        assert_eq!(e.to_string(), "solver \"sgd\" is not one polnlos knows");
+    }
+}

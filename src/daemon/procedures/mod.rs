@@ -1,0 +1,6 @@
+//! Procedures that string jobs together: acquisition plans, the pose and
+//! wall calibrations, and finding the mount's crossed angle.
+
+pub(crate) mod calibration;
+pub(crate) mod mount_zero;
+pub(crate) mod plans;

@@ -1,0 +1,290 @@
+//! Admission: a request body in, a queued job out. [`Admission`] gathers
+//! what [`crate::daemon::requests::validate`] needs (the scene, the camera's ranges and
+//! current settings, the captures named), then admits the request by queue
+//! room and, for captures, disk space; it also cancels jobs (`cancel`).
+//!
+//! Why a handle of its own: the HTTP API and the plan runner both post
+//! captures and reconstructions; the runner holds this, never the daemon.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+use crate::camera::settings::EXPOSURE;
+use crate::camera::CameraInfo;
+use crate::daemon::requests::validate::{self, CameraContext, ProgressiveSpec, RequestError};
+use crate::daemon::requests::{AutoExposure, CaptureBody, ReconstructionBody};
+use crate::daemon::runtime::camera::CameraService;
+use crate::daemon::runtime::events::Events;
+use crate::daemon::runtime::metrics::Metrics;
+use crate::daemon::runtime::queue::{CaptureQueue, DiskNeed, Queue, SubmitError};
+use crate::daemon::runtime::registry::JobRegistry;
+use crate::daemon::runtime::scenes::Scenes;
+use crate::daemon::Config;
+use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
+use crate::rig::Rig;
+use crate::store::{capture_bytes, CaptureRequest, Store};
+
+/// What admitting and cancelling jobs needs: the services it reads and the
+/// queues it pushes to, shared with the daemon.
+pub(in crate::daemon) struct Admission {
+    pub(in crate::daemon) config: Arc<Config>,
+    pub(in crate::daemon) store: Arc<Store>,
+    pub(in crate::daemon) scenes: Arc<Scenes>,
+    /// Fraction of full scale per microsecond per unit of `T l`, per scene.
+    pub(in crate::daemon) calibration: Arc<BTreeMap<String, f64>>,
+    pub(in crate::daemon) camera: Arc<CameraService>,
+    pub(in crate::daemon) rig: Arc<Rig>,
+    pub(in crate::daemon) captures: Arc<CaptureQueue>,
+    pub(in crate::daemon) reconstructions: Queue,
+    pub(in crate::daemon) registry: Arc<JobRegistry>,
+    pub(in crate::daemon) events: Events,
+    pub(in crate::daemon) metrics: Arc<Metrics>,
+}
+
+impl Admission {
+    /// Capture `id` from the catalogue for a request's checks: `None` when
+    /// there is no such capture; a catalogue that cannot be read is a 500
+    /// with the store's reason, not "no capture".
+    pub(in crate::daemon) fn lookup_capture(
+        &self,
+        id: i64,
+    ) -> Result<Option<crate::store::CaptureRecord>, RequestError> {
+        match self.store.capture(id) {
+            Ok(c) => Ok(Some(c)),
+            Err(crate::store::StoreError::NotFound { .. }) => Ok(None),
+            Err(e) => Err(RequestError::Store(format!(
+                "capture {id}: the catalogue could not be read: {}",
+                self.store.describe(&e)
+            ))),
+        }
+    }
+
+    /// Capture `id`, which the request needs to exist ([`Self::lookup_capture`]).
+    pub(in crate::daemon) fn require_capture(
+        &self,
+        id: i64,
+    ) -> Result<crate::store::CaptureRecord, RequestError> {
+        self.lookup_capture(id)?
+            .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))
+    }
+
+    /// The camera limits exposure planning works with: the camera's exposure
+    /// range when connected (`info`), the configured sensor noise, the frame cap.
+    pub(in crate::daemon) fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
+        CameraLimits {
+            exposure_us: EXPOSURE.allowed(info.map(|i| &i.ranges)),
+            max_frames: self.config.queue.max_frames_per_capture,
+            full_well_e: self.config.camera.full_well_e,
+            read_noise_e: self.config.camera.read_noise_e,
+        }
+    }
+
+    /// The exposure plan of every block of a scene for the camera as it is
+    /// now. Builds the scene's `T` on first use: call it off the async runtime.
+    pub(in crate::daemon) fn exposure_plan(
+        &self,
+        scene: &str,
+        target: &ExposureTarget,
+    ) -> Result<Vec<BlockExposure>, RequestError> {
+        let limits = self.camera_limits(self.camera.status().info.as_ref());
+        self.plan_with(scene, target, &limits)
+    }
+
+    fn plan_with(
+        &self,
+        scene: &str,
+        target: &ExposureTarget,
+        limits: &CameraLimits,
+    ) -> Result<Vec<BlockExposure>, RequestError> {
+        let t = self.scenes.transport(scene)?;
+        let cal = self.calibration.get(scene).copied().ok_or_else(|| {
+            RequestError::Invalid(format!(
+                "no radiometric calibration for scene {scene:?}, so exposures cannot be planned: add `{scene} = <fraction of full scale per microsecond per unit of T l>` under [calibration] in the config, or give exposure_us"
+            ))
+        })?;
+        // Each element is measured from all its pixels: their photons count.
+        let pixels = crate::scene::effective_pixels(&*self.scenes.scene(scene)?)
+            .map_err(|e| RequestError::Invalid(e.to_string()))?;
+        plan_exposure(&t, cal, limits, target, pixels.as_deref())
+            .map_err(|e| RequestError::Invalid(e.to_string()))
+    }
+
+    /// What a capture is checked against now.
+    fn camera_context(&self, info: Option<&CameraInfo>) -> CameraContext {
+        CameraContext {
+            limits: self.camera_limits(info),
+            ranges: info.map(|i| i.ranges.clone()),
+            sensor: info.map(|i| i.limits),
+            defaults: self.camera.capture_defaults(info),
+            pixel_formats: info.map(|i| i.pixel_formats.clone()),
+            bench_switches_scene: self.rig.switches_scene(),
+            max_frames: self.config.queue.max_frames_per_capture,
+        }
+    }
+
+    /// Validates a capture body (planning its exposure when asked, which may
+    /// build the scene's `T`, off the runtime) and admits it.
+    pub(in crate::daemon) async fn submit_capture(
+        self: &Arc<Self>,
+        body: CaptureBody,
+    ) -> Result<(i64, CaptureRequest), SubmitError> {
+        let d = self.clone();
+        let (request, progressive) = tokio::task::spawn_blocking(move || d.check_capture(&body))
+            .await
+            .map_err(|e| SubmitError::Internal(format!("capture validation: {e}")))??;
+        if progressive.is_some() && !self.calibration.contains_key(&request.scene) {
+            return Err(RequestError::Invalid(format!(
+                "progressive reconstruction needs the radiometric calibration of scene {:?}: add it under [calibration] in the config",
+                request.scene
+            ))
+            .into());
+        }
+        let id = self.admit_capture(&request, progressive)?;
+        Ok((id, request))
+    }
+
+    pub(in crate::daemon) fn check_capture(
+        &self,
+        b: &CaptureBody,
+    ) -> Result<(CaptureRequest, Option<ProgressiveSpec>), RequestError> {
+        let scene = self.scenes.scene(&b.scene)?;
+        let info = self.camera.status().info;
+        let cam = self.camera_context(info.as_ref());
+        let plan = || match b.exposure {
+            Some(AutoExposure::Auto) => {
+                self.plan_with(&b.scene, &b.target.unwrap_or_default(), &cam.limits)
+            }
+            None => Ok(Vec::new()),
+        };
+        let lookup = |id| self.lookup_capture(id);
+        let request = validate::capture(b, &scene, &cam, plan, lookup)?;
+        let progressive = match &b.progressive {
+            Some(p) => Some(validate::progressive(p, &request, &scene, lookup)?),
+            None => None,
+        };
+        Ok((request, progressive))
+    }
+
+    /// Admits a validated capture: room in the queue and on the disk (its
+    /// files, plus what queued captures reserved, plus the configured
+    /// reserve), then records and queues it.
+    fn admit_capture(
+        &self,
+        req: &CaptureRequest,
+        progressive: Option<ProgressiveSpec>,
+    ) -> Result<i64, SubmitError> {
+        let need = capture_bytes(
+            req.acquisition.region[2],
+            req.acquisition.region[3],
+            req.frames,
+            req.dark_frames,
+        );
+        let free = crate::files::space::free_disk_bytes(self.store.dir())
+            .map_err(|e| SubmitError::Internal(self.store.describe_io(self.store.dir(), &e)))?;
+        let disk = DiskNeed {
+            need,
+            free,
+            keep: self.config.queue.reserve_free_mib << 20,
+        };
+        let seconds = req.acquisition.exposure_us * 1e-6 * (req.frames + req.dark_frames) as f64;
+        let retry_after = seconds.ceil().max(1.0) as u64;
+        let insert = || {
+            self.store
+                .insert_capture(req)
+                .map_err(|e| SubmitError::Internal(self.store.describe(&e)))
+        };
+        let pushed = self.captures.push(disk, retry_after, progressive, insert);
+        if let Ok(id) = &pushed {
+            let a = &req.acquisition;
+            tracing::info!(
+                "capture-{id} queued: {} {}, {} frames + {} dark of {} us",
+                req.scene,
+                crate::daemon::jobs::capture_label(&req.pose, &req.channels),
+                req.frames,
+                req.dark_frames,
+                a.exposure_us
+            );
+        }
+        self.count_refusal(pushed)
+    }
+
+    /// Validates a reconstruction body against its scene and captures and queues it.
+    pub(in crate::daemon) fn submit_reconstruction(
+        &self,
+        b: &ReconstructionBody,
+    ) -> Result<i64, SubmitError> {
+        let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
+        let request = validate::reconstruction(b, &scene, |id| self.lookup_capture(id))?;
+        let pushed = self.reconstructions.push(5, || {
+            self.store
+                .insert_reconstruction(&request)
+                .map_err(|e| SubmitError::Internal(self.store.describe(&e)))
+        });
+        if let Ok(id) = &pushed {
+            tracing::info!(
+                "reconstruction-{id} queued: {} of captures {:?}, {}",
+                b.scene,
+                b.captures,
+                request.solver
+            );
+        }
+        self.count_refusal(pushed)
+    }
+
+    /// Counts a full queue's refusal in the metrics.
+    fn count_refusal(&self, pushed: Result<i64, SubmitError>) -> Result<i64, SubmitError> {
+        if let Err(SubmitError::QueueFull { .. }) = pushed {
+            self.metrics.rejected_full.fetch_add(1, Ordering::Relaxed);
+        }
+        pushed
+    }
+}
+
+/// The front end's door to [`Admission`].
+impl crate::daemon::Daemon {
+    /// Validates a capture body and queues it ([`Admission::submit_capture`]).
+    pub async fn submit_capture(
+        &self,
+        body: CaptureBody,
+    ) -> Result<(i64, CaptureRequest), SubmitError> {
+        self.admission.submit_capture(body).await
+    }
+
+    /// Validates a reconstruction body and queues it.
+    pub fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
+        self.admission.submit_reconstruction(b)
+    }
+
+    /// The exposure plan of every block of a scene for the camera as it is
+    /// now ([`Admission::exposure_plan`]): call it off the async runtime.
+    pub fn exposure_plan(
+        &self,
+        scene: &str,
+        target: &ExposureTarget,
+    ) -> Result<Vec<BlockExposure>, RequestError> {
+        self.admission.exposure_plan(scene, target)
+    }
+
+    /// The camera limits exposure planning works with.
+    pub fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
+        self.admission.camera_limits(info)
+    }
+
+    /// Capture `id`, which a request needs to exist.
+    pub(in crate::daemon) fn require_capture(
+        &self,
+        id: i64,
+    ) -> Result<crate::store::CaptureRecord, RequestError> {
+        self.admission.require_capture(id)
+    }
+
+    /// Cancels a queued or running job ([`Admission::cancel_job`]).
+    pub async fn cancel_job(
+        &self,
+        kind: crate::daemon::JobKind,
+        id: i64,
+    ) -> Result<crate::store::JobState, crate::daemon::CancelError> {
+        self.admission.cancel_job(kind, id).await
+    }
+}

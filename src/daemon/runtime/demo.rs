@@ -1,0 +1,138 @@
+//! The fake camera's demo: the wall image of a test pattern behind every
+//! (pose, angle) block of the demo scene and of the scenes on the same bench,
+//! rendered by the numeric core through each pose's homography.
+
+use crate::daemon::runtime::scenes::Scenes;
+use crate::daemon::{runtime::config, DaemonError, DEMO_PEAK_FRACTION, DEMO_REFERENCE_EXPOSURE_US};
+use crate::measure::Frame;
+use crate::scene::FrameGeometry;
+use crate::simulate::camera::render;
+use crate::simulate::patterns::Pattern;
+
+type DemoFrames = crate::camera::BenchImages;
+
+/// Brightness of the calibration target's dots, fraction of full scale at the
+/// reference exposure.
+const TARGET_LEVEL: f32 = 0.8;
+
+/// Where the demo bench's calibration point source sits on the hidden-scene
+/// plane (unit radiance: its fitted gain is the demo calibration).
+pub const DEMO_SOURCE: crate::calibrate::wall::PointSource =
+    crate::calibrate::wall::PointSource { u: 0.03, v: -0.02 };
+
+/// Renders the fake camera's frame for every block of the demo scene (and of
+/// every other scene on the same bench with poses of their own), normalized so
+/// that the unpolarized peak is 80 % of full scale at the reference exposure.
+/// Returns the frames and the calibration they imply (fraction of full scale
+/// per microsecond per unit of T l).
+pub(in crate::daemon) fn frames(
+    scenes: &Scenes,
+    demo: &config::DemoConfig,
+) -> Result<(DemoFrames, f64), DaemonError> {
+    let err = |m: String| DaemonError::Demo(m);
+    let pattern = Pattern::from_name(&demo.pattern).ok_or_else(|| {
+        err(format!(
+            "pattern {:?} is not disk, bars or letter",
+            demo.pattern
+        ))
+    })?;
+    let scene = scenes
+        .get(&demo.scene)
+        .ok_or_else(|| err(format!("no scene {:?}", demo.scene)))?;
+    let t = scenes
+        .transport(&demo.scene)
+        .map_err(|e| err(e.to_string()))?;
+    let l = pattern.render(t.scene_grid());
+    let peak = crate::simulate::unpolarized_peak(&scene, &t, &l, scenes.budget())
+        .map_err(|e| err(e.to_string()))?;
+    if peak <= 0.0 {
+        return Err(err("the demo scene lights no wall element".into()));
+    }
+    let norm = DEMO_PEAK_FRACTION / peak;
+    let mut frames: DemoFrames = DemoFrames::default();
+    let target = crate::calibrate::geometry::Target::default_target();
+    // The demo scene first; then same-bench scenes add blocks it lacks (B, C, angles).
+    let mut names = vec![demo.scene.clone()];
+    names.extend(scenes.names().into_iter().filter(|n| {
+        n != &demo.scene && same_bench(&scene, &scenes.get(n).unwrap_or_else(|| scene.clone()))
+    }));
+    let sensor = FrameGeometry::plain(512, 512);
+    let scaled = |f: Option<Frame>| {
+        f.map(|mut f| {
+            f.pixels.iter_mut().for_each(|p| *p *= norm as f32);
+            f
+        })
+    };
+    for name in names {
+        let Some(s) = scenes.get(&name) else {
+            continue;
+        };
+        let shown = |frames: &DemoFrames, p: &str, a: Option<f64>| {
+            frames.scene.iter().any(|(q, b, _)| q == p && *b == a)
+        };
+        let blocks = crate::transport::blocks_of(&s);
+        if blocks
+            .iter()
+            .all(|b| shown(&frames, &b.pose, bench_angle(&s, b)))
+        {
+            continue;
+        }
+        // Each pixel at its own wall point: the camera a measurement must average.
+        let l = pattern.render(s.hidden().plane.grid);
+        let lit = render(&s, &l, sensor);
+        let point = crate::calibrate::wall::point_scene(&s, &DEMO_SOURCE, &material(&s))
+            .map_err(|e| err(e.to_string()))?;
+        let source = render(&point, &[1.0], sensor);
+        for ((block, frame), (_, source)) in lit.into_iter().zip(source) {
+            let angle = bench_angle(&s, &block);
+            if shown(&frames, &block.pose, angle) {
+                continue;
+            }
+            let (Some(frame), Some(source), Some(h)) = (
+                scaled(frame),
+                scaled(source),
+                s.pose(&block.pose).and_then(|p| p.homography),
+            ) else {
+                continue;
+            };
+            frames.scene.push((block.pose.clone(), angle, frame));
+            frames.source.push((block.pose.clone(), angle, source));
+            let mut dots = crate::calibrate::geometry::render(&target, &h, 512, 512);
+            dots.pixels.iter_mut().for_each(|p| *p *= TARGET_LEVEL);
+            frames.target.push((block.pose, angle, dots));
+        }
+    }
+    // Frame value v = norm T l at the reference exposure, as a fraction of full scale.
+    let c = norm / DEMO_REFERENCE_EXPOSURE_US;
+    Ok((frames, c))
+}
+
+/// The angle from crossed of the polarizer a block's light passes, as the
+/// bench shows it (a sheet's, or a mosaic micro-polarizer's `sensor_deg +
+/// theta`); `None` without one.
+fn bench_angle(s: &crate::scene::Scene, block: &crate::transport::Block) -> Option<f64> {
+    s.pose(&block.pose)?
+        .analyzer(block.channel)
+        .map(|a| a.angle_deg)
+}
+
+/// The scene's wall material as wall calibration fits it, with a unit source.
+fn material(s: &crate::scene::Scene) -> crate::calibrate::wall::WallParams {
+    crate::calibrate::wall::WallParams {
+        alpha: s.wall().brdf.alpha,
+        ior: s.wall().brdf.eta,
+        kd: s.wall().brdf.kd,
+        gain: 1.0,
+    }
+}
+
+/// Same wall, same hidden-scene plane, no occluder difference: frames can be shared.
+fn same_bench(a: &crate::scene::Scene, b: &crate::scene::Scene) -> bool {
+    a.wall().plane.center == b.wall().plane.center
+        && a.wall().plane.size == b.wall().plane.size
+        && a.wall().plane.grid == b.wall().plane.grid
+        && a.wall().brdf == b.wall().brdf
+        && a.hidden().plane.center == b.hidden().plane.center
+        && a.hidden().plane.size == b.hidden().plane.size
+        && a.occluders() == b.occluders()
+}

@@ -1,0 +1,14 @@
+//! The daemon's runtime: its configuration, the job queues and registry,
+//! the event stream, the metrics, retention, the scenes it knows, the camera
+//! service and the fake camera's demo. Each is a small handle that owns its
+//! state; the jobs and procedures get the handles they need, never the daemon.
+
+pub(crate) mod camera;
+pub mod config;
+pub(crate) mod demo;
+pub mod events;
+pub mod metrics;
+pub(crate) mod queue;
+pub(crate) mod registry;
+pub(crate) mod retention;
+pub mod scenes;
