@@ -729,3 +729,111 @@ fn a_pixel_format_is_one_file() {
         assert!(named[0].ends_with("src/camera/pixel.rs"), "{named:?}");
     }
 }
+
+/// `cargo <args> -Z unstable-options --unit-graph` (resolution only, nothing
+/// is built; `RUSTC_BOOTSTRAP` lets a stable cargo print it), each unit as a
+/// key over its package, target, mode, features, profile and dependencies'
+/// keys, as cargo's own artifact hash is made, with its package.
+fn unit_keys(args: &[&str], env: &[(&str, &str)]) -> Vec<(u64, String)> {
+    use std::hash::{Hash, Hasher};
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = Command::new(cargo)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(args)
+        .args([
+            "--offline",
+            "--locked",
+            "-Z",
+            "unstable-options",
+            "--unit-graph",
+        ])
+        .env("RUSTC_BOOTSTRAP", "1")
+        .envs(env.iter().copied())
+        .output()
+        .expect("cargo runs");
+    assert!(
+        out.status.success(),
+        "cargo {args:?} --unit-graph failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let graph: serde_json::Value = serde_json::from_slice(&out.stdout).expect("unit graph JSON");
+    let units = graph["units"].as_array().expect("units");
+    fn key(units: &[serde_json::Value], i: usize, memo: &mut Vec<Option<u64>>) -> u64 {
+        if let Some(k) = memo[i] {
+            return k;
+        }
+        let u = &units[i];
+        let mut profile = u["profile"].clone();
+        if let Some(p) = profile.as_object_mut() {
+            // The profile's name is not in cargo's hash; its settings are.
+            p.remove("name");
+        }
+        let mut deps: Vec<u64> = u["dependencies"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(|d| d["index"].as_u64())
+            .map(|d| key(units, d as usize, memo))
+            .collect();
+        deps.sort_unstable();
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        for part in ["pkg_id", "mode", "features", "platform"] {
+            u[part].to_string().hash(&mut h);
+        }
+        u["target"]["kind"].to_string().hash(&mut h);
+        profile.to_string().hash(&mut h);
+        deps.hash(&mut h);
+        let k = h.finish();
+        memo[i] = Some(k);
+        k
+    }
+    let mut memo = vec![None; units.len()];
+    (0..units.len())
+        .map(|i| {
+            let pkg = units[i]["pkg_id"].as_str().unwrap_or_default();
+            let name = pkg.rsplit(['#', '/']).next().unwrap_or(pkg);
+            (key(units, i, &mut memo), name.to_string())
+        })
+        .collect()
+}
+
+#[test]
+fn the_python_extension_reuses_what_cargo_test_built() {
+    // Issue 39: tests/daemon/python.rs builds the extension into the same
+    // target folder; with other features for libc, syn, num-complex, ... its
+    // build compiled faer, gemm, nalgebra and image again (363 s of one
+    // suite run from a target without it). The two Cargo.tomls now ask for
+    // the same features, so only polnlos itself (no daemon, opt-level 1),
+    // utoipa (no axum glue) and what only Python needs are compiled.
+    let test = unit_keys(&["test", "--no-run"], &[]);
+    let python = unit_keys(
+        &[
+            "rustc",
+            "--profile",
+            "dev",
+            "--manifest-path",
+            "python/Cargo.toml",
+            "--lib",
+        ],
+        &[("CARGO_PROFILE_DEV_OPT_LEVEL", "1")],
+    );
+    let built: std::collections::HashSet<u64> = test.iter().map(|(k, _)| *k).collect();
+    let in_test: std::collections::HashSet<&str> = test.iter().map(|(_, p)| p.as_str()).collect();
+    let again: Vec<&str> = python
+        .iter()
+        .filter(|(k, p)| !built.contains(k) && in_test.contains(p.as_str()))
+        .map(|(_, p)| p.as_str())
+        .collect();
+    let mut names: Vec<&str> = again
+        .iter()
+        .map(|p| p.split('@').next().unwrap_or(p))
+        .collect();
+    names.sort_unstable();
+    names.dedup();
+    assert!(python.len() > 200, "{} units", python.len());
+    assert_eq!(
+        names,
+        ["polnlos", "utoipa", "utoipa-gen"],
+        "packages the extension's build compiles again: {again:?}"
+    );
+}

@@ -28,17 +28,29 @@ fn run(cmd: &mut Command, what: &str) {
     );
 }
 
+/// The target folder of this build: the test binary is
+/// `<target>/<profile>/deps/suite-<hash>`.
+fn target_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("the test binary's path");
+    exe.ancestors()
+        .nth(3)
+        .map(Path::to_path_buf)
+        .expect("the test binary sits in <target>/<profile>/deps")
+}
+
 /// A virtual environment with the package installed from `python/`, seeing
 /// the system's NumPy, maturin, pytest and nbclient.
 ///
-/// The extension builds into this build's own `target/` in the `dev`
+/// The extension builds into the target folder this test binary was built
+/// in (`target/`, or wherever `CARGO_TARGET_DIR` put it) in the `dev`
 /// profile (the one whose dependency artifacts `cargo test` shares; `--profile
 /// test` would build the library as a test harness): `cargo test` holds the
 /// build lock only while it compiles, so the dependencies it already built
 /// (faer and the rest, same settings) are reused instead of a second release build in a folder of its own (327 s
-/// of a clean suite's 20 minutes, measured 2026-11-26).
+/// of a clean suite's 20 minutes, measured 2026-11-26). A fixed `target/`
+/// rebuilt them all when `CARGO_TARGET_DIR` pointed elsewhere.
 fn venv() -> PathBuf {
-    let venv = root().join("target/python-venv");
+    let venv = target_dir().join("python-venv");
     let python = venv.join("bin/python");
     if !python.exists() {
         run(
@@ -70,7 +82,7 @@ fn venv() -> PathBuf {
                 "--force-reinstall",
             ])
             .arg(root().join("python"))
-            .env("CARGO_TARGET_DIR", root().join("target"))
+            .env("CARGO_TARGET_DIR", target_dir())
             .env("MATURIN_PEP517_ARGS", "--profile dev")
             // The core at opt-level 1 (the dependencies keep their own 3,
             // so none is rebuilt): pytest and the notebook took 39 s on the
