@@ -12,8 +12,49 @@ use std::time::{Duration, Instant};
 /// one test at a time uses Aravis, in-process (`camera.rs`) or in a daemon.
 pub static ARAVIS: Mutex<()> = Mutex::new(());
 
-pub fn lock() -> std::sync::MutexGuard<'static, ()> {
-    ARAVIS.lock().unwrap_or_else(|e| e.into_inner())
+/// Takes the Aravis lock for the rest of the caller's scope.
+pub fn lock() -> AravisHold {
+    let asked = std::time::SystemTime::now();
+    let guard = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
+    AravisHold {
+        _guard: guard,
+        asked,
+        got: std::time::SystemTime::now(),
+    }
+}
+
+/// The Aravis lock, held: on drop, with `POLNLOS_ARAVIS_LOG` set (as
+/// scripts/test-times.sh sets it), one line per hold is appended to that
+/// file (the test, and the Unix times in seconds when it asked for, got and
+/// gave back the lock), so docs/test-times.md can show the tests that wait
+/// on one another for the one fake camera.
+pub struct AravisHold {
+    _guard: std::sync::MutexGuard<'static, ()>,
+    asked: std::time::SystemTime,
+    got: std::time::SystemTime,
+}
+
+impl Drop for AravisHold {
+    fn drop(&mut self) {
+        let Some(log) = std::env::var_os("POLNLOS_ARAVIS_LOG") else {
+            return;
+        };
+        let s = |t: std::time::SystemTime| {
+            t.duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64())
+        };
+        let line = format!(
+            "{}\t{:.2}\t{:.2}\t{:.2}\n",
+            std::thread::current().name().unwrap_or("?"),
+            s(self.asked),
+            s(self.got),
+            s(std::time::SystemTime::now())
+        );
+        use std::io::Write;
+        if let Ok(mut f) = std::fs::OpenOptions::new().create(true).append(true).open(log) {
+            let _ = f.write_all(line.as_bytes());
+        }
+    }
 }
 
 pub fn free_port() -> u16 {

@@ -1124,11 +1124,17 @@ fn a_saturated_plan_is_flagged_on_the_page_with_its_counts_and_a_clean_plan_has_
         )
         .await;
         assert_eq!(shown, serde_json::json!(0), "a clean result shows no warning");
-        // The saturated plan, from its pixels in range, within 1 dB of it.
+        // The saturated plan, from its pixels in range, within 1.5 dB of it.
+        // Each plan is one noise realization, and which seeds a capture's
+        // frames get depends on how many live-view frames the page pulled
+        // before it: over 7 runs (alone and beside two busy loops, and one
+        // clean-target suite) the 20 ms plan gave 16.08-17.42 dB and the
+        // 100 ms plan 16.26-16.75 dB. A 1 dB bound failed once, against the
+        // luckiest 20 ms plan.
         let of = |rid: &serde_json::Value| psnr(&page.d.json(&format!("/reconstructions/{rid}")));
         let (saturated, sane) = (of(&plan["reconstruction"]), of(&clean["reconstruction"]));
         println!("100 ms plan {saturated:.2} dB, 20 ms plan {sane:.2} dB");
-        assert!(saturated >= sane - 1.0, "{saturated} vs {sane}");
+        assert!(saturated >= sane - 1.5, "{saturated} vs {sane}");
         c.close().await.unwrap();
     });
 }
