@@ -12,14 +12,38 @@ use std::time::Duration;
 
 /// Opens `path` at `baud`, 8N1, no flow control, reads timing out after
 /// 20 ms (the drivers wait for their replies themselves).
+///
+/// A port another handle still holds (its exclusive lock) is tried again
+/// for up to [`BUSY_WAIT`] before the error is returned.
+///
+/// Why: a handle just dropped can keep its lock for a moment. A process
+/// forked in the meantime holds a copy of the descriptor until it execs,
+/// and the lock goes with the last copy. The suite saw a reopen fail so.
 pub fn open(path: &str, baud: u32) -> serialport::Result<Box<dyn serialport::SerialPort>> {
-    serialport::new(path, baud)
-        .data_bits(serialport::DataBits::Eight)
-        .parity(serialport::Parity::None)
-        .stop_bits(serialport::StopBits::One)
-        .flow_control(serialport::FlowControl::None)
-        .timeout(Duration::from_millis(20))
-        .open()
+    let started = std::time::Instant::now();
+    loop {
+        let port = serialport::new(path, baud)
+            .data_bits(serialport::DataBits::Eight)
+            .parity(serialport::Parity::None)
+            .stop_bits(serialport::StopBits::One)
+            .flow_control(serialport::FlowControl::None)
+            .timeout(Duration::from_millis(20))
+            .open();
+        match port {
+            Err(e) if is_busy(&e) && started.elapsed() < BUSY_WAIT => {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            other => return other,
+        }
+    }
+}
+
+/// How long [`open`] waits for a port another handle holds.
+pub const BUSY_WAIT: Duration = Duration::from_millis(500);
+
+/// Whether opening failed because another handle holds the port's lock.
+fn is_busy(e: &serialport::Error) -> bool {
+    e.kind() == serialport::ErrorKind::NoDevice && e.description.contains("lock")
 }
 
 /// A simulated device on a pseudo-terminal: a thread answers what the
@@ -163,4 +187,49 @@ fn raw_mode(slave: &OwnedFd) -> std::io::Result<()> {
         return Err(std::io::Error::last_os_error());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_port_held_for_a_moment_opens_once_it_is_let_go() {
+        let device = PtyDevice::start("test-pty", |_| Vec::new()).expect("a pty");
+        let held = open(device.path(), 9600).expect("the first open");
+        let letting_go = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(150));
+            drop(held);
+        });
+        let started = std::time::Instant::now();
+        let again = open(device.path(), 9600);
+        let waited = started.elapsed();
+        letting_go.join().expect("the thread that lets go");
+        assert!(again.is_ok(), "{:?}", again.err());
+        assert!(waited >= Duration::from_millis(100), "{waited:?}");
+    }
+
+    #[test]
+    fn a_port_held_for_good_is_refused_after_the_busy_wait() {
+        let device = PtyDevice::start("test-pty", |_| Vec::new()).expect("a pty");
+        let _held = open(device.path(), 9600).expect("the first open");
+        let started = std::time::Instant::now();
+        let Err(e) = open(device.path(), 9600) else {
+            panic!("a second open of a held port succeeded");
+        };
+        let waited = started.elapsed();
+        assert!(is_busy(&e), "{e}");
+        assert!(waited >= BUSY_WAIT, "{waited:?}");
+        assert!(waited < BUSY_WAIT + Duration::from_secs(2), "{waited:?}");
+    }
+
+    #[test]
+    fn a_missing_port_is_refused_at_once() {
+        let started = std::time::Instant::now();
+        let Err(e) = open("/dev/polnlos-no-such-port", 9600) else {
+            panic!("a port that does not exist opened");
+        };
+        assert!(!is_busy(&e), "{e}");
+        assert!(started.elapsed() < BUSY_WAIT, "{:?}", started.elapsed());
+    }
 }
