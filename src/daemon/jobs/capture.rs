@@ -15,11 +15,12 @@ use std::time::Instant;
 use tokio::sync::mpsc;
 use tracing::Instrument;
 
+use super::progressive;
+use super::{finish_job, Ending, JobContext, JobError};
 use crate::camera::{Acquisition, CameraError, Frame, FrameCounts, RawFrame};
-use crate::daemon::jobs::progressive;
-use crate::daemon::jobs::{finish_job, Ending, JobContext, JobError};
 use crate::daemon::runtime::camera::CameraService;
-use crate::daemon::runtime::config::LostFrames;
+use crate::daemon::runtime::config::{LostFrames, Saturated};
+use crate::daemon::runtime::events::Step;
 use crate::daemon::runtime::queue::CaptureQueue;
 use crate::daemon::Event;
 use crate::measure::FrameStack;
@@ -50,7 +51,7 @@ pub(in crate::daemon) struct CaptureWorker {
     /// What a capture that lost frames does.
     pub(in crate::daemon) lost_frames: LostFrames,
     /// What a capture with saturated pixels does, above which share of a frame.
-    pub(in crate::daemon) saturated: (crate::daemon::runtime::config::Saturated, f64),
+    pub(in crate::daemon) saturated: (Saturated, f64),
     /// How far beyond twice its frames' time an acquisition may run.
     pub(in crate::daemon) stall_slack: std::time::Duration,
 }
@@ -243,11 +244,11 @@ fn saturated(
     }
     let what = format!("saturated: {}", clipping.saturation(&c.scene));
     match policy {
-        crate::daemon::runtime::config::Saturated::Warn => {
+        Saturated::Warn => {
             tracing::warn!(capture = id, "capture-{id} {what}");
             Ok(())
         }
-        crate::daemon::runtime::config::Saturated::Fail => Err(JobError::Capture {
+        Saturated::Fail => Err(JobError::Capture {
             id,
             reason: format!("{what}, or set [camera] saturated = \"warn\" to keep such captures"),
         }),
@@ -287,7 +288,7 @@ async fn finish_progressive(
     id: i64,
     frames: Option<&FrameStack>,
     tx: progressive::Snapshots,
-    steps: tokio::task::JoinHandle<Vec<crate::daemon::runtime::events::Step>>,
+    steps: tokio::task::JoinHandle<Vec<Step>>,
 ) {
     if let Some(st) = frames {
         let _ = tokio::task::spawn_blocking(tx.send_last(st)).await;

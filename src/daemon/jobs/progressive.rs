@@ -19,9 +19,9 @@ use std::sync::mpsc::{Receiver, SyncSender};
 use std::sync::Arc;
 use std::time::Instant;
 
+use super::reconstruction::{load_capture, read_captures};
+use super::{JobContext, JobError};
 use crate::camera::{Acquisition, Frame};
-use crate::daemon::jobs::reconstruction::{load_capture, read_captures};
-use crate::daemon::jobs::{JobContext, JobError};
 use crate::daemon::requests::validate::ProgressiveSpec;
 use crate::daemon::runtime::events::Step;
 use crate::daemon::Event;

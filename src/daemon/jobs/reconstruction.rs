@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use tokio::sync::{mpsc, Mutex};
 
-use crate::daemon::jobs::{finish_job, Ending, JobContext, JobError};
+use super::{finish_job, Ending, JobContext, JobError};
 use crate::daemon::Daemon;
 use crate::files::{image, json, npy};
 use crate::measure::{

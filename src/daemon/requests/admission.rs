@@ -1,5 +1,5 @@
 //! Admission: a request body in, a queued job out. [`Admission`] gathers
-//! what [`crate::daemon::requests::validate`] needs (the scene, the camera's ranges and
+//! what [`super::validate`] needs (the scene, the camera's ranges and
 //! current settings, the captures named), then admits the request by queue
 //! room and, for captures, disk space; it also cancels jobs (`cancel`).
 //!
@@ -10,10 +10,10 @@ use std::collections::BTreeMap;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
+use super::validate::{self, CameraContext, ProgressiveSpec, RequestError};
+use super::{AutoExposure, CaptureBody, ReconstructionBody};
 use crate::camera::settings::EXPOSURE;
 use crate::camera::CameraInfo;
-use crate::daemon::requests::validate::{self, CameraContext, ProgressiveSpec, RequestError};
-use crate::daemon::requests::{AutoExposure, CaptureBody, ReconstructionBody};
 use crate::daemon::runtime::camera::CameraService;
 use crate::daemon::runtime::events::Events;
 use crate::daemon::runtime::metrics::Metrics;

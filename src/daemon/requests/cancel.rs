@@ -6,7 +6,7 @@
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use crate::daemon::requests::admission::Admission;
+use super::admission::Admission;
 use crate::store::{JobState, StoreError};
 
 /// How long `DELETE /jobs/{id}` waits for a running job to stop.

@@ -4,7 +4,7 @@
 //! Why: serde hands a flattened struct its keys through a buffer that
 //! `serde_path_to_error` cannot see into, so `"region": [0, 0, -1, 1]` would
 //! be refused as "invalid value: integer `-1`" with no field named. Used as
-//! `#[serde(flatten, deserialize_with = "crate::daemon::requests::flatten::named")]` in a body
+//! `#[serde(flatten, deserialize_with = "super::flatten::named")]` in a body
 //! that refuses unknown fields: this takes only the struct's own keys, so
 //! the body still refuses any other.
 

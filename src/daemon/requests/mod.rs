@@ -2,7 +2,7 @@
 //! `/reconstructions`, `/calibrations` and `/calibrations/wall`, as serde
 //! reads them.
 //!
-//! They live here, beside [`crate::daemon::requests::validate`] and the admission that take
+//! They live here, beside [`validate`] and the admission that take
 //! them, so the service depends on no HTTP type; the HTTP layer re-exports
 //! them in `api::bodies` and documents them in its OpenAPI document (hence
 //! the schema derives). Bodies refuse unknown fields, so a misspelt key is a
@@ -40,7 +40,7 @@ pub struct CaptureBody {
     /// format, region, binning and trigger, each inheriting the capture
     /// defaults (`GET /camera`, set by `PUT /camera/settings`) when absent.
     /// For a planned exposure, leave `exposure_us` out and give `"exposure": "auto"`.
-    #[serde(flatten, deserialize_with = "crate::daemon::requests::flatten::named")]
+    #[serde(flatten, deserialize_with = "flatten::named")]
     pub settings: CameraSettings,
     /// `"auto"`: plan the exposure (and, unless `frames` is given, the frame
     /// count) from the scene, the radiometric calibration and the camera
@@ -77,7 +77,7 @@ pub struct CaptureBody {
 #[serde(deny_unknown_fields)]
 pub struct SettingsBody {
     /// The settings to change.
-    #[serde(flatten, deserialize_with = "crate::daemon::requests::flatten::named")]
+    #[serde(flatten, deserialize_with = "flatten::named")]
     pub change: CameraSettings,
 }
 
@@ -127,7 +127,7 @@ pub struct ReconstructionBody {
     /// The solver and its parameters: `solver` (`admm-tv` by default),
     /// `lambda`, `rho`, `max_iter`, `tol` and `rcond`, each absent for its
     /// default (see `SolveRequest`).
-    #[serde(flatten, deserialize_with = "crate::daemon::requests::flatten::named")]
+    #[serde(flatten, deserialize_with = "flatten::named")]
     pub solve: SolveRequest,
     /// Known truth, as a test pattern name (`disk`, `bars`, `letter`): the
     /// report then carries PSNR, ZNCC and SSIM (e.g. against the fake camera's demo scene).
@@ -151,7 +151,7 @@ pub struct PlanBody {
     /// pixel format, region, binning, trigger), each inheriting the capture
     /// defaults when absent, as in `POST /captures`. For planned exposures,
     /// leave `exposure_us` out and give `"exposure": "auto"`.
-    #[serde(flatten, deserialize_with = "crate::daemon::requests::flatten::named")]
+    #[serde(flatten, deserialize_with = "flatten::named")]
     pub settings: CameraSettings,
     /// `"auto"`: each block's exposure and frame count planned from the scene.
     pub exposure: Option<AutoExposure>,
@@ -175,7 +175,7 @@ pub struct PlanBody {
 pub struct PlanReconstruct {
     /// The solver and its parameters, as in `POST /reconstructions`:
     /// `solver`, `lambda`, `rho`, `max_iter`, `tol` and `rcond`.
-    #[serde(flatten, deserialize_with = "crate::daemon::requests::flatten::named")]
+    #[serde(flatten, deserialize_with = "flatten::named")]
     pub solve: SolveRequest,
     /// Known truth, as a test pattern name: the report then has PSNR.
     pub truth: Option<String>,
@@ -202,7 +202,7 @@ pub struct ZeroBody {
     pub scene: String,
     /// The camera settings of the sweep's frames (exposure_us, gain, ...),
     /// each inheriting the capture defaults when absent, as in `POST /captures`.
-    #[serde(flatten, deserialize_with = "crate::daemon::requests::flatten::named")]
+    #[serde(flatten, deserialize_with = "flatten::named")]
     pub settings: CameraSettings,
     /// Frames averaged per angle (1-100, default 8).
     #[serde(default, deserialize_with = "crate::integral::opt_count")]

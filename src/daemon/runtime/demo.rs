@@ -2,7 +2,7 @@
 //! (pose, angle) block of the demo scene and of the scenes on the same bench,
 //! rendered by the numeric core through each pose's homography.
 
-use crate::daemon::runtime::scenes::Scenes;
+use super::scenes::Scenes;
 use crate::daemon::{runtime::config, DaemonError, DEMO_PEAK_FRACTION, DEMO_REFERENCE_EXPOSURE_US};
 use crate::measure::Frame;
 use crate::scene::FrameGeometry;

@@ -6,8 +6,8 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::daemon::runtime::config::RetentionConfig;
-use crate::daemon::runtime::events::Events;
+use super::config::RetentionConfig;
+use super::events::Events;
 use crate::daemon::{Daemon, Event};
 use crate::store::{Store, StoreError};
 
