@@ -130,33 +130,96 @@ pub struct Fit {
 
 /// The image a camera at `h` sees of the target: 1 on the dots, 0 elsewhere,
 /// each pixel the mean of 4x4 sub-samples (for the fake camera and tests).
+///
+/// Only the pixels near a dot are sub-sampled: a dot lies in its bounding
+/// square, and a square wholly in front of the camera maps into the box of
+/// its four corners' pixels, so every other pixel is 0 (the daemon renders
+/// this image for each of its demo's blocks when it starts).
 pub fn render(target: &Target, h: &Homography, width: usize, height: usize) -> Frame {
     const S: usize = 4;
     let r2 = target.radius_m * target.radius_m;
     let mut pixels = vec![0f32; width * height];
-    for (k, px) in pixels.iter_mut().enumerate() {
-        let (x0, y0) = ((k % width) as f64, (k / width) as f64);
-        let mut hits = 0;
-        for sy in 0..S {
-            for sx in 0..S {
-                let x = x0 - 0.5 + (sx as f64 + 0.5) / S as f64;
-                let y = y0 - 0.5 + (sy as f64 + 0.5) / S as f64;
-                if let Some((u, v)) = h.invert(x, y) {
-                    let inside = target
-                        .dots
-                        .iter()
-                        .any(|d| (d[0] - u).powi(2) + (d[1] - v).powi(2) <= r2);
-                    hits += usize::from(inside);
+    for (x0, y0, x1, y1) in near_dots(target, h, width, height) {
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let mut hits = 0;
+                for sy in 0..S {
+                    for sx in 0..S {
+                        let xs = x as f64 - 0.5 + (sx as f64 + 0.5) / S as f64;
+                        let ys = y as f64 - 0.5 + (sy as f64 + 0.5) / S as f64;
+                        if let Some((u, v)) = h.invert(xs, ys) {
+                            let inside = target
+                                .dots
+                                .iter()
+                                .any(|d| (d[0] - u).powi(2) + (d[1] - v).powi(2) <= r2);
+                            hits += usize::from(inside);
+                        }
+                    }
                 }
+                pixels[y * width + x] = hits as f32 / (S * S) as f32;
             }
         }
-        *px = hits as f32 / (S * S) as f32;
     }
     Frame {
         width,
         height,
         pixels,
     }
+}
+
+/// Pixel boxes `(x0, y0, x1, y1)` (ends excluded) that hold every pixel a
+/// dot of `target` can reach through `h`: one per dot, with a pixel's
+/// margin, clipped to the image; the whole image for a dot whose bounding
+/// square is not wholly in front of the camera (its image is not bounded by
+/// its corners').
+fn near_dots(
+    target: &Target,
+    h: &Homography,
+    width: usize,
+    height: usize,
+) -> Vec<(usize, usize, usize, usize)> {
+    let r = target.radius_m;
+    let mut boxes = Vec::new();
+    let mut seen = vec![false; width * height];
+    for d in &target.dots {
+        let corners =
+            [(-r, -r), (r, -r), (r, r), (-r, r)].map(|(du, dv)| h.apply(d[0] + du, d[1] + dv));
+        let b = if corners.iter().all(Option::is_some) {
+            let (mut xl, mut yl, mut xh, mut yh) = (
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            );
+            for (x, y) in corners.into_iter().flatten() {
+                (xl, yl, xh, yh) = (xl.min(x), yl.min(y), xh.max(x), yh.max(y));
+            }
+            let lo = |v: f64| (v - 1.5).floor().max(0.0) as usize;
+            let hi = |v: f64, n: usize| ((v + 2.5).ceil().max(0.0) as usize).min(n);
+            (lo(xl), lo(yl), hi(xh, width), hi(yh, height))
+        } else {
+            (0, 0, width, height)
+        };
+        // Overlapping boxes: each pixel once (its value does not depend on
+        // which box reached it).
+        for y in b.1..b.3 {
+            let mut x = b.0;
+            while x < b.2 {
+                let start = x;
+                while x < b.2 && !seen[y * width + x] {
+                    seen[y * width + x] = true;
+                    x += 1;
+                }
+                if x > start {
+                    boxes.push((start, y, x, y + 1));
+                }
+                while x < b.2 && seen[y * width + x] {
+                    x += 1;
+                }
+            }
+        }
+    }
+    boxes
 }
 
 /// The bright blobs of `frame`: pixels above the midpoint between the 1st
@@ -619,6 +682,68 @@ mod tests {
         match crate::scene::Scene::builtin(scene) {
             Some(Ok(s)) => s.poses()[pose].homography.expect("homography"),
             _ => panic!("scene"),
+        }
+    }
+
+    /// [`render`] sub-sampling every pixel, as it did before it skipped the
+    /// pixels no dot reaches.
+    fn render_every_pixel(
+        target: &Target,
+        h: &Homography,
+        width: usize,
+        height: usize,
+    ) -> Vec<f32> {
+        let r2 = target.radius_m * target.radius_m;
+        (0..width * height)
+            .map(|k| {
+                let (x0, y0) = ((k % width) as f64, (k / width) as f64);
+                let mut hits = 0;
+                for sy in 0..4 {
+                    for sx in 0..4 {
+                        let x = x0 - 0.5 + (sx as f64 + 0.5) / 4.0;
+                        let y = y0 - 0.5 + (sy as f64 + 0.5) / 4.0;
+                        if let Some((u, v)) = h.invert(x, y) {
+                            hits += usize::from(
+                                target
+                                    .dots
+                                    .iter()
+                                    .any(|d| (d[0] - u).powi(2) + (d[1] - v).powi(2) <= r2),
+                            );
+                        }
+                    }
+                }
+                hits as f32 / 16.0
+            })
+            .collect()
+    }
+
+    #[test]
+    fn render_skips_only_pixels_no_dot_reaches() {
+        let t = target();
+        // The demo bench's three poses, on their 512 x 512 sensor.
+        let mut cases = vec![
+            (shipped("brewster-crossed", 0), 512, 512),
+            (shipped("brewster-multi", 0), 512, 512),
+            (shipped("brewster-multi", 1), 512, 512),
+        ];
+        // Seen square on, large (dots spanning many pixels, overlapping the
+        // image's edges), and with the horizon crossing the image (the
+        // dots near it are not wholly in front of the camera).
+        cases.extend(
+            [
+                [[2000.0, 0.0, 32.0], [0.0, 2000.0, 32.0], [0.0, 0.0, 1.0]],
+                [[9000.0, 0.0, 64.0], [0.0, 9000.0, 60.0], [0.0, 0.0, 1.0]],
+                [[800.0, 0.0, 32.0], [0.0, 800.0, 32.0], [-12.0, 0.0, 1.0]],
+            ]
+            .into_iter()
+            .filter_map(Homography::new)
+            .map(|h| (h, 64, 48)),
+        );
+        assert_eq!(cases.len(), 6);
+        for (h, w, ht) in &cases {
+            let fast = render(&t, h, *w, *ht);
+            assert_eq!(fast.pixels, render_every_pixel(&t, h, *w, *ht), "{h:?}");
+            assert!(fast.pixels.iter().any(|&p| p > 0.0), "{h:?}");
         }
     }
 
