@@ -19,8 +19,10 @@ fn polnlos(args: &[&str]) -> Output {
     polnlos_with_cache(args, "off")
 }
 
-/// `polnlos args` with `POLNLOS_CACHE=cache`.
+/// `polnlos args` with `POLNLOS_CACHE=cache`, in the background class
+/// (`crate::priority`): the CLI needs CPU time, not a core on time.
 fn polnlos_with_cache(args: &[&str], cache: &str) -> Output {
+    crate::priority::background();
     Command::new(env!("CARGO_BIN_EXE_polnlos"))
         .args(args)
         .env("POLNLOS_CACHE", cache)

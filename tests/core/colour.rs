@@ -56,6 +56,7 @@ fn psnr(
 
 #[test]
 fn a_bayer_capture_reconstructs_each_colour_as_its_pixels_allow() {
+    crate::priority::background();
     let (scene, t, truth) = bench();
     let blocks = blocks_of(&scene);
     assert_eq!(blocks.len(), 1);

@@ -24,6 +24,7 @@ const PHOTONS_SEEDS: [(f64, u64); 3] = [(2e4, 5), (5e3, 9), (1e5, 13)];
 
 #[test]
 fn automatic_lambda_lands_within_1_db_of_the_best() {
+    crate::priority::background();
     let settings = AdmmSettings {
         max_iter: 2000,
         ..Default::default()
@@ -135,6 +136,7 @@ fn scene_at(name: &str, n: usize) -> Scene {
 /// polarizer, the occluder), a 16x16 grid, 1e3 to 1e5 photo-electrons.
 #[test]
 fn lambda_from_the_measurement_alone_lands_within_1_5_db_of_the_best() {
+    crate::priority::background();
     let settings = AdmmSettings {
         max_iter: 2000,
         ..Default::default()
@@ -308,6 +310,7 @@ fn frame_cases() -> Vec<FrameCase> {
 #[test]
 #[ignore]
 fn lambda_rules_on_camera_frames() {
+    crate::priority::background();
     use polnlos::measure::{assemble, CaptureFrames};
     use polnlos::scene::{FrameGeometry, Grid, WallSampling};
     use polnlos::simulate::camera::{expose, render};
@@ -513,6 +516,7 @@ fn lambda_rules_on_camera_frames() {
 #[test]
 #[ignore]
 fn photons_misses_at_the_best_lambda() {
+    crate::priority::background();
     use polnlos::report::photons::best_lambda;
     let start = std::time::Instant::now();
     let rows = best_lambda(

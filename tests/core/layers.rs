@@ -815,7 +815,10 @@ fn the_python_extension_reuses_what_cargo_test_built() {
             "python/Cargo.toml",
             "--lib",
         ],
-        &[("CARGO_PROFILE_DEV_OPT_LEVEL", "1")],
+        &[
+            ("CARGO_PROFILE_DEV_OPT_LEVEL", "1"),
+            ("CARGO_PROFILE_DEV_DEBUG", "0"),
+        ],
     );
     let built: std::collections::HashSet<u64> = test.iter().map(|(k, _)| *k).collect();
     let in_test: std::collections::HashSet<&str> = test.iter().map(|(_, p)| p.as_str()).collect();

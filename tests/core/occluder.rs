@@ -14,6 +14,7 @@ fn root() -> PathBuf {
 /// Bad input is refused before any `T` is built, naming what is wrong.
 #[test]
 fn calibrate_occluder_refuses_a_bad_selection_and_a_photo_of_another_scene() {
+    crate::priority::background();
     let scene = root().join("config/photos/saunders-chair.toml");
     let photo = root().join("tests/data/saunders-chair/measurement.npy");
     let run = |args: &[&str]| {
@@ -52,6 +53,7 @@ fn calibrate_occluder_refuses_a_bad_selection_and_a_photo_of_another_scene() {
 /// background and noise. Started 2 cm off, the fit comes back to the chair.
 #[test]
 fn calibrate_occluder_finds_the_chair_of_a_simulated_photo_from_2_cm_off() {
+    crate::priority::background();
     use polnlos::calibrate::occluder::{fit_occluder, moved, OccluderOptions};
     use polnlos::scene::{Scene, ShadowModel};
     use polnlos::transport::{build, MemoryBudget};
@@ -95,6 +97,7 @@ fn calibrate_occluder_finds_the_chair_of_a_simulated_photo_from_2_cm_off() {
 #[test]
 #[ignore]
 fn calibrate_occluder_places_the_photo_s_chair_within_1_cm_from_2_cm_off() {
+    crate::priority::background();
     use polnlos::calibrate::occluder::{fit_occluder, moved, OccluderOptions};
     use polnlos::scene::Scene;
     use polnlos::solve::photo::split_channels;

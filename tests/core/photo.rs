@@ -48,6 +48,7 @@ pub(super) fn photo(
 
 #[test]
 fn a_simulated_chair_photo_gives_back_its_gain_and_background_within_their_uncertainty() {
+    crate::priority::background();
     let (t, truth) = chair();
     // The real photo's fitted gains and backgrounds (docs/realphoto.md), 0.3 % noise.
     let gains = [2.0e8, 2.4e8, 2.9e8];

@@ -25,6 +25,7 @@ fn case(name: &str) -> RenderedCase {
 
 #[test]
 fn every_rendered_case_matches_t_to_its_noise() {
+    crate::priority::background();
     let all = cases();
     let names: Vec<&str> = all.iter().map(|c| c.name.as_str()).collect();
     for needed in [
@@ -65,6 +66,7 @@ fn every_rendered_case_matches_t_to_its_noise() {
 
 #[test]
 fn the_revision_1_model_does_not_explain_the_renders() {
+    crate::priority::background();
     // The transmitting axis under crossed extinction and the Lambert diffuse
     // term leave structure far above the render's noise.
     let crossed = case("crossed");
@@ -92,6 +94,7 @@ fn the_revision_1_model_does_not_explain_the_renders() {
 
 #[test]
 fn the_rendered_crossed_case_reconstructs_as_well_as_polnlos_own_simulation() {
+    crate::priority::background();
     // At the render's own noise (0.19 %): the simulation gets Gaussian noise
     // of the render's per-element standard error.
     let c = case("crossed");
@@ -117,6 +120,7 @@ fn the_rendered_crossed_case_reconstructs_as_well_as_polnlos_own_simulation() {
 
 #[test]
 fn a_reconstruction_says_when_the_model_does_not_explain_the_data() {
+    crate::priority::background();
     use polnlos::solve::lambda::NoiseLevel;
     use polnlos::solve::reconstruct::Context;
     use polnlos::solve::{condition, reconstruct, SolveRequest};
@@ -212,6 +216,7 @@ fn agreement_on(c: &RenderedCase, rows: &[usize], predicted: &[f64]) -> (f64, f6
 
 #[test]
 fn camera_frames_measure_to_the_pixel_rows_within_their_noise() {
+    crate::priority::background();
     // MODEL.md revision 3: the measurement averages every pixel of an element,
     // and rows over exactly those pixels explain it to the render's noise;
     // rows over the element's uniform sub-samples leave the pixel straddling.
@@ -262,6 +267,7 @@ fn camera_frames_measure_to_the_pixel_rows_within_their_noise() {
 
 #[test]
 fn camera_frames_reconstruct_with_pixel_rows_at_least_as_well_as_with_centre_samples() {
+    crate::priority::background();
     let c = frame_cases()
         .into_iter()
         .find(|c| c.name == "crossed-frames")
@@ -285,6 +291,7 @@ fn camera_frames_reconstruct_with_pixel_rows_at_least_as_well_as_with_centre_sam
 /// simulation and on Mitsuba's camera frames composed into a mosaic.
 #[test]
 fn a_polarization_camera_is_compared_with_sheets_at_equal_exposure() {
+    crate::priority::background();
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/rendered/rotating/frames");
     let mut steps = 0;
     let r = polnlos::report::mosaic::mosaic_report(&dir, MemoryBudget::DEFAULT, &mut || steps += 1)
@@ -327,6 +334,7 @@ fn a_polarization_camera_is_compared_with_sheets_at_equal_exposure() {
 /// with scene supersample 8 and pixel rows.
 #[test]
 fn a_file_without_sampling_keys_reconstructs_as_well_as_supersample_8() {
+    crate::priority::background();
     use polnlos::solve::lambda::NoiseLevel;
     use polnlos::solve::metrics::compare;
     use polnlos::solve::reconstruct::Context;

@@ -9,7 +9,7 @@
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, Client, InProcess};
+use crate::daemon::common::{config, scratch, Client, InProcess};
 
 /// Runs schemathesis against `d` (with `extra` arguments) and returns its
 /// exit status and output; fails the test if it overruns its bound.
@@ -62,7 +62,7 @@ fn summary(text: &str) -> &str {
 // camera, so the two schemathesis runs go side by side.
 #[test]
 fn schemathesis_finds_no_failure_without_a_token() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let open = config(dir.path(), &[]);
     let d = InProcess::start(&open, &dir.path().join("data"));
     let (ok, text) = schemathesis(&d, &[]);
@@ -73,7 +73,7 @@ fn schemathesis_finds_no_failure_without_a_token() {
 
 #[test]
 fn schemathesis_finds_no_failure_with_a_token() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let guarded = config(dir.path(), &[("token = \"\"", "token = \"fuzz-token\"")]);
     let mut d = InProcess::start(&guarded, &dir.path().join("data"));
     d.token = Some("fuzz-token".into());

@@ -8,7 +8,7 @@
 
 use std::time::Duration;
 
-use crate::daemon::common::{config, lock, psnr, Daemon};
+use crate::daemon::common::{config, lock, psnr, scratch, Daemon};
 
 /// The fake camera shows the crossed bench's letter, as a `sensor` camera.
 fn bench(dir: &std::path::Path, sensor: &str) -> std::path::PathBuf {
@@ -46,7 +46,7 @@ fn capture_and_reconstruct(d: &Daemon) -> serde_json::Value {
 fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     let _g = lock();
     let mono = {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = scratch();
         let d = Daemon::start(&bench(dir.path(), "mono"), &dir.path().join("data"));
         let r = capture_and_reconstruct(&d);
         assert!(r["report"]["colours"].is_null(), "{r}");
@@ -57,7 +57,7 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
         psnr(&r)
     };
 
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let d = Daemon::start(&bench(dir.path(), "bayer"), &dir.path().join("data"));
     let cam = d.json("/camera");
     assert_eq!(

@@ -61,6 +61,34 @@ impl Drop for AravisHold {
     }
 }
 
+/// A temporary folder for a test's data directory, configuration and
+/// files: in `/dev/shm` when that is a tmpfs with room (4 GiB free), else
+/// in the system's temporary folder.
+///
+/// Why: the daemon fsyncs every frame file, its catalogue and its plans, and
+/// on the 2-core test machine's disk one test's writes made another's fsync
+/// wait: the disk sat at 85-93 % I/O wait for 30 s, a 150-frame capture ran
+/// at 5 frames a second and a cancel came too late (docs/test-times.md).
+/// On tmpfs the same files are written, fsynced and renamed, without the
+/// wait. Docker's default /dev/shm (64 MiB) is too small and is not used.
+pub fn scratch() -> tempfile::TempDir {
+    let shm = Path::new("/dev/shm");
+    let tmpfs = std::fs::read_to_string("/proc/mounts").is_ok_and(|m| {
+        m.lines().any(|l| {
+            l.split_whitespace().nth(1) == Some("/dev/shm")
+                && l.split_whitespace().nth(2) == Some("tmpfs")
+        })
+    });
+    let room = polnlos::files::space::free_disk_bytes(shm).is_ok_and(|b| b >= 4 << 30);
+    let builder = tempfile::Builder::new().prefix("polnlos-test-").to_owned();
+    if tmpfs && room {
+        if let Ok(d) = builder.tempdir_in(shm) {
+            return d;
+        }
+    }
+    builder.tempdir().expect("a temporary folder")
+}
+
 pub fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
@@ -403,6 +431,10 @@ impl InProcess {
     /// connected.
     pub fn start(config: &Path, data: &Path) -> Self {
         use polnlos::daemon::runtime::scenes::Scenes;
+        // No Aravis: the cores the camera tests leave idle are enough, for
+        // this daemon and for what the test starts beside it (a browser,
+        // schemathesis, Python).
+        crate::priority::background();
         use polnlos::daemon::{CameraSetup, Config};
         let mut cfg = Config::load(config).expect("config");
         cfg.data_dir = data.to_path_buf();

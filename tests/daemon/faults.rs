@@ -5,7 +5,7 @@
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, lock, Client, Daemon};
+use crate::daemon::common::{config, lock, scratch, Client, Daemon};
 use polnlos::camera::fake::FakeBench;
 use polnlos::camera::Frame;
 
@@ -36,7 +36,7 @@ fn wait_camera(d: &Client, connected: bool, within: Duration) -> bool {
 #[test]
 fn the_camera_stops_mid_capture_the_job_fails_and_the_daemon_reconnects() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     // The camera is not the daemon's own fake: this test owns it and pulls
     // its plug. (The setting's line, not the comment above it that also
     // says "fake = true": the daemon's own fake would refuse the address.)
@@ -109,7 +109,7 @@ fn done_then_running(d: &Client, long: &str, frames: i64) -> (Vec<u8>, String) {
 #[test]
 fn sigkill_during_a_capture_loses_nothing_completed() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let data = dir.path().join("data");
     let cfg = config(dir.path(), &[]);
     let mut d = Daemon::start(&cfg, &data);
@@ -147,7 +147,7 @@ fn sigkill_during_a_capture_loses_nothing_completed() {
 #[test]
 fn sigterm_during_a_capture_interrupts_it_and_drains_before_exit() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let data = dir.path().join("data");
     let cfg = config(dir.path(), &[]);
     let mut d = Daemon::start(&cfg, &data);
@@ -213,7 +213,7 @@ fn a_full_disk_fails_the_job_clearly_and_keeps_earlier_data() {
         return;
     }
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let data = dir.path().join("data");
     std::fs::create_dir_all(&data).unwrap();
     let cfg = config(
@@ -282,7 +282,7 @@ fn a_full_disk_fails_the_job_clearly_and_keeps_earlier_data() {
 
 #[test]
 fn an_unusable_data_directory_is_a_clear_startup_error() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let file = dir.path().join("not-a-dir");
     std::fs::write(&file, b"x").unwrap();
     let cfg = config(dir.path(), &[]);
@@ -342,7 +342,7 @@ impl Drop for Load {
 #[test]
 fn captures_posted_as_the_daemon_starts_on_a_busy_machine_finish_and_lose_no_frame() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let load = Load::start();
     let mut took = Vec::new();
@@ -398,7 +398,7 @@ fn captures_posted_as_the_daemon_starts_on_a_busy_machine_finish_and_lose_no_fra
 fn sigterm_with_an_event_stream_open_ends_the_stream_and_does_not_wait_for_it() {
     use std::io::{Read, Write};
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let data = dir.path().join("data");
     let cfg = config(dir.path(), &[]);
     let mut d = Daemon::start(&cfg, &data);

@@ -10,7 +10,7 @@ use std::io::Write;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, lock, Client, Daemon, InProcess};
+use crate::daemon::common::{config, lock, scratch, Client, Daemon, InProcess};
 use rand::{Rng, SeedableRng};
 
 const CAPTURE: &str =
@@ -21,7 +21,7 @@ fn capture(extra: &str) -> String {
 }
 
 fn start(edits: &[(&str, &str)]) -> (tempfile::TempDir, Daemon) {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), edits);
     let d = Daemon::start(&cfg, &dir.path().join("data"));
     (dir, d)
@@ -30,7 +30,7 @@ fn start(edits: &[(&str, &str)]) -> (tempfile::TempDir, Daemon) {
 /// A daemon on the synthetic camera in this process, for tests of the HTTP
 /// edges that need neither Aravis nor a process of their own.
 fn start_in_process(edits: &[(&str, &str)]) -> (tempfile::TempDir, InProcess) {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), edits);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
     (dir, d)
@@ -255,7 +255,7 @@ fn dark_frames_are_an_explicit_step_and_are_subtracted() {
 #[test]
 fn a_second_daemon_on_the_same_data_dir_exits_2_and_leaves_the_first_alone() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let data = dir.path().join("data");
     // A temporary left by a killed run is cleaned up on start.
     let orphan = data
@@ -284,7 +284,7 @@ fn a_second_daemon_on_the_same_data_dir_exits_2_and_leaves_the_first_alone() {
     );
     // A second daemon with its own data but the same fake-camera address
     // would talk to the first one's camera: it exits 2 and says what to use.
-    let other = tempfile::tempdir().unwrap();
+    let other = scratch();
     let second = serve_once(&cfg, &other.path().join("data"));
     let err = String::from_utf8_lossy(&second.stderr);
     assert_eq!(second.status.code(), Some(2), "{err}");

@@ -14,6 +14,8 @@ use polnlos::store::Store;
 use polnlos::transport::MemoryBudget;
 use tower::ServiceExt;
 
+use crate::daemon::common::scratch;
+
 /// A daemon on the synthetic camera showing `scene`'s `pattern`, its camera connected.
 async fn daemon_showing(dir: &std::path::Path, scene: &str, pattern: &str) -> Arc<Daemon> {
     let mut config = Config::embedded();
@@ -92,7 +94,7 @@ async fn wait_done(d: &Arc<Daemon>, job: &str, within: Duration) -> serde_json::
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn capture_and_reconstruct_through_the_router_on_the_synthetic_camera() {
-    let dir = tempfile::tempdir().expect("temp dir");
+    let dir = scratch();
     let d = daemon(dir.path()).await;
     let (s, cam) = call(&d, "GET", "/camera", None).await;
     assert_eq!(s, StatusCode::OK);
@@ -146,7 +148,7 @@ async fn capture_and_reconstruct_through_the_router_on_the_synthetic_camera() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cancel_a_queued_and_a_running_reconstruction() {
-    let dir = tempfile::tempdir().expect("temp dir");
+    let dir = scratch();
     let d = daemon(dir.path()).await;
     let capture = serde_json::json!({ "scene": "brewster-crossed", "pose": "A",
         "polarizer_deg": 0, "exposure_us": 2000, "frames": 2, "dark_frames": 1 });
@@ -195,7 +197,7 @@ async fn cancel_a_queued_and_a_running_reconstruction() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn progressive_reconstruction_converges_while_frames_arrive() {
-    let dir = tempfile::tempdir().expect("temp dir");
+    let dir = scratch();
     let d = daemon_showing(dir.path(), "brewster-crossed", "disk").await;
     // Mono8 at 1/5 of the reference exposure: the peak is about 40 DN, so
     // the sensor's noise of every frame is what averaging reduces.
@@ -303,7 +305,7 @@ async fn answer(d: &Arc<Daemon>, method: &str, uri: &str) -> (StatusCode, String
 /// read from the document, so a new route is covered by being declared.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_router_serves_exactly_the_operations_its_document_names() {
-    let dir = tempfile::tempdir().expect("temp dir");
+    let dir = scratch();
     let d = daemon(dir.path()).await;
     let (s, spec) = call(&d, "GET", "/openapi.json", None).await;
     assert_eq!(s, StatusCode::OK, "{spec}");
@@ -368,7 +370,7 @@ fn property_names(spec: &serde_json::Value, schema: &serde_json::Value) -> Vec<S
 /// reconstruction request and for a plan's reconstruction.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_document_lists_every_solver_parameter_for_reconstructions_and_plans() {
-    let dir = tempfile::tempdir().expect("temp dir");
+    let dir = scratch();
     let d = daemon(dir.path()).await;
     let (s, spec) = call(&d, "GET", "/openapi.json", None).await;
     assert_eq!(s, StatusCode::OK, "{spec}");
@@ -493,7 +495,7 @@ impl polnlos::camera::CameraDevice for Freezing {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_camera_that_stalls_fails_its_capture_in_bounded_time_and_the_queue_goes_on() {
-    let dir = tempfile::tempdir().expect("temp dir");
+    let dir = scratch();
     let mut config = Config::embedded();
     config.data_dir = dir.path().join("data");
     config.camera.fake = false;

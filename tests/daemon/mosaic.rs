@@ -7,7 +7,7 @@
 
 use std::time::Duration;
 
-use crate::daemon::common::{config, lock, psnr, Daemon};
+use crate::daemon::common::{config, lock, psnr, scratch, Daemon};
 
 /// The fake camera shows the rotating bench's letter, as a `sensor` camera.
 fn bench(dir: &std::path::Path, sensor: &str) -> std::path::PathBuf {
@@ -35,7 +35,7 @@ fn one_mosaic_frame_per_pose_reconstructs_as_well_as_four_sheet_captures() {
 
     // Four captures through the sheet (the simulated mount turns it).
     let (sheet_psnr, sheet_check) = {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = scratch();
         let d = Daemon::start(&bench(dir.path(), "mono"), &dir.path().join("data"));
         let cam = d.json("/camera");
         assert!(cam["info"]["mosaic"].is_null(), "{cam}");
@@ -63,7 +63,7 @@ fn one_mosaic_frame_per_pose_reconstructs_as_well_as_four_sheet_captures() {
 
     // One mosaic capture of four times the frames: the same time at the bench
     // (a four times longer exposure would saturate the parallel micro-polarizers).
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let d = Daemon::start(&bench(dir.path(), "polarsens"), &dir.path().join("data"));
     let cam = d.json("/camera");
     assert_eq!(cam["info"]["mosaic"], "polarsens", "{cam}");

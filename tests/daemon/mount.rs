@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use crate::daemon::common::{config, InProcess};
+use crate::daemon::common::{config, scratch, InProcess};
 use polnlos::rig::mount::simulated::{Fault, SimulatedEll14};
 
 const CAPTURE: &str = r#"{"scene": "brewster-rotating", "pose": "A", "polarizer_deg": 45, "exposure_us": 1000, "frames": 1}"#;
@@ -14,7 +14,7 @@ const CAPTURE: &str = r#"{"scene": "brewster-rotating", "pose": "A", "polarizer_
 #[test]
 fn captures_turn_the_mount_record_the_angle_read_back_and_fail_when_it_slips() {
     let mut device = SimulatedEll14::start().unwrap();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let port = format!("kind = \"elliptec\"\nport = \"{}\"", device.path());
     let cfg = config(
         dir.path(),
@@ -111,7 +111,7 @@ fn captures_turn_the_mount_record_the_angle_read_back_and_fail_when_it_slips() {
 
 #[test]
 fn the_shipped_daemon_turns_its_simulated_mount() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(
         dir.path(),
         &[(
@@ -142,7 +142,7 @@ fn wall_mean(data: &std::path::Path, id: i64) -> f64 {
 
 #[test]
 fn an_uncalibrated_mount_shows_in_the_frames_and_the_sweep_finds_its_zero() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let data = dir.path().join("data");
     // The simulated polarizer is really crossed at mount angle 4; the
     // config says 0, as a mount clamped at an unknown angle would.

@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, lock, psnr, Daemon, InProcess};
+use crate::daemon::common::{config, lock, psnr, scratch, Daemon, InProcess};
 
 /// The fake camera shows the rotating bench's letter.
 fn rotating_bench(dir: &std::path::Path) -> std::path::PathBuf {
@@ -31,7 +31,7 @@ fn plan_captures(plan: &serde_json::Value) -> Vec<i64> {
 
 #[test]
 fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let d = InProcess::start(&rotating_bench(dir.path()), &dir.path().join("data"));
     let long = Duration::from_secs(240);
     // The reconstruction takes every solver parameter of `POST
@@ -132,7 +132,7 @@ fn one_request_runs_the_rotating_bench_to_a_reconstruction_as_good_as_by_hand() 
 
 #[test]
 fn a_plan_with_interim_results_solves_from_the_blocks_taken_so_far_after_each_block() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let d = InProcess::start(&rotating_bench(dir.path()), &dir.path().join("data"));
     let long = Duration::from_secs(240);
     let (s, body, loc) = d.post(
@@ -217,7 +217,7 @@ fn a_plan_with_interim_results_solves_from_the_blocks_taken_so_far_after_each_bl
 
 #[test]
 fn a_bench_with_a_stage_walks_every_pose_unattended_and_a_stage_that_slips_pauses_the_plan() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let stage = |slip: &str| {
         let d = dir.path().join(format!("slip-{slip}"));
         std::fs::create_dir_all(&d).unwrap();
@@ -283,7 +283,7 @@ fn a_bench_with_a_stage_walks_every_pose_unattended_and_a_stage_that_slips_pause
 #[test]
 fn a_relay_switches_the_scene_off_for_darks_so_a_plan_needs_no_operator_for_them() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let long = Duration::from_secs(240);
     let body = r#"{"scene": "brewster-rotating", "exposure_us": 20000, "frames": 2, "dark_frames": 1,
         "reconstruct": {"truth": "letter"}}"#;
@@ -352,7 +352,7 @@ fn a_relay_switches_the_scene_off_for_darks_so_a_plan_needs_no_operator_for_them
 
 #[test]
 fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
     let long = Duration::from_secs(240);
@@ -421,7 +421,7 @@ fn a_plan_waits_for_the_operator_to_move_the_camera_and_can_be_cancelled() {
 #[test]
 fn sigkill_in_the_middle_of_a_plan_loses_no_capture_and_repeats_none() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let data = dir.path().join("data");
     let cfg = rotating_bench(dir.path());
     let mut d = Daemon::start(&cfg, &data);
@@ -499,7 +499,7 @@ fn sigkill_in_the_middle_of_a_plan_loses_no_capture_and_repeats_none() {
 fn a_mount_that_slips_pauses_the_plan_and_continue_takes_the_block_again() {
     use polnlos::rig::mount::simulated::{Fault, SimulatedEll14};
     let device = SimulatedEll14::start().unwrap();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let port = format!("kind = \"elliptec\"\nport = \"{}\"", device.path());
     let cfg = config(
         dir.path(),
@@ -544,7 +544,7 @@ fn a_mount_that_slips_pauses_the_plan_and_continue_takes_the_block_again() {
 
 #[test]
 fn the_readme_s_demo_is_explained_by_its_model_under_the_sensor_s_noise() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
     let long = Duration::from_secs(240);
@@ -598,7 +598,7 @@ fn an_auto_exposure_plan_exposes_each_block_for_its_own_light_and_saturates_none
     // The rotating bench's blocks differ by the glare the polarizer lets
     // through: one exposure for all saturates the 90-degree block at 100 ms
     // (issue 38); "auto" plans each block's own.
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let d = InProcess::start(&rotating_bench(dir.path()), &dir.path().join("data"));
     let (s, body, loc) = d.post(
         "/plans",

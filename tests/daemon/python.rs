@@ -6,7 +6,7 @@
 //! Needs what the README's set-up line installs: python3 with maturin,
 //! pytest, nbclient and ipykernel.
 
-use crate::daemon::common::{config, InProcess};
+use crate::daemon::common::{config, scratch, InProcess};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -89,6 +89,11 @@ fn venv() -> PathBuf {
             // unoptimized core and take 13 s, and the extension's build after
             // a source change went from 61 s to 54 s with them (idle machine).
             .env("CARGO_PROFILE_DEV_OPT_LEVEL", "1")
+            // No debug info in the extension (the dependencies have none
+            // either): 59 MB of library became a wheel and an install, each
+            // test run, on a disk where those writes stalled the daemon
+            // tests' fsyncs (docs/test-times.md).
+            .env("CARGO_PROFILE_DEV_DEBUG", "0")
             // The per-test timing script (scripts/test-times.sh) runs this
             // binary with it; cargo would rebuild every dependency for it.
             .env_remove("RUSTC_BOOTSTRAP"),
@@ -110,8 +115,9 @@ fn path_with(python: &Path) -> std::ffi::OsString {
 
 #[test]
 fn the_python_package_matches_the_cli_talks_to_the_daemon_and_runs_the_notebook() {
+    crate::priority::background();
     let python = venv();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
     run(

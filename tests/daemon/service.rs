@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, lock, psnr, Client, Daemon, InProcess};
+use crate::daemon::common::{config, lock, psnr, scratch, Client, Daemon, InProcess};
 use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::solve::metrics;
@@ -22,7 +22,7 @@ fn truth(scene: &str) -> (polnlos::scene::Grid, Vec<f64>) {
 fn recovered(d: &Client, id: i64) -> Vec<f64> {
     let (s, bytes) = d.get_bytes(&format!("/reconstructions/{id}/recovered.npy"));
     assert_eq!(s, 200);
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let p = dir.path().join("r.npy");
     std::fs::write(&p, bytes).unwrap();
     polnlos::files::npy::read(&p).unwrap().data
@@ -50,7 +50,7 @@ fn offline_measure_matches_the_daemon(
     let g = gain["gain"].as_f64().unwrap();
     assert_eq!(report["gain"]["value"].as_f64(), Some(g), "{report}");
     assert_eq!(report["gain"]["source"], "calibration", "{report}");
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_polnlos"));
     cmd.args([
         "measure",
@@ -102,7 +102,7 @@ fn offline_measure_matches_the_daemon(
 #[test]
 fn capture_every_block_reconstruct_and_fetch() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = Daemon::start(&cfg, &dir.path().join("data"));
     let cam = d.json("/camera");
@@ -321,7 +321,7 @@ fn openapi_is_complete(spec: &serde_json::Value) {
 
 #[test]
 fn bad_requests_get_a_reason_never_a_500() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(
         dir.path(),
         &[("max_body_bytes = 65536", "max_body_bytes = 4096")],
@@ -390,7 +390,7 @@ fn bad_requests_get_a_reason_never_a_500() {
 
 #[test]
 fn a_token_guards_every_mutating_request() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[("token = \"\"", "token = \"s3cret\"")]);
     let mut d = InProcess::start(&cfg, &dir.path().join("data"));
     let body =
@@ -426,7 +426,7 @@ fn a_token_guards_every_mutating_request() {
 #[test]
 fn a_full_queue_answers_429_and_a_bounded_load_sees_nothing_else() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[("captures = 16", "captures = 4")]);
     let d = Daemon::start(&cfg, &dir.path().join("data"));
     let rss_before = d.rss_kib();
@@ -495,7 +495,7 @@ fn a_full_queue_answers_429_and_a_bounded_load_sees_nothing_else() {
 #[test]
 fn events_report_frames_and_job_states() {
     use std::io::BufRead;
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
     let agent: ureq::Agent = ureq::Agent::config_builder()
@@ -541,7 +541,7 @@ fn events_report_frames_and_job_states() {
 #[test]
 fn camera_settings_are_validated_and_applied() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = Daemon::start(&cfg, &dir.path().join("data"));
     let cam = d.json("/camera");
@@ -588,7 +588,7 @@ fn camera_settings_are_validated_and_applied() {
 
 #[test]
 fn a_capture_s_settings_do_not_leak_into_the_next() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
     let before = d.json("/camera")["capture_defaults"].clone();
@@ -627,7 +627,7 @@ fn a_capture_s_settings_do_not_leak_into_the_next() {
 
 #[test]
 fn auto_exposure_reaches_the_planned_signal() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
 
@@ -676,7 +676,7 @@ fn auto_exposure_reaches_the_planned_signal() {
     // letter, so its brightest wall element reaches 0.5 x max(T l) / max(T 1).
     let (s, tiff) = d.get_bytes(&format!("/captures/{}/mean.tiff", c["id"]));
     assert_eq!(s, 200);
-    let mdir = tempfile::tempdir().unwrap();
+    let mdir = scratch();
     std::fs::write(mdir.path().join("mean.tiff"), tiff).unwrap();
     let mean = polnlos::store::read_mean(mdir.path()).unwrap();
     let scene = Scene::builtin("brewster-crossed").unwrap().unwrap();
@@ -718,7 +718,7 @@ fn auto_exposure_reaches_the_planned_signal() {
 
 #[test]
 fn one_reconstruction_path_fista_and_lambda_from_a_single_frame() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
     // One frame: no frame-to-frame variance, so the noise comes from the residual.
@@ -780,7 +780,7 @@ fn one_reconstruction_path_fista_and_lambda_from_a_single_frame() {
 #[test]
 fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let data = dir.path().join("data");
     let d = Daemon::start(&cfg, &data);
@@ -895,7 +895,7 @@ fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
 #[test]
 fn a_target_capture_through_aravis_calibrates_the_pose() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = Daemon::start(&cfg, &dir.path().join("data"));
     let c = d.run_job("/captures", r#"{"kind": "target", "scene": "brewster-multi", "pose": "C", "polarizer_deg": 0, "exposure_us": 20000, "frames": 4, "dark_frames": 2}"#, Duration::from_secs(30));
@@ -1012,7 +1012,7 @@ fn a_target_capture_through_aravis_calibrates_the_pose() {
 #[test]
 fn source_captures_through_aravis_calibrate_the_wall_and_the_gain() {
     let _g = lock();
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = Daemon::start(&cfg, &dir.path().join("data"));
     // A done source capture of pose A (crossed), 20 ms per frame. The 5 mm
@@ -1137,7 +1137,7 @@ fn param(v: &serde_json::Value, k: &str) -> f64 {
 
 #[test]
 fn captures_and_reconstructions_can_be_deleted_with_their_files() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let data = dir.path().join("data");
     let d = InProcess::start(&cfg, &data);
@@ -1247,7 +1247,7 @@ fn captures_and_reconstructions_can_be_deleted_with_their_files() {
 #[test]
 fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
     use std::io::BufRead;
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     // 3 MiB for all data, checked every 0.2 s; a 256x256 capture of 4 frames
     // and 2 dark frames takes about 1.3 MB.
     let cfg = config(
@@ -1329,7 +1329,7 @@ fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
 
 #[test]
 fn the_live_view_shows_a_fresh_frame_before_any_capture_with_its_levels() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
     assert_eq!(d.json("/camera")["connected"], true);
@@ -1389,7 +1389,7 @@ fn the_live_view_shows_a_fresh_frame_before_any_capture_with_its_levels() {
 
 #[test]
 fn a_capture_records_its_saturated_pixels_and_a_sane_exposure_has_none() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(dir.path(), &[]);
     let d = InProcess::start(&cfg, &dir.path().join("data"));
     let capture = |deg: u32, exposure_us: u32| {
@@ -1420,7 +1420,7 @@ fn a_capture_records_its_saturated_pixels_and_a_sane_exposure_has_none() {
 
 #[test]
 fn a_reconstruction_from_saturated_captures_says_so_first() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(
         dir.path(),
         &[(
@@ -1518,7 +1518,7 @@ fn a_reconstruction_from_saturated_captures_says_so_first() {
 
 #[test]
 fn a_capture_saturated_beyond_the_configured_share_fails_when_told_to() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = scratch();
     let cfg = config(
         dir.path(),
         &[

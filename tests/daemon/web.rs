@@ -6,7 +6,7 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, free_port, psnr, InProcess};
+use crate::daemon::common::{config, free_port, psnr, scratch, InProcess};
 use fantoccini::{Client, ClientBuilder, Locator};
 
 /// chromedriver on a free loopback port, stopped on drop.
@@ -131,7 +131,7 @@ impl Page {
 
     /// The page of a daemon whose configuration has these edits.
     fn start_with(edits: &[(&str, &str)]) -> Self {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = scratch();
         let cfg = config(dir.path(), edits);
         let d = InProcess::start(&cfg, &dir.path().join("data"));
         let driver = Driver::start();
@@ -576,7 +576,7 @@ async fn downloaded(c: &Client, css: &str) -> serde_json::Value {
 fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_deletes() {
     // A scene whose homography puts the wall's centre at (405.5, 355.5), off
     // the frame's centre: the built-in bench's, shifted by (150, 100) px.
-    let scenes = tempfile::tempdir().unwrap();
+    let scenes = scratch();
     let aim = scenes.path().join("aim.toml");
     let file = polnlos::scene::builtin::text("brewster-crossed")
         .unwrap()
