@@ -19,7 +19,7 @@ mod mosaic;
 mod mount;
 mod mount_device;
 mod plans;
-mod python;
+pub(crate) mod python;
 mod relay_device;
 mod roundtrip;
 mod service;

@@ -42,13 +42,13 @@ fn target_dir() -> PathBuf {
 /// the system's NumPy, maturin, pytest and nbclient.
 ///
 /// The extension builds into the target folder this test binary was built
-/// in (`target/`, or wherever `CARGO_TARGET_DIR` put it) in the `dev`
-/// profile (the one whose dependency artifacts `cargo test` shares; `--profile
-/// test` would build the library as a test harness): `cargo test` holds the
-/// build lock only while it compiles, so the dependencies it already built
-/// (faer and the rest, same settings) are reused instead of a second release build in a folder of its own (327 s
-/// of a clean suite's 20 minutes, measured 2026-11-26). A fixed `target/`
-/// rebuilt them all when `CARGO_TARGET_DIR` pointed elsewhere.
+/// in (`target/`, or wherever `CARGO_TARGET_DIR` put it), as
+/// [`MATURIN_ARGS`] and [`SHARED_PROFILE`] say: `cargo test` holds the
+/// build lock only while it compiles, so the core and the dependencies it
+/// already built (faer and the rest, same settings) are reused instead of a
+/// second release build in a folder of its own (327 s of a clean suite's 20
+/// minutes, measured 2026-11-26). A fixed `target/` rebuilt them all when
+/// `CARGO_TARGET_DIR` pointed elsewhere.
 fn venv() -> PathBuf {
     let venv = target_dir().join("python-venv");
     let python = venv.join("bin/python");
@@ -83,17 +83,8 @@ fn venv() -> PathBuf {
             ])
             .arg(root().join("python"))
             .env("CARGO_TARGET_DIR", target_dir())
-            .env("MATURIN_PEP517_ARGS", "--profile dev")
-            // The core at opt-level 1 (the dependencies keep their own 3,
-            // so none is rebuilt): pytest and the notebook took 39 s on the
-            // unoptimized core and take 13 s, and the extension's build after
-            // a source change went from 61 s to 54 s with them (idle machine).
-            .env("CARGO_PROFILE_DEV_OPT_LEVEL", "1")
-            // No debug info in the extension (the dependencies have none
-            // either): 59 MB of library became a wheel and an install, each
-            // test run, on a disk where those writes stalled the daemon
-            // tests' fsyncs (docs/test-times.md).
-            .env("CARGO_PROFILE_DEV_DEBUG", "0")
+            .env("MATURIN_PEP517_ARGS", MATURIN_ARGS)
+            .envs(SHARED_PROFILE.iter().copied())
             // The per-test timing script (scripts/test-times.sh) runs this
             // binary with it; cargo would rebuild every dependency for it.
             .env_remove("RUSTC_BOOTSTRAP"),
@@ -101,6 +92,24 @@ fn venv() -> PathBuf {
     );
     python
 }
+
+/// The extension's build: the dev profile (`--profile test` would build the
+/// library as a test harness), the `shared-test-core` feature (the core
+/// with the features `cargo test` gives it) and the library stripped (no
+/// symbols or debug info written twice, as a wheel and as an install, on
+/// a disk where such writes stalled the daemon tests' fsyncs).
+pub const MATURIN_ARGS: &str = "--profile dev --features shared-test-core --strip";
+
+/// The dev profile's settings made those of `[profile.test]`, so that the
+/// core is the same unit (features, settings, dependencies) as the one
+/// `cargo test` compiled, and cargo links it instead of compiling it again
+/// (`offline::layers::the_python_extension_reuses_what_cargo_test_built`
+/// holds this). Its tests run at the test build's opt-level 2.
+pub const SHARED_PROFILE: [(&str, &str); 3] = [
+    ("CARGO_PROFILE_DEV_OPT_LEVEL", "2"),
+    ("CARGO_PROFILE_DEV_DEBUG", "line-tables-only"),
+    ("CARGO_PROFILE_DEV_INCREMENTAL", "false"),
+];
 
 /// PATH with the environment's bin folder first: a kernel spec that names
 /// plain `python` starts the environment's.
