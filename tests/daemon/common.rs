@@ -431,11 +431,11 @@ impl InProcess {
     /// connected.
     pub fn start(config: &Path, data: &Path) -> Self {
         use polnlos::daemon::runtime::scenes::Scenes;
+        use polnlos::daemon::{CameraSetup, Config};
         // No Aravis: the cores the camera tests leave idle are enough, for
         // this daemon and for what the test starts beside it (a browser,
         // schemathesis, Python).
         crate::priority::background();
-        use polnlos::daemon::{CameraSetup, Config};
         let mut cfg = Config::load(config).expect("config");
         cfg.data_dir = data.to_path_buf();
         cfg.validate().expect("valid config");
