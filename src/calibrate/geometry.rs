@@ -136,30 +136,16 @@ pub struct Fit {
 /// its four corners' pixels, so every other pixel is 0 (the daemon renders
 /// this image for each of its demo's blocks when it starts).
 pub fn render(target: &Target, h: &Homography, width: usize, height: usize) -> Frame {
-    const S: usize = 4;
-    let r2 = target.radius_m * target.radius_m;
-    let mut pixels = vec![0f32; width * height];
-    for (x0, y0, x1, y1) in near_dots(target, h, width, height) {
-        for y in y0..y1 {
-            for x in x0..x1 {
-                let mut hits = 0;
-                for sy in 0..S {
-                    for sx in 0..S {
-                        let xs = x as f64 - 0.5 + (sx as f64 + 0.5) / S as f64;
-                        let ys = y as f64 - 0.5 + (sy as f64 + 0.5) / S as f64;
-                        if let Some((u, v)) = h.invert(xs, ys) {
-                            let inside = target
-                                .dots
-                                .iter()
-                                .any(|d| (d[0] - u).powi(2) + (d[1] - v).powi(2) <= r2);
-                            hits += usize::from(inside);
-                        }
-                    }
-                }
-                pixels[y * width + x] = hits as f32 / (S * S) as f32;
+    let near = near_dots(target, h, width, height);
+    let pixels = (0..width * height)
+        .map(|k| {
+            if near[k] {
+                coverage(target, h, k % width, k / width)
+            } else {
+                0.0
             }
-        }
-    }
+        })
+        .collect();
     Frame {
         width,
         height,
@@ -167,24 +153,38 @@ pub fn render(target: &Target, h: &Homography, width: usize, height: usize) -> F
     }
 }
 
-/// Pixel boxes `(x0, y0, x1, y1)` (ends excluded) that hold every pixel a
-/// dot of `target` can reach through `h`: one per dot, with a pixel's
-/// margin, clipped to the image; the whole image for a dot whose bounding
-/// square is not wholly in front of the camera (its image is not bounded by
-/// its corners').
-fn near_dots(
-    target: &Target,
-    h: &Homography,
-    width: usize,
-    height: usize,
-) -> Vec<(usize, usize, usize, usize)> {
+/// The share of pixel (x, y)'s 4x4 sub-samples that see a dot of `target`.
+fn coverage(target: &Target, h: &Homography, x: usize, y: usize) -> f32 {
+    const S: usize = 4;
+    let r2 = target.radius_m * target.radius_m;
+    let mut hits = 0;
+    for sy in 0..S {
+        for sx in 0..S {
+            let xs = x as f64 - 0.5 + (sx as f64 + 0.5) / S as f64;
+            let ys = y as f64 - 0.5 + (sy as f64 + 0.5) / S as f64;
+            if let Some((u, v)) = h.invert(xs, ys) {
+                let inside = target
+                    .dots
+                    .iter()
+                    .any(|d| (d[0] - u).powi(2) + (d[1] - v).powi(2) <= r2);
+                hits += usize::from(inside);
+            }
+        }
+    }
+    hits as f32 / (S * S) as f32
+}
+
+/// Which pixels a dot of `target` can reach through `h` (row-major): each
+/// dot's box, with a pixel's margin, clipped to the image; the whole image
+/// for a dot whose bounding square is not wholly in front of the camera
+/// (its image is not bounded by its corners').
+fn near_dots(target: &Target, h: &Homography, width: usize, height: usize) -> Vec<bool> {
     let r = target.radius_m;
-    let mut boxes = Vec::new();
-    let mut seen = vec![false; width * height];
+    let mut near = vec![false; width * height];
     for d in &target.dots {
         let corners =
             [(-r, -r), (r, -r), (r, r), (-r, r)].map(|(du, dv)| h.apply(d[0] + du, d[1] + dv));
-        let b = if corners.iter().all(Option::is_some) {
+        let (x0, y0, x1, y1) = if corners.iter().all(Option::is_some) {
             let (mut xl, mut yl, mut xh, mut yh) = (
                 f64::INFINITY,
                 f64::INFINITY,
@@ -200,26 +200,11 @@ fn near_dots(
         } else {
             (0, 0, width, height)
         };
-        // Overlapping boxes: each pixel once (its value does not depend on
-        // which box reached it).
-        for y in b.1..b.3 {
-            let mut x = b.0;
-            while x < b.2 {
-                let start = x;
-                while x < b.2 && !seen[y * width + x] {
-                    seen[y * width + x] = true;
-                    x += 1;
-                }
-                if x > start {
-                    boxes.push((start, y, x, y + 1));
-                }
-                while x < b.2 && seen[y * width + x] {
-                    x += 1;
-                }
-            }
+        for y in y0..y1 {
+            near[y * width + x0.min(x1)..y * width + x1].fill(true);
         }
     }
-    boxes
+    near
 }
 
 /// The bright blobs of `frame`: pixels above the midpoint between the 1st
@@ -693,27 +678,8 @@ mod tests {
         width: usize,
         height: usize,
     ) -> Vec<f32> {
-        let r2 = target.radius_m * target.radius_m;
         (0..width * height)
-            .map(|k| {
-                let (x0, y0) = ((k % width) as f64, (k / width) as f64);
-                let mut hits = 0;
-                for sy in 0..4 {
-                    for sx in 0..4 {
-                        let x = x0 - 0.5 + (sx as f64 + 0.5) / 4.0;
-                        let y = y0 - 0.5 + (sy as f64 + 0.5) / 4.0;
-                        if let Some((u, v)) = h.invert(x, y) {
-                            hits += usize::from(
-                                target
-                                    .dots
-                                    .iter()
-                                    .any(|d| (d[0] - u).powi(2) + (d[1] - v).powi(2) <= r2),
-                            );
-                        }
-                    }
-                }
-                hits as f32 / 16.0
-            })
+            .map(|k| coverage(target, h, k % width, k / width))
             .collect()
     }
 
