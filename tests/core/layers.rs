@@ -809,12 +809,17 @@ fn the_python_extension_reuses_what_cargo_test_built() {
     // extension with the core's features and profile settings of `cargo
     // test`, so only what Python alone needs (PyO3, numpy, ndarray) is
     // compiled.
-    use crate::daemon::python::{MATURIN_ARGS, SHARED_PROFILE};
+    use crate::daemon::python::{shared_profile, MATURIN_ARGS};
     let test = unit_keys(&["test", "--no-run"], &[]);
     let mut args = vec!["rustc", "--manifest-path", "python/Cargo.toml", "--lib"];
     // maturin's own arguments, but --strip (a maturin step after cargo).
     args.extend(MATURIN_ARGS.split(' ').filter(|a| *a != "--strip"));
-    let python = unit_keys(&args, &SHARED_PROFILE);
+    let profile = shared_profile();
+    let env: Vec<(&str, &str)> = profile
+        .iter()
+        .map(|(k, v)| (k.as_str(), v.as_str()))
+        .collect();
+    let python = unit_keys(&args, &env);
     let built: std::collections::HashSet<u64> = test.iter().map(|(k, _)| *k).collect();
     let in_test: std::collections::HashSet<&str> = test.iter().map(|(_, p)| p.as_str()).collect();
     let again: Vec<&str> = python

@@ -72,19 +72,22 @@ impl Drop for AravisHold {
 /// On tmpfs the same files are written, fsynced and renamed, without the
 /// wait. Docker's default /dev/shm (64 MiB) is too small and is not used.
 pub fn scratch() -> tempfile::TempDir {
-    let shm = Path::new("/dev/shm");
-    let tmpfs = std::fs::read_to_string("/proc/mounts").is_ok_and(|m| {
-        m.lines().any(|l| {
-            l.split_whitespace().nth(1) == Some("/dev/shm")
-                && l.split_whitespace().nth(2) == Some("tmpfs")
-        })
+    // Looked up once per test process, not once per test.
+    static ROOT: std::sync::OnceLock<Option<PathBuf>> = std::sync::OnceLock::new();
+    let root = ROOT.get_or_init(|| {
+        let shm = Path::new("/dev/shm");
+        let tmpfs = std::fs::read_to_string("/proc/mounts").is_ok_and(|m| {
+            m.lines().any(|l| {
+                l.split_whitespace().nth(1) == Some("/dev/shm")
+                    && l.split_whitespace().nth(2) == Some("tmpfs")
+            })
+        });
+        let room = polnlos::files::space::free_disk_bytes(shm).is_ok_and(|b| b >= 4 << 30);
+        (tmpfs && room).then(|| shm.to_path_buf())
     });
-    let room = polnlos::files::space::free_disk_bytes(shm).is_ok_and(|b| b >= 4 << 30);
     let builder = tempfile::Builder::new().prefix("polnlos-test-").to_owned();
-    if tmpfs && room {
-        if let Ok(d) = builder.tempdir_in(shm) {
-            return d;
-        }
+    if let Some(Ok(d)) = root.as_ref().map(|r| builder.tempdir_in(r)) {
+        return d;
     }
     builder.tempdir().expect("a temporary folder")
 }

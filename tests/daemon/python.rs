@@ -43,7 +43,7 @@ fn target_dir() -> PathBuf {
 ///
 /// The extension builds into the target folder this test binary was built
 /// in (`target/`, or wherever `CARGO_TARGET_DIR` put it), as
-/// [`MATURIN_ARGS`] and [`SHARED_PROFILE`] say: `cargo test` holds the
+/// [`MATURIN_ARGS`] and [`shared_profile`] say: `cargo test` holds the
 /// build lock only while it compiles, so the core and the dependencies it
 /// already built (faer and the rest, same settings) are reused instead of a
 /// second release build in a folder of its own (327 s of a clean suite's 20
@@ -84,7 +84,7 @@ fn venv() -> PathBuf {
             .arg(root().join("python"))
             .env("CARGO_TARGET_DIR", target_dir())
             .env("MATURIN_PEP517_ARGS", MATURIN_ARGS)
-            .envs(SHARED_PROFILE.iter().copied())
+            .envs(shared_profile())
             // The per-test timing script (scripts/test-times.sh) runs this
             // binary with it; cargo would rebuild every dependency for it.
             .env_remove("RUSTC_BOOTSTRAP"),
@@ -100,16 +100,32 @@ fn venv() -> PathBuf {
 /// a disk where such writes stalled the daemon tests' fsyncs).
 pub const MATURIN_ARGS: &str = "--profile dev --features shared-test-core --strip";
 
-/// The dev profile's settings made those of `[profile.test]`, so that the
-/// core is the same unit (features, settings, dependencies) as the one
-/// `cargo test` compiled, and cargo links it instead of compiling it again
+/// The dev profile's settings made those of `[profile.test]` (read from
+/// `Cargo.toml`, each as `CARGO_PROFILE_DEV_<KEY>`), so that the core is the
+/// same unit (features, settings, dependencies) as the one `cargo test`
+/// compiled, and cargo links it instead of compiling it again
 /// (`offline::layers::the_python_extension_reuses_what_cargo_test_built`
-/// holds this). Its tests run at the test build's opt-level 2.
-pub const SHARED_PROFILE: [(&str, &str); 3] = [
-    ("CARGO_PROFILE_DEV_OPT_LEVEL", "2"),
-    ("CARGO_PROFILE_DEV_DEBUG", "line-tables-only"),
-    ("CARGO_PROFILE_DEV_INCREMENTAL", "false"),
-];
+/// holds this). Its tests run at the test build's opt-level.
+pub fn shared_profile() -> Vec<(String, String)> {
+    let manifest = std::fs::read_to_string(root().join("Cargo.toml")).expect("Cargo.toml");
+    let manifest: toml::Table = manifest.parse().expect("Cargo.toml parses");
+    let test = manifest
+        .get("profile")
+        .and_then(|p| p.get("test"))
+        .and_then(toml::Value::as_table)
+        .expect("Cargo.toml has [profile.test]");
+    test.iter()
+        .filter_map(|(key, value)| {
+            let value = match value {
+                toml::Value::String(s) => s.clone(),
+                toml::Value::Integer(_) | toml::Value::Boolean(_) => value.to_string(),
+                _ => return None,
+            };
+            let key = key.to_uppercase().replace('-', "_");
+            Some((format!("CARGO_PROFILE_DEV_{key}"), value))
+        })
+        .collect()
+}
 
 /// PATH with the environment's bin folder first: a kernel spec that names
 /// plain `python` starts the environment's.
