@@ -16,27 +16,39 @@ struct Driver {
 }
 
 impl Driver {
+    /// Starts chromedriver on a free port. The port is free when chosen but
+    /// not reserved: another test's server can bind it first, and then this
+    /// chromedriver exits and /status answers from that server. A driver
+    /// that exits is started again on another port (three tries).
     fn start() -> Self {
-        let port = free_port();
-        let child = Command::new("chromedriver")
-            .arg(format!("--port={port}"))
-            .arg("--allowed-ips=127.0.0.1")
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect(
-                "chromedriver must be installed (Debian: chromium chromium-driver; see .ci/run)",
-            );
-        let url = format!("http://127.0.0.1:{port}");
-        let t = Instant::now();
-        while ureq::get(format!("{url}/status")).call().is_err() {
-            assert!(
-                t.elapsed() < Duration::from_secs(20),
-                "chromedriver did not start"
-            );
-            std::thread::sleep(Duration::from_millis(100));
+        for _ in 0..3 {
+            let port = free_port();
+            let mut child = Command::new("chromedriver")
+                .arg(format!("--port={port}"))
+                .arg("--allowed-ips=127.0.0.1")
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .expect(
+                    "chromedriver must be installed (Debian: chromium chromium-driver; see .ci/run)",
+                );
+            let url = format!("http://127.0.0.1:{port}");
+            let t = Instant::now();
+            loop {
+                if ureq::get(format!("{url}/status")).call().is_ok() {
+                    return Self { child, url };
+                }
+                if child.try_wait().ok().flatten().is_some() {
+                    break;
+                }
+                assert!(
+                    t.elapsed() < Duration::from_secs(20),
+                    "chromedriver did not start"
+                );
+                std::thread::sleep(Duration::from_millis(100));
+            }
         }
-        Self { child, url }
+        panic!("chromedriver exited three times on a free port: is another one running?");
     }
 }
 
