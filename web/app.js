@@ -398,11 +398,13 @@ function captureRow(c) {
     frames.append(el("div", { class: "saturated warning", title: "pixels at the camera's full scale: their values are only lower bounds; lower the exposure" },
       `saturated: ${cl.saturated} px in one frame (${(100 * cl.saturated / Math.max(cl.pixels, 1)).toFixed(2)} %), ${cl.frames_saturated} frames`));
   }
-  const files = [["mean", `/captures/${c.id}/mean.tiff`, `capture-${c.id}-mean.tiff`],
-    ["frames", `/captures/${c.id}/frame.tiff`, `capture-${c.id}-frames.tiff`]];
+  const files = c.import
+    ? [["measurement", `/captures/${c.id}/measurement.npy`, `capture-${c.id}-measurement.npy`]]
+    : [["mean", `/captures/${c.id}/mean.tiff`, `capture-${c.id}-mean.tiff`],
+      ["frames", `/captures/${c.id}/frame.tiff`, `capture-${c.id}-frames.tiff`]];
   if (c.dark_frames > 0) files.push(["dark", `/captures/${c.id}/dark.tiff`, `capture-${c.id}-dark.tiff`]);
   if (c.frames > 1) files.push(["variance", `/captures/${c.id}/variance.tiff`, `capture-${c.id}-variance.tiff`]);
-  files.push(["preview", `/captures/${c.id}/preview.png`, `capture-${c.id}-preview.png`]);
+  if (!c.import) files.push(["preview", `/captures/${c.id}/preview.png`, `capture-${c.id}-preview.png`]);
   const actions = el("td", {});
   if (active(c.state)) {
     const b = el("button", { class: "cancel", "data-job": `capture-${c.id}` }, "Cancel");
@@ -414,7 +416,8 @@ function captureRow(c) {
   const dark = c.dark_capture ? ` − dark ${c.dark_capture}` : "";
   return el("tr", { id: `capture-${c.id}` },
     el("td", {}, String(c.id)),
-    el("td", { class: `kind kind-${c.kind}` }, c.kind),
+    el("td", { class: `kind kind-${c.kind}`, title: c.import ? `imported ${c.import.name || ""} (${c.import.format}, ${c.import.bytes} bytes, sha256 ${c.import.sha256})` : "" },
+      c.import ? `${c.kind}, imported ${c.import.format}` : c.kind),
     el("td", {}, `${c.scene}, ${block(c)}${dark}`, planMark(planOf.captures.get(c.id))),
     el("td", { class: `state state-${c.state}` }, c.state + (c.error ? `: ${c.error}` : "")),
     frames, progressiveCell(c.id), el("td", {}, c.state === "done" ? downloads(files) : ""), actions);
@@ -495,9 +498,19 @@ function removeCapture(id) {
 
 const compare = new Set();
 
+// The report's radiometry, and a fitted result's per-channel gain and λ.
+function radiometryLines(rep) {
+  const out = [];
+  const rad = rep.radiometry;
+  if (rad) out.push(`radiometry ${rad.mode}${rad.given ? "" : " (chosen)"}: ${rad.reason}`);
+  (rep.channels || []).forEach((c, k) => out.push(
+    `channel ${k}: gain ${c.gain.toExponential(3)}, λ ${c.lambda.toExponential(3)}${c.informative ? "" : ", no signal"}`));
+  return out;
+}
+
 function reportLines(r) {
   const rep = r.report || {};
-  const lines = [`${r.solver}, captures ${r.captures.join(", ")}`];
+  const lines = [`${r.solver}, captures ${r.captures.join(", ")}`, ...radiometryLines(rep)];
   if (r.kappa !== null && r.kappa !== undefined) lines.push(`kappa ${Number(r.kappa).toExponential(3)}`);
   const l = rep.lambda_choice;
   if (l) lines.push(`lambda ${l.lambda.toExponential(3)} (${l.rule}, noise from ${l.noise})`);
@@ -817,6 +830,7 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
       solver: f.get("solver"),
     };
     if (f.get("truth")) b.truth = f.get("truth");
+    if (f.get("radiometry")) b.radiometry = f.get("radiometry");
     const lambda = numeric(ev.target, "lambda", { auto: true });
     if (lambda !== undefined && lambda !== "auto") b.lambda = lambda;
     const iters = numeric(ev.target, "max_iter", { integer: true });
@@ -829,6 +843,34 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
   noteIn(msg, `queued ${r.json.job}`, r.json.job);
   const x = await api("GET", `/reconstructions/${r.json.id}`);
   if (x.status === 200) upsertReconstruction(x.json);
+});
+
+// A measurement or photo taken elsewhere, sent as the body of
+// POST /captures/import; the new capture joins the list.
+$("#import-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const msg = $("#import-message");
+  const file = $("#import-file").files[0];
+  if (!file) { alertIn(msg, "choose a file (.npy, TIFF or PNG)"); return; }
+  const q = new URLSearchParams({ scene: f.get("scene"), pose: f.get("pose").trim(), name: file.name });
+  const deg = String(f.get("polarizer_deg")).trim();
+  if (deg !== "") q.set("polarizer_deg", deg);
+  if (f.get("bayer")) q.set("bayer", f.get("bayer"));
+  let r;
+  try {
+    r = await fetch(`/captures/import?${q}`, {
+      method: "POST",
+      headers: { ...headers(false), "Content-Type": "application/octet-stream" },
+      body: await file.arrayBuffer(),
+    });
+  } catch (_) { alertIn(msg, unreachable()); return; }
+  let json = null;
+  try { json = await r.json(); } catch (_) { /* not JSON */ }
+  noteToken({ status: r.status, json, headers: r.headers });
+  if (r.status !== 201) { alertIn(msg, (json && json.detail) || `HTTP ${r.status}`); return; }
+  noteIn(msg, `imported ${file.name} as capture ${json.id} (${json.import.format}, ${json.import.colours} channel(s))`);
+  upsertCapture(json, true);
 });
 
 // ---- plans ----

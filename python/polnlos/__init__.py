@@ -77,15 +77,31 @@ def simulate(scene: Scene, truth: _t.Any, photons: _t.Optional[float] = None,
 
 def reconstruct(scene: Scene, measurement: _t.Any, lam: _t.Optional[float] = None,
                 variance: _t.Any = None, solver: str = "admm-tv", truth: _t.Any = None,
-                max_iter: _t.Optional[int] = None, full_spectrum: bool = False) -> tuple:
+                max_iter: _t.Optional[int] = None, full_spectrum: bool = False,
+                radiometry: str = "calibrated") -> tuple:
     """The hidden scene from `measurement`, as `polnlos reconstruct`: returns
     `(image, report)`, the image on the scene grid and report.json as a dict.
+
+    `radiometry="fitted"` is `polnlos reconstruct --photo` (and the daemon's
+    fitted reconstruction): a photo whose gain and ambient light are unknown,
+    `measurement` `[rows]` or `[rows, C]` (one column per colour channel),
+    gain, background and λ fitted from it (docs/realphoto.md); `variance`,
+    `solver` and `full_spectrum` do not apply. The default, "calibrated",
+    reads the measurement in units of T l.
 
     `lam` None chooses λ from the noise (the resolved-discrepancy rule): from
     `variance` (one value per measurement value) when given, else estimated
     from the measurement. With the noise known, the sampling keys the scene
     file leaves out are chosen from it (`report["model"]`). `solver` is one
     of admm-tv, fista-tv, tikhonov, lsq."""
+    if radiometry == "fitted":
+        if variance is not None or solver != "admm-tv" or full_spectrum:
+            raise PolnlosError("radiometry=\"fitted\" fits its own noise and solves with admm-tv: "
+                               "leave out variance, solver and full_spectrum")
+        return _polnlos.reconstruct_photo(scene, _f64(measurement), lam=lam, truth=_f64(truth),
+                                          max_iter=max_iter)
+    if radiometry != "calibrated":
+        raise PolnlosError(f"radiometry {radiometry!r} is neither \"calibrated\" nor \"fitted\"")
     return _polnlos.reconstruct(scene, _f64(measurement), lam=lam, variance=_f64(variance),
                                 solver=solver, truth=_f64(truth), max_iter=max_iter,
                                 full_spectrum=full_spectrum)

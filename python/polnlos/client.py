@@ -53,12 +53,15 @@ class Client:
     # -- transport ---------------------------------------------------------
 
     def _request(self, method: str, path: str, body: Any = None,
-                 timeout: Optional[float] = None):
+                 timeout: Optional[float] = None, raw: Optional[bytes] = None):
         data = None
         headers = {"Accept": "application/json"}
         if body is not None:
             data = json.dumps(body).encode()
             headers["Content-Type"] = "application/json"
+        if raw is not None:
+            data = raw
+            headers["Content-Type"] = "application/octet-stream"
         if self.token:
             headers["Authorization"] = f"Bearer {self.token}"
         req = urllib.request.Request(self.url + path, data=data, method=method, headers=headers)
@@ -118,6 +121,37 @@ class Client:
         """A capture's mean frame (DN, dark-subtracted when it has a dark)."""
         mean, _ = decode_tiff(self._bytes(f"/captures/{int(capture_id)}/mean.tiff"))
         return mean
+
+    def import_capture(self, scene: str, pose: str, data: Any,
+                       polarizer_deg: Optional[float] = None, bayer: Optional[str] = None,
+                       name: Optional[str] = None) -> Dict[str, Any]:
+        """Imports a measurement or photo taken elsewhere as a done capture of
+        `pose` (`POST /captures/import`): `data` is a NumPy array (`[rows]` or
+        `[rows, C]` in the scene's row order, sent as .npy), the bytes of a
+        .npy, TIFF or PNG, or a path to one. `bayer` names a raw colour frame's
+        pattern (RG, GR, GB, BG). Returns the capture's record; reconstruct it
+        with `reconstruct(scene, [record["id"]])` (its gain and background are
+        fitted)."""
+        import os
+        import urllib.parse
+        if isinstance(data, np.ndarray):
+            buf = io.BytesIO()
+            np.save(buf, np.ascontiguousarray(data, dtype=np.float64))
+            raw = buf.getvalue()
+        elif isinstance(data, (bytes, bytearray)):
+            raw = bytes(data)
+        else:
+            path = os.fspath(data)
+            with open(path, "rb") as f:
+                raw = f.read()
+            name = name or os.path.basename(path)
+        query = {"scene": scene, "pose": pose}
+        for k, v in (("polarizer_deg", polarizer_deg), ("bayer", bayer), ("name", name)):
+            if v is not None:
+                query[k] = v
+        path = "/captures/import?" + urllib.parse.urlencode(query)
+        with self._request("POST", path, raw=raw, timeout=max(self.timeout, 120.0)) as r:
+            return json.loads(r.read())
 
     def delete_capture(self, capture_id: int) -> Dict[str, Any]:
         """Deletes a finished capture, its row and its files."""

@@ -543,6 +543,87 @@ fn reconstruct<'py>(
     Ok((image, report))
 }
 
+/// A photo's reconstruction with its gain and background fitted, as
+/// `polnlos reconstruct --photo` (docs/realphoto.md): the same function on
+/// the same `T`, so the same numbers. `measurement` is `[rows]` or
+/// `[rows, C]` (NaN where not measured); `truth` `[nv, nu]` (every channel)
+/// or `[nv, nu, C]`. Returns the image (`[nv, nu]` or `[nv, nu, C]`) and
+/// report.json as a dict.
+#[pyfunction]
+#[pyo3(signature = (scene, measurement, lam = None, truth = None, max_iter = None))]
+fn reconstruct_photo<'py>(
+    py: Python<'py>,
+    scene: &Scene,
+    measurement: PyReadonlyArrayDyn<'py, f64>,
+    lam: Option<f64>,
+    truth: Option<PyReadonlyArrayDyn<'py, f64>>,
+    max_iter: Option<usize>,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    use polnlos::solve::photo::{reconstruct_photo, split_channels, PhotoReport, PhotoSettings};
+    let shape = measurement.shape().to_vec();
+    let data: Vec<f64> = measurement.as_array().iter().copied().collect();
+    let channels = split_channels(&shape, &data, scene.inner.rows())
+        .map_err(|e| bad(format!("measurement {e}")))?;
+    let c = channels.len();
+    let (nv, nu) = scene.scene_shape();
+    let truth = match &truth {
+        None => None,
+        Some(t) if t.shape() == [nv, nu, c] && c > 1 => {
+            let v: Vec<f64> = t.as_array().iter().copied().collect();
+            Some(
+                (0..c)
+                    .map(|ch| v.iter().skip(ch).step_by(c).copied().collect())
+                    .collect(),
+            )
+        }
+        Some(t) => Some(vec![image_on(scene, t, "truth")?; c]),
+    };
+    if let Some(l) = lam {
+        if !(l >= 0.0 && l.is_finite()) {
+            return Err(bad(format!("lam {l}: must be a finite number >= 0")));
+        }
+    }
+    let d = PhotoSettings::default();
+    let settings = PhotoSettings {
+        lambda: lam,
+        iterations: max_iter.unwrap_or(d.iterations),
+        ..d
+    };
+    let start = std::time::Instant::now();
+    let (report, transport_seconds) = py
+        .allow_threads(|| {
+            let t = polnlos::transport::build(&scene.inner, BUDGET).map_err(|e| e.to_string())?;
+            let seconds = start.elapsed().as_secs_f64();
+            reconstruct_photo(&t, &channels, truth.as_deref(), &settings)
+                .map(|r| (r, seconds))
+                .map_err(|e| e.to_string())
+        })
+        .map_err(polnlos_err)?;
+    let image: Vec<f64> = (0..nv * nu)
+        .flat_map(|k| report.channels.iter().map(move |ch| ch.image[k]))
+        .collect();
+    let report = PhotoReport {
+        scene: scene.name.clone(),
+        radiometry: polnlos::solve::radiometry::RadiometryChoice {
+            mode: polnlos::solve::radiometry::Radiometry::Fitted,
+            given: true,
+            reason: "asked for (radiometry=\"fitted\")".into(),
+        },
+        transport_seconds,
+        transport_cache: None,
+        total_seconds: start.elapsed().as_secs_f64(),
+        result: report,
+    };
+    let text = serde_json::to_string(&report).map_err(polnlos_err)?;
+    let report = py.import("json")?.call_method1("loads", (text,))?;
+    let image = image.into_pyarray(py);
+    let image = match c {
+        1 => image.reshape([nv, nu])?.into_any(),
+        _ => image.reshape([nv, nu, c])?.into_any(),
+    };
+    Ok((image, report))
+}
+
 /// Seconds each of `repeat` runs of the Rust reconstruction takes, called
 /// from Rust with no Python in between: the baseline the bindings' overhead
 /// is measured against (python/benches/overhead.py).
@@ -637,6 +718,7 @@ fn _polnlos(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(measure_captures, m)?)?;
     m.add_function(wrap_pyfunction!(reconstruct, m)?)?;
+    m.add_function(wrap_pyfunction!(reconstruct_photo, m)?)?;
     m.add_function(wrap_pyfunction!(decode_tiff, m)?)?;
     m.add_function(wrap_pyfunction!(pattern, m)?)?;
     m.add_function(wrap_pyfunction!(builtin_scenes, m)?)?;

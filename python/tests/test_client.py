@@ -36,6 +36,27 @@ def test_a_capture_reconstructs_and_downloads_as_arrays(client):
     assert m.shape == (polnlos.Scene.load("brewster-crossed").rows,)
 
 
+def test_an_imported_measurement_reconstructs_fitted_as_offline(client):
+    """A measurement taken elsewhere, imported through the client, is fitted
+    (its gain and background unknown) to the numbers of the offline call."""
+    scene = polnlos.Scene.load("brewster-crossed")
+    truth = polnlos.pattern("letter", scene)
+    i, _ = polnlos.simulate(scene, truth, photons=2e4, seed=5)
+    photo = 2.0 * i + 0.1
+    cap = client.import_capture("brewster-crossed", "A", photo, polarizer_deg=0, name="sim.npy")
+    assert cap["state"] == "done" and cap["kind"] == "light"
+    assert cap["import"]["format"] == "npy" and cap["import"]["name"] == "sim.npy"
+    rec = client.wait(client.reconstruct("brewster-crossed", [cap["id"]]))
+    assert rec["state"] == "done", rec
+    report = client.report(rec["id"])
+    assert report["radiometry"]["mode"] == "fitted" and not report["radiometry"]["given"]
+    want, _ = polnlos.reconstruct(scene, photo, radiometry="fitted")
+    assert np.max(np.abs(client.recovered(rec["id"]) - want)) <= 1e-9
+    with pytest.raises(polnlos.DaemonError) as e:
+        client.import_capture("brewster-crossed", "A", photo[:-1])
+    assert e.value.status == 422 and "[1024]" in e.value.message
+
+
 def test_a_plan_runs_the_scene_through_the_mount_to_a_reconstruction(client):
     accepted = client.plan("brewster-crossed", exposure_us=20000, frames=2, dark_frames=1,
                            reconstruct={"truth": "letter"})

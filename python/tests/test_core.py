@@ -208,3 +208,23 @@ def test_the_namespace_holds_polnlos_names_not_typing_helpers():
     """`polnlos.<tab>` shows the package's own names, not typing's."""
     assert not {"Any", "Optional", "Sequence", "Union"} & set(dir(polnlos))
     assert {"reconstruct", "simulate", "Client"} <= set(dir(polnlos))
+
+
+def test_a_fitted_reconstruction_equals_the_cli_photo_mode_to_1e_9(cli, tmp_path):
+    """radiometry="fitted" is `polnlos reconstruct --photo`: gain, ambient
+    light and lambda from the photo itself, the same numbers."""
+    scene = polnlos.Scene.load("brewster-crossed")
+    truth = polnlos.pattern("letter", scene)
+    i, _ = polnlos.simulate(scene, truth, photons=2e4, seed=3)
+    photo = 3.0 * i + 0.25
+    np.save(tmp_path / "photo.npy", photo)
+    cli("reconstruct", "brewster-crossed", "--photo", "--measurement", tmp_path / "photo.npy",
+        "--out", tmp_path / "rec")
+    want = np.load(tmp_path / "rec" / "recovered.npy")
+    image, report = polnlos.reconstruct(scene, photo, radiometry="fitted")
+    assert report["radiometry"] == {"mode": "fitted", "given": True,
+                                    "reason": 'asked for (radiometry="fitted")'}
+    assert image.shape == tuple(scene.scene_shape)
+    assert np.max(np.abs(image - want.reshape(image.shape))) <= 1e-9
+    with pytest.raises(polnlos.PolnlosError, match="admm-tv"):
+        polnlos.reconstruct(scene, photo, radiometry="fitted", solver="lsq")

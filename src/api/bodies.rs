@@ -9,8 +9,8 @@
 use serde::{Deserialize, Serialize};
 
 pub use crate::daemon::requests::{
-    AutoExposure, CalibrationBody, CaptureBody, PlanBody, PlanReconstruct, ProgressiveBody,
-    ReconstructionBody, SettingsBody, SourcePositionBody, WallCalibrationBody,
+    AutoExposure, CalibrationBody, CaptureBody, ImportQuery, PlanBody, PlanReconstruct,
+    ProgressiveBody, ReconstructionBody, SettingsBody, SourcePositionBody, WallCalibrationBody,
     MAX_CAPTURES_PER_POSITION,
 };
 

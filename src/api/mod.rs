@@ -34,8 +34,9 @@ use crate::daemon::Daemon;
 /// The router for a running daemon.
 pub fn router(d: Arc<Daemon>) -> Router {
     let limit = d.config().queue.max_body_bytes;
+    let import_limit = usize::try_from(d.config().queue.max_import_mib << 20).unwrap_or(usize::MAX);
     let body_timeout = Duration::from_secs_f64(d.config().http.body_timeout_s);
-    let (app, doc) = all_routes().split_for_parts();
+    let (app, doc) = all_routes(import_limit).split_for_parts();
     let doc = Arc::new(openapi::finish(doc));
     // The document itself is served beside the routes it documents, not among them.
     app.route(
@@ -61,7 +62,14 @@ pub fn router(d: Arc<Daemon>) -> Router {
 /// cannot drift apart; handlers of one path share a line (a line with
 /// several paths would route every handler at each of them). The page and
 /// its files are plain routes: not API, so not in the document.
-fn all_routes() -> OpenApiRouter<Arc<Daemon>> {
+/// `import_limit` bounds the one route whose body is a file, not JSON.
+fn all_routes(import_limit: usize) -> OpenApiRouter<Arc<Daemon>> {
+    let (schemas, paths, import) = routes!(routes::import_capture);
+    let import = (
+        schemas,
+        paths,
+        import.layer(axum::extract::DefaultBodyLimit::max(import_limit)),
+    );
     OpenApiRouter::with_openapi(openapi::base())
         .route("/", get(web::index))
         .route("/app.js", get(web::app))
@@ -82,12 +90,14 @@ fn all_routes() -> OpenApiRouter<Arc<Daemon>> {
         .routes(routes!(routes::get_plan, routes::cancel_plan))
         .routes(routes!(routes::continue_plan))
         .routes(routes!(routes::post_capture, routes::list_captures))
+        .routes(import)
         .routes(routes!(routes::get_capture, routes::delete_capture))
         .routes(routes!(routes::capture_frames))
         .routes(routes!(routes::capture_mean))
         .routes(routes!(routes::capture_dark))
         .routes(routes!(routes::capture_variance))
         .routes(routes!(routes::capture_preview))
+        .routes(routes!(routes::capture_measurement))
         .routes(routes!(routes::capture_progressive_image))
         .routes(routes!(routes::capture_progressive_steps))
         .routes(routes!(routes::post_calibration, routes::list_calibrations))

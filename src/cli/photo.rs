@@ -4,22 +4,11 @@
 use std::time::Instant;
 
 use polnlos::files::{image, json, npy, FileError};
-use polnlos::solve::photo::{reconstruct_photo, split_channels, PhotoSettings};
+use polnlos::solve::photo::{reconstruct_photo, split_channels, PhotoReport, PhotoSettings};
+use polnlos::solve::radiometry::RadiometryChoice;
 
 use super::reconstruct::{Args, LambdaArg};
 use polnlos::transport::MemoryBudget;
-
-/// The report of a photo's reconstruction: the scene, `T`'s cost and the fit.
-#[derive(serde::Serialize)]
-struct Report<'a> {
-    scene: String,
-    transport_seconds: f64,
-    /// Where `T` came from: `hit` (the cache), `stored` or `built`.
-    transport_cache: &'static str,
-    total_seconds: f64,
-    #[serde(flatten)]
-    result: &'a polnlos::solve::photo::PhotoResult,
-}
 
 /// `reconstruct --photo`: `a` as `reconstruct` parsed it (clap refuses the
 /// options a photo does not take).
@@ -78,14 +67,16 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
             &image::unit_to_u16(&first),
         )?;
     }
-    let report = Report {
+    let report = PhotoReport {
         scene: super::scene_name(&a.scene),
+        radiometry: RadiometryChoice::photo_flag(),
         transport_seconds,
-        transport_cache,
+        transport_cache: Some(transport_cache),
         total_seconds: start.elapsed().as_secs_f64(),
-        result: &result,
+        result,
     };
     json::write(&a.out.join("report.json"), &report)?;
+    let result = &report.result;
     for w in &result.warnings {
         eprintln!("warning: {w}");
     }

@@ -18,6 +18,7 @@ pub mod lowrank;
 pub mod metrics;
 pub mod photo;
 pub mod plan;
+pub mod radiometry;
 pub mod reconstruct;
 pub mod report;
 pub mod sapg;

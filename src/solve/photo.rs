@@ -91,8 +91,22 @@ pub struct PhotoChannel {
     /// `x = g l` in measurement units per unit of `T`.
     #[serde(skip)]
     pub x: Vec<f64>,
-    /// Fitted gain `g` (measurement units per unit of `T` at `l = 1`).
+    /// Gain `g` that maps `x` to `l` (measurement units per unit of `T` at
+    /// `l = 1`), as [`PhotoResult::gain_rule`] says it was set.
     pub gain: f64,
+    /// This channel's own 99th percentile of `x`: the gain it would have
+    /// alone (its brightest resolved element at 1).
+    pub peak: f64,
+    /// Share of the data term's energy `||D i||^2` that the λ = 0 fit
+    /// explains.
+    pub explained: f64,
+    /// The most a fit of the unknowns to pure noise would explain
+    /// (`unknowns / rows`): a channel at or below twice this carries no
+    /// signal polnlos can tell from noise.
+    pub noise_explains: f64,
+    /// Whether the channel carries a signal ([`PhotoChannel::explained`]
+    /// above twice [`PhotoChannel::noise_explains`]).
+    pub informative: bool,
     /// Uncertainty of the gain: the bootstrap's root-mean-square error and
     /// the shift from the λ = 0 fit's gain, in quadrature (docs/realphoto.md).
     pub gain_sd: f64,
@@ -210,6 +224,11 @@ pub struct PhotoModel {
     eig_max: f64,
     /// Rows of `K` that carry data.
     rows: usize,
+    /// Rows of `T` that were not measured (saturated, or NaN in a file):
+    /// every row of `K` that touches one is zeroed, in `K` and in the data.
+    missing: Vec<bool>,
+    /// Rows of `K` zeroed because they touch a row of `missing`.
+    dropped: Vec<usize>,
     /// Seconds to form `K`, its Gram and `eig_max`.
     pub seconds: f64,
 }
@@ -217,11 +236,35 @@ pub struct PhotoModel {
 impl PhotoModel {
     /// Forms the data term's matrix and Gram for `t`.
     pub fn new(t: &Transport, data_term: DataTerm) -> Self {
+        Self::with_missing(t, data_term, &[])
+    }
+
+    /// [`PhotoModel::new`] for a photo whose rows `missing` (indices into
+    /// `t`'s rows) were not measured: a difference that touches one, or the
+    /// row itself for raw values, carries no data.
+    ///
+    /// Why: a zeroed row differenced against a measured neighbour would be
+    /// that neighbour's raw value, background and all.
+    pub fn with_missing(t: &Transport, data_term: DataTerm, missing: &[usize]) -> Self {
         let start = Instant::now();
-        let (k, rows) = match data_term {
+        let mut gone = vec![false; t.rows()];
+        missing
+            .iter()
+            .filter(|&&j| j < t.rows())
+            .for_each(|&j| gone[j] = true);
+        let (k, data_rows) = match data_term {
             DataTerm::Differences => (differences(t), difference_rows(t)),
-            DataTerm::Values => (centred_columns(t), t.rows()),
+            DataTerm::Values => (centred_columns(t, &gone), t.rows()),
         };
+        let dropped = dropped_rows(t, data_term, &gone);
+        let k = match dropped.is_empty() {
+            true => k,
+            false => k.with_rows_zeroed(&dropped),
+        };
+        let carried = dropped
+            .iter()
+            .filter(|&&r| carries_data(t, data_term, r))
+            .count();
         let gram = Gram::new(k.as_mat());
         let eig_max = largest_eigenvalue(&symmetric(&gram.lower));
         Self {
@@ -229,7 +272,9 @@ impl PhotoModel {
             k,
             gram: Arc::new(gram),
             eig_max,
-            rows,
+            rows: data_rows.saturating_sub(carried),
+            missing: gone,
+            dropped,
             seconds: start.elapsed().as_secs_f64(),
         }
     }
@@ -257,12 +302,36 @@ impl PhotoModel {
         Ok(Orientation { misfit, best })
     }
 
-    /// The data term's right side for `i`.
+    /// The data term's right side for `i` (rows that touch an unmeasured
+    /// row are 0, as in `K`).
     fn data(&self, t: &Transport, i: &[f64]) -> Vec<f64> {
-        match self.data_term {
+        let mut y = match self.data_term {
             DataTerm::Differences => difference_values(t, i),
-            DataTerm::Values => centred(t, i),
+            DataTerm::Values => centred_masked(t, i, &self.missing),
+        };
+        for &r in &self.dropped {
+            y[r] = 0.0;
         }
+        y
+    }
+
+    /// Each block's background `mean(i - T x)` over its measured rows.
+    fn backgrounds(&self, t: &Transport, i: &[f64], x: &[f64]) -> Vec<f64> {
+        let nw = t.wall_grid().count();
+        let r: Vec<f64> = t.apply(x).iter().zip(i).map(|(p, m)| m - p).collect();
+        r.chunks(nw)
+            .zip(self.missing.chunks(nw))
+            .map(|(b, gone)| {
+                let kept = gone.iter().filter(|g| !**g).count().max(1);
+                let sum: f64 = b
+                    .iter()
+                    .zip(gone)
+                    .filter(|(_, g)| !**g)
+                    .map(|(v, _)| v)
+                    .sum();
+                sum / kept as f64
+            })
+            .collect()
     }
 
     /// ADMM settings at `lambda` with this model's fixed penalty.
@@ -371,7 +440,7 @@ impl PhotoModel {
                 (
                     scale * 10f64.powf(0.5 * (lo + hi)),
                     format!(
-                        "discrepancy on the model's own misfit: the λ = 0 misfit {floor_misfit:.4e} times {} / {dof} rows",
+                        "discrepancy on the model's own misfit: the λ = 0 misfit (misfit_floor) times {} / {dof} rows",
                         self.rows
                     ),
                 )
@@ -387,18 +456,15 @@ impl PhotoModel {
         iterations += last.stats.iterations;
         let x = last.image;
         let gain = percentile(&x, GAIN_PERCENTILE);
-        let image = x
-            .iter()
-            .map(|v| {
-                if gain > 0.0 {
-                    (v / gain).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                }
-            })
-            .collect();
-        let background = backgrounds(t, i, &x);
-        let background0 = backgrounds(t, i, &x0);
+        let image = scaled(&x, gain);
+        let energy: f64 = y.iter().map(|v| v * v).sum();
+        let explained = match energy > 0.0 {
+            true => (1.0 - floor_misfit / energy).max(0.0),
+            false => 0.0,
+        };
+        let noise_explains = n as f64 / self.rows.max(1) as f64;
+        let background = self.backgrounds(t, i, &x);
+        let background0 = self.backgrounds(t, i, &x0);
         let boot = self.bootstrap(t, &x, &background, residual_sd, lambda, &state, settings)?;
         iterations += boot.iterations;
         let background_sd = boot
@@ -414,6 +480,10 @@ impl PhotoModel {
             image,
             x,
             gain,
+            peak: gain,
+            explained,
+            noise_explains,
+            informative: explained > SIGNAL_MARGIN * noise_explains,
             gain_sd,
             background,
             background_sd,
@@ -429,6 +499,53 @@ impl PhotoModel {
         })
     }
 }
+
+impl PhotoChannel {
+    /// This fit of a photo divided by `s` as the fit of the photo itself:
+    /// `x`, gains and backgrounds times `s`, λ times `s` (TV is linear in
+    /// `x`), misfits times `s^2`; `l` and the shares are unchanged.
+    fn rescale(&mut self, s: f64) {
+        self.x.iter_mut().for_each(|v| *v *= s);
+        self.gain *= s;
+        self.peak *= s;
+        self.gain_sd *= s;
+        self.background.iter_mut().for_each(|v| *v *= s);
+        self.background_sd.iter_mut().for_each(|v| *v *= s);
+        self.lambda *= s;
+        self.misfit *= s * s;
+        self.misfit_floor *= s * s;
+        self.residual_sd *= s;
+    }
+}
+
+/// The root mean square of every finite value of `channels`; 1 when there
+/// is none, or it is 0.
+fn rms(channels: &[Vec<f64>]) -> f64 {
+    let (sum, n) = channels
+        .iter()
+        .flatten()
+        .filter(|v| v.is_finite())
+        .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
+    let r = (sum / n.max(1) as f64).sqrt();
+    match r.is_finite() && r > 0.0 {
+        true => r,
+        false => 1.0,
+    }
+}
+
+/// `x / gain` clipped to [0, 1] (all 0 for a gain that is not positive).
+fn scaled(x: &[f64], gain: f64) -> Vec<f64> {
+    x.iter()
+        .map(|v| match gain > 0.0 {
+            true => (v / gain).clamp(0.0, 1.0),
+            false => 0.0,
+        })
+        .collect()
+}
+
+/// How far above what noise alone explains a channel's fit must reach to
+/// count as signal ([`PhotoChannel::informative`]).
+const SIGNAL_MARGIN: f64 = 2.0;
 
 /// Replicas of the parametric bootstrap behind the reported uncertainties.
 const BOOTSTRAP_REPLICAS: u64 = 4;
@@ -500,7 +617,7 @@ impl PhotoModel {
             )?;
             iterations += r.stats.iterations;
             gain_sq += (percentile(&r.image, GAIN_PERCENTILE) - gain).powi(2);
-            let b = backgrounds(t, &i, &r.image);
+            let b = self.backgrounds(t, &i, &r.image);
             for (sq, (b, b_fit)) in background_sq.iter_mut().zip(b.iter().zip(background)) {
                 *sq += (b - b_fit).powi(2);
             }
@@ -521,6 +638,10 @@ pub struct PhotoResult {
     pub data_term: DataTerm,
     /// Each channel's fit, in the measurement's channel order.
     pub channels: Vec<PhotoChannel>,
+    /// How the channels' gains were set ([`balance`]).
+    pub gain_rule: String,
+    /// Rows of `T` that were not measured (NaN in the measurement), left out.
+    pub unmeasured_rows: usize,
     /// Against the truth, when one was given.
     pub metrics: Option<PhotoMetrics>,
     /// How the photo fits as given and flipped (a photo in the wrong row or
@@ -534,19 +655,91 @@ pub struct PhotoResult {
     pub solve_seconds: f64,
 }
 
+/// A photo's reconstruction as `report.json` holds it, the same from
+/// `polnlos reconstruct --photo` and the daemon: the scene, the radiometry
+/// and why, what `T` cost, and the fit.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PhotoReport {
+    /// Scene name.
+    pub scene: String,
+    /// Fitted, and why.
+    pub radiometry: super::radiometry::RadiometryChoice,
+    /// Seconds to build (or read) `T`.
+    pub transport_seconds: f64,
+    /// Where `T` came from: `hit` (the cache), `stored` or `built` (the
+    /// CLI's cache; absent in the daemon, which keeps `T` per scene).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transport_cache: Option<&'static str>,
+    /// Seconds in all.
+    pub total_seconds: f64,
+    /// The fit.
+    #[serde(flatten)]
+    pub result: PhotoResult,
+}
+
 /// Reconstructs every channel of a photo taken through `t` with one data
 /// term, one Gram and one penalty; `truth` (channel by channel on the scene
 /// grid) adds the metrics.
+///
+/// A row that is not finite in any channel was not measured (a saturated
+/// element, or NaN in a file): it is left out of every channel's data term.
+/// Every channel is scaled by one gain ([`balance`]).
 pub fn reconstruct_photo(
     t: &Transport,
     channels: &[Vec<f64>],
     truth: Option<&[Vec<f64>]>,
     settings: &PhotoSettings<'_>,
 ) -> Result<PhotoResult, SolveError> {
-    let model = PhotoModel::new(t, settings.data_term);
+    for c in channels {
+        if c.len() != t.rows() {
+            return Err(SolveError::Length {
+                expected: t.rows(),
+                got: c.len(),
+            });
+        }
+    }
+    let missing: Vec<usize> = (0..t.rows())
+        .filter(|&j| channels.iter().any(|c| !c[j].is_finite()))
+        .collect();
+    let cleaned: Vec<Vec<f64>>;
+    let channels = match missing.is_empty() {
+        true => channels,
+        false => {
+            cleaned = channels
+                .iter()
+                .map(|c| {
+                    c.iter()
+                        .map(|v| if v.is_finite() { *v } else { 0.0 })
+                        .collect()
+                })
+                .collect();
+            &cleaned[..]
+        }
+    };
+    // The fit in units of the photo's own RMS value: ADMM's absolute
+    // tolerance then means the same whatever the photo's units (a camera's
+    // fractions of full scale per µs, DN, an imported file's), so one photo
+    // in other units gives the same image; every number is given back in
+    // the photo's units.
+    let unit = rms(channels);
+    let channels: Vec<Vec<f64>> = channels
+        .iter()
+        .map(|c| c.iter().map(|v| v / unit).collect())
+        .collect();
+    let settings = &PhotoSettings {
+        lambda: settings.lambda.map(|l| l / unit),
+        ..*settings
+    };
+    let model = PhotoModel::with_missing(t, settings.data_term, &missing);
     let start = Instant::now();
-    let orientation = model.orientation(t, channels, settings)?;
-    let mut warnings = Vec::new();
+    let mut orientation = model.orientation(t, &channels, settings)?;
+    orientation
+        .misfit
+        .iter_mut()
+        .for_each(|m| *m *= unit * unit);
+    let mut warnings: Vec<String> = super::unmeasured_warning(&missing, t.rows())
+        .into_iter()
+        .collect();
     if orientation.best != Flip::AsGiven {
         warnings.push(format!(
             "the photo fits T better {} (misfit {:.3} of the one as given): check its row order and the scene's wall u_axis and normal (docs/realphoto.md, \"Orientation\")",
@@ -554,10 +747,12 @@ pub fn reconstruct_photo(
             orientation.misfit[orientation.best as usize] / orientation.misfit[0]
         ));
     }
-    let fits = channels
+    let mut fits = channels
         .par_iter()
         .map(|i| model.channel(t, i, settings))
         .collect::<Result<Vec<_>, _>>()?;
+    fits.iter_mut().for_each(|f| f.rescale(unit));
+    let gain_rule = balance(&mut fits, &mut warnings);
     let solve_seconds = start.elapsed().as_secs_f64();
     let metrics = truth.map(|truth| {
         let images: Vec<Vec<f64>> = fits.iter().map(|c| c.image.clone()).collect();
@@ -566,6 +761,8 @@ pub fn reconstruct_photo(
     Ok(PhotoResult {
         data_term: settings.data_term,
         channels: fits,
+        gain_rule,
+        unmeasured_rows: missing.len(),
         metrics,
         orientation,
         warnings,
@@ -574,9 +771,60 @@ pub fn reconstruct_photo(
     })
 }
 
+/// Sets each channel's gain: an informative channel's own
+/// [`PhotoChannel::peak`] (its brightest resolved element is white), a
+/// channel noise alone could explain the brightest informative channel's
+/// (so it comes back as the little it is, not stretched to full scale), and
+/// flags the latter. Returns the rule in words.
+///
+/// Why: a channel's gain and its scene's colour are one unknown
+/// (`g_c l_c`), so a photo's colour balance can only be assumed; the data
+/// tell a channel's gain only where the channel carries a signal, and a
+/// signal-free channel stretched to its own peak turns black into white.
+pub fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String {
+    let informative = fits.iter().any(|c| c.informative);
+    let (who, gain, gain_sd) = fits
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.informative || !informative)
+        .map(|(k, c)| (k, c.peak, c.gain_sd))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((0, 0.0, 0.0));
+    let many = fits.len() > 1;
+    let mut flagged = Vec::new();
+    for (k, c) in fits.iter_mut().enumerate() {
+        if c.informative {
+            continue;
+        }
+        flagged.push(k);
+        if many {
+            c.gain = gain;
+            c.gain_sd = gain_sd;
+            c.image = scaled(&c.x, gain);
+        }
+        warnings.push(format!(
+            "channel {k}: its fit explains {:.2} % of its data, no more than noise alone could ({:.2} %): it carries no signal polnlos can tell from noise{}",
+            100.0 * c.explained,
+            100.0 * c.noise_explains,
+            match (many, informative) {
+                (true, true) => format!("; it is shown at channel {who}'s gain, not stretched to its own peak"),
+                (true, false) => format!("; every channel is shown at channel {who}'s gain"),
+                (false, _) => String::new(),
+            }
+        ));
+    }
+    match (many, flagged.is_empty()) {
+        (false, _) => "the 99th percentile of x".to_string(),
+        (true, true) => "each channel's own 99th percentile of x: every channel carries a signal, and its brightest resolved element is taken as white (white-patch balance; a calibrated gain per channel replaces it)".to_string(),
+        (true, false) => format!(
+            "each informative channel's own 99th percentile of x (white-patch balance); channel(s) {flagged:?}, which carry no signal, at channel {who}'s"
+        ),
+    }
+}
+
 /// The channels of a measurement array: `[rows]` is one channel, `[rows, C]`
 /// (C from 1 to 4, interleaved as NumPy stores it) is C channels that share
-/// one `T` (a colour photo's R, G, B).
+/// one `T` (a colour photo's R, G, B); NaN marks a row that was not measured.
 pub fn split_channels(shape: &[usize], data: &[f64], rows: usize) -> Result<Vec<Vec<f64>>, String> {
     let c = match shape {
         [n] if *n == rows => 1,
@@ -594,8 +842,10 @@ pub fn split_channels(shape: &[usize], data: &[f64], rows: usize) -> Result<Vec<
             rows * c
         ));
     }
-    if let Some(v) = data.iter().find(|v| !v.is_finite()) {
-        return Err(format!("holds the non-finite value {v}"));
+    if let Some(v) = data.iter().find(|v| v.is_infinite()) {
+        return Err(format!(
+            "holds the infinite value {v} (NaN marks a row that was not measured)"
+        ));
     }
     Ok((0..c)
         .map(|ch| data.iter().skip(ch).step_by(c).copied().collect())
@@ -677,7 +927,7 @@ pub fn least_squares_misfit(
     }
     let k = match data_term {
         DataTerm::Differences => differences(t),
-        DataTerm::Values => centred_columns(t),
+        DataTerm::Values => centred_columns(t, &vec![false; t.rows()]),
     };
     let mut g = super::gram::gram_lower(k.as_mat(), super::par());
     let ridge = LEAST_SQUARES_RIDGE * super::gram::mean_diag(&g).max(f64::MIN_POSITIVE);
@@ -749,24 +999,91 @@ fn difference_rows(t: &Transport) -> usize {
     t.blocks().len() * (g.nu.saturating_sub(1) * g.nv + g.nu * g.nv.saturating_sub(1))
 }
 
+/// The rows of the data term's matrix that touch a `gone` row of `T`: for
+/// differences, `(D i)_r` with either of its two rows gone; for raw values,
+/// the row itself.
+fn dropped_rows(t: &Transport, data_term: DataTerm, gone: &[bool]) -> Vec<usize> {
+    if !gone.iter().any(|g| *g) {
+        return Vec::new();
+    }
+    match data_term {
+        DataTerm::Values => (0..gone.len()).filter(|&j| gone[j]).collect(),
+        DataTerm::Differences => {
+            let g = t.wall_grid();
+            let nw = g.count();
+            let mut out = Vec::new();
+            for b in 0..t.blocks().len() {
+                let base = b * nw;
+                for iv in 0..g.nv {
+                    for iu in 0..g.nu {
+                        let j = g.index(iu, iv);
+                        let here = gone[base + j];
+                        if iu + 1 < g.nu && (here || gone[base + j + 1]) {
+                            out.push(2 * base + j);
+                        }
+                        if iv + 1 < g.nv && (here || gone[base + j + g.nu]) {
+                            out.push(2 * base + nw + j);
+                        }
+                    }
+                }
+            }
+            out.sort_unstable();
+            out
+        }
+    }
+}
+
+/// Whether row `r` of the data term's matrix carries data when every row
+/// of `T` is measured (the Neumann edge differences do not).
+fn carries_data(t: &Transport, data_term: DataTerm, r: usize) -> bool {
+    match data_term {
+        DataTerm::Values => true,
+        DataTerm::Differences => {
+            let g = t.wall_grid();
+            let nw = g.count();
+            let within = r % (2 * nw);
+            let (j, along_v) = match within < nw {
+                true => (within, false),
+                false => (within - nw, true),
+            };
+            let (iu, iv) = (j % g.nu, j / g.nu);
+            match along_v {
+                false => iu + 1 < g.nu,
+                true => iv + 1 < g.nv,
+            }
+        }
+    }
+}
+
 /// `i` less each block's mean: with the same done to `T`'s columns
 /// ([`centred_columns`]) the background drops out of a raw-value fit exactly
 /// (its least-squares value is the block's mean residual).
 fn centred(t: &Transport, i: &[f64]) -> Vec<f64> {
+    centred_masked(t, i, &vec![false; i.len()])
+}
+
+/// [`centred`] over the rows not `gone` (each block's mean of those), the
+/// `gone` rows 0.
+fn centred_masked(t: &Transport, i: &[f64], gone: &[bool]) -> Vec<f64> {
     let nw = t.wall_grid().count();
     i.chunks(nw)
-        .flat_map(|b| {
-            let m = b.iter().sum::<f64>() / b.len() as f64;
-            b.iter().map(move |v| v - m)
+        .zip(gone.chunks(nw))
+        .flat_map(|(b, g)| {
+            let kept = g.iter().filter(|g| !**g).count().max(1);
+            let sum: f64 = b.iter().zip(g).filter(|(_, g)| !**g).map(|(v, _)| v).sum();
+            let m = sum / kept as f64;
+            b.iter()
+                .zip(g)
+                .map(move |(v, g)| if *g { 0.0 } else { v - m })
         })
         .collect()
 }
 
-/// `T` with each column's mean over each block taken out.
-fn centred_columns(t: &Transport) -> Transport {
+/// `T` with each column's mean over each block's rows not `gone` taken out.
+fn centred_columns(t: &Transport, gone: &[bool]) -> Transport {
     let mut data = Vec::with_capacity(t.rows() * t.cols());
     for k in 0..t.cols() {
-        data.extend(centred(t, t.col(k)));
+        data.extend(centred_masked(t, t.col(k), gone));
     }
     Transport::from_col_major(
         t.rows(),
@@ -776,15 +1093,6 @@ fn centred_columns(t: &Transport) -> Transport {
         t.wall_grid(),
         t.scene_grid(),
     )
-}
-
-/// Each block's background `mean(i - T x)`.
-fn backgrounds(t: &Transport, i: &[f64], x: &[f64]) -> Vec<f64> {
-    let nw = t.wall_grid().count();
-    let r: Vec<f64> = t.apply(x).iter().zip(i).map(|(p, m)| m - p).collect();
-    r.chunks(nw)
-        .map(|b| b.iter().sum::<f64>() / b.len() as f64)
-        .collect()
 }
 
 /// The `p` quantile of `x` (nearest rank); 0 for an empty `x`.
@@ -863,9 +1171,11 @@ mod tests {
         assert_eq!(rgb, vec![vec![1.0, 4.0], vec![2.0, 5.0], vec![3.0, 6.0]]);
         assert!(split_channels(&[2, 5], &[0.0; 10], 2).is_err());
         assert!(split_channels(&[4], &[0.0; 4], 3).is_err());
-        assert!(split_channels(&[2], &[0.0, f64::NAN], 2)
+        // NaN is a row not measured; an infinity is refused.
+        assert!(split_channels(&[2], &[0.0, f64::NAN], 2).unwrap()[0][1].is_nan());
+        assert!(split_channels(&[2], &[0.0, f64::INFINITY], 2)
             .unwrap_err()
-            .contains("NaN"));
+            .contains("infinite"));
     }
 
     #[test]
@@ -979,9 +1289,115 @@ mod tests {
             .is_err());
     }
 
+    #[test]
+    fn an_unmeasured_row_leaves_every_difference_that_touches_it_out() {
+        // A 4x3 wall, a 2x2 scene; one element of the second block lost.
+        let (wall, scene) = (Grid { nu: 4, nv: 3 }, Grid { nu: 2, nv: 2 });
+        let t = transport(wall, scene, 2, |j, k| 1.0 + ((j * 7 + k * 3) % 5) as f64);
+        let l = [0.5, 1.0, 0.2, 0.8];
+        let clean: Vec<f64> = t.apply(&l).iter().map(|v| 3.0 * v + 2.0).collect();
+        let lost = 12 + wall.index(1, 1);
+        let mut spoilt = clean.clone();
+        spoilt[lost] = 1e6;
+        let model = PhotoModel::with_missing(&t, DataTerm::Differences, &[lost]);
+        // Its u-difference, its left neighbour's, its v-difference and the
+        // one below it: four rows of D T that carried data.
+        assert_eq!(model.dropped.len(), 4, "{:?}", model.dropped);
+        assert_eq!(model.rows, difference_rows(&t) - 4);
+        assert_eq!(model.data(&t, &spoilt), model.data(&t, &clean));
+        // The spoilt value changes no background either.
+        let x: Vec<f64> = l.iter().map(|v| 3.0 * v).collect();
+        let b = model.backgrounds(&t, &spoilt, &x);
+        assert!(b.iter().all(|b| (b - 2.0).abs() < 1e-9), "{b:?}");
+        // Through the whole reconstruction: NaN marks it, and the fit is
+        // the one without it.
+        let mut marked = clean.clone();
+        marked[lost] = f64::NAN;
+        let settings = PhotoSettings {
+            lambda: Some(0.0),
+            iterations: 3000,
+            ..Default::default()
+        };
+        let r = reconstruct_photo(&t, &[marked], None, &settings).unwrap();
+        assert_eq!(r.unmeasured_rows, 1);
+        assert!(
+            r.warnings[0].contains("1 of 24 wall elements"),
+            "{:?}",
+            r.warnings
+        );
+        assert!(
+            (r.channels[0].background[1] - 2.0).abs() < 0.05,
+            "{:?}",
+            r.channels[0]
+        );
+    }
+
+    #[test]
+    fn a_photo_in_other_units_gives_the_same_image_and_its_numbers_in_those_units() {
+        let (wall, scene) = (Grid { nu: 10, nv: 10 }, Grid { nu: 4, nv: 4 });
+        let t = bumps(wall, scene, 3.0, 0.1);
+        let l: Vec<f64> = (0..16)
+            .map(|k| if k % 5 == 0 { 1.0 } else { 0.2 })
+            .collect();
+        let i: Vec<f64> = t
+            .apply(&l)
+            .iter()
+            .enumerate()
+            .map(|(j, v)| 7.0 * v + 3.0 + 0.01 * ((j * 7919 % 13) as f64 - 6.0))
+            .collect();
+        let small: Vec<f64> = i.iter().map(|v| v * 2.5e-6).collect();
+        let settings = PhotoSettings::default();
+        let a = reconstruct_photo(&t, &[i], None, &settings).unwrap();
+        let b = reconstruct_photo(&t, &[small], None, &settings).unwrap();
+        let (a, b) = (&a.channels[0], &b.channels[0]);
+        let diff = a
+            .image
+            .iter()
+            .zip(&b.image)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        assert!(diff < 1e-9, "{diff:e}");
+        assert!((b.gain / a.gain / 2.5e-6 - 1.0).abs() < 1e-9);
+        assert!((b.lambda / a.lambda / 2.5e-6 - 1.0).abs() < 1e-9);
+        assert!((b.background[0] / a.background[0] / 2.5e-6 - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_channel_noise_could_explain_is_not_stretched_to_full_scale() {
+        // Red carries the scene; blue is noise about a background.
+        let (wall, scene) = (Grid { nu: 12, nv: 12 }, Grid { nu: 3, nv: 3 });
+        let t = bumps(wall, scene, 5.0, 0.05);
+        let l = [0.2, 1.0, 0.0, 0.5, 0.7, 0.1, 0.0, 0.3, 0.9];
+        let noise = |j: usize| 0.05 * (((j * 7919) % 101) as f64 / 50.0 - 1.0);
+        let red: Vec<f64> = t
+            .apply(&l)
+            .iter()
+            .enumerate()
+            .map(|(j, v)| 40.0 * v + 7.0 + noise(j))
+            .collect();
+        let blue: Vec<f64> = (0..t.rows()).map(|j| 3.0 + noise(j + 17)).collect();
+        let r = reconstruct_photo(&t, &[red, blue], None, &PhotoSettings::default()).unwrap();
+        let (red, blue) = (&r.channels[0], &r.channels[1]);
+        assert!(red.informative && !blue.informative, "{red:?} {blue:?}");
+        assert_eq!(blue.gain, red.gain);
+        let peak = |c: &PhotoChannel| c.image.iter().copied().fold(0.0, f64::max);
+        assert!(
+            peak(red) > 0.9 && peak(blue) < 0.1,
+            "{} {}",
+            peak(red),
+            peak(blue)
+        );
+        assert!(
+            r.warnings.iter().any(|w| w.starts_with("channel 1:")),
+            "{:?}",
+            r.warnings
+        );
+        assert!(r.gain_rule.contains("[1]"), "{}", r.gain_rule);
+    }
+
     proptest::proptest! {
         /// Any shape and values: split or refused, never a panic, and what
-        /// is accepted is one finite value per row and channel.
+        /// is accepted is one value per row and channel, finite or NaN (not measured).
         #[test]
         fn any_measurement_array_is_split_or_refused(
             shape in proptest::collection::vec(0usize..40, 0..4),
@@ -990,7 +1406,7 @@ mod tests {
         ) {
             if let Ok(ch) = split_channels(&shape, &data, rows) {
                 proptest::prop_assert!((1..=4).contains(&ch.len()));
-                proptest::prop_assert!(ch.iter().all(|c| c.len() == rows && c.iter().all(|v| v.is_finite())));
+                proptest::prop_assert!(ch.iter().all(|c| c.len() == rows && c.iter().all(|v| !v.is_infinite())));
                 proptest::prop_assert_eq!(ch.len() * rows, data.len());
             }
         }

@@ -77,6 +77,11 @@ pub struct Report {
     /// measurement was given in units of `T l`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gain: Option<Gain>,
+    /// Calibrated (this report) or fitted, whether the request named it,
+    /// and why; absent where no choice was made (`polnlos reconstruct`
+    /// reads a measurement in units of `T l`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radiometry: Option<super::radiometry::RadiometryChoice>,
     /// Something is wrong with this result: the model does not explain the
     /// measurement, pixels saturated, frames lost, the solver stopped short.
     pub warnings: Vec<String>,
@@ -176,6 +181,7 @@ impl Report {
             model_check: None,
             model: None,
             gain: None,
+            radiometry: None,
             warnings,
             notes: conditioning_notes(cond),
             colours: Vec::new(),

@@ -23,6 +23,40 @@ impl Store {
         })
     }
 
+    /// Records an imported capture (state `running` while its files are
+    /// written; [`Store::import_done`] ends it): no camera settings, one
+    /// frame, its provenance in `import`. Returns its id.
+    pub fn insert_import(
+        &self,
+        scene: &str,
+        pose: &str,
+        channels: &[crate::scene::Channel],
+        import: &records::ImportInfo,
+    ) -> Result<i64, StoreError> {
+        let settings = SettingsDocument::none();
+        // A struct of names and numbers always serializes.
+        let import = serde_json::to_string(import).unwrap_or_default();
+        self.with(|c| {
+            c.execute(
+                "INSERT INTO captures (id, scene, pose, channels, settings, frames, dark_frames, state, created_at, started_at, kind, import)
+                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, 1, 0, 'running', ?5, ?5, 'light', ?6)",
+                params![scene, pose, records::channels_document(channels), settings, now(), import],
+            )?;
+            Ok(c.last_insert_rowid())
+        })
+    }
+
+    /// Marks an imported capture done; call only after its files are durable.
+    pub fn import_done(&self, id: i64) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE captures SET state = 'done', finished_at = ?2, frames_taken = 1, error = NULL WHERE id = ?1 AND state = 'running'",
+                params![id, now()],
+            )
+            .map(|_| ())
+        })
+    }
+
     /// Marks a capture running.
     /// Returns false (and changes nothing) when it is no longer queued: a
     /// client cancelled it meanwhile.

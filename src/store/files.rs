@@ -55,6 +55,18 @@ impl CaptureFiles {
     /// 32-bit float, 1 where a pixel was at full scale in any frame, else 0;
     /// written only when one was.
     pub const SATURATED: &'static str = "saturated.tiff";
+    /// An imported capture's measurement: its pose's blocks in the scene's
+    /// row order, `[n]` or `[n, C]`, NaN where not measured.
+    pub const MEASUREMENT: &'static str = "measurement.npy";
+    /// An imported capture's file as it was received, `source.` and its format.
+    pub const SOURCE: &'static str = "source";
+}
+
+/// Reads an imported capture's measurement ([`CaptureFiles::MEASUREMENT`]).
+pub fn read_imported(dir: &Path) -> Result<crate::files::npy::Array, StoreError> {
+    Ok(crate::files::npy::read(
+        &dir.join(CaptureFiles::MEASUREMENT),
+    )?)
 }
 
 /// Removes the raw frame files (`frames.tiff`, `dark.tiff`) of a capture
@@ -252,12 +264,23 @@ pub fn write_summary(
         write_float_tiff(&dir.join(CaptureFiles::SATURATED), &mask, &desc)?;
     }
     let values: Vec<f64> = mean.pixels.iter().map(|&v| f64::from(v)).collect();
-    image::write_png16(
-        &dir.join(CaptureFiles::PREVIEW),
-        mean.width,
-        mean.height,
-        &image::normalized_u16(&values),
-    )?;
+    let grey = image::normalized_u16(&values);
+    let preview = dir.join(CaptureFiles::PREVIEW);
+    match meta.acquisition.pixel_format.bayer() {
+        // A colour camera's mean in colour: one RGB pixel per 2x2 cell, as
+        // the live view shows it, on one stretch for every colour.
+        Some(pattern) => {
+            let region = meta.acquisition.region;
+            let (w, h, rgb) = crate::measure::colour::cells_rgb(
+                &grey,
+                (mean.width, mean.height),
+                pattern,
+                [region[0], region[1]],
+            );
+            image::write_png_rgb16(&preview, w, h, &rgb)?
+        }
+        None => image::write_png16(&preview, mean.width, mean.height, &grey)?,
+    }
     Ok(mean)
 }
 

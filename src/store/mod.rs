@@ -20,13 +20,13 @@ use std::sync::Mutex;
 use rusqlite::{params, Connection};
 
 pub use files::{
-    capture_bytes, read_mean, read_mean_in_range, read_mean_variance, remove_raw, write_frames,
-    write_summary, CaptureFiles, FrameMeta, TMP_MARK,
+    capture_bytes, read_imported, read_mean, read_mean_in_range, read_mean_variance, remove_raw,
+    write_frames, write_summary, CaptureFiles, FrameMeta, TMP_MARK,
 };
 pub use lock::{remove_orphans, DirLock, LOCK_FILE};
 pub use plans::{PlanCapture, PlanInterim, PlanRow, PlanState};
 pub use records::{
-    CaptureKind, CaptureRecord, CaptureRequest, JobState, ReconstructionParams,
+    CaptureKind, CaptureRecord, CaptureRequest, ImportInfo, JobState, ReconstructionParams,
     ReconstructionRecord, ReconstructionRequest,
 };
 pub use retention::{dir_bytes, Retention};

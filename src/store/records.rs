@@ -231,6 +231,34 @@ pub struct CaptureRecord {
     /// most in one frame); null for captures not done, and for those made
     /// before it was recorded.
     pub clipping: Option<crate::measure::Clipping>,
+    /// Where an imported capture came from (`POST /captures/import`): a
+    /// measurement or photo taken elsewhere; null for the camera's own.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub import: Option<ImportInfo>,
+}
+
+/// The provenance of an imported capture: what was sent, and what polnlos
+/// made of it.
+///
+/// Why: an imported photo has no camera, exposure or dark frames; its
+/// reconstruction fits its gain and background, and a lab's notes must be
+/// able to tell which file it was.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ImportInfo {
+    /// The file's format: `npy` (a measurement in polnlos's row order),
+    /// `tiff` or `png` (an image sampled through the pose's homography).
+    pub format: String,
+    /// The file's name as the client gave it (`?name=`), if it did.
+    pub name: Option<String>,
+    /// Bytes received.
+    pub bytes: u64,
+    /// SHA-256 of the bytes received, hex.
+    pub sha256: String,
+    /// Colour channels of the stored measurement (1 grey, 3 red, green, blue).
+    pub colours: usize,
+    /// The Bayer pattern of a raw colour frame (`RG`, `GR`, `GB`, `BG`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bayer: Option<String>,
 }
 
 pub(super) const CAPTURE_SELECT: &str = "SELECT * FROM captures";
@@ -262,6 +290,15 @@ impl SettingsDocument {
             settings: (*a).into(),
         };
         // A struct of numbers, names and arrays always serializes.
+        serde_json::to_string(&doc).unwrap_or_default()
+    }
+
+    /// The document of a capture no camera took (an import): every setting null.
+    pub fn none() -> String {
+        let doc = SettingsDocument {
+            version: Self::VERSION,
+            settings: CameraSettings::default(),
+        };
         serde_json::to_string(&doc).unwrap_or_default()
     }
 }
@@ -327,6 +364,7 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         frame_counts: json_column(r, "frame_counts")?,
         polarizer_measured_deg: r.get("polarizer_measured_deg")?,
         clipping: json_column(r, "clipping")?,
+        import: json_column(r, "import")?,
     })
 }
 
@@ -368,6 +406,11 @@ impl CaptureRecord {
     pub fn is_light(&self) -> bool {
         self.kind == CaptureKind::Light
     }
+
+    /// Whether it was imported (`POST /captures/import`), not taken.
+    pub fn is_imported(&self) -> bool {
+        self.import.is_some()
+    }
 }
 
 /// A validated reconstruction request.
@@ -404,6 +447,9 @@ pub struct ReconstructionParams {
     /// left out (an interim result while a plan captures).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub partial: bool,
+    /// The radiometry asked for (absent: chosen from what the daemon knows).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radiometry: Option<crate::solve::radiometry::Radiometry>,
 }
 
 impl Default for ReconstructionParams {
@@ -427,6 +473,7 @@ impl ReconstructionParams {
             solve,
             truth,
             partial: false,
+            radiometry: None,
         }
     }
 }

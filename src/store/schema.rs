@@ -76,7 +76,7 @@ END;
 
 /// Columns added to `captures` after the first release: (column, the
 /// statement that adds it).
-const ADDED_CAPTURE_COLUMNS: [(&str, &str); 5] = [
+const ADDED_CAPTURE_COLUMNS: [(&str, &str); 6] = [
     (
         "kind",
         "ALTER TABLE captures ADD COLUMN kind TEXT NOT NULL DEFAULT 'light'",
@@ -94,6 +94,7 @@ const ADDED_CAPTURE_COLUMNS: [(&str, &str); 5] = [
         "ALTER TABLE captures ADD COLUMN polarizer_measured_deg REAL",
     ),
     ("clipping", "ALTER TABLE captures ADD COLUMN clipping TEXT"),
+    ("import", "ALTER TABLE captures ADD COLUMN import TEXT"),
 ];
 
 /// Catalogues from before the settings document kept a capture's camera

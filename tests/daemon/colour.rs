@@ -115,4 +115,56 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     assert_eq!(s, 200);
     let header = String::from_utf8_lossy(&npy[..128.min(npy.len())]).into_owned();
     assert!(header.contains("'shape': (8, 8, 3,"), "{header}");
+    // The capture's preview is in colour too: one RGB pixel per 2x2 cell.
+    let capture = &r["captures"][0];
+    let (s, png) = d.get_bytes(&format!("/captures/{capture}/preview.png"));
+    assert_eq!(s, 200);
+    assert_eq!((size(&png, 16), size(&png, 20)), (256, 256));
+    assert_eq!(
+        (png[24], png[25]),
+        (16, 2),
+        "a colour capture's preview is RGB"
+    );
+    // Notes that differ between the colours say whose they are.
+    let notes = r["report"]["notes"].as_array().unwrap();
+    for n in notes
+        .iter()
+        .filter(|n| n.as_str().unwrap().contains("kappa"))
+    {
+        let n = n.as_str().unwrap();
+        let shared = colours.iter().all(|c| {
+            c["notes"].is_null() || c["notes"].as_array().is_some_and(|a| a.contains(&n.into()))
+        });
+        assert!(
+            shared || n.starts_with("red: ") || n.starts_with("green: ") || n.starts_with("blue: "),
+            "{n}"
+        );
+    }
+    // Uncalibrated, the same capture is fitted: the report says so, and a
+    // white letter stays white (each colour's brightest element is white).
+    let f = d.run_job(
+        "/reconstructions",
+        &format!(
+            r#"{{"scene": "brewster-crossed", "captures": [{capture}], "truth": "letter", "radiometry": "fitted"}}"#
+        ),
+        Duration::from_secs(240),
+    );
+    assert_eq!(f["state"], "done", "{f}");
+    assert_eq!(f["report"]["radiometry"]["mode"], "fitted");
+    let channels = f["report"]["channels"].as_array().unwrap();
+    assert_eq!(channels.len(), 3);
+    assert!(channels.iter().all(|c| c["informative"] == true), "{f}");
+    let (s, npy) = d.get_bytes(&format!("/reconstructions/{}/recovered.npy", f["id"]));
+    assert_eq!(s, 200);
+    let rec = polnlos::files::npy::decode(&npy).unwrap();
+    // Each colour's mean over the elements green sees lit (the letter).
+    let lit: Vec<usize> = (0..rec.data.len() / 3)
+        .filter(|&k| rec.data[3 * k + 1] > 0.5)
+        .collect();
+    assert!(!lit.is_empty(), "no element lit in green");
+    let mean = |c: usize| lit.iter().map(|&k| rec.data[3 * k + c]).sum::<f64>() / lit.len() as f64;
+    let (r0, g0, b0) = (mean(0), mean(1), mean(2));
+    for p in [r0, b0] {
+        assert!((p - g0).abs() <= 0.1 * g0, "lit means r {r0} g {g0} b {b0}");
+    }
 }

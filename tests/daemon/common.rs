@@ -205,6 +205,28 @@ impl Client {
         )
     }
 
+    /// POSTs `body` as `application/octet-stream` (a file upload).
+    pub fn post_bytes(&self, path: &str, body: &[u8]) -> (u16, String, Option<String>) {
+        let mut req = self
+            .agent
+            .post(format!("{}{path}", self.base))
+            .header("content-type", "application/octet-stream");
+        if let Some(t) = &self.token {
+            req = req.header("authorization", format!("Bearer {t}"));
+        }
+        let mut r = req.send(body).unwrap();
+        let loc = r
+            .headers()
+            .get("location")
+            .and_then(|v| v.to_str().ok())
+            .map(String::from);
+        (
+            r.status().as_u16(),
+            r.body_mut().read_to_string().unwrap_or_default(),
+            loc,
+        )
+    }
+
     pub fn put(&self, path: &str, body: &str) -> (u16, String) {
         let mut req = self
             .agent

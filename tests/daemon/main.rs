@@ -14,6 +14,7 @@ mod colour;
 mod faults;
 mod fuzz;
 mod hostile;
+mod import;
 mod in_process;
 mod mosaic;
 mod mount;

@@ -12,6 +12,45 @@ pub async fn post_capture(
     Ok(accepted("capture", id, CaptureAccepted::new(id, &req)))
 }
 
+/// Imports a measurement or a photo taken elsewhere as a done capture of
+/// one pose of a scene: a `.npy` of `[rows]` or `[rows, C]` in the scene's
+/// row order (the pose's blocks), or a 1- or 3-channel 8/16-bit TIFF or PNG
+/// sampled through the pose's homography (`bayer` for a raw colour frame).
+/// Its reconstruction fits the gain and background (`radiometry`).
+#[utoipa::path(post, path = "/captures/import", params(ImportQuery), request_body(content = Vec<u8>, content_type = "application/octet-stream", description = "The file itself: .npy, TIFF or PNG (told by its first bytes)"), responses((status = 201, body = CaptureRecord, description = "Stored; Location names the capture"), (status = 404, body = ErrorBody, description = "Unknown scene"), (status = 413, body = ErrorBody, description = "Over [queue] max_import_mib"), (status = 422, body = ErrorBody, description = "Unknown pose, a file that does not fit the pose's blocks, or not .npy, TIFF or PNG"), (status = 507, body = ErrorBody, description = "It would not fit on the disk")))]
+pub async fn import_capture(
+    State(d): St,
+    Query(q): Query<ImportQuery>,
+    body: Result<axum::body::Bytes, axum::extract::rejection::BytesRejection>,
+) -> Result<Response, ApiError> {
+    let bytes = body.map_err(|r| match r.status() {
+        StatusCode::PAYLOAD_TOO_LARGE => ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "body_too_large",
+            format!(
+                "the file is over the import limit of {} MiB ([queue] max_import_mib)",
+                d.config().queue.max_import_mib
+            ),
+        ),
+        s => ApiError::new(s, "bad_request", r.body_text()),
+    })?;
+    if bytes.is_empty() {
+        return Err(ApiError::invalid(
+            "the body is empty: send the file (.npy, TIFF or PNG) as the body",
+        ));
+    }
+    let record = tokio::task::spawn_blocking(move || d.import_capture(&q, &bytes))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))??;
+    let location = format!("/captures/{}", record.id);
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, location)],
+        Json(record),
+    )
+        .into_response())
+}
+
 /// Captures, newest first.
 #[utoipa::path(get, path = "/captures", params(Page), responses((status = 200, body = [CaptureRecord], headers(("polnlos-unreadable" = String, description = "Ids of this page's rows the catalogue could not read (left out of the array; the daemon's log says why)")))))]
 pub async fn list_captures(State(d): St, Query(p): Query<Page>) -> Result<Response, ApiError> {
@@ -104,6 +143,22 @@ pub async fn capture_dark(State(d): St, Path(id): Path<String>) -> Result<Respon
 #[utoipa::path(get, path = "/captures/{id}/variance.tiff", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, content_type = "image/tiff", description = "Variance of the mean"), (status = 404, body = ErrorBody, description = "No such capture, or it has fewer than 2 frames")))]
 pub async fn capture_variance(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
     capture_file(&d, &id, CaptureFiles::VARIANCE, "image/tiff").await
+}
+
+/// An imported capture's measurement, .npy (`[n]` or `[n, C]`, the pose's
+/// rows in the scene's row order, NaN where not measured).
+#[utoipa::path(get, path = "/captures/{id}/measurement.npy", params(("id" = String, Path, description = "The capture's id, a positive whole number")), responses((status = 200, content_type = "application/octet-stream", description = "The measurement"), (status = 404, body = ErrorBody, description = "No such capture, or it was not imported")))]
+pub async fn capture_measurement(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    capture_file(
+        &d,
+        &id,
+        CaptureFiles::MEASUREMENT,
+        "application/octet-stream",
+    )
+    .await
 }
 
 /// 16-bit PNG preview of the mean frame.

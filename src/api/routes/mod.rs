@@ -16,8 +16,8 @@ use tokio_stream::wrappers::BroadcastStream;
 use tokio_stream::StreamExt;
 
 use super::bodies::{
-    Accepted, CaptureAccepted, CaptureBody, ErrorBody, Health, Page, PlanBody, ReconstructionBody,
-    SettingsBody, TargetQuery,
+    Accepted, CaptureAccepted, CaptureBody, ErrorBody, Health, ImportQuery, Page, PlanBody,
+    ReconstructionBody, SettingsBody, TargetQuery,
 };
 use super::extract::{ApiJson, ApiPath as Path, ApiQuery as Query};
 use super::ApiError;

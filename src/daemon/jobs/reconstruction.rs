@@ -18,6 +18,8 @@ use crate::measure::{
 };
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
+use crate::solve::photo::{reconstruct_photo, PhotoReport, PhotoSettings};
+use crate::solve::radiometry::{Known, Radiometry, RadiometryChoice};
 use crate::solve::reconstruct::{reconstruct_prepared, Context};
 use crate::solve::{check_measurement, SolveRequest, Stop};
 use crate::store::{read_mean, CaptureRecord, JobState, Store};
@@ -93,6 +95,7 @@ fn check(cancel: &AtomicBool) -> Result<(), JobError> {
 /// cancellation is noticed between these stages and inside the solve (every
 /// [`Stop::EVERY`] iterations), and nothing is written after it.
 fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<(), JobError> {
+    let start = Instant::now();
     let store = |e: crate::store::StoreError| JobError::Store(d.store.describe(&e));
     let rec = d.store.reconstruction(id).map_err(store)?;
     let scene = d.scenes.scene(&rec.scene)?;
@@ -115,15 +118,31 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         Some(p) => Arc::new(t.select_blocks(&p.kept)),
         None => t,
     };
-    let stacked = stack_records(
-        &d.store,
-        records,
-        &scene,
-        t.blocks(),
-        &d.scenes.pixel_maps(&rec.scene),
-        true,
-        true,
-    )?;
+    let imported = records
+        .iter()
+        .find(|r| r.is_imported())
+        .map(|r| format!("capture {}", r.id));
+    let calibration = d.calibration.get(&rec.scene).copied();
+    let radiometry = RadiometryChoice::choose(
+        rec.params.radiometry,
+        Known {
+            imported: imported.as_deref(),
+            gain: calibration,
+            scene: &rec.scene,
+        },
+    );
+    let stacked = match imported {
+        Some(_) => stack_imports(&d.store, &records, t.blocks(), t.wall_grid().count())?,
+        None => stack_records(
+            &d.store,
+            records,
+            &scene,
+            t.blocks(),
+            &d.scenes.pixel_maps(&rec.scene),
+            true,
+            true,
+        )?,
+    };
     let job = Job {
         d,
         rec: &rec,
@@ -131,7 +150,16 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         part: part.as_ref(),
         transport_seconds,
         cancel,
+        // An imported measurement is in units of T l when it is not fitted.
+        gain: if stacked.imported {
+            Some(1.0)
+        } else {
+            calibration
+        },
     };
+    if radiometry.mode == Radiometry::Fitted {
+        return job.fitted(id, stacked, radiometry, start);
+    }
     let mut solved = stacked
         .measurements
         .into_iter()
@@ -145,7 +173,10 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         _ => colour_result(solved),
     };
     report.warnings.splice(0..0, stacked.warnings);
-    write_result(d, id, t.scene_grid(), &image, &measurement, &report)?;
+    report.radiometry = Some(radiometry);
+    let c = report.colours.len().max(1);
+    write_result(d, id, t.scene_grid(), c, &image, &measurement, &report)?;
+    log_summary(&report);
     let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
     d.store.reconstruction_done(id, kappa, &text).map_err(store)
 }
@@ -159,6 +190,8 @@ struct Job<'a> {
     part: Option<&'a Partial>,
     transport_seconds: f64,
     cancel: &'a AtomicBool,
+    /// The gain a calibrated solve divides by (`None`: estimated).
+    gain: Option<f64>,
 }
 
 /// One measurement solved: the image, the measurement in units of `T l`,
@@ -188,8 +221,7 @@ impl Job<'_> {
             true => self.t.clone(),
             false => Arc::new(self.t.with_rows_zeroed(&missing)),
         };
-        let calibration = d.calibration.get(&rec.scene).copied();
-        let units = to_model_units(&t, &mut measurement, calibration)?;
+        let units = to_model_units(&t, &mut measurement, self.gain)?;
         let mut notes: Vec<String> = units.note().into_iter().collect();
         if let Some(p) = self.part {
             notes.push(p.note());
@@ -273,11 +305,97 @@ impl Job<'_> {
     }
 }
 
+impl Job<'_> {
+    /// Reconstructs the stacked measurement with its gain and background
+    /// fitted (docs/realphoto.md), as `polnlos reconstruct --photo` does:
+    /// the same function, settings and `T`, so the same numbers. Writes the
+    /// files and marks the record done.
+    fn fitted(
+        &self,
+        id: i64,
+        stacked: Stacked,
+        radiometry: RadiometryChoice,
+        start: Instant,
+    ) -> Result<(), JobError> {
+        let (d, rec) = (self.d, self.rec);
+        check(self.cancel)?;
+        let channels: Vec<Vec<f64>> = stacked.measurements.into_iter().map(|m| m.i).collect();
+        let grid = self.t.scene_grid();
+        let truth = rec
+            .params
+            .truth
+            .as_deref()
+            .and_then(crate::simulate::patterns::Pattern::from_name)
+            .map(|p| vec![p.render(grid); channels.len()]);
+        let defaults = PhotoSettings::default();
+        let settings = PhotoSettings {
+            lambda: rec.params.solve.lambda,
+            iterations: rec.params.solve.max_iter.unwrap_or(defaults.iterations),
+            stop: Stop::on(self.cancel),
+            ..defaults
+        };
+        let mut result = reconstruct_photo(self.t, &channels, truth.as_deref(), &settings)?;
+        check(self.cancel)?;
+        result.warnings.splice(0..0, stacked.warnings);
+        if let Some(p) = self.part {
+            result.warnings.push(p.note());
+        }
+        // κ of T, from the scene's cache (formed once per scene).
+        let kappa = match self.part {
+            None => d.scenes.conditioning(&rec.scene)?.kappa,
+            Some(_) => crate::solve::condition(self.t)?.kappa,
+        };
+        let report = PhotoReport {
+            scene: rec.scene.clone(),
+            radiometry,
+            transport_seconds: self.transport_seconds,
+            transport_cache: None,
+            total_seconds: start.elapsed().as_secs_f64(),
+            result,
+        };
+        let r = &report.result;
+        let c = r.channels.len();
+        let interleave = |f: &dyn Fn(usize, usize) -> f64, n: usize| -> Vec<f64> {
+            (0..n)
+                .flat_map(|k| (0..c).map(move |ch| (k, ch)))
+                .map(|(k, ch)| f(k, ch))
+                .collect()
+        };
+        let image = interleave(&|k, ch| r.channels[ch].image[k], grid.count());
+        let x = interleave(&|k, ch| r.channels[ch].x[k], grid.count());
+        let measurement = interleave(&|j, ch| channels[ch][j], self.t.rows());
+        write_result(d, id, grid, c, &image, &measurement, &report)?;
+        let dir = d.store.reconstruction_dir(id);
+        let file =
+            |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
+        let mut shape = vec![grid.nv, grid.nu];
+        if c > 1 {
+            shape.push(c);
+        }
+        npy::write_f64(&dir.join("fitted.npy"), &shape, &x).map_err(file)?;
+        tracing::info!(
+            "fitted: {} channel(s), gain {:.4e}, lambda {}; {} warnings",
+            c,
+            r.channels.first().map_or(0.0, |ch| ch.gain),
+            r.channels
+                .iter()
+                .map(|ch| format!("{:.3e}", ch.lambda))
+                .collect::<Vec<_>>()
+                .join("/"),
+            r.warnings.len()
+        );
+        let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
+        d.store
+            .reconstruction_done(id, kappa, &text)
+            .map_err(|e| JobError::Store(d.store.describe(&e)))
+    }
+}
+
 /// The red, green and blue solutions of a colour camera's captures as one
 /// result: the images and measurements interleaved per element (`[.., 3]`),
 /// and green's report (the colour with the most pixels) carrying every
 /// colour's own fit in `colours`, their metrics combined, their warnings
-/// (named by colour where not all three have one) and their notes.
+/// and notes (each named by its colour where not all three have it).
 fn colour_result(solved: Vec<Solution>) -> (Vec<f64>, Vec<f64>, crate::solve::report::Report, f64) {
     use crate::measure::colour::Colour;
     use crate::solve::report::ColourReport;
@@ -297,28 +415,30 @@ fn colour_result(solved: Vec<Solution>) -> (Vec<f64>, Vec<f64>, crate::solve::re
         .map(|(s, colour)| ColourReport::of(colour, &s.report))
         .collect();
     report.metrics = crate::solve::report::ColourReport::combined(&report.colours);
-    let mut warnings = Vec::new();
+    report.warnings = labelled(&solved, |s| &s.report.warnings);
+    report.notes = labelled(&solved, |s| &s.report.notes);
+    (image, i, report, kappa)
+}
+
+/// The lines `of` each colour's solution says, each once: as it is when
+/// every colour says it, else prefixed with the colour that does
+/// (`red: ...`), so that no number is shown without its colour.
+fn labelled(solved: &[Solution], of: impl Fn(&Solution) -> &Vec<String>) -> Vec<String> {
+    use crate::measure::colour::Colour;
+    let mut out = Vec::new();
     for (s, colour) in solved.iter().zip(Colour::ALL) {
-        for w in &s.report.warnings {
-            let everywhere = solved.iter().all(|o| o.report.warnings.contains(w));
-            let w = match everywhere {
-                true => w.clone(),
-                false => format!("{}: {w}", format!("{colour:?}").to_lowercase()),
+        for line in of(s) {
+            let everywhere = solved.iter().all(|o| of(o).contains(line));
+            let line = match everywhere {
+                true => line.clone(),
+                false => format!("{}: {line}", format!("{colour:?}").to_lowercase()),
             };
-            if !warnings.contains(&w) {
-                warnings.push(w);
+            if !out.contains(&line) {
+                out.push(line);
             }
         }
     }
-    report.warnings = warnings;
-    let mut notes = Vec::new();
-    for n in solved.iter().flat_map(|s| &s.report.notes) {
-        if !notes.contains(n) {
-            notes.push(n.clone());
-        }
-    }
-    report.notes = notes;
-    (image, i, report, kappa)
+    out
 }
 
 /// `T^T T` and `T^T i` for a solver that needs the Gram: the scene's cached
@@ -355,15 +475,15 @@ fn write_result(
     d: &JobContext,
     id: i64,
     grid: crate::scene::Grid,
+    c: usize,
     image: &[f64],
     measurement: &[f64],
-    report: &crate::solve::report::Report,
+    report: &impl serde::Serialize,
 ) -> Result<(), JobError> {
     let dir = d.store.reconstruction_dir(id);
     std::fs::create_dir_all(&dir).map_err(|e| JobError::Store(d.store.describe_io(&dir, &e)))?;
     let file = |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
-    // A colour result holds red, green and blue per element.
-    let c = report.colours.len().max(1);
+    // A colour result holds its `c` channels per element.
     let shape = |n: usize| match c {
         1 => vec![n],
         _ => vec![n, c],
@@ -382,21 +502,26 @@ fn write_result(
     )
     .map_err(file)?;
     match c {
-        1 => image::write_png16(
+        3 => image::write_png_rgb16(
             &dir.join("image.png"),
             grid.nu,
             grid.nv,
             &image::unit_to_u16(image),
         ),
-        _ => image::write_png_rgb16(
+        // Grey, or the first of 2 or 4 channels.
+        _ => image::write_png16(
             &dir.join("image.png"),
             grid.nu,
             grid.nv,
-            &image::unit_to_u16(image),
+            &image::unit_to_u16(&image.iter().step_by(c).copied().collect::<Vec<_>>()),
         ),
     }
     .map_err(file)?;
-    json::write(&dir.join("report.json"), report).map_err(file)?;
+    json::write(&dir.join("report.json"), report).map_err(file)
+}
+
+/// Logs a calibrated reconstruction's summary.
+fn log_summary(report: &crate::solve::report::Report) {
     tracing::info!(
         "{} rows x {} unknowns, {} iterations{}{}; {} warnings, {} notes",
         report.rows,
@@ -415,7 +540,6 @@ fn write_result(
         report.warnings.len(),
         report.notes.len()
     );
-    Ok(())
 }
 
 impl Daemon {
@@ -450,6 +574,8 @@ pub(in crate::daemon) struct Stacked {
     /// each from its own pixels.
     pub(in crate::daemon) measurements: Vec<Measurement>,
     pub(in crate::daemon) warnings: Vec<String>,
+    /// Whether the measurements are imported ones (`POST /captures/import`).
+    pub(in crate::daemon) imported: bool,
 }
 
 /// The blocks a partial reconstruction's captures give, of the scene's.
@@ -547,6 +673,84 @@ pub(in crate::daemon) fn stack_records(
     Ok(Stacked {
         measurements,
         warnings,
+        imported: false,
+    })
+}
+
+/// Imported captures' measurements (each its pose's blocks, `[n]` or
+/// `[n, C]` in the scene's row order, NaN where not measured) stacked in
+/// the order of `blocks`, one measurement per colour channel.
+pub(in crate::daemon) fn stack_imports(
+    store: &Store,
+    records: &[CaptureRecord],
+    blocks: &[Block],
+    nw: usize,
+) -> Result<Stacked, JobError> {
+    let mut colours: Option<usize> = None;
+    let mut columns: Vec<Vec<f64>> = Vec::new();
+    for (k, block) in blocks.iter().enumerate() {
+        let (c, at) = records
+            .iter()
+            .find_map(|c| {
+                c.channels
+                    .iter()
+                    .position(|ch| c.pose == block.pose && *ch == block.channel)
+                    .map(|at| (c, at))
+            })
+            .ok_or_else(|| {
+                JobError::Store(format!(
+                    "no imported capture gives block {k} ({})",
+                    block.label()
+                ))
+            })?;
+        if !c.is_imported() {
+            return Err(JobError::Capture {
+                id: c.id,
+                reason: "an imported capture and a camera capture cannot be reconstructed together; import every block, or capture every block".into(),
+            });
+        }
+        let a = crate::store::read_imported(&store.capture_dir(c.id)).map_err(|e| {
+            JobError::Capture {
+                id: c.id,
+                reason: store.describe(&e),
+            }
+        })?;
+        let n = c.channels.len() * nw;
+        let cc = match a.shape.as_slice() {
+            [m] if *m == n => 1,
+            [m, cc] if *m == n => *cc,
+            s => {
+                return Err(JobError::Capture {
+                    id: c.id,
+                    reason: format!(
+                        "its measurement has shape {s:?}, not [{n}] or [{n}, C]: the file was changed after its import"
+                    ),
+                })
+            }
+        };
+        if *colours.get_or_insert(cc) != cc {
+            return Err(JobError::Capture {
+                id: c.id,
+                reason: format!(
+                    "it has {cc} colour channel(s), the other imported captures {}",
+                    colours.unwrap_or(cc)
+                ),
+            });
+        }
+        if columns.is_empty() {
+            columns = vec![Vec::with_capacity(blocks.len() * nw); cc];
+        }
+        for (ch, col) in columns.iter_mut().enumerate() {
+            col.extend((at * nw..(at + 1) * nw).map(|j| a.data[j * cc + ch]));
+        }
+    }
+    Ok(Stacked {
+        measurements: columns
+            .into_iter()
+            .map(|i| Measurement { i, variance: None })
+            .collect(),
+        warnings: Vec::new(),
+        imported: true,
     })
 }
 

@@ -246,6 +246,7 @@ fn reconstruction_body(
         solve: r.solve.clone(),
         truth: r.truth.clone(),
         partial: upto < steps.len(),
+        radiometry: r.radiometry,
     }
 }
 

@@ -256,6 +256,16 @@ impl crate::daemon::Daemon {
         self.admission.submit_reconstruction(b)
     }
 
+    /// Stores a measurement or photo taken elsewhere as a done capture
+    /// ([`Admission::import_capture`]): call it off the async runtime.
+    pub fn import_capture(
+        &self,
+        q: &super::ImportQuery,
+        bytes: &[u8],
+    ) -> Result<crate::store::CaptureRecord, SubmitError> {
+        self.admission.import_capture(q, bytes)
+    }
+
     /// The exposure plan of every block of a scene for the camera as it is
     /// now ([`Admission::exposure_plan`]): call it off the async runtime.
     pub fn exposure_plan(

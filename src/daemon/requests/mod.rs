@@ -12,6 +12,7 @@
 pub(crate) mod admission;
 pub(crate) mod cancel;
 pub(crate) mod flatten;
+pub(crate) mod import;
 pub mod validate;
 
 use serde::{Deserialize, Serialize};
@@ -22,6 +23,8 @@ use crate::solve::SolveRequest;
 use crate::store::CaptureKind;
 
 use crate::daemon::SourcePosition;
+
+pub use import::ImportQuery;
 
 /// `POST /captures` body.
 #[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
@@ -138,6 +141,12 @@ pub struct ReconstructionBody {
     /// `false`: one capture for every block of the scene.
     #[serde(default)]
     pub partial: bool,
+    /// `calibrated` (divided by the scene's calibrated gain, dark frames
+    /// subtracted) or `fitted` (gain and background per channel fitted with
+    /// the scene, as `polnlos reconstruct --photo`). Absent: fitted for
+    /// imported captures and scenes with no calibrated gain, else
+    /// calibrated; the report's `radiometry` says which and why.
+    pub radiometry: Option<crate::solve::radiometry::Radiometry>,
 }
 
 /// `POST /plans` body: acquire every (pose, angle) block of a scene, then
@@ -179,6 +188,9 @@ pub struct PlanReconstruct {
     pub solve: SolveRequest,
     /// Known truth, as a test pattern name: the report then has PSNR.
     pub truth: Option<String>,
+    /// `calibrated` or `fitted`, as in `POST /reconstructions` (absent:
+    /// chosen from what the daemon knows of the scene).
+    pub radiometry: Option<crate::solve::radiometry::Radiometry>,
     /// After each light block but the last, queue a reconstruction from the
     /// blocks captured so far (`partial`), so that the image sharpens as the
     /// plan walks the scene; the plan lists them as `interim`.

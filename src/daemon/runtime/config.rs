@@ -205,6 +205,13 @@ pub struct QueueConfig {
     /// Disk space captures must leave free, MiB.
     #[serde(default = "reserve_free")]
     pub reserve_free_mib: u64,
+    /// Largest file `POST /captures/import` takes, MiB (1 to 4096).
+    #[serde(default = "max_import")]
+    pub max_import_mib: u64,
+}
+
+fn max_import() -> u64 {
+    512
 }
 
 fn max_frames() -> usize {
@@ -394,10 +401,11 @@ impl Config {
             || q.reconstructions == 0
             || q.reconstruction_workers == 0
             || q.max_body_bytes < 1024
+            || !(1..=4096).contains(&q.max_import_mib)
             || q.max_frames_per_capture == 0
         {
             return Err(ConfigError::Invalid(
-                "[queue] sizes must be at least 1 (max_body_bytes at least 1024)".into(),
+                "[queue] sizes must be at least 1 (max_body_bytes at least 1024, max_import_mib 1 to 4096)".into(),
             ));
         }
         let h = &self.http;

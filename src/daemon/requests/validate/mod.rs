@@ -115,6 +115,7 @@ pub(crate) mod fixtures {
             frames_taken: 1,
             frame_counts: None,
             clipping: None,
+            import: None,
         }
     }
 }

@@ -61,11 +61,29 @@ pub fn reconstruction(
     }
     let blocks = blocks_of(scene);
     let mut covered = vec![false; blocks.len()];
+    let (mut imported, mut taken) = (None, None);
     for &id in &b.captures {
         let c = capture(id)?
             .ok_or_else(|| RequestError::NotFound(format!("no capture with id {id}")))?;
         let served = blocks_served(&c, &b.scene, scene, &blocks)?;
         cover(&mut covered, &served, &blocks, "")?;
+        match c.is_imported() {
+            true => imported.get_or_insert(id),
+            false => taken.get_or_insert(id),
+        };
+    }
+    if let (Some(i), Some(t)) = (imported, taken) {
+        return Err(invalid(format!(
+            "capture {i} was imported and capture {t} taken by the camera: their units differ, so they cannot be reconstructed together; import every block, or capture every block"
+        )));
+    }
+    if b.radiometry == Some(crate::solve::radiometry::Radiometry::Fitted)
+        && b.solve.solver != crate::solve::Solver::AdmmTv
+    {
+        return Err(invalid(format!(
+            "solver {:?} with radiometry \"fitted\": a fitted reconstruction solves with admm-tv on the differences of each block (docs/realphoto.md); leave solver out",
+            b.solve.solver.name()
+        )));
     }
     let missing = uncovered(&covered, &blocks);
     if b.partial && b.captures.is_empty() {
@@ -90,6 +108,7 @@ pub fn reconstruction(
         params: ReconstructionParams {
             // A partial request that gives every block is a whole one.
             partial: !missing.is_empty(),
+            radiometry: b.radiometry,
             ..ReconstructionParams::new(solve, b.truth.clone())
         },
     })
@@ -135,7 +154,12 @@ pub(super) fn blocks_served(
             }
         )));
     }
-    if let Some(frame) = scene.pose(&c.pose).and_then(|p| p.frame) {
+    // An import was sampled (or given) at the scene's wall elements already.
+    if let Some(frame) = scene
+        .pose(&c.pose)
+        .and_then(|p| p.frame)
+        .filter(|_| !c.is_imported())
+    {
         let s = &c.settings;
         if (s.region, s.binning) != (Some(frame.region), Some(frame.binning)) {
             return Err(invalid(format!(

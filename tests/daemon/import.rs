@@ -1,0 +1,307 @@
+//! `POST /captures/import` over real HTTP on 127.0.0.1, the store through
+//! its database file: a measurement or a photo taken elsewhere becomes a
+//! capture, and its reconstruction (gain and background fitted) gives the
+//! numbers of the CLI's `--photo` and of the camera capture it came from.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use serde_json::{json, Value};
+
+use super::common::{config, scratch, InProcess};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// An in-process daemon that also knows the chair photo's scene.
+fn chair_daemon(dir: &Path) -> InProcess {
+    let scene = root().join("config/photos/saunders-chair.toml");
+    let listed = format!("scene_files = [{:?}]", scene.display().to_string());
+    let cfg = config(dir, &[("scene_files = []", &listed)]);
+    InProcess::start(&cfg, &dir.join("data"))
+}
+
+/// The largest difference between two arrays of the same shape.
+fn max_diff(a: &polnlos::files::npy::Array, b: &polnlos::files::npy::Array) -> f64 {
+    assert_eq!(a.shape, b.shape);
+    a.data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+fn recovered(d: &InProcess, rec: &Value) -> polnlos::files::npy::Array {
+    let (s, bytes) = d.get_bytes(&format!("/reconstructions/{}/recovered.npy", rec["id"]));
+    assert_eq!(s, 200);
+    polnlos::files::npy::decode(&bytes).unwrap()
+}
+
+/// Saunders et al.'s chair photo (`[rows, 3]`) imported over HTTP and
+/// reconstructed with nothing but its scene and captures gives the CLI's
+/// `reconstruct --photo` result, and says its radiometry was fitted.
+#[test]
+fn the_chair_photo_imported_over_http_reconstructs_as_the_cli_photo_mode() {
+    let dir = scratch();
+    let d = chair_daemon(dir.path());
+    let data = root().join("tests/data/saunders-chair");
+    let bytes = std::fs::read(data.join("measurement.npy")).unwrap();
+    let started = std::time::Instant::now();
+    let (s, body, loc) = d.post_bytes(
+        "/captures/import?scene=saunders-chair&pose=photo&name=measurement.npy",
+        &bytes,
+    );
+    assert_eq!(s, 201, "{body}");
+    let cap: Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(loc.as_deref(), Some(&*format!("/captures/{}", cap["id"])));
+    assert_eq!(cap["state"], "done");
+    assert_eq!(cap["kind"], "light");
+    assert_eq!(cap["channels"], json!([{"analyzer": "none"}]));
+    let import = &cap["import"];
+    assert_eq!(import["format"], "npy");
+    assert_eq!(import["name"], "measurement.npy");
+    assert_eq!(import["colours"], 3);
+    assert_eq!(import["bytes"], bytes.len());
+    assert_eq!(import["sha256"].as_str().unwrap().len(), 64);
+    // Listed like any capture, and read back from the catalogue.
+    assert_eq!(
+        d.json(&format!("/captures/{}", cap["id"]))["import"],
+        *import
+    );
+    let rec = d.run_job(
+        "/reconstructions",
+        &json!({"scene": "saunders-chair", "captures": [cap["id"]]}).to_string(),
+        Duration::from_secs(300),
+    );
+    assert_eq!(rec["state"], "done", "{rec}");
+    // A measurement, not a bound: timings are the benchmarks' (the note
+    // records it).
+    println!(
+        "chair photo: import to done in {:.2} s",
+        started.elapsed().as_secs_f64()
+    );
+    let report = &rec["report"];
+    assert_eq!(report["radiometry"]["mode"], "fitted", "{report}");
+    assert_eq!(report["radiometry"]["given"], false);
+    let reason = report["radiometry"]["reason"].as_str().unwrap();
+    assert!(reason.contains("was imported"), "{reason}");
+    assert_eq!(report["data_term"], "differences");
+    assert_eq!(report["channels"].as_array().unwrap().len(), 3);
+    let ours = recovered(&d, &rec);
+    assert_eq!(ours.shape, vec![29, 36, 3]);
+    // The CLI on the same photo, with the truth for the metrics.
+    let out = scratch();
+    let cli = Command::new(env!("CARGO_BIN_EXE_polnlos"))
+        .args(["reconstruct", "--photo"])
+        .arg(root().join("config/photos/saunders-chair.toml"))
+        .arg("--measurement")
+        .arg(data.join("measurement.npy"))
+        .arg("--truth")
+        .arg(data.join("truth.npy"))
+        .arg("--out")
+        .arg(out.path())
+        .env("POLNLOS_CACHE", "off")
+        .output()
+        .unwrap();
+    assert!(
+        cli.status.success(),
+        "{}",
+        String::from_utf8_lossy(&cli.stderr)
+    );
+    let theirs = polnlos::files::npy::read(&out.path().join("recovered.npy")).unwrap();
+    let diff = max_diff(&ours, &theirs);
+    assert!(diff <= 1e-9, "daemon and CLI differ by {diff:e}");
+    let cli_report: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("report.json")).unwrap())
+            .unwrap();
+    let m = &cli_report["metrics"];
+    assert!(m["zncc"].as_f64().unwrap() >= 0.78, "{m}");
+    assert!(m["psnr_affine_db"].as_f64().unwrap() >= 11.4, "{m}");
+    // The fitted gains and backgrounds are the same numbers too.
+    for (a, b) in report["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(cli_report["channels"].as_array().unwrap())
+    {
+        let (ga, gb) = (a["gain"].as_f64().unwrap(), b["gain"].as_f64().unwrap());
+        assert!((ga - gb).abs() <= 1e-9 * gb, "{ga} {gb}");
+    }
+}
+
+/// A file that does not fit its scene and pose is refused with a 4xx that
+/// says what is wrong, and nothing is stored.
+#[test]
+fn an_import_that_does_not_fit_is_refused_and_nothing_is_stored() {
+    let dir = scratch();
+    let d = chair_daemon(dir.path());
+    let npy = |shape: &[usize], fill: f64| {
+        let dir = scratch();
+        let p = dir.path().join("m.npy");
+        let n: usize = shape.iter().product();
+        polnlos::files::npy::write_f64(&p, shape, &vec![fill; n]).unwrap();
+        std::fs::read(p).unwrap()
+    };
+    let good = npy(&[15876, 3], 1.0);
+    let cases: Vec<(String, Vec<u8>, u16, &str)> = vec![
+        (
+            "scene=nowhere&pose=photo".into(),
+            good.clone(),
+            404,
+            "nowhere",
+        ),
+        (
+            "scene=saunders-chair&pose=B".into(),
+            good.clone(),
+            422,
+            "its poses: photo",
+        ),
+        (
+            "scene=saunders-chair&pose=photo".into(),
+            npy(&[15875, 3], 1.0),
+            422,
+            "[15876] or [15876, C]",
+        ),
+        (
+            "scene=saunders-chair&pose=photo".into(),
+            npy(&[15876, 5], 1.0),
+            422,
+            "C from 1 to 4",
+        ),
+        (
+            "scene=saunders-chair&pose=photo".into(),
+            npy(&[15876], f64::INFINITY),
+            422,
+            "finite",
+        ),
+        (
+            "scene=saunders-chair&pose=photo".into(),
+            npy(&[15876], f64::NAN),
+            422,
+            "no measured value",
+        ),
+        (
+            "scene=saunders-chair&pose=photo".into(),
+            b"hello, world".to_vec(),
+            422,
+            "neither a .npy",
+        ),
+        (
+            "scene=saunders-chair&pose=photo".into(),
+            Vec::new(),
+            422,
+            "empty",
+        ),
+        (
+            "scene=saunders-chair&pose=photo&bayer=RG".into(),
+            good.clone(),
+            422,
+            "a .npy is a measurement already",
+        ),
+        (
+            "scene=saunders-chair&pose=photo&bayer=XY".into(),
+            good.clone(),
+            422,
+            "RG, GR, GB or BG",
+        ),
+        (
+            "scene=saunders-chair&pose=photo&polarizer_deg=45".into(),
+            good.clone(),
+            422,
+            "no block at polarizer_deg 45",
+        ),
+        (
+            "scene=saunders-chair&pose=photo&colour=red".into(),
+            good.clone(),
+            400,
+            "colour",
+        ),
+        (
+            // A PNG needs the pose's homography to be sampled at the wall.
+            "scene=saunders-chair&pose=photo".into(),
+            polnlos::files::image::encode_png16(4, 4, &[1000; 16]).unwrap(),
+            422,
+            "POST /calibrations",
+        ),
+    ];
+    for (query, body, status, says) in cases {
+        let (s, b, _) = d.post_bytes(&format!("/captures/import?{query}"), &body);
+        assert_eq!(s, status, "{query}: {b}");
+        assert!(b.contains(says), "{query}: {b}");
+    }
+    let (s, b) = d.get("/captures");
+    assert_eq!(s, 200);
+    assert_eq!(serde_json::from_str::<Value>(&b).unwrap(), json!([]));
+    // A measurement that fits is stored after them, as capture 1.
+    let (s, b, _) = d.post_bytes("/captures/import?scene=saunders-chair&pose=photo", &good);
+    assert_eq!(s, 201, "{b}");
+    assert_eq!(serde_json::from_str::<Value>(&b).unwrap()["id"], 1);
+}
+
+/// A camera frame downloaded from the daemon and imported again, as a TIFF
+/// and as a 16-bit PNG, is sampled through the pose's homography as the
+/// capture was: the three reconstructions (fitted) are the same image.
+#[test]
+fn a_camera_frame_imported_as_tiff_or_png_reconstructs_as_its_capture() {
+    let dir = scratch();
+    let cfg = config(dir.path(), &[]);
+    let d = InProcess::start(&cfg, &dir.path().join("data"));
+    let cap = d.run_job(
+        "/captures",
+        &json!({"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0,
+                "exposure_us": 20000, "frames": 1, "dark_frames": 0})
+        .to_string(),
+        Duration::from_secs(60),
+    );
+    assert_eq!(cap["state"], "done", "{cap}");
+    let fitted = |ids: &[&Value]| {
+        d.run_job(
+            "/reconstructions",
+            &json!({"scene": "brewster-crossed", "captures": ids, "radiometry": "fitted"})
+                .to_string(),
+            Duration::from_secs(120),
+        )
+    };
+    let from_camera = fitted(&[&cap["id"]]);
+    assert_eq!(from_camera["state"], "done", "{from_camera}");
+    assert_eq!(from_camera["report"]["radiometry"]["given"], true);
+    let (s, tiff) = d.get_bytes(&format!("/captures/{}/frame.tiff", cap["id"]));
+    assert_eq!(s, 200);
+    let frame = polnlos::files::frames::decode_frames(&tiff).unwrap();
+    let dn: Vec<u16> = frame.stack.mean.iter().map(|v| *v as u16).collect();
+    let png =
+        polnlos::files::image::encode_png16(frame.stack.width, frame.stack.height, &dn).unwrap();
+    let want = recovered(&d, &from_camera);
+    for (format, body) in [("tiff", tiff), ("png", png)] {
+        let (s, b, _) = d.post_bytes(
+            "/captures/import?scene=brewster-crossed&pose=A&polarizer_deg=0",
+            &body,
+        );
+        assert_eq!(s, 201, "{format}: {b}");
+        let imported: Value = serde_json::from_str(&b).unwrap();
+        assert_eq!(imported["import"]["format"], format);
+        let rec = d.run_job(
+            "/reconstructions",
+            &json!({"scene": "brewster-crossed", "captures": [imported["id"]]}).to_string(),
+            Duration::from_secs(120),
+        );
+        assert_eq!(rec["state"], "done", "{rec}");
+        assert_eq!(rec["report"]["radiometry"]["mode"], "fitted");
+        let diff = max_diff(&recovered(&d, &rec), &want);
+        assert!(
+            diff <= 1e-9,
+            "{format}: differs from the capture by {diff:e}"
+        );
+        // A fitted solve takes no other solver.
+        let (s, b, _) = d.post(
+            "/reconstructions",
+            &json!({"scene": "brewster-crossed", "captures": [imported["id"]], "partial": true,
+                    "solver": "lsq", "radiometry": "fitted"})
+            .to_string(),
+        );
+        assert_eq!(s, 422, "{b}");
+        assert!(b.contains("admm-tv"), "{b}");
+    }
+}
