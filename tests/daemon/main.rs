@@ -24,4 +24,5 @@ pub(crate) mod python;
 mod relay_device;
 mod roundtrip;
 mod service;
+mod verdict;
 mod web;

@@ -1282,7 +1282,8 @@ fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
         deleted
     });
     std::thread::sleep(Duration::from_millis(300));
-    let small = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 4, "dark_frames": 2, "region": [0, 0, 256, 256]}"#;
+    // Target captures: a light one must hold the wall (the whole 512 x 512 frame).
+    let small = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "kind": "target", "exposure_us": 20000, "frames": 4, "dark_frames": 2, "region": [0, 0, 256, 256]}"#;
     for _ in 0..3 {
         let c = d.run_job("/captures", small, Duration::from_secs(20));
         assert_eq!(c["state"], "done", "{c}");
@@ -1309,7 +1310,7 @@ fn retention_deletes_the_oldest_finished_captures_never_a_running_one() {
     // capture goes, the newest finished one and the running one stay.
     let (s, b, loc) = d.post(
         "/captures",
-        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 200, "region": [0, 0, 256, 256]}"#,
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "kind": "target", "exposure_us": 20000, "frames": 200, "region": [0, 0, 256, 256]}"#,
     );
     assert_eq!(s, 202, "{b}");
     let loc = loc.unwrap();

@@ -65,7 +65,7 @@ pub fn wall_views(scene: &Scene) -> Vec<WallView> {
         .map(|p| {
             let seen = match &p.homography {
                 None => Err(format!(
-                    "pose {:?} has no homography: calibrate the wall (POST /calibrations/wall) to aim at it",
+                    "pose {:?} has no homography: capture the dot target at this pose (\"kind\": \"target\") and fit its homography with POST /calibrations, then load the scene file it returns",
                     p.name
                 )),
                 Some(h) => crate::scene::wall_corners(h, wall, &p.name)
@@ -341,9 +341,9 @@ mod tests {
         let v = &wall_views(&Scene::from_toml_str(&bare).expect("scene"))[0];
         assert!(
             v.centre.is_none()
-                && v.why
-                    .as_deref()
-                    .is_some_and(|w| w.contains("no homography"))
+                && v.why.as_deref().is_some_and(|w| w.contains("no homography")
+                    && w.contains("POST /calibrations,")
+                    && !w.contains("/calibrations/wall"))
         );
     }
 

@@ -5,7 +5,7 @@ use crate::camera::settings::check_ranges;
 use crate::camera::{Acquisition, CameraSettings, PixelFormat};
 use crate::daemon::requests::{AutoExposure, CaptureBody};
 use crate::measure::exposure::BlockExposure;
-use crate::scene::{Channel, Pose, Scene};
+use crate::scene::{Channel, FrameGeometry, PixelMap, Pose, Scene};
 use crate::store::{CaptureKind, CaptureRecord, CaptureRequest, JobState};
 
 /// Checks a capture request against its scene, the camera and the bench,
@@ -47,6 +47,9 @@ pub fn capture(
     }
     check_pixel_format(acquisition.pixel_format, cam)?;
     let channels = channels(&b.scene, pose, b.polarizer_deg, &acquisition)?;
+    if kind == CaptureKind::Light {
+        check_reconstructable(&b.scene, scene, pose, &acquisition)?;
+    }
     let request = CaptureRequest {
         kind,
         scene: b.scene.clone(),
@@ -64,6 +67,51 @@ pub fn capture(
         check_dark_capture(&record, &request)?;
     }
     Ok(request)
+}
+
+/// Checks that a light capture of `pose` at `a`'s region and binning can be
+/// measured: the pose has a homography, and the frame holds every wall element.
+///
+/// Why: such a capture used the bench for nothing and failed only at its
+/// reconstruction (issue 47); target captures, which find the homography,
+/// are not held to it.
+fn check_reconstructable(
+    scene_name: &str,
+    scene: &Scene,
+    pose: &Pose,
+    a: &Acquisition,
+) -> Result<(), RequestError> {
+    let Some(h) = &pose.homography else {
+        return Err(invalid(format!(
+            "pose {:?} of scene {scene_name:?} has no homography, so a light capture of it could not be reconstructed: capture the dot target at this pose (\"kind\": \"target\"), fit the pose's homography with POST /calibrations, load the scene file it returns, then capture again",
+            pose.name
+        )));
+    };
+    // A pose that names its frame is measured only at that frame
+    // (validate::reconstruction refuses any other).
+    if let Some(f) = pose
+        .frame
+        .filter(|f| (f.region, f.binning) != (a.region, a.binning))
+    {
+        return Err(invalid(format!(
+            "region = {:?}, binning = {:?}: pose {:?}'s homography maps the wall into region {:?} binning {:?} (scene {scene_name:?}), so a light capture at another frame could not be reconstructed: capture at that region and binning, or fit the pose's homography for this frame with POST /calibrations (from a \"kind\": \"target\" capture at it)",
+            a.region, a.binning, pose.name, f.region, f.binning
+        )));
+    }
+    // The frame as a reconstruction reads it (measure::load).
+    let geometry = FrameGeometry {
+        offset: [a.region[0], a.region[1]],
+        size: [a.region[2] as usize, a.region[3] as usize],
+        binning: a.binning,
+    };
+    PixelMap::frame(h, &scene.wall().plane, geometry, &pose.name)
+        .map(|_| ())
+        .map_err(|e| {
+            invalid(format!(
+                "region = {:?}, binning = {:?}: {e}, so this capture could not be reconstructed; GET /scenes/{scene_name}/wall gives where pose {:?} sees the wall (if the wall or camera moved, fit the pose's homography again with POST /calibrations)",
+                a.region, a.binning, pose.name
+            ))
+        })
 }
 
 /// Checks that the camera lists the pixel format (when it lists any): a
@@ -356,12 +404,13 @@ mod tests {
 
     #[test]
     fn a_capture_inherits_every_setting_it_does_not_state() {
+        // A target capture: a light one must be at the pose's frame.
         let r = check(serde_json::json!({
-            "scene": "brewster-multi-3x3", "pose": "B", "polarizer_deg": 0.0,
+            "scene": "brewster-multi-3x3", "pose": "B", "polarizer_deg": 0.0, "kind": "target",
             "exposure_us": 5000.0, "frames": 3, "region": [0, 0, 256, 128]
         }))
         .expect("accepted");
-        assert_eq!(r.kind, CaptureKind::Light);
+        assert_eq!(r.kind, CaptureKind::Target);
         assert_eq!((r.acquisition.exposure_us, r.frames), (5000.0, 3));
         assert_eq!(r.acquisition.region, [0, 0, 256, 128]);
         assert_eq!(r.acquisition.binning, [1, 1]);
@@ -425,6 +474,70 @@ mod tests {
         );
         let m = message(with(serde_json::json!({ "region": [1, 0, 256, 256] })));
         assert!(m.contains("offsets must be even"), "{m}");
+    }
+
+    /// The built-in crossed bench with its one pose's text changed by `edits`.
+    fn crossed(edits: &[(&str, &str)]) -> Scene {
+        let mut text = crate::scene::builtin::text("brewster-crossed")
+            .expect("built in")
+            .to_string();
+        for (from, to) in edits {
+            assert!(text.contains(from), "{from}");
+            text = text.replacen(from, to, 1);
+        }
+        Scene::from_toml_str(&text).expect("scene")
+    }
+
+    fn check_on(scene: &Scene, json: serde_json::Value) -> Result<CaptureRequest, RequestError> {
+        capture(&body(json), scene, &cam(), no_plan, |_| Ok(None))
+    }
+
+    #[test]
+    fn a_light_capture_that_could_not_be_reconstructed_is_refused_and_a_target_one_is_not() {
+        let light = |region: [u32; 4], kind: &str| {
+            serde_json::json!({ "scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0.0,
+                "exposure_us": 5000.0, "region": region, "kind": kind })
+        };
+        let whole = [0, 0, 512, 512];
+        // No homography: refused, naming the route that fits one.
+        let bare = crossed(&[("homography = ", "# homography = ")]);
+        let m = message(check_on(&bare, light(whole, "light")));
+        assert!(
+            m.contains("pose \"A\" of scene \"brewster-crossed\" has no homography"),
+            "{m}"
+        );
+        assert!(
+            m.contains("POST /calibrations,") && !m.contains("/calibrations/wall"),
+            "{m}"
+        );
+        // The target capture that finds it stays allowed, as do darks.
+        assert!(check_on(&bare, light(whole, "target")).is_ok());
+        assert!(check_on(&bare, light(whole, "dark")).is_ok());
+        // A region other than the frame the pose names.
+        let framed = crossed(&[]);
+        let m = message(check_on(&framed, light([0, 0, 256, 256], "light")));
+        assert!(
+            m.contains("maps the wall into region [0, 0, 512, 512]"),
+            "{m}"
+        );
+        assert!(check_on(&framed, light(whole, "light")).is_ok());
+        // A pose that names no frame: the wall must lie in the region.
+        let free = crossed(&[("region = [0, 0, 512, 512]", "")]);
+        let m = message(check_on(&free, light([0, 0, 256, 256], "light")));
+        assert!(m.contains("imaged partly outside the frame"), "{m}");
+        assert!(m.contains("GET /scenes/brewster-crossed/wall"), "{m}");
+        assert!(check_on(&free, light(whole, "light")).is_ok());
+        // Shifted 200 pixels right, the wall leaves the 512-pixel frame.
+        let shifted = crossed(&[
+            ("region = [0, 0, 512, 512]", ""),
+            (
+                "[-425.517945, 1220.52494, 255.5]",
+                "[-758.604399, 1220.52494, 455.5]",
+            ),
+        ]);
+        let m = message(check_on(&shifted, light(whole, "light")));
+        assert!(m.contains("imaged partly outside the frame"), "{m}");
+        assert!(check_on(&shifted, light(whole, "target")).is_ok());
     }
 
     #[test]
