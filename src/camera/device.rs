@@ -43,6 +43,24 @@ impl FrameCounts {
     pub fn lost(&self) -> u64 {
         self.dropped + self.broken
     }
+
+    /// The losses in words, `None` when there were none: one text for the
+    /// capture's log or failure and for the reconstructions that use it.
+    ///
+    /// Why: a lost frame is replaced by a later one, so the capture still
+    /// keeps every frame it asked for; the sentence says so instead of
+    /// calling the lost frames part of those received.
+    pub fn losses(&self) -> Option<String> {
+        (self.lost() > 0).then(|| {
+            format!(
+                "lost {} frames ({} dropped, {} broken) besides the {} received whole",
+                self.lost(),
+                self.dropped,
+                self.broken,
+                self.received
+            )
+        })
+    }
 }
 
 impl std::ops::Add for FrameCounts {

@@ -141,3 +141,70 @@ fn a_capture_or_plan_that_could_not_be_reconstructed_is_refused_naming_the_fix()
     );
     assert_eq!(ok["state"], "done", "{ok}");
 }
+
+#[test]
+fn a_reconstruction_says_what_its_captures_lost_and_fails_when_no_element_was_measured() {
+    let _g = lock();
+    let dir = scratch();
+    let d = daemon_with(dir.path(), &[]);
+    let long = Duration::from_secs(60);
+    let crossed = |extra: &str| {
+        let c = d.run_job(
+            "/captures",
+            &format!(r#"{{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0{extra}}}"#),
+            long,
+        );
+        assert_eq!(c["state"], "done", "{c}");
+        c["id"].as_i64().unwrap()
+    };
+    // A capture that lost frames on the link: its record counts them (set
+    // here in the catalogue, as a lossy link would have).
+    let lossy = crossed(r#", "exposure_us": 20000, "frames": 5, "dark_frames": 1"#);
+    let db = rusqlite::Connection::open(dir.path().join("data/catalogue.sqlite")).unwrap();
+    let lose = |id: i64| {
+        db.execute(
+            "UPDATE captures SET frame_counts = ?2 WHERE id = ?1",
+            rusqlite::params![id, r#"{"received": 5, "dropped": 0, "broken": 4}"#],
+        )
+        .unwrap();
+    };
+    lose(lossy);
+    let c = d.json(&format!("/captures/{lossy}"));
+    assert_eq!(c["frame_counts"]["broken"], 4, "{c}");
+    assert_eq!(c["frames_taken"], 6, "{c}");
+    let said = "lost 4 frames (0 dropped, 4 broken) besides the 5 received whole";
+    let r = d.run_job(
+        "/reconstructions",
+        &format!(r#"{{"scene": "brewster-crossed", "captures": [{lossy}], "truth": "letter"}}"#),
+        long,
+    );
+    assert_eq!(r["state"], "done", "{r}");
+    let warnings = r["report"]["warnings"].to_string();
+    assert!(
+        warnings.contains(&format!("capture {lossy} {said}")),
+        "{warnings}"
+    );
+    // Every pixel saturated (4 s at the demo's 20 ms reference: 200 times
+    // its dark level's 1 % of full scale): no element is measured, and the
+    // reconstruction fails naming the capture, its saturation and its losses,
+    // instead of a "done" on an all-zero T.
+    let blind = crossed(r#", "exposure_us": 4000000, "frames": 1"#);
+    let c = d.json(&format!("/captures/{blind}"));
+    assert_eq!(c["clipping"]["saturated"], c["clipping"]["pixels"], "{c}");
+    lose(blind);
+    let r = d.run_job(
+        "/reconstructions",
+        &format!(r#"{{"scene": "brewster-crossed", "captures": [{blind}]}}"#),
+        long,
+    );
+    assert_eq!(r["state"], "failed", "{r}");
+    let error = r["error"].as_str().unwrap();
+    assert!(error.starts_with("no wall element was measured"), "{error}");
+    assert!(
+        error.contains(&format!(
+            "capture {blind} saturated: 262144 of 262144 pixels at full scale"
+        )),
+        "{error}"
+    );
+    assert!(error.contains(&format!("; it {said}")), "{error}");
+}

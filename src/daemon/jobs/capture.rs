@@ -258,19 +258,12 @@ fn saturated(
 /// Applies the lost-frames policy to a capture's counts: a warning in the
 /// log (the record keeps the counts), or the capture's failure.
 fn lost(w: &CaptureWorker, id: i64, c: FrameCounts) -> Result<(), JobError> {
-    if c.lost() == 0 {
+    let Some(what) = c.losses() else {
         return Ok(());
-    }
-    let what = format!(
-        "lost {} frames ({} dropped, {} broken) of {} received",
-        c.lost(),
-        c.dropped,
-        c.broken,
-        c.received
-    );
+    };
     match w.lost_frames {
         LostFrames::Warn => {
-            tracing::warn!(capture = id, "capture-{id} {what}; kept ([camera] lost_frames = \"warn\")");
+            tracing::warn!(capture = id, "capture-{id} {what}; kept the whole ones ([camera] lost_frames = \"warn\")");
             Ok(())
         }
         LostFrames::Fail => Err(JobError::Capture {

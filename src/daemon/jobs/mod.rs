@@ -58,6 +58,9 @@ pub enum JobError {
         /// What is wrong with it.
         reason: String,
     },
+    /// No row of the measurement was usable: nothing to reconstruct.
+    #[error("no wall element was measured, so there is nothing to reconstruct: {0}")]
+    Unmeasured(String),
     /// A blocking task did not finish (it panicked or was cancelled).
     #[error("internal: {0}")]
     Task(String),

@@ -118,6 +118,9 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         Some(p) => Arc::new(t.select_blocks(&p.kept)),
         None => t,
     };
+    // What can leave a measurement without a usable row, said before the
+    // records are consumed.
+    let causes: Vec<String> = records.iter().filter_map(unmeasured_cause).collect();
     let imported = records
         .iter()
         .find(|r| r.is_imported())
@@ -156,6 +159,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         } else {
             calibration
         },
+        causes: &causes,
     };
     if radiometry.mode == Radiometry::Fitted {
         return job.fitted(id, stacked, radiometry, start);
@@ -192,6 +196,8 @@ struct Job<'a> {
     cancel: &'a AtomicBool,
     /// The gain a calibrated solve divides by (`None`: estimated).
     gain: Option<f64>,
+    /// Why the captures may leave rows unmeasured ([`unmeasured_cause`]).
+    causes: &'a [String],
 }
 
 /// One measurement solved: the image, the measurement in units of `T l`,
@@ -213,6 +219,12 @@ impl Job<'_> {
         // Elements too saturated to measure: their rows of T and i are zero (no
         // part in any fit) and their variance 0 (no part in the noise).
         let missing = measurement.zero_unmeasured();
+        if !missing.is_empty() && missing.len() == measurement.i.len() {
+            return Err(JobError::Unmeasured(match self.causes.is_empty() {
+                true => "every wall element's pixels were left out".into(),
+                false => self.causes.join("; "),
+            }));
+        }
         let mut warnings: Vec<String> =
             crate::solve::unmeasured_warning(&missing, measurement.i.len())
                 .into_iter()
@@ -320,6 +332,12 @@ impl Job<'_> {
         let (d, rec) = (self.d, self.rec);
         check(self.cancel)?;
         let channels: Vec<Vec<f64>> = stacked.measurements.into_iter().map(|m| m.i).collect();
+        if (0..self.t.rows()).all(|j| channels.iter().any(|c| !c[j].is_finite())) {
+            return Err(JobError::Unmeasured(match self.causes.is_empty() {
+                true => "every wall element's pixels were left out".into(),
+                false => self.causes.join("; "),
+            }));
+        }
         let grid = self.t.scene_grid();
         let truth = rec
             .params
@@ -654,6 +672,7 @@ pub(in crate::daemon) fn stack_records(
         .iter()
         .filter_map(|c| saturation_warning(c, in_range))
         .collect();
+    warnings.extend(records.iter().filter_map(lost_frames_warning));
     let captures = records
         .into_iter()
         .map(|c| match in_range {
@@ -768,6 +787,29 @@ fn saturation_warning(c: &CaptureRecord, in_range: bool) -> Option<String> {
         c.id,
         cl.saturation(&c.scene)
     ))
+}
+
+/// What a reconstruction must say about a capture that lost frames (its
+/// `frame_counts`): the same sentence its capture logged.
+fn lost_frames_warning(c: &CaptureRecord) -> Option<String> {
+    let losses = c.frame_counts?.losses()?;
+    Some(format!(
+        "capture {} {losses}: its mean is of those; a loss says the camera's link or the host did not keep up",
+        c.id
+    ))
+}
+
+/// Why capture `c` may leave wall elements unmeasured (its saturation, its
+/// lost frames), for a reconstruction left with no usable row.
+fn unmeasured_cause(c: &CaptureRecord) -> Option<String> {
+    let saturated = c.clipping.filter(|cl| cl.saturated > 0);
+    let lost = c.frame_counts.and_then(|f| f.losses());
+    let what: Vec<String> = saturated
+        .map(|cl| format!("saturated: {}", cl.saturation(&c.scene)))
+        .into_iter()
+        .chain(lost)
+        .collect();
+    (!what.is_empty()).then(|| format!("capture {} {}", c.id, what.join("; it ")))
 }
 
 /// The catalogue records of `ids`, each read once. A catalogue that cannot
