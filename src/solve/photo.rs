@@ -134,6 +134,10 @@ pub struct PhotoChannel {
     pub iterations: usize,
     /// Seconds for this channel (the shared Gram excluded).
     pub seconds: f64,
+    /// This channel alone against its truth, when one was given (the
+    /// result's `metrics` are of every channel together).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub metrics: Option<super::metrics::Metrics>,
 }
 
 /// A flip of every block's wall image.
@@ -496,6 +500,7 @@ impl PhotoModel {
             residual_sd,
             iterations,
             seconds: start.elapsed().as_secs_f64(),
+            metrics: None,
         })
     }
 }
@@ -753,6 +758,9 @@ pub fn reconstruct_photo(
         .collect::<Result<Vec<_>, _>>()?;
     fits.iter_mut().for_each(|f| f.rescale(unit));
     let gain_rule = balance(&mut fits, &mut warnings);
+    for (fit, truth) in fits.iter_mut().zip(truth.unwrap_or_default()) {
+        fit.metrics = Some(super::metrics::compare(t.scene_grid(), truth, &fit.image));
+    }
     let solve_seconds = start.elapsed().as_secs_f64();
     let metrics = truth.map(|truth| {
         let images: Vec<Vec<f64>> = fits.iter().map(|c| c.image.clone()).collect();

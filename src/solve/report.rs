@@ -132,7 +132,9 @@ impl ColourReport {
     }
 
     /// The metrics of all colours together: PSNR of their mean squared
-    /// error, and the mean ZNCC and SSIM; `None` without a truth.
+    /// error (that of every value), and the mean ZNCC and SSIM; `None`
+    /// without a truth. (The daemon's colour result replaces the mean ZNCC
+    /// by the ZNCC of every value, which needs the images.)
     pub fn combined(colours: &[ColourReport]) -> Option<Metrics> {
         let all: Vec<&Metrics> = colours
             .iter()

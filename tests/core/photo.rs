@@ -80,4 +80,17 @@ fn a_simulated_chair_photo_gives_back_its_gain_and_background_within_their_uncer
     // Measured ZNCC 0.952, 17.5 dB after the affine fit.
     let m = r.metrics.unwrap();
     assert!(m.zncc > 0.93 && m.psnr_affine_db > 16.5, "{m:?}");
+    // The result's ZNCC is of every value of every channel; each channel
+    // also carries its own (docs/formats.md).
+    let every = |v: Vec<&Vec<f64>>| v.into_iter().flatten().copied().collect::<Vec<f64>>();
+    let joint = polnlos::solve::metrics::zncc(
+        &every(truth.iter().collect()),
+        &every(r.channels.iter().map(|c| &c.image).collect()),
+    );
+    assert!((m.zncc - joint).abs() < 1e-12, "{} vs {joint}", m.zncc);
+    for (c, ch) in r.channels.iter().enumerate() {
+        let own = ch.metrics.expect("each channel's own metrics");
+        let want = polnlos::solve::metrics::zncc(&truth[c], &ch.image);
+        assert!((own.zncc - want).abs() < 1e-12, "channel {c}: {own:?}");
+    }
 }

@@ -115,6 +115,36 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     assert_eq!(s, 200);
     let header = String::from_utf8_lossy(&npy[..128.min(npy.len())]).into_owned();
     assert!(header.contains("'shape': (8, 8, 3,"), "{header}");
+    // ZNCC per colour (each `colours` entry: that colour alone) and joint
+    // (`metrics`: every value of the colour image against the letter in
+    // each colour), as docs/formats.md says.
+    let image = polnlos::files::npy::decode(&npy).unwrap().data;
+    let grid = polnlos::scene::Scene::builtin("brewster-crossed")
+        .unwrap()
+        .unwrap()
+        .hidden()
+        .plane
+        .grid;
+    let letter = polnlos::simulate::patterns::Pattern::from_name("letter")
+        .unwrap()
+        .render(grid);
+    let each: Vec<f64> = letter.iter().flat_map(|&v| [v; 3]).collect();
+    let joint = polnlos::solve::metrics::zncc(&each, &image);
+    let said = r["report"]["metrics"]["zncc"].as_f64().unwrap();
+    assert!(
+        (said - joint).abs() < 1e-9,
+        "metrics.zncc {said}, joint {joint}"
+    );
+    for (k, c) in colours.iter().enumerate() {
+        let own: Vec<f64> = image.iter().skip(k).step_by(3).copied().collect();
+        let want = polnlos::solve::metrics::zncc(&letter, &own);
+        let said = c["metrics"]["zncc"].as_f64().unwrap();
+        assert!(
+            (said - want).abs() < 1e-9,
+            "{}: {said} vs {want}",
+            c["colour"]
+        );
+    }
     // The capture's preview is in colour too: one RGB pixel per 2x2 cell.
     let capture = &r["captures"][0];
     let (s, png) = d.get_bytes(&format!("/captures/{capture}/preview.png"));

@@ -174,7 +174,15 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
             let s = solved.swap_remove(0);
             (s.image, s.i, s.report, s.kappa)
         }
-        _ => colour_result(solved),
+        _ => {
+            let truth = rec
+                .params
+                .truth
+                .as_deref()
+                .and_then(crate::simulate::patterns::Pattern::from_name)
+                .map(|pat| pat.render(t.scene_grid()));
+            colour_result(solved, truth.as_deref())
+        }
     };
     report.warnings.splice(0..0, stacked.warnings);
     report.radiometry = Some(radiometry);
@@ -412,9 +420,13 @@ impl Job<'_> {
 /// The red, green and blue solutions of a colour camera's captures as one
 /// result: the images and measurements interleaved per element (`[.., 3]`),
 /// and green's report (the colour with the most pixels) carrying every
-/// colour's own fit in `colours`, their metrics combined, their warnings
-/// and notes (each named by its colour where not all three have it).
-fn colour_result(solved: Vec<Solution>) -> (Vec<f64>, Vec<f64>, crate::solve::report::Report, f64) {
+/// colour's own fit in `colours`, their metrics combined (ZNCC over every
+/// value of the image against the grey `truth` in each colour), their
+/// warnings and notes (each named by its colour where not all three have it).
+fn colour_result(
+    solved: Vec<Solution>,
+    truth: Option<&[f64]>,
+) -> (Vec<f64>, Vec<f64>, crate::solve::report::Report, f64) {
     use crate::measure::colour::Colour;
     use crate::solve::report::ColourReport;
     let interleave = |f: &dyn Fn(&Solution) -> &Vec<f64>| -> Vec<f64> {
@@ -432,7 +444,19 @@ fn colour_result(solved: Vec<Solution>) -> (Vec<f64>, Vec<f64>, crate::solve::re
         .zip(Colour::ALL)
         .map(|(s, colour)| ColourReport::of(colour, &s.report))
         .collect();
-    report.metrics = crate::solve::report::ColourReport::combined(&report.colours);
+    report.metrics = ColourReport::combined(&report.colours).map(|m| match truth {
+        Some(truth) => {
+            let each: Vec<f64> = truth
+                .iter()
+                .flat_map(|&v| std::iter::repeat_n(v, solved.len()))
+                .collect();
+            crate::solve::metrics::Metrics {
+                zncc: crate::solve::metrics::zncc(&each, &image),
+                ..m
+            }
+        }
+        None => m,
+    });
     report.warnings = labelled(&solved, |s| &s.report.warnings);
     report.notes = labelled(&solved, |s| &s.report.notes);
     (image, i, report, kappa)
