@@ -182,8 +182,9 @@ function downloads(items) {
 
 // ---- camera and live view ----
 
-// The sensor's width in unbinned pixels (GET /camera): the live view's scale.
-let sensorWidth = null;
+// The camera's frame (GET /camera): its region [x, y, width, height] and
+// binning, which place the live frame's pixels on the sensor.
+let liveFrame = null;
 // The pose the stage last reached (GET /stage), when the bench has a stage.
 let stagePose = null;
 
@@ -203,7 +204,7 @@ async function refreshCamera() {
   // Every setting the camera reads back, by its API name (a new setting shows without a change here).
   const mosaic = cam.info && cam.info.mosaic;
   const bayer = cam.info && cam.info.bayer;
-  sensorWidth = (cam.info && cam.info.sensor && cam.info.sensor[0]) || null;
+  liveFrame = Array.isArray(s.region) ? { region: s.region, binning: s.binning || [1, 1] } : null;
   $("#view-box").hidden = !mosaic && !bayer;
   // Each sensor's own views: the Stokes images of a mosaic, the colours of a Bayer filter.
   for (const o of $("#view").options) {
@@ -294,10 +295,19 @@ async function wallAim() {
   return v ? { scene, ...v } : null;
 }
 
-// Zoom in sensor pixels: 1x shows one screen pixel per frame pixel (the
+// A point in unbinned sensor pixels (where a homography maps) in the pixels
+// of the frame of `region` and `binning`: the centre of frame pixel X is at
+// x0 + b X + (b - 1) / 2 on the sensor (MODEL.md, as the measurement reads it).
+// Why: a frame is its region, not the sensor (512 of a 2048 px sensor).
+function inFrame(point, region, binning) {
+  const b = binning || [1, 1];
+  return [0, 1].map((a) => (point[a] - region[a] - (b[a] - 1) / 2) / b[a]);
+}
+
+// Zoom in frame pixels: 1x shows one screen pixel per frame pixel (the
 // whole 512 px frame, not half of it), and every zoom opens on the wall's
-// image, where a pose's homography puts it, else on the frame's centre,
-// never on its top-left corner (issue 38).
+// image, where a pose's homography puts it in the camera's region, else on
+// the frame's centre, never on its top-left corner (issues 38, 47).
 async function applyZoom() {
   const z = Number($("#zoom").value);
   const img = $("#live");
@@ -305,11 +315,12 @@ async function applyZoom() {
   img.style.height = "auto";
   const box = $("#live-box");
   const aim = await wallAim();
-  // Screen pixels per unbinned sensor pixel: the live frame spans the sensor.
-  const scale = sensorWidth && img.naturalWidth ? img.clientWidth / sensorWidth : null;
-  if (aim && aim.centre && scale) {
-    box.scrollLeft = Math.max(0, aim.centre[0] * scale - box.clientWidth / 2);
-    box.scrollTop = Math.max(0, aim.centre[1] * scale - box.clientHeight / 2);
+  // Screen pixels per frame pixel.
+  const scale = img.naturalWidth ? img.clientWidth / img.naturalWidth : null;
+  if (aim && aim.centre && scale && liveFrame) {
+    const [x, y] = inFrame(aim.centre, liveFrame.region, liveFrame.binning);
+    box.scrollLeft = Math.max(0, x * scale - box.clientWidth / 2);
+    box.scrollTop = Math.max(0, y * scale - box.clientHeight / 2);
     $("#zoom").title = `centred on the wall of ${aim.scene}, pose ${aim.pose} (its homography)`;
   } else {
     box.scrollLeft = Math.max(0, (box.scrollWidth - box.clientWidth) / 2);
@@ -386,11 +397,13 @@ function captureRow(c) {
   const n = active(c.state) ? Math.max(c.frames_taken, taken.get(c.id) || 0) : c.frames_taken;
   const bar = el("progress", { class: "progress", max: String(total), value: String(n) });
   const frames = el("td", { class: "frames" }, bar, el("span", { class: "count" }, ` ${n}/${total}`));
-  // This capture's own losses (frame_counts), when it lost any.
+  // This capture's own losses (frame_counts), when it lost any, in the
+  // daemon's words: a lost frame was replaced by a later one, so the count
+  // above is of frames received whole.
   const fc = c.frame_counts;
   if (fc && fc.dropped + fc.broken > 0) {
-    frames.append(el("div", { class: "lost warning", title: "frames the camera sent that never arrived (dropped) or arrived incomplete (broken)" },
-      `lost ${fc.dropped} dropped, ${fc.broken} broken`));
+    frames.append(el("div", { class: "lost warning", title: "frames the camera sent that never arrived (dropped) or arrived incomplete (broken); later frames replaced them, and its reconstructions warn" },
+      `lost ${fc.dropped + fc.broken} frames (${fc.dropped} dropped, ${fc.broken} broken) besides the ${fc.received} received whole`));
   }
   // Pixels at full scale (clipping): their means are biased low.
   const cl = c.clipping;
@@ -504,8 +517,14 @@ function radiometryLines(rep) {
   const rad = rep.radiometry;
   if (rad) out.push(`radiometry ${rad.mode}${rad.given ? "" : " (chosen)"}: ${rad.reason}`);
   (rep.channels || []).forEach((c, k) => out.push(
-    `channel ${k}: gain ${c.gain.toExponential(3)}, λ ${c.lambda.toExponential(3)}${c.informative ? "" : ", no signal"}`));
+    `channel ${k}: gain ${c.gain.toExponential(3)}, λ ${c.lambda.toExponential(3)}, misfit ${num(c.misfit / c.misfit_floor, 3)} of its λ = 0 floor${c.informative ? "" : ", no signal"}`));
   return out;
+}
+
+// A report's number with `digits` decimals; "inf" (as report.json writes an
+// infinite PSNR) and a missing number as they are.
+function num(v, digits) {
+  return typeof v === "number" ? v.toFixed(digits) : String(v ?? "-");
 }
 
 function reportLines(r) {
@@ -515,8 +534,10 @@ function reportLines(r) {
   const l = rep.lambda_choice;
   if (l) lines.push(`lambda ${l.lambda.toExponential(3)} (${l.rule}, noise from ${l.noise})`);
   else if (r.params && r.params.lambda !== undefined && r.params.lambda !== null) lines.push(`lambda ${Number(r.params.lambda).toExponential(3)} (given)`);
+  const mc = rep.model_check;
+  if (mc) lines.push(`model check χ²/dof ${num(mc.chi2_per_dof, 2)}` + (mc.explained === false ? " (T does not explain the measurement)" : ""));
   const m = rep.metrics;
-  if (m) lines.push(`PSNR ${m.psnr_db.toFixed(2)} dB, SSIM ${m.ssim.toFixed(3)}`);
+  if (m) lines.push(`PSNR ${num(m.psnr_db, 2)} dB, SSIM ${num(m.ssim, 3)}, ZNCC ${num(m.zncc, 3)}`);
   if (r.error) lines.push(`error: ${r.error}`);
   return lines.join("\n");
 }

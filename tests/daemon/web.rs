@@ -1234,3 +1234,78 @@ fn the_stokes_views_give_their_levels_in_their_own_units_not_dn() {
         c.close().await.unwrap();
     });
 }
+
+#[test]
+fn a_result_card_shows_its_model_check_and_zncc_and_the_zoom_opens_on_the_wall_of_the_region() {
+    // A scene whose homography puts the wall's centre at (405.5, 355.5) on
+    // the sensor: the built-in bench's, shifted by (150, 100) px.
+    let scenes = scratch();
+    let aim = scenes.path().join("aim.toml");
+    let file = polnlos::scene::builtin::text("brewster-crossed")
+        .unwrap()
+        .replacen(
+            "[[-425.517945, 1220.52494, 255.5], [250.943812, 0, 255.5], [-1.66543227, 0, 1]]",
+            "[[-675.332786, 1220.52494, 405.5], [84.400585, 0, 355.5], [-1.66543227, 0, 1]]",
+            1,
+        );
+    std::fs::write(&aim, file).unwrap();
+    let listed = format!("scene_files = [{:?}]", aim.display().to_string());
+    let page = Page::start_with(&[("scene_files = []", &listed)]);
+    let c = page.d.run_job("/captures", r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 4, "dark_frames": 1}"#, Duration::from_secs(30));
+    assert_eq!(c["state"], "done", "{c}");
+    let r = page.d.run_job(
+        "/reconstructions",
+        r#"{"scene": "brewster-crossed", "captures": [1], "truth": "letter"}"#,
+        Duration::from_secs(60),
+    );
+    assert_eq!(r["state"], "done", "{r}");
+    let report = &r["report"];
+    let chi2 = report["model_check"]["chi2_per_dof"]
+        .as_f64()
+        .expect("a model check");
+    let zncc = report["metrics"]["zncc"].as_f64().expect("a ZNCC");
+    page.rt.block_on(async {
+        let c = page.open().await;
+        let long = Duration::from_secs(60);
+        // The card: the model check and ZNCC beside κ, λ, PSNR and SSIM.
+        let card = until("the result card", long, || async {
+            let t = text(&c, "#reconstruction-1 .report").await;
+            t.contains("ZNCC").then_some(t)
+        })
+        .await;
+        println!("result card:\n{card}");
+        assert!(card.contains(&format!("model check χ²/dof {chi2:.2}")), "{card}");
+        assert!(card.contains(&format!("ZNCC {zncc:.3}")) && card.contains("SSIM"), "{card}");
+        // A capture's row says what it lost in the daemon's words, beside
+        // the frames it kept.
+        let lost = js(&c, "return fetch('/captures/1').then((r) => r.json()).then((x) => { x.frame_counts = {received: 5, dropped: 0, broken: 4}; return captureRow(x).querySelector('.lost').textContent; });").await;
+        assert_eq!(lost, "lost 4 frames (0 dropped, 4 broken) besides the 5 received whole");
+        // The zoom opens on the wall in the camera's region, not where the
+        // point would be on the whole sensor: a 384 x 448 region at (128, 64).
+        let (s, b) = page.d.put(
+            "/camera/settings",
+            r#"{"exposure_us": 20000, "gain": 0, "pixel_format": "Mono16", "trigger": "free", "region": [128, 64, 384, 448], "binning": [1, 1]}"#,
+        );
+        assert_eq!(s, 200, "{b}");
+        until("the live view of the region", long, || async {
+            let v = js(&c, "return [document.querySelector('#live').naturalWidth, liveFrame && liveFrame.region[0]];").await;
+            (v == serde_json::json!([384, 128])).then_some(())
+        })
+        .await;
+        assert_eq!(js(&c, "return inFrame([405.5, 355.5], [128, 64, 384, 448], [1, 1]);").await, serde_json::json!([277.5, 291.5]));
+        assert_eq!(js(&c, "return inFrame([405.5, 355.5], [0, 0, 256, 256], [2, 2]);").await, serde_json::json!([202.5, 177.5]));
+        choose(&c, "#capture-form select[name=scene]", "aim").await;
+        choose(&c, "#zoom", "4").await;
+        js(&c, "document.querySelector('#zoom').dispatchEvent(new Event('change')); return true;").await;
+        assert_eq!(js(&c, "return document.querySelector('#live').clientWidth;").await, 384 * 4);
+        let scroll = "const b = document.querySelector('#live-box'); return [b.scrollLeft, b.clientWidth, b.scrollTop, b.clientHeight];";
+        let aimed = until("the zoom on the wall in the region", long, || async {
+            let v: Vec<f64> = serde_json::from_value(js(&c, scroll).await).unwrap();
+            let want = [277.5 * 4.0 - v[1] / 2.0, 291.5 * 4.0 - v[3] / 2.0];
+            ((v[0] - want[0]).abs() <= 1.0 && (v[2] - want[1]).abs() <= 1.0).then_some(v)
+        })
+        .await;
+        println!("zoom 4x on the wall in region [128, 64, 384, 448]: scroll {aimed:?}");
+        c.close().await.unwrap();
+    });
+}
