@@ -83,6 +83,32 @@ impl FrameGeometry {
         (self.sensor(0, x as i64), self.sensor(1, y as i64))
     }
 
+    /// Whether every pixel centre in the bounding box of the wall's image
+    /// through `h` lies in this frame: then no wall element is imaged even
+    /// partly outside it, which [`PixelMap::frame`] would otherwise find by
+    /// mapping every pixel.
+    ///
+    /// Why: a request's check must not cost a whole pixel map (tens of MB
+    /// for a large frame) for every request a client sends.
+    pub fn holds_wall(
+        &self,
+        h: &Homography,
+        wall: &Plane,
+        pose: &str,
+    ) -> Result<bool, FootprintError> {
+        let mut lo = [f64::INFINITY; 2];
+        let mut hi = [f64::NEG_INFINITY; 2];
+        for [x, y] in wall_corners(h, wall, pose)? {
+            lo = [lo[0].min(x), lo[1].min(y)];
+            hi = [hi[0].max(x), hi[1].max(y)];
+        }
+        let inside = |a: usize| {
+            let (k0, k1) = self.indices(a, lo[a], hi[a]);
+            k0 >= 0 && k1 < self.size[a] as i64
+        };
+        Ok(inside(0) && inside(1))
+    }
+
     /// Sensor coordinate of pixel index `k` along axis `a` (0: x, 1: y).
     fn sensor(&self, a: usize, k: i64) -> f64 {
         let b = f64::from(self.binning[a]);

@@ -1583,11 +1583,12 @@ fn a_photo_with_the_wrong_shape_or_values_is_refused_naming_the_file() {
         (
             vec![15876],
             {
+                // NaN marks an element not measured; an infinity is refused.
                 let mut v = vec![1.0; 15876];
-                v[7] = f64::NAN;
+                v[7] = f64::INFINITY;
                 v
             },
-            "non-finite",
+            "infinite",
         ),
     ] {
         let p = dir.path().join("m.npy");

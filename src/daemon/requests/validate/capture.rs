@@ -104,7 +104,13 @@ fn check_reconstructable(
         size: [a.region[2] as usize, a.region[3] as usize],
         binning: a.binning,
     };
-    PixelMap::frame(h, &scene.wall().plane, geometry, &pose.name)
+    // Cheap first: a frame that holds the wall's whole image needs no map;
+    // only a frame the wall may leave is mapped pixel by pixel.
+    let wall = &scene.wall().plane;
+    if let Ok(true) = geometry.holds_wall(h, wall, &pose.name) {
+        return Ok(());
+    }
+    PixelMap::frame(h, wall, geometry, &pose.name)
         .map(|_| ())
         .map_err(|e| {
             invalid(format!(
