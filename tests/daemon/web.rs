@@ -1282,10 +1282,20 @@ fn a_result_card_shows_its_model_check_and_zncc_and_the_zoom_opens_on_the_wall_o
         assert_eq!(lost, "lost 4 frames (0 dropped, 4 broken) besides the 5 received whole");
         // The zoom opens on the wall in the camera's region, not where the
         // point would be on the whole sensor: a 384 x 448 region at (128, 64).
-        let (s, b) = page.d.put(
-            "/camera/settings",
-            r#"{"exposure_us": 20000, "gain": 0, "pixel_format": "Mono16", "trigger": "free", "region": [128, 64, 384, 448], "binning": [1, 1]}"#,
-        );
+        // The page's live view takes a frame a second: a 409 (busy) while
+        // it does is the daemon's right answer, so the settings are retried.
+        let put = || {
+            page.d.put(
+                "/camera/settings",
+                r#"{"exposure_us": 20000, "gain": 0, "pixel_format": "Mono16", "trigger": "free", "region": [128, 64, 384, 448], "binning": [1, 1]}"#,
+            )
+        };
+        let t = std::time::Instant::now();
+        let (mut s, mut b) = put();
+        while s == 409 && t.elapsed() < Duration::from_secs(20) {
+            tokio::time::sleep(Duration::from_millis(200)).await;
+            (s, b) = put();
+        }
         assert_eq!(s, 200, "{b}");
         until("the live view of the region", long, || async {
             let v = js(&c, "return [document.querySelector('#live').naturalWidth, liveFrame && liveFrame.region[0]];").await;
