@@ -20,6 +20,7 @@ use crate::scene::occluder::triangle_blocks;
 use crate::scene::{Occluder, Plane};
 
 pub(super) mod area;
+mod faces;
 
 use area::{Band, Cell, Cover, Polygon};
 
@@ -29,6 +30,9 @@ enum Piece {
     Whole(Occluder),
     /// One triangle of a mesh.
     Triangle([Vec3; 3]),
+    /// A convex planar polygon of a mesh's faces (area shadows only: see
+    /// [`faces`]), its vertices in order.
+    Polygon(Vec<Vec3>),
 }
 
 impl Piece {
@@ -38,6 +42,9 @@ impl Piece {
         match self {
             Piece::Whole(o) => o.blocks(s, p),
             Piece::Triangle(t) => triangle_blocks(t, s, &(p - s)),
+            Piece::Polygon(v) => {
+                (1..v.len() - 1).any(|k| triangle_blocks(&[v[0], v[k], v[k + 1]], s, &(p - s)))
+            }
         }
     }
 }
@@ -56,6 +63,7 @@ impl Piece {
                     .to_vec(),
             ),
             Piece::Triangle(t) => Some(t.to_vec()),
+            Piece::Polygon(v) => Some(v.clone()),
             Piece::Whole(_) => None,
         }
     }
@@ -198,14 +206,21 @@ impl Shadows {
         if occluders.is_empty() {
             return None;
         }
+        // Area shadows take a mesh with coincident faces as fewer, larger
+        // pieces of the same union; point shadows always test its triangles.
         let pieces: Vec<Piece> = occluders
             .iter()
             .flat_map(|o| match o {
-                Occluder::Mesh(mesh) => mesh
-                    .triangles()
-                    .iter()
-                    .map(|t| Piece::Triangle(*t))
-                    .collect(),
+                Occluder::Mesh(mesh) => {
+                    match scene.and_then(|_| faces::area_pieces(mesh.triangles())) {
+                        Some(polygons) => polygons.into_iter().map(Piece::Polygon).collect(),
+                        None => mesh
+                            .triangles()
+                            .iter()
+                            .map(|t| Piece::Triangle(*t))
+                            .collect(),
+                    }
+                }
                 o => vec![Piece::Whole(o.clone())],
             })
             .collect();

@@ -14,5 +14,6 @@ mod photo;
 #[cfg(feature = "report")]
 mod rendered;
 mod rev3;
+mod shadows;
 mod stability;
 mod transport;
