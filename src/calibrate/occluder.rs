@@ -334,7 +334,7 @@ pub fn fit_occluder(
     }
     let supersample = options.supersample.unwrap_or(match options.shadows {
         ShadowModel::Area => 1,
-        ShadowModel::Point => scene.hidden().plane.supersample.max(SUPERSAMPLE),
+        ShadowModel::Point | ShadowModel::Auto => scene.hidden().plane.supersample.max(SUPERSAMPLE),
     });
     let mut probes = Vec::new();
     let mut f = |d: [f64; 3]| {

@@ -77,7 +77,9 @@ struct OccluderArgs {
     #[arg(long, value_name = "N")]
     supersample: Option<usize>,
     /// Shadows of each T the search builds: area (continuous in the
-    /// translation) or point (MODEL.md's point sources, rough below a millimetre).
+    /// translation), point (MODEL.md's point sources, rough below a
+    /// millimetre) or auto (the scene's choice without a photo: point unless
+    /// the file says area).
     #[arg(long, value_enum, default_value_t = polnlos::scene::ShadowModel::Area)]
     shadows: polnlos::scene::ShadowModel,
     /// Write the scene with the occluders moved here (default: print it).

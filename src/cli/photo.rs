@@ -4,7 +4,10 @@
 use std::time::Instant;
 
 use polnlos::files::{image, json, npy, FileError};
-use polnlos::solve::photo::{reconstruct_photo, split_channels, PhotoReport, PhotoSettings};
+use polnlos::scene::{ShadowChoice, ShadowModel};
+use polnlos::solve::photo::{
+    pick_shadows, reconstruct_photo, split_channels, PhotoReport, PhotoSettings,
+};
 use polnlos::solve::radiometry::RadiometryChoice;
 
 use super::reconstruct::{Args, LambdaArg};
@@ -30,8 +33,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let cached = super::build_transport(&scene, budget, &|done| pb.set_position(done as u64))?;
     pb.finish_and_clear();
-    let (t, transport_cache) = (cached.t, cached.source);
-    let transport_seconds = t0.elapsed().as_secs_f64();
+    let (mut t, mut transport_cache) = (cached.t, cached.source);
     let d = PhotoSettings::default();
     let settings = PhotoSettings {
         data_term: a.data_term,
@@ -39,6 +41,23 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         iterations: a.solve.max_iter.unwrap_or(d.iterations),
         ..d
     };
+    // The file left `shadows` out and the penumbra is not negligible: the
+    // photo says whether point or area shadows explain it better.
+    let mut shadows = scene.shadow_choice();
+    if shadows.open {
+        let area = scene
+            .clone()
+            .edit(|p| p.hidden.shadows = ShadowModel::Area)?;
+        let pb = super::progress::bar(scene.cols(), "building T (area shadows)");
+        let cached = super::build_transport(&area, budget, &|done| pb.set_position(done as u64))?;
+        pb.finish_and_clear();
+        shadows = pick_shadows(&t, &cached.t, &channels, &settings, shadows)?;
+        if shadows.model == ShadowModel::Area {
+            (t, transport_cache) = (cached.t, cached.source);
+        }
+    }
+    eprintln!("note: {} shadows: {}", shadows.model.name(), shadows.reason);
+    let transport_seconds = t0.elapsed().as_secs_f64();
     let result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;
     let c = result.channels.len();
     let n = grid.count();
@@ -72,6 +91,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         radiometry: RadiometryChoice::photo_flag(),
         transport_seconds,
         transport_cache: Some(transport_cache),
+        shadows: Some(shadows),
         total_seconds: start.elapsed().as_secs_f64(),
         result,
     };

@@ -185,6 +185,9 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     super::out_dir(&a.out)?;
     let pb = super::progress::bar(scene.cols(), "building T");
     let cached = std::sync::Mutex::new(None);
+    // The shadow model of the scene T is built from (a left-out key is
+    // point shadows here: only `--photo` compares; docs/realphoto.md).
+    let shadows = std::sync::Mutex::new(None);
     let solved = reconstruct_scene_with(
         &scene,
         SceneInput {
@@ -202,11 +205,17 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
             if let Ok(mut k) = cached.lock() {
                 *k = Some(c.source);
             }
+            if let (Ok(mut k), false) = (shadows.lock(), s.occluders().is_empty()) {
+                *k = Some(s.shadow_choice());
+            }
             Ok(c.t)
         },
     )?;
     if let Some(source) = cached.lock().ok().and_then(|k| *k) {
         eprintln!("note: T {}", super::cache_words(source));
+    }
+    if let Some(c) = shadows.lock().ok().and_then(|mut k| k.take()) {
+        eprintln!("note: {} shadows: {}", c.model.name(), c.reason);
     }
     pb.finish_and_clear();
     let (image, report) = (solved.image, solved.report);

@@ -191,7 +191,7 @@ impl From<SceneParts> for RawFile {
                 emitter: p.hidden.emitter,
                 lobe: p.hidden.lobe,
                 polarization: p.hidden.polarization.map(array),
-                shadows: Some(p.hidden.shadows),
+                shadows: (p.hidden.shadows != ShadowModel::Auto).then_some(p.hidden.shadows),
             },
             pose: p
                 .poses
@@ -1199,8 +1199,17 @@ polarizer_deg = [0.0, 90.0]
     }
 
     #[test]
-    fn scene_shadows_are_point_unless_the_file_says_area_and_survive_an_edit() {
-        assert_eq!(parse(BASE).unwrap().hidden.shadows, ShadowModel::Point);
+    fn scene_shadows_are_auto_unless_the_file_says_and_survive_an_edit() {
+        let bare = parse(BASE).unwrap();
+        assert_eq!(bare.hidden.shadows, ShadowModel::Auto);
+        assert_eq!(bare.shadow_choice().model, ShadowModel::Point);
+        let edited = bare
+            .clone()
+            .edit(|p| p.hidden.plane.supersample = 2)
+            .unwrap();
+        assert_eq!(edited.hidden().shadows, ShadowModel::Auto);
+        let auto = with("grid = [2, 2]", "grid = [2, 2]\nshadows = \"auto\"").unwrap();
+        assert_eq!(auto.hidden.shadows, ShadowModel::Auto);
         let area = "grid = [2, 2]\nshadows = \"area\"";
         let s = with("grid = [2, 2]", area).unwrap();
         assert_eq!(s.hidden.shadows, ShadowModel::Area);

@@ -63,12 +63,54 @@ pub enum Emitter {
 )]
 #[serde(rename_all = "lowercase")]
 pub enum ShadowModel {
-    /// Each sample is a point: visible or not (MODEL.md, the default).
-    #[default]
+    /// Each sample is a point: visible or not (MODEL.md).
     Point,
     /// Each sample stands for its cell (the element's `m x m` sub-cell): the
     /// visible fraction of the cell, exact for rects and mesh triangles.
     Area,
+    /// No `shadows` key: chosen from the scene, and from a photo where one
+    /// is fitted ([`Scene::shadow_choice`], docs/realphoto.md "Which
+    /// shadows").
+    #[default]
+    Auto,
+}
+
+impl ShadowModel {
+    /// The value as a scene file writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            ShadowModel::Point => "point",
+            ShadowModel::Area => "area",
+            ShadowModel::Auto => "auto",
+        }
+    }
+}
+
+/// A penumbra narrower than this many wall samples is negligible: point and
+/// area shadows then differ at most in the one wall sample a shadow edge
+/// crosses (docs/realphoto.md, "Which shadows").
+pub const NEGLIGIBLE_PENUMBRA: f64 = 0.5;
+
+/// The shadow model a `T` is built with and why.
+///
+/// Why: callers put it in their reports; `shadows` is a key few users know,
+/// and on a photo the wrong one costs more than any other setting
+/// (docs/realphoto.md, "Which shadows").
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ShadowChoice {
+    /// `Point` or `Area`, never `Auto`.
+    pub model: ShadowModel,
+    /// Why, in words.
+    pub reason: String,
+    /// The widest penumbra one scene cell casts on the wall through the
+    /// occluders, in wall samples; `None` without occluders.
+    pub penumbra: Option<f64>,
+    /// Whether a photo should decide: the file left `shadows` out and the
+    /// penumbra is not negligible, so point shadows are only the default.
+    pub open: bool,
+    /// The photo's misfits with point and with area shadows, when a photo
+    /// decided (`solve::photo::pick_shadows`).
+    pub misfit: Option<[f64; 2]>,
 }
 
 /// The rough wall the camera sees.
@@ -317,6 +359,104 @@ impl Scene {
     /// How every pose's polarizer sheet acts on oblique rays (MODEL.md `[polarizer] model`).
     pub fn polarizer(&self) -> PolarizerModel {
         self.polarizer
+    }
+
+    /// The widest penumbra one scene sample's cell casts on the wall through
+    /// an occluder, in wall samples; `None` without occluders (or none
+    /// between the planes).
+    ///
+    /// A cell of side `c` seen past an occluder point at height `h_w` over
+    /// the wall and `h_s` over the scene plane blurs a shadow edge over
+    /// `c h_w / h_s` on the wall (similar triangles); over the wall's sample
+    /// pitch this says how many wall samples a point source's hard edge
+    /// would have to stand for (docs/realphoto.md, "Which shadows").
+    pub fn penumbra(&self) -> Option<f64> {
+        let (wall, scene) = (&self.wall.plane, &self.hidden.plane);
+        let m = scene.supersample.max(1) as f64;
+        let cell =
+            (scene.size[0] / scene.grid.nu as f64).max(scene.size[1] / scene.grid.nv as f64) / m;
+        let mw = wall.supersample.max(1) as f64;
+        let pitch =
+            (wall.size[0] / wall.grid.nu as f64).min(wall.size[1] / wall.grid.nv as f64) / mw;
+        let mut widest: Option<f64> = None;
+        let mut see = |x: Vec3| {
+            let hw = wall.normal.dot(&(x - wall.center));
+            let hs = scene.normal.dot(&(x - scene.center));
+            if hw > 0.0 && hs > 0.0 && hw.is_finite() && hs.is_finite() {
+                let w = cell * hw / hs / pitch;
+                widest = Some(widest.map_or(w, |v: f64| v.max(w)));
+            }
+        };
+        for o in &self.occluders {
+            match o {
+                Occluder::Rect {
+                    center,
+                    half_u,
+                    half_v,
+                } => {
+                    for (a, b) in [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)] {
+                        see(center + half_u * a + half_v * b);
+                    }
+                }
+                Occluder::Sphere { center, .. } => see(*center),
+                Occluder::Mesh(mesh) => mesh.triangles().iter().flatten().for_each(|p| see(*p)),
+            }
+        }
+        widest
+    }
+
+    /// Which shadows `T` is built with: the file's `shadows` when it gives
+    /// one; else point shadows where the [`Scene::penumbra`] is below
+    /// [`NEGLIGIBLE_PENUMBRA`] wall samples (MODEL.md's point sources), and
+    /// point shadows left `open` for a photo to decide where it is wider.
+    ///
+    /// Why: MODEL.md's point sources are exact where a cell's penumbra is
+    /// negligible and the reference benches are defined by them; a photo of
+    /// an extended screen behind a near occluder is not (docs/realphoto.md,
+    /// "Which shadows": ZNCC 0.60 against 0.84 on a held-out photo).
+    pub fn shadow_choice(&self) -> ShadowChoice {
+        let penumbra = self.penumbra();
+        let words = penumbra.map_or(String::new(), |w| {
+            format!("a scene cell's penumbra spans {w:.2} wall samples")
+        });
+        let (model, reason, open) = match (self.hidden.shadows, penumbra) {
+            (_, None) if self.occluders.is_empty() => {
+                (ShadowModel::Point, "no occluders".to_string(), false)
+            }
+            (ShadowModel::Auto, None) => (
+                ShadowModel::Point,
+                "no occluder lies between the scene and the wall".to_string(),
+                false,
+            ),
+            (ShadowModel::Auto, Some(w)) if w < NEGLIGIBLE_PENUMBRA => (
+                ShadowModel::Point,
+                format!(
+                    "{words}, under {NEGLIGIBLE_PENUMBRA}: negligible, point sources (MODEL.md)"
+                ),
+                false,
+            ),
+            (ShadowModel::Auto, Some(_)) => (
+                ShadowModel::Point,
+                format!("{words}; point sources (MODEL.md) until a photo says otherwise"),
+                true,
+            ),
+            (given, _) => (
+                given,
+                format!(
+                    "the scene file says shadows = \"{}\"{}{words}",
+                    given.name(),
+                    if words.is_empty() { "" } else { "; " }
+                ),
+                false,
+            ),
+        };
+        ShadowChoice {
+            model,
+            reason,
+            penumbra,
+            open,
+            misfit: None,
+        }
     }
 
     /// Number of rows of the stacked `T`: wall elements times row blocks.

@@ -29,6 +29,7 @@ use super::fista::{largest_eigenvalue, symmetric};
 use super::gram::{Gram, Normal};
 use super::tv::gradient;
 use super::{check_measurement, SolveError, Stop};
+use crate::scene::{ShadowChoice, ShadowModel};
 use crate::transport::Transport;
 
 /// What a photo's data term fits.
@@ -675,6 +676,10 @@ pub struct PhotoReport {
     /// CLI's cache; absent in the daemon, which keeps `T` per scene).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub transport_cache: Option<&'static str>,
+    /// Point or area shadows, and why (docs/realphoto.md, "Which
+    /// shadows"); absent where the daemon used its scene's `T` as built.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shadows: Option<crate::scene::ShadowChoice>,
     /// Seconds in all.
     pub total_seconds: f64,
     /// The fit.
@@ -828,6 +833,63 @@ pub fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String 
             "each informative channel's own 99th percentile of x (white-patch balance); channel(s) {flagged:?}, which carry no signal, at channel {who}'s"
         ),
     }
+}
+
+/// Settles a shadow choice the scene left `open` ([`crate::scene::Scene::shadow_choice`])
+/// from the photo: the model whose `T` fits the photo's channels (summed)
+/// better at λ = 0, non-negative and blind to gain and background, the
+/// misfit [`PhotoModel::floor_misfit`] gives; `point` and `area` are the
+/// scene's `T` with each. A choice that is not open is returned as it is.
+///
+/// Why: MODEL.md's point sources define the reference benches, but a real
+/// screen behind a near occluder casts a penumbra: on a held-out photo
+/// point shadows gave ZNCC 0.60 and area shadows 0.84; the misfit says
+/// which the photo shows without a truth (docs/realphoto.md, "Which shadows").
+pub fn pick_shadows(
+    point: &Transport,
+    area: &Transport,
+    channels: &[Vec<f64>],
+    settings: &PhotoSettings<'_>,
+    choice: ShadowChoice,
+) -> Result<ShadowChoice, SolveError> {
+    if !choice.open {
+        return Ok(choice);
+    }
+    let mut sum = vec![0.0; point.rows()];
+    for c in channels {
+        if c.len() != point.rows() {
+            return Err(SolveError::Length {
+                expected: point.rows(),
+                got: c.len(),
+            });
+        }
+        // An element not measured (NaN) weighs as 0 in this comparison.
+        sum.iter_mut()
+            .zip(c)
+            .filter(|(_, v)| v.is_finite())
+            .for_each(|(s, v)| *s += v);
+    }
+    let misfit =
+        |t: &Transport| PhotoModel::new(t, settings.data_term).floor_misfit(t, &sum, settings);
+    let (mp, ma) = (misfit(point)?, misfit(area)?);
+    let model = if ma < mp {
+        ShadowModel::Area
+    } else {
+        ShadowModel::Point
+    };
+    let penumbra = choice.penumbra.map_or(String::new(), |w| {
+        format!("a scene cell's penumbra spans {w:.2} wall samples; ")
+    });
+    Ok(ShadowChoice {
+        model,
+        reason: format!(
+            "{penumbra}the photo's λ = 0 misfit is {mp:.4e} with point shadows and {ma:.4e} with area shadows: {}",
+            model.name()
+        ),
+        open: false,
+        misfit: Some([mp, ma]),
+        ..choice
+    })
 }
 
 /// The channels of a measurement array: `[rows]` is one channel, `[rows, C]`

@@ -512,7 +512,7 @@ impl Parts {
                 scene.occluders(),
                 &wall.plane,
                 &samples.points,
-                (scene.hidden().shadows == ShadowModel::Area).then_some(&scene.hidden().plane),
+                (scene.shadow_choice().model == ShadowModel::Area).then_some(&scene.hidden().plane),
             ),
         }
     }
