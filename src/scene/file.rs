@@ -1223,6 +1223,69 @@ polarizer_deg = [0.0, 90.0]
         );
     }
 
+    /// A wall at z = 0 and a screen of one 0.2 m element at z = 1 facing
+    /// it, a 0.3 m wall of 4 x 3 elements, a rect at z = 0.25.
+    const PARALLEL: &str = r#"
+[wall]
+center = [0.0, 0.0, 0.0]
+normal = [0.0, 0.0, 1.0]
+u_axis = [1.0, 0.0, 0.0]
+size = [0.3, 0.3]
+grid = [4, 3]
+roughness = 0.3
+ior = 1.5
+
+[scene]
+center = [0.0, 0.0, 1.0]
+normal = [0.0, 0.0, -1.0]
+u_axis = [1.0, 0.0, 0.0]
+size = [0.2, 0.2]
+grid = [1, 1]
+
+[[pose]]
+name = "A"
+camera = [0.0, 0.3, 0.5]
+polarizer_deg = []
+
+[[occluder]]
+rect = { center = [0.0, 0.0, 0.25], half_u = [0.01, 0.0, 0.0], half_v = [0.0, 0.01, 0.0] }
+"#;
+
+    #[test]
+    fn the_penumbra_is_the_cell_over_the_wall_pitch_through_the_occluder() {
+        // 0.2 m x 0.25 / 0.75 over the wall's finer pitch, 0.3 / 4 m.
+        let s = parse(PARALLEL).unwrap();
+        let w = 0.2 * 0.25 / 0.75 / 0.075;
+        assert!(
+            (s.penumbra().unwrap() - w).abs() < 1e-12,
+            "{:?}",
+            s.penumbra()
+        );
+        let c = s.shadow_choice();
+        assert_eq!((c.model, c.open), (ShadowModel::Point, true));
+        assert!(c.reason.contains("0.89 wall samples"), "{}", c.reason);
+        // Four samples a side: a quarter of it, negligible.
+        let fine = s.edit(|p| p.hidden.plane.supersample = 4).unwrap();
+        let c = fine.shadow_choice();
+        assert_eq!((c.model, c.open), (ShadowModel::Point, false));
+        // An isotropic screen facing away casts the same penumbra.
+        let away = PARALLEL.replace(
+            "normal = [0.0, 0.0, -1.0]",
+            "normal = [0.0, 0.0, 1.0]\nemitter = \"isotropic\"",
+        );
+        let a = parse(&away).unwrap();
+        assert!((a.penumbra().unwrap() - w).abs() < 1e-12);
+        // The file's word stands; no occluder, nothing to choose.
+        let area =
+            parse(&PARALLEL.replace("grid = [1, 1]", "grid = [1, 1]\nshadows = \"area\"")).unwrap();
+        let c = area.shadow_choice();
+        assert_eq!((c.model, c.open), (ShadowModel::Area, false));
+        assert!(c.reason.contains("says shadows = \"area\""), "{}", c.reason);
+        let open = parse(PARALLEL.split("[[occluder]]").next().unwrap()).unwrap();
+        assert_eq!(open.penumbra(), None);
+        assert_eq!(open.shadow_choice().model, ShadowModel::Point);
+    }
+
     #[test]
     fn missing_and_unknown_keys_are_parse_errors() {
         let e = with("ior = 1.5\n", "").unwrap_err();

@@ -378,10 +378,13 @@ impl Scene {
         let mw = wall.supersample.max(1) as f64;
         let pitch =
             (wall.size[0] / wall.grid.nu as f64).min(wall.size[1] / wall.grid.nv as f64) / mw;
+        // Heights over the scene plane on the wall's side of it (an
+        // isotropic screen's normal may face away).
+        let side = scene.normal.dot(&(wall.center - scene.center)).signum();
         let mut widest: Option<f64> = None;
         let mut see = |x: Vec3| {
             let hw = wall.normal.dot(&(x - wall.center));
-            let hs = scene.normal.dot(&(x - scene.center));
+            let hs = side * scene.normal.dot(&(x - scene.center));
             if hw > 0.0 && hs > 0.0 && hw.is_finite() && hs.is_finite() {
                 let w = cell * hw / hs / pitch;
                 widest = Some(widest.map_or(w, |v: f64| v.max(w)));
