@@ -559,7 +559,9 @@ fn reconstruct_photo<'py>(
     truth: Option<PyReadonlyArrayDyn<'py, f64>>,
     max_iter: Option<usize>,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    use polnlos::solve::photo::{reconstruct_photo, split_channels, PhotoReport, PhotoSettings};
+    use polnlos::solve::photo::{
+        pick_shadows, reconstruct_photo, split_channels, PhotoReport, PhotoSettings,
+    };
     let shape = measurement.shape().to_vec();
     let data: Vec<f64> = measurement.as_array().iter().copied().collect();
     let channels = split_channels(&shape, &data, scene.inner.rows())
@@ -590,12 +592,28 @@ fn reconstruct_photo<'py>(
         ..d
     };
     let start = std::time::Instant::now();
-    let (report, transport_seconds) = py
+    let (report, transport_seconds, shadows) = py
         .allow_threads(|| {
-            let t = polnlos::transport::build(&scene.inner, BUDGET).map_err(|e| e.to_string())?;
+            let mut t =
+                polnlos::transport::build(&scene.inner, BUDGET).map_err(|e| e.to_string())?;
+            // As the CLI's --photo: an open shadow choice is the photo's.
+            let mut shadows = scene.inner.shadow_choice();
+            if shadows.open {
+                let area = scene
+                    .inner
+                    .clone()
+                    .edit(|p| p.hidden.shadows = polnlos::scene::ShadowModel::Area)
+                    .map_err(|e| e.to_string())?;
+                let ta = polnlos::transport::build(&area, BUDGET).map_err(|e| e.to_string())?;
+                shadows = pick_shadows(&t, &ta, &channels, &settings, shadows)
+                    .map_err(|e| e.to_string())?;
+                if shadows.model == polnlos::scene::ShadowModel::Area {
+                    t = ta;
+                }
+            }
             let seconds = start.elapsed().as_secs_f64();
             reconstruct_photo(&t, &channels, truth.as_deref(), &settings)
-                .map(|r| (r, seconds))
+                .map(|r| (r, seconds, shadows))
                 .map_err(|e| e.to_string())
         })
         .map_err(polnlos_err)?;
@@ -611,6 +629,7 @@ fn reconstruct_photo<'py>(
         },
         transport_seconds,
         transport_cache: None,
+        shadows: Some(shadows),
         total_seconds: start.elapsed().as_secs_f64(),
         result: report,
     };

@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use polnlos::files::{image, json, npy, FileError};
-use polnlos::scene::{ShadowChoice, ShadowModel};
+use polnlos::scene::ShadowModel;
 use polnlos::solve::photo::{
     pick_shadows, reconstruct_photo, split_channels, PhotoReport, PhotoSettings,
 };

@@ -18,7 +18,7 @@ use crate::measure::{
 };
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
-use crate::solve::photo::{reconstruct_photo, PhotoReport, PhotoSettings};
+use crate::solve::photo::{pick_shadows, reconstruct_photo, PhotoReport, PhotoSettings};
 use crate::solve::radiometry::{Known, Radiometry, RadiometryChoice};
 use crate::solve::reconstruct::{reconstruct_prepared, Context};
 use crate::solve::{check_measurement, SolveRequest, Stop};
@@ -360,7 +360,25 @@ impl Job<'_> {
             stop: Stop::on(self.cancel),
             ..defaults
         };
-        let mut result = reconstruct_photo(self.t, &channels, truth.as_deref(), &settings)?;
+        // The scene left `shadows` out and its penumbra is not negligible:
+        // the photo decides, as `polnlos reconstruct --photo` lets it.
+        let scene = d.scenes.scene(&rec.scene)?;
+        let mut shadows = scene.shadow_choice();
+        let mut t = self.t.clone();
+        if shadows.open && self.part.is_none() {
+            let area = (*scene)
+                .clone()
+                .edit(|p| p.hidden.shadows = crate::scene::ShadowModel::Area)
+                .map_err(|e| JobError::Store(e.to_string()))?;
+            let ta = crate::transport::build(&area, d.scenes.budget())
+                .map_err(|e| JobError::Store(e.to_string()))?;
+            check(self.cancel)?;
+            shadows = pick_shadows(&t, &ta, &channels, &settings, shadows)?;
+            if shadows.model == crate::scene::ShadowModel::Area {
+                t = Arc::new(ta);
+            }
+        }
+        let mut result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;
         check(self.cancel)?;
         result.warnings.splice(0..0, stacked.warnings);
         if let Some(p) = self.part {
@@ -376,6 +394,7 @@ impl Job<'_> {
             radiometry,
             transport_seconds: self.transport_seconds,
             transport_cache: None,
+            shadows: Some(shadows),
             total_seconds: start.elapsed().as_secs_f64(),
             result,
         };
