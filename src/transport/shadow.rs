@@ -82,6 +82,49 @@ impl Piece {
     }
 }
 
+/// What [`cut_beyond`] leaves of a polygon.
+enum Cut {
+    /// Nothing of it lies beyond the scene plane: the piece as it is.
+    Whole,
+    /// The part at least `delta` on the wall's side, in order.
+    Part(Vec<Vec3>),
+    /// Nothing is left: it cannot block.
+    Gone,
+}
+
+/// Polygon `verts` cut to where `toward . (x - origin) >= delta` when some
+/// vertex lies beyond the scene plane (`toward`: its unit normal towards
+/// the wall, `origin` a point of it).
+///
+/// Why: area shadows project a piece from the wall sample onto the scene
+/// plane, exact only for a piece wholly between the planes; a piece
+/// reaching beyond would take the point test of the cell's centre for the
+/// whole cell, which depends on how a solid is cut into pieces
+/// (docs/realphoto.md, "Area shadows").
+fn cut_beyond(verts: &[Vec3], toward: &Vec3, origin: &Vec3, delta: f64) -> Cut {
+    let h: Vec<f64> = verts.iter().map(|x| toward.dot(&(x - origin))).collect();
+    if h.iter().all(|&h| h >= 0.0) {
+        return Cut::Whole;
+    }
+    let mut out = Vec::with_capacity(verts.len() + 1);
+    for i in 0..verts.len() {
+        let j = (i + 1) % verts.len();
+        let (a, b) = (h[i] - delta, h[j] - delta);
+        if a >= 0.0 {
+            out.push(verts[i]);
+        }
+        if (a >= 0.0) != (b >= 0.0) {
+            let t = a / (a - b);
+            out.push(verts[i] + (verts[j] - verts[i]) * t);
+        }
+    }
+    if out.len() >= 3 {
+        Cut::Part(out)
+    } else {
+        Cut::Gone
+    }
+}
+
 /// The wall samples sorted into a grid of cells on the wall plane, row-major,
 /// so that one row of cells is one contiguous run of `order`.
 struct Buckets {
@@ -224,6 +267,34 @@ impl Shadows {
                 o => vec![Piece::Whole(o.clone())],
             })
             .collect();
+        // Area shadows: a polygon reaching beyond the scene plane is cut to
+        // the part on the wall's side (a segment ending on the scene plane
+        // never meets what lies beyond it), a sliver `delta` off the plane
+        // so that every vertex stays strictly between the planes.
+        let pieces: Vec<Piece> = match scene {
+            Some(sp) => {
+                let side = sp.normal.dot(&(plane.center - sp.center)).signum();
+                let toward = sp.normal * side;
+                let reach = points
+                    .iter()
+                    .fold(0.0f64, |m, p| m.max(toward.dot(&(p - sp.center))));
+                pieces
+                    .into_iter()
+                    .filter_map(|piece| match piece.polygon() {
+                        Some(v) => match cut_beyond(&v, &toward, &sp.center, 2e-9 * reach) {
+                            Cut::Whole => Some(piece),
+                            Cut::Part(v) => Some(Piece::Polygon(v)),
+                            Cut::Gone => None,
+                        },
+                        None => Some(piece),
+                    })
+                    .collect()
+            }
+            None => pieces,
+        };
+        if pieces.is_empty() {
+            return None;
+        }
         let polygons: Vec<Option<Vec<Vec3>>> = pieces.iter().map(Piece::polygon).collect();
         let hulls = pieces
             .iter()
@@ -671,6 +742,49 @@ mod tests {
         };
         let (p, q) = (point(&shift(0.0)), point(&shift(1e-4)));
         assert!(p.iter().zip(&q).any(|(x, y)| (x - y).abs() == 1.0));
+    }
+
+    #[test]
+    fn a_piece_reaching_beyond_the_scene_plane_shades_by_its_part_before_it() {
+        // A slanted rect through the screen (z = 1): the part beyond it
+        // cannot block; the rest is between the planes.
+        let occ = vec![Occluder::Rect {
+            center: Vec3::new(0.02, 0.03, 0.98),
+            half_u: Vec3::new(0.12, 0.0, 0.05),
+            half_v: Vec3::new(0.0, 0.1, 0.0),
+        }];
+        let (plane, screen) = (wall(), screen());
+        let points = plane.sample_points();
+        let area = area_fractions(&occ);
+        let n = 16;
+        let (mut partial, mut total, mut count) = (0, 0.0, 0);
+        for (c, s) in screen.sample_points().iter().enumerate() {
+            for (j, p) in points.iter().enumerate().step_by(3) {
+                let mut seen = 0;
+                for a in 0..n {
+                    for b in 0..n {
+                        let du = ((a as f64 + 0.5) / n as f64 - 0.5) * 0.1;
+                        let dv = ((b as f64 + 0.5) / n as f64 - 0.5) * 0.1;
+                        let q = s + screen.u * du + screen.v * dv;
+                        seen += !occ[0].blocks(&q, p) as usize;
+                    }
+                }
+                total += (area[c][j] - seen as f64 / (n * n) as f64).abs();
+                count += 1;
+                partial += (area[c][j] > 0.0 && area[c][j] < 1.0) as usize;
+            }
+        }
+        let mean = total / count as f64;
+        assert!(partial > 100, "{partial} pairs in a penumbra");
+        assert!(mean < 2e-3, "mean {mean}");
+        // Wholly beyond the screen: no shadow at all.
+        let behind = vec![Occluder::Rect {
+            center: Vec3::new(0.0, 0.0, 1.1),
+            half_u: Vec3::new(0.1, 0.0, 0.0),
+            half_v: Vec3::new(0.0, 0.1, 0.0),
+        }];
+        let shadows = Shadows::new(&behind, &plane, &points, Some(&screen));
+        assert!(shadows.is_none());
     }
 
     #[test]

@@ -13,9 +13,10 @@
 use crate::optics::Vec3;
 use crate::scene::Plane;
 
-/// Vertices a polygon here can have: a quadrilateral clipped by the cell's
-/// four sides gains at most one vertex per side.
-const MAX: usize = 8;
+/// Vertices a polygon here can have: a pentagon (a quadrilateral cut by the
+/// scene plane, [`super::Shadows`]) clipped by the cell's four sides gains
+/// at most one vertex per side.
+const MAX: usize = 9;
 
 /// A convex polygon in cell coordinates (metres along the scene plane's
 /// `u` and `v` from the sample), at most [`MAX`] vertices, in order.
