@@ -26,6 +26,7 @@ fn max_relative_difference(a: &Transport, b: &Transport) -> f64 {
 
 #[test]
 fn area_shadows_of_a_voxel_mesh_with_internal_faces_equal_its_outer_surface() {
+    crate::priority::background();
     let (voxels, boxes) = (pi("voxels"), pi("boxes"));
     for (scene, n) in [(&voxels, 336), (&boxes, 36)] {
         let Occluder::Mesh(m) = &scene.occluders()[0] else {
@@ -72,6 +73,7 @@ fn area_shadows_of_a_voxel_mesh_with_internal_faces_equal_its_outer_surface() {
 /// and the time-resolved build takes a scene that left `shadows` out.
 #[test]
 fn the_reference_scenes_keep_point_shadows() {
+    crate::priority::background();
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let rendered =
         Scene::load(&root.join("tests/data/rendered/occluder-crossed/scene.toml")).unwrap();

@@ -2,6 +2,9 @@
 //! its database file: a measurement or a photo taken elsewhere becomes a
 //! capture, and its reconstruction (gain and background fitted) gives the
 //! numbers of the CLI's `--photo` and of the camera capture it came from.
+//! (Named so that libtest starts it after `daemon::in_process`: its chair
+//! fits take both cores for half a minute, and the progressive test there
+//! runs against frames arriving in real time.)
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -9,7 +12,7 @@ use std::time::Duration;
 
 use serde_json::{json, Value};
 
-use super::common::{config, scratch, InProcess};
+use super::common::{config, lock, scratch, InProcess};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -44,6 +47,10 @@ fn recovered(d: &InProcess, rec: &Value) -> polnlos::files::npy::Array {
 /// `reconstruct --photo` result, and says its radiometry was fitted.
 #[test]
 fn the_chair_photo_imported_over_http_reconstructs_as_the_cli_photo_mode() {
+    // No camera here, but the Aravis lock: its two chair fits (CLI and
+    // daemon, with both shadow models) take both cores for half a minute,
+    // and the camera tests' real-time captures must not share them.
+    let _g = lock();
     let dir = scratch();
     let d = chair_daemon(dir.path());
     let data = root().join("tests/data/saunders-chair");
