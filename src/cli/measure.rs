@@ -75,15 +75,7 @@ pub struct Args {
 
 /// `--bayer`: a Bayer pattern by its first row's colours.
 fn parse_bayer(s: &str) -> Result<BayerPattern, String> {
-    match s.to_ascii_uppercase().as_str() {
-        "RG" | "RGGB" => Ok(BayerPattern::RG),
-        "GR" | "GRBG" => Ok(BayerPattern::GR),
-        "GB" | "GBRG" => Ok(BayerPattern::GB),
-        "BG" | "BGGR" => Ok(BayerPattern::BG),
-        _ => Err(format!(
-            "{s:?} is not a Bayer pattern; give RG, GR, GB or BG (the colours of the sensor's first row, as BayerRG16 names RG)"
-        )),
-    }
+    s.parse()
 }
 
 /// `--angle`: degrees, `none` or `mosaic`: the blocks the frames hold.

@@ -27,6 +27,25 @@ pub enum BayerPattern {
     BG,
 }
 
+impl std::str::FromStr for BayerPattern {
+    type Err = String;
+
+    /// A pattern by its first row's colours (`RG` or `RGGB`, ...), as a
+    /// camera's pixel format names it; the CLI's `--bayer` and the daemon's
+    /// `?bayer=` read it alike.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_uppercase().as_str() {
+            "RG" | "RGGB" => Ok(BayerPattern::RG),
+            "GR" | "GRBG" => Ok(BayerPattern::GR),
+            "GB" | "GBRG" => Ok(BayerPattern::GB),
+            "BG" | "BGGR" => Ok(BayerPattern::BG),
+            _ => Err(format!(
+                "{s:?} is not a Bayer pattern; give RG, GR, GB or BG (the colours of the sensor's first row, as BayerRG16 names RG)"
+            )),
+        }
+    }
+}
+
 impl BayerPattern {
     /// The colour of sensor pixel `(x, y)` (column, row from the sensor's first pixel).
     pub fn colour_at(self, x: i64, y: i64) -> Colour {

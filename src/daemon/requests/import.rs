@@ -78,7 +78,14 @@ impl Admission {
                 )));
             }
         }
-        let bayer = q.bayer.as_deref().map(parse_bayer).transpose()?;
+        let bayer = q
+            .bayer
+            .as_deref()
+            .map(|b| {
+                b.parse::<BayerPattern>()
+                    .map_err(|e| invalid(format!("bayer: {e}")))
+            })
+            .transpose()?;
         let nw = scene.wall().plane.grid.count();
         let imported = decode(&scene, &q.pose, &blocks, nw, bytes, bayer)?;
         let need = 2 * bytes.len() as u64 + 8 * imported.data.len() as u64 + (1 << 20);
@@ -191,19 +198,6 @@ fn pose_blocks(scene: &Scene, q: &ImportQuery) -> Result<Vec<Block>, SubmitError
         )));
     }
     Ok(picked)
-}
-
-/// `?bayer=`: a pattern by its first row's colours.
-fn parse_bayer(s: &str) -> Result<BayerPattern, SubmitError> {
-    match s.to_ascii_uppercase().as_str() {
-        "RG" | "RGGB" => Ok(BayerPattern::RG),
-        "GR" | "GRBG" => Ok(BayerPattern::GR),
-        "GB" | "GBRG" => Ok(BayerPattern::GB),
-        "BG" | "BGGR" => Ok(BayerPattern::BG),
-        _ => Err(invalid(format!(
-            "bayer = {s:?}: give RG, GR, GB or BG (the colours of the sensor's first row)"
-        ))),
-    }
 }
 
 /// The upload as the measurement of `blocks` (`nw` rows each): a `.npy`
