@@ -185,32 +185,25 @@ impl Client {
     }
 
     pub fn post(&self, path: &str, body: &str) -> (u16, String, Option<String>) {
-        let mut req = self
-            .agent
-            .post(format!("{}{path}", self.base))
-            .header("content-type", "application/json");
-        if let Some(t) = &self.token {
-            req = req.header("authorization", format!("Bearer {t}"));
-        }
-        let mut r = req.send(body).unwrap();
-        let loc = r
-            .headers()
-            .get("location")
-            .and_then(|v| v.to_str().ok())
-            .map(String::from);
-        (
-            r.status().as_u16(),
-            r.body_mut().read_to_string().unwrap_or_default(),
-            loc,
-        )
+        self.post_as(path, "application/json", body.as_bytes())
     }
 
     /// POSTs `body` as `application/octet-stream` (a file upload).
     pub fn post_bytes(&self, path: &str, body: &[u8]) -> (u16, String, Option<String>) {
+        self.post_as(path, "application/octet-stream", body)
+    }
+
+    /// POSTs `body` with `content_type`: the status, the body and the Location.
+    fn post_as(
+        &self,
+        path: &str,
+        content_type: &str,
+        body: &[u8],
+    ) -> (u16, String, Option<String>) {
         let mut req = self
             .agent
             .post(format!("{}{path}", self.base))
-            .header("content-type", "application/octet-stream");
+            .header("content-type", content_type);
         if let Some(t) = &self.token {
             req = req.header("authorization", format!("Bearer {t}"));
         }
