@@ -524,14 +524,12 @@ impl PhotoChannel {
     }
 }
 
-/// The root mean square of every finite value of `channels`; 1 when there
-/// is none, or it is 0.
+/// The root mean square of `channels`' values, one not finite (not
+/// measured) counted as 0; 1 when it is 0 or there is no value.
 fn rms(channels: &[Vec<f64>]) -> f64 {
-    let (sum, n) = channels
-        .iter()
-        .flatten()
-        .filter(|v| v.is_finite())
-        .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
+    let (sum, n) = channels.iter().flatten().fold((0.0, 0usize), |(s, n), v| {
+        (s + if v.is_finite() { v * v } else { 0.0 }, n + 1)
+    });
     let r = (sum / n.max(1) as f64).sqrt();
     match r.is_finite() && r > 0.0 {
         true => r,
@@ -711,30 +709,19 @@ pub fn reconstruct_photo(
     let missing: Vec<usize> = (0..t.rows())
         .filter(|&j| channels.iter().any(|c| !c[j].is_finite()))
         .collect();
-    let cleaned: Vec<Vec<f64>>;
-    let channels = match missing.is_empty() {
-        true => channels,
-        false => {
-            cleaned = channels
-                .iter()
-                .map(|c| {
-                    c.iter()
-                        .map(|v| if v.is_finite() { *v } else { 0.0 })
-                        .collect()
-                })
-                .collect();
-            &cleaned[..]
-        }
-    };
     // The fit in units of the photo's own RMS value: ADMM's absolute
     // tolerance then means the same whatever the photo's units (a camera's
     // fractions of full scale per µs, DN, an imported file's), so one photo
     // in other units gives the same image; every number is given back in
-    // the photo's units.
+    // the photo's units. A value not measured is 0 (its rows are masked).
     let unit = rms(channels);
     let channels: Vec<Vec<f64>> = channels
         .iter()
-        .map(|c| c.iter().map(|v| v / unit).collect())
+        .map(|c| {
+            c.iter()
+                .map(|v| if v.is_finite() { v / unit } else { 0.0 })
+                .collect()
+        })
         .collect();
     let settings = &PhotoSettings {
         lambda: settings.lambda.map(|l| l / unit),
