@@ -1474,6 +1474,49 @@ fn reconstruct_photo(measurement: &Path, out: &Path, truth: Option<&Path>, cache
     polnlos_with_cache(&args, cache.to_str().unwrap())
 }
 
+/// The CLI's `reconstruct --photo` of the chair, with its truth, run once
+/// for the whole suite: this test and the daemon's import test
+/// (`daemon::photos`) both read it, so the 3-channel fit with both shadow
+/// models is not paid twice. Its folder and `T` cache sit in a fixed place
+/// under `target/tmp`, cleared when the run starts.
+pub(crate) struct ChairPhotoRun {
+    /// `--out`: recovered.npy, report.json, recovered.png.
+    pub out: PathBuf,
+    /// `$POLNLOS_CACHE` the run stored its `T` in.
+    pub cache: PathBuf,
+    /// What the CLI printed.
+    pub output: Output,
+}
+
+/// The shared chair run ([`ChairPhotoRun`]), made by the first caller.
+pub(crate) fn chair_photo_run() -> &'static ChairPhotoRun {
+    static RUN: std::sync::OnceLock<ChairPhotoRun> = std::sync::OnceLock::new();
+    RUN.get_or_init(|| {
+        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+        let data = root.join("tests/data/saunders-chair");
+        let base = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("chair-photo");
+        let _ = std::fs::remove_dir_all(&base);
+        let (out, cache) = (base.join("out"), base.join("cache"));
+        std::fs::create_dir_all(&cache).unwrap();
+        // Run at the caller's priority: the daemon test that may start it
+        // holds the Aravis lock and must not drop to the idle class.
+        let output = Command::new(env!("CARGO_BIN_EXE_polnlos"))
+            .arg("reconstruct")
+            .arg(root.join("config/photos/saunders-chair.toml"))
+            .arg("--photo")
+            .arg("--measurement")
+            .arg(data.join("measurement.npy"))
+            .arg("--truth")
+            .arg(data.join("truth.npy"))
+            .arg("--out")
+            .arg(&out)
+            .env("POLNLOS_CACHE", &cache)
+            .output()
+            .expect("run polnlos");
+        ChairPhotoRun { out, cache, output }
+    })
+}
+
 /// Saunders et al.'s chair photo (tests/data/saunders-chair, imported by
 /// validation/saunders/convert.py): gain, background and λ from the photo
 /// alone, three colour channels through one T, against the monitor's image.
@@ -1481,18 +1524,14 @@ fn reconstruct_photo(measurement: &Path, out: &Path, truth: Option<&Path>, cache
 fn a_real_colour_photo_reconstructs_with_gain_background_and_lambda_from_itself() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let data = root.join("tests/data/saunders-chair");
+    // T (132 MB) is kept in the run's own cache between the calls.
+    let run = chair_photo_run();
+    crate::priority::background();
+    let s = ok(&run.output);
     let out = tempfile::tempdir().unwrap();
-    // T (132 MB) is kept in a cache of the test's own between the calls.
-    let cache = tempfile::tempdir().unwrap();
-    let s = ok(&reconstruct_photo(
-        &data.join("measurement.npy"),
-        out.path(),
-        Some(&data.join("truth.npy")),
-        cache.path(),
-    ));
     assert!(s.contains("3 channel(s)"), "{s}");
     let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.path().join("report.json")).unwrap())
+        serde_json::from_str(&std::fs::read_to_string(run.out.join("report.json")).unwrap())
             .unwrap();
     let m = &report["metrics"];
     // Measured 0.803 / 11.74 dB / 11.42 dB (the authors' hand-tuned
@@ -1533,7 +1572,7 @@ fn a_real_colour_photo_reconstructs_with_gain_background_and_lambda_from_itself(
         "{misfit:?}"
     );
     assert_eq!(report["warnings"], serde_json::json!([]));
-    let rec = npy::read(&out.path().join("recovered.npy")).unwrap();
+    let rec = npy::read(&run.out.join("recovered.npy")).unwrap();
     assert_eq!(rec.shape, vec![29, 36, 3]);
     // The same photo mirrored (columns reversed) is caught and named.
     let photo = npy::read(&data.join("measurement.npy")).unwrap();
@@ -1546,8 +1585,8 @@ fn a_real_colour_photo_reconstructs_with_gain_background_and_lambda_from_itself(
         .collect();
     let m = out.path().join("mirrored.npy");
     npy::write_f64(&m, &[126 * 126, 3], &mirrored).unwrap();
-    let run = reconstruct_photo(&m, &out.path().join("mirrored"), None, cache.path());
-    ok(&run);
+    let mirrored = reconstruct_photo(&m, &out.path().join("mirrored"), None, &run.cache);
+    ok(&mirrored);
     // The second call of the scene reads T from the cache, the same matrix:
     // its orientation check on the mirrored photo finds the same misfits
     // the first call's did for its flips.
@@ -1562,12 +1601,12 @@ fn a_real_colour_photo_reconstructs_with_gain_background_and_lambda_from_itself(
         (m2[1].as_f64().unwrap() / misfit[0] - 1.0).abs() < 1e-9,
         "{m2} against {misfit:?}"
     );
-    let err = String::from_utf8_lossy(&run.stderr);
+    let err = String::from_utf8_lossy(&mirrored.stderr);
     assert!(
         err.contains("warning: the photo fits T better mirrored along u"),
         "{err}"
     );
-    let png = ::image::open(out.path().join("recovered.png")).unwrap();
+    let png = ::image::open(run.out.join("recovered.png")).unwrap();
     assert_eq!((png.width(), png.height()), (36, 29));
     assert_eq!(png.color(), ::image::ColorType::Rgb8);
 }

@@ -5,7 +5,7 @@
 //! one per file: each binary links the whole graph, and libtest runs one
 //! binary's tests side by side (docs/test-times.md).
 
-mod cli;
+pub(crate) mod cli;
 mod colour;
 mod lambda;
 mod layers;

@@ -7,7 +7,6 @@
 //! runs against frames arriving in real time.)
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Duration;
 
 use serde_json::{json, Value};
@@ -98,30 +97,19 @@ fn the_chair_photo_imported_over_http_reconstructs_as_the_cli_photo_mode() {
     assert_eq!(report["channels"].as_array().unwrap().len(), 3);
     let ours = recovered(&d, &rec);
     assert_eq!(ours.shape, vec![29, 36, 3]);
-    // The CLI on the same photo, with the truth for the metrics.
-    let out = scratch();
-    let cli = Command::new(env!("CARGO_BIN_EXE_polnlos"))
-        .args(["reconstruct", "--photo"])
-        .arg(root().join("config/photos/saunders-chair.toml"))
-        .arg("--measurement")
-        .arg(data.join("measurement.npy"))
-        .arg("--truth")
-        .arg(data.join("truth.npy"))
-        .arg("--out")
-        .arg(out.path())
-        .env("POLNLOS_CACHE", "off")
-        .output()
-        .unwrap();
+    // The CLI on the same photo, with the truth for the metrics (one run
+    // the offline CLI test shares).
+    let cli = crate::offline::cli::chair_photo_run();
     assert!(
-        cli.status.success(),
+        cli.output.status.success(),
         "{}",
-        String::from_utf8_lossy(&cli.stderr)
+        String::from_utf8_lossy(&cli.output.stderr)
     );
-    let theirs = polnlos::files::npy::read(&out.path().join("recovered.npy")).unwrap();
+    let theirs = polnlos::files::npy::read(&cli.out.join("recovered.npy")).unwrap();
     let diff = max_diff(&ours, &theirs);
     assert!(diff <= 1e-9, "daemon and CLI differ by {diff:e}");
     let cli_report: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.path().join("report.json")).unwrap())
+        serde_json::from_str(&std::fs::read_to_string(cli.out.join("report.json")).unwrap())
             .unwrap();
     let m = &cli_report["metrics"];
     assert!(m["zncc"].as_f64().unwrap() >= 0.78, "{m}");
