@@ -1127,6 +1127,24 @@ function showWall(w) {
   $("#wall-result").replaceChildren(rowsTable(rows));
 }
 
+function showColour(c) {
+  const rows = [["scene", c.scene], ["field capture", c.capture], ["reference", c.reference], ["wall elements", c.rows]];
+  c.colours.forEach((k) => rows.push([k.colour, `${fmt(k.ratio, 4)} ± ${fmt(k.sigma, 2)} of ${c.reference}` + (k.gain ? `, gain ${fmt(k.gain, 4)}` : "")]));
+  (c.warnings || []).forEach((m) => rows.push(["warning", m]));
+  $("#colour-result").replaceChildren(rowsTable(rows));
+}
+
+$("#colour-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const capture = Number(String(f.get("capture") || "").trim() || NaN);
+  if (!Number.isInteger(capture)) {
+    refused("#colour-message", "#colour-result", "give the id of a capture of a white or grey field");
+    return;
+  }
+  await fit("#fit-colour", "#colour-message", "#colour-result", "/calibrations/colour", { capture }, showColour);
+});
+
 $("#pose-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   const f = new FormData(ev.target);

@@ -9,9 +9,9 @@
 use serde::{Deserialize, Serialize};
 
 pub use crate::daemon::requests::{
-    AutoExposure, CalibrationBody, CaptureBody, ImportQuery, PlanBody, PlanReconstruct,
-    ProgressiveBody, ReconstructionBody, SettingsBody, SourcePositionBody, WallCalibrationBody,
-    MAX_CAPTURES_PER_POSITION,
+    AutoExposure, CalibrationBody, CaptureBody, ColourCalibrationBody, ImportQuery, PlanBody,
+    PlanReconstruct, ProgressiveBody, ReconstructionBody, SettingsBody, SourcePositionBody,
+    WallCalibrationBody, MAX_CAPTURES_PER_POSITION,
 };
 
 use super::ApiError;

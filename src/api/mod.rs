@@ -102,6 +102,7 @@ fn all_routes(import_limit: usize) -> OpenApiRouter<Arc<Daemon>> {
         .routes(routes!(routes::capture_progressive_steps))
         .routes(routes!(routes::post_calibration, routes::list_calibrations))
         .routes(routes!(routes::post_wall_calibration))
+        .routes(routes!(routes::post_colour_calibration))
         .routes(routes!(
             routes::post_reconstruction,
             routes::list_reconstructions

@@ -1,10 +1,12 @@
 //! Calibrating a real bench from images instead of hand-typed numbers:
+//! [`colour`] measures a colour camera's balance from a white or grey field;
 //! [`geometry`] fits each pose's camera→wall homography to an image of a
 //! dot target on the wall; [`occluder`] fits the occluders' position to a
 //! photo; [`wall`] fits the wall's roughness, refractive
 //! index, diffuse weight and the radiometric gain to point-source captures
 //! (pure functions; no I/O).
 
+pub mod colour;
 pub mod geometry;
 pub mod occluder;
 pub mod wall;

@@ -58,7 +58,7 @@ enum Command {
     Measure(measure::Args),
     /// Recover the hidden scene from a measurement.
     Reconstruct(reconstruct::Args),
-    /// Write a test pattern (disk, bars, letter) as a PNG truth image.
+    /// Write a test pattern (disk, bars, letter, flat) as a PNG truth image.
     Pattern(pattern::Args),
     /// Recommend the finest scene grid the measurement supports.
     Plan(plan::Args),

@@ -1,4 +1,4 @@
-//! `polnlos pattern`: write a test pattern (disk, bars, letter) as a 16-bit PNG,
+//! `polnlos pattern`: write a test pattern (disk, bars, letter, flat) as a 16-bit PNG,
 //! to use as `--truth` for `polnlos simulate` and `polnlos reconstruct`.
 
 use std::path::PathBuf;
@@ -13,7 +13,7 @@ use polnlos::simulate::patterns::Pattern;
     after_help = "Examples:\n  polnlos pattern letter --scene brewster-crossed --out letter.png   # on the scene's hidden grid, as the daemon's \"truth\": \"letter\"\n  polnlos pattern letter --size 64 --out letter.png"
 )]
 pub struct Args {
-    /// disk, bars or letter.
+    /// disk, bars, letter or flat.
     #[arg(value_parser = ["disk", "bars", "letter"])]
     name: String,
     /// Image side in pixels (a square image; resampled to a scene's grid
@@ -45,7 +45,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let p = Pattern::from_name(&a.name).ok_or_else(|| {
         super::Usage(format!(
-            "unknown pattern {:?}: use disk, bars or letter",
+            "unknown pattern {:?}: use disk, bars, letter or flat",
             a.name
         ))
     })?;

@@ -42,6 +42,7 @@ pub use procedures::calibration::{
     Calibrations, FittedPosition, GeometryCalibration, RadiometricGain, SourcePosition,
     WallCalibration,
 };
+pub use procedures::colour::{ColourCalibration, ColourGain};
 pub use procedures::mount_zero::{SweepPoint, ZeroFit};
 pub use procedures::plans::{steps_of, PlanError, PlanStep, PlanView};
 pub use requests::cancel::{CancelError, JobKind};

@@ -1,5 +1,6 @@
 //! Test patterns for the hidden scene on any grid: a disk, vertical bars and
-//! the letter F (asymmetric, so a flipped or transposed recovery shows).
+//! the letter F (asymmetric, so a flipped or transposed recovery shows), and
+//! a flat white field (what a colour calibration is measured from).
 //!
 //! Each is drawn on a 0..1 square and averaged over 4x4 sub-samples per
 //! element, so coarse grids get grey edges instead of aliasing.
@@ -16,18 +17,21 @@ pub enum Pattern {
     Bars,
     /// The letter F.
     Letter,
+    /// The whole plane white: the field a colour calibration measures.
+    Flat,
 }
 
 impl Pattern {
-    /// Every pattern, in a fixed order.
+    /// Every pattern with a shape to recover, in a fixed order (not `Flat`).
     pub const ALL: [Pattern; 3] = [Pattern::Disk, Pattern::Bars, Pattern::Letter];
 
-    /// Parses `disk`, `bars` or `letter`.
+    /// Parses `disk`, `bars`, `letter` or `flat`.
     pub fn from_name(name: &str) -> Option<Self> {
         match name {
             "disk" => Some(Pattern::Disk),
             "bars" => Some(Pattern::Bars),
             "letter" => Some(Pattern::Letter),
+            "flat" => Some(Pattern::Flat),
             _ => None,
         }
     }
@@ -38,6 +42,7 @@ impl Pattern {
             Pattern::Disk => "disk",
             Pattern::Bars => "bars",
             Pattern::Letter => "letter",
+            Pattern::Flat => "flat",
         }
     }
 
@@ -56,6 +61,7 @@ impl Pattern {
                 let mid = (0.25..0.66).contains(&x) && (0.44..0.58).contains(&y);
                 stem || top || mid
             }
+            Pattern::Flat => true,
         }
     }
 

@@ -45,7 +45,16 @@ pub struct Known<'a> {
     pub gain: Option<f64>,
     /// The scene's name, for the reason.
     pub scene: &'a str,
+    /// Colours in the measurement (0 or 1: grey).
+    pub colours: usize,
+    /// Where each colour's gain comes from when there are several (e.g.
+    /// `the colour calibration of capture 3`); `None`: no colour calibration.
+    pub colour_calibration: Option<&'a str>,
 }
+
+/// How to calibrate a colour camera, said wherever one is missing.
+const COLOUR_FIX: &str =
+    "POST /calibrations/colour with a capture of a white or grey field calibrates each colour";
 
 /// The radiometry a reconstruction used, whether the request named it, and why.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -60,9 +69,11 @@ pub struct RadiometryChoice {
 
 impl RadiometryChoice {
     /// `given` when the request names one; else fitted for an imported
-    /// capture or a scene with no calibrated gain, calibrated otherwise.
+    /// capture, a scene with no calibrated gain, or colours with no colour
+    /// calibration; calibrated otherwise.
     pub fn choose(given: Option<Radiometry>, known: Known<'_>) -> Self {
         let calibrated = known.gain.filter(|g| g.is_finite() && *g > 0.0);
+        let uncalibrated_colours = known.colours > 1 && known.colour_calibration.is_none();
         if let Some(mode) = given {
             let reason = match (mode, known.imported, calibrated) {
                 (Radiometry::Calibrated, Some(c), _) => format!(
@@ -72,6 +83,14 @@ impl RadiometryChoice {
                     "asked for: scene {:?} has no calibrated gain, so the measurement is scaled so that its brightest element is about 1",
                     known.scene
                 ),
+                (Radiometry::Calibrated, None, Some(_)) if uncalibrated_colours => format!(
+                    "asked for: scene {:?} has no colour calibration, so every colour is divided by its one gain and keeps the camera's own colour response ({COLOUR_FIX})",
+                    known.scene
+                ),
+                (Radiometry::Calibrated, None, Some(_)) => match known.colour_calibration {
+                    Some(from) if known.colours > 1 => format!("asked for: each colour divided by its gain from {from}"),
+                    _ => "asked for".to_string(),
+                },
                 _ => "asked for".to_string(),
             };
             return Self {
@@ -85,9 +104,22 @@ impl RadiometryChoice {
                 Radiometry::Fitted,
                 format!("{c} was imported: its gain and ambient light are unknown, so they are fitted with the scene"),
             ),
+            (None, Some(_)) if uncalibrated_colours => (
+                Radiometry::Fitted,
+                format!(
+                    "the measurement has {} colours and scene {:?} has one calibrated gain but no colour calibration, so the colours are fitted with one rule ({COLOUR_FIX})",
+                    known.colours, known.scene
+                ),
+            ),
             (None, Some(g)) => (
                 Radiometry::Calibrated,
-                format!("scene {:?} has a calibrated gain ({g:.6e})", known.scene),
+                match (known.colours > 1, known.colour_calibration) {
+                    (true, Some(from)) => format!(
+                        "scene {:?} has a calibrated gain ({g:.6e}) and each colour its own from {from}",
+                        known.scene
+                    ),
+                    _ => format!("scene {:?} has a calibrated gain ({g:.6e})", known.scene),
+                },
             ),
             (None, None) => (
                 Radiometry::Fitted,
@@ -124,6 +156,7 @@ mod tests {
             imported: Some("capture 3"),
             gain: Some(0.5),
             scene: "s",
+            ..Known::default()
         };
         let c = RadiometryChoice::choose(None, import);
         assert_eq!((c.mode, c.given), (Radiometry::Fitted, false));
@@ -147,6 +180,34 @@ mod tests {
         let c = RadiometryChoice::choose(None, uncalibrated);
         assert_eq!(c.mode, Radiometry::Fitted);
         assert!(c.reason.contains("no calibrated gain"), "{}", c.reason);
+        // Colours with one gain and no colour calibration are fitted; with
+        // one, calibrated, and the reason names it.
+        let colour = Known {
+            colours: 3,
+            ..bench
+        };
+        let c = RadiometryChoice::choose(None, colour);
+        assert_eq!(c.mode, Radiometry::Fitted);
+        assert!(c.reason.contains("no colour calibration"), "{}", c.reason);
+        assert!(
+            c.reason.contains("POST /calibrations/colour"),
+            "{}",
+            c.reason
+        );
+        let c = RadiometryChoice::choose(Some(Radiometry::Calibrated), colour);
+        assert_eq!(c.mode, Radiometry::Calibrated);
+        assert!(
+            c.reason.contains("keeps the camera's own colour response"),
+            "{}",
+            c.reason
+        );
+        let balanced = Known {
+            colour_calibration: Some("the colour calibration of capture 2"),
+            ..colour
+        };
+        let c = RadiometryChoice::choose(None, balanced);
+        assert_eq!(c.mode, Radiometry::Calibrated);
+        assert!(c.reason.contains("capture 2"), "{}", c.reason);
         let asked = RadiometryChoice::choose(Some(Radiometry::Calibrated), import);
         assert_eq!((asked.mode, asked.given), (Radiometry::Calibrated, true));
         assert!(asked.reason.contains("units of T l"), "{}", asked.reason);

@@ -5,6 +5,7 @@
 //! every earlier row and file as it was. On open, jobs that were queued or
 //! running when the daemon stopped are marked `interrupted`.
 
+mod calibrations;
 mod captures;
 mod files;
 mod lock;
@@ -19,6 +20,7 @@ use std::sync::Mutex;
 
 use rusqlite::{params, Connection};
 
+pub use calibrations::ColourCalibrationRow;
 pub use files::{
     capture_bytes, read_imported, read_mean, read_mean_in_range, read_mean_variance, remove_raw,
     write_frames, write_summary, CaptureFiles, FrameMeta, TMP_MARK,

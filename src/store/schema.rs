@@ -51,6 +51,13 @@ CREATE TABLE IF NOT EXISTS plans (
     finished_at TEXT,
     interim TEXT NOT NULL DEFAULT '[]'
 );
+CREATE TABLE IF NOT EXISTS colour_calibrations (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    scene TEXT NOT NULL,
+    capture INTEGER NOT NULL,
+    balance TEXT NOT NULL,
+    created_at TEXT NOT NULL
+);
 CREATE TABLE IF NOT EXISTS issued_ids (
     kind TEXT PRIMARY KEY,
     last INTEGER NOT NULL

@@ -699,6 +699,7 @@ fn a_ranged_camera_setting_is_named_in_two_files() {
         // The radiometric gain of the model (fitted by wall calibration,
         // configured per scene, shown with a reconstruction): another gain.
         "src/daemon/procedures/calibration.rs",
+        "src/daemon/procedures/colour.rs",
         "src/daemon/runtime/demo.rs",
         "src/daemon/jobs/reconstruction.rs",
         "web/app.js",

@@ -12,23 +12,30 @@ use crate::daemon::common::{config, lock, psnr, scratch, Daemon};
 
 /// The fake camera shows the crossed bench's letter, as a `sensor` camera.
 fn bench(dir: &std::path::Path, sensor: &str) -> std::path::PathBuf {
+    shows(dir, sensor, "letter")
+}
+
+/// The fake camera shows `pattern` on the crossed bench, as a `sensor` camera.
+fn shows(dir: &std::path::Path, sensor: &str, pattern: &str) -> std::path::PathBuf {
     config(
         dir,
-        &[(
-            "fake_sensor = \"mono\"",
-            &format!("fake_sensor = \"{sensor}\""),
-        )],
+        &[
+            (
+                "fake_sensor = \"mono\"",
+                &format!("fake_sensor = \"{sensor}\""),
+            ),
+            ("pattern = \"letter\"", &format!("pattern = \"{pattern}\"")),
+        ],
     )
 }
+
+/// The crossed capture a reconstruction of the bench takes.
+const CAPTURE: &str = r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 8, "dark_frames": 2}"#;
 
 /// One capture of the crossed bench and its reconstruction against the letter.
 fn capture_and_reconstruct(d: &Daemon) -> serde_json::Value {
     let long = Duration::from_secs(240);
-    let c = d.run_job(
-        "/captures",
-        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 20000, "frames": 8, "dark_frames": 2}"#,
-        long,
-    );
+    let c = d.run_job("/captures", CAPTURE, long);
     assert_eq!(c["state"], "done", "{c}");
     let r = d.run_job(
         "/reconstructions",
@@ -42,6 +49,28 @@ fn capture_and_reconstruct(d: &Daemon) -> serde_json::Value {
     r
 }
 
+/// Each colour's mean over the elements `truth` lights fully, of an RGB
+/// image interleaved per element.
+fn colour_means(image: &[f64], truth: &[f64]) -> [f64; 3] {
+    let lit: Vec<usize> = (0..truth.len()).filter(|&e| truth[e] > 0.99).collect();
+    [0, 1, 2].map(|k| lit.iter().map(|&e| image[3 * e + k]).sum::<f64>() / lit.len() as f64)
+}
+
+/// Each colour's least-squares scale against green over the whole image
+/// (`<x_c, x_g> / <x_g, x_g>`): the level of a colour, from every element.
+fn colour_scales(image: &[f64]) -> [f64; 3] {
+    let ch = |k: usize| image.iter().skip(k).step_by(3).copied();
+    let gg: f64 = ch(1).map(|g| g * g).sum();
+    [0, 1, 2].map(|k| ch(k).zip(ch(1)).map(|(c, g)| c * g).sum::<f64>() / gg)
+}
+
+/// (largest - smallest) / largest.
+fn spread(v: &[f64; 3]) -> f64 {
+    let hi = v.iter().copied().fold(0.0, f64::max);
+    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+    (hi - lo) / hi
+}
+
 #[test]
 fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     let _g = lock();
@@ -50,6 +79,13 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
         let d = Daemon::start(&bench(dir.path(), "mono"), &dir.path().join("data"));
         let r = capture_and_reconstruct(&d);
         assert!(r["report"]["colours"].is_null(), "{r}");
+        // A monochrome camera has no colours to calibrate.
+        let (s, b, _) = d.post(
+            "/calibrations/colour",
+            &format!(r#"{{"capture": {}}}"#, r["captures"][0]),
+        );
+        assert_eq!(s, 422, "{b}");
+        assert!(b.contains("has 1 colour(s)"), "{b}");
         assert!(d.json("/camera")["info"]["bayer"].is_null());
         let (s, b) = d.get("/camera/frame.png?live=true&view=colour");
         assert_eq!(s, 422, "{b}");
@@ -58,7 +94,63 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     };
 
     let dir = scratch();
-    let d = Daemon::start(&bench(dir.path(), "bayer"), &dir.path().join("data"));
+    let data = dir.path().join("data");
+    // The bench lit by a white field: uncalibrated, its colours are fitted
+    // and the report says why; then it calibrates the colours (the fake
+    // filter passes 0.55, 1 and 0.7 of red, green and blue).
+    {
+        let d = Daemon::start(&shows(dir.path(), "bayer", "flat"), &data);
+        let long = Duration::from_secs(240);
+        let c = d.run_job("/captures", CAPTURE, long);
+        assert_eq!(c["state"], "done", "{c}");
+        let r = d.run_job(
+            "/reconstructions",
+            &format!(
+                r#"{{"scene": "brewster-crossed", "captures": [{}]}}"#,
+                c["id"]
+            ),
+            long,
+        );
+        assert_eq!(r["state"], "done", "{r}");
+        let why = &r["report"]["radiometry"];
+        assert_eq!(why["mode"], "fitted", "{why}");
+        assert!(
+            why["reason"]
+                .as_str()
+                .unwrap()
+                .contains("no colour calibration"),
+            "{why}"
+        );
+        let (s, b, _) = d.post("/calibrations/colour", r#"{"capture": 99}"#);
+        assert_eq!(s, 404, "{b}");
+        let (s, b, _) = d.post(
+            "/calibrations/colour",
+            &format!(r#"{{"capture": {}}}"#, c["id"]),
+        );
+        assert_eq!(s, 200, "{b}");
+        let cal: serde_json::Value = serde_json::from_str(&b).unwrap();
+        println!("colour calibration: {cal}");
+        assert_eq!(cal["reference"], "green", "{cal}");
+        let demo_gain = d.json("/calibrations")["radiometric"][0]["gain"]
+            .as_f64()
+            .unwrap();
+        for (c, want) in cal["colours"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .zip([0.55, 1.0, 0.7])
+        {
+            let ratio = c["ratio"].as_f64().unwrap();
+            assert!((ratio - want).abs() < 0.01 * want, "{c}");
+            assert!(c["sigma"].as_f64().unwrap() < 0.005, "{c}");
+            let gain = c["gain"].as_f64().unwrap();
+            assert!((gain - demo_gain * ratio).abs() < 1e-12, "{c}");
+        }
+        let listed = d.json("/calibrations");
+        assert_eq!(listed["colour"][0]["id"], cal["id"], "{listed}");
+    }
+    // The white letter on the same bench (a restart keeps the calibration).
+    let d = Daemon::start(&bench(dir.path(), "bayer"), &data);
     let cam = d.json("/camera");
     assert_eq!(
         cam["info"]["settings"]["pixel_format"], "BayerRG16",
@@ -84,6 +176,15 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     // The photons a colour's pixels get against a monochrome pixel's: their
     // share of a Bayer cell times the filter's response (0.55, 1, 0.7).
     let photons: [f64; 3] = [0.25 * 0.55, 0.5, 0.25 * 0.7];
+    let why = &r["report"]["radiometry"];
+    assert_eq!(why["mode"], "calibrated", "{why}");
+    assert!(
+        why["reason"]
+            .as_str()
+            .unwrap()
+            .contains("colour calibration"),
+        "{why}"
+    );
     let mut got = Vec::new();
     for (c, share) in colours.iter().zip(photons) {
         let p = c["metrics"]["psnr_db"].as_f64().unwrap();
@@ -128,6 +229,34 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     let letter = polnlos::simulate::patterns::Pattern::from_name("letter")
         .unwrap()
         .render(grid);
+    // Calibrated, a white letter stays white: each colour's mean over the
+    // letter within 5 % of the others' (measured 0.681, 0.708, 0.688).
+    // Before any solve: the measurement in units of T l, each colour divided
+    // by its own gain, sums to the same over the wall in every colour
+    // (uncalibrated: 0.55, 1, 0.7).
+    let (s, npy) = d.get_bytes(&format!("/reconstructions/{id}/measurement.npy"));
+    assert_eq!(s, 200);
+    let i = polnlos::files::npy::decode(&npy).unwrap().data;
+    let sums = [0, 1, 2].map(|k| {
+        i.iter()
+            .skip(k)
+            .step_by(3)
+            .filter(|v| v.is_finite())
+            .sum::<f64>()
+    });
+    println!("calibrated measurement sums {sums:?}");
+    assert!(spread(&sums) <= 0.01, "sums {sums:?}");
+    // The images: the noisier colours (fewer photons) get a larger λ whose
+    // TV dims them a little (measured means over the letter 0.674-0.681,
+    // 0.708-0.718, 0.668-0.688; least-squares scales against green
+    // 0.96-0.97, 1, 0.95-0.97), where one gain for all left red and blue at
+    // 0.55 and 0.7 of green.
+    let (means, scales) = (colour_means(&image, &letter), colour_scales(&image));
+    println!(
+        "calibrated colour means over the letter {means:.3?}, scales against green {scales:.3?}"
+    );
+    assert!(spread(&means) <= 0.08, "lit means {means:?}");
+    assert!(spread(&scales) <= 0.08, "scales {scales:?}");
     let each: Vec<f64> = letter.iter().flat_map(|&v| [v; 3]).collect();
     let joint = polnlos::solve::metrics::zncc(&each, &image);
     let said = r["report"]["metrics"]["zncc"].as_f64().unwrap();

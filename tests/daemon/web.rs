@@ -370,6 +370,13 @@ fn the_page_calibrates_a_pose_and_the_wall_from_its_captures() {
             "",
             "no numbers beside the error"
         );
+        // A colour calibration from a point-source capture is refused on
+        // the page with the reason (tests/daemon/colour.rs calibrates a
+        // colour camera's white field).
+        set(&c, "#colour-form [name=capture]", "3").await;
+        let m = fit(&c, "#fit-colour", "#colour-message", long).await;
+        assert!(m.contains("needs a done light capture of a white or grey field"), "{m}");
+        assert_eq!(text(&c, "#colour-result").await, "");
         c.close().await.unwrap();
     });
 }

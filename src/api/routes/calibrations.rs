@@ -4,9 +4,25 @@ use super::*;
 
 /// The radiometric gain of each scene that has one, as reconstructions
 /// use it (and `polnlos measure --gain` takes it).
-#[utoipa::path(get, path = "/calibrations", responses((status = 200, body = crate::daemon::Calibrations, description = "The gains in use")))]
-pub async fn list_calibrations(State(d): St) -> Json<crate::daemon::Calibrations> {
-    Json(d.calibrations())
+#[utoipa::path(get, path = "/calibrations", responses((status = 200, body = crate::daemon::Calibrations, description = "The gains in use, and each scene's colour calibration")))]
+pub async fn list_calibrations(
+    State(d): St,
+) -> Result<Json<crate::daemon::Calibrations>, ApiError> {
+    Ok(Json(d.calibrations()?))
+}
+
+/// Measures a colour camera's balance from a capture of a white or grey
+/// field and stores it for the capture's scene: calibrated reconstructions
+/// then divide each colour by its own gain.
+#[utoipa::path(post, path = "/calibrations/colour", request_body = crate::api::bodies::ColourCalibrationBody, responses((status = 200, body = crate::daemon::ColourCalibration, description = "The balance measured and stored"), (status = 404, body = ErrorBody, description = "No such capture"), (status = 422, body = ErrorBody, description = "Not a done light capture from a colour camera, or a colour too dark or too noisy to calibrate")))]
+pub async fn post_colour_calibration(
+    State(d): St,
+    ApiJson(b): ApiJson<crate::api::bodies::ColourCalibrationBody>,
+) -> Result<Json<crate::daemon::ColourCalibration>, ApiError> {
+    let r = tokio::task::spawn_blocking(move || d.calibrate_colour(b.capture))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))??;
+    Ok(Json(r))
 }
 
 /// Fits the pose of a target capture: its homography, reprojection error,

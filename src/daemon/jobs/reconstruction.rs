@@ -126,14 +126,6 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         .find(|r| r.is_imported())
         .map(|r| format!("capture {}", r.id));
     let calibration = d.calibration.get(&rec.scene).copied();
-    let radiometry = RadiometryChoice::choose(
-        rec.params.radiometry,
-        Known {
-            imported: imported.as_deref(),
-            gain: calibration,
-            scene: &rec.scene,
-        },
-    );
     let stacked = match imported {
         Some(_) => stack_imports(&d.store, &records, t.blocks(), t.wall_grid().count())?,
         None => stack_records(
@@ -146,6 +138,26 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
             true,
         )?,
     };
+    // A colour camera's measurement: each colour's gain from the scene's
+    // colour calibration, when it has one.
+    let colours = stacked.measurements.len();
+    let balance = match (colours > 1 && !stacked.imported, calibration) {
+        (true, Some(_)) => d.store.colour_calibration(&rec.scene).map_err(store)?,
+        _ => None,
+    };
+    let balance_label = balance
+        .as_ref()
+        .map(|b| format!("colour calibration {} (capture {})", b.id, b.capture));
+    let radiometry = RadiometryChoice::choose(
+        rec.params.radiometry,
+        Known {
+            imported: imported.as_deref(),
+            gain: calibration,
+            scene: &rec.scene,
+            colours,
+            colour_calibration: balance_label.as_deref(),
+        },
+    );
     let job = Job {
         d,
         rec: &rec,
@@ -153,21 +165,29 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         part: part.as_ref(),
         transport_seconds,
         cancel,
-        // An imported measurement is in units of T l when it is not fitted.
-        gain: if stacked.imported {
-            Some(1.0)
-        } else {
-            calibration
-        },
         causes: &causes,
     };
     if radiometry.mode == Radiometry::Fitted {
         return job.fitted(id, stacked, radiometry, start);
     }
+    // An imported measurement is in units of T l when it is not fitted.
+    let gain = match stacked.imported {
+        true => Some(1.0),
+        false => calibration,
+    };
+    let gains: Vec<Option<f64>> = match &balance {
+        Some(b) => crate::measure::colour::Colour::ALL
+            .iter()
+            .take(colours)
+            .map(|&c| gain.map(|g| g * b.balance.ratio(c).unwrap_or(1.0)))
+            .collect(),
+        None => vec![gain; colours],
+    };
     let mut solved = stacked
         .measurements
         .into_iter()
-        .map(|m| job.solve(m))
+        .zip(gains)
+        .map(|(m, g)| job.solve(m, g))
         .collect::<Result<Vec<_>, _>>()?;
     let (image, measurement, mut report, kappa) = match solved.len() {
         1 => {
@@ -202,8 +222,6 @@ struct Job<'a> {
     part: Option<&'a Partial>,
     transport_seconds: f64,
     cancel: &'a AtomicBool,
-    /// The gain a calibrated solve divides by (`None`: estimated).
-    gain: Option<f64>,
     /// Why the captures may leave rows unmeasured ([`unmeasured_cause`]).
     causes: &'a [String],
 }
@@ -220,8 +238,9 @@ struct Solution {
 impl Job<'_> {
     /// Solves `measurement` (fractions of full scale per µs, one value per
     /// row of `t`): unmeasured rows dropped, units, the sampling chosen from
-    /// the noise, the conditioning and Gram, the solver the record asks for.
-    fn solve(&self, mut measurement: Measurement) -> Result<Solution, JobError> {
+    /// the noise, the conditioning and Gram, the solver the record asks for;
+    /// divided by `gain` (`None`: scaled to a brightest element of about 1).
+    fn solve(&self, mut measurement: Measurement, gain: Option<f64>) -> Result<Solution, JobError> {
         let (d, rec) = (self.d, self.rec);
         check(self.cancel)?;
         // Elements too saturated to measure: their rows of T and i are zero (no
@@ -241,7 +260,7 @@ impl Job<'_> {
             true => self.t.clone(),
             false => Arc::new(self.t.with_rows_zeroed(&missing)),
         };
-        let units = to_model_units(&t, &mut measurement, self.gain)?;
+        let units = to_model_units(&t, &mut measurement, gain)?;
         let mut notes: Vec<String> = units.note().into_iter().collect();
         if let Some(p) = self.part {
             notes.push(p.note());

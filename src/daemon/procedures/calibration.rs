@@ -73,11 +73,14 @@ pub struct Calibrations {
     /// Per scene with a gain; scenes without one are scaled so that the
     /// brightest recovered element is about 1 (relative units).
     pub radiometric: Vec<RadiometricGain>,
+    /// Each scene's colour calibration in force (`POST /calibrations/colour`):
+    /// the gain of each colour of a colour camera.
+    pub colour: Vec<crate::daemon::ColourCalibration>,
 }
 
 impl Daemon {
     /// The radiometric gains in use, per scene, and where each came from.
-    pub fn calibrations(&self) -> Calibrations {
+    pub fn calibrations(&self) -> Result<Calibrations, RequestError> {
         let radiometric = self
             .calibration
             .iter()
@@ -92,7 +95,23 @@ impl Daemon {
                 .to_string(),
             })
             .collect();
-        Calibrations { radiometric }
+        let rows = self.store.colour_calibrations().map_err(|e| {
+            RequestError::Store(format!(
+                "the colour calibrations could not be read: {}",
+                self.store.describe(&e)
+            ))
+        })?;
+        let colour = rows
+            .into_iter()
+            .map(|r| {
+                let gain = self.calibration.get(&r.scene).copied();
+                crate::daemon::ColourCalibration::of(r, gain, Vec::new())
+            })
+            .collect();
+        Ok(Calibrations {
+            radiometric,
+            colour,
+        })
     }
 
     /// Fits the pose of target capture `capture` to `target` (TOML text;

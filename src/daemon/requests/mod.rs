@@ -261,6 +261,16 @@ pub struct CalibrationBody {
     pub target: Option<String>,
 }
 
+/// `POST /calibrations/colour` body.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ColourCalibrationBody {
+    /// A done light capture, through a colour camera, of a white or grey
+    /// field (a white card on the hidden side, or the bench lit evenly).
+    #[serde(deserialize_with = "crate::integral::int")]
+    pub capture: i64,
+}
+
 /// `POST /calibrations/wall` body: one source position (`source` and
 /// `captures`) or several positions of the same source (`sources`).
 #[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]

@@ -171,7 +171,7 @@ fn read_noise() -> f64 {
 pub struct DemoConfig {
     /// Scene name.
     pub scene: String,
-    /// `disk`, `bars` or `letter`.
+    /// `disk`, `bars`, `letter` or `flat` (a white field, for a colour calibration).
     pub pattern: String,
     /// Whether the fake bench switches the hidden scene off for dark frames
     /// by itself (false: it plays a bench switched by hand).

@@ -32,7 +32,7 @@ pub(in crate::daemon) fn frames(
     let err = |m: String| DaemonError::Demo(m);
     let pattern = Pattern::from_name(&demo.pattern).ok_or_else(|| {
         err(format!(
-            "pattern {:?} is not disk, bars or letter",
+            "pattern {:?} is not disk, bars, letter or flat",
             demo.pattern
         ))
     })?;

@@ -100,7 +100,7 @@ fn check_numbers(p: &ProgressiveBody, r: &CaptureRequest) -> Result<(usize, usiz
     if let Some(t) = &p.truth {
         if crate::simulate::patterns::Pattern::from_name(t).is_none() {
             return Err(invalid(format!(
-                "progressive.truth = {t:?}: must be a test pattern name (disk, bars, letter)"
+                "progressive.truth = {t:?}: must be a test pattern name (disk, bars, letter, flat)"
             )));
         }
     }

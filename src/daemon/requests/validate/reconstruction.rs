@@ -55,7 +55,7 @@ pub fn reconstruction(
     if let Some(t) = &b.truth {
         if crate::simulate::patterns::Pattern::from_name(t).is_none() {
             return Err(invalid(format!(
-                "truth = {t:?}: must be a test pattern name (disk, bars, letter)"
+                "truth = {t:?}: must be a test pattern name (disk, bars, letter, flat)"
             )));
         }
     }
