@@ -559,9 +559,7 @@ fn reconstruct_photo<'py>(
     truth: Option<PyReadonlyArrayDyn<'py, f64>>,
     max_iter: Option<usize>,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    use polnlos::solve::photo::{
-        pick_shadows, reconstruct_photo, split_channels, PhotoReport, PhotoSettings,
-    };
+    use polnlos::solve::photo::{reconstruct_photo, split_channels, PhotoReport, PhotoSettings};
     let shape = measurement.shape().to_vec();
     let data: Vec<f64> = measurement.as_array().iter().copied().collect();
     let channels = split_channels(&shape, &data, scene.inner.rows())
@@ -594,23 +592,20 @@ fn reconstruct_photo<'py>(
     let start = std::time::Instant::now();
     let (report, transport_seconds, shadows) = py
         .allow_threads(|| {
-            let mut t =
-                polnlos::transport::build(&scene.inner, BUDGET).map_err(|e| e.to_string())?;
+            let t = polnlos::transport::build(&scene.inner, BUDGET).map_err(|e| e.to_string())?;
             // As the CLI's --photo: an open shadow choice is the photo's.
-            let mut shadows = scene.inner.shadow_choice();
-            if shadows.open {
-                let area = scene
-                    .inner
-                    .clone()
-                    .edit(|p| p.hidden.shadows = polnlos::scene::ShadowModel::Area)
-                    .map_err(|e| e.to_string())?;
-                let ta = polnlos::transport::build(&area, BUDGET).map_err(|e| e.to_string())?;
-                shadows = pick_shadows(&t, &ta, &channels, &settings, shadows)
-                    .map_err(|e| e.to_string())?;
-                if shadows.model == polnlos::scene::ShadowModel::Area {
-                    t = ta;
-                }
-            }
+            type Failure = Box<dyn std::error::Error + Send + Sync>;
+            let (t, shadows) = polnlos::solve::photo::photo_transport(
+                &scene.inner,
+                Box::new(t),
+                || -> Result<_, Failure> {
+                    let area = scene.inner.with_area_shadows()?;
+                    Ok(Box::new(polnlos::transport::build(&area, BUDGET)?))
+                },
+                &channels,
+                &settings,
+            )
+            .map_err(|e| e.to_string())?;
             let seconds = start.elapsed().as_secs_f64();
             reconstruct_photo(&t, &channels, truth.as_deref(), &settings)
                 .map(|r| (r, seconds, shadows))

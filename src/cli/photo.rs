@@ -4,9 +4,8 @@
 use std::time::Instant;
 
 use polnlos::files::{image, json, npy, FileError};
-use polnlos::scene::ShadowModel;
 use polnlos::solve::photo::{
-    pick_shadows, reconstruct_photo, split_channels, PhotoReport, PhotoSettings,
+    photo_transport, reconstruct_photo, split_channels, PhotoReport, PhotoSettings,
 };
 use polnlos::solve::radiometry::RadiometryChoice;
 
@@ -33,7 +32,6 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let cached = super::build_transport(&scene, budget, &|done| pb.set_position(done as u64))?;
     pb.finish_and_clear();
-    let (mut t, mut transport_cache) = (cached.t, cached.source);
     let d = PhotoSettings::default();
     let settings = PhotoSettings {
         data_term: a.data_term,
@@ -43,19 +41,21 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     };
     // The file left `shadows` out and the penumbra is not negligible: the
     // photo says whether point or area shadows explain it better.
-    let mut shadows = scene.shadow_choice();
-    if shadows.open {
-        let area = scene
-            .clone()
-            .edit(|p| p.hidden.shadows = ShadowModel::Area)?;
-        let pb = super::progress::bar(scene.cols(), "building T (area shadows)");
-        let cached = super::build_transport(&area, budget, &|done| pb.set_position(done as u64))?;
-        pb.finish_and_clear();
-        shadows = pick_shadows(&t, &cached.t, &channels, &settings, shadows)?;
-        if shadows.model == ShadowModel::Area {
-            (t, transport_cache) = (cached.t, cached.source);
-        }
-    }
+    let (cached, shadows) = photo_transport(
+        &scene,
+        cached,
+        || -> anyhow::Result<_> {
+            let area = scene.with_area_shadows()?;
+            let pb = super::progress::bar(scene.cols(), "building T (area shadows)");
+            let cached =
+                super::build_transport(&area, budget, &|done| pb.set_position(done as u64))?;
+            pb.finish_and_clear();
+            Ok(cached)
+        },
+        &channels,
+        &settings,
+    )?;
+    let (t, transport_cache) = (cached.t, cached.source);
     eprintln!("note: {} shadows: {}", shadows.model.name(), shadows.reason);
     let transport_seconds = t0.elapsed().as_secs_f64();
     let result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;

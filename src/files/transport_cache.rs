@@ -39,6 +39,14 @@ pub struct Cached {
     pub source: &'static str,
 }
 
+impl std::ops::Deref for Cached {
+    type Target = Transport;
+
+    fn deref(&self) -> &Transport {
+        &self.t
+    }
+}
+
 impl TransportCache {
     /// The cache [`ENV`] names, else `$XDG_CACHE_HOME/polnlos/transport`,
     /// else `$HOME/.cache/polnlos/transport`; `None` when [`ENV`] is `off`

@@ -315,6 +315,12 @@ impl Scene {
         Self::from_toml_str_in(&text, dir).map_err(|e| e.in_file(path))
     }
 
+    /// The same scene with area shadows: the other model a photo of a scene
+    /// that left `shadows` out is compared with ([`Scene::shadow_choice`]).
+    pub fn with_area_shadows(&self) -> Result<Scene, SceneError> {
+        self.clone().edit(|p| p.hidden.shadows = ShadowModel::Area)
+    }
+
     /// The same scene changed by `change`, validated again as a scene file is:
     /// how a bench or a fit varies one value of a loaded scene without ever
     /// holding one that the loader would refuse (the error names the key).

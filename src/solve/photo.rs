@@ -29,7 +29,7 @@ use super::fista::{largest_eigenvalue, symmetric};
 use super::gram::{Gram, Normal};
 use super::tv::gradient;
 use super::{check_measurement, SolveError, Stop};
-use crate::scene::{ShadowChoice, ShadowModel};
+use crate::scene::{Scene, ShadowChoice, ShadowModel};
 use crate::transport::Transport;
 
 /// What a photo's data term fits.
@@ -876,6 +876,37 @@ pub fn pick_shadows(
         open: false,
         misfit: Some([mp, ma]),
         ..choice
+    })
+}
+
+/// The `T` a photo is reconstructed with, and the shadow model's choice:
+/// `point` (the scene's own `T`) where the scene fixes its shadows, else
+/// whichever of it and `area()` (the area-shadow `T`, made only then)
+/// explains the photo better ([`pick_shadows`]).
+///
+/// Why one function: the CLI's `--photo`, the daemon's fitted
+/// reconstruction and Python each get their `T`s their own way (a file
+/// cache, the daemon's scene cache, a build) and must choose alike.
+pub fn photo_transport<T, E>(
+    scene: &Scene,
+    point: T,
+    area: impl FnOnce() -> Result<T, E>,
+    channels: &[Vec<f64>],
+    settings: &PhotoSettings<'_>,
+) -> Result<(T, ShadowChoice), E>
+where
+    T: std::ops::Deref<Target = Transport>,
+    E: From<SolveError>,
+{
+    let choice = scene.shadow_choice();
+    if !choice.open {
+        return Ok((point, choice));
+    }
+    let area = area()?;
+    let choice = pick_shadows(&point, &area, channels, settings, choice)?;
+    Ok(match choice.model {
+        ShadowModel::Area => (area, choice),
+        _ => (point, choice),
     })
 }
 

@@ -18,7 +18,7 @@ use crate::measure::{
 };
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
-use crate::solve::photo::{pick_shadows, reconstruct_photo, PhotoReport, PhotoSettings};
+use crate::solve::photo::{photo_transport, reconstruct_photo, PhotoReport, PhotoSettings};
 use crate::solve::radiometry::{Known, Radiometry, RadiometryChoice};
 use crate::solve::reconstruct::{reconstruct_prepared, Context};
 use crate::solve::{check_measurement, SolveRequest, Stop};
@@ -380,23 +380,25 @@ impl Job<'_> {
             ..defaults
         };
         // The scene left `shadows` out and its penumbra is not negligible:
-        // the photo decides, as `polnlos reconstruct --photo` lets it.
+        // the photo decides, as `polnlos reconstruct --photo` lets it (the
+        // area-shadow T cached as the scene's own, the same blocks kept).
         let scene = d.scenes.scene(&rec.scene)?;
-        let mut shadows = scene.shadow_choice();
-        let mut t = self.t.clone();
-        if shadows.open && self.part.is_none() {
-            let area = (*scene)
-                .clone()
-                .edit(|p| p.hidden.shadows = crate::scene::ShadowModel::Area)
-                .map_err(|e| JobError::Store(e.to_string()))?;
-            let ta = crate::transport::build(&area, d.scenes.budget())
-                .map_err(|e| JobError::Store(e.to_string()))?;
-            check(self.cancel)?;
-            shadows = pick_shadows(&t, &ta, &channels, &settings, shadows)?;
-            if shadows.model == crate::scene::ShadowModel::Area {
-                t = Arc::new(ta);
-            }
-        }
+        let (t, shadows) = photo_transport(
+            &scene,
+            self.t.clone(),
+            || -> Result<_, JobError> {
+                let area = d
+                    .scenes
+                    .transport(&d.scenes.with_area_shadows(&rec.scene)?)?;
+                check(self.cancel)?;
+                Ok(match self.part {
+                    Some(p) => Arc::new(area.select_blocks(&p.kept)),
+                    None => area,
+                })
+            },
+            &channels,
+            &settings,
+        )?;
         let mut result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;
         check(self.cancel)?;
         result.warnings.splice(0..0, stacked.warnings);

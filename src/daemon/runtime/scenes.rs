@@ -31,6 +31,14 @@ pub enum ScenesError {
         /// Why.
         source: TransportError,
     },
+    /// A variant of the scene (area shadows) does not validate.
+    #[error("scene {name:?} with area shadows: {source}")]
+    Edit {
+        /// The scene.
+        name: String,
+        /// Why.
+        source: crate::scene::SceneError,
+    },
     /// The SVD of `T` failed.
     #[error("scene {name:?}: conditioning: {source}")]
     Conditioning {
@@ -228,6 +236,28 @@ impl Scenes {
             .entry(key.clone())
             .or_insert_with(|| Arc::new(chosen));
         Ok((key, Some(choice)))
+    }
+
+    /// The key of scene `name` with area shadows (`name#area`), registered
+    /// on first use: a photo of a scene that left `shadows` out compares
+    /// it with the scene's own, and its `T` is then cached as the scene's is.
+    pub fn with_area_shadows(&self, name: &str) -> Result<String, ScenesError> {
+        let scene = self.scene(name)?;
+        let key = format!("{name}#area");
+        let mut variants = self
+            .variants
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if !variants.contains_key(&key) {
+            let area = scene
+                .with_area_shadows()
+                .map_err(|source| ScenesError::Edit {
+                    name: name.to_string(),
+                    source,
+                })?;
+            variants.insert(key.clone(), Arc::new(area));
+        }
+        Ok(key)
     }
 
     /// `T` of a scene, built on first use (CPU-heavy: call from a blocking task).
