@@ -44,7 +44,7 @@ pub enum FakeSensor {
     Polarsens,
     /// A colour sensor behind an RGGB Bayer filter, read out raw
     /// (`BayerRG16`, also `BayerRG8`): each pixel sees the wall through its
-    /// colour's filter ([`super::shown::BAYER_RESPONSE`]).
+    /// colour's filter (`BAYER_RESPONSE` in `camera/shown.rs`).
     Bayer,
 }
 
@@ -279,7 +279,7 @@ impl FakeBench {
     }
 
     /// Gives the camera a sensor's shot and read noise (see
-    /// [`Shown::set_sensor_noise`]); without it its frames carry only dither.
+    /// `Shown::set_sensor_noise`); without it its frames carry only dither.
     pub fn with_sensor_noise(self, full_well_e: f64, read_noise_e: f64) -> Self {
         self.shared()
             .shown

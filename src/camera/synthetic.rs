@@ -39,7 +39,7 @@ impl SyntheticBench {
     }
 
     /// Gives the camera a sensor's shot and read noise (see
-    /// [`Shown::set_sensor_noise`]); without it its frames carry only dither.
+    /// `Shown::set_sensor_noise`); without it its frames carry only dither.
     pub fn with_sensor_noise(self, full_well_e: f64, read_noise_e: f64) -> Self {
         self.shown.set_sensor_noise(full_well_e, read_noise_e);
         self

@@ -269,7 +269,7 @@ mod tests {
 pub struct Gain {
     /// Fraction of full scale per microsecond of exposure per unit of `T l`.
     pub value: f64,
-    /// `calibration` (the daemon's [calibration], or the fake camera's
+    /// `calibration` (the daemon's `[calibration]`, or the fake camera's
     /// known one) or `estimated` (scaled so the brightest recovered element
     /// is about 1: relative units only).
     pub source: &'static str,

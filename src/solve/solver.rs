@@ -1,5 +1,5 @@
 //! The solvers polnlos offers, what each needs, the request that picks one
-//! and its parameters, and running it: the one place a solver is declared. [`super::reconstruct`] (the CLI, the daemon,
+//! and its parameters, and running it: the one place a solver is declared. [`super::reconstruct()`] (the CLI, the daemon,
 //! the bench) asks a [`Solver`] what it needs (`T^T T`, a TV weight chosen
 //! from the noise, a warm start) and runs it through [`Solver::run`]; the
 //! API's `solver` enum, and so the page's list, is this type's.

@@ -1,5 +1,5 @@
 //! What capture and reconstruction jobs share: the services a worker
-//! holds ([`JobContext`]), the job error, block labels and the bookkeeping
+//! holds (`JobContext`), the job error, block labels and the bookkeeping
 //! of a job that ended.
 
 pub(crate) mod capture;

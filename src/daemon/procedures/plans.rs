@@ -844,9 +844,9 @@ pub(in crate::daemon) async fn run(plans: Arc<Plans>) {
     }
 }
 
-/// The front end's door to [`Plans`].
+/// The front end's door to `Plans`.
 impl Daemon {
-    /// Checks a plan request and records it ([`Plans::submit_plan`]).
+    /// Checks a plan request and records it (`Plans::submit_plan`).
     pub async fn submit_plan(&self, body: PlanBody) -> Result<PlanView, PlanError> {
         self.plans.submit_plan(body).await
     }
@@ -861,7 +861,7 @@ impl Daemon {
         self.plans.continue_plan(id)
     }
 
-    /// Cancels a plan that has not ended ([`Plans::cancel_plan`]).
+    /// Cancels a plan that has not ended (`Plans::cancel_plan`).
     pub async fn cancel_plan(&self, id: i64) -> Result<PlanView, PlanError> {
         self.plans.cancel_plan(id).await
     }

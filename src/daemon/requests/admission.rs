@@ -241,9 +241,9 @@ impl Admission {
     }
 }
 
-/// The front end's door to [`Admission`].
+/// The front end's door to `Admission`.
 impl crate::daemon::Daemon {
-    /// Validates a capture body and queues it ([`Admission::submit_capture`]).
+    /// Validates a capture body and queues it (`Admission::submit_capture`).
     pub async fn submit_capture(
         &self,
         body: CaptureBody,
@@ -257,7 +257,7 @@ impl crate::daemon::Daemon {
     }
 
     /// Stores a measurement or photo taken elsewhere as a done capture
-    /// ([`Admission::import_capture`]): call it off the async runtime.
+    /// (`Admission::import_capture`): call it off the async runtime.
     pub fn import_capture(
         &self,
         q: &super::ImportQuery,
@@ -267,7 +267,7 @@ impl crate::daemon::Daemon {
     }
 
     /// The exposure plan of every block of a scene for the camera as it is
-    /// now ([`Admission::exposure_plan`]): call it off the async runtime.
+    /// now (`Admission::exposure_plan`): call it off the async runtime.
     pub fn exposure_plan(
         &self,
         scene: &str,
@@ -289,7 +289,7 @@ impl crate::daemon::Daemon {
         self.admission.require_capture(id)
     }
 
-    /// Cancels a queued or running job ([`Admission::cancel_job`]).
+    /// Cancels a queued or running job (`Admission::cancel_job`).
     pub async fn cancel_job(
         &self,
         kind: crate::daemon::JobKind,
