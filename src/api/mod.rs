@@ -53,7 +53,40 @@ pub fn router(d: Arc<Daemon>) -> Router {
         guard::Guard::new(d.clone()),
         guard::guard,
     ))
+    .layer(
+        tower_http::trace::TraceLayer::new_for_http()
+            .make_span_with(request_span)
+            .on_request(())
+            .on_response(answered)
+            .on_body_chunk(())
+            .on_eos(())
+            .on_failure(()),
+    )
     .with_state(d)
+}
+
+/// A request's span: `request{method path}`, around what its handler logs.
+///
+/// Why: a bench PC's log must say which request a job line or a refusal
+/// came from.
+fn request_span(req: &axum::http::Request<axum::body::Body>) -> tracing::Span {
+    tracing::info_span!("request", method = %req.method(), path = %req.uri().path())
+}
+
+/// One line per answer: a refusal (4xx) as a warning, a server error as an
+/// error, the rest at debug level.
+///
+/// Why: failures must show in the log of a daemon that runs for weeks,
+/// without a line per poll of the page.
+fn answered(res: &axum::http::Response<axum::body::Body>, latency: Duration, _: &tracing::Span) {
+    let (status, ms) = (res.status(), latency.as_secs_f64() * 1e3);
+    if status.is_server_error() {
+        tracing::error!("answered {} in {ms:.1} ms", status.as_u16());
+    } else if status.is_client_error() {
+        tracing::warn!("refused {} in {ms:.1} ms", status.as_u16());
+    } else {
+        tracing::debug!("answered {} in {ms:.1} ms", status.as_u16());
+    }
 }
 
 /// Every route, each declared once. An API route is one `routes!` line
