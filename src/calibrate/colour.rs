@@ -50,6 +50,13 @@ impl ColourBalance {
             .find(|c| c.colour == colour)
             .map(|c| c.ratio)
     }
+
+    /// The gain `colour` is divided by when the scene's one gain is `gain`
+    /// (the reference colour's): `gain` times its ratio, `gain` for a colour
+    /// the balance does not have.
+    pub fn gain(&self, colour: Colour, gain: f64) -> f64 {
+        gain * self.ratio(colour).unwrap_or(1.0)
+    }
 }
 
 /// Why a colour balance could not be measured.
@@ -206,6 +213,7 @@ mod tests {
         assert_eq!(b.colours[1].sigma, 0.0);
         assert!(b.colours[0].sigma > 0.0 && b.colours[0].sigma < 1e-3);
         assert_eq!(b.ratio(Colour::Blue), Some(b.colours[2].ratio));
+        assert_eq!(b.gain(Colour::Red, 2.0), 2.0 * b.colours[0].ratio);
     }
 
     #[test]

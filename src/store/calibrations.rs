@@ -69,17 +69,13 @@ impl Store {
 
     /// Every scene's newest colour calibration, by scene name.
     pub fn colour_calibrations(&self) -> Result<Vec<ColourCalibrationRow>, StoreError> {
-        let scenes: Vec<String> = self.with(|c| {
-            let mut st =
-                c.prepare("SELECT DISTINCT scene FROM colour_calibrations ORDER BY scene")?;
-            let rows = st.query_map([], |r| r.get(0))?.collect();
+        self.with(|c| {
+            let mut st = c.prepare(
+                "SELECT id, scene, capture, balance, created_at FROM colour_calibrations WHERE id IN (SELECT MAX(id) FROM colour_calibrations GROUP BY scene) ORDER BY scene",
+            )?;
+            let rows = st.query_map([], calibration_row)?.collect();
             rows
-        })?;
-        let mut out = Vec::with_capacity(scenes.len());
-        for s in scenes {
-            out.extend(self.colour_calibration(&s)?);
-        }
-        Ok(out)
+        })
     }
 }
 

@@ -1456,22 +1456,28 @@ fn saturated_pixels_leave_their_elements_out_of_measure_and_reconstruct() {
 
 /// `polnlos reconstruct` of the chair photo's scene with `--photo`.
 fn reconstruct_photo(measurement: &Path, out: &Path, truth: Option<&Path>, cache: &Path) -> Output {
+    crate::priority::background();
+    photo_command(measurement, out, truth, cache)
+        .output()
+        .expect("run polnlos")
+}
+
+/// `polnlos reconstruct --photo` of the chair scene on `measurement`.
+fn photo_command(measurement: &Path, out: &Path, truth: Option<&Path>, cache: &Path) -> Command {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let scene = root.join("config/photos/saunders-chair.toml");
-    let mut args = vec![
-        "reconstruct".to_string(),
-        scene.display().to_string(),
-        "--photo".into(),
-        "--measurement".into(),
-        measurement.display().to_string(),
-        "--out".into(),
-        out.display().to_string(),
-    ];
+    let mut c = Command::new(env!("CARGO_BIN_EXE_polnlos"));
+    c.arg("reconstruct")
+        .arg(root.join("config/photos/saunders-chair.toml"))
+        .arg("--photo")
+        .arg("--measurement")
+        .arg(measurement)
+        .arg("--out")
+        .arg(out)
+        .env("POLNLOS_CACHE", cache);
     if let Some(t) = truth {
-        args.extend(["--truth".into(), t.display().to_string()]);
+        c.arg("--truth").arg(t);
     }
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    polnlos_with_cache(&args, cache.to_str().unwrap())
+    c
 }
 
 /// The CLI's `reconstruct --photo` of the chair, with its truth, run once
@@ -1500,19 +1506,14 @@ pub(crate) fn chair_photo_run() -> &'static ChairPhotoRun {
         std::fs::create_dir_all(&cache).unwrap();
         // Run at the caller's priority: the daemon test that may start it
         // holds the Aravis lock and must not drop to the idle class.
-        let output = Command::new(env!("CARGO_BIN_EXE_polnlos"))
-            .arg("reconstruct")
-            .arg(root.join("config/photos/saunders-chair.toml"))
-            .arg("--photo")
-            .arg("--measurement")
-            .arg(data.join("measurement.npy"))
-            .arg("--truth")
-            .arg(data.join("truth.npy"))
-            .arg("--out")
-            .arg(&out)
-            .env("POLNLOS_CACHE", &cache)
-            .output()
-            .expect("run polnlos");
+        let output = photo_command(
+            &data.join("measurement.npy"),
+            &out,
+            Some(&data.join("truth.npy")),
+            &cache,
+        )
+        .output()
+        .expect("run polnlos");
         ChairPhotoRun { out, cache, output }
     })
 }

@@ -179,7 +179,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
         Some(b) => crate::measure::colour::Colour::ALL
             .iter()
             .take(colours)
-            .map(|&c| gain.map(|g| g * b.balance.ratio(c).unwrap_or(1.0)))
+            .map(|&c| gain.map(|g| b.balance.gain(c, g)))
             .collect(),
         None => vec![gain; colours],
     };

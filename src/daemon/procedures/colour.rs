@@ -60,7 +60,7 @@ impl ColourCalibration {
                 colour: c.colour,
                 ratio: c.ratio,
                 sigma: c.sigma,
-                gain: gain.map(|g| g * c.ratio),
+                gain: gain.map(|g| row.balance.gain(c.colour, g)),
             })
             .collect();
         Self {
@@ -142,19 +142,5 @@ impl Daemon {
         );
         let gain = self.calibration.get(&scene_name).copied();
         Ok(ColourCalibration::of(row, gain, stacked.warnings))
-    }
-
-    /// Scene `scene`'s colour calibration in force, if it has one.
-    pub fn colour_calibration(
-        &self,
-        scene: &str,
-    ) -> Result<Option<ColourCalibration>, RequestError> {
-        let row = self.store.colour_calibration(scene).map_err(|e| {
-            RequestError::Store(format!(
-                "scene {scene:?}'s colour calibration could not be read: {}",
-                self.store.describe(&e)
-            ))
-        })?;
-        Ok(row.map(|r| ColourCalibration::of(r, self.calibration.get(scene).copied(), Vec::new())))
     }
 }
