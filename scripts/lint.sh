@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# The maintainers' checks before a commit, beside `cargo test --locked`
+# (which .ci/run runs): lints, the build without the daemon, and the docs.
+# Not in .ci/run: they are minutes of a fresh clone's
+# 12-minute budget (docs/test-times.md).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cargo fmt --check
+cargo clippy --locked --all-targets -- -D warnings
+# The numeric core and the offline tools build without the daemon's
+# libraries (Aravis, SQLite, tokio, axum).
+cargo check --locked --no-default-features --lib --bins
+# The library's documentation builds with no broken or private link.
+RUSTDOCFLAGS="-D warnings" cargo doc --locked --no-deps --lib
