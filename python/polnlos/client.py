@@ -200,6 +200,27 @@ class Client:
         """Cancels a plan; its finished captures are kept."""
         return self._json("DELETE", f"/plans/{int(plan_id)}")
 
+    # -- live view -----------------------------------------------------------
+
+    def live_start(self, scene: str, pose: str, **fields: Any) -> Dict[str, Any]:
+        """Starts the live view (`POST /live`): the capture request repeated,
+        `frames` the rolling window (1 to 64), `progressive` its solver
+        settings (`truth`, `lambda`, `captures`). Returns its state."""
+        return self._json("POST", "/live", {"scene": scene, "pose": pose, **fields})
+
+    def live(self) -> Dict[str, Any]:
+        """The live view's state (`GET /live`): results, results_per_second,
+        median_latency_ms and the newest result (`last`)."""
+        return self._json("GET", "/live")
+
+    def live_image(self) -> bytes:
+        """The newest live image, a 16-bit PNG on the scene grid."""
+        return self._bytes("/live/image.png")
+
+    def live_stop(self) -> Dict[str, Any]:
+        """Stops the live view; its last state, as `off`."""
+        return self._json("DELETE", "/live")
+
     # -- waiting and events --------------------------------------------------
 
     def job(self, job: str) -> Dict[str, Any]:

@@ -108,3 +108,25 @@ def test_errors_carry_the_daemons_status_and_sentence(client):
     assert e.value.status == 404
     with pytest.raises(polnlos.PolnlosError, match="cannot reach"):
         polnlos.Client("http://127.0.0.1:9", timeout=2).health()
+
+
+def test_the_live_view_gives_results_and_stops(client):
+    """Live view through the client: results arrive, each solving a full
+    window, the image downloads, and stopping frees the camera."""
+    import time
+    started = client.live_start("brewster-crossed", "A", polarizer_deg=0, exposure_us=20000,
+                                frames=4, dark_frames=2, progressive={"truth": "letter"})
+    assert started["state"] in ("starting", "running"), started
+    end = time.monotonic() + 30
+    state = client.live()
+    while state["results"] < 3:
+        assert time.monotonic() < end, state
+        time.sleep(0.1)
+        state = client.live()
+    assert state["last"]["frames"] == 4, state
+    assert state["last"]["psnr_db"] > 10, state
+    assert client.live_image()[1:4] == b"PNG"
+    stopped = client.live_stop()
+    assert stopped["state"] == "off" and stopped["results"] >= 3, stopped
+    assert client.live()["state"] == "off"
+

@@ -119,6 +119,12 @@ fn all_routes(import_limit: usize) -> OpenApiRouter<Arc<Daemon>> {
         .routes(routes!(routes::mount_zero))
         .routes(routes!(routes::stage))
         .routes(routes!(routes::light))
+        .routes(routes!(
+            routes::post_live,
+            routes::get_live,
+            routes::delete_live
+        ))
+        .routes(routes!(routes::live_image))
         .routes(routes!(routes::post_plan, routes::list_plans))
         .routes(routes!(routes::get_plan, routes::cancel_plan))
         .routes(routes!(routes::continue_plan))

@@ -213,6 +213,8 @@ pub struct Daemon {
     registry: Arc<JobRegistry>,
     events: Events,
     metrics: Arc<Metrics>,
+    /// The live view: started and stopped over HTTP, run by the capture worker.
+    live: Arc<runtime::live::Live>,
     /// The job workers and background tasks, joined by [`Daemon::drain`].
     workers: std::sync::Mutex<tokio::task::JoinSet<()>>,
 }
@@ -301,6 +303,7 @@ impl Daemon {
             registry,
             events,
             metrics,
+            live: Arc::new(runtime::live::Live::default()),
             workers: std::sync::Mutex::new(tokio::task::JoinSet::new()),
         });
         {
@@ -318,6 +321,7 @@ impl Daemon {
                 stall_slack: std::time::Duration::from_secs_f64(
                     d.config.camera.stall_slack_s.clamp(0.0, 86_400.0),
                 ),
+                live: d.live.clone(),
             };
             set.spawn(capture.run(capture_rx));
             let shared = Arc::new(Mutex::new(recon_rx));

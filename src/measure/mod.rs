@@ -12,6 +12,7 @@ pub mod levels;
 mod load;
 pub mod mosaic;
 mod stack;
+pub mod window;
 
 pub use assemble::{
     assemble, assemble_colour, assemble_with, match_blocks, to_model_units, CaptureFrames, Units,

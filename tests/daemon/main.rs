@@ -15,6 +15,7 @@ mod faults;
 mod fuzz;
 mod hostile;
 mod in_process;
+mod live;
 mod mosaic;
 mod mount;
 mod mount_device;

@@ -36,9 +36,6 @@ const LIVE_EVERY: std::time::Duration = std::time::Duration::from_millis(200);
 /// Frames in flight between the camera thread and the writer.
 const FRAME_QUEUE: usize = 4;
 
-/// How long a capture waits for a camera that is not connected.
-const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
-
 /// The capture worker and what it uses: the job services, the camera and
 /// the capture queue (for the disk reservations and progressive specs).
 pub(in crate::daemon) struct CaptureWorker {
@@ -54,23 +51,47 @@ pub(in crate::daemon) struct CaptureWorker {
     pub(in crate::daemon) saturated: (Saturated, f64),
     /// How far beyond twice its frames' time an acquisition may run.
     pub(in crate::daemon) stall_slack: std::time::Duration,
+    /// The live view, run between captures.
+    pub(in crate::daemon) live: Arc<crate::daemon::runtime::live::Live>,
 }
 
 impl CaptureWorker {
-    /// Runs captures one at a time (one camera) until the daemon stops.
+    /// Runs captures one at a time (one camera) until the daemon stops, and
+    /// the live view while no capture waits.
     pub(in crate::daemon) async fn run(self, mut rx: mpsc::Receiver<i64>) {
         let w = &self;
         let mut stopped = w.jobs.registry.stopped();
+        let mut live_changed = w.live.subscribe();
         loop {
+            if w.queue.depth() == 0 && !w.jobs.registry.is_stopping() && w.live.wanted().is_some() {
+                // Returns when a capture is queued, the session changes, or the daemon stops.
+                live_changed.borrow_and_update();
+                let run = super::live::LiveRun {
+                    jobs: &w.jobs,
+                    camera: &w.camera,
+                    rig: &w.rig,
+                    queue: &w.queue,
+                };
+                super::live::segment(&run, &w.live).await;
+                continue;
+            }
             // Biased towards the stop: a job still queued when the drain
             // starts stays queued, however ready the queue is.
             let id = tokio::select! {
                 biased;
                 _ = stopped.wait_for(|s| *s) => None,
                 id = rx.recv() => id,
+                _ = live_changed.changed() => continue,
             };
             let Some(id) = id else { return };
             let job = format!("capture-{id}");
+            if let Some((session, ..)) = w.live.wanted() {
+                w.live.set_state(
+                    session,
+                    crate::daemon::runtime::live::LiveState::Paused,
+                    Some(job.clone()),
+                );
+            }
             let start = Instant::now();
             // Held for the whole capture: settings changes answer 409 meanwhile.
             let lease = w.camera.lease(&job).await;
@@ -139,7 +160,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     })?;
     move_camera(w, &c).await?;
     turn_polarizer(w, &c).await?;
-    wait_for_camera(&w.camera).await;
+    super::wait_for_camera(&w.camera).await;
     let camera_id = w.camera.status().info.map(|i| i.id).unwrap_or_default();
     let meta = meta_of(&c, acquisition, &camera_id);
     let dir = w.jobs.store.capture_dir(id);
@@ -295,14 +316,6 @@ async fn finish_progressive(
     }
 }
 
-/// A camera that is (re)connecting gets a short grace period before the capture fails.
-async fn wait_for_camera(camera: &CameraService) {
-    let grace = Instant::now();
-    while !camera.status().connected && grace.elapsed() < CAMERA_GRACE {
-        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
-    }
-}
-
 /// What every page of the capture's files records about it.
 fn meta_of(c: &CaptureRecord, acquisition: Acquisition, camera_id: &str) -> FrameMeta {
     FrameMeta {
@@ -382,26 +395,11 @@ fn rig_failed(id: i64, e: RigError) -> JobError {
     }
 }
 
-/// Moves the camera to the capture's pose; a bench without a stage (whose
-/// camera the operator moves, and the capture's pose is trusted) does nothing.
+/// Moves the camera to the capture's pose ([`super::move_to_pose`]).
 async fn move_camera(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobError> {
-    if !w.rig.automated().stage {
-        return Ok(());
-    }
-    let scene = w.jobs.scenes.scene(&c.scene)?;
-    let Some(pose) = scene.poses().iter().find(|p| p.name == c.pose) else {
-        return Err(JobError::Capture {
-            id: c.id,
-            reason: format!("scene {:?} has no pose {:?}", c.scene, c.pose),
-        });
-    };
-    if let Some(at) = w.rig.move_to(pose).await.map_err(|e| rig_failed(c.id, e))? {
-        tracing::info!(
-            "camera at pose {} ({at:?} m), read back from the stage",
-            c.pose
-        );
-    }
-    Ok(())
+    super::move_to_pose(&w.rig, &w.jobs.scenes, &c.scene, &c.pose)
+        .await
+        .map_err(|reason| JobError::Capture { id: c.id, reason })
 }
 
 /// Turns the mount to the capture's polarizer angle and records the angle

@@ -3,6 +3,7 @@
 //! of a job that ended.
 
 pub(crate) mod capture;
+pub(crate) mod live;
 pub(crate) mod progressive;
 pub(crate) mod reconstruction;
 
@@ -58,6 +59,9 @@ pub enum JobError {
         /// What is wrong with it.
         reason: String,
     },
+    /// The live view's bench, window or camera (`GET /live` shows it).
+    #[error("live view: {0}")]
+    Live(String),
     /// No row of the measurement was usable: nothing to reconstruct.
     #[error("no wall element was measured, so there is nothing to reconstruct: {0}")]
     Unmeasured(String),
@@ -160,4 +164,40 @@ pub(in crate::daemon) fn finish_job(
             d.events.job(job, JobState::Failed, Some(e));
         }
     }
+}
+
+/// How long a job waits for a camera that is not connected.
+const CAMERA_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// A camera that is (re)connecting gets a short grace period before the
+/// capture (or live view) that needs it fails.
+pub(in crate::daemon) async fn wait_for_camera(
+    camera: &crate::daemon::runtime::camera::CameraService,
+) {
+    let grace = Instant::now();
+    while !camera.status().connected && grace.elapsed() < CAMERA_GRACE {
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+}
+
+/// Moves the camera to pose `pose` of scene `scene`; a bench without a
+/// stage (whose camera the operator moves, and the pose is trusted) does
+/// nothing. The error says what went wrong, for the job to name itself.
+pub(in crate::daemon) async fn move_to_pose(
+    rig: &crate::rig::Rig,
+    scenes: &Scenes,
+    scene: &str,
+    pose: &str,
+) -> Result<(), String> {
+    if !rig.automated().stage {
+        return Ok(());
+    }
+    let s = scenes.scene(scene).map_err(|e| e.to_string())?;
+    let Some(p) = s.poses().iter().find(|p| p.name == pose) else {
+        return Err(format!("scene {scene:?} has no pose {pose:?}"));
+    };
+    if let Some(at) = rig.move_to(p).await.map_err(|e| e.to_string())? {
+        tracing::info!("camera at pose {pose} ({at:?} m), read back from the stage");
+    }
+    Ok(())
 }

@@ -44,7 +44,7 @@ pub const IMAGE: &str = "progressive.png";
 pub const STEPS: &str = "progressive.json";
 
 /// The running mean after some frames.
-struct Snapshot {
+pub(in crate::daemon) struct Snapshot {
     /// Frames averaged.
     frames: usize,
     /// Per-pixel mean, DN (not dark-subtracted).
@@ -58,6 +58,24 @@ struct Snapshot {
 }
 
 impl Snapshot {
+    /// The mean of `frames` frames of `width` x `height` pixels (DN, not
+    /// dark-subtracted) and the variance of that mean (from 2 frames on).
+    pub(in crate::daemon) fn from_parts(
+        frames: usize,
+        mean: Vec<f64>,
+        variance: Option<Vec<f64>>,
+        width: usize,
+        height: usize,
+    ) -> Self {
+        Self {
+            frames,
+            mean,
+            variance,
+            width,
+            height,
+        }
+    }
+
     fn of(st: &FrameStack) -> Self {
         Self {
             frames: st.count,
@@ -104,8 +122,9 @@ impl Snapshots {
     }
 }
 
-/// A capture's progressive solver.
-struct Solver {
+/// A capture's progressive solver (also the live view's, over a capture
+/// request that is never stored).
+pub(in crate::daemon) struct Solver {
     t: Arc<Transport>,
     scene: Arc<Scene>,
     capture: CaptureRecord,
@@ -141,7 +160,10 @@ struct Solver {
 }
 
 impl Solver {
-    fn new(
+    /// The solver of `capture`'s frames: its scene's cached `T`, Gram and
+    /// conditioning, the other blocks' rows from `spec.captures`, and the
+    /// dark mean (with its variance) subtracted from every snapshot.
+    pub(in crate::daemon) fn new(
         d: &JobContext,
         capture: CaptureRecord,
         spec: &ProgressiveSpec,
@@ -236,13 +258,24 @@ impl Solver {
     }
 
     /// Solves one snapshot; returns the step and the image.
-    fn step(&mut self, s: &Snapshot) -> Result<(Step, Vec<f64>), JobError> {
+    pub(in crate::daemon) fn step(&mut self, s: &Snapshot) -> Result<(Step, Vec<f64>), JobError> {
         let start = Instant::now();
         let own = self.own_frames(s);
         let noise = self.measure(own)?;
         let (r, lambda) = self.solve(noise)?;
         let step = self.record(s.frames, start, &r, lambda);
         Ok((step, r.image))
+    }
+
+    /// The scene grid its images are on.
+    pub(in crate::daemon) fn grid(&self) -> crate::scene::Grid {
+        self.t.scene_grid()
+    }
+
+    /// Forgets the steps recorded so far.
+    /// Why: a live session solves for hours; only a capture keeps its steps.
+    pub(in crate::daemon) fn forget_steps(&mut self) {
+        self.steps.clear();
     }
 
     /// This capture's frames at snapshot `s`: the mean less the dark, its variance plus the dark's.

@@ -166,6 +166,51 @@ impl Admission {
         Ok((request, progressive))
     }
 
+    /// Validates the capture request a live view repeats: a light capture
+    /// whose `frames` is the window (1 to [`MAX_WINDOW`]), solved as a
+    /// progressive reconstruction (`progressive` gives λ, the truth and the
+    /// other blocks' captures), which needs the scene's radiometric
+    /// calibration.
+    ///
+    /// [`MAX_WINDOW`]: crate::measure::window::MAX_WINDOW
+    pub(in crate::daemon) fn check_live(
+        &self,
+        b: &CaptureBody,
+    ) -> Result<(CaptureRequest, ProgressiveSpec), RequestError> {
+        use crate::measure::window::MAX_WINDOW;
+        if b.kind
+            .is_some_and(|k| k != crate::store::CaptureKind::Light)
+        {
+            return Err(RequestError::Invalid(
+                "live view repeats a light capture: leave kind out".into(),
+            ));
+        }
+        if let Some(n) = b.frames.filter(|&n| n > MAX_WINDOW) {
+            return Err(RequestError::Invalid(format!(
+                "frames = {n}: a live window is 1 to {MAX_WINDOW} frames"
+            )));
+        }
+        self.scenes.scene(&b.scene)?;
+        if !self.calibration.contains_key(&b.scene) {
+            return Err(RequestError::Invalid(format!(
+                "live view needs the radiometric calibration of scene {:?}: add it under [calibration] in the config",
+                b.scene
+            )));
+        }
+        let mut body = b.clone();
+        body.progressive.get_or_insert(super::ProgressiveBody {
+            every: None,
+            captures: Vec::new(),
+            lambda: None,
+            max_iter: None,
+            truth: None,
+        });
+        let (request, spec) = self.check_capture(&body)?;
+        let spec =
+            spec.ok_or_else(|| RequestError::Invalid("live view: no solver settings".into()))?;
+        Ok((request, spec))
+    }
+
     /// Admits a validated capture: room in the queue and on the disk (its
     /// files, plus what queued captures reserved, plus the configured
     /// reserve), then records and queues it.
@@ -249,6 +294,38 @@ impl crate::daemon::Daemon {
         body: CaptureBody,
     ) -> Result<(i64, CaptureRequest), SubmitError> {
         self.admission.submit_capture(body).await
+    }
+
+    /// Starts the live view repeating capture body `b` (a running session
+    /// is replaced); the capture worker runs it while no capture waits.
+    pub async fn start_live(
+        &self,
+        b: CaptureBody,
+    ) -> Result<crate::daemon::runtime::live::LiveView, RequestError> {
+        let a = self.admission.clone();
+        let (request, spec) = tokio::task::spawn_blocking(move || a.check_live(&b))
+            .await
+            .map_err(|e| RequestError::Unavailable(format!("live view validation: {e}")))??;
+        tracing::info!(
+            "live view started: {} {}, windows of {} frames of {} us",
+            request.scene,
+            crate::daemon::jobs::capture_label(&request.pose, &request.channels),
+            request.frames,
+            request.acquisition.exposure_us
+        );
+        Ok(self.live.start(request, spec))
+    }
+
+    /// Stops the live view; its last state, as `off`.
+    pub fn stop_live(&self) -> crate::daemon::runtime::live::LiveView {
+        let view = self.live.stop();
+        tracing::info!("live view stopped after {} results", view.results);
+        view
+    }
+
+    /// The live view's state and newest image.
+    pub fn live(&self) -> &crate::daemon::runtime::live::Live {
+        &self.live
     }
 
     /// Validates a reconstruction body and queues it.

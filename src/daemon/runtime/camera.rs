@@ -11,8 +11,8 @@ use crate::camera::{Acquisition, CameraError, CameraInfo, CameraSettings, RawFra
 /// Why a settings change was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum SettingsError {
-    /// A capture has the camera (HTTP 409).
-    #[error("a capture is using the camera; settings are not changed during a capture (give them in the capture request instead, or retry when it ends)")]
+    /// A capture or the live view has the camera (HTTP 409).
+    #[error("a capture or the live view is using the camera (GET /camera's busy says which); settings are not changed meanwhile (give them in the capture or live request instead, stop the live view with DELETE /live, or retry when the capture ends)")]
     Busy,
     /// A region or binning the sensor cannot deliver (422).
     #[error(transparent)]
@@ -43,6 +43,9 @@ pub struct CameraService {
     gate: tokio::sync::Mutex<()>,
     /// The job holding the gate (`capture-<n>`), for `GET /camera`.
     holder: Mutex<Option<String>>,
+    /// Leases asked for and not yet granted: the live view gives the camera
+    /// up when one is.
+    waiting: std::sync::atomic::AtomicUsize,
     /// Settings from the last `PUT /camera/settings`, inherited by captures
     /// that do not state their own (None: the camera's read-back ones).
     defaults: Mutex<Option<CameraSettings>>,
@@ -71,6 +74,7 @@ impl CameraService {
             handle,
             gate: tokio::sync::Mutex::new(()),
             holder: Mutex::new(None),
+            waiting: std::sync::atomic::AtomicUsize::new(0),
             defaults: Mutex::new(None),
             latest: Mutex::new(None),
             _hotplug: hotplug,
@@ -89,7 +93,18 @@ impl CameraService {
 
     /// Waits for the camera and holds it for `job` until the lease drops.
     pub(crate) async fn lease(&self, job: &str) -> CameraLease<'_> {
+        use std::sync::atomic::Ordering;
+        /// Counts a lease asked for until it is granted or given up.
+        struct Asking<'a>(&'a std::sync::atomic::AtomicUsize);
+        impl Drop for Asking<'_> {
+            fn drop(&mut self) {
+                self.0.fetch_sub(1, Ordering::SeqCst);
+            }
+        }
+        self.waiting.fetch_add(1, Ordering::SeqCst);
+        let asking = Asking(&self.waiting);
         let gate = self.gate.lock().await;
+        drop(asking);
         *self.holder.lock().unwrap_or_else(|e| e.into_inner()) = Some(job.to_string());
         CameraLease {
             _gate: gate,
@@ -109,6 +124,11 @@ impl CameraService {
             self.show(Arc::new(f.clone()));
         }
         Ok(frames)
+    }
+
+    /// Leases asked for and not yet granted.
+    pub(crate) fn waiting(&self) -> usize {
+        self.waiting.load(std::sync::atomic::Ordering::SeqCst)
     }
 
     /// The latest frame a capture or the live view received, if any.

@@ -90,6 +90,16 @@ pub enum Event {
         #[serde(flatten)]
         step: Step,
     },
+    /// The live view published a result (see `GET /live`).
+    Live {
+        /// The live session (each `POST /live` starts one).
+        session: u64,
+        /// From the arrival of the window's newest frame to this result, ms.
+        latency_ms: f64,
+        /// The result's numbers (`frames`: the window).
+        #[serde(flatten)]
+        step: Step,
+    },
     /// A capture or a reconstruction was deleted, row and files.
     Deleted {
         /// `capture` or `reconstruction`.

@@ -7,6 +7,7 @@ pub(crate) mod camera;
 pub mod config;
 pub(crate) mod demo;
 pub mod events;
+pub mod live;
 pub mod metrics;
 pub(crate) mod queue;
 pub(crate) mod registry;

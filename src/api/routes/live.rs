@@ -1,0 +1,49 @@
+//! The live view: start it with a capture request, watch it, stop it.
+
+use super::*;
+use crate::daemon::runtime::live::LiveView;
+
+/// Starts the live view: the camera repeats this capture request (`frames`
+/// is the rolling window, 1 to 64; `progressive` sets λ, the truth and the
+/// other blocks' captures) and each new window is reconstructed, while no
+/// capture is queued; a running session is replaced. Results stream on
+/// `/events` (`live`) and as `/live/image.png`.
+#[utoipa::path(post, path = "/live", request_body = CaptureBody, responses((status = 202, body = LiveView, description = "Started; GET /live follows it"), (status = 404, body = ErrorBody, description = "Unknown scene, pose or dark capture"), (status = 422, body = ErrorBody, description = "A request the camera, the scene or the window cannot serve")))]
+pub async fn post_live(
+    State(d): St,
+    ApiJson(b): ApiJson<CaptureBody>,
+) -> Result<Response, ApiError> {
+    let view = d.start_live(b).await?;
+    Ok((
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, "/live".to_string())],
+        Json(view),
+    )
+        .into_response())
+}
+
+/// The live view's state: running, paused by a capture, failed or off;
+/// results so far, results per second, the median frame-to-result latency
+/// and the newest result's numbers.
+#[utoipa::path(get, path = "/live", responses((status = 200, body = LiveView)))]
+pub async fn get_live(State(d): St) -> Json<LiveView> {
+    Json(d.live().view())
+}
+
+/// Stops the live view (the camera is free for settings changes at once);
+/// answers its last state, as `off`.
+#[utoipa::path(delete, path = "/live", responses((status = 200, body = LiveView)))]
+pub async fn delete_live(State(d): St) -> Json<LiveView> {
+    Json(d.stop_live())
+}
+
+/// The live view's newest image, 16-bit PNG on the scene grid.
+#[utoipa::path(get, path = "/live/image.png", responses((status = 200, content_type = "image/png", description = "Newest live image"), (status = 404, body = ErrorBody, description = "No live result yet")))]
+pub async fn live_image(State(d): St) -> Result<Response, ApiError> {
+    let (nu, nv, values) = d.live().image().ok_or_else(|| {
+        ApiError::not_found("the live view has no result yet (POST /live starts it)".to_string())
+    })?;
+    let png = crate::files::image::encode_png16(nu, nv, &crate::files::image::unit_to_u16(&values))
+        .map_err(|e| ApiError::internal(format!("live image: {e}")))?;
+    Ok(([(header::CONTENT_TYPE, "image/png")], Body::from(png)).into_response())
+}

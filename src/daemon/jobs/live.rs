@@ -1,0 +1,333 @@
+//! Live reconstruction: the capture worker streams the camera between
+//! captures and solves the newest window of frames after every frame it can,
+//! with the scene's cached `T`, Gram and conditioning and the progressive
+//! solver ([`super::progressive`]): λ from the window's noise, or a fixed λ
+//! warm-started from the previous result. Each result is published on
+//! `/events` (`live`) and as `GET /live/image.png`.
+//!
+//! The camera comes first to captures: a queued capture ends the live
+//! segment at the next frame, runs, and live view resumes after it (state
+//! `paused` meanwhile). Frames that arrive while a solve runs only join the
+//! window, so live view never falls behind the camera, and its memory is the
+//! window's frames and a few images however long it runs.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use super::progressive::{Snapshot, Solver};
+use super::{JobContext, JobError};
+use crate::camera::{Acquisition, CameraSettings, Frame, RawFrame};
+use crate::daemon::requests::validate::ProgressiveSpec;
+use crate::daemon::runtime::camera::CameraService;
+use crate::daemon::runtime::live::{Live, LiveState};
+use crate::daemon::runtime::queue::CaptureQueue;
+use crate::daemon::Event;
+use crate::measure::window::Window;
+use crate::measure::FrameStack;
+use crate::rig::Rig;
+use crate::store::{CaptureRecord, CaptureRequest, JobState};
+
+/// Frames one acquisition of a live segment asks for; a segment that reaches
+/// it starts another.
+const SEGMENT_FRAMES: usize = 1 << 20;
+
+/// How often the frame reader looks at its stop flag while no frame comes.
+const POLL: Duration = Duration::from_millis(50);
+
+/// The capture record a live session's solver and bench moves read: the
+/// request as if accepted, never stored (id 0).
+fn record(r: &CaptureRequest) -> CaptureRecord {
+    CaptureRecord {
+        id: 0,
+        scene: r.scene.clone(),
+        pose: r.pose.clone(),
+        channels: r.channels.clone(),
+        polarizer_measured_deg: None,
+        settings: CameraSettings::from(r.acquisition),
+        frames: i64::try_from(r.frames).unwrap_or(i64::MAX),
+        dark_frames: i64::try_from(r.dark_frames).unwrap_or(i64::MAX),
+        kind: r.kind,
+        dark_capture: r.dark_capture,
+        state: JobState::Running,
+        error: None,
+        created_at: String::new(),
+        started_at: None,
+        finished_at: None,
+        camera_id: None,
+        counters: None,
+        frames_taken: 0,
+        frame_counts: None,
+        clipping: None,
+        import: None,
+    }
+}
+
+/// What a live segment uses of the capture worker's: the job services, the
+/// camera, the bench's devices and the capture queue it gives way to.
+pub(in crate::daemon) struct LiveRun<'a> {
+    pub(in crate::daemon) jobs: &'a JobContext,
+    pub(in crate::daemon) camera: &'a Arc<CameraService>,
+    pub(in crate::daemon) rig: &'a Arc<Rig>,
+    pub(in crate::daemon) queue: &'a Arc<CaptureQueue>,
+}
+
+/// Runs the wanted live session until a capture is queued, another user
+/// (a mount sweep) asks for the camera, the session changes or the daemon
+/// stops; returns at once when none is wanted.
+pub(in crate::daemon) async fn segment(w: &LiveRun<'_>, live: &Arc<Live>) {
+    let Some((session, request, spec)) = live.wanted() else {
+        return;
+    };
+    let lease = w.camera.lease("live").await;
+    let result = run(w, live, session, &request, &spec).await;
+    drop(lease);
+    match result {
+        Ok(()) => {
+            if live.is_current(session) && w.camera.waiting() > 0 {
+                live.set_state(session, LiveState::Paused, Some("a mount sweep".into()));
+            }
+        }
+        Err(e) => {
+            tracing::warn!("live view stopped: {e}");
+            live.fail(session, e.to_string());
+        }
+    }
+}
+
+/// Why a segment ends: checked by the frame reader at every frame.
+#[derive(Clone)]
+struct Stop {
+    flag: Arc<AtomicBool>,
+}
+
+impl Stop {
+    fn is_set(&self) -> bool {
+        self.flag.load(Ordering::SeqCst)
+    }
+}
+
+async fn run(
+    w: &LiveRun<'_>,
+    live: &Arc<Live>,
+    session: u64,
+    request: &CaptureRequest,
+    spec: &ProgressiveSpec,
+) -> Result<(), JobError> {
+    live.set_state(session, LiveState::Starting, None);
+    let c = record(request);
+    super::move_to_pose(w.rig, &w.jobs.scenes, &c.scene, &c.pose)
+        .await
+        .map_err(JobError::Live)?;
+    if let Some(deg) = c.sheet_deg() {
+        w.rig
+            .turn_to(deg)
+            .await
+            .map_err(|e| JobError::Live(e.to_string()))?;
+    }
+    super::wait_for_camera(w.camera).await;
+    w.rig.show_block(&c.pose, c.sheet_deg());
+    let settings = Acquisition::try_from(&c).map_err(|e| JobError::Live(e.to_string()))?;
+    let dark = dark(w, &c, settings).await?;
+    let solver = {
+        let (d, c, spec) = (w.jobs.clone(), c.clone(), spec.clone());
+        tokio::task::spawn_blocking(move || Solver::new(&d, c, &spec, dark)).await??
+    };
+    // A watcher sets the stop flag when a capture is queued, the session
+    // changes or the daemon stops.
+    let stop = Stop {
+        flag: Arc::new(AtomicBool::new(false)),
+    };
+    let watcher = {
+        let (stop, live, queue) = (stop.clone(), live.clone(), w.queue.clone());
+        let camera = w.camera.clone();
+        let mut changed = live.subscribe();
+        let mut stopped = w.jobs.registry.stopped();
+        tokio::spawn(async move {
+            loop {
+                if queue.depth() > 0
+                    || camera.waiting() > 0
+                    || !live.is_current(session)
+                    || *stopped.borrow()
+                {
+                    stop.flag.store(true, Ordering::SeqCst);
+                    return;
+                }
+                tokio::select! {
+                    _ = changed.changed() => {}
+                    _ = stopped.changed() => {}
+                    _ = tokio::time::sleep(POLL) => {}
+                }
+            }
+        })
+    };
+    live.set_state(session, LiveState::Running, None);
+    let (snap_tx, snap_rx) = std::sync::mpsc::sync_channel::<(Snapshot, Instant)>(1);
+    let busy = Arc::new(AtomicBool::new(false));
+    let solving = {
+        let (live, busy, events) = (live.clone(), busy.clone(), w.jobs.events.clone());
+        tokio::task::spawn_blocking(move || solve(solver, snap_rx, &busy, &live, session, &events))
+    };
+    let mut ended = Ok(());
+    while !stop.is_set() {
+        let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<RawFrame>(4);
+        let reader = {
+            let (stop, live, busy, snap_tx) =
+                (stop.clone(), live.clone(), busy.clone(), snap_tx.clone());
+            let window = request.frames;
+            tokio::task::spawn_blocking(move || {
+                read(frame_rx, window, &stop, &live, session, &busy, &snap_tx)
+            })
+        };
+        let acquired = w
+            .camera
+            .handle()
+            .acquire(settings, SEGMENT_FRAMES, frame_tx)
+            .await;
+        let read = reader.await.map_err(JobError::from).and_then(|r| r);
+        match (acquired, read) {
+            (_, Err(e)) => {
+                ended = Err(e);
+                break;
+            }
+            (Err(_), Ok(())) if stop.is_set() => break,
+            (Err(e), Ok(())) => {
+                ended = Err(e.into());
+                break;
+            }
+            (Ok(_), Ok(())) => {}
+        }
+    }
+    stop.flag.store(true, Ordering::SeqCst);
+    watcher.abort();
+    drop(snap_tx);
+    let _ = solving.await;
+    ended
+}
+
+/// The dark mean (and its variance) the session subtracts: dark frames
+/// taken now with the scene switched off, or a dark capture's mean, or none.
+async fn dark(
+    w: &LiveRun<'_>,
+    c: &CaptureRecord,
+    settings: Acquisition,
+) -> Result<(Option<Frame>, Option<Frame>), JobError> {
+    if c.dark_frames > 0 {
+        let n = usize::try_from(c.dark_frames).unwrap_or(1);
+        w.rig
+            .scene_light(false)
+            .await
+            .map_err(|e| JobError::Live(e.to_string()))?;
+        let frames = w.camera.handle().collect(settings, n).await;
+        w.rig
+            .scene_light(true)
+            .await
+            .map_err(|e| JobError::Live(e.to_string()))?;
+        let frames = frames?;
+        let first = frames
+            .first()
+            .ok_or_else(|| JobError::Live("no dark frame arrived".into()))?;
+        let mut st = FrameStack::new(first.width, first.height);
+        for f in frames
+            .iter()
+            .filter(|f| (f.width, f.height) == (first.width, first.height))
+        {
+            st.push_raw(&f.pixels, f.bits);
+        }
+        let mean = st.mean_minus(None)?;
+        return Ok((Some(mean), st.variance_frame()));
+    }
+    match c.dark_capture {
+        Some(dc) => {
+            let dir = w.jobs.store.capture_dir(dc);
+            let failed = |e: crate::store::StoreError| JobError::Capture {
+                id: dc,
+                reason: w.jobs.store.describe(&e),
+            };
+            let mean = crate::store::read_mean(&dir).map_err(failed)?;
+            let variance = crate::store::read_mean_variance(&dir).map_err(failed)?;
+            Ok((Some(mean), variance))
+        }
+        None => Ok((None, None)),
+    }
+}
+
+/// Adds each frame to the window and hands the newest window to the solver
+/// whenever it is free; ends when the stop flag is set (dropping the
+/// receiver, which stops the camera) or the acquisition ends.
+fn read(
+    frames: Receiver<RawFrame>,
+    n: usize,
+    stop: &Stop,
+    live: &Live,
+    session: u64,
+    busy: &AtomicBool,
+    solver: &SyncSender<(Snapshot, Instant)>,
+) -> Result<(), JobError> {
+    let mut window: Option<Window> = None;
+    while !stop.is_set() {
+        let f = match frames.recv_timeout(POLL) {
+            Ok(f) => f,
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => break,
+        };
+        let arrived = Instant::now();
+        let win = match window.as_mut() {
+            Some(w) if w.size() == (f.width, f.height) => w,
+            _ => window.insert(
+                Window::new(n, f.width, f.height).map_err(|e| JobError::Live(e.to_string()))?,
+            ),
+        };
+        win.push(f.width, f.height, &f.pixels)
+            .map_err(|e| JobError::Live(e.to_string()))?;
+        // Solve once the window is full, whenever the solver is free.
+        let solved = win.count() == n && !busy.swap(true, Ordering::SeqCst);
+        if solved {
+            let snapshot = Snapshot::from_parts(
+                win.count(),
+                win.mean(),
+                win.variance_of_mean(),
+                f.width,
+                f.height,
+            );
+            if solver.send((snapshot, arrived)).is_err() {
+                break;
+            }
+        }
+        live.frame(session, solved);
+    }
+    Ok(())
+}
+
+/// Solves each window it is handed and publishes the result.
+fn solve(
+    mut solver: Solver,
+    snapshots: Receiver<(Snapshot, Instant)>,
+    busy: &AtomicBool,
+    live: &Live,
+    session: u64,
+    events: &crate::daemon::runtime::events::Events,
+) {
+    let grid = solver.grid();
+    for (snapshot, arrived) in snapshots {
+        let result = solver.step(&snapshot);
+        solver.forget_steps();
+        match result {
+            Ok((step, image)) => {
+                let latency = arrived.elapsed().as_secs_f64();
+                live.result(session, step.clone(), (grid.nu, grid.nv, image), latency);
+                events.emit(Event::Live {
+                    session,
+                    latency_ms: latency * 1e3,
+                    step,
+                });
+            }
+            Err(e) => {
+                tracing::warn!("live view: a window was not solved: {e}");
+                live.fail(session, format!("a window was not solved: {e}"));
+            }
+        }
+        busy.store(false, Ordering::SeqCst);
+    }
+}

@@ -1,0 +1,303 @@
+//! The live view's state: the capture request it repeats, whether it runs,
+//! waits for a capture or failed, and what it has given so far
+//! (`GET /live`), with the newest image.
+//!
+//! Why a handle of its own: the API starts and stops it, the capture worker
+//! runs it between captures, and its solver thread records each result;
+//! none of them owns the others.
+
+use std::collections::VecDeque;
+use std::sync::Mutex;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::daemon::requests::validate::ProgressiveSpec;
+use crate::daemon::runtime::events::Step;
+use crate::store::CaptureRequest;
+
+/// Results whose latency and timing the statistics keep.
+const KEPT: usize = 256;
+
+/// Where the live view is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum LiveState {
+    /// Not started, or stopped by `DELETE /live`.
+    Off,
+    /// Waiting for the camera, moving the bench or taking its dark frames.
+    Starting,
+    /// Streaming and solving.
+    Running,
+    /// A queued capture has the camera; live view resumes after it.
+    Paused,
+    /// The camera or the solver failed (`error` says how); `POST /live` again to retry.
+    Failed,
+}
+
+/// What `GET /live` answers.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct LiveView {
+    /// Where it is.
+    pub state: LiveState,
+    /// The session's number (each `POST /live` starts a new one).
+    pub session: u64,
+    /// Scene, pose and the blocks it measures (null when off).
+    pub scene: Option<String>,
+    /// Pose name.
+    pub pose: Option<String>,
+    /// Frames per window (the capture request's `frames`).
+    pub window: Option<usize>,
+    /// Exposure per frame, microseconds.
+    pub exposure_us: Option<f64>,
+    /// The capture that paused it, while paused (`capture-<id>`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paused_by: Option<String>,
+    /// Why it failed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// Frames received in this session.
+    pub frames: u64,
+    /// Results published in this session.
+    pub results: u64,
+    /// Frames that arrived while the solver was busy and were only added to
+    /// the window (each result solves the newest window).
+    pub frames_not_solved: u64,
+    /// Results per second over the last results kept (up to 256).
+    pub results_per_second: Option<f64>,
+    /// Median time from a frame's arrival to its result's publication, ms.
+    pub median_latency_ms: Option<f64>,
+    /// The newest result's numbers.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last: Option<Step>,
+}
+
+/// A started session: what it repeats and what it gave.
+pub(crate) struct Session {
+    pub(crate) id: u64,
+    pub(crate) request: CaptureRequest,
+    pub(crate) spec: ProgressiveSpec,
+    state: LiveState,
+    paused_by: Option<String>,
+    error: Option<String>,
+    frames: u64,
+    results: u64,
+    not_solved: u64,
+    /// Arrival-to-result latencies, seconds, and when each result came.
+    latencies: VecDeque<f64>,
+    times: VecDeque<Instant>,
+    last: Option<Step>,
+    /// Newest image: columns, rows, values.
+    image: Option<(usize, usize, Vec<f64>)>,
+}
+
+/// The live view: at most one session.
+pub struct Live {
+    session: Mutex<Option<Session>>,
+    next: Mutex<u64>,
+    /// Bumped on every start and stop, so the capture worker wakes.
+    changed: tokio::sync::watch::Sender<u64>,
+}
+
+impl Default for Live {
+    fn default() -> Self {
+        Self {
+            session: Mutex::new(None),
+            next: Mutex::new(0),
+            changed: tokio::sync::watch::channel(0).0,
+        }
+    }
+}
+
+/// The median of `v` (None when empty).
+fn median(v: &VecDeque<f64>) -> Option<f64> {
+    let mut s: Vec<f64> = v.iter().copied().collect();
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(s[n / 2]),
+        _ => Some(0.5 * (s[n / 2 - 1] + s[n / 2])),
+    }
+}
+
+impl Live {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Option<Session>> {
+        self.session.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Starts a session repeating `request` (a replaced session ends).
+    pub(crate) fn start(&self, request: CaptureRequest, spec: ProgressiveSpec) -> LiveView {
+        let id = {
+            let mut next = self.next.lock().unwrap_or_else(|e| e.into_inner());
+            *next += 1;
+            *next
+        };
+        *self.lock() = Some(Session {
+            id,
+            request,
+            spec,
+            state: LiveState::Starting,
+            paused_by: None,
+            error: None,
+            frames: 0,
+            results: 0,
+            not_solved: 0,
+            latencies: VecDeque::with_capacity(KEPT),
+            times: VecDeque::with_capacity(KEPT),
+            last: None,
+            image: None,
+        });
+        self.changed.send_modify(|g| *g += 1);
+        self.view()
+    }
+
+    /// Stops the session; its last view, as `off`.
+    pub(crate) fn stop(&self) -> LiveView {
+        let mut view = self.view();
+        *self.lock() = None;
+        self.changed.send_modify(|g| *g += 1);
+        view.state = LiveState::Off;
+        view.paused_by = None;
+        view
+    }
+
+    /// A receiver that sees every start and stop.
+    pub(crate) fn subscribe(&self) -> tokio::sync::watch::Receiver<u64> {
+        self.changed.subscribe()
+    }
+
+    /// The session the camera should run now: its id, request and solver
+    /// spec, unless it is off or failed.
+    pub(crate) fn wanted(&self) -> Option<(u64, CaptureRequest, ProgressiveSpec)> {
+        self.lock()
+            .as_ref()
+            .filter(|s| s.state != LiveState::Failed)
+            .map(|s| (s.id, s.request.clone(), s.spec.clone()))
+    }
+
+    /// Whether session `id` is still the one wanted.
+    pub(crate) fn is_current(&self, id: u64) -> bool {
+        self.lock()
+            .as_ref()
+            .is_some_and(|s| s.id == id && s.state != LiveState::Failed)
+    }
+
+    /// Runs `f` on session `id` if it is the current one.
+    fn with(&self, id: u64, f: impl FnOnce(&mut Session)) {
+        if let Some(s) = self.lock().as_mut().filter(|s| s.id == id) {
+            f(s);
+        }
+    }
+
+    /// Session `id` moved to `state` (paused by `by`, when paused).
+    pub(crate) fn set_state(&self, id: u64, state: LiveState, by: Option<String>) {
+        self.with(id, |s| {
+            s.state = state;
+            s.paused_by = by;
+        });
+    }
+
+    /// Session `id` failed for `reason`.
+    pub(crate) fn fail(&self, id: u64, reason: String) {
+        self.with(id, |s| {
+            s.state = LiveState::Failed;
+            s.error = Some(reason);
+        });
+    }
+
+    /// Session `id` received a frame, solved (`solved`) or only added to the window.
+    pub(crate) fn frame(&self, id: u64, solved: bool) {
+        self.with(id, |s| {
+            s.frames += 1;
+            s.not_solved += u64::from(!solved);
+        });
+    }
+
+    /// Session `id` published `step` and its image, `latency` seconds after its newest frame arrived.
+    pub(crate) fn result(
+        &self,
+        id: u64,
+        step: Step,
+        image: (usize, usize, Vec<f64>),
+        latency: f64,
+    ) {
+        self.with(id, |s| {
+            s.results += 1;
+            if s.latencies.len() == KEPT {
+                s.latencies.pop_front();
+                s.times.pop_front();
+            }
+            s.latencies.push_back(latency);
+            s.times.push_back(Instant::now());
+            s.last = Some(step);
+            s.image = Some(image);
+        });
+    }
+
+    /// The newest image: columns, rows, values (None before the first result).
+    pub fn image(&self) -> Option<(usize, usize, Vec<f64>)> {
+        self.lock().as_ref().and_then(|s| s.image.clone())
+    }
+
+    /// What `GET /live` shows.
+    pub fn view(&self) -> LiveView {
+        let guard = self.lock();
+        let Some(s) = guard.as_ref() else {
+            return LiveView {
+                state: LiveState::Off,
+                session: *self.next.lock().unwrap_or_else(|e| e.into_inner()),
+                scene: None,
+                pose: None,
+                window: None,
+                exposure_us: None,
+                paused_by: None,
+                error: None,
+                frames: 0,
+                results: 0,
+                frames_not_solved: 0,
+                results_per_second: None,
+                median_latency_ms: None,
+                last: None,
+            };
+        };
+        let rate = match (s.times.front(), s.times.back()) {
+            (Some(a), Some(b)) if s.times.len() >= 2 => {
+                let span = b.duration_since(*a).as_secs_f64();
+                (span > 0.0).then(|| (s.times.len() - 1) as f64 / span)
+            }
+            _ => None,
+        };
+        LiveView {
+            state: s.state,
+            session: s.id,
+            scene: Some(s.request.scene.clone()),
+            pose: Some(s.request.pose.clone()),
+            window: Some(s.request.frames),
+            exposure_us: Some(s.request.acquisition.exposure_us),
+            paused_by: s.paused_by.clone(),
+            error: s.error.clone(),
+            frames: s.frames,
+            results: s.results,
+            frames_not_solved: s.not_solved,
+            results_per_second: rate,
+            median_latency_ms: median(&s.latencies).map(|v| v * 1e3),
+            last: s.last.clone(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_median_of_odd_and_even_counts() {
+        assert_eq!(median(&VecDeque::new()), None);
+        assert_eq!(median(&[3.0, 1.0, 2.0].into_iter().collect()), Some(2.0));
+        assert_eq!(
+            median(&[4.0, 1.0, 3.0, 2.0].into_iter().collect()),
+            Some(2.5)
+        );
+    }
+}
