@@ -790,15 +790,17 @@ function fields(msg, build) {
   }
 }
 
-async function submitCapture(kind) {
+// The capture form's request body for a capture of `kind` (null, with the
+// reason shown, when a field cannot be read or no scene is known).
+function captureBody(kind) {
   const f = new FormData($("#capture-form"));
   if (!f.get("scene")) {
     alertIn($("#capture-message"), tokenReason() || "no scene to choose: the daemon has not sent its scene list (see the message at the top)");
-    return;
+    return null;
   }
   const form = $("#capture-form");
   const msg = $("#capture-message");
-  const body = fields(msg, () => {
+  return fields(msg, () => {
     const exposure = numeric(form, "exposure_us", { auto: true });
     const polarizer = numeric(form, "polarizer_deg");
     const b = {
@@ -822,6 +824,11 @@ async function submitCapture(kind) {
     }
     return b;
   });
+}
+
+async function submitCapture(kind) {
+  const msg = $("#capture-message");
+  const body = captureBody(kind);
   if (!body) return;
   const r = await api("POST", "/captures", body);
   if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
@@ -839,6 +846,61 @@ $("#capture-form").addEventListener("submit", (ev) => {
   submitCapture(new FormData(ev.target).get("kind"));
 });
 $("#take-dark").addEventListener("click", () => submitCapture("dark"));
+
+// ---- live view: the capture form's request repeated, each window solved ----
+// POST /live takes the capture body (Frames is the window); GET /live is
+// polled while it runs, and the newest image shown beside its numbers.
+let liveTimer = null;
+let liveResults = -1;
+
+function liveText(v) {
+  if (v.state === "off") return "live view off";
+  if (v.state === "failed") return `live view failed: ${v.error}`;
+  if (v.state === "paused") return `live view paused: ${v.paused_by} has the camera`;
+  const parts = [`live view ${v.state}: ${v.results} results`];
+  if (v.results_per_second) parts.push(`${v.results_per_second.toFixed(1)} a second`);
+  if (v.median_latency_ms) parts.push(`median latency ${v.median_latency_ms.toFixed(0)} ms`);
+  if (v.last && v.last.psnr_db != null) parts.push(`PSNR ${v.last.psnr_db.toFixed(2)} dB`);
+  if (v.last) parts.push(`windows of ${v.last.frames} frames`);
+  return parts.join(", ");
+}
+
+async function pollLive() {
+  const r = await api("GET", "/live");
+  if (r.status !== 200) return;
+  const v = r.json;
+  const on = v.state !== "off";
+  $("#live-result").hidden = !on && liveResults < 0;
+  $("#stop-live").hidden = !on;
+  text($("#live-status"), liveText(v));
+  if (v.results > 0 && v.results !== liveResults) {
+    liveResults = v.results;
+    await showImage($("#live-image"), "/live/image.png");
+  }
+  if (!on && liveTimer) { clearInterval(liveTimer); liveTimer = null; }
+  if (on && !liveTimer) liveTimer = setInterval(pollLive, 500);
+}
+
+$("#start-live").addEventListener("click", async () => {
+  const msg = $("#capture-message");
+  const body = captureBody("light");
+  if (!body) return;
+  delete body.kind;
+  const truth = new FormData($("#capture-form")).get("truth");
+  body.progressive = truth ? { truth } : {};
+  const r = await api("POST", "/live", body);
+  if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
+  noteIn(msg, `live view started: windows of ${r.json.window} frames`);
+  liveResults = -1;
+  pollLive();
+});
+
+$("#stop-live").addEventListener("click", async () => {
+  const r = await api("DELETE", "/live");
+  if (r.status === 200) noteIn($("#capture-message"), `live view stopped after ${r.json.results} results`);
+  pollLive();
+});
+pollLive();
 
 $("#reconstruction-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();

@@ -1326,3 +1326,43 @@ fn a_result_card_shows_its_model_check_and_zncc_and_the_zoom_opens_on_the_wall_o
         c.close().await.unwrap();
     });
 }
+
+#[test]
+fn the_page_starts_the_live_view_shows_its_results_and_stops_it() {
+    let page = Page::start();
+    page.rt.block_on(async {
+        let c = page.open().await;
+        let long = Duration::from_secs(60);
+        until("the scene list", long, || async {
+            let n = js(
+                &c,
+                "return document.querySelectorAll('#capture-form select[name=scene] option').length;",
+            )
+            .await;
+            (n.as_u64().unwrap_or(0) > 0).then_some(())
+        })
+        .await;
+        // The capture form's request, repeated: Frames is the window.
+        set(&c, "#capture-form [name=frames]", "4").await;
+        choose(&c, "#capture-form [name=truth]", "letter").await;
+        click(&c, "#start-live").await;
+        let status = until("live results with their PSNR", long, || async {
+            let t = text(&c, "#live-status").await;
+            (t.contains("running") && t.contains("PSNR") && image_loaded(&c, "#live-image").await)
+                .then_some(t)
+        })
+        .await;
+        println!("live status: {status}");
+        assert!(status.contains("windows of 4 frames"), "{status}");
+        let v = page.d.json("/live");
+        assert_eq!((v["state"].as_str(), v["window"].as_u64()), (Some("running"), Some(4)), "{v}");
+        click(&c, "#stop-live").await;
+        until("live view off", long, || async {
+            text(&c, "#live-status").await.contains("live view off").then_some(())
+        })
+        .await;
+        assert!(text(&c, "#capture-message").await.contains("live view stopped after"));
+        assert_eq!(page.d.json("/live")["state"], "off");
+        c.close().await.unwrap();
+    });
+}

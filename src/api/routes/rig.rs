@@ -27,7 +27,7 @@ pub async fn stage(State(d): St) -> Json<crate::rig::stage::StageView> {
 /// mount around its zero with the camera at `pose`, fits the minimum of the
 /// polarizer's intensity law to the wall's mean light, and makes it the
 /// zero (kept in the data directory). Holds the camera like a capture.
-#[utoipa::path(post, path = "/mount/zero", request_body = crate::daemon::ZeroBody, responses((status = 200, body = crate::daemon::ZeroFit, description = "The zero found, now in force, and the sweep"), (status = 404, description = "Unknown scene"), (status = 422, description = "No mount, a value out of range, or no minimum in the sweep"), (status = 503, description = "No camera, or the mount did not turn")))]
+#[utoipa::path(post, path = "/mount/zero", request_body = crate::daemon::ZeroBody, responses((status = 200, body = crate::daemon::ZeroFit, description = "The zero found, now in force, and the sweep"), (status = 404, description = "Unknown scene"), (status = 422, description = "No mount, a value out of range, or no minimum in the sweep"), (status = 503, description = "No camera, the camera stayed busy for 5 s, or the mount did not turn")))]
 pub async fn mount_zero(
     State(d): St,
     ApiJson(b): ApiJson<crate::daemon::ZeroBody>,

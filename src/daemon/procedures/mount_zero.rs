@@ -16,6 +16,9 @@ use crate::daemon::{Daemon, RequestError, SubmitError};
 use crate::optics::polarizer::IntensityLaw;
 use crate::rig::{Aid, RigError};
 
+/// Longest a sweep waits for the camera another job holds.
+const CAMERA_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
+
 /// Longest exposure a sweep may add up to, seconds (it answers within the request).
 const MAX_SWEEP_S: f64 = 600.0;
 
@@ -208,7 +211,17 @@ impl Daemon {
             .as_ref()
             .and_then(|h| h.apply(0.0, 0.0))
             .filter(|_| pose.frame.is_none_or(|f| f.binning == [1, 1]));
-        let _lease = self.camera.lease("mount-zero").await;
+        // The request answers within the call: a camera another job holds
+        // for longer than this is a 503, not a hung request (the live view
+        // gives it up at its next frame; a capture keeps it to its end).
+        let _lease = tokio::time::timeout(CAMERA_WAIT, self.camera.lease("mount-zero"))
+            .await
+            .map_err(|_| {
+                SubmitError::from(RequestError::Unavailable(format!(
+                    "the camera stayed busy for {} s (GET /camera's busy says with what): retry when the capture ends, or stop the live view with DELETE /live",
+                    CAMERA_WAIT.as_secs()
+                )))
+            })?;
         let info = self.camera.status().info.ok_or_else(|| {
             SubmitError::from(RequestError::Unavailable(
                 "the camera is not connected; retry when GET /camera shows it connected".into(),
