@@ -52,7 +52,7 @@ fn watch(d: &Daemon, until: impl Fn(&Value) -> bool) -> (Value, Vec<f64>) {
 fn live_view_solves_each_window_as_a_capture_would_gives_way_to_a_capture_and_stops() {
     let _g = lock();
     let dir = scratch();
-    let d = Daemon::start(&config(dir.path(), &[]), &dir.path().join("data"));
+    let mut d = Daemon::start(&config(dir.path(), &[]), &dir.path().join("data"));
     assert_eq!(d.json("/live")["state"], "off");
     let (s, b) = d.get("/live/image.png");
     assert_eq!(s, 404, "{b}");
@@ -129,10 +129,15 @@ fn live_view_solves_each_window_as_a_capture_would_gives_way_to_a_capture_and_st
     let during = d.run_job("/captures", CAPTURE, Duration::from_secs(60));
     assert_eq!(during["state"], "done", "{during}");
     assert_eq!(during["frame_counts"]["received"], 10, "{during}");
+    // Its PSNR within the spread of same-length windows (the live results
+    // and the capture before; one session spanned 14.11-14.75 dB), widened
+    // by 0.5 dB: two single 8-frame captures once differed by 0.95 dB.
     let online = psnr(&reconstruct(&d, &during));
+    let lo = seen.iter().copied().fold(offline, f64::min) - 0.5;
+    let hi = seen.iter().copied().fold(offline, f64::max) + 0.5;
     assert!(
-        (online - offline).abs() <= 0.5,
-        "capture during live view {online:.2} dB, without {offline:.2} dB"
+        (lo..=hi).contains(&online),
+        "capture during live view {online:.2} dB, outside {lo:.2}-{hi:.2} dB (without live view {offline:.2} dB)"
     );
     let (v, _) = watch(&d, |v| {
         v["state"] == "running" && v["results"].as_u64().unwrap_or(0) >= results + 10
@@ -159,4 +164,15 @@ fn live_view_solves_each_window_as_a_capture_would_gives_way_to_a_capture_and_st
         std::thread::sleep(Duration::from_millis(50));
     }
     assert_eq!(d.json("/live")["state"], "off");
+
+    // SIGTERM while a live session streams: the daemon stops it and exits
+    // cleanly and promptly (systemd's `stop`).
+    let (s, b, _) = d.post("/live", LIVE);
+    assert_eq!(s, 202, "{b}");
+    watch(&d, |v| v["results"].as_u64().unwrap_or(0) >= 3);
+    let t = Instant::now();
+    let status = d.terminate();
+    let took = t.elapsed();
+    assert!(status.success(), "{status:?}");
+    assert!(took < Duration::from_secs(10), "exit took {took:?}");
 }
