@@ -114,6 +114,18 @@ async fn choose(c: &Client, css: &str, value: &str) {
     c.execute(&js, vec![]).await.expect("select");
 }
 
+/// Waits until form `form`'s scene list has its options (the daemon's
+/// `GET /scenes` answered).
+async fn scenes_listed(c: &Client, form: &str, within: Duration) {
+    let count =
+        format!("return document.querySelectorAll('{form} select[name=scene] option').length;");
+    until("the scene list", within, || async {
+        let n = js(c, &count).await;
+        (n.as_u64().unwrap_or(0) > 0).then_some(())
+    })
+    .await;
+}
+
 /// Whether the image matching `css` has loaded pixels.
 async fn image_loaded(c: &Client, css: &str) -> bool {
     let js = format!(
@@ -770,29 +782,47 @@ fn the_page_of_a_daemon_with_a_token_says_so_and_works_once_it_is_entered() {
     let page = Page::start_with(&[("token = \"\"", "token = \"s3cret\"")]);
     page.rt.block_on(async {
         let c = browser(&page.driver, &page.dir.path().join("profile")).await;
-        c.goto(&format!("{}/", page.d.base)).await.expect("the page");
+        c.goto(&format!("{}/", page.d.base))
+            .await
+            .expect("the page");
         let long = Duration::from_secs(30);
         // Without the token: every panel says the token is the reason, none
         // blames the camera or speaks of a state change.
         until("the token hint", long, || async {
-            text(&c, "#token-message").await.contains("needs its API token").then_some(())
+            text(&c, "#token-message")
+                .await
+                .contains("needs its API token")
+                .then_some(())
         })
         .await;
         until("the camera panel's reason", long, || async {
-            text(&c, "#camera-status").await.contains("API token").then_some(())
+            text(&c, "#camera-status")
+                .await
+                .contains("API token")
+                .then_some(())
         })
         .await;
         let camera = text(&c, "#camera-status").await;
         assert!(!camera.contains("changes state"), "{camera}");
         until("the live view's reason", long, || async {
-            text(&c, "#live-caption").await.contains("API token").then_some(())
+            text(&c, "#live-caption")
+                .await
+                .contains("API token")
+                .then_some(())
         })
         .await;
         // A wrong token reads differently from none.
         set(&c, "#token", "s3cre").await;
-        js(&c, "document.querySelector('#token').dispatchEvent(new Event('change')); return true;").await;
+        js(
+            &c,
+            "document.querySelector('#token').dispatchEvent(new Event('change')); return true;",
+        )
+        .await;
         until("the wrong-token message", long, || async {
-            text(&c, "#token-message").await.contains("wrong").then_some(())
+            text(&c, "#token-message")
+                .await
+                .contains("wrong")
+                .then_some(())
         })
         .await;
         // Starting a capture then says why it cannot, not "scene: invalid type: null".
@@ -807,14 +837,17 @@ fn the_page_of_a_daemon_with_a_token_says_so_and_works_once_it_is_entered() {
         // The right token: the scene lists fill without a reload, the camera
         // shows, and a capture from the form runs.
         set(&c, "#token", "s3cret").await;
-        js(&c, "document.querySelector('#token').dispatchEvent(new Event('change')); return true;").await;
-        until("the scene list", long, || async {
-            let n = js(&c, "return document.querySelectorAll('#capture-form select[name=scene] option').length;").await;
-            (n.as_u64().unwrap_or(0) > 0).then_some(())
-        })
+        js(
+            &c,
+            "document.querySelector('#token').dispatchEvent(new Event('change')); return true;",
+        )
         .await;
+        scenes_listed(&c, "#capture-form", long).await;
         until("the camera status", long, || async {
-            text(&c, "#camera-status").await.starts_with("connected").then_some(())
+            text(&c, "#camera-status")
+                .await
+                .starts_with("connected")
+                .then_some(())
         })
         .await;
         assert_eq!(text(&c, "#token-message").await, "");
@@ -835,15 +868,7 @@ fn the_page_runs_a_scene_and_asks_the_operator_to_move_the_camera() {
     page.rt.block_on(async {
         let c = page.open().await;
         let long = Duration::from_secs(120);
-        until("the scene list", long, || async {
-            let n = js(
-                &c,
-                "return document.querySelectorAll('#plan-form select[name=scene] option').length;",
-            )
-            .await;
-            (n.as_u64().unwrap_or(0) > 0).then_some(())
-        })
-        .await;
+        scenes_listed(&c, "#plan-form", long).await;
         choose(&c, "#plan-form select[name=scene]", "brewster-multi").await;
         set(&c, "#plan-form [name=frames]", "2").await;
         click(&c, "#run-plan").await;
@@ -886,15 +911,7 @@ fn the_forms_refuse_unreadable_numbers_beside_the_field_and_send_nothing() {
     page.rt.block_on(async {
         let c = page.open().await;
         let long = Duration::from_secs(60);
-        until("the scene list", long, || async {
-            let n = js(
-                &c,
-                "return document.querySelectorAll('#plan-form select[name=scene] option').length;",
-            )
-            .await;
-            (n.as_u64().unwrap_or(0) > 0).then_some(())
-        })
-        .await;
+        scenes_listed(&c, "#plan-form", long).await;
         // The inputs of the issue: each refused, naming the field and the text.
         for (form, field, typed, message, says) in [
             ("#plan-form", "frames", "abc", "#plan-message", "frames: \"abc\" is not a whole number"),
@@ -1333,15 +1350,7 @@ fn the_page_starts_the_live_view_shows_its_results_and_stops_it() {
     page.rt.block_on(async {
         let c = page.open().await;
         let long = Duration::from_secs(60);
-        until("the scene list", long, || async {
-            let n = js(
-                &c,
-                "return document.querySelectorAll('#capture-form select[name=scene] option').length;",
-            )
-            .await;
-            (n.as_u64().unwrap_or(0) > 0).then_some(())
-        })
-        .await;
+        scenes_listed(&c, "#capture-form", long).await;
         // The capture form's request, repeated: Frames is the window.
         set(&c, "#capture-form [name=frames]", "4").await;
         choose(&c, "#capture-form [name=truth]", "letter").await;
@@ -1355,13 +1364,22 @@ fn the_page_starts_the_live_view_shows_its_results_and_stops_it() {
         println!("live status: {status}");
         assert!(status.contains("windows of 4 frames"), "{status}");
         let v = page.d.json("/live");
-        assert_eq!((v["state"].as_str(), v["window"].as_u64()), (Some("running"), Some(4)), "{v}");
+        assert_eq!(
+            (v["state"].as_str(), v["window"].as_u64()),
+            (Some("running"), Some(4)),
+            "{v}"
+        );
         click(&c, "#stop-live").await;
         until("live view off", long, || async {
-            text(&c, "#live-status").await.contains("live view off").then_some(())
+            text(&c, "#live-status")
+                .await
+                .contains("live view off")
+                .then_some(())
         })
         .await;
-        assert!(text(&c, "#capture-message").await.contains("live view stopped after"));
+        assert!(text(&c, "#capture-message")
+            .await
+            .contains("live view stopped after"));
         assert_eq!(page.d.json("/live")["state"], "off");
         c.close().await.unwrap();
     });

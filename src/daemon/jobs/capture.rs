@@ -26,8 +26,7 @@ use crate::daemon::Event;
 use crate::measure::FrameStack;
 use crate::rig::{Aid, Rig, RigError};
 use crate::store::{
-    read_mean, write_frames, write_summary, CaptureFiles, CaptureKind, CaptureRecord, FrameMeta,
-    JobState,
+    write_frames, write_summary, CaptureFiles, CaptureKind, CaptureRecord, FrameMeta, JobState,
 };
 
 /// Least time between two frames kept for the live view (`/camera/frame.png`).
@@ -358,19 +357,11 @@ async fn dark_reference(
         };
         return Ok((Some((mean, st.variance_frame())), counts));
     }
-    match c.dark_capture {
-        Some(dc) => {
-            let dir = w.jobs.store.capture_dir(dc);
-            let failed = |e: crate::store::StoreError| JobError::Capture {
-                id: dc,
-                reason: w.jobs.store.describe(&e),
-            };
-            let mean = read_mean(&dir).map_err(failed)?;
-            let variance = crate::store::read_mean_variance(&dir).map_err(failed)?;
-            Ok((Some((mean, variance)), FrameCounts::default()))
-        }
-        None => Ok((None, FrameCounts::default())),
-    }
+    let dark = match c.dark_capture {
+        Some(dc) => Some(super::dark_capture(&w.jobs.store, dc)?),
+        None => None,
+    };
+    Ok((dark, FrameCounts::default()))
 }
 
 /// The longest an acquisition of `n` frames of `exposure_us` may take before

@@ -96,18 +96,6 @@ pub(in crate::daemon) async fn segment(w: &LiveRun<'_>, live: &Arc<Live>) {
     }
 }
 
-/// Why a segment ends: checked by the frame reader at every frame.
-#[derive(Clone)]
-struct Stop {
-    flag: Arc<AtomicBool>,
-}
-
-impl Stop {
-    fn is_set(&self) -> bool {
-        self.flag.load(Ordering::SeqCst)
-    }
-}
-
 async fn run(
     w: &LiveRun<'_>,
     live: &Arc<Live>,
@@ -136,9 +124,8 @@ async fn run(
     };
     // A watcher sets the stop flag when a capture is queued, the session
     // changes or the daemon stops.
-    let stop = Stop {
-        flag: Arc::new(AtomicBool::new(false)),
-    };
+    // Set when the segment must end; the frame reader checks it at every frame.
+    let stop = Arc::new(AtomicBool::new(false));
     let watcher = {
         let (stop, live, queue) = (stop.clone(), live.clone(), w.queue.clone());
         let camera = w.camera.clone();
@@ -151,7 +138,7 @@ async fn run(
                     || !live.is_current(session)
                     || *stopped.borrow()
                 {
-                    stop.flag.store(true, Ordering::SeqCst);
+                    stop.store(true, Ordering::SeqCst);
                     return;
                 }
                 tokio::select! {
@@ -170,7 +157,7 @@ async fn run(
         tokio::task::spawn_blocking(move || solve(solver, snap_rx, &busy, &live, session, &events))
     };
     let mut ended = Ok(());
-    while !stop.is_set() {
+    while !stop.load(Ordering::SeqCst) {
         let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<RawFrame>(4);
         let reader = {
             let (stop, live, busy, snap_tx) =
@@ -191,7 +178,7 @@ async fn run(
                 ended = Err(e);
                 break;
             }
-            (Err(_), Ok(())) if stop.is_set() => break,
+            (Err(_), Ok(())) if stop.load(Ordering::SeqCst) => break,
             (Err(e), Ok(())) => {
                 ended = Err(e.into());
                 break;
@@ -199,7 +186,7 @@ async fn run(
             (Ok(_), Ok(())) => {}
         }
     }
-    stop.flag.store(true, Ordering::SeqCst);
+    stop.store(true, Ordering::SeqCst);
     watcher.abort();
     drop(snap_tx);
     let _ = solving.await;
@@ -240,13 +227,7 @@ async fn dark(
     }
     match c.dark_capture {
         Some(dc) => {
-            let dir = w.jobs.store.capture_dir(dc);
-            let failed = |e: crate::store::StoreError| JobError::Capture {
-                id: dc,
-                reason: w.jobs.store.describe(&e),
-            };
-            let mean = crate::store::read_mean(&dir).map_err(failed)?;
-            let variance = crate::store::read_mean_variance(&dir).map_err(failed)?;
+            let (mean, variance) = super::dark_capture(&w.jobs.store, dc)?;
             Ok((Some(mean), variance))
         }
         None => Ok((None, None)),
@@ -259,14 +240,14 @@ async fn dark(
 fn read(
     frames: Receiver<RawFrame>,
     n: usize,
-    stop: &Stop,
+    stop: &AtomicBool,
     live: &Live,
     session: u64,
     busy: &AtomicBool,
     solver: &SyncSender<(Snapshot, Instant)>,
 ) -> Result<(), JobError> {
     let mut window: Option<Window> = None;
-    while !stop.is_set() {
+    while !stop.load(Ordering::SeqCst) {
         let f = match frames.recv_timeout(POLL) {
             Ok(f) => f,
             Err(RecvTimeoutError::Timeout) => continue,

@@ -201,3 +201,19 @@ pub(in crate::daemon) async fn move_to_pose(
     }
     Ok(())
 }
+
+/// Dark capture `id`'s mean frame and the variance of that mean (when it
+/// recorded one), to subtract from a capture's or a live window's mean.
+pub(in crate::daemon) fn dark_capture(
+    store: &Store,
+    id: i64,
+) -> Result<(crate::measure::Frame, Option<crate::measure::Frame>), JobError> {
+    let dir = store.capture_dir(id);
+    let failed = |e: crate::store::StoreError| JobError::Capture {
+        id,
+        reason: store.describe(&e),
+    };
+    let mean = crate::store::read_mean(&dir).map_err(failed)?;
+    let variance = crate::store::read_mean_variance(&dir).map_err(failed)?;
+    Ok((mean, variance))
+}
