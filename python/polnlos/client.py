@@ -200,6 +200,46 @@ class Client:
         """Cancels a plan; its finished captures are kept."""
         return self._json("DELETE", f"/plans/{int(plan_id)}")
 
+    # -- calibrations ----------------------------------------------------------
+
+    def calibrations(self) -> Dict[str, Any]:
+        """The gains reconstructions use and each scene's colour calibration
+        (`GET /calibrations`)."""
+        return self._json("GET", "/calibrations")
+
+    def calibrate(self, capture_id: int, target: Optional[str] = None) -> Dict[str, Any]:
+        """Fits a pose's homography to a done `kind="target"` capture of the
+        dot target (`POST /calibrations`): `homography`, `rms_px`,
+        `model_check` and the scene file rewritten with it (`scene_toml`).
+        `target` is the target as TOML text (default: the shipped 5x5 dots)."""
+        body: Dict[str, Any] = {"capture": int(capture_id)}
+        if target is not None:
+            body["target"] = target
+        return self._json("POST", "/calibrations", body)
+
+    def calibrate_colour(self, capture_id: int) -> Dict[str, Any]:
+        """Measures a colour camera's balance (a gain per colour) from a done
+        light capture of a white or grey field and stores it for the
+        capture's scene (`POST /calibrations/colour`); reconstructions of that
+        scene are then `calibrated` per colour."""
+        return self._json("POST", "/calibrations/colour", {"capture": int(capture_id)})
+
+    def calibrate_wall(self, scene: str, captures: Optional[List[int]] = None,
+                       source: Optional[List[float]] = None,
+                       sources: Optional[List[Dict[str, Any]]] = None) -> Dict[str, Any]:
+        """Fits the wall (alpha, ior, kd) and the radiometric gain to
+        `kind="source"` captures (`POST /calibrations/wall`): one source
+        position (`source` [u, v] metres and its `captures`, one per block)
+        or several (`sources`: a list of {"source": [u, v], "captures": [...]})."""
+        body: Dict[str, Any] = {"scene": scene}
+        if captures is not None:
+            body["captures"] = [int(c) for c in captures]
+        if source is not None:
+            body["source"] = [float(x) for x in source]
+        if sources is not None:
+            body["sources"] = sources
+        return self._json("POST", "/calibrations/wall", body)
+
     # -- live view -----------------------------------------------------------
 
     def live_start(self, scene: str, pose: str, **fields: Any) -> Dict[str, Any]:

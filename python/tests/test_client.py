@@ -130,3 +130,24 @@ def test_the_live_view_gives_results_and_stops(client):
     assert stopped["state"] == "off" and stopped["results"] >= 3, stopped
     assert client.live()["state"] == "off"
 
+
+
+def test_a_target_capture_calibrates_the_pose_and_colour_needs_a_light_capture(client):
+    """The calibration doors: a target capture fits the pose's homography to
+    a fraction of a pixel; a colour calibration of a dark capture is refused
+    with the daemon's sentence; the calibrations list the scene's gain."""
+    target = client.wait(client.capture("brewster-crossed", "A", kind="target", polarizer_deg=0,
+                                        exposure_us=20000, frames=4, dark_frames=2))
+    assert target["state"] == "done", target
+    fit = client.calibrate(target["id"])
+    assert fit["pose"] == "A" and fit["dots"] >= 9, (fit["dots"], fit["rms_px"], fit["warnings"])
+    assert fit["rms_px"] < 0.2, (fit["dots"], fit["rms_px"], fit["warnings"])
+    assert "homography" in fit["scene_toml"]
+    dark = client.wait(client.capture("brewster-crossed", "A", kind="dark", polarizer_deg=0,
+                                      exposure_us=20000, frames=2))
+    with pytest.raises(polnlos.DaemonError) as e:
+        client.calibrate_colour(dark["id"])
+    assert e.value.status == 422
+    assert "white or grey field" in e.value.message, e.value.message
+    listed = client.calibrations()
+    assert any(g["scene"] == "brewster-crossed" and g["gain"] > 0 for g in listed["radiometric"]), listed

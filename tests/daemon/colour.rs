@@ -302,6 +302,62 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
         (16, 2),
         "a colour capture's preview is RGB"
     );
+    // A progressive capture of the same letter steps in colour: its
+    // image is RGB, each colour solved with its own gain and λ as the
+    // reconstruction solves it, so the letter stays white as there.
+    let p = d.run_job(
+        "/captures",
+        &CAPTURE.replace(
+            r#""dark_frames": 2"#,
+            r#""dark_frames": 2, "progressive": {"every": 4, "truth": "letter"}"#,
+        ),
+        Duration::from_secs(240),
+    );
+    assert_eq!(p["state"], "done", "{p}");
+    let (s, png) = d.get_bytes(&format!("/captures/{}/progressive.png", p["id"]));
+    assert_eq!(s, 200);
+    assert_eq!(
+        (png[24], png[25]),
+        (16, 2),
+        "a colour progressive image is RGB"
+    );
+    let steps = d.json(&format!("/captures/{}/progressive.json", p["id"]));
+    let last = steps
+        .as_array()
+        .and_then(|a| a.last())
+        .expect("progressive steps");
+    assert_eq!(last["frames"], 8, "{steps}");
+    let rgb = image::load_from_memory(&png).unwrap().into_rgb16();
+    assert_eq!(rgb.dimensions(), (8, 8));
+    let stepped: Vec<f64> = rgb
+        .pixels()
+        .flat_map(|q| q.0.map(|v| f64::from(v) / 65535.0))
+        .collect();
+    let means = colour_means(&stepped, &letter);
+    let step_psnr = last["psnr_db"].as_f64().unwrap();
+    println!("progressive, last step: means over the letter {means:.3?}, PSNR {step_psnr:.2} dB (the reconstruction {:.2} dB)", psnr(&r));
+    assert!(spread(&means) <= 0.2, "progressive lit means {means:?}");
+    assert!(step_psnr > psnr(&r) - 1.0, "{last}");
+    // Live view in colour: each window solved per colour, the newest image RGB.
+    let (s, b, _) = d.post(
+        "/live",
+        &CAPTURE.replace(r#""frames": 8"#, r#""frames": 4"#),
+    );
+    assert_eq!(s, 202, "{b}");
+    let started = std::time::Instant::now();
+    while d.json("/live")["results"].as_u64().unwrap_or(0) < 2 {
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "{}",
+            d.json("/live")
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (s, png) = d.get_bytes("/live/image.png");
+    assert_eq!(s, 200);
+    assert_eq!((png[24], png[25]), (16, 2), "a colour live image is RGB");
+    let (s, b) = d.delete("/live");
+    assert_eq!(s, 200, "{b}");
     // Notes that differ between the colours say whose they are.
     let notes = r["report"]["notes"].as_array().unwrap();
     for n in notes

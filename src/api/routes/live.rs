@@ -43,7 +43,12 @@ pub async fn live_image(State(d): St) -> Result<Response, ApiError> {
     let (nu, nv, values) = d.live().image().ok_or_else(|| {
         ApiError::not_found("the live view has no result yet (POST /live starts it)".to_string())
     })?;
-    let png = crate::files::image::encode_png16(nu, nv, &crate::files::image::unit_to_u16(&values))
-        .map_err(|e| ApiError::internal(format!("live image: {e}")))?;
+    let pixels = crate::files::image::unit_to_u16(&values);
+    // A colour camera's image has red, green and blue per element.
+    let png = match values.len() == 3 * nu * nv {
+        true => crate::files::image::encode_png_rgb16(nu, nv, &pixels),
+        false => crate::files::image::encode_png16(nu, nv, &pixels),
+    }
+    .map_err(|e| ApiError::internal(format!("live image: {e}")))?;
     Ok(([(header::CONTENT_TYPE, "image/png")], Body::from(png)).into_response())
 }

@@ -24,10 +24,12 @@ use super::{JobContext, JobError};
 use crate::camera::{Acquisition, Frame};
 use crate::daemon::requests::validate::ProgressiveSpec;
 use crate::daemon::runtime::events::Step;
+use crate::daemon::runtime::scenes::Scenes;
 use crate::daemon::Event;
 use crate::files::{image, json};
+use crate::measure::colour::Colour;
 use crate::measure::FrameStack;
-use crate::measure::{assemble_with, CaptureFrames, PixelMaps, Units};
+use crate::measure::{assemble_colour, CaptureFrames, PixelMaps, Units};
 use crate::scene::Scene;
 use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};
@@ -125,22 +127,13 @@ impl Snapshots {
 /// A capture's progressive solver (also the live view's, over a capture
 /// request that is never stored).
 pub(in crate::daemon) struct Solver {
-    t: Arc<Transport>,
     scene: Arc<Scene>,
     capture: CaptureRecord,
-    /// The measurement with the other blocks' rows filled in, in units of `T l`.
-    i: Vec<f64>,
-    /// Its variance (the other blocks' from their captures), when every
-    /// other block has one; this block's rows are filled at each step.
-    variance: Option<Vec<f64>>,
-    /// Singular values of `T`, for the automatic λ.
-    singular_values: Arc<crate::solve::Conditioning>,
+    /// One solve per colour of a colour camera (red, green, blue), else one.
+    channels: Vec<Channel>,
     /// This capture's blocks (one, or a mosaic pose's four), in `T`'s order.
     own: Vec<usize>,
-    normal: Normal,
-    state: AdmmState,
     settings: AdmmSettings<'static>,
-    calibration: f64,
     /// The settings the capture is taken with.
     acquisition: Acquisition,
     /// Full scale of the capture's pixel format, DN.
@@ -154,7 +147,27 @@ pub(in crate::daemon) struct Solver {
     /// The pixel maps of the scene's poses, kept with the scene.
     maps: Arc<PixelMaps>,
     /// The scenes, for the model a step's noise asks for.
-    scenes: Arc<crate::daemon::runtime::scenes::Scenes>,
+    scenes: Arc<Scenes>,
+}
+
+/// One colour's solve (a grey camera's only one): its measurement, its
+/// model and the solver's state between steps.
+struct Channel {
+    /// The Bayer colour measured, `None` for every pixel as it is.
+    colour: Option<Colour>,
+    /// Its radiometric gain: the scene's, times the colour's ratio when the
+    /// scene has a colour calibration.
+    gain: f64,
+    t: Arc<Transport>,
+    /// The measurement with the other blocks' rows filled in, in units of `T l`.
+    i: Vec<f64>,
+    /// Its variance (the other blocks' from their captures), when every
+    /// other block has one; this block's rows are filled at each step.
+    variance: Option<Vec<f64>>,
+    /// Singular values of `T`, for the automatic λ.
+    singular_values: Arc<crate::solve::Conditioning>,
+    normal: Normal,
+    state: AdmmState,
     /// The key of the model `t` is (the scene's name, or a sampling variant's).
     key: String,
 }
@@ -193,46 +206,73 @@ impl Solver {
             .into_iter()
             .map(|c| load_capture(&d.store, c, &scene, &mut warnings))
             .collect::<Result<Vec<_>, _>>()?;
+        // A colour camera's steps are in colour, as its reconstruction is,
+        // when every other block's capture is in colour too.
+        let colours: Vec<Option<Colour>> = match acquisition.pixel_format.bayer().is_some()
+            && others.iter().all(|c| c.bayer.is_some())
+        {
+            true => Colour::ALL.map(Some).to_vec(),
+            false => vec![None],
+        };
+        let balance = match colours.len() {
+            1 => None,
+            _ => d
+                .store
+                .colour_calibration(&capture.scene)
+                .map_err(|e| JobError::Store(e.to_string()))?,
+        };
         let other_blocks: Vec<_> = (0..t.blocks().len()).filter(|b| !own.contains(b)).collect();
         let blocks: Vec<_> = other_blocks
             .iter()
             .map(|&b| t.blocks()[b].clone())
             .collect();
         let maps = d.scenes.pixel_maps(&capture.scene);
-        let mut m = assemble_with(&scene, &blocks, &others, &maps)?;
-        Units::Calibrated(calibration).apply(&mut m);
-        let mut i = vec![0.0; t.rows()];
-        let mut variance = m.variance.as_ref().map(|_| vec![0.0; t.rows()]);
+        let gram = d.scenes.gram(&capture.scene)?;
+        let singular_values = d.scenes.conditioning(&capture.scene)?;
         let n = t.wall_grid().count();
-        for (k, &b) in other_blocks.iter().enumerate() {
-            i[t.block_rows(b)].copy_from_slice(&m.i[k * n..(k + 1) * n]);
-            if let (Some(acc), Some(v)) = (variance.as_mut(), m.variance.as_ref()) {
-                acc[t.block_rows(b)].copy_from_slice(&v[k * n..(k + 1) * n]);
+        let mut channels = Vec::with_capacity(colours.len());
+        for colour in colours {
+            let gain = match (&balance, colour) {
+                (Some(b), Some(c)) => b.balance.gain(c, calibration),
+                _ => calibration,
+            };
+            let mut m = assemble_colour(&scene, &blocks, &others, &maps, colour)?;
+            Units::Calibrated(gain).apply(&mut m);
+            let mut i = vec![0.0; t.rows()];
+            let mut variance = m.variance.as_ref().map(|_| vec![0.0; t.rows()]);
+            for (k, &b) in other_blocks.iter().enumerate() {
+                i[t.block_rows(b)].copy_from_slice(&m.i[k * n..(k + 1) * n]);
+                if let (Some(acc), Some(v)) = (variance.as_mut(), m.variance.as_ref()) {
+                    acc[t.block_rows(b)].copy_from_slice(&v[k * n..(k + 1) * n]);
+                }
             }
+            channels.push(Channel {
+                colour,
+                gain,
+                normal: Normal::with(Arc::clone(&gram), &t, &i),
+                t: Arc::clone(&t),
+                i,
+                variance,
+                singular_values: Arc::clone(&singular_values),
+                state: AdmmState::default(),
+                key: capture.scene.clone(),
+            });
         }
-        let normal = Normal::with(d.scenes.gram(&capture.scene)?, &t, &i);
         let truth = spec
             .truth
             .as_deref()
             .and_then(crate::simulate::patterns::Pattern::from_name)
             .map(|p| p.render(t.scene_grid()));
-        let key = capture.scene.clone();
         Ok(Self {
             settings: AdmmSettings {
                 lambda: spec.lambda,
                 max_iter: spec.max_iter,
                 ..AdmmSettings::default()
             },
-            singular_values: d.scenes.conditioning(&capture.scene)?,
-            variance,
-            t,
+            channels,
             scene,
             capture,
-            i,
             own,
-            normal,
-            state: AdmmState::default(),
-            calibration,
             acquisition,
             full_scale,
             dark,
@@ -242,34 +282,47 @@ impl Solver {
             steps: Vec::new(),
             maps,
             scenes: Arc::clone(&d.scenes),
-            key,
         })
     }
 
-    /// Solves from now on with the model cached under `key`: its `T`, Gram
-    /// and conditioning, and a cold start (the old iterate fits another `T`).
-    fn use_model(&mut self, key: String) -> Result<(), JobError> {
-        self.t = self.scenes.transport(&key)?;
-        self.normal = Normal::with(self.scenes.gram(&key)?, &self.t, &self.i);
-        self.singular_values = self.scenes.conditioning(&key)?;
-        self.state = AdmmState::default();
-        self.key = key;
-        Ok(())
-    }
-
-    /// Solves one snapshot; returns the step and the image.
+    /// Solves one snapshot; returns the step and the image (a colour
+    /// camera's colours interleaved, red, green, blue per element).
     pub(in crate::daemon) fn step(&mut self, s: &Snapshot) -> Result<(Step, Vec<f64>), JobError> {
         let start = Instant::now();
         let own = self.own_frames(s);
-        let noise = self.measure(own)?;
-        let (r, lambda) = self.solve(noise)?;
-        let step = self.record(s.frames, start, &r, lambda);
-        Ok((step, r.image))
+        let blocks: Vec<_> = self
+            .own
+            .iter()
+            .map(|&k| self.channels[0].t.blocks()[k].clone())
+            .collect();
+        let mut solved = Vec::with_capacity(self.channels.len());
+        for ch in &mut self.channels {
+            let m = assemble_colour(
+                &self.scene,
+                &blocks,
+                std::slice::from_ref(&own),
+                &self.maps,
+                ch.colour,
+            )?;
+            let noise = ch.measure(m, &self.own, self.settings.lambda);
+            solved.push(ch.solve(noise, &self.scenes, &self.capture.scene, &self.settings)?);
+        }
+        let step = self.record(s.frames, start, &solved);
+        let image = match solved.len() {
+            1 => solved.swap_remove(0).0.image,
+            _ => interleave(&solved),
+        };
+        Ok((step, image))
     }
 
     /// The scene grid its images are on.
     pub(in crate::daemon) fn grid(&self) -> crate::scene::Grid {
-        self.t.scene_grid()
+        self.channels[0].t.scene_grid()
+    }
+
+    /// Colours in each image element: 3 for a colour camera, else 1.
+    pub(in crate::daemon) fn colours(&self) -> usize {
+        self.channels.len()
     }
 
     /// Forgets the steps recorded so far.
@@ -319,38 +372,105 @@ impl Solver {
             exposure_us: self.acquisition.exposure_us,
             offset: [self.acquisition.region[0], self.acquisition.region[1]],
             binning: self.acquisition.binning,
-            // An interim solve measures every pixel: a colour camera's raw
-            // mean, as its grey.
-            bayer: None,
+            // A colour camera's mean is measured per colour.
+            bayer: match self.channels.len() {
+                1 => None,
+                _ => self.acquisition.pixel_format.bayer(),
+            },
         }
     }
 
-    /// Fills this capture's rows of the measurement from `own`; returns the noise λ is chosen by.
+    /// The step of the colours' solves `solved` after `frames` frames,
+    /// begun at `start`, kept with the others.
+    /// Why: each step reports how far the image moved since the last one.
+    fn record(
+        &mut self,
+        frames: usize,
+        start: Instant,
+        solved: &[(Reconstruction, Option<f64>)],
+    ) -> Step {
+        let image = match solved {
+            [(r, _)] => r.image.clone(),
+            _ => interleave(solved),
+        };
+        let norm = image.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
+        let change = self.previous.as_ref().map(|p| {
+            p.iter()
+                .zip(&image)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+                .sqrt()
+                / norm
+        });
+        let c = solved.len();
+        let step = Step {
+            frames,
+            iterations: solved
+                .iter()
+                .map(|(r, _)| r.stats.iterations)
+                .max()
+                .unwrap_or(0),
+            converged: solved.iter().all(|(r, _)| r.stats.converged),
+            change,
+            psnr_db: self.truth.as_ref().map(|t| {
+                let each: Vec<f64> = t.iter().flat_map(|&v| std::iter::repeat_n(v, c)).collect();
+                crate::solve::metrics::psnr(&each, &image)
+            }),
+            // The middle colour's (green's) λ: one number per step.
+            lambda: solved[c / 2].1,
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        self.previous = Some(image);
+        self.steps.push(step.clone());
+        step
+    }
+}
+
+/// The colours' images interleaved: red, green, blue per element.
+fn interleave(solved: &[(Reconstruction, Option<f64>)]) -> Vec<f64> {
+    let n = solved[0].0.image.len();
+    (0..n)
+        .flat_map(|k| solved.iter().map(move |(r, _)| r.image[k]))
+        .collect()
+}
+
+impl Channel {
+    /// Fills this capture's rows of the measurement from `m` (this
+    /// capture's blocks, in the order of `own`); returns the noise λ is
+    /// chosen by (none with a fixed `lambda`).
     /// Why: the other blocks' rows stay as their captures set them; only this block moves.
-    fn measure(&mut self, own: CaptureFrames) -> Result<Option<NoiseLevel>, JobError> {
-        // This capture's blocks assembled as a reconstruction assembles them.
-        let blocks: Vec<_> = self
-            .own
-            .iter()
-            .map(|&k| self.t.blocks()[k].clone())
-            .collect();
-        let mut m = assemble_with(&self.scene, &blocks, &[own], &self.maps)?;
-        Units::Calibrated(self.calibration).apply(&mut m);
+    fn measure(
+        &mut self,
+        mut m: crate::measure::Measurement,
+        own: &[usize],
+        lambda: Option<f64>,
+    ) -> Option<NoiseLevel> {
+        Units::Calibrated(self.gain).apply(&mut m);
         let n = self.t.wall_grid().count();
-        for (k, &b) in self.own.iter().enumerate() {
+        for (k, &b) in own.iter().enumerate() {
             self.i[self.t.block_rows(b)].copy_from_slice(&m.i[k * n..(k + 1) * n]);
         }
         // The running variance of these blocks, beside the other blocks'.
-        let noise = match (self.settings.lambda, m.variance, self.variance.as_mut()) {
+        match (lambda, m.variance, self.variance.as_mut()) {
             (None, Some(v), Some(all)) => {
-                for (k, &b) in self.own.iter().enumerate() {
+                for (k, &b) in own.iter().enumerate() {
                     all[self.t.block_rows(b)].copy_from_slice(&v[k * n..(k + 1) * n]);
                 }
                 Some(NoiseLevel::measured(all.clone()))
             }
             _ => None,
-        };
-        Ok(noise)
+        }
+    }
+
+    /// Solves from now on with the model cached under `key`: its `T`, Gram
+    /// and conditioning, and a cold start (the old iterate fits another `T`).
+    fn use_model(&mut self, scenes: &Scenes, key: String) -> Result<(), JobError> {
+        self.t = scenes.transport(&key)?;
+        self.normal = Normal::with(scenes.gram(&key)?, &self.t, &self.i);
+        self.singular_values = scenes.conditioning(&key)?;
+        self.state = AdmmState::default();
+        self.key = key;
+        Ok(())
     }
 
     /// Solves the measurement, λ resolved from `noise` if any, else warm-started; returns λ.
@@ -358,13 +478,16 @@ impl Solver {
     fn solve(
         &mut self,
         noise: Option<NoiseLevel>,
+        scenes: &Scenes,
+        scene: &str,
+        settings: &AdmmSettings<'static>,
     ) -> Result<(Reconstruction, Option<f64>), JobError> {
         // The sampling the scene file leaves out, chosen from this step's noise
         // as a reconstruction of the same frames chooses it.
         if let Some(n) = &noise {
-            let (key, _) = self.scenes.for_noise(&self.capture.scene, &n.variance)?;
+            let (key, _) = scenes.for_noise(scene, &n.variance)?;
             if key != self.key {
-                self.use_model(key)?;
+                self.use_model(scenes, key)?;
             }
         }
         self.normal.ti = adjoint(self.t.as_mat(), &self.i);
@@ -377,65 +500,18 @@ impl Solver {
                     &noise,
                     &self.singular_values.singular_values,
                     &AdmmSettings {
-                        max_iter: self.settings.max_iter.max(AUTO_MAX_ITER),
-                        ..self.settings
+                        max_iter: settings.max_iter.max(AUTO_MAX_ITER),
+                        ..*settings
                     },
                 )?;
                 (r, Some(choice.lambda))
             }
             None => {
-                let r = admm_tv_warm(
-                    &self.t,
-                    &self.i,
-                    &self.normal,
-                    &self.settings,
-                    &mut self.state,
-                )?;
+                let r = admm_tv_warm(&self.t, &self.i, &self.normal, settings, &mut self.state)?;
                 let lambda = r.stats.lambda;
                 (r, lambda)
             }
         })
-    }
-
-    /// The step of solve `r` after `frames` frames, begun at `start`, kept with the others.
-    /// Why: each step reports how far the image moved since the last one.
-    fn record(
-        &mut self,
-        frames: usize,
-        start: Instant,
-        r: &Reconstruction,
-        lambda: Option<f64>,
-    ) -> Step {
-        let norm = r
-            .image
-            .iter()
-            .map(|v| v * v)
-            .sum::<f64>()
-            .sqrt()
-            .max(1e-300);
-        let change = self.previous.as_ref().map(|p| {
-            p.iter()
-                .zip(&r.image)
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum::<f64>()
-                .sqrt()
-                / norm
-        });
-        let step = Step {
-            frames,
-            iterations: r.stats.iterations,
-            converged: r.stats.converged,
-            change,
-            psnr_db: self
-                .truth
-                .as_ref()
-                .map(|t| crate::solve::metrics::psnr(t, &r.image)),
-            lambda,
-            seconds: start.elapsed().as_secs_f64(),
-        };
-        self.previous = Some(r.image.clone());
-        self.steps.push(step.clone());
-        step
     }
 }
 
@@ -479,17 +555,18 @@ fn run(
 ) -> Vec<Step> {
     let id = solver.capture.id;
     let dir = d.store.capture_dir(id);
-    let grid = solver.t.scene_grid();
+    let grid = solver.grid();
+    let colours = solver.colours();
     for snapshot in rx {
         pending.store(false, Ordering::SeqCst);
         match solver.step(&snapshot) {
             Ok((step, img)) => {
-                let png = image::write_png16(
-                    &dir.join(IMAGE),
-                    grid.nu,
-                    grid.nv,
-                    &image::unit_to_u16(&img),
-                );
+                let pixels = image::unit_to_u16(&img);
+                let path = dir.join(IMAGE);
+                let png = match colours {
+                    3 => image::write_png_rgb16(&path, grid.nu, grid.nv, &pixels),
+                    _ => image::write_png16(&path, grid.nu, grid.nv, &pixels),
+                };
                 let steps = json::write(&dir.join(STEPS), &solver.steps);
                 if let Err(e) = png.and(steps) {
                     tracing::warn!("capture-{id}: progressive result not written: {e}");
