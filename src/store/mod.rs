@@ -48,6 +48,14 @@ pub enum StoreError {
     /// A file could not be written or read (full disk, read-only folder, ...).
     #[error(transparent)]
     File(#[from] crate::files::FileError),
+    /// The catalogue's schema cannot be used by this polnlos.
+    #[error("catalogue {path}: {reason}")]
+    Schema {
+        /// Database file.
+        path: PathBuf,
+        /// Why, and what to do.
+        reason: String,
+    },
     /// The data directory cannot be created or written.
     #[error("data directory {path}: {source}; check that it exists, is writable by the polnlos user and has free space")]
     DataDir {
@@ -245,7 +253,13 @@ impl Store {
             .map_err(db)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))
             .map_err(db)?;
-        schema::migrate(&conn).map_err(db)?;
+        schema::migrate(&conn).map_err(|e| match e {
+            schema::MigrateError::Sql(source) => db(source),
+            newer => StoreError::Schema {
+                path: db_path.clone(),
+                reason: newer.to_string(),
+            },
+        })?;
         for table in Table::ALL {
             conn.execute(table.interrupt_all(), params![INTERRUPTED, now()])
                 .map_err(db)?;
@@ -478,7 +492,7 @@ mod tests {
         // As an older polnlos left it: no sequence table, no triggers.
         let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
         raw.execute_batch(
-            "DROP TRIGGER captures_issue_id; DROP TRIGGER reconstructions_issue_id; DROP TABLE issued_ids;",
+            "DROP TRIGGER captures_issue_id; DROP TRIGGER reconstructions_issue_id; DROP TABLE issued_ids; PRAGMA user_version = 0;",
         )
         .unwrap();
         drop(raw);

@@ -151,9 +151,62 @@ ALTER TABLE captures DROP COLUMN polarizer_deg;
 COMMIT;
 "#;
 
-/// Creates the tables, brings a catalogue from an older polnlos to this
-/// layout (rows kept), and sets up the id sequences.
-pub(super) fn migrate(conn: &Connection) -> rusqlite::Result<()> {
+/// The catalogue's schema version, kept in SQLite's `user_version`: 1 is
+/// the layout [`SCHEMA`] creates. A change to the layout is a new entry of
+/// [`MIGRATIONS`], never an edit of an old one.
+pub const VERSION: u32 = 1;
+
+/// The numbered migrations after version 1: `(n, statements)` brings a
+/// catalogue at version `n - 1` to `n`, in one transaction with the version.
+/// Empty while version 1 is the newest.
+const MIGRATIONS: [(u32, &str); 0] = [];
+
+/// Why the catalogue cannot be brought to this polnlos's layout.
+#[derive(Debug, thiserror::Error)]
+pub enum MigrateError {
+    /// SQLite refused a statement.
+    #[error(transparent)]
+    Sql(#[from] rusqlite::Error),
+    /// The catalogue was written by a newer polnlos.
+    #[error("its schema is version {found}, newer than this polnlos knows ({VERSION}): it was written by a newer polnlos; run that one, or give this one another data_dir (nothing was changed)")]
+    Newer {
+        /// The catalogue's version.
+        found: u32,
+    },
+}
+
+/// Brings the catalogue to [`VERSION`] and sets up the id sequences: a new
+/// one is created at it; one from before numbered versions (0) has its
+/// added columns found and brought to version 1 (rows kept); then each
+/// numbered migration past its version runs in turn. A catalogue from a
+/// newer polnlos is refused untouched.
+pub(super) fn migrate(conn: &Connection) -> Result<(), MigrateError> {
+    let found: u32 = conn.pragma_query_value(None, "user_version", |r| r.get(0))?;
+    if found > VERSION {
+        return Err(MigrateError::Newer { found });
+    }
+    if found == 0 {
+        unversioned(conn)?;
+        conn.pragma_update(None, "user_version", 1)?;
+    }
+    for (n, statements) in MIGRATIONS {
+        if n > found.max(1) {
+            conn.execute_batch(&format!(
+                "BEGIN; {statements}; PRAGMA user_version = {n}; COMMIT;"
+            ))
+            .inspect_err(|_| {
+                let _ = conn.execute_batch("ROLLBACK");
+            })?;
+        }
+    }
+    conn.execute_batch(ID_SEQUENCES)?;
+    Ok(())
+}
+
+/// Creates the tables, and brings a catalogue from before numbered versions
+/// to version 1: the columns later releases added are found by name and
+/// added, the settings and angle columns moved into their documents.
+fn unversioned(conn: &Connection) -> rusqlite::Result<()> {
     conn.execute_batch(SCHEMA)?;
     let mut st = conn.prepare("PRAGMA table_info(captures)")?;
     let has: Vec<String> = st
@@ -187,7 +240,7 @@ pub(super) fn migrate(conn: &Connection) -> rusqlite::Result<()> {
             let _ = conn.execute_batch("ROLLBACK");
         })?;
     }
-    conn.execute_batch(ID_SEQUENCES)
+    Ok(())
 }
 
 /// The catalogue's job tables. Every statement that works on either is
@@ -379,5 +432,60 @@ mod tests {
         assert_eq!((p.step, p.reconstruction), (9, Some(5)));
         assert_eq!(p.captures.len(), 1);
         assert!(p.interim.is_empty());
+    }
+
+    /// `user_version` of the catalogue in `dir`.
+    fn version(dir: &std::path::Path) -> u32 {
+        Connection::open(dir.join("catalogue.sqlite"))
+            .unwrap()
+            .pragma_query_value(None, "user_version", |r| r.get(0))
+            .unwrap()
+    }
+
+    #[test]
+    fn a_catalogue_is_numbered_and_one_from_a_newer_polnlos_is_refused_untouched() {
+        // A new catalogue is created at this version.
+        let new = tempfile::tempdir().unwrap();
+        drop(Store::open(new.path()).unwrap());
+        assert_eq!(version(new.path()), super::VERSION);
+        // One from before numbered versions is brought to version 1, rows kept.
+        let old = tempfile::tempdir().unwrap();
+        {
+            let raw = Connection::open(old.path().join("catalogue.sqlite")).unwrap();
+            raw.execute_batch(FIRST_RELEASE).unwrap();
+            raw.execute(OLD_ROW, [7]).unwrap();
+        }
+        let store = Store::open(old.path()).unwrap();
+        assert_eq!(store.capture(7).unwrap().frames, 3);
+        drop(store);
+        assert_eq!(version(old.path()), 1);
+        // Opened again, nothing is migrated twice.
+        drop(Store::open(old.path()).unwrap());
+        assert_eq!(version(old.path()), super::VERSION);
+        // A newer polnlos's catalogue: refused, naming what to do, and left as it was.
+        let path = old.path().join("catalogue.sqlite");
+        Connection::open(&path)
+            .unwrap()
+            .pragma_update(None, "user_version", super::VERSION + 1)
+            .unwrap();
+        let e = match Store::open(old.path()) {
+            Ok(_) => panic!("a newer catalogue was opened"),
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            e.contains(&format!(
+                "version {}, newer than this polnlos knows",
+                super::VERSION + 1
+            )) && e.contains("another data_dir"),
+            "{e}"
+        );
+        assert_eq!(version(old.path()), super::VERSION + 1);
+        let rows: i64 = Connection::open(&path)
+            .unwrap()
+            .query_row("SELECT COUNT(*) FROM captures WHERE id = 7", [], |r| {
+                r.get(0)
+            })
+            .unwrap();
+        assert_eq!(rows, 1);
     }
 }
