@@ -296,11 +296,16 @@ impl PhotoModel {
             check_measurement(t, c)?;
             sum.iter_mut().zip(c).for_each(|(s, v)| *s += v);
         }
+        // The four fits are independent: in parallel.
+        let fits = Flip::ALL
+            .par_iter()
+            .map(|flip| {
+                let i = flip.apply(t.wall_grid(), &sum);
+                Ok(self.floor(t, &i, settings)?.misfit)
+            })
+            .collect::<Result<Vec<f64>, SolveError>>()?;
         let mut misfit = [0.0; 4];
-        for (m, flip) in misfit.iter_mut().zip(Flip::ALL) {
-            let i = flip.apply(t.wall_grid(), &sum);
-            *m = self.floor(t, &i, settings)?.misfit;
-        }
+        misfit.copy_from_slice(&fits);
         let best = Flip::ALL[(0..4)
             .min_by(|&a, &b| misfit[a].total_cmp(&misfit[b]))
             .unwrap_or(0)];
@@ -858,7 +863,8 @@ pub fn pick_shadows(
     }
     let misfit =
         |t: &Transport| PhotoModel::new(t, settings.data_term).floor_misfit(t, &sum, settings);
-    let (mp, ma) = (misfit(point)?, misfit(area)?);
+    let (mp, ma) = rayon::join(|| misfit(point), || misfit(area));
+    let (mp, ma) = (mp?, ma?);
     let model = if ma < mp {
         ShadowModel::Area
     } else {

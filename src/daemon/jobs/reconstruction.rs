@@ -383,33 +383,42 @@ impl Job<'_> {
         // the photo decides, as `polnlos reconstruct --photo` lets it (the
         // area-shadow T cached as the scene's own, the same blocks kept).
         let scene = d.scenes.scene(&rec.scene)?;
-        let (t, shadows) = photo_transport(
-            &scene,
-            self.t.clone(),
-            || -> Result<_, JobError> {
-                let area = d
-                    .scenes
-                    .transport(&d.scenes.with_area_shadows(&rec.scene)?)?;
-                check(self.cancel)?;
-                Ok(match self.part {
-                    Some(p) => Arc::new(area.select_blocks(&p.kept)),
-                    None => area,
-                })
-            },
-            &channels,
-            &settings,
-        )?;
-        let mut result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;
+        let fit = || -> Result<_, JobError> {
+            let (t, shadows) = photo_transport(
+                &scene,
+                self.t.clone(),
+                || -> Result<_, JobError> {
+                    let area = d
+                        .scenes
+                        .transport(&d.scenes.with_area_shadows(&rec.scene)?)?;
+                    check(self.cancel)?;
+                    Ok(match self.part {
+                        Some(p) => Arc::new(area.select_blocks(&p.kept)),
+                        None => area,
+                    })
+                },
+                &channels,
+                &settings,
+            )?;
+            let result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;
+            Ok((result, shadows))
+        };
+        // κ of T (the scene's cache, formed once per scene) beside the fit:
+        // the photo's solves leave a core idle much of the time.
+        let kappa = || -> Result<f64, JobError> {
+            Ok(match self.part {
+                None => d.scenes.conditioning(&rec.scene)?.kappa,
+                Some(_) => crate::solve::condition(self.t)?.kappa,
+            })
+        };
+        let (fitted, kappa) = rayon::join(fit, kappa);
+        let (mut result, shadows) = fitted?;
+        let kappa = kappa?;
         check(self.cancel)?;
         result.warnings.splice(0..0, stacked.warnings);
         if let Some(p) = self.part {
             result.warnings.push(p.note());
         }
-        // κ of T, from the scene's cache (formed once per scene).
-        let kappa = match self.part {
-            None => d.scenes.conditioning(&rec.scene)?.kappa,
-            Some(_) => crate::solve::condition(self.t)?.kappa,
-        };
         let report = PhotoReport {
             scene: rec.scene.clone(),
             radiometry,
