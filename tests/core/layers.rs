@@ -702,6 +702,7 @@ fn a_ranged_camera_setting_is_named_in_two_files() {
         "src/daemon/procedures/colour.rs",
         "src/daemon/runtime/demo.rs",
         "src/daemon/jobs/reconstruction.rs",
+        "src/daemon/jobs/progressive.rs",
         "web/app.js",
         // The migration that moved the old `gain` column into the settings
         // document, so that old rows still read: history, not a new setting.
