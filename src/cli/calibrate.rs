@@ -38,17 +38,23 @@ are fitted and compared."
     )]
     Wall(WallArgs),
     /// Fit the occluders' position (a translation common to the selected
-    /// ones) to a photo: the one that minimizes the photo's model misfit.
+    /// ones) to one or more photos: the one that minimizes the photos' model
+    /// misfit, with an uncertainty that includes the model's error.
     #[command(
         after_help = "Example:\n  polnlos calibrate occluder config/photos/saunders-chair.toml \\\n    --measurement tests/data/saunders-chair/measurement.npy --out chair-placed.toml\n\
 The scene's occluders are the first guess. For each candidate translation it\n\
 builds T with the occluders moved (area shadows: a monitor block's visible\n\
-fraction, continuous in the translation) and fits the photo's differences\n\
+fraction, continuous in the translation) and fits each photo's differences\n\
 (blind to gain and ambient light) by least squares; the misfit summed over\n\
-the colour channels is minimized by a compass search from --step down to\n\
---min-step (docs/realphoto.md). Prints the translation with its uncertainty,\n\
-the moved corner, the objective at start and end, the T builds and seconds;\n\
-writes the scene with the occluders moved."
+the colour channels of every photo (--measurement, repeatable: several\n\
+photos of the same bench) is minimized on a lattice, coarse to fine from\n\
+--step down to --min-step, looking past the next ridge, and ends on the\n\
+lowest translation it evaluated (docs/realphoto.md). Prints the translation\n\
+with its uncertainty (how far the misfit stays within --tolerance of its\n\
+lowest: the model's error included), warnings when the fit cannot be\n\
+trusted, the moved corner, the objective at start and end, the T builds and\n\
+seconds; writes the scene with the occluders moved (mesh paths rewritten\n\
+for the new file's folder)."
     )]
     Occluder(OccluderArgs),
 }
@@ -57,9 +63,10 @@ writes the scene with the occluders moved."
 struct OccluderArgs {
     /// Scene file (or built-in scene name) whose occluders are the first guess.
     scene: PathBuf,
-    /// The photo, .npy of [rows] or [rows, C] (C colour channels), in T's row order.
-    #[arg(long, value_name = "FILE")]
-    measurement: PathBuf,
+    /// A photo, .npy of [rows] or [rows, C] (C colour channels), in T's row
+    /// order. Repeat it for several photos of the same bench: their misfits add.
+    #[arg(long, value_name = "FILE", required = true)]
+    measurement: Vec<PathBuf>,
     /// Occluders that move together, by index in file order (e.g. 0,3-11); default all.
     #[arg(long, value_name = "LIST", value_parser = parse_indices)]
     occluder: Option<Indices>,
@@ -72,6 +79,19 @@ struct OccluderArgs {
     /// Last step, metres (default: one shadow pitch).
     #[arg(long, value_name = "M")]
     min_step: Option<f64>,
+    /// The uncertainty region: translations whose misfit is within this
+    /// fraction of the lowest (docs/realphoto.md, "Placing the occluders").
+    #[arg(long, value_name = "FRACTION", default_value_t = polnlos::calibrate::occluder::TOLERANCE)]
+    tolerance: f64,
+    /// Most T builds the search may spend (about 1-2 s each on the chair).
+    #[arg(long, value_name = "N", default_value_t = polnlos::calibrate::occluder::MAX_EVALUATIONS)]
+    max_evaluations: usize,
+    /// Descents from different starts on the same lattice (the scene's
+    /// position, then two first steps out along the diagonals): when one
+    /// ends in another low the fit warns that its position depends on where
+    /// it starts. 1: one descent (a third of the time).
+    #[arg(long, value_name = "N", default_value_t = polnlos::calibrate::occluder::STARTS)]
+    starts: usize,
     /// Scene supersample of each T the search builds (default: 1 with area
     /// shadows; with point shadows the scene's, at least 6).
     #[arg(long, value_name = "N")]
@@ -82,7 +102,8 @@ struct OccluderArgs {
     /// the file says area).
     #[arg(long, value_enum, default_value_t = polnlos::scene::ShadowModel::Area)]
     shadows: polnlos::scene::ShadowModel,
-    /// Write the scene with the occluders moved here (default: print it).
+    /// Write the scene with the occluders moved here (default: print it,
+    /// mesh paths relative to the current folder). Its folder must exist.
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
     /// Write the fit and every objective evaluation as JSON here.
@@ -174,11 +195,23 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
 
 fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
     use polnlos::calibrate::occluder::{fit_occluder, scene_with_occluders_moved, OccluderOptions};
+    // The files written last are checked first: the search takes minutes.
+    let out_dir = match &a.out {
+        Some(p) => super::writable_folder(p, "--out")?,
+        None => PathBuf::new(),
+    };
+    if let Some(p) = &a.report {
+        super::writable_folder(p, "--report")?;
+    }
     let scene = super::load_scene(&a.scene)?;
     let scene_text = super::scene_text(&a.scene)?;
-    let meas = polnlos::files::npy::read(&a.measurement)?;
-    let channels = polnlos::solve::photo::split_channels(&meas.shape, &meas.data, scene.rows())
-        .map_err(|e| polnlos::files::FileError::format(&a.measurement, e))?;
+    let mut photos = Vec::with_capacity(a.measurement.len());
+    for path in &a.measurement {
+        let meas = polnlos::files::npy::read(path)?;
+        let channels = polnlos::solve::photo::split_channels(&meas.shape, &meas.data, scene.rows())
+            .map_err(|e| polnlos::files::FileError::format(path, e))?;
+        photos.push(channels);
+    }
     let options = OccluderOptions {
         selected: a.occluder.map(|i| i.0),
         range: a.range,
@@ -186,29 +219,60 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
         min_step: a.min_step,
         supersample: a.supersample,
         shadows: a.shadows,
+        tolerance: a.tolerance,
+        max_evaluations: a.max_evaluations,
+        starts: a.starts,
         budget,
     };
-    let f = fit_occluder(&scene, &channels, &options)
+    let f = fit_occluder(&scene, &photos, &options)
         .with_context(|| format!("scene {}", a.scene.display()))?;
-    let dir = a.scene.parent().unwrap_or(std::path::Path::new(""));
-    let out = scene_with_occluders_moved(&scene_text, &f.selected, f.translation, dir)?;
+    let from_dir = a.scene.parent().unwrap_or(std::path::Path::new(""));
+    let out =
+        scene_with_occluders_moved(&scene_text, from_dir, &f.selected, f.translation, &out_dir)?;
     let mm = |v: [f64; 3]| {
         format!(
-            "[{:+.1}, {:+.1}, {:+.1}] mm",
+            "({:+.1}, {:+.1}, {:+.1}) mm",
+            v[0] * 1e3,
+            v[1] * 1e3,
+            v[2] * 1e3
+        )
+    };
+    let plain = |v: [f64; 3]| {
+        format!(
+            "({:.1}, {:.1}, {:.1}) mm",
             v[0] * 1e3,
             v[1] * 1e3,
             v[2] * 1e3
         )
     };
     eprintln!(
-        "occluders {:?}: translation {} (± {} from the noise alone), corner {:?} -> [{:.4}, {:.4}, {:.4}] m",
+        "occluders {:?}: translation {} ± {}, corner {:?} -> [{:.4}, {:.4}, {:.4}] m",
         f.selected,
         mm(f.translation),
-        mm(f.sd),
+        plain(f.uncertainty),
         f.corner_start,
         f.corner_end[0],
         f.corner_end[1],
         f.corner_end[2]
+    );
+    let sides: Vec<String> = (0..3)
+        .map(|k| {
+            format!(
+                "{} -{:.1}/+{:.1}",
+                ["x", "y", "z"][k],
+                f.extent[k][0] * 1e3,
+                f.extent[k][1] * 1e3
+            )
+        })
+        .collect();
+    eprintln!(
+        "uncertainty {} mm: where the misfit stays within {:.2} % of its lowest (--tolerance {:.2} %, its ripple {:.2} % x {}); the noise's share alone ± {}",
+        sides.join(", "),
+        100.0 * f.relative_threshold,
+        100.0 * f.tolerance,
+        100.0 * f.ripple / f.objective_end,
+        polnlos::calibrate::occluder::RIPPLE_FACTOR,
+        plain(f.sd_noise),
     );
     eprintln!(
         "objective {:.4e} -> {:.4e} ({:.2} %), {} T builds at supersample {}, steps {:.1}-{:.1} mm, {:.1} s",
@@ -221,14 +285,18 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
         f.steps[1] * 1e3,
         f.seconds
     );
-    if a.shadows == polnlos::scene::ShadowModel::Point {
-        eprintln!(
-            "warning: with point shadows the objective jumps as a shadow edge crosses a wall sample; on the chair photo the fit started 2 cm off ended 20 mm from the measured position (area shadows, the default: 4.2 mm) (docs/realphoto.md, \"Placing the occluders\")"
-        );
+    if a.measurement.len() > 1 {
+        for (path, [start, end]) in a.measurement.iter().zip(&f.objective_photos) {
+            eprintln!("  {}: objective {start:.4e} -> {end:.4e}", path.display());
+        }
     }
-    eprintln!(
-        "note: the ± is the photo noise's share only; the model's own error is larger: on the chair photo, starts 2 cm off the measured position ended 4.2 to 9.5 mm from it (docs/realphoto.md, \"Placing the occluders\")"
-    );
+    for w in &f.warnings {
+        eprintln!("warning: the fit cannot be trusted: {w}");
+    }
+    if a.shadows == polnlos::scene::ShadowModel::Point {
+        eprintln!("{POINT_SHADOWS_WARNING}");
+    }
+    eprintln!("{UNCERTAINTY_NOTE}");
     if let Some(p) = &a.report {
         polnlos::files::json::write(p, &f)?;
     }
@@ -241,6 +309,12 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+/// Printed with `--shadows point` (docs/realphoto.md, "Placing the occluders").
+const POINT_SHADOWS_WARNING: &str = "warning: with point shadows the objective jumps as a shadow edge crosses a wall sample; on the chair photo the fit started 2 cm off ended 20 mm from the measured position (area shadows, the default: 4.1-7.5 mm from three starts) (docs/realphoto.md, \"Placing the occluders\")";
+
+/// What the uncertainty means, as measured (docs/realphoto.md, "Placing the occluders").
+const UNCERTAINTY_NOTE: &str = "note: the ± spans the translations whose misfit stays within the threshold of the lowest, the model's error included as the misfit shows it (on the chair photo, three starts 2 cm off ended 4.1-7.5 mm from the measured position, ± 12-34 mm); a model error that shapes the misfit itself can still move its lowest point further, which the warnings above say when the search sees it (docs/realphoto.md, \"Placing the occluders\")";
 
 fn wall(a: WallArgs, budget: MemoryBudget) -> anyhow::Result<()> {
     use polnlos::calibrate::wall::{fit_sources_from_scene, PointSource, SourceMeasurement};

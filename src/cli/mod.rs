@@ -108,6 +108,46 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 #[error("{0}")]
 pub struct Usage(pub String);
 
+/// The folder the file `path` (named by the option `option`) will be
+/// written in, checked to exist and to take a new file (`""` for the
+/// current folder).
+///
+/// Why: a command that computes for minutes checks where it writes first,
+/// so a typo in a folder fails at once, naming it.
+fn writable_folder(path: &Path, option: &str) -> anyhow::Result<PathBuf> {
+    let dir = path.parent().unwrap_or(Path::new(""));
+    let shown = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    if !shown.is_dir() {
+        return Err(Usage(format!(
+            "{option} {}: the folder {} does not exist",
+            path.display(),
+            shown.display()
+        ))
+        .into());
+    }
+    let probe = shown.join(format!(".polnlos-write-check-{}", std::process::id()));
+    match std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+    {
+        Ok(_) => {
+            let _ = std::fs::remove_file(&probe);
+            Ok(dir.to_path_buf())
+        }
+        Err(e) => Err(Usage(format!(
+            "{option} {}: cannot write in the folder {}: {e}",
+            path.display(),
+            shown.display()
+        ))
+        .into()),
+    }
+}
+
 /// The built-in scene named by `path`, when no file of that name exists.
 fn builtin(path: &Path) -> Option<&'static str> {
     if path.exists() {

@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use super::mesh::{self, MeshError};
 use super::occluder::{Mesh, MeshSource};
@@ -80,16 +80,21 @@ struct RawPose {
     binning: Option<[i64; 2]>,
 }
 
-#[derive(Deserialize, Default)]
+#[derive(Deserialize, Serialize, Default)]
 #[serde(deny_unknown_fields)]
 struct RawOccluder {
+    #[serde(skip_serializing_if = "Option::is_none")]
     rect: Option<RawRect>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     sphere: Option<RawSphere>,
     /// An OBJ or STL file, relative to the scene file's folder.
+    #[serde(skip_serializing_if = "Option::is_none")]
     mesh: Option<String>,
     /// The mesh's unit in metres (`0.001` for millimetres); default 1.
+    #[serde(skip_serializing_if = "Option::is_none")]
     scale: Option<f64>,
     /// Added to every mesh vertex after `scale`, metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
     offset: Option<[f64; 3]>,
     /// The mesh already read and checked: an edited scene keeps its
     /// triangles instead of reading the file again.
@@ -97,7 +102,7 @@ struct RawOccluder {
     loaded: Option<Arc<Mesh>>,
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct RawRect {
     center: [f64; 3],
@@ -105,7 +110,7 @@ struct RawRect {
     half_v: [f64; 3],
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct RawSphere {
     center: [f64; 3],
@@ -212,40 +217,73 @@ impl From<SceneParts> for RawFile {
                     binning: pose.frame.map(|f| f.binning.map(i64::from)),
                 })
                 .collect(),
-            occluder: p
-                .occluders
-                .into_iter()
-                .map(|o| match o {
-                    Occluder::Rect {
-                        center,
-                        half_u,
-                        half_v,
-                    } => RawOccluder {
-                        rect: Some(RawRect {
-                            center: array(center),
-                            half_u: array(half_u),
-                            half_v: array(half_v),
-                        }),
-                        ..RawOccluder::default()
-                    },
-                    Occluder::Sphere { center, radius } => RawOccluder {
-                        sphere: Some(RawSphere {
-                            center: array(center),
-                            radius,
-                        }),
-                        ..RawOccluder::default()
-                    },
-                    Occluder::Mesh(mesh) => RawOccluder {
-                        mesh: Some(mesh.source().path.clone()),
-                        scale: mesh.source().scale,
-                        offset: mesh.source().offset,
-                        loaded: Some(mesh),
-                        ..RawOccluder::default()
-                    },
-                })
-                .collect(),
+            occluder: p.occluders.into_iter().map(raw_occluder).collect(),
             polarizer: Some(polarizer),
         }
+    }
+}
+
+/// An occluder in the file's terms: a rect's or sphere's keys, a mesh's
+/// keys as written (with its triangles kept).
+fn raw_occluder(o: Occluder) -> RawOccluder {
+    match o {
+        Occluder::Rect {
+            center,
+            half_u,
+            half_v,
+        } => RawOccluder {
+            rect: Some(RawRect {
+                center: array(center),
+                half_u: array(half_u),
+                half_v: array(half_v),
+            }),
+            ..RawOccluder::default()
+        },
+        Occluder::Sphere { center, radius } => RawOccluder {
+            sphere: Some(RawSphere {
+                center: array(center),
+                radius,
+            }),
+            ..RawOccluder::default()
+        },
+        Occluder::Mesh(mesh) => RawOccluder {
+            mesh: Some(mesh.source().path.clone()),
+            scale: mesh.source().scale,
+            offset: mesh.source().offset,
+            loaded: Some(mesh),
+            ..RawOccluder::default()
+        },
+    }
+}
+
+impl Scene {
+    /// The scene's `[[occluder]]` entries as a scene file writes them (a
+    /// rect's or sphere's keys; a mesh's `mesh`, `scale` and `offset`), each
+    /// mesh path replaced by what `path` makes of the path as written.
+    ///
+    /// Why: a tool that moves occluders (`calibrate occluder`) writes them
+    /// in the file's own terms, and a relative mesh path must be rewritten
+    /// for a file written to another folder.
+    pub fn occluder_tables(
+        &self,
+        path: &mut dyn FnMut(usize, &str) -> Result<String, SceneError>,
+    ) -> Result<Vec<toml::Table>, SceneError> {
+        let mut out = Vec::with_capacity(self.occluders().len());
+        for (i, o) in self.occluders().iter().enumerate() {
+            let mut raw = raw_occluder(o.clone());
+            if let Some(p) = raw.mesh.take() {
+                raw.mesh = Some(path(i, &p)?);
+            }
+            let table = toml::Table::try_from(&raw).map_err(|e| {
+                SceneError::invalid(
+                    format!("occluder[{i}]"),
+                    o,
+                    format!("cannot be written: {e}"),
+                )
+            })?;
+            out.push(table);
+        }
+        Ok(out)
     }
 }
 

@@ -1016,6 +1016,19 @@ pub fn least_squares_misfit(
     data_term: DataTerm,
     channels: &[Vec<f64>],
 ) -> Result<f64, SolveError> {
+    Ok(least_squares_misfits(t, data_term, channels)?.iter().sum())
+}
+
+/// [`least_squares_misfit`] channel by channel: `min_x ||K (i_c - T x)||^2`
+/// for each `c`, from one factorization of `K^T K`.
+///
+/// Why: a fit to several photos reports each photo's share of the misfit
+/// (`calibrate occluder` with several measurements).
+pub fn least_squares_misfits(
+    t: &Transport,
+    data_term: DataTerm,
+    channels: &[Vec<f64>],
+) -> Result<Vec<f64>, SolveError> {
     for c in channels {
         check_measurement(t, c)?;
     }
@@ -1033,8 +1046,7 @@ pub fn least_squares_misfit(
             "Cholesky of K^T K + {ridge:e} I failed ({e:?}): the data term's columns are not independent"
         ))
     })?;
-    let mut total = 0.0;
-    for c in channels {
+    let misfit = |c: &Vec<f64>| {
         let y = match data_term {
             DataTerm::Differences => difference_values(t, c),
             DataTerm::Values => centred(t, c),
@@ -1043,13 +1055,12 @@ pub fn least_squares_misfit(
         let rhs = faer::Mat::from_fn(k.cols(), 1, |r, _| ky[r]);
         let x = faer::linalg::solvers::Solve::solve(&llt, &rhs);
         let fit = k.as_mat() * &x;
-        total += y
-            .iter()
+        y.iter()
             .enumerate()
             .map(|(r, v)| (v - fit[(r, 0)]).powi(2))
-            .sum::<f64>();
-    }
-    Ok(total)
+            .sum::<f64>()
+    };
+    Ok(channels.iter().map(misfit).collect())
 }
 
 /// `D T`: each column's first differences along u (`rows` of a block) then
