@@ -356,6 +356,13 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     let (s, png) = d.get_bytes("/live/image.png");
     assert_eq!(s, 200);
     assert_eq!((png[24], png[25]), (16, 2), "a colour live image is RGB");
+    // A measurement, not a bound (timings are the benchmarks').
+    std::thread::sleep(Duration::from_secs(2));
+    let v = d.json("/live");
+    println!(
+        "colour live view, windows of 4: {} results/s, median latency {} ms",
+        v["results_per_second"], v["median_latency_ms"]
+    );
     let (s, b) = d.delete("/live");
     assert_eq!(s, 200, "{b}");
     // Notes that differ between the colours say whose they are.
