@@ -28,6 +28,14 @@ async fn daemon_showing(dir: &std::path::Path, scene: &str, pattern: &str) -> Ar
     let scenes = Arc::new(
         Scenes::load(&config.scene_files, MemoryBudget::DEFAULT).expect("built-in scenes"),
     );
+    // The demo scene's T, Gram and conditioning, formed before any job (as
+    // a daemon that has reconstructed it once has them): a progressive
+    // capture's solver otherwise forms them while its frames arrive, and on
+    // a loaded machine (this process's rayon pool at idle priority, beside
+    // the suite's long computations) every frame had arrived by then, so
+    // only the first and the last snapshot were solved.
+    scenes.conditioning(scene).expect("the demo scene's conditioning");
+    scenes.gram(scene).expect("the demo scene's Gram");
     let camera = CameraSetup::synthetic(&config, &scenes)
         .await
         .expect("synthetic camera");
