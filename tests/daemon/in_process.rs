@@ -34,7 +34,9 @@ async fn daemon_showing(dir: &std::path::Path, scene: &str, pattern: &str) -> Ar
     // a loaded machine (this process's rayon pool at idle priority, beside
     // the suite's long computations) every frame had arrived by then, so
     // only the first and the last snapshot were solved.
-    scenes.conditioning(scene).expect("the demo scene's conditioning");
+    scenes
+        .conditioning(scene)
+        .expect("the demo scene's conditioning");
     scenes.gram(scene).expect("the demo scene's Gram");
     let camera = CameraSetup::synthetic(&config, &scenes)
         .await

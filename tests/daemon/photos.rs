@@ -218,6 +218,15 @@ fn an_import_that_does_not_fit_is_refused_and_nothing_is_stored() {
             "colour",
         ),
         (
+            // A bad query with a large file: answered once the file is
+            // read (an answer sent while the client still wrote it cut the
+            // connection: a broken pipe, not the answer).
+            "scene=saunders-chair&pose=photo&colour=red".into(),
+            vec![0u8; 16 << 20],
+            400,
+            "colour",
+        ),
+        (
             // A PNG needs the pose's homography to be sampled at the wall.
             "scene=saunders-chair&pose=photo".into(),
             polnlos::files::image::encode_png16(4, 4, &[1000; 16]).unwrap(),

@@ -20,9 +20,13 @@ pub async fn post_capture(
 #[utoipa::path(post, path = "/captures/import", params(ImportQuery), request_body(content = Vec<u8>, content_type = "application/octet-stream", description = "The file itself: .npy, TIFF or PNG (told by its first bytes)"), responses((status = 201, body = CaptureRecord, description = "Stored; Location names the capture"), (status = 404, body = ErrorBody, description = "Unknown scene"), (status = 413, body = ErrorBody, description = "Over [queue] max_import_mib"), (status = 422, body = ErrorBody, description = "Unknown pose, a file that does not fit the pose's blocks, or not .npy, TIFF or PNG"), (status = 507, body = ErrorBody, description = "It would not fit on the disk")))]
 pub async fn import_capture(
     State(d): St,
-    Query(q): Query<ImportQuery>,
+    query: Result<Query<ImportQuery>, ApiError>,
     body: Result<axum::body::Bytes, axum::extract::rejection::BytesRejection>,
 ) -> Result<Response, ApiError> {
+    // The query's error is answered after the body is read: a refusal sent
+    // while the client still writes a large file cuts its connection, and
+    // the client sees a broken pipe instead of the answer.
+    let Query(q) = query?;
     let bytes = body.map_err(|r| match r.status() {
         StatusCode::PAYLOAD_TOO_LARGE => ApiError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
