@@ -461,11 +461,12 @@ pub fn moved(
 
 /// The objective at one translation: `T` of the moved scene, then the
 /// least-squares misfit of the data term of differences of each channel
-/// ([`least_squares_misfits`]), summed per photo.
+/// ([`least_squares_misfits`]), summed per photo: `channels` holds every
+/// photo's channels in turn, `per_photo` how many are each photo's.
 fn objective(
     scene: &Scene,
     selected: &[usize],
-    photos: &[Vec<Vec<f64>>],
+    (channels, per_photo): (&[Vec<f64>], &[usize]),
     d: [f64; 3],
     supersample: usize,
     options: &OccluderOptions,
@@ -474,13 +475,12 @@ fn objective(
         &moved(scene, selected, d, supersample, options.shadows)?,
         options.budget,
     )?;
-    let channels: Vec<Vec<f64>> = photos.iter().flatten().cloned().collect();
-    let misfits = least_squares_misfits(&t, DataTerm::Differences, &channels)?;
+    let misfits = least_squares_misfits(&t, DataTerm::Differences, channels)?;
     let mut rest = misfits.as_slice();
-    Ok(photos
+    Ok(per_photo
         .iter()
-        .map(|p| {
-            let (mine, after) = rest.split_at(p.len().min(rest.len()));
+        .map(|&n| {
+            let (mine, after) = rest.split_at(n.min(rest.len()));
             rest = after;
             mine.iter().sum()
         })
@@ -584,9 +584,19 @@ pub fn fit_occluder(
     let channels: usize = photos.iter().map(Vec::len).sum();
     let rows = rows_per_channel * channels;
     let dof = rows.saturating_sub(scene.cols() * channels).max(1);
+    // Every photo's channels in one list, made once for every evaluation.
+    let flat: Vec<Vec<f64>> = photos.iter().flatten().cloned().collect();
+    let per_photo: Vec<usize> = photos.iter().map(Vec::len).collect();
     let mut probes = Vec::new();
     let mut f = |d: [f64; 3]| {
-        let each = objective(scene, &selected, photos, d, supersample, options)?;
+        let each = objective(
+            scene,
+            &selected,
+            (&flat, &per_photo),
+            d,
+            supersample,
+            options,
+        )?;
         let v = each.iter().sum();
         probes.push(Probe {
             translation: d,

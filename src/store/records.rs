@@ -151,6 +151,36 @@ pub struct CaptureRequest {
     pub dark_capture: Option<i64>,
 }
 
+impl CaptureRequest {
+    /// The record of this request as if accepted, never stored (id 0), in
+    /// `state`: what the live view's solver and bench moves read.
+    pub fn unstored(&self, state: JobState) -> CaptureRecord {
+        CaptureRecord {
+            id: 0,
+            scene: self.scene.clone(),
+            pose: self.pose.clone(),
+            channels: self.channels.clone(),
+            polarizer_measured_deg: None,
+            settings: CameraSettings::from(self.acquisition),
+            frames: i64::try_from(self.frames).unwrap_or(i64::MAX),
+            dark_frames: i64::try_from(self.dark_frames).unwrap_or(i64::MAX),
+            kind: self.kind,
+            dark_capture: self.dark_capture,
+            state,
+            error: None,
+            created_at: String::new(),
+            started_at: None,
+            finished_at: None,
+            camera_id: None,
+            counters: None,
+            frames_taken: 0,
+            frame_counts: None,
+            clipping: None,
+            import: None,
+        }
+    }
+}
+
 #[cfg(test)]
 impl CaptureRequest {
     /// A light capture of `brewster-crossed` pose A at 0°: one 4x4 Mono16

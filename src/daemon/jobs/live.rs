@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use super::progressive::{Snapshot, Solver};
 use super::{JobContext, JobError};
-use crate::camera::{Acquisition, CameraSettings, Frame, RawFrame};
+use crate::camera::{Acquisition, Frame, RawFrame};
 use crate::daemon::requests::validate::ProgressiveSpec;
 use crate::daemon::runtime::camera::CameraService;
 use crate::daemon::runtime::live::{Live, LiveState};
@@ -35,34 +35,6 @@ const SEGMENT_FRAMES: usize = 1 << 20;
 
 /// How often the frame reader looks at its stop flag while no frame comes.
 const POLL: Duration = Duration::from_millis(50);
-
-/// The capture record a live session's solver and bench moves read: the
-/// request as if accepted, never stored (id 0).
-fn record(r: &CaptureRequest) -> CaptureRecord {
-    CaptureRecord {
-        id: 0,
-        scene: r.scene.clone(),
-        pose: r.pose.clone(),
-        channels: r.channels.clone(),
-        polarizer_measured_deg: None,
-        settings: CameraSettings::from(r.acquisition),
-        frames: i64::try_from(r.frames).unwrap_or(i64::MAX),
-        dark_frames: i64::try_from(r.dark_frames).unwrap_or(i64::MAX),
-        kind: r.kind,
-        dark_capture: r.dark_capture,
-        state: JobState::Running,
-        error: None,
-        created_at: String::new(),
-        started_at: None,
-        finished_at: None,
-        camera_id: None,
-        counters: None,
-        frames_taken: 0,
-        frame_counts: None,
-        clipping: None,
-        import: None,
-    }
-}
 
 /// What a live segment uses of the capture worker's: the job services, the
 /// camera, the bench's devices and the capture queue it gives way to.
@@ -104,7 +76,7 @@ async fn run(
     spec: &ProgressiveSpec,
 ) -> Result<(), JobError> {
     live.set_state(session, LiveState::Starting, None);
-    let c = record(request);
+    let c = request.unstored(JobState::Running);
     super::move_to_pose(w.rig, &w.jobs.scenes, &c.scene, &c.pose)
         .await
         .map_err(JobError::Live)?;

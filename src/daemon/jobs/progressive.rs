@@ -307,11 +307,11 @@ impl Solver {
             let noise = ch.measure(m, &self.own, self.settings.lambda);
             solved.push(ch.solve(noise, &self.scenes, &self.capture.scene, &self.settings)?);
         }
-        let step = self.record(s.frames, start, &solved);
-        let image = match solved.len() {
-            1 => solved.swap_remove(0).0.image,
-            _ => interleave(&solved),
-        };
+        // A colour image is interleaved once, for the step and the caller.
+        let colour = (solved.len() > 1).then(|| interleave(&solved));
+        let image = colour.as_deref().unwrap_or(&solved[0].0.image);
+        let step = self.record(s.frames, start, &solved, image);
+        let image = colour.unwrap_or_else(|| solved.swap_remove(0).0.image);
         Ok((step, image))
     }
 
@@ -380,7 +380,7 @@ impl Solver {
         }
     }
 
-    /// The step of the colours' solves `solved` after `frames` frames,
+    /// The step of the colours' solves `solved` (their `image`, interleaved) after `frames` frames,
     /// begun at `start`, kept with the others.
     /// Why: each step reports how far the image moved since the last one.
     fn record(
@@ -388,15 +388,12 @@ impl Solver {
         frames: usize,
         start: Instant,
         solved: &[(Reconstruction, Option<f64>)],
+        image: &[f64],
     ) -> Step {
-        let image = match solved {
-            [(r, _)] => r.image.clone(),
-            _ => interleave(solved),
-        };
         let norm = image.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
         let change = self.previous.as_ref().map(|p| {
             p.iter()
-                .zip(&image)
+                .zip(image)
                 .map(|(a, b)| (a - b) * (a - b))
                 .sum::<f64>()
                 .sqrt()
@@ -414,13 +411,13 @@ impl Solver {
             change,
             psnr_db: self.truth.as_ref().map(|t| {
                 let each: Vec<f64> = t.iter().flat_map(|&v| std::iter::repeat_n(v, c)).collect();
-                crate::solve::metrics::psnr(&each, &image)
+                crate::solve::metrics::psnr(&each, image)
             }),
             // The middle colour's (green's) λ: one number per step.
             lambda: solved[c / 2].1,
             seconds: start.elapsed().as_secs_f64(),
         };
-        self.previous = Some(image);
+        self.previous = Some(image.to_vec());
         self.steps.push(step.clone());
         step
     }
