@@ -559,7 +559,7 @@ fn reconstruct_photo<'py>(
     truth: Option<PyReadonlyArrayDyn<'py, f64>>,
     max_iter: Option<usize>,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    use polnlos::solve::photo::{reconstruct_photo, split_channels, PhotoReport, PhotoSettings};
+    use polnlos::solve::photo::{split_channels, PhotoReport, PhotoSettings};
     let shape = measurement.shape().to_vec();
     let data: Vec<f64> = measurement.as_array().iter().copied().collect();
     let channels = split_channels(&shape, &data, scene.inner.rows())
@@ -595,7 +595,7 @@ fn reconstruct_photo<'py>(
             let t = polnlos::transport::build(&scene.inner, BUDGET).map_err(|e| e.to_string())?;
             // As the CLI's --photo: an open shadow choice is the photo's.
             type Failure = Box<dyn std::error::Error + Send + Sync>;
-            let (t, shadows) = polnlos::solve::photo::photo_transport(
+            let chosen = polnlos::solve::photo::photo_transport(
                 &scene.inner,
                 Box::new(t),
                 || -> Result<_, Failure> {
@@ -607,8 +607,9 @@ fn reconstruct_photo<'py>(
             )
             .map_err(|e| e.to_string())?;
             let seconds = start.elapsed().as_secs_f64();
-            reconstruct_photo(&t, &channels, truth.as_deref(), &settings)
-                .map(|r| (r, seconds, shadows))
+            chosen
+                .reconstruct(&channels, truth.as_deref(), &settings)
+                .map(|r| (r, seconds, chosen.shadows.clone()))
                 .map_err(|e| e.to_string())
         })
         .map_err(polnlos_err)?;

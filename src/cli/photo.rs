@@ -4,9 +4,7 @@
 use std::time::Instant;
 
 use polnlos::files::{image, json, npy, FileError};
-use polnlos::solve::photo::{
-    photo_transport, reconstruct_photo, split_channels, PhotoReport, PhotoSettings,
-};
+use polnlos::solve::photo::{photo_transport, split_channels, PhotoReport, PhotoSettings};
 use polnlos::solve::radiometry::RadiometryChoice;
 
 use super::reconstruct::{Args, LambdaArg};
@@ -41,7 +39,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     };
     // The file left `shadows` out and the penumbra is not negligible: the
     // photo says whether point or area shadows explain it better.
-    let (cached, shadows) = photo_transport(
+    let chosen = photo_transport(
         &scene,
         cached,
         || -> anyhow::Result<_> {
@@ -55,10 +53,11 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         &channels,
         &settings,
     )?;
-    let (t, transport_cache) = (cached.t, cached.source);
+    let shadows = chosen.shadows.clone();
     eprintln!("note: {} shadows: {}", shadows.model.name(), shadows.reason);
     let transport_seconds = t0.elapsed().as_secs_f64();
-    let result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;
+    let result = chosen.reconstruct(&channels, truth.as_deref(), &settings)?;
+    let transport_cache = chosen.t.source;
     let c = result.channels.len();
     let n = grid.count();
     let interleave = |f: &dyn Fn(usize, usize) -> f64| -> Vec<f64> {

@@ -109,7 +109,7 @@ pub struct ShadowChoice {
     /// penumbra is not negligible, so point shadows are only the default.
     pub open: bool,
     /// The photo's misfits with point and with area shadows, when a photo
-    /// decided (`solve::photo::pick_shadows`).
+    /// decided (`solve::photo::photo_transport`).
     pub misfit: Option<[f64; 2]>,
 }
 

@@ -284,6 +284,16 @@ impl PhotoModel {
         }
     }
 
+    /// Whether this model is the one [`PhotoModel::with_missing`] forms for
+    /// `t`'s shape, `data_term` and `missing` rows.
+    fn fits(&self, t: &Transport, data_term: DataTerm, missing: &[usize]) -> bool {
+        self.data_term == data_term
+            && self.missing.len() == t.rows()
+            && self.k.cols() == t.cols()
+            && self.missing.iter().filter(|g| **g).count() == missing.len()
+            && missing.iter().all(|&j| self.missing.get(j) == Some(&true))
+    }
+
     /// [`Orientation`] of a photo's channels (summed).
     pub fn orientation(
         &self,
@@ -608,25 +618,34 @@ impl PhotoModel {
             .map(|(j, v)| v + background[j / nw])
             .collect();
         let gain = percentile(x, GAIN_PERCENTILE);
+        // The replicas are independent (each warm from the fit's state): in
+        // parallel, summed in replica order, so the numbers do not depend on
+        // the schedule.
+        let replicas = (0..BOOTSTRAP_REPLICAS)
+            .into_par_iter()
+            .map(|replica| {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(replica);
+                let i: Vec<f64> = fit.iter().map(|v| v + noise.sample(&mut rng)).collect();
+                let y = self.data(t, &i);
+                let normal = Normal::with(self.gram.clone(), &self.k, &y);
+                let mut warm = state.clone();
+                let r = admm_tv_warm(
+                    &self.k,
+                    &y,
+                    &normal,
+                    &self.admm(lambda, (settings.iterations / 3).max(1), settings.stop),
+                    &mut warm,
+                )?;
+                let b = self.backgrounds(t, &i, &r.image);
+                Ok((r.stats.iterations, percentile(&r.image, GAIN_PERCENTILE), b))
+            })
+            .collect::<Result<Vec<_>, SolveError>>()?;
         let mut gain_sq = 0.0;
         let mut background_sq = vec![0.0; background.len()];
         let mut iterations = 0;
-        for replica in 0..BOOTSTRAP_REPLICAS {
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(replica);
-            let i: Vec<f64> = fit.iter().map(|v| v + noise.sample(&mut rng)).collect();
-            let y = self.data(t, &i);
-            let normal = Normal::with(self.gram.clone(), &self.k, &y);
-            let mut warm = state.clone();
-            let r = admm_tv_warm(
-                &self.k,
-                &y,
-                &normal,
-                &self.admm(lambda, (settings.iterations / 3).max(1), settings.stop),
-                &mut warm,
-            )?;
-            iterations += r.stats.iterations;
-            gain_sq += (percentile(&r.image, GAIN_PERCENTILE) - gain).powi(2);
-            let b = self.backgrounds(t, &i, &r.image);
+        for (its, g, b) in replicas {
+            iterations += its;
+            gain_sq += (g - gain).powi(2);
             for (sq, (b, b_fit)) in background_sq.iter_mut().zip(b.iter().zip(background)) {
                 *sq += (b - b_fit).powi(2);
             }
@@ -703,6 +722,12 @@ pub fn reconstruct_photo(
     truth: Option<&[Vec<f64>]>,
     settings: &PhotoSettings<'_>,
 ) -> Result<PhotoResult, SolveError> {
+    reconstruct_photo_with(t, None, channels, truth, settings)
+}
+
+/// The rows of `t` not finite in some channel (not measured), after
+/// checking each channel has one value per row.
+fn missing_rows(t: &Transport, channels: &[Vec<f64>]) -> Result<Vec<usize>, SolveError> {
     for c in channels {
         if c.len() != t.rows() {
             return Err(SolveError::Length {
@@ -711,9 +736,21 @@ pub fn reconstruct_photo(
             });
         }
     }
-    let missing: Vec<usize> = (0..t.rows())
+    Ok((0..t.rows())
         .filter(|&j| channels.iter().any(|c| !c[j].is_finite()))
-        .collect();
+        .collect())
+}
+
+/// [`reconstruct_photo`] on `model` when the shadow choice already formed
+/// it for `t` and these channels' unmeasured rows ([`PhotoTransport`]).
+fn reconstruct_photo_with(
+    t: &Transport,
+    model: Option<&PhotoModel>,
+    channels: &[Vec<f64>],
+    truth: Option<&[Vec<f64>]>,
+    settings: &PhotoSettings<'_>,
+) -> Result<PhotoResult, SolveError> {
+    let missing = missing_rows(t, channels)?;
     // The fit in units of the photo's own RMS value: ADMM's absolute
     // tolerance then means the same whatever the photo's units (a camera's
     // fractions of full scale per µs, DN, an imported file's), so one photo
@@ -732,7 +769,14 @@ pub fn reconstruct_photo(
         lambda: settings.lambda.map(|l| l / unit),
         ..*settings
     };
-    let model = PhotoModel::with_missing(t, settings.data_term, &missing);
+    let formed;
+    let model = match model {
+        Some(m) if m.fits(t, settings.data_term, &missing) => m,
+        _ => {
+            formed = PhotoModel::with_missing(t, settings.data_term, &missing);
+            &formed
+        }
+    };
     let start = Instant::now();
     let mut orientation = model.orientation(t, &channels, settings)?;
     orientation
@@ -831,64 +875,86 @@ pub fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String 
 /// from the photo: the model whose `T` fits the photo's channels (summed)
 /// better at λ = 0, non-negative and blind to gain and background, the
 /// misfit [`PhotoModel::floor_misfit`] gives; `point` and `area` are the
-/// scene's `T` with each. A choice that is not open is returned as it is.
+/// scene's `T` with each. Returns the choice and the chosen `T`'s data-term
+/// model (formed for the photo's unmeasured rows), which the reconstruction
+/// then reuses.
 ///
 /// Why: MODEL.md's point sources define the reference benches, but a real
 /// screen behind a near occluder casts a penumbra: on a held-out photo
 /// point shadows gave ZNCC 0.60 and area shadows 0.84; the misfit says
 /// which the photo shows without a truth (docs/realphoto.md, "Which shadows").
-pub fn pick_shadows(
+fn pick_shadows(
     point: &Transport,
     area: &Transport,
     channels: &[Vec<f64>],
     settings: &PhotoSettings<'_>,
     choice: ShadowChoice,
-) -> Result<ShadowChoice, SolveError> {
-    if !choice.open {
-        return Ok(choice);
-    }
+) -> Result<(ShadowChoice, PhotoModel), SolveError> {
+    let missing = missing_rows(point, channels)?;
+    // An element not measured (NaN) is left out, as the reconstruction
+    // leaves it out.
     let mut sum = vec![0.0; point.rows()];
     for c in channels {
-        if c.len() != point.rows() {
-            return Err(SolveError::Length {
-                expected: point.rows(),
-                got: c.len(),
-            });
-        }
-        // An element not measured (NaN) weighs as 0 in this comparison.
         sum.iter_mut()
             .zip(c)
             .filter(|(_, v)| v.is_finite())
             .for_each(|(s, v)| *s += v);
     }
-    let misfit =
-        |t: &Transport| PhotoModel::new(t, settings.data_term).floor_misfit(t, &sum, settings);
-    let (mp, ma) = rayon::join(|| misfit(point), || misfit(area));
-    let (mp, ma) = (mp?, ma?);
-    let model = if ma < mp {
-        ShadowModel::Area
-    } else {
-        ShadowModel::Point
+    let fit = |t: &Transport| {
+        let model = PhotoModel::with_missing(t, settings.data_term, &missing);
+        model.floor_misfit(t, &sum, settings).map(|m| (m, model))
+    };
+    let (p, a) = rayon::join(|| fit(point), || fit(area));
+    let ((mp, point_model), (ma, area_model)) = (p?, a?);
+    let (model, kept) = match ma < mp {
+        true => (ShadowModel::Area, area_model),
+        false => (ShadowModel::Point, point_model),
     };
     let penumbra = choice.penumbra.map_or(String::new(), |w| {
         format!("a scene cell's penumbra spans {w:.2} wall samples; ")
     });
-    Ok(ShadowChoice {
-        model,
-        reason: format!(
-            "{penumbra}the photo's λ = 0 misfit is {mp:.4e} with point shadows and {ma:.4e} with area shadows: {}",
-            model.name()
-        ),
-        open: false,
-        misfit: Some([mp, ma]),
-        ..choice
-    })
+    Ok((
+        ShadowChoice {
+            model,
+            reason: format!(
+                "{penumbra}the photo's λ = 0 misfit is {mp:.4e} with point shadows and {ma:.4e} with area shadows: {}",
+                model.name()
+            ),
+            open: false,
+            misfit: Some([mp, ma]),
+            ..choice
+        },
+        kept,
+    ))
+}
+
+/// The `T` a photo is reconstructed with, the scene's shadow choice, and
+/// the data term's model when making the choice formed it.
+pub struct PhotoTransport<T> {
+    /// `T` with the chosen shadows.
+    pub t: T,
+    /// The choice and its reason.
+    pub shadows: ShadowChoice,
+    model: Option<PhotoModel>,
+}
+
+impl<T: std::ops::Deref<Target = Transport>> PhotoTransport<T> {
+    /// [`reconstruct_photo`] of `channels` with this `T`, on the model the
+    /// shadow choice formed when it fits them.
+    pub fn reconstruct(
+        &self,
+        channels: &[Vec<f64>],
+        truth: Option<&[Vec<f64>]>,
+        settings: &PhotoSettings<'_>,
+    ) -> Result<PhotoResult, SolveError> {
+        reconstruct_photo_with(&self.t, self.model.as_ref(), channels, truth, settings)
+    }
 }
 
 /// The `T` a photo is reconstructed with, and the shadow model's choice:
 /// `point` (the scene's own `T`) where the scene fixes its shadows, else
 /// whichever of it and `area()` (the area-shadow `T`, made only then)
-/// explains the photo better ([`pick_shadows`]).
+/// explains the photo better ([`PhotoModel::floor_misfit`] of each).
 ///
 /// Why one function: the CLI's `--photo`, the daemon's fitted
 /// reconstruction and Python each get their `T`s their own way (a file
@@ -899,20 +965,29 @@ pub fn photo_transport<T, E>(
     area: impl FnOnce() -> Result<T, E>,
     channels: &[Vec<f64>],
     settings: &PhotoSettings<'_>,
-) -> Result<(T, ShadowChoice), E>
+) -> Result<PhotoTransport<T>, E>
 where
     T: std::ops::Deref<Target = Transport>,
     E: From<SolveError>,
 {
     let choice = scene.shadow_choice();
     if !choice.open {
-        return Ok((point, choice));
+        return Ok(PhotoTransport {
+            t: point,
+            shadows: choice,
+            model: None,
+        });
     }
     let area = area()?;
-    let choice = pick_shadows(&point, &area, channels, settings, choice)?;
-    Ok(match choice.model {
-        ShadowModel::Area => (area, choice),
-        _ => (point, choice),
+    let (shadows, model) = pick_shadows(&point, &area, channels, settings, choice)?;
+    let t = match shadows.model {
+        ShadowModel::Area => area,
+        _ => point,
+    };
+    Ok(PhotoTransport {
+        t,
+        shadows,
+        model: Some(model),
     })
 }
 

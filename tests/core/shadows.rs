@@ -127,7 +127,8 @@ fn zncc(t: &Transport, i: &[f64], truth: &[f64]) -> f64 {
 #[test]
 fn a_scene_without_a_shadows_key_reconstructs_as_well_as_the_better_model() {
     crate::priority::background();
-    use polnlos::solve::photo::{pick_shadows, PhotoSettings};
+    use polnlos::solve::photo::{photo_transport, PhotoSettings};
+    use polnlos::solve::SolveError;
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
     let budget = MemoryBudget::DEFAULT;
@@ -170,20 +171,34 @@ fn a_scene_without_a_shadows_key_reconstructs_as_well_as_the_better_model() {
                 3.0e4 * v / top + 500.0 + 30.0 * z
             })
             .collect();
-        let choice = pick_shadows(
+        let settings = PhotoSettings::default();
+        let chosen = photo_transport(
+            &base,
             &t_point,
-            &t_area,
+            || Ok::<_, SolveError>(&t_area),
             std::slice::from_ref(&i),
-            &PhotoSettings::default(),
-            base.shadow_choice(),
+            &settings,
         )
         .unwrap();
+        let choice = &chosen.shadows;
         let (zp, za) = (zncc(&t_point, &i, &truth), zncc(&t_area, &i, &truth));
-        let auto = if choice.model == ShadowModel::Area {
+        // The reconstruction on the chosen T (its model formed by the choice).
+        let auto = chosen
+            .reconstruct(
+                std::slice::from_ref(&i),
+                Some(std::slice::from_ref(&truth)),
+                &settings,
+            )
+            .unwrap()
+            .metrics
+            .unwrap()
+            .zncc;
+        let picked = if choice.model == ShadowModel::Area {
             za
         } else {
             zp
         };
+        assert!((auto - picked).abs() < 1e-12, "{auto} {picked}");
         eprintln!(
             "{label}: ZNCC point {zp:.4}, area {za:.4}, auto {auto:.4} ({})",
             choice.reason

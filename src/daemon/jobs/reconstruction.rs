@@ -18,7 +18,7 @@ use crate::measure::{
 };
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
-use crate::solve::photo::{photo_transport, reconstruct_photo, PhotoReport, PhotoSettings};
+use crate::solve::photo::{photo_transport, PhotoReport, PhotoSettings};
 use crate::solve::radiometry::{Known, Radiometry, RadiometryChoice};
 use crate::solve::reconstruct::{reconstruct_prepared, Context};
 use crate::solve::{check_measurement, SolveRequest, Stop};
@@ -383,36 +383,33 @@ impl Job<'_> {
         // the photo decides, as `polnlos reconstruct --photo` lets it (the
         // area-shadow T cached as the scene's own, the same blocks kept).
         let scene = d.scenes.scene(&rec.scene)?;
-        let fit = || -> Result<_, JobError> {
-            let (t, shadows) = photo_transport(
-                &scene,
-                self.t.clone(),
-                || -> Result<_, JobError> {
-                    let area = d
-                        .scenes
-                        .transport(&d.scenes.with_area_shadows(&rec.scene)?)?;
-                    check(self.cancel)?;
-                    Ok(match self.part {
-                        Some(p) => Arc::new(area.select_blocks(&p.kept)),
-                        None => area,
-                    })
-                },
-                &channels,
-                &settings,
-            )?;
-            let result = reconstruct_photo(&t, &channels, truth.as_deref(), &settings)?;
-            Ok((result, shadows))
-        };
-        // κ of T (the scene's cache, formed once per scene) beside the fit:
-        // the photo's solves leave a core idle much of the time.
-        let kappa = || -> Result<f64, JobError> {
-            Ok(match self.part {
-                None => d.scenes.conditioning(&rec.scene)?.kappa,
-                Some(_) => crate::solve::condition(self.t)?.kappa,
-            })
-        };
-        let (fitted, kappa) = rayon::join(fit, kappa);
-        let (mut result, shadows) = fitted?;
+        let open = scene.shadow_choice().open;
+        let chosen = photo_transport(
+            &scene,
+            self.t.clone(),
+            || -> Result<_, JobError> {
+                let area = d
+                    .scenes
+                    .transport(&d.scenes.with_area_shadows(&rec.scene)?)?;
+                check(self.cancel)?;
+                Ok(match self.part {
+                    Some(p) => Arc::new(area.select_blocks(&p.kept)),
+                    None => area,
+                })
+            },
+            &channels,
+            &settings,
+        )?;
+        check(self.cancel)?;
+        // κ of the T it is solved with beside the solves: they leave a core
+        // idle much of the time (three colours on two cores).
+        let area = open && chosen.shadows.model == crate::scene::ShadowModel::Area;
+        let kappa = || self.kappa(area, &chosen.t);
+        let (fitted, kappa) = rayon::join(
+            || chosen.reconstruct(&channels, truth.as_deref(), &settings),
+            kappa,
+        );
+        let (mut result, shadows) = (fitted?, chosen.shadows.clone());
         let kappa = kappa?;
         check(self.cancel)?;
         result.warnings.splice(0..0, stacked.warnings);
@@ -463,6 +460,24 @@ impl Job<'_> {
         d.store
             .reconstruction_done(id, kappa, &text)
             .map_err(|e| JobError::Store(d.store.describe(&e)))
+    }
+}
+
+impl Job<'_> {
+    /// κ of `t`, the `T` a fitted reconstruction is solved with: the scene's
+    /// cached conditioning (of its area-shadow `T` where the photo chose
+    /// `area`), or `t`'s own for a partial reconstruction.
+    fn kappa(&self, area: bool, t: &crate::transport::Transport) -> Result<f64, JobError> {
+        let (d, scene) = (self.d, &self.rec.scene);
+        Ok(match (self.part, area) {
+            (None, false) => d.scenes.conditioning(scene)?.kappa,
+            (None, true) => {
+                d.scenes
+                    .conditioning(&d.scenes.with_area_shadows(scene)?)?
+                    .kappa
+            }
+            (Some(_), _) => crate::solve::condition(t)?.kappa,
+        })
     }
 }
 
