@@ -73,8 +73,6 @@ pub struct FakeBench {
     shared: *const Shared,
     address: String,
     switches_scene: bool,
-    /// The description file a Polarsens fake camera was made from.
-    _description: Option<Removed>,
 }
 
 /// A file removed when this is dropped (also on an early error return).
@@ -224,6 +222,10 @@ impl FakeBench {
         let fake = gv
             .fake_camera()
             .ok_or_else(|| FakeError::NotRunning(address.to_string()))?;
+        // Aravis read the whole description when it made the fake camera
+        // (`arv_fake_camera_new_full`'s g_file_get_contents): the file goes
+        // now, so a daemon that is killed leaves none in the temporary folder.
+        drop(description);
         let camera: *mut aravis_sys::ArvFakeCamera =
             aravis::glib::translate::ToGlibPtr::to_glib_none(&fake).0;
         let (format, mosaic, bayer) = match sensor {
@@ -274,7 +276,6 @@ impl FakeBench {
             shared: ptr,
             address: address.to_string(),
             switches_scene: true,
-            _description: description,
         })
     }
 
