@@ -32,6 +32,9 @@ pub enum NoiseSource {
     /// The measurement alone: its least-squares residual outside range(T)
     /// ([`NoiseLevel::from_residual`]).
     Residual,
+    /// The measurement alone: the misfit of its best non-negative fit
+    /// ([`admm_tv_own_misfit_prepared`]).
+    OwnMisfit,
 }
 
 /// Fewest residual degrees of freedom (rows minus columns) for
@@ -261,6 +264,90 @@ pub fn admm_tv_resolved_prepared(
     resolved(t, i, normal, noise, singular_values, settings, true)
 }
 
+/// How [`admm_tv_own_misfit_prepared`] aims the misfit, from its floor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OwnMisfitRule {
+    /// Morozov's on the floor's noise, `F M / (M - N)`: a photo's rule
+    /// (`solve::photo`).
+    Discrepancy,
+    /// The resolved discrepancy on the floor's noise, `F + p F / (M - N)`.
+    Resolved,
+}
+
+/// ADMM-TV with λ from the measurement's own misfit: the floor `F` (the
+/// smallest misfit of the scan, box constraint included) estimates the
+/// noise as `F / (M - N)`, `M` the rows that carry data and `N` the
+/// unknowns, and `rule` sets the target from it. `None` when `M - N` is
+/// below [`MIN_RESIDUAL_DOF`].
+///
+/// Why kept beside the default: docs/lambda.md ("One measurement, no noise
+/// figure") measured both against the residual rule a calibrated
+/// measurement gets (`offline::lambda::one_measurement...`); neither did
+/// better, so the default stays and this is the study's.
+pub fn admm_tv_own_misfit_prepared(
+    t: &Transport,
+    i: &[f64],
+    normal: &Normal,
+    singular_values: &[f64],
+    settings: &AdmmSettings,
+    rule: OwnMisfitRule,
+) -> Result<Option<(Reconstruction, LambdaChoice)>, SolveError> {
+    check_measurement(t, i)?;
+    let rows = (0..t.rows())
+        .filter(|&j| i[j] != 0.0 || (0..t.cols()).any(|k| t.col(k)[j] != 0.0))
+        .count();
+    let n = t.cols();
+    if rows < n + MIN_RESIDUAL_DOF {
+        return Ok(None);
+    }
+    let dof = rows - n;
+    let aim = match rule {
+        OwnMisfitRule::Discrepancy => Aim::OwnMisfit { rows, dof },
+        OwnMisfitRule::Resolved => Aim::OwnResolved {
+            dof,
+            sv: singular_values,
+        },
+    };
+    scan_and_bisect(t, i, normal, aim, singular_values, settings, true).map(Some)
+}
+
+/// The components resolved to [`RESOLVED_TOLERANCE`] at noise `sigma`.
+fn resolved_count(singular_values: &[f64], sigma: f64) -> usize {
+    singular_values
+        .iter()
+        .filter(|&&s| s * RESOLVED_TOLERANCE >= sigma)
+        .count()
+        .max(1)
+}
+
+/// What a λ search aims the misfit at, from the floor `F` it finds.
+#[derive(Debug, Clone, Copy)]
+enum Aim<'a> {
+    /// `F + p mean(sigma^2)` ([`admm_tv_resolved`]).
+    Resolved {
+        p: usize,
+        mean_var: f64,
+        source: NoiseSource,
+    },
+    /// `F rows / dof` ([`OwnMisfitRule::Discrepancy`]).
+    OwnMisfit { rows: usize, dof: usize },
+    /// `F + p F / dof`, `p` resolved at that noise ([`OwnMisfitRule::Resolved`]).
+    OwnResolved { dof: usize, sv: &'a [f64] },
+}
+
+impl Aim<'_> {
+    fn target(&self, floor: f64) -> f64 {
+        match *self {
+            Aim::Resolved { p, mean_var, .. } => floor + p as f64 * mean_var,
+            Aim::OwnMisfit { rows, dof } => floor * rows as f64 / dof as f64,
+            Aim::OwnResolved { dof, sv } => {
+                let var = floor / dof as f64;
+                floor + resolved_count(sv, var.sqrt()) as f64 * var
+            }
+        }
+    }
+}
+
 /// The resolved-discrepancy rule, its trials solved as a warm path or each
 /// from zero (`warm = false`, the cold search the path is checked against).
 fn resolved(
@@ -273,14 +360,29 @@ fn resolved(
     warm: bool,
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
     check_noise(noise, i)?;
-    let unit = normal.unit();
     let mean_var = noise.mean_variance();
     let sigma = mean_var.sqrt();
-    let resolved = singular_values
-        .iter()
-        .filter(|&&s| s * RESOLVED_TOLERANCE >= sigma)
-        .count()
-        .max(1);
+    let p = resolved_count(singular_values, sigma);
+    let aim = Aim::Resolved {
+        p,
+        mean_var,
+        source: noise.source,
+    };
+    scan_and_bisect(t, i, normal, aim, singular_values, settings, warm)
+}
+
+/// The half-decade scan for the floor and a bracket, then the bisection for
+/// the largest λ whose misfit meets `aim`'s target.
+fn scan_and_bisect(
+    t: &Transport,
+    i: &[f64],
+    normal: &Normal,
+    aim: Aim,
+    singular_values: &[f64],
+    settings: &AdmmSettings,
+    warm: bool,
+) -> Result<(Reconstruction, LambdaChoice), SolveError> {
+    let unit = normal.unit();
     let mut path = Path::new(t, i, normal, settings, warm);
     let mut solve = |lambda: f64| path.solve(lambda);
     // Half-decade scan over SCAN_REL: the floor and a bracket.
@@ -293,7 +395,6 @@ fn resolved(
     // could only lower the floor by the solves' inexactness.
     let mut results: Vec<Reconstruction> = Vec::with_capacity(scan.len());
     let (mut argmin, mut floor) = (0, f64::INFINITY);
-    let target = |floor: f64| floor + resolved as f64 * mean_var;
     for &l in &scan {
         let r = solve(l)?;
         let misfit = r.stats.data_misfit;
@@ -301,11 +402,11 @@ fn resolved(
         if misfit < floor {
             (argmin, floor) = (results.len() - 1, misfit);
         }
-        if misfit > target(floor) {
+        if misfit > aim.target(floor) {
             break;
         }
     }
-    let target = target(floor);
+    let target = aim.target(floor);
     // Largest scanned lambda at or above the floor's that meets the target.
     let mut k = argmin;
     while k + 1 < results.len() && results[k + 1].stats.data_misfit <= target {
@@ -323,7 +424,27 @@ fn resolved(
     } else {
         best.stats.warnings.push("even the strongest regularization tried stays within the noise of the resolved components: the measurement carries almost no information about the scene".into());
     }
-    if resolved == 1
+    let (rule, source, mean_var, resolved) = match aim {
+        Aim::Resolved {
+            p,
+            mean_var,
+            source,
+        } => ("resolved-discrepancy", source, mean_var, Some(p)),
+        Aim::OwnMisfit { dof, .. } => (
+            "own-misfit-discrepancy",
+            NoiseSource::OwnMisfit,
+            floor / dof as f64,
+            None,
+        ),
+        Aim::OwnResolved { dof, sv } => (
+            "resolved-discrepancy",
+            NoiseSource::OwnMisfit,
+            floor / dof as f64,
+            Some(resolved_count(sv, (floor / dof as f64).sqrt())),
+        ),
+    };
+    let sigma = mean_var.sqrt();
+    if resolved == Some(1)
         && singular_values
             .first()
             .is_none_or(|&s| s * RESOLVED_TOLERANCE < sigma)
@@ -334,11 +455,11 @@ fn resolved(
         ));
     }
     let choice = LambdaChoice {
-        rule: "resolved-discrepancy",
-        noise: noise.source,
+        rule,
+        noise: source,
         noise_variance: mean_var,
         floor: Some(floor),
-        resolved: Some(resolved),
+        resolved,
         target,
         misfit: best.stats.data_misfit,
         lambda: best.stats.lambda.unwrap_or(0.0),
