@@ -94,7 +94,8 @@ fn live_view_solves_each_window_as_a_capture_would_gives_way_to_a_capture_and_st
     assert_eq!(v["state"], "running", "{v}");
     assert_eq!(v["window"], 8);
     // Measured, not bounded (timings are the benchmarks'; the issue note
-    // records them): 10.5-11.9 results a second, median latency 68-80 ms.
+    // records them): 44 results a second, median latency 14 ms (10.5-11.9
+    // and 68-80 ms while every window searched its λ).
     let rate = v["results_per_second"].as_f64().expect("a rate");
     let latency = v["median_latency_ms"].as_f64().expect("a latency");
     assert!(rate > 0.0 && latency > 0.0, "{v}");
@@ -175,4 +176,59 @@ fn live_view_solves_each_window_as_a_capture_would_gives_way_to_a_capture_and_st
     let took = t.elapsed();
     assert!(status.success(), "{status:?}");
     assert!(took < Duration::from_secs(10), "exit took {took:?}");
+}
+
+/// Issue 49: live view of a chair-size scene (a 126 x 126 wall, a 36 x 29
+/// scene, a colour camera's three colours) on the fake Bayer bench: each
+/// window solved in colour, its λ searched once and kept while the noise
+/// stays the same. The rate and latency are printed, not bounded (measured
+/// 2.07-2.11 results a second, median latency 445-470 ms, with the fake
+/// camera's frame rendering on the same two cores; 0.16 a second while
+/// every window searched its λ).
+#[test]
+fn live_view_of_a_chair_size_colour_scene() {
+    let _g = lock();
+    let dir = scratch();
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("config/scenes/brewster-crossed.toml"),
+    )
+    .unwrap()
+    .replacen("grid = [32, 32]", "grid = [126, 126]", 1)
+    .replacen("grid = [8, 8]", "grid = [36, 29]", 1);
+    let file = dir.path().join("chair-size.toml");
+    std::fs::write(&file, text).unwrap();
+    let listed = format!("scene_files = [{:?}]", file.display().to_string());
+    let cfg = config(
+        dir.path(),
+        &[
+            ("scene_files = []", &listed),
+            ("fake_sensor = \"mono\"", "fake_sensor = \"bayer\""),
+            ("scene = \"brewster-crossed\"", "scene = \"chair-size\""),
+        ],
+    );
+    let d = Daemon::start(&cfg, &dir.path().join("data"));
+    let live = LIVE.replace("brewster-crossed", "chair-size");
+    let (s, b, _) = d.post("/live", &live);
+    assert_eq!(s, 202, "{b}");
+    let (v, seen) = watch(&d, |v| v["results"].as_u64().unwrap_or(0) >= 12);
+    assert_eq!(v["state"], "running", "{v}");
+    let rate = v["results_per_second"].as_f64().expect("a rate");
+    let latency = v["median_latency_ms"].as_f64().expect("a latency");
+    println!(
+        "chair-size live view: {rate:.2} results a second, median latency {latency:.0} ms, PSNR {:.2}-{:.2} dB",
+        seen.iter().copied().fold(f64::INFINITY, f64::min),
+        seen.iter().copied().fold(0.0, f64::max)
+    );
+    assert!(rate > 0.0 && latency > 0.0, "{v}");
+    assert_eq!(v["last"]["frames"], 8, "each result solves a full window");
+    // The letter, not noise: every result well above a flat image's PSNR.
+    assert!(seen.iter().all(|p| *p > 9.0), "{seen:?}");
+    let (s, png) = d.get_bytes("/live/image.png");
+    assert_eq!(s, 200);
+    let size = |at: usize| u32::from_be_bytes([png[at], png[at + 1], png[at + 2], png[at + 3]]);
+    assert_eq!((size(16), size(20)), (36, 29), "the scene grid");
+    assert_eq!(png[25], 2, "an RGB image");
+    let (s, b) = d.delete("/live");
+    assert_eq!(s, 200, "{b}");
 }

@@ -4,7 +4,9 @@
 //! a λ in the request each step takes the final reconstruction's rule (the
 //! resolved discrepancy of [`crate::solve::lambda`]) with the running
 //! frame-to-frame variance, so a step is as good as reconstructing the same
-//! frames afterwards; with a fixed λ (or a single frame, which has no
+//! frames afterwards (the λ a search chose is kept, warm-started, while the
+//! noise stays within [`LAMBDA_KEPT`] of the noise it was chosen at: a live
+//! view's windows all have one noise); with a fixed λ (or a single frame, which has no
 //! variance) it is warm-started from the previous step, its factorization
 //! kept ([`AdmmState`]).
 //! Each step is published: a `progressive` event, `progressive.png` (the
@@ -14,6 +16,7 @@
 //! that arrives while a step is running is dropped; the final mean always
 //! gets its step.
 
+use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender};
 use std::sync::Arc;
@@ -170,7 +173,19 @@ struct Channel {
     state: AdmmState,
     /// The key of the model `t` is (the scene's name, or a sampling variant's).
     key: String,
+    /// The λ the last search chose and the mean noise variance it chose it
+    /// at: a window whose noise is within [`LAMBDA_KEPT`] of it keeps it.
+    chosen: Option<(f64, f64)>,
 }
+
+/// How far (relative) a step's mean noise variance may move from the one
+/// its λ was searched at before λ is searched again.
+/// Why: a search is about twenty solves; a live view's windows (the same
+/// frames count, the same exposure) all have one noise, and a λ within a
+/// few percent of the search's gives the same image. On a chair-size scene
+/// (1044 unknowns, three colours) the search of every window held live
+/// view to 0.16 results a second.
+const LAMBDA_KEPT: f64 = 0.1;
 
 impl Solver {
     /// The solver of `capture`'s frames: its scene's cached `T`, Gram and
@@ -256,6 +271,7 @@ impl Solver {
                 singular_values: Arc::clone(&singular_values),
                 state: AdmmState::default(),
                 key: capture.scene.clone(),
+                chosen: None,
             });
         }
         let truth = spec
@@ -295,18 +311,19 @@ impl Solver {
             .iter()
             .map(|&k| self.channels[0].t.blocks()[k].clone())
             .collect();
-        let mut solved = Vec::with_capacity(self.channels.len());
-        for ch in &mut self.channels {
-            let m = assemble_colour(
-                &self.scene,
-                &blocks,
-                std::slice::from_ref(&own),
-                &self.maps,
-                ch.colour,
-            )?;
-            let noise = ch.measure(m, &self.own, self.settings.lambda);
-            solved.push(ch.solve(noise, &self.scenes, &self.capture.scene, &self.settings)?);
-        }
+        // A colour camera's colours are independent solves: in parallel.
+        let (scene, maps, own_blocks) = (&self.scene, &self.maps, &self.own);
+        let (scenes, name, settings) = (&self.scenes, &self.capture.scene, &self.settings);
+        let mut solved = self
+            .channels
+            .par_iter_mut()
+            .map(|ch| {
+                let m =
+                    assemble_colour(scene, &blocks, std::slice::from_ref(&own), maps, ch.colour)?;
+                let noise = ch.measure(m, own_blocks, settings.lambda);
+                ch.solve(noise, scenes, name, settings)
+            })
+            .collect::<Result<Vec<_>, JobError>>()?;
         // A colour image is interleaved once, for the step and the caller.
         let colour = (solved.len() > 1).then(|| interleave(&solved));
         let image = colour.as_deref().unwrap_or(&solved[0].0.image);
@@ -467,10 +484,14 @@ impl Channel {
         self.singular_values = scenes.conditioning(&key)?;
         self.state = AdmmState::default();
         self.key = key;
+        self.chosen = None;
         Ok(())
     }
 
-    /// Solves the measurement, λ resolved from `noise` if any, else warm-started; returns λ.
+    /// Solves the measurement, λ resolved from `noise` if any (or the last
+    /// search's λ, warm-started, while the noise stays within
+    /// [`LAMBDA_KEPT`] of the noise it was searched at), else warm-started;
+    /// returns λ.
     /// Why: a step is as good as reconstructing the same frames afterwards.
     fn solve(
         &mut self,
@@ -488,8 +509,23 @@ impl Channel {
             }
         }
         self.normal.ti = adjoint(self.t.as_mat(), &self.i);
-        Ok(match noise {
-            Some(noise) => {
+        let kept = match (&noise, self.chosen) {
+            (Some(n), Some((lambda, at))) => {
+                ((n.mean_variance() / at - 1.0).abs() <= LAMBDA_KEPT).then_some(lambda)
+            }
+            _ => None,
+        };
+        Ok(match (noise, kept) {
+            (Some(_), Some(lambda)) => {
+                let at = AdmmSettings {
+                    lambda: Some(lambda),
+                    max_iter: settings.max_iter.max(AUTO_MAX_ITER),
+                    ..*settings
+                };
+                let r = admm_tv_warm(&self.t, &self.i, &self.normal, &at, &mut self.state)?;
+                (r, Some(lambda))
+            }
+            (Some(noise), None) => {
                 let (r, choice) = admm_tv_resolved_prepared(
                     &self.t,
                     &self.i,
@@ -501,9 +537,10 @@ impl Channel {
                         ..*settings
                     },
                 )?;
+                self.chosen = Some((choice.lambda, noise.mean_variance()));
                 (r, Some(choice.lambda))
             }
-            None => {
+            (None, _) => {
                 let r = admm_tv_warm(&self.t, &self.i, &self.normal, settings, &mut self.state)?;
                 let lambda = r.stats.lambda;
                 (r, lambda)
