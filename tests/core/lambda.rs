@@ -300,6 +300,98 @@ fn frame_cases() -> Vec<FrameCase> {
     cases
 }
 
+/// A scene built for the camera-frame studies: the built-in `name` on a
+/// 16x16 grid with pixel rows, its `T` and singular values.
+struct FrameScene {
+    name: &'static str,
+    scene: Scene,
+    t: polnlos::transport::Transport,
+    singular_values: Vec<f64>,
+}
+
+impl FrameScene {
+    fn of(name: &'static str) -> Self {
+        use polnlos::scene::{Grid, WallSampling};
+        let scene = Scene::builtin(name)
+            .unwrap()
+            .unwrap()
+            .edit(|s| {
+                s.hidden.plane.grid = Grid { nu: 16, nv: 16 };
+                s.wall.sampling = WallSampling::Pixels;
+            })
+            .unwrap();
+        let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
+        assert_eq!(t.blocks().len(), 1, "one pose, one block");
+        let singular_values = condition(&t).unwrap().singular_values;
+        Self {
+            name,
+            scene,
+            t,
+            singular_values,
+        }
+    }
+
+    /// `case`'s truth and its measurement through one camera exposure
+    /// (per-pixel shot and 5 e- read noise, every pixel of an element
+    /// footprint-weighted, its variance propagated).
+    fn measure(&self, case: &FrameCase) -> (Vec<f64>, polnlos::measure::Measurement) {
+        use polnlos::measure::{assemble, CaptureFrames};
+        use polnlos::scene::FrameGeometry;
+        use polnlos::simulate::camera::{expose, render};
+        use rand::SeedableRng;
+        let (s, t) = (&self.scene, &self.t);
+        let truth = case.pattern.render(t.scene_grid());
+        let peak = unpolarized_peak(s, t, &truth, MemoryBudget::DEFAULT).unwrap();
+        let clean = render(s, &truth, FrameGeometry::plain(512, 512))
+            .into_iter()
+            .find_map(|(_, f)| f)
+            .unwrap();
+        let scale = case.photons / peak;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(case.seed);
+        let (mean, variance) = expose(&clean, scale, 5.0, &mut rng);
+        let capture = CaptureFrames::exposure(
+            "frame".into(),
+            s.poses()[0].name.clone(),
+            vec![t.blocks()[0].channel],
+            (mean, variance),
+            scale,
+        );
+        (truth, assemble(s, t.blocks(), &[capture]).unwrap())
+    }
+}
+
+/// The best λ of the quarter-decade grid 1e-7..1e1 x `mean(diag(T^T T))`
+/// (cold solves) by `psnr`, and its PSNR.
+fn best_of_grid(
+    t: &polnlos::transport::Transport,
+    i: &[f64],
+    normal: &polnlos::solve::gram::Normal,
+    settings: &AdmmSettings,
+    psnr: impl Fn(&[f64]) -> f64,
+) -> (f64, f64) {
+    use polnlos::solve::admm::admm_tv_prepared;
+    let unit = t.mean_column_norm2();
+    let (mut best_lambda, mut best_psnr) = (f64::NAN, f64::NEG_INFINITY);
+    for k in 0..=32 {
+        let l = unit * 10f64.powf(-7.0 + 0.25 * k as f64);
+        let r = admm_tv_prepared(
+            t,
+            i,
+            normal,
+            &AdmmSettings {
+                lambda: Some(l),
+                ..*settings
+            },
+        )
+        .unwrap();
+        let p = psnr(&r.image);
+        if p > best_psnr {
+            (best_lambda, best_psnr) = (l, p);
+        }
+    }
+    (best_lambda, best_psnr)
+}
+
 /// Issue 26, item 7: the automatic λ (resolved discrepancy, with the
 /// measured variance and with σ from the residual), the residual whiteness
 /// principle (Lanza et al. 2020) and SAPG's marginal-likelihood λ (Vidal et
@@ -311,14 +403,10 @@ fn frame_cases() -> Vec<FrameCase> {
 #[ignore]
 fn lambda_rules_on_camera_frames() {
     crate::priority::background();
-    use polnlos::measure::{assemble, CaptureFrames};
-    use polnlos::scene::{FrameGeometry, Grid, WallSampling};
-    use polnlos::simulate::camera::{expose, render};
     use polnlos::solve::admm::admm_tv_prepared;
     use polnlos::solve::gram::Normal;
     use polnlos::solve::sapg::{admm_tv_sapg, sapg, SapgSettings};
     use polnlos::solve::whiteness::admm_tv_whiteness;
-    use rand::SeedableRng;
     use std::time::Instant;
 
     const HIT: f64 = 1.5;
@@ -327,7 +415,6 @@ fn lambda_rules_on_camera_frames() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(SapgSettings::default().iterations);
-    let budget = MemoryBudget::DEFAULT;
     let settings = AdmmSettings {
         max_iter: polnlos::solve::reconstruct::AUTO_MAX_ITER,
         ..Default::default()
@@ -343,46 +430,15 @@ fn lambda_rules_on_camera_frames() {
     println!("| set | scene | pattern | e- | best λ/unit | best PSNR | current | current (σ res.) | RWP | SAPG | λ/unit: current, RWP, SAPG |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let mut start_ratios = Vec::new();
-    let mut built: Option<(
-        &str,
-        polnlos::scene::Scene,
-        polnlos::transport::Transport,
-        Vec<f64>,
-    )> = None;
+    let mut built: Option<FrameScene> = None;
     for case in frame_cases() {
-        if built.as_ref().is_none_or(|b| b.0 != case.scene) {
-            let s = Scene::builtin(case.scene)
-                .unwrap()
-                .unwrap()
-                .edit(|s| {
-                    s.hidden.plane.grid = Grid { nu: 16, nv: 16 };
-                    s.wall.sampling = WallSampling::Pixels;
-                })
-                .unwrap();
-            let t = build(&s, budget).unwrap();
-            assert_eq!(t.blocks().len(), 1, "one pose, one block");
-            let sv = condition(&t).unwrap().singular_values;
-            built = Some((case.scene, s, t, sv));
+        if built.as_ref().is_none_or(|b| b.name != case.scene) {
+            built = Some(FrameScene::of(case.scene));
         }
-        let (_, s, t, sv) = built.as_ref().unwrap();
+        let fs = built.as_ref().unwrap();
+        let (t, sv) = (&fs.t, &fs.singular_values);
         let unit = t.mean_column_norm2();
-        let truth = case.pattern.render(t.scene_grid());
-        let peak = unpolarized_peak(s, t, &truth, budget).unwrap();
-        let clean = render(s, &truth, FrameGeometry::plain(512, 512))
-            .into_iter()
-            .find_map(|(_, f)| f)
-            .unwrap();
-        let scale = case.photons / peak;
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(case.seed);
-        let (mean, variance) = expose(&clean, scale, 5.0, &mut rng);
-        let capture = CaptureFrames::exposure(
-            "frame".into(),
-            s.poses()[0].name.clone(),
-            vec![t.blocks()[0].channel],
-            (mean, variance),
-            scale,
-        );
-        let m = assemble(s, t.blocks(), &[capture]).unwrap();
+        let (truth, m) = fs.measure(&case);
         let i = &m.i;
         let noise = NoiseLevel::measured(m.variance.clone().unwrap());
         let normal = Normal::of(t, i);
@@ -428,25 +484,7 @@ fn lambda_rules_on_camera_frames() {
         let start_ratio = from(1.0) / from(1e-4);
         start_ratios.push(start_ratio);
 
-        // Best of the quarter-decade grid 1e-7..1e1 x unit, cold solves.
-        let (mut best_lambda, mut best_psnr) = (f64::NAN, f64::NEG_INFINITY);
-        for k in 0..=32 {
-            let l = unit * 10f64.powf(-7.0 + 0.25 * k as f64);
-            let r = admm_tv_prepared(
-                t,
-                i,
-                &normal,
-                &AdmmSettings {
-                    lambda: Some(l),
-                    ..settings
-                },
-            )
-            .unwrap();
-            let p = psnr(&r.image);
-            if p > best_psnr {
-                (best_lambda, best_psnr) = (l, p);
-            }
-        }
+        let (best_lambda, best_psnr) = best_of_grid(t, i, &normal, &settings, psnr);
         // A rule between grid points may beat the grid's best.
         let best_psnr = psnrs.iter().copied().fold(best_psnr, f64::max);
         let gap = psnrs.map(|p| best_psnr - p);
@@ -585,18 +623,12 @@ fn photons_misses_at_the_best_lambda() {
 #[ignore]
 fn one_measurement_without_a_noise_figure_lambda_rules() {
     crate::priority::background();
-    use polnlos::measure::{assemble, CaptureFrames};
-    use polnlos::scene::{FrameGeometry, Grid, WallSampling};
-    use polnlos::simulate::camera::{expose, render};
-    use polnlos::solve::admm::admm_tv_prepared;
     use polnlos::solve::gram::Normal;
     use polnlos::solve::lambda::{
         admm_tv_own_misfit_prepared, admm_tv_resolved_prepared, OwnMisfitRule,
     };
-    use rand::SeedableRng;
 
     const HIT: f64 = 1.5;
-    let budget = MemoryBudget::DEFAULT;
     let settings = AdmmSettings {
         max_iter: polnlos::solve::reconstruct::AUTO_MAX_ITER,
         ..Default::default()
@@ -605,40 +637,15 @@ fn one_measurement_without_a_noise_figure_lambda_rules() {
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     // Per set: [residual, own misfit, own resolved, frame variance] gaps.
     let mut gaps: Vec<(&str, Vec<[f64; 4]>)> = Vec::new();
-    let mut built: Option<(&str, Scene, polnlos::transport::Transport, Vec<f64>)> = None;
+    let mut built: Option<FrameScene> = None;
     for case in frame_cases() {
-        if built.as_ref().is_none_or(|b| b.0 != case.scene) {
-            let s = Scene::builtin(case.scene)
-                .unwrap()
-                .unwrap()
-                .edit(|s| {
-                    s.hidden.plane.grid = Grid { nu: 16, nv: 16 };
-                    s.wall.sampling = WallSampling::Pixels;
-                })
-                .unwrap();
-            let t = build(&s, budget).unwrap();
-            let sv = condition(&t).unwrap().singular_values;
-            built = Some((case.scene, s, t, sv));
+        if built.as_ref().is_none_or(|b| b.name != case.scene) {
+            built = Some(FrameScene::of(case.scene));
         }
-        let (_, s, t, sv) = built.as_ref().unwrap();
+        let fs = built.as_ref().unwrap();
+        let (t, sv) = (&fs.t, &fs.singular_values);
         let unit = t.mean_column_norm2();
-        let truth = case.pattern.render(t.scene_grid());
-        let peak = unpolarized_peak(s, t, &truth, budget).unwrap();
-        let clean = render(s, &truth, FrameGeometry::plain(512, 512))
-            .into_iter()
-            .find_map(|(_, f)| f)
-            .unwrap();
-        let scale = case.photons / peak;
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(case.seed);
-        let (mean, variance) = expose(&clean, scale, 5.0, &mut rng);
-        let capture = CaptureFrames::exposure(
-            "frame".into(),
-            s.poses()[0].name.clone(),
-            vec![t.blocks()[0].channel],
-            (mean, variance),
-            scale,
-        );
-        let m = assemble(s, t.blocks(), &[capture]).unwrap();
+        let (truth, m) = fs.measure(&case);
         let i = &m.i;
         let measured = NoiseLevel::measured(m.variance.clone().unwrap());
         let true_var = measured.mean_variance();
@@ -662,24 +669,7 @@ fn one_measurement_without_a_noise_figure_lambda_rules() {
             psnr(&r_or.image),
             psnr(&r_var.image),
         ];
-        let (mut best_lambda, mut best_psnr) = (f64::NAN, f64::NEG_INFINITY);
-        for k in 0..=32 {
-            let l = unit * 10f64.powf(-7.0 + 0.25 * k as f64);
-            let r = admm_tv_prepared(
-                t,
-                i,
-                &normal,
-                &AdmmSettings {
-                    lambda: Some(l),
-                    ..settings
-                },
-            )
-            .unwrap();
-            let p = psnr(&r.image);
-            if p > best_psnr {
-                (best_lambda, best_psnr) = (l, p);
-            }
-        }
+        let (best_lambda, best_psnr) = best_of_grid(t, i, &normal, &settings, psnr);
         let best_psnr = psnrs.iter().copied().fold(best_psnr, f64::max);
         let gap = psnrs.map(|p| best_psnr - p);
         println!(
