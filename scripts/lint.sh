@@ -6,6 +6,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo fmt --check
+# The declared rust-version covers the locked dependencies (seconds).
+python3 scripts/msrv.py
 cargo clippy --locked --all-targets -- -D warnings
 # The numeric core and the offline tools build without the daemon's
 # libraries (Aravis, SQLite, tokio, axum).

@@ -452,7 +452,7 @@ impl SensorLimits {
                 min_size: self.min_size,
             });
         }
-        let multiple = |v: u32, inc: u32| v % inc.max(1) == 0;
+        let multiple = |v: u32, inc: u32| v.is_multiple_of(inc.max(1));
         if !(multiple(w, self.size_increment[0]) && multiple(h, self.size_increment[1])) {
             return Err(GeometryError::Increment {
                 given: region,

@@ -387,7 +387,9 @@ impl Penalty {
     /// Whether residual balancing looks at the residuals after `iterations`.
     /// Why: every `BALANCE_EVERY` iterations, `MAX_REFACTOR` times at most (each costs a Cholesky).
     fn due(&self, iterations: usize) -> bool {
-        self.adaptive && iterations % BALANCE_EVERY == 0 && self.refactorizations < MAX_REFACTOR
+        self.adaptive
+            && iterations.is_multiple_of(BALANCE_EVERY)
+            && self.refactorizations < MAX_REFACTOR
     }
 
     /// Residual balancing (Boyd et al. 2011, §3.4.1) on the primal and dual

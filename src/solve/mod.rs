@@ -109,7 +109,7 @@ impl<'a> Stop<'a> {
 
     /// `Err(Stopped)` when the flag is raised at a checkpoint iteration.
     pub(crate) fn check(self, iterations: usize) -> Result<(), SolveError> {
-        if iterations % Self::EVERY == 0 && self.raised() {
+        if iterations.is_multiple_of(Self::EVERY) && self.raised() {
             Err(SolveError::Stopped { iterations })
         } else {
             Ok(())

@@ -451,7 +451,7 @@ fn hostile_files_get_a_named_error_not_a_panic() {
     // An .npy header announcing 2^64 values (exit 101 before: index out of bounds).
     let mut header =
         "{'descr': '<f8', 'fortran_order': True, 'shape': (4294967296, 4294967296), }".to_string();
-    while (10 + header.len() + 1) % 64 != 0 {
+    while !(10 + header.len() + 1).is_multiple_of(64) {
         header.push(' ');
     }
     header.push('\n');

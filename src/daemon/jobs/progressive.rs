@@ -106,7 +106,7 @@ pub(in crate::daemon) struct Snapshots {
 impl Snapshots {
     /// Offers the mean in `st` when it closes a step before frame `last`.
     pub(in crate::daemon) fn offer(&self, st: &FrameStack, last: usize) {
-        if st.count % self.every != 0
+        if !st.count.is_multiple_of(self.every)
             || st.count >= last
             || self.pending.swap(true, Ordering::SeqCst)
         {

@@ -224,7 +224,7 @@ fn check_whole_cells(a: &Acquisition, kind: &str, cell: &str) -> Result<(), Requ
             a.binning
         )));
     }
-    if a.region[0] % 2 != 0 || a.region[1] % 2 != 0 {
+    if !a.region[0].is_multiple_of(2) || !a.region[1].is_multiple_of(2) {
         return Err(invalid(format!(
             "region = {:?}: on a {kind} ({format}) the region's x and y offsets must be even, or the 2x2 pattern starts on another pixel of {cell}; use [{}, {}, ...]",
             a.region,
