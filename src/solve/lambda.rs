@@ -293,9 +293,15 @@ pub fn admm_tv_own_misfit_prepared(
     rule: OwnMisfitRule,
 ) -> Result<Option<(Reconstruction, LambdaChoice)>, SolveError> {
     check_measurement(t, i)?;
-    let rows = (0..t.rows())
-        .filter(|&j| i[j] != 0.0 || (0..t.cols()).any(|k| t.col(k)[j] != 0.0))
-        .count();
+    // Rows that carry data: a measured value or a non-zero row of `T`
+    // (one pass down the columns).
+    let mut carries: Vec<bool> = i.iter().map(|v| *v != 0.0).collect();
+    for k in 0..t.cols() {
+        for (c, v) in carries.iter_mut().zip(t.col(k)) {
+            *c |= *v != 0.0;
+        }
+    }
+    let rows = carries.iter().filter(|c| **c).count();
     let n = t.cols();
     if rows < n + MIN_RESIDUAL_DOF {
         return Ok(None);

@@ -939,6 +939,13 @@ pub struct PhotoTransport<T> {
 }
 
 impl<T: std::ops::Deref<Target = Transport>> PhotoTransport<T> {
+    /// Whether the photo chose area shadows where the scene left the choice
+    /// open (the model is formed only then): `t` is then the area-shadow
+    /// `T`, not the scene's own.
+    pub fn chose_area(&self) -> bool {
+        self.model.is_some() && self.shadows.model == ShadowModel::Area
+    }
+
     /// [`reconstruct_photo`] of `channels` with this `T`, on the model the
     /// shadow choice formed when it fits them.
     pub fn reconstruct(

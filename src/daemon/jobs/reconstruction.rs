@@ -383,7 +383,6 @@ impl Job<'_> {
         // the photo decides, as `polnlos reconstruct --photo` lets it (the
         // area-shadow T cached as the scene's own, the same blocks kept).
         let scene = d.scenes.scene(&rec.scene)?;
-        let open = scene.shadow_choice().open;
         let chosen = photo_transport(
             &scene,
             self.t.clone(),
@@ -403,8 +402,7 @@ impl Job<'_> {
         check(self.cancel)?;
         // κ of the T it is solved with beside the solves: they leave a core
         // idle much of the time (three colours on two cores).
-        let area = open && chosen.shadows.model == crate::scene::ShadowModel::Area;
-        let kappa = || self.kappa(area, &chosen.t);
+        let kappa = || self.kappa(chosen.chose_area(), &chosen.t);
         let (fitted, kappa) = rayon::join(
             || chosen.reconstruct(&channels, truth.as_deref(), &settings),
             kappa,

@@ -90,32 +90,23 @@ pub(crate) mod fixtures {
 
     /// A capture of pose B at 0° of that scene, full frame.
     pub fn record(id: i64, kind: &str, exposure_us: f64, state: JobState) -> CaptureRecord {
-        CaptureRecord {
-            id,
+        let request = crate::store::CaptureRequest {
+            kind: crate::store::CaptureKind::from_name(kind).expect("a capture kind"),
             scene: "brewster-multi-3x3".into(),
             pose: "B".into(),
             channels: vec![crate::scene::Channel::Sheet { deg: 0.0 }],
-            polarizer_measured_deg: None,
-            settings: crate::camera::Acquisition {
+            acquisition: crate::camera::Acquisition {
                 exposure_us,
                 ..crate::camera::Acquisition::defaults_at([0, 0, 512, 512], [1, 1])
-            }
-            .into(),
+            },
             frames: 1,
             dark_frames: 0,
-            kind: crate::store::CaptureKind::from_name(kind).expect("a capture kind"),
             dark_capture: None,
-            state,
-            error: None,
-            created_at: String::new(),
-            started_at: None,
-            finished_at: None,
-            camera_id: None,
-            counters: None,
+        };
+        CaptureRecord {
+            id,
             frames_taken: 1,
-            frame_counts: None,
-            clipping: None,
-            import: None,
+            ..request.unstored(state)
         }
     }
 }
