@@ -42,6 +42,45 @@ const FRAME_SLACK_S: f64 = 3.0;
 /// bench of long exposures has no use for the lower latency.
 const FRAME_RETENTION_US: u32 = 1_000_000;
 
+/// Frames of socket buffer asked for a GigE Vision stream: packets wait
+/// there while the stream thread is held off, and the kernel drops what
+/// does not fit. One frame (Aravis's `Auto`) broke 2 of 200 1 ms frames
+/// under the test suite's load, since a camera that cannot resend (Aravis's
+/// fake) loses every packet that overflows.
+const SOCKET_BUFFER_FRAMES: usize = 4;
+/// The socket buffer asked for is at least this (small frames arrive fast)...
+const MIN_SOCKET_BUFFER: usize = 4 << 20;
+/// ...and at most this (the kernel caps it at `net.core.rmem_max` anyway).
+const MAX_SOCKET_BUFFER: usize = 64 << 20;
+
+/// The receive buffer asked for a stream of frames of `payload` bytes.
+fn socket_buffer_bytes(payload: usize) -> usize {
+    payload
+        .saturating_mul(SOCKET_BUFFER_FRAMES)
+        .clamp(MIN_SOCKET_BUFFER, MAX_SOCKET_BUFFER)
+}
+
+/// The kernel's cap on a socket's receive buffer, when this is Linux.
+fn read_rmem_max() -> Option<usize> {
+    std::fs::read_to_string("/proc/sys/net/core/rmem_max")
+        .ok()?
+        .trim()
+        .parse()
+        .ok()
+}
+
+/// What to tell the operator when the kernel caps the stream's socket
+/// buffer below two frames: why is in [`SOCKET_BUFFER_FRAMES`].
+fn rmem_max_warning(asked: usize, payload: usize, rmem_max: Option<usize>) -> Option<String> {
+    let cap = rmem_max?;
+    // Linux doubles the value set (half is its bookkeeping).
+    (cap < asked && cap < 2 * payload).then(|| {
+        format!(
+            "net.core.rmem_max is {cap} bytes, less than two {payload}-byte frames: packets that arrive while the stream thread is busy can be lost and their frames broken; as root, `sysctl -w net.core.rmem_max={asked}` (and in /etc/sysctl.d/ to keep it)"
+        )
+    })
+}
+
 /// Stream buffers for frames of `payload` bytes (see [`MIN_BUFFERS`]).
 fn buffer_count(payload: usize) -> usize {
     (BUFFER_BYTES / payload.max(1)).clamp(MIN_BUFFERS, MAX_BUFFERS)
@@ -61,6 +100,8 @@ pub struct AravisCamera {
     /// Frame period of the previous acquisition: the first frame after a
     /// change can take up to one old period.
     last_period_s: f64,
+    /// Whether the kernel's socket-buffer cap was reported (once per camera).
+    warned_rmem: bool,
 }
 
 fn driver(e: aravis::glib::Error) -> CameraError {
@@ -115,6 +156,7 @@ impl AravisCamera {
                 ..Counters::default()
             },
             last_period_s: 1.0,
+            warned_rmem: false,
         };
         // Keep the camera's own region and binning (the pose homographies are
         // calibrated on them); everything else from the defaults.
@@ -404,11 +446,16 @@ impl CameraDevice for AravisCamera {
         let payload = c.payload().map_err(driver)? as usize;
         let stream = c.create_stream().map_err(driver)?;
         if let Some(gv) = stream.downcast_ref::<aravis::GvStream>() {
-            // A socket buffer of one frame (capped by net.core.rmem_max)
-            // rides out a late stream thread; Aravis's default keeps the
-            // kernel's 208 KiB, less than one 512x512 Mono16 frame.
-            gv.set_socket_buffer(aravis::GvStreamSocketBuffer::Auto);
+            let bytes = socket_buffer_bytes(payload);
+            gv.set_socket_buffer(aravis::GvStreamSocketBuffer::Fixed);
+            gv.set_socket_buffer_size(i32::try_from(bytes).unwrap_or(i32::MAX));
             gv.set_frame_retention(FRAME_RETENTION_US);
+            if let Some(line) = rmem_max_warning(bytes, payload, read_rmem_max()) {
+                if !self.warned_rmem {
+                    self.warned_rmem = true;
+                    tracing::warn!("{line}");
+                }
+            }
         }
         for _ in 0..buffer_count(payload) {
             stream.push_buffer(aravis::Buffer::new_allocate(payload));
@@ -523,4 +570,28 @@ fn decode(
         frame_id: buffer.frame_id(),
         system_timestamp_ns,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_socket_buffer_holds_four_frames_within_its_bounds() {
+        assert_eq!(socket_buffer_bytes(512 * 512 * 2), MIN_SOCKET_BUFFER);
+        assert_eq!(socket_buffer_bytes(2048 * 2048 * 2), 32 << 20);
+        assert_eq!(socket_buffer_bytes(100), MIN_SOCKET_BUFFER);
+        assert_eq!(socket_buffer_bytes(usize::MAX), MAX_SOCKET_BUFFER);
+    }
+
+    #[test]
+    fn a_kernel_cap_below_two_frames_is_named_with_the_fix() {
+        let frame = 2048 * 2048 * 2;
+        let asked = socket_buffer_bytes(frame);
+        let line = rmem_max_warning(asked, frame, Some(212_992)).expect("a warning");
+        assert!(line.contains("212992") && line.contains(&format!("rmem_max={asked}")));
+        assert!(rmem_max_warning(asked, frame, Some(4 << 20)).is_some());
+        assert_eq!(rmem_max_warning(asked, frame, Some(16 << 20)), None);
+        assert_eq!(rmem_max_warning(asked, frame, None), None);
+    }
 }
