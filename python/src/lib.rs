@@ -360,7 +360,7 @@ fn channels_of(angle: &Bound<'_, PyAny>) -> PyResult<Vec<Channel>> {
             .extract::<String>()
             .map_err(|_| bad("angle must be degrees from crossed, \"none\" or \"mosaic\""))?,
     };
-    Channel::of_capture(&text).map_err(bad)
+    Channel::of_capture(&text).map_err(|e| bad(e.to_string()))
 }
 
 /// `(i, variance or None, info)` as Python receives them.

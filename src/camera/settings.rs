@@ -305,17 +305,37 @@ impl RangedSetting {
     }
 }
 
+/// A ranged setting of a request outside what it may be: its name, the
+/// value asked for, the range and its unit.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{setting} = {value}: must be from {min} to {max}{unit}")]
+pub struct OutOfRange {
+    /// The request's key (`exposure_us`, `gain`).
+    pub setting: &'static str,
+    /// The value asked for.
+    pub value: f64,
+    /// The lowest value allowed.
+    pub min: f64,
+    /// The highest value allowed.
+    pub max: f64,
+    /// The unit, with its leading space (` microseconds`), or empty.
+    pub unit: &'static str,
+}
+
 /// Checks every ranged setting of `a` against [`RangedSetting::allowed`]:
-/// the message names the setting, its value and the range.
-pub fn check_ranges(a: &Acquisition, camera: Option<&CameraRanges>) -> Result<(), String> {
+/// the error names the setting, its value and the range.
+pub fn check_ranges(a: &Acquisition, camera: Option<&CameraRanges>) -> Result<(), OutOfRange> {
     for r in RANGED {
-        let (lo, hi) = r.allowed(camera);
-        let v = (r.value)(a);
-        if !(v >= lo && v <= hi) {
-            return Err(format!(
-                "{} = {v}: must be from {lo} to {hi}{}",
-                r.name, r.unit
-            ));
+        let (min, max) = r.allowed(camera);
+        let value = (r.value)(a);
+        if !(value >= min && value <= max) {
+            return Err(OutOfRange {
+                setting: r.name,
+                value,
+                min,
+                max,
+                unit: r.unit,
+            });
         }
     }
     Ok(())
@@ -537,6 +557,9 @@ mod tests {
             assert!(r.allowed(Some(&ranges)).0 >= r.accepted.0);
         }
         let defaults = Acquisition::defaults_at([0, 0, 8, 8], [1, 1]);
+        let check_ranges = |a: &Acquisition, c: Option<&CameraRanges>| {
+            check_ranges(a, c).map_err(|e| e.to_string())
+        };
         let synthetic = CameraRanges::synthetic();
         assert_eq!(check_ranges(&defaults, Some(&synthetic)), Ok(()));
         assert_eq!(

@@ -116,8 +116,8 @@ struct OccluderArgs {
 struct Indices(Vec<usize>);
 
 /// `0,3-11` as the indices it names, in order.
-fn parse_indices(s: &str) -> Result<Indices, String> {
-    let bad = || format!("{s:?} is not a list of occluder indices such as 0,3-11");
+fn parse_indices(s: &str) -> Result<Indices, super::ArgError> {
+    let bad = || super::ArgError::Indices(s.to_string());
     let mut out = Vec::new();
     for part in s.split(',').map(str::trim) {
         match part.split_once('-') {
@@ -157,8 +157,11 @@ struct WallArgs {
     variance: Vec<PathBuf>,
 }
 
-fn parse_pair(s: &str) -> Result<(f64, f64), String> {
-    let bad = || format!("{s:?} is not U,V (two numbers in metres, e.g. 0.03,-0.02)");
+fn parse_pair(s: &str) -> Result<(f64, f64), super::ArgError> {
+    let bad = || super::ArgError::Pair {
+        given: s.to_string(),
+        example: "0.03,-0.02",
+    };
     let (u, v) = s.split_once(',').ok_or_else(bad)?;
     match (u.trim().parse::<f64>(), v.trim().parse::<f64>()) {
         (Ok(u), Ok(v)) if u.is_finite() && v.is_finite() => Ok((u, v)),

@@ -74,7 +74,7 @@ pub struct Args {
 }
 
 /// `--bayer`: a Bayer pattern by its first row's colours.
-fn parse_bayer(s: &str) -> Result<BayerPattern, String> {
+fn parse_bayer(s: &str) -> Result<BayerPattern, polnlos::measure::colour::UnknownBayerPattern> {
     s.parse()
 }
 
@@ -83,8 +83,8 @@ fn parse_bayer(s: &str) -> Result<BayerPattern, String> {
 struct AngleArg(Vec<Channel>);
 
 impl std::str::FromStr for AngleArg {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = polnlos::scene::UnknownAnalyzer;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
         Channel::of_capture(s).map(AngleArg)
     }
 }

@@ -103,6 +103,26 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// An option's value that does not read as what the option takes: the
+/// value as given, and what was expected (clap prints it with the option).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ArgError {
+    /// Not two numbers separated by a comma.
+    #[error("{given:?} is not U,V (two numbers in metres, e.g. {example})")]
+    Pair {
+        /// The value as given.
+        given: String,
+        /// An example of the option's form.
+        example: &'static str,
+    },
+    /// Not a list of indices and ranges.
+    #[error("{0:?} is not a list of occluder indices such as 0,3-11")]
+    Indices(String),
+    /// Neither a number nor `auto`.
+    #[error("{0:?} is neither a number nor `auto`")]
+    Lambda(String),
+}
+
 /// A command line that asks for something that cannot be (exit status 2).
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]

@@ -90,14 +90,14 @@ impl LambdaArg {
 }
 
 impl std::str::FromStr for LambdaArg {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = super::ArgError;
+    fn from_str(s: &str) -> Result<Self, super::ArgError> {
         if s == "auto" {
             return Ok(LambdaArg::Auto);
         }
         s.parse()
             .map(LambdaArg::Value)
-            .map_err(|_| format!("{s:?} is neither a number nor `auto`"))
+            .map_err(|_| super::ArgError::Lambda(s.to_string()))
     }
 }
 

@@ -51,9 +51,12 @@ pub struct Args {
 struct Spot(f64, f64);
 
 impl std::str::FromStr for Spot {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        let bad = || format!("{s:?} is not U,V (two numbers in metres, e.g. 0.05,0)");
+    type Err = super::ArgError;
+    fn from_str(s: &str) -> Result<Self, super::ArgError> {
+        let bad = || super::ArgError::Pair {
+            given: s.to_string(),
+            example: "0.05,0",
+        };
         let (u, v) = s.split_once(',').ok_or_else(bad)?;
         let num = |t: &str| t.trim().parse::<f64>().map_err(|_| bad());
         Ok(Spot(num(u)?, num(v)?))

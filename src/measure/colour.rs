@@ -27,21 +27,24 @@ pub enum BayerPattern {
     BG,
 }
 
+/// A Bayer pattern name that is none of the four (the name as given).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0:?} is not a Bayer pattern; give RG, GR, GB or BG (the colours of the sensor's first row, as BayerRG16 names RG)")]
+pub struct UnknownBayerPattern(pub String);
+
 impl std::str::FromStr for BayerPattern {
-    type Err = String;
+    type Err = UnknownBayerPattern;
 
     /// A pattern by its first row's colours (`RG` or `RGGB`, ...), as a
     /// camera's pixel format names it; the CLI's `--bayer` and the daemon's
     /// `?bayer=` read it alike.
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, UnknownBayerPattern> {
         match s.to_ascii_uppercase().as_str() {
             "RG" | "RGGB" => Ok(BayerPattern::RG),
             "GR" | "GRBG" => Ok(BayerPattern::GR),
             "GB" | "GBRG" => Ok(BayerPattern::GB),
             "BG" | "BGGR" => Ok(BayerPattern::BG),
-            _ => Err(format!(
-                "{s:?} is not a Bayer pattern; give RG, GR, GB or BG (the colours of the sensor's first row, as BayerRG16 names RG)"
-            )),
+            _ => Err(UnknownBayerPattern(s.to_string())),
         }
     }
 }

@@ -18,6 +18,29 @@ use mount::MountError;
 use relay::RelayError;
 use stage::StageError;
 
+/// A `[mount]`, `[stage]` or `[light]` value a config file got wrong: the
+/// section and key, and what the value must be (the config loader names it).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("[{section}] {key} {reason}")]
+pub struct RigConfigError {
+    /// The config file's section: `mount`, `stage` or `light`.
+    pub section: &'static str,
+    /// The key, with the value given where it has one (`relay = 9`).
+    pub key: String,
+    /// What is wrong with it.
+    pub reason: String,
+}
+
+impl RigConfigError {
+    fn new(section: &'static str, key: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self {
+            section,
+            key: key.into(),
+            reason: reason.into(),
+        }
+    }
+}
+
 /// Why the rig could not do what a capture asked of it.
 #[derive(Debug, thiserror::Error)]
 pub enum RigError {

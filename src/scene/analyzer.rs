@@ -30,6 +30,11 @@ pub enum Channel {
     },
 }
 
+/// An analyzer name that is no angle, `none` or `mosaic` (the name as given).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0:?} is not an angle in degrees (-360..360), `none` or `mosaic`")]
+pub struct UnknownAnalyzer(pub String);
+
 impl Channel {
     /// The channel a capture through a sheet at `polarizer_deg` (or none) yields.
     pub fn sheet(polarizer_deg: Option<f64>) -> Self {
@@ -44,7 +49,7 @@ impl Channel {
     /// The channels a capture yields, from how its analyzer is named:
     /// degrees from crossed (-360..360) for a sheet, `none`, or `mosaic`
     /// for a polarizer-mosaic sensor's four; the error says what is accepted.
-    pub fn of_capture(angle: &str) -> Result<Vec<Self>, String> {
+    pub fn of_capture(angle: &str) -> Result<Vec<Self>, UnknownAnalyzer> {
         match angle {
             "none" => Ok(vec![Channel::None]),
             "mosaic" => Ok(Self::mosaic().to_vec()),
@@ -52,9 +57,7 @@ impl Channel {
                 Ok(deg) if deg.is_finite() && deg.abs() <= 360.0 => {
                     Ok(vec![Channel::Sheet { deg }])
                 }
-                _ => Err(format!(
-                    "{angle:?} is not an angle in degrees (-360..360), `none` or `mosaic`"
-                )),
+                _ => Err(UnknownAnalyzer(angle.to_string())),
             },
         }
     }
@@ -286,7 +289,7 @@ mod tests {
                     let named = c == vec![Channel::None] || c == Channel::mosaic().to_vec();
                     proptest::prop_assert!(sheet || named, "{:?}", c);
                 }
-                Err(e) => proptest::prop_assert!(e.contains("`none` or `mosaic`"), "{}", e),
+                Err(e) => proptest::prop_assert!(e.to_string().contains("`none` or `mosaic`"), "{}", e),
             }
             let parsed = Channel::of_capture(&deg.to_string());
             if deg.abs() <= 360.0 {
@@ -311,6 +314,7 @@ mod tests {
         assert!(Channel::of_capture("NaN").is_err());
         assert!(Channel::of_capture("crossed")
             .unwrap_err()
+            .to_string()
             .contains("\"crossed\""));
     }
 

@@ -20,7 +20,7 @@ use std::path::Path;
 
 pub use analyzer::{
     analyzer_axis, crossed_axis, perpendicular, Analyzer, Channel, Mosaic, MosaicLayout,
-    MOSAIC_DEGREES,
+    UnknownAnalyzer, MOSAIC_DEGREES,
 };
 pub use colour::Colour;
 pub use error::SceneError;

@@ -390,7 +390,10 @@ fn rig_failed(id: i64, e: RigError) -> JobError {
 async fn move_camera(w: &CaptureWorker, c: &CaptureRecord) -> Result<(), JobError> {
     super::move_to_pose(&w.rig, &w.jobs.scenes, &c.scene, &c.pose)
         .await
-        .map_err(|reason| JobError::Capture { id: c.id, reason })
+        .map_err(|e| JobError::Capture {
+            id: c.id,
+            reason: e.to_string(),
+        })
 }
 
 /// Turns the mount to the capture's polarizer angle and records the angle

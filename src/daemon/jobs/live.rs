@@ -79,7 +79,7 @@ async fn run(
     let c = request.unstored(JobState::Running);
     super::move_to_pose(w.rig, &w.jobs.scenes, &c.scene, &c.pose)
         .await
-        .map_err(JobError::Live)?;
+        .map_err(|e| JobError::Live(e.to_string()))?;
     if let Some(deg) = c.sheet_deg() {
         w.rig
             .turn_to(deg)

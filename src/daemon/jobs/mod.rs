@@ -188,18 +188,40 @@ pub(in crate::daemon) async fn move_to_pose(
     scenes: &Scenes,
     scene: &str,
     pose: &str,
-) -> Result<(), String> {
+) -> Result<(), PoseMoveError> {
     if !rig.automated().stage {
         return Ok(());
     }
-    let s = scenes.scene(scene).map_err(|e| e.to_string())?;
+    let s = scenes.scene(scene)?;
     let Some(p) = s.poses().iter().find(|p| p.name == pose) else {
-        return Err(format!("scene {scene:?} has no pose {pose:?}"));
+        return Err(PoseMoveError::NoPose {
+            scene: scene.to_string(),
+            pose: pose.to_string(),
+        });
     };
-    if let Some(at) = rig.move_to(p).await.map_err(|e| e.to_string())? {
+    if let Some(at) = rig.move_to(p).await? {
         tracing::info!("camera at pose {pose} ({at:?} m), read back from the stage");
     }
     Ok(())
+}
+
+/// Why the camera could not be moved to a job's pose.
+#[derive(Debug, thiserror::Error)]
+pub(in crate::daemon) enum PoseMoveError {
+    /// The job's scene is not known (any more).
+    #[error(transparent)]
+    Scene(#[from] crate::daemon::runtime::scenes::ScenesError),
+    /// The scene has no pose of that name.
+    #[error("scene {scene:?} has no pose {pose:?}")]
+    NoPose {
+        /// The scene's name.
+        scene: String,
+        /// The pose asked for.
+        pose: String,
+    },
+    /// The stage failed to move or to read back.
+    #[error(transparent)]
+    Rig(#[from] crate::rig::RigError),
 }
 
 /// Dark capture `id`'s mean frame and the variance of that mean (when it

@@ -7,6 +7,7 @@
 //! capture into a slightly uncrossed one. The sweep measures the offset on
 //! the bench's own light instead of trusting a number in the config.
 
+use crate::camera::settings::OutOfRange;
 use std::sync::Arc;
 
 use serde::Serialize;
@@ -99,19 +100,26 @@ pub fn crossed_minimum(points: &[SweepPoint]) -> Option<Minimum> {
 /// Why these defaults (±30° in 5° steps, 8 frames): under a real sensor's
 /// noise the demo's ±10° in 2° steps of 2 frames put the zero 2.2° off a
 /// true 4°; the wider sweep found 3.64 ± 0.32° (tests/daemon/mount.rs).
-fn sweep_shape(b: &ZeroBody) -> Result<(f64, f64, usize), String> {
+fn sweep_shape(b: &ZeroBody) -> Result<(f64, f64, usize), OutOfRange> {
     let span = b.span_deg.unwrap_or(30.0);
     let step = b.step_deg.unwrap_or(5.0);
     let frames = b.frames.unwrap_or(8);
-    if !(1.0..=45.0).contains(&span) {
-        return Err(format!("span_deg = {span}: give 1 to 45 degrees"));
-    }
-    if !(0.1..=10.0).contains(&step) {
-        return Err(format!("step_deg = {step}: give 0.1 to 10 degrees"));
-    }
-    if !(1..=100).contains(&frames) {
-        return Err(format!("frames = {frames}: give 1 to 100"));
-    }
+    let within = |setting, value: f64, (min, max): (f64, f64), unit| {
+        if (min..=max).contains(&value) {
+            Ok(())
+        } else {
+            Err(OutOfRange {
+                setting,
+                value,
+                min,
+                max,
+                unit,
+            })
+        }
+    };
+    within("span_deg", span, (1.0, 45.0), " degrees")?;
+    within("step_deg", step, (0.1, 10.0), " degrees")?;
+    within("frames", frames as f64, (1.0, 100.0), "")?;
     Ok((span, step, frames))
 }
 
@@ -195,7 +203,8 @@ impl Daemon {
         if !self.rig.automated().mount {
             return Err(invalid(NO_MOUNT.into()));
         }
-        let (span, step, frames) = sweep_shape(&b).map_err(invalid)?;
+        let out_of_range = |e: OutOfRange| invalid(e.to_string());
+        let (span, step, frames) = sweep_shape(&b).map_err(out_of_range)?;
         let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
         let Some(pose) = scene.pose(&b.pose) else {
             return Err(invalid(format!(
@@ -228,7 +237,8 @@ impl Daemon {
             ))
         })?;
         let settings = self.camera.settings_on(b.settings, &info);
-        crate::camera::settings::check_ranges(&settings, Some(&info.ranges)).map_err(invalid)?;
+        crate::camera::settings::check_ranges(&settings, Some(&info.ranges))
+            .map_err(out_of_range)?;
         let e = settings.exposure_us;
         let n = (span / step).floor() as i64;
         let seconds = (2 * n + 1) as f64 * frames as f64 * e * 1e-6;

@@ -277,6 +277,9 @@ pub enum ConfigError {
     /// A value is not acceptable.
     #[error("config: {0}")]
     Invalid(String),
+    /// A `[mount]`, `[stage]` or `[light]` value is not acceptable.
+    #[error("config: {0}")]
+    Rig(#[from] crate::rig::RigConfigError),
 }
 
 impl Config {
@@ -365,9 +368,9 @@ impl Config {
                 r.check_every_s
             )));
         }
-        self.mount.check().map_err(ConfigError::Invalid)?;
-        self.stage.check().map_err(ConfigError::Invalid)?;
-        self.light.check().map_err(ConfigError::Invalid)?;
+        self.mount.check()?;
+        self.stage.check()?;
+        self.light.check()?;
         if self.camera.address.is_none() && self.camera.id.is_none() {
             return Err(ConfigError::Invalid(
                 "[camera] needs address or id (polnlos never runs a broadcast discovery)".into(),

@@ -83,41 +83,103 @@ pub fn status_meaning(code: u8) -> &'static str {
     }
 }
 
-fn hex(s: &str, what: &str) -> Result<u32, String> {
+/// Why a reply line from the mount could not be read: each variant names
+/// the part of the line that was wrong.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ReplyError {
+    /// The line has bytes outside ASCII (noise on the line, a wrong baud rate).
+    #[error("not ASCII")]
+    NotAscii,
+    /// The line is empty.
+    #[error("empty")]
+    Empty,
+    /// Another device on the bus answered.
+    #[error("from address {from:?}, not {expected:?}")]
+    Address {
+        /// The address the line starts with.
+        from: char,
+        /// The mount's address.
+        expected: char,
+    },
+    /// The line ends before its two-letter code.
+    #[error("too short")]
+    TooShort,
+    /// A field has the wrong number of characters.
+    #[error("{what} {data:?} is not {digits} hex digits")]
+    Length {
+        /// The field (`position`, `status`).
+        what: &'static str,
+        /// What the line held there.
+        data: String,
+        /// The digits the protocol gives it.
+        digits: usize,
+    },
+    /// A field that must be hexadecimal is not.
+    #[error("{what} {data:?} is not hex")]
+    NotHex {
+        /// The field.
+        what: &'static str,
+        /// What the line held there.
+        data: String,
+    },
+    /// An information reply of the wrong length.
+    #[error("information of {0} characters, not 30")]
+    InfoLength(usize),
+    /// An information reply with zero travel or zero pulses per unit.
+    #[error("zero travel or zero pulses")]
+    ZeroTravel,
+    /// A reply code this driver does not know.
+    #[error("unknown reply code {0:?}")]
+    UnknownCode(String),
+}
+
+fn hex(s: &str, what: &'static str) -> Result<u32, ReplyError> {
+    let not_hex = || ReplyError::NotHex {
+        what,
+        data: s.to_string(),
+    };
     if s.is_empty() || !s.chars().all(|c| c.is_ascii_hexdigit()) {
-        return Err(format!("{what} {s:?} is not hex"));
+        return Err(not_hex());
     }
-    u32::from_str_radix(s, 16).map_err(|e| format!("{what} {s:?}: {e}"))
+    u32::from_str_radix(s, 16).map_err(|_| not_hex())
 }
 
 /// Parses one reply line (without its `\r\n`) from the device at `address`.
-pub fn parse_reply(address: char, line: &str) -> Result<Reply, String> {
+pub fn parse_reply(address: char, line: &str) -> Result<Reply, ReplyError> {
     if !line.is_ascii() {
-        return Err("not ASCII".into());
+        return Err(ReplyError::NotAscii);
     }
     let mut chars = line.chars();
-    let from = chars.next().ok_or("empty")?;
+    let from = chars.next().ok_or(ReplyError::Empty)?;
     if from != address {
-        return Err(format!("from address {from:?}, not {address:?}"));
+        return Err(ReplyError::Address {
+            from,
+            expected: address,
+        });
     }
-    let (code, data) = (line.get(1..3).ok_or("too short")?, &line[3..]);
+    let (code, data) = (line.get(1..3).ok_or(ReplyError::TooShort)?, &line[3..]);
+    let length = |what: &'static str, digits: usize| ReplyError::Length {
+        what,
+        data: data.to_string(),
+        digits,
+    };
     match code {
         "PO" => {
             if data.len() != 8 {
-                return Err(format!("position {data:?} is not 8 hex digits"));
+                return Err(length("position", 8));
             }
             Ok(Reply::Position(hex(data, "position")? as i32))
         }
         "GS" => {
             if data.len() != 2 {
-                return Err(format!("status {data:?} is not 2 hex digits"));
+                return Err(length("status", 2));
             }
             Ok(Reply::Status(hex(data, "status")? as u8))
         }
         "IN" => {
             // type 2, serial 8, year 4, firmware 2, thread + hardware 2, travel 4, pulses 8.
             if data.len() != 30 {
-                return Err(format!("information of {} characters, not 30", data.len()));
+                return Err(ReplyError::InfoLength(data.len()));
             }
             let info = Info {
                 motor_type: hex(&data[0..2], "motor type")? as u8,
@@ -128,11 +190,11 @@ pub fn parse_reply(address: char, line: &str) -> Result<Reply, String> {
                 pulses: hex(&data[22..30], "pulses")?,
             };
             if info.pulses == 0 || info.travel == 0 {
-                return Err("zero travel or zero pulses".into());
+                return Err(ReplyError::ZeroTravel);
             }
             Ok(Reply::Info(info))
         }
-        other => Err(format!("unknown reply code {other:?}")),
+        other => Err(ReplyError::UnknownCode(other.to_string())),
     }
 }
 
@@ -226,7 +288,7 @@ impl<P: Read + Write + Send> Elliptec<P> {
             if let Some(end) = line.windows(2).position(|w| w == b"\r\n") {
                 let text = String::from_utf8_lossy(&line[..end]).into_owned();
                 return parse_reply(self.address, &text)
-                    .map_err(|why| self.unexpected(&packet, &text, &why));
+                    .map_err(|why| self.unexpected(&packet, &text, &why.to_string()));
             }
             if line.len() > 256 {
                 let text = String::from_utf8_lossy(&line).into_owned();

@@ -73,14 +73,18 @@ pub enum MountKind {
 
 impl MountConfig {
     /// Checks the values a config file gave, naming the key.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), crate::rig::RigConfigError> {
+        let bad = |key: String, reason: &str| crate::rig::RigConfigError::new("mount", key, reason);
         if self.kind == MountKind::Elliptec && self.port.as_deref().unwrap_or("").is_empty() {
-            return Err("[mount] kind = \"elliptec\" needs port (e.g. \"/dev/ttyUSB0\")".into());
+            return Err(bad(
+                "kind = \"elliptec\"".into(),
+                "needs port (e.g. \"/dev/ttyUSB0\")",
+            ));
         }
         if !self.address.is_ascii_hexdigit() {
-            return Err(format!(
-                "[mount] address = {:?}: must be one hexadecimal digit, 0-F",
-                self.address
+            return Err(bad(
+                format!("address = {:?}:", self.address),
+                "must be one hexadecimal digit, 0-F",
             ));
         }
         for (key, v) in [
@@ -88,8 +92,9 @@ impl MountConfig {
             ("simulated_zero_deg", self.simulated_zero_deg),
         ] {
             if !(v.is_finite() && v.abs() <= 360.0) {
-                return Err(format!(
-                    "[mount] {key} = {v}: must be degrees from -360 to 360"
+                return Err(bad(
+                    format!("{key} = {v}:"),
+                    "must be degrees from -360 to 360",
                 ));
             }
         }
@@ -339,17 +344,25 @@ mod tests {
             kind: MountKind::Elliptec,
             ..MountConfig::default()
         };
-        assert!(elliptec.check().unwrap_err().contains("needs port"));
+        assert!(elliptec
+            .check()
+            .unwrap_err()
+            .to_string()
+            .contains("needs port"));
         let far = MountConfig {
             zero_deg: 400.0,
             ..MountConfig::default()
         };
-        assert!(far.check().unwrap_err().contains("zero_deg = 400"));
+        assert!(far
+            .check()
+            .unwrap_err()
+            .to_string()
+            .contains("zero_deg = 400"));
         let bad = MountConfig {
             address: 'x',
             ..MountConfig::default()
         };
-        assert!(bad.check().unwrap_err().contains("address"));
+        assert!(bad.check().unwrap_err().to_string().contains("address"));
         MountConfig::default().check().unwrap();
     }
 

@@ -60,12 +60,16 @@ pub enum LightKind {
 
 impl LightConfig {
     /// Checks the values a config file gave, naming the key.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), crate::rig::RigConfigError> {
+        let bad = |key: String, reason: &str| crate::rig::RigConfigError::new("light", key, reason);
         if self.kind == LightKind::Devantech && self.port.as_deref().unwrap_or("").is_empty() {
-            return Err("[light] kind = \"devantech\" needs port (e.g. \"/dev/ttyACM0\")".into());
+            return Err(bad(
+                "kind = \"devantech\"".into(),
+                "needs port (e.g. \"/dev/ttyACM0\")",
+            ));
         }
         if !(1..=8).contains(&self.relay) {
-            return Err(format!("[light] relay = {}: must be 1 to 8", self.relay));
+            return Err(bad(format!("relay = {}:", self.relay), "must be 1 to 8"));
         }
         Ok(())
     }
@@ -229,6 +233,7 @@ mod tests {
         }
         .check()
         .unwrap_err()
+        .to_string()
         .contains("needs port"));
         assert!(LightConfig {
             relay: 9,
@@ -236,6 +241,7 @@ mod tests {
         }
         .check()
         .unwrap_err()
+        .to_string()
         .contains("relay = 9"));
     }
 }

@@ -42,11 +42,13 @@ pub enum StageKind {
 
 impl StageConfig {
     /// Checks the values a config file gave, naming the key.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), crate::rig::RigConfigError> {
         let slip = self.simulated_slip_mm;
         if !(slip.is_finite() && (0.0..=1000.0).contains(&slip)) {
-            return Err(format!(
-                "[stage] simulated_slip_mm = {slip}: must be millimetres from 0 to 1000"
+            return Err(crate::rig::RigConfigError::new(
+                "stage",
+                format!("simulated_slip_mm = {slip}:"),
+                "must be millimetres from 0 to 1000",
             ));
         }
         Ok(())
@@ -207,6 +209,7 @@ mod tests {
         }
         .check()
         .unwrap_err()
+        .to_string()
         .contains("simulated_slip_mm"));
     }
 }

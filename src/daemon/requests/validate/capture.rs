@@ -35,7 +35,7 @@ pub fn capture(
             "the camera has not reported its settings yet ({e}): give them, or retry when GET /camera shows it connected"
         ))
     })?;
-    check_ranges(&acquisition, cam.ranges.as_ref()).map_err(invalid)?;
+    check_ranges(&acquisition, cam.ranges.as_ref()).map_err(|e| invalid(e.to_string()))?;
     let frames = b
         .frames
         .unwrap_or_else(|| planned.as_ref().map_or(1, |p| p.frames));
