@@ -82,15 +82,16 @@ pub const MAX_SCALED_SIDE: u32 = 4096;
 /// Why: a reconstruction of an 8x8 scene is an 8x8 PNG, too small to look
 /// at in an image viewer. `k` must be at least 1 and the result at most
 /// [`MAX_SCALED_SIDE`] on a side; the error says what is allowed.
-pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, String> {
-    let img =
-        image::load_from_memory(png).map_err(|e| format!("cannot decode the stored PNG: {e}"))?;
+pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, PngError> {
+    let img = image::load_from_memory(png).map_err(|e| PngError::Decode(e.to_string()))?;
     let (w, h) = (img.width(), img.height());
     let most = (MAX_SCALED_SIDE / w.max(h).max(1)).max(1);
     if k == 0 || k > most {
-        return Err(format!(
-            "scale = {k}: give a whole number from 1 to {most} (the {w}x{h} image may grow to {MAX_SCALED_SIDE} pixels a side)"
-        ));
+        return Err(PngError::Scale {
+            k,
+            most,
+            size: (w, h),
+        });
     }
     // A stored image is 16-bit grey or 16-bit RGB (a colour camera's): its
     // type is kept, each pixel repeated k x k.
@@ -98,11 +99,43 @@ pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, String> {
     png_bytes(&scaled)
 }
 
+/// Why PNG bytes could not be made or read: each variant names the input
+/// that was wrong.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PngError {
+    /// Stored bytes that do not decode as an image (the decoder's reason).
+    #[error("cannot decode the stored PNG: {0}")]
+    Decode(String),
+    /// A scale factor outside what the image may grow by.
+    #[error("scale = {k}: give a whole number from 1 to {most} (the {}x{} image may grow to {MAX_SCALED_SIDE} pixels a side)", size.0, size.1)]
+    Scale {
+        /// The factor asked for.
+        k: u32,
+        /// The largest factor allowed for this image.
+        most: u32,
+        /// The image's width and height.
+        size: (u32, u32),
+    },
+    /// Pixels that do not fill the image they are said to be.
+    #[error("{values} pixel values do not match a {width}x{height} image")]
+    PixelCount {
+        /// Values given (channels interleaved).
+        values: usize,
+        /// Columns asked for.
+        width: usize,
+        /// Rows asked for.
+        height: usize,
+    },
+    /// The encoder failed (its reason).
+    #[error("cannot encode the PNG: {0}")]
+    Encode(String),
+}
+
 /// PNG bytes of an image in its own pixel type.
-fn png_bytes(img: &image::DynamicImage) -> Result<Vec<u8>, String> {
+fn png_bytes(img: &image::DynamicImage) -> Result<Vec<u8>, PngError> {
     let mut out = std::io::Cursor::new(Vec::new());
     img.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| PngError::Encode(e.to_string()))?;
     Ok(out.into_inner())
 }
 
@@ -112,18 +145,26 @@ fn buffer<P: image::Pixel>(
     width: usize,
     height: usize,
     pixels: &[P::Subpixel],
-) -> Result<image::ImageBuffer<P, Vec<P::Subpixel>>, String> {
-    image::ImageBuffer::from_raw(width as u32, height as u32, pixels.to_vec())
-        .ok_or_else(|| "pixel count does not match the image size".to_string())
+) -> Result<image::ImageBuffer<P, Vec<P::Subpixel>>, PngError> {
+    let (w, h) = (u32::try_from(width), u32::try_from(height));
+    let count = || PngError::PixelCount {
+        values: pixels.len(),
+        width,
+        height,
+    };
+    let (Ok(w), Ok(h)) = (w, h) else {
+        return Err(count());
+    };
+    image::ImageBuffer::from_raw(w, h, pixels.to_vec()).ok_or_else(count)
 }
 
 /// Encodes 16-bit RGB pixels (interleaved) as PNG bytes.
-pub fn encode_png_rgb16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, String> {
+pub fn encode_png_rgb16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, PngError> {
     png_bytes(&buffer::<image::Rgb<u16>>(width, height, pixels)?.into())
 }
 
 /// Encodes 16-bit grey pixels as PNG bytes.
-pub fn encode_png16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, String> {
+pub fn encode_png16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, PngError> {
     png_bytes(&buffer::<image::Luma<u16>>(width, height, pixels)?.into())
 }
 
@@ -134,7 +175,8 @@ pub fn write_png16(
     height: usize,
     pixels: &[u16],
 ) -> Result<(), FileError> {
-    let bytes = encode_png16(width, height, pixels).map_err(|e| FileError::format(path, e))?;
+    let bytes =
+        encode_png16(width, height, pixels).map_err(|e| FileError::format(path, e.to_string()))?;
     super::write_atomic(path, &bytes)
 }
 
@@ -147,7 +189,7 @@ pub fn write_png_rgb8(
 ) -> Result<(), FileError> {
     let png = buffer::<image::Rgb<u8>>(width, height, pixels)
         .and_then(|b| png_bytes(&b.into()))
-        .map_err(|e| FileError::format(path, e))?;
+        .map_err(|e| FileError::format(path, e.to_string()))?;
     super::write_atomic(path, &png)
 }
 
@@ -159,7 +201,8 @@ pub fn write_png_rgb16(
     height: usize,
     pixels: &[u16],
 ) -> Result<(), FileError> {
-    let png = encode_png_rgb16(width, height, pixels).map_err(|e| FileError::format(path, e))?;
+    let png = encode_png_rgb16(width, height, pixels)
+        .map_err(|e| FileError::format(path, e.to_string()))?;
     super::write_atomic(path, &png)
 }
 
@@ -293,10 +336,14 @@ mod tests {
                 assert_eq!(img.get_pixel(x, y).0[0], want, "({x}, {y})");
             }
         }
-        assert!(scale_png16(&png, 0).unwrap_err().contains("from 1 to 2048"));
+        assert!(scale_png16(&png, 0)
+            .unwrap_err()
+            .to_string()
+            .contains("from 1 to 2048"));
         assert!(scale_png16(&png, 2049).is_err());
         assert!(scale_png16(b"not a png", 2)
             .unwrap_err()
+            .to_string()
             .contains("cannot decode"));
     }
 }

@@ -45,11 +45,55 @@ pub fn write_f32(path: &Path, shape: &[usize], data: &[f64]) -> Result<(), FileE
 /// Reads a numeric `.npy` (float or integer, any byte order) into f64 in C order.
 pub fn read(path: &Path) -> Result<Array, FileError> {
     let bytes = std::fs::read(path).map_err(|e| FileError::read(path, e))?;
-    decode(&bytes).map_err(|reason| FileError::format(path, reason))
+    decode(&bytes).map_err(|e| FileError::format(path, e.to_string()))
+}
+
+/// Why bytes are not a `.npy` polnlos can read: each variant names what in
+/// the header or the data was wrong.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NpyError {
+    /// The bytes are not a `.npy` at all (npyz's reason).
+    #[error("not a .npy file ({0})")]
+    NotNpy(String),
+    /// A dimension of the header's shape does not fit this machine.
+    #[error("shape {0:?} has a dimension too large for this machine")]
+    DimensionTooLarge(Vec<u64>),
+    /// The header's shape multiplies past the machine's integers.
+    #[error("shape {0:?}: the number of values overflows")]
+    Overflow(Vec<u64>),
+    /// The header announces more values than the file holds.
+    #[error("shape {shape:?} announces {count} values of {item_size} bytes, but the file has only {file_len} bytes; it is truncated or its header is wrong")]
+    Truncated {
+        /// The header's shape.
+        shape: Vec<u64>,
+        /// The values it announces.
+        count: usize,
+        /// Bytes per value.
+        item_size: usize,
+        /// Bytes of data in the file.
+        file_len: usize,
+    },
+    /// The data could not be read as the header's dtype (npyz's reason).
+    #[error("{0}")]
+    Data(String),
+    /// A dtype polnlos does not read.
+    #[error("dtype {0:?} is not supported; save as float64 or float32")]
+    Dtype(String),
+    /// The data hold another number of values than the shape says.
+    #[error("the header's shape {shape:?} does not match the {values} values in the file")]
+    Count {
+        /// The header's shape.
+        shape: Vec<usize>,
+        /// The values read.
+        values: usize,
+    },
+    /// A Fortran-ordered array of more than two dimensions.
+    #[error("Fortran-ordered arrays of more than 2 dimensions are not supported; save with numpy.ascontiguousarray")]
+    FortranOrder,
 }
 
 /// Decodes `.npy` bytes (see [`read`]); a parser any input may reach, so it never panics.
-pub fn decode(bytes: &[u8]) -> Result<Array, String> {
+pub fn decode(bytes: &[u8]) -> Result<Array, NpyError> {
     // npyz multiplies the shape unchecked: check the header's shape first.
     let data_len = match header_shape(bytes) {
         Some((shape, offset)) => {
@@ -59,7 +103,7 @@ pub fn decode(bytes: &[u8]) -> Result<Array, String> {
         }
         None => bytes.len(),
     };
-    let npy = npyz::NpyFile::new(bytes).map_err(|e| format!("not a .npy file ({e})"))?;
+    let npy = npyz::NpyFile::new(bytes).map_err(|e| NpyError::NotNpy(e.to_string()))?;
     let fortran = npy.order() == npyz::Order::Fortran;
     let kind = npy.dtype().descr();
     let code = kind
@@ -68,48 +112,46 @@ pub fn decode(bytes: &[u8]) -> Result<Array, String> {
         .to_string();
     let shape = checked_shape(npy.shape(), item_size(&code), data_len)?;
     let data: Vec<f64> = match code.as_str() {
-        "f8" => npy.into_vec::<f64>().map_err(|e| e.to_string())?,
+        "f8" => npy
+            .into_vec::<f64>()
+            .map_err(|e| NpyError::Data(e.to_string()))?,
         "f4" => npy
             .into_vec::<f32>()
-            .map_err(|e| e.to_string())?
+            .map_err(|e| NpyError::Data(e.to_string()))?
             .into_iter()
             .map(f64::from)
             .collect(),
         "u2" => npy
             .into_vec::<u16>()
-            .map_err(|e| e.to_string())?
+            .map_err(|e| NpyError::Data(e.to_string()))?
             .into_iter()
             .map(f64::from)
             .collect(),
         "u1" => npy
             .into_vec::<u8>()
-            .map_err(|e| e.to_string())?
+            .map_err(|e| NpyError::Data(e.to_string()))?
             .into_iter()
             .map(f64::from)
             .collect(),
         "i4" => npy
             .into_vec::<i32>()
-            .map_err(|e| e.to_string())?
+            .map_err(|e| NpyError::Data(e.to_string()))?
             .into_iter()
             .map(f64::from)
             .collect(),
         "i8" => npy
             .into_vec::<i64>()
-            .map_err(|e| e.to_string())?
+            .map_err(|e| NpyError::Data(e.to_string()))?
             .into_iter()
             .map(|v| v as f64)
             .collect(),
-        other => {
-            return Err(format!(
-                "dtype {other:?} is not supported; save as float64 or float32"
-            ))
-        }
+        other => return Err(NpyError::Dtype(other.to_string())),
     };
     if data.len() != shape.iter().product::<usize>() {
-        return Err(format!(
-            "the header's shape {shape:?} does not match the {} values in the file",
-            data.len()
-        ));
+        return Err(NpyError::Count {
+            shape,
+            values: data.len(),
+        });
     }
     let data = if fortran && shape.len() == 2 {
         let (r, c) = (shape[0], shape[1]);
@@ -121,7 +163,7 @@ pub fn decode(bytes: &[u8]) -> Result<Array, String> {
         }
         out
     } else if fortran && shape.len() > 2 {
-        return Err("Fortran-ordered arrays of more than 2 dimensions are not supported; save with numpy.ascontiguousarray".into());
+        return Err(NpyError::FortranOrder);
     } else {
         data
     };
@@ -170,21 +212,24 @@ fn item_size(code: &str) -> usize {
 /// The shape of a header, checked: every dimension fits `usize`, their
 /// product does not overflow, and the values it announces fit in the
 /// `file_len` bytes actually there (so no allocation is sized by a lie).
-fn checked_shape(shape: &[u64], item_size: usize, file_len: usize) -> Result<Vec<usize>, String> {
+fn checked_shape(shape: &[u64], item_size: usize, file_len: usize) -> Result<Vec<usize>, NpyError> {
     let dims: Vec<usize> = shape
         .iter()
         .map(|&d| usize::try_from(d))
         .collect::<Result<_, _>>()
-        .map_err(|_| format!("shape {shape:?} has a dimension too large for this machine"))?;
+        .map_err(|_| NpyError::DimensionTooLarge(shape.to_vec()))?;
     let count = dims
         .iter()
         .try_fold(1usize, |acc, &d| acc.checked_mul(d))
-        .ok_or_else(|| format!("shape {shape:?}: the number of values overflows"))?;
+        .ok_or_else(|| NpyError::Overflow(shape.to_vec()))?;
     let needed = count.checked_mul(item_size.max(1));
     if needed.is_none_or(|n| n > file_len) {
-        return Err(format!(
-            "shape {shape:?} announces {count} values of {item_size} bytes, but the file has only {file_len} bytes; it is truncated or its header is wrong"
-        ));
+        return Err(NpyError::Truncated {
+            shape: shape.to_vec(),
+            count,
+            item_size,
+            file_len,
+        });
     }
     Ok(dims)
 }
@@ -233,7 +278,7 @@ mod tests {
             "(1000000, 1000000, 1000000)",
         ] {
             let e = decode(&with_header("<f8", shape, &[0u8; 16])).unwrap_err();
-            assert!(e.contains("shape"), "{shape}: {e}");
+            assert!(e.to_string().contains("shape"), "{shape}: {e}");
         }
     }
 

@@ -75,7 +75,8 @@ pub async fn camera_frame(State(d): St, Query(q): Query<FrameQuery>) -> Result<R
         let levels = crate::measure::levels::levels(&pixels, bits)
             .ok_or_else(|| "the frame has no pixels".to_string())?;
         let shown = crate::measure::levels::display_u16(&pixels, &levels, q.stretch);
-        let png = crate::files::image::encode_png16(width, height, &shown)?;
+        let png =
+            crate::files::image::encode_png16(width, height, &shown).map_err(|e| e.to_string())?;
         Ok::<_, String>((png, levels))
     })
     .await
@@ -110,7 +111,7 @@ async fn colour_frame(
         let levels = crate::measure::levels::levels(&rgb, frame.bits)
             .ok_or_else(|| "the frame has no whole 2x2 cell".to_string())?;
         let shown = crate::measure::levels::display_u16(&rgb, &levels, stretch);
-        let png = crate::files::image::encode_png_rgb16(w, h, &shown)?;
+        let png = crate::files::image::encode_png_rgb16(w, h, &shown).map_err(|e| e.to_string())?;
         Ok::<_, String>((png, levels))
     })
     .await

@@ -97,7 +97,7 @@ pub async fn reconstruction_image(
     let scaled = tokio::task::spawn_blocking(move || crate::files::image::scale_png16(&png, k))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))?
-        .map_err(ApiError::invalid)?;
+        .map_err(|e| ApiError::invalid(e.to_string()))?;
     Ok(([(header::CONTENT_TYPE, "image/png")], scaled).into_response())
 }
 

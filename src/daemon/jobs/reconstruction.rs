@@ -665,7 +665,9 @@ impl Daemon {
         let scene = self.scenes.scene(&rec.scene).map_err(|e| e.to_string())?;
         let grid = scene.hidden().plane.grid;
         let truth = pattern.render(grid);
-        image::encode_png16(grid.nu, grid.nv, &image::unit_to_u16(&truth)).map(Some)
+        image::encode_png16(grid.nu, grid.nv, &image::unit_to_u16(&truth))
+            .map(Some)
+            .map_err(|e| e.to_string())
     }
 }
 
