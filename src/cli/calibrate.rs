@@ -212,7 +212,7 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
     for path in &a.measurement {
         let meas = polnlos::files::npy::read(path)?;
         let channels = polnlos::solve::photo::split_channels(&meas.shape, &meas.data, scene.rows())
-            .map_err(|e| polnlos::files::FileError::format(path, e))?;
+            .map_err(|e| polnlos::files::FileError::format(path, e.to_string()))?;
         photos.push(channels);
     }
     let options = OccluderOptions {

@@ -19,7 +19,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let meas = npy::read(&a.measurement)?;
     let rows = scene.rows();
     let channels = split_channels(&meas.shape, &meas.data, rows)
-        .map_err(|e| FileError::format(&a.measurement, e))?;
+        .map_err(|e| FileError::format(&a.measurement, e.to_string()))?;
     let truth = a
         .truth
         .as_ref()

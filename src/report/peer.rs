@@ -69,16 +69,26 @@ fn io(what: &str, e: impl std::fmt::Display) -> BenchError {
     BenchError::Peer(format!("{what}: {e}"))
 }
 
-/// Whether `python3` with NumPy runs here; the reason if not.
-pub(crate) fn numpy_available() -> Result<String, String> {
+/// Why the NumPy peer cannot run here (a bench then skips it, saying so).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub(crate) enum NoNumpy {
+    /// `python3` could not be started.
+    #[error("python3 not found ({0})")]
+    Python(String),
+    /// `python3` runs but cannot import NumPy (what it printed).
+    #[error("python3 has no NumPy ({0}); pip install numpy")]
+    Import(String),
+}
+
+/// Whether `python3` with NumPy runs here: its NumPy version, or why not.
+pub(crate) fn numpy_available() -> Result<String, NoNumpy> {
     let out = Command::new("python3")
         .args(["-c", "import numpy; print(numpy.__version__)"])
         .output()
-        .map_err(|e| format!("python3 not found ({e})"))?;
+        .map_err(|e| NoNumpy::Python(e.to_string()))?;
     if !out.status.success() {
-        return Err(format!(
-            "python3 has no NumPy ({}); pip install numpy",
-            String::from_utf8_lossy(&out.stderr).trim()
+        return Err(NoNumpy::Import(
+            String::from_utf8_lossy(&out.stderr).trim().to_string(),
         ));
     }
     Ok(String::from_utf8_lossy(&out.stdout).trim().to_string())
@@ -107,7 +117,7 @@ pub fn compare(
     let version = match numpy_available() {
         Ok(v) => v,
         Err(reason) => {
-            report.skipped = Some(reason);
+            report.skipped = Some(reason.to_string());
             return Ok(report);
         }
     };

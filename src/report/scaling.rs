@@ -142,7 +142,7 @@ pub fn scaling_sweep(
     std::fs::create_dir_all(work).map_err(|e| err("work folder", e))?;
     let text = crate::scene::builtin::text(SCENE).ok_or_else(|| err("scene", SCENE))?;
     let numpy = super::peer::numpy_available();
-    let peer_skipped = numpy.as_ref().err().cloned();
+    let peer_skipped = numpy.as_ref().err().map(ToString::to_string);
     let script = work.join("peer.py");
     std::fs::write(&script, super::peer::SCRIPT).map_err(|e| err("peer.py", e))?;
     let mut rows = Vec::new();

@@ -998,30 +998,56 @@ where
     })
 }
 
+/// Why a measurement array is not one polnlos can split into channels.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ChannelsError {
+    /// A shape that is neither `[rows]` nor `[rows, C]`.
+    #[error("shape {shape:?} is neither [{rows}] nor [{rows}, C] with C from 1 to 4 (one row per row of T, one column per colour channel)")]
+    Shape {
+        /// The array's shape.
+        shape: Vec<usize>,
+        /// The rows of `T`.
+        rows: usize,
+    },
+    /// Fewer or more values than the shape says.
+    #[error("holds {values} values where its shape says {expected}")]
+    Count {
+        /// Values in the array.
+        values: usize,
+        /// Values its shape gives.
+        expected: usize,
+    },
+    /// An infinite value (NaN is the only mark of a row not measured).
+    #[error("holds the infinite value {0} (NaN marks a row that was not measured)")]
+    Infinite(f64),
+}
+
 /// The channels of a measurement array: `[rows]` is one channel, `[rows, C]`
 /// (C from 1 to 4, interleaved as NumPy stores it) is C channels that share
 /// one `T` (a colour photo's R, G, B); NaN marks a row that was not measured.
-pub fn split_channels(shape: &[usize], data: &[f64], rows: usize) -> Result<Vec<Vec<f64>>, String> {
+pub fn split_channels(
+    shape: &[usize],
+    data: &[f64],
+    rows: usize,
+) -> Result<Vec<Vec<f64>>, ChannelsError> {
     let c = match shape {
         [n] if *n == rows => 1,
         [n, c] if *n == rows && (1..=4).contains(c) => *c,
         s => {
-            return Err(format!(
-                "shape {s:?} is neither [{rows}] nor [{rows}, C] with C from 1 to 4 (one row per row of T, one column per colour channel)"
-            ))
+            return Err(ChannelsError::Shape {
+                shape: s.to_vec(),
+                rows,
+            })
         }
     };
     if data.len() != rows * c {
-        return Err(format!(
-            "holds {} values where its shape says {}",
-            data.len(),
-            rows * c
-        ));
+        return Err(ChannelsError::Count {
+            values: data.len(),
+            expected: rows * c,
+        });
     }
-    if let Some(v) = data.iter().find(|v| v.is_infinite()) {
-        return Err(format!(
-            "holds the infinite value {v} (NaN marks a row that was not measured)"
-        ));
+    if let Some(&v) = data.iter().find(|v| v.is_infinite()) {
+        return Err(ChannelsError::Infinite(v));
     }
     Ok((0..c)
         .map(|ch| data.iter().skip(ch).step_by(c).copied().collect())
@@ -1362,6 +1388,7 @@ mod tests {
         assert!(split_channels(&[2], &[0.0, f64::NAN], 2).unwrap()[0][1].is_nan());
         assert!(split_channels(&[2], &[0.0, f64::INFINITY], 2)
             .unwrap_err()
+            .to_string()
             .contains("infinite"));
     }
 
