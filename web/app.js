@@ -311,12 +311,16 @@ function inFrame(point, region, binning) {
 async function applyZoom() {
   const z = Number($("#zoom").value);
   const img = $("#live");
-  img.style.width = `${(img.naturalWidth || 512) * z}px`;
+  // While the next frame loads, its natural width reads 0: the last frame's
+  // width holds (a busy daemon's reload used to size the view for 512 px).
+  const natural = img.naturalWidth || Number(img.dataset.natural) || 512;
+  img.dataset.natural = String(natural);
+  img.style.width = `${natural * z}px`;
   img.style.height = "auto";
   const box = $("#live-box");
   const aim = await wallAim();
   // Screen pixels per frame pixel.
-  const scale = img.naturalWidth ? img.clientWidth / img.naturalWidth : null;
+  const scale = img.clientWidth / natural;
   if (aim && aim.centre && scale && liveFrame) {
     const [x, y] = inFrame(aim.centre, liveFrame.region, liveFrame.binning);
     box.scrollLeft = Math.max(0, x * scale - box.clientWidth / 2);
@@ -330,7 +334,9 @@ async function applyZoom() {
 }
 $("#zoom").addEventListener("change", applyZoom);
 $("#capture-form").addEventListener("change", (ev) => { if (ev.target.name === "scene" || ev.target.name === "pose") applyZoom(); });
-$("#live").addEventListener("load", () => { if (!$("#live").dataset.sized) { $("#live").dataset.sized = "1"; applyZoom(); } });
+// The first frame, and a frame of another size (a new region or binning),
+// sizes the view again.
+$("#live").addEventListener("load", () => { const img = $("#live"); if (String(img.naturalWidth) !== img.dataset.natural) applyZoom(); });
 $("#stretch").addEventListener("change", refreshLive);
 $("#view").addEventListener("change", refreshLive);
 $("#live-on").addEventListener("change", () => { if ($("#live-on").checked) refreshLive(); });
