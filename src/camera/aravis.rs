@@ -100,7 +100,7 @@ pub struct AravisCamera {
     /// Frame period of the previous acquisition: the first frame after a
     /// change can take up to one old period.
     last_period_s: f64,
-    /// Whether the kernel's socket-buffer cap was reported (once per camera).
+    /// Whether the kernel's socket-buffer cap was checked (once per camera).
     warned_rmem: bool,
 }
 
@@ -450,9 +450,10 @@ impl CameraDevice for AravisCamera {
             gv.set_socket_buffer(aravis::GvStreamSocketBuffer::Fixed);
             gv.set_socket_buffer_size(i32::try_from(bytes).unwrap_or(i32::MAX));
             gv.set_frame_retention(FRAME_RETENTION_US);
-            if let Some(line) = rmem_max_warning(bytes, payload, read_rmem_max()) {
-                if !self.warned_rmem {
-                    self.warned_rmem = true;
+            // The kernel's cap is read once per camera, not at every acquisition.
+            if !self.warned_rmem {
+                self.warned_rmem = true;
+                if let Some(line) = rmem_max_warning(bytes, payload, read_rmem_max()) {
                     tracing::warn!("{line}");
                 }
             }

@@ -322,21 +322,33 @@ pub struct OutOfRange {
     pub unit: &'static str,
 }
 
+impl OutOfRange {
+    /// `Ok` when `value` is within `min..=max` (NaN never is), else the error
+    /// naming `setting`.
+    pub fn check(
+        setting: &'static str,
+        value: f64,
+        (min, max): (f64, f64),
+        unit: &'static str,
+    ) -> Result<(), Self> {
+        if (min..=max).contains(&value) {
+            return Ok(());
+        }
+        Err(Self {
+            setting,
+            value,
+            min,
+            max,
+            unit,
+        })
+    }
+}
+
 /// Checks every ranged setting of `a` against [`RangedSetting::allowed`]:
 /// the error names the setting, its value and the range.
 pub fn check_ranges(a: &Acquisition, camera: Option<&CameraRanges>) -> Result<(), OutOfRange> {
     for r in RANGED {
-        let (min, max) = r.allowed(camera);
-        let value = (r.value)(a);
-        if !(value >= min && value <= max) {
-            return Err(OutOfRange {
-                setting: r.name,
-                value,
-                min,
-                max,
-                unit: r.unit,
-            });
-        }
+        OutOfRange::check(r.name, (r.value)(a), r.allowed(camera), r.unit)?;
     }
     Ok(())
 }

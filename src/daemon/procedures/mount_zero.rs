@@ -104,22 +104,9 @@ fn sweep_shape(b: &ZeroBody) -> Result<(f64, f64, usize), OutOfRange> {
     let span = b.span_deg.unwrap_or(30.0);
     let step = b.step_deg.unwrap_or(5.0);
     let frames = b.frames.unwrap_or(8);
-    let within = |setting, value: f64, (min, max): (f64, f64), unit| {
-        if (min..=max).contains(&value) {
-            Ok(())
-        } else {
-            Err(OutOfRange {
-                setting,
-                value,
-                min,
-                max,
-                unit,
-            })
-        }
-    };
-    within("span_deg", span, (1.0, 45.0), " degrees")?;
-    within("step_deg", step, (0.1, 10.0), " degrees")?;
-    within("frames", frames as f64, (1.0, 100.0), "")?;
+    OutOfRange::check("span_deg", span, (1.0, 45.0), " degrees")?;
+    OutOfRange::check("step_deg", step, (0.1, 10.0), " degrees")?;
+    OutOfRange::check("frames", frames as f64, (1.0, 100.0), "")?;
     Ok((span, step, frames))
 }
 
