@@ -110,6 +110,9 @@ fn solve_system(normal: &Normal, factor: &Factor, rho: f64, x: &mut [f64], ws: &
         (Factor::LowRank(f), Some(lr)) => lr.solve(f, rho, x, ws),
         (Factor::Dense(f), _) => {
             let n = x.len();
+            if n < PAR_SOLVE_MIN && super::triangular::solve_llt_in_place(f.L(), x).is_some() {
+                return;
+            }
             let par = if n >= PAR_SOLVE_MIN {
                 super::par()
             } else {

@@ -24,6 +24,7 @@ pub mod report;
 pub mod sapg;
 pub mod scene;
 pub mod solver;
+mod triangular;
 pub mod tv;
 pub mod whiteness;
 
