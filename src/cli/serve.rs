@@ -28,13 +28,22 @@ pub struct Args {
 pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     use std::io::IsTerminal;
     // Colour only on a terminal: not into log files or journald.
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    // `RUST_LOG` as `info,polnlos::daemon=debug` (targets and levels; not
+    // env-filter's span and field matches, whose regex engine was 14 s of
+    // a fresh build): unset or unreadable, `info`, and a word on the latter.
+    let (targets, unreadable) =
+        polnlos::daemon::runtime::config::log_targets(std::env::var("RUST_LOG").ok().as_deref());
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
         .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr)
+        .finish()
+        .with(targets)
         .init();
+    if let Some(e) = unreadable {
+        tracing::warn!(error = %e, "RUST_LOG is not a list of target=level directives; logging at info");
+    }
     let mut config = match &a.config {
         Some(p) => Config::load(p)?,
         None => Config::embedded(),

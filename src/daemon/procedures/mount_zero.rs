@@ -129,15 +129,24 @@ fn central_sum(
         return all();
     };
     let (ox, oy) = (f64::from(region[0]), f64::from(region[1]));
+    let w = f.width.max(1);
+    let h = f.pixels.len() / w;
+    // Only the rows and columns of the circle's bounding box (a frame's
+    // pixels index from 0; the box is clamped to them).
+    let span = |c: f64, o: f64, n: usize| {
+        let lo = (c - RADIUS - o).floor().max(0.0) as usize;
+        let hi = ((c + RADIUS - o).ceil().max(-1.0) + 1.0).min(n as f64) as usize;
+        lo..hi.max(lo)
+    };
     let (mut sum, mut count) = (0.0, 0usize);
-    for (i, &p) in f.pixels.iter().enumerate() {
-        let (x, y) = (
-            (i % f.width.max(1)) as f64 + ox,
-            (i / f.width.max(1)) as f64 + oy,
-        );
-        if (x - cx).hypot(y - cy) <= RADIUS {
-            sum += f64::from(p);
-            count += 1;
+    for row in span(cy, oy, h) {
+        let dy = row as f64 + oy - cy;
+        for col in span(cx, ox, w) {
+            let dx = col as f64 + ox - cx;
+            if dx.hypot(dy) <= RADIUS {
+                sum += f64::from(f.pixels[row * w + col]);
+                count += 1;
+            }
         }
     }
     if count == 0 {
@@ -304,6 +313,51 @@ impl Daemon {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_central_sum_counts_the_pixels_within_the_radius_as_a_scan_of_all_would() {
+        let (w, h) = (70usize, 50usize);
+        let f = crate::camera::RawFrame {
+            width: w,
+            height: h,
+            bits: 16,
+            pixels: (0..w * h).map(|i| (i * 7 % 1000) as u16).collect(),
+            frame_id: 0,
+            system_timestamp_ns: 0,
+        };
+        let region = [100, 40, w as u32, h as u32];
+        let scan = |cx: f64, cy: f64| {
+            let (mut s, mut n) = (0.0, 0);
+            for (i, &p) in f.pixels.iter().enumerate() {
+                let (x, y) = ((i % w) as f64 + 100.0, (i / w) as f64 + 40.0);
+                if (x - cx).hypot(y - cy) <= 16.0 {
+                    s += f64::from(p);
+                    n += 1;
+                }
+            }
+            (s, n)
+        };
+        // Inside, across each edge and corner, and off the frame.
+        for (cx, cy) in [
+            (135.0, 65.0),
+            (101.5, 41.2),
+            (168.7, 88.9),
+            (90.0, 60.0),
+            (135.0, 95.0),
+        ] {
+            let want = scan(cx, cy);
+            assert!(want.1 > 0, "({cx}, {cy})");
+            assert_eq!(
+                central_sum(&f, Some((cx, cy)), region),
+                want,
+                "({cx}, {cy})"
+            );
+        }
+        let all = (f.pixels.iter().map(|&p| f64::from(p)).sum::<f64>(), w * h);
+        assert_eq!(central_sum(&f, Some((500.0, 500.0)), region), all);
+        assert_eq!(central_sum(&f, Some((f64::NAN, 3.0)), region), all);
+        assert_eq!(central_sum(&f, None, region), all);
+    }
 
     #[test]
     fn the_minimum_of_the_law_is_found_where_it_is() {

@@ -428,6 +428,24 @@ impl Config {
     }
 }
 
+/// The log filter `RUST_LOG` asks for (`None`: `info`), and why it could
+/// not be read when it could not.
+pub fn log_targets(
+    var: Option<&str>,
+) -> (
+    tracing_subscriber::filter::Targets,
+    Option<tracing_subscriber::filter::ParseError>,
+) {
+    let info = || tracing_subscriber::filter::Targets::new().with_default(tracing::Level::INFO);
+    match var.map(str::trim).filter(|v| !v.is_empty()) {
+        None => (info(), None),
+        Some(v) => match v.parse() {
+            Ok(t) => (t, None),
+            Err(e) => (info(), Some(e)),
+        },
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -512,5 +530,24 @@ mod tests {
             .contains("token is required"));
         c.token = "secret".into();
         c.validate().unwrap();
+    }
+
+    #[test]
+    fn rust_log_sets_levels_per_target_and_an_unreadable_one_falls_back_to_info() {
+        let (t, e) = super::log_targets(Some("warn,polnlos::daemon=debug"));
+        assert!(e.is_none());
+        assert!(t.would_enable("polnlos::daemon::jobs", &tracing::Level::DEBUG));
+        assert!(!t.would_enable("polnlos::store", &tracing::Level::INFO));
+        assert!(t.would_enable("polnlos::store", &tracing::Level::WARN));
+        for unset in [None, Some(""), Some("  ")] {
+            let (t, e) = super::log_targets(unset);
+            assert!(e.is_none());
+            assert!(t.would_enable("polnlos", &tracing::Level::INFO));
+            assert!(!t.would_enable("polnlos", &tracing::Level::DEBUG));
+        }
+        let (t, e) = super::log_targets(Some("polnlos=loud"));
+        assert!(e.is_some());
+        assert!(t.would_enable("polnlos", &tracing::Level::INFO));
+        assert!(!t.would_enable("polnlos", &tracing::Level::DEBUG));
     }
 }
