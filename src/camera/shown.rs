@@ -7,9 +7,6 @@ use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
-use rand::{Rng, SeedableRng};
-use rand_distr::{Distribution, StandardNormal};
-
 use super::Frame;
 use crate::measure::colour::BayerPattern;
 use crate::optics::polarizer::IntensityLaw;
@@ -314,45 +311,88 @@ impl Shown {
                 (n.read_noise_e * full / n.full_well_e).powi(2),
             )
         });
-        // A generator seeded per frame; normals by the ziggurat, not
-        // Box-Muller's logarithm and cosine per pixel (a tenth of the test
-        // suite's CPU went to drawing the fake camera's noise).
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+        // Xorshift64, seeded per frame.
+        let mut rng = XorShift(
             self.counter
                 .fetch_add(1, Ordering::Relaxed)
-                .wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                | 1,
         );
+        // Each colour's response along a row (the filter repeats every two
+        // columns), and one row of values at a time.
+        let mut row = vec![0.0; w];
         for y in 0..h {
-            for x in 0..w {
-                let signal = frame
-                    .and_then(|f| {
-                        let (fx, fy) = (x.checked_add(ox)?, y.checked_add(oy)?);
-                        (fx < f.width && fy < f.height)
-                            .then(|| f.pixels.get(fy * f.width + fx))
-                            .flatten()
-                            .map(|&p| f64::from(p))
-                    })
-                    .unwrap_or(0.0);
-                let signal = match self.bayer {
-                    Some(p) => {
-                        let c = p.colour_at((ox + x) as i64, (oy + y) as i64);
-                        signal * BAYER_RESPONSE[c as usize]
-                    }
-                    None => signal,
-                };
-                let dither: f64 = rng.random::<f64>() - 0.5;
-                let mean = (self.dark_level + signal) * scale * full;
-                // Shot noise (variance = electrons, in DN²: mean / e_per_dn) and
-                // read noise, Gaussian; the electrons are many.
-                let shot = noise.map_or(0.0, |(e_per_dn, read_dn2)| {
-                    let sd = (mean.max(0.0) / e_per_dn + read_dn2).sqrt();
-                    let z: f64 = StandardNormal.sample(&mut rng);
-                    sd * z
-                });
-                let v = (mean + shot + dither).round().clamp(0.0, full);
+            let response = |x: usize| {
+                self.bayer.map_or(1.0, |p| {
+                    BAYER_RESPONSE[p.colour_at((ox + x) as i64, (oy + y) as i64) as usize]
+                })
+            };
+            let parity = [response(0), response(1)];
+            // The block's pixels this row sees (none past its edge).
+            let signal = frame
+                .and_then(|f| {
+                    let fy = y.checked_add(oy).filter(|&fy| fy < f.height)?;
+                    let start = (fy * f.width).checked_add(ox)?;
+                    let end = (fy * f.width + f.width).min(f.pixels.len());
+                    f.pixels.get(start.min(end)..end)
+                })
+                .unwrap_or(&[]);
+            let pixel = Pixel {
+                dark: self.dark_level,
+                scale: scale * full,
+                full,
+                noise,
+            };
+            expose_row(&mut row, signal, parity, &pixel, &mut rng);
+            for (x, &v) in row.iter().enumerate() {
                 put(y * w + x, v);
             }
         }
+    }
+}
+
+/// Xorshift64: a fake sensor's noise, cheap and fixed by its seed.
+struct XorShift(u64);
+
+impl XorShift {
+    /// Uniform in [0, 1).
+    #[inline(always)]
+    fn uniform(&mut self) -> f64 {
+        let s = &mut self.0;
+        *s ^= *s << 13;
+        *s ^= *s >> 7;
+        *s ^= *s << 17;
+        (*s >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// What turns a pixel's signal into DN: the dark level, the scale to DN
+/// (exposure, gain and full scale), the full scale and, on a noisy sensor,
+/// electrons per DN and the read noise in DN².
+struct Pixel {
+    dark: f64,
+    scale: f64,
+    full: f64,
+    noise: Option<(f64, f64)>,
+}
+
+/// One row of a frame: `signal` (fractions of full scale; 0 past its end)
+/// times the colour filter's response, in DN with shot and read noise,
+/// dithered by +-0.5 DN, rounded and clamped to `[0, full]`.
+#[multiversion::multiversion(targets("x86_64+avx2+fma"))]
+fn expose_row(row: &mut [f64], signal: &[f32], parity: [f64; 2], p: &Pixel, rng: &mut XorShift) {
+    for (x, out) in row.iter_mut().enumerate() {
+        let s = signal.get(x).map_or(0.0, |&v| f64::from(v)) * parity[x % 2];
+        let dither = rng.uniform() - 0.5;
+        let mean = (p.dark + s) * p.scale;
+        // Shot noise (variance = electrons, in DN²: mean / e_per_dn) and
+        // read noise, Gaussian (Box-Muller); the electrons are many.
+        let shot = p.noise.map_or(0.0, |(e_per_dn, read_dn2)| {
+            let sd = (mean.max(0.0) / e_per_dn + read_dn2).sqrt();
+            let (u1, u2) = (rng.uniform().max(f64::MIN_POSITIVE), rng.uniform());
+            sd * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        });
+        *out = (mean + shot + dither).round().clamp(0.0, p.full);
     }
 }
 
