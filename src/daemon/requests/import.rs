@@ -142,15 +142,38 @@ impl Admission {
     }
 
     /// Writes an import's files: the bytes as received and the measurement.
-    fn write_import(&self, id: i64, m: &Imported, bytes: &[u8]) -> Result<(), String> {
+    fn write_import(&self, id: i64, m: &Imported, bytes: &[u8]) -> Result<(), ImportWriteError> {
         let dir = self.store.capture_dir(id);
-        std::fs::create_dir_all(&dir).map_err(|e| self.store.describe_io(&dir, &e))?;
-        let redact = |e: crate::files::FileError| self.store.redact_paths(&e.to_string());
+        std::fs::create_dir_all(&dir)
+            .map_err(|e| ImportWriteError::Folder(self.store.describe_io(&dir, &e)))?;
+        let file = |name: &'static str| {
+            move |e: crate::files::FileError| ImportWriteError::File {
+                file: name,
+                reason: self.store.redact_paths(&e.to_string()),
+            }
+        };
         let source = dir.join(format!("{}.{}", CaptureFiles::SOURCE, m.format));
-        crate::files::write_atomic(&source, bytes).map_err(redact)?;
+        crate::files::write_atomic(&source, bytes).map_err(file("the file as received"))?;
         crate::files::npy::write_f64(&dir.join(CaptureFiles::MEASUREMENT), &m.shape, &m.data)
-            .map_err(redact)
+            .map_err(file(CaptureFiles::MEASUREMENT))
     }
+}
+
+/// Why an import's files were not written; paths inside the data
+/// directory are redacted as the store's own errors are.
+#[derive(Debug, thiserror::Error)]
+enum ImportWriteError {
+    /// The capture's folder could not be made (the store's description).
+    #[error("{0}")]
+    Folder(String),
+    /// One of its files could not be written: which, and why.
+    #[error("{file}: {reason}")]
+    File {
+        /// The file: the bytes as received, or the measurement.
+        file: &'static str,
+        /// The writer's error, paths redacted.
+        reason: String,
+    },
 }
 
 fn invalid(m: impl Into<String>) -> SubmitError {
