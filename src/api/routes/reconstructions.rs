@@ -111,7 +111,8 @@ pub async fn reconstruction_truth(
     let id = parse_id(&id, "reconstruction")?;
     let png = tokio::task::spawn_blocking(move || {
         let rec = d.store().reconstruction(id)?;
-        d.truth_png(&rec).map_err(ApiError::internal)
+        d.truth_png(&rec)
+            .map_err(|e| ApiError::internal(e.to_string()))
     })
     .await
     .map_err(|e| ApiError::internal(e.to_string()))??

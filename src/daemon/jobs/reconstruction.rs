@@ -653,7 +653,7 @@ impl Daemon {
     pub fn truth_png(
         &self,
         rec: &crate::store::ReconstructionRecord,
-    ) -> Result<Option<Vec<u8>>, String> {
+    ) -> Result<Option<Vec<u8>>, TruthPngError> {
         let Some(pattern) = rec
             .params
             .truth
@@ -662,13 +662,26 @@ impl Daemon {
         else {
             return Ok(None);
         };
-        let scene = self.scenes.scene(&rec.scene).map_err(|e| e.to_string())?;
+        let scene = self.scenes.scene(&rec.scene)?;
         let grid = scene.hidden().plane.grid;
         let truth = pattern.render(grid);
-        image::encode_png16(grid.nu, grid.nv, &image::unit_to_u16(&truth))
-            .map(Some)
-            .map_err(|e| e.to_string())
+        Ok(Some(image::encode_png16(
+            grid.nu,
+            grid.nv,
+            &image::unit_to_u16(&truth),
+        )?))
     }
+}
+
+/// Why a reconstruction's truth image could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum TruthPngError {
+    /// Its scene is not one the daemon knows now (the scenes' reason).
+    #[error(transparent)]
+    Scene(#[from] crate::daemon::runtime::scenes::ScenesError),
+    /// The image did not encode.
+    #[error(transparent)]
+    Png(#[from] crate::files::image::PngError),
 }
 
 /// A reconstruction's measurement: the captures stacked in block order
