@@ -321,6 +321,12 @@ impl Shown {
         // Each colour's response along a row (the filter repeats every two
         // columns), and one row of values at a time.
         let mut row = vec![0.0; w];
+        let pixel = Pixel {
+            dark: self.dark_level,
+            scale: scale * full,
+            full,
+            noise,
+        };
         for y in 0..h {
             let response = |x: usize| {
                 self.bayer.map_or(1.0, |p| {
@@ -337,12 +343,6 @@ impl Shown {
                     f.pixels.get(start.min(end)..end)
                 })
                 .unwrap_or(&[]);
-            let pixel = Pixel {
-                dark: self.dark_level,
-                scale: scale * full,
-                full,
-                noise,
-            };
             expose_row(&mut row, signal, parity, &pixel, &mut rng);
             for (x, &v) in row.iter().enumerate() {
                 put(y * w + x, v);
