@@ -486,11 +486,7 @@ impl CameraDevice for AravisCamera {
             let wait = if taken == 0 { first_timeout } else { timeout };
             let Some(buffer) = stream.timeout_pop_buffer(wait.as_micros() as u64) else {
                 self.counters.timeouts += 1;
-                break Err(CameraError::Timeout {
-                    timeout_ms: wait.as_millis() as u64,
-                    got: taken,
-                    wanted: n,
-                });
+                break Err(timed_out(&stream, wait, taken, n));
             };
             counts.dropped += ids.next(buffer.frame_id());
             if buffer.status() != BufferStatus::Success {
@@ -544,6 +540,28 @@ impl CameraDevice for AravisCamera {
 
     fn counters(&self) -> Counters {
         self.counters
+    }
+}
+
+/// The timeout of an acquisition that got `got` of `wanted` frames, with
+/// what the stream received logged: whether the camera sent nothing, or
+/// sent packets that found no buffer or made no whole frame.
+fn timed_out(stream: &aravis::Stream, wait: Duration, got: usize, wanted: usize) -> CameraError {
+    let info = |name: &str| stream.info_uint64_by_name(name);
+    tracing::warn!(
+        "no frame within {} ms: the stream received {} packets ({} ignored, {} with no free buffer), completed {} buffers, failed {}",
+        wait.as_millis(),
+        info("n_received_packets"),
+        info("n_ignored_packets"),
+        info("n_underruns"),
+        info("n_completed_buffers"),
+        info("n_failures"),
+    );
+    CameraError::Timeout {
+        timeout_ms: wait.as_millis() as u64,
+        got,
+        wanted,
+        packets: info("n_received_packets"),
     }
 }
 

@@ -269,7 +269,7 @@ pub enum CameraError {
         reason: String,
     },
     /// No frame arrived in time.
-    #[error("no frame within {timeout_ms} ms (frame {got} of {wanted}); the camera may have stopped or been unplugged")]
+    #[error("no frame within {timeout_ms} ms (frame {got} of {wanted}; the stream received {packets} packets in this acquisition); the camera may have stopped or been unplugged")]
     Timeout {
         /// Timeout used.
         timeout_ms: u64,
@@ -277,6 +277,9 @@ pub enum CameraError {
         got: usize,
         /// Frames asked for.
         wanted: usize,
+        /// Packets the stream received in this acquisition, whole frames or
+        /// not: 0 says the camera sent nothing to this host.
+        packets: u64,
     },
     /// The camera is not connected (lost, or never opened).
     #[error("camera is not connected ({0}); it is reconnected automatically when it comes back")]

@@ -317,6 +317,9 @@ impl Client {
 pub struct Daemon {
     pub child: Child,
     client: Client,
+    /// The daemon's stderr (its log, and Aravis's warnings and stream
+    /// events): its end is printed when the test fails.
+    log: PathBuf,
 }
 
 impl Daemon {
@@ -344,7 +347,11 @@ impl Daemon {
     fn spawn(mut cmd: Command, config: &Path, data: &Path, camera: bool) -> Self {
         let port = free_port();
         let log = std::fs::File::create(data.with_extension("log")).unwrap();
+        // Aravis's warnings, and its stream's start, stop and lost frames:
+        // a failed capture's log then shows what the camera and the stream
+        // did (the fake camera runs in the daemon, so both sides).
         let child = cmd
+            .env("ARV_DEBUG", "all:1,stream:2,stream-thread:2")
             .args(["serve", "--config"])
             .arg(config)
             .args(["--bind", &format!("127.0.0.1:{port}"), "--data-dir"])
@@ -356,6 +363,7 @@ impl Daemon {
         let mut d = Self {
             child,
             client: Client::on_port(port),
+            log: data.with_extension("log"),
         };
         let t = Instant::now();
         loop {
@@ -417,6 +425,16 @@ impl Drop for Daemon {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        if std::thread::panicking() {
+            let log = std::fs::read_to_string(&self.log).unwrap_or_default();
+            let lines: Vec<&str> = log.lines().collect();
+            let tail = &lines[lines.len().saturating_sub(120)..];
+            println!(
+                "--- the end of the daemon's log ({}):\n{}",
+                self.log.display(),
+                tail.join("\n")
+            );
+        }
     }
 }
 
@@ -454,6 +472,12 @@ impl InProcess {
         // this daemon and for what the test starts beside it (a browser,
         // schemathesis, Python).
         crate::priority::background();
+        // The daemon's log, into the test's captured output (its threads
+        // inherit the test thread's capture): shown when the test fails.
+        let _ = tracing_subscriber::fmt()
+            .with_test_writer()
+            .with_max_level(tracing::Level::INFO)
+            .try_init();
         let mut cfg = Config::load(config).expect("config");
         cfg.data_dir = data.to_path_buf();
         cfg.validate().expect("valid config");

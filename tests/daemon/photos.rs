@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use serde_json::{json, Value};
 
-use super::common::{config, lock, scratch, InProcess};
+use super::common::{config, scratch, InProcess};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -46,10 +46,12 @@ fn recovered(d: &InProcess, rec: &Value) -> polnlos::files::npy::Array {
 /// `reconstruct --photo` result, and says its radiometry was fitted.
 #[test]
 fn the_chair_photo_imported_over_http_reconstructs_as_the_cli_photo_mode() {
-    // No camera here, but the Aravis lock: its two chair fits (CLI and
+    // No camera here, and no Aravis lock: its two chair fits (CLI and
     // daemon, with both shadow models) take both cores for half a minute,
-    // and the camera tests' real-time captures must not share them.
-    let _g = lock();
+    // but in the background class (`InProcess::start`, and the CLI it
+    // starts inherits it), so a camera test's real-time capture takes a
+    // core from them at once. Holding the lock put a minute into the
+    // chain of the camera tests, which run one at a time.
     let dir = scratch();
     let d = chair_daemon(dir.path());
     let data = root().join("tests/data/saunders-chair");
