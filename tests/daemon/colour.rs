@@ -238,28 +238,41 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     });
     println!("calibrated measurement sums {sums:?}");
     assert!(spread(&sums) <= 0.01, "sums {sums:?}");
-    // The images, each colour with its own λ: the noisier colours (fewer
-    // photons) get a larger λ whose TV dims them, by how much depends on
-    // the frames' noise (means over the letter 0.674-0.681 / 0.708-0.784 /
-    // 0.668-0.716 over runs), where one gain for all left red and blue at
-    // 0.55 and 0.7 of green: the spread is held below 0.2, against 0.45.
+    // Each colour chooses its own λ (the noisier colours, with fewer
+    // photons, a larger one), then all are solved at the largest: one λ
+    // leaves the calibration alone to set the levels, where a λ each let
+    // TV dim red and blue below green (means over the letter 0.674-0.681 /
+    // 0.708-0.784 / 0.668-0.716 over runs, 0.2 apart). The report keeps
+    // each colour's own choice and says which λ all were solved at.
     let lambdas = colours
         .iter()
         .map(|c| c["lambda_choice"]["lambda"].as_f64().expect("a chosen λ"))
         .collect::<Vec<_>>();
-    let (means, scales) = (colour_means(&image, &letter), colour_scales(&image));
-    println!(
-        "calibrated colour means over the letter {means:.3?}, scales against green {scales:.3?}, λ {lambdas:?}"
-    );
-    assert!(spread(&means) <= 0.2, "lit means {means:?}");
-    // One λ for every colour (the largest chosen, so that no colour is
-    // left noisier than its own choice) leaves the calibration alone to
-    // set the levels. The least-squares scale against green uses every
-    // element and is held within 3 % (measured 0.98-1.01); the mean over
-    // the letter's lit elements within 7 % (measured 2.8-4.3 % apart). The
-    // peak, the largest of 64 noisy values, is printed only: 8 frames put
-    // it 3-7 % apart.
     let largest = lambdas.iter().copied().fold(0.0, f64::max);
+    for c in colours {
+        let used = c["solver"]["lambda"].as_f64().expect("the λ solved at");
+        assert!((used - largest).abs() <= 1e-12 * largest, "{c}");
+    }
+    let notes = r["report"]["notes"].to_string();
+    assert!(
+        notes.contains("for every colour, the largest of their own choices"),
+        "{notes}"
+    );
+    // The white letter stays white: the least-squares scale of each colour
+    // against green (every element) within 3 % (measured 0.98-1.01), and
+    // each colour's level over the letter (the mean of its lit elements)
+    // within 7 % of the others' (measured 2.1-7.2 % apart). The done-when's
+    // 5 % is not held: 32 frames narrow the peaks (1.2-2.0 %) but not the
+    // means (4.3-5.6 %, red lowest, blue highest): a bias that more
+    // photons do not remove, its cause not yet found.
+    let (means, scales) = (colour_means(&image, &letter), colour_scales(&image));
+    let peaks = [0, 1, 2].map(|k| image.iter().skip(k).step_by(3).copied().fold(0.0, f64::max));
+    println!(
+        "calibrated colour means over the letter {means:.3?}, peaks {peaks:.3?}, scales against green {scales:.3?}, own λ {lambdas:?}"
+    );
+    assert!(spread(&means) <= 0.07, "lit means {means:?}");
+    assert!(spread(&scales) <= 0.03, "scales {scales:?}");
+    // It is the reconstruction asked for at that λ.
     let same = reconstruct(
         &d,
         &serde_json::json!({"id": r["captures"][0]}),
@@ -268,13 +281,15 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     let (s, npy) = d.get_bytes(&format!("/reconstructions/{}/recovered.npy", same["id"]));
     assert_eq!(s, 200);
     let same = polnlos::files::npy::decode(&npy).unwrap().data;
-    let peaks = [0, 1, 2].map(|k| same.iter().skip(k).step_by(3).copied().fold(0.0, f64::max));
-    let (means, scales) = (colour_means(&same, &letter), colour_scales(&same));
-    println!(
-        "one λ: means over the letter {means:.3?}, peaks {peaks:.3?}, scales against green {scales:.3?}"
+    let apart = same
+        .iter()
+        .zip(&image)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        apart < 1e-9,
+        "the shared λ's result and the λ given differ by {apart}"
     );
-    assert!(spread(&means) <= 0.07, "one λ: lit means {means:?}");
-    assert!(spread(&scales) <= 0.03, "one λ: scales {scales:?}");
     let each: Vec<f64> = letter.iter().flat_map(|&v| [v; 3]).collect();
     let joint = polnlos::solve::metrics::zncc(&each, &image);
     let said = r["report"]["metrics"]["zncc"].as_f64().unwrap();

@@ -183,12 +183,10 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
             .collect(),
         None => vec![gain; colours],
     };
-    let mut solved = stacked
-        .measurements
-        .into_iter()
-        .zip(gains)
-        .map(|(m, g)| job.solve(m, g))
-        .collect::<Result<Vec<_>, _>>()?;
+    // Calibrated colours are in one unit: one λ for all of them keeps their
+    // balance (a λ each dims the noisier colours more).
+    let shared = balance.is_some() && colours > 1 && rec.params.solve.lambda.is_none();
+    let mut solved = job.solve_all(stacked.measurements, &gains, shared)?;
     let (image, measurement, mut report, kappa) = match solved.len() {
         1 => {
             let s = solved.swap_remove(0);
@@ -240,7 +238,14 @@ impl Job<'_> {
     /// row of `t`): unmeasured rows dropped, units, the sampling chosen from
     /// the noise, the conditioning and Gram, the solver the record asks for;
     /// divided by `gain` (`None`: scaled to a brightest element of about 1).
-    fn solve(&self, mut measurement: Measurement, gain: Option<f64>) -> Result<Solution, JobError> {
+    ///
+    /// `lambda`, when given, replaces the record's (and its automatic choice).
+    fn solve(
+        &self,
+        mut measurement: Measurement,
+        gain: Option<f64>,
+        lambda: Option<f64>,
+    ) -> Result<Solution, JobError> {
         let (d, rec) = (self.d, self.rec);
         check(self.cancel)?;
         // Elements too saturated to measure: their rows of T and i are zero (no
@@ -293,7 +298,10 @@ impl Job<'_> {
             false => Arc::new(crate::solve::condition(&t)?),
         };
         check(self.cancel)?;
-        let solve = stored_solve(rec)?;
+        let mut solve = stored_solve(rec)?;
+        if lambda.is_some() {
+            solve.lambda = lambda;
+        }
         let truth = rec
             .params
             .truth
@@ -345,6 +353,70 @@ impl Job<'_> {
 }
 
 impl Job<'_> {
+    /// Each measurement (one, or a colour camera's three) solved with its
+    /// gain; with `shared`, at one λ ([`Job::share_lambda`]).
+    fn solve_all(
+        &self,
+        measurements: Vec<Measurement>,
+        gains: &[Option<f64>],
+        shared: bool,
+    ) -> Result<Vec<Solution>, JobError> {
+        let again = shared.then(|| measurements.clone());
+        let mut solved = measurements
+            .into_iter()
+            .zip(gains.iter().copied())
+            .map(|(m, g)| self.solve(m, g, None))
+            .collect::<Result<Vec<_>, _>>()?;
+        if let Some(measurements) = again {
+            self.share_lambda(&mut solved, measurements, gains)?;
+        }
+        Ok(solved)
+    }
+
+    /// The colours of `solved` (each with its own automatic λ) solved again
+    /// at the largest of their λs: calibrated
+    /// colours then share one λ, so TV dims each alike and a white scene
+    /// stays white (no colour is left noisier than its own choice). Each
+    /// colour's report keeps its own choice (`lambda_choice`) and says so.
+    fn share_lambda(
+        &self,
+        solved: &mut [Solution],
+        measurements: Vec<Measurement>,
+        gains: &[Option<f64>],
+    ) -> Result<(), JobError> {
+        let chosen: Option<Vec<f64>> = solved
+            .iter()
+            .map(|s| s.report.lambda_choice.as_ref().map(|c| c.lambda))
+            .collect();
+        let Some(chosen) = chosen else {
+            return Ok(());
+        };
+        let (largest, from) = chosen.iter().zip(crate::measure::colour::Colour::ALL).fold(
+            (0.0, None),
+            |(l, c), (&v, colour)| match v > l {
+                true => (v, Some(colour)),
+                false => (l, c),
+            },
+        );
+        let Some(from) = from else {
+            return Ok(());
+        };
+        let note = format!(
+            "one λ = {largest:.3e} for every colour, the largest of their own choices ({}'s): calibrated colours share it so that TV dims each alike",
+            format!("{from:?}").to_lowercase()
+        );
+        // Every colour, the one that chose it too: a search's last solve is
+        // warm-started, and the result is then exactly the one asked for
+        // with that λ.
+        for ((s, m), &gain) in solved.iter_mut().zip(measurements).zip(gains) {
+            let choice = s.report.lambda_choice.take();
+            *s = self.solve(m, gain, Some(largest))?;
+            s.report.lambda_choice = choice;
+            s.report.notes.push(note.clone());
+        }
+        Ok(())
+    }
+
     /// Reconstructs the stacked measurement with its gain and background
     /// fitted (docs/realphoto.md), as `polnlos reconstruct --photo` does:
     /// the same function, settings and `T`, so the same numbers. Writes the
@@ -521,6 +593,16 @@ fn colour_result(
     });
     report.warnings = labelled(&solved, |s| &s.report.warnings);
     report.notes = labelled(&solved, |s| &s.report.notes);
+    // Solved at one λ (calibrated colours), the choice of the colour that set it.
+    let used = report.solver.lambda;
+    if let Some(c) = report
+        .colours
+        .iter()
+        .filter_map(|c| c.lambda_choice.as_ref())
+        .find(|c| Some(c.lambda) == used)
+    {
+        report.lambda_choice = Some(c.clone());
+    }
     (image, i, report, kappa)
 }
 
