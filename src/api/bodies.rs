@@ -8,10 +8,11 @@
 
 use serde::{Deserialize, Serialize};
 
+pub(crate) use crate::daemon::requests::ColourCalibrationBody;
 pub use crate::daemon::requests::{
-    AutoExposure, CalibrationBody, CaptureBody, ColourCalibrationBody, ImportQuery, PlanBody,
-    PlanReconstruct, ProgressiveBody, ReconstructionBody, SettingsBody, SourcePositionBody,
-    WallCalibrationBody, MAX_CAPTURES_PER_POSITION,
+    AutoExposure, CalibrationBody, CaptureBody, ImportQuery, PlanBody, PlanReconstruct,
+    ProgressiveBody, ReconstructionBody, SettingsBody, SourcePositionBody, WallCalibrationBody,
+    MAX_CAPTURES_PER_POSITION,
 };
 
 use super::ApiError;
@@ -55,7 +56,7 @@ impl Page {
 /// Target of an exposure plan (query of `GET /scenes/{name}/exposure`).
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]
-pub struct TargetQuery {
+pub(crate) struct TargetQuery {
     /// Brightest admissible wall element as a fraction of full scale (default 0.8).
     #[param(exclusive_minimum = 0.0, maximum = 1.0)]
     peak_fraction: Option<f64>,
@@ -80,7 +81,7 @@ impl TargetQuery {
 
 /// `GET /health` answer.
 #[derive(Debug, Serialize, utoipa::ToSchema)]
-pub struct Health {
+pub(crate) struct Health {
     /// Always `ok` when the daemon answers.
     pub status: &'static str,
     /// Whether the camera is open now.

@@ -51,9 +51,9 @@ impl Limits {
 }
 
 /// Connections closed at once because the cap was reached (for `/metrics`).
-pub static CONNECTIONS_REFUSED: AtomicU64 = AtomicU64::new(0);
+pub(crate) static CONNECTIONS_REFUSED: AtomicU64 = AtomicU64::new(0);
 /// Connections open now.
-pub static CONNECTIONS_OPEN: AtomicU64 = AtomicU64::new(0);
+pub(crate) static CONNECTIONS_OPEN: AtomicU64 = AtomicU64::new(0);
 
 /// How long shutdown waits for requests in flight (an SSE stream never ends).
 const DRAIN: Duration = Duration::from_secs(5);
@@ -106,7 +106,7 @@ impl Drop for PeerSlot {
 /// How long a stopping daemon waits for its running jobs to stop (they are
 /// stopped at once; a frame in flight or a solver between checks may hold
 /// them a few seconds), within systemd's default 90 s stop timeout.
-pub const JOB_DRAIN: Duration = Duration::from_secs(20);
+pub(crate) const JOB_DRAIN: Duration = Duration::from_secs(20);
 
 /// Serves the API of `daemon` on `listener` until `shutdown` completes, then
 /// drains the daemon (running jobs end `interrupted`, workers joined, camera

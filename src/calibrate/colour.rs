@@ -15,7 +15,7 @@ use crate::scene::Colour;
 
 /// A colour's response known to no better than this (relative standard
 /// error, from the frames' noise) is refused: a 5 % error is a visible tint.
-pub const MAX_RELATIVE_SIGMA: f64 = 0.02;
+pub(crate) const MAX_RELATIVE_SIGMA: f64 = 0.02;
 
 /// One colour's response to the field.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -100,7 +100,7 @@ pub enum ColourBalanceError {
 
 /// One colour's measurement: the colour, one value per wall element (NaN:
 /// not measured), and each value's variance when known.
-pub type ColourValues<'a> = (Colour, &'a [f64], Option<&'a [f64]>);
+pub(crate) type ColourValues<'a> = (Colour, &'a [f64], Option<&'a [f64]>);
 
 /// Each colour's response from a measurement of a neutral field. Sums run
 /// over the rows every colour measured.

@@ -215,7 +215,7 @@ pub fn detect(frame: &Frame) -> Vec<Blob> {
 
 /// [`detect`], with each centroid's variance from the frame's per-pixel
 /// `variance` (ignored unless it has the frame's size).
-pub fn detect_with_variance(frame: &Frame, variance: Option<&Frame>) -> Vec<Blob> {
+pub(crate) fn detect_with_variance(frame: &Frame, variance: Option<&Frame>) -> Vec<Blob> {
     let variance = variance.filter(|v| {
         v.width == frame.width && v.height == frame.height && v.pixels.len() == frame.pixels.len()
     });

@@ -170,7 +170,7 @@ impl WallParams {
 /// material set to `p`.
 /// `scene` with its hidden screen shrunk to one element at `source`, and the
 /// wall's material `p`: the scene whose `T` has one column, the source's image.
-pub fn point_scene(
+pub(crate) fn point_scene(
     scene: &Scene,
     source: &PointSource,
     p: &WallParams,

@@ -77,7 +77,7 @@ impl std::ops::Add for FrameCounts {
 /// Follows the frame ids of one acquisition and says how many frames never
 /// arrived before each one.
 #[derive(Debug, Default)]
-pub struct FrameIds {
+pub(crate) struct FrameIds {
     last: Option<u64>,
     /// Broken frames without an id since the last id: they are among the
     /// ids skipped, and counted broken, not dropped.

@@ -92,7 +92,7 @@ unsafe impl Send for FakeBench {}
 unsafe impl Sync for FakeBench {}
 
 /// The GigE Vision control port (GVCP) a fake camera answers on.
-pub const GVCP_PORT: u16 = 3956;
+pub(crate) const GVCP_PORT: u16 = 3956;
 
 /// Why the fake camera could not start.
 #[derive(Debug, thiserror::Error)]

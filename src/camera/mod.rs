@@ -20,8 +20,8 @@ pub mod worker;
 
 pub use crate::measure::Frame;
 pub use device::{
-    frames_between, CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameIds,
-    FrameSink, RawFrame,
+    frames_between, CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameSink,
+    RawFrame,
 };
 pub use pixel::DecodeError;
 pub use settings::{

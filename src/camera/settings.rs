@@ -213,7 +213,7 @@ impl CameraSettings {
 }
 
 /// Exposure polnlos accepts at all: 10 us to one hour.
-pub const EXPOSURE_RANGE_US: (f64, f64) = (10.0, 3.6e9);
+pub(crate) const EXPOSURE_RANGE_US: (f64, f64) = (10.0, 3.6e9);
 
 /// How a GenICam feature holds its value.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -285,7 +285,7 @@ pub const RANGED: &[RangedSetting] = &[
 ];
 
 /// The exposure's entry of [`RANGED`] (exposure plans need its range).
-pub const EXPOSURE: &RangedSetting = &RANGED[0];
+pub(crate) const EXPOSURE: &RangedSetting = &RANGED[0];
 
 impl RangedSetting {
     /// The range a capture may ask for: what polnlos accepts, within the

@@ -19,7 +19,7 @@ use crate::rig::bench::Bench;
 const SENSOR: u32 = 512;
 
 /// A demo bench whose camera runs in this process.
-pub struct SyntheticBench {
+pub(crate) struct SyntheticBench {
     shown: Arc<Shown>,
     /// Settings of the camera, kept across reopenings like a real camera's.
     settings: Arc<Mutex<Acquisition>>,

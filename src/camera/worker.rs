@@ -13,7 +13,7 @@ use super::device::{CameraDevice, CameraError, CameraInfo, Counters, FrameCounts
 use super::settings::Acquisition;
 
 /// Opens the camera (again): the worker calls it at start and after a loss.
-pub type Opener = Box<dyn Fn() -> Result<Box<dyn CameraDevice>, CameraError> + Send>;
+pub(crate) type Opener = Box<dyn Fn() -> Result<Box<dyn CameraDevice>, CameraError> + Send>;
 
 enum Request {
     Describe(oneshot::Sender<Result<CameraInfo, CameraError>>),

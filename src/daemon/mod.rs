@@ -50,7 +50,6 @@ pub use requests::validate::RequestError;
 pub use requests::{ZeroBody, ZeroLight};
 pub use runtime::camera::{CameraService, CameraView, SettingsError};
 pub use runtime::config::Config;
-pub use runtime::demo::DEMO_SOURCE;
 pub use runtime::events::{Event, Events, Step as ProgressiveStep};
 pub use runtime::queue::SubmitError;
 
@@ -71,7 +70,7 @@ pub use runtime::scenes::Scenes;
 
 /// Exposure at which the fake camera's demo image fills 80 % of full scale
 /// (unpolarized peak), microseconds.
-pub const DEMO_REFERENCE_EXPOSURE_US: f64 = 20_000.0;
+pub(crate) const DEMO_REFERENCE_EXPOSURE_US: f64 = 20_000.0;
 const DEMO_PEAK_FRACTION: f64 = 0.8;
 
 /// Why the daemon could not start.

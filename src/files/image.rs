@@ -228,7 +228,7 @@ pub fn normalized_u16(values: &[f64]) -> Vec<u16> {
 
 /// Box-filter resampling with fractional pixel coverage: each destination
 /// cell is the exact mean of the source area it covers (down- or up-sampling).
-pub fn resample_area(src: &Gray, width: usize, height: usize) -> Vec<f64> {
+pub(crate) fn resample_area(src: &Gray, width: usize, height: usize) -> Vec<f64> {
     let sx = src.width as f64 / width as f64;
     let sy = src.height as f64 / height as f64;
     let spans = |i: usize, scale: f64, n: usize| -> Vec<(usize, f64)> {

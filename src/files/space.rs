@@ -27,7 +27,7 @@ pub fn free_disk_bytes(dir: &Path) -> std::io::Result<u64> {
 }
 
 /// `MemAvailable` from `/proc/meminfo`, in bytes (None where there is none).
-pub fn available_memory_bytes() -> Option<u64> {
+pub(crate) fn available_memory_bytes() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
     parse_mem_available(&text)
 }

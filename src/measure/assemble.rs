@@ -79,7 +79,7 @@ impl CaptureFrames {
 /// `captures` of the one capture that serves it: a capture yielding a block
 /// the scene lacks, a block without a capture, or two captures for one block
 /// is an error naming them.
-pub fn match_blocks(
+pub(crate) fn match_blocks(
     blocks: &[Block],
     captures: &[CaptureFrames],
 ) -> Result<Vec<usize>, MeasureError> {

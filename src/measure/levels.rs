@@ -9,7 +9,7 @@
 use serde::Serialize;
 
 /// Histogram bins over the range the frame uses.
-pub const BINS: usize = 64;
+pub(crate) const BINS: usize = 64;
 
 /// The narrowest stretch and histogram range, DN, at `full` scale: 1/512 of
 /// full scale and at least 8 DN. Why: a frame of read noise alone spans a

@@ -15,7 +15,7 @@ mod stack;
 pub mod window;
 
 pub use assemble::{
-    assemble, assemble_colour, assemble_with, match_blocks, to_model_units, CaptureFrames, Units,
+    assemble, assemble_colour, assemble_with, to_model_units, CaptureFrames, Units,
 };
 pub use average::{Clipping, FrameStack};
 pub use frame::Frame;

@@ -27,7 +27,7 @@ pub struct Stokes {
 /// row `offset` behind a `layout` mosaic; cells start at the first pixel
 /// with even sensor coordinates, and a frame narrower than one cell gives
 /// empty images.
-pub fn stokes(frame: &Frame, layout: MosaicLayout, offset: [u32; 2]) -> Stokes {
+pub(crate) fn stokes(frame: &Frame, layout: MosaicLayout, offset: [u32; 2]) -> Stokes {
     let (x0, y0) = ((offset[0] % 2) as usize, (offset[1] % 2) as usize);
     let w = frame.width.saturating_sub(x0) / 2;
     let h = frame.height.saturating_sub(y0) / 2;

@@ -177,7 +177,7 @@ pub struct SpecularLobe {
 /// collapses to `A = r_s (e_src.t)` for any choice of `e_s`; we use that (and
 /// `r_s^2 |e_src|^2` without a polarizer), which is the continuous limit.
 #[inline]
-pub fn specular_factor(
+pub(crate) fn specular_factor(
     fresnel: FresnelAmplitudes,
     w_i: &Vec3,
     w_o: &Vec3,

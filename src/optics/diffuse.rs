@@ -49,7 +49,7 @@ impl DiffuseModel {
 /// Power transmittances `(Ts, Tp)` of the wall interface at `cos θ` (MODEL.md
 /// `Ts = 1 - Rs`, `Tp = 1 - Rp`, Fresnel at the macroscopic angle θ).
 #[inline(always)]
-pub fn transmittances(cos: f64, eta: f64) -> (f64, f64) {
+pub(crate) fn transmittances(cos: f64, eta: f64) -> (f64, f64) {
     let r = FresnelAmplitudes::from_cos(cos, eta).reflectances();
     (1.0 - r.rs, 1.0 - r.rp)
 }

@@ -16,7 +16,7 @@ pub fn distribution(cos_h: f64, alpha: f64) -> f64 {
 
 /// Smith masking for one direction, `G1(w) = 2 (n.w) / ((n.w) + sqrt(alpha^2 + (1 - alpha^2)(n.w)^2))`.
 #[inline(always)]
-pub fn smith_g1(cos_w: f64, alpha: f64) -> f64 {
+pub(crate) fn smith_g1(cos_w: f64, alpha: f64) -> f64 {
     let a2 = alpha * alpha;
     2.0 * cos_w / (cos_w + (a2 + (1.0 - a2) * cos_w * cos_w).sqrt())
 }

@@ -9,7 +9,7 @@
 use super::Vec3;
 
 /// Below this `|w_i x w_o|` the plane of incidence, and so `e_s`, is undefined (MODEL.md).
-pub const DEGENERATE_CROSS: f64 = 1e-12;
+pub(crate) const DEGENERATE_CROSS: f64 = 1e-12;
 
 /// How a tilted polarizer sheet acts on an oblique ray (MODEL.md `[polarizer] model`).
 ///
@@ -64,7 +64,7 @@ impl PolarizerModel {
 
 /// The s direction of the facet, `normalize(w_i x w_o)`, or `None` when degenerate.
 #[inline]
-pub fn s_direction(w_i: &Vec3, w_o: &Vec3) -> Option<Vec3> {
+pub(crate) fn s_direction(w_i: &Vec3, w_o: &Vec3) -> Option<Vec3> {
     let x = w_i.cross(w_o);
     let n = x.norm();
     (n >= DEGENERATE_CROSS).then(|| x / n)
@@ -79,7 +79,7 @@ pub fn s_direction(w_i: &Vec3, w_o: &Vec3) -> Option<Vec3> {
 /// `(Rs (w_i.b)^2 + Rp (w_i.t)^2) / (2 |x|^2)` with `b = w_o x t`, which
 /// needs no square root. Below `|x| = 1e-12` it returns `Rs/2` (MODEL.md).
 #[inline(always)]
-pub fn analyzer_factor(rs: f64, rp: f64, wi_dot_b: f64, wi_dot_t: f64, cross2: f64) -> f64 {
+pub(crate) fn analyzer_factor(rs: f64, rp: f64, wi_dot_b: f64, wi_dot_t: f64, cross2: f64) -> f64 {
     if cross2 < DEGENERATE_CROSS * DEGENERATE_CROSS {
         0.5 * rs
     } else {
@@ -92,7 +92,7 @@ pub fn analyzer_factor(rs: f64, rp: f64, wi_dot_b: f64, wi_dot_t: f64, cross2: f
 /// (unit, as `t` is) `w_o x t_perp = -t`, so the second factor swaps `w_i.b`
 /// and `w_i.t`, and both fold into one expression.
 #[inline(always)]
-pub fn partial_analyzer_factor(
+pub(crate) fn partial_analyzer_factor(
     rs: f64,
     rp: f64,
     wi_dot_b: f64,
@@ -111,7 +111,7 @@ pub fn partial_analyzer_factor(
 /// Projects a polarized source's field direction onto the plane normal to `w_i`
 /// and normalizes it; zero when it is parallel to `w_i` (MODEL.md edge cases).
 #[inline]
-pub fn source_field(e_src: &Vec3, w_i: &Vec3) -> Vec3 {
+pub(crate) fn source_field(e_src: &Vec3, w_i: &Vec3) -> Vec3 {
     let e = e_src - e_src.dot(w_i) * w_i;
     let n = e.norm();
     if n > 1e-12 {
@@ -122,7 +122,7 @@ pub fn source_field(e_src: &Vec3, w_i: &Vec3) -> Vec3 {
 }
 
 /// Rodrigues rotation of `v` by `angle` (right hand) about the unit `axis`.
-pub fn rotate(v: &Vec3, axis: &Vec3, angle: f64) -> Vec3 {
+pub(crate) fn rotate(v: &Vec3, axis: &Vec3, angle: f64) -> Vec3 {
     let (s, c) = angle.sin_cos();
     v * c + axis.cross(v) * s + axis * (axis.dot(v) * (1.0 - c))
 }

@@ -59,7 +59,7 @@ fn point(
 
 /// Voxel grids of the resolution sweep (alpha 0.3), and the grid of the
 /// roughness sweep.
-pub fn active_sweep(
+pub(crate) fn active_sweep(
     grids: &[usize],
     rough_grid: usize,
     budget: MemoryBudget,
@@ -80,7 +80,7 @@ pub fn active_sweep(
 }
 
 /// Points [`active_sweep`] computes.
-pub fn active_len(grids: &[usize]) -> usize {
+pub(crate) fn active_len(grids: &[usize]) -> usize {
     2 * (grids.len() + ROUGHNESS.len())
 }
 

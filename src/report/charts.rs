@@ -78,7 +78,7 @@ fn render(fig: &impl Figure) -> Result<Chart, ChartError> {
 
 /// Marker drawn at each point of a series.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Marker {
+pub(crate) enum Marker {
     /// No marker (a line only).
     None,
     /// Filled circle.
@@ -91,7 +91,7 @@ pub enum Marker {
 
 /// One named series of (x, y) points.
 #[derive(Debug, Clone)]
-pub struct Series {
+pub(crate) struct Series {
     /// Legend label.
     pub name: String,
     /// Points; on a log axis, values that are not positive and finite are skipped.
@@ -125,7 +125,7 @@ impl Series {
 
 /// One panel: axes, labels and series.
 #[derive(Debug, Clone)]
-pub struct Plot {
+pub(crate) struct Plot {
     /// Caption.
     pub title: String,
     /// X axis label.
@@ -394,17 +394,17 @@ impl Figure for Panels<'_> {
 
 /// One or more line/scatter panels side by side, e.g. kappa against
 /// roughness (log-log) or PSNR against wall time (log x).
-pub fn panels(plots: &[Plot]) -> Result<Chart, ChartError> {
+pub(crate) fn panels(plots: &[Plot]) -> Result<Chart, ChartError> {
     render(&Panels(plots, plots.len()))
 }
 
 /// Panels on a grid of `cols` columns, filled row by row.
-pub fn panel_grid(plots: &[Plot], cols: usize) -> Result<Chart, ChartError> {
+pub(crate) fn panel_grid(plots: &[Plot], cols: usize) -> Result<Chart, ChartError> {
     render(&Panels(plots, cols))
 }
 
 /// A log-log line chart with one circle-marked line per series.
-pub fn log_lines(
+pub(crate) fn log_lines(
     title: &str,
     x_label: &str,
     y_label: &str,
@@ -507,7 +507,7 @@ impl Figure for Bars<'_> {
 /// Grouped bars on a log axis: one colour per series (e.g. polarizer
 /// configuration), one group per setting (e.g. grid and occluder), the group
 /// name written above it. Non-finite values (an infinite kappa) draw no bar.
-pub fn log_bars(
+pub(crate) fn log_bars(
     title: &str,
     y_label: &str,
     series: &[&str],
@@ -524,7 +524,7 @@ pub fn log_bars(
 /// Indices of the points on the Pareto front of "less time, more quality":
 /// a point is kept when no other point is at least as fast and strictly
 /// better, or strictly faster and at least as good. Sorted by time.
-pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
+pub(crate) fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
     let mut idx: Vec<usize> = (0..points.len())
         .filter(|&k| points[k].0.is_finite() && points[k].1.is_finite())
         .collect();
@@ -548,7 +548,7 @@ pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
 
 /// An axis label numbering the categories a chart's integer x stands for:
 /// `case: 1 nopol, 2 rotating`.
-pub fn numbered<'a>(what: &str, names: impl Iterator<Item = &'a str>) -> String {
+pub(crate) fn numbered<'a>(what: &str, names: impl Iterator<Item = &'a str>) -> String {
     let names: Vec<String> = names
         .enumerate()
         .map(|(k, n)| format!("{} {n}", k + 1))

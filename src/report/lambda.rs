@@ -26,7 +26,7 @@ use crate::transport::{build, MemoryBudget, Transport};
 const SEARCH: (f64, f64, usize) = (-6.0, 1.0, 28);
 
 /// How close to the best counts as a hit, in dB (issue 10's bound).
-pub const HIT_DB: f64 = 1.5;
+pub(crate) const HIT_DB: f64 = 1.5;
 
 /// One simulated case.
 #[derive(Debug, Clone, Serialize)]
@@ -160,7 +160,7 @@ fn with_grid(name: &str, n: usize) -> Result<Scene, BenchError> {
 
 /// Every scene x photon level x pattern on an `n x n` grid; a fixed seed per
 /// case. `step()` is called after each case.
-pub fn lambda_sweep(
+pub(crate) fn lambda_sweep(
     scenes: &[&str],
     grid: usize,
     photons: &[f64],
@@ -186,7 +186,7 @@ pub fn lambda_sweep(
 }
 
 /// Cases [`lambda_sweep`] runs.
-pub fn lambda_len(scenes: usize, photons: usize) -> usize {
+pub(crate) fn lambda_len(scenes: usize, photons: usize) -> usize {
     scenes * photons * Pattern::ALL.len()
 }
 

@@ -22,7 +22,8 @@ mod tables;
 
 pub use plan::BenchPlan;
 pub use shape::Report;
-pub use tables::{Conditioning, Roughness};
+pub use tables::Conditioning;
+pub(crate) use tables::Roughness;
 
 use serde::Serialize;
 
@@ -31,10 +32,10 @@ use crate::solve::{condition, SolveError};
 use crate::transport::{build, MemoryBudget, TransportError};
 
 /// Polarizer configurations of the reference bench, in the paper's order.
-pub const CONFIGS: [&str; 4] = ["nopol", "rotating", "crossed", "multi"];
+pub(crate) const CONFIGS: [&str; 4] = ["nopol", "rotating", "crossed", "multi"];
 
 /// Wall roughness values of the Fig. 6 sweep.
-pub const ROUGHNESS: [f64; 7] = [0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0];
+pub(crate) const ROUGHNESS: [f64; 7] = [0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0];
 
 /// Why a report could not be computed.
 #[derive(Debug, thiserror::Error)]
@@ -190,7 +191,7 @@ fn kappa(scene: &Scene, budget: MemoryBudget) -> Result<f64, BenchError> {
 
 /// Table 1: kappa for every configuration, with and without the occluder, on
 /// the given scene grids (3 and/or 8). `step()` is called after each row.
-pub fn conditioning_table(
+pub(crate) fn conditioning_table(
     grids: &[usize],
     budget: MemoryBudget,
     step: &mut dyn FnMut(),
@@ -222,7 +223,7 @@ pub fn conditioning_table(
 
 /// One point of the roughness sweep.
 #[derive(Debug, Clone, Serialize)]
-pub struct RoughRow {
+pub(crate) struct RoughRow {
     /// `nopol`, `crossed` or `multi`.
     pub config: String,
     /// With the Saunders occluder.
@@ -237,7 +238,7 @@ pub struct RoughRow {
 }
 
 /// Fig. 6: kappa against roughness for nopol, crossed and multi, with and without the occluder.
-pub fn roughness_sweep(
+pub(crate) fn roughness_sweep(
     grid: usize,
     budget: MemoryBudget,
     step: &mut dyn FnMut(),
@@ -264,12 +265,12 @@ pub fn roughness_sweep(
 }
 
 /// Rows that [`conditioning_table`] will compute, for a progress bar.
-pub fn conditioning_len(grids: &[usize]) -> usize {
+pub(crate) fn conditioning_len(grids: &[usize]) -> usize {
     grids.len() * 2 * CONFIGS.len()
 }
 
 /// Points that [`roughness_sweep`] will compute.
-pub fn roughness_len() -> usize {
+pub(crate) fn roughness_len() -> usize {
     2 * 3 * ROUGHNESS.len()
 }
 

@@ -43,7 +43,7 @@ pub const PHOTONS: f64 = 2e4;
 pub const READ_NOISE: f64 = 5.0;
 
 /// Noise seeds averaged per setup.
-pub const SEEDS: u64 = 32;
+pub(crate) const SEEDS: u64 = 32;
 
 /// One setup of the comparison.
 #[derive(Debug, Clone, Serialize)]

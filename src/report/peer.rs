@@ -22,7 +22,7 @@ use crate::transport::{build, MemoryBudget, Transport};
 pub(crate) static SCRIPT: &str = include_str!("../../benches/peer/peer.py");
 
 /// ADMM iterations timed on both sides.
-pub const ITERATIONS: usize = 200;
+pub(crate) const ITERATIONS: usize = 200;
 
 /// The comparison, or why it did not run.
 #[derive(Debug, Clone, Serialize)]

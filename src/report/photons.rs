@@ -36,10 +36,10 @@ pub const PHOTONS: [f64; 6] = [4e2, 2e3, 1e4, 5e4, 2.5e5, 1.25e6];
 pub const READ_NOISE: f64 = 5.0;
 
 /// Noise seeds averaged per point.
-pub const SEEDS: u64 = 4;
+pub(crate) const SEEDS: u64 = 4;
 
 /// Patterns of the comparison.
-pub const PATTERNS: [Pattern; 3] = [Pattern::Disk, Pattern::Bars, Pattern::Letter];
+pub(crate) const PATTERNS: [Pattern; 3] = [Pattern::Disk, Pattern::Bars, Pattern::Letter];
 
 /// Steps [`photons_report`] reports (one per pattern).
 pub const STEPS: usize = PATTERNS.len();

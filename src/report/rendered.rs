@@ -313,7 +313,7 @@ pub fn reconstruct_pair(
 }
 
 /// The cases of the report, in the paper's Table-1 order, with their labels.
-pub const REPORT_CASES: [(&str, &str); 5] = [
+pub(crate) const REPORT_CASES: [(&str, &str); 5] = [
     ("nopol", "no polarizer"),
     ("rotating", "rotating polarizer"),
     ("crossed", "crossed polarizer"),
@@ -323,7 +323,7 @@ pub const REPORT_CASES: [(&str, &str); 5] = [
 
 /// Photo-electrons at the brightest unpolarized wall element for the
 /// equal-exposure reconstructions of the report.
-pub const REPORT_PHOTONS: f64 = 2e4;
+pub(crate) const REPORT_PHOTONS: f64 = 2e4;
 
 /// One case of the report.
 #[derive(Debug, Clone, Serialize)]
@@ -394,7 +394,7 @@ fn best_denoised(grid: crate::scene::Grid, truth: &[f64], image: &[f64]) -> (Met
 /// Runs the report on the cases of [`REPORT_CASES`] named in `which`, under
 /// `dir`, calling `step()` once per name; a missing folder or case is a
 /// report that says so, not an error of the whole bench.
-pub fn rendered_report(
+pub(crate) fn rendered_report(
     dir: &Path,
     which: &[&str],
     budget: MemoryBudget,

@@ -13,13 +13,13 @@ use crate::transport::adaptive::relative_error;
 use crate::transport::{build, build_adaptive, MemoryBudget, Transport};
 
 /// Uniform sub-sampling per side compared.
-pub const UNIFORM: [usize; 6] = [1, 2, 3, 4, 6, 8];
+pub(crate) const UNIFORM: [usize; 6] = [1, 2, 3, 4, 6, 8];
 
 /// Adaptive tolerances compared (relative Frobenius error).
-pub const TOLERANCES: [f64; 5] = [1e-1, 3e-2, 1e-2, 3e-3, 1e-3];
+pub(crate) const TOLERANCES: [f64; 5] = [1e-1, 3e-2, 1e-2, 3e-3, 1e-3];
 
 /// Largest adaptive level.
-pub const MAX_M: usize = 16;
+pub(crate) const MAX_M: usize = 16;
 
 /// One build.
 #[derive(Debug, Clone, Serialize)]
@@ -50,7 +50,7 @@ fn case(name: &str, alpha: Option<f64>) -> Result<Scene, BenchError> {
 
 /// The sweep: `grid` is the scene grid side (3 or 8), `reference_m` the
 /// reference's sub-sampling per side. `step()` after each case.
-pub fn sampling_sweep(
+pub(crate) fn sampling_sweep(
     grid: usize,
     reference_m: usize,
     budget: MemoryBudget,
@@ -147,7 +147,7 @@ pub fn chart(rows: &[SamplingRow], reference_m: usize) -> Result<Chart, ChartErr
 }
 
 /// The sampling sweep as a report.
-pub struct Sampling {
+pub(crate) struct Sampling {
     /// Samples per element side of the reference `T`.
     pub reference_m: usize,
     /// The sweep.

@@ -29,9 +29,9 @@ pub const SCENE: &str = "brewster-multi";
 /// Photo-electrons at the brightest element of the unpolarized image.
 pub const PHOTONS: f64 = 1e4;
 /// Iterations of the NumPy peer's fixed-λ ADMM.
-pub const PEER_ITERATIONS: usize = 500;
+pub(crate) const PEER_ITERATIONS: usize = 500;
 /// Dense GEMM rate of the two cores the floor assumes, flop/s.
-pub const FLOOR_RATE: f64 = 100e9;
+pub(crate) const FLOOR_RATE: f64 = 100e9;
 
 /// One scene grid of the sweep.
 #[derive(Debug, Clone, Serialize)]
@@ -131,7 +131,7 @@ fn report_field(dir: &Path, f: impl Fn(&serde_json::Value) -> Option<f64>) -> f6
 
 /// Runs the sweep over `grids` at wall `wall` in `work`, with `exe` the
 /// polnlos binary, calling `step()` after each grid.
-pub fn scaling_sweep(
+pub(crate) fn scaling_sweep(
     exe: &Path,
     wall: usize,
     grids: &[usize],

@@ -65,10 +65,10 @@ pub const SIZES: [Size; 3] = [
 pub const EXPOSURES: [&str; 2] = ["equal exposure", "equal photon budget"];
 
 /// Iteration budgets of the iterative solvers (run to the budget, no early stop).
-pub const BUDGETS: [usize; 6] = [10, 25, 50, 100, 200, 500];
+pub(crate) const BUDGETS: [usize; 6] = [10, 25, 50, 100, 200, 500];
 
 /// Tolerances of the ADMM runs that stop on their own (cap 5000 iterations).
-pub const TOLERANCES: [f64; 3] = [1e-2, 1e-3, 1e-4];
+pub(crate) const TOLERANCES: [f64; 3] = [1e-2, 1e-3, 1e-4];
 
 /// Photo-electrons at the brightest element (see [`EXPOSURES`]), read noise
 /// 5 e-, 12 bits: the round-trip bench of tests/daemon/roundtrip.rs.
@@ -126,7 +126,7 @@ pub struct SpeedSummary {
 }
 
 /// The Brewster bench at `size`: crossed polarizer on poses A; B, C; or A, B, C.
-pub fn scene_for(size: &Size) -> Result<Scene, BenchError> {
+pub(crate) fn scene_for(size: &Size) -> Result<Scene, BenchError> {
     let a = builtin("brewster-crossed")?;
     let bc = builtin("brewster-multi")?;
     let poses = match size.poses {
@@ -256,7 +256,7 @@ fn run_solvers(
 
 /// Runs the sweep over `sizes` and `seeds` (1..=seeds), calling `step()` after
 /// each (size, seed).
-pub fn speed_sweep(
+pub(crate) fn speed_sweep(
     sizes: &[Size],
     seeds: u64,
     budgets: &[usize],
@@ -327,7 +327,7 @@ fn range(v: &[f64]) -> (f64, f64) {
 }
 
 /// Medians and spreads over seeds, with the Pareto front marked.
-pub fn summarize(rows: &[SpeedRow]) -> Vec<SpeedSummary> {
+pub(crate) fn summarize(rows: &[SpeedRow]) -> Vec<SpeedSummary> {
     let mut keys: Vec<(&'static str, &'static str, &'static str, String)> = Vec::new();
     for r in rows {
         let k = (r.size, r.exposure, r.solver, r.budget.clone());

@@ -126,10 +126,10 @@ fn cases() -> Result<Vec<Case>, BenchError> {
 }
 
 /// Number of cases, for a progress bar.
-pub const CASES: usize = 12;
+pub(crate) const CASES: usize = 12;
 
 /// Runs every case.
-pub fn stability_table(
+pub(crate) fn stability_table(
     budget: MemoryBudget,
     step: &mut dyn FnMut(),
 ) -> Result<Vec<StabilityRow>, BenchError> {

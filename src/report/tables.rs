@@ -11,7 +11,7 @@ use super::{fmt_kappa, CondRow, RoughRow, CONFIGS, ROUGHNESS};
 pub struct Conditioning(pub Vec<CondRow>);
 
 /// Fig. 6: kappa against wall roughness.
-pub struct Roughness(pub Vec<RoughRow>);
+pub(crate) struct Roughness(pub Vec<RoughRow>);
 
 fn occluder(occ: bool) -> &'static str {
     if occ {

@@ -43,7 +43,7 @@ impl RigConfigError {
 
 /// Why the rig could not do what a capture asked of it.
 #[derive(Debug, thiserror::Error)]
-pub enum RigError {
+pub(crate) enum RigError {
     /// A device's blocking command panicked or was cancelled.
     #[error("the {device}'s task failed: {reason}")]
     Task {
@@ -85,7 +85,7 @@ pub struct Automated {
 }
 
 /// The bench's devices, each present or not, and the fake bench's scene.
-pub struct Rig {
+pub(crate) struct Rig {
     mount: Arc<mount::MountService>,
     stage: Arc<stage::StageService>,
     light: Arc<relay::LightService>,
@@ -216,7 +216,7 @@ impl Rig {
 
 /// A calibration aid the fake bench can show instead of the hidden scene.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Aid {
+pub(crate) enum Aid {
     /// The calibration target (dots on the wall).
     Target,
     /// The calibration source lighting the wall.
@@ -224,7 +224,7 @@ pub enum Aid {
 }
 
 /// An aid shown by [`Rig::showing`]; dropping it takes the aid away.
-pub struct Showing<'a>(&'a Rig, Aid);
+pub(crate) struct Showing<'a>(&'a Rig, Aid);
 
 impl Drop for Showing<'_> {
     fn drop(&mut self) {

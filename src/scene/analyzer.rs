@@ -247,7 +247,7 @@ impl Analyzer {
 }
 
 /// `t_perp = normalize(w_o x t)`, zero when `t` is (the ray passes no light).
-pub fn perpendicular(t: &Vec3, w_o: &Vec3) -> Vec3 {
+pub(crate) fn perpendicular(t: &Vec3, w_o: &Vec3) -> Vec3 {
     let b = w_o.cross(t);
     let n = b.norm();
     if n > 0.0 {
@@ -259,7 +259,7 @@ pub fn perpendicular(t: &Vec3, w_o: &Vec3) -> Vec3 {
 
 /// Crossed polarizer axis of a pose, `q(0) = normalize(e_s0 x n_p)` (MODEL.md
 /// "The crossed polarizer of a pose"); `None` when `w_i0` is parallel to `w_o0`.
-pub fn crossed_axis(wall_center: &Vec3, scene_center: &Vec3, camera: &Vec3) -> Option<Vec3> {
+pub(crate) fn crossed_axis(wall_center: &Vec3, scene_center: &Vec3, camera: &Vec3) -> Option<Vec3> {
     let n_p = (wall_center - camera).normalize();
     let w_i0 = (scene_center - wall_center).normalize();
     let w_o0 = (camera - wall_center).normalize();
@@ -268,7 +268,7 @@ pub fn crossed_axis(wall_center: &Vec3, scene_center: &Vec3, camera: &Vec3) -> O
 }
 
 /// `q(psi)`: the crossed axis rotated by `+psi` about `n_p = normalize(c0 - o)` (Rodrigues).
-pub fn analyzer_axis(q0: &Vec3, wall_center: &Vec3, camera: &Vec3, psi: f64) -> Vec3 {
+pub(crate) fn analyzer_axis(q0: &Vec3, wall_center: &Vec3, camera: &Vec3, psi: f64) -> Vec3 {
     let n_p = (wall_center - camera).normalize();
     crate::optics::polarizer::rotate(q0, &n_p, psi)
 }

@@ -12,7 +12,7 @@ use super::{Homography, Plane};
 /// Most lattice points one map may look at (the wall's image bounding box):
 /// a 16k x 16k sensor. A homography that images the wall larger than that is
 /// refused before anything is allocated.
-pub const MAX_LATTICE_POINTS: u64 = 1 << 28;
+pub(crate) const MAX_LATTICE_POINTS: u64 = 1 << 28;
 
 /// A set of the four positions of a sensor's 2x2 pattern, `(column mod 2,
 /// row mod 2)` in sensor coordinates: the pixels behind one micro-polarizer

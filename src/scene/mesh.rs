@@ -13,7 +13,7 @@ use crate::optics::Vec3;
 /// than any wall a camera resolves, and every triangle is tested per ray.
 pub const MAX_TRIANGLES: usize = 1_000_000;
 /// Most vertices an OBJ file may list (three per triangle).
-pub const MAX_VERTICES: usize = 3 * MAX_TRIANGLES;
+pub(crate) const MAX_VERTICES: usize = 3 * MAX_TRIANGLES;
 /// Largest mesh file read, bytes (a binary STL of [`MAX_TRIANGLES`] is 50 MB).
 pub const MAX_BYTES: u64 = 256 << 20;
 /// Largest coordinate accepted after `scale` and `offset`, metres: a mesh
@@ -85,7 +85,7 @@ fn line_error(line: usize, message: impl Into<String>) -> MeshError {
 }
 
 /// Triangles as the file gives them, before scale and offset.
-pub type RawTriangles = Vec<[[f64; 3]; 3]>;
+pub(crate) type RawTriangles = Vec<[[f64; 3]; 3]>;
 
 /// Reads a mesh file: OBJ or STL by its extension, at most [`MAX_BYTES`].
 pub fn read(path: &Path) -> Result<RawTriangles, MeshError> {
@@ -147,7 +147,7 @@ fn three(
 /// Wavefront OBJ: `v x y z` vertices and `f` faces of 3 or more vertex
 /// references (`i`, `i/t`, `i//n`, `i/t/n`; negative counts back from the
 /// last vertex read), polygons fan-triangulated; other statements ignored.
-pub fn parse_obj(bytes: &[u8]) -> Result<RawTriangles, MeshError> {
+pub(crate) fn parse_obj(bytes: &[u8]) -> Result<RawTriangles, MeshError> {
     let text = String::from_utf8_lossy(bytes);
     let mut vertices: Vec<[f64; 3]> = Vec::new();
     // Vertex indices (0-based) of each triangle and the line that made it.
@@ -242,7 +242,7 @@ pub fn parse_obj(bytes: &[u8]) -> Result<RawTriangles, MeshError> {
 
 /// STL, binary when its size is `84 + 50 n` for the header's `n` (and it
 /// does not read as ASCII STL), ASCII when it starts with `solid`.
-pub fn parse_stl(bytes: &[u8]) -> Result<RawTriangles, MeshError> {
+pub(crate) fn parse_stl(bytes: &[u8]) -> Result<RawTriangles, MeshError> {
     let solid = bytes.trim_ascii_start().starts_with(b"solid");
     // Binary headers often start with "solid" too; ASCII STL is all text.
     let text = solid && bytes.is_ascii();

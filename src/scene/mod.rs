@@ -18,10 +18,8 @@ pub mod plane;
 
 use std::path::Path;
 
-pub use analyzer::{
-    analyzer_axis, crossed_axis, perpendicular, Analyzer, Channel, Mosaic, MosaicLayout,
-    UnknownAnalyzer, MOSAIC_DEGREES,
-};
+pub(crate) use analyzer::{crossed_axis, perpendicular};
+pub use analyzer::{Analyzer, Channel, Mosaic, MosaicLayout, UnknownAnalyzer, MOSAIC_DEGREES};
 pub use colour::Colour;
 pub use error::SceneError;
 pub use footprint::{

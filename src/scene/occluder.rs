@@ -105,7 +105,7 @@ fn plane_hit(origin: &Vec3, e1: &Vec3, e2: &Vec3, s: &Vec3, d: &Vec3) -> Option<
 /// Whether the open segment from `s` to `s + d` meets the closed triangle
 /// `tri`, its edges widened by `TRIANGLE_TOLERANCE`.
 #[inline]
-pub fn triangle_blocks(tri: &[Vec3; 3], s: &Vec3, d: &Vec3) -> bool {
+pub(crate) fn triangle_blocks(tri: &[Vec3; 3], s: &Vec3, d: &Vec3) -> bool {
     let (e1, e2) = (tri[1] - tri[0], tri[2] - tri[0]);
     match plane_hit(&tri[0], &e1, &e2, s, d) {
         Some((a, b)) => {

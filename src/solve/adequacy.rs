@@ -15,7 +15,7 @@ use serde::Serialize;
 pub const MISFIT_LIMIT: f64 = 3.0;
 
 /// The likely causes a flagged fit names, in the order a bench user checks them.
-pub const LIKELY_CAUSES: &str = "the polarizer model ([polarizer] model = \"absorbing\" or \"transmitting\"), the poses' homographies, the wall parameters (roughness, ior, kd, [wall] diffuse), stray light on the wall, or captures without dark subtraction";
+pub(crate) const LIKELY_CAUSES: &str = "the polarizer model ([polarizer] model = \"absorbing\" or \"transmitting\"), the poses' homographies, the wall parameters (roughness, ior, kd, [wall] diffuse), stray light on the wall, or captures without dark subtraction";
 
 /// How well a fit explains its measurement.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]

@@ -66,7 +66,7 @@ pub const LAMBDA_REL: f64 = 1e-2;
 
 /// Smallest default starting penalty, relative to `mean(diag(T^T T))`: below
 /// it `T^T T + rho (D^T D + I)` inherits `kappa(T)^2` and ADMM stalls.
-pub const RHO_FLOOR_REL: f64 = 1e-3;
+pub(crate) const RHO_FLOOR_REL: f64 = 1e-3;
 /// Residual balancing: check every this many iterations ...
 const BALANCE_EVERY: usize = 10;
 /// ... change rho by this factor when one scaled residual exceeds the other
@@ -213,7 +213,7 @@ pub fn admm_tv_prepared(
 
 /// [`admm_tv_prepared`] starting from `state` (its iterate, and its factor
 /// when it has one for this `T`), and leaving the result's there.
-pub fn admm_tv_warm(
+pub(crate) fn admm_tv_warm(
     t: &Transport,
     i: &[f64],
     normal: &Normal,

@@ -12,7 +12,7 @@ use super::{check_measurement, par, Reconstruction, SolveError, SolveStats};
 use crate::transport::Transport;
 
 /// Default Tikhonov weight relative to `mean(diag(T^T T))`.
-pub const TIKHONOV_REL: f64 = 1e-3;
+pub(crate) const TIKHONOV_REL: f64 = 1e-3;
 
 /// `l = clip(T^+ i)` with singular values below `rcond * sigma_max` dropped;
 /// `rcond = None` keeps MODEL.md's numerical-rank threshold

@@ -7,7 +7,7 @@ use crate::transport::Transport;
 
 /// MODEL.md's relative rank tolerance per dimension: a singular value counts
 /// as zero at or below `sigma_max * max(M, N) * RANK_EPS`.
-pub const RANK_EPS: f64 = 2.2e-16;
+pub(crate) const RANK_EPS: f64 = 2.2e-16;
 
 /// Singular spectrum of `T` and what follows from it.
 #[derive(Debug, Clone, serde::Serialize)]

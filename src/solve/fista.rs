@@ -50,7 +50,7 @@ impl Default for FistaSettings<'_> {
 }
 
 /// Runs FISTA-TV on a measurement `i` of the scene seen through `t`.
-pub fn fista_tv(
+pub(crate) fn fista_tv(
     t: &Transport,
     i: &[f64],
     settings: &FistaSettings,
@@ -186,7 +186,7 @@ pub fn tv_denoise(grid: Grid, b: &[f64], weight: f64, iterations: usize) -> Vec<
 }
 
 /// [`fista_tv`] with `T^T T` and `T^T i` already formed (`i` already checked).
-pub fn fista_tv_prepared(
+pub(crate) fn fista_tv_prepared(
     t: &Transport,
     i: &[f64],
     normal: &Normal,

@@ -11,7 +11,7 @@ use super::par;
 use crate::transport::Transport;
 
 /// Lower triangle of `T^T T` (the strict upper triangle is left zero).
-pub fn gram_lower(t: MatRef<'_, f64>, par: Par) -> Mat<f64> {
+pub(crate) fn gram_lower(t: MatRef<'_, f64>, par: Par) -> Mat<f64> {
     let n = t.ncols();
     let mut g = Mat::<f64>::zeros(n, n);
     matmul(
@@ -29,7 +29,7 @@ pub fn gram_lower(t: MatRef<'_, f64>, par: Par) -> Mat<f64> {
 }
 
 /// `T^T i`.
-pub fn adjoint(t: MatRef<'_, f64>, i: &[f64]) -> Vec<f64> {
+pub(crate) fn adjoint(t: MatRef<'_, f64>, i: &[f64]) -> Vec<f64> {
     (0..t.ncols())
         .map(|k| {
             let col = t.col(k);
@@ -40,7 +40,7 @@ pub fn adjoint(t: MatRef<'_, f64>, i: &[f64]) -> Vec<f64> {
 
 /// Mean of the diagonal of `T^T T`: the squared column norm, the natural unit
 /// (MODEL.md units of `lambda`) for default regularization and penalty weights.
-pub fn mean_diag(g: &Mat<f64>) -> f64 {
+pub(crate) fn mean_diag(g: &Mat<f64>) -> f64 {
     let n = g.nrows();
     if n == 0 {
         return 0.0;

@@ -121,7 +121,7 @@ pub fn least_squares_residual(t: &Transport, i: &[f64]) -> Option<Vec<f64>> {
 
 /// [`least_squares_residual`] with the Gram already formed (see
 /// [`NoiseLevel::from_residual_with`]).
-pub fn least_squares_residual_with(
+pub(crate) fn least_squares_residual_with(
     t: &Transport,
     i: &[f64],
     normal: Option<&Normal>,
@@ -225,7 +225,7 @@ const STEPS: usize = 14;
 
 /// Per-component error, in units of the radiance range, below which a scene
 /// component counts as resolved: the tolerance of [`super::plan`].
-pub const RESOLVED_TOLERANCE: f64 = 0.1;
+pub(crate) const RESOLVED_TOLERANCE: f64 = 0.1;
 
 /// ADMM-TV with lambda from the noise, the *resolved discrepancy* rule.
 ///

@@ -32,11 +32,11 @@ use crate::scene::Grid;
 pub const LOW_RANK_MIN_COLS: usize = 512;
 
 /// Trace of the neglected part of the Gram, relative to its trace.
-pub const LOW_RANK_TOL: f64 = 1e-13;
+pub(crate) const LOW_RANK_TOL: f64 = 1e-13;
 
 /// The low-rank form is kept only up to `cols / LOW_RANK_MAX_FRACTION`
 /// pivots: beyond, the dense factor is as cheap.
-pub const LOW_RANK_MAX_FRACTION: usize = 4;
+pub(crate) const LOW_RANK_MAX_FRACTION: usize = 4;
 
 /// `G ~ W W^T` with the ADMM pieces that do not depend on `rho`.
 pub struct LowRank {
@@ -58,7 +58,7 @@ pub struct LowRank {
 /// Diagonally pivoted Cholesky of the symmetric positive semidefinite `g`
 /// (lower triangle read), stopped when the trace of the Schur complement is
 /// at most `tol_abs`: `(W, pivots, remainder)`, or `None` past `max_rank` pivots.
-pub fn pivoted_cholesky(
+pub(crate) fn pivoted_cholesky(
     g: MatRef<'_, f64>,
     tol_abs: f64,
     max_rank: usize,

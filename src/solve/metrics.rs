@@ -62,7 +62,7 @@ pub fn zncc(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// Side of the SSIM window on a grid: 7, or the largest odd size that fits.
-pub fn ssim_window(grid: Grid) -> usize {
+pub(crate) fn ssim_window(grid: Grid) -> usize {
     let fit = grid.nu.min(grid.nv).min(7);
     if fit.is_multiple_of(2) {
         fit - 1

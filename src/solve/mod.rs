@@ -31,7 +31,8 @@ pub mod whiteness;
 pub use admm::{admm_tv, AdmmSettings};
 pub use baseline::{least_squares, tikhonov};
 pub use conditioning::{condition, condition_with, Conditioning};
-pub use fista::{fista_tv, tv_denoise, FistaSettings};
+pub(crate) use fista::fista_tv;
+pub use fista::{tv_denoise, FistaSettings};
 pub use reconstruct::{reconstruct, SolveRequest};
 pub use solver::{Needs, Problem, Solver};
 
@@ -41,7 +42,7 @@ use crate::transport::Transport;
 
 /// Current parallelism for dense kernels (faer's global setting): every
 /// solver's factorizations and products run at it.
-pub fn par() -> faer::Par {
+pub(crate) fn par() -> faer::Par {
     faer::get_global_parallelism()
 }
 
@@ -217,7 +218,7 @@ pub fn zero_unmeasured(i: &mut [f64], mut variance: Option<&mut [f64]>) -> Vec<u
 }
 
 /// What a report says of `missing` rows out of `rows`, if any.
-pub fn unmeasured_warning(missing: &[usize], rows: usize) -> Option<String> {
+pub(crate) fn unmeasured_warning(missing: &[usize], rows: usize) -> Option<String> {
     (!missing.is_empty()).then(|| {
         format!(
             "{} of {rows} wall elements were not measured (a pixel of theirs saturated) and are left out of the fit",
@@ -227,7 +228,7 @@ pub fn unmeasured_warning(missing: &[usize], rows: usize) -> Option<String> {
 }
 
 /// Checks a measurement against `T` before a solve.
-pub fn check_measurement(t: &Transport, i: &[f64]) -> Result<(), SolveError> {
+pub(crate) fn check_measurement(t: &Transport, i: &[f64]) -> Result<(), SolveError> {
     if i.len() != t.rows() {
         return Err(SolveError::Length {
             expected: t.rows(),

@@ -47,7 +47,7 @@ pub enum DataTerm {
 }
 
 /// Percentile of `x` that the gain maps to 1 (robust against a few hot elements).
-pub const GAIN_PERCENTILE: f64 = 0.99;
+pub(crate) const GAIN_PERCENTILE: f64 = 0.99;
 /// ADMM penalty in units of the largest eigenvalue of the data term's Gram:
 /// fixed, so that one factorization serves every λ trial and channel.
 const RHO_REL: f64 = 0.1;
@@ -1071,7 +1071,7 @@ pub struct PhotoMetrics {
 }
 
 /// [`PhotoMetrics`] of `image` against `truth`, both channel by channel on `grid`.
-pub fn photo_metrics(
+pub(crate) fn photo_metrics(
     grid: crate::scene::Grid,
     truth: &[Vec<f64>],
     image: &[Vec<f64>],
@@ -1109,7 +1109,7 @@ fn affine_fit(truth: &[f64], x: &[f64]) -> Vec<f64> {
 /// Ridge of [`least_squares_misfit`]'s factorization, relative to the mean
 /// diagonal of `K^T K`: far below any entry that carries data (the chair's
 /// misfit is the same to 5 digits from 1e-9 to 1e-4, docs/realphoto.md).
-pub const LEAST_SQUARES_RIDGE: f64 = 1e-9;
+pub(crate) const LEAST_SQUARES_RIDGE: f64 = 1e-9;
 
 /// The least-squares misfit of the data term with no bound on the scene,
 /// summed over the colour channels: `sum_c min_x ||K (i_c - T x)||^2`, `K`
@@ -1132,7 +1132,7 @@ pub fn least_squares_misfit(
 ///
 /// Why: a fit to several photos reports each photo's share of the misfit
 /// (`calibrate occluder` with several measurements).
-pub fn least_squares_misfits(
+pub(crate) fn least_squares_misfits(
     t: &Transport,
     data_term: DataTerm,
     channels: &[Vec<f64>],
@@ -1197,7 +1197,7 @@ pub fn differences(t: &Transport) -> Transport {
 }
 
 /// `D i` laid out as [`differences`] lays out `D T`.
-pub fn difference_values(t: &Transport, i: &[f64]) -> Vec<f64> {
+pub(crate) fn difference_values(t: &Transport, i: &[f64]) -> Vec<f64> {
     let nw = t.wall_grid().count();
     let mut out = vec![0.0; 2 * i.len()];
     for (b, o) in i.chunks(nw).zip(out.chunks_mut(2 * nw)) {

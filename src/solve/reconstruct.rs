@@ -23,7 +23,7 @@ use crate::transport::Transport;
 /// Largest least-squares RMS error (fraction of the radiance range) before a
 /// reconstruction warns that its grid is finer than the data support (as
 /// `polnlos plan`).
-pub const PLAN_TOLERANCE: f64 = RESOLVED_TOLERANCE;
+pub(crate) const PLAN_TOLERANCE: f64 = RESOLVED_TOLERANCE;
 
 /// Where the result and its report name the scene, what to compare with,
 /// and the flag that ends the solve early (a cancelled job).
@@ -73,7 +73,7 @@ pub fn reconstruct(
 /// (`normal`, made with [`Normal::of`] from this `t` and `i`): one Gram, and
 /// its low-rank form, serve the conditioning, the noise estimate, every λ
 /// trial and the solve.
-pub fn reconstruct_prepared(
+pub(crate) fn reconstruct_prepared(
     t: &Transport,
     i: &[f64],
     noise: Option<NoiseLevel>,

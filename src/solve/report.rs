@@ -9,7 +9,7 @@ use crate::scene::Grid;
 use crate::transport::Block;
 
 /// Above this condition number a result is flagged as untrustworthy.
-pub const KAPPA_WARN: f64 = 1e8;
+pub(crate) const KAPPA_WARN: f64 = 1e8;
 
 /// Conditioning of `T` without the full spectrum.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -192,7 +192,7 @@ impl Report {
 }
 
 /// Notes that the conditioning of `T` implies for any result.
-pub fn conditioning_notes(c: &Conditioning) -> Vec<String> {
+pub(crate) fn conditioning_notes(c: &Conditioning) -> Vec<String> {
     if c.is_rank_deficient() {
         let resolution = if c.from_gram {
             format!(
@@ -219,7 +219,7 @@ pub fn conditioning_notes(c: &Conditioning) -> Vec<String> {
 }
 
 /// Mean SNR below which a measurement is mostly noise.
-pub const SNR_WARN: f64 = 1.0;
+pub(crate) const SNR_WARN: f64 = 1.0;
 
 /// Mean per-element SNR of a measurement, `mean_j max(i_j, 0) / sigma_j`
 /// (elements with zero variance are left out).
@@ -239,7 +239,7 @@ pub fn mean_snr(i: &[f64], variance: &[f64]) -> f64 {
 }
 
 /// The warning a measurement of mean SNR `snr` deserves, if any.
-pub fn snr_warnings(snr: f64) -> Vec<String> {
+pub(crate) fn snr_warnings(snr: f64) -> Vec<String> {
     if snr < SNR_WARN {
         vec![format!(
             "the mean SNR of the measurement is {snr:.2} (< {SNR_WARN}): it is mostly noise, so the result shows the regularizer more than the scene; expose longer or average more frames"

@@ -26,7 +26,7 @@ pub fn gradient(grid: Grid, l: &[f64], out: &mut [f64]) {
 }
 
 /// `out += D^T z` for `z = (zx, zy)` laid out as [`gradient`] writes it.
-pub fn add_divergence_adjoint(grid: Grid, z: &[f64], out: &mut [f64]) {
+pub(crate) fn add_divergence_adjoint(grid: Grid, z: &[f64], out: &mut [f64]) {
     let n = grid.count();
     let (zx, zy) = z.split_at(n);
     for iv in 0..grid.nv {
@@ -45,7 +45,7 @@ pub fn add_divergence_adjoint(grid: Grid, z: &[f64], out: &mut [f64]) {
 }
 
 /// Isotropic TV, `sum_j sqrt(dx_j^2 + dy_j^2)`.
-pub fn total_variation(grid: Grid, l: &[f64]) -> f64 {
+pub(crate) fn total_variation(grid: Grid, l: &[f64]) -> f64 {
     let n = grid.count();
     let mut g = vec![0.0; 2 * n];
     gradient(grid, l, &mut g);
@@ -54,7 +54,7 @@ pub fn total_variation(grid: Grid, l: &[f64]) -> f64 {
 
 /// Adds `scale * D^T D` to the lower triangle of a column-major `n x n` matrix
 /// through `add(row, col, value)` with `row >= col`.
-pub fn add_laplacian_lower(grid: Grid, scale: f64, mut add: impl FnMut(usize, usize, f64)) {
+pub(crate) fn add_laplacian_lower(grid: Grid, scale: f64, mut add: impl FnMut(usize, usize, f64)) {
     for iv in 0..grid.nv {
         for iu in 0..grid.nu {
             let j = grid.index(iu, iv);

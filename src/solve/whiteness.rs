@@ -19,9 +19,9 @@ use crate::transport::Transport;
 /// Scan range of [`admm_tv_whiteness`], log10 of λ relative to `mean(diag(T^T T))`.
 pub const SCAN_REL: (f64, f64) = (-7.0, 1.0);
 /// Scan steps over [`SCAN_REL`] (a quarter decade each).
-pub const SCAN_STEPS: usize = 32;
+pub(crate) const SCAN_STEPS: usize = 32;
 /// Golden-section steps between the scan minimum's neighbours.
-pub const GOLDEN_STEPS: usize = 6;
+pub(crate) const GOLDEN_STEPS: usize = 6;
 
 /// How the whiteness λ was found (what [`admm_tv_whiteness`] reports).
 #[derive(Debug, Clone, serde::Serialize)]

@@ -39,7 +39,7 @@ pub struct FrameMeta {
 }
 
 /// File names inside a capture folder.
-pub struct CaptureFiles;
+pub(crate) struct CaptureFiles;
 
 impl CaptureFiles {
     /// Raw frames, one page each.
@@ -63,7 +63,7 @@ impl CaptureFiles {
 }
 
 /// Reads an imported capture's measurement ([`CaptureFiles::MEASUREMENT`]).
-pub fn read_imported(dir: &Path) -> Result<crate::files::npy::Array, StoreError> {
+pub(crate) fn read_imported(dir: &Path) -> Result<crate::files::npy::Array, StoreError> {
     Ok(crate::files::npy::read(
         &dir.join(CaptureFiles::MEASUREMENT),
     )?)
@@ -75,7 +75,7 @@ pub fn read_imported(dir: &Path) -> Result<crate::files::npy::Array, StoreError>
 /// Why: a cancelled or interrupted capture keeps no data the user can use,
 /// but its dark frames were complete before its light frames began and
 /// would stay behind (up to hundreds of MB with many dark frames).
-pub fn remove_raw(dir: &Path) -> Vec<std::path::PathBuf> {
+pub(crate) fn remove_raw(dir: &Path) -> Vec<std::path::PathBuf> {
     [CaptureFiles::DARK, CaptureFiles::FRAMES]
         .iter()
         .map(|f| dir.join(f))
@@ -85,7 +85,7 @@ pub fn remove_raw(dir: &Path) -> Vec<std::path::PathBuf> {
 
 /// Bytes the files of a capture take at most: raw pages, mean, variance and
 /// preview, plus a little for headers and metadata.
-pub fn capture_bytes(width: u32, height: u32, frames: usize, dark_frames: usize) -> u64 {
+pub(crate) fn capture_bytes(width: u32, height: u32, frames: usize, dark_frames: usize) -> u64 {
     let px = u64::from(width) * u64::from(height);
     let pages = (frames + dark_frames) as u64;
     px.saturating_mul(2)
@@ -136,7 +136,7 @@ pub fn write_frames(
 
 /// The marker in the names of files being written (`.<name>.tmp-<pid>`),
 /// which a restart may remove.
-pub const TMP_MARK: &str = ".tmp-";
+pub(crate) const TMP_MARK: &str = ".tmp-";
 
 fn write_pages(
     tmp: &Path,
@@ -228,7 +228,7 @@ fn encode_stream<W: std::io::Write + std::io::Seek, K: tiff::encoder::TiffKind>(
 /// the variance of that mean (the frames' plus `dark_variance`, the dark
 /// mean's, when known: MODEL.md `var_p`) and the preview, each atomically;
 /// returns the mean. `frames` is the stack of the capture's frames.
-pub fn write_summary(
+pub(crate) fn write_summary(
     dir: &Path,
     frames: &FrameStack,
     dark: Option<&Frame>,
@@ -318,7 +318,7 @@ fn open_tiff(path: &Path) -> Result<TiffReader, StoreError> {
 /// Per-pixel variance of the mean of a capture's raw frames (DN^2): the
 /// sample variance across frames divided by their number. `None` with fewer
 /// than two frames. Used to estimate the noise of a measurement.
-pub fn read_mean_variance(dir: &Path) -> Result<Option<Frame>, StoreError> {
+pub(crate) fn read_mean_variance(dir: &Path) -> Result<Option<Frame>, StoreError> {
     let v = dir.join(CaptureFiles::VARIANCE);
     if v.exists() {
         return read_float_tiff(&v).map(Some);
@@ -378,7 +378,7 @@ pub fn read_mean(dir: &Path) -> Result<Frame, StoreError> {
 ///
 /// Why: a saturated pixel's mean is a lower bound, and an element's mean
 /// over it is biased low; the measurement leaves it out.
-pub fn read_mean_in_range(dir: &Path) -> Result<Frame, StoreError> {
+pub(crate) fn read_mean_in_range(dir: &Path) -> Result<Frame, StoreError> {
     let mut mean = read_mean(dir)?;
     let path = dir.join(CaptureFiles::SATURATED);
     if path.exists() {

@@ -11,12 +11,12 @@ use super::StoreError;
 
 /// The held lock; released when dropped (or when the process ends).
 #[derive(Debug)]
-pub struct DirLock {
+pub(crate) struct DirLock {
     _file: std::fs::File,
 }
 
 /// Name of the lock file inside the data directory.
-pub const LOCK_FILE: &str = "polnlos.lock";
+pub(crate) const LOCK_FILE: &str = "polnlos.lock";
 
 impl DirLock {
     /// Takes the lock on `dir` or says which process holds it.
@@ -58,7 +58,7 @@ impl DirLock {
 
 /// Removes the temporary files (`.<name>.tmp-<pid>`) a killed daemon left in
 /// the data directory and its job folders; returns the paths removed.
-pub fn remove_orphans(dir: &Path) -> Vec<PathBuf> {
+pub(crate) fn remove_orphans(dir: &Path) -> Vec<PathBuf> {
     let mut removed = Vec::new();
     let mut folders = vec![dir.to_path_buf()];
     for sub in ["captures", "reconstructions"] {

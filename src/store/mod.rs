@@ -21,17 +21,18 @@ use std::sync::Mutex;
 use rusqlite::{params, Connection};
 
 pub use calibrations::ColourCalibrationRow;
-pub use files::{
-    capture_bytes, read_imported, read_mean, read_mean_in_range, read_mean_variance, remove_raw,
-    write_frames, write_summary, CaptureFiles, FrameMeta, TMP_MARK,
+pub(crate) use files::{
+    capture_bytes, read_imported, read_mean_in_range, read_mean_variance, remove_raw,
+    write_summary, CaptureFiles, TMP_MARK,
 };
-pub use lock::{remove_orphans, DirLock, LOCK_FILE};
+pub use files::{read_mean, write_frames, FrameMeta};
+pub(crate) use lock::{remove_orphans, DirLock};
 pub use plans::{PlanCapture, PlanInterim, PlanRow, PlanState};
 pub use records::{
     CaptureKind, CaptureRecord, CaptureRequest, ImportInfo, JobState, ReconstructionParams,
     ReconstructionRecord, ReconstructionRequest,
 };
-pub use retention::{dir_bytes, Retention};
+pub use retention::Retention;
 pub use schema::Table;
 
 /// What can go wrong with the store, naming the path or the row.
@@ -188,7 +189,7 @@ pub fn now() -> String {
 
 /// A time as the catalogue stores it: UTC, RFC 3339 with milliseconds, so
 /// that stored times compare as strings.
-pub fn timestamp(t: std::time::SystemTime) -> String {
+pub(crate) fn timestamp(t: std::time::SystemTime) -> String {
     let d = t.duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
     let secs = d.as_secs() as i64;
     let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));

@@ -21,7 +21,7 @@ pub struct Retention {
 }
 
 /// Bytes of the regular files under `dir` (0 when it does not exist).
-pub fn dir_bytes(dir: &Path) -> u64 {
+pub(crate) fn dir_bytes(dir: &Path) -> u64 {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return 0;
     };

@@ -268,7 +268,7 @@ pub fn build_with_progress(
 /// `points[p]` are wall coordinates (u, v) for pose `p`; the answer holds,
 /// per block in `T`'s order, one value per point of its pose. How a camera
 /// frame is rendered pixel by pixel, each pixel at its own wall point.
-pub fn radiance_at(scene: &Scene, points: &[Vec<[f64; 2]>], l: &[f64]) -> Vec<Vec<f64>> {
+pub(crate) fn radiance_at(scene: &Scene, points: &[Vec<[f64; 2]>], l: &[f64]) -> Vec<Vec<f64>> {
     let plane = &scene.wall().plane;
     let longest = points.iter().map(Vec::len).max().unwrap_or(0);
     let mut all = Vec::with_capacity(points.iter().map(Vec::len).sum());

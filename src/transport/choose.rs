@@ -12,12 +12,12 @@ use super::{MemoryBudget, TransportError};
 use crate::scene::{Scene, WallSampling};
 
 /// The most the model error may be, as a fraction of the noise (rms over rows).
-pub const TARGET: f64 = 1.0 / 3.0;
+pub(crate) const TARGET: f64 = 1.0 / 3.0;
 /// Finest scene supersampling a choice goes to (its error falls as `1/m^2`
 /// on smooth integrands; an occluder's edge wants a file value).
-pub const MAX_SCENE_SUPERSAMPLE: usize = 8;
+pub(crate) const MAX_SCENE_SUPERSAMPLE: usize = 8;
 /// Finest uniform wall supersampling a choice goes to (poses without a homography).
-pub const MAX_WALL_SUPERSAMPLE: usize = 8;
+pub(crate) const MAX_WALL_SUPERSAMPLE: usize = 8;
 /// Wall elements per block the error is estimated on.
 const SAMPLED_ELEMENTS: usize = 48;
 

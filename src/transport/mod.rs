@@ -11,7 +11,8 @@ pub mod choose;
 mod shadow;
 
 pub use adaptive::{build_adaptive, AdaptiveStats};
-pub use build::{blocks_of, build, build_elements, build_with_progress, radiance_at};
+pub(crate) use build::radiance_at;
+pub use build::{blocks_of, build, build_elements, build_with_progress};
 
 use faer::MatRef;
 

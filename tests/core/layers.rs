@@ -873,3 +873,98 @@ fn no_new_function_returns_a_string_error() {
         found.join("\n")
     );
 }
+
+/// The files of the modules a user of the library can name: `src/lib.rs`
+/// and every module declared `pub mod` from it, recursively (a `mod` or
+/// `pub(crate) mod` and everything under it is the crate's own).
+fn public_module_files() -> Vec<std::path::PathBuf> {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut out = Vec::new();
+    let mut todo = vec![(src.join("lib.rs"), src.clone())];
+    while let Some((file, dir)) = todo.pop() {
+        let text = std::fs::read_to_string(&file).unwrap();
+        for line in text.lines() {
+            let Some(name) = line
+                .strip_prefix("pub mod ")
+                .and_then(|rest| rest.strip_suffix(';'))
+            else {
+                continue;
+            };
+            let flat = dir.join(format!("{name}.rs"));
+            let nested = dir.join(name).join("mod.rs");
+            match (flat.exists(), nested.exists()) {
+                (true, _) => todo.push((flat, dir.join(name))),
+                (false, true) => todo.push((nested, dir.join(name))),
+                _ => panic!("{}: no file for `pub mod {name}`", file.display()),
+            }
+        }
+        out.push(file);
+    }
+    out.sort();
+    out
+}
+
+/// The library's public items, as its source declares them: in each public
+/// module's file, the items declared `pub` at the top level (functions,
+/// types, traits, constants, statics) and the names of its top-level
+/// `pub use`. (rustdoc lists 530 at this count's 604: a name it reaches
+/// two ways it lists once.)
+fn public_items() -> Vec<String> {
+    const KINDS: &[&str] = &[
+        "fn ", "struct ", "enum ", "trait ", "type ", "const ", "static ", "union ",
+    ];
+    let mut out = Vec::new();
+    for file in public_module_files() {
+        let text = std::fs::read_to_string(&file).unwrap();
+        let path = file.display().to_string();
+        let code = code(&text);
+        for line in code.lines() {
+            if let Some(rest) = line.strip_prefix("pub ") {
+                let rest = rest
+                    .trim_start_matches("async ")
+                    .trim_start_matches("unsafe ")
+                    .trim_start_matches("const fn ")
+                    .trim_start();
+                if KINDS.iter().any(|k| rest.starts_with(k)) || line.starts_with("pub const fn ") {
+                    out.push(format!("{path}: {}", line.trim_end_matches('{').trim()));
+                }
+            }
+        }
+        // `pub use a::{b, c};` names two items, across lines or not.
+        for statement in code.split(';') {
+            let Some(at) = statement
+                .find("\npub use ")
+                .or_else(|| statement.starts_with("pub use ").then_some(0))
+            else {
+                continue;
+            };
+            let body = &statement[at..];
+            let names = match (body.find('{'), body.rfind('}')) {
+                (Some(a), Some(b)) => body[a + 1..b]
+                    .split(',')
+                    .filter(|n| !n.trim().is_empty())
+                    .count(),
+                _ => 1,
+            };
+            for _ in 0..names {
+                out.push(format!("{path}: {}", body.trim()));
+            }
+        }
+    }
+    out
+}
+
+/// Issue 48: a small public surface (at most 400 public items). Each
+/// session makes some crate-private; none is added without one going (the
+/// bound only falls).
+#[test]
+fn the_public_surface_does_not_grow() {
+    let items = public_items();
+    println!("{} public items", items.len());
+    assert!(
+        items.len() <= 604,
+        "{} public items in src/ (at most 604, aiming at 400: make what only the crate uses pub(crate)):\n{}",
+        items.len(),
+        items.join("\n")
+    );
+}

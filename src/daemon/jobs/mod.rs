@@ -35,7 +35,7 @@ pub(in crate::daemon) struct JobContext {
 
 /// Why a capture or reconstruction job failed: what the job's `error` says.
 #[derive(Debug, thiserror::Error)]
-pub enum JobError {
+pub(crate) enum JobError {
     /// The catalogue or a capture's files (the text has no absolute paths).
     #[error("{0}")]
     Store(String),

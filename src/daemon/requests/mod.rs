@@ -264,7 +264,7 @@ pub struct CalibrationBody {
 /// `POST /calibrations/colour` body.
 #[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
-pub struct ColourCalibrationBody {
+pub(crate) struct ColourCalibrationBody {
     /// A done light capture, through a colour camera, of a white or grey
     /// field (a white card on the hidden side, or the bench lit evenly).
     #[serde(deserialize_with = "crate::integral::int")]

@@ -17,7 +17,7 @@ const TARGET_LEVEL: f32 = 0.8;
 
 /// Where the demo bench's calibration point source sits on the hidden-scene
 /// plane (unit radiance: its fitted gain is the demo calibration).
-pub const DEMO_SOURCE: crate::calibrate::wall::PointSource =
+pub(crate) const DEMO_SOURCE: crate::calibrate::wall::PointSource =
     crate::calibrate::wall::PointSource { u: 0.03, v: -0.02 };
 
 /// Renders the fake camera's frame for every block of the demo scene (and of

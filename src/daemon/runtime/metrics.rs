@@ -57,7 +57,7 @@ impl Metrics {
 }
 
 /// A gauge sample.
-pub fn gauge(name: &'static str, help: &'static str, value: f64) -> Sample<'static> {
+pub(crate) fn gauge(name: &'static str, help: &'static str, value: f64) -> Sample<'static> {
     Sample {
         name,
         kind: "gauge",
@@ -67,7 +67,7 @@ pub fn gauge(name: &'static str, help: &'static str, value: f64) -> Sample<'stat
 }
 
 /// A counter sample.
-pub fn counter(name: &'static str, help: &'static str, value: f64) -> Sample<'static> {
+pub(crate) fn counter(name: &'static str, help: &'static str, value: f64) -> Sample<'static> {
     Sample {
         name,
         kind: "counter",

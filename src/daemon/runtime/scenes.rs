@@ -65,7 +65,7 @@ pub struct WallView {
 }
 
 /// The wall as each pose of `scene` sees it, in file order.
-pub fn wall_views(scene: &Scene) -> Vec<WallView> {
+pub(crate) fn wall_views(scene: &Scene) -> Vec<WallView> {
     let wall = &scene.wall().plane;
     scene
         .poses()

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use super::{angle_between, wrap_degrees, MountError, RotationMount};
 
 /// The line speed of every Elliptec device.
-pub const BAUD: u32 = 9600;
+pub(crate) const BAUD: u32 = 9600;
 
 /// How long a reply may take to a query.
 pub const QUERY_TIMEOUT: Duration = Duration::from_millis(500);
@@ -23,7 +23,7 @@ pub const MOVE_TIMEOUT: Duration = Duration::from_secs(6);
 
 /// How far a position read back may be from the one asked for, degrees
 /// (a few pulses of an ELL14's 143360 per turn).
-pub const TOLERANCE_DEG: f64 = 0.05;
+pub(crate) const TOLERANCE_DEG: f64 = 0.05;
 
 /// What a device says about itself (`in`).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -63,7 +63,7 @@ pub fn packet(address: char, cmd: &str, data: Option<i32>) -> String {
 }
 
 /// What a status code means, in the protocol manual's words.
-pub fn status_meaning(code: u8) -> &'static str {
+pub(crate) fn status_meaning(code: u8) -> &'static str {
     match code {
         0 => "OK",
         1 => "communication timeout",

@@ -95,7 +95,7 @@ pub enum MountError {
 }
 
 /// `deg` taken into [0, 360).
-pub fn wrap_degrees(deg: f64) -> f64 {
+pub(crate) fn wrap_degrees(deg: f64) -> f64 {
     let w = deg.rem_euclid(360.0);
     if w >= 360.0 {
         0.0

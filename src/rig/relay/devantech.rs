@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use super::{LightSwitch, RelayError};
 
 /// Line settings (ignored by the USB module, needed by the tty).
-pub const BAUD: u32 = 9600;
+pub(crate) const BAUD: u32 = 9600;
 
 /// How long a query may take to answer.
 pub const QUERY_TIMEOUT: Duration = Duration::from_millis(500);

@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex};
 use crate::rig::serial::PtyDevice;
 
 /// The module id a USB-RLY02 answers (`0x5A`'s first byte).
-pub const MODULE_ID: u8 = 10;
+pub(crate) const MODULE_ID: u8 = 10;
 
 /// How the simulated module misbehaves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
