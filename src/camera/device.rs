@@ -287,9 +287,9 @@ pub enum CameraError {
     /// A region or binning the sensor cannot deliver (checked before Aravis sees it).
     #[error(transparent)]
     Geometry(#[from] GeometryError),
-    /// The receiver of the frames stopped the acquisition (its reason).
+    /// The receiver of the frames stopped the acquisition.
     #[error("acquisition stopped: {0}")]
-    Stopped(String),
+    Stopped(SinkClosed),
     /// Anything else from the driver.
     #[error("camera error: {0}")]
     Driver(String),
@@ -330,8 +330,14 @@ impl CameraError {
     }
 }
 
-/// Where acquired frames go, one at a time; `Err(reason)` stops the acquisition.
-pub type FrameSink<'a> = dyn FnMut(RawFrame) -> Result<(), String> + 'a;
+/// Where acquired frames go, one at a time; an `Err` stops the acquisition.
+pub type FrameSink<'a> = dyn FnMut(RawFrame) -> Result<(), SinkClosed> + 'a;
+
+/// Why a [`FrameSink`] took no more frames: whoever read them stopped (a
+/// capture cancelled or failed, a live view ended).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the frame writer stopped")]
+pub struct SinkClosed;
 
 /// A camera as the daemon uses it. Implementations are owned by one thread.
 pub trait CameraDevice: Send {

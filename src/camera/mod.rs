@@ -21,7 +21,7 @@ pub mod worker;
 pub use crate::measure::Frame;
 pub use device::{
     frames_between, CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameSink,
-    RawFrame,
+    RawFrame, SinkClosed,
 };
 pub use pixel::DecodeError;
 pub use settings::{

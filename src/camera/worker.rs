@@ -9,7 +9,9 @@ use std::time::Duration;
 
 use tokio::sync::oneshot;
 
-use super::device::{CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, RawFrame};
+use super::device::{
+    CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, RawFrame, SinkClosed,
+};
 use super::settings::Acquisition;
 
 /// Opens the camera (again): the worker calls it at start and after a loss.
@@ -279,12 +281,7 @@ impl Worker {
         let Some(c) = self.camera.as_mut() else {
             return Err(self.not_connected());
         };
-        let r = r.and_then(|()| {
-            c.acquire(n, &mut |f| {
-                sink.send(f)
-                    .map_err(|_| "the frame writer stopped".to_string())
-            })
-        });
+        let r = r.and_then(|()| c.acquire(n, &mut |f| sink.send(f).map_err(|_| SinkClosed)));
         let k = c.counters();
         let base = self.base;
         self.update(|s| {

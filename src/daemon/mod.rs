@@ -37,7 +37,7 @@ use std::sync::Arc;
 use tokio::sync::Mutex;
 
 pub use crate::rig::Automated;
-pub use jobs::progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
+pub(crate) use jobs::progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
 pub use procedures::calibration::{
     Calibrations, FittedPosition, GeometryCalibration, RadiometricGain, SourcePosition,
     WallCalibration,

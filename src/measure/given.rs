@@ -4,7 +4,9 @@
 //! Why: `polnlos measure` and the Python bindings must turn the same frames
 //! into the same `i` and variance, so both call [`measure_given`].
 
-use super::{load, CaptureInfo, CaptureSource, Frame, FrameStack, Measurement, Units};
+use super::{
+    load, CaptureInfo, CaptureSource, Frame, FrameStack, MeasureError, Measurement, Units,
+};
 use crate::scene::Scene;
 use crate::transport::{Block, MemoryBudget, TransportError};
 
@@ -62,6 +64,8 @@ impl GivenCapture {
 }
 
 impl CaptureSource for GivenCapture {
+    type Error = MeasureError;
+
     fn info(&self) -> CaptureInfo {
         self.info.clone()
     }
@@ -69,15 +73,12 @@ impl CaptureSource for GivenCapture {
     /// The dark-subtracted mean, NaN at every pixel that reached full
     /// scale in a frame: its mean is only a lower bound, and its element is
     /// left out of the measurement (issue 38).
-    fn mean(&self) -> Result<Frame, String> {
+    fn mean(&self) -> Result<Frame, MeasureError> {
         let dark = match &self.dark {
-            Some(d) => Some(d.mean_minus(None).map_err(|e| e.to_string())?),
+            Some(d) => Some(d.mean_minus(None)?),
             None => None,
         };
-        let mut mean = self
-            .stack
-            .mean_minus(dark.as_ref())
-            .map_err(|e| e.to_string())?;
+        let mut mean = self.stack.mean_minus(dark.as_ref())?;
         if let Some(s) = self.stack.saturated_pixels() {
             for (p, &s) in mean.pixels.iter_mut().zip(s) {
                 if s {
@@ -90,15 +91,15 @@ impl CaptureSource for GivenCapture {
 
     /// The variance of the dark-subtracted mean: the frames' plus the dark's
     /// (MODEL.md `var_p`).
-    fn variance(&self) -> Result<Option<Frame>, String> {
+    fn variance(&self) -> Result<Option<Frame>, MeasureError> {
         let mut v = self.stack.variance_frame();
         let d = self.dark.as_ref().and_then(FrameStack::variance_frame);
         if let (Some(v), Some(d)) = (v.as_mut(), d) {
             if (d.width, d.height) != (v.width, v.height) {
-                return Err(format!(
-                    "the dark frames are {}x{} but the frames {}x{}",
-                    d.width, d.height, v.width, v.height
-                ));
+                return Err(MeasureError::DarkSize {
+                    dark: [d.width, d.height],
+                    frames: [v.width, v.height],
+                });
             }
             v.pixels
                 .iter_mut()
@@ -136,7 +137,7 @@ pub struct Measured {
 pub enum GivenError {
     /// A capture does not fit the scene or cannot be read.
     #[error(transparent)]
-    Measure(#[from] super::MeasureError),
+    Measure(#[from] MeasureError),
     /// `T`, needed for the estimated units, could not be built.
     #[error(transparent)]
     Transport(#[from] TransportError),

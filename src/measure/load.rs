@@ -35,13 +35,14 @@ pub struct CaptureInfo {
 
 /// Where a capture's averaged frames are read from.
 pub trait CaptureSource {
+    /// Why its frames could not be read (which file, and why).
+    type Error: std::error::Error;
     /// What the capture recorded.
     fn info(&self) -> CaptureInfo;
-    /// Its mean frame (minus the dark level, when it has one), DN; an error
-    /// says which file could not be read and why.
-    fn mean(&self) -> Result<Frame, String>;
+    /// Its mean frame (minus the dark level, when it has one), DN.
+    fn mean(&self) -> Result<Frame, Self::Error>;
     /// The variance of that mean, DN², when there were 2 frames or more.
-    fn variance(&self) -> Result<Option<Frame>, String>;
+    fn variance(&self) -> Result<Option<Frame>, Self::Error>;
 }
 
 /// Reads `source` for `scene`: its pose must be one of the scene's and its
@@ -64,7 +65,7 @@ pub fn load(
             capture: info.name.clone(),
             pose: info.pose.clone(),
         })?;
-    let mean = source.mean().map_err(fail)?;
+    let mean = source.mean().map_err(|e| fail(e.to_string()))?;
     if let Some([_, _, w, h]) = info.region {
         if (mean.width, mean.height) != (w as usize, h as usize) {
             return Err(fail(format!(
@@ -88,7 +89,7 @@ pub fn load(
                 .map_or(format!("{}x{}", mean.width, mean.height), |r| format!("region {r:?}"))
         ));
     }
-    let variance = source.variance().map_err(fail)?;
+    let variance = source.variance().map_err(|e| fail(e.to_string()))?;
     Ok(CaptureFrames {
         name: info.name,
         pose: info.pose,
@@ -114,18 +115,19 @@ mod tests {
     }
 
     impl CaptureSource for Fake {
+        type Error = std::io::Error;
         fn info(&self) -> CaptureInfo {
             self.info.clone()
         }
-        fn mean(&self) -> Result<Frame, String> {
+        fn mean(&self) -> Result<Frame, std::io::Error> {
             Ok(Frame {
                 width: self.size.0,
                 height: self.size.1,
                 pixels: vec![1.0; self.size.0 * self.size.1],
             })
         }
-        fn variance(&self) -> Result<Option<Frame>, String> {
-            Err("variance.tiff: truncated".into())
+        fn variance(&self) -> Result<Option<Frame>, std::io::Error> {
+            Err(std::io::Error::other("variance.tiff: truncated"))
         }
     }
 

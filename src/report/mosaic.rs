@@ -254,13 +254,34 @@ fn mean(all: &[Metrics]) -> Metrics {
     }
 }
 
+/// Why Mitsuba's frames could not be compared (the report says so, and
+/// compares the rest).
+#[derive(Debug, thiserror::Error)]
+enum RenderedError {
+    /// Their scene file.
+    #[error(transparent)]
+    Scene(#[from] crate::scene::SceneError),
+    /// Their truth or a frame could not be read.
+    #[error(transparent)]
+    File(#[from] crate::files::FileError),
+    /// A frame's array is not 2-D.
+    #[error("{0} is not a 2-D frame")]
+    NotFrame(String),
+    /// A frame's noise is not the frame's size.
+    #[error("frame-sigma-{0}.npy is not the size of frame-{0}.npy")]
+    SigmaSize(usize),
+    /// Their scene is not the rotating bench.
+    #[error("the frames' scene is not the rotating bench (one pose, four angles)")]
+    NotRotating,
+}
+
 /// Mitsuba's four sheet frames of the rotating bench in `dir`, its scene
 /// and truth; an error says what is missing.
-fn mitsuba(dir: &Path) -> Result<(Scene, Vec<f64>, Vec<Source>), String> {
-    let scene = Scene::load(&dir.join("scene.toml")).map_err(|e| e.to_string())?;
-    let truth = npy::read(&dir.join("truth.npy")).map_err(|e| e.to_string())?;
-    let read = |name: String, square: bool| -> Result<Frame, String> {
-        let a = npy::read(&dir.join(&name)).map_err(|e| format!("{name}: {e}"))?;
+fn mitsuba(dir: &Path) -> Result<(Scene, Vec<f64>, Vec<Source>), RenderedError> {
+    let scene = Scene::load(&dir.join("scene.toml"))?;
+    let truth = npy::read(&dir.join("truth.npy"))?;
+    let read = |name: String, square: bool| -> Result<Frame, RenderedError> {
+        let a = npy::read(&dir.join(&name))?;
         match a.shape[..] {
             [h, w] => Ok(Frame {
                 width: w,
@@ -271,7 +292,7 @@ fn mitsuba(dir: &Path) -> Result<(Scene, Vec<f64>, Vec<Source>), String> {
                     .map(|&v| if square { v * v } else { v } as f32)
                     .collect(),
             }),
-            _ => Err(format!("{name} is not a 2-D frame")),
+            _ => Err(RenderedError::NotFrame(name)),
         }
     };
     let frames = (0..4)
@@ -279,15 +300,13 @@ fn mitsuba(dir: &Path) -> Result<(Scene, Vec<f64>, Vec<Source>), String> {
             let frame = read(format!("frame-{k}.npy"), false)?;
             let var = read(format!("frame-sigma-{k}.npy"), true)?;
             if (var.width, var.height) != (frame.width, frame.height) {
-                return Err(format!(
-                    "frame-sigma-{k}.npy is not the size of frame-{k}.npy"
-                ));
+                return Err(RenderedError::SigmaSize(k));
             }
             Ok((frame, Some(var)))
         })
-        .collect::<Result<Vec<_>, String>>()?;
+        .collect::<Result<Vec<_>, RenderedError>>()?;
     if scene.poses().len() != 1 || scene.poses()[0].analyzers.len() != 4 {
-        return Err("the frames' scene is not the rotating bench (one pose, four angles)".into());
+        return Err(RenderedError::NotRotating);
     }
     Ok((scene, truth.data, frames))
 }
@@ -362,7 +381,7 @@ pub fn mosaic_report(
         read_noise: READ_NOISE,
         seeds: SEEDS,
         frames: frames_dir.display().to_string(),
-        rendered_skipped: rendered.err(),
+        rendered_skipped: rendered.err().map(|e| e.to_string()),
         rows,
     })
 }

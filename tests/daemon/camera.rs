@@ -277,13 +277,14 @@ fn regions_beyond_the_sensor_are_refused_before_aravis_and_the_camera_reads_back
     })
     .unwrap();
     assert_eq!((frames[0].width, frames[0].height), (256, 128));
-    // A receiver that stops ends the acquisition with its reason.
+    // A receiver that stops ends the acquisition, saying so.
     let e = cam
-        .acquire(5, &mut |_| Err("disk full".into()))
+        .acquire(5, &mut |_| Err(polnlos::camera::SinkClosed))
         .unwrap_err();
-    assert!(
-        matches!(&e, CameraError::Stopped(w) if w == "disk full"),
-        "{e}"
+    assert!(matches!(&e, CameraError::Stopped(_)), "{e}");
+    assert_eq!(
+        e.to_string(),
+        "acquisition stopped: the frame writer stopped"
     );
 }
 

@@ -46,7 +46,9 @@ pub async fn post_wall_calibration(
     State(d): St,
     ApiJson(b): ApiJson<crate::api::bodies::WallCalibrationBody>,
 ) -> Result<Json<crate::daemon::WallCalibration>, ApiError> {
-    let positions = b.positions().map_err(ApiError::invalid)?;
+    let positions = b
+        .positions()
+        .map_err(|e| ApiError::invalid(e.to_string()))?;
     let r = tokio::task::spawn_blocking(move || d.calibrate_wall(&b.scene, &positions))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))??;

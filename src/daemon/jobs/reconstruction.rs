@@ -1055,23 +1055,24 @@ impl<'a> StoredCapture<'a> {
 }
 
 impl CaptureSource for StoredCapture<'_> {
+    type Error = crate::store::StoreError;
+
     fn info(&self) -> CaptureInfo {
         self.info.clone()
     }
 
-    fn mean(&self) -> Result<Frame, String> {
+    fn mean(&self) -> Result<Frame, crate::store::StoreError> {
         let dir = self.store.capture_dir(self.record.id);
-        let read = if self.in_range {
+        if self.in_range {
             crate::store::read_mean_in_range(&dir)
         } else {
             read_mean(&dir)
-        };
-        read.map_err(|e| self.store.describe(&e))
+        }
     }
 
-    fn variance(&self) -> Result<Option<Frame>, String> {
+    fn variance(&self) -> Result<Option<Frame>, crate::store::StoreError> {
         let dir = self.store.capture_dir(self.record.id);
-        crate::store::read_mean_variance(&dir).map_err(|e| self.store.describe(&e))
+        crate::store::read_mean_variance(&dir)
     }
 }
 
@@ -1083,7 +1084,22 @@ pub(in crate::daemon) fn load_capture(
     scene: &crate::scene::Scene,
     warnings: &mut Vec<String>,
 ) -> Result<CaptureFrames, JobError> {
-    Ok(load(scene, &StoredCapture::new(store, record)?, warnings)?)
+    let source = StoredCapture::new(store, record)?;
+    load(scene, &source, warnings).map_err(|e| redacted(store, e))
+}
+
+/// `e` with the data directory's path taken out of a file's name in it (a
+/// reply names the capture and the file, not where the data lives).
+fn redacted(store: &Store, e: crate::measure::MeasureError) -> JobError {
+    use crate::measure::MeasureError;
+    match e {
+        MeasureError::Capture { capture, reason } => MeasureError::Capture {
+            capture,
+            reason: store.redact_paths(&reason),
+        },
+        e => e,
+    }
+    .into()
 }
 
 /// [`load_capture`] with the pixels saturated in any frame left out of the
@@ -1096,7 +1112,7 @@ fn load_capture_in_range(
 ) -> Result<CaptureFrames, JobError> {
     let mut source = StoredCapture::new(store, record)?;
     source.in_range = true;
-    Ok(load(scene, &source, warnings)?)
+    load(scene, &source, warnings).map_err(|e| redacted(store, e))
 }
 
 #[cfg(test)]

@@ -60,6 +60,18 @@ pub struct PlanView {
     pub steps: Vec<PlanStep>,
 }
 
+/// Why a stored plan's steps cannot be made again (after a restart, or
+/// when it goes on): the plan is interrupted with this as its reason.
+#[derive(Debug, thiserror::Error)]
+enum StoredPlanError {
+    /// The request stored with the plan no longer parses as a plan body.
+    #[error("its stored request cannot be read ({0})")]
+    Request(#[from] serde_json::Error),
+    /// The plan's scene is not among the daemon's scenes now.
+    #[error("its scene is no longer known ({0})")]
+    Scene(#[from] crate::daemon::runtime::scenes::ScenesError),
+}
+
 /// Why a plan request could not be done.
 #[derive(Debug, thiserror::Error)]
 pub enum PlanError {
@@ -278,14 +290,9 @@ impl Plans {
         }
     }
 
-    fn plan_steps(&self, plan: &PlanRow) -> Result<(PlanBody, Vec<PlanStep>), String> {
-        let body: PlanBody = serde_json::from_value(plan.request.clone())
-            .map_err(|e| format!("its stored request cannot be read ({e})"))?;
-        let scene = self
-            .admission
-            .scenes
-            .scene(&plan.scene)
-            .map_err(|e| format!("its scene is no longer known ({e})"))?;
+    fn plan_steps(&self, plan: &PlanRow) -> Result<(PlanBody, Vec<PlanStep>), StoredPlanError> {
+        let body: PlanBody = serde_json::from_value(plan.request.clone())?;
+        let scene = self.admission.scenes.scene(&plan.scene)?;
         Ok((
             body.clone(),
             steps_of(&scene, &body, self.admission.rig.automated()),
@@ -598,6 +605,7 @@ impl Plans {
         let (body, steps) = match self.plan_steps(&plan) {
             Ok(s) => s,
             Err(why) => {
+                let why = why.to_string();
                 let _ =
                     self.admission
                         .store

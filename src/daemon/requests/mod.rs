@@ -307,12 +307,41 @@ pub struct SourcePositionBody {
 /// Most captures per source position in a wall calibration request.
 pub const MAX_CAPTURES_PER_POSITION: usize = 64;
 
+/// Why a wall calibration's source positions are refused (naming the
+/// position or the capture).
+#[derive(Debug, thiserror::Error)]
+pub enum PositionsError {
+    /// Neither form was given.
+    #[error("give \"source\" and \"captures\", or \"sources\" (several positions)")]
+    NoForm,
+    /// Both forms were given.
+    #[error("give either \"source\" and \"captures\" or \"sources\", not both")]
+    BothForms,
+    /// More positions than are fitted together.
+    #[error("{0} source positions; at most {max} are fitted together", max = crate::calibrate::wall::MAX_SOURCES)]
+    TooMany(usize),
+    /// A position with a coordinate that is not a finite number.
+    #[error("source [{}, {}]: the position must be two finite numbers (metres)", .0[0], .0[1])]
+    NotFinite([f64; 2]),
+    /// A position with no capture, or more than one per block allows.
+    #[error("source [{}, {}]: {count} captures; give 1 to {MAX_CAPTURES_PER_POSITION} (one per block)", at[0], at[1])]
+    Captures {
+        /// The position.
+        at: [f64; 2],
+        /// How many captures it was given.
+        count: usize,
+    },
+    /// One capture given at two positions.
+    #[error("capture {0} is given twice: one capture is of one position")]
+    Twice(i64),
+}
+
 impl WallCalibrationBody {
     /// The source positions and their captures: exactly one of the two forms,
     /// 1 to [`MAX_SOURCES`](crate::calibrate::wall::MAX_SOURCES) positions of
     /// finite coordinates, each with 1 to [`MAX_CAPTURES_PER_POSITION`]
     /// captures, and no capture at two positions.
-    pub fn positions(&self) -> Result<Vec<SourcePosition>, String> {
+    pub fn positions(&self) -> Result<Vec<SourcePosition>, PositionsError> {
         use crate::calibrate::wall::{PointSource, MAX_SOURCES};
         let given: Vec<([f64; 2], &[i64])> = match (self.source, self.sources.is_empty()) {
             (Some(source), true) => vec![(source, &self.captures[..])],
@@ -321,43 +350,27 @@ impl WallCalibrationBody {
                 .iter()
                 .map(|p| (p.source, &p.captures[..]))
                 .collect(),
-            (None, true) => {
-                return Err(
-                    "give \"source\" and \"captures\", or \"sources\" (several positions)".into(),
-                )
-            }
-            _ => {
-                return Err(
-                    "give either \"source\" and \"captures\" or \"sources\", not both".into(),
-                )
-            }
+            (None, true) => return Err(PositionsError::NoForm),
+            _ => return Err(PositionsError::BothForms),
         };
         if given.len() > MAX_SOURCES {
-            return Err(format!(
-                "{} source positions; at most {MAX_SOURCES} are fitted together",
-                given.len()
-            ));
+            return Err(PositionsError::TooMany(given.len()));
         }
         let mut seen = std::collections::HashSet::new();
         given
             .into_iter()
             .map(|(source, captures)| {
-                let at = format!("source [{}, {}]", source[0], source[1]);
                 if source.iter().any(|x| !x.is_finite()) {
-                    return Err(format!(
-                        "{at}: the position must be two finite numbers (metres)"
-                    ));
+                    return Err(PositionsError::NotFinite(source));
                 }
                 if captures.is_empty() || captures.len() > MAX_CAPTURES_PER_POSITION {
-                    return Err(format!(
-                        "{at}: {} captures; give 1 to {MAX_CAPTURES_PER_POSITION} (one per block)",
-                        captures.len()
-                    ));
+                    return Err(PositionsError::Captures {
+                        at: source,
+                        count: captures.len(),
+                    });
                 }
-                if let Some(id) = captures.iter().find(|&&id| !seen.insert(id)) {
-                    return Err(format!(
-                        "capture {id} is given twice: one capture is of one position"
-                    ));
+                if let Some(&id) = captures.iter().find(|&&id| !seen.insert(id)) {
+                    return Err(PositionsError::Twice(id));
                 }
                 Ok(SourcePosition {
                     source: PointSource {
@@ -454,6 +467,7 @@ mod tests {
         serde_json::from_str::<WallCalibrationBody>(json)
             .map_err(|e| e.to_string())?
             .positions()
+            .map_err(|e| e.to_string())
     }
 
     #[test]
