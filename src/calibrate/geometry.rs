@@ -11,7 +11,7 @@
 
 use nalgebra::{DMatrix, Matrix3, SMatrix, SVector};
 
-use crate::measure::Frame;
+use crate::scene::Frame;
 use crate::scene::Homography;
 
 /// A dot target: dot centres in wall coordinates and their radius.

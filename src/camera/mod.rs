@@ -18,7 +18,6 @@ pub use shown::BenchImages;
 pub mod synthetic;
 pub mod worker;
 
-pub use crate::measure::Frame;
 pub use device::{
     frames_between, CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameSink,
     RawFrame, SinkClosed,

@@ -7,9 +7,9 @@ use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
-use super::Frame;
 use crate::measure::colour::BayerPattern;
 use crate::optics::polarizer::IntensityLaw;
+use crate::scene::Frame;
 use crate::scene::{MosaicLayout, MOSAIC_DEGREES};
 
 /// What a colour sensor's red, green and blue pixels record of the demo's

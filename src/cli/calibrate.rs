@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use polnlos::calibrate::geometry::{detect, fit, scene_with_homography, Target};
-use polnlos::measure::Frame;
+use polnlos::scene::Frame;
 use polnlos::transport::MemoryBudget;
 
 /// Calibrate a bench from images.

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use polnlos::files::{frames::write_frames, image, json, load_grid_image, npy};
-use polnlos::measure::Frame;
+use polnlos::scene::Frame;
 use polnlos::scene::FrameGeometry;
 use polnlos::simulate::camera;
 use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};

@@ -7,7 +7,7 @@
 
 use super::colour::{BayerPattern, Colour};
 use super::{stack, BlockFrames, MeasureError, Measurement, PixelMaps};
-use crate::measure::Frame;
+use crate::scene::Frame;
 use crate::scene::{Cells, Channel, Scene};
 use crate::transport::{Block, Transport};
 

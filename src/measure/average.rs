@@ -5,7 +5,7 @@
 //! user's TIFF) must turn frames into the same mean and the same variance.
 
 use super::MeasureError;
-use crate::measure::Frame;
+use crate::scene::Frame;
 
 /// Pixels at the ends of the camera's range in a stack of raw frames.
 ///

@@ -4,10 +4,8 @@
 //! Why: `polnlos measure` and the Python bindings must turn the same frames
 //! into the same `i` and variance, so both call [`measure_given`].
 
-use super::{
-    load, CaptureInfo, CaptureSource, Frame, FrameStack, MeasureError, Measurement, Units,
-};
-use crate::scene::Scene;
+use super::{load, CaptureInfo, CaptureSource, FrameStack, MeasureError, Measurement, Units};
+use crate::scene::{Frame, Scene};
 use crate::transport::{Block, MemoryBudget, TransportError};
 
 /// One capture's frames and the dark frames to subtract from their mean.

@@ -2,7 +2,8 @@
 //! daemon's store, a user's TIFF files): the checks and the warnings every
 //! reader owes the user, in one place.
 
-use super::{CaptureFrames, Frame, MeasureError};
+use super::{CaptureFrames, MeasureError};
+use crate::scene::Frame;
 use crate::scene::Scene;
 
 /// What a capture recorded about itself.

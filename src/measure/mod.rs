@@ -6,7 +6,6 @@ mod assemble;
 mod average;
 pub mod colour;
 pub mod exposure;
-mod frame;
 pub mod given;
 pub mod levels;
 mod load;
@@ -18,11 +17,10 @@ pub use assemble::{
     assemble, assemble_colour, assemble_with, to_model_units, CaptureFrames, Units,
 };
 pub use average::{Clipping, FrameStack};
-pub use frame::Frame;
 pub use load::{load, CaptureInfo, CaptureSource};
 pub use stack::{stack, with_rounding_bias, BlockFrames, Measurement, PixelMaps};
 
-use crate::scene::{Homography, Plane};
+use crate::scene::{Frame, Homography, Plane};
 
 /// Why a frame could not be turned into a measurement.
 #[derive(Debug, thiserror::Error)]

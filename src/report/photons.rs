@@ -15,7 +15,8 @@ use serde::Serialize;
 
 use super::charts::{panels, Chart, ChartError, Marker, Plot, Series};
 use super::BenchError;
-use crate::measure::{assemble, CaptureFrames, Frame};
+use crate::measure::{assemble, CaptureFrames};
+use crate::scene::Frame;
 use crate::scene::{FrameGeometry, Scene, WallSampling};
 use crate::simulate::camera::expose;
 use crate::simulate::patterns::Pattern;

@@ -11,6 +11,7 @@ mod colour;
 mod error;
 mod file;
 pub mod footprint;
+mod frame;
 pub mod homography;
 pub mod mesh;
 pub mod occluder;
@@ -25,6 +26,7 @@ pub use error::SceneError;
 pub use footprint::{
     effective_pixels, wall_corners, Cells, FootprintError, FrameGeometry, PixelMap,
 };
+pub use frame::Frame;
 pub use homography::Homography;
 pub use occluder::{Mesh, MeshSource, Occluder};
 pub use plane::{Grid, Plane};

@@ -6,7 +6,7 @@
 //! paints each element flat agrees with a centre-sampled `T` by construction,
 //! hiding exactly the error the measurement and the `"pixels"` rows deal with.
 
-use crate::measure::Frame;
+use crate::scene::Frame;
 use crate::scene::{FrameGeometry, Scene};
 use crate::transport::{blocks_of, radiance_at, Block};
 

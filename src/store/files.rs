@@ -11,9 +11,10 @@ use tiff::encoder::{colortype, TiffEncoder};
 use tiff::tags::Tag;
 
 use super::{CaptureKind, StoreError};
-use crate::camera::{Acquisition, Frame, RawFrame};
+use crate::camera::{Acquisition, RawFrame};
 use crate::files::{image, write_atomic, FileError};
 use crate::measure::FrameStack;
+use crate::scene::Frame;
 
 /// Metadata written into every page of a capture's TIFF files: everything
 /// the camera was set to, so a file says how it was taken on its own.

@@ -4,7 +4,8 @@
 //! the automatic λ.
 
 use polnlos::measure::colour::{BayerPattern, Colour};
-use polnlos::measure::{assemble, assemble_colour, CaptureFrames, Frame, PixelMaps};
+use polnlos::measure::{assemble, assemble_colour, CaptureFrames, PixelMaps};
+use polnlos::scene::Frame;
 use polnlos::scene::{FrameGeometry, Scene};
 use polnlos::simulate::camera::{expose, render};
 use polnlos::simulate::patterns::Pattern;

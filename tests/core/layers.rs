@@ -907,7 +907,7 @@ fn public_module_files() -> Vec<std::path::PathBuf> {
 /// The library's public items, as its source declares them: in each public
 /// module's file, the items declared `pub` at the top level (functions,
 /// types, traits, constants, statics) and the names of its top-level
-/// `pub use`. (rustdoc lists 530 at this count's 604: a name it reaches
+/// `pub use`. (rustdoc lists 530 at a count of 604: a name it reaches
 /// two ways it lists once.)
 fn public_items() -> Vec<String> {
     const KINDS: &[&str] = &[
@@ -962,8 +962,8 @@ fn the_public_surface_does_not_grow() {
     let items = public_items();
     println!("{} public items", items.len());
     assert!(
-        items.len() <= 604,
-        "{} public items in src/ (at most 604, aiming at 400: make what only the crate uses pub(crate)):\n{}",
+        items.len() <= 603,
+        "{} public items in src/ (at most 603, aiming at 400: make what only the crate uses pub(crate)):\n{}",
         items.len(),
         items.join("\n")
     );

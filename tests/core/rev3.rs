@@ -7,7 +7,8 @@
 use std::path::{Path, PathBuf};
 
 use polnlos::files::npy;
-use polnlos::measure::{wall_means, Frame};
+use polnlos::measure::wall_means;
+use polnlos::scene::Frame;
 use polnlos::scene::{FrameGeometry, Homography, PixelMap, Scene, WallSampling};
 use polnlos::transport::{build, MemoryBudget};
 

@@ -8,8 +8,9 @@ use std::time::{Duration, Instant};
 use polnlos::camera::aravis::AravisCamera;
 use polnlos::camera::fake::FakeBench;
 use polnlos::camera::worker::CameraHandle;
-use polnlos::camera::{Acquisition, CameraDevice, CameraError, Frame, PixelFormat};
+use polnlos::camera::{Acquisition, CameraDevice, CameraError, PixelFormat};
 use polnlos::rig::bench::Bench;
+use polnlos::scene::Frame;
 
 const ADDR: &str = "127.0.0.1";
 

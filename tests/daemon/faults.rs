@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use crate::daemon::common::{config, lock, scratch, Client, Daemon};
 use polnlos::camera::fake::FakeBench;
-use polnlos::camera::Frame;
+use polnlos::scene::Frame;
 
 fn external_fake() -> FakeBench {
     FakeBench::start(

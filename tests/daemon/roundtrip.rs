@@ -110,7 +110,7 @@ fn frames_rendered_pixel_by_pixel_measure_back_to_the_pixel_rows() {
 fn a_wall_element_outside_the_frame_is_an_error_naming_it() {
     let scene = bench16("crossed");
     let pose = &scene.poses()[0];
-    let frame = polnlos::camera::Frame::zeros(300, 300);
+    let frame = polnlos::scene::Frame::zeros(300, 300);
     let e = wall_means(
         &frame,
         pose.homography.as_ref().unwrap(),

@@ -17,7 +17,7 @@ use tracing::Instrument;
 
 use super::progressive;
 use super::{finish_job, Ending, JobContext, JobError};
-use crate::camera::{Acquisition, CameraError, Frame, FrameCounts, RawFrame};
+use crate::camera::{Acquisition, CameraError, FrameCounts, RawFrame};
 use crate::daemon::runtime::camera::CameraService;
 use crate::daemon::runtime::config::{LostFrames, Saturated};
 use crate::daemon::runtime::events::Step;
@@ -25,6 +25,7 @@ use crate::daemon::runtime::queue::CaptureQueue;
 use crate::daemon::Event;
 use crate::measure::FrameStack;
 use crate::rig::{Aid, Rig, RigError};
+use crate::scene::Frame;
 use crate::store::{
     write_frames, write_summary, CaptureFiles, CaptureKind, CaptureRecord, FrameMeta, JobState,
 };

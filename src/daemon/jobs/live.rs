@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use super::progressive::{Snapshot, Solver};
 use super::{JobContext, JobError};
-use crate::camera::{Acquisition, Frame, RawFrame};
+use crate::camera::{Acquisition, RawFrame};
 use crate::daemon::requests::validate::ProgressiveSpec;
 use crate::daemon::runtime::camera::CameraService;
 use crate::daemon::runtime::live::{Live, LiveState};
@@ -27,6 +27,7 @@ use crate::daemon::Event;
 use crate::measure::window::Window;
 use crate::measure::FrameStack;
 use crate::rig::Rig;
+use crate::scene::Frame;
 use crate::store::{CaptureRecord, CaptureRequest, JobState};
 
 /// Frames one acquisition of a live segment asks for; a segment that reaches

@@ -229,7 +229,7 @@ pub(in crate::daemon) enum PoseMoveError {
 pub(in crate::daemon) fn dark_capture(
     store: &Store,
     id: i64,
-) -> Result<(crate::measure::Frame, Option<crate::measure::Frame>), JobError> {
+) -> Result<(crate::scene::Frame, Option<crate::scene::Frame>), JobError> {
     let dir = store.capture_dir(id);
     let failed = |e: crate::store::StoreError| JobError::Capture {
         id,

@@ -24,7 +24,7 @@ use std::time::Instant;
 
 use super::reconstruction::{load_capture, read_captures};
 use super::{JobContext, JobError};
-use crate::camera::{Acquisition, Frame};
+use crate::camera::Acquisition;
 use crate::daemon::requests::validate::ProgressiveSpec;
 use crate::daemon::runtime::events::Step;
 use crate::daemon::runtime::scenes::Scenes;
@@ -33,6 +33,7 @@ use crate::files::{image, json};
 use crate::measure::colour::Colour;
 use crate::measure::FrameStack;
 use crate::measure::{assemble_colour, CaptureFrames, PixelMaps, Units};
+use crate::scene::Frame;
 use crate::scene::Scene;
 use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};

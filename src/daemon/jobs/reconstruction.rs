@@ -13,9 +13,10 @@ use super::{finish_job, Ending, JobContext, JobError};
 use crate::daemon::Daemon;
 use crate::files::{image, json, npy};
 use crate::measure::{
-    assemble_colour, load, to_model_units, CaptureFrames, CaptureInfo, CaptureSource, Frame,
-    Measurement, PixelMaps,
+    assemble_colour, load, to_model_units, CaptureFrames, CaptureInfo, CaptureSource, Measurement,
+    PixelMaps,
 };
+use crate::scene::Frame;
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::photo::{photo_transport, PhotoReport, PhotoSettings};

@@ -4,7 +4,7 @@
 
 use super::scenes::Scenes;
 use crate::daemon::{runtime::config, DaemonError, DEMO_PEAK_FRACTION, DEMO_REFERENCE_EXPOSURE_US};
-use crate::measure::Frame;
+use crate::scene::Frame;
 use crate::scene::FrameGeometry;
 use crate::simulate::camera::render;
 use crate::simulate::patterns::Pattern;

@@ -1,4 +1,7 @@
 //! A single-channel camera frame in floating point (digital numbers, DN).
+//!
+//! Why here, beside the frame geometry: simulation renders frames and
+//! measurement samples them, so both name it from below.
 
 /// A monochrome frame, row-major, top row first; pixel centres at integer
 /// coordinates (MODEL.md "From camera frames to i").
