@@ -968,3 +968,90 @@ fn the_public_surface_does_not_grow() {
         items.join("\n")
     );
 }
+
+/// The library's folders from the ground up (README.md "Layout"): a folder
+/// may name only folders on a lower line. One line holds
+/// folders that stand side by side and name none of each other.
+const ORDER: &[&[&str]] = &[
+    &["optics", "integral"],
+    &["scene"],
+    &["transport", "rig"],
+    &["simulate"],
+    &["solve"],
+    &["measure"],
+    &["calibrate", "files", "camera"],
+    &["store", "report"],
+    &["daemon"],
+    &["api"],
+];
+
+/// The line of `ORDER` that holds `folder`.
+fn floor(folder: &str) -> Option<usize> {
+    ORDER.iter().position(|line| line.contains(&folder))
+}
+
+/// The `crate::` paths in `src/`'s folders that name another folder, as
+/// `file: path`, and those of them that name a folder on their own line or
+/// above (a layer named from below, or a neighbour).
+fn imports_against_the_order() -> (Vec<String>, Vec<String>) {
+    let (mut all, mut out) = (Vec::new(), Vec::new());
+    for (path, text) in sources("") {
+        let rel = path
+            .split("/src/")
+            .last()
+            .unwrap_or(&path)
+            .trim_end_matches(".rs")
+            .to_string();
+        let own = rel.split('/').next().unwrap_or("");
+        let Some(k) = floor(own) else {
+            continue;
+        };
+        for p in paths(&code(&text)) {
+            let Some(named) = p.strip_prefix("crate::").and_then(|r| r.split("::").next()) else {
+                continue;
+            };
+            if named == own {
+                continue;
+            }
+            all.push(format!("{rel}: {p}"));
+            if floor(named).is_none_or(|j| j >= k) {
+                out.push(format!("{rel}: {p}"));
+            }
+        }
+    }
+    out.sort();
+    out.dedup();
+    (all, out)
+}
+
+/// Issue 48: the folders keep their declared order, so a change that makes
+/// a lower layer depend on a higher one (or two neighbours on each other)
+/// fails here, not in review.
+#[test]
+fn each_folder_names_only_the_folders_below_it() {
+    let every: Vec<&str> = ORDER.iter().flat_map(|line| line.iter().copied()).collect();
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    for e in std::fs::read_dir(&src).unwrap() {
+        let name = e.unwrap().file_name().to_string_lossy().into_owned();
+        let folder = name.trim_end_matches(".rs");
+        if !["lib", "main", "cli"].contains(&folder) {
+            assert!(every.contains(&folder), "src/{name} is in no line of ORDER");
+        }
+    }
+    let (all, found) = imports_against_the_order();
+    // The paths are read at all (a reader that found none would pass).
+    assert!(
+        all.len() > 300,
+        "only {} imports across folders read",
+        all.len()
+    );
+    assert!(all
+        .iter()
+        .any(|p| p.starts_with("daemon/") && p.contains("crate::store")));
+    assert!(
+        found.is_empty(),
+        "{} imports against the layers' order:\n{}",
+        found.len(),
+        found.join("\n")
+    );
+}
