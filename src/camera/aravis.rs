@@ -442,29 +442,12 @@ impl CameraDevice for AravisCamera {
             2.0 * period.max(exposure_s) + self.last_period_s + FIRST_FRAME_SLACK_S,
         );
         let timeout = Duration::from_secs_f64(2.0 * period.max(exposure_s) + FRAME_SLACK_S);
+        let payload = self.camera.payload().map_err(driver)? as usize;
+        let mut stream = start_stream(&self.camera, &mut self.warned_rmem, payload)?;
+        // One new stream when the first frame does not come although packets
+        // do, every one discarded ([`thrown_off`]).
+        let mut restarted = false;
         let c = &self.camera;
-        let payload = c.payload().map_err(driver)? as usize;
-        let stream = c.create_stream().map_err(driver)?;
-        if let Some(gv) = stream.downcast_ref::<aravis::GvStream>() {
-            let bytes = socket_buffer_bytes(payload);
-            gv.set_socket_buffer(aravis::GvStreamSocketBuffer::Fixed);
-            gv.set_socket_buffer_size(i32::try_from(bytes).unwrap_or(i32::MAX));
-            gv.set_frame_retention(FRAME_RETENTION_US);
-            // The kernel's cap is read once per camera, not at every acquisition.
-            if !self.warned_rmem {
-                self.warned_rmem = true;
-                if let Some(line) = rmem_max_warning(bytes, payload, read_rmem_max()) {
-                    tracing::warn!("{line}");
-                }
-            }
-        }
-        for _ in 0..buffer_count(payload) {
-            stream.push_buffer(aravis::Buffer::new_allocate(payload));
-        }
-        c.set_acquisition_mode(AcquisitionMode::Continuous)
-            .map_err(feature_err("AcquisitionMode"))?;
-        c.start_acquisition()
-            .map_err(feature_err("AcquisitionStart"))?;
         let software = self.settings.trigger == TriggerMode::Software;
         let bits = self.settings.pixel_format.bits();
         let mut taken = 0;
@@ -485,6 +468,18 @@ impl CameraDevice for AravisCamera {
             }
             let wait = if taken == 0 { first_timeout } else { timeout };
             let Some(buffer) = stream.timeout_pop_buffer(wait.as_micros() as u64) else {
+                if taken == 0 && counts.broken == 0 && !restarted && thrown_off(&stream) {
+                    restarted = true;
+                    tracing::warn!(
+                        "no frame within {} ms although the stream received {} packets, every one discarded as a late frame (a stray packet first can throw off Aravis's frame counter): starting a new stream",
+                        wait.as_millis(),
+                        stream.info_uint64_by_name("n_received_packets")
+                    );
+                    let _ = c.stop_acquisition();
+                    drop(stream);
+                    stream = start_stream(c, &mut self.warned_rmem, payload)?;
+                    continue;
+                }
                 self.counters.timeouts += 1;
                 break Err(timed_out(&stream, wait, taken, n));
             };
@@ -541,6 +536,62 @@ impl CameraDevice for AravisCamera {
     fn counters(&self) -> Counters {
         self.counters
     }
+}
+
+/// A new stream of `camera` with its buffers, then the acquisition started:
+/// a stream that receives packets before the start (strays, which could
+/// throw off its frame count, [`thrown_off`]) is replaced, up to 3 times.
+fn start_stream(
+    camera: &Camera,
+    warned_rmem: &mut bool,
+    payload: usize,
+) -> Result<aravis::Stream, CameraError> {
+    let mut tries = 0;
+    let stream = loop {
+        let stream = camera.create_stream().map_err(driver)?;
+        if let Some(gv) = stream.downcast_ref::<aravis::GvStream>() {
+            let bytes = socket_buffer_bytes(payload);
+            gv.set_socket_buffer(aravis::GvStreamSocketBuffer::Fixed);
+            gv.set_socket_buffer_size(i32::try_from(bytes).unwrap_or(i32::MAX));
+            gv.set_frame_retention(FRAME_RETENTION_US);
+            // The kernel's cap is read once per camera, not at every acquisition.
+            if !*warned_rmem {
+                *warned_rmem = true;
+                if let Some(line) = rmem_max_warning(bytes, payload, read_rmem_max()) {
+                    tracing::warn!("{line}");
+                }
+            }
+        }
+        for _ in 0..buffer_count(payload) {
+            stream.push_buffer(aravis::Buffer::new_allocate(payload));
+        }
+        let strays = stream.info_uint64_by_name("n_received_packets");
+        tries += 1;
+        if strays == 0 || tries == 3 {
+            break stream;
+        }
+        tracing::warn!("a new stream received {strays} packets before the acquisition started: starting another");
+    };
+    camera
+        .set_acquisition_mode(AcquisitionMode::Continuous)
+        .map_err(feature_err("AcquisitionMode"))?;
+    camera
+        .start_acquisition()
+        .map_err(feature_err("AcquisitionStart"))?;
+    Ok(stream)
+}
+
+/// Whether `stream` received packets and discarded every one as a late
+/// frame: a stray packet (a stale control answer to a port the kernel gave
+/// the stream again) taken as the first one sets Aravis 0.8's last frame id
+/// to garbage, and the camera's frames are then "late" for up to 100
+/// frames; a new stream starts its count afresh.
+fn thrown_off(stream: &aravis::Stream) -> bool {
+    let received = stream.info_uint64_by_name("n_received_packets");
+    received > 0
+        && stream.info_uint64_by_name("n_ignored_packets") == received
+        && stream.info_uint64_by_name("n_completed_buffers") == 0
+        && stream.info_uint64_by_name("n_failures") == 0
 }
 
 /// The timeout of an acquisition that got `got` of `wanted` frames, with
