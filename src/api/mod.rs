@@ -62,15 +62,41 @@ pub fn router(d: Arc<Daemon>) -> Router {
             .on_eos(())
             .on_failure(()),
     )
+    .layer(middleware::from_fn_with_state(
+        Arc::new(std::sync::atomic::AtomicU64::new(1)),
+        request_id,
+    ))
     .with_state(d)
 }
 
-/// A request's span: `request{method path}`, around what its handler logs.
+/// A request's number in this daemon's run (from 1), in its log lines and
+/// its answer's `x-request-id` header.
+#[derive(Debug, Clone, Copy)]
+struct RequestId(u64);
+
+/// Numbers each request and answers with its number (`x-request-id`).
+///
+/// Why: a user who reports an answer can name the log lines of its request.
+async fn request_id(
+    State(next_id): State<Arc<std::sync::atomic::AtomicU64>>,
+    mut req: axum::extract::Request,
+    next: middleware::Next,
+) -> axum::response::Response {
+    let id = next_id.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    req.extensions_mut().insert(RequestId(id));
+    let mut res = next.run(req).await;
+    res.headers_mut()
+        .insert("x-request-id", axum::http::HeaderValue::from(id));
+    res
+}
+
+/// A request's span: `request{id method path}`, around what its handler logs.
 ///
 /// Why: a bench PC's log must say which request a job line or a refusal
 /// came from.
 fn request_span(req: &axum::http::Request<axum::body::Body>) -> tracing::Span {
-    tracing::info_span!("request", method = %req.method(), path = %req.uri().path())
+    let id = req.extensions().get::<RequestId>().map_or(0, |r| r.0);
+    tracing::info_span!("request", id, method = %req.method(), path = %req.uri().path())
 }
 
 /// One line per answer: a refusal (4xx) as a warning, a server error as an

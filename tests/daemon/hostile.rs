@@ -390,6 +390,31 @@ fn http_edges_answer_json_and_never_wrap() {
     assert!(b.contains("pose B at 0°") && !b.contains("Some("), "{b}");
     let (_, b) = d.get(&format!("/captures/{}/dark.tiff", c["id"]));
     assert!(!b.contains("/tmp/"), "{b}");
+    // Each answer carries its request's number (the log's `request{id=..}`),
+    // one more for each request, refused or not.
+    let ids: Vec<u64> = ["/health", "/captures/%FF", "/health"]
+        .iter()
+        .map(|path| request_number(&d.base, path))
+        .collect();
+    assert!(
+        ids[0] > 0 && ids[1] == ids[0] + 1 && ids[2] == ids[1] + 1,
+        "{ids:?}"
+    );
+}
+
+/// The `x-request-id` of the answer to `GET path` from the daemon at `base`.
+fn request_number(base: &str, path: &str) -> u64 {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(base.trim_start_matches("http://")).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+    let request = format!("GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
+    s.write_all(request.as_bytes()).unwrap();
+    let mut out = String::new();
+    let _ = s.read_to_string(&mut out);
+    out.lines()
+        .find_map(|l| l.strip_prefix("x-request-id: "))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no x-request-id in {out}"))
 }
 
 #[test]

@@ -874,12 +874,17 @@ fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
         "reconstruction-1 queued: brewster-crossed of captures [3], fista-tv",
         "reconstruction-1 started",
         "reconstruction-1 done in ",
-        // Each refused request, with its method and path (answered ones
-        // are at debug level: the page polls).
-        "request{method=DELETE path=/jobs/capture-1}: polnlos::api: refused 409 in ",
+        // Each refused request, with its number, method and path
+        // (answered ones are at debug level: the page polls).
+        " method=DELETE path=/jobs/capture-1}: polnlos::api: refused 409 in ",
     ] {
         assert!(log.contains(line), "no {line:?} in the log:\n{log}");
     }
+    let refused = log
+        .lines()
+        .find(|l| l.contains("path=/jobs/capture-1}: polnlos::api: refused 409"))
+        .unwrap_or_default();
+    assert!(refused.contains("request{id="), "{refused}");
     let (_, metrics) = d.get("/metrics");
     assert!(
         metrics.contains("polnlos_jobs_cancelled_total 2"),
