@@ -443,7 +443,8 @@ impl CameraDevice for AravisCamera {
         );
         let timeout = Duration::from_secs_f64(2.0 * period.max(exposure_s) + FRAME_SLACK_S);
         let payload = self.camera.payload().map_err(driver)? as usize;
-        let mut stream = start_stream(&self.camera, &mut self.warned_rmem, payload)?;
+        let (mut stream, replaced) = start_stream(&self.camera, &mut self.warned_rmem, payload)?;
+        self.counters.stream_restarts += replaced;
         // One new stream when the first frame does not come although packets
         // do, every one discarded ([`thrown_off`]).
         let mut restarted = false;
@@ -477,7 +478,9 @@ impl CameraDevice for AravisCamera {
                     );
                     let _ = c.stop_acquisition();
                     drop(stream);
-                    stream = start_stream(c, &mut self.warned_rmem, payload)?;
+                    let (again, replaced) = start_stream(c, &mut self.warned_rmem, payload)?;
+                    self.counters.stream_restarts += 1 + replaced;
+                    stream = again;
                     continue;
                 }
                 self.counters.timeouts += 1;
@@ -538,14 +541,15 @@ impl CameraDevice for AravisCamera {
     }
 }
 
-/// A new stream of `camera` with its buffers, then the acquisition started:
-/// a stream that receives packets before the start (strays, which could
-/// throw off its frame count, [`thrown_off`]) is replaced, up to 3 times.
+/// A new stream of `camera` with its buffers, then the acquisition started,
+/// and how many streams were replaced on the way: a stream that receives
+/// packets before the start (strays, which could throw off its frame count,
+/// [`thrown_off`]) is replaced, up to twice.
 fn start_stream(
     camera: &Camera,
     warned_rmem: &mut bool,
     payload: usize,
-) -> Result<aravis::Stream, CameraError> {
+) -> Result<(aravis::Stream, u64), CameraError> {
     let mut tries = 0;
     let stream = loop {
         let stream = camera.create_stream().map_err(driver)?;
@@ -566,10 +570,10 @@ fn start_stream(
             stream.push_buffer(aravis::Buffer::new_allocate(payload));
         }
         let strays = stream.info_uint64_by_name("n_received_packets");
-        tries += 1;
-        if strays == 0 || tries == 3 {
+        if strays == 0 || tries == 2 {
             break stream;
         }
+        tries += 1;
         tracing::warn!("a new stream received {strays} packets before the acquisition started: starting another");
     };
     camera
@@ -578,7 +582,7 @@ fn start_stream(
     camera
         .start_acquisition()
         .map_err(feature_err("AcquisitionStart"))?;
-    Ok(stream)
+    Ok((stream, tries))
 }
 
 /// Whether `stream` received packets and discarded every one as a late

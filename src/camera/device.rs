@@ -186,6 +186,10 @@ pub struct Counters {
     pub missing_packets: u64,
     /// GigE Vision packets resent.
     pub resent_packets: u64,
+    /// Streams replaced because stray packets reached them before or
+    /// instead of the camera's frames (they can throw off Aravis's frame
+    /// count: `camera/aravis.rs`).
+    pub stream_restarts: u64,
     /// Times the camera was (re)opened.
     pub connects: u64,
 }

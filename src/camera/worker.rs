@@ -315,6 +315,7 @@ fn add(a: Counters, b: Counters) -> Counters {
         underruns: a.underruns + b.underruns,
         missing_packets: a.missing_packets + b.missing_packets,
         resent_packets: a.resent_packets + b.resent_packets,
+        stream_restarts: a.stream_restarts + b.stream_restarts,
         connects: a.connects,
     }
 }

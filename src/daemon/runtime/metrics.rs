@@ -93,6 +93,7 @@ impl crate::daemon::Daemon {
             counter("polnlos_camera_underruns_total", "Stream packets that found no free buffer (Aravis n_underruns; per packet, including frames sent after a capture had its own)", c.underruns as f64),
             counter("polnlos_camera_missing_packets_total", "GigE Vision packets missing", c.missing_packets as f64),
             counter("polnlos_camera_resent_packets_total", "GigE Vision packets resent", c.resent_packets as f64),
+            counter("polnlos_camera_stream_restarts_total", "Streams replaced after stray packets reached them", c.stream_restarts as f64),
             counter("polnlos_camera_connects_total", "Camera (re)connections", c.connects as f64),
             counter("polnlos_camera_reconnect_failures_total", "Failed reconnection attempts", s.reconnect_failures as f64),
             gauge("polnlos_capture_queue_depth", "Captures waiting", self.captures.depth() as f64),
