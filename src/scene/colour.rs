@@ -20,4 +20,13 @@ pub enum Colour {
 impl Colour {
     /// Red, green, blue: the order of a measurement's channels and of an RGB image.
     pub const ALL: [Colour; 3] = [Colour::Red, Colour::Green, Colour::Blue];
+
+    /// `red`, `green` or `blue`, as the files and reports name it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Colour::Red => "red",
+            Colour::Green => "green",
+            Colour::Blue => "blue",
+        }
+    }
 }

@@ -234,19 +234,35 @@ struct Solution {
     kappa: f64,
 }
 
+/// One measurement made ready to solve, as often as needed: its `T` (the
+/// sampling its noise chose, unmeasured rows zeroed), values, variance,
+/// conditioning and Gram, and what its report says beside the solve.
+struct Prepared {
+    t: Arc<crate::transport::Transport>,
+    i: Vec<f64>,
+    variance: Option<Vec<f64>>,
+    cond: Arc<crate::solve::Conditioning>,
+    normal: Option<Normal>,
+    solve: SolveRequest,
+    truth: Option<Vec<f64>>,
+    /// Rows not measured (NaN in the stored measurement).
+    missing: Vec<usize>,
+    model: Option<crate::transport::choose::ModelChoice>,
+    gain: crate::solve::report::Gain,
+    warnings: Vec<String>,
+    notes: Vec<String>,
+}
+
 impl Job<'_> {
-    /// Solves `measurement` (fractions of full scale per µs, one value per
+    /// Prepares `measurement` (fractions of full scale per µs, one value per
     /// row of `t`): unmeasured rows dropped, units, the sampling chosen from
     /// the noise, the conditioning and Gram, the solver the record asks for;
     /// divided by `gain` (`None`: scaled to a brightest element of about 1).
-    ///
-    /// `lambda`, when given, replaces the record's (and its automatic choice).
-    fn solve(
+    fn prepare(
         &self,
         mut measurement: Measurement,
         gain: Option<f64>,
-        lambda: Option<f64>,
-    ) -> Result<Solution, JobError> {
+    ) -> Result<Prepared, JobError> {
         let (d, rec) = (self.d, self.rec);
         check(self.cancel)?;
         // Elements too saturated to measure: their rows of T and i are zero (no
@@ -258,10 +274,9 @@ impl Job<'_> {
                 false => self.causes.join("; "),
             }));
         }
-        let mut warnings: Vec<String> =
-            crate::solve::unmeasured_warning(&missing, measurement.i.len())
-                .into_iter()
-                .collect();
+        let warnings: Vec<String> = crate::solve::unmeasured_warning(&missing, measurement.i.len())
+            .into_iter()
+            .collect();
         let t = match missing.is_empty() {
             true => self.t.clone(),
             false => Arc::new(self.t.with_rows_zeroed(&missing)),
@@ -299,56 +314,74 @@ impl Job<'_> {
             false => Arc::new(crate::solve::condition(&t)?),
         };
         check(self.cancel)?;
-        let mut solve = stored_solve(rec)?;
-        if lambda.is_some() {
-            solve.lambda = lambda;
-        }
+        let solve = stored_solve(rec)?;
         let truth = rec
             .params
             .truth
             .as_deref()
             .and_then(crate::simulate::patterns::Pattern::from_name)
             .map(|pat| pat.render(t.scene_grid()));
-        let context = Context {
-            scene: rec.scene.clone(),
-            transport_seconds: self.transport_seconds,
-            truth: truth.as_deref(),
-            stop: Stop::on(self.cancel),
-        };
         // A solver that needs the Gram solves on the scene's cached one: only
         // `T^T i` is new.
         let normal = match solve.solver.needs().gram {
             true => Some(normal_for(d, &key, whole, &t, &i)?),
             false => None,
         };
+        Ok(Prepared {
+            t,
+            i,
+            variance: var,
+            cond,
+            normal,
+            solve,
+            truth,
+            missing,
+            model,
+            gain: gain_of(units),
+            warnings,
+            notes,
+        })
+    }
+
+    /// Solves `p` with the record's solver, at `lambda` when given (else the
+    /// record's λ, or its automatic choice).
+    fn solve(&self, p: &Prepared, lambda: Option<f64>) -> Result<Solution, JobError> {
         check(self.cancel)?;
+        let mut solve = p.solve.clone();
+        if lambda.is_some() {
+            solve.lambda = lambda;
+        }
+        let context = Context {
+            scene: self.rec.scene.clone(),
+            transport_seconds: self.transport_seconds,
+            truth: p.truth.as_deref(),
+            stop: Stop::on(self.cancel),
+        };
         let solved = reconstruct_prepared(
-            &t,
-            &i,
-            var.map(NoiseLevel::measured),
-            &cond,
-            normal.as_ref(),
+            &p.t,
+            &p.i,
+            p.variance.clone().map(NoiseLevel::measured),
+            &p.cond,
+            p.normal.as_ref(),
             &solve,
             context,
         )?;
         let mut report = solved.report;
-        report.model = model;
-        report.gain = Some(gain_of(units));
-        warnings.append(&mut report.warnings);
-        report.warnings = warnings;
-        notes.append(&mut report.notes);
-        report.notes = notes;
+        report.model = p.model.clone();
+        report.gain = Some(p.gain);
+        report.warnings.splice(0..0, p.warnings.iter().cloned());
+        report.notes.splice(0..0, p.notes.iter().cloned());
         check(self.cancel)?;
         // The stored measurement says which rows were not measured (NaN),
         // as `polnlos measure` writes them: re-solved offline, they are
         // left out again.
-        let mut i = i;
-        missing.iter().for_each(|&j| i[j] = f64::NAN);
+        let mut i = p.i.clone();
+        p.missing.iter().for_each(|&j| i[j] = f64::NAN);
         Ok(Solution {
             image: solved.image,
             i,
             report,
-            kappa: cond.kappa,
+            kappa: p.cond.kappa,
         })
     }
 }
@@ -362,14 +395,17 @@ impl Job<'_> {
         gains: &[Option<f64>],
         shared: bool,
     ) -> Result<Vec<Solution>, JobError> {
-        let again = shared.then(|| measurements.clone());
-        let mut solved = measurements
+        let prepared = measurements
             .into_iter()
             .zip(gains.iter().copied())
-            .map(|(m, g)| self.solve(m, g, None))
+            .map(|(m, g)| self.prepare(m, g))
             .collect::<Result<Vec<_>, _>>()?;
-        if let Some(measurements) = again {
-            self.share_lambda(&mut solved, measurements, gains)?;
+        let mut solved = prepared
+            .iter()
+            .map(|p| self.solve(p, None))
+            .collect::<Result<Vec<_>, _>>()?;
+        if shared {
+            self.share_lambda(&mut solved, &prepared)?;
         }
         Ok(solved)
     }
@@ -379,12 +415,7 @@ impl Job<'_> {
     /// colours then share one λ, so TV dims each alike and a white scene
     /// stays white (no colour is left noisier than its own choice). Each
     /// colour's report keeps its own choice (`lambda_choice`) and says so.
-    fn share_lambda(
-        &self,
-        solved: &mut [Solution],
-        measurements: Vec<Measurement>,
-        gains: &[Option<f64>],
-    ) -> Result<(), JobError> {
+    fn share_lambda(&self, solved: &mut [Solution], prepared: &[Prepared]) -> Result<(), JobError> {
         let chosen: Option<Vec<f64>> = solved
             .iter()
             .map(|s| s.report.lambda_choice.as_ref().map(|c| c.lambda))
@@ -404,14 +435,14 @@ impl Job<'_> {
         };
         let note = format!(
             "one λ = {largest:.3e} for every colour, the largest of their own choices ({}'s): calibrated colours share it so that TV dims each alike",
-            format!("{from:?}").to_lowercase()
+            from.name()
         );
         // Every colour, the one that chose it too: a search's last solve is
         // warm-started, and the result is then exactly the one asked for
         // with that λ.
-        for ((s, m), &gain) in solved.iter_mut().zip(measurements).zip(gains) {
+        for (s, p) in solved.iter_mut().zip(prepared) {
             let choice = s.report.lambda_choice.take();
-            *s = self.solve(m, gain, Some(largest))?;
+            *s = self.solve(p, Some(largest))?;
             s.report.lambda_choice = choice;
             s.report.notes.push(note.clone());
         }
@@ -618,7 +649,7 @@ fn labelled(solved: &[Solution], of: impl Fn(&Solution) -> &Vec<String>) -> Vec<
             let everywhere = solved.iter().all(|o| of(o).contains(line));
             let line = match everywhere {
                 true => line.clone(),
-                false => format!("{}: {line}", format!("{colour:?}").to_lowercase()),
+                false => format!("{}: {line}", colour.name()),
             };
             if !out.contains(&line) {
                 out.push(line);
