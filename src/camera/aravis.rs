@@ -469,7 +469,9 @@ impl CameraDevice for AravisCamera {
             }
             let wait = if taken == 0 { first_timeout } else { timeout };
             let Some(buffer) = stream.timeout_pop_buffer(wait.as_micros() as u64) else {
-                if taken == 0 && counts.broken == 0 && !restarted && thrown_off(&stream) {
+                // (A frame taken or broken was a buffer completed or failed:
+                // not thrown off.)
+                if !restarted && thrown_off(&stream) {
                     restarted = true;
                     tracing::warn!(
                         "no frame within {} ms although the stream received {} packets, every one discarded as a late frame (a stray packet first can throw off Aravis's frame counter): starting a new stream",
@@ -603,10 +605,10 @@ fn thrown_off(stream: &aravis::Stream) -> bool {
 /// sent packets that found no buffer or made no whole frame.
 fn timed_out(stream: &aravis::Stream, wait: Duration, got: usize, wanted: usize) -> CameraError {
     let info = |name: &str| stream.info_uint64_by_name(name);
+    let packets = info("n_received_packets");
     tracing::warn!(
-        "no frame within {} ms: the stream received {} packets ({} ignored, {} with no free buffer), completed {} buffers, failed {}",
+        "no frame within {} ms: the stream received {packets} packets ({} ignored, {} with no free buffer), completed {} buffers, failed {}",
         wait.as_millis(),
-        info("n_received_packets"),
         info("n_ignored_packets"),
         info("n_underruns"),
         info("n_completed_buffers"),
@@ -616,7 +618,7 @@ fn timed_out(stream: &aravis::Stream, wait: Duration, got: usize, wanted: usize)
         timeout_ms: wait.as_millis() as u64,
         got,
         wanted,
-        packets: info("n_received_packets"),
+        packets,
     }
 }
 
