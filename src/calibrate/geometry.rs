@@ -11,8 +11,7 @@
 
 use nalgebra::{DMatrix, Matrix3, SMatrix, SVector};
 
-use crate::scene::Frame;
-use crate::scene::Homography;
+use crate::scene::{Frame, Homography};
 
 /// A dot target: dot centres in wall coordinates and their radius.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]

@@ -9,8 +9,7 @@ use std::sync::{Arc, Mutex};
 
 use crate::measure::colour::BayerPattern;
 use crate::optics::polarizer::IntensityLaw;
-use crate::scene::Frame;
-use crate::scene::{MosaicLayout, MOSAIC_DEGREES};
+use crate::scene::{Frame, MosaicLayout, MOSAIC_DEGREES};
 
 /// What a colour sensor's red, green and blue pixels record of the demo's
 /// grey scene, relative to a monochrome pixel: a colour CMOS sensor's

@@ -4,8 +4,7 @@
 use std::path::PathBuf;
 
 use polnlos::files::{frames::write_frames, image, json, load_grid_image, npy};
-use polnlos::scene::Frame;
-use polnlos::scene::FrameGeometry;
+use polnlos::scene::{Frame, FrameGeometry};
 use polnlos::simulate::camera;
 use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};
 use polnlos::transport::MemoryBudget;

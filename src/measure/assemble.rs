@@ -7,8 +7,7 @@
 
 use super::colour::{BayerPattern, Colour};
 use super::{stack, BlockFrames, MeasureError, Measurement, PixelMaps};
-use crate::scene::Frame;
-use crate::scene::{Cells, Channel, Scene};
+use crate::scene::{Cells, Channel, Frame, Scene};
 use crate::transport::{Block, Transport};
 
 /// One capture as the measurement needs it: where it was taken and its

@@ -3,8 +3,7 @@
 //! reader owes the user, in one place.
 
 use super::{CaptureFrames, MeasureError};
-use crate::scene::Frame;
-use crate::scene::Scene;
+use crate::scene::{Frame, Scene};
 
 /// What a capture recorded about itself.
 #[derive(Debug, Clone, PartialEq)]

@@ -7,8 +7,7 @@
 //! demosaicing guess; the measurement never uses these images (it averages
 //! each angle's own pixels, [`crate::scene::PixelMap::cell_frame`]).
 
-use crate::scene::Frame;
-use crate::scene::MosaicLayout;
+use crate::scene::{Frame, MosaicLayout};
 
 /// The Stokes images of a mosaic frame, one value per whole 2x2 cell.
 #[derive(Debug, Clone, PartialEq)]

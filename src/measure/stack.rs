@@ -17,8 +17,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use super::MeasureError;
-use crate::scene::Frame;
-use crate::scene::{Cells, FrameGeometry, Homography, PixelMap, Plane};
+use crate::scene::{Cells, Frame, FrameGeometry, Homography, PixelMap, Plane};
 
 /// One (pose, polarizer angle) block's frames, as a capture gives them.
 #[derive(Debug, Clone, Copy)]

@@ -6,8 +6,7 @@
 //! paints each element flat agrees with a centre-sampled `T` by construction,
 //! hiding exactly the error the measurement and the `"pixels"` rows deal with.
 
-use crate::scene::Frame;
-use crate::scene::{FrameGeometry, Scene};
+use crate::scene::{Frame, FrameGeometry, Scene};
 use crate::transport::{blocks_of, radiance_at, Block};
 
 /// The clean frame of every block of `scene` lit by `l` (units of `T l`),

@@ -5,8 +5,7 @@
 
 use polnlos::measure::colour::{BayerPattern, Colour};
 use polnlos::measure::{assemble, assemble_colour, CaptureFrames, PixelMaps};
-use polnlos::scene::Frame;
-use polnlos::scene::{FrameGeometry, Scene};
+use polnlos::scene::{Frame, FrameGeometry, Scene};
 use polnlos::simulate::camera::{expose, render};
 use polnlos::simulate::patterns::Pattern;
 use polnlos::solve::lambda::NoiseLevel;

@@ -8,8 +8,7 @@ use std::path::{Path, PathBuf};
 
 use polnlos::files::npy;
 use polnlos::measure::wall_means;
-use polnlos::scene::Frame;
-use polnlos::scene::{FrameGeometry, Homography, PixelMap, Scene, WallSampling};
+use polnlos::scene::{Frame, FrameGeometry, Homography, PixelMap, Scene, WallSampling};
 use polnlos::transport::{build, MemoryBudget};
 
 fn data(rel: &str) -> PathBuf {

@@ -5,8 +5,7 @@
 use std::path::PathBuf;
 
 use polnlos::measure::wall_means;
-use polnlos::scene::FrameGeometry;
-use polnlos::scene::Scene;
+use polnlos::scene::{FrameGeometry, Scene};
 use polnlos::simulate::camera;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::simulate::{unpolarized_peak, NoiseModel, Simulation};

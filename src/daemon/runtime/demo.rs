@@ -4,8 +4,7 @@
 
 use super::scenes::Scenes;
 use crate::daemon::{runtime::config, DaemonError, DEMO_PEAK_FRACTION, DEMO_REFERENCE_EXPOSURE_US};
-use crate::scene::Frame;
-use crate::scene::FrameGeometry;
+use crate::scene::{Frame, FrameGeometry};
 use crate::simulate::camera::render;
 use crate::simulate::patterns::Pattern;
 
