@@ -36,16 +36,19 @@
 //! - **A pixel format** (1 file): one variant in `src/camera/pixel.rs` (its
 //!   name, buffer layout and, for a polarization camera's raw mosaic, its
 //!   pattern); requests, the catalogue and the driver read it from there.
-//! - **A solver** (2 files): its file in `src/solve/`, and in
-//!   `src/solve/solver.rs` its variant of `Solver` with its name, what it
-//!   needs (`Needs`: the Gram, a λ from the noise, a warm start) and its arm
-//!   of `Solver::run`. The CLI's `--solver`, the API's `solver` enum, the
-//!   page's list (read from `/openapi.json`), the report and the automatic λ
-//!   all take it from there.
+//! - **A solver** (1 file and 1 line): its file in `src/solve/solvers/`, a
+//!   unit struct implementing `Method` (its name, one line on it, what it
+//!   needs: the Gram, a λ from the noise, a warm start; and its solve), and
+//!   its line in `Solver::ALL` (`src/solve/solvers/mod.rs`). The CLI's
+//!   `--solver` and its help, the API's `solver` enum (and so the page's
+//!   list and Python), the automatic λ, warm starts, the report and the
+//!   suite's every-solver tests take it from there; `tests/core/layers.rs`
+//!   fails on a solve anywhere else in `src/` that calls a solver's entry
+//!   point instead of `Solver::run` / `Solver::solve`.
 //! - **A solver's parameter** (2 files): its field in `SolveRequest`
-//!   (`src/solve/solver.rs`: doc comment for the API, `#[arg]` for the CLI,
-//!   range in `check`, passed on in the solver's arm of `Solver::run`) and
-//!   the solver's own settings in its file. `POST /reconstructions`, a
+//!   (`src/solve/solvers/request.rs`: doc comment for the API, `#[arg]` for
+//!   the CLI, range in `check`), read in the solver's `Method::solve` in its
+//!   own file. `POST /reconstructions`, a
 //!   plan's `reconstruct`, the stored parameters and the CLI's `reconstruct`
 //!   embed `SolveRequest`; `tests/core/layers.rs` holds them to that.
 //! - **A route**: a handler with `#[utoipa::path]` in its resource's file

@@ -21,6 +21,7 @@ import typing as _t
 import numpy as _np
 
 from ._polnlos import (  # noqa: F401  (the public names)
+    SOLVERS,
     PolnlosError,
     Scene,
     SceneError,
@@ -32,6 +33,7 @@ from . import _polnlos
 from .client import Client, DaemonError  # noqa: F401
 
 __all__ = [
+    "SOLVERS",
     "Client",
     "DaemonError",
     "PolnlosError",
@@ -93,7 +95,8 @@ def reconstruct(scene: Scene, measurement: _t.Any, lam: _t.Optional[float] = Non
     `variance` (one value per measurement value) when given, else estimated
     from the measurement. With the noise known, the sampling keys the scene
     file leaves out are chosen from it (`report["model"]`). `solver` is one
-    of admm-tv, fista-tv, tikhonov, lsq."""
+    of `polnlos.SOLVERS` (the library's registered solvers, default
+    admm-tv)."""
     if radiometry == "fitted":
         if variance is not None or solver != "admm-tv" or full_spectrum:
             raise PolnlosError("radiometry=\"fitted\" fits its own noise and solves with admm-tv: "

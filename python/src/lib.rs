@@ -481,17 +481,12 @@ fn reconstruct<'py>(
     max_iter: Option<usize>,
     full_spectrum: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyAny>)> {
-    let solver = Solver::ALL
-        .iter()
-        .copied()
-        .find(|s| s.name() == solver)
-        .ok_or_else(|| {
-            let names: Vec<&str> = Solver::ALL.iter().map(|s| s.name()).collect();
-            bad(format!(
-                "solver {solver:?} is not one of {}",
-                names.join(", ")
-            ))
-        })?;
+    let solver = Solver::named(solver).ok_or_else(|| {
+        bad(format!(
+            "solver {solver:?} is not one of {}",
+            Solver::names()
+        ))
+    })?;
     let meas = measurement.as_slice()?;
     let noise = match &variance {
         Some(v) => {
@@ -652,7 +647,7 @@ fn rust_reconstruct_seconds(
 ) -> PyResult<Vec<f64>> {
     let meas = measurement.as_slice()?;
     let req = SolveRequest {
-        solver: Solver::AdmmTv,
+        solver: Solver::ADMM_TV,
         lambda: Some(lam),
         ..Default::default()
     };
@@ -729,6 +724,10 @@ fn _polnlos(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("PolnlosError", m.py().get_type::<PolnlosError>())?;
     m.add("SceneError", m.py().get_type::<SceneError>())?;
     m.add_class::<Scene>()?;
+    // The registered solvers' names, the library's own list (a new solver
+    // appears here with no edit).
+    let solvers: Vec<&str> = Solver::ALL.iter().map(|s| s.name()).collect();
+    m.add("SOLVERS", solvers)?;
     m.add_function(wrap_pyfunction!(cond, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(measure_captures, m)?)?;

@@ -155,7 +155,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     }
     let req = SolveRequest {
         lambda: a.lambda.and_then(LambdaArg::value),
-        ..a.solve.clone()
+        ..a.solve
     };
     req.check()?;
     let noise = match (&a.noise_from, &a.variance) {

@@ -268,7 +268,14 @@ impl Units {
 impl Units {
     /// The scale [`Units::Estimated`] describes, for `m` under `t`.
     pub fn estimate(t: &Transport, m: &Measurement) -> Result<Units, crate::solve::SolveError> {
-        let probe = crate::solve::tikhonov(t, &m.i, None)?;
+        let probe = crate::solve::Solver::TIKHONOV.run(&crate::solve::Problem::new(
+            t,
+            &m.i,
+            crate::solve::SolveRequest {
+                solver: crate::solve::Solver::TIKHONOV,
+                ..Default::default()
+            },
+        ))?;
         let unclipped_max = probe.image.iter().copied().fold(0.0, f64::max).max(1e-300);
         let fit = t.apply(&probe.image);
         let fit_dot_i = fit.iter().zip(&m.i).map(|(a, b)| a * b).sum::<f64>();

@@ -15,10 +15,10 @@ use super::{builtin, BenchError};
 use crate::scene::{Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
-use crate::solve::admm::{admm_tv_prepared, LAMBDA_REL};
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::reconstruct::{Context, AUTO_MAX_ITER};
+use crate::solve::solvers::{Solver, LAMBDA_REL};
 use crate::solve::{condition, metrics, reconstruct, AdmmSettings, Conditioning, SolveRequest};
 use crate::transport::{build, MemoryBudget, Transport};
 
@@ -121,7 +121,7 @@ fn case(
         };
         Ok(metrics::psnr(
             &truth,
-            &admm_tv_prepared(t, i, &normal, &settings)?.image,
+            &Solver::ADMM_TV.run(&settings.problem(t, i, &normal))?.image,
         ))
     };
     let default_psnr = psnr_at(LAMBDA_REL * unit)?;

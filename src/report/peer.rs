@@ -15,8 +15,8 @@ use crate::files::npy;
 use crate::scene::{Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
-use crate::solve::admm::LAMBDA_REL;
-use crate::solve::{admm_tv, metrics, AdmmSettings};
+use crate::solve::solvers::LAMBDA_REL;
+use crate::solve::{metrics, Problem, SolveRequest, Solver};
 use crate::transport::{build, MemoryBudget, Transport};
 
 pub(crate) static SCRIPT: &str = include_str!("../../benches/peer/peer.py");
@@ -192,21 +192,23 @@ fn run_polnlos(
     // The peer's algorithm: lambda = rho = 1e-2 mean(diag(T^T T)), fixed
     // (no residual balancing), 200 iterations.
     let unit = t.mean_column_norm2();
-    let settings = AdmmSettings {
+    let request = SolveRequest {
+        solver: Solver::ADMM_TV,
         lambda: Some(LAMBDA_REL * unit),
         rho: Some(LAMBDA_REL * unit),
-        max_iter: ITERATIONS,
-        tol: 1e-300,
-        ..Default::default()
+        max_iter: Some(ITERATIONS),
+        tol: Some(1e-300),
+        rcond: None,
     };
+    let problem = Problem::new(&t, &sim.measurement, request);
     let mut runs = Vec::new();
     for _ in 0..3 {
-        let s = admm_tv(&t, &sim.measurement, &settings)?.stats;
+        let s = Solver::ADMM_TV.run(&problem)?.stats;
         runs.push((s.gram_seconds, s.factor_seconds + s.iterate_seconds));
     }
     report.polnlos_gram_seconds = median(runs.iter().map(|r| r.0).collect());
     report.polnlos_solve_seconds = median(runs.iter().map(|r| r.1).collect());
-    let ours = admm_tv(&t, &sim.measurement, &settings)?;
+    let ours = Solver::ADMM_TV.run(&problem)?;
     report.polnlos_psnr_db = metrics::psnr(&truth, &ours.image);
     Ok(Ours {
         t,

@@ -20,11 +20,11 @@ use crate::scene::{Frame, FrameGeometry, Scene, WallSampling};
 use crate::simulate::camera::expose;
 use crate::simulate::patterns::Pattern;
 use crate::simulate::unpolarized_peak;
-use crate::solve::admm::admm_tv_prepared;
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::metrics::compare;
 use crate::solve::reconstruct::{Context, AUTO_MAX_ITER};
+use crate::solve::Solver;
 use crate::solve::{condition, reconstruct, AdmmSettings, SolveRequest};
 use crate::transport::{build, MemoryBudget, Transport};
 
@@ -321,7 +321,9 @@ pub fn best_lambda(
                         max_iter: AUTO_MAX_ITER,
                         ..Default::default()
                     };
-                    let image = admm_tv_prepared(t, &i, &normal, &settings)?.image;
+                    let image = Solver::ADMM_TV
+                        .run(&settings.problem(t, &i, &normal))?
+                        .image;
                     let psnr = compare(t.scene_grid(), &truth, &image).psnr_db;
                     best = best.max(psnr);
                     sums[k].3[g] += psnr;

@@ -21,7 +21,7 @@ use crate::files::npy;
 use crate::scene::{Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
-use crate::solve::admm::LAMBDA_REL;
+use crate::solve::solvers::LAMBDA_REL;
 use crate::transport::{build, MemoryBudget};
 
 /// Built-in scene of the sweep: two crossed poses (B, C).

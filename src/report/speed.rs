@@ -20,10 +20,8 @@ use super::{builtin, median, BenchError};
 use crate::scene::{Grid, Scene};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::NoiseModel;
-use crate::solve::admm::admm_tv_prepared;
-use crate::solve::fista::fista_tv_prepared;
 use crate::solve::gram::Normal;
-use crate::solve::{least_squares, metrics, tikhonov, AdmmSettings, FistaSettings, SolveError};
+use crate::solve::{metrics, SolveError, SolveRequest, Solver};
 use crate::transport::{build, MemoryBudget, Transport};
 
 /// One problem size of the sweep.
@@ -200,54 +198,56 @@ fn run_solvers(
     let normal = Normal::new(p.t.as_mat(), i);
     let gram = normal.seconds;
 
-    let r = least_squares(&p.t, i, None).map_err(solve_err)?;
+    // Every solver through its door, on one Gram: `budget` iterations (no
+    // tolerance stops them early) or, for the direct ones, once.
+    let at = |solver: Solver, max_iter: Option<usize>, tol: f64| crate::solve::Problem {
+        normal: Some(&normal),
+        ..crate::solve::Problem::new(
+            &p.t,
+            i,
+            SolveRequest {
+                solver,
+                max_iter,
+                tol: Some(tol),
+                ..SolveRequest::default()
+            },
+        )
+    };
+    let r = Solver::LSQ
+        .run(&crate::solve::Problem::new(
+            &p.t,
+            i,
+            SolveRequest {
+                solver: Solver::LSQ,
+                ..SolveRequest::default()
+            },
+        ))
+        .map_err(solve_err)?;
     rows.push(p.row(ctx, "lsq", "-".into(), r.stats.total_seconds, &r));
-    let r = tikhonov(&p.t, i, None).map_err(solve_err)?;
+    let r = Solver::TIKHONOV
+        .run(&crate::solve::Problem::new(
+            &p.t,
+            i,
+            SolveRequest {
+                solver: Solver::TIKHONOV,
+                ..SolveRequest::default()
+            },
+        ))
+        .map_err(solve_err)?;
     rows.push(p.row(ctx, "tikhonov", "-".into(), r.stats.total_seconds, &r));
     for &b in budgets {
-        let start = Instant::now();
-        let r = admm_tv_prepared(
-            &p.t,
-            i,
-            &normal,
-            &AdmmSettings {
-                max_iter: b,
-                tol: 1e-12,
-                ..AdmmSettings::default()
-            },
-        )
-        .map_err(solve_err)?;
-        let secs = gram + start.elapsed().as_secs_f64();
-        rows.push(p.row(ctx, "admm-tv", b.to_string(), secs, &r));
-
-        let start = Instant::now();
-        let r = fista_tv_prepared(
-            &p.t,
-            i,
-            &normal,
-            &FistaSettings {
-                max_iter: b,
-                tol: 1e-12,
-                ..FistaSettings::default()
-            },
-        )
-        .map_err(solve_err)?;
-        let secs = gram + start.elapsed().as_secs_f64();
-        rows.push(p.row(ctx, "fista-tv", b.to_string(), secs, &r));
+        for solver in [Solver::ADMM_TV, Solver::FISTA_TV] {
+            let start = Instant::now();
+            let r = solver.run(&at(solver, Some(b), 1e-12)).map_err(solve_err)?;
+            let secs = gram + start.elapsed().as_secs_f64();
+            rows.push(p.row(ctx, solver.name(), b.to_string(), secs, &r));
+        }
     }
     for &tol in &TOLERANCES {
         let start = Instant::now();
-        let r = admm_tv_prepared(
-            &p.t,
-            i,
-            &normal,
-            &AdmmSettings {
-                max_iter: 5000,
-                tol,
-                ..AdmmSettings::default()
-            },
-        )
-        .map_err(solve_err)?;
+        let r = Solver::ADMM_TV
+            .run(&at(Solver::ADMM_TV, Some(5000), tol))
+            .map_err(solve_err)?;
         let secs = gram + start.elapsed().as_secs_f64();
         rows.push(p.row(ctx, "admm-tv tol", format!("{tol:.0e}"), secs, &r));
     }
@@ -299,9 +299,13 @@ pub(crate) fn speed_sweep(
             // is the reference): solved once per seed, ADMM-TV at its defaults.
             let sim_nopol = simulate(&clean_nopol, peak_nopol)?;
             let start = Instant::now();
-            let r_nopol =
-                crate::solve::admm_tv(&nopol.t, &sim_nopol.measurement, &AdmmSettings::default())
-                    .map_err(solve_err)?;
+            let r_nopol = Solver::ADMM_TV
+                .run(&crate::solve::Problem::new(
+                    &nopol.t,
+                    &sim_nopol.measurement,
+                    SolveRequest::default(),
+                ))
+                .map_err(solve_err)?;
             let secs_nopol = start.elapsed().as_secs_f64();
             for (exposure, peak) in EXPOSURES.into_iter().zip([peak_nopol, peak_crossed]) {
                 let ctx = Ctx {

@@ -10,7 +10,7 @@ use crate::scene::{Grid, Scene, SceneParts};
 use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
 use crate::solve::report::{conditioning_notes, mean_snr, snr_warnings};
-use crate::solve::{admm_tv, condition, metrics, AdmmSettings};
+use crate::solve::{condition, metrics, Problem, SolveRequest, Solver};
 use crate::transport::{build, MemoryBudget};
 
 /// Outcome of one stability case.
@@ -162,11 +162,11 @@ pub(crate) fn stability_table(
             .collect();
         let snr = mean_snr(&e, &var);
         let unit = t.mean_column_norm2();
-        let settings = AdmmSettings {
+        let request = SolveRequest {
             lambda: c.lambda_rel.map(|r| r * unit),
-            ..AdmmSettings::default()
+            ..SolveRequest::default()
         };
-        let r = admm_tv(&t, &sim.measurement, &settings)?;
+        let r = Solver::ADMM_TV.run(&Problem::new(&t, &sim.measurement, request))?;
         let cond = condition(&t)?;
         let mut warnings = conditioning_notes(&cond);
         warnings.extend(snr_warnings(snr));

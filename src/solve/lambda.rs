@@ -7,8 +7,8 @@
 //! provides, and the misfit grows monotonically with lambda, so a bisection in
 //! log(lambda) finds it. One `T^T T` serves every trial.
 
-use super::admm::{admm_tv_prepared, admm_tv_warm, AdmmSettings, AdmmState};
 use super::gram::Normal;
+use super::solvers::{AdmmSettings, Problem, Warm};
 use super::{check_measurement, Reconstruction, SolveError};
 use crate::transport::Transport;
 
@@ -261,7 +261,7 @@ pub fn admm_tv_resolved_prepared(
     singular_values: &[f64],
     settings: &AdmmSettings,
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
-    resolved(t, i, normal, noise, singular_values, settings, true)
+    resolved(settings.problem(t, i, normal), noise, singular_values, true)
 }
 
 /// How [`admm_tv_own_misfit_prepared`] aims the misfit, from its floor.
@@ -314,7 +314,7 @@ pub fn admm_tv_own_misfit_prepared(
             sv: singular_values,
         },
     };
-    scan_and_bisect(t, i, normal, aim, singular_values, settings, true).map(Some)
+    scan_and_bisect(settings.problem(t, i, normal), aim, singular_values, true).map(Some)
 }
 
 /// The components resolved to [`RESOLVED_TOLERANCE`] at noise `sigma`.
@@ -354,42 +354,40 @@ impl Aim<'_> {
     }
 }
 
-/// The resolved-discrepancy rule, its trials solved as a warm path or each
-/// from zero (`warm = false`, the cold search the path is checked against).
-fn resolved(
-    t: &Transport,
-    i: &[f64],
-    normal: &Normal,
+/// The resolved-discrepancy rule on `p` (its solver, `T`, measurement and
+/// Gram; λ left to the search), its trials solved as a warm path when the
+/// solver keeps a warm start, or each from zero (`warm = false`, the cold
+/// search the path is checked against).
+pub(crate) fn resolved(
+    p: Problem<'_>,
     noise: &NoiseLevel,
     singular_values: &[f64],
-    settings: &AdmmSettings,
     warm: bool,
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
-    check_noise(noise, i)?;
+    check_noise(noise, p.i)?;
     let mean_var = noise.mean_variance();
     let sigma = mean_var.sqrt();
-    let p = resolved_count(singular_values, sigma);
     let aim = Aim::Resolved {
-        p,
+        p: resolved_count(singular_values, sigma),
         mean_var,
         source: noise.source,
     };
-    scan_and_bisect(t, i, normal, aim, singular_values, settings, warm)
+    scan_and_bisect(p, aim, singular_values, warm)
 }
 
 /// The half-decade scan for the floor and a bracket, then the bisection for
 /// the largest λ whose misfit meets `aim`'s target.
 fn scan_and_bisect(
-    t: &Transport,
-    i: &[f64],
-    normal: &Normal,
+    p: Problem<'_>,
     aim: Aim,
     singular_values: &[f64],
-    settings: &AdmmSettings,
     warm: bool,
 ) -> Result<(Reconstruction, LambdaChoice), SolveError> {
-    let unit = normal.unit();
-    let mut path = Path::new(t, i, normal, settings, warm);
+    let unit = match p.normal {
+        Some(nm) => nm.unit(),
+        None => Normal::of(p.t, p.i).unit(),
+    };
+    let mut path = Path::new(p, warm);
     let mut solve = |lambda: f64| path.solve(lambda);
     // Half-decade scan over SCAN_REL: the floor and a bracket.
     let scan: Vec<f64> = (0..=SCAN_STEPS)
@@ -502,45 +500,36 @@ fn bisect(
 /// started from the iterate of the nearest λ solved so far (its TV dual
 /// scaled to the new λ) instead of from zero.
 pub(super) struct Path<'a> {
-    t: &'a Transport,
-    i: &'a [f64],
-    normal: &'a Normal,
-    settings: &'a AdmmSettings<'a>,
+    /// The problem every trial solves, at its own λ, with `p.req.solver`.
+    p: Problem<'a>,
     /// Whether trials start from their neighbours (else from zero, the cold search).
     warm: bool,
-    state: AdmmState,
+    state: Warm,
     /// (log10 lambda, iterate) of every trial.
-    points: Vec<(f64, AdmmState)>,
+    points: Vec<(f64, Warm)>,
     /// Every (lambda, misfit) tried, in order.
     pub(super) trials: Vec<(f64, f64)>,
 }
 
 impl<'a> Path<'a> {
-    pub(super) fn new(
-        t: &'a Transport,
-        i: &'a [f64],
-        normal: &'a Normal,
-        settings: &'a AdmmSettings<'a>,
-        warm: bool,
-    ) -> Self {
+    /// The path of `p`'s solver; warm only when that solver keeps a warm start.
+    pub(super) fn new(p: Problem<'a>, warm: bool) -> Self {
         Self {
-            t,
-            i,
-            normal,
-            settings,
-            warm,
-            state: AdmmState::default(),
+            warm: warm && p.req.solver.needs().warm_start,
+            p,
+            state: Warm::default(),
             points: Vec::new(),
             trials: Vec::new(),
         }
     }
 
-    /// One ADMM-TV solve at `lambda`, recorded as (lambda, misfit).
+    /// One solve at `lambda`, recorded as (lambda, misfit).
     pub(super) fn solve(&mut self, lambda: f64) -> Result<Reconstruction, SolveError> {
-        let settings = AdmmSettings {
+        let p = Problem {
             lambda: Some(lambda),
-            ..*self.settings
+            ..self.p
         };
+        let solver = p.req.solver;
         let x = lambda.log10();
         let r = if self.warm {
             let nearest = self
@@ -550,11 +539,11 @@ impl<'a> Path<'a> {
             if let Some((y, from)) = nearest {
                 self.state.start_from(from, 10f64.powf(x - y));
             }
-            let r = admm_tv_warm(self.t, self.i, self.normal, &settings, &mut self.state)?;
+            let r = solver.solve(&p, &mut self.state)?;
             self.points.push((x, self.state.iterate()));
             r
         } else {
-            admm_tv_prepared(self.t, self.i, self.normal, &settings)?
+            solver.run(&p)?
         };
         self.trials.push((lambda, r.stats.data_misfit));
         Ok(r)
@@ -594,7 +583,7 @@ pub fn admm_tv_discrepancy(
     let normal = Normal::of(t, i);
     let unit = normal.unit();
     let target = noise.total();
-    let mut path = Path::new(t, i, &normal, settings, false);
+    let mut path = Path::new(settings.problem(t, i, &normal), false);
     let mut solve = |lambda: f64| path.solve(lambda);
     let (lo, hi) = ((RANGE_REL.0 * unit).log10(), (RANGE_REL.1 * unit).log10());
     let at_hi = solve(10f64.powf(hi))?;
@@ -716,7 +705,8 @@ mod tests {
                 max_iter: 5000,
                 ..AdmmSettings::default()
             };
-            let solve = |warm| resolved(&t, &i, &normal, &noise, &sv, &settings, warm).unwrap();
+            let solve =
+                |warm| resolved(settings.problem(&t, &i, &normal), &noise, &sv, warm).unwrap();
             let (cold, cold_choice) = solve(false);
             let (warm, warm_choice) = solve(true);
             let decades = (warm_choice.lambda / cold_choice.lambda).log10().abs();

@@ -462,8 +462,8 @@ mod tests {
 
     #[test]
     fn admm_through_the_low_rank_form_matches_the_dense_factor() {
-        use crate::solve::admm::{admm_tv_prepared, AdmmSettings};
         use crate::solve::gram::Normal;
+        use crate::solve::solvers::{AdmmSettings, Solver};
         let scene = crate::scene::Scene::builtin("brewster-multi")
             .unwrap()
             .unwrap()
@@ -486,8 +486,12 @@ mod tests {
             tol: 1e-5,
             ..AdmmSettings::default()
         };
-        let a = admm_tv_prepared(&t, &i, &dense, &settings).unwrap();
-        let b = admm_tv_prepared(&t, &i, &low, &settings).unwrap();
+        let a = Solver::ADMM_TV
+            .run(&settings.problem(&t, &i, &dense))
+            .unwrap();
+        let b = Solver::ADMM_TV
+            .run(&settings.problem(&t, &i, &low))
+            .unwrap();
         println!(
             "dense {} iterations, low-rank {}",
             a.stats.iterations, b.stats.iterations

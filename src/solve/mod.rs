@@ -1,16 +1,14 @@
 //! Recovering the hidden scene from a measurement (MODEL.md Eq. 12) and
-//! judging the result: ADMM-TV with a box constraint, least-squares and
-//! Tikhonov baselines, conditioning of `T`, and image metrics.
+//! judging the result: the solvers ([`solvers`]: ADMM-TV with a box
+//! constraint, FISTA-TV, GP-TV, least-squares and Tikhonov baselines), the
+//! automatic λ, conditioning of `T`, and image metrics.
 //!
 //! Solvers take the transport as a dense column-major view and a measurement
 //! slice; they check both before any arithmetic, so a wrong length or a NaN
 //! becomes a [`SolveError`], never a panic or a NaN image.
 
 pub mod adequacy;
-pub mod admm;
-pub mod baseline;
 pub mod conditioning;
-pub mod fista;
 pub mod gram;
 pub mod json;
 pub mod lambda;
@@ -23,18 +21,17 @@ pub mod reconstruct;
 pub mod report;
 pub mod sapg;
 pub mod scene;
-pub mod solver;
+pub mod solvers;
 mod triangular;
 pub mod tv;
 pub mod whiteness;
 
-pub use admm::{admm_tv, AdmmSettings};
-pub use baseline::{least_squares, tikhonov};
 pub use conditioning::{condition, condition_with, Conditioning};
-pub(crate) use fista::fista_tv;
-pub use fista::{tv_denoise, FistaSettings};
-pub use reconstruct::{reconstruct, SolveRequest};
-pub use solver::{Needs, Problem, Solver};
+pub use reconstruct::reconstruct;
+pub use solvers::{
+    admm_tv, least_squares, tikhonov, tv_denoise, AdmmSettings, FistaSettings, Needs, Problem,
+    SolveRequest, Solver,
+};
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -142,7 +139,7 @@ pub struct Reconstruction {
 /// Statistics every solver reports (the `solver` object of `report.json`).
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct SolveStats {
-    /// `admm-tv`, `tikhonov` or `lsq`.
+    /// The solver's name (`admm-tv`, ...).
     pub solver: String,
     /// Regularization weight actually used (MODEL.md units), if any.
     pub lambda: Option<f64>,

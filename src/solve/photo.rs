@@ -24,9 +24,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::admm::{admm_tv_warm, AdmmSettings, AdmmState};
-use super::fista::{largest_eigenvalue, symmetric};
 use super::gram::{Gram, Normal};
+use super::solvers::{largest_eigenvalue, symmetric, AdmmSettings, Solver, Warm};
 use super::tv::gradient;
 use super::{check_measurement, SolveError, Stop};
 use crate::scene::{Scene, ShadowChoice, ShadowModel};
@@ -213,7 +212,7 @@ struct Floor {
     misfit: f64,
     x: Vec<f64>,
     iterations: usize,
-    state: AdmmState,
+    state: Warm,
     normal: Normal,
     y: Vec<f64>,
 }
@@ -384,12 +383,11 @@ impl PhotoModel {
         }
         let y = self.data(t, i);
         let normal = Normal::with(self.gram.clone(), &self.k, &y);
-        let mut state = AdmmState::default();
-        let r = admm_tv_warm(
-            &self.k,
-            &y,
-            &normal,
-            &self.admm(0.0, settings.iterations, settings.stop),
+        let mut state = Warm::default();
+        let r = Solver::ADMM_TV.solve(
+            &self
+                .admm(0.0, settings.iterations, settings.stop)
+                .problem(&self.k, &y, &normal),
             &mut state,
         )?;
         Ok(Floor {
@@ -443,11 +441,8 @@ impl PhotoModel {
                 let step = (settings.iterations / 3).max(1);
                 for _ in 0..BISECTIONS {
                     let mid = 0.5 * (lo + hi);
-                    let r = admm_tv_warm(
-                        &self.k,
-                        &y,
-                        &normal,
-                        &admm(scale * 10f64.powf(mid), step),
+                    let r = Solver::ADMM_TV.solve(
+                        &admm(scale * 10f64.powf(mid), step).problem(&self.k, &y, &normal),
                         &mut state,
                     )?;
                     iterations += r.stats.iterations;
@@ -466,11 +461,8 @@ impl PhotoModel {
                 )
             }
         };
-        let last = admm_tv_warm(
-            &self.k,
-            &y,
-            &normal,
-            &admm(lambda, settings.iterations),
+        let last = Solver::ADMM_TV.solve(
+            &admm(lambda, settings.iterations).problem(&self.k, &y, &normal),
             &mut state,
         )?;
         iterations += last.stats.iterations;
@@ -595,7 +587,7 @@ impl PhotoModel {
         background: &[f64],
         residual_sd: f64,
         lambda: f64,
-        state: &AdmmState,
+        state: &Warm,
         settings: &PhotoSettings<'_>,
     ) -> Result<Bootstrap, SolveError> {
         use rand::SeedableRng;
@@ -629,11 +621,10 @@ impl PhotoModel {
                 let y = self.data(t, &i);
                 let normal = Normal::with(self.gram.clone(), &self.k, &y);
                 let mut warm = state.clone();
-                let r = admm_tv_warm(
-                    &self.k,
-                    &y,
-                    &normal,
-                    &self.admm(lambda, (settings.iterations / 3).max(1), settings.stop),
+                let r = Solver::ADMM_TV.solve(
+                    &self
+                        .admm(lambda, (settings.iterations / 3).max(1), settings.stop)
+                        .problem(&self.k, &y, &normal),
                     &mut warm,
                 )?;
                 let b = self.backgrounds(t, &i, &r.image);

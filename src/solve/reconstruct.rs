@@ -12,11 +12,11 @@ use super::adequacy::Adequacy;
 use super::conditioning::Conditioning;
 use super::gram::Normal;
 use super::lambda::{
-    admm_tv_resolved, admm_tv_resolved_prepared, least_squares_residual_with, LambdaChoice,
-    NoiseLevel, NoiseSource, RESOLVED_TOLERANCE,
+    least_squares_residual_with, resolved, LambdaChoice, NoiseLevel, NoiseSource,
+    RESOLVED_TOLERANCE,
 };
 use super::report::{mean_snr, snr_warnings, Report};
-pub use super::solver::{Needs, Problem, SolveRequest, Solver, AUTO_MAX_ITER};
+pub use super::solvers::{Needs, Problem, SolveRequest, Solver, AUTO_MAX_ITER};
 use super::{SolveError, Stop};
 use crate::transport::Transport;
 
@@ -92,21 +92,42 @@ pub(crate) fn reconstruct_prepared(
     };
     let (mut warnings, mut notes) = (Vec::new(), Vec::new());
     let mut lambda_choice: Option<LambdaChoice> = None;
-    // An automatic λ: the resolved-discrepancy rule on ADMM-TV (FISTA-TV
-    // minimizes the same objective, so it takes the λ that rule chose).
+    let problem = Problem {
+        normal,
+        auto,
+        stop: ctx.stop,
+        ..Problem::new(t, i, *req)
+    };
+    // An automatic λ: the resolved-discrepancy rule, searched by the
+    // solver's λ searcher (itself, or ADMM-TV for one that minimizes the
+    // same objective without a warm start); its result is the solve when
+    // the searcher is the solver asked for.
+    let mut searched = None;
     let mut lambda = req.lambda;
-    let mut admm_result = None;
     if auto {
         match &noise {
             Some(n) => {
-                let settings = req.admm(true, ctx.stop);
-                let (r, choice) = match normal {
-                    Some(nm) => admm_tv_resolved_prepared(t, i, nm, n, &cond.singular_values, &settings)?,
-                    None => admm_tv_resolved(t, i, n, &cond.singular_values, &settings)?,
+                let searcher = req.solver.lambda_searcher();
+                let formed;
+                let normal = match normal {
+                    Some(nm) => nm,
+                    None => {
+                        formed = Normal::of(t, i);
+                        &formed
+                    }
                 };
+                let p = Problem {
+                    normal: Some(normal),
+                    req: SolveRequest {
+                        solver: searcher,
+                        ..*req
+                    },
+                    ..problem
+                };
+                let (r, choice) = resolved(p, n, &cond.singular_values, true)?;
                 lambda = Some(choice.lambda);
                 lambda_choice = Some(choice);
-                admm_result = Some(r);
+                searched = (searcher == req.solver).then_some(r);
             }
             None => notes.push(format!(
                 "λ is the fixed default: the measurement has too few rows beyond T's columns ({} x {}) to estimate its noise, and no noise level was given",
@@ -115,17 +136,9 @@ pub(crate) fn reconstruct_prepared(
             )),
         }
     }
-    let rec = match admm_result {
-        Some(r) if req.solver == Solver::AdmmTv => r,
-        _ => req.solver.run(&Problem {
-            t,
-            i,
-            normal,
-            lambda,
-            req,
-            auto,
-            stop: ctx.stop,
-        })?,
+    let rec = match searched {
+        Some(r) => r,
+        None => req.solver.run(&Problem { lambda, ..problem })?,
     };
     if let Some(n) = &noise {
         warnings.extend(snr_warnings(mean_snr(i, &n.variance)));
@@ -220,22 +233,6 @@ mod tests {
             },
         ] {
             assert!(bad.check().is_err(), "{bad:?}");
-        }
-    }
-
-    #[test]
-    fn solver_names_are_the_json_names() {
-        for s in [
-            Solver::AdmmTv,
-            Solver::FistaTv,
-            Solver::Tikhonov,
-            Solver::Lsq,
-        ] {
-            assert_eq!(serde_json::to_value(s).unwrap(), s.name());
-            assert_eq!(
-                serde_json::from_value::<Solver>(serde_json::json!(s.name())).unwrap(),
-                s
-            );
         }
     }
 }

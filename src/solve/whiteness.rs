@@ -9,9 +9,9 @@
 //! normalized circular 2-D autocorrelation of the residual, as the paper does
 //! on its (periodic) image grid.
 
-use super::admm::AdmmSettings;
 use super::gram::Normal;
 use super::lambda::{check_noise, NoiseLevel, Path};
+use super::solvers::AdmmSettings;
 use super::{check_measurement, Reconstruction, SolveError};
 use crate::scene::Grid;
 use crate::transport::Transport;
@@ -125,7 +125,7 @@ pub fn admm_tv_whiteness(
     let wall = t.wall_grid();
     let variance = noise.map(|n| n.variance.as_slice());
     let unit = normal.unit();
-    let mut path = Path::new(t, i, normal, settings, true);
+    let mut path = Path::new(settings.problem(t, i, normal), true);
     let mut trials: Vec<(f64, f64)> = Vec::new();
     let mut best: Option<(f64, Reconstruction)> = None;
     let mut eval = |log_lambda: f64,

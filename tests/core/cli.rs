@@ -352,8 +352,9 @@ fn simulate_then_reconstruct_through_files() {
         "--lambda",
         "auto",
     ]));
+    // The TV solvers, named from the registry.
     assert!(
-        err.contains("choose it from the noise (admm-tv, fista-tv)"),
+        err.contains("choose it from the noise (admm-tv, fista-tv, gp-tv)"),
         "{err}"
     );
 

@@ -369,7 +369,7 @@ fn best_of_grid(
     settings: &AdmmSettings,
     psnr: impl Fn(&[f64]) -> f64,
 ) -> (f64, f64) {
-    use polnlos::solve::admm::admm_tv_prepared;
+    use polnlos::solve::solvers::admm_tv_prepared;
     let unit = t.mean_column_norm2();
     let (mut best_lambda, mut best_psnr) = (f64::NAN, f64::NEG_INFINITY);
     for k in 0..=32 {
@@ -403,9 +403,9 @@ fn best_of_grid(
 #[ignore]
 fn lambda_rules_on_camera_frames() {
     crate::priority::background();
-    use polnlos::solve::admm::admm_tv_prepared;
     use polnlos::solve::gram::Normal;
     use polnlos::solve::sapg::{admm_tv_sapg, sapg, SapgSettings};
+    use polnlos::solve::solvers::admm_tv_prepared;
     use polnlos::solve::whiteness::admm_tv_whiteness;
     use std::time::Instant;
 

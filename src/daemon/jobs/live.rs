@@ -16,7 +16,7 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use super::progressive::{Snapshot, Solver};
+use super::progressive::{Progressive, Snapshot};
 use super::{JobContext, JobError};
 use crate::camera::{Acquisition, RawFrame};
 use crate::daemon::requests::validate::ProgressiveSpec;
@@ -93,7 +93,7 @@ async fn run(
     let dark = dark(w, &c, settings).await?;
     let solver = {
         let (d, c, spec) = (w.jobs.clone(), c.clone(), spec.clone());
-        tokio::task::spawn_blocking(move || Solver::new(&d, c, &spec, dark)).await??
+        tokio::task::spawn_blocking(move || Progressive::new(&d, c, &spec, dark)).await??
     };
     // A watcher sets the stop flag when a capture is queued, the session
     // changes or the daemon stops.
@@ -256,7 +256,7 @@ fn read(
 
 /// Solves each window it is handed and publishes the result.
 fn solve(
-    mut solver: Solver,
+    mut solver: Progressive,
     snapshots: Receiver<(Snapshot, Instant)>,
     busy: &AtomicBool,
     live: &Live,

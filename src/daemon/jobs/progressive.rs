@@ -8,7 +8,7 @@
 //! noise stays within [`LAMBDA_KEPT`] of the noise it was chosen at: a live
 //! view's windows all have one noise); with a fixed λ (or a single frame, which has no
 //! variance) it is warm-started from the previous step, its factorization
-//! kept ([`AdmmState`]).
+//! kept ([`Warm`]).
 //! Each step is published: a `progressive` event, `progressive.png` (the
 //! latest image) and `progressive.json` (every step) in the capture's folder.
 //!
@@ -34,11 +34,12 @@ use crate::measure::colour::Colour;
 use crate::measure::FrameStack;
 use crate::measure::{assemble_colour, CaptureFrames, PixelMaps, Units};
 use crate::scene::{Frame, Scene};
-use crate::solve::admm::{admm_tv_warm, AdmmSettings, AdmmState};
 use crate::solve::gram::{adjoint, Normal};
 use crate::solve::lambda::{admm_tv_resolved_prepared, NoiseLevel};
 use crate::solve::reconstruct::AUTO_MAX_ITER;
+use crate::solve::solvers::Warm;
 use crate::solve::Reconstruction;
+use crate::solve::{AdmmSettings, Solver};
 use crate::store::CaptureRecord;
 use crate::store::Store;
 use crate::transport::Transport;
@@ -129,7 +130,7 @@ impl Snapshots {
 
 /// A capture's progressive solver (also the live view's, over a capture
 /// request that is never stored).
-pub(in crate::daemon) struct Solver {
+pub(in crate::daemon) struct Progressive {
     scene: Arc<Scene>,
     capture: CaptureRecord,
     /// One solve per colour of a colour camera (red, green, blue), else one.
@@ -170,7 +171,7 @@ struct Channel {
     /// Singular values of `T`, for the automatic λ.
     singular_values: Arc<crate::solve::Conditioning>,
     normal: Normal,
-    state: AdmmState,
+    state: Warm,
     /// The key of the model `t` is (the scene's name, or a sampling variant's).
     key: String,
     /// The λ the last search chose and the mean noise variance it chose it
@@ -187,7 +188,7 @@ struct Channel {
 /// view to 0.16 results a second.
 const LAMBDA_KEPT: f64 = 0.1;
 
-impl Solver {
+impl Progressive {
     /// The solver of `capture`'s frames: its scene's cached `T`, Gram and
     /// conditioning, the other blocks' rows from `spec.captures`, and the
     /// dark mean (with its variance) subtracted from every snapshot.
@@ -269,7 +270,7 @@ impl Solver {
                 i,
                 variance,
                 singular_values: Arc::clone(&singular_values),
-                state: AdmmState::default(),
+                state: Warm::default(),
                 key: capture.scene.clone(),
                 chosen: None,
             });
@@ -482,7 +483,7 @@ impl Channel {
         self.t = scenes.transport(&key)?;
         self.normal = Normal::with(scenes.gram(&key)?, &self.t, &self.i);
         self.singular_values = scenes.conditioning(&key)?;
-        self.state = AdmmState::default();
+        self.state = Warm::default();
         self.key = key;
         self.chosen = None;
         Ok(())
@@ -522,7 +523,8 @@ impl Channel {
                     max_iter: settings.max_iter.max(AUTO_MAX_ITER),
                     ..*settings
                 };
-                let r = admm_tv_warm(&self.t, &self.i, &self.normal, &at, &mut self.state)?;
+                let p = at.problem(&self.t, &self.i, &self.normal);
+                let r = Solver::ADMM_TV.solve(&p, &mut self.state)?;
                 (r, Some(lambda))
             }
             (Some(noise), None) => {
@@ -541,7 +543,8 @@ impl Channel {
                 (r, Some(choice.lambda))
             }
             (None, _) => {
-                let r = admm_tv_warm(&self.t, &self.i, &self.normal, settings, &mut self.state)?;
+                let p = settings.problem(&self.t, &self.i, &self.normal);
+                let r = Solver::ADMM_TV.solve(&p, &mut self.state)?;
                 let lambda = r.stats.lambda;
                 (r, lambda)
             }
@@ -570,7 +573,7 @@ pub(in crate::daemon) fn start(
     let (d, spec) = (d.clone(), spec.clone());
     let handle = tokio::task::spawn_blocking(move || {
         let id = capture.id;
-        match Solver::new(&d, capture, &spec, dark) {
+        match Progressive::new(&d, capture, &spec, dark) {
             Ok(mut solver) => run(&d, &mut solver, rx, &pending),
             Err(e) => {
                 tracing::warn!("capture-{id}: no progressive reconstruction: {e}");
@@ -583,7 +586,7 @@ pub(in crate::daemon) fn start(
 
 fn run(
     d: &JobContext,
-    solver: &mut Solver,
+    solver: &mut Progressive,
     rx: Receiver<Snapshot>,
     pending: &AtomicBool,
 ) -> Vec<Step> {

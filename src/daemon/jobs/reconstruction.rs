@@ -347,7 +347,7 @@ impl Job<'_> {
     /// record's λ, or its automatic choice).
     fn solve(&self, p: &Prepared, lambda: Option<f64>) -> Result<Solution, JobError> {
         check(self.cancel)?;
-        let mut solve = p.solve.clone();
+        let mut solve = p.solve;
         if lambda.is_some() {
             solve.lambda = lambda;
         }
@@ -864,7 +864,7 @@ fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest
         })?;
     Ok(SolveRequest {
         solver,
-        ..rec.params.solve.clone()
+        ..rec.params.solve
     })
 }
 
@@ -1180,7 +1180,7 @@ mod tests {
             Some("disk".into()),
         );
         let s = stored_solve(&row("fista-tv", params)).unwrap();
-        assert_eq!(s.solver, crate::solve::Solver::FistaTv);
+        assert_eq!(s.solver, crate::solve::Solver::FISTA_TV);
         assert_eq!((s.lambda, s.max_iter), (Some(0.25), Some(40)));
         let e = stored_solve(&row("sgd", ReconstructionParams::default())).unwrap_err();
         assert_eq!(e.to_string(), "solver \"sgd\" is not one polnlos knows");

@@ -255,7 +255,7 @@ fn reconstruction_body(
     ReconstructionBody {
         scene: plan.scene.clone(),
         captures,
-        solve: r.solve.clone(),
+        solve: r.solve,
         truth: r.truth.clone(),
         partial: upto < steps.len(),
         radiometry: r.radiometry,

@@ -406,7 +406,7 @@ mod tests {
         )
         .unwrap();
         let want = SolveRequest {
-            solver: Solver::Lsq,
+            solver: Solver::LSQ,
             lambda: Some(0.5),
             rho: Some(2.0),
             max_iter: Some(40),

@@ -50,7 +50,7 @@ pub fn reconstruction(
     scene: &Scene,
     capture: impl Fn(i64) -> Result<Option<CaptureRecord>, RequestError>,
 ) -> Result<ReconstructionRequest, RequestError> {
-    let solve = b.solve.clone();
+    let solve = b.solve;
     solve.check().map_err(|e| invalid(e.to_string()))?;
     if let Some(t) = &b.truth {
         if crate::simulate::patterns::Pattern::from_name(t).is_none() {
@@ -78,7 +78,7 @@ pub fn reconstruction(
         )));
     }
     if b.radiometry == Some(crate::solve::radiometry::Radiometry::Fitted)
-        && b.solve.solver != crate::solve::Solver::AdmmTv
+        && b.solve.solver != crate::solve::Solver::ADMM_TV
     {
         return Err(invalid(format!(
             "solver {:?} with radiometry \"fitted\": a fitted reconstruction solves with admm-tv on the differences of each block (docs/realphoto.md); leave solver out",
@@ -196,7 +196,7 @@ mod tests {
         let lookup = |id: i64| Ok(captures.iter().find(|c| c.id == id).cloned());
         let s = scene();
         let r = reconstruction(&reconstruction_body(&[1, 2]), &s, lookup).expect("accepted");
-        assert_eq!(r.solver, Solver::AdmmTv.name());
+        assert_eq!(r.solver, Solver::ADMM_TV.name());
         assert_eq!(r.captures, vec![1, 2]);
         let err = |ids: &[i64]| match reconstruction(&reconstruction_body(ids), &s, lookup) {
             Err(RequestError::Invalid(m)) | Err(RequestError::NotFound(m)) => m,

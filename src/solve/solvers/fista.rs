@@ -14,12 +14,13 @@ use std::time::Instant;
 use faer::Mat;
 
 use super::admm::{objective_of, LAMBDA_REL};
-use super::gram::Normal;
-use super::tv::{add_divergence_adjoint, gradient};
-use super::{
+use super::{Method, Needs, Problem, Warm};
+use crate::scene::Grid;
+use crate::solve::gram::Normal;
+use crate::solve::tv::{add_divergence_adjoint, gradient};
+use crate::solve::{
     check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats, Stop,
 };
-use crate::scene::Grid;
 use crate::transport::Transport;
 
 /// Parameters of a FISTA-TV solve.
@@ -294,10 +295,46 @@ pub(crate) fn fista_tv_prepared(
     })
 }
 
+/// FISTA-TV as a registered solver.
+pub(super) struct FistaTv;
+
+impl Method for FistaTv {
+    fn name(&self) -> &'static str {
+        "fista-tv"
+    }
+
+    fn about(&self) -> &'static str {
+        "FISTA with a TV proximal step and the box (Saunders et al. 2019); the same objective as admm-tv"
+    }
+
+    fn needs(&self) -> Needs {
+        Needs {
+            gram: false,
+            lambda_from_noise: true,
+            warm_start: false,
+        }
+    }
+
+    fn solve(&self, p: &Problem<'_>, _: Option<&mut Warm>) -> Result<Reconstruction, SolveError> {
+        let d = FistaSettings::default();
+        let settings = FistaSettings {
+            lambda: p.lambda,
+            max_iter: p.max_iter(d.max_iter),
+            tol: p.req.tol.unwrap_or(d.tol),
+            stop: p.stop,
+            ..d
+        };
+        match p.normal {
+            Some(nm) => fista_tv_prepared(p.t, p.i, nm, &settings),
+            None => fista_tv(p.t, p.i, &settings),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solve::admm::{admm_tv, AdmmSettings};
+    use crate::solve::solvers::admm::{admm_tv, AdmmSettings};
     use crate::solve::tv::total_variation;
 
     fn identity(grid: Grid) -> Transport {

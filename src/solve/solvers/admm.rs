@@ -15,13 +15,14 @@ use faer::linalg::triangular_solve::{
 };
 use faer::{MatMut, Par, Side};
 
-use super::gram::Normal;
-use super::lowrank::Workspace;
-use super::tv::{add_divergence_adjoint, add_laplacian_lower, gradient, total_variation};
-use super::{
+use super::{Method, Needs, Problem, Warm, WarmState};
+use crate::scene::Grid;
+use crate::solve::gram::Normal;
+use crate::solve::lowrank::Workspace;
+use crate::solve::tv::{add_divergence_adjoint, add_laplacian_lower, gradient, total_variation};
+use crate::solve::{
     check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats, Stop,
 };
-use crate::scene::Grid;
 use crate::transport::Transport;
 
 /// Parameters of an ADMM-TV solve; `None` picks a default scaled to `T`.
@@ -56,6 +57,30 @@ impl Default for AdmmSettings<'_> {
             upper: 1.0,
             tol: 1e-4,
             stop: Stop::default(),
+        }
+    }
+}
+
+impl<'a> AdmmSettings<'a> {
+    /// The [`Problem`] of these settings on `i` of `t` for ADMM-TV, with
+    /// its Gram: what [`AdmmTv`] reads back into the same settings.
+    pub(crate) fn problem(self, t: &'a Transport, i: &'a [f64], normal: &'a Normal) -> Problem<'a> {
+        Problem {
+            t,
+            i,
+            normal: Some(normal),
+            lambda: self.lambda,
+            req: super::SolveRequest {
+                solver: super::Solver::ADMM_TV,
+                lambda: self.lambda,
+                rho: self.rho,
+                max_iter: Some(self.max_iter),
+                tol: Some(self.tol),
+                rcond: None,
+            },
+            auto: false,
+            upper: self.upper,
+            stop: self.stop,
         }
     }
 }
@@ -110,11 +135,12 @@ fn solve_system(normal: &Normal, factor: &Factor, rho: f64, x: &mut [f64], ws: &
         (Factor::LowRank(f), Some(lr)) => lr.solve(f, rho, x, ws),
         (Factor::Dense(f), _) => {
             let n = x.len();
-            if n < PAR_SOLVE_MIN && super::triangular::solve_llt_in_place(f.L(), x).is_some() {
+            if n < PAR_SOLVE_MIN && crate::solve::triangular::solve_llt_in_place(f.L(), x).is_some()
+            {
                 return;
             }
             let par = if n >= PAR_SOLVE_MIN {
-                super::par()
+                crate::solve::par()
             } else {
                 Par::Seq
             };
@@ -150,7 +176,7 @@ pub fn admm_tv(
 /// running mean of a capture) from the previous state needs no new
 /// factorization and few iterations.
 #[derive(Default, Clone)]
-pub struct AdmmState {
+pub(super) struct AdmmState {
     factor: Option<(f64, Factor)>,
     l: Vec<f64>,
     z1: Vec<f64>,
@@ -159,35 +185,42 @@ pub struct AdmmState {
     u2: Vec<f64>,
 }
 
-impl AdmmState {
-    /// The image of the last solve (empty before the first).
-    pub fn image(&self) -> &[f64] {
-        &self.z2
-    }
-
-    /// A copy of the iterate without the factor (a point of a λ path).
-    pub fn iterate(&self) -> AdmmState {
-        AdmmState {
+impl WarmState for AdmmState {
+    fn iterate(&self) -> Box<dyn WarmState> {
+        Box::new(AdmmState {
             factor: None,
             l: self.l.clone(),
             z1: self.z1.clone(),
             z2: self.z2.clone(),
             u1: self.u1.clone(),
             u2: self.u2.clone(),
-        }
+        })
     }
 
-    /// Starts the next solve from `from`'s iterate, keeping this state's
-    /// factor, for a TV weight `tv_ratio` times `from`'s: the scaled TV dual
-    /// (bounded by `lambda / 2 rho` and at that bound on every edge where the
-    /// image changes) is scaled with it.
-    pub fn start_from(&mut self, from: &AdmmState, tv_ratio: f64) {
+    fn clone_box(&self) -> Box<dyn WarmState> {
+        Box::new(self.clone())
+    }
+
+    /// The scaled TV dual (bounded by `lambda / 2 rho` and at that bound on
+    /// every edge where the image changes) is scaled with the weight.
+    fn start_from(&mut self, from: &dyn WarmState, tv_ratio: f64) {
+        let Some(from) = from.as_any().downcast_ref::<AdmmState>() else {
+            return;
+        };
         self.l.clone_from(&from.l);
         self.z1.clone_from(&from.z1);
         self.z2.clone_from(&from.z2);
         self.u2.clone_from(&from.u2);
         self.u1.clone_from(&from.u1);
         self.u1.iter_mut().for_each(|u| *u *= tv_ratio);
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
     }
 }
 
@@ -213,7 +246,7 @@ pub fn admm_tv_prepared(
 
 /// [`admm_tv_prepared`] starting from `state` (its iterate, and its factor
 /// when it has one for this `T`), and leaving the result's there.
-pub(crate) fn admm_tv_warm(
+fn admm_tv_warm(
     t: &Transport,
     i: &[f64],
     normal: &Normal,
@@ -752,6 +785,56 @@ pub(crate) fn objective_of(t: &Transport, i: &[f64], l: &[f64], lambda: f64) -> 
     let pred = t.apply(l);
     let misfit: f64 = pred.iter().zip(i).map(|(p, m)| (m - p) * (m - p)).sum();
     (misfit, misfit + lambda * total_variation(t.scene_grid(), l))
+}
+
+/// ADMM-TV as a registered solver.
+pub(super) struct AdmmTv;
+
+impl Method for AdmmTv {
+    fn name(&self) -> &'static str {
+        "admm-tv"
+    }
+
+    fn about(&self) -> &'static str {
+        "ADMM with isotropic TV and the box 0 <= l <= 1 (MODEL.md Eq. 12); keeps its Cholesky factor and iterate between solves"
+    }
+
+    fn needs(&self) -> Needs {
+        Needs {
+            gram: true,
+            lambda_from_noise: true,
+            warm_start: true,
+        }
+    }
+
+    fn solve(
+        &self,
+        p: &Problem<'_>,
+        warm: Option<&mut Warm>,
+    ) -> Result<Reconstruction, SolveError> {
+        let d = AdmmSettings::default();
+        let settings = AdmmSettings {
+            lambda: p.lambda,
+            rho: p.req.rho,
+            max_iter: p.max_iter(d.max_iter),
+            upper: p.upper,
+            tol: p.req.tol.unwrap_or(d.tol),
+            stop: p.stop,
+        };
+        let formed;
+        let normal = match p.normal {
+            Some(nm) => nm,
+            None => {
+                check_measurement(p.t, p.i)?;
+                formed = Normal::of(p.t, p.i);
+                &formed
+            }
+        };
+        match warm {
+            Some(w) => admm_tv_warm(p.t, p.i, normal, &settings, w.state::<AdmmState>()),
+            None => admm_tv_prepared(p.t, p.i, normal, &settings),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -7,8 +7,9 @@ use std::time::Instant;
 use faer::Side;
 
 use super::admm::objective_of;
-use super::gram::{adjoint, gram_lower, mean_diag};
-use super::{check_measurement, par, Reconstruction, SolveError, SolveStats};
+use super::{Method, Needs, Problem, Warm};
+use crate::solve::gram::{adjoint, gram_lower, mean_diag};
+use crate::solve::{check_measurement, par, Reconstruction, SolveError, SolveStats};
 use crate::transport::Transport;
 
 /// Default Tikhonov weight relative to `mean(diag(T^T T))`.
@@ -42,7 +43,8 @@ pub fn least_squares(
     let s = svd.S().column_vector();
     let (u, v) = (svd.U(), svd.V());
     let smax = if s.nrows() > 0 { s[0] } else { 0.0 };
-    let cut = smax * rcond.unwrap_or(t.rows().max(t.cols()) as f64 * super::conditioning::RANK_EPS);
+    let cut = smax
+        * rcond.unwrap_or(t.rows().max(t.cols()) as f64 * crate::solve::conditioning::RANK_EPS);
     let n = t.cols();
     let mut x = vec![0.0; n];
     let mut rank = 0;
@@ -152,4 +154,53 @@ fn clip(x: Vec<f64>) -> (Vec<f64>, f64) {
         })
         .collect();
     (out, moved as f64 / n as f64)
+}
+/// Tikhonov as a registered solver.
+pub(super) struct Tikhonov;
+
+impl Method for Tikhonov {
+    fn name(&self) -> &'static str {
+        "tikhonov"
+    }
+
+    fn about(&self) -> &'static str {
+        "Tikhonov (ridge) regularization, clipped to [0, 1]; lambda default 1e-3 mean(diag(T^T T))"
+    }
+
+    fn needs(&self) -> Needs {
+        Needs {
+            gram: false,
+            lambda_from_noise: false,
+            warm_start: false,
+        }
+    }
+
+    fn solve(&self, p: &Problem<'_>, _: Option<&mut Warm>) -> Result<Reconstruction, SolveError> {
+        tikhonov(p.t, p.i, p.lambda)
+    }
+}
+
+/// The pseudo-inverse as a registered solver.
+pub(super) struct Lsq;
+
+impl Method for Lsq {
+    fn name(&self) -> &'static str {
+        "lsq"
+    }
+
+    fn about(&self) -> &'static str {
+        "the (truncated) pseudo-inverse, clipped to [0, 1]; rcond sets the cut-off"
+    }
+
+    fn needs(&self) -> Needs {
+        Needs {
+            gram: false,
+            lambda_from_noise: false,
+            warm_start: false,
+        }
+    }
+
+    fn solve(&self, p: &Problem<'_>, _: Option<&mut Warm>) -> Result<Reconstruction, SolveError> {
+        least_squares(p.t, p.i, p.req.rcond)
+    }
 }
