@@ -875,6 +875,7 @@ fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
         warnings.contains(r#"\"max_iter\" / \"tol\" in a request"#),
         "{warnings}"
     );
+    let (_, metrics) = d.get("/metrics");
     // The log says what each job did, with its id and how long it took.
     let log = std::fs::read_to_string(data.with_extension("log")).unwrap();
     for line in [
@@ -882,28 +883,28 @@ fn cancel_stops_a_running_capture_promptly_and_keeps_nothing_of_it() {
         "capture-1 started",
         "capture-2 cancelled while queued",
         "capture-1: cancel asked while it runs",
-        "capture-1 cancelled after ",
+        "job ended job=capture-1 outcome=\"cancelled\" seconds=",
         "capture-3 started",
         // Broken buffers are counted but not asserted here: under the
         // suite's load Aravis can hand back a burst of never-filled
         // ("Cleared") buffers right after a cancelled acquisition.
         "job{id=capture-3}: polnlos::daemon::jobs::capture: 2 frames received, 0 dropped, ",
-        "capture-3 done in ",
+        "job ended job=capture-3 outcome=\"done\" seconds=",
         "reconstruction-1 queued: brewster-crossed of captures [3], fista-tv",
         "reconstruction-1 started",
-        "reconstruction-1 done in ",
-        // Each refused request, with its number, method and path
-        // (answered ones are at debug level: the page polls).
-        " method=DELETE path=/jobs/capture-1}: polnlos::api: refused 409 in ",
+        "job ended job=reconstruction-1 outcome=\"done\" seconds=",
+        // Each request, with its number, method, path, status and latency:
+        // a refusal as a warning, an answer at info.
+        " method=DELETE path=/jobs/capture-1}: polnlos::api: refused status=409 latency_ms=",
+        " method=GET path=/metrics}: polnlos::api: answered status=200 latency_ms=",
     ] {
         assert!(log.contains(line), "no {line:?} in the log:\n{log}");
     }
     let refused = log
         .lines()
-        .find(|l| l.contains("path=/jobs/capture-1}: polnlos::api: refused 409"))
+        .find(|l| l.contains("path=/jobs/capture-1}: polnlos::api: refused status=409"))
         .unwrap_or_default();
     assert!(refused.contains("request{id="), "{refused}");
-    let (_, metrics) = d.get("/metrics");
     assert!(
         metrics.contains("polnlos_jobs_cancelled_total 2"),
         "{metrics}"

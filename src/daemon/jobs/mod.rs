@@ -118,6 +118,11 @@ pub(in crate::daemon) enum Ending<'a> {
     Interrupted,
 }
 
+/// Seconds to 10 ms, for a log field.
+fn round2(seconds: f64) -> f64 {
+    (seconds * 100.0).round() / 100.0
+}
+
 /// Records how a job ended: its time and done/failed counters, the failure
 /// or cancellation in the store (`record`), and the job event.
 pub(in crate::daemon) fn finish_job(
@@ -134,19 +139,19 @@ pub(in crate::daemon) fn finish_job(
     d.registry.forget(&job);
     match result {
         Ok(()) => {
-            tracing::info!("{job} done in {took:.2} s");
+            tracing::info!(job = %job, outcome = "done", seconds = round2(took), "job ended");
             done.fetch_add(1, Ordering::Relaxed);
             d.events.job(job, JobState::Done, None);
         }
         Err(JobError::Cancelled) if d.registry.is_stopping() => {
-            tracing::info!("{job} interrupted after {took:.2} s: the daemon is stopping");
+            tracing::info!(job = %job, outcome = "interrupted", seconds = round2(took), "job ended: the daemon is stopping");
             if let Err(se) = record(Ending::Interrupted) {
                 tracing::error!("cannot record the interruption of {job}: {se}");
             }
             d.events.job(job, JobState::Interrupted, None);
         }
         Err(JobError::Cancelled) => {
-            tracing::info!("{job} cancelled after {took:.2} s");
+            tracing::info!(job = %job, outcome = "cancelled", seconds = round2(took), "job ended");
             d.metrics.jobs_cancelled.fetch_add(1, Ordering::Relaxed);
             if let Err(se) = record(Ending::Cancelled) {
                 tracing::error!("cannot record the cancellation of {job}: {se}");
@@ -154,7 +159,7 @@ pub(in crate::daemon) fn finish_job(
             d.events.job(job, JobState::Cancelled, None);
         }
         Err(e) => {
-            tracing::warn!("{job} failed after {took:.2} s: {e}");
+            tracing::warn!(job = %job, outcome = "failed", seconds = round2(took), error = %e, "job ended");
             // What clients read says where inside the data directory, not where it is.
             let e = d.store.redact_paths(&e.to_string());
             failed.fetch_add(1, Ordering::Relaxed);
