@@ -13,7 +13,7 @@ mod extract;
 mod guard;
 mod openapi;
 mod routes;
-pub mod serve;
+pub(crate) mod serve;
 mod web;
 
 use std::sync::Arc;

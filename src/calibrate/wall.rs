@@ -10,7 +10,7 @@
 //! does not match the capture, and its numbers would mean nothing.
 //!
 //! Every fit says whether the model explains its captures
-//! ([`crate::solve::adequacy`]): with the captures' frame variance, the
+//! (`crate::solve::adequacy`): with the captures' frame variance, the
 //! standard errors are those of the noise, `(J^T J)^-1 J^T S J (J^T J)^-1`,
 //! scaled by `sqrt(chi2/dof)` when the misfit exceeds the noise (a model
 //! error is not averaged away by more pixels); without it, `s^2 (J^T J)^-1`

@@ -1,7 +1,7 @@
 //! GenICam cameras through Aravis (libaravis 0.8).
 //!
 //! Features are set by their SFNC names with the older names as fallback
-//! (the ranged settings' names in [`RANGED`], and
+//! (the ranged settings' names in `RANGED`, and
 //! `AcquisitionFrameRate`/`AcquisitionFrameRateAbs`), so the same code drives
 //! real cameras and Aravis's fake camera. Cameras are opened by explicit id or
 //! address only: polnlos never broadcasts a GigE Vision discovery.

@@ -211,7 +211,7 @@ pub struct CameraInfo {
     pub sensor: (i32, i32),
     /// Each ranged setting's range and the feature that sets it
     /// (`exposure_us` and `exposure_feature`, ...: one pair per entry of
-    /// [`super::settings::RANGED`]).
+    /// `super::settings::RANGED`).
     #[serde(flatten)]
     pub ranges: CameraRanges,
     /// Frame-rate range, frames per second, when the camera has one.

@@ -12,10 +12,10 @@ mod device;
 pub mod fake;
 pub mod hotplug;
 mod pixel;
-pub mod settings;
+pub(crate) mod settings;
 mod shown;
 pub use shown::BenchImages;
-pub mod synthetic;
+pub(crate) mod synthetic;
 pub mod worker;
 
 pub use device::{

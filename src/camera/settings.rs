@@ -40,7 +40,7 @@ impl TriggerMode {
 /// this one is the same after every gap was filled. A new setting is a field
 /// in both, its line in [`CameraSettings::over`], [`CameraSettings::complete`]
 /// and [`Acquisition::defaults_at`], and its device mapping (for a setting
-/// with a range the camera reports, its entry in [`RANGED`] instead).
+/// with a range the camera reports, its entry in `RANGED` instead).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Acquisition {
     /// Exposure per frame, microseconds.
@@ -354,7 +354,7 @@ pub fn check_ranges(a: &Acquisition, camera: Option<&CameraRanges>) -> Result<()
 }
 
 /// The camera's range of each ranged setting and the feature that sets it
-/// (one pair of fields per entry of [`RANGED`]), as `GET /camera` shows them.
+/// (one pair of fields per entry of `RANGED`), as `GET /camera` shows them.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct CameraRanges {
     /// Exposure range in microseconds and the feature that sets it.

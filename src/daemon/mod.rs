@@ -21,13 +21,13 @@
 //!     `Admission` (disk space and queue room) and cancelled through it;
 //!   - [`jobs`]: the capture, reconstruction and progressive workers and
 //!     what they share (`JobContext`);
-//!   - [`procedures`]: plans, the pose and wall calibrations and the mount's
+//!   - `procedures`: plans, the pose and wall calibrations and the mount's
 //!     zero, which string jobs together.
 //! - The bench's devices are the rig ([`crate::rig`]), beside the camera.
 //!   Workers hold the handles they use, never the daemon.
 
 pub mod jobs;
-pub mod procedures;
+pub(crate) mod procedures;
 pub mod requests;
 pub mod runtime;
 
@@ -161,7 +161,7 @@ impl CameraSetup {
     }
 
     /// An in-process camera showing the config's demo scene, no Aravis
-    /// involved (see [`crate::camera::synthetic`]).
+    /// involved (see `crate::camera::synthetic`).
     pub async fn synthetic(config: &Config, scenes: &Arc<Scenes>) -> Result<Self, DaemonError> {
         let (frames, c) = demo_frames(&config.demo, scenes).await?;
         let mut bench = SyntheticBench::new(frames, DEMO_REFERENCE_EXPOSURE_US);

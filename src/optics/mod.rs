@@ -5,8 +5,8 @@
 //! so it can be unit-tested against limits and symmetries and reused by the
 //! transport builder, the simulator and the benchmarks alike.
 
-pub mod brdf;
-pub mod diffuse;
+pub(crate) mod brdf;
+pub(crate) mod diffuse;
 pub mod fresnel;
 pub mod ggx;
 pub mod polarizer;

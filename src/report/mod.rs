@@ -5,19 +5,19 @@
 //! Pure computations returning typed rows; `polnlos bench` writes them as
 //! JSON, Markdown and charts ([`charts`]).
 
-pub mod active;
+pub(crate) mod active;
 pub mod charts;
-pub mod lambda;
+pub(crate) mod lambda;
 pub mod mosaic;
-pub mod peer;
+pub(crate) mod peer;
 pub mod photons;
 mod plan;
 pub mod rendered;
-pub mod sampling;
-pub mod scaling;
-pub mod shape;
-pub mod speed;
-pub mod stability;
+pub(crate) mod sampling;
+pub(crate) mod scaling;
+pub(crate) mod shape;
+pub(crate) mod speed;
+pub(crate) mod stability;
 mod tables;
 
 pub use plan::BenchPlan;

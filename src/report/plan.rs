@@ -19,7 +19,7 @@ pub struct BenchPlan {
     pub active_grids: Vec<usize>,
     /// Voxel grid of the active-NLOS roughness sweep.
     pub active_roughness_grid: usize,
-    /// Speed sizes (names from [`speed::SIZES`]).
+    /// Speed sizes (names from `speed::SIZES`).
     pub speed_sizes: Vec<&'static str>,
     /// Noise seeds per speed size.
     pub speed_seeds: u64,

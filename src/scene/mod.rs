@@ -10,12 +10,12 @@ pub mod builtin;
 mod colour;
 mod error;
 mod file;
-pub mod footprint;
+pub(crate) mod footprint;
 mod frame;
-pub mod homography;
-pub mod mesh;
-pub mod occluder;
-pub mod plane;
+pub(crate) mod homography;
+pub(crate) mod mesh;
+pub(crate) mod occluder;
+pub(crate) mod plane;
 
 use std::path::Path;
 

@@ -57,7 +57,7 @@ pub struct Gram {
     /// `mean(diag(T^T T))`, the unit of `lambda` and `rho` defaults.
     pub scale: f64,
     /// `T^T T ~ W W^T` when `T` has many columns and low numerical rank
-    /// ([`Gram::of`]): ADMM then solves through it (see [`super::lowrank`]).
+    /// ([`Gram::of`]): ADMM then solves through it (see `super::lowrank`).
     pub low_rank: Option<LowRank>,
     /// Seconds it took.
     pub seconds: f64,
@@ -78,7 +78,7 @@ impl Gram {
     }
 
     /// [`Gram::new`] for `t`, with its low-rank form when `t` has at least
-    /// [`LOW_RANK_MIN_COLS`] columns and a numerical rank of at most a
+    /// `LOW_RANK_MIN_COLS` columns and a numerical rank of at most a
     /// quarter of them.
     pub fn of(t: &Transport) -> Self {
         let start = std::time::Instant::now();

@@ -7,12 +7,12 @@
 //! slice; they check both before any arithmetic, so a wrong length or a NaN
 //! becomes a [`SolveError`], never a panic or a NaN image.
 
-pub mod adequacy;
-pub mod conditioning;
+pub(crate) mod adequacy;
+pub(crate) mod conditioning;
 pub mod gram;
 pub mod json;
 pub mod lambda;
-pub mod lowrank;
+pub(crate) mod lowrank;
 pub mod metrics;
 pub mod photo;
 pub mod plan;
@@ -23,7 +23,7 @@ pub mod sapg;
 pub mod scene;
 pub mod solvers;
 mod triangular;
-pub mod tv;
+pub(crate) mod tv;
 pub mod whiteness;
 
 pub use conditioning::{condition, condition_with, Conditioning};

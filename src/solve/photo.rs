@@ -1163,7 +1163,7 @@ pub(crate) fn least_squares_misfits(
 }
 
 /// `D T`: each column's first differences along u (`rows` of a block) then
-/// along v, block by block, as [`gradient`] lays them out; each block of `T`
+/// along v, block by block, as `gradient` lays them out; each block of `T`
 /// becomes two blocks of `D T` with its label (u-differences, v-differences).
 /// The last column's u-differences and the last row's v-differences are 0
 /// (Neumann), rows that carry no data and weigh nothing.

@@ -6,9 +6,9 @@
 pub(crate) mod camera;
 pub mod config;
 pub(crate) mod demo;
-pub mod events;
-pub mod live;
-pub mod metrics;
+pub(crate) mod events;
+pub(crate) mod live;
+pub(crate) mod metrics;
 pub(crate) mod queue;
 pub(crate) mod registry;
 pub(crate) mod retention;
