@@ -1,30 +1,33 @@
 //! Recovering the hidden scene from a measurement (MODEL.md Eq. 12) and
 //! judging the result: the solvers ([`solvers`]: ADMM-TV with a box
 //! constraint, FISTA-TV, GP-TV, least-squares and Tikhonov baselines), the
-//! automatic λ, conditioning of `T`, and image metrics.
+//! automatic λ ([`lambda`]), conditioning of `T` and image metrics
+//! (`judge/`), and the operators they share (`operators/`).
 //!
 //! Solvers take the transport as a dense column-major view and a measurement
 //! slice; they check both before any arithmetic, so a wrong length or a NaN
 //! becomes a [`SolveError`], never a panic or a NaN image.
 
-pub(crate) mod adequacy;
-pub(crate) mod conditioning;
-pub mod gram;
-pub mod json;
+// By kind, as the folders show: the solvers, the λ rules, the judging of
+// a result, the linear operators they share; the pipelines that use them
+// (reconstruct, photo, radiometry, plan, scene, json) sit here. The public
+// paths stay flat (`solve::metrics`, `solve::lambda`, ...).
+mod judge;
 pub mod lambda;
-pub(crate) mod lowrank;
-pub mod metrics;
+mod operators;
+pub mod solvers;
+
+pub mod json;
 pub mod photo;
 pub mod plan;
 pub mod radiometry;
 pub mod reconstruct;
-pub mod report;
-pub mod sapg;
 pub mod scene;
-pub mod solvers;
-mod triangular;
-pub(crate) mod tv;
-pub mod whiteness;
+
+pub(crate) use judge::{adequacy, conditioning};
+pub use judge::{metrics, report};
+pub use operators::gram;
+pub(crate) use operators::{lowrank, triangular, tv};
 
 pub use conditioning::{condition, condition_with, Conditioning};
 pub use reconstruct::reconstruct;

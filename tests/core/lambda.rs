@@ -404,9 +404,9 @@ fn best_of_grid(
 fn lambda_rules_on_camera_frames() {
     crate::priority::background();
     use polnlos::solve::gram::Normal;
-    use polnlos::solve::sapg::{admm_tv_sapg, sapg, SapgSettings};
+    use polnlos::solve::lambda::sapg::{admm_tv_sapg, sapg, SapgSettings};
+    use polnlos::solve::lambda::whiteness::admm_tv_whiteness;
     use polnlos::solve::solvers::admm_tv_prepared;
-    use polnlos::solve::whiteness::admm_tv_whiteness;
     use std::time::Instant;
 
     const HIT: f64 = 1.5;

@@ -9,11 +9,11 @@
 //! normalized circular 2-D autocorrelation of the residual, as the paper does
 //! on its (periodic) image grid.
 
-use super::gram::Normal;
-use super::lambda::{check_noise, NoiseLevel, Path};
-use super::solvers::AdmmSettings;
-use super::{check_measurement, Reconstruction, SolveError};
 use crate::scene::Grid;
+use crate::solve::gram::Normal;
+use crate::solve::lambda::{check_noise, NoiseLevel, Path};
+use crate::solve::solvers::AdmmSettings;
+use crate::solve::{check_measurement, Reconstruction, SolveError};
 use crate::transport::Transport;
 
 /// Scan range of [`admm_tv_whiteness`], log10 of λ relative to `mean(diag(T^T T))`.

@@ -2,10 +2,10 @@
 //! `T` and, when the truth is known, the image metrics. Shared by the CLI and
 //! the daemon so both write the same, documented format.
 
-use super::conditioning::Conditioning;
-use super::metrics::Metrics;
-use super::SolveStats;
 use crate::scene::Grid;
+use crate::solve::conditioning::Conditioning;
+use crate::solve::metrics::Metrics;
+use crate::solve::SolveStats;
 use crate::transport::Block;
 
 /// Above this condition number a result is flagged as untrustworthy.
@@ -61,11 +61,11 @@ pub struct Report {
     pub metrics: Option<Metrics>,
     /// How lambda was chosen, when it was chosen automatically.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub lambda_choice: Option<super::lambda::LambdaChoice>,
+    pub lambda_choice: Option<crate::solve::lambda::LambdaChoice>,
     /// Whether `T` explains the measurement: the best fit's misfit against
     /// the noise level; `null` when no independent noise level is known (a
     /// noise estimated from the same residual cannot tell model from noise).
-    pub model_check: Option<super::adequacy::Adequacy>,
+    pub model_check: Option<crate::solve::adequacy::Adequacy>,
     /// How finely `T` was sampled when polnlos chose it from the noise
     /// (keys the scene file left out; MODEL.md "Rows that match the measurement").
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -81,7 +81,7 @@ pub struct Report {
     /// and why; absent where no choice was made (`polnlos reconstruct`
     /// reads a measurement in units of `T l`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub radiometry: Option<super::radiometry::RadiometryChoice>,
+    pub radiometry: Option<crate::solve::radiometry::RadiometryChoice>,
     /// Something is wrong with this result: the model does not explain the
     /// measurement, pixels saturated, frames lost, the solver stopped short.
     pub warnings: Vec<String>,
@@ -105,9 +105,9 @@ pub struct ColourReport {
     pub metrics: Option<Metrics>,
     /// How its λ was chosen.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub lambda_choice: Option<super::lambda::LambdaChoice>,
+    pub lambda_choice: Option<crate::solve::lambda::LambdaChoice>,
     /// Whether `T` explains this colour's measurement.
-    pub model_check: Option<super::adequacy::Adequacy>,
+    pub model_check: Option<crate::solve::adequacy::Adequacy>,
     /// The gain its measurement was divided by.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gain: Option<Gain>,
@@ -163,9 +163,9 @@ impl Report {
         t: &crate::transport::Transport,
         transport_seconds: f64,
         cond: &Conditioning,
-        rec: super::Reconstruction,
+        rec: crate::solve::Reconstruction,
         truth: Option<&[f64]>,
-        lambda_choice: Option<super::lambda::LambdaChoice>,
+        lambda_choice: Option<crate::solve::lambda::LambdaChoice>,
     ) -> Self {
         let warnings = rec.stats.warnings.clone();
         Self {
@@ -177,7 +177,7 @@ impl Report {
             cols: t.cols(),
             transport_seconds,
             conditioning: cond.into(),
-            metrics: truth.map(|tr| super::metrics::compare(t.scene_grid(), tr, &rec.image)),
+            metrics: truth.map(|tr| crate::solve::metrics::compare(t.scene_grid(), tr, &rec.image)),
             solver: rec.stats,
             lambda_choice,
             model_check: None,

@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use faer::{Accum, Mat, MatRef, Par};
 
-use super::lowrank::{LowRank, LOW_RANK_MIN_COLS};
-use super::par;
+use crate::solve::lowrank::{LowRank, LOW_RANK_MIN_COLS};
+use crate::solve::par;
 use crate::transport::Transport;
 
 /// Lower triangle of `T^T T` (the strict upper triangle is left zero).
@@ -57,7 +57,7 @@ pub struct Gram {
     /// `mean(diag(T^T T))`, the unit of `lambda` and `rho` defaults.
     pub scale: f64,
     /// `T^T T ~ W W^T` when `T` has many columns and low numerical rank
-    /// ([`Gram::of`]): ADMM then solves through it (see `super::lowrank`).
+    /// ([`Gram::of`]): ADMM then solves through it (see `crate::solve::lowrank`).
     pub low_rank: Option<LowRank>,
     /// Seconds it took.
     pub seconds: f64,

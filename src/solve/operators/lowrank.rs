@@ -24,10 +24,10 @@ use faer::linalg::solvers::{Llt, SolveCore};
 use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
 
-use super::SolveError;
 use crate::scene::Grid;
+use crate::solve::SolveError;
 
-/// Fewest columns for which [`super::gram::Normal::new`] tries the low-rank form
+/// Fewest columns for which [`crate::solve::gram::Normal::new`] tries the low-rank form
 /// (below it the dense factor is cheap and exact).
 pub const LOW_RANK_MIN_COLS: usize = 512;
 
@@ -178,7 +178,7 @@ impl LowRank {
             self.w.transpose(),
             self.w.as_ref(),
             1.0,
-            super::par(),
+            crate::solve::par(),
         );
         let mut e = wtw.self_adjoint_eigenvalues(Side::Lower).map_err(|e| {
             SolveError::Factorization(format!("eigenvalues of W^T W did not converge ({e:?})"))

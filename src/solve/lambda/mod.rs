@@ -7,9 +7,12 @@
 //! provides, and the misfit grows monotonically with lambda, so a bisection in
 //! log(lambda) finds it. One `T^T T` serves every trial.
 
-use super::gram::Normal;
-use super::solvers::{AdmmSettings, Problem, Warm};
-use super::{check_measurement, Reconstruction, SolveError};
+pub mod sapg;
+pub mod whiteness;
+
+use crate::solve::gram::Normal;
+use crate::solve::solvers::{AdmmSettings, Problem, Warm};
+use crate::solve::{check_measurement, Reconstruction, SolveError};
 use crate::transport::Transport;
 
 /// Per-measurement noise variance, in the units of `T l` squared.
@@ -159,7 +162,7 @@ fn projection_residual(mut a: faer::Mat<f64>, i: &[f64]) -> Vec<f64> {
     use faer::linalg::householder as hh;
     use faer::linalg::qr::no_pivoting::factor;
     let (m, k) = (a.nrows(), a.ncols());
-    let par = super::par();
+    let par = crate::solve::par();
     let bs = factor::recommended_block_size::<f64>(m, k);
     let mut coeff = faer::Mat::<f64>::zeros(bs, k);
     let scratch = factor::qr_in_place_scratch::<f64>(m, k, bs, par, Default::default())
@@ -224,7 +227,7 @@ const RANGE_REL: (f64, f64) = (1e-7, 1e1);
 const STEPS: usize = 14;
 
 /// Per-component error, in units of the radiance range, below which a scene
-/// component counts as resolved: the tolerance of [`super::plan`].
+/// component counts as resolved: the tolerance of [`crate::solve::plan`].
 pub(crate) const RESOLVED_TOLERANCE: f64 = 0.1;
 
 /// ADMM-TV with lambda from the noise, the *resolved discrepancy* rule.

@@ -2,7 +2,7 @@
 //! `kappa = sigma_max / sigma_min` (infinite when rank-deficient, never NaN)
 //! and the numerical rank at the same threshold.
 
-use super::SolveError;
+use crate::solve::SolveError;
 use crate::transport::Transport;
 
 /// MODEL.md's relative rank tolerance per dimension: a singular value counts
@@ -64,7 +64,7 @@ impl Conditioning {
     pub fn from_low_rank(
         rows: usize,
         cols: usize,
-        low_rank: &super::lowrank::LowRank,
+        low_rank: &crate::solve::lowrank::LowRank,
     ) -> Result<Self, SolveError> {
         let s = low_rank.singular_values()?;
         let smax = s.first().copied().unwrap_or(0.0);
@@ -118,7 +118,7 @@ pub fn condition(t: &Transport) -> Result<Conditioning, SolveError> {
 /// resolves ([`Conditioning::from_low_rank`], no SVD of `T`).
 pub fn condition_with(
     t: &Transport,
-    gram: Option<&super::gram::Gram>,
+    gram: Option<&crate::solve::gram::Gram>,
 ) -> Result<Conditioning, SolveError> {
     match gram.and_then(|g| g.low_rank.as_ref()) {
         Some(lr) => Conditioning::from_low_rank(t.rows(), t.cols(), lr),
