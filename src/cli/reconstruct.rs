@@ -30,7 +30,7 @@ pub struct Args {
     #[command(flatten)]
     pub(super) solve: SolveRequest,
     /// Regularization weight in MODEL.md units, or `auto` (the default for
-    /// admm-tv and fista-tv): chosen from the noise by the resolved-discrepancy
+    /// the TV solvers): chosen from the noise by the resolved-discrepancy
     /// rule, the noise of --noise-from when given, else estimated from the
     /// measurement's residual outside range(T). Tikhonov's default is 1e-3 x
     /// mean diagonal of T^T T.
