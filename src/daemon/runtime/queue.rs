@@ -144,13 +144,24 @@ impl CaptureQueue {
                 keep: disk.keep,
             });
         }
-        let id = self.queue.push(retry_after, insert)?;
-        reserved.insert(id, disk.need);
-        if let Some(p) = progressive {
-            let mut specs = self.progressive.lock().unwrap_or_else(|e| e.into_inner());
-            specs.insert(id, p);
-        }
-        Ok(id)
+        // The reservation and the progressive spec are recorded before the
+        // id is sent: the worker may take the job at once, and it reads the
+        // spec when it starts and releases the reservation when it ends
+        // (recorded after the send, a capture that started first ran
+        // without the progressive steps it asked for, and a reservation
+        // could outlive its capture).
+        let specs = &self.progressive;
+        self.queue.push(retry_after, || {
+            let id = insert()?;
+            reserved.insert(id, disk.need);
+            if let Some(p) = progressive {
+                specs
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .insert(id, p);
+            }
+            Ok(id)
+        })
     }
 
     /// The progressive reconstruction capture `id` asked for, taken once.
