@@ -858,10 +858,13 @@ impl Partial {
 /// with the row: parameters that do not read back make the row unreadable,
 /// never the defaults) and its solver column.
 fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest, JobError> {
-    let solver =
-        serde_json::from_value(serde_json::Value::String(rec.solver.clone())).map_err(|_| {
-            JobError::Store(format!("solver {:?} is not one polnlos knows", rec.solver))
-        })?;
+    let solver = crate::solve::Solver::named(&rec.solver).ok_or_else(|| {
+        JobError::Store(format!(
+            "solver {:?} is not one polnlos knows ({})",
+            rec.solver,
+            crate::solve::Solver::names()
+        ))
+    })?;
     Ok(SolveRequest {
         solver,
         ..rec.params.solve
@@ -1183,6 +1186,9 @@ mod tests {
         assert_eq!(s.solver, crate::solve::Solver::FISTA_TV);
         assert_eq!((s.lambda, s.max_iter), (Some(0.25), Some(40)));
         let e = stored_solve(&row("sgd", ReconstructionParams::default())).unwrap_err();
-        assert_eq!(e.to_string(), "solver \"sgd\" is not one polnlos knows");
+        assert_eq!(
+            e.to_string(),
+            "solver \"sgd\" is not one polnlos knows (admm-tv, fista-tv, gp-tv, tikhonov, lsq)"
+        );
     }
 }
