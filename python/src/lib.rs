@@ -484,7 +484,7 @@ fn reconstruct<'py>(
     let solver = Solver::named(solver).ok_or_else(|| {
         bad(format!(
             "solver {solver:?} is not one of {}",
-            Solver::names()
+            Solver::names().join(", ")
         ))
     })?;
     let meas = measurement.as_slice()?;
@@ -726,8 +726,7 @@ fn _polnlos(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Scene>()?;
     // The registered solvers' names, the library's own list (a new solver
     // appears here with no edit).
-    let solvers: Vec<&str> = Solver::ALL.iter().map(|s| s.name()).collect();
-    m.add("SOLVERS", solvers)?;
+    m.add("SOLVERS", Solver::names())?;
     m.add_function(wrap_pyfunction!(cond, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(measure_captures, m)?)?;

@@ -138,7 +138,10 @@ pub(crate) fn reconstruct_prepared(
     }
     let rec = match searched {
         Some(r) => r,
-        None => req.solver.run(&Problem { lambda, ..problem })?,
+        None => req.solver.run(&Problem {
+            req: SolveRequest { lambda, ..*req },
+            ..problem
+        })?,
     };
     if let Some(n) = &noise {
         warnings.extend(snr_warnings(mean_snr(i, &n.variance)));

@@ -862,7 +862,7 @@ fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest
         JobError::Store(format!(
             "solver {:?} is not one polnlos knows ({})",
             rec.solver,
-            crate::solve::Solver::names()
+            crate::solve::Solver::names().join(", ")
         ))
     })?;
     Ok(SolveRequest {

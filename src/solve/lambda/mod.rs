@@ -11,7 +11,7 @@ pub mod sapg;
 pub mod whiteness;
 
 use crate::solve::gram::Normal;
-use crate::solve::solvers::{AdmmSettings, Problem, Warm};
+use crate::solve::solvers::{AdmmSettings, Problem, SolveRequest, Warm};
 use crate::solve::{check_measurement, Reconstruction, SolveError};
 use crate::transport::Transport;
 
@@ -529,7 +529,10 @@ impl<'a> Path<'a> {
     /// One solve at `lambda`, recorded as (lambda, misfit).
     pub(super) fn solve(&mut self, lambda: f64) -> Result<Reconstruction, SolveError> {
         let p = Problem {
-            lambda: Some(lambda),
+            req: SolveRequest {
+                lambda: Some(lambda),
+                ..self.p.req
+            },
             ..self.p
         };
         let solver = p.req.solver;

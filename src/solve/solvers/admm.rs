@@ -69,7 +69,6 @@ impl<'a> AdmmSettings<'a> {
             t,
             i,
             normal: Some(normal),
-            lambda: self.lambda,
             req: super::SolveRequest {
                 solver: super::Solver::ADMM_TV,
                 lambda: self.lambda,
@@ -814,7 +813,7 @@ impl Method for AdmmTv {
     ) -> Result<Reconstruction, SolveError> {
         let d = AdmmSettings::default();
         let settings = AdmmSettings {
-            lambda: p.lambda,
+            lambda: p.req.lambda,
             rho: p.req.rho,
             max_iter: p.max_iter(d.max_iter),
             upper: p.upper,

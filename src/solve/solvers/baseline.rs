@@ -176,7 +176,7 @@ impl Method for Tikhonov {
     }
 
     fn solve(&self, p: &Problem<'_>, _: Option<&mut Warm>) -> Result<Reconstruction, SolveError> {
-        tikhonov(p.t, p.i, p.lambda)
+        tikhonov(p.t, p.i, p.req.lambda)
     }
 }
 

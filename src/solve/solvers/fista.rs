@@ -318,7 +318,7 @@ impl Method for FistaTv {
     fn solve(&self, p: &Problem<'_>, _: Option<&mut Warm>) -> Result<Reconstruction, SolveError> {
         let d = FistaSettings::default();
         let settings = FistaSettings {
-            lambda: p.lambda,
+            lambda: p.req.lambda,
             max_iter: p.max_iter(d.max_iter),
             tol: p.req.tol.unwrap_or(d.tol),
             stop: p.stop,

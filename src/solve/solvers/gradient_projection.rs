@@ -61,7 +61,7 @@ impl Method for GpTv {
         };
         let tol = p.req.tol.unwrap_or(TOL);
         check_tol(tol)?;
-        let lambda = p.lambda.unwrap_or(LAMBDA_REL * normal.unit());
+        let lambda = p.req.lambda.unwrap_or(LAMBDA_REL * normal.unit());
         check_lambda(lambda)?;
         let start = Instant::now();
         let n = p.t.cols();
@@ -251,19 +251,17 @@ mod tests {
         };
         let run = |solver: Solver, max_iter| {
             solver
-                .run(&Problem {
-                    lambda: Some(0.05),
-                    ..Problem::new(
-                        &t,
-                        &i,
-                        SolveRequest {
-                            solver,
-                            max_iter: Some(max_iter),
-                            tol: Some(1e-9),
-                            ..Default::default()
-                        },
-                    )
-                })
+                .run(&Problem::new(
+                    &t,
+                    &i,
+                    SolveRequest {
+                        solver,
+                        lambda: Some(0.05),
+                        max_iter: Some(max_iter),
+                        tol: Some(1e-9),
+                        ..Default::default()
+                    },
+                ))
                 .unwrap()
         };
         let gp = run(Solver::named("gp-tv").unwrap(), 20000);

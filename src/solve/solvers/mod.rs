@@ -63,11 +63,11 @@ impl Solver {
     /// Every solver, in the order the CLI and the API list them; the first
     /// is the default. Registering a solver is adding its line here.
     pub const ALL: &'static [Solver] = &[
-        Solver(&admm::AdmmTv),
-        Solver(&fista::FistaTv),
+        Solver::ADMM_TV,
+        Solver::FISTA_TV,
         Solver(&gradient_projection::GpTv),
-        Solver(&baseline::Tikhonov),
-        Solver(&baseline::Lsq),
+        Solver::TIKHONOV,
+        Solver::LSQ,
     ];
     /// ADMM with isotropic TV and the box (the default).
     pub const ADMM_TV: Solver = Solver(&admm::AdmmTv);
@@ -98,10 +98,11 @@ impl Solver {
         Solver::ALL.iter().copied().find(|s| s.name() == name)
     }
 
-    /// Every solver's name, comma-separated (for messages).
-    pub fn names() -> String {
-        let names: Vec<&str> = Solver::ALL.iter().map(|s| s.name()).collect();
-        names.join(", ")
+    /// Every solver's name, in [`Solver::ALL`]'s order: what the API's enum,
+    /// serde's "expected one of" and messages list.
+    pub fn names() -> &'static [&'static str] {
+        static NAMES: std::sync::OnceLock<Vec<&'static str>> = std::sync::OnceLock::new();
+        NAMES.get_or_init(|| Solver::ALL.iter().map(|s| s.name()).collect())
     }
 
     /// Solves `p` from a cold start.
@@ -165,12 +166,9 @@ impl serde::Serialize for Solver {
 
 impl<'de> serde::Deserialize<'de> for Solver {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        static NAMES: std::sync::OnceLock<Vec<&'static str>> = std::sync::OnceLock::new();
         let name = <Cow<'de, str>>::deserialize(d)?;
-        Solver::named(&name).ok_or_else(|| {
-            let names = NAMES.get_or_init(|| Solver::ALL.iter().map(|s| s.name()).collect());
-            serde::de::Error::unknown_variant(&name, names)
-        })
+        Solver::named(&name)
+            .ok_or_else(|| serde::de::Error::unknown_variant(&name, Solver::names()))
     }
 }
 
@@ -192,7 +190,7 @@ impl utoipa::PartialSchema for Solver {
             .collect();
         utoipa::openapi::schema::ObjectBuilder::new()
             .schema_type(utoipa::openapi::schema::Type::String)
-            .enum_values(Some(Solver::ALL.iter().map(|s| s.name())))
+            .enum_values(Some(Solver::names().iter().copied()))
             .description(Some(format!(
                 "The solvers polnlos offers. {}",
                 about.join("; ")
@@ -234,9 +232,8 @@ pub struct Problem<'a> {
     pub i: &'a [f64],
     /// `T^T T` and `T^T i` of `t` and `i`, when [`Needs::gram`] (else formed here).
     pub normal: Option<&'a Normal>,
-    /// The TV or ridge weight to use (None: the solver's default).
-    pub lambda: Option<f64>,
-    /// The request (iteration cap, tolerance, rcond, rho).
+    /// The request: the solver, the TV or ridge weight to use (`lambda`,
+    /// None: the solver's default), iteration cap, tolerance, rcond, rho.
     pub req: SolveRequest,
     /// Whether λ was chosen automatically (a larger iteration cap).
     pub auto: bool,
@@ -255,7 +252,6 @@ impl<'a> Problem<'a> {
             t,
             i,
             normal: None,
-            lambda: req.lambda,
             req,
             auto: false,
             upper: 1.0,
@@ -360,8 +356,15 @@ mod tests {
             for gram in [false, true] {
                 let p = Problem {
                     normal: (gram && s.needs().gram).then_some(&normal),
-                    lambda: Some(1e-9),
-                    ..Problem::new(&t, &i, SolveRequest { solver: s, ..req })
+                    ..Problem::new(
+                        &t,
+                        &i,
+                        SolveRequest {
+                            solver: s,
+                            lambda: Some(1e-9),
+                            ..req
+                        },
+                    )
                 };
                 let r = s.run(&p).unwrap();
                 assert_eq!(r.stats.solver, s.name());
@@ -383,13 +386,13 @@ mod tests {
         let t = doubling();
         let i: Vec<f64> = (0..16).map(|k| 0.1 + 0.1 * (k % 5) as f64).collect();
         for &s in Solver::ALL.iter().filter(|s| s.needs().warm_start) {
-            let at = |n| Problem {
-                lambda: Some(1e-2),
-                ..Problem::new(
+            let at = |n| {
+                Problem::new(
                     &t,
                     &i,
                     SolveRequest {
                         solver: s,
+                        lambda: Some(1e-2),
                         max_iter: Some(n),
                         tol: Some(1e-15),
                         rho: Some(1.0),
