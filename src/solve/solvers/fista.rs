@@ -102,6 +102,10 @@ pub(crate) fn symmetric(lower: &Mat<f64>) -> Mat<f64> {
 /// Scratch buffers of the proximal step, allocated once per solve.
 pub(crate) struct Prox {
     grid: Grid,
+    /// Upper bound of the box `[0, upper]`.
+    upper: f64,
+    /// FGP's momentum on the dual (else plain gradient projection).
+    accelerated: bool,
     /// Dual variable (warm start), `2n`.
     p: Vec<f64>,
     /// Extrapolated dual, `2n`.
@@ -116,9 +120,20 @@ pub(crate) struct Prox {
 
 impl Prox {
     pub(crate) fn new(grid: Grid) -> Self {
+        Self::with(grid, 1.0, true)
+    }
+
+    /// Plain gradient projection (no momentum) on the box `[0, upper]`.
+    pub(super) fn plain(grid: Grid, upper: f64) -> Self {
+        Self::with(grid, upper, false)
+    }
+
+    fn with(grid: Grid, upper: f64, accelerated: bool) -> Self {
         let n = grid.count();
         Self {
             grid,
+            upper,
+            accelerated,
             p: vec![0.0; 2 * n],
             r: vec![0.0; 2 * n],
             p_old: vec![0.0; 2 * n],
@@ -128,19 +143,19 @@ impl Prox {
     }
 
     /// `x = P_box(b - mu D^T q)`.
-    fn primal(grid: Grid, b: &[f64], mu: f64, q: &[f64], x: &mut [f64]) {
+    fn primal(grid: Grid, upper: f64, b: &[f64], mu: f64, q: &[f64], x: &mut [f64]) {
         x.fill(0.0);
         add_divergence_adjoint(grid, q, x);
         for (xk, bk) in x.iter_mut().zip(b) {
-            *xk = (bk - mu * *xk).clamp(0.0, 1.0);
+            *xk = (bk - mu * *xk).clamp(0.0, upper);
         }
     }
 
-    /// `argmin_x 1/2 ||x - b||^2 + mu TV(x)` on `[0, 1]`, into `out`.
+    /// `argmin_x 1/2 ||x - b||^2 + mu TV(x)` on `[0, upper]`, into `out`.
     pub(crate) fn solve(&mut self, b: &[f64], mu: f64, iterations: usize, out: &mut [f64]) {
         if mu <= 0.0 {
             for (o, v) in out.iter_mut().zip(b) {
-                *o = v.clamp(0.0, 1.0);
+                *o = v.clamp(0.0, self.upper);
             }
             return;
         }
@@ -149,7 +164,7 @@ impl Prox {
         self.r.copy_from_slice(&self.p);
         let mut tk = 1.0f64;
         for _ in 0..iterations {
-            Self::primal(self.grid, b, mu, &self.r, &mut self.x);
+            Self::primal(self.grid, self.upper, b, mu, &self.r, &mut self.x);
             gradient(self.grid, &self.x, &mut self.g);
             self.p_old.copy_from_slice(&self.p);
             for j in 0..n {
@@ -161,6 +176,10 @@ impl Prox {
                 self.p[j] = px / m;
                 self.p[n + j] = py / m;
             }
+            if !self.accelerated {
+                self.r.copy_from_slice(&self.p);
+                continue;
+            }
             let t_next = 0.5 * (1.0 + (1.0 + 4.0 * tk * tk).sqrt());
             let beta = (tk - 1.0) / t_next;
             for k in 0..2 * n {
@@ -168,7 +187,7 @@ impl Prox {
             }
             tk = t_next;
         }
-        Self::primal(self.grid, b, mu, &self.p, out);
+        Self::primal(self.grid, self.upper, b, mu, &self.p, out);
     }
 }
 
@@ -192,6 +211,39 @@ pub(crate) fn fista_tv_prepared(
     i: &[f64],
     normal: &Normal,
     settings: &FistaSettings,
+) -> Result<Reconstruction, SolveError> {
+    proximal_gradient(t, i, normal, settings, &FISTA)
+}
+
+/// Which proximal gradient: FISTA (momentum on both loops, the box
+/// `[0, 1]`) or the plain one GP-TV runs.
+pub(super) struct Variant {
+    /// The name in the solver's statistics.
+    pub name: &'static str,
+    /// How its iteration-cap warning names it.
+    pub label: &'static str,
+    /// Nesterov momentum on the outer step and FGP's on the TV dual.
+    pub momentum: bool,
+    /// Upper bound of the box.
+    pub upper: f64,
+}
+
+/// FISTA-TV's variant.
+const FISTA: Variant = Variant {
+    name: "fista-tv",
+    label: "FISTA",
+    momentum: true,
+    upper: 1.0,
+};
+
+/// Proximal gradient on `1/2 ||i - T l||^2 + lambda/2 TV(l)` on the box:
+/// FISTA's loop, or with `variant.momentum` off the plain one.
+pub(super) fn proximal_gradient(
+    t: &Transport,
+    i: &[f64],
+    normal: &Normal,
+    settings: &FistaSettings,
+    variant: &Variant,
 ) -> Result<Reconstruction, SolveError> {
     check_tol(settings.tol)?;
     if settings.inner == 0 {
@@ -221,7 +273,10 @@ pub(crate) fn fista_tv_prepared(
 
     let t1 = Instant::now();
     let mu = if lip > 0.0 { 0.5 * lambda / lip } else { 0.0 };
-    let mut prox = Prox::new(t.scene_grid());
+    let mut prox = match variant.momentum {
+        true => Prox::new(t.scene_grid()),
+        false => Prox::plain(t.scene_grid(), variant.upper),
+    };
     let mut x = vec![0.0; n];
     let mut x_old = vec![0.0; n];
     let mut y = vec![0.0; n];
@@ -252,7 +307,10 @@ pub(crate) fn fista_tv_prepared(
         x_old.copy_from_slice(&x);
         prox.solve(&v, mu, settings.inner, &mut x);
         let t_next = 0.5 * (1.0 + (1.0 + 4.0 * tk * tk).sqrt());
-        let beta = (tk - 1.0) / t_next;
+        let beta = match variant.momentum {
+            true => (tk - 1.0) / t_next,
+            false => 0.0,
+        };
         let (mut d2, mut x2) = (0.0, 0.0);
         for k in 0..n {
             let d = x[k] - x_old[k];
@@ -267,7 +325,8 @@ pub(crate) fn fista_tv_prepared(
     let iterate_seconds = t1.elapsed().as_secs_f64();
     if !converged {
         warnings.push(format!(
-            "FISTA stopped at the iteration cap ({iterations}) before meeting tol = {}: relative change {change:.3e}; raise max_iter or tol (\"max_iter\" / \"tol\" in a request, --max-iter / --tol on the command line)",
+            "{} stopped at the iteration cap ({iterations}) before meeting tol = {}: relative change {change:.3e}; raise max_iter or tol (\"max_iter\" / \"tol\" in a request, --max-iter / --tol on the command line)",
+            variant.label,
             settings.tol
         ));
     }
@@ -275,7 +334,7 @@ pub(crate) fn fista_tv_prepared(
     Ok(Reconstruction {
         image: x,
         stats: SolveStats {
-            solver: "fista-tv".into(),
+            solver: variant.name.into(),
             lambda: Some(lambda),
             rho: None,
             iterations,

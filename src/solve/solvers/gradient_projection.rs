@@ -1,26 +1,17 @@
 //! GP-TV: proximal gradient (ISTA) on MODEL.md Eq. 12's objective,
 //! `1/2 ||i - T l||^2 + lambda/2 TV(l)` on the box, whose TV-and-box
 //! proximal step is Chambolle's dual gradient projection (Beck & Teboulle
-//! 2009, "GP"): the plainest first-order TV solver, without FISTA's
-//! momentum on either loop.
+//! 2009, "GP"): the plainest first-order TV solver, FISTA's loop
+//! ([`super::fista`]) without momentum on either level.
 //!
 //! Why kept: a reference that is easy to check by hand (each step lowers
 //! the objective), and the solver that shows a new one is this file and its
 //! line in [`super::Solver::ALL`].
 
-use std::time::Instant;
-
-use faer::Mat;
-
-use super::admm::{objective_of, LAMBDA_REL};
-use super::fista::{largest_eigenvalue, symmetric};
+use super::fista::{proximal_gradient, FistaSettings, Variant};
 use super::{Method, Needs, Problem, Warm};
-use crate::scene::Grid;
 use crate::solve::gram::Normal;
-use crate::solve::tv::{add_divergence_adjoint, gradient};
-use crate::solve::{
-    check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats,
-};
+use crate::solve::{check_measurement, Reconstruction, SolveError};
 
 /// Outer iterations unless the request sets a cap.
 const MAX_ITER: usize = 1000;
@@ -59,144 +50,27 @@ impl Method for GpTv {
                 &formed
             }
         };
-        let tol = p.req.tol.unwrap_or(TOL);
-        check_tol(tol)?;
-        let lambda = p.req.lambda.unwrap_or(LAMBDA_REL * normal.unit());
-        check_lambda(lambda)?;
-        let start = Instant::now();
-        let n = p.t.cols();
-        let g = symmetric(normal.lower());
-        let lip = largest_eigenvalue(&g) * 1.01;
-        let factor_seconds = start.elapsed().as_secs_f64();
-        let mut warnings = Vec::new();
-        if lip == 0.0 {
-            warnings.push("T is all zero: no scene element lights the wall as the cameras see it; the result is the zero image".into());
-        }
-        let t1 = Instant::now();
-        // The proximal step of `lambda/2 TV` at step `1/lip`.
-        let mu = if lip > 0.0 { 0.5 * lambda / lip } else { 0.0 };
-        let mut dual = Dual::new(p.t.scene_grid(), p.upper);
-        let (mut l, mut v) = (vec![0.0; n], vec![0.0; n]);
-        let (mut lm, mut gl) = (Mat::<f64>::zeros(n, 1), Mat::<f64>::zeros(n, 1));
-        let max_iter = p.max_iter(MAX_ITER);
-        let (mut iterations, mut converged, mut change) = (0, lip == 0.0, f64::INFINITY);
-        while !converged && iterations < max_iter {
-            p.stop.check(iterations)?;
-            iterations += 1;
-            for k in 0..n {
-                lm[(k, 0)] = l[k];
-            }
-            faer::linalg::matmul::matmul(
-                gl.as_mut(),
-                faer::Accum::Replace,
-                g.as_ref(),
-                lm.as_ref(),
-                1.0,
-                faer::Par::Seq,
-            );
-            for k in 0..n {
-                v[k] = l[k] - (gl[(k, 0)] - normal.ti[k]) / lip;
-            }
-            let (d2, l2) = dual.prox(&v, mu, &mut l);
-            change = d2.sqrt() / l2.sqrt().max(1e-12);
-            converged = change <= tol;
-        }
-        if !converged {
-            warnings.push(format!(
-                "GP-TV stopped at the iteration cap ({iterations}) before meeting tol = {tol}: relative change {change:.3e}; raise max_iter or tol (\"max_iter\" / \"tol\" in a request, --max-iter / --tol on the command line)"
-            ));
-        }
-        let iterate_seconds = t1.elapsed().as_secs_f64();
-        let (misfit, objective) = objective_of(p.t, p.i, &l, lambda);
-        Ok(Reconstruction {
-            image: l,
-            stats: SolveStats {
-                solver: self.name().into(),
-                lambda: Some(lambda),
-                iterations,
-                converged,
-                primal_residual: Some(change),
-                objective,
-                data_misfit: misfit,
-                gram_seconds: normal.seconds,
-                factor_seconds,
-                iterate_seconds,
-                total_seconds: normal.seconds + start.elapsed().as_secs_f64(),
-                warnings,
-                ..SolveStats::default()
-            },
-        })
-    }
-}
-
-/// The TV dual of the proximal step, kept from one outer iteration to the next.
-struct Dual {
-    grid: Grid,
-    upper: f64,
-    /// `2n`: the dual field, each pair in the unit disk.
-    q: Vec<f64>,
-    /// `2n`: gradient scratch.
-    g: Vec<f64>,
-    /// `n`: primal scratch.
-    x: Vec<f64>,
-}
-
-impl Dual {
-    fn new(grid: Grid, upper: f64) -> Self {
-        let n = grid.count();
-        Self {
-            grid,
-            upper,
-            q: vec![0.0; 2 * n],
-            g: vec![0.0; 2 * n],
-            x: vec![0.0; n],
-        }
-    }
-
-    /// `x = P_box(b - mu D^T q)`.
-    fn primal(&mut self, b: &[f64], mu: f64) {
-        self.x.fill(0.0);
-        add_divergence_adjoint(self.grid, &self.q, &mut self.x);
-        for (x, b) in self.x.iter_mut().zip(b) {
-            *x = (b - mu * *x).clamp(0.0, self.upper);
-        }
-    }
-
-    /// `l = argmin_x 1/2 ||x - b||^2 + mu TV(x)` on the box by [`INNER`]
-    /// projected gradient steps on the dual (step `1/8mu`, `8` bounding
-    /// `||D||^2`); returns `||l - l_before||^2` and `||l||^2`.
-    fn prox(&mut self, b: &[f64], mu: f64, l: &mut [f64]) -> (f64, f64) {
-        let n = self.grid.count();
-        if mu > 0.0 {
-            let step = 1.0 / (8.0 * mu);
-            for _ in 0..INNER {
-                self.primal(b, mu);
-                gradient(self.grid, &self.x, &mut self.g);
-                for j in 0..n {
-                    let (a, c) = (
-                        self.q[j] + step * self.g[j],
-                        self.q[n + j] + step * self.g[n + j],
-                    );
-                    let m = a.hypot(c).max(1.0);
-                    self.q[j] = a / m;
-                    self.q[n + j] = c / m;
-                }
-            }
-        }
-        self.primal(b, mu);
-        let (mut d2, mut l2) = (0.0, 0.0);
-        for (lk, xk) in l.iter_mut().zip(&self.x) {
-            d2 += (xk - *lk).powi(2);
-            l2 += xk * xk;
-            *lk = *xk;
-        }
-        (d2, l2)
+        let settings = FistaSettings {
+            lambda: p.req.lambda,
+            max_iter: p.max_iter(MAX_ITER),
+            tol: p.req.tol.unwrap_or(TOL),
+            inner: INNER,
+            stop: p.stop,
+        };
+        let variant = Variant {
+            name: self.name(),
+            label: "GP-TV",
+            momentum: false,
+            upper: p.upper,
+        };
+        proximal_gradient(p.t, p.i, normal, &settings, &variant)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::Grid;
     use crate::solve::solvers::{SolveRequest, Solver};
     use crate::solve::tv::total_variation;
     use crate::transport::{Block, Transport};
