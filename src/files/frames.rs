@@ -53,81 +53,29 @@ pub fn decode_frames(bytes: &[u8]) -> Result<FrameFile, FileError> {
 /// dropped), 8 or 16 bits. Its size is checked against [`MAX_SIDE`] and
 /// [`MAX_PIXELS`] from the header, before any pixel is decoded.
 pub fn decode_png(bytes: &[u8]) -> Result<FrameFile, FileError> {
+    use super::image::DecodeError;
     let path = Path::new("<bytes>");
-    let bad = |e: image::ImageError| {
-        FileError::format(
+    let img = super::image::decode_png(bytes, MAX_SIDE, MAX_PIXELS).map_err(|e| match e {
+        DecodeError::Size { .. } => FileError::format(path, e.to_string()),
+        DecodeError::Png(e) => FileError::format(
             path,
             format!("cannot decode as PNG ({e}); give a grey or RGB PNG of 8 or 16 bits"),
-        )
-    };
-    let mut reader =
-        image::ImageReader::with_format(std::io::Cursor::new(bytes), image::ImageFormat::Png);
-    let mut limits = image::Limits::default();
-    limits.max_image_width = Some(MAX_SIDE);
-    limits.max_image_height = Some(MAX_SIDE);
-    // Decoded as 16-bit RGBA at most: 8 bytes a pixel.
-    limits.max_alloc = Some(MAX_PIXELS.saturating_mul(8));
-    reader.limits(limits.clone());
-    let (w, h) = reader.into_dimensions().map_err(bad)?;
-    if w == 0 || h == 0 || u64::from(w) * u64::from(h) > MAX_PIXELS {
-        return Err(FileError::format(
-            path,
-            format!("the PNG is {w}x{h}; frames must be 1 to {MAX_SIDE} pixels a side and at most {MAX_PIXELS} pixels"),
-        ));
-    }
-    let mut reader =
-        image::ImageReader::with_format(std::io::Cursor::new(bytes), image::ImageFormat::Png);
-    reader.limits(limits);
-    let img = reader.decode().map_err(bad)?;
-    let bits = match img.color() {
-        image::ColorType::L8
-        | image::ColorType::La8
-        | image::ColorType::Rgb8
-        | image::ColorType::Rgba8 => 8,
-        image::ColorType::L16
-        | image::ColorType::La16
-        | image::ColorType::Rgb16
-        | image::ColorType::Rgba16 => 16,
-        c => {
-            return Err(FileError::format(
-                path,
-                format!("the PNG's pixels are {c:?}; give grey or RGB of 8 or 16 bits"),
-            ))
-        }
-    };
-    let (w, h) = (w as usize, h as usize);
-    let grey = matches!(
-        img.color(),
-        image::ColorType::L8
-            | image::ColorType::La8
-            | image::ColorType::L16
-            | image::ColorType::La16
-    );
-    if grey {
+        ),
+    })?;
+    let (w, h, bits) = (img.width, img.height, img.bits);
+    if img.grey() {
         let mut stack = FrameStack::new(w, h);
-        stack.push_raw(
-            &img.to_luma16()
-                .into_raw()
-                .iter()
-                .map(|v| v >> (16 - bits))
-                .collect::<Vec<u16>>(),
-            bits,
-        );
+        let grey: Vec<u16> = img.samples.iter().step_by(img.channels).copied().collect();
+        stack.push_raw(&grey, bits);
         return Ok(FrameFile {
             stack,
             bits: Some(bits),
             colours: None,
         });
     }
-    let rgb: Vec<u16> = img
-        .to_rgb16()
-        .into_raw()
-        .iter()
-        .map(|v| v >> (16 - bits))
-        .collect();
     let like = FrameStack::new(w, h);
     let mut colours = None;
-    push_rgb(&mut colours, &like, &rgb, bits);
+    push_rgb(&mut colours, &like, &img.rgb(), bits);
     let colours = colours.ok_or_else(|| FileError::format(path, "the PNG has no pixels"))?;
     Ok(FrameFile {
         stack: colours[1].clone(),

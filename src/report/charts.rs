@@ -63,17 +63,11 @@ fn render(fig: &impl Figure) -> Result<Chart, ChartError> {
     let size = fig.size();
     let mut rgb = vec![0u8; (size.0 * size.1 * 3) as usize];
     fig.draw(BitMapBackend::with_buffer(&mut rgb, size).into_drawing_area())?;
-    let img = image::RgbImage::from_raw(size.0, size.1, rgb)
-        .ok_or_else(|| ChartError("buffer size".into()))?;
-    let mut png = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut png, image::ImageFormat::Png)
+    let png = crate::files::image::encode_png_rgb8(size.0 as usize, size.1 as usize, &rgb)
         .map_err(err)?;
     let mut svg = String::new();
     fig.draw(SVGBackend::with_string(&mut svg, size).into_drawing_area())?;
-    Ok(Chart {
-        png: png.into_inner(),
-        svg,
-    })
+    Ok(Chart { png, svg })
 }
 
 /// Marker drawn at each point of a series.

@@ -347,11 +347,15 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
         .and_then(|a| a.last())
         .expect("progressive steps");
     assert_eq!(last["frames"], 8, "{steps}");
-    let rgb = image::load_from_memory(&png).unwrap().into_rgb16();
-    assert_eq!(rgb.dimensions(), (8, 8));
+    let rgb = crate::png::decode(&png);
+    assert_eq!(
+        (rgb.width, rgb.height, rgb.channels, rgb.bits),
+        (8, 8, 3, 16)
+    );
     let stepped: Vec<f64> = rgb
-        .pixels()
-        .flat_map(|q| q.0.map(|v| f64::from(v) / 65535.0))
+        .samples
+        .iter()
+        .map(|&v| f64::from(v) / 65535.0)
         .collect();
     let means = colour_means(&stepped, &letter);
     let step_psnr = last["psnr_db"].as_f64().unwrap();
