@@ -65,6 +65,10 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
 
 async fn serve(config: Config, budget: MemoryBudget) -> anyhow::Result<()> {
     let bind = config.bind;
+    // The signal handlers before anything answers: a SIGTERM that came
+    // between the first answer and the handler's first poll killed the
+    // daemon outright (a test under load saw it exit by signal 15).
+    let stop = shutdown_signal()?;
     // The port first: a second daemon fails here, or on the data directory's
     // lock, before it touches anything of the first one's.
     let listener = tokio::net::TcpListener::bind(bind)
@@ -75,7 +79,7 @@ async fn serve(config: Config, budget: MemoryBudget) -> anyhow::Result<()> {
     notify(&[sd_notify::NotifyState::Ready]);
     let watchdog = watchdog();
     let result = polnlos::api::run(listener, daemon, async {
-        shutdown_signal().await;
+        stop.await;
         notify(&[sd_notify::NotifyState::Stopping]);
     })
     .await;
@@ -106,18 +110,15 @@ fn watchdog() -> Option<tokio::task::JoinHandle<()>> {
     }))
 }
 
-async fn shutdown_signal() {
-    let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending::<()>().await,
-        }
-    };
-    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
-    tracing::info!("shutting down");
+/// SIGINT or SIGTERM, registered now (when this returns) rather than when
+/// the future is first polled, so that a signal sent as soon as the daemon
+/// answers stops it cleanly.
+fn shutdown_signal() -> anyhow::Result<impl std::future::Future<Output = ()>> {
+    use tokio::signal::unix::{signal, SignalKind};
+    let mut int = signal(SignalKind::interrupt()).context("cannot handle SIGINT")?;
+    let mut term = signal(SignalKind::terminate()).context("cannot handle SIGTERM")?;
+    Ok(async move {
+        tokio::select! { _ = int.recv() => {}, _ = term.recv() => {} }
+        tracing::info!("shutting down");
+    })
 }
