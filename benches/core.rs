@@ -8,7 +8,7 @@
 
 use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
-use polnlos::solve::solvers::LAMBDA_REL;
+use polnlos::solve::LAMBDA_REL;
 use polnlos::solve::{admm_tv, AdmmSettings};
 use polnlos::transport::{build, MemoryBudget};
 

@@ -64,9 +64,7 @@ fn daemon_exit_code(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
             _ => FAILED,
         });
     }
-    cause
-        .is::<polnlos::daemon::runtime::config::ConfigError>()
-        .then_some(INPUT)
+    cause.is::<polnlos::daemon::ConfigError>().then_some(INPUT)
 }
 
 /// The exit status of an error, from the first cause that says whose it is.

@@ -11,6 +11,7 @@
 //! lock, a camera's real exposure time, a browser) could not overlap; in
 //! one binary libtest runs them side by side (docs/test-times.md).
 
+#[cfg_attr(not(feature = "daemon"), allow(dead_code))]
 mod png;
 mod priority;
 

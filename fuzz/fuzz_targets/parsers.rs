@@ -7,7 +7,7 @@
 #![allow(dead_code)]
 
 use polnlos::camera::{Acquisition, CameraSettings, SensorLimits};
-use polnlos::daemon::requests::validate::{self, CameraContext};
+use polnlos::daemon::{validate_capture, validate_reconstruction, CameraContext};
 use polnlos::measure::exposure::CameraLimits;
 use polnlos::scene::Scene;
 
@@ -99,7 +99,7 @@ pub fn capture_json(data: &[u8]) {
         } else {
             scene()
         };
-        if let Ok(r) = validate::capture(&b, scene, &cam, plan, |_| Ok(None)) {
+        if let Ok(r) = validate_capture(&b, scene, &cam, plan, |_| Ok(None)) {
             // What is accepted fits the sensor and the frame cap.
             assert!(LIMITS
                 .check(r.acquisition.region, r.acquisition.binning)
@@ -129,7 +129,7 @@ pub fn capture_json(data: &[u8]) {
 /// capture exists, so the solver checks and block counting are what it reaches).
 pub fn reconstruction_json(data: &[u8]) {
     if let Ok(b) = serde_json::from_slice::<polnlos::api::bodies::ReconstructionBody>(data) {
-        let _ = validate::reconstruction(&b, scene(), |_| Ok(None));
+        let _ = validate_reconstruction(&b, scene(), |_| Ok(None));
     }
 }
 

@@ -23,9 +23,9 @@ use polnlos::measure::FrameStack;
 use polnlos::scene::{Channel, WallSampling};
 use polnlos::simulate::{unpolarized_peak, NoiseModel};
 use polnlos::solve::lambda::NoiseLevel;
-use polnlos::solve::reconstruct::{SolveRequest, Solver};
 use polnlos::solve::scene::{reconstruct_scene, SceneInput};
 use polnlos::solve::Conditioning;
+use polnlos::solve::{SolveRequest, Solver};
 use polnlos::transport::MemoryBudget;
 
 create_exception!(

@@ -1,8 +1,8 @@
 //! What goes over the wire: the queries clients send, the typed answers the
 //! routes give back, and the request bodies.
 //!
-//! The bodies are the daemon's own types ([`crate::daemon::requests`]),
-//! re-exported here: the daemon checks them ([`crate::daemon::requests::validate`])
+//! The bodies are the daemon's own types (`crate::daemon::requests`),
+//! re-exported here: the daemon checks them (`crate::daemon::requests::validate`)
 //! without depending on the HTTP layer, and routes and the OpenAPI document
 //! name them from here as before.
 
@@ -10,9 +10,11 @@ use serde::{Deserialize, Serialize};
 
 pub(crate) use crate::daemon::requests::ColourCalibrationBody;
 pub use crate::daemon::requests::{
-    AutoExposure, CalibrationBody, CaptureBody, ImportQuery, PlanBody, PlanReconstruct,
-    ProgressiveBody, ReconstructionBody, SettingsBody, SourcePositionBody, WallCalibrationBody,
+    CalibrationBody, CaptureBody, PlanBody, ReconstructionBody, SettingsBody, WallCalibrationBody,
     MAX_CAPTURES_PER_POSITION,
+};
+pub(crate) use crate::daemon::requests::{
+    ImportQuery, PlanReconstruct, ProgressiveBody, SourcePositionBody,
 };
 
 use super::ApiError;

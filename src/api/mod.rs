@@ -26,8 +26,8 @@ use axum::Router;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-pub use error::ApiError;
-pub use serve::{run, serve, Limits};
+pub(crate) use error::ApiError;
+pub use serve::{run, serve};
 
 use crate::daemon::Daemon;
 

@@ -49,7 +49,7 @@ const HULL_TURN: f64 = 0.1;
 
 /// The shipped target (`config/targets/dots-5x5.toml`): what the demo bench
 /// shows and what `POST /calibrations` assumes when none is given.
-pub const DEFAULT_TARGET: &str = include_str!("../../config/targets/dots-5x5.toml");
+pub(crate) const DEFAULT_TARGET: &str = include_str!("../../config/targets/dots-5x5.toml");
 
 /// The built-in targets by name, as scenes are: name and TOML text.
 pub const BUILTIN_TARGETS: [(&str, &str); 1] = [("dots-5x5", DEFAULT_TARGET)];
@@ -63,7 +63,7 @@ impl Target {
             .map(|(_, t)| *t)
     }
 
-    /// The shipped target, [`DEFAULT_TARGET`].
+    /// The shipped target, `DEFAULT_TARGET`.
     pub fn default_target() -> Self {
         match Self::from_toml_str(DEFAULT_TARGET) {
             Ok(t) => t,

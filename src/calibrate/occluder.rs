@@ -99,13 +99,13 @@ pub struct OccluderOptions {
     pub selected: Option<Vec<usize>>,
     /// Largest distance searched from the start along each axis, metres.
     pub range: f64,
-    /// First step, metres; `None`: [`STEP_SHADOW_PITCHES`] shadow pitches.
+    /// First step, metres; `None`: `STEP_SHADOW_PITCHES` shadow pitches.
     pub step: Option<f64>,
-    /// Last step, metres; `None`: one shadow pitch ([`shadow_pitch`]).
+    /// Last step, metres; `None`: one shadow pitch (`shadow_pitch`).
     pub min_step: Option<f64>,
     /// Scene `supersample` of the `T` the objective builds; `None`: 1 with
     /// area shadows (a block's visibility is then exact, only its emission
-    /// is taken at its centre), else the scene's own raised to [`SUPERSAMPLE`].
+    /// is taken at its centre), else the scene's own raised to `SUPERSAMPLE`.
     pub supersample: Option<usize>,
     /// Shadows of the objective's `T`; area shadows by default, whatever
     /// the scene says, for a misfit continuous in the translation.
@@ -126,11 +126,11 @@ pub struct OccluderOptions {
 /// Default search range per axis, metres: a first guess measured by hand.
 pub const RANGE: f64 = 0.05;
 /// Default first step in shadow pitches (then halved down to one pitch).
-pub const STEP_SHADOW_PITCHES: f64 = 4.0;
+pub(crate) const STEP_SHADOW_PITCHES: f64 = 4.0;
 /// Default scene supersample of the objective's `T` with point shadows: at
 /// the chair's 2 the objective is rough by 5 % from one millimetre to the
 /// next, at 6 by 1 % (docs/realphoto.md).
-pub const SUPERSAMPLE: usize = 6;
+pub(crate) const SUPERSAMPLE: usize = 6;
 /// Default relative misfit threshold of the uncertainty region: the model's
 /// own error moves the misfit's minimum by as much as the translations
 /// within this fraction of it span (measured on the chair photo and on
@@ -141,7 +141,7 @@ pub const TOLERANCE: f64 = 0.02;
 /// trusted: on the chair photo it is 0.7-0.8 % (1.3 % at most over 2 cm),
 /// on simulated photos of the voxel Π made unlike the model 2.5-11 %, and
 /// there the lowest misfit lay 20-35 mm from the truth (docs/realphoto.md).
-pub const ROUGH_RIPPLE: f64 = 0.02;
+pub(crate) const ROUGH_RIPPLE: f64 = 0.02;
 /// Default cap on objective evaluations: about four minutes on the chair.
 pub const MAX_EVALUATIONS: usize = 300;
 /// Default descents: from the scene's position and from two more starts.
@@ -202,7 +202,7 @@ pub enum FitWarning {
         /// Its misfit.
         objective: f64,
     },
-    /// The misfit's ripple is more than [`ROUGH_RIPPLE`] of its value: the
+    /// The misfit's ripple is more than `ROUGH_RIPPLE` of its value: the
     /// model's discretization, not the photo, shapes it at the
     /// few-millimetre scale.
     Rough {
@@ -380,7 +380,7 @@ fn selection(scene: &Scene, selected: Option<&[usize]>) -> Result<Vec<usize>, Oc
 /// The occluder displacement that moves its shadow on the wall by one wall
 /// element: the natural unit of the search (the shadow of a point at depth
 /// `a` from the scene plane, seen from the scene, moves `D / a` as fast).
-pub fn shadow_pitch(scene: &Scene, selected: &[usize]) -> f64 {
+pub(crate) fn shadow_pitch(scene: &Scene, selected: &[usize]) -> f64 {
     let (wall, hidden) = (&scene.wall().plane, &scene.hidden().plane);
     let n = hidden.normal;
     let (lo, hi) = bounds(scene, selected);
@@ -679,13 +679,14 @@ pub struct SearchOptions {
     pub max_evaluations: usize,
     /// Descents: the first from the origin, the others from two first
     /// steps (at most half the range) out along the cube's diagonals
-    /// ([`START_DIRECTIONS`]).
+    /// (`START_DIRECTIONS`).
     pub starts: usize,
 }
 
 /// The directions of the extra starts, in order: the cube's diagonals,
 /// each followed by its opposite.
-pub const START_DIRECTIONS: [[i64; 3]; 4] = [[1, 1, 1], [-1, -1, -1], [1, -1, -1], [-1, 1, 1]];
+pub(crate) const START_DIRECTIONS: [[i64; 3]; 4] =
+    [[1, 1, 1], [-1, -1, -1], [1, -1, -1], [-1, 1, 1]];
 
 /// Where [`search`] ended.
 #[derive(Debug, Clone, PartialEq)]

@@ -53,7 +53,7 @@ pub enum WallFitError {
         /// Where that source was.
         at: PointSource,
         /// `100 ||i - model|| / ||i||` for that source, less the noise's share
-        /// when the noise is known ([`MAX_RELATIVE_RESIDUAL`]).
+        /// when the noise is known (`MAX_RELATIVE_RESIDUAL`).
         percent: f64,
         /// The accepted limit, percent.
         limit: f64,
@@ -65,7 +65,7 @@ const SOURCE_SIDE_M: f64 = 0.005;
 /// Largest relative residual of an accepted fit, for every source position:
 /// `sqrt(max(0, ||i - model||^2 - sum var)) / ||i||`, the part beyond the
 /// noise when the frame-to-frame variance is known, else `||i - model|| / ||i||`.
-pub const MAX_RELATIVE_RESIDUAL: f64 = 0.25;
+pub(crate) const MAX_RELATIVE_RESIDUAL: f64 = 0.25;
 /// Most source positions in one fit (each costs one transport per model
 /// evaluation).
 pub const MAX_SOURCES: usize = 16;
@@ -229,7 +229,7 @@ pub fn fit(
 /// where roughness and refractive index trade against each other; other
 /// positions move the specular lobe across the wall and separate them. The
 /// source's radiance must not change between positions (one gain).
-pub fn fit_sources(
+pub(crate) fn fit_sources(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
     start: WallParams,
@@ -507,7 +507,7 @@ fn warnings_push_model(fit: &mut WallFit, used: PolarizerModel, alt: &PolarizerM
     ));
 }
 
-/// [`fit_sources`] from the scene file's own wall material, with the gain
+/// `fit_sources` from the scene file's own wall material, with the gain
 /// that best scales that material's predictions onto the measurements.
 pub fn fit_sources_from_scene(
     scene: &Scene,

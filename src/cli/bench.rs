@@ -29,7 +29,7 @@ pub struct Args {
     #[arg(long)]
     quick: bool,
     /// Folder of the Mitsuba-rendered cases (validation/mitsuba/).
-    #[arg(long, value_name = "DIR", default_value = polnlos::report::rendered::DEFAULT_DIR)]
+    #[arg(long, value_name = "DIR", default_value = polnlos::report::DEFAULT_DIR)]
     rendered: PathBuf,
 }
 

@@ -6,8 +6,8 @@ use anyhow::Context;
 use polnlos::files::{image, json, load_grid_image, npy};
 use polnlos::solve::lambda::NoiseLevel;
 use polnlos::solve::photo::DataTerm;
-use polnlos::solve::reconstruct::{SolveRequest, Solver};
 use polnlos::solve::scene::{reconstruct_scene_with, SceneInput};
+use polnlos::solve::{SolveRequest, Solver};
 use polnlos::transport::MemoryBudget;
 
 /// Recover the hidden scene from a measurement.

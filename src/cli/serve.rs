@@ -34,7 +34,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     // env-filter's span and field matches, whose regex engine was 14 s of
     // a fresh build): unset or unreadable, `info`, and a word on the latter.
     let (targets, unreadable) =
-        polnlos::daemon::runtime::config::log_targets(std::env::var("RUST_LOG").ok().as_deref());
+        polnlos::daemon::log_targets(std::env::var("RUST_LOG").ok().as_deref());
     tracing_subscriber::fmt()
         .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr)

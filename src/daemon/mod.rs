@@ -10,26 +10,26 @@
 //! - [`Daemon::start`] opens what the config names; [`Daemon::start_with`]
 //!   takes any camera ([`CameraSetup`]), e.g. the in-process synthetic one.
 //! - Four folders, each a handful of small handles that own their state:
-//!   - [`runtime`]: the config, the bounded job queues and the disk
+//!   - `runtime`: the config, the bounded job queues and the disk
 //!     captures reserved, the registry (cancel flags and the stop), the
 //!     event stream, the metrics, retention, the scenes (their `T` and
-//!     Gram, cached), the camera service ([`CameraService`]: the camera,
+//!     Gram, cached), the camera service (`CameraService`: the camera,
 //!     who holds it, the settings captures inherit, the live view) and the
 //!     fake camera's demo;
-//!   - [`requests`]: what clients ask for (capture, reconstruction and
-//!     calibration bodies), checked by [`requests::validate`], admitted by
+//!   - `requests`: what clients ask for (capture, reconstruction and
+//!     calibration bodies), checked by `requests::validate`, admitted by
 //!     `Admission` (disk space and queue room) and cancelled through it;
-//!   - [`jobs`]: the capture, reconstruction and progressive workers and
+//!   - `jobs`: the capture, reconstruction and progressive workers and
 //!     what they share (`JobContext`);
 //!   - `procedures`: plans, the pose and wall calibrations and the mount's
 //!     zero, which string jobs together.
 //! - The bench's devices are the rig ([`crate::rig`]), beside the camera.
 //!   Workers hold the handles they use, never the daemon.
 
-pub mod jobs;
+pub(crate) mod jobs;
 pub(crate) mod procedures;
-pub mod requests;
-pub mod runtime;
+pub(crate) mod requests;
+pub(crate) mod runtime;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -38,20 +38,25 @@ use tokio::sync::Mutex;
 
 pub use crate::rig::Automated;
 pub(crate) use jobs::progressive::{IMAGE as PROGRESSIVE_IMAGE, STEPS as PROGRESSIVE_STEPS};
-pub use procedures::calibration::{
-    Calibrations, FittedPosition, GeometryCalibration, RadiometricGain, SourcePosition,
-    WallCalibration,
+pub use procedures::calibration::RadiometricGain;
+pub(crate) use procedures::calibration::{
+    Calibrations, FittedPosition, GeometryCalibration, SourcePosition, WallCalibration,
 };
-pub use procedures::colour::{ColourCalibration, ColourGain};
-pub use procedures::mount_zero::{SweepPoint, ZeroFit};
-pub use procedures::plans::{steps_of, PlanError, PlanStep, PlanView};
-pub use requests::cancel::{CancelError, JobKind};
-pub use requests::validate::RequestError;
-pub use requests::{ZeroBody, ZeroLight};
-pub use runtime::camera::{CameraService, CameraView, SettingsError};
-pub use runtime::config::Config;
-pub use runtime::events::{Event, Events, Step as ProgressiveStep};
-pub use runtime::queue::SubmitError;
+pub(crate) use procedures::colour::ColourCalibration;
+pub(crate) use procedures::mount_zero::{SweepPoint, ZeroFit};
+pub use procedures::plans::{steps_of, PlanStep};
+pub(crate) use procedures::plans::{PlanError, PlanView};
+pub(crate) use requests::cancel::{CancelError, JobKind};
+pub(crate) use requests::validate::RequestError;
+pub use requests::validate::{
+    capture as validate_capture, reconstruction as validate_reconstruction, CameraContext,
+};
+pub(crate) use requests::{ZeroBody, ZeroLight};
+pub(crate) use runtime::camera::{CameraService, CameraView, SettingsError};
+pub use runtime::config::{log_targets, Config, ConfigError, DEFAULT_TOML};
+pub use runtime::events::Event;
+pub(crate) use runtime::events::{Events, Step as ProgressiveStep};
+pub(crate) use runtime::queue::SubmitError;
 
 use crate::camera::aravis::AravisCamera;
 use crate::camera::fake::FakeBench;

@@ -13,7 +13,7 @@ use super::FileError;
 use crate::measure::FrameStack;
 
 /// The largest frame side accepted, pixels (GenICam sensors are below 16k).
-pub const MAX_SIDE: u32 = 32_768;
+pub(crate) const MAX_SIDE: u32 = 32_768;
 /// The most pixels in one frame accepted (a 16k x 16k sensor).
 pub const MAX_PIXELS: u64 = 1 << 28;
 
@@ -50,7 +50,7 @@ pub fn decode_frames(bytes: &[u8]) -> Result<FrameFile, FileError> {
 }
 
 /// A PNG in memory as one frame: grey or RGB (an alpha channel is
-/// dropped), 8 or 16 bits. Its size is checked against [`MAX_SIDE`] and
+/// dropped), 8 or 16 bits. Its size is checked against `MAX_SIDE` and
 /// [`MAX_PIXELS`] from the header, before any pixel is decoded.
 pub fn decode_png(bytes: &[u8]) -> Result<FrameFile, FileError> {
     use super::image::DecodeError;

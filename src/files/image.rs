@@ -245,14 +245,14 @@ fn read_tiff(bytes: &[u8]) -> Result<Tiff, tiff::TiffError> {
 }
 
 /// The largest side, pixels, of an image scaled by [`scale_png16`].
-pub const MAX_SCALED_SIDE: u32 = 4096;
+pub(crate) const MAX_SCALED_SIDE: u32 = 4096;
 
 /// A 16-bit grey PNG enlarged `k` times, each pixel a `k` x `k` block
 /// (nearest neighbour: no value is invented between the scene's elements).
 ///
 /// Why: a reconstruction of an 8x8 scene is an 8x8 PNG, too small to look
 /// at in an image viewer. `k` must be at least 1 and the result at most
-/// [`MAX_SCALED_SIDE`] on a side; the error says what is allowed.
+/// `MAX_SCALED_SIDE` on a side; the error says what is allowed.
 pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, PngError> {
     let img = decode_png(png, MAX_SCALED_SIDE, u64::from(MAX_SCALED_SIDE).pow(2))
         .map_err(|e| PngError::Decode(e.to_string()))?;

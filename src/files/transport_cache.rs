@@ -16,11 +16,11 @@ use crate::scene::Scene;
 use crate::transport::{MemoryBudget, Transport, TransportError};
 
 /// The environment variable naming the cache folder, or `off`.
-pub const ENV: &str = "POLNLOS_CACHE";
+pub(crate) const ENV: &str = "POLNLOS_CACHE";
 /// The most bytes the cache folder keeps; older entries are removed past it.
-pub const MAX_BYTES: u64 = 4 << 30;
+pub(crate) const MAX_BYTES: u64 = 4 << 30;
 /// Matrices smaller than this build in well under a second: not worth a file.
-pub const MIN_BYTES: u64 = 16 << 20;
+pub(crate) const MIN_BYTES: u64 = 16 << 20;
 
 /// Where `T`s are kept, and how much.
 #[derive(Debug, Clone)]
@@ -34,7 +34,7 @@ pub struct Cached {
     /// The matrix.
     pub t: Transport,
     /// `"hit"` (read from the cache), `"stored"` (built and kept) or
-    /// `"built"` (built, not kept: under [`MIN_BYTES`], over half the
+    /// `"built"` (built, not kept: under `MIN_BYTES`, over half the
     /// bound, or the folder could not be written).
     pub source: &'static str,
 }
@@ -48,8 +48,8 @@ impl std::ops::Deref for Cached {
 }
 
 impl TransportCache {
-    /// The cache [`ENV`] names, else `$XDG_CACHE_HOME/polnlos/transport`,
-    /// else `$HOME/.cache/polnlos/transport`; `None` when [`ENV`] is `off`
+    /// The cache `ENV` names, else `$XDG_CACHE_HOME/polnlos/transport`,
+    /// else `$HOME/.cache/polnlos/transport`; `None` when `ENV` is `off`
     /// or no folder can be named.
     pub fn from_env() -> Option<Self> {
         let dir = match std::env::var_os(ENV) {

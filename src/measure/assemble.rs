@@ -153,7 +153,7 @@ pub fn assemble_with(
     assemble_colour(scene, blocks, captures, maps, None)
 }
 
-/// [`assemble_with`] for one `colour` of each capture's Bayer filter
+/// `assemble_with` for one `colour` of each capture's Bayer filter
 /// (`None`: every pixel as it is): each element's pixels take that colour's
 /// value interpolated from its own pixels ([`crate::scene::PixelMap::interpolated`]),
 /// one channel of a colour measurement. A capture without a Bayer filter

@@ -117,7 +117,7 @@ impl FrameStack {
     }
 
     /// Adds one frame of a camera's raw values, `bits` deep, counting its
-    /// pixels at full scale and at zero ([`Clipping`]).
+    /// pixels at full scale and at zero (`Clipping`).
     pub fn push_raw(&mut self, pixels: &[u16], bits: u32) {
         let before = self.clipping.frames_saturated;
         self.clipping.count(pixels, bits);

@@ -100,7 +100,7 @@ fn check(
 }
 
 /// Plans every block of `t` (see the module doc). `pixels` gives each row's
-/// effective number of camera pixels ([`crate::scene::effective_pixels`]):
+/// effective number of camera pixels (`crate::scene::effective_pixels`):
 /// an element measured from all its pixels (MODEL.md revision 3) collects
 /// their photons, so its SNR is `sqrt(pixels)` times one pixel's; without
 /// it every element is one pixel.

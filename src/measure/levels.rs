@@ -14,7 +14,7 @@ pub(crate) const BINS: usize = 64;
 /// The narrowest stretch and histogram range, DN, at `full` scale: 1/512 of
 /// full scale and at least 8 DN. Why: a frame of read noise alone spans a
 /// DN or two, and stretching that to black..white shows noise as an image.
-pub fn min_span(full: u32) -> u32 {
+pub(crate) fn min_span(full: u32) -> u32 {
     (full / 512).max(8).min(full)
 }
 

@@ -7,18 +7,29 @@ mod average;
 pub mod colour;
 pub mod exposure;
 pub mod given;
-pub mod levels;
+/// The daemon's display levels for a camera frame (only the daemon shows frames).
+#[cfg(feature = "daemon")]
+pub(crate) mod levels;
 mod load;
-pub mod mosaic;
+/// A polarizer-mosaic frame's views for the daemon's camera page.
+#[cfg(feature = "daemon")]
+pub(crate) mod mosaic;
 mod stack;
-pub mod window;
+/// The live view's rolling window of frames.
+#[cfg(feature = "daemon")]
+pub(crate) mod window;
 
-pub use assemble::{
-    assemble, assemble_colour, assemble_with, to_model_units, CaptureFrames, Units,
-};
-pub use average::{Clipping, FrameStack};
-pub use load::{load, CaptureInfo, CaptureSource};
-pub use stack::{stack, with_rounding_bias, BlockFrames, Measurement, PixelMaps};
+pub use assemble::to_model_units;
+pub use assemble::{assemble, assemble_colour, CaptureFrames, Units};
+#[cfg(feature = "daemon")]
+pub(crate) use average::Clipping;
+pub use average::FrameStack;
+pub use load::load;
+pub(crate) use load::{CaptureInfo, CaptureSource};
+#[cfg(feature = "daemon")]
+pub(crate) use stack::with_rounding_bias;
+pub(crate) use stack::BlockFrames;
+pub use stack::{stack, Measurement, PixelMaps};
 
 use crate::scene::{Frame, Homography, Plane};
 

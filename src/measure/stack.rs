@@ -74,7 +74,7 @@ pub struct Measurement {
 
 impl Measurement {
     /// Its rows that were not measured (NaN) set to 0 with variance 0
-    /// ([`crate::solve::zero_unmeasured`]); returns their indices.
+    /// (`crate::solve::zero_unmeasured`); returns their indices.
     pub fn zero_unmeasured(&mut self) -> Vec<usize> {
         crate::solve::zero_unmeasured(&mut self.i, self.variance.as_deref_mut())
     }

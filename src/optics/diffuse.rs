@@ -132,7 +132,7 @@ mod tests {
         let p = exit(&N, &w, tb.cos(), 1.5, Some(&e_po));
         let s = exit(&N, &w, tb.cos(), 1.5, Some(&e_so));
         assert!((p - 0.5).abs() < 1e-15, "{p}");
-        let rs = crate::optics::FresnelHalf::at_angle(tb, 1.5).rs;
+        let rs = crate::optics::fresnel::FresnelHalf::at_angle(tb, 1.5).rs;
         assert!((s - 0.5 * (1.0 - rs)).abs() < 1e-15, "{s}");
     }
 

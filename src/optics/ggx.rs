@@ -1,14 +1,16 @@
 //! GGX (Trowbridge-Reitz) microfacet distribution and Smith shadowing
 //! (MODEL.md "One entry of T": `D(h)`, `G1`, `G2`).
 
+#[cfg(test)]
 use std::f64::consts::PI;
 
 /// GGX normal distribution `D = alpha^2 / (pi ((n.h)^2 (alpha^2 - 1) + 1)^2)`.
 ///
 /// `cos_h = n.h`; `alpha` in (0, 1]. Normalized so that the projected area of
-/// the microfacets integrates to one over the hemisphere.
-#[inline(always)]
-pub fn distribution(cos_h: f64, alpha: f64) -> f64 {
+/// the microfacets integrates to one over the hemisphere. The tests' reference:
+/// `brdf.rs` evaluates it fused with the lobe's cosines.
+#[cfg(test)]
+fn distribution(cos_h: f64, alpha: f64) -> f64 {
     let a2 = alpha * alpha;
     let d = cos_h * cos_h * (a2 - 1.0) + 1.0;
     a2 / (PI * d * d)
@@ -21,9 +23,10 @@ pub(crate) fn smith_g1(cos_w: f64, alpha: f64) -> f64 {
     2.0 * cos_w / (cos_w + (a2 + (1.0 - a2) * cos_w * cos_w).sqrt())
 }
 
-/// Separable Smith shadowing-masking `G2 = G1(w_i) G1(w_o)`.
-#[inline]
-pub fn smith_g2(cos_i: f64, cos_o: f64, alpha: f64) -> f64 {
+/// Separable Smith shadowing-masking `G2 = G1(w_i) G1(w_o)`; the tests'
+/// reference (`brdf.rs` multiplies the two `G1`s it keeps per direction).
+#[cfg(test)]
+fn smith_g2(cos_i: f64, cos_o: f64, alpha: f64) -> f64 {
     smith_g1(cos_i, alpha) * smith_g1(cos_o, alpha)
 }
 

@@ -7,14 +7,14 @@
 
 pub(crate) mod brdf;
 pub(crate) mod diffuse;
-pub mod fresnel;
-pub mod ggx;
+pub(crate) mod fresnel;
+pub(crate) mod ggx;
 pub mod polarizer;
 
 /// Three-vector used across the crate (metres or unit directions).
 pub type Vec3 = nalgebra::Vector3<f64>;
 
-pub use brdf::{Brdf, Polarization};
+pub(crate) use brdf::Brdf;
+pub use brdf::Polarization;
 pub use diffuse::DiffuseModel;
-pub use fresnel::{FresnelAmplitudes, FresnelHalf};
 pub use polarizer::PolarizerModel;

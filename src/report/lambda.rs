@@ -17,9 +17,9 @@ use crate::simulate::patterns::Pattern;
 use crate::simulate::{unpolarized_peak, NoiseModel};
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
-use crate::solve::reconstruct::{Context, AUTO_MAX_ITER};
 use crate::solve::solvers::{Solver, LAMBDA_REL};
 use crate::solve::{condition, metrics, reconstruct, AdmmSettings, Conditioning, SolveRequest};
+use crate::solve::{reconstruct::Context, AUTO_MAX_ITER};
 use crate::transport::{build, MemoryBudget, Transport};
 
 /// Grid search of the best λ: log10(λ / mean(diag(T^T T))) from -6 to 1.

@@ -8,11 +8,11 @@
 pub(crate) mod active;
 pub mod charts;
 pub(crate) mod lambda;
-pub mod mosaic;
+pub(crate) mod mosaic;
 pub(crate) mod peer;
-pub mod photons;
+pub(crate) mod photons;
 mod plan;
-pub mod rendered;
+pub(crate) mod rendered;
 pub(crate) mod sampling;
 pub(crate) mod scaling;
 pub(crate) mod shape;
@@ -20,7 +20,10 @@ pub(crate) mod speed;
 pub(crate) mod stability;
 mod tables;
 
+pub use mosaic::{mosaic_report, STEPS as MOSAIC_STEPS};
+pub use photons::best_lambda;
 pub use plan::BenchPlan;
+pub use rendered::{agreement, reconstruct_pair, PairNoise, RenderedCase, DEFAULT_DIR};
 pub use shape::Report;
 pub use tables::Conditioning;
 pub(crate) use tables::Roughness;

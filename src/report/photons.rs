@@ -23,9 +23,9 @@ use crate::simulate::unpolarized_peak;
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::metrics::compare;
-use crate::solve::reconstruct::{Context, AUTO_MAX_ITER};
 use crate::solve::Solver;
 use crate::solve::{condition, reconstruct, AdmmSettings, SolveRequest};
+use crate::solve::{reconstruct::Context, AUTO_MAX_ITER};
 use crate::transport::{build, MemoryBudget, Transport};
 
 /// Photo-electrons at the brightest unpolarized pixel, per step a factor of
@@ -221,7 +221,7 @@ impl Bench {
 
 /// The comparison on the built-in scene `name` (one pose with a
 /// homography), calling `step()` once per pattern.
-pub fn photons_report(
+pub(crate) fn photons_report(
     name: &str,
     budget: MemoryBudget,
     step: &mut dyn FnMut(),
@@ -281,7 +281,7 @@ pub struct BestLambdaRow {
 
 /// The automatic λ against the best λ of the grid `log10(λ / mean(diag(T^T
 /// T)))` from `lo` to `hi` in `steps` equal steps, on the frames of
-/// [`photons_report`] (same exposures, seeds and measurements) for
+/// `photons_report` (same exposures, seeds and measurements) for
 /// `pattern` at each of `photons`, both paths. Each grid λ is a cold
 /// ADMM-TV solve with the automatic λ's iteration cap.
 pub fn best_lambda(

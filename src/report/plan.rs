@@ -44,8 +44,8 @@ pub struct BenchPlan {
     /// Wall grid side and scene grid sides of the end-to-end scaling sweep.
     pub scaling: (usize, Vec<usize>),
     /// Whether to compare a polarization camera with polarizer sheets
-    /// ([`super::mosaic`], about 30 s) and the revision-2 measurement with
-    /// revision 3's against exposure ([`super::photons`], about 90 s).
+    /// (`super::mosaic`, about 30 s) and the revision-2 measurement with
+    /// revision 3's against exposure (`super::photons`, about 90 s).
     pub mosaic: bool,
 }
 

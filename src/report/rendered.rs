@@ -216,7 +216,7 @@ pub fn agreement(t: &Transport, case: &RenderedCase) -> Agreement {
     }
 }
 
-/// The noise both reconstructions of a [`Pair`] carry.
+/// The noise both reconstructions of a `Pair` carry.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PairNoise {

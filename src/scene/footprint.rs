@@ -265,7 +265,7 @@ impl PixelMap {
 
     /// [`PixelMap::frame`] over the pixels in `cells` only: one
     /// micro-polarizer of a mosaic (MODEL.md "On-chip polarizer mosaic"), one
-    /// colour of a Bayer filter, or both ([`Cells::ALL`]: every pixel).
+    /// colour of a Bayer filter, or both (`Cells::ALL`: every pixel).
     pub fn cell_frame(
         h: &Homography,
         wall: &Plane,

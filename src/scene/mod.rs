@@ -19,16 +19,20 @@ pub(crate) mod plane;
 
 use std::path::Path;
 
+#[cfg(any(feature = "daemon", feature = "report"))]
+pub(crate) use analyzer::MOSAIC_DEGREES;
 pub(crate) use analyzer::{crossed_axis, perpendicular};
-pub use analyzer::{Analyzer, Channel, Mosaic, MosaicLayout, UnknownAnalyzer, MOSAIC_DEGREES};
+pub(crate) use analyzer::{Analyzer, Mosaic, MosaicLayout};
+pub use analyzer::{Channel, UnknownAnalyzer};
 pub use colour::Colour;
 pub use error::SceneError;
-pub use footprint::{
-    effective_pixels, wall_corners, Cells, FootprintError, FrameGeometry, PixelMap,
-};
+#[cfg(feature = "daemon")]
+pub(crate) use footprint::wall_corners;
+pub(crate) use footprint::{effective_pixels, Cells, FootprintError};
+pub use footprint::{FrameGeometry, PixelMap};
 pub use frame::Frame;
 pub use homography::Homography;
-pub use occluder::{Mesh, MeshSource, Occluder};
+pub use occluder::{Mesh, Occluder};
 pub use plane::{Grid, Plane};
 
 use crate::optics::{Brdf, PolarizerModel, Vec3};

@@ -1,5 +1,5 @@
 //! Recovering the hidden scene from a measurement (MODEL.md Eq. 12) and
-//! judging the result: the solvers ([`solvers`]: ADMM-TV with a box
+//! judging the result: the solvers (`solvers`: ADMM-TV with a box
 //! constraint, FISTA-TV, GP-TV, least-squares and Tikhonov baselines), the
 //! automatic λ ([`lambda`]), conditioning of `T` and image metrics
 //! (`judge/`), and the operators they share (`operators/`).
@@ -15,7 +15,7 @@
 mod judge;
 pub mod lambda;
 mod operators;
-pub mod solvers;
+pub(crate) mod solvers;
 
 pub mod json;
 pub mod photo;
@@ -29,11 +29,16 @@ pub use judge::{metrics, report};
 pub use operators::gram;
 pub(crate) use operators::{lowrank, triangular, tv};
 
-pub use conditioning::{condition, condition_with, Conditioning};
+#[cfg(feature = "daemon")]
+pub(crate) use conditioning::condition_with;
+pub use conditioning::{condition, Conditioning};
 pub use reconstruct::reconstruct;
+#[cfg(feature = "report")]
+pub(crate) use solvers::tv_denoise;
+pub(crate) use solvers::Problem;
 pub use solvers::{
-    admm_tv, least_squares, tikhonov, tv_denoise, AdmmSettings, FistaSettings, Needs, Problem,
-    SolveRequest, Solver,
+    admm_tv, admm_tv_prepared, least_squares, tikhonov, AdmmSettings, FistaSettings, Needs,
+    SolveRequest, Solver, AUTO_MAX_ITER, LAMBDA_REL,
 };
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -206,7 +211,7 @@ pub(crate) fn check_lambda(lambda: f64) -> Result<(), SolveError> {
 /// pixel at full scale in some frame), set to 0 with their `variance` 0;
 /// returns their indices, whose rows of `T` must be zeroed too
 /// ([`Transport::with_rows_zeroed`]): no part in the fit or the noise.
-pub fn zero_unmeasured(i: &mut [f64], mut variance: Option<&mut [f64]>) -> Vec<usize> {
+pub(crate) fn zero_unmeasured(i: &mut [f64], mut variance: Option<&mut [f64]>) -> Vec<usize> {
     let missing: Vec<usize> = (0..i.len()).filter(|&j| !i[j].is_finite()).collect();
     for &j in &missing {
         i[j] = 0.0;

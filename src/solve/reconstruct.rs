@@ -16,7 +16,7 @@ use super::lambda::{
     RESOLVED_TOLERANCE,
 };
 use super::report::{mean_snr, snr_warnings, Report};
-pub use super::solvers::{Needs, Problem, SolveRequest, Solver, AUTO_MAX_ITER};
+use super::solvers::{Problem, SolveRequest};
 use super::{SolveError, Stop};
 use crate::transport::Transport;
 

@@ -20,19 +20,21 @@ use std::sync::Mutex;
 
 use rusqlite::{params, Connection};
 
-pub use calibrations::ColourCalibrationRow;
+pub(crate) use calibrations::ColourCalibrationRow;
+pub(crate) use files::FrameMeta;
 pub(crate) use files::{
     capture_bytes, read_imported, read_mean_in_range, read_mean_variance, remove_raw,
     write_summary, CaptureFiles, TMP_MARK,
 };
-pub use files::{read_mean, write_frames, FrameMeta};
+pub use files::{read_mean, write_frames};
 pub(crate) use lock::{remove_orphans, DirLock};
-pub use plans::{PlanCapture, PlanInterim, PlanRow, PlanState};
-pub use records::{
-    CaptureKind, CaptureRecord, CaptureRequest, ImportInfo, JobState, ReconstructionParams,
-    ReconstructionRecord, ReconstructionRequest,
+pub(crate) use plans::{PlanCapture, PlanInterim, PlanRow, PlanState};
+pub use records::ReconstructionParams;
+pub(crate) use records::{
+    CaptureKind, CaptureRecord, CaptureRequest, ImportInfo, JobState, ReconstructionRecord,
+    ReconstructionRequest,
 };
-pub use retention::Retention;
+pub(crate) use retention::Retention;
 pub use schema::Table;
 
 /// What can go wrong with the store, naming the path or the row.

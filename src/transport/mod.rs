@@ -10,7 +10,7 @@ mod build;
 pub mod choose;
 mod shadow;
 
-pub use adaptive::{build_adaptive, AdaptiveStats};
+pub use adaptive::build_adaptive;
 pub(crate) use build::radiance_at;
 pub use build::{blocks_of, build, build_elements, build_with_progress};
 

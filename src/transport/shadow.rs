@@ -529,7 +529,8 @@ impl Shadows {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::{Grid, Mesh, MeshSource};
+    use crate::scene::occluder::MeshSource;
+    use crate::scene::{Grid, Mesh};
     use std::sync::Arc;
 
     fn wall() -> Plane {

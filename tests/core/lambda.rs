@@ -369,7 +369,7 @@ fn best_of_grid(
     settings: &AdmmSettings,
     psnr: impl Fn(&[f64]) -> f64,
 ) -> (f64, f64) {
-    use polnlos::solve::solvers::admm_tv_prepared;
+    use polnlos::solve::admm_tv_prepared;
     let unit = t.mean_column_norm2();
     let (mut best_lambda, mut best_psnr) = (f64::NAN, f64::NEG_INFINITY);
     for k in 0..=32 {
@@ -403,10 +403,10 @@ fn best_of_grid(
 #[ignore]
 fn lambda_rules_on_camera_frames() {
     crate::priority::background();
+    use polnlos::solve::admm_tv_prepared;
     use polnlos::solve::gram::Normal;
     use polnlos::solve::lambda::sapg::{admm_tv_sapg, sapg, SapgSettings};
     use polnlos::solve::lambda::whiteness::admm_tv_whiteness;
-    use polnlos::solve::solvers::admm_tv_prepared;
     use std::time::Instant;
 
     const HIT: f64 = 1.5;
@@ -416,7 +416,7 @@ fn lambda_rules_on_camera_frames() {
         .and_then(|v| v.parse().ok())
         .unwrap_or(SapgSettings::default().iterations);
     let settings = AdmmSettings {
-        max_iter: polnlos::solve::reconstruct::AUTO_MAX_ITER,
+        max_iter: polnlos::solve::AUTO_MAX_ITER,
         ..Default::default()
     };
     let rules = ["current", "current (σ from residual)", "RWP", "SAPG"];
@@ -555,7 +555,7 @@ fn lambda_rules_on_camera_frames() {
 #[ignore]
 fn photons_misses_at_the_best_lambda() {
     crate::priority::background();
-    use polnlos::report::photons::best_lambda;
+    use polnlos::report::best_lambda;
     let start = std::time::Instant::now();
     let rows = best_lambda(
         "brewster-crossed",
@@ -630,7 +630,7 @@ fn one_measurement_without_a_noise_figure_lambda_rules() {
 
     const HIT: f64 = 1.5;
     let settings = AdmmSettings {
-        max_iter: polnlos::solve::reconstruct::AUTO_MAX_ITER,
+        max_iter: polnlos::solve::AUTO_MAX_ITER,
         ..Default::default()
     };
     println!("| set | scene | pattern | e- | best λ/unit | best PSNR | residual | own misfit | own misfit, resolved | frame variance (reference) | λ/unit: residual, own misfit, own resolved | σ est/true: residual, own misfit |");

@@ -1030,16 +1030,16 @@ fn public_items() -> Vec<String> {
     out
 }
 
-/// Issue 48: a small public surface (at most 400 public items). Each
-/// session makes some crate-private; none is added without one going (the
-/// bound only falls).
+/// Issue 48: a small public surface (at most 400 public items; 330 since
+/// the eighteenth session). None is added without one going (the bound
+/// only falls).
 #[test]
 fn the_public_surface_does_not_grow() {
     let items = public_items();
     println!("{} public items", items.len());
     assert!(
-        items.len() <= 516,
-        "{} public items in src/ (at most 516, aiming at 400: make what only the crate uses pub(crate)):\n{}",
+        items.len() <= 330,
+        "{} public items in src/ (at most 330: make what only the crate uses pub(crate)):\n{}",
         items.len(),
         items.join("\n")
     );

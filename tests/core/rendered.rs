@@ -11,7 +11,7 @@
 use std::path::PathBuf;
 
 use polnlos::optics::{DiffuseModel, PolarizerModel};
-use polnlos::report::rendered::{agreement, reconstruct_pair, PairNoise, RenderedCase};
+use polnlos::report::{agreement, reconstruct_pair, PairNoise, RenderedCase};
 use polnlos::transport::{build, MemoryBudget};
 
 fn cases() -> Vec<RenderedCase> {
@@ -294,9 +294,9 @@ fn a_polarization_camera_is_compared_with_sheets_at_equal_exposure() {
     crate::priority::background();
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/rendered/rotating/frames");
     let mut steps = 0;
-    let r = polnlos::report::mosaic::mosaic_report(&dir, MemoryBudget::DEFAULT, &mut || steps += 1)
-        .unwrap();
-    assert_eq!(steps, polnlos::report::mosaic::STEPS);
+    let r =
+        polnlos::report::mosaic_report(&dir, MemoryBudget::DEFAULT, &mut || steps += 1).unwrap();
+    assert_eq!(steps, polnlos::report::MOSAIC_STEPS);
     assert!(r.rendered_skipped.is_none(), "{:?}", r.rendered_skipped);
     for row in &r.rows {
         println!(

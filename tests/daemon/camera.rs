@@ -5,9 +5,9 @@
 
 use std::time::{Duration, Instant};
 
-use polnlos::camera::aravis::AravisCamera;
 use polnlos::camera::fake::FakeBench;
-use polnlos::camera::worker::CameraHandle;
+use polnlos::camera::AravisCamera;
+use polnlos::camera::CameraHandle;
 use polnlos::camera::{Acquisition, CameraDevice, CameraError, PixelFormat};
 use polnlos::rig::bench::Bench;
 use polnlos::scene::Frame;
@@ -350,7 +350,7 @@ fn the_fill_callback_never_writes_past_its_buffer_whatever_the_registers_say() {
 #[test]
 fn usb_hot_plug_watching_is_harmless_without_usb_cameras() {
     // Starts (or declines with a log line where libusb has no hot-plug), and stops cleanly.
-    let w = polnlos::camera::hotplug::Hotplug::start(|| {});
+    let w = polnlos::camera::Hotplug::start(|| {});
     std::thread::sleep(Duration::from_millis(300));
     drop(w);
 }

@@ -102,7 +102,7 @@ pub fn free_port() -> u16 {
 
 /// A config file: the embedded default with some lines replaced.
 pub fn config(dir: &Path, edits: &[(&str, &str)]) -> PathBuf {
-    let mut text = polnlos::daemon::runtime::config::DEFAULT_TOML.to_string();
+    let mut text = polnlos::daemon::DEFAULT_TOML.to_string();
     for (from, to) in edits {
         assert!(text.contains(from), "{from}");
         text = text.replacen(from, to, 1);
@@ -466,7 +466,7 @@ impl InProcess {
     /// camera showing the config's demo scene; returns once the camera is
     /// connected.
     pub fn start(config: &Path, data: &Path) -> Self {
-        use polnlos::daemon::runtime::scenes::Scenes;
+        use polnlos::daemon::Scenes;
         use polnlos::daemon::{CameraSetup, Config};
         // No Aravis: the cores the camera tests leave idle are enough, for
         // this daemon and for what the test starts beside it (a browser,

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
-use polnlos::daemon::runtime::scenes::Scenes;
+use polnlos::daemon::Scenes;
 use polnlos::daemon::{CameraSetup, Config, Daemon};
 use polnlos::store::Store;
 use polnlos::transport::MemoryBudget;

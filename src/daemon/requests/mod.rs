@@ -113,7 +113,7 @@ pub struct ProgressiveBody {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum AutoExposure {
-    /// Plan from the scene (see [`crate::measure::exposure`]).
+    /// Plan from the scene (see `crate::measure::exposure`).
     Auto,
 }
 

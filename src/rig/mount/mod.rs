@@ -12,7 +12,8 @@ pub mod elliptec;
 mod service;
 pub mod simulated;
 
-pub use service::{MountConfig, MountKind, MountService, MountView};
+pub use service::MountService;
+pub(crate) use service::{MountConfig, MountKind, MountView};
 
 /// A mount that turns the polarizer to an angle and says where it is.
 pub trait RotationMount: Send {

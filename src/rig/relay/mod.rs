@@ -12,7 +12,8 @@ pub mod devantech;
 mod service;
 pub mod simulated;
 
-pub use service::{LightConfig, LightKind, LightService, LightView};
+pub use service::LightService;
+pub(crate) use service::{LightConfig, LightKind, LightView};
 
 /// A switch for the hidden scene's light.
 pub trait LightSwitch: Send {

@@ -1,32 +1,31 @@
-//! Camera stages: the [`CameraStage`] that carries the camera between a
-//! scene's poses, and a simulated one ([`SimulatedStage`]) for the fake
+//! Camera stages: the `CameraStage` that carries the camera between a
+//! scene's poses, and a simulated one (`SimulatedStage`) for the fake
 //! bench and the tests.
 //!
 //! Why read back: a stage that stopped short would put the camera at
 //! another pose than the capture records, and the homography of the pose
 //! would no longer map its wall; every move reads the position back, and a
-//! capture whose camera missed its pose by more than [`TOLERANCE_M`] fails.
+//! capture whose camera missed its pose by more than `TOLERANCE_M` fails.
 
 mod service;
 
-pub use service::{StageConfig, StageKind, StageService, StageView};
+pub use service::StageService;
+pub(crate) use service::{StageConfig, StageKind, StageView};
 
 /// Metres a stage may miss a pose's centre of projection by.
-pub const TOLERANCE_M: f64 = 1e-3;
+pub(crate) const TOLERANCE_M: f64 = 1e-3;
 
 /// A stage that moves the camera to a position and says where it is.
-pub trait CameraStage: Send {
+pub(crate) trait CameraStage: Send {
     /// Moves the camera's centre of projection to `camera` (metres, the
     /// scene's frame, MODEL.md's `o` of a pose); returns the position read back.
     fn move_to(&mut self, camera: [f64; 3]) -> Result<[f64; 3], StageError>;
-    /// The position now, metres.
-    fn position(&mut self) -> Result<[f64; 3], StageError>;
 }
 
 /// What went wrong with a stage, naming the pose and the positions.
 #[derive(Debug, thiserror::Error)]
 pub enum StageError {
-    /// The move ended farther than [`TOLERANCE_M`] from the pose.
+    /// The move ended farther than `TOLERANCE_M` from the pose.
     #[error("the camera stage did not reach pose {pose}: asked {asked:?} m, read back {read:?} m, {miss_mm:.2} mm off (tolerance {} mm); check for an obstruction or lost steps, then press Continue", TOLERANCE_M * 1e3)]
     Missed {
         /// The pose asked for.
@@ -60,7 +59,7 @@ pub fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
 /// A stage that goes where it is sent, short by `slip_m` along the way
 /// when told to (a stage that lost steps), and starts at the origin.
 #[derive(Debug, Clone, Default)]
-pub struct SimulatedStage {
+pub(crate) struct SimulatedStage {
     at: [f64; 3],
     slip_m: f64,
 }
@@ -93,10 +92,6 @@ impl CameraStage for SimulatedStage {
         }
         Ok(self.at)
     }
-
-    fn position(&mut self) -> Result<[f64; 3], StageError> {
-        Ok(self.at)
-    }
 }
 
 #[cfg(test)]
@@ -108,7 +103,7 @@ mod tests {
         let mut s = SimulatedStage::new();
         let target = [0.3, -1.2, 2.0];
         assert_eq!(s.move_to(target).unwrap(), target);
-        assert_eq!(s.position().unwrap(), target);
+        assert_eq!(s.at, target);
         s.slip(0.002);
         let next = [0.3, -1.2, 3.0];
         let read = s.move_to(next).unwrap();

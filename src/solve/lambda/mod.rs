@@ -42,7 +42,7 @@ pub enum NoiseSource {
 
 /// Fewest residual degrees of freedom (rows minus columns) for
 /// [`NoiseLevel::from_residual`]: below it the estimate is too noisy to use.
-pub const MIN_RESIDUAL_DOF: usize = 16;
+pub(crate) const MIN_RESIDUAL_DOF: usize = 16;
 
 impl NoiseLevel {
     /// Per-row variances measured by the caller (e.g. frame-to-frame).
@@ -115,15 +115,9 @@ impl NoiseLevel {
 }
 
 /// The residual `i - Q Q^T i` of the unconstrained least-squares fit of `i`
-/// by `T` (Householder QR, thin `Q`; see [`NoiseLevel::from_residual`]):
-/// what no scene can explain. `None` when `M - N < MIN_RESIDUAL_DOF` or `i`
-/// does not fit `T`.
-pub fn least_squares_residual(t: &Transport, i: &[f64]) -> Option<Vec<f64>> {
-    residual_and_rank(t, i, None).map(|(r, _)| r)
-}
-
-/// [`least_squares_residual`] with the Gram already formed (see
-/// [`NoiseLevel::from_residual_with`]).
+/// by `T` (Householder QR, thin `Q`; the Gram's factor when `normal` is
+/// given; see [`NoiseLevel::from_residual_with`]): what no scene can
+/// explain. `None` when `M - N < MIN_RESIDUAL_DOF` or `i` does not fit `T`.
 pub(crate) fn least_squares_residual_with(
     t: &Transport,
     i: &[f64],
@@ -281,7 +275,7 @@ pub enum OwnMisfitRule {
 /// smallest misfit of the scan, box constraint included) estimates the
 /// noise as `F / (M - N)`, `M` the rows that carry data and `N` the
 /// unknowns, and `rule` sets the target from it. `None` when `M - N` is
-/// below [`MIN_RESIDUAL_DOF`].
+/// below `MIN_RESIDUAL_DOF`.
 ///
 /// Why kept beside the default: docs/lambda.md ("One measurement, no noise
 /// figure") measured both against the residual rule a calibrated

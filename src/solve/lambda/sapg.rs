@@ -11,7 +11,7 @@
 //!
 //! Scaling: the likelihood is `exp(-1/2 ||i - T l||^2_W)`, `W = diag(1 /
 //! sigma_j^2)`. ADMM here minimizes the unweighted `||i - T l||^2 + λ TV(l)`
-//! (MODEL.md Eq. 12, see [`crate::solve::solvers`]), the MAP of that posterior when
+//! (MODEL.md Eq. 12, see `crate::solve::solvers`), the MAP of that posterior when
 //! `W = w I`; with `w = mean(1 / sigma_j^2)` that MAP is at `λ = 2 θ / w`.
 
 use std::time::Instant;
@@ -86,7 +86,7 @@ pub struct SapgEstimate {
 /// Empirical-Bayes θ by SAPG with a MYULA sampler (Vidal et al. 2020,
 /// Algorithm 1): `η = log θ`, `X_{k+1} = X_k - γ ∇f(X_k) - γ/λ (X_k -
 /// prox_{λ θ_k g}(X_k)) + sqrt(2γ) Z`, `g = TV + box` (its proximal map by
-/// [`crate::solve::tv_denoise`]'s dual iterations), then `η_{k+1} = Proj(η_k
+/// `crate::solve::tv_denoise`'s dual iterations), then `η_{k+1} = Proj(η_k
 /// + δ_k θ_k (d / θ_k - TV(X_{k+1})))`, `θ = exp(mean η)` over the later
 /// iterations. `x0` starts the chain and sets `θ_0 = d / TV(x0)`; θ stays in
 /// `θ_0 [1e-4, 1e4]`.

@@ -17,7 +17,7 @@ use crate::solve::{check_measurement, Reconstruction, SolveError};
 use crate::transport::Transport;
 
 /// Scan range of [`admm_tv_whiteness`], log10 of λ relative to `mean(diag(T^T T))`.
-pub const SCAN_REL: (f64, f64) = (-7.0, 1.0);
+pub(crate) const SCAN_REL: (f64, f64) = (-7.0, 1.0);
 /// Scan steps over [`SCAN_REL`] (a quarter decade each).
 pub(crate) const SCAN_STEPS: usize = 32;
 /// Golden-section steps between the scan minimum's neighbours.
@@ -105,7 +105,7 @@ fn block_whiteness(wall: Grid, r: &[f64]) -> f64 {
 }
 
 /// ADMM-TV with λ chosen by the residual whiteness principle: a quarter-decade
-/// scan of λ over [`SCAN_REL`] (one warm path, one Gram), the λ of least
+/// scan of λ over `SCAN_REL` (one warm path, one Gram), the λ of least
 /// [`whiteness`], refined by golden section in log λ between its scan
 /// neighbours. `noise` only whitens the rows (its scale does not matter).
 ///

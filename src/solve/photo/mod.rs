@@ -37,9 +37,10 @@ mod model;
 
 pub use differences::differences;
 use differences::*;
-pub use metrics::{least_squares_misfit, PhotoMetrics};
+pub use metrics::least_squares_misfit;
+pub(crate) use metrics::PhotoMetrics;
 pub(crate) use metrics::{least_squares_misfits, photo_metrics};
-pub use model::PhotoModel;
+pub(crate) use model::PhotoModel;
 
 /// What a photo's data term fits.
 #[derive(
@@ -564,7 +565,7 @@ impl<T: std::ops::Deref<Target = Transport>> PhotoTransport<T> {
 /// The `T` a photo is reconstructed with, and the shadow model's choice:
 /// `point` (the scene's own `T`) where the scene fixes its shadows, else
 /// whichever of it and `area()` (the area-shadow `T`, made only then)
-/// explains the photo better ([`PhotoModel::floor_misfit`] of each).
+/// explains the photo better (`PhotoModel::floor_misfit` of each).
 ///
 /// Why one function: the CLI's `--photo`, the daemon's fitted
 /// reconstruction and Python each get their `T`s their own way (a file

@@ -36,12 +36,13 @@ pub struct PhotoModel {
 }
 
 impl PhotoModel {
-    /// Forms the data term's matrix and Gram for `t`.
-    pub fn new(t: &Transport, data_term: DataTerm) -> Self {
+    /// Forms the data term's matrix and Gram for `t` (the tests' shorthand).
+    #[cfg(test)]
+    pub(crate) fn new(t: &Transport, data_term: DataTerm) -> Self {
         Self::with_missing(t, data_term, &[])
     }
 
-    /// [`PhotoModel::new`] for a photo whose rows `missing` (indices into
+    /// The data term's matrix and Gram for a photo whose rows `missing` (indices into
     /// `t`'s rows) were not measured: a difference that touches one, or the
     /// row itself for raw values, carries no data.
     ///

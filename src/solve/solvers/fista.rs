@@ -198,6 +198,7 @@ impl Prox {
 /// Why here: the paper's Fig. 9 asks whether post-processing a baseline
 /// reconstruction closes the gap to the polarized one; this is the same
 /// proximal step FISTA-TV takes, so the comparison uses one TV.
+#[cfg(feature = "report")]
 pub fn tv_denoise(grid: Grid, b: &[f64], weight: f64, iterations: usize) -> Vec<f64> {
     let mut prox = Prox::new(grid);
     let mut out = vec![0.0; grid.count()];
@@ -410,6 +411,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "report")]
     fn tv_denoising_restores_a_noisy_step() {
         // A step edge plus alternating noise: denoising brings it closer to
         // the step, and a zero weight only clips to the box.

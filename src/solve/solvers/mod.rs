@@ -28,8 +28,10 @@ use crate::transport::Transport;
 
 pub use admm::{admm_tv, admm_tv_prepared, AdmmSettings, LAMBDA_REL};
 pub use baseline::{least_squares, tikhonov};
+#[cfg(feature = "report")]
+pub use fista::tv_denoise;
+pub use fista::FistaSettings;
 pub(crate) use fista::{largest_eigenvalue, symmetric, Prox};
-pub use fista::{tv_denoise, FistaSettings};
 pub use request::SolveRequest;
 
 /// Iteration cap of an automatic-λ solve unless the request sets one: small
