@@ -57,7 +57,7 @@
 //!   `/openapi.json` (docs/guide.md, "Adding a route"). A request body the
 //!   daemon checks goes in `src/daemon/requests/mod.rs`.
 //! - **A bench report**: its file in `src/report/` implementing
-//!   `report::Report`, and one entry in `BenchPlan::run` (`src/report/plan.rs`,
+//!   `report::Report`, and one entry in `BenchSelection::run` (`src/report/selection.rs`,
 //!   the one file that names every report).
 //! - **A camera setting** (3 files, counted in docs/guide.md "Where a
 //!   change goes"): its field in `Acquisition` and `CameraSettings` with

@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use polnlos::files::{json, write_atomic};
-use polnlos::report::{charts, BenchPlan};
+use polnlos::report::{charts, BenchSelection};
 use polnlos::transport::MemoryBudget;
 
 /// Write the bench reports (JSON, Markdown, charts) into a folder.
@@ -43,23 +43,23 @@ fn write_chart(dir: &std::path::Path, name: &str, c: &charts::Chart) -> anyhow::
 pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     super::out_dir(&a.out)?;
     let start = std::time::Instant::now();
-    let plan = BenchPlan {
+    let selection = BenchSelection {
         rendered: a.rendered.clone(),
         ..if a.quick {
-            BenchPlan::quick()
+            BenchSelection::quick()
         } else {
-            BenchPlan::full()
+            BenchSelection::full()
         }
     };
-    let pb = super::progress::bar(plan.steps(), "bench");
+    let pb = super::progress::bar(selection.steps(), "bench");
     let work = std::env::temp_dir().join(format!("polnlos-peer-{}", std::process::id()));
-    let reports = plan.run(budget, &work, &mut || pb.inc(1))?;
+    let reports = selection.run(budget, &work, &mut || pb.inc(1))?;
     pb.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
 
     let mut out = serde_json::Map::new();
-    out.insert("quick".into(), plan.quick.into());
-    out.insert("plan".into(), serde_json::to_value(&plan)?);
+    out.insert("quick".into(), selection.quick.into());
+    out.insert("plan".into(), serde_json::to_value(&selection)?);
     let mut md = String::from("# polnlos bench\n\n");
     for r in &reports {
         out.extend(r.json());
@@ -69,7 +69,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         md.push_str(&r.markdown());
     }
     out.insert("seconds".into(), seconds.into());
-    let quick = if plan.quick {
+    let quick = if selection.quick {
         " (--quick: 3x3 grids)"
     } else {
         ""

@@ -5,10 +5,10 @@
 mod bench;
 mod calibrate;
 mod cond;
+mod grid;
 mod measure;
 mod pattern;
 mod photo;
-mod plan;
 mod progress;
 mod reconstruct;
 #[cfg(feature = "daemon")]
@@ -60,8 +60,10 @@ enum Command {
     Reconstruct(reconstruct::Args),
     /// Write a test pattern (disk, bars, letter, flat) as a PNG truth image.
     Pattern(pattern::Args),
-    /// Recommend the finest scene grid the measurement supports.
-    Plan(plan::Args),
+    /// Recommend the finest scene grid the measurement supports (`plan`
+    /// before the eighteenth session: still accepted).
+    #[command(alias = "plan")]
+    Grid(grid::Args),
     /// Write the bench reports: Table 1 and Fig. 6, stability, speed against
     /// accuracy, transport sampling, active NLOS, the NumPy peer (JSON,
     /// Markdown, charts).
@@ -99,7 +101,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Serve(a) => serve::run(a, budget),
         #[cfg(feature = "report")]
         Command::Bench(a) => bench::run(a, budget),
-        Command::Plan(a) => plan::run(a, budget),
+        Command::Grid(a) => grid::run(a, budget),
     }
 }
 

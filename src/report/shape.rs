@@ -1,7 +1,7 @@
 //! The one shape every bench report has: it is run by a
-//! [`super::BenchPlan`], and gives its rows (for `bench.json`), its charts
+//! [`super::BenchSelection`], and gives its rows (for `bench.json`), its charts
 //! and its Markdown section. Each report's file implements it; only
-//! `plan.rs` names them all.
+//! `selection.rs` names them all.
 
 use serde_json::{Map, Value};
 

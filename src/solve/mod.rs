@@ -19,9 +19,9 @@ pub(crate) mod solvers;
 
 pub mod json;
 pub mod photo;
-pub mod plan;
 pub mod radiometry;
 pub mod reconstruct;
+pub mod resolution;
 pub mod scene;
 
 pub(crate) use judge::{adequacy, conditioning};

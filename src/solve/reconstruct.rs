@@ -22,8 +22,8 @@ use crate::transport::Transport;
 
 /// Largest least-squares RMS error (fraction of the radiance range) before a
 /// reconstruction warns that its grid is finer than the data support (as
-/// `polnlos plan`).
-pub(crate) const PLAN_TOLERANCE: f64 = RESOLVED_TOLERANCE;
+/// `polnlos grid`).
+pub(crate) const RESOLUTION_TOLERANCE: f64 = RESOLVED_TOLERANCE;
 
 /// Where the result and its report name the scene, what to compare with,
 /// and the flag that ends the solve early (a cancelled job).
@@ -194,13 +194,13 @@ fn model_check(
 }
 
 /// The note when the scene grid is finer than the noise supports: the
-/// least-squares RMS error `sigma sqrt(mean 1/s_i^2)` over the `PLAN_TOLERANCE`
-/// (the `polnlos plan` rule).
+/// least-squares RMS error `sigma sqrt(mean 1/s_i^2)` over the `RESOLUTION_TOLERANCE`
+/// (the `polnlos grid` rule).
 fn grid_note(t: &Transport, cond: &Conditioning, noise: &NoiseLevel) -> Option<String> {
     let amp = cond.noise_amplification(noise.mean_variance().sqrt());
-    (amp > PLAN_TOLERANCE).then(|| {
+    (amp > RESOLUTION_TOLERANCE).then(|| {
         format!(
-            "the {}x{} scene grid is finer than this measurement supports: its noise alone gives a least-squares RMS error of {amp:.2e} of the radiance range (> {PLAN_TOLERANCE}); `polnlos plan` suggests a coarser grid, or take more frames",
+            "the {}x{} scene grid is finer than this measurement supports: its noise alone gives a least-squares RMS error of {amp:.2e} of the radiance range (> {RESOLUTION_TOLERANCE}); `polnlos grid` suggests a coarser grid, or take more frames",
             t.scene_grid().nu, t.scene_grid().nv
         )
     })

@@ -95,7 +95,7 @@ impl Conditioning {
 
     /// The per-element RMS error of the least-squares solution under white
     /// noise of standard deviation `sigma`: `sigma sqrt(mean_i 1/s_i^2)`
-    /// (infinite when rank-deficient). The `polnlos plan` criterion.
+    /// (infinite when rank-deficient). The `polnlos grid` criterion.
     pub fn noise_amplification(&self, sigma: f64) -> f64 {
         if self.is_rank_deficient() {
             return f64::INFINITY;

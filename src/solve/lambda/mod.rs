@@ -221,7 +221,7 @@ const RANGE_REL: (f64, f64) = (1e-7, 1e1);
 const STEPS: usize = 14;
 
 /// Per-component error, in units of the radiance range, below which a scene
-/// component counts as resolved: the tolerance of [`crate::solve::plan`].
+/// component counts as resolved: the tolerance of [`crate::solve::resolution`].
 pub(crate) const RESOLVED_TOLERANCE: f64 = 0.1;
 
 /// ADMM-TV with lambda from the noise, the *resolved discrepancy* rule.
@@ -234,7 +234,7 @@ pub(crate) const RESOLVED_TOLERANCE: f64 = 0.1;
 /// regularizer cost as much misfit as the noise carries in the components of
 /// the scene that the measurement resolves: target `F + p mean(sigma^2)` with
 /// `p` the number of singular values of `T` above `mean(sigma) / 0.1` (the
-/// same 0.1-of-range criterion as `polnlos plan`), and picks the largest
+/// same 0.1-of-range criterion as `polnlos grid`), and picks the largest
 /// lambda that meets it. `F` is the smallest misfit of a half-decade scan.
 pub fn admm_tv_resolved(
     t: &Transport,

@@ -20,7 +20,7 @@ use crate::transport::{build, MemoryBudget, TransportError};
 
 /// One candidate grid.
 #[derive(Debug, Clone, Serialize)]
-pub struct PlanRow {
+pub struct GridCandidate {
     /// Scene grid side.
     pub grid: usize,
     /// Rows x columns of `T`.
@@ -38,11 +38,11 @@ pub struct PlanRow {
     pub supported: bool,
 }
 
-/// The plan for a scene.
+/// The grid advice for a scene: every candidate and the finest resolved.
 #[derive(Debug, Clone, Serialize)]
-pub struct Plan {
+pub struct GridAdvice {
     /// Candidates, coarse to fine.
-    pub rows: Vec<PlanRow>,
+    pub rows: Vec<GridCandidate>,
     /// Finest supported grid side, if any.
     pub recommended: Option<usize>,
     /// RMS noise of one measurement at mid-grey, units of `T l`.
@@ -51,9 +51,9 @@ pub struct Plan {
     pub tolerance: f64,
 }
 
-/// Why a plan could not be made.
+/// Why the grids could not be judged.
 #[derive(Debug, thiserror::Error)]
-pub enum PlanError {
+pub enum ResolutionError {
     /// Building `T`.
     #[error(transparent)]
     Transport(#[from] TransportError),
@@ -72,13 +72,13 @@ pub enum PlanError {
 }
 
 /// Plans the scene grid for `scene` under the camera `noise`, each candidate `T` built within `budget`.
-pub fn plan(
+pub fn finest_grid(
     scene: &Scene,
     noise: &NoiseModel,
     grids: &[usize],
     tolerance: f64,
     budget: MemoryBudget,
-) -> Result<Plan, PlanError> {
+) -> Result<GridAdvice, ResolutionError> {
     noise.validate()?;
     let mut rows = Vec::new();
     let mut sigma = 0.0;
@@ -106,7 +106,7 @@ pub fn plan(
         }
         sigma = level.mean_variance().sqrt();
         let amp = c.noise_amplification(sigma);
-        rows.push(PlanRow {
+        rows.push(GridCandidate {
             grid: g,
             shape: (t.rows(), t.cols()),
             kappa: c.kappa,
@@ -116,7 +116,7 @@ pub fn plan(
         });
     }
     let recommended = rows.iter().filter(|r| r.supported).map(|r| r.grid).max();
-    Ok(Plan {
+    Ok(GridAdvice {
         rows,
         recommended,
         sigma,
@@ -138,8 +138,8 @@ mod tests {
             bits: 16,
             seed: 1,
         };
-        let dim = plan(&s, &shot(1e3), &grids, 0.1, MemoryBudget::DEFAULT).unwrap();
-        let bright = plan(&s, &shot(1e5), &grids, 0.1, MemoryBudget::DEFAULT).unwrap();
+        let dim = finest_grid(&s, &shot(1e3), &grids, 0.1, MemoryBudget::DEFAULT).unwrap();
+        let bright = finest_grid(&s, &shot(1e5), &grids, 0.1, MemoryBudget::DEFAULT).unwrap();
         // Amplification grows with the grid, and shrinks as sqrt(photons).
         for w in dim.rows.windows(2) {
             assert!(

@@ -1,9 +1,9 @@
-//! `polnlos plan`: which scene grid the measurement supports.
+//! `polnlos grid`: which scene grid the measurement supports.
 
 use std::path::PathBuf;
 
 use polnlos::simulate::NoiseModel;
-use polnlos::solve::plan::plan;
+use polnlos::solve::resolution::finest_grid;
 use polnlos::transport::MemoryBudget;
 
 /// Recommend the finest scene grid the measurement supports.
@@ -11,7 +11,7 @@ use polnlos::transport::MemoryBudget;
 #[command(
     after_help = "For each candidate grid: kappa(T) and the pseudo-inverse's expected per-element RMS error \
 (noise amplification, in units of the [0, 1] radiance range) under the camera model; the finest grid below \
---tolerance is recommended. Example:\n  polnlos plan config/scenes/occluder-crossed.toml --photons 20000"
+--tolerance is recommended. Example:\n  polnlos grid config/scenes/occluder-crossed.toml --photons 20000"
 )]
 pub struct Args {
     /// Scene file (TOML); its own scene grid is ignored.
@@ -54,7 +54,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         bits: a.bits,
         seed: 0,
     };
-    let p = plan(&scene, &noise, &grids, a.tolerance, budget)?;
+    let p = finest_grid(&scene, &noise, &grids, a.tolerance, budget)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&p)?);
         return Ok(());

@@ -1,7 +1,7 @@
 //! What a bench run measures (sizes, sweeps, seeds) and the list of reports
 //! it runs: the one file that names every report. A new report is a file
 //! beside this one implementing [`Report`] and one entry in
-//! [`BenchPlan::run`].
+//! [`BenchSelection::run`].
 
 use super::shape::Report;
 use super::speed;
@@ -10,8 +10,8 @@ use crate::transport::MemoryBudget;
 
 /// What a bench run measures: sizes, sweeps and seeds.
 #[derive(Debug, Clone, serde::Serialize)]
-pub struct BenchPlan {
-    /// Whether this is the quick plan.
+pub struct BenchSelection {
+    /// Whether this is the quick selection.
     pub quick: bool,
     /// Scene grids of the conditioning table (the last one also for the roughness sweep).
     pub grids: Vec<usize>,
@@ -49,7 +49,7 @@ pub struct BenchPlan {
     pub mosaic: bool,
 }
 
-impl BenchPlan {
+impl BenchSelection {
     /// About 2 s on 2 cores: 3x3 grids, the S speed size, one seed.
     pub fn quick() -> Self {
         Self {
@@ -104,7 +104,7 @@ impl BenchPlan {
         }
     }
 
-    /// The speed sizes of this plan.
+    /// The speed sizes of this selection.
     fn sizes(&self) -> Vec<speed::Size> {
         speed::SIZES
             .iter()
@@ -113,7 +113,7 @@ impl BenchPlan {
             .collect()
     }
 
-    /// Steps [`BenchPlan::run`] reports to its progress callback.
+    /// Steps [`BenchSelection::run`] reports to its progress callback.
     pub fn steps(&self) -> usize {
         super::conditioning_len(&self.grids)
             + super::roughness_len()
