@@ -868,6 +868,11 @@ function liveText(v) {
   if (v.median_latency_ms) parts.push(`median latency ${v.median_latency_ms.toFixed(0)} ms`);
   if (v.last && v.last.psnr_db != null) parts.push(`PSNR ${v.last.psnr_db.toFixed(2)} dB`);
   if (v.last) parts.push(`windows of ${v.last.frames} frames`);
+  if (v.difference_background_s) {
+    const c = v.centroid;
+    const mm = (m) => (1e3 * m).toFixed(1);
+    parts.push(c ? `moving object at (${mm(c.u_m)}, ${mm(c.v_m)}) ± (${mm(c.sigma_u_m)}, ${mm(c.sigma_v_m)}) mm` : "nothing moving");
+  }
   return parts.join(", ");
 }
 
@@ -879,6 +884,7 @@ async function pollLive() {
   $("#live-result").hidden = !on && liveResults < 0;
   $("#stop-live").hidden = !on;
   text($("#live-status"), liveText(v));
+  $("#live-track").hidden = !v.difference_background_s;
   if (v.results > 0 && v.results !== liveResults) {
     liveResults = v.results;
     await showImage($("#live-image"), "/live/image.png");
@@ -894,6 +900,7 @@ $("#start-live").addEventListener("click", async () => {
   delete body.kind;
   const truth = new FormData($("#capture-form")).get("truth");
   body.progressive = truth ? { truth } : {};
+  if (new FormData($("#capture-form")).get("difference")) body.difference = {};
   const r = await api("POST", "/live", body);
   if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
   noteIn(msg, `live view started: windows of ${r.json.window} frames`);

@@ -245,7 +245,9 @@ class Client:
     def live_start(self, scene: str, pose: str, **fields: Any) -> Dict[str, Any]:
         """Starts the live view (`POST /live`): the capture request repeated,
         `frames` the rolling window (1 to 64), `progressive` its solver
-        settings (`truth`, `lambda`, `captures`). Returns its state."""
+        settings (`truth`, `lambda`, `captures`), `difference` (e.g.
+        `{"background_s": 10}`) to see what moves and track it. Returns its
+        state."""
         return self._json("POST", "/live", {"scene": scene, "pose": pose, **fields})
 
     def live(self) -> Dict[str, Any]:
@@ -256,6 +258,22 @@ class Client:
     def live_image(self) -> bytes:
         """The newest live image, a 16-bit PNG on the scene grid."""
         return self._bytes("/live/image.png")
+
+    def live_track(self) -> List[Dict[str, Optional[float]]]:
+        """The difference mode's track (`GET /live/track.csv`), one dict per
+        result: `time_s` (Unix seconds), `u_m`, `v_m` (the moving object's
+        centroid on the hidden-scene plane, metres) and `sigma_u_m`,
+        `sigma_v_m` (its standard deviations); the centroid's are None when
+        nothing moved."""
+        lines = self._bytes("/live/track.csv").decode().splitlines()
+        if not lines:
+            return []
+        names = lines[0].split(",")
+        return [
+            {n: (float(v) if v else None) for n, v in zip(names, line.split(","))}
+            for line in lines[1:]
+            if line
+        ]
 
     def live_stop(self) -> Dict[str, Any]:
         """Stops the live view; its last state, as `off`."""

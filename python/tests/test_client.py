@@ -129,6 +129,23 @@ def test_the_live_view_gives_results_and_stops(client):
     stopped = client.live_stop()
     assert stopped["state"] == "off" and stopped["results"] >= 3, stopped
     assert client.live()["state"] == "off"
+    # Without difference mode nothing is tracked; with it every result has
+    # a row (this bench's scene stands still: its centroid may be None).
+    assert client.live_track() == []
+    client.live_start("brewster-crossed", "A", polarizer_deg=0, exposure_us=20000,
+                      frames=4, dark_frames=2, difference={"background_s": 2})
+    end = time.monotonic() + 30
+    while client.live()["results"] < 3:
+        assert time.monotonic() < end, client.live()
+        time.sleep(0.1)
+    state = client.live()
+    assert state["difference_background_s"] == 2, state
+    track = client.live_track()
+    assert len(track) >= 3, track
+    assert set(track[0]) == {"time_s", "u_m", "v_m", "sigma_u_m", "sigma_v_m"}, track
+    assert all(abs(row["time_s"] - time.time()) < 60 for row in track), track
+    client.live_stop()
+    assert len(client.live_track()) >= 3, "the track is kept after the session stops"
 
 
 

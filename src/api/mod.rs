@@ -154,6 +154,7 @@ fn all_routes(import_limit: usize) -> OpenApiRouter<Arc<Daemon>> {
             routes::delete_live
         ))
         .routes(routes!(routes::live_image))
+        .routes(routes!(routes::live_track))
         .routes(routes!(routes::post_plan, routes::list_plans))
         .routes(routes!(routes::get_plan, routes::cancel_plan))
         .routes(routes!(routes::continue_plan))

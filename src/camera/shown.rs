@@ -2,6 +2,12 @@
 //! (pose, polarizer angle) block, which block the bench has selected, and
 //! whether the scene is lit. Both demo cameras expose frames from it: Aravis's
 //! fake camera ([`super::fake`]) and the in-process one ([`super::synthetic`]).
+//!
+//! A bench with a moving object also holds the object's wall images at
+//! points equally spaced in time round its closed path; a frame exposed at
+//! Unix time `t` adds the blend of the two points `t` falls between (the
+//! wall image is linear in the scene, so the blend is the image of the
+//! blended scene, whose centroid is the blend of the two centroids).
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -34,6 +40,13 @@ pub struct BenchImages {
     pub target: Vec<(String, Option<f64>, Frame)>,
     /// The wall lit by a point source (for wall calibration).
     pub source: Vec<(String, Option<f64>, Frame)>,
+    /// The wall lit by a moving object (added to `scene`), per point of its
+    /// closed path: point `k` of `n` is where it is at phase `k / n` of a
+    /// turn (empty: nothing moves).
+    pub path: Vec<Vec<(String, Option<f64>, Frame)>>,
+    /// Seconds the moving object takes round its path; at Unix time `t` it
+    /// is at phase `(t / period_s) mod 1`.
+    pub period_s: f64,
 }
 
 /// One kind of image (the lit wall, the target, the point source) per block.
@@ -139,6 +152,33 @@ struct Selected {
     scene: Option<Arc<Frame>>,
     target: Option<Arc<Frame>>,
     source: Option<Arc<Frame>>,
+    /// The moving object's image at each point of its path (empty when
+    /// nothing moves, or the block has no image of it).
+    path: Vec<Arc<Frame>>,
+}
+
+/// A moving object's wall images round its closed path, and its period.
+struct Path {
+    /// Per point of the path, equally spaced in time.
+    points: Vec<Images>,
+    /// Seconds a turn.
+    period_s: f64,
+}
+
+impl Path {
+    /// The two path images a moment at Unix time `unix_s` falls between and
+    /// the second's weight; `None` when nothing moves.
+    /// Why: the moment's image is their blend, exact at every point.
+    fn at(images: &[Arc<Frame>], period_s: f64, unix_s: f64) -> Option<(&Frame, &Frame, f32)> {
+        let n = images.len();
+        if n == 0 || period_s.is_nan() || period_s <= 0.0 {
+            return None;
+        }
+        let phase = (unix_s / period_s).rem_euclid(1.0) * n as f64;
+        let k = (phase.floor() as usize).min(n - 1);
+        let w = (phase - k as f64).clamp(0.0, 1.0) as f32;
+        Some((&images[k], &images[(k + 1) % n], w))
+    }
 }
 
 /// Wall images per block and the bench's state.
@@ -149,6 +189,8 @@ pub struct Shown {
     targets: Images,
     /// The point source's image per block.
     sources: Images,
+    /// The moving object's images round its path (none when nothing moves).
+    path: Path,
     source_on: AtomicBool,
     selected: Mutex<Selected>,
     scene_on: AtomicBool,
@@ -190,6 +232,10 @@ impl Shown {
             frames: Images::new(images.scene),
             targets: Images::new(images.target),
             sources: Images::new(images.source),
+            path: Path {
+                points: images.path.into_iter().map(Images::new).collect(),
+                period_s: images.period_s,
+            },
             source_on: AtomicBool::new(false),
             selected: Mutex::new(Selected::default()),
             scene_on: AtomicBool::new(true),
@@ -245,17 +291,22 @@ impl Shown {
     /// Moves the bench to `pose` with the polarizer at `polarizer_deg`
     /// (any angle: see [`Images::at`]).
     pub fn select(&self, pose: &str, polarizer_deg: Option<f64>) {
-        let chosen = match (self.mosaic, polarizer_deg) {
-            (Some(layout), None) => Selected {
-                scene: self.frames.mosaic(pose, layout),
-                target: self.targets.mosaic(pose, layout),
-                source: self.sources.mosaic(pose, layout),
-            },
-            _ => Selected {
-                scene: self.frames.at(pose, polarizer_deg),
-                target: self.targets.at(pose, polarizer_deg),
-                source: self.sources.at(pose, polarizer_deg),
-            },
+        let pick = |images: &Images| match (self.mosaic, polarizer_deg) {
+            (Some(layout), None) => images.mosaic(pose, layout),
+            _ => images.at(pose, polarizer_deg),
+        };
+        let chosen = Selected {
+            scene: pick(&self.frames),
+            target: pick(&self.targets),
+            source: pick(&self.sources),
+            // Every point of the path, or none.
+            path: self
+                .path
+                .points
+                .iter()
+                .map(pick)
+                .collect::<Option<Vec<_>>>()
+                .unwrap_or_default(),
         };
         if let Ok(mut s) = self.selected.lock() {
             *s = chosen;
@@ -281,28 +332,50 @@ impl Shown {
     /// pixel's index (row-major in the region) and value in DN, rounded and
     /// clamped to `[0, full]`, with +-0.5 DN of dither so that averaging
     /// frames means something. Signal and dark level scale with the exposure
-    /// and with `1 + 0.1 gain`.
+    /// and with `1 + 0.1 gain`. A moving object is where the clock says.
     pub fn expose(
         &self,
-        (w, h, ox, oy): (usize, usize, usize, usize),
+        region: (usize, usize, usize, usize),
         full: f64,
         exposure_us: f64,
         gain: f64,
+        put: impl FnMut(usize, f64),
+    ) {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
+        self.expose_at(now, region, full, exposure_us * (1.0 + 0.1 * gain), put);
+    }
+
+    /// [`Shown::expose`] at Unix time `unix_s`, `exposure_us` already scaled by the gain.
+    /// Why: a test sets the moment a moving object is exposed at.
+    fn expose_at(
+        &self,
+        unix_s: f64,
+        (w, h, ox, oy): (usize, usize, usize, usize),
+        full: f64,
+        exposure_us: f64,
         mut put: impl FnMut(usize, f64),
     ) {
-        let scale = exposure_us / self.reference_exposure_us * (1.0 + 0.1 * gain);
-        let frame = self.selected.lock().ok().and_then(|s| {
-            if self.target_on.load(Ordering::SeqCst) {
-                s.target.clone()
-            } else if self.source_on.load(Ordering::SeqCst) {
-                s.source.clone()
-            } else if self.scene_on.load(Ordering::SeqCst) {
-                s.scene.clone()
-            } else {
-                None
-            }
-        });
+        let scale = exposure_us / self.reference_exposure_us;
+        let (frame, path) = self
+            .selected
+            .lock()
+            .ok()
+            .map(|s| {
+                if self.target_on.load(Ordering::SeqCst) {
+                    (s.target.clone(), Vec::new())
+                } else if self.source_on.load(Ordering::SeqCst) {
+                    (s.source.clone(), Vec::new())
+                } else if self.scene_on.load(Ordering::SeqCst) {
+                    (s.scene.clone(), s.path.clone())
+                } else {
+                    (None, Vec::new())
+                }
+            })
+            .unwrap_or_default();
         let frame = frame.as_deref();
+        let moving = Path::at(&path, self.path.period_s, unix_s);
         // Electrons per DN and the read noise in DN², when the sensor is noisy.
         let noise = self.noise.get().map(|n| {
             (
@@ -320,6 +393,7 @@ impl Shown {
         // Each colour's response along a row (the filter repeats every two
         // columns), and one row of values at a time.
         let mut row = vec![0.0; w];
+        let mut blend: Vec<f32> = Vec::new();
         let pixel = Pixel {
             dark: self.dark_level,
             scale: scale * full,
@@ -333,21 +407,38 @@ impl Shown {
                 })
             };
             let parity = [response(0), response(1)];
-            // The block's pixels this row sees (none past its edge).
-            let signal = frame
-                .and_then(|f| {
-                    let fy = y.checked_add(oy).filter(|&fy| fy < f.height)?;
-                    let start = (fy * f.width).checked_add(ox)?;
-                    let end = (fy * f.width + f.width).min(f.pixels.len());
-                    f.pixels.get(start.min(end)..end)
-                })
-                .unwrap_or(&[]);
+            // The block's pixels this row sees (none past its edge), with
+            // the moving object's where it is now.
+            let fy = oy.saturating_add(y);
+            let fixed = frame.map_or(&[][..], |f| row_of(f, fy, ox));
+            let signal = match moving {
+                None => fixed,
+                Some((a, b, wb)) => {
+                    let (a, b) = (row_of(a, fy, ox), row_of(b, fy, ox));
+                    let at = |r: &[f32], x: usize| r.get(x).copied().unwrap_or(0.0);
+                    blend.clear();
+                    blend.extend(
+                        (0..w).map(|x| at(fixed, x) + (1.0 - wb) * at(a, x) + wb * at(b, x)),
+                    );
+                    &blend[..]
+                }
+            };
             expose_row(&mut row, signal, parity, &pixel, &mut rng);
             for (x, &v) in row.iter().enumerate() {
                 put(y * w + x, v);
             }
         }
     }
+}
+
+/// The pixels of row `fy` of `f` from column `ox` on (empty past its edges).
+fn row_of(f: &Frame, fy: usize, ox: usize) -> &[f32] {
+    if fy >= f.height {
+        return &[];
+    }
+    let end = (fy * f.width + f.width).min(f.pixels.len());
+    let start = (fy * f.width).saturating_add(ox).min(end);
+    &f.pixels[start..end]
 }
 
 /// Xorshift64: a fake sensor's noise, cheap and fixed by its seed.
@@ -469,6 +560,51 @@ mod tests {
         // A region at an odd offset starts on another micro-polarizer.
         s.expose((2, 1, 1, 1), 1000.0, 1000.0, 0.0, |i, v| got[i] = v);
         assert!((got[0] - want(0.0)).abs() <= 0.6 && (got[1] - want(135.0)).abs() <= 0.6);
+    }
+
+    #[test]
+    fn a_moving_object_is_the_blend_of_the_two_path_points_the_clock_falls_between() {
+        // Four points round a 4 s path: point k lights pixel k of a 4 x 1
+        // wall image; the static scene lights every pixel at 0.1.
+        let frame = |f: &dyn Fn(usize) -> f32| Frame {
+            width: 4,
+            height: 1,
+            pixels: (0..4).map(f).collect(),
+        };
+        let images = BenchImages {
+            scene: vec![("A".into(), Some(0.0), frame(&|_| 0.1))],
+            path: (0..4)
+                .map(|k| {
+                    let lit = move |x: usize| if x == k { 0.4 } else { 0.0 };
+                    vec![("A".to_string(), Some(0.0), frame(&lit))]
+                })
+                .collect(),
+            period_s: 4.0,
+            ..BenchImages::default()
+        };
+        let s = Shown::new(images, 1000.0);
+        let at = |t: f64| {
+            let mut got = [0.0; 4];
+            s.expose_at(t, (4, 1, 0, 0), 1000.0, 1000.0, |i, v| got[i] = v);
+            got
+        };
+        // DN = 1000 (dark 0.01 + scene 0.1 + the blend), +-0.5 of dither.
+        let want = |blend: [f64; 4]| blend.map(|b| 1000.0 * (0.11 + b));
+        let close = |got: [f64; 4], want: [f64; 4]| {
+            got.iter().zip(&want).all(|(g, w)| (g - w).abs() <= 0.6)
+        };
+        let t0 = 1_700_000_000.0;
+        assert!(close(at(t0), want([0.4, 0.0, 0.0, 0.0])), "{:?}", at(t0));
+        assert!(close(at(t0 + 1.5), want([0.0, 0.2, 0.2, 0.0])));
+        assert!(close(at(t0 + 3.75), want([0.3, 0.0, 0.0, 0.1])));
+        assert!(close(at(t0 + 4.25), want([0.3, 0.1, 0.0, 0.0])));
+        // Switched off, or behind the target: no moving object either.
+        s.scene_on(false);
+        assert!(close(at(t0), [10.0; 4]));
+        s.scene_on(true);
+        // A block the path has no image of shows the static scene alone.
+        s.select("B", Some(0.0));
+        assert!(close(at(t0), [10.0; 4]));
     }
 
     fn bench() -> Shown {

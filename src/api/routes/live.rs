@@ -7,7 +7,9 @@ use crate::daemon::runtime::live::LiveView;
 /// is the rolling window, 1 to 64; `progressive` sets λ, the truth and the
 /// other blocks' captures) and each new window is reconstructed, while no
 /// capture is queued; a running session is replaced. Results stream on
-/// `/events` (`live`) and as `/live/image.png`.
+/// `/events` (`live`) and as `/live/image.png`. With `difference` each
+/// window is reconstructed against a running background (what moves) and
+/// the moving object is tracked (`/live/track.csv`).
 #[utoipa::path(post, path = "/live", request_body = CaptureBody, responses((status = 202, body = LiveView, description = "Started; GET /live follows it"), (status = 404, body = ErrorBody, description = "Unknown scene, pose or dark capture"), (status = 422, body = ErrorBody, description = "A request the camera, the scene or the window cannot serve")))]
 pub async fn post_live(
     State(d): St,
@@ -51,4 +53,19 @@ pub async fn live_image(State(d): St) -> Result<Response, ApiError> {
     }
     .map_err(|e| ApiError::internal(format!("live image: {e}")))?;
     Ok(([(header::CONTENT_TYPE, "image/png")], Body::from(png)).into_response())
+}
+
+/// The track of the newest live session in difference mode, CSV: one row
+/// per result (the newest 10,000), `time_s` (the window's mean frame
+/// arrival, Unix seconds), `u_m`, `v_m` (the moving object's centroid on the
+/// hidden-scene plane, metres) and `sigma_u_m`, `sigma_v_m` (its standard
+/// deviations); the centroid's fields are empty when nothing moved. Kept
+/// after `DELETE /live` until the next `POST /live`.
+#[utoipa::path(get, path = "/live/track.csv", responses((status = 200, content_type = "text/csv", body = String, description = "The track, a header and one row per result")))]
+pub async fn live_track(State(d): St) -> Response {
+    (
+        [(header::CONTENT_TYPE, "text/csv; charset=utf-8")],
+        d.live().track_csv(),
+    )
+        .into_response()
 }

@@ -10,7 +10,14 @@
 //! `paused` meanwhile). Frames that arrive while a solve runs only join the
 //! window, so live view never falls behind the camera, and its memory is the
 //! window's frames and a few images however long it runs.
+//!
+//! In difference mode ([`super::progressive`]'s `Background`) each image is
+//! the scene's change against a running background, and the tracker
+//! ([`super::track`]) places the moving object in it; each result's window
+//! time and centroid go on `/events`, in `GET /live` and in the track
+//! (`GET /live/track.csv`).
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender};
 use std::sync::Arc;
@@ -127,7 +134,10 @@ async fn run(
     let busy = Arc::new(AtomicBool::new(false));
     let solving = {
         let (live, busy, events) = (live.clone(), busy.clone(), w.jobs.events.clone());
-        tokio::task::spawn_blocking(move || solve(solver, snap_rx, &busy, &live, session, &events))
+        let differences = spec.difference.is_some();
+        tokio::task::spawn_blocking(move || {
+            solve(solver, differences, snap_rx, &busy, &live, session, &events)
+        })
     };
     let mut ended = Ok(());
     while !stop.load(Ordering::SeqCst) {
@@ -220,6 +230,8 @@ fn read(
     solver: &SyncSender<(Snapshot, Instant)>,
 ) -> Result<(), JobError> {
     let mut window: Option<Window> = None;
+    // The window's frames' arrival times, Unix seconds.
+    let mut times: VecDeque<f64> = VecDeque::with_capacity(n);
     while !stop.load(Ordering::SeqCst) {
         let f = match frames.recv_timeout(POLL) {
             Ok(f) => f,
@@ -229,10 +241,17 @@ fn read(
         let arrived = Instant::now();
         let win = match window.as_mut() {
             Some(w) if w.size() == (f.width, f.height) => w,
-            _ => window.insert(
-                Window::new(n, f.width, f.height).map_err(|e| JobError::Live(e.to_string()))?,
-            ),
+            _ => {
+                times.clear();
+                window.insert(
+                    Window::new(n, f.width, f.height).map_err(|e| JobError::Live(e.to_string()))?,
+                )
+            }
         };
+        if times.len() == n {
+            times.pop_front();
+        }
+        times.push_back(unix_seconds(f.system_timestamp_ns));
         win.push(f.width, f.height, &f.pixels)
             .map_err(|e| JobError::Live(e.to_string()))?;
         // Solve once the window is full, whenever the solver is free.
@@ -244,7 +263,8 @@ fn read(
                 win.variance_of_mean(),
                 f.width,
                 f.height,
-            );
+            )
+            .at(times.iter().sum::<f64>() / times.len().max(1) as f64);
             if solver.send((snapshot, arrived)).is_err() {
                 break;
             }
@@ -254,26 +274,54 @@ fn read(
     Ok(())
 }
 
-/// Solves each window it is handed and publishes the result.
+/// A frame's arrival time in Unix seconds (now, for a frame that has none).
+fn unix_seconds(ns: u64) -> f64 {
+    match ns {
+        0 => std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64()),
+        ns => ns as f64 * 1e-9,
+    }
+}
+
+/// Solves each window it is handed and publishes the result, with the
+/// moving object's centroid in difference mode.
 fn solve(
     mut solver: Progressive,
+    differences: bool,
     snapshots: Receiver<(Snapshot, Instant)>,
     busy: &AtomicBool,
     live: &Live,
     session: u64,
     events: &crate::daemon::runtime::events::Events,
 ) {
-    let grid = solver.grid();
+    let (grid, colours) = (solver.grid(), solver.colours());
+    let tracking = differences.then(|| solver.scene_plane().clone());
     for (snapshot, arrived) in snapshots {
         let result = solver.step(&snapshot);
         solver.forget_steps();
         match result {
             Ok((step, image)) => {
+                let track = tracking.as_ref().map(|plane| {
+                    let time = snapshot.time_s().unwrap_or(f64::NAN);
+                    (
+                        time,
+                        super::track::centroid(&image, colours, plane, solver.moved()),
+                    )
+                });
                 let latency = arrived.elapsed().as_secs_f64();
-                live.result(session, step.clone(), (grid.nu, grid.nv, image), latency);
+                live.result(
+                    session,
+                    step.clone(),
+                    (grid.nu, grid.nv, image),
+                    latency,
+                    track,
+                );
                 events.emit(Event::Live {
                     session,
                     latency_ms: latency * 1e3,
+                    time_s: track.map(|(t, _)| t),
+                    centroid: track.and_then(|(_, c)| c),
                     step,
                 });
             }

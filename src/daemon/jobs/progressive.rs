@@ -61,6 +61,9 @@ pub(in crate::daemon) struct Snapshot {
     width: usize,
     /// Rows.
     height: usize,
+    /// When its frames were taken: their mean arrival time, Unix seconds
+    /// (a live window's; a capture's snapshots have none).
+    time_s: Option<f64>,
 }
 
 impl Snapshot {
@@ -79,7 +82,19 @@ impl Snapshot {
             variance,
             width,
             height,
+            time_s: None,
         }
+    }
+
+    /// The same snapshot, its frames taken at `time_s` (Unix seconds).
+    pub(in crate::daemon) fn at(mut self, time_s: f64) -> Self {
+        self.time_s = Some(time_s);
+        self
+    }
+
+    /// When its frames were taken, Unix seconds (a live window's).
+    pub(in crate::daemon) fn time_s(&self) -> Option<f64> {
+        self.time_s
     }
 
     fn of(st: &FrameStack) -> Self {
@@ -89,6 +104,7 @@ impl Snapshot {
             variance: st.variance_of_mean(),
             width: st.width,
             height: st.height,
+            time_s: None,
         }
     }
 }
@@ -152,7 +168,71 @@ pub(in crate::daemon) struct Progressive {
     maps: Arc<PixelMaps>,
     /// The scenes, for the model a step's noise asks for.
     scenes: Arc<Scenes>,
+    /// Live view's difference mode: how the running background is kept.
+    difference: Option<Background>,
 }
+
+/// How far below zero difference mode's images may go, in MODEL.md
+/// radiance units (`Channel::solve`): a change of radiances in `[0, 1]`.
+const DIFFERENCE_OFFSET: f64 = 1.0;
+
+/// Live view's difference mode: each window's measurement of this
+/// capture's blocks less a running background of the windows before it
+/// (kept per colour in [`Channel::background`]) is solved, so the image is
+/// the scene's change (`T` is linear).
+///
+/// The background is the plain mean of the windows so far until they span
+/// about `tau_s` (weight `1 / n` for the `n`-th window), then an exponential
+/// running mean with time constant `tau_s` (weight `1 - exp(-dt / tau_s)`,
+/// `dt` the time since the window before): whichever weight is larger.
+/// Why: the plain mean settles at once, an exponential one started from
+/// the first window would keep that window's object for `tau_s`; the
+/// exponential one then forgets a scene that changed for good.
+struct Background {
+    /// Time constant, seconds.
+    tau_s: f64,
+    /// Windows taken into it.
+    windows: u64,
+    /// The newest window's time, Unix seconds.
+    last_s: Option<f64>,
+    /// The background's noise variance over a window's (windows taken as
+    /// independent: an upper bound when they share frames).
+    carried: f64,
+    /// Whether the newest difference stood out of its noise (`None`: no
+    /// variance to tell by, or the first window).
+    moved: Option<bool>,
+}
+
+impl Background {
+    /// The weight the window taken at `time_s` has in the background, and
+    /// the variance of its difference from the background over the
+    /// window's own (`1 +` the background's share).
+    fn weigh(&mut self, time_s: Option<f64>) -> (f64, f64) {
+        let dt = match (self.last_s, time_s) {
+            (Some(a), Some(b)) => (b - a).max(0.0),
+            _ => 0.0,
+        };
+        self.windows += 1;
+        self.last_s = time_s.or(self.last_s);
+        let w = (1.0 / self.windows as f64).max(-(-dt / self.tau_s).exp_m1());
+        let spread = 1.0 + self.carried;
+        self.carried = (1.0 - w).powi(2) * self.carried + w * w;
+        (w, spread)
+    }
+
+    /// Records the difference's chi-square `chi2` over `rows` rows: a
+    /// change when it exceeds its expectation under noise alone (`rows`)
+    /// by [`CHANGE_SIGMAS`] of its standard deviation (`sqrt(2 rows)`).
+    fn judge(&mut self, chi2: Option<(f64, usize)>) {
+        self.moved = chi2.map(|(c, m)| c > m as f64 + CHANGE_SIGMAS * (2.0 * m as f64).sqrt());
+    }
+}
+
+/// How far above noise alone (in standard deviations of its chi-square) a
+/// difference must be to be a change.
+/// Why 3: noise alone passes it at about 0.1 % of windows (the Gaussian
+/// tail; the chi-square of a thousand rows is near Gaussian).
+const CHANGE_SIGMAS: f64 = 3.0;
 
 /// One colour's solve (a grey camera's only one): its measurement, its
 /// model and the solver's state between steps.
@@ -174,13 +254,19 @@ struct Channel {
     state: Warm,
     /// The key of the model `t` is (the scene's name, or a sampling variant's).
     key: String,
-    /// The λ the last search chose and the mean noise variance it chose it
-    /// at: a window whose noise is within [`LAMBDA_KEPT`] of it keeps it.
-    chosen: Option<(f64, f64)>,
+    /// The λ the last search chose, and the mean noise variance and the
+    /// measurement's norm it chose it at: a window whose noise and norm are
+    /// within [`LAMBDA_KEPT`] of them keeps it.
+    chosen: Option<(f64, f64, f64)>,
+    /// Difference mode's running background of this capture's rows (in the
+    /// order of `own`; NaN until a window measured the row).
+    background: Vec<f64>,
 }
 
-/// How far (relative) a step's mean noise variance may move from the one
-/// its λ was searched at before λ is searched again.
+/// How far (relative) a step's mean noise variance, or its measurement's
+/// norm, may move from the one its λ was searched at before λ is searched
+/// again (the norm: a scene that changed, such as a difference image while
+/// its background settles, wants another λ).
 /// Why: a search is about twenty solves; a live view's windows (the same
 /// frames count, the same exposure) all have one noise, and a λ within a
 /// few percent of the search's gives the same image. On a chair-size scene
@@ -273,17 +359,26 @@ impl Progressive {
                 state: Warm::default(),
                 key: capture.scene.clone(),
                 chosen: None,
+                background: Vec::new(),
             });
         }
+        // A difference image is the scene's change, not the pattern.
         let truth = spec
             .truth
             .as_deref()
+            .filter(|_| spec.difference.is_none())
             .and_then(crate::simulate::patterns::Pattern::from_name)
             .map(|p| p.render(t.scene_grid()));
         Ok(Self {
             settings: AdmmSettings {
                 lambda: spec.lambda,
                 max_iter: spec.max_iter,
+                // A change of radiances in [0, 1] is in [-1, 1]: the box
+                // [0, 2] on the image plus 1 (`Channel::solve`).
+                upper: match spec.difference {
+                    Some(_) => 2.0 * DIFFERENCE_OFFSET,
+                    None => 1.0,
+                },
                 ..AdmmSettings::default()
             },
             channels,
@@ -299,11 +394,20 @@ impl Progressive {
             steps: Vec::new(),
             maps,
             scenes: Arc::clone(&d.scenes),
+            difference: spec.difference.map(|tau_s| Background {
+                tau_s,
+                windows: 0,
+                last_s: None,
+                carried: 0.0,
+                moved: None,
+            }),
         })
     }
 
     /// Solves one snapshot; returns the step and the image (a colour
     /// camera's colours interleaved, red, green, blue per element).
+    /// In difference mode the first window only starts the background: its
+    /// image is zero, unsolved.
     pub(in crate::daemon) fn step(&mut self, s: &Snapshot) -> Result<(Step, Vec<f64>), JobError> {
         let start = Instant::now();
         let own = self.own_frames(s);
@@ -312,18 +416,40 @@ impl Progressive {
             .iter()
             .map(|&k| self.channels[0].t.blocks()[k].clone())
             .collect();
+        let weight = self.difference.as_mut().map(|b| b.weigh(s.time_s));
+        let offset = match self.difference {
+            Some(_) => DIFFERENCE_OFFSET,
+            None => 0.0,
+        };
         // A colour camera's colours are independent solves: in parallel.
         let (scene, maps, own_blocks) = (&self.scene, &self.maps, &self.own);
         let (scenes, name, settings) = (&self.scenes, &self.capture.scene, &self.settings);
-        let mut solved = self
+        let noises = self
             .channels
             .par_iter_mut()
             .map(|ch| {
                 let m =
                     assemble_colour(scene, &blocks, std::slice::from_ref(&own), maps, ch.colour)?;
                 let noise = ch.measure(m, own_blocks, settings.lambda);
-                ch.solve(noise, scenes, name, settings)
+                let chi2 = weight.and_then(|(w, spread)| ch.difference(own_blocks, w, spread));
+                Ok((noise, chi2))
             })
+            .collect::<Result<Vec<_>, JobError>>()?;
+        let (noises, chi2): (Vec<_>, Vec<_>) = noises.into_iter().unzip();
+        if let Some(b) = self.difference.as_mut() {
+            let all = chi2
+                .iter()
+                .try_fold((0.0, 0), |(c, m), x| x.map(|(a, n)| (c + a, m + n)));
+            b.judge(all.filter(|_| b.windows > 1));
+            if b.windows == 1 {
+                return Ok(self.unsolved(s.frames, start));
+            }
+        }
+        let mut solved = self
+            .channels
+            .par_iter_mut()
+            .zip(noises)
+            .map(|(ch, noise)| ch.solve(noise, scenes, name, settings, offset))
             .collect::<Result<Vec<_>, JobError>>()?;
         // A colour image is interleaved once, for the step and the caller.
         let colour = (solved.len() > 1).then(|| interleave(&solved));
@@ -331,6 +457,34 @@ impl Progressive {
         let step = self.record(s.frames, start, &solved, image);
         let image = colour.unwrap_or_else(|| solved.swap_remove(0).0.image);
         Ok((step, image))
+    }
+
+    /// The zero image of a window that only started the background, and its step.
+    fn unsolved(&mut self, frames: usize, start: Instant) -> (Step, Vec<f64>) {
+        let image = vec![0.0; self.grid().count() * self.colours()];
+        let step = Step {
+            frames,
+            iterations: 0,
+            converged: true,
+            change: None,
+            psnr_db: None,
+            lambda: None,
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        self.previous = Some(image.clone());
+        self.steps.push(step.clone());
+        (step, image)
+    }
+
+    /// Difference mode: whether the newest window's change stood out of its
+    /// noise in the measurement (`None`: no variance to tell by).
+    pub(in crate::daemon) fn moved(&self) -> Option<bool> {
+        self.difference.as_ref().and_then(|b| b.moved)
+    }
+
+    /// The hidden-scene plane its images are on (where the tracker places them).
+    pub(in crate::daemon) fn scene_plane(&self) -> &crate::scene::Plane {
+        &self.scene.hidden().plane
     }
 
     /// The scene grid its images are on.
@@ -465,16 +619,52 @@ impl Channel {
         for (k, &b) in own.iter().enumerate() {
             self.i[self.t.block_rows(b)].copy_from_slice(&m.i[k * n..(k + 1) * n]);
         }
-        // The running variance of these blocks, beside the other blocks'.
-        match (lambda, m.variance, self.variance.as_mut()) {
-            (None, Some(v), Some(all)) => {
-                for (k, &b) in own.iter().enumerate() {
-                    all[self.t.block_rows(b)].copy_from_slice(&v[k * n..(k + 1) * n]);
-                }
-                Some(NoiseLevel::measured(all.clone()))
-            }
-            _ => None,
+        // The running variance of these blocks, beside the other blocks'
+        // (difference mode's test of a change reads it with a fixed λ too).
+        let (Some(v), Some(all)) = (m.variance, self.variance.as_mut()) else {
+            return None;
+        };
+        for (k, &b) in own.iter().enumerate() {
+            all[self.t.block_rows(b)].copy_from_slice(&v[k * n..(k + 1) * n]);
         }
+        lambda.is_none().then(|| NoiseLevel::measured(all.clone()))
+    }
+
+    /// Replaces this capture's rows by their difference from the running
+    /// background, and moves the background towards them by `weight`
+    /// ([`Background`]); a row the background has no value of yet takes
+    /// this window's (its difference zero), an unmeasured (NaN) row stays
+    /// unmeasured and leaves the background as it was. Returns the
+    /// difference's chi-square against its noise (each row's variance
+    /// times `spread`, the background's share added) and the rows in it,
+    /// when the rows have a variance.
+    fn difference(&mut self, own: &[usize], weight: f64, spread: f64) -> Option<(f64, usize)> {
+        let n = self.t.wall_grid().count();
+        if self.background.len() != own.len() * n {
+            self.background = vec![f64::NAN; own.len() * n];
+        }
+        let (mut chi2, mut rows_in) = (0.0, 0usize);
+        for (k, &b) in own.iter().enumerate() {
+            let rows = self.t.block_rows(b);
+            let variance = self.variance.as_ref().map(|v| &v[rows.clone()]);
+            let background = &mut self.background[k * n..(k + 1) * n];
+            for (r, (x, bg)) in self.i[rows].iter_mut().zip(background).enumerate() {
+                if !x.is_finite() {
+                    continue;
+                }
+                if !bg.is_finite() {
+                    *bg = *x;
+                }
+                let d = *x - *bg;
+                *bg += weight * d;
+                *x = d;
+                if let Some(&v) = variance.and_then(|v| v.get(r)).filter(|v| **v > 0.0) {
+                    chi2 += d * d / (v * spread);
+                    rows_in += 1;
+                }
+            }
+        }
+        (rows_in > 0).then_some((chi2, rows_in))
     }
 
     /// Solves from now on with the model cached under `key`: its `T`, Gram
@@ -494,12 +684,19 @@ impl Channel {
     /// [`LAMBDA_KEPT`] of the noise it was searched at), else warm-started;
     /// returns λ.
     /// Why: a step is as good as reconstructing the same frames afterwards.
+    ///
+    /// With an `offset` (difference mode) it solves for the image plus
+    /// `offset` everywhere, from the measurement plus `offset T 1`, and
+    /// takes the offset off again: the same fit and the same TV (a constant
+    /// has none), with the box `[0, upper]` moved to `[-offset, upper -
+    /// offset]`, so a change may be negative.
     fn solve(
         &mut self,
         noise: Option<NoiseLevel>,
         scenes: &Scenes,
         scene: &str,
         settings: &AdmmSettings<'static>,
+        offset: f64,
     ) -> Result<(Reconstruction, Option<f64>), JobError> {
         // The sampling the scene file leaves out, chosen from this step's noise
         // as a reconstruction of the same frames chooses it.
@@ -509,10 +706,39 @@ impl Channel {
                 self.use_model(scenes, key)?;
             }
         }
+        let norm = self
+            .i
+            .iter()
+            .filter(|x| x.is_finite())
+            .map(|x| x * x)
+            .sum::<f64>()
+            .sqrt();
+        let shift = (offset != 0.0).then(|| self.t.apply(&vec![offset; self.t.cols()]));
+        let shifted = |i: &mut [f64], sign: f64| {
+            for (x, s) in i.iter_mut().zip(shift.iter().flatten()) {
+                *x += sign * s;
+            }
+        };
+        shifted(&mut self.i, 1.0);
+        let solved = self.solve_at(noise, norm, settings);
+        shifted(&mut self.i, -1.0);
+        let (mut r, lambda) = solved?;
+        r.image.iter_mut().for_each(|v| *v -= offset);
+        Ok((r, lambda))
+    }
+
+    /// [`Channel::solve`] of the measurement as it is, whose norm is `norm`.
+    fn solve_at(
+        &mut self,
+        noise: Option<NoiseLevel>,
+        norm: f64,
+        settings: &AdmmSettings<'static>,
+    ) -> Result<(Reconstruction, Option<f64>), JobError> {
         self.normal.ti = adjoint(self.t.as_mat(), &self.i);
+        let near = |a: f64, b: f64| (a / b - 1.0).abs() <= LAMBDA_KEPT;
         let kept = match (&noise, self.chosen) {
-            (Some(n), Some((lambda, at))) => {
-                ((n.mean_variance() / at - 1.0).abs() <= LAMBDA_KEPT).then_some(lambda)
+            (Some(n), Some((lambda, at, was))) => {
+                (near(n.mean_variance(), at) && near(norm, was)).then_some(lambda)
             }
             _ => None,
         };
@@ -539,7 +765,7 @@ impl Channel {
                         ..*settings
                     },
                 )?;
-                self.chosen = Some((choice.lambda, noise.mean_variance()));
+                self.chosen = Some((choice.lambda, noise.mean_variance(), norm));
                 (r, Some(choice.lambda))
             }
             (None, _) => {

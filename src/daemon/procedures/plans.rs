@@ -197,6 +197,7 @@ fn capture_body(
         },
         dark_capture,
         progressive: None,
+        difference: None,
     })
 }
 

@@ -148,6 +148,11 @@ impl Admission {
         &self,
         b: &CaptureBody,
     ) -> Result<(CaptureRequest, Option<ProgressiveSpec>), RequestError> {
+        if b.difference.is_some() {
+            return Err(RequestError::Invalid(
+                "difference is live view's (POST /live): leave it out of a capture".into(),
+            ));
+        }
         let scene = self.scenes.scene(&b.scene)?;
         let info = self.camera.status().info;
         let cam = self.camera_context(info.as_ref());
@@ -197,7 +202,22 @@ impl Admission {
                 b.scene
             )));
         }
+        let difference = b
+            .difference
+            .as_ref()
+            .map(validate::difference)
+            .transpose()?;
+        if difference.is_some()
+            && b.progressive
+                .as_ref()
+                .is_some_and(|p| !p.captures.is_empty())
+        {
+            return Err(RequestError::Invalid(
+                "difference mode reconstructs the live block's change alone (the other blocks' captures do not change with it): leave progressive.captures out".into(),
+            ));
+        }
         let mut body = b.clone();
+        body.difference = None;
         body.progressive.get_or_insert(super::ProgressiveBody {
             every: None,
             captures: Vec::new(),
@@ -206,8 +226,9 @@ impl Admission {
             truth: None,
         });
         let (request, spec) = self.check_capture(&body)?;
-        let spec =
+        let mut spec =
             spec.ok_or_else(|| RequestError::Invalid("live view: no solver settings".into()))?;
+        spec.difference = difference;
         Ok((request, spec))
     }
 

@@ -69,6 +69,23 @@ pub struct CaptureBody {
     /// publish each intermediate result (event `progressive`,
     /// `/captures/{id}/progressive.png` and `.json`).
     pub progressive: Option<ProgressiveBody>,
+    /// Live view only (`POST /live`; a capture refuses it): reconstruct each
+    /// window against a running background, so that the image shows what
+    /// moves, and track it (`GET /live/track.csv`).
+    pub difference: Option<DifferenceBody>,
+}
+
+/// Live view's difference mode: each window's measurement less a running
+/// background of the windows before it is reconstructed (`T` is linear, so
+/// the image is the scene's change), and the moving object's centroid is
+/// tracked in it.
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct DifferenceBody {
+    /// The background's time constant, seconds (0.1 to 3600, default 10):
+    /// the mean of the windows so far until they span it, then an
+    /// exponential running mean that forgets with it.
+    pub background_s: Option<f64>,
 }
 
 /// `PUT /camera/settings` body: any subset of the camera settings; what it

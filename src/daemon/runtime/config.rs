@@ -181,10 +181,89 @@ pub struct DemoConfig {
     /// `[camera] full_well_e` and `read_noise_e` (else only ±0.5 DN dither).
     #[serde(default = "yes")]
     pub sensor_noise: bool,
+    /// A disk that moves over the pattern along a known closed path (none
+    /// unless set): live view's difference mode and its tracker are tested
+    /// against it (issue 49).
+    #[serde(default)]
+    pub motion: Option<MotionConfig>,
 }
 
 fn yes() -> bool {
     true
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// A bright disk the fake bench's hidden scene carries round a circle at a
+/// steady speed, on top of the pattern: where it is at any moment is known,
+/// so a tracker's answer can be checked against the truth.
+///
+/// The path's clock is the Unix time: at Unix time `t` seconds the disk's
+/// centre is at `center_m + radius_m (cos 2 pi t / period_s, sin 2 pi t /
+/// period_s)` on the hidden-scene plane (metres along its u and v axes,
+/// MODEL.md "Geometry of a scene file"), so anyone holding a frame's time
+/// computes where it was, with no state shared with the bench.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotionConfig {
+    /// The circle's centre on the hidden-scene plane, metres along (u, v)
+    /// from the plane's centre (default the centre).
+    #[serde(default)]
+    pub center_m: [f64; 2],
+    /// The circle's radius, metres (0: the disk stands still).
+    pub radius_m: f64,
+    /// Seconds per turn (anticlockwise, from +u towards +v).
+    pub period_s: f64,
+    /// The disk's radius, metres.
+    pub disk_radius_m: f64,
+    /// The disk's radiance, in units of the pattern's lit elements (default 1).
+    #[serde(default = "one")]
+    pub level: f64,
+}
+
+impl MotionConfig {
+    /// The disk's centre at Unix time `unix_s`: (u, v) metres on the hidden-scene plane.
+    /// Why: the bench renders it and a test computes the truth from it.
+    pub fn position(&self, unix_s: f64) -> [f64; 2] {
+        let angle = std::f64::consts::TAU * (unix_s / self.period_s).rem_euclid(1.0);
+        [
+            self.center_m[0] + self.radius_m * angle.cos(),
+            self.center_m[1] + self.radius_m * angle.sin(),
+        ]
+    }
+
+    /// Refuses a value that is not a finite length, period or level, naming it.
+    fn check(&self) -> Result<(), ConfigError> {
+        let bad = |name: &str, v: f64, want: &str| {
+            Err(ConfigError::Invalid(format!(
+                "demo.motion.{name} = {v}: give {want}"
+            )))
+        };
+        for (k, &c) in ["center_m[0]", "center_m[1]"].iter().zip(&self.center_m) {
+            if !c.is_finite() {
+                return bad(k, c, "a finite offset in metres");
+            }
+        }
+        if !(self.radius_m.is_finite() && self.radius_m >= 0.0) {
+            return bad("radius_m", self.radius_m, "a radius >= 0 in metres");
+        }
+        if !(self.period_s.is_finite() && self.period_s >= 0.1 && self.period_s <= 86_400.0) {
+            return bad("period_s", self.period_s, "0.1 to 86400 seconds a turn");
+        }
+        if !(self.disk_radius_m.is_finite() && self.disk_radius_m > 0.0) {
+            return bad(
+                "disk_radius_m",
+                self.disk_radius_m,
+                "a radius > 0 in metres",
+            );
+        }
+        if !(self.level.is_finite() && self.level > 0.0 && self.level <= 100.0) {
+            return bad("level", self.level, "a radiance above 0, up to 100");
+        }
+        Ok(())
+    }
 }
 
 /// Queue limits.
@@ -368,6 +447,9 @@ impl Config {
                 r.check_every_s
             )));
         }
+        if let Some(m) = &self.demo.motion {
+            m.check()?;
+        }
         self.mount.check()?;
         self.stage.check()?;
         self.light.check()?;
@@ -516,6 +598,55 @@ mod tests {
             c.camera.saturated_share = bad;
             let e = c.validate().unwrap_err().to_string();
             assert!(e.contains("camera.saturated_share"), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_moving_disk_goes_round_its_circle_on_the_unix_clock_and_its_values_are_checked() {
+        let text = DEFAULT_TOML.replacen(
+            "\nsensor_noise = true\n",
+            "\nsensor_noise = true\nmotion = { center_m = [0.01, -0.02], radius_m = 0.05, period_s = 4.0, disk_radius_m = 0.03 }\n",
+            1,
+        );
+        let c: Config = toml::from_str(&text).unwrap();
+        c.validate().unwrap();
+        let m = c.demo.motion.expect("motion");
+        assert_eq!(m.level, 1.0);
+        let near = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]) < 1e-9;
+        // A turn every 4 s, anticlockwise from +u: a quarter turn is +v.
+        assert!(near(m.position(1_700_000_000.0), [0.06, -0.02]));
+        assert!(near(m.position(1_700_000_001.0), [0.01, 0.03]));
+        assert!(near(m.position(1_700_000_002.0), [-0.04, -0.02]));
+        assert!(near(
+            m.position(1_700_000_004.0),
+            m.position(1_700_000_000.0)
+        ));
+        // The speed is the circumference over the period.
+        // (Over 10 ms: the Unix time's f64 resolves 0.24 us.)
+        let (a, b) = (m.position(1_700_000_000.0), m.position(1_700_000_000.01));
+        let speed = (a[0] - b[0]).hypot(a[1] - b[1]) / 0.01;
+        let circumference = std::f64::consts::TAU * 0.05;
+        assert!(
+            (speed / (circumference / 4.0) - 1.0).abs() < 1e-3,
+            "{speed}"
+        );
+        for (field, bad) in [
+            ("radius_m", -0.1),
+            ("period_s", 0.0),
+            ("period_s", f64::NAN),
+            ("disk_radius_m", 0.0),
+            ("level", f64::INFINITY),
+        ] {
+            let mut c = c.clone();
+            let m = c.demo.motion.as_mut().unwrap();
+            match field {
+                "radius_m" => m.radius_m = bad,
+                "period_s" => m.period_s = bad,
+                "disk_radius_m" => m.disk_radius_m = bad,
+                _ => m.level = bad,
+            }
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains(&format!("demo.motion.{field}")), "{e}");
         }
     }
 

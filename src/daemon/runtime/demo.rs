@@ -1,14 +1,28 @@
 //! The fake camera's demo: the wall image of a test pattern behind every
 //! (pose, angle) block of the demo scene and of the scenes on the same bench,
-//! rendered by the numeric core through each pose's homography.
+//! rendered by the numeric core through each pose's homography; with
+//! `[demo] motion`, also the wall images of a disk at [`PATH_POSITIONS`]
+//! points of its path, which the bench blends by the clock.
 
 use super::scenes::Scenes;
 use crate::daemon::{runtime::config, DaemonError, DEMO_PEAK_FRACTION, DEMO_REFERENCE_EXPOSURE_US};
-use crate::scene::{Frame, FrameGeometry};
+use crate::scene::{Frame, FrameGeometry, Plane};
 use crate::simulate::camera::render;
 use crate::simulate::patterns::Pattern;
 
 type DemoFrames = crate::camera::BenchImages;
+
+/// Points of the moving disk's path whose wall images are rendered, equally
+/// spaced in time round the circle; a frame between two shows their blend.
+/// Why 16: a blend moves the disk's centroid along the chord between two
+/// points, within `r (1 - cos(pi / 16))` = 1.9 % of the circle's radius of
+/// the circle (1 mm on a 5 cm circle, a twenty-fifth of the demo scene's
+/// 25 mm cell), and each point costs a frame per block of the demo scene
+/// (1 MiB at 512 x 512).
+const PATH_POSITIONS: usize = 16;
+
+/// Sub-samples per element edge the disk's coverage is averaged over.
+const DISK_SAMPLES: usize = 8;
 
 /// Brightness of the calibration target's dots, fraction of full scale at the
 /// reference exposure.
@@ -42,8 +56,18 @@ pub(in crate::daemon) fn frames(
         .transport(&demo.scene)
         .map_err(|e| err(e.to_string()))?;
     let l = pattern.render(t.scene_grid());
-    let peak = crate::simulate::unpolarized_peak(&scene, &t, &l, scenes.budget())
-        .map_err(|e| err(e.to_string()))?;
+    // The moving disk's scenes, on the pattern: the brightest sets the scale.
+    let path = match &demo.motion {
+        Some(m) => disks(&scene.hidden().plane, m, &demo.scene)?,
+        None => Vec::new(),
+    };
+    let lit: Vec<Vec<f64>> = std::iter::once(l.clone())
+        .chain(
+            path.iter()
+                .map(|d| l.iter().zip(d).map(|(a, b)| a + b).collect()),
+        )
+        .collect();
+    let peak = brightest(&scene, &t, &lit, scenes.budget())?;
     if peak <= 0.0 {
         return Err(err("the demo scene lights no wall element".into()));
     }
@@ -101,9 +125,94 @@ pub(in crate::daemon) fn frames(
             frames.target.push((block.pose, angle, dots));
         }
     }
+    if let Some(m) = &demo.motion {
+        frames.path = path
+            .iter()
+            .map(|d| {
+                render(&scene, d, sensor)
+                    .into_iter()
+                    .filter_map(|(block, frame)| {
+                        let angle = bench_angle(&scene, &block);
+                        scaled(frame).map(|f| (block.pose, angle, f))
+                    })
+                    .collect()
+            })
+            .collect();
+        frames.period_s = m.period_s;
+    }
     // Frame value v = norm T l at the reference exposure, as a fraction of full scale.
     let c = norm / DEMO_REFERENCE_EXPOSURE_US;
     Ok((frames, c))
+}
+
+/// The moving disk at each of the [`PATH_POSITIONS`] points of its path
+/// (point `k` where it is at phase `k / PATH_POSITIONS` of a turn), on
+/// `plane`; refused when it would leave the plane.
+fn disks(
+    plane: &Plane,
+    m: &config::MotionConfig,
+    scene: &str,
+) -> Result<Vec<Vec<f64>>, DaemonError> {
+    let reach = m.radius_m + m.disk_radius_m;
+    let [hu, hv] = [plane.size[0] / 2.0, plane.size[1] / 2.0];
+    if m.center_m[0].abs() + reach > hu || m.center_m[1].abs() + reach > hv {
+        return Err(DaemonError::Demo(format!(
+            "demo.motion: a disk of {} m on a circle of {} m about ({}, {}) m leaves the hidden-scene plane of scene {scene:?} ({hu} m either side along u, {hv} m along v)",
+            m.disk_radius_m, m.radius_m, m.center_m[0], m.center_m[1]
+        )));
+    }
+    Ok((0..PATH_POSITIONS)
+        .map(|k| {
+            let at = m.position(k as f64 / PATH_POSITIONS as f64 * m.period_s);
+            disk(plane, at, m.disk_radius_m, m.level)
+        })
+        .collect())
+}
+
+/// A disk of `radius` metres centred at `(u, v)` metres on `plane`, at
+/// `level`: each element's covered fraction ([`DISK_SAMPLES`] squared
+/// sub-samples) times `level`, row-major as the scene's unknowns.
+fn disk(plane: &Plane, [cu, cv]: [f64; 2], radius: f64, level: f64) -> Vec<f64> {
+    let (nu, nv) = (plane.grid.nu, plane.grid.nv);
+    let (du, dv) = (plane.size[0] / nu as f64, plane.size[1] / nv as f64);
+    let s = DISK_SAMPLES;
+    let mut out = Vec::with_capacity(nu * nv);
+    for iv in 0..nv {
+        for iu in 0..nu {
+            let mut hits = 0usize;
+            for b in 0..s {
+                for a in 0..s {
+                    let u = (iu as f64 + (a as f64 + 0.5) / s as f64) * du - plane.size[0] / 2.0;
+                    let v = (iv as f64 + (b as f64 + 0.5) / s as f64) * dv - plane.size[1] / 2.0;
+                    hits += usize::from((u - cu).hypot(v - cv) <= radius);
+                }
+            }
+            out.push(level * hits as f64 / (s * s) as f64);
+        }
+    }
+    out
+}
+
+/// The brightest wall element any of the scenes `lit` lights, with the
+/// polarizers taken out (one `T` built for them all).
+/// Why: the bench's frames are scaled so that the brightest moment of the
+/// brightest block stays below full scale.
+fn brightest(
+    scene: &crate::scene::Scene,
+    t: &crate::transport::Transport,
+    lit: &[Vec<f64>],
+    budget: crate::transport::MemoryBudget,
+) -> Result<f64, DaemonError> {
+    let open;
+    let t = match scene.poses().iter().any(|p| !p.analyzers.is_empty()) {
+        true => {
+            open = crate::transport::build(&scene.without_polarizers(), budget)
+                .map_err(|e| DaemonError::Demo(e.to_string()))?;
+            &open
+        }
+        false => t,
+    };
+    Ok(lit.iter().flat_map(|l| t.apply(l)).fold(0.0, f64::max))
 }
 
 /// The angle from crossed of the polarizer a block's light passes, as the

@@ -96,6 +96,14 @@ pub enum Event {
         session: u64,
         /// From the arrival of the window's newest frame to this result, ms.
         latency_ms: f64,
+        /// Difference mode: the window's time (the mean arrival time of its
+        /// frames), Unix seconds.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        time_s: Option<f64>,
+        /// Difference mode: the moving object's centroid on the hidden-scene
+        /// plane (absent when nothing stood out of the noise).
+        #[serde(skip_serializing_if = "Option::is_none")]
+        centroid: Option<Centroid>,
         /// The result's numbers (`frames`: the window).
         #[serde(flatten)]
         step: Step,
@@ -150,4 +158,22 @@ pub struct Step {
     pub lambda: Option<f64>,
     /// Seconds the step took.
     pub seconds: f64,
+}
+
+/// The moving object's centroid in one result of difference mode, on the
+/// hidden-scene plane (metres from its centre along its u and v axes,
+/// MODEL.md "Geometry of a scene file"), with the centroid's standard
+/// deviation: the image's noise away from the object propagated through
+/// the centroid, and the grid's share, an element over the root of 12 (the
+/// tracker's rule: `src/daemon/jobs/track.rs`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Centroid {
+    /// Along u, metres.
+    pub u_m: f64,
+    /// Along v, metres.
+    pub v_m: f64,
+    /// Standard deviation along u, metres.
+    pub sigma_u_m: f64,
+    /// Standard deviation along v, metres.
+    pub sigma_v_m: f64,
 }

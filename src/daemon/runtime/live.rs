@@ -13,11 +13,19 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::daemon::requests::validate::ProgressiveSpec;
-use crate::daemon::runtime::events::Step;
+use crate::daemon::runtime::events::{Centroid, Step};
 use crate::store::CaptureRequest;
 
 /// Results whose latency and timing the statistics keep.
 const KEPT: usize = 256;
+
+/// Rows the track keeps (the newest): 10,000 results, under four minutes at
+/// 44 results a second, 400 kB.
+const TRACK_KEPT: usize = 10_000;
+
+/// One result's row of the track: the window's time (the mean arrival time
+/// of its frames, Unix seconds) and the centroid, if anything moved.
+pub(crate) type TrackRow = (f64, Option<Centroid>);
 
 /// Where the live view is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
@@ -70,6 +78,17 @@ pub struct LiveView {
     /// The newest result's numbers.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last: Option<Step>,
+    /// Difference mode's background time constant, seconds (absent: each
+    /// window is solved as it is).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub difference_background_s: Option<f64>,
+    /// Difference mode: the newest result's window time, Unix seconds.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_time_s: Option<f64>,
+    /// Difference mode: the moving object's centroid in the newest result
+    /// (absent when nothing stood out of its noise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub centroid: Option<Centroid>,
 }
 
 /// A started session: what it repeats and what it gave.
@@ -87,6 +106,8 @@ pub(crate) struct Session {
     latencies: VecDeque<f64>,
     times: VecDeque<Instant>,
     last: Option<Step>,
+    /// The newest result's track row (difference mode).
+    last_track: Option<TrackRow>,
     /// Newest image: columns, rows, values.
     image: Option<(usize, usize, Vec<f64>)>,
 }
@@ -94,6 +115,9 @@ pub(crate) struct Session {
 /// The live view: at most one session.
 pub struct Live {
     session: Mutex<Option<Session>>,
+    /// The newest session's track (difference mode), kept after it stops
+    /// until the next starts; locked after `session` when both are.
+    track: Mutex<VecDeque<TrackRow>>,
     next: Mutex<u64>,
     /// Bumped on every start and stop, so the capture worker wakes.
     changed: tokio::sync::watch::Sender<u64>,
@@ -103,6 +127,7 @@ impl Default for Live {
     fn default() -> Self {
         Self {
             session: Mutex::new(None),
+            track: Mutex::new(VecDeque::new()),
             next: Mutex::new(0),
             changed: tokio::sync::watch::channel(0).0,
         }
@@ -133,7 +158,9 @@ impl Live {
             *next += 1;
             *next
         };
-        *self.lock() = Some(Session {
+        let mut session = self.lock();
+        self.track.lock().unwrap_or_else(|e| e.into_inner()).clear();
+        *session = Some(Session {
             id,
             request,
             spec,
@@ -146,8 +173,10 @@ impl Live {
             latencies: VecDeque::with_capacity(KEPT),
             times: VecDeque::with_capacity(KEPT),
             last: None,
+            last_track: None,
             image: None,
         });
+        drop(session);
         self.changed.send_modify(|g| *g += 1);
         self.view()
     }
@@ -214,15 +243,25 @@ impl Live {
         });
     }
 
-    /// Session `id` published `step` and its image, `latency` seconds after its newest frame arrived.
+    /// Session `id` published `step` and its image, `latency` seconds after
+    /// its newest frame arrived, with its track row in difference mode.
     pub(crate) fn result(
         &self,
         id: u64,
         step: Step,
         image: (usize, usize, Vec<f64>),
         latency: f64,
+        track: Option<TrackRow>,
     ) {
         self.with(id, |s| {
+            if let Some(row) = track {
+                let mut rows = self.track.lock().unwrap_or_else(|e| e.into_inner());
+                if rows.len() == TRACK_KEPT {
+                    rows.pop_front();
+                }
+                rows.push_back(row);
+            }
+            s.last_track = track;
             s.results += 1;
             if s.latencies.len() == KEPT {
                 s.latencies.pop_front();
@@ -233,6 +272,26 @@ impl Live {
             s.last = Some(step);
             s.image = Some(image);
         });
+    }
+
+    /// The track as CSV: a header, then one row per result of difference
+    /// mode (the newest [`TRACK_KEPT`]): the window's time (Unix seconds),
+    /// the centroid and its standard deviations (metres; empty when nothing
+    /// moved).
+    pub fn track_csv(&self) -> String {
+        let rows = self.track.lock().unwrap_or_else(|e| e.into_inner());
+        let mut out = String::from("time_s,u_m,v_m,sigma_u_m,sigma_v_m\n");
+        for (t, c) in rows.iter() {
+            let line = match c {
+                Some(c) => format!(
+                    "{t:.6},{:.6},{:.6},{:.6},{:.6}\n",
+                    c.u_m, c.v_m, c.sigma_u_m, c.sigma_v_m
+                ),
+                None => format!("{t:.6},,,,\n"),
+            };
+            out.push_str(&line);
+        }
+        out
     }
 
     /// The newest image: columns, rows, values (None before the first result).
@@ -259,6 +318,9 @@ impl Live {
                 results_per_second: None,
                 median_latency_ms: None,
                 last: None,
+                difference_background_s: None,
+                last_time_s: None,
+                centroid: None,
             };
         };
         let rate = match (s.times.front(), s.times.back()) {
@@ -283,6 +345,9 @@ impl Live {
             results_per_second: rate,
             median_latency_ms: median(&s.latencies).map(|v| v * 1e3),
             last: s.last.clone(),
+            difference_background_s: s.spec.difference,
+            last_time_s: s.last_track.map(|(t, _)| t),
+            centroid: s.last_track.and_then(|(_, c)| c),
         }
     }
 }
@@ -290,6 +355,50 @@ impl Live {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_track_has_a_row_per_result_and_outlives_its_session_until_the_next() {
+        let live = Live::default();
+        let spec = ProgressiveSpec {
+            every: 1,
+            captures: Vec::new(),
+            lambda: None,
+            max_iter: 10,
+            truth: None,
+            difference: Some(10.0),
+        };
+        let id = live.start(CaptureRequest::example(), spec.clone()).session;
+        let step = Step {
+            frames: 8,
+            iterations: 1,
+            converged: true,
+            change: None,
+            psnr_db: None,
+            lambda: None,
+            seconds: 0.0,
+        };
+        let c = Centroid {
+            u_m: 0.01,
+            v_m: -0.02,
+            sigma_u_m: 0.007,
+            sigma_v_m: 0.008,
+        };
+        let image = (1, 1, vec![0.0]);
+        live.result(id, step.clone(), image.clone(), 0.01, Some((1.5, Some(c))));
+        live.result(id, step.clone(), image.clone(), 0.01, Some((2.5, None)));
+        // A result of a session that was replaced leaves no row.
+        live.result(id + 1, step, image, 0.01, Some((3.5, None)));
+        let csv = "time_s,u_m,v_m,sigma_u_m,sigma_v_m\n1.500000,0.010000,-0.020000,0.007000,0.008000\n2.500000,,,,\n";
+        assert_eq!(live.track_csv(), csv);
+        let v = live.view();
+        assert_eq!(v.difference_background_s, Some(10.0));
+        assert_eq!(v.last_time_s, Some(2.5));
+        assert!(v.centroid.is_none(), "the newest result found nothing");
+        live.stop();
+        assert_eq!(live.track_csv(), csv);
+        live.start(CaptureRequest::example(), spec);
+        assert_eq!(live.track_csv(), "time_s,u_m,v_m,sigma_u_m,sigma_v_m\n");
+    }
 
     #[test]
     fn the_median_of_odd_and_even_counts() {

@@ -4,7 +4,7 @@
 
 use super::reconstruction::{blocks_served, cover, uncovered};
 use super::{invalid, RequestError};
-use crate::daemon::requests::ProgressiveBody;
+use crate::daemon::requests::{DifferenceBody, ProgressiveBody};
 use crate::scene::Scene;
 use crate::store::{CaptureRecord, CaptureRequest};
 
@@ -21,6 +21,9 @@ pub struct ProgressiveSpec {
     pub max_iter: usize,
     /// Truth pattern name.
     pub truth: Option<String>,
+    /// Live view's difference mode: the background's time constant,
+    /// seconds (`None`: each window as it is).
+    pub difference: Option<f64>,
 }
 
 /// Checks `p` for capture request `r` of `scene`; `capture` looks up the
@@ -72,8 +75,25 @@ pub fn progressive(
         lambda: p.lambda,
         max_iter,
         truth: p.truth.clone(),
+        difference: None,
     })
 }
+
+/// The background time constant of live view's difference mode, seconds:
+/// the request's (0.1 to 3600) or [`DEFAULT_BACKGROUND_S`].
+pub(crate) fn difference(d: &DifferenceBody) -> Result<f64, RequestError> {
+    match d.background_s {
+        None => Ok(DEFAULT_BACKGROUND_S),
+        Some(s) if s.is_finite() && (0.1..=3600.0).contains(&s) => Ok(s),
+        Some(s) => Err(invalid(format!(
+            "difference.background_s = {s}: give 0.1 to 3600 seconds"
+        ))),
+    }
+}
+
+/// The background's default time constant, seconds.
+/// Why 10: a person crossing a room moves within it, a lamp's drift does not.
+const DEFAULT_BACKGROUND_S: f64 = 10.0;
 
 /// The step interval and iteration cap, with lambda and truth checked.
 fn check_numbers(p: &ProgressiveBody, r: &CaptureRequest) -> Result<(usize, usize), RequestError> {
@@ -131,6 +151,21 @@ mod tests {
 
     fn body(json: serde_json::Value) -> ProgressiveBody {
         serde_json::from_value(json).expect("a well-formed body")
+    }
+
+    #[test]
+    fn a_difference_background_is_0_1_to_3600_seconds_or_the_default() {
+        let d = |v: serde_json::Value| -> DifferenceBody { serde_json::from_value(v).unwrap() };
+        assert_eq!(difference(&d(serde_json::json!({}))).unwrap(), 10.0);
+        assert_eq!(
+            difference(&d(serde_json::json!({"background_s": 2.5}))).unwrap(),
+            2.5
+        );
+        for bad in [0.0, -1.0, 1e5] {
+            let e = difference(&d(serde_json::json!({ "background_s": bad }))).unwrap_err();
+            assert!(e.to_string().contains("difference.background_s"), "{e}");
+        }
+        assert!(serde_json::from_value::<DifferenceBody>(serde_json::json!({"tau": 1})).is_err());
     }
 
     #[test]
