@@ -278,53 +278,42 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
     assert!(spread(&means) <= 0.07, "lit means {means:?}");
     assert!(spread(&scales) <= 0.03, "scales {scales:?}");
     // The done-when's 5 %, with the photons it takes: 128 frames and 16
-    // darks, sixteen times the photons, a quarter of the spread. Each
+    // darks (sixteen times the photons), reconstructed at the λ above. Each
     // colour's peak (its 99th percentile) and its mean over the letter
-    // within 5 % of the others'.
-    for _ in 0..std::env::var("POLNLOS_LONG_REPEATS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(1)
-    {
-        let long = d.run_job(
-            "/captures",
-            &CAPTURE.replace(
-                r#""frames": 8, "dark_frames": 2"#,
-                r#""frames": 128, "dark_frames": 16"#,
-            ),
-            Duration::from_secs(240),
-        );
-        assert_eq!(long["state"], "done", "{long}");
-        let rl = reconstruct(
-            &d,
-            &long,
-            &format!(r#", "truth": "letter", "lambda": {largest}"#),
-        );
-        assert_radiometry(&rl, "calibrated", "colour calibration");
-        let (s, npy) = d.get_bytes(&format!("/reconstructions/{}/recovered.npy", rl["id"]));
-        assert_eq!(s, 200);
-        let bright = polnlos::files::npy::decode(&npy).unwrap().data;
-        let p99 = |k: usize| {
-            let mut v: Vec<f64> = bright.iter().skip(k).step_by(3).copied().collect();
-            v.sort_by(f64::total_cmp);
-            v[((v.len() - 1) as f64 * 0.99).round() as usize]
-        };
-        let (means, peaks) = (colour_means(&bright, &letter), [0, 1, 2].map(p99));
-        let scales = colour_scales(&bright);
-        let lam: Vec<f64> = rl["report"]["colours"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|c| c["lambda_choice"]["lambda"].as_f64().unwrap_or(f64::NAN))
-            .collect();
-        let ps: Vec<f64> = rl["report"]["colours"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|c| c["metrics"]["psnr_db"].as_f64().unwrap_or(f64::NAN))
-            .collect();
-        println!("128 frames: colour means over the letter {means:.3?} ({:.1} %), peaks {peaks:.3?} ({:.1} %) scales {scales:.3?} lambdas {lam:?} psnr {ps:.2?}", 100.0 * spread(&means), 100.0 * spread(&peaks));
-    }
+    // within 5 % of the others'. Measured over five such captures in a row:
+    // means 1.2-3.2 % apart, peaks 1.0-4.2 % (red above blue by 2.5 ± 0.4 %
+    // in the means: a small bias, not found yet). With λ chosen again from
+    // the 128 frames' own noise the spread does not shrink (means 0.6-5.7 %,
+    // peaks 2.1-6.1 %): the smaller λ lets through the noise the photons
+    // took out. This capture is the first of those five (the fake camera's
+    // noise replays from its frame count): 1.9 % and 1.7 %.
+    let long = d.run_job(
+        "/captures",
+        &CAPTURE.replace(
+            r#""frames": 8, "dark_frames": 2"#,
+            r#""frames": 128, "dark_frames": 16"#,
+        ),
+        Duration::from_secs(240),
+    );
+    assert_eq!(long["state"], "done", "{long}");
+    let rl = reconstruct(
+        &d,
+        &long,
+        &format!(r#", "truth": "letter", "lambda": {largest}"#),
+    );
+    assert_radiometry(&rl, "calibrated", "colour calibration");
+    let (s, npy) = d.get_bytes(&format!("/reconstructions/{}/recovered.npy", rl["id"]));
+    assert_eq!(s, 200);
+    let bright = polnlos::files::npy::decode(&npy).unwrap().data;
+    let p99 = |k: usize| {
+        let mut v: Vec<f64> = bright.iter().skip(k).step_by(3).copied().collect();
+        v.sort_by(f64::total_cmp);
+        v[((v.len() - 1) as f64 * 0.99).round() as usize]
+    };
+    let (long_means, peaks) = (colour_means(&bright, &letter), [0, 1, 2].map(p99));
+    println!("128 frames: colour means over the letter {long_means:.3?}, peaks {peaks:.3?}");
+    assert!(spread(&long_means) <= 0.05, "lit means {long_means:?}");
+    assert!(spread(&peaks) <= 0.05, "peaks {peaks:?}");
     // It is the reconstruction asked for at that λ.
     let same = reconstruct(
         &d,
