@@ -356,6 +356,12 @@ fn encode(
     let mut out = Vec::new();
     let fail = |e: png::EncodingError| PngError::Encode(e.to_string());
     let mut enc = png::Encoder::new(&mut out, w, h);
+    // Fast deflate with adaptive filters, as `image` wrote them: the page's
+    // live frame is a 512 x 512 16-bit PNG several times a second, and png's
+    // own default (zlib level 6) takes several times longer for files a
+    // few per cent smaller.
+    enc.set_compression(png::Compression::Fast);
+    enc.set_filter(png::Filter::Adaptive);
     enc.set_color(colour);
     enc.set_depth(match bits {
         8 => png::BitDepth::Eight,
