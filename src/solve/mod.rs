@@ -23,6 +23,9 @@ pub mod radiometry;
 pub mod reconstruct;
 pub mod resolution;
 pub mod scene;
+/// The live view's tracker (only the daemon has a live view).
+#[cfg(feature = "daemon")]
+pub(crate) mod track;
 
 pub(crate) use judge::{adequacy, conditioning};
 pub use judge::{metrics, report};

@@ -306,7 +306,7 @@ fn solve(
                     let time = snapshot.time_s().unwrap_or(f64::NAN);
                     (
                         time,
-                        super::track::centroid(&image, colours, plane, solver.moved()),
+                        crate::solve::track::centroid(&image, colours, plane, solver.moved()),
                     )
                 });
                 let latency = arrived.elapsed().as_secs_f64();

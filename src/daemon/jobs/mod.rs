@@ -6,7 +6,6 @@ pub(crate) mod capture;
 pub(crate) mod live;
 pub(crate) mod progressive;
 pub(crate) mod reconstruction;
-pub(crate) mod track;
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};

@@ -7,6 +7,7 @@ use std::sync::Arc;
 use serde::Serialize;
 use tokio::sync::{broadcast, watch};
 
+pub(crate) use crate::solve::track::Centroid;
 use crate::store::JobState;
 
 /// The event stream's sending side: cloned into each service that announces
@@ -158,22 +159,4 @@ pub struct Step {
     pub lambda: Option<f64>,
     /// Seconds the step took.
     pub seconds: f64,
-}
-
-/// The moving object's centroid in one result of difference mode, on the
-/// hidden-scene plane (metres from its centre along its u and v axes,
-/// MODEL.md "Geometry of a scene file"), with the centroid's standard
-/// deviation: the image's noise away from the object propagated through
-/// the centroid, and the grid's share, an element over the root of 12 (the
-/// tracker's rule: `src/daemon/jobs/track.rs`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, utoipa::ToSchema)]
-pub struct Centroid {
-    /// Along u, metres.
-    pub u_m: f64,
-    /// Along v, metres.
-    pub v_m: f64,
-    /// Standard deviation along u, metres.
-    pub sigma_u_m: f64,
-    /// Standard deviation along v, metres.
-    pub sigma_v_m: f64,
 }

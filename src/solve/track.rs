@@ -42,8 +42,27 @@
 //! bench they hid the object from an image-only test in one result in
 //! twenty.
 
-use crate::daemon::runtime::events::Centroid;
+use serde::Serialize;
+
 use crate::scene::Plane;
+
+/// The moving object's centroid in one result of difference mode, on the
+/// hidden-scene plane (metres from its centre along its u and v axes,
+/// MODEL.md "Geometry of a scene file"), with the centroid's standard
+/// deviation: the image's noise away from the object propagated through
+/// the centroid, and the grid's share, an element over the root of 12 (the
+/// tracker's rule: [`centroid`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Centroid {
+    /// Along u, metres.
+    pub u_m: f64,
+    /// Along v, metres.
+    pub v_m: f64,
+    /// Standard deviation along u, metres.
+    pub sigma_u_m: f64,
+    /// Standard deviation along v, metres.
+    pub sigma_v_m: f64,
+}
 
 /// Fraction of the peak an element of the object is above.
 const LEVEL: f64 = 0.5;
@@ -60,7 +79,7 @@ const HALF_NORMAL_MEDIAN: f64 = 0.6745;
 /// (`colours` values per element, interleaved, summed); `None` when
 /// nothing moved: `moved` is the measurement's judgement, `None` for the
 /// image's.
-pub(in crate::daemon) fn centroid(
+pub(crate) fn centroid(
     image: &[f64],
     colours: usize,
     plane: &Plane,
