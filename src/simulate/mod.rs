@@ -172,13 +172,27 @@ pub fn unpolarized_peak(
     l: &[f64],
     budget: MemoryBudget,
 ) -> Result<f64, TransportError> {
+    brightest_unpolarized(scene, t, &[l], budget)
+}
+
+/// [`unpolarized_peak`] over several radiances `ls` of one scene (the
+/// brightest of all), building the polarizer-free `T` once.
+/// Why: a moving demo object's every position must stay below full scale.
+pub(crate) fn brightest_unpolarized(
+    scene: &Scene,
+    t: &Transport,
+    ls: &[&[f64]],
+    budget: MemoryBudget,
+) -> Result<f64, TransportError> {
     let has_polarizer = scene.poses().iter().any(|p| !p.analyzers.is_empty());
-    let image = if has_polarizer {
-        crate::transport::build(&scene.without_polarizers(), budget)?.apply(l)
+    let open;
+    let t = if has_polarizer {
+        open = crate::transport::build(&scene.without_polarizers(), budget)?;
+        &open
     } else {
-        t.apply(l)
+        t
     };
-    Ok(image.into_iter().fold(0.0, f64::max))
+    Ok(ls.iter().flat_map(|l| t.apply(l)).fold(0.0, f64::max))
 }
 
 #[cfg(test)]

@@ -67,7 +67,9 @@ pub(in crate::daemon) fn frames(
                 .map(|d| l.iter().zip(d).map(|(a, b)| a + b).collect()),
         )
         .collect();
-    let peak = brightest(&scene, &t, &lit, scenes.budget())?;
+    let lit: Vec<&[f64]> = lit.iter().map(Vec::as_slice).collect();
+    let peak = crate::simulate::brightest_unpolarized(&scene, &t, &lit, scenes.budget())
+        .map_err(|e| err(e.to_string()))?;
     if peak <= 0.0 {
         return Err(err("the demo scene lights no wall element".into()));
     }
@@ -191,28 +193,6 @@ fn disk(plane: &Plane, [cu, cv]: [f64; 2], radius: f64, level: f64) -> Vec<f64> 
         }
     }
     out
-}
-
-/// The brightest wall element any of the scenes `lit` lights, with the
-/// polarizers taken out (one `T` built for them all).
-/// Why: the bench's frames are scaled so that the brightest moment of the
-/// brightest block stays below full scale.
-fn brightest(
-    scene: &crate::scene::Scene,
-    t: &crate::transport::Transport,
-    lit: &[Vec<f64>],
-    budget: crate::transport::MemoryBudget,
-) -> Result<f64, DaemonError> {
-    let open;
-    let t = match scene.poses().iter().any(|p| !p.analyzers.is_empty()) {
-        true => {
-            open = crate::transport::build(&scene.without_polarizers(), budget)
-                .map_err(|e| DaemonError::Demo(e.to_string()))?;
-            &open
-        }
-        false => t,
-    };
-    Ok(lit.iter().flat_map(|l| t.apply(l)).fold(0.0, f64::max))
 }
 
 /// The angle from crossed of the polarizer a block's light passes, as the
