@@ -67,23 +67,31 @@ impl Pattern {
 
     /// Values in [0, 1] on `grid`, row-major (row `iv` = image row, top first).
     pub fn render(self, grid: Grid) -> Vec<f64> {
-        const S: usize = 4;
-        let mut out = Vec::with_capacity(grid.count());
-        for iv in 0..grid.nv {
-            for iu in 0..grid.nu {
-                let mut hits = 0;
-                for b in 0..S {
-                    for a in 0..S {
-                        let x = (iu as f64 + (a as f64 + 0.5) / S as f64) / grid.nu as f64;
-                        let y = (iv as f64 + (b as f64 + 0.5) / S as f64) / grid.nv as f64;
-                        hits += self.at(x, y) as usize;
-                    }
-                }
-                out.push(hits as f64 / (S * S) as f64);
-            }
-        }
-        out
+        coverage(grid, 4, |x, y| self.at(x, y))
     }
+}
+
+/// Each element's covered fraction of a shape on `grid`: `inside(x, y)`
+/// at `samples` x `samples` points an element, `x` and `y` in [0, 1]
+/// across the grid (row-major, row `iv` = image row, top first).
+/// Why: one sampling for the test patterns and the demo's moving disk.
+pub(crate) fn coverage(grid: Grid, samples: usize, inside: impl Fn(f64, f64) -> bool) -> Vec<f64> {
+    let s = samples.max(1);
+    let mut out = Vec::with_capacity(grid.count());
+    for iv in 0..grid.nv {
+        for iu in 0..grid.nu {
+            let mut hits = 0;
+            for b in 0..s {
+                for a in 0..s {
+                    let x = (iu as f64 + (a as f64 + 0.5) / s as f64) / grid.nu as f64;
+                    let y = (iv as f64 + (b as f64 + 0.5) / s as f64) / grid.nv as f64;
+                    hits += usize::from(inside(x, y));
+                }
+            }
+            out.push(hits as f64 / (s * s) as f64);
+        }
+    }
+    out
 }
 
 #[cfg(test)]

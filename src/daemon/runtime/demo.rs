@@ -175,24 +175,12 @@ fn disks(
 /// `level`: each element's covered fraction ([`DISK_SAMPLES`] squared
 /// sub-samples) times `level`, row-major as the scene's unknowns.
 fn disk(plane: &Plane, [cu, cv]: [f64; 2], radius: f64, level: f64) -> Vec<f64> {
-    let (nu, nv) = (plane.grid.nu, plane.grid.nv);
-    let (du, dv) = (plane.size[0] / nu as f64, plane.size[1] / nv as f64);
-    let s = DISK_SAMPLES;
-    let mut out = Vec::with_capacity(nu * nv);
-    for iv in 0..nv {
-        for iu in 0..nu {
-            let mut hits = 0usize;
-            for b in 0..s {
-                for a in 0..s {
-                    let u = (iu as f64 + (a as f64 + 0.5) / s as f64) * du - plane.size[0] / 2.0;
-                    let v = (iv as f64 + (b as f64 + 0.5) / s as f64) * dv - plane.size[1] / 2.0;
-                    hits += usize::from((u - cu).hypot(v - cv) <= radius);
-                }
-            }
-            out.push(level * hits as f64 / (s * s) as f64);
-        }
-    }
-    out
+    let [su, sv] = plane.size;
+    let inside = |x: f64, y: f64| (x * su - su / 2.0 - cu).hypot(y * sv - sv / 2.0 - cv) <= radius;
+    crate::simulate::patterns::coverage(plane.grid, DISK_SAMPLES, inside)
+        .into_iter()
+        .map(|c| level * c)
+        .collect()
 }
 
 /// The angle from crossed of the polarizer a block's light passes, as the
