@@ -261,6 +261,9 @@ struct Channel {
     /// Difference mode's running background of this capture's rows (in the
     /// order of `own`; NaN until a window measured the row).
     background: Vec<f64>,
+    /// `T 1`, the wall image of a uniform unit scene under the model in
+    /// use: difference mode's offset (`Channel::solve`), formed once a model.
+    t_ones: Option<Vec<f64>>,
 }
 
 /// How far (relative) a step's mean noise variance, or its measurement's
@@ -360,6 +363,7 @@ impl Progressive {
                 key: capture.scene.clone(),
                 chosen: None,
                 background: Vec::new(),
+                t_ones: None,
             });
         }
         // A difference image is the scene's change, not the pattern.
@@ -462,17 +466,7 @@ impl Progressive {
     /// The zero image of a window that only started the background, and its step.
     fn unsolved(&mut self, frames: usize, start: Instant) -> (Step, Vec<f64>) {
         let image = vec![0.0; self.grid().count() * self.colours()];
-        let step = Step {
-            frames,
-            iterations: 0,
-            converged: true,
-            change: None,
-            psnr_db: None,
-            lambda: None,
-            seconds: start.elapsed().as_secs_f64(),
-        };
-        self.previous = Some(image.clone());
-        self.steps.push(step.clone());
+        let step = self.record(frames, start, &[], &image);
         (step, image)
     }
 
@@ -585,8 +579,9 @@ impl Progressive {
                 let each: Vec<f64> = t.iter().flat_map(|&v| std::iter::repeat_n(v, c)).collect();
                 crate::solve::metrics::psnr(&each, image)
             }),
-            // The middle colour's (green's) λ: one number per step.
-            lambda: solved[c / 2].1,
+            // The middle colour's (green's) λ: one number per step (none
+            // for a window nothing was solved for).
+            lambda: solved.get(c / 2).and_then(|s| s.1),
             seconds: start.elapsed().as_secs_f64(),
         };
         self.previous = Some(image.to_vec());
@@ -676,6 +671,7 @@ impl Channel {
         self.state = Warm::default();
         self.key = key;
         self.chosen = None;
+        self.t_ones = None;
         Ok(())
     }
 
@@ -713,15 +709,23 @@ impl Channel {
             .map(|x| x * x)
             .sum::<f64>()
             .sqrt();
-        let shift = (offset != 0.0).then(|| self.t.apply(&vec![offset; self.t.cols()]));
+        let t = &self.t;
+        let shift = (offset != 0.0).then(|| {
+            self.t_ones
+                .take()
+                .unwrap_or_else(|| t.apply(&vec![1.0; t.cols()]))
+        });
         let shifted = |i: &mut [f64], sign: f64| {
             for (x, s) in i.iter_mut().zip(shift.iter().flatten()) {
-                *x += sign * s;
+                *x += sign * offset * s;
             }
         };
         shifted(&mut self.i, 1.0);
         let solved = self.solve_at(noise, norm, settings);
         shifted(&mut self.i, -1.0);
+        if shift.is_some() {
+            self.t_ones = shift;
+        }
         let (mut r, lambda) = solved?;
         r.image.iter_mut().for_each(|v| *v -= offset);
         Ok((r, lambda))
