@@ -400,8 +400,12 @@ pub fn write_png16(
     height: usize,
     pixels: &[u16],
 ) -> Result<(), FileError> {
-    let bytes =
-        encode_png16(width, height, pixels).map_err(|e| FileError::format(path, e.to_string()))?;
+    write(path, encode_png16(width, height, pixels))
+}
+
+/// Writes encoded PNG bytes to `path` atomically, or says why they could not be made.
+fn write(path: &Path, png: Result<Vec<u8>, PngError>) -> Result<(), FileError> {
+    let bytes = png.map_err(|e| FileError::format(path, e.to_string()))?;
     super::write_atomic(path, &bytes)
 }
 
@@ -412,9 +416,7 @@ pub fn write_png_rgb8(
     height: usize,
     pixels: &[u8],
 ) -> Result<(), FileError> {
-    let png = encode_png_rgb8(width, height, pixels)
-        .map_err(|e| FileError::format(path, e.to_string()))?;
-    super::write_atomic(path, &png)
+    write(path, encode_png_rgb8(width, height, pixels))
 }
 
 /// Writes 16-bit RGB pixels (interleaved) as a PNG, atomically: a colour
@@ -425,9 +427,7 @@ pub fn write_png_rgb16(
     height: usize,
     pixels: &[u16],
 ) -> Result<(), FileError> {
-    let png = encode_png_rgb16(width, height, pixels)
-        .map_err(|e| FileError::format(path, e.to_string()))?;
-    super::write_atomic(path, &png)
+    write(path, encode_png_rgb16(width, height, pixels))
 }
 
 /// Maps [0, 1] to the full 16-bit range (values outside are clipped).
