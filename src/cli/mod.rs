@@ -3,6 +3,8 @@
 
 #[cfg(feature = "report")]
 mod bench;
+#[cfg(all(feature = "report", feature = "daemon"))]
+mod bench_live;
 mod calibrate;
 mod cond;
 mod grid;

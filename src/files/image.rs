@@ -253,7 +253,8 @@ pub(crate) const MAX_SCALED_SIDE: u32 = 4096;
 /// Why: a reconstruction of an 8x8 scene is an 8x8 PNG, too small to look
 /// at in an image viewer. `k` must be at least 1 and the result at most
 /// `MAX_SCALED_SIDE` on a side; the error says what is allowed.
-pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, PngError> {
+#[cfg(feature = "daemon")]
+pub(crate) fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, PngError> {
     let img = decode_png(png, MAX_SCALED_SIDE, u64::from(MAX_SCALED_SIDE).pow(2))
         .map_err(|e| PngError::Decode(e.to_string()))?;
     let (w, h) = (img.width as u32, img.height as u32);
@@ -283,6 +284,7 @@ pub fn scale_png16(png: &[u8], k: u32) -> Result<Vec<u8>, PngError> {
 }
 
 /// The PNG colour type of `channels` samples a pixel.
+#[cfg(feature = "daemon")]
 fn colour_type(channels: usize) -> Option<png::ColorType> {
     match channels {
         1 => Some(png::ColorType::Grayscale),
@@ -374,7 +376,12 @@ fn encode(
 }
 
 /// Encodes 16-bit RGB pixels (interleaved) as PNG bytes.
-pub fn encode_png_rgb16(width: usize, height: usize, pixels: &[u16]) -> Result<Vec<u8>, PngError> {
+#[cfg(feature = "daemon")]
+pub(crate) fn encode_png_rgb16(
+    width: usize,
+    height: usize,
+    pixels: &[u16],
+) -> Result<Vec<u8>, PngError> {
     encode(width, height, png::ColorType::Rgb, 16, pixels)
 }
 
@@ -421,7 +428,8 @@ pub fn write_png_rgb8(
 
 /// Writes 16-bit RGB pixels (interleaved) as a PNG, atomically: a colour
 /// camera's reconstruction.
-pub fn write_png_rgb16(
+#[cfg(feature = "daemon")]
+pub(crate) fn write_png_rgb16(
     path: &Path,
     width: usize,
     height: usize,
@@ -439,7 +447,8 @@ pub fn unit_to_u16(values: &[f64]) -> Vec<u16> {
 }
 
 /// Scales values by `1 / max` into 16 bits, for viewing a physical image.
-pub fn normalized_u16(values: &[f64]) -> Vec<u16> {
+#[cfg(feature = "daemon")]
+pub(crate) fn normalized_u16(values: &[f64]) -> Vec<u16> {
     let max = values.iter().copied().fold(0.0f64, f64::max);
     if max <= 0.0 {
         return vec![0; values.len()];
@@ -608,6 +617,7 @@ mod tests {
         assert!(e.contains("32-bit float TIFF"), "{e}");
     }
 
+    #[cfg(feature = "daemon")]
     #[test]
     fn a_scaled_png_repeats_each_pixel_in_a_block_and_refuses_a_bad_scale() {
         let png = encode_png16(2, 1, &[100, 60000]).unwrap();

@@ -8,6 +8,7 @@
 pub(crate) mod active;
 pub mod charts;
 pub(crate) mod lambda;
+mod live;
 pub(crate) mod mosaic;
 pub(crate) mod peer;
 pub(crate) mod photons;
@@ -20,6 +21,7 @@ pub(crate) mod speed;
 pub(crate) mod stability;
 mod tables;
 
+pub use live::{LiveReport, LiveRow, SoakSample};
 pub use mosaic::{mosaic_report, STEPS as MOSAIC_STEPS};
 pub use photons::best_lambda;
 pub use rendered::{agreement, reconstruct_pair, PairNoise, RenderedCase, DEFAULT_DIR};

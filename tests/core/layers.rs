@@ -1031,15 +1031,15 @@ fn public_items() -> Vec<String> {
 }
 
 /// Issue 48: a small public surface (at most 400 public items; 330 since
-/// the eighteenth session). None is added without one going (the bound
-/// only falls).
+/// the eighteenth session, 329 since the nineteenth). None is added
+/// without one going (the bound only falls).
 #[test]
 fn the_public_surface_does_not_grow() {
     let items = public_items();
     println!("{} public items", items.len());
     assert!(
-        items.len() <= 330,
-        "{} public items in src/ (at most 330: make what only the crate uses pub(crate)):\n{}",
+        items.len() <= 329,
+        "{} public items in src/ (at most 329: make what only the crate uses pub(crate)):\n{}",
         items.len(),
         items.join("\n")
     );
