@@ -267,6 +267,22 @@ fn live_view_records_its_first_frames_as_a_capture_that_reconstructs_like_its_wi
     assert!(b.contains("record is live view's (POST /live)"), "{b}");
     assert_eq!(d.json("/captures"), serde_json::json!([]), "nothing stored");
     assert_eq!(d.json("/live")["state"], "off");
+    // Documented: the body's field, its count, and what GET /live and a capture show of it.
+    let spec = d.json("/openapi.json");
+    let schemas = &spec["components"]["schemas"];
+    let described = |schema: &str, field: &str| {
+        let text = schemas[schema].to_string();
+        assert!(
+            text.contains(&format!("\"{field}\"")),
+            "{schema}.{field}: {text}"
+        );
+    };
+    described("CaptureBody", "record");
+    described("RecordBody", "frames");
+    described("LiveView", "recording");
+    described("RecordingView", "capture");
+    described("CaptureRecord", "live");
+    described("LiveInfo", "frames_asked");
 
     let posted = unix_ns();
     let t = Instant::now();
