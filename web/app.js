@@ -868,6 +868,8 @@ function liveText(v) {
   if (v.median_latency_ms) parts.push(`median latency ${v.median_latency_ms.toFixed(0)} ms`);
   if (v.last && v.last.psnr_db != null) parts.push(`PSNR ${v.last.psnr_db.toFixed(2)} dB`);
   if (v.last) parts.push(`windows of ${v.last.frames} frames`);
+  const rec = v.recording;
+  if (rec) parts.push(`recording capture ${rec.capture}: ${rec.frames} of ${rec.of} frames, ${rec.state}` + (rec.reason ? ` (${rec.reason})` : ""));
   if (v.difference_background_s) {
     const c = v.centroid;
     const mm = (m) => (1e3 * m).toFixed(1);
@@ -901,9 +903,13 @@ $("#start-live").addEventListener("click", async () => {
   const truth = new FormData($("#capture-form")).get("truth");
   body.progressive = truth ? { truth } : {};
   if (new FormData($("#capture-form")).get("difference")) body.difference = {};
+  const record = fields(msg, () => numeric($("#capture-form"), "record", { integer: true }) ?? "none");
+  if (record === null) return;
+  if (record !== "none") body.record = { frames: record };
   const r = await api("POST", "/live", body);
   if (r.status !== 202) { alertIn(msg, (r.json && r.json.detail) || `HTTP ${r.status}`); return; }
-  noteIn(msg, `live view started: windows of ${r.json.window} frames`);
+  const rec = r.json.recording;
+  noteIn(msg, `live view started: windows of ${r.json.window} frames` + (rec ? `, recording ${rec.of} frames as capture ${rec.capture}` : ""));
   liveResults = -1;
   pollLive();
 });

@@ -242,17 +242,25 @@ class Client:
 
     # -- live view -----------------------------------------------------------
 
-    def live_start(self, scene: str, pose: str, **fields: Any) -> Dict[str, Any]:
+    def live_start(self, scene: str, pose: str, record: Optional[int] = None,
+                   **fields: Any) -> Dict[str, Any]:
         """Starts the live view (`POST /live`): the capture request repeated,
         `frames` the rolling window (1 to 64), `progressive` its solver
         settings (`truth`, `lambda`, `captures`), `difference` (e.g.
-        `{"background_s": 10}`) to see what moves and track it. Returns its
-        state."""
-        return self._json("POST", "/live", {"scene": scene, "pose": pose, **fields})
+        `{"background_s": 10}`) to see what moves and track it. `record=N`
+        stores the session's first N frames (after its dark frames) as a new
+        capture, to reconstruct again later: `live()["recording"]` names it
+        (`capture`, `frames` written, `of`, `state`); a session that ends
+        first keeps the frames it got. Returns its state."""
+        body: Dict[str, Any] = {"scene": scene, "pose": pose, **fields}
+        if record is not None:
+            body["record"] = {"frames": record}
+        return self._json("POST", "/live", body)
 
     def live(self) -> Dict[str, Any]:
         """The live view's state (`GET /live`): results, results_per_second,
-        median_latency_ms and the newest result (`last`)."""
+        median_latency_ms, the newest result (`last`) and the recording
+        (`recording`), if one was asked for."""
         return self._json("GET", "/live")
 
     def live_image(self) -> bytes:

@@ -115,16 +115,21 @@ def test_the_live_view_gives_results_and_stops(client):
     window, the image downloads, and stopping frees the camera."""
     import time
     started = client.live_start("brewster-crossed", "A", polarizer_deg=0, exposure_us=20000,
-                                frames=4, dark_frames=2, progressive={"truth": "letter"})
+                                frames=4, dark_frames=2, progressive={"truth": "letter"},
+                                record=6)
     assert started["state"] in ("starting", "running"), started
+    assert started["recording"]["of"] == 6, started
     end = time.monotonic() + 30
     state = client.live()
-    while state["results"] < 3:
+    while state["results"] < 3 or state["recording"]["state"] != "done":
         assert time.monotonic() < end, state
         time.sleep(0.1)
         state = client.live()
     assert state["last"]["frames"] == 4, state
     assert state["last"]["psnr_db"] > 10, state
+    assert state["recording"]["frames"] == 6, state
+    recorded = client.get_capture(state["recording"]["capture"])
+    assert recorded["state"] == "done" and recorded["frames"] == 6, recorded
     assert client.live_image()[1:4] == b"PNG"
     stopped = client.live_stop()
     assert stopped["state"] == "off" and stopped["results"] >= 3, stopped

@@ -21,6 +21,7 @@ pub use worker::CameraHandle;
 pub(crate) mod synthetic;
 pub(crate) mod worker;
 
+pub(crate) use device::FrameIds;
 pub use device::{
     frames_between, CameraDevice, CameraError, CameraInfo, Counters, FrameCounts, FrameSink,
     RawFrame, SinkClosed,

@@ -23,6 +23,51 @@ impl Store {
         })
     }
 
+    /// Records the capture a live session records into (state `queued`
+    /// until its first frame; [`Store::capture_running`] starts it), with
+    /// its provenance in `live`. Returns its id.
+    pub fn insert_live_capture(
+        &self,
+        r: &CaptureRequest,
+        live: &records::LiveInfo,
+    ) -> Result<i64, StoreError> {
+        // A struct of numbers and a name always serializes.
+        let live = serde_json::to_string(live).unwrap_or_default();
+        self.with(|c| {
+            c.execute(
+                "INSERT INTO captures (id, scene, pose, channels, settings, frames, dark_frames, state, created_at, kind, dark_capture, live)
+                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, 'queued', ?7, ?8, ?9, ?10)",
+                params![r.scene, r.pose, records::channels_document(&r.channels), SettingsDocument::of(&r.acquisition), r.frames as i64, r.dark_frames as i64, now(),
+                    r.kind.name(), r.dark_capture, live],
+            )?;
+            Ok(c.last_insert_rowid())
+        })
+    }
+
+    /// Marks a live session's recording done with the `frames` it holds
+    /// (fewer than asked when the session ended early: `live.ended` says
+    /// why), in one transaction; call only after its files are durable.
+    pub fn live_capture_done(
+        &self,
+        id: i64,
+        frames: usize,
+        live: &records::LiveInfo,
+        taken: (&str, &str, crate::camera::FrameCounts),
+        clipping: crate::measure::Clipping,
+    ) -> Result<(), StoreError> {
+        let info = serde_json::to_string(live).unwrap_or_default();
+        let (camera_id, counters, counts) = taken;
+        self.with(|c| {
+            let tx = c.unchecked_transaction()?;
+            tx.execute(
+                "UPDATE captures SET frames = ?2, frames_taken = ?2 + dark_frames, live = ?3 WHERE id = ?1",
+                params![id, frames as i64, info],
+            )?;
+            done_statement(&tx, id, camera_id, counters, counts, clipping)?;
+            tx.commit()
+        })
+    }
+
     /// Records an imported capture (state `running` while its files are
     /// written; [`Store::import_done`] ends it): no camera settings, one
     /// frame, its provenance in `import`. Returns its id.
@@ -111,15 +156,7 @@ impl Store {
         frames: crate::camera::FrameCounts,
         clipping: crate::measure::Clipping,
     ) -> Result<(), StoreError> {
-        let frames = serde_json::to_string(&frames).unwrap_or_default();
-        let clipping = serde_json::to_string(&clipping).unwrap_or_default();
-        self.with(|c| {
-            c.execute(
-                "UPDATE captures SET state = 'done', finished_at = ?2, camera_id = ?3, counters = ?4, frame_counts = ?5, clipping = ?6, error = NULL WHERE id = ?1",
-                params![id, now(), camera_id, counters, frames, clipping],
-            )
-            .map(|_| ())
-        })
+        self.with(|c| done_statement(c, id, camera_id, counters, frames, clipping))
     }
 
     /// Marks a capture failed with a reason.
@@ -264,4 +301,22 @@ impl Store {
             offset,
         )
     }
+}
+
+/// The statement that marks capture `id` done with what its camera said.
+fn done_statement(
+    c: &rusqlite::Connection,
+    id: i64,
+    camera_id: &str,
+    counters: &str,
+    frames: crate::camera::FrameCounts,
+    clipping: crate::measure::Clipping,
+) -> rusqlite::Result<()> {
+    let frames = serde_json::to_string(&frames).unwrap_or_default();
+    let clipping = serde_json::to_string(&clipping).unwrap_or_default();
+    c.execute(
+        "UPDATE captures SET state = 'done', finished_at = ?2, camera_id = ?3, counters = ?4, frame_counts = ?5, clipping = ?6, error = NULL WHERE id = ?1",
+        params![id, now(), camera_id, counters, frames, clipping],
+    )
+    .map(|_| ())
 }

@@ -115,12 +115,41 @@ pub fn write_frames(
     frames: impl IntoIterator<Item = RawFrame>,
     on_frame: &mut dyn FnMut(&FrameStack),
 ) -> Result<FrameStack, StoreError> {
+    write_counted(path, kind, meta, (expected, expected), frames, on_frame)
+}
+
+/// As [`write_frames`], but the file is kept with any count from 1 to
+/// `at_most` frames (those after it are not taken).
+///
+/// Why: a live session's recording that ends early keeps the frames it got.
+pub(crate) fn write_frames_upto(
+    path: &Path,
+    kind: &str,
+    meta: &FrameMeta,
+    at_most: usize,
+    frames: impl IntoIterator<Item = RawFrame>,
+    on_frame: &mut dyn FnMut(&FrameStack),
+) -> Result<FrameStack, StoreError> {
+    let frames = frames.into_iter().take(at_most);
+    write_counted(path, kind, meta, (1, at_most), frames, on_frame)
+}
+
+/// [`write_frames`] with the least and the most frames a whole file holds.
+fn write_counted(
+    path: &Path,
+    kind: &str,
+    meta: &FrameMeta,
+    (least, expected): (usize, usize),
+    frames: impl IntoIterator<Item = RawFrame>,
+    on_frame: &mut dyn FnMut(&FrameStack),
+) -> Result<FrameStack, StoreError> {
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let tmp = path.with_file_name(format!(".{name}{TMP_MARK}{}", std::process::id()));
-    let result = write_pages(&tmp, kind, meta, expected, frames, on_frame).and_then(|stack| {
+    let counts = (least, expected);
+    let result = write_pages(&tmp, kind, meta, counts, frames, on_frame).and_then(|stack| {
         std::fs::rename(&tmp, path).map_err(|e| StoreError::File(FileError::write(path, e)))?;
         if let Some(dir) = path.parent() {
             if let Ok(d) = std::fs::File::open(dir) {
@@ -143,7 +172,7 @@ fn write_pages(
     tmp: &Path,
     kind: &str,
     meta: &FrameMeta,
-    expected: usize,
+    (least, expected): (usize, usize),
     frames: impl IntoIterator<Item = RawFrame>,
     on_frame: &mut dyn FnMut(&FrameStack),
 ) -> Result<FrameStack, StoreError> {
@@ -155,10 +184,10 @@ fn write_pages(
     let big = capture_bytes(w, h, expected, 0) > (3u64 << 30);
     let stack = if big {
         let enc = TiffEncoder::new_big(&mut out).map_err(|e| tiff_err(tmp, e))?;
-        encode_stream(enc, tmp, kind, meta, expected, frames, on_frame)?
+        encode_stream(enc, tmp, kind, meta, (least, expected), frames, on_frame)?
     } else {
         let enc = TiffEncoder::new(&mut out).map_err(|e| tiff_err(tmp, e))?;
-        encode_stream(enc, tmp, kind, meta, expected, frames, on_frame)?
+        encode_stream(enc, tmp, kind, meta, (least, expected), frames, on_frame)?
     };
     let file = out
         .into_inner()
@@ -173,7 +202,7 @@ fn encode_stream<W: std::io::Write + std::io::Seek, K: tiff::encoder::TiffKind>(
     path: &Path,
     kind: &str,
     meta: &FrameMeta,
-    expected: usize,
+    (least, expected): (usize, usize),
     frames: impl IntoIterator<Item = RawFrame>,
     on_frame: &mut dyn FnMut(&FrameStack),
 ) -> Result<FrameStack, StoreError> {
@@ -216,7 +245,7 @@ fn encode_stream<W: std::io::Write + std::io::Seek, K: tiff::encoder::TiffKind>(
         on_frame(st);
     }
     match stack {
-        Some(st) if st.count == expected => Ok(st),
+        Some(st) if (least..=expected).contains(&st.count) => Ok(st),
         other => Err(StoreError::Incomplete {
             path: path.to_path_buf(),
             got: other.map_or(0, |s| s.count),
@@ -510,6 +539,30 @@ mod tests {
             assert!(desc.contains(key), "{key}: {desc}");
         }
         assert!(dec.more_images());
+    }
+
+    #[test]
+    fn a_recording_keeps_the_frames_it_got_up_to_its_count_and_none_is_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join(CaptureFiles::FRAMES);
+        let write = |frames: Vec<RawFrame>| {
+            write_frames_upto(&p, "frames", &meta(), 3, frames, &mut |_: &FrameStack| {})
+        };
+        // Ended early: the two frames it got, a whole file.
+        let st = write(vec![raw(10), raw(20)]).unwrap();
+        assert_eq!((st.count, st.mean[0]), (2, 15.0));
+        let mut dec = tiff::decoder::Decoder::new(std::fs::File::open(&p).unwrap()).unwrap();
+        assert!(dec.more_images());
+        dec.next_image().unwrap();
+        assert!(!dec.more_images(), "two pages");
+        // More than asked: the first three, no more.
+        let st = write(vec![raw(1), raw(2), raw(3), raw(100)]).unwrap();
+        assert_eq!((st.count, st.mean[0]), (3, 2.0));
+        // None: no file (the one before is replaced only by a whole one).
+        std::fs::remove_file(&p).unwrap();
+        let e = write(Vec::new()).unwrap_err();
+        assert!(e.to_string().contains("only 0 of 3"), "{e}");
+        assert!(!p.exists());
     }
 
     #[test]

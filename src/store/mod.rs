@@ -24,15 +24,15 @@ pub(crate) use calibrations::ColourCalibrationRow;
 pub(crate) use files::FrameMeta;
 pub(crate) use files::{
     capture_bytes, read_imported, read_mean_in_range, read_mean_variance, remove_raw,
-    write_summary, CaptureFiles, TMP_MARK,
+    write_frames_upto, write_summary, CaptureFiles, TMP_MARK,
 };
 pub use files::{read_mean, write_frames};
 pub(crate) use lock::{remove_orphans, DirLock};
 pub(crate) use plans::{PlanCapture, PlanInterim, PlanRow, PlanState};
 pub use records::ReconstructionParams;
 pub(crate) use records::{
-    CaptureKind, CaptureRecord, CaptureRequest, ImportInfo, JobState, ReconstructionRecord,
-    ReconstructionRequest,
+    CaptureKind, CaptureRecord, CaptureRequest, ImportInfo, JobState, LiveInfo,
+    ReconstructionRecord, ReconstructionRequest,
 };
 pub(crate) use retention::Retention;
 pub use schema::Table;

@@ -177,6 +177,7 @@ impl CaptureRequest {
             frame_counts: None,
             clipping: None,
             import: None,
+            live: None,
         }
     }
 }
@@ -265,6 +266,28 @@ pub struct CaptureRecord {
     /// measurement or photo taken elsewhere; null for the camera's own.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub import: Option<ImportInfo>,
+    /// Where a live view's recording came from (`POST /live` with
+    /// `record`): its session, the frames asked and why it ended early;
+    /// null for a capture taken as one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub live: Option<LiveInfo>,
+}
+
+/// The provenance of a capture a live session recorded: which session, how
+/// many frames it asked for, and why it holds fewer when it does.
+///
+/// Why: a recording that ended early is kept with the frames it got, and
+/// its record must say so rather than pass for a capture of fewer frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct LiveInfo {
+    /// The live session (`GET /live`'s `session`) whose frames it holds.
+    pub session: u64,
+    /// Frames the recording asked for (`record.frames`); `frames` says how
+    /// many it holds.
+    pub frames_asked: usize,
+    /// Why the recording ended before `frames_asked` frames, when it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ended: Option<String>,
 }
 
 /// The provenance of an imported capture: what was sent, and what polnlos
@@ -395,6 +418,7 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         polarizer_measured_deg: r.get("polarizer_measured_deg")?,
         clipping: json_column(r, "clipping")?,
         import: json_column(r, "import")?,
+        live: json_column(r, "live")?,
     })
 }
 

@@ -83,7 +83,7 @@ END;
 
 /// Columns added to `captures` after the first release: (column, the
 /// statement that adds it).
-const ADDED_CAPTURE_COLUMNS: [(&str, &str); 6] = [
+const ADDED_CAPTURE_COLUMNS: [(&str, &str); 7] = [
     (
         "kind",
         "ALTER TABLE captures ADD COLUMN kind TEXT NOT NULL DEFAULT 'light'",
@@ -102,6 +102,7 @@ const ADDED_CAPTURE_COLUMNS: [(&str, &str); 6] = [
     ),
     ("clipping", "ALTER TABLE captures ADD COLUMN clipping TEXT"),
     ("import", "ALTER TABLE captures ADD COLUMN import TEXT"),
+    ("live", "ALTER TABLE captures ADD COLUMN live TEXT"),
 ];
 
 /// Catalogues from before the settings document kept a capture's camera

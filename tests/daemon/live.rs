@@ -178,6 +178,262 @@ fn live_view_solves_each_window_as_a_capture_would_gives_way_to_a_capture_and_st
     assert!(took < Duration::from_secs(10), "exit took {took:?}");
 }
 
+/// The live request recording its first `n` frames.
+fn recording(n: usize) -> String {
+    LIVE.replace(
+        r#""progressive""#,
+        &format!(r#""record": {{"frames": {n}}}, "progressive""#),
+    )
+}
+
+/// Polls `GET /captures/{id}` until it is no longer queued or running (within 30 s).
+fn ended_capture(d: &Daemon, id: &Value) -> Value {
+    let t = Instant::now();
+    loop {
+        let c = d.json(&format!("/captures/{id}"));
+        if c["state"] != "queued" && c["state"] != "running" {
+            return c;
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "capture: {c}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// The frame id and arrival time (Unix ns) of every page of a capture's raw frames.
+fn pages(d: &Daemon, id: &Value) -> Vec<(u64, u64)> {
+    let (s, tiff) = d.get_bytes(&format!("/captures/{id}/frame.tiff"));
+    assert_eq!(s, 200);
+    let mut dec = tiff::decoder::Decoder::new(std::io::Cursor::new(tiff)).unwrap();
+    let mut out = Vec::new();
+    loop {
+        let desc = dec
+            .get_tag_ascii_string(tiff::tags::Tag::ImageDescription)
+            .unwrap();
+        let v: Value = serde_json::from_str(&desc).unwrap();
+        let n = |k: &str| v[k].as_u64().unwrap_or_else(|| panic!("{k}: {v}"));
+        out.push((n("frame_id"), n("system_timestamp_ns")));
+        if !dec.more_images() {
+            return out;
+        }
+        dec.next_image().unwrap();
+    }
+}
+
+/// Nanoseconds since the Unix epoch, now.
+fn unix_ns() -> u64 {
+    let d = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap();
+    u64::try_from(d.as_nanos()).unwrap()
+}
+
+/// Issue 49, item 4: `record` writes the first 16 frames of a live session
+/// (after its 2 dark frames) to a new capture while live view runs on; the
+/// capture holds those frames (consecutive ids, arrived within the
+/// session) and reconstructs as well as the session's windows do. The
+/// recording's field is checked first (422s naming it).
+#[test]
+fn live_view_records_its_first_frames_as_a_capture_that_reconstructs_like_its_windows() {
+    let _g = lock();
+    let dir = scratch();
+    let d = Daemon::start(&config(dir.path(), &[]), &dir.path().join("data"));
+    for (record, says) in [
+        (
+            r#"{"frames": 0}"#,
+            "record.frames = 0: a recording is 1 to 998 frames",
+        ),
+        (
+            r#"{"frames": 999}"#,
+            "record.frames = 999: a recording is 1 to 998",
+        ),
+        (r#"{"frames": -1}"#, "record.frames: -1 is negative"),
+        (r#"{"frames": 1.5}"#, "record.frames: invalid value"),
+        (r#"{}"#, "record: missing field `frames`"),
+        (r#"{"frames": 4, "n": 1}"#, "record.n: unknown field `n`"),
+    ] {
+        let body = LIVE.replace(
+            r#""progressive""#,
+            &format!(r#""record": {record}, "progressive""#),
+        );
+        let (s, b, _) = d.post("/live", &body);
+        assert_eq!(s, 422, "{body}: {b}");
+        assert!(b.contains(says), "{says}: {b}");
+    }
+    let (s, b, _) = d.post(
+        "/captures",
+        &CAPTURE.replace('}', r#", "record": {"frames": 4}}"#),
+    );
+    assert_eq!(s, 422, "{b}");
+    assert!(b.contains("record is live view's (POST /live)"), "{b}");
+    assert_eq!(d.json("/captures"), serde_json::json!([]), "nothing stored");
+    assert_eq!(d.json("/live")["state"], "off");
+    // Documented: the body's field, its count, and what GET /live and a capture show of it.
+    let spec = d.json("/openapi.json");
+    let schemas = &spec["components"]["schemas"];
+    let described = |schema: &str, field: &str| {
+        let text = schemas[schema].to_string();
+        assert!(
+            text.contains(&format!("\"{field}\"")),
+            "{schema}.{field}: {text}"
+        );
+    };
+    described("CaptureBody", "record");
+    described("RecordBody", "frames");
+    described("LiveView", "recording");
+    described("RecordingView", "capture");
+    described("CaptureRecord", "live");
+    described("LiveInfo", "frames_asked");
+
+    let posted = unix_ns();
+    let t = Instant::now();
+    let (s, b, _) = d.post("/live", &recording(16));
+    assert_eq!(s, 202, "{b}");
+    let started: Value = serde_json::from_str(&b).unwrap();
+    let id = started["recording"]["capture"].clone();
+    assert!(id.is_i64(), "{started}");
+    assert_eq!(started["recording"]["of"], 16, "{started}");
+    assert_eq!(started["recording"]["state"], "waiting", "{started}");
+    let (v, seen) = watch(&d, |v| v["recording"]["state"] == "done");
+    let took = t.elapsed();
+    let done = unix_ns();
+    assert_eq!(v["state"], "running", "{v}");
+    assert_eq!(v["recording"]["frames"], 16, "{v}");
+    assert!(v["frames"].as_u64().unwrap() >= 16, "{v}");
+    let c = d.json(&format!("/captures/{id}"));
+    println!("recording done {took:?} after POST /live: {c}");
+    assert_eq!(c["state"], "done", "{c}");
+    assert_eq!(
+        (c["kind"].as_str(), c["frames"].as_i64()),
+        (Some("light"), Some(16)),
+        "{c}"
+    );
+    assert_eq!(c["dark_frames"], 2, "{c}");
+    assert_eq!(c["frames_taken"], 18, "{c}");
+    assert_eq!(c["frame_counts"]["received"], 18, "{c}");
+    assert_eq!(c["frame_counts"]["dropped"], 0, "{c}");
+    assert_eq!(c["exposure_us"], 20000.0, "{c}");
+    assert_eq!(c["live"]["session"], started["session"], "{c}");
+    assert_eq!(c["live"]["frames_asked"], 16, "{c}");
+    assert!(c["live"].get("ended").is_none(), "{c}");
+    // Its frames are 16 of the session's stream, in order, none missing.
+    let p = pages(&d, &id);
+    assert_eq!(p.len(), 16);
+    let next = |w: &[(u64, u64)]| polnlos::camera::frames_between(w[0].0, w[1].0) == Some(0);
+    assert!(p.windows(2).all(next), "{p:?}");
+    assert!(
+        p.iter().all(|&(_, ns)| (posted..=done).contains(&ns)),
+        "{p:?}"
+    );
+    let listed = d.json("/captures");
+    assert!(
+        listed.as_array().unwrap().iter().any(|l| l["id"] == id),
+        "{listed}"
+    );
+
+    // Live view ran on while it recorded, and after.
+    let results = v["results"].as_u64().unwrap();
+    let (v, more) = watch(&d, |v| v["results"].as_u64().unwrap_or(0) >= results + 20);
+    assert_eq!(v["state"], "running", "{v}");
+    assert_eq!(v["recording"]["state"], "done", "{v}");
+    // The recording reconstructs like any capture, as well as the session's
+    // 8-frame windows (from twice their frames): not more than 0.5 dB below
+    // their median.
+    let mut psnrs: Vec<f64> = seen.iter().chain(&more).copied().collect();
+    psnrs.sort_by(f64::total_cmp);
+    let median = psnrs[psnrs.len() / 2];
+    let recorded = psnr(&reconstruct(&d, &c));
+    println!(
+        "recording of 16 frames: {recorded:.2} dB; live windows {:.2}-{:.2} dB, median {median:.2} dB ({} results)",
+        psnrs[0],
+        psnrs[psnrs.len() - 1],
+        psnrs.len()
+    );
+    assert!(
+        recorded >= median - 0.5,
+        "{recorded:.2} dB against {median:.2} dB"
+    );
+    let (s, b) = d.delete("/live");
+    assert_eq!(s, 200, "{b}");
+}
+
+/// Issue 49, item 4: a recording cut short keeps the frames it got and says
+/// so: a capture queued during it pauses the session (the recording ends
+/// there, and the resumed session does not record again); `DELETE /live`
+/// ends another, and SIGTERM a third.
+#[test]
+fn a_live_recording_cut_short_keeps_the_frames_it_got_and_says_why() {
+    let _g = lock();
+    let dir = scratch();
+    let mut d = Daemon::start(&config(dir.path(), &[]), &dir.path().join("data"));
+    let (s, b, _) = d.post("/live", &recording(600));
+    assert_eq!(s, 202, "{b}");
+    let id = serde_json::from_str::<Value>(&b).unwrap()["recording"]["capture"].clone();
+    watch(&d, |v| v["recording"]["frames"].as_u64().unwrap_or(0) >= 5);
+    let taken = d.run_job("/captures", CAPTURE, Duration::from_secs(60));
+    assert_eq!(taken["state"], "done", "{taken}");
+    let c = ended_capture(&d, &id);
+    println!("paused by a capture: {c}");
+    let k = c["frames"].as_u64().unwrap();
+    assert_eq!(c["state"], "done", "{c}");
+    assert!((5..600).contains(&k), "{c}");
+    assert_eq!(c["frame_counts"]["received"], k + 2, "{c}");
+    assert_eq!(c["frames_taken"], k + 2, "{c}");
+    assert_eq!(c["live"]["frames_asked"], 600, "{c}");
+    let ended = c["live"]["ended"].as_str().unwrap();
+    assert_eq!(
+        ended,
+        format!("a queued capture paused live view after {k} of 600 frames")
+    );
+    assert_eq!(pages(&d, &id).len() as u64, k);
+    let (v, _) = watch(&d, |v| {
+        v["state"] == "running" && v["results"].as_u64().unwrap_or(0) > 0
+    });
+    let r = &v["recording"];
+    assert_eq!(
+        (r["state"].as_str(), r["frames"].as_u64()),
+        (Some("ended"), Some(k)),
+        "{v}"
+    );
+    assert_eq!(r["reason"], ended, "{v}");
+    let r = reconstruct(&d, &c);
+    println!("its reconstruction from {k} frames: {:.2} dB", psnr(&r));
+
+    // DELETE /live: the next session's recording keeps what it got.
+    let (s, b, _) = d.post("/live", &recording(600));
+    assert_eq!(s, 202, "{b}");
+    let id = serde_json::from_str::<Value>(&b).unwrap()["recording"]["capture"].clone();
+    watch(&d, |v| v["recording"]["frames"].as_u64().unwrap_or(0) >= 3);
+    let (s, b) = d.delete("/live");
+    assert_eq!(s, 200, "{b}");
+    let c = ended_capture(&d, &id);
+    println!("stopped by DELETE /live: {c}");
+    let k = c["frames"].as_u64().unwrap();
+    assert_eq!(c["state"], "done", "{c}");
+    assert!((3..600).contains(&k), "{c}");
+    assert_eq!(
+        c["live"]["ended"],
+        format!("live view was stopped or replaced after {k} of 600 frames")
+    );
+    assert_eq!(pages(&d, &id).len() as u64, k);
+    assert_eq!(reconstruct(&d, &c)["state"], "done");
+
+    // SIGTERM: the daemon finishes the recording with what it got before it exits.
+    let (s, b, _) = d.post("/live", &recording(600));
+    assert_eq!(s, 202, "{b}");
+    let id = serde_json::from_str::<Value>(&b).unwrap()["recording"]["capture"].clone();
+    watch(&d, |v| v["recording"]["frames"].as_u64().unwrap_or(0) >= 3);
+    assert!(d.terminate().success());
+    let store = polnlos::store::Store::open(&dir.path().join("data")).unwrap();
+    let c = serde_json::to_value(store.capture(id.as_i64().unwrap()).unwrap()).unwrap();
+    println!("stopped by SIGTERM: {c}");
+    let k = c["frames"].as_u64().unwrap();
+    assert_eq!(c["state"], "done", "{c}");
+    assert_eq!(
+        c["live"]["ended"],
+        format!("the daemon stopped after {k} of 600 frames")
+    );
+}
+
 /// Issue 49: live view of a chair-size scene (a 126 x 126 wall, a 36 x 29
 /// scene, a colour camera's three colours) on the fake Bayer bench: each
 /// window solved in colour, its λ searched once and kept while the noise

@@ -9,8 +9,10 @@ use crate::daemon::runtime::live::LiveView;
 /// capture is queued; a running session is replaced. Results stream on
 /// `/events` (`live`) and as `/live/image.png`. With `difference` each
 /// window is reconstructed against a running background (what moves) and
-/// the moving object is tracked (`/live/track.csv`).
-#[utoipa::path(post, path = "/live", request_body = CaptureBody, responses((status = 202, body = LiveView, description = "Started; GET /live follows it"), (status = 404, body = ErrorBody, description = "Unknown scene, pose or dark capture"), (status = 422, body = ErrorBody, description = "A request the camera, the scene or the window cannot serve")))]
+/// the moving object is tracked (`/live/track.csv`). With `record` the
+/// session's first `record.frames` frames are written, as they arrive, to a
+/// new capture (`GET /live`'s `recording` names it), its disk reserved now.
+#[utoipa::path(post, path = "/live", request_body = CaptureBody, responses((status = 202, body = LiveView, description = "Started; GET /live follows it"), (status = 404, body = ErrorBody, description = "Unknown scene, pose or dark capture"), (status = 422, body = ErrorBody, description = "A request the camera, the scene or the window cannot serve"), (status = 507, body = ErrorBody, description = "The recording's frames would not fit on the data directory's disk")))]
 pub async fn post_live(
     State(d): St,
     ApiJson(b): ApiJson<CaptureBody>,

@@ -162,7 +162,7 @@ async fn run_capture(w: &CaptureWorker, id: i64, cancel: &AtomicBool) -> Result<
     turn_polarizer(w, &c).await?;
     super::wait_for_camera(&w.camera).await;
     let camera_id = w.camera.status().info.map(|i| i.id).unwrap_or_default();
-    let meta = meta_of(&c, acquisition, &camera_id);
+    let meta = super::meta_of(&c, acquisition, &camera_id);
     let dir = w.jobs.store.capture_dir(id);
     std::fs::create_dir_all(&dir)
         .map_err(|e| JobError::Store(w.jobs.store.describe_io(&dir, &e)))?;
@@ -313,20 +313,6 @@ async fn finish_progressive(
     tracing::info!("capture-{id}: {} progressive steps", steps.len());
     if frames.is_none() {
         progressive::remove_files(&w.jobs.store, id);
-    }
-}
-
-/// What every page of the capture's files records about it.
-fn meta_of(c: &CaptureRecord, acquisition: Acquisition, camera_id: &str) -> FrameMeta {
-    FrameMeta {
-        capture: c.id,
-        kind: c.kind,
-        scene: c.scene.clone(),
-        pose: c.pose.clone(),
-        channels: c.channels.clone(),
-        acquisition,
-        dark_capture: c.dark_capture,
-        camera_id: camera_id.to_string(),
     }
 }
 

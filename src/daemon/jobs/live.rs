@@ -72,6 +72,11 @@ pub(in crate::daemon) async fn segment(w: &LiveRun<'_>, live: &Arc<Live>) {
         Err(e) => {
             tracing::warn!("live view stopped: {e}");
             live.fail(session, e.to_string());
+            let why = format!("live view failed ({e})");
+            if let Some(id) = live.fail_waiting(session, &why) {
+                let (store, events) = (&w.jobs.store, &w.jobs.events);
+                super::record::unrecorded(store, w.queue, events, id, &why);
+            }
         }
     }
 }
@@ -97,9 +102,9 @@ async fn run(
     super::wait_for_camera(w.camera).await;
     w.rig.show_block(&c.pose, c.sheet_deg());
     let settings = Acquisition::try_from(&c).map_err(|e| JobError::Live(e.to_string()))?;
-    let dark = dark(w, &c, settings).await?;
+    let (dark_frames, dark) = dark(w, &c, settings).await?;
     let solver = {
-        let (d, c, spec) = (w.jobs.clone(), c.clone(), spec.clone());
+        let (d, c, spec, dark) = (w.jobs.clone(), c.clone(), spec.clone(), dark.clone());
         tokio::task::spawn_blocking(move || Progressive::new(&d, c, &spec, dark)).await??
     };
     // A watcher sets the stop flag when a capture is queued, the session
@@ -129,6 +134,15 @@ async fn run(
             }
         })
     };
+    // The recording, if one waits: its first frame is the stream's first.
+    let services = super::record::Services {
+        jobs: w.jobs,
+        camera: w.camera,
+        queue: w.queue,
+    };
+    let dark_both = (&dark_frames[..], &dark);
+    let recording = super::record::begin(services, live, session, settings, dark_both).await;
+    let (tap, recorder) = recording.map_or((None, None), |(t, r)| (Some(t), Some(r)));
     live.set_state(session, LiveState::Running, None);
     let (snap_tx, snap_rx) = std::sync::mpsc::sync_channel::<(Snapshot, Instant)>(1);
     let busy = Arc::new(AtomicBool::new(false));
@@ -139,15 +153,65 @@ async fn run(
             solve(solver, differences, snap_rx, &busy, &live, session, &events)
         })
     };
-    let mut ended = Ok(());
-    while !stop.load(Ordering::SeqCst) {
+    let streams = Streams {
+        stop: stop.clone(),
+        busy,
+        snap_tx,
+    };
+    let (ended, tap) = stream(w, live, session, request, settings, &streams, tap).await;
+    stop.store(true, Ordering::SeqCst);
+    watcher.abort();
+    if let Some(recorder) = recorder {
+        recorder
+            .finish(tap, why_ended(w, live, session, &ended))
+            .await;
+    }
+    drop(streams);
+    let _ = solving.await;
+    ended
+}
+
+/// What the frame reader shares with the segment: its stop flag, the
+/// solver's busy flag and the solver's channel.
+struct Streams {
+    stop: Arc<AtomicBool>,
+    busy: Arc<AtomicBool>,
+    snap_tx: SyncSender<(Snapshot, Instant)>,
+}
+
+/// Streams the camera into the window (and the recording's `tap`) until
+/// the stop flag is set or the camera or the window fails; returns how it
+/// ended and the tap, if the recording still wants frames.
+async fn stream(
+    w: &LiveRun<'_>,
+    live: &Arc<Live>,
+    session: u64,
+    request: &CaptureRequest,
+    settings: Acquisition,
+    s: &Streams,
+    mut tap: Option<super::record::Tap>,
+) -> (Result<(), JobError>, Option<super::record::Tap>) {
+    while !s.stop.load(Ordering::SeqCst) {
         let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<RawFrame>(4);
         let reader = {
-            let (stop, live, busy, snap_tx) =
-                (stop.clone(), live.clone(), busy.clone(), snap_tx.clone());
-            let window = request.frames;
+            let (stop, live, busy, snap_tx) = (
+                s.stop.clone(),
+                live.clone(),
+                s.busy.clone(),
+                s.snap_tx.clone(),
+            );
+            let (window, mut tap) = (request.frames, tap.take());
             tokio::task::spawn_blocking(move || {
-                read(frame_rx, window, &stop, &live, session, &busy, &snap_tx)
+                let r = read(
+                    frame_rx,
+                    window,
+                    &stop,
+                    (&live, session),
+                    &busy,
+                    &snap_tx,
+                    &mut tap,
+                );
+                (r, tap)
             })
         };
         let acquired = w
@@ -155,34 +219,53 @@ async fn run(
             .handle()
             .acquire(settings, SEGMENT_FRAMES, frame_tx)
             .await;
-        let read = reader.await.map_err(JobError::from).and_then(|r| r);
+        let read = match reader.await {
+            Ok((r, back)) => {
+                tap = back;
+                r
+            }
+            Err(e) => Err(e.into()),
+        };
         match (acquired, read) {
-            (_, Err(e)) => {
-                ended = Err(e);
-                break;
-            }
-            (Err(_), Ok(())) if stop.load(Ordering::SeqCst) => break,
-            (Err(e), Ok(())) => {
-                ended = Err(e.into());
-                break;
-            }
+            (_, Err(e)) => return (Err(e), tap),
+            (Err(_), Ok(())) if s.stop.load(Ordering::SeqCst) => break,
+            (Err(e), Ok(())) => return (Err(e.into()), tap),
             (Ok(_), Ok(())) => {}
         }
     }
-    stop.store(true, Ordering::SeqCst);
-    watcher.abort();
-    drop(snap_tx);
-    let _ = solving.await;
-    ended
+    (Ok(()), tap)
 }
 
-/// The dark mean (and its variance) the session subtracts: dark frames
-/// taken now with the scene switched off, or a dark capture's mean, or none.
+/// Why a live segment ended, in the words a recording it cut short keeps.
+fn why_ended(w: &LiveRun<'_>, live: &Live, session: u64, ended: &Result<(), JobError>) -> String {
+    if let Err(e) = ended {
+        return format!("live view failed ({e})");
+    }
+    let view = live.view();
+    let why = if w.jobs.registry.is_stopping() {
+        "the daemon stopped"
+    } else if view.session == session && view.state == LiveState::Failed {
+        return format!("live view failed ({})", view.error.unwrap_or_default());
+    } else if !live.is_current(session) {
+        "live view was stopped or replaced"
+    } else if w.queue.depth() > 0 {
+        "a queued capture paused live view"
+    } else if w.camera.waiting() > 0 {
+        "a mount sweep took the camera"
+    } else {
+        "the live stream ended"
+    };
+    why.to_string()
+}
+
+/// The dark frames taken now with the scene switched off (none with a dark
+/// capture or none asked), and the dark mean (and its variance) the
+/// session subtracts: theirs, or a dark capture's, or none.
 async fn dark(
     w: &LiveRun<'_>,
     c: &CaptureRecord,
     settings: Acquisition,
-) -> Result<(Option<Frame>, Option<Frame>), JobError> {
+) -> Result<DarkFrames, JobError> {
     if c.dark_frames > 0 {
         let n = usize::try_from(c.dark_frames).unwrap_or(1);
         w.rig
@@ -206,28 +289,33 @@ async fn dark(
             st.push_raw(&f.pixels, f.bits);
         }
         let mean = st.mean_minus(None)?;
-        return Ok((Some(mean), st.variance_frame()));
+        let variance = st.variance_frame();
+        return Ok((frames, (Some(mean), variance)));
     }
     match c.dark_capture {
         Some(dc) => {
             let (mean, variance) = super::dark_capture(&w.jobs.store, dc)?;
-            Ok((Some(mean), variance))
+            Ok((Vec::new(), (Some(mean), variance)))
         }
-        None => Ok((None, None)),
+        None => Ok((Vec::new(), (None, None))),
     }
 }
 
-/// Adds each frame to the window and hands the newest window to the solver
-/// whenever it is free; ends when the stop flag is set (dropping the
-/// receiver, which stops the camera) or the acquisition ends.
+/// Dark frames taken, and the dark mean and its variance.
+type DarkFrames = (Vec<RawFrame>, (Option<Frame>, Option<Frame>));
+
+/// Adds each frame to the window (and gives it to the recording's `tap`)
+/// and hands the newest window to the solver whenever it is free; ends
+/// when the stop flag is set (dropping the receiver, which stops the
+/// camera) or the acquisition ends.
 fn read(
     frames: Receiver<RawFrame>,
     n: usize,
     stop: &AtomicBool,
-    live: &Live,
-    session: u64,
+    (live, session): (&Live, u64),
     busy: &AtomicBool,
     solver: &SyncSender<(Snapshot, Instant)>,
+    tap: &mut Option<super::record::Tap>,
 ) -> Result<(), JobError> {
     let mut window: Option<Window> = None;
     // The window's frames' arrival times, Unix seconds.
@@ -239,6 +327,9 @@ fn read(
             Err(RecvTimeoutError::Disconnected) => break,
         };
         let arrived = Instant::now();
+        if let Some(tap) = tap.as_mut() {
+            tap.offer(&f);
+        }
         let win = match window.as_mut() {
             Some(w) if w.size() == (f.width, f.height) => w,
             _ => {

@@ -6,6 +6,7 @@ pub(crate) mod capture;
 pub(crate) mod live;
 pub(crate) mod progressive;
 pub(crate) mod reconstruction;
+pub(crate) mod record;
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -243,4 +244,22 @@ pub(in crate::daemon) fn dark_capture(
     let mean = crate::store::read_mean(&dir).map_err(failed)?;
     let variance = crate::store::read_mean_variance(&dir).map_err(failed)?;
     Ok((mean, variance))
+}
+
+/// What every page of the capture's files records about it.
+pub(in crate::daemon) fn meta_of(
+    c: &crate::store::CaptureRecord,
+    acquisition: crate::camera::Acquisition,
+    camera_id: &str,
+) -> crate::store::FrameMeta {
+    crate::store::FrameMeta {
+        capture: c.id,
+        kind: c.kind,
+        scene: c.scene.clone(),
+        pose: c.pose.clone(),
+        channels: c.channels.clone(),
+        acquisition,
+        dark_capture: c.dark_capture,
+        camera_id: camera_id.to_string(),
+    }
 }

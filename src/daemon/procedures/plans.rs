@@ -198,6 +198,7 @@ fn capture_body(
         dark_capture,
         progressive: None,
         difference: None,
+        record: None,
     })
 }
 

@@ -148,10 +148,15 @@ impl Admission {
         &self,
         b: &CaptureBody,
     ) -> Result<(CaptureRequest, Option<ProgressiveSpec>), RequestError> {
-        if b.difference.is_some() {
-            return Err(RequestError::Invalid(
-                "difference is live view's (POST /live): leave it out of a capture".into(),
-            ));
+        if b.difference.is_some() || b.record.is_some() {
+            let field = if b.difference.is_some() {
+                "difference"
+            } else {
+                "record"
+            };
+            return Err(RequestError::Invalid(format!(
+                "{field} is live view's (POST /live): leave it out of a capture"
+            )));
         }
         let scene = self.scenes.scene(&b.scene)?;
         let info = self.camera.status().info;
@@ -175,13 +180,13 @@ impl Admission {
     /// whose `frames` is the window (1 to [`MAX_WINDOW`]), solved as a
     /// progressive reconstruction (`progressive` gives λ, the truth and the
     /// other blocks' captures), which needs the scene's radiometric
-    /// calibration.
+    /// calibration; and the frames to record, when asked (`record`).
     ///
     /// [`MAX_WINDOW`]: crate::measure::window::MAX_WINDOW
     pub(in crate::daemon) fn check_live(
         &self,
         b: &CaptureBody,
-    ) -> Result<(CaptureRequest, ProgressiveSpec), RequestError> {
+    ) -> Result<(CaptureRequest, ProgressiveSpec, Option<usize>), RequestError> {
         use crate::measure::window::MAX_WINDOW;
         if b.kind
             .is_some_and(|k| k != crate::store::CaptureKind::Light)
@@ -218,6 +223,7 @@ impl Admission {
         }
         let mut body = b.clone();
         body.difference = None;
+        body.record = None;
         body.progressive.get_or_insert(super::ProgressiveBody {
             every: None,
             captures: Vec::new(),
@@ -229,7 +235,67 @@ impl Admission {
         let mut spec =
             spec.ok_or_else(|| RequestError::Invalid("live view: no solver settings".into()))?;
         spec.difference = difference;
-        Ok((request, spec))
+        let max = self.config.queue.max_frames_per_capture;
+        let record = b
+            .record
+            .as_ref()
+            .map(|r| validate::recording(r, request.dark_frames, max))
+            .transpose()?;
+        Ok((request, spec, record))
+    }
+
+    /// The disk capture `req`'s files need, against what the data
+    /// directory's disk has free and keeps free.
+    fn disk_need(&self, req: &CaptureRequest) -> Result<DiskNeed, SubmitError> {
+        let need = capture_bytes(
+            req.acquisition.region[2],
+            req.acquisition.region[3],
+            req.frames,
+            req.dark_frames,
+        );
+        let free = crate::files::space::free_disk_bytes(self.store.dir())
+            .map_err(|e| SubmitError::Internal(self.store.describe_io(self.store.dir(), &e)))?;
+        Ok(DiskNeed {
+            need,
+            free,
+            keep: self.config.queue.reserve_free_mib << 20,
+        })
+    }
+
+    /// Records the capture live session `session` records its first
+    /// `frames` frames into, its disk reserved as a queued capture's (507
+    /// when it does not fit); the live view's worker writes it.
+    fn reserve_recording(
+        &self,
+        live: &CaptureRequest,
+        frames: usize,
+        session: u64,
+    ) -> Result<i64, SubmitError> {
+        let req = CaptureRequest {
+            frames,
+            ..live.clone()
+        };
+        let info = crate::store::LiveInfo {
+            session,
+            frames_asked: frames,
+            ended: None,
+        };
+        let disk = self.disk_need(&req)?;
+        let id = self.captures.reserve(disk, || {
+            self.store
+                .insert_live_capture(&req, &info)
+                .map_err(|e| SubmitError::Internal(self.store.describe(&e)))
+        })?;
+        tracing::info!(
+            "capture-{id} reserved for live session {session}'s first {frames} frames (+ {} dark)",
+            req.dark_frames
+        );
+        self.events.job(
+            format!("capture-{id}"),
+            crate::store::JobState::Queued,
+            None,
+        );
+        Ok(id)
     }
 
     /// Admits a validated capture: room in the queue and on the disk (its
@@ -240,19 +306,7 @@ impl Admission {
         req: &CaptureRequest,
         progressive: Option<ProgressiveSpec>,
     ) -> Result<i64, SubmitError> {
-        let need = capture_bytes(
-            req.acquisition.region[2],
-            req.acquisition.region[3],
-            req.frames,
-            req.dark_frames,
-        );
-        let free = crate::files::space::free_disk_bytes(self.store.dir())
-            .map_err(|e| SubmitError::Internal(self.store.describe_io(self.store.dir(), &e)))?;
-        let disk = DiskNeed {
-            need,
-            free,
-            keep: self.config.queue.reserve_free_mib << 20,
-        };
+        let disk = self.disk_need(req)?;
         let seconds = req.acquisition.exposure_us * 1e-6 * (req.frames + req.dark_frames) as f64;
         let retry_after = seconds.ceil().max(1.0) as u64;
         let insert = || {
@@ -318,15 +372,21 @@ impl crate::daemon::Daemon {
     }
 
     /// Starts the live view repeating capture body `b` (a running session
-    /// is replaced); the capture worker runs it while no capture waits.
+    /// is replaced), with the capture its `record` writes reserved; the
+    /// capture worker runs it while no capture waits.
     pub async fn start_live(
         &self,
         b: CaptureBody,
-    ) -> Result<crate::daemon::runtime::live::LiveView, RequestError> {
+    ) -> Result<crate::daemon::runtime::live::LiveView, SubmitError> {
         let a = self.admission.clone();
-        let (request, spec) = tokio::task::spawn_blocking(move || a.check_live(&b))
+        let (request, spec, record) = tokio::task::spawn_blocking(move || a.check_live(&b))
             .await
             .map_err(|e| RequestError::Unavailable(format!("live view validation: {e}")))??;
+        let session = self.live.issue_id();
+        let recording = match record {
+            Some(n) => Some((self.admission.reserve_recording(&request, n, session)?, n)),
+            None => None,
+        };
         tracing::info!(
             "live view started: {} {}, windows of {} frames of {} us",
             request.scene,
@@ -334,14 +394,27 @@ impl crate::daemon::Daemon {
             request.frames,
             request.acquisition.exposure_us
         );
-        Ok(self.live.start(request, spec))
+        let (view, replaced) = self.live.start(session, request, spec, recording);
+        if let Some(id) = replaced {
+            self.end_unrecorded(id, "a new live session (POST /live) replaced its session");
+        }
+        Ok(view)
     }
 
     /// Stops the live view; its last state, as `off`.
     pub fn stop_live(&self) -> crate::daemon::runtime::live::LiveView {
-        let view = self.live.stop();
+        let (view, waiting) = self.live.stop();
+        if let Some(id) = waiting {
+            self.end_unrecorded(id, "DELETE /live stopped its session");
+        }
         tracing::info!("live view stopped after {} results", view.results);
         view
+    }
+
+    /// Ends recording capture `id`, to which no frame went, as failed for `why`.
+    fn end_unrecorded(&self, id: i64, why: &str) {
+        let a = &self.admission;
+        crate::daemon::jobs::record::unrecorded(&a.store, &a.captures, &a.events, id, why);
     }
 
     /// The live view's state and newest image.

@@ -73,6 +73,24 @@ pub struct CaptureBody {
     /// window against a running background, so that the image shows what
     /// moves, and track it (`GET /live/track.csv`).
     pub difference: Option<DifferenceBody>,
+    /// Live view only (`POST /live`; a capture refuses it): store the first
+    /// `frames` frames the session receives (after its dark frames) as a new
+    /// light capture, so that it can be reconstructed again offline.
+    pub record: Option<RecordBody>,
+}
+
+/// A live session's recording: its first frames written, as they arrive,
+/// to a new capture of the same scene, pose and camera settings (its dark
+/// frames the session's, or its `dark_capture`).
+#[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct RecordBody {
+    /// Frames to record (1 to `max_frames_per_capture`, with the dark
+    /// frames, as a capture's `frames`); a session that ends first keeps
+    /// the frames it got, and the capture's `live` says so.
+    #[serde(deserialize_with = "crate::integral::count")]
+    #[schema(minimum = 1)]
+    pub frames: usize,
 }
 
 /// Live view's difference mode: each window's measurement less a running
@@ -485,6 +503,28 @@ mod tests {
             .map_err(|e| e.to_string())?
             .positions()
             .map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn a_recording_is_a_whole_count_of_frames_and_names_its_field() {
+        let b: CaptureBody =
+            body(r#"{"scene": "s", "pose": "A", "record": {"frames": 16.0}}"#).unwrap();
+        assert_eq!(b.record.map(|r| r.frames), Some(16));
+        for (json, says) in [
+            (r#"{"frames": -1}"#, "record.frames: -1 is negative"),
+            (r#"{"frames": 1.5}"#, "record.frames: invalid value"),
+            (r#"{}"#, "record: missing field `frames`"),
+            (
+                r#"{"frames": 2, "every": 1}"#,
+                "record.every: unknown field `every`",
+            ),
+        ] {
+            let e = body::<CaptureBody>(&format!(
+                r#"{{"scene": "s", "pose": "A", "record": {json}}}"#
+            ))
+            .unwrap_err();
+            assert!(e.contains(says), "{json}: {e}");
+        }
     }
 
     #[test]

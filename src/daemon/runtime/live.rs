@@ -43,6 +43,40 @@ pub enum LiveState {
     Failed,
 }
 
+/// Where a live session's recording is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum RecordingState {
+    /// Waiting for the session's first frame (after its dark frames).
+    Waiting,
+    /// Writing each frame as it arrives.
+    Recording,
+    /// All its frames are written; the capture is done.
+    Done,
+    /// The session ended first: the capture is done with the frames it got.
+    Ended,
+    /// Nothing usable was written (`reason` says why); the capture failed.
+    Failed,
+    /// Cancelled (`DELETE /jobs/capture-<id>`); the capture keeps no frame.
+    Cancelled,
+}
+
+/// A live session's recording as `GET /live` shows it.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct RecordingView {
+    /// The capture it writes (`GET /captures/{id}`).
+    pub capture: i64,
+    /// Frames written so far.
+    pub frames: usize,
+    /// Frames asked for (`record.frames`).
+    pub of: usize,
+    /// Where it is.
+    pub state: RecordingState,
+    /// Why it ended early, failed or was cancelled.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+}
+
 /// What `GET /live` answers.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct LiveView {
@@ -89,6 +123,10 @@ pub struct LiveView {
     /// (absent when nothing stood out of its noise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub centroid: Option<Centroid>,
+    /// The recording asked for with `record`: its capture, frames written,
+    /// of how many, and its state.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recording: Option<RecordingView>,
 }
 
 /// A started session: what it repeats and what it gave.
@@ -110,6 +148,18 @@ pub(crate) struct Session {
     last_track: Option<TrackRow>,
     /// Newest image: columns, rows, values.
     image: Option<(usize, usize, Vec<f64>)>,
+    /// The recording asked for, if any.
+    recording: Option<RecordingView>,
+}
+
+impl Session {
+    /// The capture of its recording while no frame went to it.
+    fn waiting(&self) -> Option<i64> {
+        self.recording
+            .as_ref()
+            .filter(|r| r.state == RecordingState::Waiting)
+            .map(|r| r.capture)
+    }
 }
 
 /// The live view: at most one session.
@@ -151,14 +201,27 @@ impl Live {
         self.session.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Starts a session repeating `request` (a replaced session ends).
-    pub(crate) fn start(&self, request: CaptureRequest, spec: ProgressiveSpec) -> LiveView {
-        let id = {
-            let mut next = self.next.lock().unwrap_or_else(|e| e.into_inner());
-            *next += 1;
-            *next
-        };
+    /// A new session's number, for [`Live::start`] (and the recording's
+    /// capture, which names it, before the session starts).
+    pub(crate) fn issue_id(&self) -> u64 {
+        let mut next = self.next.lock().unwrap_or_else(|e| e.into_inner());
+        *next += 1;
+        *next
+    }
+
+    /// Starts session `id` repeating `request`, recording its first frames
+    /// to `recording` (a capture and its frame count) when given; a replaced
+    /// session ends. Returns the view and the capture of the replaced
+    /// session's recording if no frame went to it yet (the caller ends it).
+    pub(crate) fn start(
+        &self,
+        id: u64,
+        request: CaptureRequest,
+        spec: ProgressiveSpec,
+        recording: Option<(i64, usize)>,
+    ) -> (LiveView, Option<i64>) {
         let mut session = self.lock();
+        let replaced = session.as_ref().and_then(Session::waiting);
         self.track.lock().unwrap_or_else(|e| e.into_inner()).clear();
         *session = Some(Session {
             id,
@@ -175,20 +238,76 @@ impl Live {
             last: None,
             last_track: None,
             image: None,
+            recording: recording.map(|(capture, of)| RecordingView {
+                capture,
+                frames: 0,
+                of,
+                state: RecordingState::Waiting,
+                reason: None,
+            }),
         });
         drop(session);
         self.changed.send_modify(|g| *g += 1);
-        self.view()
+        (self.view(), replaced)
     }
 
-    /// Stops the session; its last view, as `off`.
-    pub(crate) fn stop(&self) -> LiveView {
+    /// Stops the session; its last view, as `off`, and the capture of its
+    /// recording if no frame went to it yet (the caller ends it).
+    pub(crate) fn stop(&self) -> (LiveView, Option<i64>) {
         let mut view = self.view();
-        *self.lock() = None;
+        let waiting = self.lock().take().and_then(|s| s.waiting());
         self.changed.send_modify(|g| *g += 1);
         view.state = LiveState::Off;
         view.paused_by = None;
-        view
+        (view, waiting)
+    }
+
+    /// Session `id`'s recording, when it waits for its first frame: now
+    /// recording; its capture and frame count. Once only: a session resumed
+    /// after a capture does not record again.
+    pub(crate) fn claim_recording(&self, id: u64) -> Option<(i64, usize)> {
+        let mut guard = self.lock();
+        let r = guard
+            .as_mut()
+            .filter(|s| s.id == id && s.state != LiveState::Failed)?
+            .recording
+            .as_mut()
+            .filter(|r| r.state == RecordingState::Waiting)?;
+        r.state = RecordingState::Recording;
+        Some((r.capture, r.of))
+    }
+
+    /// Session `id`'s recording's capture if no frame went to it yet, now
+    /// failed for `reason` (the session failed before its first frame).
+    pub(crate) fn fail_waiting(&self, id: u64, reason: &str) -> Option<i64> {
+        let mut capture = None;
+        self.with(id, |s| {
+            capture = s.waiting();
+            if let Some(r) = s.recording.as_mut().filter(|_| capture.is_some()) {
+                r.state = RecordingState::Failed;
+                r.reason = Some(reason.to_string());
+            }
+        });
+        capture
+    }
+
+    /// Session `id`'s recording wrote `frames` frames so far.
+    pub(crate) fn recorded(&self, id: u64, frames: usize) {
+        self.with(id, |s| {
+            if let Some(r) = s.recording.as_mut() {
+                r.frames = frames;
+            }
+        });
+    }
+
+    /// Session `id`'s recording ended in `state`, for `reason` when not done.
+    pub(crate) fn recording_ended(&self, id: u64, state: RecordingState, reason: Option<String>) {
+        self.with(id, |s| {
+            if let Some(r) = s.recording.as_mut() {
+                r.state = state;
+                r.reason = reason;
+            }
+        });
     }
 
     /// A receiver that sees every start and stop.
@@ -321,6 +440,7 @@ impl Live {
                 difference_background_s: None,
                 last_time_s: None,
                 centroid: None,
+                recording: None,
             };
         };
         let rate = match (s.times.front(), s.times.back()) {
@@ -348,6 +468,7 @@ impl Live {
             difference_background_s: s.spec.difference,
             last_time_s: s.last_track.map(|(t, _)| t),
             centroid: s.last_track.and_then(|(_, c)| c),
+            recording: s.recording.clone(),
         }
     }
 }
@@ -367,7 +488,11 @@ mod tests {
             truth: None,
             difference: Some(10.0),
         };
-        let id = live.start(CaptureRequest::example(), spec.clone()).session;
+        let id = live.issue_id();
+        let id = live
+            .start(id, CaptureRequest::example(), spec.clone(), None)
+            .0
+            .session;
         let step = Step {
             frames: 8,
             iterations: 1,
@@ -396,8 +521,50 @@ mod tests {
         assert!(v.centroid.is_none(), "the newest result found nothing");
         live.stop();
         assert_eq!(live.track_csv(), csv);
-        live.start(CaptureRequest::example(), spec);
+        live.start(live.issue_id(), CaptureRequest::example(), spec, None);
         assert_eq!(live.track_csv(), "time_s,u_m,v_m,sigma_u_m,sigma_v_m\n");
+    }
+
+    #[test]
+    fn a_recording_is_claimed_once_and_a_waiting_one_goes_back_to_whoever_ends_it() {
+        let live = Live::default();
+        let spec = ProgressiveSpec {
+            every: 1,
+            captures: Vec::new(),
+            lambda: None,
+            max_iter: 10,
+            truth: None,
+            difference: None,
+        };
+        let start = |recording| {
+            let id = live.issue_id();
+            let (view, replaced) =
+                live.start(id, CaptureRequest::example(), spec.clone(), recording);
+            (id, view, replaced)
+        };
+        let (one, view, replaced) = start(Some((7, 16)));
+        assert!(replaced.is_none());
+        let r = view.recording.expect("a recording");
+        assert_eq!((r.capture, r.frames, r.of), (7, 0, 16));
+        assert_eq!(r.state, RecordingState::Waiting);
+        // Replaced before its first frame: its capture goes back.
+        let (two, _, replaced) = start(Some((8, 4)));
+        assert_eq!(replaced, Some(7));
+        assert_eq!(live.claim_recording(one), None, "not the session any more");
+        assert_eq!(live.claim_recording(two), Some((8, 4)));
+        assert_eq!(live.claim_recording(two), None, "claimed once");
+        live.recorded(two, 3);
+        assert_eq!(live.view().recording.map(|r| r.frames), Some(3));
+        // Recording: whoever stops the session does not end it (its writer does).
+        assert_eq!(live.stop().1, None);
+        let (three, _, _) = start(Some((9, 4)));
+        assert_eq!(live.fail_waiting(three, "the camera went"), Some(9));
+        let r = live.view().recording.expect("a recording");
+        assert_eq!(r.state, RecordingState::Failed);
+        assert_eq!(live.fail_waiting(three, "again"), None);
+        assert_eq!(live.stop().1, None);
+        let (_, view, _) = start(None);
+        assert!(view.recording.is_none());
     }
 
     #[test]

@@ -135,15 +135,7 @@ impl CaptureQueue {
         // Held across the check and the insert: two requests cannot both
         // count the same free bytes.
         let mut reserved = self.reserved.lock().unwrap_or_else(|e| e.into_inner());
-        let held: u64 = reserved.values().sum();
-        if disk.need.saturating_add(held).saturating_add(disk.keep) > disk.free {
-            return Err(SubmitError::Disk {
-                need: disk.need,
-                free: disk.free,
-                held,
-                keep: disk.keep,
-            });
-        }
+        fits(&reserved, disk)?;
         // The reservation and the progressive spec are recorded before the
         // id is sent: the worker may take the job at once, and it reads the
         // spec when it starts and releases the reservation when it ends
@@ -164,6 +156,22 @@ impl CaptureQueue {
         })
     }
 
+    /// Records the capture `insert` records without queueing it (a live
+    /// session's recording, which the live view writes), when its files fit
+    /// as [`CaptureQueue::push`]'s do; reserves its disk until
+    /// [`CaptureQueue::release`].
+    pub(crate) fn reserve(
+        &self,
+        disk: DiskNeed,
+        insert: impl FnOnce() -> Result<i64, SubmitError>,
+    ) -> Result<i64, SubmitError> {
+        let mut reserved = self.reserved.lock().unwrap_or_else(|e| e.into_inner());
+        fits(&reserved, disk)?;
+        let id = insert()?;
+        reserved.insert(id, disk.need);
+        Ok(id)
+    }
+
     /// The progressive reconstruction capture `id` asked for, taken once.
     pub(crate) fn take_progressive(&self, id: i64) -> Option<ProgressiveSpec> {
         let mut specs = self.progressive.lock().unwrap_or_else(|e| e.into_inner());
@@ -177,6 +185,20 @@ impl CaptureQueue {
         let mut specs = self.progressive.lock().unwrap_or_else(|e| e.into_inner());
         specs.remove(&id);
     }
+}
+
+/// Whether `disk.need` fits beside what `reserved` holds and the kept reserve.
+fn fits(reserved: &BTreeMap<i64, u64>, disk: DiskNeed) -> Result<(), SubmitError> {
+    let held: u64 = reserved.values().sum();
+    if disk.need.saturating_add(held).saturating_add(disk.keep) > disk.free {
+        return Err(SubmitError::Disk {
+            need: disk.need,
+            free: disk.free,
+            held,
+            keep: disk.keep,
+        });
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -217,5 +239,18 @@ mod tests {
         assert_eq!(next.get(), 2);
         assert_eq!(rx.try_recv().unwrap(), 1);
         assert_eq!(q.push(disk, 1, None, insert).unwrap(), 3);
+        // A recording reserves beside them without a place in the queue:
+        // 80 held + 40 + 10 > 100 refused, then one fits once one is released.
+        assert!(matches!(
+            q.reserve(disk, insert),
+            Err(SubmitError::Disk { held: 80, .. })
+        ));
+        q.release(2);
+        assert_eq!(q.reserve(disk, insert).unwrap(), 4);
+        assert_eq!(q.depth(), 2, "not queued");
+        assert!(matches!(
+            q.push(disk, 1, None, insert),
+            Err(SubmitError::Disk { held: 80, .. })
+        ));
     }
 }

@@ -15,7 +15,7 @@ mod progressive;
 mod reconstruction;
 
 pub use capture::capture;
-pub(crate) use progressive::difference;
+pub(crate) use progressive::{difference, recording};
 pub use progressive::{progressive, ProgressiveSpec};
 pub use reconstruction::reconstruction;
 

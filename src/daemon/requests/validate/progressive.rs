@@ -4,7 +4,7 @@
 
 use super::reconstruction::{blocks_served, cover, uncovered};
 use super::{invalid, RequestError};
-use crate::daemon::requests::{DifferenceBody, ProgressiveBody};
+use crate::daemon::requests::{DifferenceBody, ProgressiveBody, RecordBody};
 use crate::scene::Scene;
 use crate::store::{CaptureRecord, CaptureRequest};
 
@@ -91,6 +91,24 @@ pub(crate) fn difference(d: &DifferenceBody) -> Result<f64, RequestError> {
     }
 }
 
+/// The frames a live session records: 1 to `max` with its dark frames,
+/// as a capture's frames (`[queue] max_frames_per_capture`).
+/// Why the capture's bound: the recording is a capture, kept and reserved as one.
+pub(crate) fn recording(
+    r: &RecordBody,
+    dark_frames: usize,
+    max: usize,
+) -> Result<usize, RequestError> {
+    let n = r.frames;
+    if n == 0 || n.saturating_add(dark_frames) > max {
+        return Err(invalid(format!(
+            "record.frames = {n}: a recording is 1 to {} frames (with the session's {dark_frames} dark frames, at most {max} in all, as a capture: [queue] max_frames_per_capture)",
+            max.saturating_sub(dark_frames)
+        )));
+    }
+    Ok(n)
+}
+
 /// The background's default time constant, seconds.
 /// Why 10: a person crossing a room moves within it, a lamp's drift does not.
 const DEFAULT_BACKGROUND_S: f64 = 10.0;
@@ -166,6 +184,18 @@ mod tests {
             assert!(e.to_string().contains("difference.background_s"), "{e}");
         }
         assert!(serde_json::from_value::<DifferenceBody>(serde_json::json!({"tau": 1})).is_err());
+    }
+
+    #[test]
+    fn a_recording_is_1_to_the_capture_bound_with_its_dark_frames() {
+        let r = |frames: usize| RecordBody { frames };
+        assert_eq!(recording(&r(1), 0, 1000).unwrap(), 1);
+        assert_eq!(recording(&r(998), 2, 1000).unwrap(), 998);
+        for (n, dark) in [(0, 0), (999, 2), (1001, 0), (usize::MAX, 2)] {
+            let e = recording(&r(n), dark, 1000).unwrap_err().to_string();
+            assert!(e.starts_with(&format!("record.frames = {n}: ")), "{e}");
+            assert!(e.contains(&format!("1 to {}", 1000 - dark)), "{e}");
+        }
     }
 
     #[test]
