@@ -2,7 +2,7 @@
 # Per-test times of the whole suite (docs/test-times.md): builds what
 # `cargo test --locked` builds, then runs each test binary one after the
 # other as cargo does (working directory: the crate root), with libtest's
-# JSON report and its per-test times (eight test threads, as .cargo/config.toml sets). Writes OUT/<binary>.json,
+# JSON report and its per-test times (twenty test threads, as .cargo/config.toml sets). Writes OUT/<binary>.json,
 # OUT/<binary>.times (when each test started and ended), OUT/aravis.tsv (each
 # hold of the daemon tests' Aravis lock) and OUT/binaries.txt (wall seconds
 # per binary).
@@ -26,7 +26,7 @@ for line in sys.stdin:
 : > "$out/aravis.tsv"
 while read -r name exe; do
   start=$(date +%s.%N)
-  RUST_TEST_THREADS=${RUST_TEST_THREADS:-8} RUSTC_BOOTSTRAP=1 POLNLOS_ARAVIS_LOG="$out/aravis.tsv" \
+  RUST_TEST_THREADS=${RUST_TEST_THREADS:-20} RUSTC_BOOTSTRAP=1 POLNLOS_ARAVIS_LOG="$out/aravis.tsv" \
     "$exe" -Zunstable-options --format json --report-time 2> "$out/$name.err" < /dev/null \
     | python3 -c '
 import sys, time, json

@@ -398,7 +398,7 @@ fn best_of_grid(
 /// al. 2020) against the best of a quarter-decade λ grid chosen with the
 /// truth, on 16x16 scenes through camera frames. Prints the table of
 /// docs/lambda.md. About 15-30 min on 2 cores:
-/// `cargo test --release --no-default-features --test suite offline::lambda:: -- --ignored --nocapture lambda_rules_on_camera_frames`
+/// `cargo test --release --no-default-features --test suite core::lambda:: -- --ignored --nocapture lambda_rules_on_camera_frames`
 #[test]
 #[ignore]
 fn lambda_rules_on_camera_frames() {
@@ -618,7 +618,7 @@ fn photons_misses_at_the_best_lambda() {
 /// cases of `lambda_rules_on_camera_frames` (the frames' variance left
 /// out). Prints the table of docs/lambda.md, "One measurement, no noise
 /// figure". About 16 min on 2 cores (test profile):
-/// `cargo test --test suite offline::lambda::one_measurement -- --ignored --nocapture`
+/// `cargo test --test suite core::lambda::one_measurement -- --ignored --nocapture`
 #[test]
 #[ignore]
 fn one_measurement_without_a_noise_figure_lambda_rules() {

@@ -4,7 +4,11 @@
 //! content types and response schemas the document does not declare.
 //!
 //! Bounded: 127.0.0.1 only, a fixed seed, 25 examples per operation, one
-//! worker, 30 s per request, and the whole run killed after 5 minutes.
+//! worker, 30 s per request, and the whole run killed after 7 minutes.
+//! Alone a run took 105-156 s; in the whole suite 223-225 s, its
+//! in-process daemon's parallel work in the idle class beside the core's
+//! tests (docs/test-times.md), and over 300 s with a live session running
+//! on the same two cores.
 //! 30 s, not 10: `POST /mount/zero` answers within the request after its
 //! sweep (up to 5 s waiting for the camera, then the sweep's exposures),
 //! and a live session the fuzzer started shares the daemon's cores; in
@@ -46,10 +50,10 @@ fn schemathesis(d: &Client, extra: &[&str]) -> (bool, String) {
         if let Some(s) = child.try_wait().unwrap() {
             break s;
         }
-        if start.elapsed() > Duration::from_secs(300) {
+        if start.elapsed() > Duration::from_secs(420) {
             let _ = child.kill();
             let _ = child.wait();
-            panic!("schemathesis ran over 5 minutes");
+            panic!("schemathesis ran over 7 minutes");
         }
         std::thread::sleep(Duration::from_millis(200));
     };

@@ -12,8 +12,54 @@ use std::time::{Duration, Instant};
 /// one test at a time uses Aravis, in-process (`camera.rs`) or in a daemon.
 pub static ARAVIS: Mutex<()> = Mutex::new(());
 
+/// Daemon tests that run at once: eight, whatever `RUST_TEST_THREADS` is.
+///
+/// Why: the suite runs more test threads than that so that the core's
+/// CPU-bound tests (idle class, `tests/priority.rs`) start at once beside
+/// them, not after them; the daemon tests, each with its daemon, fake
+/// camera or browser in the normal class, must not all run at once on two
+/// cores (sixteen of them at once timed out camera, web and schemathesis
+/// tests: docs/test-times.md).
+const DAEMON_SLOTS: usize = 8;
+
+static SLOTS: (Mutex<usize>, std::sync::Condvar) = (Mutex::new(0), std::sync::Condvar::new());
+
+/// One of the [`DAEMON_SLOTS`], held by a test thread until it ends.
+struct Slot;
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        let (taken, freed) = &SLOTS;
+        *taken.lock().unwrap_or_else(|e| e.into_inner()) -= 1;
+        freed.notify_one();
+    }
+}
+
+thread_local! {
+    static HELD: std::cell::RefCell<Option<Slot>> = const { std::cell::RefCell::new(None) };
+}
+
+/// Waits for a daemon-test slot unless this test (thread) holds one; it
+/// is given back when the test's thread ends (libtest runs each test on a
+/// thread of its own). [`lock`] and [`scratch`] take it, so every test that
+/// starts a daemon, a camera or a browser does.
+pub fn slot() {
+    if HELD.with(|h| h.borrow().is_some()) {
+        return;
+    }
+    let (taken, freed) = &SLOTS;
+    let mut n = taken.lock().unwrap_or_else(|e| e.into_inner());
+    while *n >= DAEMON_SLOTS {
+        n = freed.wait(n).unwrap_or_else(|e| e.into_inner());
+    }
+    *n += 1;
+    drop(n);
+    HELD.with(|h| *h.borrow_mut() = Some(Slot));
+}
+
 /// Takes the Aravis lock for the rest of the caller's scope.
 pub fn lock() -> AravisHold {
+    slot();
     let asked = std::time::SystemTime::now();
     let guard = ARAVIS.lock().unwrap_or_else(|e| e.into_inner());
     AravisHold {
@@ -72,6 +118,7 @@ impl Drop for AravisHold {
 /// On tmpfs the same files are written, fsynced and renamed, without the
 /// wait. Docker's default /dev/shm (64 MiB) is too small and is not used.
 pub fn scratch() -> tempfile::TempDir {
+    slot();
     // Looked up once per test process, not once per test.
     static ROOT: std::sync::OnceLock<Option<PathBuf>> = std::sync::OnceLock::new();
     let root = ROOT.get_or_init(|| {

@@ -105,7 +105,7 @@ fn the_chair_photo_imported_over_http_reconstructs_as_the_cli_photo_mode() {
     assert_eq!(ours.shape, vec![29, 36, 3]);
     // The CLI on the same photo, with the truth for the metrics (one run
     // the offline CLI test shares).
-    let cli = crate::offline::cli::chair_photo_run();
+    let cli = crate::core::cli::chair_photo_run();
     assert!(
         cli.output.status.success(),
         "{}",

@@ -104,7 +104,7 @@ pub const MATURIN_ARGS: &str = "--profile dev --features shared-test-core --stri
 /// `Cargo.toml`, each as `CARGO_PROFILE_DEV_<KEY>`), so that the core is the
 /// same unit (features, settings, dependencies) as the one `cargo test`
 /// compiled, and cargo links it instead of compiling it again
-/// (`offline::layers::the_python_extension_reuses_what_cargo_test_built`
+/// (`core::layers::the_python_extension_reuses_what_cargo_test_built`
 /// holds this). Its tests run at the test build's opt-level.
 pub fn shared_profile() -> Vec<(String, String)> {
     let manifest = std::fs::read_to_string(root().join("Cargo.toml")).expect("Cargo.toml");
