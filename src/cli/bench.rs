@@ -43,7 +43,7 @@ pub struct Args {
     #[arg(long, value_name = "S", default_value_t = 10.0, requires = "live")]
     live_seconds: f64,
     /// Then hold the first configuration's session this many minutes,
-    /// reading the daemon's memory every 10 s (live-soak.png; 60 for the
+    /// reading the daemon's memory every 5 s (live-soak.png; 60 for the
     /// hour the issue asks).
     #[cfg(feature = "daemon")]
     #[arg(long, value_name = "MIN", default_value_t = 0.0, requires = "live")]

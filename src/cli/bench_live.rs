@@ -74,6 +74,10 @@ const SCENE: &str = "bench-live";
 /// give its first results.
 const READY: Duration = Duration::from_secs(60);
 const JOB: Duration = Duration::from_secs(300);
+/// How often a long session's memory is read: within the daemon's 10 s
+/// idle-connection timeout (`[http] header_timeout_s`), so that the kept
+/// connection is never the one the daemon is closing.
+const SOAK_EVERY: Duration = Duration::from_secs(5);
 /// How often a job's state is read: the offline time is read to within it.
 const POLL: Duration = Duration::from_millis(20);
 
@@ -85,18 +89,20 @@ pub(super) struct Selection {
     /// Seconds each live session is measured for, after its first results.
     pub(super) seconds: f64,
     /// Minutes the first configuration's session is then held for, its
-    /// memory read every ten seconds (0: none).
+    /// memory read every five seconds (0: none).
     pub(super) soak_minutes: f64,
     /// Loopback address of the fake cameras.
     pub(super) camera_address: std::net::Ipv4Addr,
 }
 
-/// Runs the sweep (and the long session) and returns its report.
+/// Runs the sweep (and the long session) and returns its report. Its
+/// working folder (scene files, configurations, daemon logs) is removed
+/// when it succeeds and kept when it fails: the error names a log in it.
 pub(super) fn run(s: Selection, tick: &mut dyn FnMut()) -> anyhow::Result<LiveReport> {
     let work = std::env::temp_dir().join(format!("polnlos-bench-live-{}", std::process::id()));
-    let result = sweep(s, &work, tick);
+    let report = sweep(s, &work, tick)?;
     let _ = std::fs::remove_dir_all(&work);
-    result
+    Ok(report)
 }
 
 /// Configurations `polnlos bench --live` runs, for its progress bar.
@@ -125,7 +131,10 @@ fn sweep(s: Selection, work: &Path, tick: &mut dyn FnMut()) -> anyhow::Result<Li
 
 /// One configuration: a daemon showing the letter on the edited scene,
 /// a live session measured for `seconds` (then held `soak` minutes), and
-/// after it a capture of one window reconstructed offline.
+/// after it a capture of one window reconstructed offline with live view's
+/// radiometry (the fake camera's calibrated gain: without a colour
+/// calibration the daemon would fit a colour capture's gains and
+/// background offline, which live view does not yet).
 fn measure(
     case: &Case,
     dir: &Path,
@@ -159,7 +168,9 @@ fn measure(
     let asked = Instant::now();
     let rec = daemon.run_job(
         "/reconstructions",
-        &json!({ "scene": SCENE, "captures": [id], "truth": "letter" }),
+        &json!({
+            "scene": SCENE, "captures": [id], "truth": "letter", "radiometry": "calibrated",
+        }),
     )?;
     let offline_seconds = asked.elapsed().as_secs_f64();
     let row = LiveRow {
@@ -254,7 +265,7 @@ impl Session {
 }
 
 /// Holds the running session `minutes`, reading the daemon's memory and
-/// rate every ten seconds.
+/// rate every [`SOAK_EVERY`].
 fn soak_session(d: &Daemon, minutes: f64) -> anyhow::Result<Vec<SoakSample>> {
     let (start, mut out) = (Instant::now(), Vec::new());
     let span = Duration::from_secs_f64(minutes * 60.0);
@@ -272,7 +283,7 @@ fn soak_session(d: &Daemon, minutes: f64) -> anyhow::Result<Vec<SoakSample>> {
         if start.elapsed() >= span {
             return Ok(out);
         }
-        std::thread::sleep(Duration::from_secs(10).min(span - start.elapsed()));
+        std::thread::sleep(SOAK_EVERY.min(span.saturating_sub(start.elapsed())));
     }
 }
 

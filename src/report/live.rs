@@ -206,7 +206,7 @@ impl Report for LiveReport {
 
     fn markdown(&self) -> String {
         let mut md = String::from(
-            "## Live view\n\n`POST /live` on `polnlos serve` with Aravis's fake camera (the demo bench's crossed pose, the letter, 20 ms frames), one daemon per configuration, read through `GET /live`: results a second and the median time from a window's newest frame to its result over the newest results, and the median PSNR of the results against the truth. Beside it, the same daemon's offline reconstruction (`POST /reconstructions`, automatic λ, `T` cached by the session) of a capture of one window, timed from its request to its result. The fake camera renders its frames on the same cores.\n\n",
+            "## Live view\n\n`POST /live` on `polnlos serve` with Aravis's fake camera (the demo bench's crossed pose, the letter, 20 ms frames), one daemon per configuration, read through `GET /live`: results a second and the median time from a window's newest frame to its result over the newest results, and the median PSNR of the results against the truth. Beside it, the same daemon's offline reconstruction (`POST /reconstructions`, automatic λ, `T` cached by the session, `\"radiometry\": \"calibrated\"` as live view's) of a capture of one window, timed from its request to its result. The fake camera renders its frames on the same cores.\n\n",
         );
         if !self.rows.is_empty() {
             md.push_str("![live view against the problem size](live.png)\n\n| configuration | unknowns | window | results / s | latency | live PSNR | offline PSNR | offline time | frames not solved | RSS |\n|---|---|---|---|---|---|---|---|---|---|\n");
