@@ -477,17 +477,22 @@ impl Live {
 mod tests {
     use super::*;
 
-    #[test]
-    fn the_track_has_a_row_per_result_and_outlives_its_session_until_the_next() {
-        let live = Live::default();
-        let spec = ProgressiveSpec {
+    /// A live session's spec: every window solved, difference mode or not.
+    fn spec(difference: Option<f64>) -> ProgressiveSpec {
+        ProgressiveSpec {
             every: 1,
             captures: Vec::new(),
             lambda: None,
             max_iter: 10,
             truth: None,
-            difference: Some(10.0),
-        };
+            difference,
+        }
+    }
+
+    #[test]
+    fn the_track_has_a_row_per_result_and_outlives_its_session_until_the_next() {
+        let live = Live::default();
+        let spec = spec(Some(10.0));
         let id = live.issue_id();
         let id = live
             .start(id, CaptureRequest::example(), spec.clone(), None)
@@ -528,14 +533,7 @@ mod tests {
     #[test]
     fn a_recording_is_claimed_once_and_a_waiting_one_goes_back_to_whoever_ends_it() {
         let live = Live::default();
-        let spec = ProgressiveSpec {
-            every: 1,
-            captures: Vec::new(),
-            lambda: None,
-            max_iter: 10,
-            truth: None,
-            difference: None,
-        };
+        let spec = spec(None);
         let start = |recording| {
             let id = live.issue_id();
             let (view, replaced) =
