@@ -827,6 +827,7 @@ function captureBody(kind) {
     if (f.get("progressive") && kind === "light") {
       b.progressive = { every: numeric(form, "every", { integer: true }) };
       if (f.get("truth")) b.progressive.truth = f.get("truth");
+      if (f.get("radiometry")) b.progressive.radiometry = f.get("radiometry");
     }
     return b;
   });
@@ -868,6 +869,12 @@ function liveText(v) {
   if (v.median_latency_ms) parts.push(`median latency ${v.median_latency_ms.toFixed(0)} ms`);
   if (v.last && v.last.psnr_db != null) parts.push(`PSNR ${v.last.psnr_db.toFixed(2)} dB`);
   if (v.last) parts.push(`windows of ${v.last.frames} frames`);
+  if (v.radiometry) parts.push(`radiometry ${v.radiometry.mode}${v.radiometry.given ? "" : " (chosen)"}`);
+  const fit = v.last && v.last.fitted;
+  if (fit) {
+    const each = (xs) => xs.map((x) => x.toExponential(3)).join(" / ");
+    parts.push(`gain ${each(fit.gain)}, background ${each(fit.background.map((b) => b[0]))} (first block)`);
+  }
   const rec = v.recording;
   if (rec) parts.push(`recording capture ${rec.capture}: ${rec.frames} of ${rec.of} frames, ${rec.state}` + (rec.reason ? ` (${rec.reason})` : ""));
   if (v.difference_background_s) {
@@ -902,6 +909,8 @@ $("#start-live").addEventListener("click", async () => {
   delete body.kind;
   const truth = new FormData($("#capture-form")).get("truth");
   body.progressive = truth ? { truth } : {};
+  const radiometry = new FormData($("#capture-form")).get("radiometry");
+  if (radiometry) body.progressive.radiometry = radiometry;
   if (new FormData($("#capture-form")).get("difference")) body.difference = {};
   const record = fields(msg, () => numeric($("#capture-form"), "record", { integer: true }) ?? "none");
   if (record === null) return;

@@ -243,7 +243,7 @@ class Client:
     # -- live view -----------------------------------------------------------
 
     def live_start(self, scene: str, pose: str, record: Optional[int] = None,
-                   **fields: Any) -> Dict[str, Any]:
+                   radiometry: Optional[str] = None, **fields: Any) -> Dict[str, Any]:
         """Starts the live view (`POST /live`): the capture request repeated,
         `frames` the rolling window (1 to 64), `progressive` its solver
         settings (`truth`, `lambda`, `captures`), `difference` (e.g.
@@ -251,10 +251,16 @@ class Client:
         stores the session's first N frames (after its dark frames) as a new
         capture, to reconstruct again later: `live()["recording"]` names it
         (`capture`, `frames` written, `of`, `state`); a session that ends
-        first keeps the frames it got. Returns its state."""
+        first keeps the frames it got. `radiometry="fitted"` fits each
+        window's gain and background per colour, as a reconstruction of a
+        photo does (`live()["last"]["fitted"]`), `"calibrated"` divides by
+        the scene's gain; absent, it is chosen as a reconstruction's is
+        (`live()["radiometry"]` says which and why). Returns its state."""
         body: Dict[str, Any] = {"scene": scene, "pose": pose, **fields}
         if record is not None:
             body["record"] = {"frames": record}
+        if radiometry is not None:
+            body["progressive"] = {**body.get("progressive", {}), "radiometry": radiometry}
         return self._json("POST", "/live", body)
 
     def live(self) -> Dict[str, Any]:

@@ -151,6 +151,20 @@ def test_the_live_view_gives_results_and_stops(client):
     assert all(abs(row["time_s"] - time.time()) < 60 for row in track), track
     client.live_stop()
     assert len(client.live_track()) >= 3, "the track is kept after the session stops"
+    # A photo scene's radiometry: each window's gain and background fitted.
+    client.live_start("brewster-crossed", "A", polarizer_deg=0, exposure_us=20000,
+                      frames=4, dark_frames=0, progressive={"truth": "letter"},
+                      radiometry="fitted")
+    end = time.monotonic() + 30
+    while client.live()["results"] < 3:
+        assert time.monotonic() < end, client.live()
+        time.sleep(0.1)
+    state = client.live()
+    assert state["radiometry"]["mode"] == "fitted", state
+    fitted = state["last"]["fitted"]
+    assert fitted["gain"][0] > 0 and fitted["background"][0][0] > 0, state
+    assert state["last"]["psnr_db"] > 10, state
+    client.live_stop()
 
 
 

@@ -131,10 +131,10 @@ fn sweep(s: Selection, work: &Path, tick: &mut dyn FnMut()) -> anyhow::Result<Li
 
 /// One configuration: a daemon showing the letter on the edited scene,
 /// a live session measured for `seconds` (then held `soak` minutes), and
-/// after it a capture of one window reconstructed offline with live view's
-/// radiometry (the fake camera's calibrated gain: without a colour
-/// calibration the daemon would fit a colour capture's gains and
-/// background offline, which live view does not yet).
+/// after it a capture of one window reconstructed offline, both with the
+/// fake camera's calibrated gain (`"radiometry": "calibrated"`: without a
+/// colour calibration both would fit a colour camera's gains and
+/// backgrounds, the radiometry of a photo, not of this bench).
 fn measure(
     case: &Case,
     dir: &Path,
@@ -153,7 +153,7 @@ fn measure(
         "frames": WINDOW, "dark_frames": 2,
     });
     let mut live = request.clone();
-    live["progressive"] = json!({ "truth": "letter" });
+    live["progressive"] = json!({ "truth": "letter", "radiometry": "calibrated" });
     daemon.send("POST", "/live", Some(&live), 202)?;
     let first = daemon.wait_live(|v| count(v, "results") >= 3)?;
     let session = Session::watch(&daemon, first, Duration::from_secs_f64(s.seconds))?;

@@ -779,6 +779,10 @@ fn a_ranged_camera_setting_is_named_in_two_files() {
         "src/daemon/runtime/demo.rs",
         "src/daemon/jobs/reconstruction.rs",
         "src/daemon/jobs/progressive.rs",
+        // (a progressive or live step's fitted gain, and admission's
+        // sentence on which radiometry needs the calibrated one)
+        "src/daemon/runtime/events.rs",
+        "src/daemon/requests/admission.rs",
         "web/app.js",
         // The migration that moved the old `gain` column into the settings
         // document, so that old rows still read: history, not a new setting.

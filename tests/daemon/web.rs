@@ -1363,12 +1363,27 @@ fn the_page_starts_the_live_view_shows_its_results_and_stops_it() {
         .await;
         println!("live status: {status}");
         assert!(status.contains("windows of 4 frames"), "{status}");
+        assert!(
+            status.contains("radiometry calibrated (chosen)"),
+            "{status}"
+        );
         let v = page.d.json("/live");
         assert_eq!(
             (v["state"].as_str(), v["window"].as_u64()),
             (Some("running"), Some(4)),
             "{v}"
         );
+        // A photo scene's radiometry: each window's gain and background
+        // fitted, shown beside the image.
+        choose(&c, "#capture-form [name=radiometry]", "fitted").await;
+        click(&c, "#start-live").await;
+        let status = until("fitted live results", long, || async {
+            let t = text(&c, "#live-status").await;
+            (t.contains("radiometry fitted") && t.contains("background")).then_some(t)
+        })
+        .await;
+        println!("fitted live status: {status}");
+        assert_eq!(page.d.json("/live")["radiometry"]["mode"], "fitted");
         click(&c, "#stop-live").await;
         until("live view off", long, || async {
             text(&c, "#live-status")

@@ -107,6 +107,7 @@ async fn run(
         let (d, c, spec, dark) = (w.jobs.clone(), c.clone(), spec.clone(), dark.clone());
         tokio::task::spawn_blocking(move || Progressive::new(&d, c, &spec, dark)).await??
     };
+    live.set_radiometry(session, solver.radiometry().clone());
     // A watcher sets the stop flag when a capture is queued, the session
     // changes or the daemon stops.
     // Set when the segment must end; the frame reader checks it at every frame.

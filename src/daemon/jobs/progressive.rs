@@ -9,6 +9,11 @@
 //! view's windows all have one noise); with a fixed λ (or a single frame, which has no
 //! variance) it is warm-started from the previous step, its factorization
 //! kept ([`Warm`]).
+//! A scene whose radiometry is fitted (no calibrated gain, colours with no
+//! colour calibration, or `"radiometry": "fitted"` asked) has each step fit
+//! gain and background per colour with the scene, as its reconstruction
+//! does ([`PhotoStream`]): λ searched on the first step, then kept while the
+//! data hold, each step warm-started.
 //! Each step is published: a `progressive` event, `progressive.png` (the
 //! latest image) and `progressive.json` (every step) in the capture's folder.
 //!
@@ -26,7 +31,7 @@ use super::reconstruction::{load_capture, read_captures};
 use super::{JobContext, JobError};
 use crate::camera::Acquisition;
 use crate::daemon::requests::validate::ProgressiveSpec;
-use crate::daemon::runtime::events::Step;
+use crate::daemon::runtime::events::{FittedStep, Step};
 use crate::daemon::runtime::scenes::Scenes;
 use crate::daemon::Event;
 use crate::files::{image, json};
@@ -36,10 +41,12 @@ use crate::measure::{assemble_colour, CaptureFrames, PixelMaps, Units};
 use crate::scene::{Frame, Scene};
 use crate::solve::gram::{adjoint, Normal};
 use crate::solve::lambda::{admm_tv_resolved_prepared, NoiseLevel};
+use crate::solve::photo::{photo_transport, PhotoSettings, PhotoStream};
+use crate::solve::radiometry::{Known, Radiometry, RadiometryChoice};
 use crate::solve::solvers::Warm;
 use crate::solve::Reconstruction;
-use crate::solve::AUTO_MAX_ITER;
 use crate::solve::{AdmmSettings, Solver};
+use crate::solve::{AUTO_MAX_ITER, LAMBDA_KEPT};
 use crate::store::CaptureRecord;
 use crate::store::Store;
 use crate::transport::Transport;
@@ -170,6 +177,12 @@ pub(in crate::daemon) struct Progressive {
     scenes: Arc<Scenes>,
     /// Live view's difference mode: how the running background is kept.
     difference: Option<Background>,
+    /// The radiometry of every step, and why.
+    radiometry: RadiometryChoice,
+    /// A fitted radiometry's fit of the stream of steps, formed at the
+    /// first step (which settles the scene's shadows, as a
+    /// reconstruction's photo does); `None` while calibrated.
+    fitted: Option<Option<PhotoStream<Arc<Transport>>>>,
 }
 
 /// How far below zero difference mode's images may go, in MODEL.md
@@ -266,17 +279,6 @@ struct Channel {
     t_ones: Option<Vec<f64>>,
 }
 
-/// How far (relative) a step's mean noise variance, or its measurement's
-/// norm, may move from the one its λ was searched at before λ is searched
-/// again (the norm: a scene that changed, such as a difference image while
-/// its background settles, wants another λ).
-/// Why: a search is about twenty solves; a live view's windows (the same
-/// frames count, the same exposure) all have one noise, and a λ within a
-/// few percent of the search's gives the same image. On a chair-size scene
-/// (1044 unknowns, three colours) the search of every window held live
-/// view to 0.16 results a second.
-const LAMBDA_KEPT: f64 = 0.1;
-
 impl Progressive {
     /// The solver of `capture`'s frames: its scene's cached `T`, Gram and
     /// conditioning, the other blocks' rows from `spec.captures`, and the
@@ -289,12 +291,7 @@ impl Progressive {
     ) -> Result<Self, JobError> {
         let scene = d.scenes.scene(&capture.scene)?;
         let t = d.scenes.transport(&capture.scene)?;
-        let calibration = d.calibration.get(&capture.scene).copied().ok_or_else(|| {
-            JobError::Capture {
-                id: capture.id,
-                reason: format!("progressive reconstruction needs the radiometric calibration of scene {:?} ([calibration] in the config)", capture.scene),
-            }
-        })?;
+        let calibration = d.calibration.get(&capture.scene).copied();
         let acquisition = Acquisition::try_from(&capture).map_err(|e| JobError::Capture {
             id: capture.id,
             reason: e.to_string(),
@@ -326,6 +323,17 @@ impl Progressive {
                 .colour_calibration(&capture.scene)
                 .map_err(|e| JobError::Store(e.to_string()))?,
         };
+        let radiometry = choose_radiometry(spec, &capture, calibration, colours.len(), &balance);
+        // Calibrated: divided by the gain; fitted: as measured (the fit
+        // finds the gain).
+        let calibration = match radiometry.mode {
+            Radiometry::Fitted => 1.0,
+            Radiometry::Calibrated => calibration.ok_or_else(|| JobError::Capture {
+                id: capture.id,
+                reason: format!("a calibrated progressive reconstruction needs the radiometric calibration of scene {:?} ([calibration] in the config)", capture.scene),
+            })?,
+        };
+        let balance = balance.filter(|_| radiometry.mode == Radiometry::Calibrated);
         let other_blocks: Vec<_> = (0..t.blocks().len()).filter(|b| !own.contains(b)).collect();
         let blocks: Vec<_> = other_blocks
             .iter()
@@ -405,7 +413,14 @@ impl Progressive {
                 carried: 0.0,
                 moved: None,
             }),
+            fitted: (radiometry.mode == Radiometry::Fitted).then_some(None),
+            radiometry,
         })
+    }
+
+    /// The radiometry of its steps, and why.
+    pub(in crate::daemon) fn radiometry(&self) -> &RadiometryChoice {
+        &self.radiometry
     }
 
     /// Solves one snapshot; returns the step and the image (a colour
@@ -428,13 +443,14 @@ impl Progressive {
         // A colour camera's colours are independent solves: in parallel.
         let (scene, maps, own_blocks) = (&self.scene, &self.maps, &self.own);
         let (scenes, name, settings) = (&self.scenes, &self.capture.scene, &self.settings);
+        let fitted = self.fitted.is_some();
         let noises = self
             .channels
             .par_iter_mut()
             .map(|ch| {
                 let m =
                     assemble_colour(scene, &blocks, std::slice::from_ref(&own), maps, ch.colour)?;
-                let noise = ch.measure(m, own_blocks, settings.lambda);
+                let noise = ch.measure(m, own_blocks, settings.lambda.is_none() && !fitted);
                 let chi2 = weight.and_then(|(w, spread)| ch.difference(own_blocks, w, spread));
                 Ok((noise, chi2))
             })
@@ -449,6 +465,9 @@ impl Progressive {
                 return Ok(self.unsolved(s.frames, start));
             }
         }
+        if fitted {
+            return self.fitted_step(s.frames, start);
+        }
         let mut solved = self
             .channels
             .par_iter_mut()
@@ -458,15 +477,89 @@ impl Progressive {
         // A colour image is interleaved once, for the step and the caller.
         let colour = (solved.len() > 1).then(|| interleave(&solved));
         let image = colour.as_deref().unwrap_or(&solved[0].0.image);
-        let step = self.record(s.frames, start, &solved, image);
+        let summary = Solved {
+            iterations: solved
+                .iter()
+                .map(|(r, _)| r.stats.iterations)
+                .max()
+                .unwrap_or(0),
+            converged: solved.iter().all(|(r, _)| r.stats.converged),
+            // The middle colour's (green's) λ: one number per step.
+            lambda: solved.get(solved.len() / 2).and_then(|s| s.1),
+            fitted: None,
+        };
+        let step = self.record(s.frames, start, summary, image);
         let image = colour.unwrap_or_else(|| solved.swap_remove(0).0.image);
+        Ok((step, image))
+    }
+
+    /// The step of a fitted radiometry: every colour's measurement (its
+    /// rows as measured, the other blocks' from their captures) fitted
+    /// with its gain and background ([`PhotoStream`]), the stream formed
+    /// at the first step.
+    fn fitted_step(&mut self, frames: usize, start: Instant) -> Result<(Step, Vec<f64>), JobError> {
+        let channels: Vec<Vec<f64>> = self.channels.iter().map(|c| c.i.clone()).collect();
+        let settings = PhotoSettings {
+            lambda: self.settings.lambda,
+            iterations: self
+                .settings
+                .max_iter
+                .min(PhotoSettings::default().iterations),
+            ..PhotoSettings::default()
+        };
+        let stream = match self.fitted.as_mut() {
+            Some(Some(s)) => s,
+            _ => {
+                let scene = &self.capture.scene;
+                let chosen = photo_transport(
+                    &self.scene,
+                    Arc::clone(&self.channels[0].t),
+                    || -> Result<_, JobError> {
+                        let area = self.scenes.with_area_shadows(scene)?;
+                        Ok(self.scenes.transport(&area)?)
+                    },
+                    &channels,
+                    &settings,
+                )?;
+                self.fitted
+                    .insert(Some(chosen.stream(&channels, settings.data_term)))
+                    .as_mut()
+                    .ok_or_else(|| JobError::Store("the fitted stream was not formed".into()))?
+            }
+        };
+        let fit = stream.fit(&channels, &settings)?;
+        let colour = fit.images.len() > 1;
+        let image: Vec<f64> = match colour {
+            true => (0..fit.images[0].len())
+                .flat_map(|k| fit.images.iter().map(move |c| c[k]))
+                .collect(),
+            false => fit.images[0].clone(),
+        };
+        let summary = Solved {
+            iterations: fit.iterations,
+            converged: fit.converged,
+            lambda: fit.lambdas.get(fit.lambdas.len() / 2).copied(),
+            fitted: Some(FittedStep {
+                gain: fit.gains,
+                background: fit.backgrounds,
+                shadows: stream.shadows().model.name().to_string(),
+                lambda_searched: fit.searched,
+            }),
+        };
+        let step = self.record(frames, start, summary, &image);
         Ok((step, image))
     }
 
     /// The zero image of a window that only started the background, and its step.
     fn unsolved(&mut self, frames: usize, start: Instant) -> (Step, Vec<f64>) {
         let image = vec![0.0; self.grid().count() * self.colours()];
-        let step = self.record(frames, start, &[], &image);
+        let nothing = Solved {
+            iterations: 0,
+            converged: true,
+            lambda: None,
+            fitted: None,
+        };
+        let step = self.record(frames, start, nothing, &image);
         (step, image)
     }
 
@@ -549,13 +642,7 @@ impl Progressive {
     /// The step of the colours' solves `solved` (their `image`, interleaved) after `frames` frames,
     /// begun at `start`, kept with the others.
     /// Why: each step reports how far the image moved since the last one.
-    fn record(
-        &mut self,
-        frames: usize,
-        start: Instant,
-        solved: &[(Reconstruction, Option<f64>)],
-        image: &[f64],
-    ) -> Step {
+    fn record(&mut self, frames: usize, start: Instant, solved: Solved, image: &[f64]) -> Step {
         let norm = image.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
         let change = self.previous.as_ref().map(|p| {
             p.iter()
@@ -565,29 +652,72 @@ impl Progressive {
                 .sqrt()
                 / norm
         });
-        let c = solved.len();
+        let c = self.channels.len();
         let step = Step {
             frames,
-            iterations: solved
-                .iter()
-                .map(|(r, _)| r.stats.iterations)
-                .max()
-                .unwrap_or(0),
-            converged: solved.iter().all(|(r, _)| r.stats.converged),
+            iterations: solved.iterations,
+            converged: solved.converged,
             change,
             psnr_db: self.truth.as_ref().map(|t| {
                 let each: Vec<f64> = t.iter().flat_map(|&v| std::iter::repeat_n(v, c)).collect();
                 crate::solve::metrics::psnr(&each, image)
             }),
-            // The middle colour's (green's) λ: one number per step (none
-            // for a window nothing was solved for).
-            lambda: solved.get(c / 2).and_then(|s| s.1),
+            lambda: solved.lambda,
             seconds: start.elapsed().as_secs_f64(),
+            fitted: solved.fitted,
         };
         self.previous = Some(image.to_vec());
         self.steps.push(step.clone());
         step
     }
+}
+
+/// What a step's solves give its record beside the image.
+struct Solved {
+    /// The most iterations a colour took.
+    iterations: usize,
+    /// Whether every colour's solve met its tolerance.
+    converged: bool,
+    /// The middle colour's (green's) λ: one number per step (none for a
+    /// window nothing was solved for).
+    lambda: Option<f64>,
+    /// A fitted radiometry's gains and backgrounds.
+    fitted: Option<FittedStep>,
+}
+
+/// The radiometry of a progressive or live solve of `capture`: the
+/// request's, else a reconstruction's rule ([`RadiometryChoice::choose`]);
+/// difference mode's is calibrated (its running background is in the
+/// scene's units; admission refuses it fitted).
+fn choose_radiometry(
+    spec: &ProgressiveSpec,
+    capture: &CaptureRecord,
+    gain: Option<f64>,
+    colours: usize,
+    balance: &Option<crate::store::ColourCalibrationRow>,
+) -> RadiometryChoice {
+    if spec.difference.is_some() {
+        return RadiometryChoice {
+            mode: Radiometry::Calibrated,
+            given: spec.radiometry.is_some(),
+            reason:
+                "difference mode: the running background is kept in the scene's calibrated units"
+                    .into(),
+        };
+    }
+    let label = balance
+        .as_ref()
+        .map(|b| format!("colour calibration {} (capture {})", b.id, b.capture));
+    RadiometryChoice::choose(
+        spec.radiometry,
+        Known {
+            imported: None,
+            gain,
+            scene: &capture.scene,
+            colours,
+            colour_calibration: label.as_deref(),
+        },
+    )
 }
 
 /// The colours' images interleaved: red, green, blue per element.
@@ -607,7 +737,7 @@ impl Channel {
         &mut self,
         mut m: crate::measure::Measurement,
         own: &[usize],
-        lambda: Option<f64>,
+        wants_noise: bool,
     ) -> Option<NoiseLevel> {
         Units::Calibrated(self.gain).apply(&mut m);
         let n = self.t.wall_grid().count();
@@ -622,7 +752,7 @@ impl Channel {
         for (k, &b) in own.iter().enumerate() {
             all[self.t.block_rows(b)].copy_from_slice(&v[k * n..(k + 1) * n]);
         }
-        lambda.is_none().then(|| NoiseLevel::measured(all.clone()))
+        wants_noise.then(|| NoiseLevel::measured(all.clone()))
     }
 
     /// Replaces this capture's rows by their difference from the running

@@ -223,6 +223,7 @@ fn last_block_progressive(
         lambda: r.solve.lambda,
         max_iter: r.solve.max_iter,
         truth: r.truth.clone(),
+        radiometry: r.radiometry,
     })
 }
 
@@ -325,14 +326,15 @@ impl Plans {
                 SubmitError::from(RequestError::Invalid(format!("reconstruct.{e}"))).into(),
             );
         }
-        if body.reconstruct.progressive_every.is_some()
-            && !self.admission.calibration.contains_key(&body.scene)
-        {
-            return Err(SubmitError::from(RequestError::Invalid(format!(
-                "reconstruct.progressive_every needs the radiometric calibration of scene {:?}: add it under [calibration] in the config",
-                body.scene
-            )))
-            .into());
+        if body.reconstruct.progressive_every.is_some() {
+            self.admission
+                .needs_gain(
+                    "reconstruct.progressive_every",
+                    &body.scene,
+                    body.reconstruct.radiometry,
+                    false,
+                )
+                .map_err(SubmitError::from)?;
         }
         if let (Some(every), Some(frames)) = (body.reconstruct.progressive_every, body.frames) {
             if every > frames {

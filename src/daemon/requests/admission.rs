@@ -23,6 +23,7 @@ use crate::daemon::runtime::scenes::Scenes;
 use crate::daemon::Config;
 use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
 use crate::rig::Rig;
+use crate::solve::radiometry::Radiometry;
 use crate::store::{capture_bytes, CaptureRequest, Store};
 
 /// What admitting and cancelling jobs needs: the services it reads and the
@@ -133,15 +134,43 @@ impl Admission {
         let (request, progressive) = tokio::task::spawn_blocking(move || d.check_capture(&body))
             .await
             .map_err(|e| SubmitError::Internal(format!("capture validation: {e}")))??;
-        if progressive.is_some() && !self.calibration.contains_key(&request.scene) {
-            return Err(RequestError::Invalid(format!(
-                "progressive reconstruction needs the radiometric calibration of scene {:?}: add it under [calibration] in the config",
-                request.scene
-            ))
-            .into());
+        if let Some(p) = &progressive {
+            self.needs_gain("progressive", &request.scene, p.radiometry, false)?;
         }
         let id = self.admit_capture(&request, progressive)?;
         Ok((id, request))
+    }
+
+    /// Whether `what` (a progressive or live solve) of `scene` can have the
+    /// radiometry it asks for: `calibrated` (asked, or difference mode's,
+    /// whose running background must be in the scene's units) needs the
+    /// scene's calibrated gain; `fitted` needs none, and no difference mode.
+    pub(in crate::daemon) fn needs_gain(
+        &self,
+        what: &str,
+        scene: &str,
+        radiometry: Option<Radiometry>,
+        difference: bool,
+    ) -> Result<(), RequestError> {
+        if difference && radiometry == Some(Radiometry::Fitted) {
+            return Err(RequestError::Invalid(format!(
+                "{what}: difference mode subtracts a running background, which a fitted radiometry would fit away: leave radiometry out, or ask \"calibrated\""
+            )));
+        }
+        let calibrated = difference || radiometry == Some(Radiometry::Calibrated);
+        if calibrated && !self.calibration.contains_key(scene) {
+            let (asks, or) = match difference {
+                true => ("difference mode", ""),
+                false => (
+                    "a calibrated radiometry",
+                    ", or ask \"radiometry\": \"fitted\" (gain and background fitted with the scene)",
+                ),
+            };
+            return Err(RequestError::Invalid(format!(
+                "{what}: {asks} needs the radiometric calibration of scene {scene:?}: add it under [calibration] in the config{or}"
+            )));
+        }
+        Ok(())
     }
 
     pub(in crate::daemon) fn check_capture(
@@ -201,17 +230,13 @@ impl Admission {
             )));
         }
         self.scenes.scene(&b.scene)?;
-        if !self.calibration.contains_key(&b.scene) {
-            return Err(RequestError::Invalid(format!(
-                "live view needs the radiometric calibration of scene {:?}: add it under [calibration] in the config",
-                b.scene
-            )));
-        }
         let difference = b
             .difference
             .as_ref()
             .map(validate::difference)
             .transpose()?;
+        let radiometry = b.progressive.as_ref().and_then(|p| p.radiometry);
+        self.needs_gain("live view", &b.scene, radiometry, difference.is_some())?;
         if difference.is_some()
             && b.progressive
                 .as_ref()
@@ -230,6 +255,7 @@ impl Admission {
             lambda: None,
             max_iter: None,
             truth: None,
+            radiometry: None,
         });
         let (request, spec) = self.check_capture(&body)?;
         let mut spec =

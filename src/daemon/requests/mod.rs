@@ -142,6 +142,14 @@ pub struct ProgressiveBody {
     pub max_iter: Option<usize>,
     /// Known truth, as a test pattern name: each step then has its PSNR.
     pub truth: Option<String>,
+    /// `calibrated` (divided by the scene's calibrated gain) or `fitted`
+    /// (each step fits gain and background per colour with the scene, as a
+    /// reconstruction with `"radiometry": "fitted"` does). Absent: chosen as
+    /// the reconstruction chooses it (fitted for a scene with no calibrated
+    /// gain, or colours with no colour calibration); difference mode needs
+    /// a calibrated gain.
+    #[serde(default)]
+    pub radiometry: Option<crate::solve::radiometry::Radiometry>,
 }
 
 /// The only automatic exposure mode.

@@ -159,4 +159,23 @@ pub struct Step {
     pub lambda: Option<f64>,
     /// Seconds the step took.
     pub seconds: f64,
+    /// A fitted radiometry's gain and background per colour (absent when
+    /// calibrated).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fitted: Option<FittedStep>,
+}
+
+/// What a progressive or live step with a fitted radiometry fitted beside
+/// the image (docs/realphoto.md's `i_c = g_c T l_c + b_{p,c}`), in the
+/// measurement's units (fractions of full scale per microsecond).
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct FittedStep {
+    /// Each colour's gain `g_c` (one for a grey camera; red, green, blue).
+    pub gain: Vec<f64>,
+    /// Each colour's background (ambient light) per block of the scene.
+    pub background: Vec<Vec<f64>>,
+    /// The shadow model of the `T` it was fitted with: `point` or `area`.
+    pub shadows: String,
+    /// Whether this step searched λ (the first, or data that moved).
+    pub lambda_searched: bool,
 }

@@ -14,6 +14,7 @@ use serde::Serialize;
 
 use crate::daemon::requests::validate::ProgressiveSpec;
 use crate::daemon::runtime::events::{Centroid, Step};
+use crate::solve::radiometry::RadiometryChoice;
 use crate::store::CaptureRequest;
 
 /// Results whose latency and timing the statistics keep.
@@ -127,6 +128,11 @@ pub struct LiveView {
     /// of how many, and its state.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub recording: Option<RecordingView>,
+    /// How each window is put into the model's units (`calibrated` or
+    /// `fitted`, with each result's gain and background in `last.fitted`),
+    /// and why; known once the session's solver is set up.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radiometry: Option<RadiometryChoice>,
 }
 
 /// A started session: what it repeats and what it gave.
@@ -150,6 +156,8 @@ pub(crate) struct Session {
     image: Option<(usize, usize, Vec<f64>)>,
     /// The recording asked for, if any.
     recording: Option<RecordingView>,
+    /// Its solver's radiometry, once set up.
+    radiometry: Option<RadiometryChoice>,
 }
 
 impl Session {
@@ -245,6 +253,7 @@ impl Live {
                 state: RecordingState::Waiting,
                 reason: None,
             }),
+            radiometry: None,
         });
         drop(session);
         self.changed.send_modify(|g| *g += 1);
@@ -346,6 +355,11 @@ impl Live {
         });
     }
 
+    /// Session `id`'s solver puts its windows into the model's units with `radiometry`.
+    pub(crate) fn set_radiometry(&self, id: u64, radiometry: RadiometryChoice) {
+        self.with(id, |s| s.radiometry = Some(radiometry));
+    }
+
     /// Session `id` failed for `reason`.
     pub(crate) fn fail(&self, id: u64, reason: String) {
         self.with(id, |s| {
@@ -441,6 +455,7 @@ impl Live {
                 last_time_s: None,
                 centroid: None,
                 recording: None,
+                radiometry: None,
             };
         };
         let rate = match (s.times.front(), s.times.back()) {
@@ -469,6 +484,7 @@ impl Live {
             last_time_s: s.last_track.map(|(t, _)| t),
             centroid: s.last_track.and_then(|(_, c)| c),
             recording: s.recording.clone(),
+            radiometry: s.radiometry.clone(),
         }
     }
 }
@@ -486,6 +502,7 @@ mod tests {
             max_iter: 10,
             truth: None,
             difference,
+            radiometry: None,
         }
     }
 
@@ -506,6 +523,7 @@ mod tests {
             psnr_db: None,
             lambda: None,
             seconds: 0.0,
+            fitted: None,
         };
         let c = Centroid {
             u_m: 0.01,

@@ -34,6 +34,8 @@ use crate::transport::Transport;
 mod differences;
 mod metrics;
 mod model;
+#[cfg(feature = "daemon")]
+mod stream;
 
 pub use differences::differences;
 use differences::*;
@@ -41,6 +43,8 @@ pub use metrics::least_squares_misfit;
 pub(crate) use metrics::PhotoMetrics;
 pub(crate) use metrics::{least_squares_misfits, photo_metrics};
 pub(crate) use model::PhotoModel;
+#[cfg(feature = "daemon")]
+pub(crate) use stream::PhotoStream;
 
 /// What a photo's data term fits.
 #[derive(
@@ -436,13 +440,10 @@ fn reconstruct_photo_with(
 /// signal-free channel stretched to its own peak turns black into white.
 pub fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String {
     let informative = fits.iter().any(|c| c.informative);
-    let (who, gain, gain_sd) = fits
-        .iter()
-        .enumerate()
-        .filter(|(_, c)| c.informative || !informative)
-        .map(|(k, c)| (k, c.peak, c.gain_sd))
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .unwrap_or((0, 0.0, 0.0));
+    let peaks: Vec<f64> = fits.iter().map(|c| c.peak).collect();
+    let flags: Vec<bool> = fits.iter().map(|c| c.informative).collect();
+    let who = reference(&peaks, &flags);
+    let (gain, gain_sd) = fits.get(who).map_or((0.0, 0.0), |c| (c.peak, c.gain_sd));
     let many = fits.len() > 1;
     let mut flagged = Vec::new();
     for (k, c) in fits.iter_mut().enumerate() {
@@ -473,6 +474,34 @@ pub fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String 
             "each informative channel's own 99th percentile of x (white-patch balance); channel(s) {flagged:?}, which carry no signal, at channel {who}'s"
         ),
     }
+}
+
+/// The channel whose gain a channel without signal takes ([`balance`]):
+/// the informative channel with the largest peak, or the channel with the
+/// largest peak when none is informative.
+fn reference(peaks: &[f64], informative: &[bool]) -> usize {
+    let any = informative.iter().any(|&b| b);
+    (0..peaks.len())
+        .filter(|&k| informative.get(k) == Some(&true) || !any)
+        .max_by(|&a, &b| peaks[a].total_cmp(&peaks[b]))
+        .unwrap_or(0)
+}
+
+/// Each channel's gain by [`balance`]'s rule from its `peaks` and whether
+/// it is `informative`: its own peak, or the reference channel's for a
+/// channel without signal among several.
+#[cfg(feature = "daemon")]
+pub(super) fn balanced_gains(peaks: &[f64], informative: &[bool]) -> Vec<f64> {
+    let who = reference(peaks, informative);
+    let many = peaks.len() > 1;
+    peaks
+        .iter()
+        .zip(informative)
+        .map(|(&p, &i)| match i || !many {
+            true => p,
+            false => peaks[who],
+        })
+        .collect()
 }
 
 /// Settles a shadow choice the scene left `open` ([`crate::scene::Scene::shadow_choice`])

@@ -215,15 +215,15 @@ impl PhotoModel {
         Ok(self.floor(t, i, settings)?.misfit)
     }
 
-    /// Reconstructs one channel `i` (one value per row of `t`, the `T` this
-    /// model was formed from).
-    pub fn channel(
+    /// The fit of one channel `i` at its λ (the discrepancy rule's, or
+    /// `settings.lambda`), before the bootstrap: what [`PhotoModel::channel`]
+    /// reports and a stream of windows warm-starts from.
+    pub(super) fn search(
         &self,
         t: &Transport,
         i: &[f64],
         settings: &PhotoSettings<'_>,
-    ) -> Result<PhotoChannel, SolveError> {
-        let start = Instant::now();
+    ) -> Result<Searched, SolveError> {
         let Floor {
             misfit: floor_misfit,
             x: x0,
@@ -270,15 +270,87 @@ impl PhotoModel {
             &mut state,
         )?;
         iterations += last.stats.iterations;
-        let x = last.image;
-        let gain = percentile(&x, GAIN_PERCENTILE);
-        let image = scaled(&x, gain);
         let energy: f64 = y.iter().map(|v| v * v).sum();
         let explained = match energy > 0.0 {
             true => (1.0 - floor_misfit / energy).max(0.0),
             false => 0.0,
         };
         let noise_explains = n as f64 / self.rows.max(1) as f64;
+        Ok(Searched {
+            x: last.image,
+            x0,
+            lambda,
+            rule,
+            misfit: last.stats.data_misfit,
+            floor_misfit,
+            residual_sd,
+            explained,
+            noise_explains,
+            iterations,
+            #[cfg(feature = "daemon")]
+            converged: last.stats.converged,
+            state,
+        })
+    }
+
+    /// The fit of `i` at `lambda`, warm from `state` (a fit of a window
+    /// like it): the image `x`, its misfit, iterations and whether ADMM met
+    /// its tolerance.
+    /// Why: a stream's windows share their noise and most of their scene,
+    /// so the λ searched on one serves the next, and its `x` starts the next.
+    #[cfg(feature = "daemon")]
+    pub(super) fn refit(
+        &self,
+        t: &Transport,
+        i: &[f64],
+        lambda: f64,
+        state: &mut Warm,
+        settings: &PhotoSettings<'_>,
+    ) -> Result<crate::solve::Reconstruction, SolveError> {
+        check_measurement(t, i)?;
+        let y = self.data(t, i);
+        let normal = Normal::with(self.gram.clone(), &self.k, &y);
+        Solver::ADMM_TV.solve(
+            &self
+                .admm(lambda, settings.iterations.max(1), settings.stop)
+                .problem(&self.k, &y, &normal),
+            state,
+        )
+    }
+
+    /// The norm of the data term's right side for `i`.
+    #[cfg(feature = "daemon")]
+    pub(super) fn data_norm(&self, t: &Transport, i: &[f64]) -> f64 {
+        self.data(t, i).iter().map(|v| v * v).sum::<f64>().sqrt()
+    }
+
+    /// Reconstructs one channel `i` (one value per row of `t`, the `T` this
+    /// model was formed from).
+    pub fn channel(
+        &self,
+        t: &Transport,
+        i: &[f64],
+        settings: &PhotoSettings<'_>,
+    ) -> Result<PhotoChannel, SolveError> {
+        let start = Instant::now();
+        let searched = self.search(t, i, settings)?;
+        let informative = searched.informative();
+        let Searched {
+            x,
+            x0,
+            lambda,
+            rule,
+            misfit,
+            floor_misfit,
+            residual_sd,
+            explained,
+            noise_explains,
+            mut iterations,
+            state,
+            ..
+        } = searched;
+        let gain = percentile(&x, GAIN_PERCENTILE);
+        let image = scaled(&x, gain);
         let background = self.backgrounds(t, i, &x);
         let background0 = self.backgrounds(t, i, &x0);
         let boot = self.bootstrap(t, &x, &background, residual_sd, lambda, &state, settings)?;
@@ -299,21 +371,51 @@ impl PhotoModel {
             peak: gain,
             explained,
             noise_explains,
-            informative: explained > SIGNAL_MARGIN * noise_explains,
+            informative,
             gain_sd,
             background,
             background_sd,
             lambda,
             lambda_rule: rule,
-            misfit: last.stats.data_misfit,
+            misfit,
             misfit_floor: floor_misfit,
             rows: self.rows,
-            unknowns: n,
+            unknowns: t.cols(),
             residual_sd,
             iterations,
             seconds: start.elapsed().as_secs_f64(),
             metrics: None,
         })
+    }
+}
+
+/// One channel's fit at its λ before the bootstrap ([`PhotoModel::search`]).
+pub(super) struct Searched {
+    /// `x = g l` at λ.
+    pub(super) x: Vec<f64>,
+    /// The λ = 0 fit's `x`.
+    pub(super) x0: Vec<f64>,
+    pub(super) lambda: f64,
+    pub(super) rule: String,
+    pub(super) misfit: f64,
+    pub(super) floor_misfit: f64,
+    pub(super) residual_sd: f64,
+    /// Share of the data term's energy the λ = 0 fit explains.
+    pub(super) explained: f64,
+    /// The most a fit to pure noise would explain.
+    pub(super) noise_explains: f64,
+    pub(super) iterations: usize,
+    /// Whether the last solve met its tolerance.
+    #[cfg(feature = "daemon")]
+    pub(super) converged: bool,
+    /// ADMM's state at `x`, to warm-start the next fit from.
+    pub(super) state: Warm,
+}
+
+impl Searched {
+    /// Whether the channel carries a signal ([`PhotoChannel::informative`]).
+    pub(super) fn informative(&self) -> bool {
+        self.explained > SIGNAL_MARGIN * self.noise_explains
     }
 }
 

@@ -24,6 +24,8 @@ pub struct ProgressiveSpec {
     /// Live view's difference mode: the background's time constant,
     /// seconds (`None`: each window as it is).
     pub difference: Option<f64>,
+    /// The radiometry asked for (`None`: chosen as a reconstruction's is).
+    pub radiometry: Option<crate::solve::radiometry::Radiometry>,
 }
 
 /// Checks `p` for capture request `r` of `scene`; `capture` looks up the
@@ -76,6 +78,7 @@ pub fn progressive(
         max_iter,
         truth: p.truth.clone(),
         difference: None,
+        radiometry: p.radiometry,
     })
 }
 
