@@ -581,19 +581,15 @@ fn live_view_of_a_chair_size_colour_scene() {
     // background as the reconstruction of a capture would (measured 2.9-3.1
     // results a second, PSNR 5.0-5.2 dB, the reconstruction's 5.17 dB: the
     // first differences of this wide wall hardly see a constant scene light,
-    // which the calibrated gain pins down).
+    // which the calibrated gain pins down). Its radiometry is said once its
+    // solver is set up, before a result.
     let live = LIVE.replace("brewster-crossed", "chair-size");
     let (s, b, _) = d.post("/live", &live);
     assert_eq!(s, 202, "{b}");
-    let (v, _) = watch(&d, |v| v["results"].as_u64().unwrap_or(0) >= 3);
+    let (v, _) = watch(&d, |v| v["radiometry"].is_object());
     assert_eq!(v["radiometry"]["mode"], "fitted", "{v}");
     let why = v["radiometry"]["reason"].as_str().unwrap_or_default();
     assert!(why.contains("no colour calibration"), "{v}");
-    assert_eq!(
-        v["last"]["fitted"]["gain"].as_array().map(Vec::len),
-        Some(3),
-        "{v}"
-    );
     // With the calibrated gain asked for, each colour is divided by it.
     let live = live.replace(
         r#""truth": "letter""#,
