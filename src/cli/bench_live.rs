@@ -195,11 +195,7 @@ fn measure(
 
 /// The built-in crossed scene with the case's wall and scene grids.
 fn scene_text(case: &Case) -> anyhow::Result<String> {
-    let text = polnlos::scene::builtin::BUILT_IN
-        .iter()
-        .find(|(name, _)| *name == BASE_SCENE)
-        .map(|(_, text)| *text)
-        .context("the built-in crossed scene")?;
+    let text = polnlos::scene::builtin::text(BASE_SCENE).context("the built-in crossed scene")?;
     let mut t: toml::Table = toml::from_str(text)?;
     for (key, grid) in [("wall", case.wall), ("scene", case.grid)] {
         let table = t

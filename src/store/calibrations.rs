@@ -25,6 +25,13 @@ pub struct ColourCalibrationRow {
     pub created_at: String,
 }
 
+impl ColourCalibrationRow {
+    /// How a reconstruction's report names it: `colour calibration 2 (capture 5)`.
+    pub(crate) fn label(&self) -> String {
+        format!("colour calibration {} (capture {})", self.id, self.capture)
+    }
+}
+
 impl Store {
     /// Records scene `scene`'s colour balance measured from `capture`; returns its row.
     pub fn insert_colour_calibration(

@@ -12,12 +12,18 @@ use super::{finish, now, park, Listing, Store, StoreError};
 impl Store {
     /// Records a new capture job (state `queued`); returns its id.
     pub fn insert_capture(&self, r: &CaptureRequest) -> Result<i64, StoreError> {
+        self.insert_queued(r, None)
+    }
+
+    /// Records capture request `r` as queued, with a live recording's
+    /// provenance `live` (a JSON document) when it is one.
+    fn insert_queued(&self, r: &CaptureRequest, live: Option<String>) -> Result<i64, StoreError> {
         self.with(|c| {
             c.execute(
-                "INSERT INTO captures (id, scene, pose, channels, settings, frames, dark_frames, state, created_at, kind, dark_capture)
-                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, 'queued', ?7, ?8, ?9)",
+                "INSERT INTO captures (id, scene, pose, channels, settings, frames, dark_frames, state, created_at, kind, dark_capture, live)
+                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, 'queued', ?7, ?8, ?9, ?10)",
                 params![r.scene, r.pose, records::channels_document(&r.channels), SettingsDocument::of(&r.acquisition), r.frames as i64, r.dark_frames as i64, now(),
-                    r.kind.name(), r.dark_capture],
+                    r.kind.name(), r.dark_capture, live],
             )?;
             Ok(c.last_insert_rowid())
         })
@@ -32,16 +38,7 @@ impl Store {
         live: &records::LiveInfo,
     ) -> Result<i64, StoreError> {
         // A struct of numbers and a name always serializes.
-        let live = serde_json::to_string(live).unwrap_or_default();
-        self.with(|c| {
-            c.execute(
-                "INSERT INTO captures (id, scene, pose, channels, settings, frames, dark_frames, state, created_at, kind, dark_capture, live)
-                 VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'captures'), ?1, ?2, ?3, ?4, ?5, ?6, 'queued', ?7, ?8, ?9, ?10)",
-                params![r.scene, r.pose, records::channels_document(&r.channels), SettingsDocument::of(&r.acquisition), r.frames as i64, r.dark_frames as i64, now(),
-                    r.kind.name(), r.dark_capture, live],
-            )?;
-            Ok(c.last_insert_rowid())
-        })
+        self.insert_queued(r, serde_json::to_string(live).ok())
     }
 
     /// Marks a live session's recording done with the `frames` it holds

@@ -13,7 +13,7 @@
 //! colour calibration, or `"radiometry": "fitted"` asked) has each step fit
 //! gain and background per colour with the scene, as its reconstruction
 //! does ([`PhotoStream`]): λ searched on the first step, then kept while the
-//! data hold, each step warm-started.
+//! data hold, each step started from where that search ended.
 //! Each step is published: a `progressive` event, `progressive.png` (the
 //! latest image) and `progressive.json` (every step) in the capture's folder.
 //!
@@ -47,8 +47,8 @@ use crate::solve::solvers::Warm;
 use crate::solve::Reconstruction;
 use crate::solve::{AdmmSettings, Solver};
 use crate::solve::{AUTO_MAX_ITER, LAMBDA_KEPT};
-use crate::store::CaptureRecord;
 use crate::store::Store;
+use crate::store::{CaptureRecord, ColourCalibrationRow};
 use crate::transport::Transport;
 
 /// File of the latest progressive image, in the capture's folder.
@@ -179,10 +179,10 @@ pub(in crate::daemon) struct Progressive {
     difference: Option<Background>,
     /// The radiometry of every step, and why.
     radiometry: RadiometryChoice,
-    /// A fitted radiometry's fit of the stream of steps, formed at the
-    /// first step (which settles the scene's shadows, as a
-    /// reconstruction's photo does); `None` while calibrated.
-    fitted: Option<Option<PhotoStream<Arc<Transport>>>>,
+    /// A fitted radiometry's fit of the stream of steps, formed at its
+    /// first step (which settles the scene's shadows, as a reconstruction's
+    /// photo does).
+    stream: Option<PhotoStream<Arc<Transport>>>,
 }
 
 /// How far below zero difference mode's images may go, in MODEL.md
@@ -413,7 +413,7 @@ impl Progressive {
                 carried: 0.0,
                 moved: None,
             }),
-            fitted: (radiometry.mode == Radiometry::Fitted).then_some(None),
+            stream: None,
             radiometry,
         })
     }
@@ -443,7 +443,7 @@ impl Progressive {
         // A colour camera's colours are independent solves: in parallel.
         let (scene, maps, own_blocks) = (&self.scene, &self.maps, &self.own);
         let (scenes, name, settings) = (&self.scenes, &self.capture.scene, &self.settings);
-        let fitted = self.fitted.is_some();
+        let fitted = self.radiometry.mode == Radiometry::Fitted;
         let noises = self
             .channels
             .par_iter_mut()
@@ -475,7 +475,10 @@ impl Progressive {
             .map(|(ch, noise)| ch.solve(noise, scenes, name, settings, offset))
             .collect::<Result<Vec<_>, JobError>>()?;
         // A colour image is interleaved once, for the step and the caller.
-        let colour = (solved.len() > 1).then(|| interleave(&solved));
+        let colour = (solved.len() > 1).then(|| {
+            let images: Vec<&[f64]> = solved.iter().map(|(r, _)| &r.image[..]).collect();
+            interleave(&images)
+        });
         let image = colour.as_deref().unwrap_or(&solved[0].0.image);
         let summary = Solved {
             iterations: solved
@@ -507,33 +510,26 @@ impl Progressive {
                 .min(PhotoSettings::default().iterations),
             ..PhotoSettings::default()
         };
-        let stream = match self.fitted.as_mut() {
-            Some(Some(s)) => s,
-            _ => {
-                let scene = &self.capture.scene;
+        let stream = match &mut self.stream {
+            Some(s) => s,
+            slot => {
+                let (scenes, name) = (&self.scenes, &self.capture.scene);
                 let chosen = photo_transport(
                     &self.scene,
                     Arc::clone(&self.channels[0].t),
                     || -> Result<_, JobError> {
-                        let area = self.scenes.with_area_shadows(scene)?;
-                        Ok(self.scenes.transport(&area)?)
+                        Ok(scenes.transport(&scenes.with_area_shadows(name)?)?)
                     },
                     &channels,
                     &settings,
                 )?;
-                self.fitted
-                    .insert(Some(chosen.stream(&channels, settings.data_term)))
-                    .as_mut()
-                    .ok_or_else(|| JobError::Store("the fitted stream was not formed".into()))?
+                slot.insert(chosen.stream(&channels, settings.data_term))
             }
         };
-        let fit = stream.fit(&channels, &settings)?;
-        let colour = fit.images.len() > 1;
-        let image: Vec<f64> = match colour {
-            true => (0..fit.images[0].len())
-                .flat_map(|k| fit.images.iter().map(move |c| c[k]))
-                .collect(),
-            false => fit.images[0].clone(),
+        let mut fit = stream.fit(&channels, &settings)?;
+        let image = match fit.images.len() {
+            1 => fit.images.swap_remove(0),
+            _ => interleave(&fit.images.iter().map(Vec::as_slice).collect::<Vec<_>>()),
         };
         let summary = Solved {
             iterations: fit.iterations,
@@ -694,7 +690,7 @@ fn choose_radiometry(
     capture: &CaptureRecord,
     gain: Option<f64>,
     colours: usize,
-    balance: &Option<crate::store::ColourCalibrationRow>,
+    balance: &Option<ColourCalibrationRow>,
 ) -> RadiometryChoice {
     if spec.difference.is_some() {
         return RadiometryChoice {
@@ -705,9 +701,7 @@ fn choose_radiometry(
                     .into(),
         };
     }
-    let label = balance
-        .as_ref()
-        .map(|b| format!("colour calibration {} (capture {})", b.id, b.capture));
+    let label = balance.as_ref().map(ColourCalibrationRow::label);
     RadiometryChoice::choose(
         spec.radiometry,
         Known {
@@ -721,10 +715,10 @@ fn choose_radiometry(
 }
 
 /// The colours' images interleaved: red, green, blue per element.
-fn interleave(solved: &[(Reconstruction, Option<f64>)]) -> Vec<f64> {
-    let n = solved[0].0.image.len();
+fn interleave(images: &[&[f64]]) -> Vec<f64> {
+    let n = images.first().map_or(0, |i| i.len());
     (0..n)
-        .flat_map(|k| solved.iter().map(move |(r, _)| r.image[k]))
+        .flat_map(|k| images.iter().map(move |i| i[k]))
         .collect()
 }
 

@@ -148,7 +148,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     };
     let balance_label = balance
         .as_ref()
-        .map(|b| format!("colour calibration {} (capture {})", b.id, b.capture));
+        .map(crate::store::ColourCalibrationRow::label);
     let radiometry = RadiometryChoice::choose(
         rec.params.radiometry,
         Known {

@@ -123,12 +123,12 @@ pub(super) async fn begin(
                 RecordingState::Cancelled,
                 Some(format!("capture-{id} was cancelled before its first frame")),
             );
-            w.queue.release(id);
-            w.jobs.registry.forget(&format!("capture-{id}"));
+            writer.release();
             return None;
         }
         Err(e) => {
             writer.failed(store.describe(&e), 0);
+            writer.release();
             return None;
         }
     }
@@ -139,6 +139,7 @@ pub(super) async fn begin(
         Ok(meta) => meta,
         Err(e) => {
             writer.failed(format!("its dark frames: {e}"), 0);
+            writer.release();
             return None;
         }
     };
@@ -244,25 +245,34 @@ impl Writer {
         } else {
             match written.and_then(|st| self.complete(st, dropped, meta)) {
                 Ok(()) => {}
-                Err(StoreError::Incomplete { got: 0, .. }) => {
-                    let why = self
-                        .why()
-                        .unwrap_or_else(|| "the live session ended".into());
-                    self.failed(
-                        format!("{why} before its first frame: no frame was recorded"),
-                        0,
-                    );
-                }
+                Err(StoreError::Incomplete { got: 0, .. }) => self.failed(
+                    format!(
+                        "{} before its first frame: no frame was recorded",
+                        self.why()
+                    ),
+                    0,
+                ),
                 Err(e) => self.failed(store.describe(&e), got),
             }
         }
-        self.queue.release(self.id);
-        self.jobs.registry.forget(&job);
+        self.release();
     }
 
-    /// Why the session ended, when it ended before the recording's count.
-    fn why(&self) -> Option<String> {
-        self.why.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    /// Gives back the capture's disk reservation and its cancel flag: the
+    /// recording has ended, however it ended.
+    fn release(&self) {
+        self.queue.release(self.id);
+        self.jobs.registry.forget(&format!("capture-{}", self.id));
+    }
+
+    /// Why the session ended before the recording's count (said by the
+    /// segment that ended it, else that it ended).
+    fn why(&self) -> String {
+        self.why
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+            .unwrap_or_else(|| "the live session ended".into())
     }
 
     /// Writes the capture's mean, variance and preview and records it done
@@ -271,12 +281,7 @@ impl Writer {
         let (store, id, k) = (&self.jobs.store, self.id, st.count);
         let dir = store.capture_dir(id);
         write_summary(&dir, &st, self.dark.0.as_ref(), self.dark.1.as_ref(), meta)?;
-        let ended = (k < self.n).then(|| {
-            let why = self
-                .why()
-                .unwrap_or_else(|| "the live session ended".into());
-            format!("{why} after {k} of {} frames", self.n)
-        });
+        let ended = (k < self.n).then(|| format!("{} after {k} of {} frames", self.why(), self.n));
         let info = LiveInfo {
             session: self.session,
             frames_asked: self.n,
@@ -313,7 +318,7 @@ impl Writer {
     }
 
     /// The capture failed for `reason` after `got` frames: nothing of it is
-    /// kept (its files would not make a whole capture).
+    /// kept (its files would not make a whole capture). The caller releases it.
     fn failed(&self, reason: String, got: usize) {
         let (store, id) = (&self.jobs.store, self.id);
         remove_raw(&store.capture_dir(id));
@@ -330,7 +335,6 @@ impl Writer {
         self.jobs
             .events
             .job(format!("capture-{id}"), JobState::Failed, Some(reason));
-        self.queue.release(id);
     }
 
     /// The capture was cancelled (`DELETE /jobs/capture-<id>`): it keeps no frame.

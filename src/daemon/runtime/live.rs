@@ -303,9 +303,7 @@ impl Live {
     /// Session `id`'s recording wrote `frames` frames so far.
     pub(crate) fn recorded(&self, id: u64, frames: usize) {
         self.with(id, |s| {
-            if let Some(r) = s.recording.as_mut() {
-                r.frames = frames;
-            }
+            s.recording.iter_mut().for_each(|r| r.frames = frames)
         });
     }
 
@@ -313,8 +311,7 @@ impl Live {
     pub(crate) fn recording_ended(&self, id: u64, state: RecordingState, reason: Option<String>) {
         self.with(id, |s| {
             if let Some(r) = s.recording.as_mut() {
-                r.state = state;
-                r.reason = reason;
+                (r.state, r.reason) = (state, reason);
             }
         });
     }

@@ -442,8 +442,8 @@ pub fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String 
     let informative = fits.iter().any(|c| c.informative);
     let peaks: Vec<f64> = fits.iter().map(|c| c.peak).collect();
     let flags: Vec<bool> = fits.iter().map(|c| c.informative).collect();
-    let who = reference(&peaks, &flags);
-    let (gain, gain_sd) = fits.get(who).map_or((0.0, 0.0), |c| (c.peak, c.gain_sd));
+    let (who, gains) = balanced_gains(&peaks, &flags);
+    let gain_sd = fits.get(who).map_or(0.0, |c| c.gain_sd);
     let many = fits.len() > 1;
     let mut flagged = Vec::new();
     for (k, c) in fits.iter_mut().enumerate() {
@@ -452,9 +452,9 @@ pub fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String 
         }
         flagged.push(k);
         if many {
-            c.gain = gain;
+            c.gain = gains[k];
             c.gain_sd = gain_sd;
-            c.image = scaled(&c.x, gain);
+            c.image = scaled(&c.x, c.gain);
         }
         warnings.push(format!(
             "channel {k}: its fit explains {:.2} % of its data, no more than noise alone could ({:.2} %): it carries no signal polnlos can tell from noise{}",
@@ -476,32 +476,27 @@ pub fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String 
     }
 }
 
-/// The channel whose gain a channel without signal takes ([`balance`]):
-/// the informative channel with the largest peak, or the channel with the
-/// largest peak when none is informative.
-fn reference(peaks: &[f64], informative: &[bool]) -> usize {
+/// [`balance`]'s rule: the reference channel (the informative channel
+/// with the largest peak, or the channel with the largest peak when none is
+/// informative) and each channel's gain from its `peaks` and whether it is
+/// `informative`: its own peak, or the reference's for a channel without
+/// signal among several.
+pub(super) fn balanced_gains(peaks: &[f64], informative: &[bool]) -> (usize, Vec<f64>) {
     let any = informative.iter().any(|&b| b);
-    (0..peaks.len())
+    let who = (0..peaks.len())
         .filter(|&k| informative.get(k) == Some(&true) || !any)
         .max_by(|&a, &b| peaks[a].total_cmp(&peaks[b]))
-        .unwrap_or(0)
-}
-
-/// Each channel's gain by [`balance`]'s rule from its `peaks` and whether
-/// it is `informative`: its own peak, or the reference channel's for a
-/// channel without signal among several.
-#[cfg(feature = "daemon")]
-pub(super) fn balanced_gains(peaks: &[f64], informative: &[bool]) -> Vec<f64> {
-    let who = reference(peaks, informative);
+        .unwrap_or(0);
     let many = peaks.len() > 1;
-    peaks
+    let gains = peaks
         .iter()
         .zip(informative)
         .map(|(&p, &i)| match i || !many {
             true => p,
             false => peaks[who],
         })
-        .collect()
+        .collect();
+    (who, gains)
 }
 
 /// Settles a shadow choice the scene left `open` ([`crate::scene::Scene::shadow_choice`])

@@ -186,14 +186,8 @@ impl PhotoModel {
             });
         }
         let y = self.data(t, i);
-        let normal = Normal::with(self.gram.clone(), &self.k, &y);
         let mut state = Warm::default();
-        let r = Solver::ADMM_TV.solve(
-            &self
-                .admm(0.0, settings.iterations, settings.stop)
-                .problem(&self.k, &y, &normal),
-            &mut state,
-        )?;
+        let (r, normal) = self.fit_data(&y, 0.0, settings.iterations, settings.stop, &mut state)?;
         Ok(Floor {
             misfit: r.stats.data_misfit,
             x: r.image,
@@ -293,35 +287,25 @@ impl PhotoModel {
         })
     }
 
-    /// The fit of `i` at `lambda`, warm from `state` (a fit of a window
-    /// like it): the image `x`, its misfit, iterations and whether ADMM met
-    /// its tolerance.
-    /// Why: a stream's windows share their noise and most of their scene,
-    /// so the λ searched on one serves the next, and its `x` starts the next.
-    #[cfg(feature = "daemon")]
-    pub(super) fn refit(
+    /// The fit of the data term's right side `y` ([`PhotoModel::data`]) at
+    /// `lambda`, at most `max_iter` iterations from `state`; with `y`'s
+    /// normal equations, which further solves on `y` reuse.
+    pub(super) fn fit_data(
         &self,
-        t: &Transport,
-        i: &[f64],
+        y: &[f64],
         lambda: f64,
+        max_iter: usize,
+        stop: Stop<'_>,
         state: &mut Warm,
-        settings: &PhotoSettings<'_>,
-    ) -> Result<crate::solve::Reconstruction, SolveError> {
-        check_measurement(t, i)?;
-        let y = self.data(t, i);
-        let normal = Normal::with(self.gram.clone(), &self.k, &y);
-        Solver::ADMM_TV.solve(
+    ) -> Result<(crate::solve::Reconstruction, Normal), SolveError> {
+        let normal = Normal::with(self.gram.clone(), &self.k, y);
+        let r = Solver::ADMM_TV.solve(
             &self
-                .admm(lambda, settings.iterations.max(1), settings.stop)
-                .problem(&self.k, &y, &normal),
+                .admm(lambda, max_iter, stop)
+                .problem(&self.k, y, &normal),
             state,
-        )
-    }
-
-    /// The norm of the data term's right side for `i`.
-    #[cfg(feature = "daemon")]
-    pub(super) fn data_norm(&self, t: &Transport, i: &[f64]) -> f64 {
-        self.data(t, i).iter().map(|v| v * v).sum::<f64>().sqrt()
+        )?;
+        Ok((r, normal))
     }
 
     /// Reconstructs one channel `i` (one value per row of `t`, the `T` this
@@ -480,14 +464,9 @@ impl PhotoModel {
                 let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(replica);
                 let i: Vec<f64> = fit.iter().map(|v| v + noise.sample(&mut rng)).collect();
                 let y = self.data(t, &i);
-                let normal = Normal::with(self.gram.clone(), &self.k, &y);
                 let mut warm = state.clone();
-                let r = Solver::ADMM_TV.solve(
-                    &self
-                        .admm(lambda, (settings.iterations / 3).max(1), settings.stop)
-                        .problem(&self.k, &y, &normal),
-                    &mut warm,
-                )?;
+                let step = (settings.iterations / 3).max(1);
+                let (r, _) = self.fit_data(&y, lambda, step, settings.stop, &mut warm)?;
                 let b = self.backgrounds(t, &i, &r.image);
                 Ok((r.stats.iterations, percentile(&r.image, GAIN_PERCENTILE), b))
             })

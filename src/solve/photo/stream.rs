@@ -36,9 +36,28 @@ use crate::transport::Transport;
 struct Tracked {
     /// ADMM's state where λ's search ended: every window starts from it.
     state: Warm,
-    /// The λ searched (in the stream's units), the data norm it was
-    /// searched at, and whether the channel carried a signal then.
-    chosen: Option<(f64, f64, bool)>,
+    /// What the search found, while its λ is kept.
+    chosen: Option<Chosen>,
+}
+
+/// A channel's λ search: its λ (in the stream's units), the data norm it
+/// was searched at, and whether the channel carried a signal then.
+#[derive(Clone, Copy)]
+struct Chosen {
+    lambda: f64,
+    norm: f64,
+    informative: bool,
+}
+
+/// One channel's fit of one window, in the stream's units.
+struct ChannelFit {
+    x: Vec<f64>,
+    lambda: f64,
+    informative: bool,
+    iterations: usize,
+    converged: bool,
+    background: Vec<f64>,
+    searched: bool,
 }
 
 /// The fit of a stream of windows taken through one `T`: its data term's
@@ -139,58 +158,72 @@ impl<T: Deref<Target = Transport>> PhotoStream<T> {
                     .iter()
                     .map(|v| if v.is_finite() { v / unit } else { 0.0 })
                     .collect();
-                let norm = model.data_norm(t, &i);
+                let y = model.data(t, &i);
+                let norm = y.iter().map(|v| v * v).sum::<f64>().sqrt();
                 let kept = c
                     .chosen
-                    .filter(|&(_, at, _)| ((norm / at) - 1.0).abs() <= LAMBDA_KEPT);
-                let (x, lambda, informative, iterations, converged) = match kept {
-                    Some((lambda, _, informative)) => {
+                    .filter(|k| (norm / k.norm - 1.0).abs() <= LAMBDA_KEPT);
+                let fit = match kept {
+                    Some(k) => {
                         let mut state = c.state.clone();
-                        let r = model.refit(t, &i, lambda, &mut state, settings)?;
-                        let (its, ok) = (r.stats.iterations, r.stats.converged);
-                        (r.image, lambda, informative, its, ok)
+                        let max_iter = settings.iterations.max(1);
+                        let (r, _) =
+                            model.fit_data(&y, k.lambda, max_iter, settings.stop, &mut state)?;
+                        ChannelFit {
+                            x: r.image,
+                            lambda: k.lambda,
+                            informative: k.informative,
+                            iterations: r.stats.iterations,
+                            converged: r.stats.converged,
+                            background: Vec::new(),
+                            searched: false,
+                        }
                     }
                     None => {
                         let s: Searched = model.search(t, &i, settings)?;
                         let informative = s.informative();
-                        c.chosen = Some((s.lambda, norm.max(f64::MIN_POSITIVE), informative));
+                        c.chosen = Some(Chosen {
+                            lambda: s.lambda,
+                            norm: norm.max(f64::MIN_POSITIVE),
+                            informative,
+                        });
                         c.state = s.state;
-                        (s.x, s.lambda, informative, s.iterations, s.converged)
+                        ChannelFit {
+                            x: s.x,
+                            lambda: s.lambda,
+                            informative,
+                            iterations: s.iterations,
+                            converged: s.converged,
+                            background: Vec::new(),
+                            searched: true,
+                        }
                     }
                 };
-                let background = model.backgrounds(t, &i, &x);
-                Ok((
-                    x,
-                    lambda,
-                    informative,
-                    iterations,
-                    converged,
-                    background,
-                    kept.is_none(),
-                ))
+                let background = model.backgrounds(t, &i, &fit.x);
+                Ok(ChannelFit { background, ..fit })
             })
             .collect::<Result<Vec<_>, SolveError>>()?;
         let peaks: Vec<f64> = fits
             .iter()
-            .map(|f| percentile(&f.0, GAIN_PERCENTILE))
+            .map(|f| percentile(&f.x, GAIN_PERCENTILE))
             .collect();
-        let informative: Vec<bool> = fits.iter().map(|f| f.2).collect();
-        let gains = balanced_gains(&peaks, &informative);
+        let informative: Vec<bool> = fits.iter().map(|f| f.informative).collect();
+        let (_, gains) = balanced_gains(&peaks, &informative);
         Ok(StreamFit {
             images: fits
                 .iter()
                 .zip(&gains)
-                .map(|(f, &g)| scaled(&f.0, g))
+                .map(|(f, &g)| scaled(&f.x, g))
                 .collect(),
             gains: gains.iter().map(|g| g * unit).collect(),
             backgrounds: fits
                 .iter()
-                .map(|f| f.5.iter().map(|b| b * unit).collect())
+                .map(|f| f.background.iter().map(|b| b * unit).collect())
                 .collect(),
-            lambdas: fits.iter().map(|f| f.1 * unit).collect(),
-            iterations: fits.iter().map(|f| f.3).max().unwrap_or(0),
-            converged: fits.iter().all(|f| f.4),
-            searched: fits.iter().any(|f| f.6),
+            lambdas: fits.iter().map(|f| f.lambda * unit).collect(),
+            iterations: fits.iter().map(|f| f.iterations).max().unwrap_or(0),
+            converged: fits.iter().all(|f| f.converged),
+            searched: fits.iter().any(|f| f.searched),
         })
     }
 }
