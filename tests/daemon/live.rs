@@ -145,6 +145,31 @@ fn live_view_solves_each_window_as_a_capture_would_gives_way_to_a_capture_and_st
     });
     assert_eq!(v["session"], 1, "{v}");
 
+    // A mount sweep (`POST /mount/zero`) takes the camera at live view's
+    // next frame: live view says it is paused by the sweep meanwhile (it
+    // gives the camera back when its stream stops, before the window in
+    // hand is solved: schemathesis once saw the sweep's 5 s wait run out
+    // while live view held the camera through a solve, under a whole
+    // suite's load), and runs again after it.
+    let before_sweep = v["results"].as_u64().unwrap();
+    let paused = std::thread::scope(|scope| {
+        let sweep = scope.spawn(|| {
+            d.post(
+                "/mount/zero",
+                r#"{"scene": "brewster-crossed", "pose": "A"}"#,
+            )
+        });
+        let (paused, _) = watch(&d, |v| v["state"] == "paused");
+        let (s, b, _) = sweep.join().unwrap();
+        assert_eq!(s, 200, "{b}");
+        paused
+    });
+    assert_eq!(paused["paused_by"], "a mount sweep", "{paused}");
+    let (v, _) = watch(&d, |v| {
+        v["state"] == "running" && v["results"].as_u64().unwrap_or(0) >= before_sweep + 3
+    });
+    assert_eq!(v["session"], 1, "{v}");
+
     // Stopped: off, and the camera free for a settings change at once.
     let (s, b) = d.delete("/live");
     assert_eq!(s, 200, "{b}");

@@ -27,7 +27,7 @@ use super::progressive::{Progressive, Snapshot};
 use super::{JobContext, JobError};
 use crate::camera::{Acquisition, RawFrame};
 use crate::daemon::requests::validate::ProgressiveSpec;
-use crate::daemon::runtime::camera::CameraService;
+use crate::daemon::runtime::camera::{CameraLease, CameraService};
 use crate::daemon::runtime::live::{Live, LiveState};
 use crate::daemon::runtime::queue::CaptureQueue;
 use crate::daemon::Event;
@@ -61,32 +61,27 @@ pub(in crate::daemon) async fn segment(w: &LiveRun<'_>, live: &Arc<Live>) {
         return;
     };
     let lease = w.camera.lease("live").await;
-    let result = run(w, live, session, &request, &spec).await;
-    drop(lease);
-    match result {
-        Ok(()) => {
-            if live.is_current(session) && w.camera.waiting() > 0 {
-                live.set_state(session, LiveState::Paused, Some("a mount sweep".into()));
-            }
-        }
-        Err(e) => {
-            tracing::warn!("live view stopped: {e}");
-            live.fail(session, e.to_string());
-            let why = format!("live view failed ({e})");
-            if let Some(id) = live.fail_waiting(session, &why) {
-                let (store, events) = (&w.jobs.store, &w.jobs.events);
-                super::record::unrecorded(store, w.queue, events, id, &why);
-            }
+    if let Err(e) = run(w, live, session, &request, &spec, lease).await {
+        tracing::warn!("live view stopped: {e}");
+        live.fail(session, e.to_string());
+        let why = format!("live view failed ({e})");
+        if let Some(id) = live.fail_waiting(session, &why) {
+            let (store, events) = (&w.jobs.store, &w.jobs.events);
+            super::record::unrecorded(store, w.queue, events, id, &why);
         }
     }
 }
 
+/// One live segment under the camera's `lease`, which it gives back as soon
+/// as the stream ends: the recording's writer and the solver's step in hand
+/// finish without the camera.
 async fn run(
     w: &LiveRun<'_>,
     live: &Arc<Live>,
     session: u64,
     request: &CaptureRequest,
     spec: &ProgressiveSpec,
+    lease: CameraLease<'_>,
 ) -> Result<(), JobError> {
     live.set_state(session, LiveState::Starting, None);
     let c = request.unstored(JobState::Running);
@@ -162,10 +157,21 @@ async fn run(
     let (ended, tap) = stream(w, live, session, request, settings, &streams, tap).await;
     stop.store(true, Ordering::SeqCst);
     watcher.abort();
-    if let Some(recorder) = recorder {
-        recorder
-            .finish(tap, why_ended(w, live, session, &ended))
-            .await;
+    // Why the segment ended is read while it still holds the camera: once
+    // given back, the sweep that waited for it no longer waits.
+    let why = recorder
+        .is_some()
+        .then(|| why_ended(w, live, session, &ended));
+    if ended.is_ok() && live.is_current(session) && w.camera.waiting() > 0 {
+        live.set_state(session, LiveState::Paused, Some("a mount sweep".into()));
+    }
+    // Given back now, not after the solver's step in hand: a mount sweep
+    // waits at most 5 s for the camera, and a window's solve (a fitted
+    // first window's λ search, the area-shadow `T` it may build) can take
+    // longer.
+    drop(lease);
+    if let (Some(recorder), Some(why)) = (recorder, why) {
+        recorder.finish(tap, why).await;
     }
     drop(streams);
     let _ = solving.await;
