@@ -458,7 +458,6 @@ mod tests {
         let rec = |captures: Vec<i64>| ReconstructionRequest {
             scene: "brewster-crossed".into(),
             captures,
-            solver: "admm-tv".into(),
             params: ReconstructionParams::default(),
         };
         let (a, b, r) = {
@@ -492,10 +491,11 @@ mod tests {
                 store.insert_capture(&CaptureRequest::example()).unwrap();
             }
         }
-        // As an older polnlos left it: no sequence table, no triggers.
+        // As an older polnlos left it: no sequence table, no triggers, the
+        // solver in its own column.
         let raw = Connection::open(dir.path().join("catalogue.sqlite")).unwrap();
         raw.execute_batch(
-            "DROP TRIGGER captures_issue_id; DROP TRIGGER reconstructions_issue_id; DROP TABLE issued_ids; PRAGMA user_version = 0;",
+            "DROP TRIGGER captures_issue_id; DROP TRIGGER reconstructions_issue_id; DROP TABLE issued_ids; ALTER TABLE reconstructions ADD COLUMN solver TEXT NOT NULL DEFAULT 'admm-tv'; PRAGMA user_version = 0;",
         )
         .unwrap();
         drop(raw);
@@ -510,7 +510,6 @@ mod tests {
         let request = ReconstructionRequest {
             scene: "brewster-crossed".into(),
             captures: vec![1],
-            solver: "admm-tv".into(),
             params: ReconstructionParams::default(),
         };
         let ids: Vec<i64> = (0..6)

@@ -14,8 +14,8 @@ impl Store {
         let params_json = serde_json::to_string(&r.params).unwrap_or_else(|_| "{}".into());
         self.with(|c| {
             c.execute(
-                "INSERT INTO reconstructions (id, scene, captures, solver, params, state, created_at) VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'reconstructions'), ?1, ?2, ?3, ?4, 'queued', ?5)",
-                params![r.scene, captures, r.solver, params_json, now()],
+                "INSERT INTO reconstructions (id, scene, captures, params, state, created_at) VALUES ((SELECT last + 1 FROM issued_ids WHERE kind = 'reconstructions'), ?1, ?2, ?3, 'queued', ?4)",
+                params![r.scene, captures, params_json, now()],
             )?;
             Ok(c.last_insert_rowid())
         })

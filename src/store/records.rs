@@ -474,9 +474,7 @@ pub struct ReconstructionRequest {
     pub scene: String,
     /// Capture ids, one per (pose, angle) block.
     pub captures: Vec<i64>,
-    /// `admm-tv`, `tikhonov` or `lsq`.
-    pub solver: String,
-    /// Solver parameters as given.
+    /// The solver (`params.solve.solver`) and its parameters as given.
     pub params: ReconstructionParams,
 }
 
@@ -541,7 +539,8 @@ pub struct ReconstructionRecord {
     pub scene: String,
     /// Capture ids used.
     pub captures: Vec<i64>,
-    /// Solver.
+    /// The solver's name, as its parameters name it (`params.solver`):
+    /// shown here too, for a reader of the list.
     pub solver: String,
     /// Solver parameters.
     pub params: ReconstructionParams,
@@ -601,12 +600,13 @@ pub(super) const RECON_SELECT: &str = "SELECT * FROM reconstructions";
 
 pub(super) fn recon_row(r: &Row<'_>) -> rusqlite::Result<ReconstructionRecord> {
     let kappa: Option<String> = r.get("kappa")?;
+    let params = params_column(r, "params")?;
     Ok(ReconstructionRecord {
         id: r.get("id")?,
         scene: r.get("scene")?,
         captures: json_column(r, "captures")?.unwrap_or_default(),
-        solver: r.get("solver")?,
-        params: params_column(r, "params")?,
+        solver: params.solve.solver.name().to_string(),
+        params,
         state: state_column(r, "state")?,
         error: r.get("error")?,
         created_at: r.get("created_at")?,

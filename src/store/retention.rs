@@ -152,7 +152,6 @@ mod tests {
             .insert_reconstruction(&ReconstructionRequest {
                 scene: "brewster-crossed".into(),
                 captures: vec![ids[0]],
-                solver: "admm-tv".into(),
                 params: crate::store::ReconstructionParams::default(),
             })
             .unwrap();

@@ -153,14 +153,25 @@ COMMIT;
 "#;
 
 /// The catalogue's schema version, kept in SQLite's `user_version`: 1 is
-/// the layout [`SCHEMA`] creates. A change to the layout is a new entry of
-/// [`MIGRATIONS`], never an edit of an old one.
-pub const VERSION: u32 = 1;
+/// the layout [`SCHEMA`] creates, and each entry of [`MIGRATIONS`] is one
+/// more. A change to the layout is a new entry, never an edit of an old one.
+pub const VERSION: u32 = 2;
+
+/// Version 2: a reconstruction's solver is stored once, in its parameters
+/// document (`params.solver`, the typed [`crate::solve::Solver`] the worker
+/// solves with), and the `solver` column that repeated it goes. The column
+/// was the one the worker read, so it is what the document keeps. A row
+/// whose parameters are not a JSON object was unreadable before and stays
+/// so (named when read), and keeps its document as it was.
+const SOLVER_INTO_PARAMS: &str = "
+UPDATE reconstructions SET params = json_set(params, '$.solver', solver)
+    WHERE json_valid(params) AND json_type(params) = 'object';
+ALTER TABLE reconstructions DROP COLUMN solver
+";
 
 /// The numbered migrations after version 1: `(n, statements)` brings a
 /// catalogue at version `n - 1` to `n`, in one transaction with the version.
-/// Empty while version 1 is the newest.
-const MIGRATIONS: [(u32, &str); 0] = [];
+const MIGRATIONS: [(u32, &str); 1] = [(2, SOLVER_INTO_PARAMS)];
 
 /// Why the catalogue cannot be brought to this polnlos's layout.
 #[derive(Debug, thiserror::Error)]
@@ -435,6 +446,68 @@ mod tests {
         assert!(p.interim.is_empty());
     }
 
+    #[test]
+    fn version_2_keeps_a_reconstructions_solver_once_in_its_parameters() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("catalogue.sqlite");
+        {
+            // A version-1 catalogue: the solver in its column, and again
+            // (or not) in the parameters; the column is what was solved with.
+            let raw = Connection::open(&path).unwrap();
+            raw.execute_batch(super::SCHEMA).unwrap();
+            raw.pragma_update(None, "user_version", 1).unwrap();
+            for (id, solver, params) in [
+                (
+                    1,
+                    "fista-tv",
+                    r#"{"version":1,"solver":"admm-tv","lambda":0.25,"max_iter":40,"truth":"disk"}"#,
+                ),
+                (2, "tikhonov", r#"{"version":1}"#),
+                (3, "sgd", r#"{"version":1}"#),
+                (4, "lsq", "not json"),
+            ] {
+                raw.execute(
+                    "INSERT INTO reconstructions (id, scene, captures, solver, params, state, created_at) VALUES (?1, 'brewster-crossed', '[1]', ?2, ?3, 'done', '2026-01-01T00:00:00.000Z')",
+                    rusqlite::params![id, solver, params],
+                )
+                .unwrap();
+            }
+        }
+        let store = Store::open(dir.path()).unwrap();
+        assert_eq!(version(dir.path()), 2);
+        let first = store.reconstruction(1).unwrap();
+        assert_eq!(first.params.solve.solver, crate::solve::Solver::FISTA_TV);
+        assert_eq!(first.solver, "fista-tv");
+        assert_eq!(
+            (first.params.solve.lambda, first.params.solve.max_iter),
+            (Some(0.25), Some(40))
+        );
+        assert_eq!(first.params.truth.as_deref(), Some("disk"));
+        let second = store.reconstruction(2).unwrap();
+        assert_eq!(second.params.solve.solver, crate::solve::Solver::TIKHONOV);
+        // A solver polnlos does not know makes its row unreadable, named.
+        let e = store.reconstruction(3).unwrap_err().to_string();
+        assert!(e.contains("unknown variant `sgd`"), "{e}");
+        let page = store.reconstructions(10, 0).unwrap();
+        assert_eq!(page.unreadable, [4, 3]);
+        drop(store);
+        let raw = Connection::open(&path).unwrap();
+        let mut st = raw.prepare("PRAGMA table_info(reconstructions)").unwrap();
+        let columns: Vec<String> = st
+            .query_map([], |r| r.get(1))
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert!(!columns.iter().any(|c| c == "solver"), "{columns:?}");
+        // The document that was not JSON is kept as it was.
+        let kept: String = raw
+            .query_row("SELECT params FROM reconstructions WHERE id = 4", [], |r| {
+                r.get(0)
+            })
+            .unwrap();
+        assert_eq!(kept, "not json");
+    }
+
     /// `user_version` of the catalogue in `dir`.
     fn version(dir: &std::path::Path) -> u32 {
         Connection::open(dir.join("catalogue.sqlite"))
@@ -459,7 +532,7 @@ mod tests {
         let store = Store::open(old.path()).unwrap();
         assert_eq!(store.capture(7).unwrap().frames, 3);
         drop(store);
-        assert_eq!(version(old.path()), 1);
+        assert_eq!(version(old.path()), super::VERSION);
         // Opened again, nothing is migrated twice.
         drop(Store::open(old.path()).unwrap());
         assert_eq!(version(old.path()), super::VERSION);

@@ -314,7 +314,7 @@ impl Job<'_> {
             false => Arc::new(crate::solve::condition(&t)?),
         };
         check(self.cancel)?;
-        let solve = stored_solve(rec)?;
+        let solve = rec.params.solve;
         let truth = rec
             .params
             .truth
@@ -854,23 +854,6 @@ impl Partial {
     }
 }
 
-/// The solve a reconstruction row asks for: its parameters (read typed
-/// with the row: parameters that do not read back make the row unreadable,
-/// never the defaults) and its solver column.
-fn stored_solve(rec: &crate::store::ReconstructionRecord) -> Result<SolveRequest, JobError> {
-    let solver = crate::solve::Solver::named(&rec.solver).ok_or_else(|| {
-        JobError::Store(format!(
-            "solver {:?} is not one polnlos knows ({})",
-            rec.solver,
-            crate::solve::Solver::names().join(", ")
-        ))
-    })?;
-    Ok(SolveRequest {
-        solver,
-        ..rec.params.solve
-    })
-}
-
 /// Captures (each at its own pose) assembled into the measurement of
 /// `blocks` with [`crate::measure::assemble_with`] and the scene's pixel
 /// `maps`, in fractions of full scale per µs; the variance comes with it
@@ -1148,47 +1131,4 @@ fn load_capture_in_range(
     let mut source = StoredCapture::new(store, record)?;
     source.in_range = true;
     load(scene, &source, warnings).map_err(|e| redacted(store, e))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::store::{JobState, ReconstructionParams, ReconstructionRecord};
-
-    fn row(solver: &str, params: ReconstructionParams) -> ReconstructionRecord {
-        ReconstructionRecord {
-            id: 7,
-            scene: "brewster-crossed".into(),
-            captures: vec![1],
-            solver: solver.into(),
-            params,
-            state: JobState::Queued,
-            error: None,
-            created_at: String::new(),
-            started_at: None,
-            finished_at: None,
-            kappa: None,
-            report: None,
-        }
-    }
-
-    #[test]
-    fn a_stored_request_is_solved_with_its_own_solver_column() {
-        let params = ReconstructionParams::new(
-            SolveRequest {
-                lambda: Some(0.25),
-                max_iter: Some(40),
-                ..SolveRequest::default()
-            },
-            Some("disk".into()),
-        );
-        let s = stored_solve(&row("fista-tv", params)).unwrap();
-        assert_eq!(s.solver, crate::solve::Solver::FISTA_TV);
-        assert_eq!((s.lambda, s.max_iter), (Some(0.25), Some(40)));
-        let e = stored_solve(&row("sgd", ReconstructionParams::default())).unwrap_err();
-        assert_eq!(
-            e.to_string(),
-            "solver \"sgd\" is not one polnlos knows (admm-tv, fista-tv, gp-tv, tikhonov, lsq)"
-        );
-    }
 }

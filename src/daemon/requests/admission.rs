@@ -372,7 +372,7 @@ impl Admission {
                 "reconstruction-{id} queued: {} of captures {:?}, {}",
                 b.scene,
                 b.captures,
-                request.solver
+                request.params.solve.solver.name()
             );
         }
         self.count_refusal(pushed)

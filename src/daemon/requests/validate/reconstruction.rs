@@ -104,7 +104,6 @@ pub fn reconstruction(
     Ok(ReconstructionRequest {
         scene: b.scene.clone(),
         captures: b.captures.clone(),
-        solver: b.solve.solver.name().to_string(),
         params: ReconstructionParams {
             // A partial request that gives every block is a whole one.
             partial: !missing.is_empty(),
@@ -196,7 +195,7 @@ mod tests {
         let lookup = |id: i64| Ok(captures.iter().find(|c| c.id == id).cloned());
         let s = scene();
         let r = reconstruction(&reconstruction_body(&[1, 2]), &s, lookup).expect("accepted");
-        assert_eq!(r.solver, Solver::ADMM_TV.name());
+        assert_eq!(r.params.solve.solver, Solver::ADMM_TV);
         assert_eq!(r.captures, vec![1, 2]);
         let err = |ids: &[i64]| match reconstruction(&reconstruction_body(ids), &s, lookup) {
             Err(RequestError::Invalid(m)) | Err(RequestError::NotFound(m)) => m,
