@@ -9,7 +9,7 @@
 //! normalized DLT (Hartley) on every dot, refined by Levenberg-Marquardt on
 //! the reprojection error in pixels, which is reported.
 
-use nalgebra::{DMatrix, Matrix3, SMatrix, SVector};
+use nalgebra::{DMatrix, Matrix3, SVector};
 
 use crate::scene::{Frame, Homography};
 
@@ -580,78 +580,40 @@ fn dlt(pairs: &[([f64; 2], [f64; 2])]) -> Option<[[f64; 3]; 3]> {
     Some(std::array::from_fn(|r| std::array::from_fn(|c| h[(r, c)])))
 }
 
-/// Levenberg-Marquardt on the reprojection error in pixels over the 8 free
-/// entries of `H` (`h33 = 1`), from the DLT estimate.
+/// Levenberg-Marquardt ([`super::levenberg`]) on the reprojection error in
+/// pixels over the 8 free entries of `H` (`h33 = 1`), from the DLT estimate.
 fn refine(h: [[f64; 3]; 3], pairs: &[([f64; 2], [f64; 2])]) -> [[f64; 3]; 3] {
     let to_h = |p: &SVector<f64, 8>| -> [[f64; 3]; 3] {
         [[p[0], p[1], p[2]], [p[3], p[4], p[5]], [p[6], p[7], 1.0]]
     };
-    let residuals = |p: &SVector<f64, 8>| -> Option<Vec<f64>> {
+    // Each target dot where `H` puts it (none for a dot it sends to infinity).
+    let model = |p: &SVector<f64, 8>| -> Result<Option<Vec<f64>>, std::convert::Infallible> {
         let h = to_h(p);
-        let mut r = Vec::with_capacity(2 * pairs.len());
-        for (w, q) in pairs {
-            let x = project(&h, *w)?;
-            r.push(x[0] - q[0]);
-            r.push(x[1] - q[1]);
+        let mut x = Vec::with_capacity(2 * pairs.len());
+        for (w, _) in pairs {
+            let Some(at) = project(&h, *w) else {
+                return Ok(None);
+            };
+            x.extend(at);
         }
-        Some(r)
+        Ok(Some(x))
     };
-    let mut p = SVector::<f64, 8>::from_fn(|k, _| h[k / 3][k % 3]);
-    let Some(mut r) = residuals(&p) else { return h };
-    let mut cost: f64 = r.iter().map(|x| x * x).sum();
-    let mut mu = 1e-3;
-    for _ in 0..50 {
-        // Jacobian by central differences (8 columns, cheap next to the solve's needs).
-        let mut jtj = SMatrix::<f64, 8, 8>::zeros();
-        let mut jtr = SVector::<f64, 8>::zeros();
-        let mut columns = Vec::with_capacity(8);
-        for k in 0..8 {
-            let step = 1e-7 * p[k].abs().max(1e-3);
-            let (mut a, mut b) = (p, p);
-            a[k] += step;
-            b[k] -= step;
-            let (Some(ra), Some(rb)) = (residuals(&a), residuals(&b)) else {
-                return to_h(&p);
-            };
-            columns.push(
-                ra.iter()
-                    .zip(&rb)
-                    .map(|(x, y)| (x - y) / (2.0 * step))
-                    .collect::<Vec<f64>>(),
-            );
-        }
-        for a in 0..8 {
-            jtr[a] = columns[a].iter().zip(&r).map(|(j, e)| j * e).sum();
-            for b in 0..8 {
-                jtj[(a, b)] = columns[a].iter().zip(&columns[b]).map(|(x, y)| x * y).sum();
-            }
-        }
-        let mut improved = false;
-        for _ in 0..10 {
-            let mut m = jtj;
-            for d in 0..8 {
-                m[(d, d)] *= 1.0 + mu;
-            }
-            let Some(delta) = m.lu().solve(&(-jtr)) else {
-                break;
-            };
-            let next = p + delta;
-            if let Some(rn) = residuals(&next) {
-                let c: f64 = rn.iter().map(|x| x * x).sum();
-                if c < cost {
-                    (p, r, cost) = (next, rn, c);
-                    mu = (mu * 0.3).max(1e-12);
-                    improved = true;
-                    break;
-                }
-            }
-            mu *= 10.0;
-        }
-        if !improved || cost < 1e-20 {
-            break;
-        }
+    let seen: Vec<f64> = pairs.iter().flat_map(|(_, q)| *q).collect();
+    let start = SVector::<f64, 8>::from_fn(|k, _| h[k / 3][k % 3]);
+    let Ok(Some(first)) = model(&start) else {
+        return h;
+    };
+    let settings = super::levenberg::Settings {
+        max_iter: 50,
+        tries: 10,
+        step: 1e-7,
+        min_gain: 0.0,
+        exact: 1e-20,
+    };
+    match super::levenberg::minimize(model, &seen, start, &first, |p| p, settings) {
+        Ok(fit) => to_h(&fit.p),
+        Err(never) => match never {},
     }
-    to_h(&p)
 }
 
 #[cfg(test)]

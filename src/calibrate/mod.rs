@@ -4,9 +4,11 @@
 //! dot target on the wall; [`occluder`] fits the occluders' position to a
 //! photo; [`wall`] fits the wall's roughness, refractive
 //! index, diffuse weight and the radiometric gain to point-source captures
-//! (pure functions; no I/O).
+//! (pure functions; no I/O). The wall's and the homographies' fits share
+//! one Levenberg-Marquardt (`levenberg`).
 
 pub mod colour;
 pub mod geometry;
+mod levenberg;
 pub mod occluder;
 pub mod wall;

@@ -20,6 +20,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
+use super::levenberg::Fit;
 use crate::optics::PolarizerModel;
 use crate::scene::{Grid, Scene, SceneError};
 use crate::solve::adequacy::Adequacy;
@@ -262,18 +263,9 @@ fn predict_all(
     Ok(all)
 }
 
-/// A converged Levenberg-Marquardt run, before any verdict on it.
-struct Solution {
-    p: SVector<f64, 4>,
-    /// Residual `i - model`, all positions concatenated.
-    r: Vec<f64>,
-    cost: f64,
-    jac: (SMatrix<f64, 4, 4>, Vec<Vec<f64>>),
-    iterations: usize,
-}
-
-/// Levenberg-Marquardt on the four numbers from `start`, whose prediction
-/// `first` the caller has already made; `i` is every position's measurement.
+/// Levenberg-Marquardt ([`super::levenberg`]) on the four numbers from
+/// `start`, whose prediction `first` the caller has already made; `i` is
+/// every position's measurement. The fit's residual is `model - i`.
 fn solve(
     scene: &Scene,
     sets: &[SourceMeasurement<'_>],
@@ -281,54 +273,18 @@ fn solve(
     start: WallParams,
     first: Vec<f64>,
     budget: MemoryBudget,
-) -> Result<Solution, WallFitError> {
-    let model = |p: &SVector<f64, 4>| predict_all(scene, sets, &WallParams::from_vec(p), budget);
-    let residual = |m: &[f64]| -> Vec<f64> { i.iter().zip(m).map(|(a, b)| a - b).collect() };
-    let ss = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
-    let mut p = start.to_vec();
-    let mut r = residual(&first);
-    let mut cost = ss(&r);
-    let mut mu = 1e-3;
-    let mut iterations = 0;
-    let mut jac = jacobian(&model, &p)?;
-    for _ in 0..60 {
-        iterations += 1;
-        let jtj = jac.0;
-        let jtr =
-            SVector::<f64, 4>::from_fn(|a, _| jac.1[a].iter().zip(&r).map(|(j, e)| j * e).sum());
-        let mut improved = false;
-        for _ in 0..12 {
-            let mut m = jtj;
-            for d in 0..4 {
-                m[(d, d)] += mu * jtj[(d, d)].max(1e-30);
-            }
-            let Some(delta) = m.lu().solve(&jtr) else {
-                break;
-            };
-            let next = WallParams::from_vec(&(p + delta)).to_vec();
-            let rn = residual(&model(&next)?);
-            let c = ss(&rn);
-            if c < cost {
-                let gain = (cost - c) / cost.max(1e-300);
-                (p, r, cost) = (next, rn, c);
-                mu = (mu * 0.3).max(1e-12);
-                improved = gain > 1e-12;
-                break;
-            }
-            mu *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-        jac = jacobian(&model, &p)?;
-    }
-    Ok(Solution {
-        p,
-        r,
-        cost,
-        jac,
-        iterations,
-    })
+) -> Result<Fit<4>, WallFitError> {
+    let model =
+        |p: &SVector<f64, 4>| predict_all(scene, sets, &WallParams::from_vec(p), budget).map(Some);
+    let feasible = |p: SVector<f64, 4>| WallParams::from_vec(&p).to_vec();
+    let settings = super::levenberg::Settings {
+        max_iter: 60,
+        tries: 12,
+        step: 1e-5,
+        min_gain: 1e-12,
+        exact: 0.0,
+    };
+    super::levenberg::minimize(model, i, start.to_vec(), &first, feasible, settings)
 }
 
 /// Every position's measurement and, when all have one, variance, concatenated;
@@ -398,7 +354,7 @@ fn levenberg_marquardt(
         });
     }
     let check = Adequacy::of(&sol.r, variance.as_deref(), 4);
-    let inv = sol.jac.0.try_inverse();
+    let inv = sol.jacobian.as_ref().and_then(|j| j.jtj.try_inverse());
     let sd = |cov: Option<SMatrix<f64, 4, 4>>| {
         let sd = |k: usize| {
             cov.as_ref()
@@ -413,13 +369,16 @@ fn levenberg_marquardt(
     };
     // With the noise: the sandwich (J^T J)^-1 J^T S J (J^T J)^-1, scaled by
     // the misfit; without: the residual variance s^2 (J^T J)^-1.
-    let from_noise = variance.as_ref().and_then(|v| {
-        let cols = &sol.jac.1;
-        let meat = SMatrix::<f64, 4, 4>::from_fn(|a, b| {
-            (0..v.len()).map(|k| cols[a][k] * v[k] * cols[b][k]).sum()
+    let from_noise = variance
+        .as_ref()
+        .zip(sol.jacobian.as_ref())
+        .and_then(|(v, j)| {
+            let cols = &j.columns;
+            let meat = SMatrix::<f64, 4, 4>::from_fn(|a, b| {
+                (0..v.len()).map(|k| cols[a][k] * v[k] * cols[b][k]).sum()
+            });
+            inv.map(|inv| inv * meat * inv)
         });
-        inv.map(|inv| inv * meat * inv)
-    });
     let (sigma, sigma_from_noise) = match from_noise {
         Some(cov) => {
             let scale = check.error_scale();
@@ -535,34 +494,6 @@ pub fn fit_sources_from_scene(
     let mut fit = levenberg_marquardt(scene, sets, WallParams { gain, ..unit }, first, budget)?;
     compare_polarizer_models(scene, sets, &mut fit, budget)?;
     Ok(fit)
-}
-
-type Model<'a> = dyn Fn(&SVector<f64, 4>) -> Result<Vec<f64>, WallFitError> + 'a;
-
-/// `J^T J` and the columns of `J` (derivatives of the model) by central
-/// differences.
-fn jacobian(
-    model: &Model<'_>,
-    p: &SVector<f64, 4>,
-) -> Result<(SMatrix<f64, 4, 4>, Vec<Vec<f64>>), WallFitError> {
-    let mut cols = Vec::with_capacity(4);
-    for k in 0..4 {
-        let step = 1e-5 * p[k].abs().max(1e-3);
-        let (mut a, mut b) = (*p, *p);
-        a[k] += step;
-        b[k] -= step;
-        let (ma, mb) = (model(&a)?, model(&b)?);
-        cols.push(
-            ma.iter()
-                .zip(&mb)
-                .map(|(x, y)| (x - y) / (2.0 * step))
-                .collect::<Vec<f64>>(),
-        );
-    }
-    let jtj = SMatrix::<f64, 4, 4>::from_fn(|a, b| {
-        cols[a].iter().zip(&cols[b]).map(|(x, y)| x * y).sum()
-    });
-    Ok((jtj, cols))
 }
 
 #[cfg(test)]
