@@ -56,6 +56,25 @@
 //!   the tests read it from
 //!   `/openapi.json` (docs/guide.md, "Adding a route"). A request body the
 //!   daemon checks goes in `src/daemon/requests/mod.rs`.
+//! - **A write route** (a request that stores or queues something; 5 files
+//!   and a line or two): its body in `src/daemon/requests/mod.rs` (`Deserialize`
+//!   with `deny_unknown_fields`, `ToSchema`: its doc comments are the API's);
+//!   its check in `src/daemon/requests/validate/<resource>.rs`, a pure
+//!   function from the body and what the daemon knows (the scene, the
+//!   captures) to a typed request, each refusal a `RequestError` that names
+//!   the field; the `Admission` method that stores and queues it, beside
+//!   `Daemon`'s one-line door to it (`src/daemon/requests/admission.rs`:
+//!   queue bounds, disk room and the camera's state are checked there, for
+//!   the route and a plan alike); its re-export in `src/api/bodies.rs`; its
+//!   handler in `src/api/routes/<resource>.rs` (`#[utoipa::path]` with
+//!   every answer, `ApiJson<Body>`, one call to the daemon, `accepted`); and
+//!   its line in `all_routes` (`src/api/mod.rs`). The guard (token, body
+//!   size), the error bodies, `/openapi.json`, the fuzzers and the hostile
+//!   tests take it from there; a new kind of job adds its worker under
+//!   `src/daemon/jobs/`. A body with a `scene` adds its name to the list in
+//!   `api::openapi::with_names`, so that the document enumerates the scenes
+//!   the daemon has. `tests/core/layers.rs` counts the files that name
+//!   `POST /reconstructions`'s body.
 //! - **A bench report**: its file in `src/report/` implementing
 //!   `report::Report`, and one entry in `BenchSelection::run` (`src/report/selection.rs`,
 //!   the one file that names every report).

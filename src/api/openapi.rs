@@ -12,7 +12,8 @@ use super::routes;
 use crate::daemon::Daemon;
 
 /// The document before the router adds its paths: title, description, and
-/// the schemas listed here (operations add those they name).
+/// the schemas listed here. Operations add those they name (every request
+/// body among them), so a new route lists nothing here.
 #[derive(OpenApi)]
 #[openapi(
     info(
@@ -20,8 +21,6 @@ use crate::daemon::Daemon;
         description = "Polarization-enhanced passive NLOS imaging: captures, reconstructions, camera."
     ),
     components(schemas(
-        super::bodies::CaptureBody,
-        super::bodies::ReconstructionBody,
         crate::solve::SolveRequest,
         super::bodies::Health,
         routes::Deleted,
@@ -29,15 +28,12 @@ use crate::daemon::Daemon;
         super::bodies::CaptureAccepted,
         super::bodies::ErrorBody,
         super::bodies::ProgressiveBody,
-        super::bodies::CalibrationBody,
         crate::daemon::GeometryCalibration,
-        super::bodies::WallCalibrationBody,
         super::bodies::SourcePositionBody,
         crate::daemon::WallCalibration,
         crate::daemon::FittedPosition,
         crate::daemon::ProgressiveStep,
         crate::camera::CameraSettings,
-        super::bodies::SettingsBody,
         crate::camera::Acquisition,
         crate::store::CaptureRecord,
         crate::store::ReconstructionRecord,
@@ -45,7 +41,6 @@ use crate::daemon::Daemon;
         crate::store::CaptureKind,
         crate::daemon::CameraView,
         crate::rig::mount::MountView,
-        super::bodies::PlanBody,
         super::bodies::PlanReconstruct,
         crate::daemon::PlanView,
         crate::daemon::PlanStep,
@@ -58,7 +53,6 @@ use crate::daemon::Daemon;
         crate::rig::stage::StageKind,
         crate::rig::relay::LightView,
         crate::rig::relay::LightKind,
-        crate::daemon::ZeroBody,
         crate::daemon::ZeroFit,
         crate::daemon::SweepPoint,
         crate::daemon::ZeroLight,

@@ -797,6 +797,50 @@ fn a_ranged_camera_setting_is_named_in_two_files() {
 }
 
 #[test]
+fn a_write_route_is_five_files_and_a_line_or_two() {
+    // lib.rs: a write route's body, its check, its admission, the body's
+    // re-export and its handler are five files; its line in `all_routes`
+    // names the handler, and a body with a scene is named once more where
+    // the document enumerates the scenes. `POST /reconstructions` is held
+    // to that.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .display()
+        .to_string()
+        .replace('\\', "/");
+    let mut named: Vec<String> = sources("")
+        .into_iter()
+        .filter(|(_, text)| identifiers(&code(text)).any(|w| w == "ReconstructionBody"))
+        .map(|(p, _)| {
+            let p = p.replace('\\', "/");
+            p.strip_prefix(&format!("{root}/"))
+                .unwrap_or(&p)
+                .to_string()
+        })
+        // A plan's step queues its reconstruction through the same admission;
+        // the document's scene names are checked below.
+        .filter(|p| p != "src/daemon/procedures/plans.rs" && p != "src/api/openapi.rs")
+        .collect();
+    named.sort();
+    assert_eq!(
+        named,
+        [
+            "src/api/bodies.rs",
+            "src/api/routes/reconstructions.rs",
+            "src/daemon/requests/admission.rs",
+            "src/daemon/requests/mod.rs",
+            "src/daemon/requests/validate/reconstruction.rs",
+        ]
+    );
+    let api = std::fs::read_to_string(Path::new(&root).join("src/api/mod.rs")).expect("api");
+    assert!(code(&api).contains("routes::post_reconstruction"));
+    let openapi =
+        std::fs::read_to_string(Path::new(&root).join("src/api/openapi.rs")).expect("openapi");
+    let names = code(&openapi);
+    let names = &names[names.find("fn with_names").expect("with_names")..];
+    assert!(names.contains("\"ReconstructionBody\""));
+}
+
+#[test]
 fn a_pixel_format_is_one_file() {
     // Issue 39: lib.rs says a pixel format is one variant in
     // `src/camera/pixel.rs` (its name, layout, bit depth and any mosaic or

@@ -17,7 +17,7 @@ use tokio_stream::StreamExt;
 
 use super::bodies::{
     Accepted, CaptureAccepted, CaptureBody, ErrorBody, Health, ImportQuery, Page, PlanBody,
-    ReconstructionBody, SettingsBody, TargetQuery,
+    SettingsBody, TargetQuery,
 };
 use super::extract::{ApiJson, ApiPath as Path, ApiQuery as Query};
 use super::ApiError;

@@ -1,6 +1,7 @@
 //! Reconstructions: submit, list, read, delete, and their files (image, truth, arrays, report).
 
 use super::*;
+use crate::api::bodies::ReconstructionBody;
 
 /// Deletes an ended reconstruction: its catalogue row and its files.
 #[utoipa::path(delete, path = "/reconstructions/{id}", params(("id" = String, Path, description = "The reconstruction's id, a positive whole number")), responses((status = 200, body = Deleted, description = "Deleted, row and files"), (status = 404, description = "No such reconstruction"), (status = 409, description = "Queued or running")))]
