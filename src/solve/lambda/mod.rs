@@ -7,9 +7,6 @@
 //! provides, and the misfit grows monotonically with lambda, so a bisection in
 //! log(lambda) finds it. One `T^T T` serves every trial.
 
-pub mod sapg;
-pub mod whiteness;
-
 use crate::solve::gram::Normal;
 use crate::solve::solvers::{AdmmSettings, Problem, SolveRequest, Warm};
 use crate::solve::{check_measurement, Reconstruction, SolveError};

@@ -31,7 +31,7 @@ pub use baseline::{least_squares, tikhonov};
 #[cfg(feature = "report")]
 pub use fista::tv_denoise;
 pub use fista::FistaSettings;
-pub(crate) use fista::{largest_eigenvalue, symmetric, Prox};
+pub(crate) use fista::{largest_eigenvalue, symmetric};
 pub use request::SolveRequest;
 
 /// Iteration cap of an automatic-λ solve unless the request sets one: small
