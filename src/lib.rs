@@ -62,12 +62,12 @@
 //!   its check in `src/daemon/requests/validate/<resource>.rs`, a pure
 //!   function from the body and what the daemon knows (the scene, the
 //!   captures) to a typed request, each refusal a `RequestError` that names
-//!   the field; the `Admission` method that stores and queues it, beside
-//!   `Daemon`'s one-line door to it (`src/daemon/requests/admission.rs`:
+//!   the field; the `Admission` method that stores and queues it, which
+//!   the handler reaches as `d.requests()` (`src/daemon/requests/admission.rs`:
 //!   queue bounds, disk room and the camera's state are checked there, for
 //!   the route and a plan alike); its re-export in `src/api/bodies.rs`; its
 //!   handler in `src/api/routes/<resource>.rs` (`#[utoipa::path]` with
-//!   every answer, `ApiJson<Body>`, one call to the daemon, `accepted`); and
+//!   every answer, `ApiJson<Body>`, one call to the handle, `accepted`); and
 //!   its line in `all_routes` (`src/api/mod.rs`). The guard (token, body
 //!   size), the error bodies, `/openapi.json`, the fuzzers and the hostile
 //!   tests take it from there; a new kind of job adds its worker under

@@ -371,6 +371,17 @@ impl Daemon {
         &self.token
     }
 
+    /// The door every capture, reconstruction, import, exposure plan and
+    /// cancel goes through, from a client or a plan.
+    pub(crate) fn requests(&self) -> &Arc<requests::admission::Admission> {
+        &self.admission
+    }
+
+    /// The bench plans: their requests, views and runner's state.
+    pub(crate) fn plans(&self) -> &Arc<procedures::plans::Plans> {
+        &self.plans
+    }
+
     /// The catalogue of captures and reconstructions.
     pub fn store(&self) -> &Store {
         &self.store

@@ -8,7 +8,7 @@ pub async fn post_capture(
     State(d): St,
     ApiJson(b): ApiJson<CaptureBody>,
 ) -> Result<Response, ApiError> {
-    let (id, req) = d.submit_capture(b).await?;
+    let (id, req) = d.requests().submit_capture(b).await?;
     Ok(accepted("capture", id, CaptureAccepted::new(id, &req)))
 }
 
@@ -43,7 +43,7 @@ pub async fn import_capture(
             "the body is empty: send the file (.npy, TIFF or PNG) as the body",
         ));
     }
-    let record = tokio::task::spawn_blocking(move || d.import_capture(&q, &bytes))
+    let record = tokio::task::spawn_blocking(move || d.requests().import_capture(&q, &bytes))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))??;
     let location = format!("/captures/{}", record.id);

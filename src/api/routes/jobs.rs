@@ -46,7 +46,7 @@ pub async fn get_job(
 #[utoipa::path(delete, path = "/jobs/{id}", params(("id" = String, Path, description = "capture-<n> or reconstruction-<n>")), responses((status = 200, description = "Cancelled: the job's record"), (status = 202, description = "Still stopping: the job's record"), (status = 404, body = ErrorBody, description = "No such job"), (status = 409, body = ErrorBody, description = "The job already ended")))]
 pub async fn cancel_job(State(d): St, Path(id): Path<String>) -> Result<Response, ApiError> {
     let (kind, n) = parse_job(&id)?;
-    let state = d.cancel_job(kind, n).await?;
+    let state = d.requests().cancel_job(kind, n).await?;
     let status = if state == JobState::Running {
         StatusCode::ACCEPTED
     } else {

@@ -6,7 +6,7 @@ use super::*;
 /// reconstruction; operator steps wait for `POST /plans/{id}/continue`.
 #[utoipa::path(post, path = "/plans", request_body = PlanBody, responses((status = 202, body = crate::daemon::PlanView, description = "Queued; Location names the plan; the body lists its steps"), (status = 404, description = "Unknown scene"), (status = 422, description = "A capture of the plan would be refused")))]
 pub async fn post_plan(State(d): St, ApiJson(b): ApiJson<PlanBody>) -> Result<Response, ApiError> {
-    let view = d.submit_plan(b).await?;
+    let view = d.plans().submit_plan(b).await?;
     Ok(accepted("plan", view.plan.id, view))
 }
 
@@ -24,7 +24,7 @@ pub async fn get_plan(
     State(d): St,
     Path(id): Path<String>,
 ) -> Result<Json<crate::daemon::PlanView>, ApiError> {
-    Ok(Json(d.plan_view(parse_id(&id, "plan")?)?))
+    Ok(Json(d.plans().plan_view(parse_id(&id, "plan")?)?))
 }
 
 /// Cancels a plan that has not ended (and the capture or reconstruction it
@@ -34,7 +34,7 @@ pub async fn cancel_plan(
     State(d): St,
     Path(id): Path<String>,
 ) -> Result<Json<crate::daemon::PlanView>, ApiError> {
-    Ok(Json(d.cancel_plan(parse_id(&id, "plan")?).await?))
+    Ok(Json(d.plans().cancel_plan(parse_id(&id, "plan")?).await?))
 }
 
 /// The operator did what the plan's prompt asked: it goes on.
@@ -43,5 +43,5 @@ pub async fn continue_plan(
     State(d): St,
     Path(id): Path<String>,
 ) -> Result<Json<crate::daemon::PlanView>, ApiError> {
-    Ok(Json(d.continue_plan(parse_id(&id, "plan")?)?))
+    Ok(Json(d.plans().continue_plan(parse_id(&id, "plan")?)?))
 }

@@ -25,7 +25,7 @@ pub async fn post_reconstruction(
     State(d): St,
     ApiJson(b): ApiJson<ReconstructionBody>,
 ) -> Result<Response, ApiError> {
-    let id = d.submit_reconstruction(&b)?;
+    let id = d.requests().submit_reconstruction(&b)?;
     Ok(accepted(
         "reconstruction",
         id,

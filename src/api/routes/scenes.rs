@@ -16,7 +16,7 @@ pub async fn scene_exposure(
     Query(q): Query<TargetQuery>,
 ) -> Result<Json<Vec<BlockExposure>>, ApiError> {
     let target = q.target();
-    let plan = tokio::task::spawn_blocking(move || d.exposure_plan(&name, &target))
+    let plan = tokio::task::spawn_blocking(move || d.requests().exposure_plan(&name, &target))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(plan))

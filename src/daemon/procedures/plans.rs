@@ -19,7 +19,7 @@ use crate::daemon::runtime::events::Event;
 use crate::rig::Automated;
 
 use crate::daemon::requests::admission::Admission;
-use crate::daemon::{Daemon, JobKind, RequestError, SubmitError};
+use crate::daemon::{JobKind, RequestError, SubmitError};
 use crate::scene::{Channel, Scene};
 use crate::store::{CaptureKind, JobState, PlanCapture, PlanInterim, PlanRow, PlanState};
 
@@ -276,7 +276,7 @@ enum Waited {
 /// The plans' handle: what the runner and the plan requests share. The
 /// runner holds this, never the daemon; it posts its steps' jobs through
 /// [`Admission`] as a client would.
-pub(in crate::daemon) struct Plans {
+pub(crate) struct Plans {
     /// The store, scenes, rig, calibration, registry and events plans read,
     /// and the door their steps' jobs go through.
     admission: Arc<Admission>,
@@ -305,7 +305,7 @@ impl Plans {
     /// Checks a plan request (every capture it will post, as `POST
     /// /captures` would) and records it; the runner starts it when the
     /// plans before it have ended.
-    pub(in crate::daemon) async fn submit_plan(
+    pub(crate) async fn submit_plan(
         self: &Arc<Self>,
         body: PlanBody,
     ) -> Result<PlanView, PlanError> {
@@ -370,7 +370,7 @@ impl Plans {
     }
 
     /// A plan with its steps.
-    pub(in crate::daemon) fn plan_view(&self, id: i64) -> Result<PlanView, PlanError> {
+    pub(crate) fn plan_view(&self, id: i64) -> Result<PlanView, PlanError> {
         let plan = self.plan_row(id)?;
         let steps = self.plan_steps(&plan).map(|(_, s)| s).unwrap_or_default();
         Ok(PlanView { plan, steps })
@@ -390,7 +390,7 @@ impl Plans {
     }
 
     /// The operator did what the prompt asked: the plan goes on.
-    pub(in crate::daemon) fn continue_plan(&self, id: i64) -> Result<PlanView, PlanError> {
+    pub(crate) fn continue_plan(&self, id: i64) -> Result<PlanView, PlanError> {
         let store_err = |e| self.plan_store_error(e);
         let plan = self.plan_row(id)?;
         if plan.state != PlanState::WaitingForOperator {
@@ -422,7 +422,7 @@ impl Plans {
 
     /// Cancels a plan that has not ended, and the capture or reconstruction
     /// its current step waits on; the captures it took are kept.
-    pub(in crate::daemon) async fn cancel_plan(&self, id: i64) -> Result<PlanView, PlanError> {
+    pub(crate) async fn cancel_plan(&self, id: i64) -> Result<PlanView, PlanError> {
         let store_err = |e| self.plan_store_error(e);
         let plan = self.plan_row(id)?;
         if plan.state.is_final()
@@ -853,29 +853,6 @@ pub(in crate::daemon) async fn run(plans: Arc<Plans>) {
                 _ = stopped.wait_for(|s| *s) => return,
             }
         }
-    }
-}
-
-/// The front end's door to `Plans`.
-impl Daemon {
-    /// Checks a plan request and records it (`Plans::submit_plan`).
-    pub async fn submit_plan(&self, body: PlanBody) -> Result<PlanView, PlanError> {
-        self.plans.submit_plan(body).await
-    }
-
-    /// A plan with its steps.
-    pub fn plan_view(&self, id: i64) -> Result<PlanView, PlanError> {
-        self.plans.plan_view(id)
-    }
-
-    /// The operator did what the prompt asked: the plan goes on.
-    pub fn continue_plan(&self, id: i64) -> Result<PlanView, PlanError> {
-        self.plans.continue_plan(id)
-    }
-
-    /// Cancels a plan that has not ended (`Plans::cancel_plan`).
-    pub async fn cancel_plan(&self, id: i64) -> Result<PlanView, PlanError> {
-        self.plans.cancel_plan(id).await
     }
 }
 

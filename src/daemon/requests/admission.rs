@@ -28,7 +28,7 @@ use crate::store::{capture_bytes, CaptureRequest, Store};
 
 /// What admitting and cancelling jobs needs: the services it reads and the
 /// queues it pushes to, shared with the daemon.
-pub(in crate::daemon) struct Admission {
+pub(crate) struct Admission {
     pub(in crate::daemon) config: Arc<Config>,
     pub(in crate::daemon) store: Arc<Store>,
     pub(in crate::daemon) scenes: Arc<Scenes>,
@@ -72,7 +72,7 @@ impl Admission {
 
     /// The camera limits exposure planning works with: the camera's exposure
     /// range when connected (`info`), the configured sensor noise, the frame cap.
-    pub(in crate::daemon) fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
+    pub(crate) fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
         CameraLimits {
             exposure_us: EXPOSURE.allowed(info.map(|i| &i.ranges)),
             max_frames: self.config.queue.max_frames_per_capture,
@@ -83,7 +83,7 @@ impl Admission {
 
     /// The exposure plan of every block of a scene for the camera as it is
     /// now. Builds the scene's `T` on first use: call it off the async runtime.
-    pub(in crate::daemon) fn exposure_plan(
+    pub(crate) fn exposure_plan(
         &self,
         scene: &str,
         target: &ExposureTarget,
@@ -126,7 +126,7 @@ impl Admission {
 
     /// Validates a capture body (planning its exposure when asked, which may
     /// build the scene's `T`, off the runtime) and admits it.
-    pub(in crate::daemon) async fn submit_capture(
+    pub(crate) async fn submit_capture(
         self: &Arc<Self>,
         body: CaptureBody,
     ) -> Result<(i64, CaptureRequest), SubmitError> {
@@ -356,10 +356,7 @@ impl Admission {
     }
 
     /// Validates a reconstruction body against its scene and captures and queues it.
-    pub(in crate::daemon) fn submit_reconstruction(
-        &self,
-        b: &ReconstructionBody,
-    ) -> Result<i64, SubmitError> {
+    pub(crate) fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
         let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
         let request = validate::reconstruction(b, &scene, |id| self.lookup_capture(id))?;
         let pushed = self.reconstructions.push(5, || {
@@ -387,16 +384,10 @@ impl Admission {
     }
 }
 
-/// The front end's door to `Admission`.
+/// Live view's doors, which join admission (a recording's capture) to the
+/// live session; the other requests go to `Admission` itself
+/// (`Daemon::requests`).
 impl crate::daemon::Daemon {
-    /// Validates a capture body and queues it (`Admission::submit_capture`).
-    pub async fn submit_capture(
-        &self,
-        body: CaptureBody,
-    ) -> Result<(i64, CaptureRequest), SubmitError> {
-        self.admission.submit_capture(body).await
-    }
-
     /// Starts the live view repeating capture body `b` (a running session
     /// is replaced), with the capture its `record` writes reserved; the
     /// capture worker runs it while no capture waits.
@@ -448,50 +439,11 @@ impl crate::daemon::Daemon {
         &self.live
     }
 
-    /// Validates a reconstruction body and queues it.
-    pub fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
-        self.admission.submit_reconstruction(b)
-    }
-
-    /// Stores a measurement or photo taken elsewhere as a done capture
-    /// (`Admission::import_capture`): call it off the async runtime.
-    pub fn import_capture(
-        &self,
-        q: &super::ImportQuery,
-        bytes: &[u8],
-    ) -> Result<crate::store::CaptureRecord, SubmitError> {
-        self.admission.import_capture(q, bytes)
-    }
-
-    /// The exposure plan of every block of a scene for the camera as it is
-    /// now (`Admission::exposure_plan`): call it off the async runtime.
-    pub fn exposure_plan(
-        &self,
-        scene: &str,
-        target: &ExposureTarget,
-    ) -> Result<Vec<BlockExposure>, RequestError> {
-        self.admission.exposure_plan(scene, target)
-    }
-
-    /// The camera limits exposure planning works with.
-    pub fn camera_limits(&self, info: Option<&CameraInfo>) -> CameraLimits {
-        self.admission.camera_limits(info)
-    }
-
     /// Capture `id`, which a request needs to exist.
     pub(in crate::daemon) fn require_capture(
         &self,
         id: i64,
     ) -> Result<crate::store::CaptureRecord, RequestError> {
         self.admission.require_capture(id)
-    }
-
-    /// Cancels a queued or running job (`Admission::cancel_job`).
-    pub async fn cancel_job(
-        &self,
-        kind: crate::daemon::JobKind,
-        id: i64,
-    ) -> Result<crate::store::JobState, crate::daemon::CancelError> {
-        self.admission.cancel_job(kind, id).await
     }
 }

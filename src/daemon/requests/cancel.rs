@@ -75,11 +75,7 @@ impl Admission {
     /// Cancels a queued or running job; returns its state when this returns:
     /// `cancelled`, or still `running` if it did not stop within 5 s (it
     /// will, at its next check).
-    pub(in crate::daemon) async fn cancel_job(
-        &self,
-        kind: JobKind,
-        id: i64,
-    ) -> Result<JobState, CancelError> {
+    pub(crate) async fn cancel_job(&self, kind: JobKind, id: i64) -> Result<JobState, CancelError> {
         let job = format!("{}-{id}", kind.name());
         let state = self.job_state(kind, id)?;
         if !matches!(state, JobState::Queued | JobState::Running) {

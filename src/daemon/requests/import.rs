@@ -64,7 +64,7 @@ impl Admission {
     /// through the pose's homography), and stores it as a done capture: the
     /// file as received, its measurement and its provenance. Nothing is
     /// stored when any check fails.
-    pub(in crate::daemon) fn import_capture(
+    pub(crate) fn import_capture(
         &self,
         q: &ImportQuery,
         bytes: &[u8],

@@ -58,7 +58,7 @@ fn invalid(m: impl Into<String>) -> RequestError {
 /// and current settings, the bench, and the configured frame cap.
 #[derive(Debug, Clone)]
 pub struct CameraContext {
-    /// Exposure range and noise (see [`crate::daemon::Daemon::camera_limits`]).
+    /// Exposure range and noise (`Admission::camera_limits`).
     pub limits: CameraLimits,
     /// The camera's range of each ranged setting, when it has reported them.
     pub ranges: Option<CameraRanges>,
