@@ -195,8 +195,8 @@ pub async fn spec(d: Arc<Daemon>, doc: Arc<Document>) -> Json<serde_json::Value>
     );
     Json(with_names(
         serde_json::to_value(doc).unwrap_or_default(),
-        &d.scene_names(),
-        &d.pose_names(),
+        &d.scenes().names(),
+        &d.scenes().pose_names(),
     ))
 }
 

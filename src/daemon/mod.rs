@@ -278,6 +278,7 @@ impl Daemon {
         let registry = Arc::new(JobRegistry::default());
         let events = Events::new(1024);
         let metrics = Arc::new(Metrics::default());
+        let live = Arc::new(runtime::live::Live::default());
         let admission = Arc::new(requests::admission::Admission {
             config: config.clone(),
             store: store.clone(),
@@ -290,6 +291,7 @@ impl Daemon {
             registry: registry.clone(),
             events: events.clone(),
             metrics: metrics.clone(),
+            live: live.clone(),
         });
         let plans = Arc::new(procedures::plans::Plans::new(admission.clone()));
         let daemon = Arc::new(Self {
@@ -307,7 +309,7 @@ impl Daemon {
             registry,
             events,
             metrics,
-            live: Arc::new(runtime::live::Live::default()),
+            live,
             workers: std::sync::Mutex::new(tokio::task::JoinSet::new()),
         });
         {
@@ -392,44 +394,15 @@ impl Daemon {
         &self.camera
     }
 
-    /// The rotation mount: where it is now (read from it unless a capture
-    /// is turning it, then as last read).
-    pub async fn mount_now(&self) -> rig::mount::MountView {
-        self.rig.mount_view().await
+    /// The bench's devices beside the camera: the rotation mount, the
+    /// camera stage, the light relay.
+    pub(crate) fn rig(&self) -> &rig::Rig {
+        &self.rig
     }
 
-    /// The relay that switches the hidden scene's light, as last seen.
-    pub fn light_now(&self) -> rig::relay::LightView {
-        self.rig.light_view()
-    }
-
-    /// The camera stage as last seen.
-    pub fn stage_now(&self) -> rig::stage::StageView {
-        self.rig.stage_view()
-    }
-
-    /// Names of the scenes the daemon knows.
-    pub fn scene_names(&self) -> Vec<String> {
-        self.scenes.names()
-    }
-
-    /// Where each pose of scene `name` sees its wall (the live view's aim).
-    pub fn wall_views(&self, name: &str) -> Result<Vec<runtime::scenes::WallView>, RequestError> {
-        Ok(runtime::scenes::wall_views(&*self.scenes.scene(name)?))
-    }
-
-    /// Names of the poses of every scene the daemon knows, sorted, once each.
-    pub fn pose_names(&self) -> Vec<String> {
-        let mut names: Vec<String> = self
-            .scenes
-            .names()
-            .iter()
-            .filter_map(|n| self.scenes.get(n))
-            .flat_map(|s| s.poses().iter().map(|p| p.name.clone()).collect::<Vec<_>>())
-            .collect();
-        names.sort();
-        names.dedup();
-        names
+    /// The scenes the daemon knows, with their `T`s and pixel maps.
+    pub fn scenes(&self) -> &Scenes {
+        &self.scenes
     }
 
     /// Job, frame and camera events from now on.

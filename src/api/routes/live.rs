@@ -17,7 +17,7 @@ pub async fn post_live(
     State(d): St,
     ApiJson(b): ApiJson<CaptureBody>,
 ) -> Result<Response, ApiError> {
-    let view = d.start_live(b).await?;
+    let view = d.requests().start_live(b).await?;
     Ok((
         StatusCode::ACCEPTED,
         [(header::LOCATION, "/live".to_string())],
@@ -38,7 +38,7 @@ pub async fn get_live(State(d): St) -> Json<LiveView> {
 /// answers its last state, as `off`.
 #[utoipa::path(delete, path = "/live", responses((status = 200, body = LiveView)))]
 pub async fn delete_live(State(d): St) -> Json<LiveView> {
-    Json(d.stop_live())
+    Json(d.requests().stop_live())
 }
 
 /// The live view's newest image, 16-bit PNG on the scene grid.

@@ -6,21 +6,21 @@ use super::*;
 /// read from it now (as last read while a capture turns it), and its last error.
 #[utoipa::path(get, path = "/mount", responses((status = 200, body = crate::rig::mount::MountView, description = "Mount state")))]
 pub async fn mount(State(d): St) -> Json<crate::rig::mount::MountView> {
-    Json(d.mount_now().await)
+    Json(d.rig().mount_view().await)
 }
 
 /// The relay that switches the hidden scene's light for dark frames: its
 /// kind, port and relay, whether the light was on when last read, and its last error.
 #[utoipa::path(get, path = "/light", responses((status = 200, body = crate::rig::relay::LightView, description = "Light switch state")))]
 pub async fn light(State(d): St) -> Json<crate::rig::relay::LightView> {
-    Json(d.light_now())
+    Json(d.rig().light_view())
 }
 
 /// The camera stage that moves the camera between poses: its kind, the pose
 /// it last reached, the position read back, and its last error.
 #[utoipa::path(get, path = "/stage", responses((status = 200, body = crate::rig::stage::StageView, description = "Stage state")))]
 pub async fn stage(State(d): St) -> Json<crate::rig::stage::StageView> {
-    Json(d.stage_now())
+    Json(d.rig().stage_view())
 }
 
 /// Finds the mount angle at which the polarizer is crossed: sweeps the

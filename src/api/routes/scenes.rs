@@ -5,7 +5,7 @@ use super::*;
 /// Scene names the daemon knows.
 #[utoipa::path(get, path = "/scenes", responses((status = 200, body = [String], description = "Scene names")))]
 pub async fn scenes(State(d): St) -> Json<Vec<String>> {
-    Json(d.scene_names())
+    Json(d.scenes().names())
 }
 
 /// The planned exposure and frame count of every (pose, angle) block of a scene.
@@ -29,5 +29,9 @@ pub async fn scene_wall(
     State(d): St,
     Path(name): Path<String>,
 ) -> Result<Json<Vec<crate::daemon::runtime::scenes::WallView>>, ApiError> {
-    Ok(Json(d.wall_views(&name)?))
+    Ok(Json(
+        d.scenes()
+            .wall_views(&name)
+            .map_err(crate::daemon::RequestError::from)?,
+    ))
 }

@@ -41,9 +41,56 @@ pub(crate) struct Admission {
     pub(in crate::daemon) registry: Arc<JobRegistry>,
     pub(in crate::daemon) events: Events,
     pub(in crate::daemon) metrics: Arc<Metrics>,
+    /// The live view, whose sessions are admitted here.
+    pub(in crate::daemon) live: Arc<crate::daemon::runtime::live::Live>,
 }
 
 impl Admission {
+    /// Starts the live view repeating capture body `b` (a running session
+    /// is replaced), with the capture its `record` writes reserved; the
+    /// capture worker runs it while no capture waits.
+    pub(crate) async fn start_live(
+        self: &Arc<Self>,
+        b: CaptureBody,
+    ) -> Result<crate::daemon::runtime::live::LiveView, SubmitError> {
+        let a = self.clone();
+        let (request, spec, record) = tokio::task::spawn_blocking(move || a.check_live(&b))
+            .await
+            .map_err(|e| RequestError::Unavailable(format!("live view validation: {e}")))??;
+        let session = self.live.issue_id();
+        let recording = match record {
+            Some(n) => Some((self.reserve_recording(&request, n, session)?, n)),
+            None => None,
+        };
+        tracing::info!(
+            "live view started: {} {}, windows of {} frames of {} us",
+            request.scene,
+            crate::daemon::jobs::capture_label(&request.pose, &request.channels),
+            request.frames,
+            request.acquisition.exposure_us
+        );
+        let (view, replaced) = self.live.start(session, request, spec, recording);
+        if let Some(id) = replaced {
+            self.end_unrecorded(id, "a new live session (POST /live) replaced its session");
+        }
+        Ok(view)
+    }
+
+    /// Stops the live view; its last state, as `off`.
+    pub(crate) fn stop_live(&self) -> crate::daemon::runtime::live::LiveView {
+        let (view, waiting) = self.live.stop();
+        if let Some(id) = waiting {
+            self.end_unrecorded(id, "DELETE /live stopped its session");
+        }
+        tracing::info!("live view stopped after {} results", view.results);
+        view
+    }
+
+    /// Ends recording capture `id`, to which no frame went, as failed for `why`.
+    fn end_unrecorded(&self, id: i64, why: &str) {
+        crate::daemon::jobs::record::unrecorded(&self.store, &self.captures, &self.events, id, why);
+    }
+
     /// Capture `id` from the catalogue for a request's checks: `None` when
     /// there is no such capture; a catalogue that cannot be read is a 500
     /// with the store's reason, not "no capture".
@@ -384,56 +431,8 @@ impl Admission {
     }
 }
 
-/// Live view's doors, which join admission (a recording's capture) to the
-/// live session; the other requests go to `Admission` itself
-/// (`Daemon::requests`).
+/// The daemon's own doors beside its handles.
 impl crate::daemon::Daemon {
-    /// Starts the live view repeating capture body `b` (a running session
-    /// is replaced), with the capture its `record` writes reserved; the
-    /// capture worker runs it while no capture waits.
-    pub async fn start_live(
-        &self,
-        b: CaptureBody,
-    ) -> Result<crate::daemon::runtime::live::LiveView, SubmitError> {
-        let a = self.admission.clone();
-        let (request, spec, record) = tokio::task::spawn_blocking(move || a.check_live(&b))
-            .await
-            .map_err(|e| RequestError::Unavailable(format!("live view validation: {e}")))??;
-        let session = self.live.issue_id();
-        let recording = match record {
-            Some(n) => Some((self.admission.reserve_recording(&request, n, session)?, n)),
-            None => None,
-        };
-        tracing::info!(
-            "live view started: {} {}, windows of {} frames of {} us",
-            request.scene,
-            crate::daemon::jobs::capture_label(&request.pose, &request.channels),
-            request.frames,
-            request.acquisition.exposure_us
-        );
-        let (view, replaced) = self.live.start(session, request, spec, recording);
-        if let Some(id) = replaced {
-            self.end_unrecorded(id, "a new live session (POST /live) replaced its session");
-        }
-        Ok(view)
-    }
-
-    /// Stops the live view; its last state, as `off`.
-    pub fn stop_live(&self) -> crate::daemon::runtime::live::LiveView {
-        let (view, waiting) = self.live.stop();
-        if let Some(id) = waiting {
-            self.end_unrecorded(id, "DELETE /live stopped its session");
-        }
-        tracing::info!("live view stopped after {} results", view.results);
-        view
-    }
-
-    /// Ends recording capture `id`, to which no frame went, as failed for `why`.
-    fn end_unrecorded(&self, id: i64, why: &str) {
-        let a = &self.admission;
-        crate::daemon::jobs::record::unrecorded(&a.store, &a.captures, &a.events, id, why);
-    }
-
     /// The live view's state and newest image.
     pub fn live(&self) -> &crate::daemon::runtime::live::Live {
         &self.live

@@ -178,6 +178,23 @@ impl Scenes {
         self.scenes.keys().cloned().collect()
     }
 
+    /// Names of the poses of every scene, sorted, once each.
+    pub fn pose_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = self
+            .scenes
+            .values()
+            .flat_map(|s| s.poses().iter().map(|p| p.name.clone()).collect::<Vec<_>>())
+            .collect();
+        names.sort();
+        names.dedup();
+        names
+    }
+
+    /// Where each pose of scene `name` sees its wall (the live view's aim).
+    pub(crate) fn wall_views(&self, name: &str) -> Result<Vec<WallView>, ScenesError> {
+        Ok(wall_views(&*self.scene(name)?))
+    }
+
     /// The scene with this name (or a variant's key), or the error that lists the known ones.
     pub fn scene(&self, name: &str) -> Result<Arc<Scene>, ScenesError> {
         if let Some(v) = self
