@@ -111,7 +111,11 @@
 //!   never the whole `Daemon` (`tests/core/layers.rs` holds this). The plan
 //!   runner holds `Plans` (`src/daemon/procedures/plans.rs`), which posts its captures
 //!   and reconstructions through `Admission` (`src/daemon/requests/admission.rs`),
-//!   the handle a request's admission and a cancel go through.
+//!   the handle a request's admission, a cancel, a delete and live view's
+//!   start and stop go through. The API reaches the handles from `Daemon`
+//!   (`requests()`, `plans()`, `scenes()`, `rig()`, `camera()`, `store()`,
+//!   `live()`); the calibration procedures and the metrics are still
+//!   `Daemon`'s own methods, in their files under `src/daemon/`.
 
 #![deny(missing_docs)]
 

@@ -99,10 +99,11 @@ pub async fn delete_capture(
     Query(q): Query<DeleteQuery>,
 ) -> Result<Json<Deleted>, ApiError> {
     let id = parse_id(&id, "capture")?;
-    let reconstructions =
-        tokio::task::spawn_blocking(move || d.delete_capture(id, q.with_reconstructions))
-            .await
-            .map_err(|e| ApiError::internal(e.to_string()))??;
+    let reconstructions = tokio::task::spawn_blocking(move || {
+        d.requests().delete_capture(id, q.with_reconstructions)
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(Deleted {
         capture: Some(id),
         reconstructions,

@@ -10,7 +10,7 @@ pub async fn delete_reconstruction(
     Path(id): Path<String>,
 ) -> Result<Json<Deleted>, ApiError> {
     let id = parse_id(&id, "reconstruction")?;
-    tokio::task::spawn_blocking(move || d.delete_reconstruction(id))
+    tokio::task::spawn_blocking(move || d.requests().delete_reconstruction(id))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(Deleted {
@@ -112,7 +112,8 @@ pub async fn reconstruction_truth(
     let id = parse_id(&id, "reconstruction")?;
     let png = tokio::task::spawn_blocking(move || {
         let rec = d.store().reconstruction(id)?;
-        d.truth_png(&rec)
+        d.scenes()
+            .truth_png(&rec)
             .map_err(|e| ApiError::internal(e.to_string()))
     })
     .await

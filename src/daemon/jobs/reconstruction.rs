@@ -10,7 +10,6 @@ use std::time::Instant;
 use tokio::sync::{mpsc, Mutex};
 
 use super::{finish_job, Ending, JobContext, JobError};
-use crate::daemon::Daemon;
 use crate::files::{image, json, npy};
 use crate::measure::{
     assemble_colour, load, to_model_units, CaptureFrames, CaptureInfo, CaptureSource, Measurement,
@@ -758,44 +757,6 @@ fn log_summary(report: &crate::solve::report::Report) {
         report.warnings.len(),
         report.notes.len()
     );
-}
-
-impl Daemon {
-    /// The known truth of reconstruction `rec` on its scene grid as a 16-bit
-    /// PNG (0..1 to black..white, the scale of its result), when its request
-    /// named a test pattern; `Ok(None)` when it did not.
-    pub fn truth_png(
-        &self,
-        rec: &crate::store::ReconstructionRecord,
-    ) -> Result<Option<Vec<u8>>, TruthPngError> {
-        let Some(pattern) = rec
-            .params
-            .truth
-            .as_deref()
-            .and_then(crate::simulate::patterns::Pattern::from_name)
-        else {
-            return Ok(None);
-        };
-        let scene = self.scenes.scene(&rec.scene)?;
-        let grid = scene.hidden().plane.grid;
-        let truth = pattern.render(grid);
-        Ok(Some(image::encode_png16(
-            grid.nu,
-            grid.nv,
-            &image::unit_to_u16(&truth),
-        )?))
-    }
-}
-
-/// Why a reconstruction's truth image could not be made.
-#[derive(Debug, thiserror::Error)]
-pub enum TruthPngError {
-    /// Its scene is not one the daemon knows now (the scenes' reason).
-    #[error(transparent)]
-    Scene(#[from] crate::daemon::runtime::scenes::ScenesError),
-    /// The image did not encode.
-    #[error(transparent)]
-    Png(#[from] crate::files::image::PngError),
 }
 
 /// A reconstruction's measurement: the captures stacked in block order

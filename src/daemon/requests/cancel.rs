@@ -58,6 +58,34 @@ pub enum CancelError {
 }
 
 impl Admission {
+    /// Deletes capture `id` (and, with `with_reconstructions`, the
+    /// reconstructions that use it) on a client's request; returns those
+    /// reconstructions.
+    pub(crate) fn delete_capture(
+        &self,
+        id: i64,
+        with_reconstructions: bool,
+    ) -> Result<Vec<i64>, StoreError> {
+        crate::daemon::runtime::retention::delete_capture(
+            &self.store,
+            &self.events,
+            id,
+            with_reconstructions,
+            "request",
+        )
+    }
+
+    /// Deletes reconstruction `id` on a client's request.
+    pub(crate) fn delete_reconstruction(&self, id: i64) -> Result<(), StoreError> {
+        self.store.delete_reconstruction(id)?;
+        self.events.emit(crate::daemon::Event::Deleted {
+            kind: "reconstruction",
+            id,
+            reason: "request",
+        });
+        Ok(())
+    }
+
     fn job_state(&self, kind: JobKind, id: i64) -> Result<JobState, CancelError> {
         let r = match kind {
             JobKind::Capture => self.store.capture(id).map(|c| c.state),

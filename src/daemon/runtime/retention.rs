@@ -8,42 +8,12 @@ use std::time::Duration;
 
 use super::config::RetentionConfig;
 use super::events::Events;
-use crate::daemon::{Daemon, Event};
+use crate::daemon::Event;
 use crate::store::{Store, StoreError};
-
-impl Daemon {
-    /// Deletes capture `id` (and, with `with_reconstructions`, the
-    /// reconstructions that use it) on a client's request; returns those
-    /// reconstructions.
-    pub fn delete_capture(
-        &self,
-        id: i64,
-        with_reconstructions: bool,
-    ) -> Result<Vec<i64>, StoreError> {
-        delete_capture(
-            &self.store,
-            &self.events,
-            id,
-            with_reconstructions,
-            "request",
-        )
-    }
-
-    /// Deletes reconstruction `id`.
-    pub fn delete_reconstruction(&self, id: i64) -> Result<(), StoreError> {
-        self.store.delete_reconstruction(id)?;
-        self.events.emit(Event::Deleted {
-            kind: "reconstruction",
-            id,
-            reason: "request",
-        });
-        Ok(())
-    }
-}
 
 /// Deletes capture `id` (with the reconstructions using it when asked) and
 /// announces each row deleted, with `reason` (`request` or `retention`).
-fn delete_capture(
+pub(in crate::daemon) fn delete_capture(
     store: &Store,
     events: &Events,
     id: i64,

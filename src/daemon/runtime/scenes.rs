@@ -190,6 +190,31 @@ impl Scenes {
         names
     }
 
+    /// The known truth of reconstruction `rec` on its scene grid as a 16-bit
+    /// PNG (0..1 to black..white, the scale of its result), when its request
+    /// named a test pattern; `Ok(None)` when it did not.
+    pub(crate) fn truth_png(
+        &self,
+        rec: &crate::store::ReconstructionRecord,
+    ) -> Result<Option<Vec<u8>>, TruthPngError> {
+        let Some(pattern) = rec
+            .params
+            .truth
+            .as_deref()
+            .and_then(crate::simulate::patterns::Pattern::from_name)
+        else {
+            return Ok(None);
+        };
+        let scene = self.scene(&rec.scene)?;
+        let grid = scene.hidden().plane.grid;
+        let truth = pattern.render(grid);
+        Ok(Some(crate::files::image::encode_png16(
+            grid.nu,
+            grid.nv,
+            &crate::files::image::unit_to_u16(&truth),
+        )?))
+    }
+
     /// Where each pose of scene `name` sees its wall (the live view's aim).
     pub(crate) fn wall_views(&self, name: &str) -> Result<Vec<WallView>, ScenesError> {
         Ok(wall_views(&*self.scene(name)?))
@@ -342,6 +367,17 @@ fn cached<T>(
     let made = Arc::new(make()?);
     *value = Some(made.clone());
     Ok(made)
+}
+
+/// Why a reconstruction's truth image could not be made.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum TruthPngError {
+    /// Its scene is not one the daemon knows now (the scenes' reason).
+    #[error(transparent)]
+    Scene(#[from] ScenesError),
+    /// The image did not encode.
+    #[error(transparent)]
+    Png(#[from] crate::files::image::PngError),
 }
 
 #[cfg(test)]
