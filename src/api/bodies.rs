@@ -55,7 +55,7 @@ impl Page {
     }
 }
 
-/// Target of an exposure plan (query of `GET /scenes/{name}/exposure`).
+/// Target of the blocks' exposures (query of `GET /scenes/{name}/exposure`).
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct TargetQuery {

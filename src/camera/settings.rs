@@ -284,7 +284,7 @@ pub const RANGED: &[RangedSetting] = &[
     },
 ];
 
-/// The exposure's entry of [`RANGED`] (exposure plans need its range).
+/// The exposure's entry of [`RANGED`] (choosing each block's exposure needs its range).
 pub(crate) const EXPOSURE: &RangedSetting = &RANGED[0];
 
 impl RangedSetting {

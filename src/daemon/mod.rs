@@ -373,7 +373,7 @@ impl Daemon {
         &self.token
     }
 
-    /// The door every capture, reconstruction, import, exposure plan and
+    /// The door every capture, reconstruction, import, block exposure and
     /// cancel goes through, from a client or a plan.
     pub(crate) fn requests(&self) -> &Arc<requests::admission::Admission> {
         &self.admission

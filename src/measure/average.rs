@@ -48,7 +48,7 @@ impl Clipping {
     /// capture's log or failure and for the reconstructions that use it.
     pub fn saturation(&self, scene: &str) -> String {
         format!(
-            "{} of {} pixels at full scale in one frame ({:.2} %), in {} frames; lower exposure_us (GET /scenes/{scene}/exposure plans one per block)",
+            "{} of {} pixels at full scale in one frame ({:.2} %), in {} frames; lower exposure_us (GET /scenes/{scene}/exposure gives one per block)",
             self.saturated,
             self.pixels,
             100.0 * self.saturated_share(),

@@ -1,4 +1,4 @@
-//! Scenes: their names, their exposure plan, and where each pose sees the wall.
+//! Scenes: their names, each block's exposure, and where each pose sees the wall.
 
 use super::*;
 
@@ -16,10 +16,10 @@ pub async fn scene_exposure(
     Query(q): Query<TargetQuery>,
 ) -> Result<Json<Vec<BlockExposure>>, ApiError> {
     let target = q.target();
-    let plan = tokio::task::spawn_blocking(move || d.requests().exposure_plan(&name, &target))
+    let blocks = tokio::task::spawn_blocking(move || d.requests().block_exposures(&name, &target))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))??;
-    Ok(Json(plan))
+    Ok(Json(blocks))
 }
 
 /// Where each pose of a scene sees its wall, in sensor pixels: the live

@@ -128,18 +128,19 @@ impl Admission {
         }
     }
 
-    /// The exposure plan of every block of a scene for the camera as it is
-    /// now. Builds the scene's `T` on first use: call it off the async runtime.
-    pub(crate) fn exposure_plan(
+    /// The exposure and frame count of every block of a scene for the
+    /// camera as it is now. Builds the scene's `T` on first use: call it off
+    /// the async runtime.
+    pub(crate) fn block_exposures(
         &self,
         scene: &str,
         target: &ExposureTarget,
     ) -> Result<Vec<BlockExposure>, RequestError> {
         let limits = self.camera_limits(self.camera.status().info.as_ref());
-        self.plan_with(scene, target, &limits)
+        self.exposures_with(scene, target, &limits)
     }
 
-    fn plan_with(
+    fn exposures_with(
         &self,
         scene: &str,
         target: &ExposureTarget,
@@ -239,7 +240,7 @@ impl Admission {
         let cam = self.camera_context(info.as_ref());
         let plan = || match b.exposure {
             Some(AutoExposure::Auto) => {
-                self.plan_with(&b.scene, &b.target.unwrap_or_default(), &cam.limits)
+                self.exposures_with(&b.scene, &b.target.unwrap_or_default(), &cam.limits)
             }
             None => Ok(Vec::new()),
         };

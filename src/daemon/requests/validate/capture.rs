@@ -294,7 +294,7 @@ fn planned_exposure(
             .map(Some)
             .ok_or_else(|| {
                 invalid(format!(
-                    "the exposure plan of scene {:?} has no block for pose {:?}",
+                    "the exposures of scene {:?} have no block for pose {:?}",
                     b.scene, b.pose
                 ))
             }),

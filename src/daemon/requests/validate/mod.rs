@@ -3,7 +3,7 @@
 //!
 //! Nothing here reads the camera, the store or the clock: the daemon gathers
 //! what a check needs ([`CameraContext`], a capture lookup, a lazily built
-//! exposure plan) and these functions decide, so every rule has a unit test.
+//! blocks' exposures) and these functions decide, so every rule has a unit test.
 //! A capture lookup answers `Ok(None)` when there is no such capture and an
 //! error when the catalogue cannot be read; the checks pass that error on
 //! instead of calling the capture missing.
