@@ -113,9 +113,10 @@
 //!   and reconstructions through `Admission` (`src/daemon/requests/admission.rs`),
 //!   the handle a request's admission, a cancel, a delete and live view's
 //!   start and stop go through. The API reaches the handles from `Daemon`
-//!   (`requests()`, `plans()`, `scenes()`, `rig()`, `camera()`, `store()`,
-//!   `live()`); the calibration procedures and the metrics are still
-//!   `Daemon`'s own methods, in their files under `src/daemon/`.
+//!   (`requests()`, `plans()`, `procedures()` for the calibrations and the
+//!   mount's zero, `scenes()`, `rig()`, `camera()`, `store()`, `live()`);
+//!   `Daemon`'s own methods are its start and stop, the event stream and
+//!   the metrics' samples.
 
 #![deny(missing_docs)]
 

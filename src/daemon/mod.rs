@@ -212,6 +212,8 @@ pub struct Daemon {
     admission: Arc<requests::admission::Admission>,
     /// The acquisition plans and their runner's state.
     plans: Arc<procedures::plans::Plans>,
+    /// The calibrations and the mount's zero.
+    procedures: procedures::Procedures,
     captures: Arc<CaptureQueue>,
     reconstructions: Queue,
     registry: Arc<JobRegistry>,
@@ -294,6 +296,7 @@ impl Daemon {
             live: live.clone(),
         });
         let plans = Arc::new(procedures::plans::Plans::new(admission.clone()));
+        let procedures = procedures::Procedures::new(admission.clone());
         let daemon = Arc::new(Self {
             config,
             token,
@@ -304,6 +307,7 @@ impl Daemon {
             rig,
             admission,
             plans,
+            procedures,
             captures,
             reconstructions,
             registry,
@@ -377,6 +381,16 @@ impl Daemon {
     /// cancel goes through, from a client or a plan.
     pub(crate) fn requests(&self) -> &Arc<requests::admission::Admission> {
         &self.admission
+    }
+
+    /// The live view's state and newest image.
+    pub fn live(&self) -> &runtime::live::Live {
+        &self.live
+    }
+
+    /// The calibrations (pose, wall, colour) and the mount's zero.
+    pub(crate) fn procedures(&self) -> &procedures::Procedures {
+        &self.procedures
     }
 
     /// The bench plans: their requests, views and runner's state.

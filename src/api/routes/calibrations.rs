@@ -8,7 +8,7 @@ use super::*;
 pub async fn list_calibrations(
     State(d): St,
 ) -> Result<Json<crate::daemon::Calibrations>, ApiError> {
-    Ok(Json(d.calibrations()?))
+    Ok(Json(d.procedures().calibrations()?))
 }
 
 /// Measures a colour camera's balance from a capture of a white or grey
@@ -19,7 +19,7 @@ pub async fn post_colour_calibration(
     State(d): St,
     ApiJson(b): ApiJson<crate::api::bodies::ColourCalibrationBody>,
 ) -> Result<Json<crate::daemon::ColourCalibration>, ApiError> {
-    let r = tokio::task::spawn_blocking(move || d.calibrate_colour(b.capture))
+    let r = tokio::task::spawn_blocking(move || d.procedures().calibrate_colour(b.capture))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(r))
@@ -32,10 +32,12 @@ pub async fn post_calibration(
     State(d): St,
     ApiJson(b): ApiJson<crate::api::bodies::CalibrationBody>,
 ) -> Result<Json<crate::daemon::GeometryCalibration>, ApiError> {
-    let r =
-        tokio::task::spawn_blocking(move || d.calibrate_geometry(b.capture, b.target.as_deref()))
-            .await
-            .map_err(|e| ApiError::internal(e.to_string()))??;
+    let r = tokio::task::spawn_blocking(move || {
+        d.procedures()
+            .calibrate_geometry(b.capture, b.target.as_deref())
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(r))
 }
 
@@ -49,8 +51,9 @@ pub async fn post_wall_calibration(
     let positions = b
         .positions()
         .map_err(|e| ApiError::invalid(e.to_string()))?;
-    let r = tokio::task::spawn_blocking(move || d.calibrate_wall(&b.scene, &positions))
-        .await
-        .map_err(|e| ApiError::internal(e.to_string()))??;
+    let r =
+        tokio::task::spawn_blocking(move || d.procedures().calibrate_wall(&b.scene, &positions))
+            .await
+            .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(r))
 }

@@ -32,5 +32,5 @@ pub async fn mount_zero(
     State(d): St,
     ApiJson(b): ApiJson<crate::daemon::ZeroBody>,
 ) -> Result<Json<crate::daemon::ZeroFit>, ApiError> {
-    Ok(Json(d.calibrate_mount_zero(b).await?))
+    Ok(Json(d.procedures().calibrate_mount_zero(b).await?))
 }

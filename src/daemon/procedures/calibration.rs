@@ -6,7 +6,6 @@ use serde::Serialize;
 
 use crate::calibrate::geometry::{detect_with_variance, fit, scene_with_homography, Target};
 use crate::daemon::requests::validate::RequestError;
-use crate::daemon::Daemon;
 use crate::solve::adequacy::Adequacy;
 use crate::store::{read_mean, read_mean_variance, JobState};
 
@@ -78,16 +77,17 @@ pub struct Calibrations {
     pub colour: Vec<crate::daemon::ColourCalibration>,
 }
 
-impl Daemon {
+impl super::Procedures {
     /// The radiometric gains in use, per scene, and where each came from.
     pub fn calibrations(&self) -> Result<Calibrations, RequestError> {
         let radiometric = self
+            .services
             .calibration
             .iter()
             .map(|(scene, &gain)| RadiometricGain {
                 scene: scene.clone(),
                 gain,
-                source: if self.config.calibration.contains_key(scene) {
+                source: if self.services.config.calibration.contains_key(scene) {
                     "config"
                 } else {
                     "fake camera"
@@ -95,16 +95,16 @@ impl Daemon {
                 .to_string(),
             })
             .collect();
-        let rows = self.store.colour_calibrations().map_err(|e| {
+        let rows = self.services.store.colour_calibrations().map_err(|e| {
             RequestError::Store(format!(
                 "the colour calibrations could not be read: {}",
-                self.store.describe(&e)
+                self.services.store.describe(&e)
             ))
         })?;
         let colour = rows
             .into_iter()
             .map(|r| {
-                let gain = self.calibration.get(&r.scene).copied();
+                let gain = self.services.calibration.get(&r.scene).copied();
                 crate::daemon::ColourCalibration::of(r, gain, Vec::new())
             })
             .collect();
@@ -122,7 +122,7 @@ impl Daemon {
         target: Option<&str>,
     ) -> Result<GeometryCalibration, RequestError> {
         let invalid = RequestError::Invalid;
-        let c = self.require_capture(capture)?;
+        let c = self.services.require_capture(capture)?;
         if c.kind != crate::store::CaptureKind::Target || c.state != JobState::Done {
             return Err(invalid(format!(
                 "capture {capture} is a {} capture in state {}; calibration needs a done \"kind\": \"target\" capture of the dot target on the wall",
@@ -134,8 +134,13 @@ impl Daemon {
             Some(t) => Target::from_toml_str(t).map_err(|e| invalid(e.to_string()))?,
             None => Target::default_target(),
         };
-        let dir = self.store.capture_dir(capture);
-        let unreadable = |e| invalid(format!("capture {capture}: {}", self.store.describe(&e)));
+        let dir = self.services.store.capture_dir(capture);
+        let unreadable = |e| {
+            invalid(format!(
+                "capture {capture}: {}",
+                self.services.store.describe(&e)
+            ))
+        };
         let mean = read_mean(&dir).map_err(unreadable)?;
         // The digitizer's rounding bias counts as noise too (measure::stack).
         let variance = read_mean_variance(&dir).map_err(unreadable)?.map(|mut v| {
@@ -158,7 +163,7 @@ impl Daemon {
                     "{w} (reprojection RMS {:.3} px against a centroid noise of {:.1e} px: with a wall element {:.0} px wide, an error well below a pixel still places every element)",
                     f.rms_px,
                     f.model_check.noise_rms.unwrap_or(f64::NAN),
-                    element_px(&f.homography, self.scenes.scene(&c.scene).ok().as_deref()),
+                    element_px(&f.homography, self.services.scenes.scene(&c.scene).ok().as_deref()),
                 )
             })
             .into_iter()
@@ -172,10 +177,10 @@ impl Daemon {
             .settings
             .region
             .unwrap_or([0, 0, mean.width as u32, mean.height as u32]);
-        let source = self
-            .scenes
-            .source(&c.scene)
-            .ok_or_else(|| invalid(format!("the text of scene {:?} is not available", c.scene)))?;
+        let source =
+            self.services.scenes.source(&c.scene).ok_or_else(|| {
+                invalid(format!("the text of scene {:?} is not available", c.scene))
+            })?;
         let scene_toml = scene_with_homography(source, &c.pose, &f.homography, region)
             .map_err(|e| invalid(e.to_string()))?;
         Ok(GeometryCalibration {
@@ -237,7 +242,7 @@ pub struct FittedPosition {
     pub relative_residual: f64,
 }
 
-impl Daemon {
+impl super::Procedures {
     /// Fits the wall of `scene` to the source captures of every position:
     /// one done `"kind": "source"` capture per (pose, angle) block of the
     /// point source at that position (hidden-plane metres), one gain for all.
@@ -248,7 +253,7 @@ impl Daemon {
     ) -> Result<WallCalibration, RequestError> {
         use crate::calibrate::wall::{fit_sources_from_scene, SourceMeasurement};
         let invalid = RequestError::Invalid;
-        let scene = self.scenes.scene(scene_name)?;
+        let scene = self.services.scenes.scene(scene_name)?;
         // Each position's capture ids in block order, and its measurement.
         let mut ordered: Vec<Vec<i64>> = Vec::with_capacity(positions.len());
         let mut measured = Vec::with_capacity(positions.len());
@@ -258,11 +263,11 @@ impl Daemon {
             ordered.push(captures.iter().map(|c| c.id).collect());
             let blocks = crate::transport::blocks_of(&scene);
             let mut stacked = crate::daemon::jobs::reconstruction::stack_records(
-                &self.store,
+                &self.services.store,
                 captures,
                 &scene,
                 &blocks,
-                &self.scenes.pixel_maps(scene_name),
+                &self.services.scenes.pixel_maps(scene_name),
                 false,
                 false,
             )
@@ -283,13 +288,11 @@ impl Daemon {
             .collect();
         // A refused fit names what loading the captures found too: a missing
         // dark subtraction is a likelier cause than a misplaced source.
-        let mut fit =
-            fit_sources_from_scene(&scene, &sets, self.scenes.budget()).map_err(
-                |e| match warnings.as_slice() {
-                    [] => invalid(e.to_string()),
-                    w => invalid(format!("{e}. Also: {}", w.join("; "))),
-                },
-            )?;
+        let mut fit = fit_sources_from_scene(&scene, &sets, self.services.scenes.budget())
+            .map_err(|e| match warnings.as_slice() {
+                [] => invalid(e.to_string()),
+                w => invalid(format!("{e}. Also: {}", w.join("; "))),
+            })?;
         // What the fit itself found (a model that does not explain the
         // captures, a better polarizer model) comes first; the answer says
         // each warning once, here, not again inside `fit`.
@@ -310,7 +313,7 @@ impl Daemon {
             captures,
             positions,
             fit,
-            configured_gain: self.calibration.get(scene_name).copied(),
+            configured_gain: self.services.calibration.get(scene_name).copied(),
             warnings,
         })
     }
@@ -327,7 +330,7 @@ impl Daemon {
         let invalid = RequestError::Invalid;
         let records: Vec<_> = captures
             .iter()
-            .map(|&id| self.require_capture(id))
+            .map(|&id| self.services.require_capture(id))
             .collect::<Result<_, _>>()?;
         let blocks = crate::transport::blocks_of(scene);
         let serves = |c: &crate::store::CaptureRecord, b: &crate::transport::Block| {

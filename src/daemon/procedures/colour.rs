@@ -10,7 +10,6 @@ use serde::Serialize;
 
 use crate::calibrate::colour::{balance, ColourBalance, ColourValues};
 use crate::daemon::requests::validate::RequestError;
-use crate::daemon::Daemon;
 use crate::scene::Colour;
 use crate::store::{CaptureKind, ColourCalibrationRow, JobState};
 
@@ -76,14 +75,14 @@ impl ColourCalibration {
     }
 }
 
-impl Daemon {
+impl super::Procedures {
     /// Measures the colour balance of capture `capture`'s scene from that
     /// capture (a done light capture of a white or grey field through a
     /// colour camera) and stores it: calibrated reconstructions of the
     /// scene then divide each colour by its own gain.
     pub fn calibrate_colour(&self, capture: i64) -> Result<ColourCalibration, RequestError> {
         let invalid = RequestError::Invalid;
-        let c = self.require_capture(capture)?;
+        let c = self.services.require_capture(capture)?;
         if c.kind != CaptureKind::Light || c.state != JobState::Done {
             return Err(invalid(format!(
                 "capture {capture} is a {} capture in state {}; a colour calibration needs a done light capture of a white or grey field (a white card, or the bench lit evenly)",
@@ -97,17 +96,17 @@ impl Daemon {
             )));
         }
         let scene_name = c.scene.clone();
-        let scene = self.scenes.scene(&scene_name)?;
+        let scene = self.services.scenes.scene(&scene_name)?;
         let blocks: Vec<_> = crate::transport::blocks_of(&scene)
             .into_iter()
             .filter(|b| b.taken_by(&c.pose, &c.channels))
             .collect();
         let stacked = crate::daemon::jobs::reconstruction::stack_records(
-            &self.store,
+            &self.services.store,
             vec![c],
             &scene,
             &blocks,
-            &self.scenes.pixel_maps(&scene_name),
+            &self.services.scenes.pixel_maps(&scene_name),
             true,
             true,
         )
@@ -123,12 +122,13 @@ impl Daemon {
         })
         .map_err(|e| invalid(format!("capture {capture}: {e}")))?;
         let row = self
+            .services
             .store
             .insert_colour_calibration(&scene_name, capture, &measured)
             .map_err(|e| {
                 RequestError::Store(format!(
                     "the colour calibration could not be stored: {}",
-                    self.store.describe(&e)
+                    self.services.store.describe(&e)
                 ))
             })?;
         tracing::info!(
@@ -140,7 +140,7 @@ impl Daemon {
                 .map(|c| format!("{:?} {:.4}", c.colour, c.ratio))
                 .collect::<Vec<_>>()
         );
-        let gain = self.calibration.get(&scene_name).copied();
+        let gain = self.services.calibration.get(&scene_name).copied();
         Ok(ColourCalibration::of(row, gain, stacked.warnings))
     }
 }

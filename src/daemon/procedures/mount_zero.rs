@@ -8,12 +8,11 @@
 //! the bench's own light instead of trusting a number in the config.
 
 use crate::camera::settings::OutOfRange;
-use std::sync::Arc;
 
 use serde::Serialize;
 
 use crate::daemon::requests::{ZeroBody, ZeroLight};
-use crate::daemon::{Daemon, RequestError, SubmitError};
+use crate::daemon::{RequestError, SubmitError};
 use crate::optics::polarizer::IntensityLaw;
 use crate::rig::{Aid, RigError};
 
@@ -160,7 +159,7 @@ fn central_sum(
 const NO_MOUNT: &str =
     "no rotation mount is configured ([mount] kind = \"none\"): there is no zero to calibrate";
 
-impl Daemon {
+impl super::Procedures {
     /// `n` frames for one angle of a sweep; a transient camera failure
     /// (broken buffers, a late frame) is retried twice before the sweep
     /// gives up, as an operator would press the button again.
@@ -172,7 +171,7 @@ impl Daemon {
         use crate::camera::CameraError;
         let mut tries = 0;
         loop {
-            match self.camera.collect(settings, n).await {
+            match self.services.camera.collect(settings, n).await {
                 Ok(frames) => return Ok(frames),
                 Err(
                     e @ (CameraError::OutOfRange { .. }
@@ -191,17 +190,18 @@ impl Daemon {
     /// Sweeps the mount around its zero with the camera at `pose`, fits the
     /// crossed minimum, and makes it the zero (kept in the data directory).
     /// Holds the camera like a capture for the sweep's duration.
-    pub async fn calibrate_mount_zero(
-        self: &Arc<Self>,
-        b: ZeroBody,
-    ) -> Result<ZeroFit, SubmitError> {
+    pub async fn calibrate_mount_zero(&self, b: ZeroBody) -> Result<ZeroFit, SubmitError> {
         let invalid = |m: String| SubmitError::from(RequestError::Invalid(m));
-        if !self.rig.automated().mount {
+        if !self.services.rig.automated().mount {
             return Err(invalid(NO_MOUNT.into()));
         }
         let out_of_range = |e: OutOfRange| invalid(e.to_string());
         let (span, step, frames) = sweep_shape(&b).map_err(out_of_range)?;
-        let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
+        let scene = self
+            .services
+            .scenes
+            .scene(&b.scene)
+            .map_err(RequestError::from)?;
         let Some(pose) = scene.pose(&b.pose) else {
             return Err(invalid(format!(
                 "pose {:?} is not a pose of scene {:?}",
@@ -219,7 +219,7 @@ impl Daemon {
         // The request answers within the call: a camera another job holds
         // for longer than this is a 503, not a hung request (the live view
         // gives it up at its next frame; a capture keeps it to its end).
-        let _lease = tokio::time::timeout(CAMERA_WAIT, self.camera.lease("mount-zero"))
+        let _lease = tokio::time::timeout(CAMERA_WAIT, self.services.camera.lease("mount-zero"))
             .await
             .map_err(|_| {
                 SubmitError::from(RequestError::Unavailable(format!(
@@ -227,12 +227,12 @@ impl Daemon {
                     CAMERA_WAIT.as_secs()
                 )))
             })?;
-        let info = self.camera.status().info.ok_or_else(|| {
+        let info = self.services.camera.status().info.ok_or_else(|| {
             SubmitError::from(RequestError::Unavailable(
                 "the camera is not connected; retry when GET /camera shows it connected".into(),
             ))
         })?;
-        let settings = self.camera.settings_on(b.settings, &info);
+        let settings = self.services.camera.settings_on(b.settings, &info);
         crate::camera::settings::check_ranges(&settings, Some(&info.ranges))
             .map_err(out_of_range)?;
         let e = settings.exposure_us;
@@ -245,14 +245,14 @@ impl Daemon {
             )));
         }
         let full = settings.pixel_format.full_scale();
-        let previous = self.rig.mount().zero_deg();
+        let previous = self.services.rig.mount().zero_deg();
         // Out again however the sweep ends (it put out the source only
         // when it finished, so a failed sweep left the fake bench lit by it).
-        let source = (b.light == ZeroLight::Source).then(|| self.rig.showing(Aid::Source));
+        let source = (b.light == ZeroLight::Source).then(|| self.services.rig.showing(Aid::Source));
         let mut sweep = Vec::new();
         for k in -n..=n {
             let asked = k as f64 * step;
-            let read = match self.rig.turn_to(asked).await {
+            let read = match self.services.rig.turn_to(asked).await {
                 Ok(Some(read)) => read,
                 Ok(None) => return Err(invalid(NO_MOUNT.into())),
                 Err(RigError::Mount { source, .. }) => {
@@ -263,7 +263,7 @@ impl Daemon {
                 }
                 Err(e) => return Err(SubmitError::Internal(e.to_string())),
             };
-            self.rig.show_block(&b.pose, Some(read));
+            self.services.rig.show_block(&b.pose, Some(read));
             let got = self.sweep_frames(settings, frames).await?;
             let (sum, count) = got.iter().fold((0.0, 0usize), |(s, c), f| {
                 let (ps, pc) = central_sum(f, centre, settings.region);
@@ -289,12 +289,13 @@ impl Daemon {
         }
         let zero_deg = previous + least;
         let at = crate::store::now();
-        self.rig
+        self.services
+            .rig
             .mount()
             .set_zero(zero_deg, &at)
             .map_err(|e| SubmitError::Internal(format!("cannot keep the mount's zero: {e}")))?;
         // Back to crossed with the new zero.
-        let _ = self.rig.turn_to(0.0).await;
+        let _ = self.services.rig.turn_to(0.0).await;
         tracing::info!(
             "rotation mount: crossed at {zero_deg:.3}° ± {:.3}° (was {previous:.3}°), fit residual {:.2} %",
             min.sigma_deg,

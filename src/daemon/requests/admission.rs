@@ -431,19 +431,3 @@ impl Admission {
         pushed
     }
 }
-
-/// The daemon's own doors beside its handles.
-impl crate::daemon::Daemon {
-    /// The live view's state and newest image.
-    pub fn live(&self) -> &crate::daemon::runtime::live::Live {
-        &self.live
-    }
-
-    /// Capture `id`, which a request needs to exist.
-    pub(in crate::daemon) fn require_capture(
-        &self,
-        id: i64,
-    ) -> Result<crate::store::CaptureRecord, RequestError> {
-        self.admission.require_capture(id)
-    }
-}
