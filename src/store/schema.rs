@@ -374,13 +374,7 @@ mod tests {
             }
         );
         drop(store);
-        let raw = Connection::open(&path).unwrap();
-        let mut st = raw.prepare("PRAGMA table_info(captures)").unwrap();
-        let columns: Vec<String> = st
-            .query_map([], |r| r.get(1))
-            .unwrap()
-            .collect::<Result<_, _>>()
-            .unwrap();
+        let columns = columns(&Connection::open(&path).unwrap(), "captures");
         for gone in [
             "exposure_us",
             "gain",
@@ -492,12 +486,7 @@ mod tests {
         assert_eq!(page.unreadable, [4, 3]);
         drop(store);
         let raw = Connection::open(&path).unwrap();
-        let mut st = raw.prepare("PRAGMA table_info(reconstructions)").unwrap();
-        let columns: Vec<String> = st
-            .query_map([], |r| r.get(1))
-            .unwrap()
-            .collect::<Result<_, _>>()
-            .unwrap();
+        let columns = columns(&raw, "reconstructions");
         assert!(!columns.iter().any(|c| c == "solver"), "{columns:?}");
         // The document that was not JSON is kept as it was.
         let kept: String = raw
@@ -506,6 +495,17 @@ mod tests {
             })
             .unwrap();
         assert_eq!(kept, "not json");
+    }
+
+    /// The column names of `table` (one of the catalogue's own names).
+    fn columns(raw: &Connection, table: &str) -> Vec<String> {
+        let mut st = raw
+            .prepare("SELECT name FROM pragma_table_info(?1)")
+            .unwrap();
+        st.query_map([table], |r| r.get(0))
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap()
     }
 
     /// `user_version` of the catalogue in `dir`.
