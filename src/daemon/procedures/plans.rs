@@ -945,6 +945,50 @@ mod tests {
         assert!(prompts(&steps).iter().all(|s| !s.contains("hidden scene")));
     }
 
+    #[test]
+    fn the_plans_radiometry_reaches_its_last_blocks_progressive_steps() {
+        use crate::solve::radiometry::Radiometry;
+        let scene = scene("brewster-multi");
+        let body: PlanBody = serde_json::from_value(serde_json::json!({
+            "scene": "brewster-multi", "exposure_us": 1000, "dark_frames": 0,
+            "reconstruct": {"progressive_every": 4, "radiometry": "fitted", "lambda": 0.01}
+        }))
+        .unwrap();
+        let steps = steps_of(&scene, &body, bench(true, true, false));
+        let lights: Vec<usize> = (0..steps.len()).filter(|&k| is_light(&steps[k])).collect();
+        let plan = PlanRow {
+            id: 1,
+            scene: "brewster-multi".into(),
+            request: serde_json::Value::Null,
+            state: crate::store::PlanState::Running,
+            step: 0,
+            prompt: None,
+            captures: lights[..lights.len() - 1]
+                .iter()
+                .enumerate()
+                .map(|(n, &step)| crate::store::PlanCapture {
+                    step,
+                    capture: 10 + n as i64,
+                })
+                .collect(),
+            reconstruction: None,
+            interim: Vec::new(),
+            error: None,
+            created_at: String::new(),
+            started_at: None,
+            finished_at: None,
+        };
+        let last = *lights.last().unwrap();
+        let p = last_block_progressive(&body, &steps, &plan, last).expect("the last block's");
+        assert_eq!(p.radiometry, Some(Radiometry::Fitted));
+        assert_eq!((p.every, p.lambda), (Some(4), Some(0.01)));
+        // Every other block's capture, in step order, is solved with it.
+        let others: Vec<i64> = (0..lights.len() as i64 - 1).map(|n| 10 + n).collect();
+        assert_eq!(p.captures, others);
+        // Only the last light capture re-solves as its frames arrive.
+        assert!(last_block_progressive(&body, &steps, &plan, lights[0]).is_none());
+    }
+
     fn bench(mount: bool, stage: bool, switches_scene: bool) -> Automated {
         Automated {
             mount,
