@@ -145,8 +145,13 @@ async fn run(
     let solving = {
         let (live, busy, events) = (live.clone(), busy.clone(), w.jobs.events.clone());
         let differences = spec.difference.is_some();
+        let stop = stop.clone();
         tokio::task::spawn_blocking(move || {
-            solve(solver, differences, snap_rx, &busy, &live, session, &events)
+            let ends = Ends {
+                busy: &busy,
+                stop: &stop,
+            };
+            solve(solver, differences, snap_rx, ends, &live, session, &events)
         })
     };
     let streams = Streams {
@@ -382,13 +387,24 @@ fn unix_seconds(ns: u64) -> f64 {
     }
 }
 
+/// The solver thread's two flags: `busy` while it solves a window, and the
+/// segment's `stop`, which ends the window in hand within
+/// [`crate::solve::Stop::EVERY`] iterations.
+struct Ends<'a> {
+    busy: &'a AtomicBool,
+    stop: &'a AtomicBool,
+}
+
 /// Solves each window it is handed and publishes the result, with the
-/// moving object's centroid in difference mode.
+/// moving object's centroid in difference mode. A window the segment's
+/// stop cut short is dropped without a result: the segment is ending (a
+/// capture queued, the session changed, the daemon stopping), and neither
+/// waits for it.
 fn solve(
     mut solver: Progressive,
     differences: bool,
     snapshots: Receiver<(Snapshot, Instant)>,
-    busy: &AtomicBool,
+    ends: Ends<'_>,
     live: &Live,
     session: u64,
     events: &crate::daemon::runtime::events::Events,
@@ -396,7 +412,7 @@ fn solve(
     let (grid, colours) = (solver.grid(), solver.colours());
     let tracking = differences.then(|| solver.scene_plane().clone());
     for (snapshot, arrived) in snapshots {
-        let result = solver.step(&snapshot);
+        let result = solver.step(&snapshot, crate::solve::Stop::on(ends.stop));
         solver.forget_steps();
         match result {
             Ok((step, image)) => {
@@ -423,11 +439,14 @@ fn solve(
                     step,
                 });
             }
+            Err(_) if ends.stop.load(Ordering::SeqCst) => {
+                tracing::debug!("live view: the window in hand was dropped as the segment ended");
+            }
             Err(e) => {
                 tracing::warn!("live view: a window was not solved: {e}");
                 live.fail(session, format!("a window was not solved: {e}"));
             }
         }
-        busy.store(false, Ordering::SeqCst);
+        ends.busy.store(false, Ordering::SeqCst);
     }
 }

@@ -45,7 +45,7 @@ use crate::solve::photo::{photo_transport, PhotoSettings, PhotoStream};
 use crate::solve::radiometry::{Known, Radiometry, RadiometryChoice};
 use crate::solve::solvers::Warm;
 use crate::solve::Reconstruction;
-use crate::solve::{AdmmSettings, Solver};
+use crate::solve::{AdmmSettings, Solver, Stop};
 use crate::solve::{AUTO_MAX_ITER, LAMBDA_KEPT};
 use crate::store::Store;
 use crate::store::{CaptureRecord, ColourCalibrationRow};
@@ -427,7 +427,11 @@ impl Progressive {
     /// camera's colours interleaved, red, green, blue per element).
     /// In difference mode the first window only starts the background: its
     /// image is zero, unsolved.
-    pub(in crate::daemon) fn step(&mut self, s: &Snapshot) -> Result<(Step, Vec<f64>), JobError> {
+    pub(in crate::daemon) fn step(
+        &mut self,
+        s: &Snapshot,
+        stop: Stop<'_>,
+    ) -> Result<(Step, Vec<f64>), JobError> {
         let start = Instant::now();
         let own = self.own_frames(s);
         let blocks: Vec<_> = self
@@ -442,7 +446,11 @@ impl Progressive {
         };
         // A colour camera's colours are independent solves: in parallel.
         let (scene, maps, own_blocks) = (&self.scene, &self.maps, &self.own);
-        let (scenes, name, settings) = (&self.scenes, &self.capture.scene, &self.settings);
+        let settings = AdmmSettings {
+            stop,
+            ..self.settings
+        };
+        let (scenes, name, settings) = (&self.scenes, &self.capture.scene, &settings);
         let fitted = self.radiometry.mode == Radiometry::Fitted;
         let noises = self
             .channels
@@ -466,7 +474,7 @@ impl Progressive {
             }
         }
         if fitted {
-            return self.fitted_step(s.frames, start);
+            return self.fitted_step(s.frames, start, stop);
         }
         let mut solved = self
             .channels
@@ -500,7 +508,12 @@ impl Progressive {
     /// rows as measured, the other blocks' from their captures) fitted
     /// with its gain and background ([`PhotoStream`]), the stream formed
     /// at the first step.
-    fn fitted_step(&mut self, frames: usize, start: Instant) -> Result<(Step, Vec<f64>), JobError> {
+    fn fitted_step(
+        &mut self,
+        frames: usize,
+        start: Instant,
+        stop: Stop<'_>,
+    ) -> Result<(Step, Vec<f64>), JobError> {
         let channels: Vec<Vec<f64>> = self.channels.iter().map(|c| c.i.clone()).collect();
         let settings = PhotoSettings {
             lambda: self.settings.lambda,
@@ -508,6 +521,7 @@ impl Progressive {
                 .settings
                 .max_iter
                 .min(PhotoSettings::default().iterations),
+            stop,
             ..PhotoSettings::default()
         };
         let stream = match &mut self.stream {
@@ -815,7 +829,7 @@ impl Channel {
         noise: Option<NoiseLevel>,
         scenes: &Scenes,
         scene: &str,
-        settings: &AdmmSettings<'static>,
+        settings: &AdmmSettings<'_>,
         offset: f64,
     ) -> Result<(Reconstruction, Option<f64>), JobError> {
         // The sampling the scene file leaves out, chosen from this step's noise
@@ -860,7 +874,7 @@ impl Channel {
         &mut self,
         noise: Option<NoiseLevel>,
         norm: f64,
-        settings: &AdmmSettings<'static>,
+        settings: &AdmmSettings<'_>,
     ) -> Result<(Reconstruction, Option<f64>), JobError> {
         self.normal.ti = adjoint(self.t.as_mat(), &self.i);
         let near = |a: f64, b: f64| (a / b - 1.0).abs() <= LAMBDA_KEPT;
@@ -950,7 +964,7 @@ fn run(
     let colours = solver.colours();
     for snapshot in rx {
         pending.store(false, Ordering::SeqCst);
-        match solver.step(&snapshot) {
+        match solver.step(&snapshot, Stop::default()) {
             Ok((step, img)) => {
                 let pixels = image::unit_to_u16(&img);
                 let path = dir.join(IMAGE);
