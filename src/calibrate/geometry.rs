@@ -610,10 +610,8 @@ fn refine(h: [[f64; 3]; 3], pairs: &[([f64; 2], [f64; 2])]) -> [[f64; 3]; 3] {
         min_gain: 0.0,
         exact: 1e-20,
     };
-    match super::levenberg::minimize(model, &seen, start, &first, |p| p, settings) {
-        Ok(fit) => to_h(&fit.p),
-        Err(never) => match never {},
-    }
+    let Ok(fit) = super::levenberg::minimize(model, &seen, start, &first, |p| p, settings);
+    to_h(&fit.p)
 }
 
 #[cfg(test)]

@@ -72,15 +72,14 @@ where
 {
     let residual = |m: &[f64]| -> Vec<f64> { m.iter().zip(data).map(|(a, b)| a - b).collect() };
     let ss = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
+    let r = residual(first);
     let mut fit = Fit {
         p: start,
-        r: residual(first),
-        cost: 0.0,
-        jacobian: None,
+        cost: ss(&r),
+        r,
+        jacobian: jacobian(&model, &start, settings.step)?,
         iterations: 0,
     };
-    fit.cost = ss(&fit.r);
-    fit.jacobian = jacobian(&model, &fit.p, settings.step)?;
     let mut mu = 1e-3;
     while fit.iterations < settings.max_iter {
         let Some(jac) = &fit.jacobian else { break };
