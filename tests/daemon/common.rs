@@ -235,6 +235,14 @@ impl Client {
         self.post_as(path, "application/json", body.as_bytes())
     }
 
+    /// POSTs `body` to `path` and asserts it is refused with 422 and an
+    /// answer that says `says`.
+    pub fn refused(&self, path: &str, body: &str, says: &str) {
+        let (s, b, _) = self.post(path, body);
+        assert_eq!(s, 422, "{body}: {b}");
+        assert!(b.contains(says), "{says}: {b}");
+    }
+
     /// POSTs `body` as `application/octet-stream` (a file upload).
     pub fn post_bytes(&self, path: &str, body: &[u8]) -> (u16, String, Option<String>) {
         self.post_as(path, "application/octet-stream", body)

@@ -280,16 +280,13 @@ fn live_view_records_its_first_frames_as_a_capture_that_reconstructs_like_its_wi
             r#""progressive""#,
             &format!(r#""record": {record}, "progressive""#),
         );
-        let (s, b, _) = d.post("/live", &body);
-        assert_eq!(s, 422, "{body}: {b}");
-        assert!(b.contains(says), "{says}: {b}");
+        d.refused("/live", &body, says);
     }
-    let (s, b, _) = d.post(
+    d.refused(
         "/captures",
         &CAPTURE.replace('}', r#", "record": {"frames": 4}}"#),
+        "record is live view's (POST /live)",
     );
-    assert_eq!(s, 422, "{b}");
-    assert!(b.contains("record is live view's (POST /live)"), "{b}");
     assert_eq!(d.json("/captures"), serde_json::json!([]), "nothing stored");
     assert_eq!(d.json("/live")["state"], "off");
     // Documented: the body's field, its count, and what GET /live and a capture show of it.
@@ -475,15 +472,14 @@ fn live_view_of_a_photo_scene_fits_gain_and_background_as_its_reconstruction_doe
         r#""record": {"frames": 8}, "progressive": {"truth": "letter", "radiometry": "fitted"}"#;
     let body = LIVE.replace(r#""progressive": {"truth": "letter"}"#, fitted);
     // Difference mode keeps its background in calibrated units: refused fitted.
-    let (s, b, _) = d.post(
+    d.refused(
         "/live",
         &body.replace(
             r#""dark_frames": 2,"#,
             r#""dark_frames": 2, "difference": {},"#,
         ),
+        "fitted radiometry would fit away",
     );
-    assert_eq!(s, 422, "{b}");
-    assert!(b.contains("fitted radiometry would fit away"), "{b}");
     let mut level = None;
     for darks in [0, 2] {
         let events = live_events(&d, 1, |_| true);
@@ -739,18 +735,15 @@ fn live_difference_mode_tracks_a_moving_disk_within_a_scene_cell_over_its_path()
     );
     // Refused, naming the field: a background of no time, a difference
     // mode asked of a capture.
-    let (s, b, _) = d.post(
+    d.refused(
         "/live",
         &live.replace(
             r#""difference": {}"#,
             r#""difference": {"background_s": 0}"#,
         ),
+        "difference.background_s",
     );
-    assert_eq!(s, 422, "{b}");
-    assert!(b.contains("difference.background_s"), "{b}");
-    let (s, b, _) = d.post("/captures", &live);
-    assert_eq!(s, 422, "{b}");
-    assert!(b.contains("difference is live view's"), "{b}");
+    d.refused("/captures", &live, "difference is live view's");
 
     let events = live_events(&d, 10, |v| v["centroid"].is_object());
     let (s, b, _) = d.post("/live", &live);
