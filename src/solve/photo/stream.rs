@@ -252,12 +252,10 @@ mod tests {
         let peak = i.iter().copied().fold(0.0, f64::max);
         let background = 0.5 * peak;
         i.iter_mut().for_each(|v| *v = 3.0 * *v + background);
-        let mut rng = 7u64;
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         for (k, v) in i.iter_mut().enumerate() {
-            rng = rng
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            let u = (rng >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            let u: f64 = rng.random::<f64>() - 0.5;
             *v += 0.03 * peak * u * (1.0 + (k % nw) as f64 / nw as f64);
         }
         let settings = PhotoSettings::default();
