@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use crate::optics::Vec3;
 use crate::scene::{Mesh, Occluder, Scene, SceneError, SceneParts, ShadowModel};
-use crate::solve::photo::{least_squares_misfits, DataTerm};
+use crate::solve::photo::{least_squares_misfits, noise_checks, DataTerm};
 use crate::solve::SolveError;
 use crate::transport::{build, MemoryBudget, TransportError};
 
@@ -57,6 +57,17 @@ pub enum OccluderError {
         got: usize,
         /// Rows of `T`.
         rows: usize,
+    },
+    /// The noise variances do not match the photos: `photo` is `None` when
+    /// their count differs, else the photo whose channels differ.
+    #[error("{got} noise variances for {want} {}: give one variance per measurement, with the measurement's channels", match photo { None => "measurements".to_string(), Some(p) => format!("channels of measurement {p}") })]
+    Variances {
+        /// The photo whose channel count differs; `None`: the photo count.
+        photo: Option<usize>,
+        /// Variances given.
+        got: usize,
+        /// Photos (or channels) given.
+        want: usize,
     },
     /// A search option is out of range.
     #[error("{name} = {value}: {reason}")]
@@ -121,6 +132,11 @@ pub struct OccluderOptions {
     pub starts: usize,
     /// Memory budget of each `T`.
     pub budget: MemoryBudget,
+    /// Each photo's noise variance, channel by channel and row by row as
+    /// the photos (`measure`'s `.variance.npy`): the model check's noise.
+    /// `None`: each channel's noise from its residual's roughness, which a
+    /// model error rough at the wall element's scale inflates.
+    pub variances: Option<Vec<Vec<Vec<f64>>>>,
 }
 
 /// Default search range per axis, metres: a first guess measured by hand.
@@ -142,6 +158,10 @@ pub const TOLERANCE: f64 = 0.02;
 /// on simulated photos of the voxel Π made unlike the model 2.5-11 %, and
 /// there the lowest misfit lay 20-35 mm from the truth (docs/realphoto.md).
 pub(crate) const ROUGH_RIPPLE: f64 = 0.02;
+/// A lowest misfit more than this many times the noise's
+/// ([`OccluderFit::noise_misfit`]) is the model's error's, not the noise's
+/// ([`FitWarning::ModelError`]).
+pub const MODEL_ERROR: f64 = 1.1;
 /// Default cap on objective evaluations: about four minutes on the chair.
 pub const MAX_EVALUATIONS: usize = 300;
 /// Default descents: from the scene's position and from two more starts.
@@ -160,6 +180,7 @@ impl Default for OccluderOptions {
             max_evaluations: MAX_EVALUATIONS,
             starts: STARTS,
             budget: MemoryBudget::DEFAULT,
+            variances: None,
         }
     }
 }
@@ -223,12 +244,31 @@ pub enum FitWarning {
         /// That misfit over the lowest, less 1.
         above: f64,
     },
+    /// The lowest misfit is more than [`MODEL_ERROR`] times what the
+    /// photos' noise alone would leave ([`OccluderFit::noise_misfit`]): the
+    /// model's error, not the noise, shapes the misfit, and its lowest point
+    /// can lie centimetres from the occluders with nothing else showing it.
+    ModelError {
+        /// The lowest misfit over the noise's.
+        ratio: f64,
+    },
     /// The evaluation cap ended the search before the uncertainty region
     /// was bracketed.
     Budget {
         /// Evaluations spent.
         evaluations: usize,
     },
+}
+
+/// Where the model check's noise came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NoiseFrom {
+    /// The photos' own variances ([`OccluderOptions::variances`]).
+    Variance,
+    /// The roughness of each channel's residual: high where the model's
+    /// error is rough, so the check may read low, never high.
+    Roughness,
 }
 
 /// The name of axis `a` in the scene's frame.
@@ -284,6 +324,10 @@ impl std::fmt::Display for FitWarning {
                 mm(*at),
                 100.0 * above
             ),
+            FitWarning::ModelError { ratio } => write!(
+                f,
+                "the lowest misfit is {ratio:.2} times what the photos' noise alone would leave (more than {MODEL_ERROR}): the model's error shapes the misfit, and on photos made unlike the model its lowest point lay 2-3 cm from the occluders with nothing else showing it (docs/realphoto.md, \"The model check\"); check the position by other means"
+            ),
             FitWarning::Budget { evaluations } => write!(
                 f,
                 "the search spent its {evaluations} evaluations before the uncertainty was bracketed (raise --max-evaluations)"
@@ -314,7 +358,7 @@ pub struct OccluderFit {
     pub relative_threshold: f64,
     /// The tolerance asked for (a fraction of the lowest misfit).
     pub tolerance: f64,
-    /// The misfit's ripple near the end ([`Found::ripple`]).
+    /// The misfit's ripple near the end (its RMS about a parabola over three steps each side).
     pub ripple: f64,
     /// The noise's share of the uncertainty alone, metres: the displacement
     /// that raises the misfit by one noise variance (from the curvature).
@@ -322,6 +366,15 @@ pub struct OccluderFit {
     /// Curvature of the objective along each axis at the end, per m² (0
     /// when not convex there).
     pub curvature: [f64; 3],
+    /// The misfit the photos' noise alone would leave at the end, summed
+    /// over the channels ([`OccluderFit::noise_from`] says which noise):
+    /// `None` where a photo is too small to measure its noise.
+    pub noise_misfit: Option<f64>,
+    /// The lowest misfit over [`OccluderFit::noise_misfit`]: near 1 when
+    /// the model explains the photos to their noise.
+    pub model_error: Option<f64>,
+    /// Where that noise came from.
+    pub noise_from: NoiseFrom,
     /// Why the fit cannot be trusted as the uncertainty says; empty when
     /// it can.
     pub warnings: Vec<FitWarning>,
@@ -523,6 +576,31 @@ fn check_photos(scene: &Scene, photos: &[Vec<Vec<f64>>]) -> Result<(), OccluderE
     Ok(())
 }
 
+/// Checks that `variances` has a photo for each photo and a channel for
+/// each of its channels (their rows and values are checked with the fit).
+fn check_variances(
+    photos: &[Vec<Vec<f64>>],
+    variances: &[Vec<Vec<f64>>],
+) -> Result<(), OccluderError> {
+    if variances.len() != photos.len() {
+        return Err(OccluderError::Variances {
+            photo: None,
+            got: variances.len(),
+            want: photos.len(),
+        });
+    }
+    for (photo, (v, p)) in variances.iter().zip(photos).enumerate() {
+        if v.len() != p.len() {
+            return Err(OccluderError::Variances {
+                photo: Some(photo),
+                got: v.len(),
+                want: p.len(),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Checks the tolerance, the starts and the evaluation cap of `options`.
 fn check_counts(options: &OccluderOptions) -> Result<(), OccluderError> {
     if !(options.tolerance.is_finite() && options.tolerance >= 0.0) {
@@ -547,20 +625,15 @@ fn check_counts(options: &OccluderOptions) -> Result<(), OccluderError> {
     Ok(())
 }
 
-/// Fits the translation of the selected occluders that minimizes the
-/// photos' misfit summed (the module's doc), by [`search`]; `photos` holds
-/// each photo's colour channels, all of the same bench.
-pub fn fit_occluder(
+/// The first and last step: `options`' own, or `STEP_SHADOW_PITCHES`
+/// shadow pitches and one, checked against each other and the range.
+fn steps(
     scene: &Scene,
-    photos: &[Vec<Vec<f64>>],
+    selected: &[usize],
     options: &OccluderOptions,
-) -> Result<OccluderFit, OccluderError> {
-    let start = Instant::now();
-    let selected = selection(scene, options.selected.as_deref())?;
-    check_photos(scene, photos)?;
-    let range = positive("range", options.range)?;
-    check_counts(options)?;
-    let pitch = shadow_pitch(scene, &selected);
+    range: f64,
+) -> Result<(f64, f64), OccluderError> {
+    let pitch = shadow_pitch(scene, selected);
     let min_step = positive("min-step", options.min_step.unwrap_or(pitch))?;
     let step = positive(
         "step",
@@ -573,6 +646,26 @@ pub fn fit_occluder(
             reason: "must lie between min-step and range",
         });
     }
+    Ok((step, min_step))
+}
+
+/// Fits the translation of the selected occluders that minimizes the
+/// photos' misfit summed (the module's doc), by a lattice search (`search`); `photos` holds
+/// each photo's colour channels, all of the same bench.
+pub fn fit_occluder(
+    scene: &Scene,
+    photos: &[Vec<Vec<f64>>],
+    options: &OccluderOptions,
+) -> Result<OccluderFit, OccluderError> {
+    let start = Instant::now();
+    let selected = selection(scene, options.selected.as_deref())?;
+    check_photos(scene, photos)?;
+    if let Some(v) = &options.variances {
+        check_variances(photos, v)?;
+    }
+    let range = positive("range", options.range)?;
+    check_counts(options)?;
+    let (step, min_step) = steps(scene, &selected, options, range)?;
     let supersample = options.supersample.unwrap_or(match options.shadows {
         ShadowModel::Area => 1,
         ShadowModel::Point | ShadowModel::Auto => scene.hidden().plane.supersample.max(SUPERSAMPLE),
@@ -635,6 +728,11 @@ pub fn fit_occluder(
     if ripple > ROUGH_RIPPLE {
         warnings.push(FitWarning::Rough { ripple });
     }
+    let (noise_misfit, model_error) =
+        model_check(scene, &selected, found.point, supersample, options, &flat)?;
+    if let Some(ratio) = model_error.filter(|r| *r > MODEL_ERROR) {
+        warnings.push(FitWarning::ModelError { ratio });
+    }
     let (lo, _) = bounds(scene, &selected);
     Ok(OccluderFit {
         selected,
@@ -647,6 +745,13 @@ pub fn fit_occluder(
         ripple: found.ripple,
         sd_noise,
         curvature: found.curvature,
+        noise_misfit,
+        model_error,
+        noise_from: if options.variances.is_some() {
+            NoiseFrom::Variance
+        } else {
+            NoiseFrom::Roughness
+        },
         warnings,
         corner_start: lo,
         corner_end: [0, 1, 2].map(|a| lo[a] + found.point[a]),
@@ -662,9 +767,36 @@ pub fn fit_occluder(
     })
 }
 
+/// The model check at `d`: the misfit the photos' noise alone would leave
+/// (their variances, or each channel's residual's roughness), and the
+/// misfit over it. One more `T` build.
+fn model_check(
+    scene: &Scene,
+    selected: &[usize],
+    d: [f64; 3],
+    supersample: usize,
+    options: &OccluderOptions,
+    channels: &[Vec<f64>],
+) -> Result<(Option<f64>, Option<f64>), OccluderError> {
+    let t = build(
+        &moved(scene, selected, d, supersample, options.shadows)?,
+        options.budget,
+    )?;
+    let variances: Option<Vec<Vec<f64>>> = options
+        .variances
+        .as_ref()
+        .map(|v| v.iter().flatten().cloned().collect());
+    let checks = noise_checks(&t, DataTerm::Differences, channels, variances.as_deref())?;
+    let noise_misfit = checks.iter().map(|c| c.noise_misfit).sum::<Option<f64>>();
+    let model_error = noise_misfit
+        .filter(|n| *n > 0.0)
+        .map(|n| checks.iter().map(|c| c.misfit).sum::<f64>() / n);
+    Ok((noise_misfit, model_error))
+}
+
 /// How [`search`] runs.
 #[derive(Debug, Clone, Copy)]
-pub struct SearchOptions {
+pub(crate) struct SearchOptions {
     /// First step, metres.
     pub step: f64,
     /// Smallest step, metres; the last step is `step` halved while it stays
@@ -690,7 +822,7 @@ pub(crate) const START_DIRECTIONS: [[i64; 3]; 4] =
 
 /// Where [`search`] ended.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Found {
+pub(crate) struct Found {
     /// The evaluated point of lowest value: on the last step's lattice,
     /// within the range.
     pub point: [f64; 3],
@@ -1151,7 +1283,7 @@ impl<E> Lattice<'_, E> {
 /// lattice (no point is evaluated twice), looks past the next ridge, and
 /// reports what it evaluated rather than an interpolation; a threshold
 /// below the ripple would stop the walks at its first peak.
-pub fn search<E>(
+pub(crate) fn search<E>(
     f: &mut dyn FnMut([f64; 3]) -> Result<f64, E>,
     options: &SearchOptions,
 ) -> Result<Found, E> {

@@ -51,9 +51,10 @@ photos of the same bench) is minimized on a lattice, coarse to fine from\n\
 --step down to --min-step, looking past the next ridge, and ends on the\n\
 lowest translation it evaluated (docs/realphoto.md). Prints the translation\n\
 with its uncertainty (how far the misfit stays within --tolerance of its\n\
-lowest: the model's error included), warnings when the fit cannot be\n\
-trusted, the moved corner, the objective at start and end, the T builds and\n\
-seconds; writes the scene with the occluders moved (mesh paths rewritten\n\
+lowest: the model's error included), the model check (the misfit over what\n\
+the photos' noise alone would leave; give --variance for the noise, else it\n\
+is read from the residual), warnings when the fit cannot be trusted, the\n\
+moved corner, the objective at start and end, the T builds and seconds; writes the scene with the occluders moved (mesh paths rewritten\n\
 for the new file's folder)."
     )]
     Occluder(OccluderArgs),
@@ -67,6 +68,11 @@ struct OccluderArgs {
     /// order. Repeat it for several photos of the same bench: their misfits add.
     #[arg(long, value_name = "FILE", required = true)]
     measurement: Vec<PathBuf>,
+    /// Each photo's noise variance (`measure`'s <out>.variance.npy, the
+    /// photo's shape), one per --measurement in the same order: the model
+    /// check's noise. Without it, the noise is read from the fit's residual.
+    #[arg(long, value_name = "FILE")]
+    variance: Vec<PathBuf>,
     /// Occluders that move together, by index in file order (e.g. 0,3-11); default all.
     #[arg(long, value_name = "LIST", value_parser = parse_indices)]
     occluder: Option<Indices>,
@@ -208,13 +214,7 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
     }
     let scene = super::load_scene(&a.scene)?;
     let scene_text = super::scene_text(&a.scene)?;
-    let mut photos = Vec::with_capacity(a.measurement.len());
-    for path in &a.measurement {
-        let meas = polnlos::files::npy::read(path)?;
-        let channels = polnlos::solve::photo::split_channels(&meas.shape, &meas.data, scene.rows())
-            .map_err(|e| polnlos::files::FileError::format(path, e.to_string()))?;
-        photos.push(channels);
-    }
+    let (photos, variances) = read_photos(&a, scene.rows())?;
     let options = OccluderOptions {
         selected: a.occluder.map(|i| i.0),
         range: a.range,
@@ -226,6 +226,7 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
         max_evaluations: a.max_evaluations,
         starts: a.starts,
         budget,
+        variances: (!variances.is_empty()).then_some(variances),
     };
     let f = fit_occluder(&scene, &photos, &options)
         .with_context(|| format!("scene {}", a.scene.display()))?;
@@ -288,6 +289,7 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
         f.steps[1] * 1e3,
         f.seconds
     );
+    eprintln!("{}", model_check_line(&f));
     if a.measurement.len() > 1 {
         for (path, [start, end]) in a.measurement.iter().zip(&f.objective_photos) {
             eprintln!("  {}: objective {start:.4e} -> {end:.4e}", path.display());
@@ -311,6 +313,65 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
         None => print!("{out}"),
     }
     Ok(())
+}
+
+/// One photo's colour channels, each one value per row of `T`.
+type Channels = Vec<Vec<f64>>;
+
+/// The photos of `calibrate occluder` (`--measurement`), each split into
+/// its colour channels, and their variances (`--variance`: none, or one per
+/// photo with its channels), each checked against the scene's `rows`.
+fn read_photos(a: &OccluderArgs, rows: usize) -> anyhow::Result<(Vec<Channels>, Vec<Channels>)> {
+    let mut photos = Vec::with_capacity(a.measurement.len());
+    for path in &a.measurement {
+        let meas = polnlos::files::npy::read(path)?;
+        let channels = polnlos::solve::photo::split_channels(&meas.shape, &meas.data, rows)
+            .map_err(|e| polnlos::files::FileError::format(path, e.to_string()))?;
+        photos.push(channels);
+    }
+    if !a.variance.is_empty() && a.variance.len() != a.measurement.len() {
+        return Err(super::Usage(format!(
+            "{} --variance but {} --measurement: give one variance per measurement, in the same order, or none",
+            a.variance.len(),
+            a.measurement.len()
+        ))
+        .into());
+    }
+    let mut variances = Vec::with_capacity(a.variance.len());
+    for (path, photo) in a.variance.iter().zip(&photos) {
+        let v = polnlos::files::npy::read(path)?;
+        let channels = polnlos::solve::photo::split_channels(&v.shape, &v.data, rows)
+            .map_err(|e| polnlos::files::FileError::format(path, e.to_string()))?;
+        if channels.len() != photo.len() {
+            return Err(polnlos::files::FileError::format(
+                path,
+                format!(
+                    "{} channels, but its measurement has {}",
+                    channels.len(),
+                    photo.len()
+                ),
+            )
+            .into());
+        }
+        variances.push(channels);
+    }
+    Ok((photos, variances))
+}
+
+/// The printout's model check line: the misfit over the noise's, and
+/// where the noise came from.
+fn model_check_line(f: &polnlos::calibrate::occluder::OccluderFit) -> String {
+    use polnlos::calibrate::occluder::{NoiseFrom, MODEL_ERROR};
+    let from = match f.noise_from {
+        NoiseFrom::Variance => "the noise from --variance",
+        NoiseFrom::Roughness => "the noise from the roughness of the fit's residual, which a model error rough from one wall element to the next inflates: give --variance for a check that cannot read low",
+    };
+    match f.model_error {
+        Some(r) => format!(
+            "model check: the lowest misfit is {r:.3} times what the photos' noise alone would leave ({from}; near 1 when the model explains the photos, above {MODEL_ERROR} a warning)"
+        ),
+        None => "model check: the photos are too small to measure their noise".to_string(),
+    }
 }
 
 /// Printed with `--shadows point` (docs/realphoto.md, "Placing the occluders").

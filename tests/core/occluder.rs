@@ -59,6 +59,24 @@ fn calibrate_occluder_refuses_a_bad_selection_and_a_photo_of_another_scene() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(3), "{err}");
     assert!(err.contains("short.npy") && err.contains("15876"), "{err}");
+    // A variance for each photo, of the photo's shape.
+    let short_s = short.to_str().unwrap();
+    let out = calibrate_occluder(&[
+        s,
+        "--measurement",
+        p,
+        "--variance",
+        short_s,
+        "--variance",
+        short_s,
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("2 --variance but 1 --measurement"), "{err}");
+    let out = calibrate_occluder(&[s, "--measurement", p, "--variance", short_s]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{err}");
+    assert!(err.contains("short.npy") && err.contains("15876"), "{err}");
     // A folder that does not exist, or cannot be written, fails at once
     // (before the photo is even read), naming it.
     let missing = dir.path().join("no-such-folder/placed.toml");
@@ -186,13 +204,14 @@ fn line(label: &str, f: &OccluderFit, error: [f64; 3], distance: f64) -> String 
         )
     };
     format!(
-        "{label}: ends {} mm from the truth, {:.1} mm; ± {} mm (covers: {}; threshold {:.2} %, ripple {:.2} %); objective {:.4e} -> {:.4e}; {} builds, {:.1} s; warnings: {}",
+        "{label}: ends {} mm from the truth, {:.1} mm; ± {} mm (covers: {}; threshold {:.2} %, ripple {:.2} %); model check {:.3}; objective {:.4e} -> {:.4e}; {} builds, {:.1} s; warnings: {}",
         mm(error),
         distance * 1e3,
         mm(f.uncertainty),
         covers(f, error),
         100.0 * f.relative_threshold,
         100.0 * f.ripple / f.objective_end,
+        f.model_error.unwrap_or(f64::NAN),
         f.objective_start,
         f.objective_end,
         f.builds,
@@ -298,6 +317,15 @@ fn split_image(l: &[f64], k: usize) -> Vec<f64> {
 }
 
 /// The voxel Π of `tests/data/pi-occluder` in the chair's place on an
+/// `n x n` wall, as the fit models it (area shadows, one cell a block).
+fn pi_scene(n: usize) -> Scene {
+    Scene::load(&root().join("tests/data/pi-occluder/voxels.toml"))
+        .unwrap()
+        .edit(|p| p.wall.plane.grid = Grid { nu: n, nv: n })
+        .unwrap()
+}
+
+/// The voxel Π of `tests/data/pi-occluder` in the chair's place on an
 /// `n x n` wall, as the fit models it (area shadows, one cell a block), and
 /// a photo of it made with `m`, a gain, a background and 0.1 % noise, one
 /// per image in `images` (each 3 colour channels of 36 x 29 blocks).
@@ -306,11 +334,7 @@ pub(super) fn pi_photo(
     m: Mismatch,
     images: &[Vec<Vec<f64>>],
 ) -> (Scene, Vec<Vec<Vec<f64>>>) {
-    let file = root().join("tests/data/pi-occluder/voxels.toml");
-    let fit = Scene::load(&file)
-        .unwrap()
-        .edit(|p| p.wall.plane.grid = Grid { nu: n, nv: n })
-        .unwrap();
+    let fit = pi_scene(n);
     let render = fit
         .clone()
         .edit(|p| {
@@ -363,7 +387,24 @@ pub(super) fn pi_photo(
     (fit, photos)
 }
 
-/// Fits the Π of `scene` started `off` from the truth; the fit's error.
+/// The noise variance of photos made by `pi_photo` (0.1 % of each
+/// channel's mean, which the noise leaves within 1e-5 of itself).
+fn known_variances(photos: &[Vec<Vec<f64>>]) -> Vec<Vec<Vec<f64>>> {
+    photos
+        .iter()
+        .map(|p| {
+            p.iter()
+                .map(|c| {
+                    let mean = c.iter().sum::<f64>() / c.len() as f64;
+                    vec![(1e-3 * mean).powi(2); c.len()]
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Fits the Π of `scene` started `off` from the truth, given the photos'
+/// noise; the fit's error.
 fn fit_pi(
     scene: &Scene,
     photos: &[Vec<Vec<f64>>],
@@ -371,7 +412,11 @@ fn fit_pi(
     options: &OccluderOptions,
 ) -> (OccluderFit, [f64; 3], f64) {
     let start = moved(scene, &[0], off, 1, ShadowModel::Area).unwrap();
-    let f = fit_occluder(&start, photos, options).unwrap();
+    let options = OccluderOptions {
+        variances: Some(known_variances(photos)),
+        ..options.clone()
+    };
+    let f = fit_occluder(&start, photos, &options).unwrap();
     let (error, distance) = miss(&f, off, [0.0; 3]);
     (f, error, distance)
 }
@@ -563,4 +608,63 @@ fn calibrate_occluder_places_the_photo_s_chair_within_1_cm_from_2_cm_off() {
         }
     }
     assert!(failed.is_empty(), "{failed:?}");
+}
+
+/// The model check at the truth, evaluated once, given the photos' noise:
+/// on the Π photographed by the model itself it is 1 and does not warn;
+/// photographed with the screen's lobe cos^12 (the model's cos^18) and the
+/// screen twice as fine it is more, and warns. The noise is 0.1 % either
+/// way. Without the noise given, the residual's roughness gives it: 1 for
+/// the model's own photo, but the other's error, rough at this 42 x 42
+/// wall, reads as noise there and the check falls below 1.
+#[test]
+fn the_model_check_tells_the_model_s_own_photo_from_one_made_unlike_it() {
+    crate::priority::background();
+    use polnlos::calibrate::occluder::{FitWarning, NoiseFrom};
+    let image = super::photo::truth();
+    let scene = pi_scene(42);
+    let t = build(&scene, MemoryBudget::DEFAULT).unwrap();
+    let own: Vec<Vec<f64>> = (0..3)
+        .map(|c| {
+            let g = [2.0e8, 2.4e8, 2.9e8][c];
+            super::photo::photo(&t, &image[c], g, 1.7e5, 1e-3, 47 + c as u64)
+        })
+        .collect();
+    let lobe = Mismatch {
+        lobe: 12.0,
+        ..SCREEN
+    };
+    let (_, other) = pi_photo(42, lobe, std::slice::from_ref(&image));
+    let photos = [vec![own], other];
+    let check = |photo: &[Vec<Vec<f64>>], given: bool| {
+        let once = OccluderOptions {
+            max_evaluations: 1,
+            starts: 1,
+            variances: given.then(|| known_variances(photo)),
+            ..OccluderOptions::default()
+        };
+        let f = fit_occluder(&scene, photo, &once).unwrap();
+        let warns = f
+            .warnings
+            .iter()
+            .any(|w| matches!(w, FitWarning::ModelError { .. }));
+        let from = if given {
+            NoiseFrom::Variance
+        } else {
+            NoiseFrom::Roughness
+        };
+        assert_eq!(f.noise_from, from);
+        (f.model_error.unwrap(), warns)
+    };
+    let (own_given, own_warns) = check(&photos[0], true);
+    let (other_given, other_warns) = check(&photos[1], true);
+    let (own_rough, _) = check(&photos[0], false);
+    let (other_rough, _) = check(&photos[1], false);
+    eprintln!("model check, noise given: own {own_given:.4}, other {other_given:.4}; from the roughness: own {own_rough:.4}, other {other_rough:.4}");
+    assert!((own_given - 1.0).abs() < 0.06, "{own_given}");
+    assert!(!own_warns);
+    assert!(other_given > 3.0, "{other_given}");
+    assert!(other_warns);
+    assert!((own_rough - 1.0).abs() < 0.05, "{own_rough}");
+    assert!(other_rough < other_given, "{other_rough}");
 }

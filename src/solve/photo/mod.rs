@@ -41,7 +41,7 @@ pub use differences::differences;
 use differences::*;
 pub use metrics::least_squares_misfit;
 pub(crate) use metrics::PhotoMetrics;
-pub(crate) use metrics::{least_squares_misfits, photo_metrics};
+pub(crate) use metrics::{least_squares_misfits, noise_checks, photo_metrics};
 pub(crate) use model::PhotoModel;
 #[cfg(feature = "daemon")]
 pub(crate) use stream::PhotoStream;
@@ -842,6 +842,54 @@ mod tests {
                 r.background
             );
         }
+    }
+
+    /// `g T l + b` with Gaussian noise of `sd`.
+    fn noisy(t: &Transport, l: &[f64], sd: f64, seed: u64) -> Vec<f64> {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let noise = Normal::new(0.0, sd).expect("a positive sd");
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        t.apply(l)
+            .iter()
+            .map(|v| 40.0 * v + 7.5 + noise.sample(&mut rng))
+            .collect()
+    }
+
+    #[test]
+    fn the_model_check_is_one_for_the_model_s_own_photo_and_more_for_another_model_s() {
+        // A 40x40 wall, a 6x6 scene of smooth bumps.
+        let (wall, scene) = (Grid { nu: 40, nv: 40 }, Grid { nu: 6, nv: 6 });
+        let t = bumps(wall, scene, 7.0, 0.05);
+        let l: Vec<f64> = (0..36).map(|k| ((k * 7) % 11) as f64 / 10.0).collect();
+        let sd = 0.05;
+        let own = noisy(&t, &l, sd, 3);
+        // The same scene through bumps a fifth wider: another model's photo.
+        let other = noisy(&bumps(wall, scene, 7.0, 0.04), &l, sd, 4);
+        let photos = [own, other];
+        let ratio =
+            |c: &metrics::NoiseCheck| c.misfit / c.noise_misfit.expect("a 40x40 wall is enough");
+        // The noise from the residual's roughness. Measured: the model
+        // check 0.990 for the model's own photo, 4.03 for the other's,
+        // whose residual keeps some of the other model's bumps, so that its
+        // noise reads too high (given, below: 0.963 and 16.2).
+        let rough = noise_checks(&t, DataTerm::Differences, &photos, None).unwrap();
+        assert!((ratio(&rough[0]) - 1.0).abs() < 0.06, "{rough:?}");
+        assert!(ratio(&rough[1]) > 1.5, "{rough:?}");
+        // The noise given: the same for the own photo, more for the other's.
+        let variance = vec![vec![sd * sd; t.rows()]; 2];
+        let given = noise_checks(&t, DataTerm::Differences, &photos, Some(&variance)).unwrap();
+        assert!((ratio(&given[0]) - 1.0).abs() < 0.06, "{given:?}");
+        assert!(ratio(&given[1]) > ratio(&rough[1]), "{given:?}");
+        assert_eq!(given[0].misfit, rough[0].misfit);
+        // A variance per channel, each one per row and >= 0.
+        assert!(noise_checks(&t, DataTerm::Differences, &photos, Some(&variance[..1])).is_err());
+        let negative = vec![vec![-1.0; t.rows()]; 2];
+        assert!(noise_checks(&t, DataTerm::Differences, &photos, Some(&negative)).is_err());
+        // The misfit is least_squares_misfits' own.
+        let misfits =
+            least_squares_misfits(&t, DataTerm::Differences, &[noisy(&t, &l, sd, 3)]).unwrap();
+        assert_eq!(misfits[0], rough[0].misfit);
     }
 
     #[test]
