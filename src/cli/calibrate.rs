@@ -315,6 +315,18 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--variance` given once per `--measurement`, or not at all.
+fn one_variance_each(variance: &[PathBuf], measurement: &[PathBuf]) -> Result<(), super::Usage> {
+    if variance.is_empty() || variance.len() == measurement.len() {
+        return Ok(());
+    }
+    Err(super::Usage(format!(
+        "{} --variance but {} --measurement: give one variance per measurement, in the same order, or none",
+        variance.len(),
+        measurement.len()
+    )))
+}
+
 /// One photo's colour channels, each one value per row of `T`.
 type Channels = Vec<Vec<f64>>;
 
@@ -329,14 +341,7 @@ fn read_photos(a: &OccluderArgs, rows: usize) -> anyhow::Result<(Vec<Channels>, 
             .map_err(|e| polnlos::files::FileError::format(path, e.to_string()))?;
         photos.push(channels);
     }
-    if !a.variance.is_empty() && a.variance.len() != a.measurement.len() {
-        return Err(super::Usage(format!(
-            "{} --variance but {} --measurement: give one variance per measurement, in the same order, or none",
-            a.variance.len(),
-            a.measurement.len()
-        ))
-        .into());
-    }
+    one_variance_each(&a.variance, &a.measurement)?;
     let mut variances = Vec::with_capacity(a.variance.len());
     for (path, photo) in a.variance.iter().zip(&photos) {
         let v = polnlos::files::npy::read(path)?;
@@ -390,14 +395,7 @@ fn wall(a: WallArgs, budget: MemoryBudget) -> anyhow::Result<()> {
         ))
         .into());
     }
-    if !a.variance.is_empty() && a.variance.len() != a.measurement.len() {
-        return Err(super::Usage(format!(
-            "{} --measurement but {} --variance: give one variance per measurement, in the same order, or none",
-            a.measurement.len(),
-            a.variance.len()
-        ))
-        .into());
-    }
+    one_variance_each(&a.variance, &a.measurement)?;
     let scene = super::load_scene(&a.scene)?;
     let read = |paths: &[PathBuf]| {
         paths
