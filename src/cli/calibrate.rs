@@ -375,7 +375,7 @@ fn model_check_line(f: &polnlos::calibrate::occluder::OccluderFit) -> String {
         Some(r) => format!(
             "model check: the lowest misfit is {r:.3} times what the photos' noise alone would leave ({from}; near 1 when the model explains the photos, above {MODEL_ERROR} a warning)"
         ),
-        None => "model check: the photos are too small to measure their noise".to_string(),
+        None => "model check: none (the wall has no more elements' differences than the scene has cells, too few to tell the model's error from the noise)".to_string(),
     }
 }
 

@@ -125,11 +125,18 @@ fn calibrate_occluder_writes_a_scene_whose_mesh_loads_from_its_new_folder() {
     let photo = super::photo::photo(&t, image, 2e8, 40.0, 1e-3, 5);
     let npy_path = dir.path().join("photo.npy");
     npy::write_f64(&npy_path, &[photo.len()], &photo).unwrap();
+    // Its noise, as `measure` writes it beside a photo of several frames.
+    let variance_path = dir.path().join("photo.variance.npy");
+    let mean = photo.iter().sum::<f64>() / photo.len() as f64;
+    let variance = vec![(1e-3 * mean).powi(2); photo.len()];
+    npy::write_f64(&variance_path, &[variance.len()], &variance).unwrap();
     let (placed, report) = (b.join("placed.toml"), b.join("report.json"));
     let out = calibrate_occluder(&[
         a.join("pi.toml").to_str().unwrap(),
         "--measurement",
         npy_path.to_str().unwrap(),
+        "--variance",
+        variance_path.to_str().unwrap(),
         "--range",
         "0.006",
         "--step",
@@ -158,6 +165,18 @@ fn calibrate_occluder_writes_a_scene_whose_mesh_loads_from_its_new_folder() {
     assert!(d.iter().all(|x| x.abs() <= 0.006), "{d:?}");
     assert!(r["uncertainty"][0].as_f64().unwrap() > 0.0);
     assert!(r["warnings"].is_array());
+    // The model check: none on this 21 x 21 wall (840 rows of differences
+    // for the scene's 1044 cells), and the printout says why; the noise
+    // given is reported as the check's source.
+    assert!(
+        err.contains("model check: none (the wall has no more"),
+        "{err}"
+    );
+    assert_eq!(r["noise_from"], "variance", "{r}");
+    assert!(
+        r["model_error"].is_null() && r["noise_misfit"].is_null(),
+        "{r}"
+    );
     let want = moved(&scene, &[0], [d[0], d[1], d[2]], 1, ShadowModel::Auto).unwrap();
     let (polnlos::scene::Occluder::Mesh(p), polnlos::scene::Occluder::Mesh(w)) =
         (&placed_scene.occluders()[0], &want.occluders()[0])
