@@ -681,8 +681,11 @@ pub fn fit_occluder(
     // Every photo's channels in one list, made once for every evaluation.
     let flat: Vec<Vec<f64>> = photos.iter().flatten().cloned().collect();
     let per_photo: Vec<usize> = photos.iter().map(Vec::len).collect();
-    let mut probes = Vec::new();
+    let mut probes: Vec<Probe> = Vec::new();
     let mut f = |d: [f64; 3]| {
+        if let Some(p) = probes.iter().find(|p| p.translation == d) {
+            return Ok(p.objective);
+        }
         let each = objective(
             scene,
             &selected,
@@ -707,7 +710,7 @@ pub fn fit_occluder(
         max_evaluations: options.max_evaluations,
         starts: options.starts,
     };
-    let found = search(&mut f, &search_options)?;
+    let found = search_refined(&mut f, &search_options, options.min_step.is_none())?;
     let s2 = found.value / dof as f64;
     let sd_noise = found.curvature.map(|c| {
         if c > 0.0 {
@@ -766,6 +769,29 @@ pub fn fit_occluder(
         seconds: start.elapsed().as_secs_f64(),
         probes,
     })
+}
+
+/// [`search`], and where `refine` and the misfit ripples at the end by more
+/// than `ROUGH_RIPPLE` of its value, the search again with the last step
+/// halved: a rough misfit can hide its low between the lattice's points.
+/// Each point of the first lattice is one of the second, so an objective
+/// that remembers what it built pays only for the new points.
+fn search_refined<E>(
+    f: &mut dyn FnMut([f64; 3]) -> Result<f64, E>,
+    options: &SearchOptions,
+    refine: bool,
+) -> Result<Found, E> {
+    let found = search(f, options)?;
+    if refine && found.ripple > ROUGH_RIPPLE * found.value.abs() {
+        return search(
+            f,
+            &SearchOptions {
+                min_step: options.min_step / 2.0,
+                ..*options
+            },
+        );
+    }
+    Ok(found)
 }
 
 /// The model check at `d`: the misfit the photos' noise alone would leave

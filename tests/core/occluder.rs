@@ -479,8 +479,8 @@ fn calibrate_occluder_places_a_voxel_pi_photographed_unlike_the_model() {
 const STARTS: [[f64; 3]; 3] = [[0.02, 0.0, 0.0], [-0.0141, 0.0141, 0.0], [0.0, 0.0, -0.02]];
 
 /// A study, not in the suite: the voxel Π under four mismatches, each from
-/// the three starts, on a 63 x 63 wall: 12 fits of 60-100 `T` builds at
-/// 1-2 s each. Wherever the lowest misfit any fit found lies within 1 cm of
+/// the three starts, on a 63 x 63 wall: 12 fits of 89-296 `T` builds at
+/// about 0.5 s each (1053 s in all). Wherever the lowest misfit any fit found lies within 1 cm of
 /// the truth, every fit must land within 1 cm; everywhere, its uncertainty
 /// covers its error or it warns. Run it with
 /// `cargo test --locked --test suite -- --ignored --nocapture calibrate_occluder_study_pi`.
