@@ -796,10 +796,8 @@ fn search_refined<E>(
 
 /// The model check at `d`: the misfit the photos' noise alone would leave
 /// (their variances, or each channel's residual's roughness), and the
-/// misfit over it. One more `T` build. Neither where a channel has no more
-/// rows of differences than the scene has cells: the fit then leaves
-/// almost nothing of the noise or of the model's error to tell apart (on a
-/// 21 x 21 wall, 840 rows for 1044 cells, the model's own photo read 0.75).
+/// misfit over it ([`noise_checks`]; neither on a wall with no more rows of
+/// differences than the scene has cells). One more `T` build.
 fn model_check(
     scene: &Scene,
     selected: &[usize],
@@ -808,12 +806,6 @@ fn model_check(
     options: &OccluderOptions,
     channels: &[Vec<f64>],
 ) -> Result<(Option<f64>, Option<f64>), OccluderError> {
-    let g = scene.wall().plane.grid;
-    let rows =
-        scene.block_count() * (g.nu.saturating_sub(1) * g.nv + g.nu * g.nv.saturating_sub(1));
-    if rows <= scene.cols() {
-        return Ok((None, None));
-    }
     let t = build(
         &moved(scene, selected, d, supersample, options.shadows)?,
         options.budget,
