@@ -336,17 +336,12 @@ type Channels = Vec<Vec<f64>>;
 fn read_photos(a: &OccluderArgs, rows: usize) -> anyhow::Result<(Vec<Channels>, Vec<Channels>)> {
     let mut photos = Vec::with_capacity(a.measurement.len());
     for path in &a.measurement {
-        let meas = polnlos::files::npy::read(path)?;
-        let channels = polnlos::solve::photo::split_channels(&meas.shape, &meas.data, rows)
-            .map_err(|e| polnlos::files::FileError::format(path, e.to_string()))?;
-        photos.push(channels);
+        photos.push(super::read_channels(path, rows)?);
     }
     one_variance_each(&a.variance, &a.measurement)?;
     let mut variances = Vec::with_capacity(a.variance.len());
     for (path, photo) in a.variance.iter().zip(&photos) {
-        let v = polnlos::files::npy::read(path)?;
-        let channels = polnlos::solve::photo::split_channels(&v.shape, &v.data, rows)
-            .map_err(|e| polnlos::files::FileError::format(path, e.to_string()))?;
+        let channels = super::read_channels(path, rows)?;
         if channels.len() != photo.len() {
             return Err(polnlos::files::FileError::format(
                 path,

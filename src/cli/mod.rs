@@ -189,6 +189,16 @@ fn scene_text(path: &Path) -> anyhow::Result<String> {
     }
 }
 
+/// A `.npy` of `[rows]` or `[rows, C]` split into its C channels, each of
+/// `rows` values, or an error naming the file.
+fn read_channels(path: &Path, rows: usize) -> anyhow::Result<Vec<Vec<f64>>> {
+    let m = polnlos::files::npy::read(path)?;
+    Ok(
+        polnlos::solve::photo::split_channels(&m.shape, &m.data, rows)
+            .map_err(|e| polnlos::files::FileError::format(path, e.to_string()))?,
+    )
+}
+
 /// Loads a scene file, or a built-in scene by name (`brewster-crossed-3x3`,
 /// as the daemon knows them) when no such file exists; the error names the
 /// file, the key and the reason.

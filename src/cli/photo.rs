@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use polnlos::files::{image, json, npy, FileError};
-use polnlos::solve::photo::{photo_transport, split_channels, PhotoReport, PhotoSettings};
+use polnlos::solve::photo::{photo_transport, PhotoReport, PhotoSettings};
 use polnlos::solve::radiometry::RadiometryChoice;
 
 use super::reconstruct::{Args, LambdaArg};
@@ -16,10 +16,8 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let start = Instant::now();
     let scene = super::load_scene(&a.scene)?;
     let grid = scene.hidden().plane.grid;
-    let meas = npy::read(&a.measurement)?;
     let rows = scene.rows();
-    let channels = split_channels(&meas.shape, &meas.data, rows)
-        .map_err(|e| FileError::format(&a.measurement, e.to_string()))?;
+    let channels = super::read_channels(&a.measurement, rows)?;
     let truth = a
         .truth
         .as_ref()
