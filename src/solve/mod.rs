@@ -98,6 +98,13 @@ pub enum SolveError {
     /// A dense factorization failed (not positive definite / no convergence).
     #[error("{0}")]
     Factorization(String),
+    /// Colours solved together (ADMM-TV's colour TV) were not all of one
+    /// `T`: their normal equations do not share its Gram.
+    #[error("colour {colour}'s normal equations are not on the first colour's T^T T: colours solved together must share one T (solve them apart)")]
+    OtherGram {
+        /// The first colour (from 0) on another Gram.
+        colour: usize,
+    },
     /// The caller raised the solve's [`Stop`] flag (a cancelled job).
     #[error("stopped on request after {iterations} iterations")]
     Stopped {

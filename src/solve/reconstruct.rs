@@ -90,7 +90,7 @@ pub(crate) fn reconstruct_prepared(
         None if auto => NoiseLevel::from_residual_with(t, i, normal),
         None => None,
     };
-    let (mut warnings, mut notes) = (Vec::new(), Vec::new());
+    let (warnings, mut notes) = (Vec::new(), Vec::new());
     let mut lambda_choice: Option<LambdaChoice> = None;
     let problem = Problem {
         normal,
@@ -143,28 +143,127 @@ pub(crate) fn reconstruct_prepared(
             ..problem
         })?,
     };
-    if let Some(n) = &noise {
-        warnings.extend(snr_warnings(mean_snr(i, &n.variance)));
-        notes.extend(grid_note(t, cond, n));
-    }
-    let model_check = noise
-        .as_ref()
-        .and_then(|n| model_check(t, i, n, lambda_choice.as_ref(), normal));
-    warnings.extend(model_check.and_then(|a| a.warning("this measurement")));
-    let image = rec.image.clone();
-    let mut report = Report::new(
-        ctx.scene,
+    let solved = Solution {
         t,
-        ctx.transport_seconds,
+        i,
+        noise: noise.as_ref(),
         cond,
-        rec,
-        ctx.truth,
-        lambda_choice,
-    );
-    report.warnings.splice(0..0, warnings);
-    report.notes.extend(notes);
-    report.model_check = model_check;
-    Ok(Solved { image, report })
+        normal,
+    };
+    Ok(solved.judge(rec, lambda_choice, (warnings, notes), &ctx))
+}
+
+/// One colour of [`reconstruct_colours`]: its measurement, its noise level
+/// when known, and its normal equations (every colour's on one Gram).
+#[cfg(feature = "daemon")]
+pub(crate) struct ColourInput<'a> {
+    pub(crate) i: &'a [f64],
+    pub(crate) noise: Option<NoiseLevel>,
+    pub(crate) normal: &'a Normal,
+}
+
+/// A colour camera's colours of one scene solved together at the λ of
+/// `req` ([`super::Solver::solve_colours`]: ADMM-TV's colour TV), each with
+/// its own report, as [`reconstruct_prepared`] gives one colour's; `None`
+/// when the solver solves one image at a time.
+///
+/// Why: calibrated colours of one `T` share their edges; solved apart, the
+/// colours with fewer photons put noise into edges of their own, and a
+/// white scene comes back tinted (docs/guide.md, "Colours solved together").
+#[cfg(feature = "daemon")]
+pub(crate) fn reconstruct_colours(
+    t: &Transport,
+    colours: &[ColourInput<'_>],
+    cond: &Conditioning,
+    req: &SolveRequest,
+    ctx: Context<'_>,
+) -> Result<Option<Vec<Solved>>, SolveError> {
+    req.check()?;
+    if req.lambda.is_none() {
+        return Err(SolveError::Parameter {
+            name: "lambda",
+            value: f64::NAN,
+            reason: "colours solved together need one λ given (choose each colour's, then solve at the largest)",
+        });
+    }
+    let Some(first) = colours.first() else {
+        return Ok(Some(Vec::new()));
+    };
+    let problem = Problem {
+        stop: ctx.stop,
+        ..Problem::new(t, first.i, *req)
+    };
+    let inputs: Vec<(&[f64], &Normal)> = colours.iter().map(|c| (c.i, c.normal)).collect();
+    let Some(recs) = req.solver.solve_colours(&problem, &inputs, None) else {
+        return Ok(None);
+    };
+    Ok(Some(
+        colours
+            .iter()
+            .zip(recs?)
+            .map(|(c, rec)| {
+                let solved = Solution {
+                    t,
+                    i: c.i,
+                    noise: c.noise.as_ref(),
+                    cond,
+                    normal: Some(c.normal),
+                };
+                solved.judge(rec, None, (Vec::new(), Vec::new()), &ctx)
+            })
+            .collect(),
+    ))
+}
+
+/// What a solve was of: the judgement of its result reads these.
+struct Solution<'a> {
+    t: &'a Transport,
+    i: &'a [f64],
+    noise: Option<&'a NoiseLevel>,
+    cond: &'a Conditioning,
+    normal: Option<&'a Normal>,
+}
+
+impl Solution<'_> {
+    /// `rec` with its report: the SNR warnings and grid note from the noise,
+    /// the model check, the metrics against the truth, and the
+    /// `(warnings, notes)` the solve already had.
+    /// Why: one colour alone or colours together, a result is judged alike.
+    fn judge(
+        &self,
+        rec: super::Reconstruction,
+        lambda_choice: Option<LambdaChoice>,
+        (mut warnings, mut notes): (Vec<String>, Vec<String>),
+        ctx: &Context<'_>,
+    ) -> Solved {
+        let Self {
+            t,
+            i,
+            noise,
+            cond,
+            normal,
+        } = *self;
+        if let Some(n) = noise {
+            warnings.extend(snr_warnings(mean_snr(i, &n.variance)));
+            notes.extend(grid_note(t, cond, n));
+        }
+        let model_check = noise.and_then(|n| model_check(t, i, n, lambda_choice.as_ref(), normal));
+        warnings.extend(model_check.and_then(|a| a.warning("this measurement")));
+        let image = rec.image.clone();
+        let mut report = Report::new(
+            ctx.scene.clone(),
+            t,
+            ctx.transport_seconds,
+            cond,
+            rec,
+            ctx.truth,
+            lambda_choice,
+        );
+        report.warnings.splice(0..0, warnings);
+        report.notes.extend(notes);
+        report.model_check = model_check;
+        Solved { image, report }
+    }
 }
 
 /// The model check of a reconstruction (see [`super::adequacy`]): the best

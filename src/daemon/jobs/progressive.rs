@@ -183,6 +183,11 @@ pub(in crate::daemon) struct Progressive {
     /// first step (which settles the scene's shadows, as a reconstruction's
     /// photo does).
     stream: Option<PhotoStream<Arc<Transport>>>,
+    /// Calibrated colours: solved together at one λ, as a reconstruction
+    /// solves them (docs/guide.md, "Colours solved together"), from this
+    /// state of the last step's joint solve and the key of the model it
+    /// was on (a new model starts cold). `None`: each colour alone.
+    together: Option<(Warm, String)>,
 }
 
 /// How far below zero difference mode's images may go, in MODEL.md
@@ -374,6 +379,8 @@ impl Progressive {
                 t_ones: None,
             });
         }
+        let together = (balance.is_some() && channels.len() > 1)
+            .then(|| (Warm::default(), capture.scene.clone()));
         // A difference image is the scene's change, not the pattern.
         let truth = spec
             .truth
@@ -414,6 +421,7 @@ impl Progressive {
                 moved: None,
             }),
             stream: None,
+            together,
             radiometry,
         })
     }
@@ -476,12 +484,23 @@ impl Progressive {
         if fitted {
             return self.fitted_step(s.frames, start, stop);
         }
+        // Colours solved together are on one model: the one the least noisy
+        // colour's noise asks for, as a reconstruction chooses it.
+        let model: Option<Vec<f64>> = match self.together {
+            Some(_) => noises
+                .iter()
+                .flatten()
+                .min_by(|a, b| a.mean_variance().total_cmp(&b.mean_variance()))
+                .map(|n| n.variance.clone()),
+            None => None,
+        };
         let mut solved = self
             .channels
             .par_iter_mut()
             .zip(noises)
-            .map(|(ch, noise)| ch.solve(noise, scenes, name, settings, offset))
+            .map(|(ch, noise)| ch.solve(noise, model.as_deref(), scenes, name, settings, offset))
             .collect::<Result<Vec<_>, JobError>>()?;
+        self.solve_together(&mut solved, settings, offset)?;
         // A colour image is interleaved once, for the step and the caller.
         let colour = (solved.len() > 1).then(|| {
             let images: Vec<&[f64]> = solved.iter().map(|(r, _)| &r.image[..]).collect();
@@ -558,6 +577,63 @@ impl Progressive {
         };
         let step = self.record(frames, start, summary, &image);
         Ok((step, image))
+    }
+
+    /// Calibrated colours solved again together ([`Solver::solve_colours`],
+    /// the colour TV) at the one λ: the request's, else the largest of the
+    /// colours' own (their solves in `solved`, replaced), warm from the last
+    /// step's joint solve. Nothing for one colour, or colours whose models
+    /// differ (none chosen from the noise in one of them).
+    /// Why: a step is the reconstruction of its frames, and a reconstruction
+    /// solves calibrated colours together.
+    fn solve_together(
+        &mut self,
+        solved: &mut [(Reconstruction, Option<f64>)],
+        settings: &AdmmSettings<'_>,
+        offset: f64,
+    ) -> Result<(), JobError> {
+        let Some((warm, key)) = self.together.as_mut() else {
+            return Ok(());
+        };
+        let lambda = settings
+            .lambda
+            .or_else(|| solved.iter().filter_map(|s| s.1).reduce(f64::max));
+        let channels = &mut self.channels;
+        let one_gram = channels
+            .iter()
+            .all(|c| Arc::ptr_eq(&c.normal.gram, &channels[0].normal.gram));
+        let (Some(lambda), true) = (lambda, one_gram) else {
+            return Ok(());
+        };
+        if *key != channels[0].key {
+            *warm = Warm::default();
+            key.clone_from(&channels[0].key);
+        }
+        for ch in channels.iter_mut() {
+            ch.shift(offset, 1.0);
+            ch.normal.ti = adjoint(ch.t.as_mat(), &ch.i);
+        }
+        let at = AdmmSettings {
+            lambda: Some(lambda),
+            max_iter: settings.max_iter.max(AUTO_MAX_ITER),
+            ..*settings
+        };
+        let first = &channels[0];
+        let p = at.problem(&first.t, &first.i, &first.normal);
+        let inputs: Vec<(&[f64], &Normal)> =
+            channels.iter().map(|c| (&c.i[..], &c.normal)).collect();
+        let joint = Solver::ADMM_TV.solve_colours(&p, &inputs, Some(warm));
+        for ch in channels.iter_mut() {
+            ch.shift(offset, -1.0);
+        }
+        let Some(joint) = joint else {
+            return Ok(());
+        };
+        for (s, mut r) in solved.iter_mut().zip(joint?) {
+            r.image.iter_mut().for_each(|v| *v -= offset);
+            *s = (r, Some(lambda));
+        }
+        Ok(())
     }
 
     /// The zero image of a window that only started the background, and its step.
@@ -827,15 +903,17 @@ impl Channel {
     fn solve(
         &mut self,
         noise: Option<NoiseLevel>,
+        model: Option<&[f64]>,
         scenes: &Scenes,
         scene: &str,
         settings: &AdmmSettings<'_>,
         offset: f64,
     ) -> Result<(Reconstruction, Option<f64>), JobError> {
-        // The sampling the scene file leaves out, chosen from this step's noise
-        // as a reconstruction of the same frames chooses it.
-        if let Some(n) = &noise {
-            let (key, _) = scenes.for_noise(scene, &n.variance)?;
+        // The sampling the scene file leaves out, chosen from this step's
+        // noise (or the `model` variance, colours solved together) as a
+        // reconstruction of the same frames chooses it.
+        if let Some(v) = model.or(noise.as_ref().map(|n| &n.variance[..])) {
+            let (key, _) = scenes.for_noise(scene, v)?;
             if key != self.key {
                 self.use_model(scenes, key)?;
             }
@@ -847,26 +925,27 @@ impl Channel {
             .map(|x| x * x)
             .sum::<f64>()
             .sqrt();
-        let t = &self.t;
-        let shift = (offset != 0.0).then(|| {
-            self.t_ones
-                .take()
-                .unwrap_or_else(|| t.apply(&vec![1.0; t.cols()]))
-        });
-        let shifted = |i: &mut [f64], sign: f64| {
-            for (x, s) in i.iter_mut().zip(shift.iter().flatten()) {
-                *x += sign * offset * s;
-            }
-        };
-        shifted(&mut self.i, 1.0);
+        self.shift(offset, 1.0);
         let solved = self.solve_at(noise, norm, settings);
-        shifted(&mut self.i, -1.0);
-        if shift.is_some() {
-            self.t_ones = shift;
-        }
+        self.shift(offset, -1.0);
         let (mut r, lambda) = solved?;
         r.image.iter_mut().for_each(|v| *v -= offset);
         Ok((r, lambda))
+    }
+
+    /// Adds `sign offset T 1` to the measurement (difference mode's offset,
+    /// [`Channel::solve`]; nothing without one), `T 1` formed once a model.
+    fn shift(&mut self, offset: f64, sign: f64) {
+        if offset == 0.0 {
+            return;
+        }
+        let t = &self.t;
+        let ones = self
+            .t_ones
+            .get_or_insert_with(|| t.apply(&vec![1.0; t.cols()]));
+        for (x, s) in self.i.iter_mut().zip(ones.iter()) {
+            *x += sign * offset * s;
+        }
     }
 
     /// [`Channel::solve`] of the measurement as it is, whose norm is `norm`.

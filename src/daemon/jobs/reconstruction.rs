@@ -20,7 +20,7 @@ use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
 use crate::solve::photo::{photo_transport, PhotoReport, PhotoSettings};
 use crate::solve::radiometry::{Known, Radiometry, RadiometryChoice};
-use crate::solve::reconstruct::{reconstruct_prepared, Context};
+use crate::solve::reconstruct::{reconstruct_colours, reconstruct_prepared, ColourInput, Context};
 use crate::solve::{check_measurement, SolveRequest, Stop};
 use crate::store::{read_mean, CaptureRecord, JobState, Store};
 use crate::transport::Block;
@@ -185,8 +185,8 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     };
     // Calibrated colours are in one unit: one λ for all of them keeps their
     // balance (a λ each dims the noisier colours more).
-    let shared = balance.is_some() && colours > 1 && rec.params.solve.lambda.is_none();
-    let mut solved = job.solve_all(stacked.measurements, &gains, shared)?;
+    let together = balance.is_some() && colours > 1;
+    let mut solved = job.solve_all(stacked.measurements, &gains, together)?;
     let (image, measurement, mut report, kappa) = match solved.len() {
         1 => {
             let s = solved.swap_remove(0);
@@ -252,17 +252,29 @@ struct Prepared {
     notes: Vec<String>,
 }
 
+/// One measurement in units of `T l`, its unmeasured rows zeroed (with
+/// their rows of `t`), before its sampling is chosen.
+struct InUnits {
+    t: Arc<crate::transport::Transport>,
+    measurement: Measurement,
+    missing: Vec<usize>,
+    units: crate::measure::Units,
+    warnings: Vec<String>,
+}
+
+/// The scene key a measurement is solved on (the sampling its noise
+/// chose, or the scene's own) and that choice for the report.
+type ModelKey = (String, Option<crate::transport::choose::ModelChoice>);
+
 impl Job<'_> {
-    /// Prepares `measurement` (fractions of full scale per µs, one value per
-    /// row of `t`): unmeasured rows dropped, units, the sampling chosen from
-    /// the noise, the conditioning and Gram, the solver the record asks for;
-    /// divided by `gain` (`None`: scaled to a brightest element of about 1).
-    fn prepare(
+    /// `measurement` (fractions of full scale per µs, one value per row of
+    /// `t`) with its unmeasured rows dropped, divided by `gain` (`None`:
+    /// scaled to a brightest element of about 1).
+    fn in_units(
         &self,
         mut measurement: Measurement,
         gain: Option<f64>,
-    ) -> Result<Prepared, JobError> {
-        let (d, rec) = (self.d, self.rec);
+    ) -> Result<InUnits, JobError> {
         check(self.cancel)?;
         // Elements too saturated to measure: their rows of T and i are zero (no
         // part in any fit) and their variance 0 (no part in the noise).
@@ -281,20 +293,45 @@ impl Job<'_> {
             false => Arc::new(self.t.with_rows_zeroed(&missing)),
         };
         let units = to_model_units(&t, &mut measurement, gain)?;
+        Ok(InUnits {
+            t,
+            measurement,
+            missing,
+            units,
+            warnings,
+        })
+    }
+
+    /// The sampling the scene file left out, chosen from the noise
+    /// `variance` (in units of `T l`; `None`: the scene's own). A partial
+    /// measurement's rows stand at their blocks, the others unknown.
+    fn model_for(&self, variance: Option<&[f64]>) -> Result<ModelKey, JobError> {
+        let (d, rec) = (self.d, self.rec);
+        Ok(match (variance, self.part) {
+            (Some(v), None) => d.scenes.for_noise(&rec.scene, v)?,
+            (Some(v), Some(p)) => d
+                .scenes
+                .for_noise(&rec.scene, &p.whole_rows(v, self.t.wall_grid().count()))?,
+            (None, _) => (rec.scene.clone(), None),
+        })
+    }
+
+    /// Prepares a measurement in units on the scene key `(key, model)`: its
+    /// `T`, the conditioning and Gram, the solver the record asks for.
+    fn prepare(&self, u: InUnits, (key, model): ModelKey) -> Result<Prepared, JobError> {
+        let (d, rec) = (self.d, self.rec);
+        let InUnits {
+            t,
+            measurement,
+            missing,
+            units,
+            warnings,
+        } = u;
         let mut notes: Vec<String> = units.note().into_iter().collect();
         if let Some(p) = self.part {
             notes.push(p.note());
         }
         let Measurement { i, variance: var } = measurement;
-        // The noise known, the sampling keys the file left out are chosen from it
-        // (a partial measurement's rows stand at their blocks, the others unknown).
-        let (key, model) = match (var.as_deref(), self.part) {
-            (Some(v), None) => d.scenes.for_noise(&rec.scene, v)?,
-            (Some(v), Some(p)) => d
-                .scenes
-                .for_noise(&rec.scene, &p.whole_rows(v, t.wall_grid().count()))?,
-            (None, _) => (rec.scene.clone(), None),
-        };
         let t = match (self.part, key == rec.scene) {
             (_, true) => t,
             (None, false) => d.scenes.transport(&key)?,
@@ -350,12 +387,6 @@ impl Job<'_> {
         if lambda.is_some() {
             solve.lambda = lambda;
         }
-        let context = Context {
-            scene: self.rec.scene.clone(),
-            transport_seconds: self.transport_seconds,
-            truth: p.truth.as_deref(),
-            stop: Stop::on(self.cancel),
-        };
         let solved = reconstruct_prepared(
             &p.t,
             &p.i,
@@ -363,89 +394,196 @@ impl Job<'_> {
             &p.cond,
             p.normal.as_ref(),
             &solve,
-            context,
+            self.context(p),
         )?;
-        let mut report = solved.report;
-        report.model = p.model.clone();
-        report.gain = Some(p.gain);
-        report.warnings.splice(0..0, p.warnings.iter().cloned());
-        report.notes.splice(0..0, p.notes.iter().cloned());
         check(self.cancel)?;
-        // The stored measurement says which rows were not measured (NaN),
-        // as `polnlos measure` writes them: re-solved offline, they are
-        // left out again.
-        let mut i = p.i.clone();
-        p.missing.iter().for_each(|&j| i[j] = f64::NAN);
-        Ok(Solution {
-            image: solved.image,
-            i,
-            report,
-            kappa: p.cond.kappa,
-        })
+        Ok(solution(p, solved))
+    }
+
+    /// Where `p`'s report names the scene and what it is compared with.
+    fn context<'a>(&'a self, p: &'a Prepared) -> Context<'a> {
+        Context {
+            scene: self.rec.scene.clone(),
+            transport_seconds: self.transport_seconds,
+            truth: p.truth.as_deref(),
+            stop: Stop::on(self.cancel),
+        }
+    }
+}
+
+/// `solved` with what `p` knew beside the solve (its sampling, gain,
+/// warnings and notes), and the measurement it solved with its unmeasured
+/// rows NaN, as `polnlos measure` writes them: re-solved offline, they are
+/// left out again.
+fn solution(p: &Prepared, solved: crate::solve::reconstruct::Solved) -> Solution {
+    let mut report = solved.report;
+    report.model = p.model.clone();
+    report.gain = Some(p.gain);
+    report.warnings.splice(0..0, p.warnings.iter().cloned());
+    report.notes.splice(0..0, p.notes.iter().cloned());
+    let mut i = p.i.clone();
+    p.missing.iter().for_each(|&j| i[j] = f64::NAN);
+    Solution {
+        image: solved.image,
+        i,
+        report,
+        kappa: p.cond.kappa,
     }
 }
 
 impl Job<'_> {
     /// Each measurement (one, or a colour camera's three) solved with its
-    /// gain; with `shared`, at one λ ([`Job::share_lambda`]).
+    /// gain; with `together` (calibrated colours), as one colour image
+    /// ([`Job::solve_together`]).
     fn solve_all(
         &self,
         measurements: Vec<Measurement>,
         gains: &[Option<f64>],
-        shared: bool,
+        together: bool,
     ) -> Result<Vec<Solution>, JobError> {
-        let prepared = measurements
+        let units = measurements
             .into_iter()
             .zip(gains.iter().copied())
-            .map(|(m, g)| self.prepare(m, g))
+            .map(|(m, g)| self.in_units(m, g))
             .collect::<Result<Vec<_>, _>>()?;
-        let mut solved = prepared
+        // One sampling for every colour: the one the least noisy colour's
+        // noise asks for (the others' would be coarser), so that the colours
+        // are solved on one T and differ only by what they measured.
+        let least = units
             .iter()
-            .map(|p| self.solve(p, None))
+            .filter_map(|u| u.measurement.variance.as_deref())
+            .min_by(|a, b| mean_measured(a).total_cmp(&mean_measured(b)));
+        let model = self.model_for(least)?;
+        let prepared = units
+            .into_iter()
+            .map(|u| self.prepare(u, model.clone()))
             .collect::<Result<Vec<_>, _>>()?;
-        if shared {
-            self.share_lambda(&mut solved, &prepared)?;
+        let lambda = self.rec.params.solve.lambda;
+        let mut solved = match (together, lambda) {
+            (true, Some(_)) => Vec::new(),
+            _ => prepared
+                .iter()
+                .map(|p| self.solve(p, None))
+                .collect::<Result<Vec<_>, _>>()?,
+        };
+        if together {
+            self.solve_together(&mut solved, &prepared)?;
         }
         Ok(solved)
     }
 
-    /// The colours of `solved` (each with its own automatic λ) solved again
-    /// at the largest of their λs: calibrated
-    /// colours then share one λ, so TV dims each alike and a white scene
-    /// stays white (no colour is left noisier than its own choice). Each
-    /// colour's report keeps its own choice (`lambda_choice`) and says so.
-    fn share_lambda(&self, solved: &mut [Solution], prepared: &[Prepared]) -> Result<(), JobError> {
-        let chosen: Option<Vec<f64>> = solved
-            .iter()
-            .map(|s| s.report.lambda_choice.as_ref().map(|c| c.lambda))
-            .collect();
-        let Some(chosen) = chosen else {
-            return Ok(());
+    /// Calibrated colours solved again as one colour image: at the record's
+    /// λ, else at the largest of their own automatic choices (in `solved`),
+    /// with ADMM-TV's colour TV where they share one `T` (each colour's
+    /// edges then paid for by all; else each alone at that λ). One λ leaves
+    /// the calibration alone to set the levels (a λ each dims the noisier
+    /// colours more); each colour's report keeps its own choice and says so.
+    fn solve_together(
+        &self,
+        solved: &mut Vec<Solution>,
+        prepared: &[Prepared],
+    ) -> Result<(), JobError> {
+        let mut notes = Vec::new();
+        let lambda = match self.rec.params.solve.lambda {
+            Some(l) => l,
+            None => {
+                let chosen: Option<Vec<f64>> = solved
+                    .iter()
+                    .map(|s| s.report.lambda_choice.as_ref().map(|c| c.lambda))
+                    .collect();
+                let Some(chosen) = chosen else {
+                    return Ok(());
+                };
+                let (largest, from) = chosen.iter().zip(crate::measure::colour::Colour::ALL).fold(
+                    (0.0, None),
+                    |(l, c), (&v, colour)| match v > l {
+                        true => (v, Some(colour)),
+                        false => (l, c),
+                    },
+                );
+                let Some(from) = from else {
+                    return Ok(());
+                };
+                notes.push(format!(
+                    "one λ = {largest:.3e} for every colour, the largest of their own choices ({}'s): calibrated colours share it so that TV dims each alike",
+                    from.name()
+                ));
+                largest
+            }
         };
-        let (largest, from) = chosen.iter().zip(crate::measure::colour::Colour::ALL).fold(
-            (0.0, None),
-            |(l, c), (&v, colour)| match v > l {
-                true => (v, Some(colour)),
-                false => (l, c),
-            },
-        );
-        let Some(from) = from else {
-            return Ok(());
+        let choices: Vec<Option<crate::solve::lambda::LambdaChoice>> = match solved.is_empty() {
+            true => vec![None; prepared.len()],
+            false => solved
+                .iter_mut()
+                .map(|s| s.report.lambda_choice.take())
+                .collect(),
         };
-        let note = format!(
-            "one λ = {largest:.3e} for every colour, the largest of their own choices ({}'s): calibrated colours share it so that TV dims each alike",
-            from.name()
-        );
-        // Every colour, the one that chose it too: a search's last solve is
-        // warm-started, and the result is then exactly the one asked for
-        // with that λ.
-        for (s, p) in solved.iter_mut().zip(prepared) {
-            let choice = s.report.lambda_choice.take();
-            *s = self.solve(p, Some(largest))?;
+        let normals: Option<Vec<&Normal>> = prepared.iter().map(|p| p.normal.as_ref()).collect();
+        let normals_missing = normals.is_none();
+        let one_gram = normals
+            .as_ref()
+            .is_some_and(|n| n.iter().all(|x| Arc::ptr_eq(&x.gram, &n[0].gram)));
+        let together = match (one_gram, normals) {
+            (true, Some(normals)) => self.solve_colours(prepared, &normals, lambda)?,
+            _ => None,
+        };
+        *solved = match together {
+            Some(colours) => {
+                notes.push("the colours solved together, with the colour TV: an edge costs less where the colours share it (docs/guide.md, \"Colours solved together\")".into());
+                colours
+            }
+            None => {
+                notes.push(match one_gram || normals_missing {
+                    true => format!("each colour solved alone: {} solves one image at a time (ADMM-TV solves colours together)", self.rec.params.solve.solver.name()),
+                    false => "each colour solved alone: their T differ (rows unmeasured in some colours), so they cannot be solved together".into(),
+                });
+                prepared
+                    .iter()
+                    .map(|p| self.solve(p, Some(lambda)))
+                    .collect::<Result<Vec<_>, _>>()?
+            }
+        };
+        for (s, choice) in solved.iter_mut().zip(choices) {
             s.report.lambda_choice = choice;
-            s.report.notes.push(note.clone());
+            s.report.notes.extend(notes.iter().cloned());
         }
         Ok(())
+    }
+
+    /// The colours of `prepared` (each on `normals`' one Gram) solved
+    /// together at `lambda` ([`reconstruct_colours`]); `None` when the
+    /// record's solver solves one image at a time.
+    fn solve_colours(
+        &self,
+        prepared: &[Prepared],
+        normals: &[&Normal],
+        lambda: f64,
+    ) -> Result<Option<Vec<Solution>>, JobError> {
+        check(self.cancel)?;
+        let first = &prepared[0];
+        let inputs: Vec<ColourInput<'_>> = prepared
+            .iter()
+            .zip(normals)
+            .map(|(p, &normal)| ColourInput {
+                i: &p.i,
+                noise: p.variance.clone().map(NoiseLevel::measured),
+                normal,
+            })
+            .collect();
+        let solve = SolveRequest {
+            lambda: Some(lambda),
+            ..first.solve
+        };
+        let solved =
+            reconstruct_colours(&first.t, &inputs, &first.cond, &solve, self.context(first))?;
+        check(self.cancel)?;
+        Ok(solved.map(|s| {
+            prepared
+                .iter()
+                .zip(s)
+                .map(|(p, s)| solution(p, s))
+                .collect()
+        }))
     }
 
     /// Reconstructs the stacked measurement with its gain and background
@@ -672,6 +810,19 @@ fn normal_for(
         true => Normal::with(d.scenes.gram(key)?, t, i),
         false => Normal::of(t, i),
     })
+}
+
+/// The mean of a variance over its measured rows (> 0): how noisy a
+/// measurement is, to compare colours.
+fn mean_measured(variance: &[f64]) -> f64 {
+    let (sum, count) = variance
+        .iter()
+        .filter(|v| **v > 0.0)
+        .fold((0.0, 0usize), |(s, c), v| (s + v, c + 1));
+    match count {
+        0 => f64::INFINITY,
+        _ => sum / count as f64,
+    }
 }
 
 /// The gain a measurement was divided by, and where it came from, for the report.

@@ -252,7 +252,48 @@ fn admm_tv_warm(
     settings: &AdmmSettings,
     state: &mut AdmmState,
 ) -> Result<Reconstruction, SolveError> {
+    let mut solved = admm_tv_joint(t, &[(i, normal)], settings, state)?;
+    Ok(solved.remove(0))
+}
+
+/// ADMM-TV of a colour camera's colours of one scene solved together: each
+/// colour's MODEL.md Eq. 12 data term, with the colour TV (an element's
+/// gradients in every colour shrink as one group, Blomgren and Chan 1998).
+/// Each colour is `(i, normal)`, its `T^T i` in `normal`, every `normal`
+/// on the same Gram (`T` is the colours' one transport matrix).
+///
+/// Why: solved alone, a colour with few photons (a Bayer sensor's red and
+/// blue) puts its noise into edges the others do not have, and a white
+/// scene comes back tinted; together, an edge costs less where the colours
+/// share it, so each colour's level is set by its data and its edges by all.
+#[cfg(any(test, feature = "daemon"))]
+fn admm_tv_colours(
+    t: &Transport,
+    colours: &[(&[f64], &Normal)],
+    settings: &AdmmSettings,
+    state: &mut AdmmState,
+) -> Result<Vec<Reconstruction>, SolveError> {
+    for (c, (i, normal)) in colours.iter().enumerate() {
+        check_measurement(t, i)?;
+        if !std::sync::Arc::ptr_eq(&normal.gram, &colours[0].1.gram) || normal.ti.len() != t.cols()
+        {
+            return Err(SolveError::OtherGram { colour: c });
+        }
+    }
+    admm_tv_joint(t, colours, settings, state)
+}
+
+/// The solve of [`admm_tv_colours`] (one colour: [`admm_tv_warm`]) from `state`.
+fn admm_tv_joint(
+    t: &Transport,
+    colours: &[(&[f64], &Normal)],
+    settings: &AdmmSettings,
+    state: &mut AdmmState,
+) -> Result<Vec<Reconstruction>, SolveError> {
     check_tol(settings.tol)?;
+    let Some(&(_, normal)) = colours.first() else {
+        return Ok(Vec::new());
+    };
     let start = Instant::now();
     let grid = t.scene_grid();
     let n = t.cols();
@@ -268,7 +309,8 @@ fn admm_tv_warm(
     // once (again only when residual balancing changes rho); a warm start
     // keeps the previous solve's factor and penalty.
     let t0 = Instant::now();
-    let (rho, llt) = state.take_factor(normal, grid, n, settings.rho, rho)?;
+    let m = colours.len() * n;
+    let (rho, llt) = state.take_factor(normal, grid, m, settings.rho, rho)?;
     let mut penalty = Penalty {
         lambda,
         adaptive,
@@ -281,42 +323,51 @@ fn admm_tv_warm(
 
     // Iterate without allocating: every buffer is sized once here.
     let t1 = Instant::now();
-    let mut it = Iterate::take(state, grid, n);
-    let outcome = run_iterations(normal, settings, &mut penalty, &mut it)?;
+    let mut it = Iterate::take(state, grid, n, colours.len());
+    let tis: Vec<&[f64]> = colours.iter().map(|(_, nm)| nm.ti.as_slice()).collect();
+    let outcome = run_iterations(normal, &tis, settings, &mut penalty, &mut it)?;
     let iterate_seconds = t1.elapsed().as_secs_f64();
     warnings.extend(outcome.cap_warning(settings.tol));
 
-    // The returned image is z2: feasible by construction.
+    // The returned images are z2: feasible by construction.
     let Penalty {
         rho,
         llt,
         factor_seconds,
         ..
     } = penalty;
-    let image = it.store(state, rho, llt);
-    warnings.extend(flat_warning(&image, lambda));
-    let (misfit, objective) = objective_with(t, i, normal, &image, lambda);
-    Ok(Reconstruction {
-        image,
-        stats: SolveStats {
-            solver: "admm-tv".into(),
-            lambda: Some(lambda),
-            rho: Some(rho),
-            iterations: outcome.iterations,
-            converged: outcome.converged,
-            primal_residual: Some(outcome.r_norm),
-            dual_residual: Some(outcome.s_norm),
-            objective,
-            data_misfit: misfit,
-            rank: None,
-            clipped_fraction: None,
-            gram_seconds,
-            factor_seconds,
-            iterate_seconds,
-            total_seconds: gram_seconds + start.elapsed().as_secs_f64(),
-            warnings,
-        },
-    })
+    let images = it.store(state, rho, llt);
+    let total_seconds = gram_seconds + start.elapsed().as_secs_f64();
+    Ok(colours
+        .iter()
+        .zip(images.chunks_exact(n.max(1)))
+        .map(|(&(i, nm), image)| {
+            let mut warnings = warnings.clone();
+            warnings.extend(flat_warning(image, lambda));
+            let (misfit, objective) = objective_with(t, i, nm, image, lambda);
+            Reconstruction {
+                image: image.to_vec(),
+                stats: SolveStats {
+                    solver: "admm-tv".into(),
+                    lambda: Some(lambda),
+                    rho: Some(rho),
+                    iterations: outcome.iterations,
+                    converged: outcome.converged,
+                    primal_residual: Some(outcome.r_norm),
+                    dual_residual: Some(outcome.s_norm),
+                    objective,
+                    data_misfit: misfit,
+                    rank: None,
+                    clipped_fraction: None,
+                    gram_seconds,
+                    factor_seconds,
+                    iterate_seconds,
+                    total_seconds,
+                    warnings,
+                },
+            }
+        })
+        .collect())
 }
 
 /// The checked parameters of one solve and the warnings they raise.
@@ -457,11 +508,15 @@ impl Penalty {
 }
 
 /// The iterate (image `l`, splitting variables `z1 = D l` and `z2 = l`,
-/// scaled duals `u1`, `u2`) and the scratch buffers of one solve.
+/// scaled duals `u1`, `u2`) and the scratch buffers of one solve, for
+/// `channels` images solved together (one per colour, each `n` unknowns
+/// in a block of its own; `D l`, `z1`, `u1` and `w1` are `2 n` a colour).
 /// Why: sized once per solve, so that the iterations run without allocating.
 struct Iterate {
     /// The scene grid `D` differentiates on.
     grid: Grid,
+    /// Images solved together: 1, or a colour camera's 3 (joint TV).
+    channels: usize,
     l: Vec<f64>,
     /// `D l`.
     dl: Vec<f64>,
@@ -471,7 +526,7 @@ struct Iterate {
     u2: Vec<f64>,
     /// Scratch: `z1 - u1`, then the change of `z1`.
     w1: Vec<f64>,
-    /// Scratch: the l-update's right-hand side.
+    /// Scratch: one colour's l-update right-hand side.
     rhs: Vec<f64>,
     /// Scratch: the dual residual, then `D^T u1`.
     dual: Vec<f64>,
@@ -479,27 +534,32 @@ struct Iterate {
 }
 
 impl Iterate {
-    /// `state`'s iterate when it has `n` unknowns (a warm start), else zeros.
+    /// `state`'s iterate when it has `channels` images of `n` unknowns (a
+    /// warm start), else zeros.
     /// Why: a solve of a close measurement then starts near its answer.
-    fn take(state: &mut AdmmState, grid: Grid, n: usize) -> Self {
+    fn take(state: &mut AdmmState, grid: Grid, n: usize, channels: usize) -> Self {
+        let m = channels * n;
         Self {
             grid,
-            l: warm(&mut state.l, n),
-            dl: vec![0.0; 2 * n],
-            z1: warm(&mut state.z1, 2 * n),
-            z2: warm(&mut state.z2, n),
-            u1: warm(&mut state.u1, 2 * n),
-            u2: warm(&mut state.u2, n),
-            w1: vec![0.0; 2 * n],
+            channels,
+            l: warm(&mut state.l, m),
+            dl: vec![0.0; 2 * m],
+            z1: warm(&mut state.z1, 2 * m),
+            z2: warm(&mut state.z2, m),
+            u1: warm(&mut state.u1, 2 * m),
+            u2: warm(&mut state.u2, m),
+            w1: vec![0.0; 2 * m],
             rhs: vec![0.0; n],
-            dual: vec![0.0; n],
+            dual: vec![0.0; m],
             ws: Workspace::default(),
         }
     }
 
-    /// l-update: `(T^T T + rho (D^T D + I)) l = T^T i + rho (D^T (z1 - u1) + z2 - u2)`.
-    /// Why: MODEL.md Eq. 12's data term plus both splittings' penalties, through `llt` (for `rho`).
-    fn update_l(&mut self, normal: &Normal, llt: &Factor, rho: f64) {
+    /// l-update of each colour `c`: `(T^T T + rho (D^T D + I)) l_c = T^T i_c
+    /// + rho (D^T (z1_c - u1_c) + z2_c - u2_c)`, `tis[c]` its `T^T i_c`.
+    /// Why: MODEL.md Eq. 12's data term plus both splittings' penalties, through `llt` (for `rho`);
+    /// the colours share `T`, so one factor serves them all.
+    fn update_l(&mut self, tis: &[&[f64]], normal: &Normal, llt: &Factor, rho: f64) {
         let Self {
             grid,
             l,
@@ -512,27 +572,33 @@ impl Iterate {
             ws,
             ..
         } = self;
-        let n = l.len();
-        let ti = &normal.ti;
-        for k in 0..2 * n {
-            w1[k] = z1[k] - u1[k];
+        let n = rhs.len();
+        for (c, ti) in tis.iter().enumerate() {
+            let (g, b) = (2 * c * n..2 * (c + 1) * n, c * n..(c + 1) * n);
+            for k in g.clone() {
+                w1[k] = z1[k] - u1[k];
+            }
+            rhs.fill(0.0);
+            add_divergence_adjoint(*grid, &w1[g], rhs);
+            let (z2, u2) = (&z2[b.clone()], &u2[b.clone()]);
+            for k in 0..n {
+                rhs[k] = ti[k] + rho * (rhs[k] + z2[k] - u2[k]);
+            }
+            solve_system(normal, llt, rho, rhs, ws);
+            l[b].copy_from_slice(rhs);
         }
-        rhs.fill(0.0);
-        add_divergence_adjoint(*grid, w1, rhs);
-        for k in 0..n {
-            rhs[k] = ti[k] + rho * (rhs[k] + z2[k] - u2[k]);
-        }
-        solve_system(normal, llt, rho, rhs, ws);
-        l.copy_from_slice(rhs);
     }
 
     /// z-updates: `z1` the group soft-threshold of `D l + u1` at `kappa_tv`
-    /// (MODEL.md Eq. 12's isotropic TV), `z2` the projection of `l + u2` onto
-    /// the box `[0, upper]`; returns `(||z||^2, ||A l||^2)`, `A l = (D l, l)`.
+    /// (MODEL.md Eq. 12's isotropic TV; with several colours, the group is
+    /// an element's gradients in every colour: the colour TV of Blomgren and
+    /// Chan 1998), `z2` the projection of `l + u2` onto the box `[0, upper]`;
+    /// returns `(||z||^2, ||A l||^2)`, `A l = (D l, l)`.
     /// Why: keeps the change of z in `dual` (as `D^T dz1 + dz2`) for the dual residual.
     fn update_z(&mut self, kappa_tv: f64, upper: f64) -> (f64, f64) {
         let Self {
             grid,
+            channels,
             l,
             dl,
             z1,
@@ -543,29 +609,62 @@ impl Iterate {
             dual,
             ..
         } = self;
-        let n = l.len();
-        gradient(*grid, l, dl);
+        let (m, cs) = (l.len(), *channels);
+        let n = m / cs;
+        for c in 0..cs {
+            gradient(
+                *grid,
+                &l[c * n..(c + 1) * n],
+                &mut dl[2 * c * n..2 * (c + 1) * n],
+            );
+        }
         let mut z_norm2 = 0.0;
         let mut ax_norm2 = 0.0;
         for j in 0..n {
-            let (vx, vy) = (dl[j] + u1[j], dl[n + j] + u1[n + j]);
-            let mag = vx.hypot(vy);
+            // Element j's gradient in colour c is at (2 c n + j, 2 c n + n + j).
+            let at = |c: usize| (2 * c * n + j, 2 * c * n + n + j);
+            let v = |c: usize| {
+                let (x, y) = at(c);
+                (dl[x] + u1[x], dl[y] + u1[y])
+            };
+            let mag = match cs {
+                1 => {
+                    let (vx, vy) = v(0);
+                    vx.hypot(vy)
+                }
+                _ => (0..cs)
+                    .map(|c| {
+                        let (vx, vy) = v(c);
+                        vx * vx + vy * vy
+                    })
+                    .sum::<f64>()
+                    .sqrt(),
+            };
             let shrink = if mag > kappa_tv {
                 1.0 - kappa_tv / mag
             } else {
                 0.0
             };
-            let (nx, ny) = (vx * shrink, vy * shrink);
-            w1[j] = nx - z1[j];
-            w1[n + j] = ny - z1[n + j];
-            z1[j] = nx;
-            z1[n + j] = ny;
-            z_norm2 += nx * nx + ny * ny;
-            ax_norm2 += dl[j] * dl[j] + dl[n + j] * dl[n + j];
+            for c in 0..cs {
+                let ((x, y), (vx, vy)) = (at(c), v(c));
+                let (nx, ny) = (vx * shrink, vy * shrink);
+                w1[x] = nx - z1[x];
+                w1[y] = ny - z1[y];
+                z1[x] = nx;
+                z1[y] = ny;
+                z_norm2 += nx * nx + ny * ny;
+                ax_norm2 += dl[x] * dl[x] + dl[y] * dl[y];
+            }
         }
         dual.iter_mut().for_each(|d| *d = 0.0);
-        add_divergence_adjoint(*grid, w1, dual);
-        for k in 0..n {
+        for c in 0..cs {
+            add_divergence_adjoint(
+                *grid,
+                &w1[2 * c * n..2 * (c + 1) * n],
+                &mut dual[c * n..(c + 1) * n],
+            );
+        }
+        for k in 0..m {
             let nz = (l[k] + u2[k]).clamp(0.0, upper);
             dual[k] += nz - z2[k];
             z2[k] = nz;
@@ -581,6 +680,7 @@ impl Iterate {
     fn update_duals(&mut self, rho: f64) -> (f64, f64, f64) {
         let Self {
             grid,
+            channels,
             l,
             dl,
             z1,
@@ -590,14 +690,15 @@ impl Iterate {
             dual,
             ..
         } = self;
-        let n = l.len();
+        let (m, cs) = (l.len(), *channels);
+        let n = m / cs;
         let mut r2 = 0.0;
-        for k in 0..2 * n {
+        for k in 0..2 * m {
             let r = dl[k] - z1[k];
             u1[k] += r;
             r2 += r * r;
         }
-        for k in 0..n {
+        for k in 0..m {
             let r = l[k] - z2[k];
             u2[k] += r;
             r2 += r * r;
@@ -606,7 +707,13 @@ impl Iterate {
         let s_norm = rho * dual.iter().map(|d| d * d).sum::<f64>().sqrt();
         // ||A^T u|| for the dual tolerance, reusing `dual` as scratch.
         dual.iter_mut().for_each(|d| *d = 0.0);
-        add_divergence_adjoint(*grid, u1, dual);
+        for c in 0..cs {
+            add_divergence_adjoint(
+                *grid,
+                &u1[2 * c * n..2 * (c + 1) * n],
+                &mut dual[c * n..(c + 1) * n],
+            );
+        }
         let atu = dual
             .iter()
             .zip(u2.iter())
@@ -616,7 +723,7 @@ impl Iterate {
         (r_norm, s_norm, atu)
     }
 
-    /// Leaves the iterate and the factor `llt` of `rho` in `state`; returns the image `z2`.
+    /// Leaves the iterate and the factor `llt` of `rho` in `state`; returns the images `z2`.
     /// Why: z2 is feasible by construction; the next warm solve starts from the rest.
     fn store(self, state: &mut AdmmState, rho: f64, llt: Factor) -> Vec<f64> {
         let image = self.z2.clone();
@@ -702,6 +809,7 @@ impl Outcome {
 /// Why: one iteration is the updates, the stopping test, then residual balancing.
 fn run_iterations(
     normal: &Normal,
+    tis: &[&[f64]],
     settings: &AdmmSettings,
     penalty: &mut Penalty,
     it: &mut Iterate,
@@ -716,7 +824,7 @@ fn run_iterations(
     for _ in 0..settings.max_iter {
         settings.stop.check(outcome.iterations)?;
         outcome.iterations += 1;
-        it.update_l(normal, &penalty.llt, penalty.rho);
+        it.update_l(tis, normal, &penalty.llt, penalty.rho);
         let (z_norm2, ax_norm2) = it.update_z(penalty.kappa_tv, settings.upper);
         let (r_norm, s_norm, atu) = it.update_duals(penalty.rho);
         outcome.r_norm = r_norm;
@@ -811,15 +919,7 @@ impl Method for AdmmTv {
         p: &Problem<'_>,
         warm: Option<&mut Warm>,
     ) -> Result<Reconstruction, SolveError> {
-        let d = AdmmSettings::default();
-        let settings = AdmmSettings {
-            lambda: p.req.lambda,
-            rho: p.req.rho,
-            max_iter: p.max_iter(d.max_iter),
-            upper: p.upper,
-            tol: p.req.tol.unwrap_or(d.tol),
-            stop: p.stop,
-        };
+        let settings = settings_of(p);
         let formed;
         let normal = match p.normal {
             Some(nm) => nm,
@@ -833,6 +933,33 @@ impl Method for AdmmTv {
             Some(w) => admm_tv_warm(p.t, p.i, normal, &settings, w.state::<AdmmState>()),
             None => admm_tv_prepared(p.t, p.i, normal, &settings),
         }
+    }
+
+    #[cfg(feature = "daemon")]
+    fn solve_colours(
+        &self,
+        p: &Problem<'_>,
+        colours: &[(&[f64], &Normal)],
+        warm: Option<&mut Warm>,
+    ) -> Option<Result<Vec<Reconstruction>, SolveError>> {
+        let settings = settings_of(p);
+        Some(match warm {
+            Some(w) => admm_tv_colours(p.t, colours, &settings, w.state::<AdmmState>()),
+            None => admm_tv_colours(p.t, colours, &settings, &mut AdmmState::default()),
+        })
+    }
+}
+
+/// The settings of ADMM-TV that problem `p` asks for.
+fn settings_of<'a>(p: &Problem<'a>) -> AdmmSettings<'a> {
+    let d = AdmmSettings::default();
+    AdmmSettings {
+        lambda: p.req.lambda,
+        rho: p.req.rho,
+        max_iter: p.max_iter(d.max_iter),
+        upper: p.upper,
+        tol: p.req.tol.unwrap_or(d.tol),
+        stop: p.stop,
     }
 }
 
@@ -852,6 +979,83 @@ mod tests {
             channel: crate::scene::Channel::None,
         };
         Transport::from_col_major(rows, n, data, vec![block], Grid { nu: rows, nv: 1 }, grid)
+    }
+
+    #[test]
+    fn three_equal_colours_together_solve_as_one_at_lambda_over_root_three() {
+        // Three equal colours: sum_c ||i - T l||^2 + lambda sum_j ||(D l)_j||
+        // sqrt(3) = 3 (||i - T l||^2 + lambda / sqrt(3) TV(l)).
+        let t = smooth(40);
+        let truth: Vec<f64> = (0..16).map(|k| if k % 4 < 2 { 0.8 } else { 0.2 }).collect();
+        let i: Vec<f64> = t
+            .apply(&truth)
+            .iter()
+            .enumerate()
+            .map(|(j, v)| v + 0.05 * (j as f64 * 2.3).sin())
+            .collect();
+        let normal = Normal::of(&t, &i);
+        let tight = |lambda: f64| AdmmSettings {
+            lambda: Some(lambda),
+            rho: Some(1.0),
+            max_iter: 200_000,
+            tol: 1e-11,
+            ..AdmmSettings::default()
+        };
+        let lambda = 3.0;
+        let together = admm_tv_colours(
+            &t,
+            &[(&i, &normal), (&i, &normal), (&i, &normal)],
+            &tight(lambda),
+            &mut AdmmState::default(),
+        )
+        .unwrap();
+        let alone = admm_tv_prepared(&t, &i, &normal, &tight(lambda / 3f64.sqrt())).unwrap();
+        let apart = admm_tv_prepared(&t, &i, &normal, &tight(lambda)).unwrap();
+        let diff = |a: &[f64], b: &[f64]| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max)
+        };
+        for r in &together {
+            assert!(r.stats.converged);
+            assert!(
+                diff(&r.image, &alone.image) < 1e-6,
+                "{:?} vs {:?}",
+                r.image,
+                alone.image
+            );
+        }
+        // Not the solve of each colour alone at lambda: the TV is shared.
+        assert!(diff(&together[0].image, &apart.image) > 1e-3);
+    }
+
+    #[test]
+    fn colours_of_other_grams_are_not_solved_together() {
+        let t = smooth(40);
+        let i = vec![1.0; 40];
+        let (a, b) = (Normal::of(&t, &i), Normal::of(&t, &i));
+        let e = admm_tv_colours(
+            &t,
+            &[(&i, &a), (&i, &b)],
+            &AdmmSettings::default(),
+            &mut AdmmState::default(),
+        )
+        .unwrap_err();
+        assert!(matches!(e, SolveError::OtherGram { colour: 1 }), "{e}");
+        let e = admm_tv_colours(
+            &t,
+            &[(&i, &a), (&i[..30], &a)],
+            &AdmmSettings::default(),
+            &mut AdmmState::default(),
+        )
+        .unwrap_err();
+        assert!(matches!(e, SolveError::Length { .. }), "{e}");
+        assert!(
+            admm_tv_colours(&t, &[], &AdmmSettings::default(), &mut AdmmState::default())
+                .unwrap()
+                .is_empty()
+        );
     }
 
     #[test]

@@ -55,6 +55,19 @@ pub(crate) trait Method: Sync {
     /// ([`Needs::warm_start`]; other solvers ignore it).
     fn solve(&self, p: &Problem<'_>, warm: Option<&mut Warm>)
         -> Result<Reconstruction, SolveError>;
+    /// Solves the colours of one `T` together (each `(i, normal)`, every
+    /// normal on one Gram; `p` gives `T`, the request, the box and the
+    /// stop flag), from `warm`; `None` when this solver solves one image at
+    /// a time.
+    #[cfg(feature = "daemon")]
+    fn solve_colours(
+        &self,
+        _p: &Problem<'_>,
+        _colours: &[(&[f64], &Normal)],
+        _warm: Option<&mut Warm>,
+    ) -> Option<Result<Vec<Reconstruction>, SolveError>> {
+        None
+    }
 }
 
 /// A registered solver: a small copyable handle on its `Method`.
@@ -123,6 +136,22 @@ impl Solver {
         warm: &mut Warm,
     ) -> Result<Reconstruction, SolveError> {
         self.0.solve(p, Some(warm))
+    }
+
+    /// Solves a colour camera's colours of one `T` together (`colours`: each
+    /// colour's measurement and normal equations, on one Gram; `p`: `T`,
+    /// the request, the box and the stop flag), from `warm` when given;
+    /// `None` when this solver solves one image at a time.
+    /// Why: calibrated colours share their edges; ADMM-TV's colour TV pays
+    /// for an edge once for every colour that has it.
+    #[cfg(feature = "daemon")]
+    pub(crate) fn solve_colours(
+        self,
+        p: &Problem<'_>,
+        colours: &[(&[f64], &Normal)],
+        warm: Option<&mut Warm>,
+    ) -> Option<Result<Vec<Reconstruction>, SolveError>> {
+        self.0.solve_colours(p, colours, warm)
     }
 
     /// The solver that searches this one's automatic λ: itself when it
