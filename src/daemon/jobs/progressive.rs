@@ -487,11 +487,10 @@ impl Progressive {
         // Colours solved together are on one model: the one the least noisy
         // colour's noise asks for, as a reconstruction chooses it.
         let model: Option<Vec<f64>> = match self.together {
-            Some(_) => noises
-                .iter()
-                .flatten()
-                .min_by(|a, b| a.mean_variance().total_cmp(&b.mean_variance()))
-                .map(|n| n.variance.clone()),
+            Some(_) => {
+                crate::solve::lambda::least_noisy(noises.iter().flatten().map(|n| &n.variance[..]))
+                    .map(<[f64]>::to_vec)
+            }
             None => None,
         };
         let mut solved = self

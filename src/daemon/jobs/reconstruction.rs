@@ -449,10 +449,11 @@ impl Job<'_> {
         // One sampling for every colour: the one the least noisy colour's
         // noise asks for (the others' would be coarser), so that the colours
         // are solved on one T and differ only by what they measured.
-        let least = units
-            .iter()
-            .filter_map(|u| u.measurement.variance.as_deref())
-            .min_by(|a, b| mean_measured(a).total_cmp(&mean_measured(b)));
+        let least = crate::solve::lambda::least_noisy(
+            units
+                .iter()
+                .filter_map(|u| u.measurement.variance.as_deref()),
+        );
         let model = self.model_for(least)?;
         let prepared = units
             .into_iter()
@@ -810,19 +811,6 @@ fn normal_for(
         true => Normal::with(d.scenes.gram(key)?, t, i),
         false => Normal::of(t, i),
     })
-}
-
-/// The mean of a variance over its measured rows (> 0): how noisy a
-/// measurement is, to compare colours.
-fn mean_measured(variance: &[f64]) -> f64 {
-    let (sum, count) = variance
-        .iter()
-        .filter(|v| **v > 0.0)
-        .fold((0.0, 0usize), |(s, c), v| (s + v, c + 1));
-    match count {
-        0 => f64::INFINITY,
-        _ => sum / count as f64,
-    }
 }
 
 /// The gain a measurement was divided by, and where it came from, for the report.

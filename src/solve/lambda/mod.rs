@@ -111,6 +111,27 @@ impl NoiseLevel {
     }
 }
 
+/// The least noisy of several colours' variances (by their mean over the
+/// measured rows, variance > 0): the colour whose noise chooses the one
+/// sampling colours solved together share.
+/// Why: the others would choose a coarser `T` than it needs.
+#[cfg(feature = "daemon")]
+pub(crate) fn least_noisy<'a>(variances: impl IntoIterator<Item = &'a [f64]>) -> Option<&'a [f64]> {
+    let mean = |v: &[f64]| {
+        let (sum, count) = v
+            .iter()
+            .filter(|x| **x > 0.0)
+            .fold((0.0, 0usize), |(s, c), x| (s + x, c + 1));
+        match count {
+            0 => f64::INFINITY,
+            _ => sum / count as f64,
+        }
+    };
+    variances
+        .into_iter()
+        .min_by(|a, b| mean(a).total_cmp(&mean(b)))
+}
+
 /// The residual `i - Q Q^T i` of the unconstrained least-squares fit of `i`
 /// by `T` (Householder QR, thin `Q`; the Gram's factor when `normal` is
 /// given; see [`NoiseLevel::from_residual_with`]): what no scene can
@@ -723,5 +744,21 @@ mod tests {
             );
             assert!((psnr(&cold) - psnr(&warm)).abs() < 0.05);
         }
+    }
+
+    #[test]
+    #[cfg(feature = "daemon")]
+    fn the_least_noisy_colour_is_by_its_measured_rows() {
+        let red = [4.0, 4.0, 4.0, 4.0];
+        let green = [1.0, 1.0, 0.0, 0.0];
+        let blue = [2.0, 2.0, 2.0, 2.0];
+        let none = [0.0; 4];
+        let got = least_noisy([&red[..], &green[..], &blue[..], &none[..]]);
+        assert_eq!(got, Some(&green[..]));
+        // Unmeasured rows (0) do not make a colour look quieter than it is:
+        // 3 over its one measured row, not 0.75 over all four.
+        let got = least_noisy([&red[..], &[3.0, 0.0, 0.0, 0.0][..], &blue[..]]);
+        assert_eq!(got, Some(&blue[..]));
+        assert_eq!(least_noisy([]), None);
     }
 }
