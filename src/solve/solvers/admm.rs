@@ -340,7 +340,7 @@ fn admm_tv_joint(
     let total_seconds = gram_seconds + start.elapsed().as_secs_f64();
     Ok(colours
         .iter()
-        .zip(images.chunks_exact(n.max(1)))
+        .zip((0..colours.len()).map(|c| &images[c * n..(c + 1) * n]))
         .map(|(&(i, nm), image)| {
             let mut warnings = warnings.clone();
             warnings.extend(flat_warning(image, lambda));
@@ -1028,6 +1028,70 @@ mod tests {
         }
         // Not the solve of each colour alone at lambda: the TV is shared.
         assert!(diff(&together[0].image, &apart.image) > 1e-3);
+    }
+
+    /// MODEL.md Eq. 12's objective summed over colours, with the colour TV:
+    /// `sum_c ||i_c - T l_c||^2 + lambda sum_j sqrt(sum_c |(D l_c)_j|^2)`.
+    fn colour_objective(t: &Transport, is: &[Vec<f64>], ls: &[Vec<f64>], lambda: f64) -> f64 {
+        let grid = t.scene_grid();
+        let n = grid.count();
+        let mut g2 = vec![0.0; n];
+        let mut misfit = 0.0;
+        for (i, l) in is.iter().zip(ls) {
+            misfit += objective_of(t, i, l, 0.0).0;
+            let mut g = vec![0.0; 2 * n];
+            gradient(grid, l, &mut g);
+            for j in 0..n {
+                g2[j] += g[j] * g[j] + g[n + j] * g[n + j];
+            }
+        }
+        misfit + lambda * g2.iter().map(|v| v.sqrt()).sum::<f64>()
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
+        /// Together, the colours reach an objective with the colour TV no
+        /// higher than their solves apart at the same λ, inside the box.
+        #[test]
+        fn colours_together_minimize_the_colour_objective(
+            seed in 0u64..1_000_000,
+            lambda in 0.05f64..5.0,
+        ) {
+            let t = smooth(40);
+            let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+            let mut next = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let is: Vec<Vec<f64>> = (0..3)
+                .map(|_| {
+                    let x: Vec<f64> = (0..16).map(|_| next()).collect();
+                    t.apply(&x).iter().map(|v| v + 0.3 * (next() - 0.5)).collect()
+                })
+                .collect();
+            let gram = std::sync::Arc::new(crate::solve::gram::Gram::of(&t));
+            let normals: Vec<Normal> = is.iter().map(|i| Normal::with(std::sync::Arc::clone(&gram), &t, i)).collect();
+            let tight = AdmmSettings {
+                lambda: Some(lambda),
+                rho: Some(1.0),
+                max_iter: 100_000,
+                tol: 1e-10,
+                ..AdmmSettings::default()
+            };
+            let inputs: Vec<(&[f64], &Normal)> = is.iter().map(|i| &i[..]).zip(&normals).collect();
+            let together = admm_tv_colours(&t, &inputs, &tight, &mut AdmmState::default()).unwrap();
+            let joint: Vec<Vec<f64>> = together.iter().map(|r| r.image.clone()).collect();
+            let apart: Vec<Vec<f64>> = is
+                .iter()
+                .zip(&normals)
+                .map(|(i, nm)| admm_tv_prepared(&t, i, nm, &tight).unwrap().image)
+                .collect();
+            let (j, a) = (colour_objective(&t, &is, &joint, lambda), colour_objective(&t, &is, &apart, lambda));
+            proptest::prop_assert!(j <= a * (1.0 + 1e-6) + 1e-9, "together {j}, apart {a}");
+            proptest::prop_assert!(joint.iter().flatten().all(|v| (0.0..=1.0).contains(v)));
+        }
     }
 
     #[test]
