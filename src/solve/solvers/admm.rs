@@ -1072,7 +1072,10 @@ mod tests {
                 })
                 .collect();
             let gram = std::sync::Arc::new(crate::solve::gram::Gram::of(&t));
-            let normals: Vec<Normal> = is.iter().map(|i| Normal::with(std::sync::Arc::clone(&gram), &t, i)).collect();
+            let normals: Vec<Normal> = is
+                .iter()
+                .map(|i| Normal::with(std::sync::Arc::clone(&gram), &t, i))
+                .collect();
             let tight = AdmmSettings {
                 lambda: Some(lambda),
                 rho: Some(1.0),
@@ -1080,15 +1083,18 @@ mod tests {
                 tol: 1e-10,
                 ..AdmmSettings::default()
             };
-            let inputs: Vec<(&[f64], &Normal)> = is.iter().map(|i| &i[..]).zip(&normals).collect();
-            let together = admm_tv_colours(&t, &inputs, &tight, &mut AdmmState::default()).unwrap();
+            let inputs: Vec<(&[f64], &Normal)> =
+                is.iter().map(|i| &i[..]).zip(&normals).collect();
+            let together =
+                admm_tv_colours(&t, &inputs, &tight, &mut AdmmState::default()).unwrap();
             let joint: Vec<Vec<f64>> = together.iter().map(|r| r.image.clone()).collect();
             let apart: Vec<Vec<f64>> = is
                 .iter()
                 .zip(&normals)
                 .map(|(i, nm)| admm_tv_prepared(&t, i, nm, &tight).unwrap().image)
                 .collect();
-            let (j, a) = (colour_objective(&t, &is, &joint, lambda), colour_objective(&t, &is, &apart, lambda));
+            let j = colour_objective(&t, &is, &joint, lambda);
+            let a = colour_objective(&t, &is, &apart, lambda);
             proptest::prop_assert!(j <= a * (1.0 + 1e-6) + 1e-9, "together {j}, apart {a}");
             proptest::prop_assert!(joint.iter().flatten().all(|v| (0.0..=1.0).contains(v)));
         }
