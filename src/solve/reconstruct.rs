@@ -162,8 +162,8 @@ pub(crate) struct ColourInput<'a> {
     pub(crate) normal: &'a Normal,
 }
 
-/// A colour camera's colours of one scene solved together at the λ of
-/// `req` ([`super::Solver::solve_colours`]: ADMM-TV's colour TV), each with
+/// A colour camera's colours of one scene solved together at `lambda` with
+/// `req`'s solver ([`super::Solver::solve_colours`]: ADMM-TV's colour TV), each with
 /// its own report, as [`reconstruct_prepared`] gives one colour's; `None`
 /// when the solver solves one image at a time.
 ///
@@ -176,22 +176,20 @@ pub(crate) fn reconstruct_colours(
     colours: &[ColourInput<'_>],
     cond: &Conditioning,
     req: &SolveRequest,
+    lambda: f64,
     ctx: Context<'_>,
 ) -> Result<Option<Vec<Solved>>, SolveError> {
+    let req = SolveRequest {
+        lambda: Some(lambda),
+        ..*req
+    };
     req.check()?;
-    if req.lambda.is_none() {
-        return Err(SolveError::Parameter {
-            name: "lambda",
-            value: f64::NAN,
-            reason: "colours solved together need one λ given (choose each colour's, then solve at the largest)",
-        });
-    }
     let Some(first) = colours.first() else {
         return Ok(Some(Vec::new()));
     };
     let problem = Problem {
         stop: ctx.stop,
-        ..Problem::new(t, first.i, *req)
+        ..Problem::new(t, first.i, req)
     };
     let inputs: Vec<(&[f64], &Normal)> = colours.iter().map(|c| (c.i, c.normal)).collect();
     let Some(recs) = req.solver.solve_colours(&problem, &inputs, None) else {

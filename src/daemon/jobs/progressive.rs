@@ -485,11 +485,13 @@ impl Progressive {
             return self.fitted_step(s.frames, start, stop);
         }
         // Colours solved together are on one model: the one the least noisy
-        // colour's noise asks for, as a reconstruction chooses it.
-        let model: Option<Vec<f64>> = match self.together {
+        // colour's noise asks for, as a reconstruction chooses it (chosen
+        // once here; alone, each colour's noise chooses its own).
+        let key = match self.together {
             Some(_) => {
                 crate::solve::lambda::least_noisy(noises.iter().flatten().map(|n| &n.variance[..]))
-                    .map(<[f64]>::to_vec)
+                    .map(|v| scenes.for_noise(name, v).map(|(key, _)| key))
+                    .transpose()?
             }
             None => None,
         };
@@ -497,7 +499,7 @@ impl Progressive {
             .channels
             .par_iter_mut()
             .zip(noises)
-            .map(|(ch, noise)| ch.solve(noise, model.as_deref(), scenes, name, settings, offset))
+            .map(|(ch, noise)| ch.solve(noise, key.as_deref(), scenes, name, settings, offset))
             .collect::<Result<Vec<_>, JobError>>()?;
         self.solve_together(&mut solved, settings, offset)?;
         // A colour image is interleaved once, for the step and the caller.
@@ -598,9 +600,7 @@ impl Progressive {
             .lambda
             .or_else(|| solved.iter().filter_map(|s| s.1).reduce(f64::max));
         let channels = &mut self.channels;
-        let one_gram = channels
-            .iter()
-            .all(|c| Arc::ptr_eq(&c.normal.gram, &channels[0].normal.gram));
+        let one_gram = crate::solve::gram::off_gram(channels.iter().map(|c| &c.normal)).is_none();
         let (Some(lambda), true) = (lambda, one_gram) else {
             return Ok(());
         };
@@ -902,20 +902,22 @@ impl Channel {
     fn solve(
         &mut self,
         noise: Option<NoiseLevel>,
-        model: Option<&[f64]>,
+        model: Option<&str>,
         scenes: &Scenes,
         scene: &str,
         settings: &AdmmSettings<'_>,
         offset: f64,
     ) -> Result<(Reconstruction, Option<f64>), JobError> {
-        // The sampling the scene file leaves out, chosen from this step's
-        // noise (or the `model` variance, colours solved together) as a
-        // reconstruction of the same frames chooses it.
-        if let Some(v) = model.or(noise.as_ref().map(|n| &n.variance[..])) {
-            let (key, _) = scenes.for_noise(scene, v)?;
-            if key != self.key {
-                self.use_model(scenes, key)?;
-            }
+        // The sampling the scene file leaves out: the `model` key given
+        // (colours solved together), else chosen from this step's noise as
+        // a reconstruction of the same frames chooses it.
+        let key = match (model, &noise) {
+            (Some(k), _) => Some(k.to_string()),
+            (None, Some(n)) => Some(scenes.for_noise(scene, &n.variance)?.0),
+            (None, None) => None,
+        };
+        if let Some(key) = key.filter(|k| *k != self.key) {
+            self.use_model(scenes, key)?;
         }
         let norm = self
             .i

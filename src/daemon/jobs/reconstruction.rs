@@ -519,25 +519,21 @@ impl Job<'_> {
                 .map(|s| s.report.lambda_choice.take())
                 .collect(),
         };
+        let solver = self.rec.params.solve.solver.name();
+        let alone = format!("each colour solved alone: {solver} solves one image at a time (ADMM-TV solves colours together)");
         let normals: Option<Vec<&Normal>> = prepared.iter().map(|p| p.normal.as_ref()).collect();
-        let normals_missing = normals.is_none();
-        let one_gram = normals
-            .as_ref()
-            .is_some_and(|n| n.iter().all(|x| Arc::ptr_eq(&x.gram, &n[0].gram)));
-        let together = match (one_gram, normals) {
-            (true, Some(normals)) => self.solve_colours(prepared, &normals, lambda)?,
-            _ => None,
+        let together = match normals {
+            None => Err(alone),
+            Some(n) if crate::solve::gram::off_gram(n.iter().copied()).is_some() => Err("each colour solved alone: their T differ (rows unmeasured in some colours), so they cannot be solved together".to_string()),
+            Some(n) => self.solve_colours(prepared, &n, lambda)?.ok_or(alone),
         };
         *solved = match together {
-            Some(colours) => {
+            Ok(colours) => {
                 notes.push("the colours solved together, with the colour TV: an edge costs less where the colours share it (docs/guide.md, \"Colours solved together\")".into());
                 colours
             }
-            None => {
-                notes.push(match one_gram || normals_missing {
-                    true => format!("each colour solved alone: {} solves one image at a time (ADMM-TV solves colours together)", self.rec.params.solve.solver.name()),
-                    false => "each colour solved alone: their T differ (rows unmeasured in some colours), so they cannot be solved together".into(),
-                });
+            Err(why) => {
+                notes.push(why);
                 prepared
                     .iter()
                     .map(|p| self.solve(p, Some(lambda)))
@@ -571,12 +567,14 @@ impl Job<'_> {
                 normal,
             })
             .collect();
-        let solve = SolveRequest {
-            lambda: Some(lambda),
-            ..first.solve
-        };
-        let solved =
-            reconstruct_colours(&first.t, &inputs, &first.cond, &solve, self.context(first))?;
+        let solved = reconstruct_colours(
+            &first.t,
+            &inputs,
+            &first.cond,
+            &first.solve,
+            lambda,
+            self.context(first),
+        )?;
         check(self.cancel)?;
         Ok(solved.map(|s| {
             prepared

@@ -103,6 +103,19 @@ pub struct Normal {
     pub seconds: f64,
 }
 
+/// The first of `normals` (from 0) not on the first one's Gram; `None`
+/// when they all share it.
+/// Why: colours solved together share one factor of their Gram, so they
+/// must be of one `T` (an `Arc` of the Gram, as the daemon caches it).
+#[cfg(any(test, feature = "daemon"))]
+pub(crate) fn off_gram<'a>(normals: impl IntoIterator<Item = &'a Normal>) -> Option<usize> {
+    let mut normals = normals.into_iter();
+    let first = normals.next()?;
+    normals
+        .position(|n| !Arc::ptr_eq(&n.gram, &first.gram))
+        .map(|k| k + 1)
+}
+
 impl Normal {
     /// Forms `T^T T` (dense only) and `T^T i`.
     pub fn new(t: MatRef<'_, f64>, i: &[f64]) -> Self {

@@ -210,9 +210,9 @@ pub(crate) fn noise_checks(
         }
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x6e6f697365);
-    // The misfit noise of standard deviation `sd(row)` leaves, and the
-    // roughness its residual keeps, over the samples.
-    let mut noise = |sd: &dyn Fn(usize) -> f64| {
+    // The misfit noise of standard deviation `sd(row)` leaves and, with
+    // `rough`, the roughness its residual keeps, over the samples.
+    let mut noise = |sd: &dyn Fn(usize) -> f64, rough: bool| {
         let (mut misfit, mut roughness) = (0.0, 0.0);
         for _ in 0..NOISE_SAMPLES {
             let n: Vec<f64> = (0..t.rows())
@@ -220,7 +220,10 @@ pub(crate) fn noise_checks(
                 .collect();
             let (x, m) = fit.solve(&n);
             misfit += m / NOISE_SAMPLES as f64;
-            roughness += residual_roughness(t, &n, &x).unwrap_or(f64::NAN) / NOISE_SAMPLES as f64;
+            if rough {
+                roughness +=
+                    residual_roughness(t, &n, &x).unwrap_or(f64::NAN) / NOISE_SAMPLES as f64;
+            }
         }
         (misfit, roughness)
     };
@@ -241,12 +244,16 @@ pub(crate) fn noise_checks(
             })
             .collect());
     }
-    let white = noise(&|_| 1.0);
+    // Unit white noise's misfit and roughness: the scale of the roughness
+    // estimate. Its samples are drawn first either way, so that a given
+    // variance's samples follow them in the one seeded stream; its
+    // roughness is measured only where a channel has no variance.
+    let white = noise(&|_| 1.0, variances.is_none());
     let mut out = Vec::with_capacity(channels.len());
     for (k, c) in channels.iter().enumerate() {
         let (x, misfit) = fit.solve(c);
         let noise_misfit = match variances.and_then(|v| v.get(k)) {
-            Some(v) => Some(noise(&|j| v[j].sqrt()).0),
+            Some(v) => Some(noise(&|j| v[j].sqrt(), false).0),
             None => residual_roughness(t, c, &x)
                 .map(|r| r / white.1 * white.0)
                 .filter(|m| m.is_finite()),

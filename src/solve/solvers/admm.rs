@@ -275,10 +275,12 @@ fn admm_tv_colours(
 ) -> Result<Vec<Reconstruction>, SolveError> {
     for (c, (i, normal)) in colours.iter().enumerate() {
         check_measurement(t, i)?;
-        if !std::sync::Arc::ptr_eq(&normal.gram, &colours[0].1.gram) || normal.ti.len() != t.cols()
-        {
+        if normal.ti.len() != t.cols() {
             return Err(SolveError::OtherGram { colour: c });
         }
+    }
+    if let Some(colour) = crate::solve::gram::off_gram(colours.iter().map(|c| c.1)) {
+        return Err(SolveError::OtherGram { colour });
     }
     admm_tv_joint(t, colours, settings, state)
 }
@@ -942,11 +944,12 @@ impl Method for AdmmTv {
         colours: &[(&[f64], &Normal)],
         warm: Option<&mut Warm>,
     ) -> Option<Result<Vec<Reconstruction>, SolveError>> {
-        let settings = settings_of(p);
-        Some(match warm {
-            Some(w) => admm_tv_colours(p.t, colours, &settings, w.state::<AdmmState>()),
-            None => admm_tv_colours(p.t, colours, &settings, &mut AdmmState::default()),
-        })
+        let mut cold = AdmmState::default();
+        let state = match warm {
+            Some(w) => w.state::<AdmmState>(),
+            None => &mut cold,
+        };
+        Some(admm_tv_colours(p.t, colours, &settings_of(p), state))
     }
 }
 
