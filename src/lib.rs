@@ -138,6 +138,7 @@ pub mod rig;
 pub mod scene;
 pub mod simulate;
 pub mod solve;
+pub mod stop;
 #[cfg(feature = "daemon")]
 pub mod store;
 pub mod transport;

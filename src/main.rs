@@ -114,6 +114,7 @@ fn code_of(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
             | TransportError::ActivePixels
             | TransportError::ActiveArea
             | TransportError::Choice(_) => INPUT,
+            TransportError::Stopped { .. } => FAILED,
         });
     }
     if let Some(s) = cause.downcast_ref::<SolveError>() {

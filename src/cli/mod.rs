@@ -217,7 +217,12 @@ fn build_transport(
     match polnlos::files::transport_cache::TransportCache::from_env() {
         Some(cache) => cache.build(scene, budget, progress),
         None => Ok(polnlos::files::transport_cache::Cached {
-            t: polnlos::transport::build_with_progress(scene, budget, progress)?,
+            t: polnlos::transport::build_with_progress(
+                scene,
+                budget,
+                progress,
+                Default::default(),
+            )?,
             source: "built",
         }),
     }

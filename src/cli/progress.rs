@@ -21,9 +21,8 @@ pub fn build_transport(
 ) -> anyhow::Result<(polnlos::transport::Transport, f64)> {
     let pb = bar(scene.cols(), "building T");
     let start = std::time::Instant::now();
-    let t = polnlos::transport::build_with_progress(scene, budget, &|done| {
-        pb.set_position(done as u64)
-    })?;
+    let progress = |done: usize| pb.set_position(done as u64);
+    let t = polnlos::transport::build_with_progress(scene, budget, &progress, Default::default())?;
     pb.finish_and_clear();
     Ok((t, start.elapsed().as_secs_f64()))
 }

@@ -352,7 +352,37 @@ impl Daemon {
             set.spawn(until_stopped(stopped, retention));
             set.spawn(procedures::plans::run(d.plans.clone()));
         }
+        daemon.resume_reconstructions();
         Ok(daemon)
+    }
+
+    /// Queues again the reconstructions a previous run left queued or
+    /// running (the store put them back: their inputs are stored captures);
+    /// one the queue has no room for is recorded interrupted, with why.
+    fn resume_reconstructions(&self) {
+        let ids = match self.store.queued_reconstructions() {
+            Ok(ids) => ids,
+            Err(e) => {
+                tracing::error!("cannot list the reconstructions to resume: {e}");
+                return;
+            }
+        };
+        for id in ids {
+            match self.reconstructions.push(0, || Ok(id)) {
+                Ok(_) => {
+                    tracing::info!("reconstruction-{id} resumed: queued again after a restart")
+                }
+                Err(e) => {
+                    tracing::warn!("reconstruction-{id} not resumed: {e}");
+                    let why = "the reconstruction queue was full when the daemon started again; submit it again";
+                    if let Err(se) = self.store.reconstruction_not_resumed(id, why) {
+                        tracing::error!(
+                            "cannot record that reconstruction-{id} was not resumed: {se}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     /// The services a job worker holds.

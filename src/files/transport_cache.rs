@@ -90,7 +90,7 @@ impl TransportCache {
                 .and_then(|f| f.set_modified(std::time::SystemTime::now()));
             return Ok(Cached { t, source: "hit" });
         }
-        let t = crate::transport::build_with_progress(scene, budget, progress)?;
+        let t = crate::transport::build_with_progress(scene, budget, progress, Default::default())?;
         let bytes = (t.rows() * t.cols() * 8) as u64;
         let worth = (MIN_BYTES..=self.max_bytes / 2).contains(&bytes);
         let source = match worth && self.store(&path, &t).is_ok() {

@@ -220,7 +220,10 @@ pub fn measure_given_sets(
     // Only the estimated scale needs T, built once for every set and colour.
     let t = match units {
         UnitsWanted::Estimated => Some(crate::transport::build_with_progress(
-            scene, budget, progress,
+            scene,
+            budget,
+            progress,
+            Default::default(),
         )?),
         _ => None,
     };

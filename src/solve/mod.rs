@@ -44,8 +44,6 @@ pub use solvers::{
     SolveRequest, Solver, AUTO_MAX_ITER, LAMBDA_REL,
 };
 
-use std::sync::atomic::{AtomicBool, Ordering};
-
 /// How far (relative) a stream's noise, or its measurement's norm, may move
 /// from the one its λ was searched at before λ is searched again (the norm:
 /// a scene that changed, such as a difference image while its background
@@ -105,7 +103,7 @@ pub enum SolveError {
         /// The first colour (from 0) on another Gram.
         colour: usize,
     },
-    /// The caller raised the solve's [`Stop`] flag (a cancelled job).
+    /// The caller raised the solve's [`Stop`](crate::stop::Stop) flag (a cancelled job).
     #[error("stopped on request after {iterations} iterations")]
     Stopped {
         /// Iterations run before the flag was seen.
@@ -113,46 +111,12 @@ pub enum SolveError {
     },
 }
 
-/// A flag another thread raises to end a solve early.
-///
-/// Why: a daemon job can be cancelled while its solve runs for minutes;
-/// iterative solvers look at the flag every [`Stop::EVERY`] iterations and
-/// return [`SolveError::Stopped`], so a cancel takes effect within
-/// milliseconds instead of after the solve.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Stop<'a>(Option<&'a AtomicBool>);
-
-impl<'a> Stop<'a> {
-    /// Iterations between two looks at the flag.
-    pub const EVERY: usize = 10;
-
-    /// A stop that follows `flag`.
-    pub fn on(flag: &'a AtomicBool) -> Self {
-        Self(Some(flag))
-    }
-
-    /// Whether the flag is raised (never, for the default).
-    pub fn raised(self) -> bool {
-        self.0.is_some_and(|f| f.load(Ordering::Relaxed))
-    }
-
-    /// `Err(Stopped)` when the flag is raised at a checkpoint iteration.
-    pub(crate) fn check(self, iterations: usize) -> Result<(), SolveError> {
-        if iterations.is_multiple_of(Self::EVERY) && self.raised() {
-            Err(SolveError::Stopped { iterations })
-        } else {
-            Ok(())
-        }
-    }
-}
-
-/// Two stops are equal when they follow the same flag (or none).
-impl PartialEq for Stop<'_> {
-    fn eq(&self, other: &Self) -> bool {
-        match (self.0, other.0) {
-            (Some(a), Some(b)) => std::ptr::eq(a, b),
-            (a, b) => a.is_none() && b.is_none(),
-        }
+/// `Err(Stopped)` when `stop` is raised at a checkpoint iteration.
+pub(crate) fn check_stop(stop: crate::stop::Stop<'_>, iterations: usize) -> Result<(), SolveError> {
+    if stop.raised_at(iterations) {
+        Err(SolveError::Stopped { iterations })
+    } else {
+        Ok(())
     }
 }
 

@@ -17,7 +17,8 @@ use super::lambda::{
 };
 use super::report::{mean_snr, snr_warnings, Report};
 use super::solvers::{Problem, SolveRequest};
-use super::{SolveError, Stop};
+use super::SolveError;
+use crate::stop::Stop;
 use crate::transport::Transport;
 
 /// Largest least-squares RMS error (fraction of the radiance range) before a

@@ -9,8 +9,9 @@ use super::conditioning::condition_with;
 use super::gram::Normal;
 use super::lambda::NoiseLevel;
 use super::reconstruct::{reconstruct_prepared, Context, Solved};
-use super::{SolveError, SolveRequest, Stop};
+use super::{SolveError, SolveRequest};
 use crate::scene::Scene;
+use crate::stop::Stop;
 use crate::transport::{MemoryBudget, TransportError};
 
 /// What a scene's reconstruction needs beside the scene and the request.
@@ -55,7 +56,7 @@ pub fn reconstruct_scene(
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Solved, SceneSolveError> {
     reconstruct_scene_with(scene, input, req, budget, &|s: &Scene| {
-        crate::transport::build_with_progress(s, budget, progress)
+        crate::transport::build_with_progress(s, budget, progress, Stop::default())
     })
 }
 

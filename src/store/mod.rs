@@ -220,8 +220,10 @@ const INTERRUPTED: &str = "the daemon stopped before this job finished; submit i
 impl Store {
     /// Opens (creating if needed) the catalogue under `dir`: takes the data
     /// directory's lock first (a second daemon is refused before it touches
-    /// anything), removes temporaries a killed run left, and marks jobs left
-    /// queued or running by a previous run as interrupted.
+    /// anything), removes temporaries a killed run left, marks captures left
+    /// queued or running by a previous run interrupted (their frames are
+    /// gone), and puts reconstructions left so back in the queue
+    /// ([`Store::queued_reconstructions`]: their inputs are stored).
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         std::fs::create_dir_all(dir).map_err(|source| StoreError::DataDir {
             path: dir.to_path_buf(),
@@ -263,10 +265,10 @@ impl Store {
                 reason: newer.to_string(),
             },
         })?;
-        for table in Table::ALL {
-            conn.execute(table.interrupt_all(), params![INTERRUPTED, now()])
-                .map_err(db)?;
-        }
+        conn.execute(Table::Captures.interrupt_all(), params![INTERRUPTED, now()])
+            .map_err(db)?;
+        conn.execute(Table::REQUEUE_RECONSTRUCTIONS, [])
+            .map_err(db)?;
         // A deletion a stopped daemon left half done: a folder renamed to
         // `<id>.deleting` is removed when its row is gone, renamed back when
         // the row's deletion never committed.

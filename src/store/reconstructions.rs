@@ -34,6 +34,38 @@ impl Store {
         })
     }
 
+    /// Ids of the reconstructions waiting to run, oldest first: what a start
+    /// queues again (the previous run stopped before they ended).
+    pub fn queued_reconstructions(&self) -> Result<Vec<i64>, StoreError> {
+        self.with(|c| {
+            let mut st =
+                c.prepare("SELECT id FROM reconstructions WHERE state = 'queued' ORDER BY id")?;
+            let ids = st.query_map([], |r| r.get::<_, i64>(0))?;
+            ids.collect()
+        })
+    }
+
+    /// Puts a running reconstruction back in the queue because the daemon is
+    /// stopping: the next start runs it again.
+    pub fn reconstruction_requeued(&self, id: i64) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(Table::REQUEUE_RECONSTRUCTION, params![id])
+                .map(|_| ())
+        })
+    }
+
+    /// Records that a queued reconstruction could not be queued again at a
+    /// start, and `why`.
+    pub fn reconstruction_not_resumed(&self, id: i64, why: &str) -> Result<(), StoreError> {
+        self.with(|c| {
+            c.execute(
+                "UPDATE reconstructions SET state = 'interrupted', error = ?2, finished_at = ?3 WHERE id = ?1 AND state = 'queued'",
+                params![id, why, now()],
+            )
+            .map(|_| ())
+        })
+    }
+
     /// Cancels a reconstruction that is still queued; false when it is not queued.
     pub fn cancel_queued_reconstruction(&self, id: i64) -> Result<bool, StoreError> {
         self.cancel(Table::Reconstructions, id, true)

@@ -285,6 +285,13 @@ impl Table {
         }
     }
 
+    /// Puts reconstructions left queued or running back in the queue: their
+    /// inputs are stored captures, so a start runs them again.
+    pub(super) const REQUEUE_RECONSTRUCTIONS: &'static str = "UPDATE reconstructions SET state = 'queued', started_at = NULL WHERE state IN ('queued', 'running')";
+
+    /// Puts running reconstruction ?1 back in the queue.
+    pub(super) const REQUEUE_RECONSTRUCTION: &'static str = "UPDATE reconstructions SET state = 'queued', started_at = NULL WHERE id = ?1 AND state = 'running'";
+
     /// Marks job ?1 interrupted if it runs (?2 error, ?3 time).
     pub(super) fn interrupt_one(self) -> &'static str {
         match self {

@@ -18,6 +18,7 @@ use super::build::{blocks_of, build_rows, WallSamples};
 use super::{MemoryBudget, Transport, TransportError};
 use crate::optics::Vec3;
 use crate::scene::{Plane, Scene};
+use crate::stop::Stop;
 
 /// What an adaptive build did.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -167,7 +168,12 @@ impl<'s> Sampler<'s> {
         let pts = self.samples_of(elements, m);
         let count = pts.len();
         let samples = WallSamples::uniform(self.scene, pts, elements.len(), m * m);
-        let rows = build_rows(self.scene, self.budget, &samples, &|_| {})?;
+        let rows = build_rows(
+            self.scene,
+            self.budget,
+            &samples,
+            (&|_| {}, Stop::default()),
+        )?;
         Ok((rows, count))
     }
 }

@@ -24,6 +24,7 @@ use crate::optics::brdf::Direction;
 use crate::optics::polarizer::{analyzer_factor, partial_analyzer_factor};
 use crate::optics::{diffuse, ggx, DiffuseModel, Polarization, Vec3};
 use crate::scene::{Emitter, PixelMap, Scene, ShadowModel, WallSampling};
+use crate::stop::Stop;
 
 /// Three coordinate arrays, one entry per wall sample.
 #[derive(Default, Clone)]
@@ -232,14 +233,18 @@ struct PoseView {
 
 /// Builds `T` for a scene, refusing one over `budget` before allocating it.
 pub fn build(scene: &Scene, budget: MemoryBudget) -> Result<Transport, TransportError> {
-    build_with_progress(scene, budget, &|_| {})
+    build_with_progress(scene, budget, &|_| {}, Stop::default())
 }
 
-/// Builds `T` within `budget`, calling `progress(columns_done)` as columns complete.
+/// Builds `T` within `budget`, calling `progress(columns_done)` as columns
+/// complete, and ends it early with [`TransportError::Stopped`] once `stop`
+/// is raised: it is looked at before each column, so a cancelled daemon job
+/// waits for one column (milliseconds), not the build.
 pub fn build_with_progress(
     scene: &Scene,
     budget: MemoryBudget,
     progress: &(dyn Fn(usize) + Sync),
+    stop: Stop<'_>,
 ) -> Result<Transport, TransportError> {
     let plane = &scene.wall().plane;
     // The wall samples (points and their structure-of-arrays copy) come first: check them with T.
@@ -252,7 +257,7 @@ pub fn build_with_progress(
         samples * 48.0,
     )?;
     let samples = WallSamples::of_scene(scene, budget)?;
-    let data = build_rows(scene, budget, &samples, progress)?;
+    let data = build_rows(scene, budget, &samples, (progress, stop))?;
     Ok(Transport::from_col_major(
         scene.rows(),
         scene.cols(),
@@ -324,7 +329,7 @@ pub fn build_elements(
         scene,
         budget,
         &WallSamples::of_elements(scene, elements, budget)?,
-        &|_| {},
+        (&|_| {}, Stop::default()),
     )
 }
 
@@ -351,7 +356,7 @@ pub(crate) fn build_rows(
     scene: &Scene,
     budget: MemoryBudget,
     samples: &WallSamples,
-    progress: &(dyn Fn(usize) + Sync),
+    (progress, stop): (&(dyn Fn(usize) + Sync), Stop<'_>),
 ) -> Result<Vec<f64>, TransportError> {
     let rows = samples.rows_per_block * scene.block_count();
     let cols = scene.cols();
@@ -364,10 +369,19 @@ pub(crate) fn build_rows(
     columns_mut(&mut data, rows).for_each_init(
         || Scratch::new(samples.points.len(), longest),
         |sc, (k, col)| {
+            if stop.raised() {
+                return;
+            }
             fill_column(sc, col, k, &ctx);
             progress(done.fetch_add(1, Ordering::Relaxed) + 1);
         },
     );
+    if stop.raised() {
+        return Err(TransportError::Stopped {
+            columns: done.into_inner(),
+            of: cols,
+        });
+    }
     Ok(data)
 }
 
@@ -1033,6 +1047,39 @@ mod tests {
         (0..n)
             .map(|k| 0.2 + 0.7 * ((k * 37 % 101) as f64 / 101.0))
             .collect()
+    }
+
+    #[test]
+    fn a_build_stops_within_the_columns_in_flight_when_its_flag_is_raised() {
+        let scene = scene("brewster-crossed");
+        let cols = scene.cols();
+        let flag = std::sync::atomic::AtomicBool::new(false);
+        let raise_at = 5;
+        let progress = |done: usize| {
+            if done == raise_at {
+                flag.store(true, Ordering::Relaxed);
+            }
+        };
+        match build_with_progress(&scene, MemoryBudget::default(), &progress, Stop::on(&flag)) {
+            Err(TransportError::Stopped { columns, of }) => {
+                assert_eq!(of, cols);
+                // Each worker finishes the column it holds, no more.
+                let in_flight = rayon::current_num_threads();
+                assert!(
+                    (raise_at..=raise_at + in_flight).contains(&columns),
+                    "{columns} columns built after the flag at {raise_at} with {in_flight} threads"
+                );
+            }
+            other => panic!(
+                "a raised flag must stop the build, got {:?}",
+                other.map(|t| t.cols())
+            ),
+        }
+        // No flag: the same build completes and equals the plain one.
+        let whole = build_with_progress(&scene, MemoryBudget::default(), &|_| {}, Stop::default())
+            .expect("T");
+        let plain = build(&scene, MemoryBudget::default()).expect("T");
+        assert_eq!(whole.as_mat(), plain.as_mat());
     }
 
     #[test]

@@ -82,6 +82,14 @@ pub enum TransportError {
         /// Largest square wall grid side that would fit with the same columns and blocks.
         max_wall_side: usize,
     },
+    /// The build's stop flag was raised (a cancelled job, a stopping daemon).
+    #[error("the build of T was stopped on request after {columns} of {of} columns")]
+    Stopped {
+        /// Columns built before the flag was seen.
+        columns: usize,
+        /// Columns of `T`.
+        of: usize,
+    },
     /// A build option is out of range.
     #[error("{name} = {value}: {reason}")]
     Parameter {

@@ -436,3 +436,72 @@ fn sigterm_with_an_event_stream_open_ends_the_stream_and_does_not_wait_for_it() 
         "the shutdown waited for the event stream:\n{log}"
     );
 }
+
+#[test]
+fn sigterm_during_a_reconstruction_puts_it_back_and_the_next_start_resumes_it() {
+    let _g = lock();
+    let dir = scratch();
+    let data = dir.path().join("data");
+    let cfg = config(dir.path(), &[]);
+    let mut d = Daemon::start(&cfg, &data);
+    let c = d.run_job(
+        "/captures",
+        r#"{"scene": "brewster-crossed", "pose": "A", "polarizer_deg": 0, "exposure_us": 2000, "frames": 2, "dark_frames": 1}"#,
+        Duration::from_secs(60),
+    );
+    assert_eq!(c["state"], "done", "{c}");
+    // A long one (an automatic λ's solves, each to a 100000-iteration cap)
+    // running, and a short one queued behind it.
+    let (s, b, slow) = d.post(
+        "/reconstructions",
+        r#"{"scene": "brewster-crossed", "captures": [1], "max_iter": 100000, "tol": 1e-15}"#,
+    );
+    assert_eq!(s, 202, "{b}");
+    let (s, b, quick) = d.post(
+        "/reconstructions",
+        r#"{"scene": "brewster-crossed", "captures": [1]}"#,
+    );
+    assert_eq!(s, 202, "{b}");
+    let (slow, quick) = (slow.expect("Location"), quick.expect("Location"));
+    let t = Instant::now();
+    while d.json(&slow)["state"] != "running" {
+        assert!(t.elapsed() < Duration::from_secs(60), "never started");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    let status = d.terminate();
+    assert!(status.success(), "{status}");
+    // As the stopped daemon left them: both wait in the queue, neither wrote a result.
+    let db = rusqlite::Connection::open(data.join("catalogue.sqlite")).unwrap();
+    let states: Vec<(i64, String)> = db
+        .prepare("SELECT id, state FROM reconstructions ORDER BY id")
+        .unwrap()
+        .query_map([], |r| Ok((r.get(0)?, r.get(1)?)))
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    assert_eq!(states, [(1, "queued".into()), (2, "queued".into())]);
+    drop(db);
+    assert!(!data.join("reconstructions/1/report.json").exists());
+    drop(d);
+    // The next start runs them again, in their order.
+    let d = Daemon::start(&cfg, &data);
+    let t = Instant::now();
+    while d.json(&slow)["state"] != "running" {
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "not resumed: {}",
+            d.json(&slow)
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let (s, b) = d.delete("/jobs/reconstruction-1");
+    assert!(s == 200 || s == 202, "{s} {b}");
+    assert_eq!(
+        d.wait(&slow, Duration::from_secs(120))["state"],
+        "cancelled"
+    );
+    let done = d.wait(&quick, Duration::from_secs(120));
+    assert_eq!(done["state"], "done", "{done}");
+    assert!(data.join("reconstructions/2/image.png").exists());
+}

@@ -389,7 +389,7 @@ fn unix_seconds(ns: u64) -> f64 {
 
 /// The solver thread's two flags: `busy` while it solves a window, and the
 /// segment's `stop`, which ends the window in hand within
-/// [`crate::solve::Stop::EVERY`] iterations.
+/// [`crate::stop::Stop::EVERY`] iterations.
 struct Ends<'a> {
     busy: &'a AtomicBool,
     stop: &'a AtomicBool,
@@ -412,7 +412,7 @@ fn solve(
     let (grid, colours) = (solver.grid(), solver.colours());
     let tracking = differences.then(|| solver.scene_plane().clone());
     for (snapshot, arrived) in snapshots {
-        let result = solver.step(&snapshot, crate::solve::Stop::on(ends.stop));
+        let result = solver.step(&snapshot, crate::stop::Stop::on(ends.stop));
         solver.forget_steps();
         match result {
             Ok((step, image)) => {

@@ -45,7 +45,7 @@ pub(crate) enum JobError {
     Camera(#[from] crate::camera::CameraError),
     /// The scene's `T` or its conditioning.
     #[error(transparent)]
-    Scene(#[from] ScenesError),
+    Scene(ScenesError),
     /// Frames to wall measurements.
     #[error(transparent)]
     Measure(#[from] crate::measure::MeasureError),
@@ -80,6 +80,17 @@ impl From<crate::solve::SolveError> for JobError {
         match e {
             crate::solve::SolveError::Stopped { .. } => JobError::Cancelled,
             e => JobError::Solve(e),
+        }
+    }
+}
+
+/// A build of `T` or its Gram stopped by the job's cancel flag is the
+/// job's cancellation.
+impl From<ScenesError> for JobError {
+    fn from(e: ScenesError) -> Self {
+        match e {
+            ScenesError::Stopped => JobError::Cancelled,
+            e => JobError::Scene(e),
         }
     }
 }

@@ -21,7 +21,8 @@ use crate::solve::lambda::NoiseLevel;
 use crate::solve::photo::{photo_transport, PhotoReport, PhotoSettings};
 use crate::solve::radiometry::{Known, Radiometry, RadiometryChoice};
 use crate::solve::reconstruct::{reconstruct_colours, reconstruct_prepared, ColourInput, Context};
-use crate::solve::{check_measurement, SolveRequest, Stop};
+use crate::solve::{check_measurement, SolveRequest};
+use crate::stop::Stop;
 use crate::store::{read_mean, CaptureRecord, JobState, Store};
 use crate::transport::Block;
 
@@ -75,9 +76,8 @@ pub(in crate::daemon) async fn reconstruction_worker(
         finish_job(&d, job, start, r, counters, |end| match end {
             Ending::Failed(e) => d.store.reconstruction_failed(id, e),
             Ending::Cancelled => d.store.reconstruction_cancelled(id).map(|_| ()),
-            Ending::Interrupted => d
-                .store
-                .interrupted(crate::store::Table::Reconstructions, id),
+            // Its inputs are stored: the next start runs it again.
+            Ending::Interrupted => d.store.reconstruction_requeued(id),
         });
     }
 }
@@ -100,7 +100,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     let rec = d.store.reconstruction(id).map_err(store)?;
     let scene = d.scenes.scene(&rec.scene)?;
     let t0 = Instant::now();
-    let t = d.scenes.transport(&rec.scene)?;
+    let t = d.scenes.transport_until(&rec.scene, Stop::on(cancel))?;
     let transport_seconds = t0.elapsed().as_secs_f64();
     check(cancel)?;
     let records = read_captures(&d.store, &rec.captures)?;
@@ -320,6 +320,7 @@ impl Job<'_> {
     /// `T`, the conditioning and Gram, the solver the record asks for.
     fn prepare(&self, u: InUnits, (key, model): ModelKey) -> Result<Prepared, JobError> {
         let (d, rec) = (self.d, self.rec);
+        let stop = Stop::on(self.cancel);
         let InUnits {
             t,
             measurement,
@@ -334,8 +335,10 @@ impl Job<'_> {
         let Measurement { i, variance: var } = measurement;
         let t = match (self.part, key == rec.scene) {
             (_, true) => t,
-            (None, false) => d.scenes.transport(&key)?,
-            (Some(p), false) => Arc::new(d.scenes.transport(&key)?.select_blocks(&p.kept)),
+            (None, false) => d.scenes.transport_until(&key, stop)?,
+            (Some(p), false) => {
+                Arc::new(d.scenes.transport_until(&key, stop)?.select_blocks(&p.kept))
+            }
         };
         let t = if missing.is_empty() || key == rec.scene {
             t
@@ -346,7 +349,7 @@ impl Job<'_> {
         // every block.
         let whole = self.part.is_none() && missing.is_empty();
         let cond = match whole {
-            true => d.scenes.conditioning(&key)?,
+            true => d.scenes.conditioning_until(&key, stop)?,
             false => Arc::new(crate::solve::condition(&t)?),
         };
         check(self.cancel)?;
@@ -360,7 +363,7 @@ impl Job<'_> {
         // A solver that needs the Gram solves on the scene's cached one: only
         // `T^T i` is new.
         let normal = match solve.solver.needs().gram {
-            true => Some(normal_for(d, &key, whole, &t, &i)?),
+            true => Some(normal_for(d, (&key, stop), whole, &t, &i)?),
             false => None,
         };
         Ok(Prepared {
@@ -627,9 +630,10 @@ impl Job<'_> {
             &scene,
             self.t.clone(),
             || -> Result<_, JobError> {
-                let area = d
-                    .scenes
-                    .transport(&d.scenes.with_area_shadows(&rec.scene)?)?;
+                let area = d.scenes.transport_until(
+                    &d.scenes.with_area_shadows(&rec.scene)?,
+                    Stop::on(self.cancel),
+                )?;
                 check(self.cancel)?;
                 Ok(match self.part {
                     Some(p) => Arc::new(area.select_blocks(&p.kept)),
@@ -707,11 +711,12 @@ impl Job<'_> {
     /// `area`), or `t`'s own for a partial reconstruction.
     fn kappa(&self, area: bool, t: &crate::transport::Transport) -> Result<f64, JobError> {
         let (d, scene) = (self.d, &self.rec.scene);
+        let stop = Stop::on(self.cancel);
         Ok(match (self.part, area) {
-            (None, false) => d.scenes.conditioning(scene)?.kappa,
+            (None, false) => d.scenes.conditioning_until(scene, stop)?.kappa,
             (None, true) => {
                 d.scenes
-                    .conditioning(&d.scenes.with_area_shadows(scene)?)?
+                    .conditioning_until(&d.scenes.with_area_shadows(scene)?, stop)?
                     .kappa
             }
             (Some(_), _) => crate::solve::condition(t)?.kappa,
@@ -799,15 +804,15 @@ fn labelled(solved: &[Solution], of: impl Fn(&Solution) -> &Vec<String>) -> Vec<
 /// Gram when `T` has every row of every block (`whole`), else formed anew.
 fn normal_for(
     d: &JobContext,
-    key: &str,
+    (key, stop): (&str, Stop<'_>),
     whole: bool,
     t: &crate::transport::Transport,
     i: &[f64],
 ) -> Result<Normal, JobError> {
     check_measurement(t, i)?;
     Ok(match whole {
-        true => Normal::with(d.scenes.gram(key)?, t, i),
-        false => Normal::of(t, i),
+        true => Normal::with(d.scenes.gram_until(key, stop)?, t, i),
+        false => Normal::of_until(t, i, stop).ok_or(JobError::Cancelled)?,
     })
 }
 

@@ -10,7 +10,8 @@ use std::sync::{Arc, Mutex};
 use crate::scene::{Scene, SceneError};
 use crate::solve::gram::Gram;
 use crate::solve::{condition_with, Conditioning, SolveError};
-use crate::transport::{build, MemoryBudget, Transport, TransportError};
+use crate::stop::Stop;
+use crate::transport::{build_with_progress, MemoryBudget, Transport, TransportError};
 
 /// Why a scene's `T` or conditioning is not available.
 #[derive(Debug, thiserror::Error)]
@@ -39,6 +40,10 @@ pub enum ScenesError {
         /// Why.
         source: crate::scene::SceneError,
     },
+    /// The caller's stop flag was raised while `T` or its Gram was made (a
+    /// cancelled job, a stopping daemon); nothing was cached.
+    #[error("stopped on request while T or its Gram was made")]
+    Stopped,
     /// The SVD of `T` failed.
     #[error("scene {name:?}: conditioning: {source}")]
     Conditioning {
@@ -304,11 +309,25 @@ impl Scenes {
 
     /// `T` of a scene, built on first use (CPU-heavy: call from a blocking task).
     pub fn transport(&self, name: &str) -> Result<Arc<Transport>, ScenesError> {
+        self.transport_until(name, Stop::default())
+    }
+
+    /// [`Scenes::transport`], its build (when this call makes it) ended
+    /// early with [`ScenesError::Stopped`] once `stop` is raised; nothing is
+    /// cached then, so the next caller builds it.
+    pub fn transport_until(
+        &self,
+        name: &str,
+        stop: Stop<'_>,
+    ) -> Result<Arc<Transport>, ScenesError> {
         let scene = self.scene(name)?;
         cached(&self.transports, name, || {
-            build(&scene, self.budget).map_err(|source| ScenesError::Transport {
-                name: name.to_string(),
-                source,
+            build_with_progress(&scene, self.budget, &|_| {}, stop).map_err(|source| match source {
+                TransportError::Stopped { .. } => ScenesError::Stopped,
+                source => ScenesError::Transport {
+                    name: name.to_string(),
+                    source,
+                },
             })
         })
     }
@@ -316,7 +335,16 @@ impl Scenes {
     /// `T^T T` of a scene's `T`, with its low-rank form for a large `T`,
     /// formed on first use (CPU-heavy: call from a blocking task).
     pub fn gram(&self, name: &str) -> Result<Arc<Gram>, ScenesError> {
-        cached(&self.grams, name, || Ok(Gram::of(&*self.transport(name)?)))
+        self.gram_until(name, Stop::default())
+    }
+
+    /// [`Scenes::gram`] (and the `T` it needs) ended early with
+    /// [`ScenesError::Stopped`] once `stop` is raised.
+    pub fn gram_until(&self, name: &str, stop: Stop<'_>) -> Result<Arc<Gram>, ScenesError> {
+        cached(&self.grams, name, || {
+            let t = self.transport_until(name, stop)?;
+            Gram::of_until(&t, stop).ok_or(ScenesError::Stopped)
+        })
     }
 
     /// Singular values and kappa of a scene's `T`, computed on first use:
@@ -324,20 +352,67 @@ impl Scenes {
     /// reconstruct` does without `--full-spectrum`), else by an SVD (call
     /// from a blocking task).
     pub fn conditioning(&self, name: &str) -> Result<Arc<Conditioning>, ScenesError> {
-        cached(&self.conditioning, name, || {
-            let t = self.transport(name)?;
-            let failed = |source| ScenesError::Conditioning {
+        self.conditioning_until(name, Stop::default())
+    }
+
+    /// [`Scenes::conditioning`] (and the `T` and Gram it needs) ended early
+    /// with [`ScenesError::Stopped`] once `stop` is raised; an SVD the
+    /// caller stops goes on to its end beside it and is cached.
+    pub fn conditioning_until(
+        &self,
+        name: &str,
+        stop: Stop<'_>,
+    ) -> Result<Arc<Conditioning>, ScenesError> {
+        // Below this no Gram has a low-rank form: none is formed here.
+        let t = self.transport_until(name, stop)?;
+        let gram = if t.cols() >= crate::solve::lowrank::LOW_RANK_MIN_COLS {
+            Some(self.gram_until(name, stop)?)
+        } else {
+            None
+        };
+        let made = |t: &Transport, gram: Option<&Gram>| {
+            condition_with(t, gram).map_err(|source| ScenesError::Conditioning {
                 name: name.to_string(),
                 source,
-            };
-            // Below this no Gram has a low-rank form: none is formed here.
-            let gram = if t.cols() >= crate::solve::lowrank::LOW_RANK_MIN_COLS {
-                Some(self.gram(name)?)
-            } else {
-                None
-            };
-            condition_with(&t, gram.as_deref()).map_err(failed)
-        })
+            })
+        };
+        match gram.as_ref().is_some_and(|g| g.low_rank.is_some()) {
+            true => cached(&self.conditioning, name, || made(&t, gram.as_deref())),
+            // An SVD of `T` runs on its own thread, so that a stop ends the
+            // wait (it cannot end the SVD).
+            false => self.conditioning_svd(name, t, stop),
+        }
+    }
+
+    /// The SVD branch of [`Scenes::conditioning_until`]: the SVD on a
+    /// thread of its own that caches its result, waited for until `stop`.
+    fn conditioning_svd(
+        &self,
+        name: &str,
+        t: Arc<Transport>,
+        stop: Stop<'_>,
+    ) -> Result<Arc<Conditioning>, ScenesError> {
+        let slot = slot(&self.conditioning, name);
+        if let Some(c) = slot.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
+            return Ok(c.clone());
+        }
+        let owned = name.to_string();
+        let work = move || {
+            let mut value = slot.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(c) = value.as_ref() {
+                return Ok(c.clone());
+            }
+            let c =
+                Arc::new(
+                    condition_with(&t, None).map_err(|source| ScenesError::Conditioning {
+                        name: owned,
+                        source,
+                    })?,
+                );
+            *value = Some(c.clone());
+            Ok(c)
+        };
+        crate::stop::finish_unless(stop, work).unwrap_or(Err(ScenesError::Stopped))
     }
 }
 
@@ -354,12 +429,7 @@ fn cached<T>(
     name: &str,
     make: impl FnOnce() -> Result<T, ScenesError>,
 ) -> Result<Arc<T>, ScenesError> {
-    let slot = cache
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .entry(name.to_string())
-        .or_default()
-        .clone();
+    let slot = slot(cache, name);
     let mut value = slot.lock().unwrap_or_else(|e| e.into_inner());
     if let Some(v) = value.as_ref() {
         return Ok(v.clone());
@@ -367,6 +437,16 @@ fn cached<T>(
     let made = Arc::new(make()?);
     *value = Some(made.clone());
     Ok(made)
+}
+
+/// The slot of `name` in `cache`, made empty on first use.
+fn slot<T>(cache: &Cache<T>, name: &str) -> Arc<Mutex<Option<Arc<T>>>> {
+    cache
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .entry(name.to_string())
+        .or_default()
+        .clone()
 }
 
 /// Why a reconstruction's truth image could not be made.

@@ -8,6 +8,7 @@ use faer::{Accum, Mat, MatRef, Par};
 
 use crate::solve::lowrank::{LowRank, LOW_RANK_MIN_COLS};
 use crate::solve::par;
+use crate::stop::Stop;
 use crate::transport::Transport;
 
 /// Lower triangle of `T^T T` (the strict upper triangle is left zero).
@@ -26,6 +27,41 @@ pub(crate) fn gram_lower(t: MatRef<'_, f64>, par: Par) -> Mat<f64> {
         par,
     );
     g
+}
+
+/// Multiply-adds of one block of rows in [`gram_lower_until`]: about a tenth
+/// of a second on two cores.
+const GRAM_BLOCK_FLOPS: usize = 1 << 28;
+
+/// [`gram_lower`] summed over blocks of rows of `t`, looking at `stop`
+/// before each block; `None` once it is raised.
+/// Why: a large `T`'s Gram takes seconds, and a cancelled job must not wait
+/// for it.
+pub(crate) fn gram_lower_until(t: MatRef<'_, f64>, par: Par, stop: Stop<'_>) -> Option<Mat<f64>> {
+    let (rows, n) = (t.nrows(), t.ncols());
+    let block = (GRAM_BLOCK_FLOPS / (n * n).max(1)).clamp(256, rows.max(256));
+    let mut g = Mat::<f64>::zeros(n, n);
+    let mut start = 0;
+    while start < rows {
+        if stop.raised() {
+            return None;
+        }
+        let len = block.min(rows - start);
+        let part = t.subrows(start, len);
+        matmul(
+            g.as_mut(),
+            BlockStructure::TriangularLower,
+            Accum::Add,
+            part.transpose(),
+            BlockStructure::Rectangular,
+            part,
+            BlockStructure::Rectangular,
+            1.0,
+            par,
+        );
+        start += len;
+    }
+    Some(g)
 }
 
 /// `T^T i`.
@@ -66,28 +102,40 @@ pub struct Gram {
 impl Gram {
     /// Forms `T^T T` (dense only).
     pub fn new(t: MatRef<'_, f64>) -> Self {
-        let start = std::time::Instant::now();
-        let lower = gram_lower(t, par());
-        let scale = mean_diag(&lower);
-        Self {
-            lower,
-            scale,
-            low_rank: None,
-            seconds: start.elapsed().as_secs_f64(),
-        }
+        Self::formed(t, None, Stop::default()).expect("a default stop is never raised")
     }
 
     /// [`Gram::new`] for `t`, with its low-rank form when `t` has at least
     /// `LOW_RANK_MIN_COLS` columns and a numerical rank of at most a
     /// quarter of them.
     pub fn of(t: &Transport) -> Self {
+        Self::of_until(t, Stop::default()).expect("a default stop is never raised")
+    }
+
+    /// [`Gram::of`], looking at `stop` between blocks of rows of `T`;
+    /// `None` once it is raised.
+    pub fn of_until(t: &Transport, stop: Stop<'_>) -> Option<Self> {
+        let grid = (t.cols() >= LOW_RANK_MIN_COLS).then(|| t.scene_grid());
+        Self::formed(t.as_mat(), grid, stop)
+    }
+
+    /// `T^T T`, with its low-rank form on `grid` when one is given and the
+    /// rank allows it; `None` when `stop` was raised.
+    fn formed(
+        t: MatRef<'_, f64>,
+        grid: Option<crate::scene::Grid>,
+        stop: Stop<'_>,
+    ) -> Option<Self> {
         let start = std::time::Instant::now();
-        let mut gram = Self::new(t.as_mat());
-        if t.cols() >= LOW_RANK_MIN_COLS {
-            gram.low_rank = LowRank::of_gram(gram.lower.as_ref(), t.scene_grid(), par());
-        }
-        gram.seconds = start.elapsed().as_secs_f64();
-        gram
+        let lower = gram_lower_until(t, par(), stop)?;
+        let scale = mean_diag(&lower);
+        let low_rank = grid.and_then(|grid| LowRank::of_gram(lower.as_ref(), grid, par()));
+        Some(Self {
+            lower,
+            scale,
+            low_rank,
+            seconds: start.elapsed().as_secs_f64(),
+        })
     }
 }
 
@@ -131,10 +179,15 @@ impl Normal {
     /// [`Normal::new`] with the Gram of [`Gram::of`] (its low-rank form for
     /// a large `T`).
     pub fn of(t: &Transport, i: &[f64]) -> Self {
+        Self::of_until(t, i, Stop::default()).expect("a default stop is never raised")
+    }
+
+    /// [`Normal::of`], its Gram ended early (`None`) once `stop` is raised.
+    pub fn of_until(t: &Transport, i: &[f64], stop: Stop<'_>) -> Option<Self> {
         let start = std::time::Instant::now();
-        let mut normal = Self::with(Arc::new(Gram::of(t)), t, i);
+        let mut normal = Self::with(Arc::new(Gram::of_until(t, stop)?), t, i);
         normal.seconds = start.elapsed().as_secs_f64();
-        normal
+        Some(normal)
     }
 
     /// With a Gram already formed for this `t` (e.g. a scene's cached one):
@@ -171,5 +224,40 @@ impl Normal {
         } else {
             1.0
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    /// A tall `rows x cols` matrix with entries that differ everywhere.
+    fn tall(rows: usize, cols: usize) -> Mat<f64> {
+        Mat::from_fn(rows, cols, |i, j| {
+            ((i * 7 + j * 13) % 17) as f64 / 17.0 + 0.01 * j as f64
+        })
+    }
+
+    #[test]
+    fn the_gram_by_blocks_of_rows_equals_the_gram_at_once_and_stops_on_its_flag() {
+        // Past one block of rows (the block has at least 256 rows).
+        let t = tall(1500, 24);
+        let whole = gram_lower(t.as_ref(), Par::Seq);
+        let flag = AtomicBool::new(false);
+        let blocks = gram_lower_until(t.as_ref(), Par::Seq, Stop::on(&flag)).expect("no stop");
+        let scale = whole[(0, 0)].abs();
+        for j in 0..24 {
+            for i in j..24 {
+                assert!(
+                    (whole[(i, j)] - blocks[(i, j)]).abs() <= 1e-12 * scale,
+                    "({i}, {j}): {} against {}",
+                    blocks[(i, j)],
+                    whole[(i, j)]
+                );
+            }
+        }
+        flag.store(true, Ordering::Relaxed);
+        assert!(gram_lower_until(t.as_ref(), Par::Seq, Stop::on(&flag)).is_none());
     }
 }

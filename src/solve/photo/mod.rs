@@ -27,8 +27,9 @@ use rayon::prelude::*;
 use super::gram::{Gram, Normal};
 use super::solvers::{largest_eigenvalue, symmetric, AdmmSettings, Solver, Warm};
 use super::tv::gradient;
-use super::{check_measurement, SolveError, Stop};
+use super::{check_measurement, SolveError};
 use crate::scene::{Scene, ShadowChoice, ShadowModel};
+use crate::stop::Stop;
 use crate::transport::Transport;
 
 mod differences;

@@ -21,8 +21,9 @@ use crate::solve::gram::Normal;
 use crate::solve::lowrank::Workspace;
 use crate::solve::tv::{add_divergence_adjoint, add_laplacian_lower, gradient, total_variation};
 use crate::solve::{
-    check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats, Stop,
+    check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats,
 };
+use crate::stop::Stop;
 use crate::transport::Transport;
 
 /// Parameters of an ADMM-TV solve; `None` picks a default scaled to `T`.
@@ -824,7 +825,7 @@ fn run_iterations(
         s_norm: f64::INFINITY,
     };
     for _ in 0..settings.max_iter {
-        settings.stop.check(outcome.iterations)?;
+        crate::solve::check_stop(settings.stop, outcome.iterations)?;
         outcome.iterations += 1;
         it.update_l(tis, normal, &penalty.llt, penalty.rho);
         let (z_norm2, ax_norm2) = it.update_z(penalty.kappa_tv, settings.upper);

@@ -19,8 +19,9 @@ use crate::scene::Grid;
 use crate::solve::gram::Normal;
 use crate::solve::tv::{add_divergence_adjoint, gradient};
 use crate::solve::{
-    check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats, Stop,
+    check_lambda, check_measurement, check_tol, Reconstruction, SolveError, SolveStats,
 };
+use crate::stop::Stop;
 use crate::transport::Transport;
 
 /// Parameters of a FISTA-TV solve.
@@ -289,7 +290,7 @@ pub(super) fn proximal_gradient(
     let mut converged = lip == 0.0;
     let mut change = f64::INFINITY;
     while !converged && iterations < settings.max_iter {
-        settings.stop.check(iterations)?;
+        crate::solve::check_stop(settings.stop, iterations)?;
         iterations += 1;
         for k in 0..n {
             ym[(k, 0)] = y[k];

@@ -23,7 +23,8 @@ use std::any::Any;
 use std::borrow::Cow;
 
 use super::gram::Normal;
-use super::{Reconstruction, SolveError, Stop};
+use super::{Reconstruction, SolveError};
+use crate::stop::Stop;
 use crate::transport::Transport;
 
 pub use admm::{admm_tv, admm_tv_prepared, AdmmSettings, LAMBDA_REL};

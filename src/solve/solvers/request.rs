@@ -6,7 +6,8 @@ use serde::{Deserialize, Serialize};
 
 use super::admm::AdmmSettings;
 use super::Solver;
-use crate::solve::{SolveError, Stop};
+use crate::solve::SolveError;
+use crate::stop::Stop;
 
 /// What to solve with: the solver and its parameters, declared here once.
 ///
