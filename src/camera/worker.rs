@@ -281,7 +281,17 @@ impl Worker {
         let Some(c) = self.camera.as_mut() else {
             return Err(self.not_connected());
         };
-        let r = r.and_then(|()| c.acquire(n, &mut |f| sink.send(f).map_err(|_| SinkClosed)));
+        // Each frame counts as received when it arrives, not when the
+        // acquisition ends (a live view's runs for its whole session).
+        let status = &self.status;
+        let r = r.and_then(|()| {
+            c.acquire(n, &mut |f| {
+                if let Ok(mut s) = status.lock() {
+                    s.counters.completed += 1;
+                }
+                sink.send(f).map_err(|_| SinkClosed)
+            })
+        });
         let k = c.counters();
         let base = self.base;
         self.update(|s| {
@@ -317,5 +327,80 @@ fn add(a: Counters, b: Counters) -> Counters {
         resent_packets: a.resent_packets + b.resent_packets,
         stream_restarts: a.stream_restarts + b.stream_restarts,
         connects: a.connects,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A camera that delivers 1x1 frames and counts them.
+    struct Counting(Counters);
+
+    impl CameraDevice for Counting {
+        fn describe(&mut self) -> Result<CameraInfo, CameraError> {
+            Err(CameraError::Disconnected(
+                "a test camera has no description".into(),
+            ))
+        }
+        fn configure(&mut self, _: &Acquisition) -> Result<(), CameraError> {
+            Ok(())
+        }
+        fn acquire(
+            &mut self,
+            n: usize,
+            sink: &mut super::super::device::FrameSink<'_>,
+        ) -> Result<FrameCounts, CameraError> {
+            for k in 0..n {
+                let frame = RawFrame {
+                    width: 1,
+                    height: 1,
+                    bits: 16,
+                    pixels: vec![0],
+                    frame_id: k as u64,
+                    system_timestamp_ns: 0,
+                };
+                self.0.completed += 1;
+                sink(frame).map_err(CameraError::Stopped)?;
+            }
+            Ok(FrameCounts {
+                received: n as u64,
+                ..FrameCounts::default()
+            })
+        }
+        fn counters(&self) -> Counters {
+            self.0
+        }
+    }
+
+    #[test]
+    fn frames_received_count_up_while_an_acquisition_runs() {
+        let handle = CameraHandle::spawn(Box::new(|| {
+            Ok(Box::new(Counting(Counters::default())) as Box<dyn CameraDevice>)
+        }));
+        // A channel of no room: the camera thread waits for each frame to be taken.
+        let (tx, rx) = mpsc::sync_channel(0);
+        let status = handle.clone();
+        let reader = std::thread::spawn(move || {
+            (0..3)
+                .map(|_| {
+                    rx.recv().expect("a frame");
+                    status.status().counters.completed
+                })
+                .collect::<Vec<_>>()
+        });
+        let settings = Acquisition::defaults_at([0, 0, 1, 1], [1, 1]);
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .expect("a runtime");
+        let got = rt
+            .block_on(handle.acquire(settings, 3, tx))
+            .expect("3 frames");
+        let seen = reader.join().expect("the reader");
+        assert_eq!(got.received, 3);
+        // The first frame was counted before the other two were sent.
+        assert!(seen[0] >= 1 && seen.iter().all(|&n| n <= 3), "{seen:?}");
+        assert_eq!(handle.status().counters.completed, 3);
+        handle.shutdown();
     }
 }
