@@ -40,6 +40,7 @@ use crate::daemon::Daemon;
         crate::store::JobState,
         crate::store::CaptureKind,
         crate::daemon::CameraView,
+        crate::daemon::DemoView,
         crate::rig::mount::MountView,
         super::bodies::PlanReconstruct,
         crate::daemon::PlanView,

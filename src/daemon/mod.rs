@@ -52,7 +52,7 @@ pub use requests::validate::{
     capture as validate_capture, reconstruction as validate_reconstruction, CameraContext,
 };
 pub(crate) use requests::{ZeroBody, ZeroLight};
-pub(crate) use runtime::camera::{CameraService, CameraView, SettingsError};
+pub(crate) use runtime::camera::{CameraService, CameraView, DemoView, SettingsError};
 pub use runtime::config::{log_targets, Config, ConfigError, DEFAULT_TOML};
 pub use runtime::events::Event;
 pub(crate) use runtime::events::{Events, Step as ProgressiveStep};
@@ -275,7 +275,11 @@ impl Daemon {
         let config = Arc::new(config);
         let store = Arc::new(store);
         let calibration = Arc::new(calibration);
-        let camera = Arc::new(CameraService::new(handle, hotplug));
+        let demo = camera.demo_calibration.map(|_| runtime::camera::DemoView {
+            scene: config.demo.scene.clone(),
+            pattern: config.demo.pattern.clone(),
+        });
+        let camera = Arc::new(CameraService::new(handle, hotplug, demo));
         let captures = Arc::new(captures);
         let registry = Arc::new(JobRegistry::default());
         let events = Events::new(1024);

@@ -178,6 +178,7 @@ impl CaptureRequest {
             clipping: None,
             import: None,
             live: None,
+            progressive: false,
         }
     }
 }
@@ -271,6 +272,10 @@ pub struct CaptureRecord {
     /// null for a capture taken as one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub live: Option<LiveInfo>,
+    /// Whether its folder holds progressive steps (`progressive.json`,
+    /// `progressive.png`), as `GET /captures` and `GET /captures/{id}` find it.
+    /// Why: a client asks for the steps of the captures that have them only.
+    pub progressive: bool,
 }
 
 /// The provenance of a capture a live session recorded: which session, how
@@ -419,6 +424,7 @@ pub(super) fn capture_row(r: &Row<'_>) -> rusqlite::Result<CaptureRecord> {
         clipping: json_column(r, "clipping")?,
         import: json_column(r, "import")?,
         live: json_column(r, "live")?,
+        progressive: false,
     })
 }
 

@@ -59,7 +59,19 @@ pub async fn import_capture(
 #[utoipa::path(get, path = "/captures", params(Page), responses((status = 200, body = [CaptureRecord], headers(("polnlos-unreadable" = String, description = "Ids of this page's rows the catalogue could not read (left out of the array; the daemon's log says why)")))))]
 pub async fn list_captures(State(d): St, Query(p): Query<Page>) -> Result<Response, ApiError> {
     let (limit, offset) = p.get()?;
-    Ok(listing(d.store().captures(limit, offset)?))
+    let mut page = d.store().captures(limit, offset)?;
+    page.records
+        .iter_mut()
+        .for_each(|c| c.progressive = has_steps(&d, c.id));
+    Ok(listing(page))
+}
+
+/// Whether capture `id`'s folder holds its progressive steps.
+fn has_steps(d: &Daemon, id: i64) -> bool {
+    d.store()
+        .capture_dir(id)
+        .join(crate::daemon::PROGRESSIVE_STEPS)
+        .is_file()
 }
 
 /// One capture.
@@ -68,7 +80,9 @@ pub async fn get_capture(
     State(d): St,
     Path(id): Path<String>,
 ) -> Result<Json<CaptureRecord>, ApiError> {
-    Ok(Json(d.store().capture(parse_id(&id, "capture")?)?))
+    let mut c = d.store().capture(parse_id(&id, "capture")?)?;
+    c.progressive = has_steps(&d, c.id);
+    Ok(Json(c))
 }
 
 /// What a `DELETE` removed.

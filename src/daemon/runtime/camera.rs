@@ -32,6 +32,18 @@ pub struct CameraView {
     pub busy: Option<String>,
     /// What a capture that states no settings would use now.
     pub capture_defaults: CameraSettings,
+    /// What the demo bench's camera shows (the fake or synthetic camera);
+    /// null for a real camera. Why: its pattern is the truth of every result.
+    pub demo: Option<DemoView>,
+}
+
+/// The demo bench's hidden scene: a known pattern on a known scene (`[demo]`).
+#[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
+pub struct DemoView {
+    /// The scene the fake camera's frames are rendered from.
+    pub scene: String,
+    /// The pattern it shows: `disk`, `bars`, `letter` or `flat`.
+    pub pattern: String,
 }
 
 /// The camera thread's handle and the state around it; each
@@ -51,6 +63,8 @@ pub struct CameraService {
     defaults: Mutex<Option<CameraSettings>>,
     /// The latest frame a capture or the live view received.
     latest: Mutex<Option<Arc<RawFrame>>>,
+    /// What a demo bench's camera shows, for `GET /camera`.
+    demo: Option<DemoView>,
     _hotplug: Option<Hotplug>,
 }
 
@@ -68,8 +82,12 @@ impl Drop for CameraLease<'_> {
 
 impl CameraService {
     /// The service over a started camera thread; `hotplug` (kept alive
-    /// here) rescans when a USB device arrives.
-    pub(crate) fn new(handle: CameraHandle, hotplug: Option<Hotplug>) -> Self {
+    /// here) rescans when a USB device arrives; `demo`: what a demo bench shows.
+    pub(crate) fn new(
+        handle: CameraHandle,
+        hotplug: Option<Hotplug>,
+        demo: Option<DemoView>,
+    ) -> Self {
         Self {
             handle,
             gate: tokio::sync::Mutex::new(()),
@@ -77,6 +95,7 @@ impl CameraService {
             waiting: std::sync::atomic::AtomicUsize::new(0),
             defaults: Mutex::new(None),
             latest: Mutex::new(None),
+            demo,
             _hotplug: hotplug,
         }
     }
@@ -218,6 +237,7 @@ impl CameraService {
             status,
             busy,
             capture_defaults,
+            demo: self.demo.clone(),
         }
     }
 
