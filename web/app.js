@@ -198,6 +198,7 @@ async function refreshCamera() {
     return;
   }
   const cam = c.json;
+  if (cam.demo) truthFromDemo(cam.demo);
   text($("#camera-status"), cam.connected ? `connected: ${cam.info.id}` + (cam.busy ? ` (busy: ${cam.busy})` : "") : `not connected: ${cam.last_error || ""}`);
   const s = (cam.info && cam.info.settings) || {};
   const k = cam.counters || {};
@@ -219,6 +220,19 @@ async function refreshCamera() {
     ["packets with no free buffer", k.underruns], ["timeouts", k.timeouts], ["connections", k.connects],
   ];
   $("#camera-facts").replaceChildren(...rows.map(([a, b]) => el("tr", {}, el("th", {}, a), el("td", {}, String(b ?? "-")))));
+}
+
+// On the demo bench every Truth field starts at the pattern its camera
+// shows (once, and only where still "none"). Why: the demo's truth is
+// known, and a result with none has no PSNR to judge it by.
+let truthDefaulted = false;
+function truthFromDemo(demo) {
+  if (truthDefaulted) return;
+  truthDefaulted = true;
+  for (const s of document.querySelectorAll("select[name=truth]")) {
+    if (s.value === "" && [...s.options].some((o) => o.value === demo.pattern)) s.value = demo.pattern;
+    s.title = `the demo bench shows ${demo.pattern} (scene ${demo.scene})`;
+  }
 }
 
 function drawHistogram(levels) {
@@ -263,6 +277,8 @@ async function refreshLive() {
     const stretch = $("#stretch").checked;
     const view = $("#view-box").hidden ? "raw" : $("#view").value;
     const r = await showImage($("#live"), `/camera/frame.png?live=true&stretch=${stretch}&view=${view}`);
+    // Frame pixels per image pixel: every view but the raw one is at half resolution.
+    if (r.ok) $("#live").dataset.per = view === "raw" ? "1" : "2";
     if (!r.ok) {
       text($("#live-caption"), (r.status === 401 && tokenReason())
         || (r.status === 404 ? "no frame yet: the camera has sent none since the daemon started" : `no frame: HTTP ${r.status}`));
@@ -305,9 +321,11 @@ function inFrame(point, region, binning) {
 }
 
 // Zoom in frame pixels: 1x shows one screen pixel per frame pixel (the
-// whole 512 px frame, not half of it), and every zoom opens on the wall's
-// image, where a pose's homography puts it in the camera's region, else on
-// the frame's centre, never on its top-left corner (issues 38, 47).
+// whole 512 px frame, not half of it; a half-resolution view, the colours
+// or the Stokes images, at two screen pixels per image pixel, filling the
+// same box), and every zoom opens on the wall's image, where a pose's
+// homography puts it in the camera's region, else on the frame's centre,
+// never on its top-left corner (issues 38, 47, 65).
 async function applyZoom() {
   const z = Number($("#zoom").value);
   const img = $("#live");
@@ -315,12 +333,14 @@ async function applyZoom() {
   // width holds (a busy daemon's reload used to size the view for 512 px).
   const natural = img.naturalWidth || Number(img.dataset.natural) || 512;
   img.dataset.natural = String(natural);
-  img.style.width = `${natural * z}px`;
+  // Frame pixels across: the image's, twice a half-resolution view's.
+  const across = natural * (Number(img.dataset.per) || 1);
+  img.style.width = `${across * z}px`;
   img.style.height = "auto";
   const box = $("#live-box");
   const aim = await wallAim();
   // Screen pixels per frame pixel.
-  const scale = img.clientWidth / natural;
+  const scale = img.clientWidth / across;
   if (aim && aim.centre && scale && liveFrame) {
     const [x, y] = inFrame(aim.centre, liveFrame.region, liveFrame.binning);
     box.scrollLeft = Math.max(0, x * scale - box.clientWidth / 2);
@@ -336,7 +356,13 @@ $("#zoom").addEventListener("change", applyZoom);
 $("#capture-form").addEventListener("change", (ev) => { if (ev.target.name === "scene" || ev.target.name === "pose") applyZoom(); });
 // The first frame, and a frame of another size (a new region or binning),
 // sizes the view again.
-$("#live").addEventListener("load", () => { const img = $("#live"); if (String(img.naturalWidth) !== img.dataset.natural) applyZoom(); });
+$("#live").addEventListener("load", () => {
+  const img = $("#live");
+  if (String(img.naturalWidth) !== img.dataset.natural || img.dataset.per !== img.dataset.sized) {
+    img.dataset.sized = img.dataset.per;
+    applyZoom();
+  }
+});
 $("#stretch").addEventListener("change", refreshLive);
 $("#view").addEventListener("change", refreshLive);
 $("#live-on").addEventListener("change", () => { if ($("#live-on").checked) refreshLive(); });
@@ -454,7 +480,9 @@ function upsert(kind, x, force, container, build, insert) {
   if (old && seen.get(key) === json && !force) return false;
   if (!old && !insert) return false;
   seen.set(key, json);
-  if (kind === "capture" && x.kind === "light" && !steps.has(x.id) && !old) loadSteps(x.id);
+  // Steps are asked for only where the daemon has them; a running
+  // capture's arrive as events.
+  if (kind === "capture" && x.progressive && !steps.has(x.id)) loadSteps(x.id);
   const node = build(x);
   if (old) old.replaceWith(node);
   else {
@@ -548,6 +576,23 @@ function reportLines(r) {
   return lines.join("\n");
 }
 
+// A hidden-scene image (a result, its truth, a live result) at its grid's
+// aspect, a whole number of screen pixels per scene pixel and at least
+// RESULT_SIDE px on its short side. Why: an 8x8 result drawn at 8 x 8 px is
+// a dot, and a fixed square squashes a 36 x 29 or 10 x 6 grid.
+const RESULT_SIDE = 160;
+function fitScene(img) {
+  const w = img.naturalWidth, h = img.naturalHeight;
+  if (!w || !h) return;
+  const k = Math.max(1, Math.ceil(RESULT_SIDE / Math.min(w, h)));
+  img.style.width = `${w * k}px`;
+  img.style.height = `${h * k}px`;
+}
+// Every scene image, wherever it is drawn, sized as it loads.
+document.addEventListener("load", (ev) => {
+  if (ev.target instanceof HTMLImageElement && ev.target.classList.contains("scene-image")) fitScene(ev.target);
+}, true);
+
 function colorBar() {
   return el("div", { class: "colorbar", title: "recovered radiance, units of T l: every result and truth on this one scale" },
     el("span", {}, "1"), el("div", { class: "bar" }), el("span", {}, "0"));
@@ -555,11 +600,11 @@ function colorBar() {
 
 function reconstructionItem(x) {
   const figs = el("div", { class: "figures" });
-  const img = el("img", { alt: `reconstruction ${x.id}`, class: "result-image" });
+  const img = el("img", { alt: `reconstruction ${x.id}`, class: "result-image scene-image" });
   figs.append(el("figure", {}, img, el("figcaption", {}, "result")));
   if (x.state === "done") showImage(img, `/reconstructions/${x.id}/image.png`);
   if (x.params && x.params.truth) {
-    const t = el("img", { alt: `truth ${x.params.truth}`, class: "truth-image" });
+    const t = el("img", { alt: `truth ${x.params.truth}`, class: "truth-image scene-image" });
     figs.append(el("figure", {}, t, el("figcaption", {}, `truth: ${x.params.truth}`)));
     showImage(t, `/reconstructions/${x.id}/truth.png`);
   }
@@ -638,7 +683,7 @@ function drawCompare() {
   if (chosen.length === 0) { box.replaceChildren(); return; }
   const figs = el("div", { class: "figures" });
   chosen.forEach((x) => {
-    const img = el("img", { alt: `reconstruction ${x.id}`, class: "compare-image" });
+    const img = el("img", { alt: `reconstruction ${x.id}`, class: "compare-image scene-image" });
     showImage(img, `/reconstructions/${x.id}/image.png`);
     figs.append(el("figure", {}, img, el("figcaption", {}, `#${x.id} ${x.scene}`)));
   });
@@ -754,27 +799,34 @@ async function resync() {
 // and nothing is sent.
 class FieldError extends Error {}
 
-// Reads numeric field `name` of `form`: undefined when empty, its number
-// when it is one ("auto" where `auto`); anything else marks the field with
-// why and throws, so unreadable input never turns into a default (issue 38:
-// frames "abc" ran a plan of 1 frame, exposure "50ms" became 20000 us).
-function numeric(form, name, { integer = false, auto = false } = {}) {
+// Reads numeric field `name` of `form`: undefined when empty (unless
+// `required`), its number when it is one ("auto" where `auto`); anything
+// else marks the field with why and throws, so unreadable or missing input
+// never turns into a default (issue 38: frames "abc" ran a plan of 1 frame,
+// exposure "50ms" became 20000 us; issue 65: an empty Frames ran 1 frame,
+// an empty Exposure 20000 us).
+function numeric(form, name, { integer = false, auto = false, required = false } = {}) {
   const input = form.querySelector(`[name=${name}]`);
   if (!input) return undefined;
   clearFieldError(input);
   const raw = String(input.value).trim();
-  if (raw === "") return undefined;
+  const want = `${integer ? "a whole number" : "a number"}${auto ? " or auto" : ""}`;
+  if (raw === "" && !required) return undefined;
   if (auto && raw === "auto") return "auto";
   const v = Number(raw);
-  if (!Number.isFinite(v) || (integer && !Number.isInteger(v))) {
-    const want = integer ? "a whole number" : "a number";
-    const why = `${name}: "${raw}" is not ${want}${auto ? " or auto" : ""}`;
-    input.classList.add("invalid");
-    input.setAttribute("aria-invalid", "true");
-    input.after(el("span", { class: "field-error" }, why));
+  if (raw === "" || !Number.isFinite(v) || (integer && !Number.isInteger(v))) {
+    const why = raw === "" ? `${name}: empty; give ${want}${typeof required === "string" ? ` (${required})` : ""}`
+      : `${name}: "${raw}" is not ${want}`;
+    markField(input, why);
     throw new FieldError(why);
   }
   return v;
+}
+
+function markField(input, why) {
+  input.classList.add("invalid");
+  input.setAttribute("aria-invalid", "true");
+  input.after(el("span", { class: "field-error" }, why));
 }
 
 function clearFieldError(input) {
@@ -783,6 +835,9 @@ function clearFieldError(input) {
   const next = input.nextElementSibling;
   if (next && next.classList.contains("field-error")) next.remove();
 }
+
+// Why Frames may be empty only with an automatic exposure.
+const FRAMES_OR_PLAN = "or auto exposure and an empty Frames: the plan's";
 
 // Runs `build` (which reads the form's fields); a FieldError shows in `msg`
 // and gives null, so that the caller sends nothing.
@@ -807,12 +862,12 @@ function captureBody(kind) {
   const form = $("#capture-form");
   const msg = $("#capture-message");
   return fields(msg, () => {
-    const exposure = numeric(form, "exposure_us", { auto: true });
+    const exposure = numeric(form, "exposure_us", { auto: true, required: true });
     const polarizer = numeric(form, "polarizer_deg");
     const b = {
       kind, scene: f.get("scene"), pose: f.get("pose"),
       polarizer_deg: polarizer === undefined ? null : polarizer,
-      frames: numeric(form, "frames", { integer: true }),
+      frames: numeric(form, "frames", { integer: true, required: exposure !== "auto" && FRAMES_OR_PLAN }),
       dark_frames: numeric(form, "dark_frames", { integer: true }) || 0,
     };
     if (exposure === "auto") b.exposure = "auto"; else b.exposure_us = exposure;
@@ -898,6 +953,8 @@ async function pollLive() {
     liveResults = v.results;
     await showImage($("#live-image"), "/live/image.png");
   }
+  // The camera's counters (frames received) move with the session.
+  if (on || liveTimer) refreshCamera();
   if (!on && liveTimer) { clearInterval(liveTimer); liveTimer = null; }
   if (on && !liveTimer) liveTimer = setInterval(pollLive, 500);
 }
@@ -1014,10 +1071,10 @@ $("#plan-form").addEventListener("submit", async (ev) => {
   const form = ev.target;
   const msg = $("#plan-message");
   const body = fields(msg, () => {
-    const exposure = numeric(form, "exposure_us", { auto: true });
+    const exposure = numeric(form, "exposure_us", { auto: true, required: true });
     const b = {
       scene: f.get("scene"),
-      frames: numeric(form, "frames", { integer: true }),
+      frames: numeric(form, "frames", { integer: true, required: exposure !== "auto" && FRAMES_OR_PLAN }),
       dark_frames: numeric(form, "dark_frames", { integer: true }) || 0,
     };
     if (exposure === "auto") b.exposure = "auto"; else b.exposure_us = exposure;
@@ -1063,8 +1120,8 @@ $("#mount-zero-form").addEventListener("submit", async (ev) => {
   const body = fields(msg, () => ({
     scene: new FormData(form).get("scene"),
     pose: String(new FormData(form).get("pose")).trim(),
-    exposure_us: numeric(form, "exposure_us"),
-    frames: numeric(form, "frames", { integer: true }),
+    exposure_us: numeric(form, "exposure_us", { required: true }),
+    frames: numeric(form, "frames", { integer: true, required: true }),
   }));
   if (!body) return;
   noteIn(msg, "sweeping the mount around its zero…");

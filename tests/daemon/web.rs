@@ -6,7 +6,7 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::daemon::common::{config, free_port, psnr, scratch, InProcess};
+use crate::daemon::common::{config, free_port, lock, psnr, scratch, Daemon, InProcess};
 use fantoccini::{Client, ClientBuilder, Locator};
 
 /// chromedriver on a free loopback port, stopped on drop.
@@ -66,7 +66,7 @@ async fn browser(driver: &Driver, profile: &std::path::Path) -> Client {
         serde_json::json!({
             "binary": "/usr/bin/chromium",
             "args": ["--headless=new", "--no-sandbox", "--disable-gpu",
-                     "--disable-dev-shm-usage", "--window-size=1400,1000",
+                     "--disable-dev-shm-usage", "--window-size=1280,1000",
                      format!("--user-data-dir={}", profile.display())]
         }),
     );
@@ -139,25 +139,30 @@ async fn image_loaded(c: &Client, css: &str) -> bool {
 }
 
 /// The daemon (in this process, on the synthetic camera: the camera path
-/// through Aravis is `service.rs`'s and `camera.rs`'s), chromedriver and a
-/// runtime to drive them.
-struct Page {
+/// through Aravis is `service.rs`'s and `camera.rs`'s; or `polnlos serve`
+/// on Aravis's fake camera, for a sensor the synthetic one lacks),
+/// chromedriver and a runtime to drive them.
+struct Page<D = InProcess> {
     dir: tempfile::TempDir,
-    d: InProcess,
+    d: D,
     driver: Driver,
     rt: tokio::runtime::Runtime,
 }
 
-impl Page {
-    fn start() -> Self {
-        Self::start_with(&[])
-    }
-
-    /// The page of a daemon whose configuration has these edits.
-    fn start_with(edits: &[(&str, &str)]) -> Self {
+impl Page<Daemon> {
+    /// The page of `polnlos serve` on Aravis's fake camera, its
+    /// configuration with these edits (hold [`lock`] meanwhile).
+    fn on_fake_camera(edits: &[(&str, &str)]) -> Self {
         let dir = scratch();
         let cfg = config(dir.path(), edits);
-        let d = InProcess::start(&cfg, &dir.path().join("data"));
+        let d = Daemon::start(&cfg, &dir.path().join("data"));
+        Self::around(dir, d)
+    }
+}
+
+impl<D: std::ops::Deref<Target = crate::daemon::common::Client>> Page<D> {
+    /// Chromedriver and a runtime beside daemon `d`.
+    fn around(dir: tempfile::TempDir, d: D) -> Self {
         let driver = Driver::start();
         let rt = tokio::runtime::Builder::new_current_thread()
             .enable_all()
@@ -181,6 +186,20 @@ impl Page {
         })
         .await;
         c
+    }
+}
+
+impl Page {
+    fn start() -> Self {
+        Self::start_with(&[])
+    }
+
+    /// The page of a daemon whose configuration has these edits.
+    fn start_with(edits: &[(&str, &str)]) -> Self {
+        let dir = scratch();
+        let cfg = config(dir.path(), edits);
+        let d = InProcess::start(&cfg, &dir.path().join("data"));
+        Self::around(dir, d)
     }
 }
 
@@ -577,6 +596,17 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
         })
         .await;
         assert!(answer.starts_with("200") && answer.contains("camera_connected"), "{answer}");
+        // Back on the page, capture 1's steps are read again: its record
+        // says it has them.
+        assert_eq!(page.d.json("/captures/1")["progressive"], true);
+        c.goto(&format!("{}/", page.d.base)).await.expect("the page");
+        until("the progressive chart again", long, || async {
+            text(&c, "#capture-1 .step-label")
+                .await
+                .starts_with(&format!("{n} steps"))
+                .then_some(())
+        })
+        .await;
         c.close().await.unwrap();
     });
     assert_eq!(page.d.json("/captures/2")["state"], "cancelled");
@@ -585,6 +615,30 @@ fn the_page_starts_a_capture_shows_its_progress_and_the_result_image() {
 /// Runs `js` (a function body) in the page and returns its value.
 async fn js(c: &Client, code: &str) -> serde_json::Value {
     c.execute(code, vec![]).await.expect(code)
+}
+
+/// The drawn size of the image matching `css` (getBoundingClientRect) and
+/// its natural size: `[width, height, natural width, natural height]`.
+async fn drawn(c: &Client, css: &str) -> [f64; 4] {
+    let code = format!(
+        "const i = document.querySelector({css:?}); const r = i.getBoundingClientRect(); return [r.width, r.height, i.naturalWidth, i.naturalHeight];"
+    );
+    serde_json::from_value(js(c, &code).await).expect("a size")
+}
+
+/// Asserts that image `css` of a `nu` x `nv` scene grid is drawn at the
+/// grid's aspect (within a pixel) and at least 160 px across its short side.
+async fn drawn_at_aspect(c: &Client, css: &str, nu: f64, nv: f64) -> [f64; 4] {
+    let size = drawn(c, css).await;
+    let [w, h, natural_w, natural_h] = size;
+    println!("{css}: drawn {w} x {h} px of {natural_w} x {natural_h}");
+    assert_eq!([natural_w, natural_h], [nu, nv], "{css}");
+    assert!(w.min(h) >= 160.0, "{css}: drawn {w} x {h}");
+    assert!(
+        (w - h * nu / nv).abs() <= 1.0,
+        "{css}: drawn {w} x {h}, grid {nu} x {nv}"
+    );
+    size
 }
 
 /// Clicks the download button `css` and returns what the page's download got
@@ -645,6 +699,11 @@ fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_delete
         .await;
         let levels = text(&c, "#levels").await;
         println!("live view levels: {levels}");
+        // A capture without progressive steps: none asked for (each card
+        // asked, and got a 404).
+        assert_eq!(page.d.json("/captures/1")["progressive"], false);
+        let progressive = "return performance.getEntriesByType('resource').map((e) => e.name).filter((n) => n.includes('/progressive'));";
+        assert_eq!(js(&c, progressive).await, serde_json::json!([]));
         js(&c, "performance.setResourceTimingBufferSize(100000); performance.clearResourceTimings(); return true;").await;
         tokio::time::sleep(Duration::from_secs(6)).await;
         let requests = js(&c, "return performance.getEntriesByType('resource').map((e) => e.name.replace(location.origin, ''));").await;
@@ -676,12 +735,17 @@ fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_delete
         tokio::time::sleep(Duration::from_secs(3)).await;
         let kept = js(&c, "const s = getSelection(); return s.rangeCount === 1 && s.anchorNode.isConnected && s.toString().includes('kappa');").await;
         assert_eq!(kept, true, "the selection in the report was lost");
-        // The truth beside the result, on one colour bar.
+        // The truth beside the result, on one colour bar, both drawn 160 px
+        // across their 8 x 8 grid.
         until("the truth image", long, || async {
             image_loaded(&c, "#reconstruction-1 img.truth-image").await.then_some(())
         })
         .await;
         assert!(c.find(Locator::Css("#reconstruction-1 .colorbar")).await.is_ok());
+        for image in ["result-image", "truth-image"] {
+            let size = drawn_at_aspect(&c, &format!("#reconstruction-1 img.{image}"), 8.0, 8.0).await;
+            assert_eq!(&size[..2], &[160.0, 160.0], "{image}");
+        }
         // Side by side: tick both.
         for id in [1, 2] {
             click(&c, &format!("#reconstruction-{id} input.compare")).await;
@@ -771,6 +835,8 @@ fn the_page_is_quiet_when_idle_zooms_the_live_view_compares_downloads_and_delete
             .then_some(())
         })
         .await;
+        // Not one of the 23 captures, none progressive, had its steps asked for.
+        assert_eq!(js(&c, progressive).await, serde_json::json!([]));
         c.close().await.unwrap();
     });
     assert_eq!(page.d.get("/reconstructions/2").0, 404);
@@ -917,6 +983,10 @@ fn the_forms_refuse_unreadable_numbers_beside_the_field_and_send_nothing() {
             ("#plan-form", "frames", "abc", "#plan-message", "frames: \"abc\" is not a whole number"),
             ("#plan-form", "dark_frames", "two", "#plan-message", "dark_frames: \"two\" is not a whole number"),
             ("#capture-form", "exposure_us", "50ms", "#capture-message", "exposure_us: \"50ms\" is not a number or auto"),
+            // Empty required fields: refused, not 1 frame or 20000 µs.
+            ("#capture-form", "frames", "", "#capture-message", "frames: empty; give a whole number (or auto exposure and an empty Frames: the plan's)"),
+            ("#capture-form", "exposure_us", "", "#capture-message", "exposure_us: empty; give a number or auto"),
+            ("#plan-form", "exposure_us", "", "#plan-message", "exposure_us: empty; give a number or auto"),
         ] {
             set(&c, &format!("{form} [name={field}]"), typed).await;
             let button = if form == "#plan-form" { "#run-plan" } else { "#start-capture" };
@@ -1229,10 +1299,32 @@ fn deleting_a_capture_a_reconstruction_uses_offers_a_button_not_a_query_string()
 }
 
 #[test]
-fn the_stokes_views_give_their_levels_in_their_own_units_not_dn() {
-    let page = Page::start();
+fn the_colour_view_fills_its_box_and_the_stokes_views_give_their_levels_in_their_own_units() {
+    // Aravis's fake camera behind a Bayer filter (the synthetic camera is
+    // monochrome): its colour view is at half resolution.
+    let _g = lock();
+    let page = Page::on_fake_camera(&[("fake_sensor = \"mono\"", "fake_sensor = \"bayer\"")]);
     page.rt.block_on(async {
         let c = page.open().await;
+        let long = Duration::from_secs(60);
+        until("the colour view offered", long, || async {
+            js(&c, "return !document.querySelector('#view-box').hidden;").await.as_bool()?.then_some(())
+        })
+        .await;
+        choose(&c, "#view", "colour").await;
+        js(&c, "document.querySelector('#view').dispatchEvent(new Event('change')); return true;").await;
+        // The 256 x 256 colour image of the 512 x 512 frame fills the 512 px
+        // box at 1x, as the raw frame does (it filled a quarter of it).
+        let box_size = "const b = document.querySelector('#live-box'); return [b.clientWidth, b.clientHeight];";
+        let [bw, bh]: [f64; 2] = serde_json::from_value(js(&c, box_size).await).unwrap();
+        let size = until("the colour view", long, || async {
+            let v = drawn(&c, "#live").await;
+            (v[2] == 256.0 && v[0] == bw).then_some(v)
+        })
+        .await;
+        println!("colour view: drawn {} x {} px of {} x {}, box {bw} x {bh}", size[0], size[1], size[2], size[3]);
+        assert_eq!([size[0], size[1]], [bw, bh]);
+        assert_eq!([bw, bh], [512.0, 512.0]);
         let levels = r#"{"full_scale": 65535, "peak": 0.5, "saturated": 0.2, "low": 0, "high": 32768, "histogram_low": 0, "histogram_high": 65535}"#;
         let say = |view: &'static str| {
             let c = &c;
@@ -1344,16 +1436,50 @@ fn a_result_card_shows_its_model_check_and_zncc_and_the_zoom_opens_on_the_wall_o
     });
 }
 
+/// The built-in bench with a 10 x 6 hidden-scene grid (0.20 x 0.12 m):
+/// a scene whose results are not square.
+fn bench_10x6(dir: &std::path::Path) -> std::path::PathBuf {
+    let text = polnlos::scene::builtin::text("brewster-crossed")
+        .unwrap()
+        .replacen("grid = [8, 8]", "grid = [10, 6]", 1)
+        .replacen("size = [0.2, 0.2]", "size = [0.2, 0.12]", 1);
+    let file = dir.join("bench-10x6.toml");
+    std::fs::write(&file, text).unwrap();
+    file
+}
+
 #[test]
-fn the_page_starts_the_live_view_shows_its_results_and_stops_it() {
-    let page = Page::start();
+fn the_page_starts_the_live_view_shows_its_results_at_their_aspect_and_stops_it() {
+    // The demo bench shows the letter on a 10 x 6 grid.
+    let scenes = scratch();
+    let listed = format!(
+        "scene_files = [{:?}]",
+        bench_10x6(scenes.path()).display().to_string()
+    );
+    let page = Page::start_with(&[
+        ("scene_files = []", &listed),
+        ("scene = \"brewster-crossed\"", "scene = \"bench-10x6\""),
+    ]);
     page.rt.block_on(async {
         let c = page.open().await;
         let long = Duration::from_secs(60);
         scenes_listed(&c, "#capture-form", long).await;
-        // The capture form's request, repeated: Frames is the window.
+        // Every Truth field starts at the demo's pattern (it started at none).
+        let truths = until("the demo's truth", long, || async {
+            let v = js(&c, "return [...document.querySelectorAll('select[name=truth]')].map((s) => s.value);").await;
+            let v: Vec<String> = serde_json::from_value(v).unwrap_or_default();
+            v.iter().all(|t| t == "letter").then_some(v)
+        })
+        .await;
+        assert_eq!(truths.len(), 3, "{truths:?}");
+        for form in ["#capture-form", "#reconstruction-form"] {
+            choose(&c, &format!("{form} select[name=scene]"), "bench-10x6").await;
+        }
+        // The capture form's request, repeated: Frames is the window; its
+        // first 8 frames recorded as capture 1.
         set(&c, "#capture-form [name=frames]", "4").await;
-        choose(&c, "#capture-form [name=truth]", "letter").await;
+        set(&c, "#capture-form [name=record]", "8").await;
+        let before = cell(&c, "#camera-facts", "frames received").await;
         click(&c, "#start-live").await;
         let status = until("live results with their PSNR", long, || async {
             let t = text(&c, "#live-status").await;
@@ -1373,9 +1499,33 @@ fn the_page_starts_the_live_view_shows_its_results_and_stops_it() {
             (Some("running"), Some(4)),
             "{v}"
         );
+        // The live result: at least a result image's size, at the grid's
+        // aspect (it was drawn 10 x 6 px), beside the wall view, with its scale.
+        until("the live image at its size", long, || async {
+            (drawn(&c, "#live-image").await[0] >= 160.0).then_some(())
+        })
+        .await;
+        drawn_at_aspect(&c, "#live-image", 10.0, 6.0).await;
+        let beside = js(&c, "const a = document.querySelector('#live-box').getBoundingClientRect(); const b = document.querySelector('#live-image').getBoundingClientRect(); return b.left >= a.right && b.top < a.bottom;").await;
+        assert_eq!(beside, true, "the live result is not beside the wall view");
+        assert!(c.find(Locator::Css("#live-result .colorbar")).await.is_ok());
+        // The camera's frames received count up during the session (they
+        // stayed 0 until it ended).
+        let received = until("frames received", long, || async {
+            let n: u64 = cell(&c, "#camera-facts", "frames received").await.parse().ok()?;
+            (n > 0).then_some(n)
+        })
+        .await;
+        println!("frames received: {before:?} before the session, {received} in it");
+        assert_eq!(page.d.json("/live")["state"], "running");
+        until("the recording", long, || async {
+            (page.d.json("/captures/1")["state"] == "done").then_some(())
+        })
+        .await;
         // A photo scene's radiometry: each window's gain and background
         // fitted, shown beside the image.
         choose(&c, "#capture-form [name=radiometry]", "fitted").await;
+        set(&c, "#capture-form [name=record]", "").await;
         click(&c, "#start-live").await;
         let status = until("fitted live results", long, || async {
             let t = text(&c, "#live-status").await;
@@ -1396,6 +1546,20 @@ fn the_page_starts_the_live_view_shows_its_results_and_stops_it() {
             .await
             .contains("live view stopped after"));
         assert_eq!(page.d.json("/live")["state"], "off");
+        // The recording reconstructed from the page: the result and its
+        // truth at the grid's aspect too (they were 160 px squares).
+        set(&c, "#reconstruction-form [name=captures]", "1").await;
+        click(&c, "#start-reconstruction").await;
+        until("the result and its truth", long, || async {
+            (text(&c, "#reconstruction-1 .state").await == "done"
+                && image_loaded(&c, "#reconstruction-1 img.result-image").await
+                && image_loaded(&c, "#reconstruction-1 img.truth-image").await)
+                .then_some(())
+        })
+        .await;
+        assert_eq!(page.d.json("/reconstructions/1")["report"]["scene_grid"]["nu"], 10);
+        drawn_at_aspect(&c, "#reconstruction-1 img.result-image", 10.0, 6.0).await;
+        drawn_at_aspect(&c, "#reconstruction-1 img.truth-image", 10.0, 6.0).await;
         c.close().await.unwrap();
     });
 }
