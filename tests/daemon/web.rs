@@ -1510,13 +1510,17 @@ fn the_page_starts_the_live_view_shows_its_results_at_their_aspect_and_stops_it(
         assert_eq!(beside, true, "the live result is not beside the wall view");
         assert!(c.find(Locator::Css("#live-result .colorbar")).await.is_ok());
         // The camera's frames received count up during the session (they
-        // stayed 0 until it ended).
-        let received = until("frames received", long, || async {
-            let n: u64 = cell(&c, "#camera-facts", "frames received").await.parse().ok()?;
-            (n > 0).then_some(n)
+        // stood still until its acquisition ended, at the count of the
+        // frames before it).
+        let frames = || async {
+            cell(&c, "#camera-facts", "frames received").await.parse::<u64>().ok()
+        };
+        let first = until("frames received", long, || async { frames().await }).await;
+        let later = until("frames received to count up", long, || async {
+            frames().await.filter(|&n| n > first)
         })
         .await;
-        println!("frames received: {before:?} before the session, {received} in it");
+        println!("frames received: {before:?} before the session, {first} then {later} in it");
         assert_eq!(page.d.json("/live")["state"], "running");
         until("the recording", long, || async {
             (page.d.json("/captures/1")["state"] == "done").then_some(())
