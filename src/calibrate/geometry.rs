@@ -395,46 +395,65 @@ pub fn max_distance(a: &Homography, b: &Homography, at: &[[f64; 2]]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// The scene file `scene_toml` with pose `pose`'s `homography` replaced by
-/// `h` and its camera frame set to `region` (binning 1), for the user to
-/// review; checked to parse as a scene. (The file's comments are not kept.)
+/// The scene file `scene_toml` (a file in `folders.from`) with pose
+/// `pose`'s `homography` replaced by `h` and its camera frame set to
+/// `region` (binning 1), as a file in `folders.to`, for the user to review.
+///
+/// Why: the user's file as written (comments, order, every other value)
+/// with only the fitted values changed, its relative mesh paths rewritten
+/// for `folders.to`; checked to parse as a scene there.
 pub fn scene_with_homography(
     scene_toml: &str,
     pose: &str,
     h: &Homography,
     region: [u32; 4],
+    folders: SceneFolders<'_>,
 ) -> Result<String, CalibrationError> {
+    use toml_edit::{Array, Value};
     let bad = |m: String| CalibrationError::Target(m);
-    let mut table: toml::Table =
-        toml::from_str(scene_toml).map_err(|e| bad(format!("scene file: {e}")))?;
-    let poses = table
-        .get_mut("pose")
-        .and_then(|p| p.as_array_mut())
-        .ok_or_else(|| bad("scene file has no [[pose]]".into()))?;
-    let entry = poses
-        .iter_mut()
-        .filter_map(|p| p.as_table_mut())
+    let mut doc: toml_edit::DocumentMut = scene_toml
+        .parse()
+        .map_err(|e| bad(format!("scene file: {e}")))?;
+    let entry = crate::calibrate::occluder::entries(&mut doc, "pose")
+        .into_iter()
         .find(|p| p.get("name").and_then(|n| n.as_str()) == Some(pose))
         .ok_or_else(|| bad(format!("scene file has no pose {pose:?}")))?;
-    let m = h.matrix();
-    let rows: Vec<toml::Value> = m
+    let rows: Array = h
+        .matrix()
         .iter()
-        .map(|r| toml::Value::Array(r.iter().map(|&x| toml::Value::Float(x)).collect()))
+        .map(|r| Value::Array(r.iter().copied().collect()))
         .collect();
-    entry.insert("homography".into(), toml::Value::Array(rows));
-    let ints = |v: &[u32]| {
-        toml::Value::Array(
-            v.iter()
-                .map(|&x| toml::Value::Integer(i64::from(x)))
-                .collect(),
-        )
-    };
-    entry.insert("region".into(), ints(&region));
-    entry.insert("binning".into(), ints(&[1, 1]));
-    let text = toml::to_string_pretty(&table).map_err(|e| bad(e.to_string()))?;
-    crate::scene::Scene::from_toml_str(&text)
+    let ints = |v: &[u32]| -> Array { v.iter().map(|&x| i64::from(x)).collect() };
+    let set = crate::calibrate::occluder::set_value;
+    set(entry, "homography", Value::Array(rows));
+    set(entry, "region", Value::Array(ints(&region)));
+    set(entry, "binning", Value::Array(ints(&[1, 1])));
+    if folders.from != folders.to {
+        crate::calibrate::occluder::rebase_mesh_paths(&mut doc, folders.from, folders.to)
+            .map_err(|e| bad(e.to_string()))?;
+    }
+    let text = doc.to_string();
+    crate::scene::Scene::from_toml_str_in(&text, folders.to)
         .map_err(|e| bad(format!("the calibrated scene does not validate: {e}")))?;
     Ok(text)
+}
+
+/// Where a scene file that is edited was read from and where the edited
+/// copy goes: its relative mesh paths are read from `from` and rewritten
+/// for `to`.
+#[derive(Debug, Clone, Copy)]
+pub struct SceneFolders<'a> {
+    /// The folder of the file the text was read from (`""`: the current one).
+    pub from: &'a std::path::Path,
+    /// The folder the edited file is written to.
+    pub to: &'a std::path::Path,
+}
+
+impl<'a> SceneFolders<'a> {
+    /// Read and written in one folder.
+    pub fn same(dir: &'a std::path::Path) -> Self {
+        Self { from: dir, to: dir }
+    }
 }
 
 /// `H [u, v, 1]`, dehomogenized; None at infinity.
@@ -765,11 +784,13 @@ mod tests {
     fn the_calibrated_scene_file_parses_and_carries_the_fit() {
         let text = include_str!("../../config/scenes/brewster-multi.toml");
         let h = shipped("brewster-crossed", 0);
-        let out = scene_with_homography(text, "C", &h, [0, 0, 512, 512]).expect("scene");
+        let here = SceneFolders::same(std::path::Path::new(""));
+        let out = scene_with_homography(text, "C", &h, [0, 0, 512, 512], here).expect("scene");
         let s = crate::scene::Scene::from_toml_str(&out).expect("parses");
         assert_eq!(s.pose("C").and_then(|p| p.homography), Some(h));
         assert_ne!(s.pose("B").and_then(|p| p.homography), Some(h));
-        let e = scene_with_homography(text, "Z", &h, [0, 0, 512, 512]).expect_err("no pose Z");
+        let e =
+            scene_with_homography(text, "Z", &h, [0, 0, 512, 512], here).expect_err("no pose Z");
         assert!(e.to_string().contains("no pose \"Z\""), "{e}");
     }
 

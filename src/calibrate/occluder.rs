@@ -1532,6 +1532,63 @@ fn rebase(
     })
 }
 
+/// The tables of the array `key` of `doc` (`[[key]]` or `key = [{...}]`),
+/// in file order, for editing in place.
+pub(crate) fn entries<'a>(
+    doc: &'a mut toml_edit::DocumentMut,
+    key: &str,
+) -> Vec<&'a mut dyn toml_edit::TableLike> {
+    match doc.get_mut(key) {
+        Some(toml_edit::Item::ArrayOfTables(a)) => a
+            .iter_mut()
+            .map(|t| t as &mut dyn toml_edit::TableLike)
+            .collect(),
+        Some(toml_edit::Item::Value(toml_edit::Value::Array(a))) => a
+            .iter_mut()
+            .filter_map(|v| v.as_inline_table_mut())
+            .map(|t| t as &mut dyn toml_edit::TableLike)
+            .collect(),
+        _ => Vec::new(),
+    }
+}
+
+/// Sets `key` of `entry` to `value`, keeping the comment that followed
+/// the value it replaces (the key's own comments stay with the key).
+pub(crate) fn set_value(
+    entry: &mut dyn toml_edit::TableLike,
+    key: &str,
+    mut value: toml_edit::Value,
+) {
+    if let Some(old) = entry.get(key).and_then(toml_edit::Item::as_value) {
+        *value.decor_mut() = old.decor().clone();
+    }
+    entry.insert(key, toml_edit::Item::Value(value));
+}
+
+/// Every relative `mesh` path of `doc`'s `[[occluder]]` entries (a file
+/// in `from_dir`) rewritten for a file in `to_dir` ([`rebase`]), the rest
+/// of the file as it is: the edited file reads the same meshes.
+pub(crate) fn rebase_mesh_paths(
+    doc: &mut toml_edit::DocumentMut,
+    from_dir: &Path,
+    to_dir: &Path,
+) -> Result<(), OccluderError> {
+    for (index, entry) in entries(doc, "occluder").into_iter().enumerate() {
+        let Some(path) = entry
+            .get("mesh")
+            .and_then(|m| m.as_str())
+            .map(str::to_string)
+        else {
+            continue;
+        };
+        let new = rebase(index, &path, from_dir, to_dir)?;
+        if new != path {
+            set_value(entry, "mesh", toml_edit::Value::from(new));
+        }
+    }
+    Ok(())
+}
+
 /// `target` relative to the folder `base`, both absolute; `None` when they
 /// have different roots (another drive).
 fn relative_to(target: &Path, base: &Path) -> Option<PathBuf> {

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use polnlos::calibrate::geometry::{detect, fit, scene_with_homography, Target};
+use polnlos::calibrate::geometry::{detect, fit, scene_with_homography, SceneFolders, Target};
 use polnlos::scene::Frame;
 use polnlos::transport::MemoryBudget;
 
@@ -467,7 +467,13 @@ fn geometry(a: GeometryArgs) -> anyhow::Result<()> {
     let blobs = detect(&frame);
     let f = fit(&target, &blobs).with_context(|| format!("image {}", a.image.display()))?;
     let region = [0, 0, img.width as u32, img.height as u32];
-    let out = scene_with_homography(&scene_text, &a.pose, &f.homography, region)?;
+    let from = a.scene.parent().unwrap_or(std::path::Path::new(""));
+    let to = match &a.out {
+        Some(p) => p.parent().unwrap_or(std::path::Path::new("")),
+        None => from,
+    };
+    let folders = SceneFolders { from, to };
+    let out = scene_with_homography(&scene_text, &a.pose, &f.homography, region, folders)?;
     eprintln!(
         "pose {}: {} dots, reprojection error RMS {:.3} px, largest {:.3} px",
         a.pose, f.dots, f.rms_px, f.max_px

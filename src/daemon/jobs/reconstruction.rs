@@ -18,7 +18,7 @@ use crate::measure::{
 use crate::scene::Frame;
 use crate::solve::gram::Normal;
 use crate::solve::lambda::NoiseLevel;
-use crate::solve::photo::{photo_transport, PhotoReport, PhotoSettings};
+use crate::solve::photo::{photo_transport, OrientationCheck, PhotoReport, PhotoSettings};
 use crate::solve::radiometry::{Known, Radiometry, RadiometryChoice};
 use crate::solve::reconstruct::{reconstruct_colours, reconstruct_prepared, ColourInput, Context};
 use crate::solve::{check_measurement, SolveRequest};
@@ -601,6 +601,11 @@ impl Job<'_> {
     ) -> Result<(), JobError> {
         let (d, rec) = (self.d, self.rec);
         check(self.cancel)?;
+        // A camera capture's rows are in the order its pose's homography fixed.
+        let orientation = match stacked.imported {
+            true => OrientationCheck::Check,
+            false => OrientationCheck::Known,
+        };
         let channels: Vec<Vec<f64>> = stacked.measurements.into_iter().map(|m| m.i).collect();
         if (0..self.t.rows()).all(|j| channels.iter().any(|c| !c[j].is_finite())) {
             return Err(JobError::Unmeasured(match self.causes.is_empty() {
@@ -620,6 +625,7 @@ impl Job<'_> {
             lambda: rec.params.solve.lambda,
             iterations: rec.params.solve.max_iter.unwrap_or(defaults.iterations),
             stop: Stop::on(self.cancel),
+            orientation,
             ..defaults
         };
         // The scene left `shadows` out and its penumbra is not negligible:

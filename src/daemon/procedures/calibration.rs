@@ -4,7 +4,9 @@
 
 use serde::Serialize;
 
-use crate::calibrate::geometry::{detect_with_variance, fit, scene_with_homography, Target};
+use crate::calibrate::geometry::{
+    detect_with_variance, fit, scene_with_homography, SceneFolders, Target,
+};
 use crate::daemon::requests::validate::RequestError;
 use crate::solve::adequacy::Adequacy;
 use crate::store::{read_mean, read_mean_variance, JobState};
@@ -34,8 +36,10 @@ pub struct GeometryCalibration {
     pub model_check: Adequacy,
     /// What the user should know before trusting the homography.
     pub warnings: Vec<String>,
-    /// The scene file with this pose's homography, region and binning
-    /// replaced (comments not kept): review it, then load it as a scene file.
+    /// The scene file as written (comments, order) with only this pose's
+    /// homography, region and binning replaced: review it, then load it as
+    /// a scene file beside the original (its relative mesh paths are read
+    /// from that folder).
     pub scene_toml: String,
 }
 
@@ -181,7 +185,10 @@ impl super::Procedures {
             self.services.scenes.source(&c.scene).ok_or_else(|| {
                 invalid(format!("the text of scene {:?} is not available", c.scene))
             })?;
-        let scene_toml = scene_with_homography(source, &c.pose, &f.homography, region)
+        // Its relative mesh paths read from the scene file's folder, where
+        // the calibrated file goes beside it.
+        let folders = SceneFolders::same(self.services.scenes.folder(&c.scene));
+        let scene_toml = scene_with_homography(source, &c.pose, &f.homography, region, folders)
             .map_err(|e| invalid(e.to_string()))?;
         Ok(GeometryCalibration {
             capture,

@@ -114,6 +114,9 @@ pub struct Scenes {
     scenes: BTreeMap<String, Arc<Scene>>,
     /// Each scene's TOML text, for writing calibrated copies of it.
     sources: BTreeMap<String, String>,
+    /// The folder each scene's file is in (its relative mesh paths are read
+    /// from there); none for a built-in scene.
+    folders: BTreeMap<String, std::path::PathBuf>,
     transports: Cache<Transport>,
     grams: Cache<Gram>,
     conditioning: Cache<Conditioning>,
@@ -132,6 +135,7 @@ impl Scenes {
     pub fn load(files: &[impl AsRef<Path>], budget: MemoryBudget) -> Result<Self, SceneError> {
         let mut scenes = BTreeMap::new();
         let mut sources = BTreeMap::new();
+        let mut folders = BTreeMap::new();
         for (name, text) in crate::scene::builtin::BUILT_IN {
             scenes.insert(name.to_string(), Arc::new(Scene::from_toml_str(text)?));
             sources.insert(name.to_string(), text.to_string());
@@ -146,12 +150,15 @@ impl Scenes {
             if let Ok(text) = std::fs::read_to_string(f) {
                 sources.insert(name.clone(), text);
             }
+            let dir = f.parent().unwrap_or(Path::new("")).to_path_buf();
+            folders.insert(name.clone(), dir);
             scenes.insert(name, Arc::new(scene));
         }
         Ok(Self {
             budget,
             scenes,
             sources,
+            folders,
             transports: Mutex::new(BTreeMap::new()),
             grams: Mutex::new(BTreeMap::new()),
             conditioning: Mutex::new(BTreeMap::new()),
@@ -176,6 +183,14 @@ impl Scenes {
     /// A scene's TOML text as loaded.
     pub fn source(&self, name: &str) -> Option<&str> {
         self.sources.get(name).map(String::as_str)
+    }
+
+    /// The folder scene `name`'s file is in (`""` for a built-in scene):
+    /// where its relative mesh paths are read from.
+    pub fn folder(&self, name: &str) -> &Path {
+        self.folders
+            .get(name)
+            .map_or(Path::new(""), std::path::PathBuf::as_path)
     }
 
     /// Every name.

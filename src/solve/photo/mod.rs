@@ -85,6 +85,24 @@ pub struct PhotoSettings<'a> {
     pub iterations: usize,
     /// Ends the solve early when raised.
     pub stop: Stop<'a>,
+    /// Whether the photo's row and column order is checked ([`Orientation`]).
+    pub orientation: OrientationCheck,
+}
+
+/// Whether a reconstruction checks the photo's orientation.
+///
+/// Why: a photo or an imported file can come in any row or column order,
+/// while a camera capture through a calibrated homography has the order
+/// the homography fixed, and the check costs four fits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum OrientationCheck {
+    /// Fit the photo as given and under each flip; warn when a flip fits
+    /// clearly better ([`FLIP_MARGIN`]).
+    #[default]
+    Check,
+    /// The orientation is known (a camera capture through its pose's
+    /// homography): no check.
+    Known,
 }
 
 impl Default for PhotoSettings<'_> {
@@ -94,6 +112,7 @@ impl Default for PhotoSettings<'_> {
             lambda: None,
             iterations: 150,
             stop: Stop::default(),
+            orientation: OrientationCheck::Check,
         }
     }
 }
@@ -219,8 +238,31 @@ impl Flip {
 pub struct Orientation {
     /// Misfit per flip, in [`Flip::ALL`]'s order.
     pub misfit: [f64; 4],
-    /// The flip that fits best.
+    /// The flip that fits best by more than [`FLIP_MARGIN`] ([`best_flip`]):
+    /// as given when none does.
     pub best: Flip,
+}
+
+/// How much lower than the photo as given a flip's misfit must be for the
+/// flip to count as fitting better: 10 %.
+///
+/// Why: a photo whose orientation no flip decides (a symmetric scene, a
+/// flat field) fits every flip alike up to rounding, and a tie is no
+/// evidence; a wrong orientation fits several times worse (docs/realphoto.md).
+pub const FLIP_MARGIN: f64 = 0.1;
+
+/// The flip with the lowest misfit when it is below `(1 - FLIP_MARGIN)`
+/// times the misfit as given; as given otherwise (and when a misfit is not
+/// finite).
+pub fn best_flip(misfit: &[f64; 4]) -> Flip {
+    let lowest = (0..4)
+        .min_by(|&a, &b| misfit[a].total_cmp(&misfit[b]))
+        .unwrap_or(0);
+    let clear = misfit[lowest] < (1.0 - FLIP_MARGIN) * misfit[0];
+    match clear && misfit.iter().all(|m| m.is_finite()) {
+        true => Flip::ALL[lowest],
+        false => Flip::AsGiven,
+    }
 }
 
 impl PhotoChannel {
@@ -282,8 +324,9 @@ pub struct PhotoResult {
     /// Against the truth, when one was given.
     pub metrics: Option<PhotoMetrics>,
     /// How the photo fits as given and flipped (a photo in the wrong row or
-    /// column order still correlates with `T l`, and reconstructs a mirrored scene).
-    pub orientation: Orientation,
+    /// column order still correlates with `T l`, and reconstructs a mirrored
+    /// scene); null where the orientation is known ([`OrientationCheck::Known`]).
+    pub orientation: Option<Orientation>,
     /// What is wrong, in words (empty when nothing is).
     pub warnings: Vec<String>,
     /// Seconds to form the data term's matrix and Gram (once for all channels).
@@ -387,21 +430,18 @@ fn reconstruct_photo_with(
         }
     };
     let start = Instant::now();
-    let mut orientation = model.orientation(t, &channels, settings)?;
-    orientation
-        .misfit
-        .iter_mut()
-        .for_each(|m| *m *= unit * unit);
+    let orientation = match settings.orientation {
+        OrientationCheck::Check => {
+            let mut o = model.orientation(t, &channels, settings)?;
+            o.misfit.iter_mut().for_each(|m| *m *= unit * unit);
+            Some(o)
+        }
+        OrientationCheck::Known => None,
+    };
     let mut warnings: Vec<String> = super::unmeasured_warning(&missing, t.rows())
         .into_iter()
+        .chain(orientation.as_ref().and_then(flip_warning))
         .collect();
-    if orientation.best != Flip::AsGiven {
-        warnings.push(format!(
-            "the photo fits T better {} (misfit {:.3} of the one as given): check its row order and the scene's wall u_axis and normal (docs/realphoto.md, \"Orientation\")",
-            orientation.best.words(),
-            orientation.misfit[orientation.best as usize] / orientation.misfit[0]
-        ));
-    }
     let mut fits = channels
         .par_iter()
         .map(|i| model.channel(t, i, settings))
@@ -426,6 +466,18 @@ fn reconstruct_photo_with(
         warnings,
         model_seconds: model.seconds,
         solve_seconds,
+    })
+}
+
+/// The warning that a flip fits the photo clearly better, if one does.
+fn flip_warning(o: &Orientation) -> Option<String> {
+    (o.best != Flip::AsGiven).then(|| {
+        format!(
+            "the photo fits T better {} (misfit {:.3} of the one as given, below the {:.2} that counts as better): check its row order and the scene's wall u_axis and normal (docs/realphoto.md, \"Orientation\")",
+            o.best.words(),
+            o.misfit[o.best as usize] / o.misfit[0],
+            1.0 - FLIP_MARGIN
+        )
     })
 }
 
@@ -731,6 +783,32 @@ mod tests {
             channel: crate::scene::Channel::None,
         };
         Transport::from_col_major(rows, cols, data, vec![block; blocks], rows_grid, scene)
+    }
+
+    #[test]
+    fn a_flip_counts_as_better_only_past_the_margin() {
+        // The tie of a camera capture: rounding, not evidence.
+        let tie = [1.0, 1.0, 0.999_999_999_999_992_3, 1.0];
+        assert_eq!(best_flip(&tie), Flip::AsGiven);
+        // 9 % lower is inside the margin, 11 % past it.
+        assert_eq!(best_flip(&[1.0, 0.91, 1.2, 1.3]), Flip::AsGiven);
+        assert_eq!(best_flip(&[1.0, 0.89, 1.2, 1.3]), Flip::MirroredU);
+        assert_eq!(best_flip(&[4.0, 3.0, 1.0, 2.0]), Flip::MirroredV);
+        assert_eq!(best_flip(&[1.0, f64::NAN, 0.1, 1.0]), Flip::AsGiven);
+        let o = Orientation {
+            misfit: [4.0, 3.0, 1.0, 2.0],
+            best: Flip::MirroredV,
+        };
+        let w = flip_warning(&o).expect("a warning");
+        assert!(
+            w.contains("misfit 0.250 of the one as given, below the 0.90"),
+            "{w}"
+        );
+        let tied = Orientation {
+            misfit: tie,
+            best: best_flip(&tie),
+        };
+        assert_eq!(flip_warning(&tied), None);
     }
 
     #[test]

@@ -114,10 +114,10 @@ impl PhotoModel {
             .collect::<Result<Vec<f64>, SolveError>>()?;
         let mut misfit = [0.0; 4];
         misfit.copy_from_slice(&fits);
-        let best = Flip::ALL[(0..4)
-            .min_by(|&a, &b| misfit[a].total_cmp(&misfit[b]))
-            .unwrap_or(0)];
-        Ok(Orientation { misfit, best })
+        Ok(Orientation {
+            misfit,
+            best: super::best_flip(&misfit),
+        })
     }
 
     /// The data term's right side for `i` (rows that touch an unmeasured
