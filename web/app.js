@@ -1336,9 +1336,15 @@ async function loadScenes() {
     text($("#health"), tokenReason() || `scene list: HTTP ${r.status}`);
     return;
   }
+  // A scene file that does not load is listed, not chosen, with its error.
+  const names = r.json.filter((x) => x.error === null).map((x) => x.name);
+  const broken = r.json.filter((x) => x.error !== null);
   document.querySelectorAll("select.scenes").forEach((s) => {
-    s.replaceChildren(...r.json.map((n) => el("option", { value: n }, n)));
-    s.value = r.json.includes("brewster-crossed") ? "brewster-crossed" : r.json[0];
+    s.replaceChildren(
+      ...names.map((n) => el("option", { value: n }, n)),
+      ...broken.map((x) => el("option", { value: "", disabled: "", title: x.error }, `${x.name} (not loaded: ${x.error})`)),
+    );
+    s.value = names.includes("brewster-crossed") ? "brewster-crossed" : names[0];
   });
 }
 

@@ -53,7 +53,8 @@ class Client:
     # -- transport ---------------------------------------------------------
 
     def _request(self, method: str, path: str, body: Any = None,
-                 timeout: Optional[float] = None, raw: Optional[bytes] = None):
+                 timeout: Optional[float] = None, raw: Optional[bytes] = None,
+                 content_type: str = "application/octet-stream"):
         data = None
         headers = {"Accept": "application/json"}
         if body is not None:
@@ -61,7 +62,7 @@ class Client:
             headers["Content-Type"] = "application/json"
         if raw is not None:
             data = raw
-            headers["Content-Type"] = "application/octet-stream"
+            headers["Content-Type"] = content_type
         if self.token:
             headers["Authorization"] = f"Bearer {self.token}"
         req = urllib.request.Request(self.url + path, data=data, method=method, headers=headers)
@@ -98,8 +99,41 @@ class Client:
         return self._json("GET", "/camera")
 
     def scenes(self) -> List[str]:
-        """The scene names the daemon knows."""
+        """The names of the scenes the daemon serves."""
+        return [s["name"] for s in self.scene_list() if s.get("error") is None]
+
+    def scene_list(self) -> List[Dict[str, Any]]:
+        """Every scene (`GET /scenes`): `name`, `origin` (`built-in`,
+        `file`, `posted`) and `error`, why a file does not load (None when
+        it serves)."""
         return self._json("GET", "/scenes")
+
+    def _scene_file(self, method: str, path: str, toml_text: str) -> Dict[str, Any]:
+        with self._request(method, path, raw=toml_text.encode(),
+                           content_type="application/toml") as r:
+            return json.loads(r.read())
+
+    def add_scene(self, name: str, toml_text: str) -> Dict[str, Any]:
+        """Adds scene `name` from the text of its file (`POST /scenes`),
+        served at once without a restart; relative mesh paths are read from
+        the data directory's `scenes/`. A bad file raises `DaemonError`
+        (422) naming its line."""
+        import urllib.parse
+        query = urllib.parse.urlencode({"name": name})
+        return self._scene_file("POST", f"/scenes?{query}", toml_text)
+
+    def replace_scene(self, name: str, toml_text: str) -> Dict[str, Any]:
+        """Replaces scene `name` (`PUT /scenes/{name}`), e.g. with a
+        calibration's `scene_toml`; a job that started before keeps the old
+        scene."""
+        import urllib.parse
+        return self._scene_file("PUT", f"/scenes/{urllib.parse.quote(name, safe='')}", toml_text)
+
+    def delete_scene(self, name: str) -> None:
+        """Deletes posted scene `name` (`DELETE /scenes/{name}`)."""
+        import urllib.parse
+        with self._request("DELETE", f"/scenes/{urllib.parse.quote(name, safe='')}"):
+            pass
 
     # -- captures ------------------------------------------------------------
 

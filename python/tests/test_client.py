@@ -187,3 +187,24 @@ def test_a_target_capture_calibrates_the_pose_and_colour_needs_a_light_capture(c
     assert "white or grey field" in e.value.message, e.value.message
     listed = client.calibrations()
     assert any(g["scene"] == "brewster-crossed" and g["gain"] > 0 for g in listed["radiometric"]), listed
+
+
+
+def test_a_scene_is_added_replaced_and_deleted_without_a_restart(client):
+    import pathlib
+    text = (pathlib.Path(__file__).parents[2] / "config/scenes/brewster-crossed.toml").read_text()
+    added = client.add_scene("from-python", "# mine\n" + text)
+    assert added == {"name": "from-python", "origin": "posted", "error": None}
+    assert "from-python" in client.scenes()
+    with pytest.raises(polnlos.DaemonError) as e:
+        client.add_scene("from-python", text)
+    assert e.value.status == 409
+    with pytest.raises(polnlos.DaemonError) as e:
+        client.replace_scene("from-python", "[wall]\nsize = [0.3,\n")
+    assert e.value.status == 422 and "line 2" in e.value.message
+    replaced = client.replace_scene("from-python", text.replace("grid = [8, 8]", "grid = [4, 4]", 1))
+    assert replaced["origin"] == "posted"
+    client.delete_scene("from-python")
+    assert "from-python" not in client.scenes()
+    listed = {s["name"]: s for s in client.scene_list()}
+    assert listed["brewster-crossed"]["origin"] == "built-in"

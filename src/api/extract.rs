@@ -6,6 +6,7 @@ use axum::http::request::Parts;
 use serde::de::DeserializeOwned;
 
 use super::ApiError;
+use crate::daemon::runtime::scene_registry::MAX_SCENE_BYTES;
 
 /// A query string, or a 400 JSON error naming the bad parameter.
 pub struct ApiQuery<T>(pub T);
@@ -83,5 +84,50 @@ impl<S: Send + Sync, T: DeserializeOwned> axum::extract::FromRequest<S> for ApiJ
                 "." => ApiError::invalid(e.inner().to_string()),
                 path => ApiError::invalid(format!("{path}: {}", e.inner())),
             })
+    }
+}
+
+/// A TOML body (a scene file): 415 without `application/toml`, 413 over
+/// [`MAX_SCENE_BYTES`], 422 when the bytes are not UTF-8 text.
+pub struct ApiToml(pub String);
+
+impl<S: Send + Sync> axum::extract::FromRequest<S> for ApiToml {
+    type Rejection = ApiError;
+
+    async fn from_request(req: axum::extract::Request, state: &S) -> Result<Self, ApiError> {
+        use axum::http::{header, StatusCode};
+        let toml_type = req
+            .headers()
+            .get(header::CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok())
+            .map(|v| {
+                v.split(';')
+                    .next()
+                    .unwrap_or("")
+                    .trim()
+                    .to_ascii_lowercase()
+            })
+            .is_some_and(|m| m == "application/toml");
+        if !toml_type {
+            return Err(ApiError::new(
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                "unsupported_media_type",
+                "send the scene file as the body with 'Content-Type: application/toml'",
+            ));
+        }
+        // The scene routes' body limit is MAX_SCENE_BYTES (api::all_routes).
+        let bytes = axum::body::Bytes::from_request(req, state)
+            .await
+            .map_err(|r| match r.status() {
+                StatusCode::PAYLOAD_TOO_LARGE => ApiError::new(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    "body_too_large",
+                    format!("a scene file is at most {MAX_SCENE_BYTES} bytes"),
+                ),
+                s => ApiError::new(s, "bad_request", r.body_text()),
+            })?;
+        String::from_utf8(bytes.to_vec())
+            .map(ApiToml)
+            .map_err(|e| ApiError::invalid(format!("the scene file is not UTF-8 text: {e}")))
     }
 }

@@ -132,6 +132,22 @@ fn all_routes(import_limit: usize) -> OpenApiRouter<Arc<Daemon>> {
         paths,
         import.layer(axum::extract::DefaultBodyLimit::max(import_limit)),
     );
+    let (schemas, paths, scene_routes) = routes!(routes::scenes, routes::post_scene);
+    let scene_routes = (
+        schemas,
+        paths,
+        scene_routes.layer(axum::extract::DefaultBodyLimit::max(
+            crate::daemon::runtime::scene_registry::MAX_SCENE_BYTES,
+        )),
+    );
+    let (schemas, paths, scene_file) = routes!(routes::put_scene, routes::delete_scene);
+    let scene_file = (
+        schemas,
+        paths,
+        scene_file.layer(axum::extract::DefaultBodyLimit::max(
+            crate::daemon::runtime::scene_registry::MAX_SCENE_BYTES,
+        )),
+    );
     OpenApiRouter::with_openapi(openapi::base())
         .route("/", get(web::index))
         .route("/app.js", get(web::app))
@@ -187,7 +203,8 @@ fn all_routes(import_limit: usize) -> OpenApiRouter<Arc<Daemon>> {
         .routes(routes!(routes::reconstruction_report))
         .routes(routes!(routes::get_job, routes::cancel_job))
         .routes(routes!(routes::events))
-        .routes(routes!(routes::scenes))
+        .routes(scene_routes)
+        .routes(scene_file)
         .routes(routes!(routes::scene_exposure))
         .routes(routes!(routes::scene_wall))
 }

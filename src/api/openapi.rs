@@ -67,6 +67,8 @@ use crate::daemon::Daemon;
         crate::measure::exposure::ExposureTarget,
         crate::measure::exposure::BlockExposure,
         crate::daemon::runtime::scenes::WallView,
+        crate::daemon::runtime::scenes::SceneListing,
+        crate::daemon::runtime::scenes::SceneOrigin,
     ))
 )]
 struct Doc;

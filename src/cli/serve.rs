@@ -69,6 +69,8 @@ async fn serve(config: Config, budget: MemoryBudget) -> anyhow::Result<()> {
     // between the first answer and the handler's first poll killed the
     // daemon outright (a test under load saw it exit by signal 15).
     let stop = shutdown_signal()?;
+    let mut hangup = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup())
+        .context("cannot handle SIGHUP")?;
     // The port first: a second daemon fails here, or on the data directory's
     // lock, before it touches anything of the first one's.
     let listener = tokio::net::TcpListener::bind(bind)
@@ -77,6 +79,16 @@ async fn serve(config: Config, budget: MemoryBudget) -> anyhow::Result<()> {
     let daemon = Daemon::start(config, budget).await?;
     tracing::info!("polnlos API on http://{}", listener.local_addr()?);
     notify(&[sd_notify::NotifyState::Ready]);
+    // SIGHUP reads the scene files again; running jobs keep their scenes.
+    let reloading = daemon.clone();
+    let reload = tokio::spawn(async move {
+        while hangup.recv().await.is_some() {
+            let d = reloading.clone();
+            if let Err(e) = tokio::task::spawn_blocking(move || d.reload_scenes()).await {
+                tracing::error!("reading the scenes again failed: {e}");
+            }
+        }
+    });
     let watchdog = watchdog();
     let result = polnlos::api::run(listener, daemon, async {
         stop.await;
@@ -86,6 +98,7 @@ async fn serve(config: Config, budget: MemoryBudget) -> anyhow::Result<()> {
     if let Some(w) = watchdog {
         w.abort();
     }
+    reload.abort();
     result.context("HTTP server stopped")
 }
 

@@ -71,6 +71,7 @@ use crate::transport::MemoryBudget;
 use runtime::metrics::Metrics;
 use runtime::queue::{CaptureQueue, Queue};
 use runtime::registry::JobRegistry;
+pub use runtime::scene_registry::SceneRegistry;
 pub use runtime::scenes::Scenes;
 
 /// Exposure at which the fake camera's demo image fills 80 % of full scale
@@ -202,7 +203,7 @@ pub struct Daemon {
     /// Bearer token ("" = none).
     token: String,
     store: Arc<Store>,
-    scenes: Arc<Scenes>,
+    scenes: Arc<SceneRegistry>,
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
     calibration: Arc<BTreeMap<String, f64>>,
     camera: Arc<CameraService>,
@@ -233,8 +234,12 @@ impl Daemon {
     pub async fn start(config: Config, budget: MemoryBudget) -> Result<Arc<Self>, DaemonError> {
         config.validate()?;
         let store = Store::open(&config.data_dir)?;
-        let scenes = Arc::new(Scenes::load(&config.scene_files, budget)?);
-        let camera = CameraSetup::configured(&config, &scenes).await?;
+        let scenes = Arc::new(SceneRegistry::open(
+            &config.scene_files,
+            &config.data_dir,
+            budget,
+        )?);
+        let camera = CameraSetup::configured(&config, &scenes.now()).await?;
         Self::start_with(config, store, scenes, camera).await
     }
 
@@ -243,14 +248,14 @@ impl Daemon {
     pub async fn start_with(
         config: Config,
         store: Store,
-        scenes: Arc<Scenes>,
+        scenes: Arc<SceneRegistry>,
         camera: CameraSetup,
     ) -> Result<Arc<Self>, DaemonError> {
         config.validate()?;
         let token = config.resolved_token()?;
         let mut calibration = config.calibration.clone();
         if let Some(c) = camera.demo_calibration {
-            for name in scenes.names() {
+            for name in scenes.now().names() {
                 calibration.entry(name).or_insert(c);
             }
         }
@@ -393,7 +398,8 @@ impl Daemon {
     fn job_context(&self) -> jobs::JobContext {
         jobs::JobContext {
             store: self.store.clone(),
-            scenes: self.scenes.clone(),
+            scenes: self.scenes.now(),
+            scene_registry: self.scenes.clone(),
             calibration: self.calibration.clone(),
             registry: self.registry.clone(),
             events: self.events.clone(),
@@ -448,9 +454,25 @@ impl Daemon {
         &self.rig
     }
 
-    /// The scenes the daemon knows, with their `T`s and pixel maps.
-    pub fn scenes(&self) -> &Scenes {
+    /// The scenes the daemon knows now, with their `T`s and pixel maps.
+    pub fn scenes(&self) -> Arc<Scenes> {
+        self.scenes.now()
+    }
+
+    /// The scenes, to change (`POST /scenes`, SIGHUP).
+    pub fn scene_registry(&self) -> &SceneRegistry {
         &self.scenes
+    }
+
+    /// Reads every scene file again (SIGHUP), running jobs untouched.
+    pub fn reload_scenes(&self) -> Vec<runtime::scenes::SceneListing> {
+        let listing = self.scenes.reload();
+        let broken = listing.iter().filter(|l| l.error.is_some()).count();
+        tracing::info!(
+            "scenes read again: {} served, {broken} not loaded",
+            listing.len() - broken
+        );
+        listing
     }
 
     /// Job, frame and camera events from now on.

@@ -275,6 +275,25 @@ impl Client {
         )
     }
 
+    /// Sends `body` as a scene file (`application/toml`) with `method`
+    /// (`POST` or `PUT`): the status and the body.
+    pub fn send_toml(&self, method: &str, path: &str, body: &str) -> (u16, String) {
+        let url = format!("{}{path}", self.base);
+        let mut req = match method {
+            "PUT" => self.agent.put(url),
+            _ => self.agent.post(url),
+        }
+        .header("content-type", "application/toml");
+        if let Some(t) = &self.token {
+            req = req.header("authorization", format!("Bearer {t}"));
+        }
+        let mut r = req.send(body).unwrap();
+        (
+            r.status().as_u16(),
+            r.body_mut().read_to_string().unwrap_or_default(),
+        )
+    }
+
     pub fn put(&self, path: &str, body: &str) -> (u16, String) {
         let mut req = self
             .agent
@@ -521,8 +540,7 @@ impl InProcess {
     /// camera showing the config's demo scene; returns once the camera is
     /// connected.
     pub fn start(config: &Path, data: &Path) -> Self {
-        use polnlos::daemon::Scenes;
-        use polnlos::daemon::{CameraSetup, Config};
+        use polnlos::daemon::{CameraSetup, Config, SceneRegistry};
         // No Aravis: the cores the camera tests leave idle are enough, for
         // this daemon and for what the test starts beside it (a browser,
         // schemathesis, Python).
@@ -551,10 +569,14 @@ impl InProcess {
                 let port = listener.local_addr().expect("local address").port();
                 let store = polnlos::store::Store::open(&cfg.data_dir).expect("data directory");
                 let scenes = std::sync::Arc::new(
-                    Scenes::load(&cfg.scene_files, polnlos::transport::MemoryBudget::DEFAULT)
-                        .expect("scenes"),
+                    SceneRegistry::open(
+                        &cfg.scene_files,
+                        &cfg.data_dir,
+                        polnlos::transport::MemoryBudget::DEFAULT,
+                    )
+                    .expect("scenes"),
                 );
-                let camera = CameraSetup::synthetic(&cfg, &scenes)
+                let camera = CameraSetup::synthetic(&cfg, &scenes.now())
                     .await
                     .expect("synthetic camera");
                 let d = polnlos::daemon::Daemon::start_with(cfg, store, scenes, camera)

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
-use polnlos::daemon::Scenes;
+use polnlos::daemon::SceneRegistry;
 use polnlos::daemon::{CameraSetup, Config, Daemon};
 use polnlos::store::Store;
 use polnlos::transport::MemoryBudget;
@@ -25,9 +25,11 @@ async fn daemon_showing(dir: &std::path::Path, scene: &str, pattern: &str) -> Ar
     config.demo.scene = scene.into();
     config.demo.pattern = pattern.into();
     let store = Store::open(&config.data_dir).expect("data directory");
-    let scenes = Arc::new(
-        Scenes::load(&config.scene_files, MemoryBudget::DEFAULT).expect("built-in scenes"),
+    let registry = Arc::new(
+        SceneRegistry::open(&config.scene_files, &config.data_dir, MemoryBudget::DEFAULT)
+            .expect("built-in scenes"),
     );
+    let scenes = registry.now();
     // The demo scene's T, Gram and conditioning, formed before any job (as
     // a daemon that has reconstructed it once has them): a progressive
     // capture's solver otherwise forms them while its frames arrive, and on
@@ -41,7 +43,7 @@ async fn daemon_showing(dir: &std::path::Path, scene: &str, pattern: &str) -> Ar
     let camera = CameraSetup::synthetic(&config, &scenes)
         .await
         .expect("synthetic camera");
-    connected(Daemon::start_with(config, store, scenes, camera).await).await
+    connected(Daemon::start_with(config, store, registry, camera).await).await
 }
 
 /// The started daemon, once its camera is connected.
@@ -528,7 +530,8 @@ async fn a_camera_that_stalls_fails_its_capture_in_bounded_time_and_the_queue_go
     config.camera.stall_slack_s = 1.0;
     let store = Store::open(&config.data_dir).expect("data directory");
     let scenes = Arc::new(
-        Scenes::load(&config.scene_files, MemoryBudget::DEFAULT).expect("built-in scenes"),
+        SceneRegistry::open(&config.scene_files, &config.data_dir, MemoryBudget::DEFAULT)
+            .expect("built-in scenes"),
     );
     let frozen = Arc::new(std::sync::atomic::AtomicBool::new(true));
     let f = frozen.clone();

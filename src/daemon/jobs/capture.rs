@@ -58,11 +58,13 @@ pub(in crate::daemon) struct CaptureWorker {
 impl CaptureWorker {
     /// Runs captures one at a time (one camera) until the daemon stops, and
     /// the live view while no capture waits.
-    pub(in crate::daemon) async fn run(self, mut rx: mpsc::Receiver<i64>) {
-        let w = &self;
-        let mut stopped = w.jobs.registry.stopped();
-        let mut live_changed = w.live.subscribe();
+    pub(in crate::daemon) async fn run(mut self, mut rx: mpsc::Receiver<i64>) {
+        let mut stopped = self.jobs.registry.stopped();
+        let mut live_changed = self.live.subscribe();
         loop {
+            // Each capture (and live segment) keeps the scenes as it started.
+            self.jobs = self.jobs.with_current_scenes();
+            let w = &self;
             if w.queue.depth() == 0 && !w.jobs.registry.is_stopping() && w.live.wanted().is_some() {
                 // Returns when a capture is queued, the session changes, or the daemon stops.
                 live_changed.borrow_and_update();

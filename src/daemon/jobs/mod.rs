@@ -26,12 +26,26 @@ use crate::store::{JobState, Store};
 #[derive(Clone)]
 pub(in crate::daemon) struct JobContext {
     pub(in crate::daemon) store: Arc<Store>,
+    /// The scenes as the job started: a change of them does not touch it.
     pub(in crate::daemon) scenes: Arc<Scenes>,
+    /// The scenes now, for the next job's snapshot.
+    pub(in crate::daemon) scene_registry:
+        Arc<crate::daemon::runtime::scene_registry::SceneRegistry>,
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
     pub(in crate::daemon) calibration: Arc<BTreeMap<String, f64>>,
     pub(in crate::daemon) registry: Arc<JobRegistry>,
     pub(in crate::daemon) events: Events,
     pub(in crate::daemon) metrics: Arc<Metrics>,
+}
+
+impl JobContext {
+    /// This context with the scenes as they are now: what a job starting keeps.
+    pub(in crate::daemon) fn with_current_scenes(&self) -> Self {
+        Self {
+            scenes: self.scene_registry.now(),
+            ..self.clone()
+        }
+    }
 }
 
 /// Why a capture or reconstruction job failed: what the job's `error` says.

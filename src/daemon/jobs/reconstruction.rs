@@ -59,7 +59,7 @@ pub(in crate::daemon) async fn reconstruction_worker(
         }
         d.events.job(job.clone(), JobState::Running, None);
         tracing::info!("{job} started");
-        let (d2, cancel) = (d.clone(), d.registry.cancel_flag(&job));
+        let (d2, cancel) = (d.with_current_scenes(), d.registry.cancel_flag(&job));
         let span = tracing::info_span!("job", id = %job);
         let r = tokio::task::spawn_blocking(move || {
             span.in_scope(|| run_reconstruction(&d2, id, &cancel))

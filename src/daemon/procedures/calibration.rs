@@ -167,7 +167,7 @@ impl super::Procedures {
                     "{w} (reprojection RMS {:.3} px against a centroid noise of {:.1e} px: with a wall element {:.0} px wide, an error well below a pixel still places every element)",
                     f.rms_px,
                     f.model_check.noise_rms.unwrap_or(f64::NAN),
-                    element_px(&f.homography, self.services.scenes.scene(&c.scene).ok().as_deref()),
+                    element_px(&f.homography, self.services.scenes.now().scene(&c.scene).ok().as_deref()),
                 )
             })
             .into_iter()
@@ -181,13 +181,13 @@ impl super::Procedures {
             .settings
             .region
             .unwrap_or([0, 0, mean.width as u32, mean.height as u32]);
-        let source =
-            self.services.scenes.source(&c.scene).ok_or_else(|| {
-                invalid(format!("the text of scene {:?} is not available", c.scene))
-            })?;
+        let scenes = self.services.scenes.now();
+        let source = scenes
+            .source(&c.scene)
+            .ok_or_else(|| invalid(format!("the text of scene {:?} is not available", c.scene)))?;
         // Its relative mesh paths read from the scene file's folder, where
         // the calibrated file goes beside it.
-        let folders = SceneFolders::same(self.services.scenes.folder(&c.scene));
+        let folders = SceneFolders::same(scenes.folder(&c.scene));
         let scene_toml = scene_with_homography(source, &c.pose, &f.homography, region, folders)
             .map_err(|e| invalid(e.to_string()))?;
         Ok(GeometryCalibration {
@@ -260,7 +260,7 @@ impl super::Procedures {
     ) -> Result<WallCalibration, RequestError> {
         use crate::calibrate::wall::{fit_sources_from_scene, SourceMeasurement};
         let invalid = RequestError::Invalid;
-        let scene = self.services.scenes.scene(scene_name)?;
+        let scene = self.services.scenes.now().scene(scene_name)?;
         // Each position's capture ids in block order, and its measurement.
         let mut ordered: Vec<Vec<i64>> = Vec::with_capacity(positions.len());
         let mut measured = Vec::with_capacity(positions.len());
@@ -274,7 +274,7 @@ impl super::Procedures {
                 captures,
                 &scene,
                 &blocks,
-                &self.services.scenes.pixel_maps(scene_name),
+                &self.services.scenes.now().pixel_maps(scene_name),
                 false,
                 false,
             )
@@ -295,7 +295,7 @@ impl super::Procedures {
             .collect();
         // A refused fit names what loading the captures found too: a missing
         // dark subtraction is a likelier cause than a misplaced source.
-        let mut fit = fit_sources_from_scene(&scene, &sets, self.services.scenes.budget())
+        let mut fit = fit_sources_from_scene(&scene, &sets, self.services.scenes.now().budget())
             .map_err(|e| match warnings.as_slice() {
                 [] => invalid(e.to_string()),
                 w => invalid(format!("{e}. Also: {}", w.join("; "))),

@@ -96,7 +96,7 @@ impl super::Procedures {
             )));
         }
         let scene_name = c.scene.clone();
-        let scene = self.services.scenes.scene(&scene_name)?;
+        let scene = self.services.scenes.now().scene(&scene_name)?;
         let blocks: Vec<_> = crate::transport::blocks_of(&scene)
             .into_iter()
             .filter(|b| b.taken_by(&c.pose, &c.channels))
@@ -106,7 +106,7 @@ impl super::Procedures {
             vec![c],
             &scene,
             &blocks,
-            &self.services.scenes.pixel_maps(&scene_name),
+            &self.services.scenes.now().pixel_maps(&scene_name),
             true,
             true,
         )

@@ -200,6 +200,7 @@ impl super::Procedures {
         let scene = self
             .services
             .scenes
+            .now()
             .scene(&b.scene)
             .map_err(RequestError::from)?;
         let Some(pose) = scene.pose(&b.pose) else {

@@ -295,7 +295,7 @@ impl Plans {
 
     fn plan_steps(&self, plan: &PlanRow) -> Result<(PlanBody, Vec<PlanStep>), StoredPlanError> {
         let body: PlanBody = serde_json::from_value(plan.request.clone())?;
-        let scene = self.admission.scenes.scene(&plan.scene)?;
+        let scene = self.admission.scenes.now().scene(&plan.scene)?;
         Ok((
             body.clone(),
             steps_of(&scene, &body, self.admission.rig.automated()),
@@ -312,6 +312,7 @@ impl Plans {
         let scene = self
             .admission
             .scenes
+            .now()
             .scene(&body.scene)
             .map_err(|e| SubmitError::from(RequestError::from(e)))?;
         if body.settings.exposure_us.is_some() && body.exposure.is_some() {

@@ -19,7 +19,7 @@ use crate::daemon::runtime::events::Events;
 use crate::daemon::runtime::metrics::Metrics;
 use crate::daemon::runtime::queue::{CaptureQueue, DiskNeed, Queue, SubmitError};
 use crate::daemon::runtime::registry::JobRegistry;
-use crate::daemon::runtime::scenes::Scenes;
+use crate::daemon::runtime::scene_registry::SceneRegistry;
 use crate::daemon::Config;
 use crate::measure::exposure::{plan_exposure, BlockExposure, CameraLimits, ExposureTarget};
 use crate::rig::Rig;
@@ -31,7 +31,7 @@ use crate::store::{capture_bytes, CaptureRequest, Store};
 pub(crate) struct Admission {
     pub(in crate::daemon) config: Arc<Config>,
     pub(in crate::daemon) store: Arc<Store>,
-    pub(in crate::daemon) scenes: Arc<Scenes>,
+    pub(in crate::daemon) scenes: Arc<SceneRegistry>,
     /// Fraction of full scale per microsecond per unit of `T l`, per scene.
     pub(in crate::daemon) calibration: Arc<BTreeMap<String, f64>>,
     pub(in crate::daemon) camera: Arc<CameraService>,
@@ -146,14 +146,14 @@ impl Admission {
         target: &ExposureTarget,
         limits: &CameraLimits,
     ) -> Result<Vec<BlockExposure>, RequestError> {
-        let t = self.scenes.transport(scene)?;
+        let t = self.scenes.now().transport(scene)?;
         let cal = self.calibration.get(scene).copied().ok_or_else(|| {
             RequestError::Invalid(format!(
                 "no radiometric calibration for scene {scene:?}, so exposures cannot be planned: add `{scene} = <fraction of full scale per microsecond per unit of T l>` under [calibration] in the config, or give exposure_us"
             ))
         })?;
         // Each element is measured from all its pixels: their photons count.
-        let pixels = crate::scene::effective_pixels(&*self.scenes.scene(scene)?)
+        let pixels = crate::scene::effective_pixels(&*self.scenes.now().scene(scene)?)
             .map_err(|e| RequestError::Invalid(e.to_string()))?;
         plan_exposure(&t, cal, limits, target, pixels.as_deref())
             .map_err(|e| RequestError::Invalid(e.to_string()))
@@ -235,7 +235,7 @@ impl Admission {
                 "{field} is live view's (POST /live): leave it out of a capture"
             )));
         }
-        let scene = self.scenes.scene(&b.scene)?;
+        let scene = self.scenes.now().scene(&b.scene)?;
         let info = self.camera.status().info;
         let cam = self.camera_context(info.as_ref());
         let plan = || match b.exposure {
@@ -277,7 +277,7 @@ impl Admission {
                 "frames = {n}: a live window is 1 to {MAX_WINDOW} frames"
             )));
         }
-        self.scenes.scene(&b.scene)?;
+        self.scenes.now().scene(&b.scene)?;
         let difference = b
             .difference
             .as_ref()
@@ -405,7 +405,11 @@ impl Admission {
 
     /// Validates a reconstruction body against its scene and captures and queues it.
     pub(crate) fn submit_reconstruction(&self, b: &ReconstructionBody) -> Result<i64, SubmitError> {
-        let scene = self.scenes.scene(&b.scene).map_err(RequestError::from)?;
+        let scene = self
+            .scenes
+            .now()
+            .scene(&b.scene)
+            .map_err(RequestError::from)?;
         let request = validate::reconstruction(b, &scene, |id| self.lookup_capture(id))?;
         let pushed = self.reconstructions.push(5, || {
             self.store

@@ -69,7 +69,11 @@ impl Admission {
         q: &ImportQuery,
         bytes: &[u8],
     ) -> Result<CaptureRecord, SubmitError> {
-        let scene = self.scenes.scene(&q.scene).map_err(RequestError::from)?;
+        let scene = self
+            .scenes
+            .now()
+            .scene(&q.scene)
+            .map_err(RequestError::from)?;
         let blocks = pose_blocks(&scene, q)?;
         if let Some(name) = &q.name {
             if name.chars().count() > MAX_NAME || name.chars().any(char::is_control) {

@@ -12,4 +12,5 @@ pub(crate) mod metrics;
 pub(crate) mod queue;
 pub(crate) mod registry;
 pub(crate) mod retention;
+pub mod scene_registry;
 pub mod scenes;

@@ -108,15 +108,96 @@ pub(crate) fn wall_views(scene: &Scene) -> Vec<WallView> {
         .collect()
 }
 
-/// Scenes by name, with a cache of their `T`, each built within one memory budget.
+/// Where a scene the daemon knows comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "kebab-case")]
+pub enum SceneOrigin {
+    /// Built into polnlos (the Brewster bench scenes).
+    BuiltIn,
+    /// A file of the config's `scene_files`.
+    File,
+    /// Sent over HTTP (`POST /scenes`, `PUT /scenes/{name}`), kept in the
+    /// data directory's `scenes/`.
+    Posted,
+}
+
+impl SceneOrigin {
+    /// In words, for a message.
+    pub fn words(self) -> &'static str {
+        match self {
+            SceneOrigin::BuiltIn => "built in",
+            SceneOrigin::File => "a file of scene_files",
+            SceneOrigin::Posted => "posted",
+        }
+    }
+}
+
+/// One scene as `GET /scenes` lists it: a scene that serves, or a file
+/// that does not, with why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
+pub struct SceneListing {
+    /// The name requests use (a file's stem).
+    pub name: String,
+    /// Where it comes from.
+    pub origin: SceneOrigin,
+    /// Why its file does not load (null for a scene that serves); another
+    /// scene of the name (a built-in one) may serve meanwhile.
+    pub error: Option<String>,
+}
+
+/// A scene as the daemon holds it: parsed, its text and where it is read from.
+#[derive(Clone)]
+pub(crate) struct Entry {
+    pub(crate) scene: Arc<Scene>,
+    /// Its TOML text as loaded, for writing calibrated copies of it.
+    pub(crate) source: String,
+    /// The folder its file is in (its relative mesh paths are read from
+    /// there); `""` for a built-in scene.
+    pub(crate) folder: std::path::PathBuf,
+    pub(crate) origin: SceneOrigin,
+}
+
+impl Entry {
+    /// The scene file `path` (a `scene_files` entry or a posted file).
+    pub(crate) fn read(path: &Path, origin: SceneOrigin) -> Result<Self, SceneError> {
+        let source = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let folder = path.parent().unwrap_or(Path::new("")).to_path_buf();
+        Self::parse(source, folder, origin).map_err(|e| e.in_file(path))
+    }
+
+    /// Scene text as a file in `folder`.
+    pub(crate) fn parse(
+        source: String,
+        folder: std::path::PathBuf,
+        origin: SceneOrigin,
+    ) -> Result<Self, SceneError> {
+        Ok(Self {
+            scene: Arc::new(Scene::from_toml_str_in(&source, &folder)?),
+            source,
+            folder,
+            origin,
+        })
+    }
+}
+
+/// The stem of scene file `path`: the name the daemon knows it by.
+pub(crate) fn file_name(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// Scenes by name, with a cache of their `T`, each built within one memory
+/// budget: one snapshot of the daemon's scenes ([`super::scene_registry`]
+/// makes a new one on each change; a job keeps the one it started with).
 pub struct Scenes {
     budget: MemoryBudget,
-    scenes: BTreeMap<String, Arc<Scene>>,
-    /// Each scene's TOML text, for writing calibrated copies of it.
-    sources: BTreeMap<String, String>,
-    /// The folder each scene's file is in (its relative mesh paths are read
-    /// from there); none for a built-in scene.
-    folders: BTreeMap<String, std::path::PathBuf>,
+    entries: BTreeMap<String, Entry>,
+    /// Files that did not load, by name, with why.
+    broken: BTreeMap<String, (SceneOrigin, String)>,
     transports: Cache<Transport>,
     grams: Cache<Gram>,
     conditioning: Cache<Conditioning>,
@@ -133,38 +214,103 @@ impl Scenes {
     /// Built-in scenes plus these files (a file replaces a built-in of the
     /// same name), whose `T` will be built within `budget`.
     pub fn load(files: &[impl AsRef<Path>], budget: MemoryBudget) -> Result<Self, SceneError> {
-        let mut scenes = BTreeMap::new();
-        let mut sources = BTreeMap::new();
-        let mut folders = BTreeMap::new();
-        for (name, text) in crate::scene::builtin::BUILT_IN {
-            scenes.insert(name.to_string(), Arc::new(Scene::from_toml_str(text)?));
-            sources.insert(name.to_string(), text.to_string());
-        }
+        let mut entries = Self::builtin()?;
         for f in files {
             let f = f.as_ref();
-            let name = f
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let scene = Scene::load(f)?;
-            if let Ok(text) = std::fs::read_to_string(f) {
-                sources.insert(name.clone(), text);
-            }
-            let dir = f.parent().unwrap_or(Path::new("")).to_path_buf();
-            folders.insert(name.clone(), dir);
-            scenes.insert(name, Arc::new(scene));
+            entries.insert(file_name(f), Entry::read(f, SceneOrigin::File)?);
         }
-        Ok(Self {
+        Ok(Self::of(entries, BTreeMap::new(), budget))
+    }
+
+    /// The built-in scenes.
+    pub(crate) fn builtin() -> Result<BTreeMap<String, Entry>, SceneError> {
+        crate::scene::builtin::BUILT_IN
+            .iter()
+            .map(|(name, text)| {
+                let entry =
+                    Entry::parse(text.to_string(), Default::default(), SceneOrigin::BuiltIn)?;
+                Ok((name.to_string(), entry))
+            })
+            .collect()
+    }
+
+    /// These scenes and broken files, with empty caches.
+    pub(crate) fn of(
+        entries: BTreeMap<String, Entry>,
+        broken: BTreeMap<String, (SceneOrigin, String)>,
+        budget: MemoryBudget,
+    ) -> Self {
+        Self {
             budget,
-            scenes,
-            sources,
-            folders,
+            entries,
+            broken,
             transports: Mutex::new(BTreeMap::new()),
             grams: Mutex::new(BTreeMap::new()),
             conditioning: Mutex::new(BTreeMap::new()),
             variants: Mutex::new(BTreeMap::new()),
             pixel_maps: Mutex::new(BTreeMap::new()),
-        })
+        }
+    }
+
+    /// These scenes with what was made for `old`'s scenes kept (their `T`,
+    /// Gram, conditioning, variants and pixel maps) where a scene is the
+    /// same text read from the same folder.
+    pub(crate) fn keeping(self, old: &Scenes) -> Self {
+        let same = |name: &str| {
+            let base = name.split('#').next().unwrap_or(name);
+            match (self.entries.get(base), old.entries.get(base)) {
+                (Some(a), Some(b)) => a.source == b.source && a.folder == b.folder,
+                _ => false,
+            }
+        };
+        Self {
+            transports: kept(&old.transports, same),
+            grams: kept(&old.grams, same),
+            conditioning: kept(&old.conditioning, same),
+            variants: kept(&old.variants, same),
+            pixel_maps: kept(&old.pixel_maps, same),
+            ..self
+        }
+    }
+
+    /// The entry of scene `name`, for a change of it.
+    pub(crate) fn entry(&self, name: &str) -> Option<&Entry> {
+        self.entries.get(name)
+    }
+
+    /// Every entry and broken file, for a new snapshot made from these.
+    #[allow(clippy::type_complexity)]
+    pub(crate) fn parts(
+        &self,
+    ) -> (
+        BTreeMap<String, Entry>,
+        BTreeMap<String, (SceneOrigin, String)>,
+    ) {
+        (self.entries.clone(), self.broken.clone())
+    }
+
+    /// Every scene that serves and every file that does not, by name.
+    pub fn listing(&self) -> Vec<SceneListing> {
+        let serving = self.entries.iter().map(|(name, e)| SceneListing {
+            name: name.clone(),
+            origin: e.origin,
+            error: None,
+        });
+        let broken = self
+            .broken
+            .iter()
+            .map(|(name, (origin, why))| SceneListing {
+                name: name.clone(),
+                origin: *origin,
+                error: Some(why.clone()),
+            });
+        let mut all: Vec<SceneListing> = serving.chain(broken).collect();
+        all.sort_by(|a, b| {
+            a.name
+                .cmp(&b.name)
+                .then(a.error.is_some().cmp(&b.error.is_some()))
+        });
+        all
     }
 
     /// The memory budget every `T` of these scenes is built within.
@@ -177,33 +323,39 @@ impl Scenes {
 
     /// The scene with this name.
     pub fn get(&self, name: &str) -> Option<Arc<Scene>> {
-        self.scenes.get(name).cloned()
+        self.entries.get(name).map(|e| Arc::clone(&e.scene))
     }
 
     /// A scene's TOML text as loaded.
     pub fn source(&self, name: &str) -> Option<&str> {
-        self.sources.get(name).map(String::as_str)
+        self.entries.get(name).map(|e| e.source.as_str())
     }
 
     /// The folder scene `name`'s file is in (`""` for a built-in scene):
     /// where its relative mesh paths are read from.
     pub fn folder(&self, name: &str) -> &Path {
-        self.folders
+        self.entries
             .get(name)
-            .map_or(Path::new(""), std::path::PathBuf::as_path)
+            .map_or(Path::new(""), |e| e.folder.as_path())
     }
 
     /// Every name.
     pub fn names(&self) -> Vec<String> {
-        self.scenes.keys().cloned().collect()
+        self.entries.keys().cloned().collect()
     }
 
     /// Names of the poses of every scene, sorted, once each.
     pub fn pose_names(&self) -> Vec<String> {
         let mut names: Vec<String> = self
-            .scenes
+            .entries
             .values()
-            .flat_map(|s| s.poses().iter().map(|p| p.name.clone()).collect::<Vec<_>>())
+            .flat_map(|e| {
+                e.scene
+                    .poses()
+                    .iter()
+                    .map(|p| p.name.clone())
+                    .collect::<Vec<_>>()
+            })
             .collect();
         names.sort();
         names.dedup();
@@ -429,6 +581,22 @@ impl Scenes {
         };
         crate::stop::finish_unless(stop, work).unwrap_or(Err(ScenesError::Stopped))
     }
+}
+
+/// The values of `cache` under the names `keep` keeps (their slots shared).
+fn kept<V: Clone>(
+    cache: &Mutex<BTreeMap<String, V>>,
+    keep: impl Fn(&str) -> bool,
+) -> Mutex<BTreeMap<String, V>> {
+    let map = cache
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    Mutex::new(
+        map.iter()
+            .filter(|(k, _)| keep(k))
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect(),
+    )
 }
 
 /// One value per scene name, each made at most once.
