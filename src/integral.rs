@@ -80,7 +80,7 @@ pub(crate) fn opt_count<'de, D: Deserializer<'de>>(d: D) -> Result<Option<usize>
 }
 
 /// A list of whole numbers.
-pub fn ints<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<i64>, D::Error> {
+pub(crate) fn ints<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<i64>, D::Error> {
     struct List;
     struct One(i64);
     impl<'de> de::Deserialize<'de> for One {

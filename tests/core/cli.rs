@@ -1180,9 +1180,17 @@ fn frames_that_cut_the_wall_or_simulated_frames_of_a_scene_are_measured_or_refus
         .unwrap()
         .data;
     assert_eq!((i.len(), var.len()), (1024, 1024));
-    // The dark level is gone: the darkest elements sit near 0, not near 64 DN.
+    // The dark level is gone: the darkest element sits near the simulated
+    // wall's darkest (its own light, a few DN), not 64 DN above it.
     let min = i.iter().copied().fold(f64::INFINITY, f64::min) * 4095.0;
-    assert!(min.abs() < 10.0, "darkest element {min} DN");
+    let wall = npy::read(&dir.path().join("sim/measurement.npy"))
+        .unwrap()
+        .data;
+    let wall_min = wall.iter().copied().fold(f64::INFINITY, f64::min) * gain * 4095.0;
+    assert!(
+        (min - wall_min).abs() < 10.0,
+        "darkest element {min} DN against the simulated wall's {wall_min} DN"
+    );
     assert!(var.iter().all(|v| *v > 0.0));
 }
 

@@ -8,7 +8,10 @@
 //! operation, one worker and 30 s per request. `GET /events` is left out: it
 //! is a stream with no parameters, so every case only waits for the request
 //! timeout to end it (92 s of a 123 s run); tests/daemon/live.rs and
-//! service.rs read it. A run that does not end within [`HUNG`] is a hung
+//! service.rs read it. `POST /scenes` and `PUT /scenes/{name}` are left out
+//! too: their bodies are `application/toml`, which schemathesis has no
+//! serializer for ("Serialization not possible"); tests/daemon/scenes.rs
+//! sends them malformed and of the wrong type. A run that does not end within [`HUNG`] is a hung
 //! fuzzer or daemon, not a slow one, and fails.
 //! 30 s per request, not 10: `POST /mount/zero` answers within the request
 //! after its sweep (up to 5 s waiting for the camera, then the sweep's
@@ -43,6 +46,10 @@ fn schemathesis(d: &Client, extra: &[&str]) -> (bool, String) {
             "1",
             "--exclude-path",
             "/events",
+            "--exclude-name",
+            "POST /scenes",
+            "--exclude-name",
+            "PUT /scenes/{name}",
         ])
         .args(extra)
         .env("NO_COLOR", "1")

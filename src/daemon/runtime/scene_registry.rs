@@ -17,7 +17,7 @@ use crate::transport::MemoryBudget;
 
 /// The most bytes a posted scene file may have: a scene file is a page of
 /// TOML (its meshes are files of their own).
-pub const MAX_SCENE_BYTES: usize = 256 * 1024;
+pub(crate) const MAX_SCENE_BYTES: usize = 256 * 1024;
 
 /// Why a scene could not be added, replaced or deleted.
 #[derive(Debug, thiserror::Error)]

@@ -249,12 +249,12 @@ pub struct Orientation {
 /// Why: a photo whose orientation no flip decides (a symmetric scene, a
 /// flat field) fits every flip alike up to rounding, and a tie is no
 /// evidence; a wrong orientation fits several times worse (docs/realphoto.md).
-pub const FLIP_MARGIN: f64 = 0.1;
+pub(crate) const FLIP_MARGIN: f64 = 0.1;
 
 /// The flip with the lowest misfit when it is below `(1 - FLIP_MARGIN)`
 /// times the misfit as given; as given otherwise (and when a misfit is not
 /// finite).
-pub fn best_flip(misfit: &[f64; 4]) -> Flip {
+pub(crate) fn best_flip(misfit: &[f64; 4]) -> Flip {
     let lowest = (0..4)
         .min_by(|&a, &b| misfit[a].total_cmp(&misfit[b]))
         .unwrap_or(0);
@@ -491,7 +491,7 @@ fn flip_warning(o: &Orientation) -> Option<String> {
 /// (`g_c l_c`), so a photo's colour balance can only be assumed; the data
 /// tell a channel's gain only where the channel carries a signal, and a
 /// signal-free channel stretched to its own peak turns black into white.
-pub fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String {
+pub(crate) fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> String {
     let informative = fits.iter().any(|c| c.informative);
     let peaks: Vec<f64> = fits.iter().map(|c| c.peak).collect();
     let flags: Vec<bool> = fits.iter().map(|c| c.informative).collect();
