@@ -32,6 +32,22 @@ impl<S: Send + Sync, T: DeserializeOwned + Send> FromRequestParts<S> for ApiPath
     }
 }
 
+/// A request's media type, lower case, without its parameters (`; charset=`).
+fn media_type(req: &axum::extract::Request) -> Option<String> {
+    let v = req
+        .headers()
+        .get(axum::http::header::CONTENT_TYPE)?
+        .to_str()
+        .ok()?;
+    Some(
+        v.split(';')
+            .next()
+            .unwrap_or("")
+            .trim()
+            .to_ascii_lowercase(),
+    )
+}
+
 /// A JSON body: 415 without a JSON content type, 413 over the size limit,
 /// 400 when the bytes are not JSON at all, 422 when they are JSON of the
 /// wrong shape (a missing field, a string for a number, an array for an object).
@@ -41,19 +57,9 @@ impl<S: Send + Sync, T: DeserializeOwned> axum::extract::FromRequest<S> for ApiJ
     type Rejection = ApiError;
 
     async fn from_request(req: axum::extract::Request, state: &S) -> Result<Self, ApiError> {
-        use axum::http::{header, StatusCode};
-        let json_type = req
-            .headers()
-            .get(header::CONTENT_TYPE)
-            .and_then(|v| v.to_str().ok())
-            .map(|v| {
-                v.split(';')
-                    .next()
-                    .unwrap_or("")
-                    .trim()
-                    .to_ascii_lowercase()
-            })
-            .is_some_and(|m| m == "application/json" || m.ends_with("+json"));
+        use axum::http::StatusCode;
+        let json_type =
+            media_type(&req).is_some_and(|m| m == "application/json" || m.ends_with("+json"));
         if !json_type {
             return Err(ApiError::new(
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
@@ -95,19 +101,8 @@ impl<S: Send + Sync> axum::extract::FromRequest<S> for ApiToml {
     type Rejection = ApiError;
 
     async fn from_request(req: axum::extract::Request, state: &S) -> Result<Self, ApiError> {
-        use axum::http::{header, StatusCode};
-        let toml_type = req
-            .headers()
-            .get(header::CONTENT_TYPE)
-            .and_then(|v| v.to_str().ok())
-            .map(|v| {
-                v.split(';')
-                    .next()
-                    .unwrap_or("")
-                    .trim()
-                    .to_ascii_lowercase()
-            })
-            .is_some_and(|m| m == "application/toml");
+        use axum::http::StatusCode;
+        let toml_type = media_type(&req).is_some_and(|m| m == "application/toml");
         if !toml_type {
             return Err(ApiError::new(
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
