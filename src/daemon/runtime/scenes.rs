@@ -191,7 +191,7 @@ pub(crate) fn file_name(path: &Path) -> String {
 }
 
 /// Scenes by name, with a cache of their `T`, each built within one memory
-/// budget: one snapshot of the daemon's scenes ([`super::scene_registry`]
+/// budget: one snapshot of the daemon's scenes (`scene_registry`
 /// makes a new one on each change; a job keeps the one it started with).
 pub struct Scenes {
     budget: MemoryBudget,
@@ -480,7 +480,7 @@ impl Scenes {
     }
 
     /// [`Scenes::transport`], its build (when this call makes it) ended
-    /// early with [`ScenesError::Stopped`] once `stop` is raised; nothing is
+    /// early with `ScenesError::Stopped` once `stop` is raised; nothing is
     /// cached then, so the next caller builds it.
     pub fn transport_until(
         &self,
@@ -506,7 +506,7 @@ impl Scenes {
     }
 
     /// [`Scenes::gram`] (and the `T` it needs) ended early with
-    /// [`ScenesError::Stopped`] once `stop` is raised.
+    /// `ScenesError::Stopped` once `stop` is raised.
     pub fn gram_until(&self, name: &str, stop: Stop<'_>) -> Result<Arc<Gram>, ScenesError> {
         cached(&self.grams, name, || {
             let t = self.transport_until(name, stop)?;
@@ -523,7 +523,7 @@ impl Scenes {
     }
 
     /// [`Scenes::conditioning`] (and the `T` and Gram it needs) ended early
-    /// with [`ScenesError::Stopped`] once `stop` is raised; an SVD the
+    /// with `ScenesError::Stopped` once `stop` is raised; an SVD the
     /// caller stops goes on to its end beside it and is cached.
     pub fn conditioning_until(
         &self,

@@ -97,7 +97,7 @@ pub struct PhotoSettings<'a> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum OrientationCheck {
     /// Fit the photo as given and under each flip; warn when a flip fits
-    /// clearly better ([`FLIP_MARGIN`]).
+    /// clearly better (by more than 10 % of the misfit as given).
     #[default]
     Check,
     /// The orientation is known (a camera capture through its pose's
@@ -238,7 +238,7 @@ impl Flip {
 pub struct Orientation {
     /// Misfit per flip, in [`Flip::ALL`]'s order.
     pub misfit: [f64; 4],
-    /// The flip that fits best by more than [`FLIP_MARGIN`] ([`best_flip`]):
+    /// The flip that fits best by more than 10 % of the misfit as given:
     /// as given when none does.
     pub best: Flip,
 }
@@ -317,7 +317,7 @@ pub struct PhotoResult {
     pub data_term: DataTerm,
     /// Each channel's fit, in the measurement's channel order.
     pub channels: Vec<PhotoChannel>,
-    /// How the channels' gains were set ([`balance`]).
+    /// How the channels' gains were set (`balance`).
     pub gain_rule: String,
     /// Rows of `T` that were not measured (NaN in the measurement), left out.
     pub unmeasured_rows: usize,
@@ -367,7 +367,7 @@ pub struct PhotoReport {
 ///
 /// A row that is not finite in any channel was not measured (a saturated
 /// element, or NaN in a file): it is left out of every channel's data term.
-/// Every channel is scaled by one gain ([`balance`]).
+/// Every channel is scaled by one gain (`balance`).
 pub fn reconstruct_photo(
     t: &Transport,
     channels: &[Vec<f64>],
@@ -529,7 +529,7 @@ pub(crate) fn balance(fits: &mut [PhotoChannel], warnings: &mut Vec<String>) -> 
     }
 }
 
-/// [`balance`]'s rule: the reference channel (the informative channel
+/// `balance`'s rule: the reference channel (the informative channel
 /// with the largest peak, or the channel with the largest peak when none is
 /// informative) and each channel's gain from its `peaks` and whether it is
 /// `informative`: its own peak, or the reference's for a channel without
