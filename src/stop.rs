@@ -52,7 +52,10 @@ const POLL: std::time::Duration = std::time::Duration::from_millis(5);
 /// whatever it leaves behind, such as a cached value, stays).
 ///
 /// Why: a library call that cannot look at a flag (an SVD) must not hold a
-/// cancelled job or a stopping daemon for its whole length.
+/// cancelled job or a stopping daemon for its whole length. Called on a
+/// rayon pool thread, the wait runs the pool's pending work: `work` may
+/// itself need the pool (faer's SVD does), and pool threads that only
+/// waited could leave it none (two such waits on two cores never ended).
 pub(crate) fn finish_unless<R: Send + 'static>(
     stop: Stop<'_>,
     work: impl FnOnce() -> R + Send + 'static,
@@ -64,17 +67,27 @@ pub(crate) fn finish_unless<R: Send + 'static>(
         r
     });
     loop {
-        match rx.recv_timeout(POLL) {
-            Err(std::sync::mpsc::RecvTimeoutError::Timeout) if stop.raised() => return None,
-            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => continue,
+        if ended(&rx) {
             // Sent, or the thread ended without sending (it panicked).
-            _ => {
-                return match handle.join() {
-                    Ok(r) => Some(r),
-                    Err(panic) => std::panic::resume_unwind(panic),
-                }
-            }
+            return match handle.join() {
+                Ok(r) => Some(r),
+                Err(panic) => std::panic::resume_unwind(panic),
+            };
         }
+        if stop.raised() {
+            return None;
+        }
+    }
+}
+
+/// Whether the worker behind `rx` has ended, after running one of the
+/// rayon pool's pending jobs (on a pool thread that has one) or waiting
+/// up to [`POLL`] for it.
+fn ended(rx: &std::sync::mpsc::Receiver<()>) -> bool {
+    use std::sync::mpsc::{RecvTimeoutError, TryRecvError};
+    match rayon::yield_now() {
+        Some(rayon::Yield::Executed) => !matches!(rx.try_recv(), Err(TryRecvError::Empty)),
+        _ => !matches!(rx.recv_timeout(POLL), Err(RecvTimeoutError::Timeout)),
     }
 }
 
@@ -108,5 +121,27 @@ mod tests {
         assert_eq!(r, None, "a raised stop returns before the work ends");
         go.send(()).expect("the work still waits");
         assert_eq!(ended.recv().ok(), Some(7), "the work ended on its own");
+    }
+
+    #[test]
+    fn finish_unless_on_a_pool_thread_lends_it_to_work_that_needs_the_pool() {
+        // One pool thread waits in finish_unless for work that needs that
+        // very pool: it ends only if the wait runs the pool's jobs.
+        let pool = std::sync::Arc::new(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .expect("a one-thread pool"),
+        );
+        let inner = pool.clone();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let r =
+                pool.install(|| finish_unless(Stop::default(), move || inner.install(|| 6 * 7)));
+            let _ = tx.send(r);
+        });
+        // A bound on a hang, not a timing: the work is a multiplication.
+        let r = rx.recv_timeout(std::time::Duration::from_secs(60));
+        assert_eq!(r, Ok(Some(42)), "the pool's one thread never ran the work");
     }
 }
