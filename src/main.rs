@@ -105,6 +105,12 @@ fn code_of(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
             FileError::Io { .. } => FAILED,
         });
     }
+    if let Some(t) = cause.downcast_ref::<polnlos::files::truth::TruthError>() {
+        return match t {
+            polnlos::files::truth::TruthError::File(f) => code_of(f),
+            _ => Some(INPUT),
+        };
+    }
     if let Some(t) = cause.downcast_ref::<TransportError>() {
         return Some(match t {
             TransportError::Parameter { .. } => USAGE,

@@ -571,7 +571,8 @@ function reportLines(r) {
   const mc = rep.model_check;
   if (mc) lines.push(`model check χ²/dof ${num(mc.chi2_per_dof, 2)}` + (mc.explained === false ? " (T does not explain the measurement)" : ""));
   const m = rep.metrics;
-  if (m) lines.push(`PSNR ${num(m.psnr_db, 2)} dB, SSIM ${num(m.ssim, 3)}, ZNCC ${num(m.zncc, 3)}`);
+  const truth = r.params ? truthName(r.params.truth) : null;
+  if (m) lines.push(`PSNR ${num(m.psnr_db, 2)} dB, SSIM ${num(m.ssim, 3)}, ZNCC ${num(m.zncc, 3)}` + (truth ? ` against truth ${truth}` : ""));
   if (r.error) lines.push(`error: ${r.error}`);
   return lines.join("\n");
 }
@@ -592,6 +593,12 @@ function fitScene(img) {
 document.addEventListener("load", (ev) => {
   if (ev.target instanceof HTMLImageElement && ev.target.classList.contains("scene-image")) fitScene(ev.target);
 }, true);
+// A reconstruction's truth as people read it: its pattern's name, or
+// "image" for an image the request gave; null for none.
+function truthName(t) {
+  if (t === null || t === undefined) return null;
+  return typeof t === "string" ? t : "image";
+}
 
 function colorBar() {
   return el("div", { class: "colorbar", title: "recovered radiance, units of T l: every result and truth on this one scale" },
@@ -604,8 +611,9 @@ function reconstructionItem(x) {
   figs.append(el("figure", {}, img, el("figcaption", {}, "result")));
   if (x.state === "done") showImage(img, `/reconstructions/${x.id}/image.png`);
   if (x.params && x.params.truth) {
-    const t = el("img", { alt: `truth ${x.params.truth}`, class: "truth-image scene-image" });
-    figs.append(el("figure", {}, t, el("figcaption", {}, `truth: ${x.params.truth}`)));
+    const name = truthName(x.params.truth);
+    const t = el("img", { alt: `truth ${name}`, class: "truth-image scene-image" });
+    figs.append(el("figure", {}, t, el("figcaption", {}, `truth: ${name}`)));
     showImage(t, `/reconstructions/${x.id}/truth.png`);
   }
   figs.append(colorBar());

@@ -195,7 +195,13 @@ class Client:
 
     def reconstruct(self, scene: str, captures: List[int], **fields: Any) -> Dict[str, Any]:
         """Queues a reconstruction (`POST /reconstructions`): `solver`,
-        `lambda`, `max_iter`, `truth` and the API's other fields."""
+        `lambda`, `max_iter`, `truth` and the API's other fields. `truth` is
+        a test pattern's name or an image on the scene grid, top row first
+        (an array `[nv, nu]` of grey values or `[nv, nu, 3]` of red, green
+        and blue, as `polnlos.pattern` returns and `recovered` gives back)."""
+        truth = fields.get("truth")
+        if truth is not None and not isinstance(truth, (str, dict)):
+            fields["truth"] = {"image": np.asarray(truth, dtype=np.float64).tolist()}
         return self._json("POST", "/reconstructions",
                           {"scene": scene, "captures": [int(c) for c in captures], **fields})
 
@@ -204,7 +210,8 @@ class Client:
         return self._json("GET", f"/reconstructions/{int(rec_id)}")
 
     def recovered(self, rec_id: int) -> np.ndarray:
-        """The recovered image (scene grid, rows = v)."""
+        """The recovered image on the scene grid, top row first (the hidden
+        plane's +v edge), columns along +u."""
         return np.load(io.BytesIO(self._bytes(f"/reconstructions/{int(rec_id)}/recovered.npy")))
 
     def measurement(self, rec_id: int) -> np.ndarray:

@@ -228,7 +228,9 @@ fn cond<'py>(py: Python<'py>, t: PyReadonlyArray2<'py, f64>) -> PyResult<Bound<'
     Ok(d)
 }
 
-/// A hidden-scene image as a flat row-major vector on `scene`'s grid.
+/// A hidden-scene image as a flat vector in `scene`'s element order: an
+/// `(nv, nu)` array is an image top row first (+v up), `nv * nu` values
+/// are the element order itself.
 fn image_on(scene: &Scene, image: &PyReadonlyArrayDyn<'_, f64>, what: &str) -> PyResult<Vec<f64>> {
     let (nv, nu) = scene.scene_shape();
     let shape = image.shape();
@@ -243,7 +245,10 @@ fn image_on(scene: &Scene, image: &PyReadonlyArrayDyn<'_, f64>, what: &str) -> P
     if let Some(x) = v.iter().find(|x| !x.is_finite()) {
         return Err(bad(format!("{what} holds {x}; every value must be finite")));
     }
-    Ok(v)
+    Ok(match shape.len() {
+        2 => scene.inner.hidden().plane.grid.from_top_first(&v, 1),
+        _ => v,
+    })
 }
 
 /// A simulated measurement of `truth` (radiance in [0, 1] on the scene grid)
@@ -534,7 +539,9 @@ fn reconstruct<'py>(
     let report = serde_json::to_string(&solved.report).map_err(polnlos_err)?;
     let report = py.import("json")?.call_method1("loads", (report,))?;
     let (nv, nu) = scene.scene_shape();
-    let image = solved.image.into_pyarray(py).reshape([nv, nu])?;
+    let grid = scene.inner.hidden().plane.grid;
+    let image = grid.to_top_first(&solved.image, 1);
+    let image = image.into_pyarray(py).reshape([nv, nu])?;
     Ok((image, report))
 }
 
@@ -542,8 +549,8 @@ fn reconstruct<'py>(
 /// `polnlos reconstruct --photo` (docs/realphoto.md): the same function on
 /// the same `T`, so the same numbers. `measurement` is `[rows]` or
 /// `[rows, C]` (NaN where not measured); `truth` `[nv, nu]` (every channel)
-/// or `[nv, nu, C]`. Returns the image (`[nv, nu]` or `[nv, nu, C]`) and
-/// report.json as a dict.
+/// or `[nv, nu, C]`, top row first. Returns the image (`[nv, nu]` or
+/// `[nv, nu, C]`, top row first) and report.json as a dict.
 #[pyfunction]
 #[pyo3(signature = (scene, measurement, lam = None, truth = None, max_iter = None))]
 fn reconstruct_photo<'py>(
@@ -565,6 +572,7 @@ fn reconstruct_photo<'py>(
         None => None,
         Some(t) if t.shape() == [nv, nu, c] && c > 1 => {
             let v: Vec<f64> = t.as_array().iter().copied().collect();
+            let v = scene.inner.hidden().plane.grid.from_top_first(&v, c);
             Some(
                 (0..c)
                     .map(|ch| v.iter().skip(ch).step_by(c).copied().collect())
@@ -611,6 +619,7 @@ fn reconstruct_photo<'py>(
     let image: Vec<f64> = (0..nv * nu)
         .flat_map(|k| report.channels.iter().map(move |ch| ch.image[k]))
         .collect();
+    let image = scene.inner.hidden().plane.grid.to_top_first(&image, c);
     let report = PhotoReport {
         scene: scene.name.clone(),
         radiometry: polnlos::solve::radiometry::RadiometryChoice {
@@ -692,7 +701,7 @@ fn decode_tiff<'py>(
 }
 
 /// A test pattern (`disk`, `bars`, `letter`) on `scene`'s grid, as
-/// `polnlos pattern` draws it.
+/// `polnlos pattern` draws it: an image top row first.
 #[pyfunction]
 fn pattern<'py>(py: Python<'py>, name: &str, scene: &Scene) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let p = polnlos::simulate::patterns::Pattern::from_name(name).ok_or_else(|| {
@@ -707,7 +716,9 @@ fn pattern<'py>(py: Python<'py>, name: &str, scene: &Scene) -> PyResult<Bound<'p
     })?;
     let (nv, nu) = scene.scene_shape();
     let g = scene.inner.hidden().plane.grid;
-    p.render(g).into_pyarray(py).reshape([nv, nu])
+    g.to_top_first(&p.render(g), 1)
+        .into_pyarray(py)
+        .reshape([nv, nu])
 }
 
 /// The built-in scene names.

@@ -52,6 +52,16 @@ def test_an_imported_measurement_reconstructs_fitted_as_offline(client):
     assert report["radiometry"]["mode"] == "fitted" and not report["radiometry"]["given"]
     want, _ = polnlos.reconstruct(scene, photo, radiometry="fitted")
     assert np.max(np.abs(client.recovered(rec["id"]) - want)) <= 1e-9
+    # Scored against a truth image (top row first, as polnlos.pattern gives
+    # it) to the offline call's numbers.
+    scored = client.wait(client.reconstruct("brewster-crossed", [cap["id"]], truth=truth))
+    _, offline = polnlos.reconstruct(scene, photo, radiometry="fitted", truth=truth)
+    got = client.report(scored["id"])["metrics"]
+    assert abs(got["zncc"] - offline["metrics"]["zncc"]) <= 1e-9, (got, offline["metrics"])
+    assert got["zncc"] > 0.5
+    with pytest.raises(polnlos.DaemonError) as e:
+        client.reconstruct("brewster-crossed", [cap["id"]], truth=truth[1:])
+    assert e.value.status == 422 and "the scene grid is" in e.value.message
     with pytest.raises(polnlos.DaemonError) as e:
         client.import_capture("brewster-crossed", "A", photo[:-1])
     assert e.value.status == 422 and "[1024]" in e.value.message

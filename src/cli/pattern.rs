@@ -49,7 +49,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.name
         ))
     })?;
-    let img = p.render(grid);
+    // Written as people look at it: the plane's top (+v) in the first row.
+    let img = grid.to_top_first(&p.render(grid), 1);
     image::write_png16(&a.out, grid.nu, grid.nv, &image::unit_to_u16(&img))?;
     println!(
         "wrote {} ({} x {} pixels)",

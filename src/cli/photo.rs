@@ -3,7 +3,8 @@
 
 use std::time::Instant;
 
-use polnlos::files::{image, json, npy, FileError};
+use polnlos::files::truth::TopFirst;
+use polnlos::files::{image, json, npy};
 use polnlos::solve::photo::{photo_transport, PhotoReport, PhotoSettings};
 use polnlos::solve::radiometry::RadiometryChoice;
 
@@ -64,8 +65,9 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
             .map(|(k, ch)| f(k, ch))
             .collect()
     };
-    let image = interleave(&|k, ch| result.channels[ch].image[k]);
-    let x = interleave(&|k, ch| result.channels[ch].x[k]);
+    // Written as people look at them: the plane's top (+v) in the first row.
+    let image = grid.to_top_first(&interleave(&|k, ch| result.channels[ch].image[k]), c);
+    let x = grid.to_top_first(&interleave(&|k, ch| result.channels[ch].x[k]), c);
     npy::write_f64(&a.out.join("recovered.npy"), &[grid.nv, grid.nu, c], &image)?;
     npy::write_f64(&a.out.join("fitted.npy"), &[grid.nv, grid.nu, c], &x)?;
     if c == 3 {
@@ -75,7 +77,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
             .collect();
         image::write_png_rgb8(&a.out.join("recovered.png"), grid.nu, grid.nv, &rgb)?;
     } else {
-        let first: Vec<f64> = result.channels[0].image.clone();
+        let first = grid.to_top_first(&result.channels[0].image, 1);
         image::write_png16(
             &a.out.join("recovered.png"),
             grid.nu,
@@ -132,27 +134,12 @@ fn fmt(v: &[f64]) -> String {
         .join(", ")
 }
 
-/// The truth as channels on `grid`: a .npy of [nv, nu] (every channel
-/// alike) or [nv, nu, C].
+/// The truth as channels on `grid`: an image top row first ([`TopFirst`]),
+/// grey (every channel alike) or one value a channel.
 fn truth_channels(
     path: &std::path::Path,
     grid: polnlos::scene::Grid,
     c: usize,
 ) -> anyhow::Result<Vec<Vec<f64>>> {
-    let a = npy::read(path)?;
-    let n = grid.count();
-    match a.shape.as_slice() {
-        [h, w] if (*h, *w) == (grid.nv, grid.nu) => Ok(vec![a.data; c]),
-        [h, w, k] if (*h, *w, *k) == (grid.nv, grid.nu, c) => {
-            Ok((0..c).map(|ch| (0..n).map(|j| a.data[j * c + ch]).collect()).collect())
-        }
-        s => Err(FileError::format(
-            path,
-            format!(
-                "shape {s:?} is neither [{}, {}] nor [{}, {}, {c}] (the scene grid, one value per channel)",
-                grid.nv, grid.nu, grid.nv, grid.nu
-            ),
-        )
-        .into()),
-    }
+    Ok(TopFirst::read(path)?.on_grid(grid, c, &path.display().to_string())?)
 }

@@ -3,7 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use polnlos::files::{image, json, load_grid_image, npy};
+use polnlos::files::truth::TopFirst;
+use polnlos::files::{image, json, npy};
 use polnlos::solve::lambda::NoiseLevel;
 use polnlos::solve::photo::DataTerm;
 use polnlos::solve::scene::{reconstruct_scene_with, SceneInput};
@@ -139,7 +140,11 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     let truth = a
         .truth
         .as_ref()
-        .map(|p| load_grid_image(p, sgrid))
+        .map(|p| {
+            TopFirst::read(p)?
+                .on_grid(sgrid, 1, &p.display().to_string())
+                .map(|mut c| c.swap_remove(0))
+        })
         .transpose()?;
     if matches!(a.lambda, Some(LambdaArg::Auto)) && !a.solve.solver.needs().lambda_from_noise {
         let tv: Vec<&str> = Solver::ALL
@@ -219,6 +224,8 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
     }
     pb.finish_and_clear();
     let (image, report) = (solved.image, solved.report);
+    // Written as people look at it: the plane's top (+v) in the first row.
+    let image = sgrid.to_top_first(&image, 1);
     npy::write_f64(&a.out.join("recovered.npy"), &[sgrid.nv, sgrid.nu], &image)?;
     image::write_png16(
         &a.out.join("recovered.png"),

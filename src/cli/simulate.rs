@@ -204,7 +204,11 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         &[t.rows()],
         &sim.measurement,
     )?;
-    npy::write_f64(&a.out.join("truth.npy"), &[sgrid.nv, sgrid.nu], &truth)?;
+    npy::write_f64(
+        &a.out.join("truth.npy"),
+        &[sgrid.nv, sgrid.nu],
+        &sgrid.to_top_first(&truth, 1),
+    )?;
     let full = f64::from((1u32 << a.bits) - 1);
     let png_scale = 65535.0 / full;
     let wgrid = t.wall_grid();

@@ -8,6 +8,7 @@ pub mod json;
 pub mod npy;
 pub mod space;
 pub mod transport_cache;
+pub mod truth;
 
 use std::path::PathBuf;
 
@@ -87,9 +88,12 @@ pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<(), FileErro
     })
 }
 
-/// Loads a scene image onto a grid: a PNG/TIFF (8/16-bit grey, resampled by
-/// area averaging) or a `.npy` (values used as given; resampled when its shape
-/// is not the grid's). Row `iv` of the grid is image row `iv`, top first.
+/// Loads a scene image onto a grid, in the grid's element order: a PNG/TIFF
+/// (8/16-bit grey, resampled by area averaging) or a `.npy` of `[rows,
+/// columns]` (values used as given; resampled when its shape is not the
+/// grid's), either top row first (the image's last row is the grid's row
+/// `iv` = 0, [`crate::scene::Grid::from_top_first`]); a `.npy` of `[nu nv]`
+/// values is taken in the element order itself.
 pub fn load_grid_image(
     path: &std::path::Path,
     grid: crate::scene::Grid,
@@ -113,7 +117,7 @@ pub fn load_grid_image(
             }
         };
         if (h, w) == (grid.nv, grid.nu) {
-            return Ok(a.data);
+            return Ok(grid.from_top_first(&a.data, 1));
         }
         image::Gray {
             width: w,
@@ -132,5 +136,5 @@ pub fn load_grid_image(
             format!("holds the non-finite value {v}"),
         ));
     }
-    Ok(image::resample_area(&gray, grid.nu, grid.nv))
+    Ok(grid.from_top_first(&image::resample_area(&gray, grid.nu, grid.nv), 1))
 }

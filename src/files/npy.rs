@@ -13,6 +13,9 @@ pub struct Array {
     pub shape: Vec<usize>,
     /// Values in C (row-major) order.
     pub data: Vec<f64>,
+    /// Bits of an unsigned integer dtype (8 for `u1`, 16 for `u2`), else
+    /// None. Why: an image stored as integers has its full scale there.
+    pub unsigned_bits: Option<u32>,
 }
 
 fn encode<T: npyz::AutoSerialize + Copy>(shape: &[usize], data: &[T]) -> std::io::Result<Vec<u8>> {
@@ -87,9 +90,30 @@ pub enum NpyError {
         /// The values read.
         values: usize,
     },
-    /// A Fortran-ordered array of more than two dimensions.
-    #[error("Fortran-ordered arrays of more than 2 dimensions are not supported; save with numpy.ascontiguousarray")]
-    FortranOrder,
+}
+
+/// Values of `shape` in Fortran order (first index fastest) in C order
+/// (last index fastest). Why: MATLAB and `np.asfortranarray` write images so.
+fn c_order(shape: &[usize], fortran: &[f64]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(fortran.len());
+    let mut index = vec![0usize; shape.len()];
+    for _ in 0..fortran.len() {
+        // The Fortran offset of the C-order position `index`.
+        let (mut at, mut stride) = (0, 1);
+        for (i, d) in index.iter().zip(shape) {
+            at += i * stride;
+            stride *= d;
+        }
+        out.push(fortran[at]);
+        for (i, d) in index.iter_mut().zip(shape).rev() {
+            *i += 1;
+            if *i < *d {
+                break;
+            }
+            *i = 0;
+        }
+    }
+    out
 }
 
 /// Decodes `.npy` bytes (see [`read`]); a parser any input may reach, so it never panics.
@@ -153,21 +177,20 @@ pub fn decode(bytes: &[u8]) -> Result<Array, NpyError> {
             values: data.len(),
         });
     }
-    let data = if fortran && shape.len() == 2 {
-        let (r, c) = (shape[0], shape[1]);
-        let mut out = vec![0.0; data.len()];
-        for j in 0..c {
-            for i in 0..r {
-                out[i * c + j] = data[j * r + i];
-            }
-        }
-        out
-    } else if fortran && shape.len() > 2 {
-        return Err(NpyError::FortranOrder);
-    } else {
-        data
+    let data = match fortran {
+        true => c_order(&shape, &data),
+        false => data,
     };
-    Ok(Array { shape, data })
+    let unsigned_bits = match code.as_str() {
+        "u1" => Some(8),
+        "u2" => Some(16),
+        _ => None,
+    };
+    Ok(Array {
+        shape,
+        data,
+        unsigned_bits,
+    })
 }
 
 /// The `shape` tuple of a `.npy` header as written, and where the data
@@ -251,6 +274,22 @@ mod tests {
         let b = read(&p).unwrap();
         assert_eq!(b.data[2], 3.25);
         assert_eq!(b.data[3], 0.0);
+    }
+
+    #[test]
+    fn a_fortran_ordered_image_reads_in_c_order() {
+        // np.asfortranarray(np.arange(24).reshape(2, 3, 4)) writes
+        // element (i, j, k) at i + 2 j + 6 k.
+        let shape = [2, 3, 4];
+        let mut fortran = vec![0.0; 24];
+        for c in 0..24 {
+            let (i, j, k) = (c / 12, c / 4 % 3, c % 4);
+            fortran[i + 2 * j + 6 * k] = c as f64;
+        }
+        let want: Vec<f64> = (0..24).map(f64::from).collect();
+        assert_eq!(c_order(&shape, &fortran), want);
+        // Two dimensions: the transpose.
+        assert_eq!(c_order(&[2, 3], &[0.0, 3.0, 1.0, 4.0, 2.0, 5.0]), want[..6]);
     }
 
     /// A valid `.npy` header (version 1.0) for `descr` and `shape`, then `body`.

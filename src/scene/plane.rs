@@ -27,6 +27,22 @@ impl Grid {
     pub fn coords(&self, j: usize) -> (usize, usize) {
         (j % self.nu, j / self.nu)
     }
+
+    /// The grid's element order (row `iv` = 0 at the plane's -v edge) as an
+    /// image with the top row first (+v up), `channels` values an element.
+    /// Why: `T`'s columns start at the bottom of the hidden plane; people
+    /// store and look at images top first (docs/formats.md "Which way is up").
+    pub fn to_top_first<T: Copy>(&self, values: &[T], channels: usize) -> Vec<T> {
+        let row = (self.nu * channels).max(1);
+        values.chunks(row).rev().flatten().copied().collect()
+    }
+
+    /// An image with its top row first as the grid's element order: the
+    /// inverse of [`Grid::to_top_first`] (the same reversal of rows).
+    /// Why: a truth image or pattern as people draw it becomes a scene `l`.
+    pub fn from_top_first<T: Copy>(&self, values: &[T], channels: usize) -> Vec<T> {
+        self.to_top_first(values, channels)
+    }
 }
 
 /// A rectangle in space: centre, orthonormal frame, metric size and grid.
@@ -128,6 +144,28 @@ mod tests {
         assert!((pts[3] - Vec3::new(0.9, 2.05, 3.0)).norm() < 1e-15);
         assert_eq!(p.grid.index(2, 1), 5);
         assert_eq!(p.grid.coords(5), (2, 1));
+    }
+
+    #[test]
+    fn the_top_first_image_starts_at_the_plane_s_plus_v_edge() {
+        let p = plane(1);
+        // Values = each element's v coordinate: the image's first row is the
+        // largest v (the top), its columns still run along +u.
+        let v: Vec<f64> = p.sample_points().iter().map(|s| s.y).collect();
+        let top = p.grid.to_top_first(&v, 1);
+        assert!(
+            top[..3].iter().all(|&y| (y - 2.05).abs() < 1e-15),
+            "{top:?}"
+        );
+        assert!(
+            top[3..].iter().all(|&y| (y - 1.95).abs() < 1e-15),
+            "{top:?}"
+        );
+        // Two channels an element: each pixel's values stay together.
+        let rgb = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11];
+        let flipped = p.grid.to_top_first(&rgb, 2);
+        assert_eq!(flipped, [6, 7, 8, 9, 10, 11, 0, 1, 2, 3, 4, 5]);
+        assert_eq!(p.grid.from_top_first(&flipped, 2), rgb);
     }
 
     #[test]

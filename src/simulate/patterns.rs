@@ -65,15 +65,18 @@ impl Pattern {
         }
     }
 
-    /// Values in [0, 1] on `grid`, row-major (row `iv` = image row, top first).
+    /// Values in [0, 1] on `grid`, in its element order: the pattern drawn
+    /// as an image (`y` down from its top) with its top at the plane's +v
+    /// edge, so it stands upright seen from in front (docs/formats.md).
     pub fn render(self, grid: Grid) -> Vec<f64> {
-        coverage(grid, 4, |x, y| self.at(x, y))
+        grid.from_top_first(&coverage(grid, 4, |x, y| self.at(x, y)), 1)
     }
 }
 
 /// Each element's covered fraction of a shape on `grid`: `inside(x, y)`
 /// at `samples` x `samples` points an element, `x` and `y` in [0, 1]
-/// across the grid (row-major, row `iv` = image row, top first).
+/// across the grid in its element order (`x` along the columns, `y` along
+/// the rows from row 0).
 /// Why: one sampling for the test patterns and the demo's moving disk.
 pub(crate) fn coverage(grid: Grid, samples: usize, inside: impl Fn(f64, f64) -> bool) -> Vec<f64> {
     let s = samples.max(1);
@@ -112,5 +115,18 @@ mod tests {
         let l = &imgs[2];
         let mirrored: Vec<f64> = (0..256).map(|j| l[(j / 16) * 16 + 15 - j % 16]).collect();
         assert_ne!(*l, mirrored);
+    }
+
+    #[test]
+    fn the_letter_stands_upright_on_the_plane() {
+        // The F's top bar is at the plane's +v edge (the grid's last rows),
+        // its open foot at the -v edge: row 2 of the grid (near the bottom)
+        // is lit only by the stem, row 13 (near the top) by the bar too.
+        let g = Grid { nu: 16, nv: 16 };
+        let f = Pattern::Letter.render(g);
+        let lit = |iv: usize| f[iv * 16..(iv + 1) * 16].iter().sum::<f64>();
+        assert!(lit(13) > 2.0 * lit(2), "{} {}", lit(13), lit(2));
+        let top = g.to_top_first(&f, 1);
+        assert_eq!(top, coverage(g, 4, |x, y| Pattern::Letter.at(x, y)));
     }
 }

@@ -14,6 +14,7 @@ mod reconstructions;
 mod records;
 mod retention;
 mod schema;
+mod truth;
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -36,6 +37,7 @@ pub(crate) use records::{
 };
 pub(crate) use retention::Retention;
 pub use schema::Table;
+pub use truth::{Pixel, Truth, TruthImage};
 
 /// What can go wrong with the store, naming the path or the row.
 #[derive(Debug, thiserror::Error)]
@@ -568,7 +570,7 @@ mod tests {
         .unwrap();
         let old = store.reconstruction(ids[0]).unwrap().params;
         assert_eq!((old.version, old.solve.lambda), (1, Some(0.5)));
-        assert_eq!(old.truth.as_deref(), Some("disk"));
+        assert_eq!(old.truth.as_ref().and_then(|t| t.pattern()), Some("disk"));
     }
 
     #[test]

@@ -499,8 +499,8 @@ pub struct ReconstructionParams {
     /// The solver and its parameters, as requested (absent: defaults).
     #[serde(flatten)]
     pub solve: SolveRequest,
-    /// Known truth, as a test pattern name.
-    pub truth: Option<String>,
+    /// Known truth: a test pattern's name, or an image top row first.
+    pub truth: Option<super::Truth>,
     /// Solved from the blocks its captures give, the scene's other blocks
     /// left out (an interim result while a plan captures).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -525,7 +525,7 @@ impl ReconstructionParams {
     }
 
     /// The parameters of a request: `solve` and the truth it names.
-    pub fn new(solve: SolveRequest, truth: Option<String>) -> Self {
+    pub fn new(solve: SolveRequest, truth: Option<super::Truth>) -> Self {
         Self {
             version: Self::VERSION,
             solve,

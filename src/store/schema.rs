@@ -483,7 +483,10 @@ mod tests {
             (first.params.solve.lambda, first.params.solve.max_iter),
             (Some(0.25), Some(40))
         );
-        assert_eq!(first.params.truth.as_deref(), Some("disk"));
+        assert_eq!(
+            first.params.truth.as_ref().and_then(|t| t.pattern()),
+            Some("disk")
+        );
         let second = store.reconstruction(2).unwrap();
         assert_eq!(second.params.solve.solver, crate::solve::Solver::TIKHONOV);
         // A solver polnlos does not know makes its row unreadable, named.

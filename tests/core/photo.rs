@@ -5,7 +5,6 @@
 
 use std::path::PathBuf;
 
-use polnlos::files::npy;
 use polnlos::scene::Scene;
 use polnlos::solve::photo::{reconstruct_photo, PhotoSettings};
 use polnlos::transport::{build, MemoryBudget};
@@ -19,15 +18,16 @@ fn chair() -> (polnlos::transport::Transport, Vec<Vec<f64>>) {
     (build(&scene, MemoryBudget::DEFAULT).unwrap(), truth())
 }
 
-/// The chair photo's truth (the monitor's image), channel by channel.
+/// The chair photo's truth (the monitor's image as the authors stored it,
+/// top row first), channel by channel in the scene's element order.
 pub(super) fn truth() -> Vec<Vec<f64>> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let truth = npy::read(&root.join("tests/data/saunders-chair/truth.npy")).unwrap();
-    assert_eq!(truth.shape, vec![29, 36, 3]);
-    let n = 29 * 36;
-    (0..3)
-        .map(|c| (0..n).map(|k| truth.data[3 * k + c]).collect())
-        .collect()
+    let file = root.join("tests/data/saunders-chair/truth_rgb.npy");
+    let grid = polnlos::scene::Grid { nu: 36, nv: 29 };
+    polnlos::files::truth::TopFirst::read(&file)
+        .unwrap()
+        .on_grid(grid, 3, "truth")
+        .unwrap()
 }
 
 /// `g T l + b` with Gaussian noise of `sd` times the channel's mean.

@@ -140,9 +140,14 @@ fn a_scene_without_a_shadows_key_reconstructs_as_well_as_the_better_model() {
         })
         .unwrap();
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let rgb = polnlos::files::npy::read(&root.join("tests/data/saunders-chair/truth.npy")).unwrap();
+    let rgb = root.join("tests/data/saunders-chair/truth_rgb.npy");
     // The mushroom's green channel, rows in scene order.
-    let truth: Vec<f64> = rgb.data.iter().skip(1).step_by(3).copied().collect();
+    let grid = polnlos::scene::Grid { nu: 36, nv: 29 };
+    let truth = polnlos::files::truth::TopFirst::read(&rgb)
+        .unwrap()
+        .on_grid(grid, 3, "truth")
+        .unwrap()
+        .swap_remove(1);
     assert_eq!(truth.len(), base.cols());
     let t_point = build(&base, budget).unwrap();
     let area = base

@@ -8,7 +8,6 @@ repository (Computational-Periscopy/Ordinary-Camera, Data/TestPosChair).
 Writes, from ../shared/realdata/saunders-chair (or --data):
   config/photos/saunders-chair.toml   the geometry as a polnlos scene file
   tests/data/saunders-chair/measurement.npy   15876 x 3 (R, G, B), one row per row of T
-  tests/data/saunders-chair/truth.npy         29 x 36 x 3 in [0, 1], polnlos scene order
 and copies the README and the originals beside them.
 
 Orientation (read from the authors' simulate_A.m / fig_S9.m; a flipped photo
@@ -114,9 +113,7 @@ def main():
     out = ROOT / "tests/data/saunders-chair"
     out.mkdir(parents=True, exist_ok=True)
     photo = np.load(src / "measurement_rgb.npy")
-    truth = np.load(src / "truth_rgb.npy")
     np.save(out / "measurement.npy", np.ascontiguousarray(photo[::-1].reshape(-1, 3)))
-    np.save(out / "truth.npy", np.ascontiguousarray(truth[::-1].astype(np.float64) / 255.0))
     for f in ["README.md", "geometry.json", "measurement_rgb.npy", "truth_rgb.npy", "truth_rgb_x8.png"]:
         shutil.copyfile(src / f, out / f)
         (out / f).chmod(0o644)

@@ -15,7 +15,7 @@ HERE = pathlib.Path(__file__).resolve().parent
 peer, ours, out = map(pathlib.Path, sys.argv[1:4])
 truth = np.load(HERE.parent.parent / "tests/data/saunders-chair/truth_rgb.npy") / 255.0
 authors = np.clip(np.load(peer / "authors.npy"), 0, 255) / 255.0
-mine = np.load(ours / "recovered.npy")[::-1]
+mine = np.load(ours / "recovered.npy")  # top row first, as the truth
 gap = np.ones((29, 2, 3))
 row = np.concatenate([truth, gap, authors, gap, mine], axis=1)
 Image.fromarray((row * 255).round().astype(np.uint8)).resize((row.shape[1] * 8, 29 * 8), Image.NEAREST).save(out)

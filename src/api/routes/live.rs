@@ -41,15 +41,19 @@ pub async fn delete_live(State(d): St) -> Json<LiveView> {
     Json(d.requests().stop_live())
 }
 
-/// The live view's newest image, 16-bit PNG on the scene grid.
+/// The live view's newest image, 16-bit PNG on the scene grid, top row first.
 #[utoipa::path(get, path = "/live/image.png", responses((status = 200, content_type = "image/png", description = "Newest live image"), (status = 404, body = ErrorBody, description = "No live result yet")))]
 pub async fn live_image(State(d): St) -> Result<Response, ApiError> {
     let (nu, nv, values) = d.live().image().ok_or_else(|| {
         ApiError::not_found("the live view has no result yet (POST /live starts it)".to_string())
     })?;
-    let pixels = crate::files::image::unit_to_u16(&values);
     // A colour camera's image has red, green and blue per element.
-    let png = match values.len() == 3 * nu * nv {
+    let colour = values.len() == 3 * nu * nv;
+    // Shown as people look at it: the plane's top (+v) in the first row.
+    let grid = crate::scene::Grid { nu, nv };
+    let pixels =
+        crate::files::image::unit_to_u16(&grid.to_top_first(&values, 1 + 2 * usize::from(colour)));
+    let png = match colour {
         true => crate::files::image::encode_png_rgb16(nu, nv, &pixels),
         false => crate::files::image::encode_png16(nu, nv, &pixels),
     }

@@ -77,6 +77,9 @@ pub(crate) enum JobError {
     /// The live view's bench, window or camera (`GET /live` shows it).
     #[error("live view: {0}")]
     Live(String),
+    /// The truth to score against does not fit the scene.
+    #[error(transparent)]
+    Truth(#[from] crate::files::truth::TruthError),
     /// No row of the measurement was usable: nothing to reconstruct.
     #[error("no wall element was measured, so there is nothing to reconstruct: {0}")]
     Unmeasured(String),

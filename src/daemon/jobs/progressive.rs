@@ -1047,7 +1047,8 @@ fn run(
         pending.store(false, Ordering::SeqCst);
         match solver.step(&snapshot, Stop::default()) {
             Ok((step, img)) => {
-                let pixels = image::unit_to_u16(&img);
+                // Shown as people look at it: the plane's top (+v) first.
+                let pixels = image::unit_to_u16(&grid.to_top_first(&img, colours.max(1)));
                 let path = dir.join(IMAGE);
                 let png = match colours {
                     3 => image::write_png_rgb16(&path, grid.nu, grid.nv, &pixels),

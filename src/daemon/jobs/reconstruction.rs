@@ -193,12 +193,7 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
             (s.image, s.i, s.report, s.kappa)
         }
         _ => {
-            let truth = rec
-                .params
-                .truth
-                .as_deref()
-                .and_then(crate::simulate::patterns::Pattern::from_name)
-                .map(|pat| pat.render(t.scene_grid()));
+            let truth = grey_truth(&rec, t.scene_grid())?;
             colour_result(solved, truth.as_deref())
         }
     };
@@ -354,12 +349,7 @@ impl Job<'_> {
         };
         check(self.cancel)?;
         let solve = rec.params.solve;
-        let truth = rec
-            .params
-            .truth
-            .as_deref()
-            .and_then(crate::simulate::patterns::Pattern::from_name)
-            .map(|pat| pat.render(t.scene_grid()));
+        let truth = grey_truth(rec, t.scene_grid())?;
         // A solver that needs the Gram solves on the scene's cached one: only
         // `T^T i` is new.
         let normal = match solve.solver.needs().gram {
@@ -617,9 +607,10 @@ impl Job<'_> {
         let truth = rec
             .params
             .truth
-            .as_deref()
-            .and_then(crate::simulate::patterns::Pattern::from_name)
-            .map(|p| vec![p.render(grid); channels.len()]);
+            .as_ref()
+            .map(|t| t.channels(grid, channels.len(), "truth"))
+            .transpose()
+            .map_err(JobError::Truth)?;
         let defaults = PhotoSettings::default();
         let settings = PhotoSettings {
             lambda: rec.params.solve.lambda,
@@ -730,6 +721,20 @@ impl Job<'_> {
     }
 }
 
+/// The truth of `rec` as one grey image on `grid` (a colour image's luma):
+/// what a calibrated solve, grey or each colour's, is scored against.
+fn grey_truth(
+    rec: &crate::store::ReconstructionRecord,
+    grid: crate::scene::Grid,
+) -> Result<Option<Vec<f64>>, JobError> {
+    rec.params
+        .truth
+        .as_ref()
+        .map(|t| t.channels(grid, 1, "truth").map(|mut c| c.swap_remove(0)))
+        .transpose()
+        .map_err(JobError::Truth)
+}
+
 /// The red, green and blue solutions of a colour camera's captures as one
 /// result: the images and measurements interleaved per element (`[.., 3]`),
 /// and green's report (the colour with the most pixels) carrying every
@@ -833,8 +838,9 @@ fn gain_of(units: crate::measure::Units) -> crate::solve::report::Gain {
     }
 }
 
-/// Writes a finished reconstruction's files (the image as `.npy` and PNG,
-/// the measurement it solved, the report) and logs its summary; the record
+/// Writes a finished reconstruction's files (the image, in the grid's
+/// element order, as `.npy` and PNG top row first; the measurement it
+/// solved; the report) and logs its summary; the record
 /// is marked done only after they are durable.
 fn write_result(
     d: &JobContext,
@@ -857,6 +863,8 @@ fn write_result(
     if c > 1 {
         image_shape.push(c);
     }
+    // The image as people look at it: the plane's top (+v) in the first row.
+    let image = &grid.to_top_first(image, c);
     npy::write_f64(&dir.join("recovered.npy"), &image_shape, image).map_err(file)?;
     // The stacked measurement it solved (units of T l, MODEL.md row order),
     // so a user can re-solve it offline with `polnlos reconstruct`.

@@ -259,7 +259,7 @@ fn reconstruction_body(
         scene: plan.scene.clone(),
         captures,
         solve: r.solve,
-        truth: r.truth.clone(),
+        truth: r.truth.as_deref().map(crate::store::Truth::from),
         partial: upto < steps.len(),
         radiometry: r.radiometry,
     }

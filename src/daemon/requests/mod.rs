@@ -175,9 +175,12 @@ pub struct ReconstructionBody {
     /// default (see `SolveRequest`).
     #[serde(flatten, deserialize_with = "flatten::named")]
     pub solve: SolveRequest,
-    /// Known truth, as a test pattern name (`disk`, `bars`, `letter`): the
-    /// report then carries PSNR, ZNCC and SSIM (e.g. against the fake camera's demo scene).
-    pub truth: Option<String>,
+    /// Known truth: a test pattern's name (`disk`, `bars`, `letter`), or
+    /// `{"image": [[...], ...]}`, an image on the scene's grid top row first
+    /// (grey values, or `[red, green, blue]` a pixel): the report then
+    /// carries PSNR, ZNCC and SSIM (e.g. against the fake camera's demo
+    /// scene, or the picture a hidden screen showed).
+    pub truth: Option<crate::store::Truth>,
     /// `true`: solve from the blocks these captures give and leave the
     /// scene's other blocks out (an interim image while blocks are still
     /// being captured; its κ and λ are those of the fewer rows). Default
@@ -457,7 +460,7 @@ mod tests {
             rcond: Some(0.01),
         };
         assert_eq!((&b.solve, b.captures.as_slice()), (&want, &[1, 2][..]));
-        assert!(b.partial && b.truth.as_deref() == Some("disk"));
+        assert!(b.partial && b.truth.as_ref().and_then(|t| t.pattern()) == Some("disk"));
         let b: ReconstructionBody = body(r#"{"scene": "s", "captures": [1]}"#).unwrap();
         assert_eq!(b.solve, SolveRequest::default());
         // Written back with the same keys, side by side.

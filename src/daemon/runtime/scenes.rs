@@ -363,28 +363,30 @@ impl Scenes {
     }
 
     /// The known truth of reconstruction `rec` on its scene grid as a 16-bit
-    /// PNG (0..1 to black..white, the scale of its result), when its request
-    /// named a test pattern; `Ok(None)` when it did not.
+    /// PNG, top row first (0..1 to black..white, the scale of its result;
+    /// grey, or RGB for a colour image), when its request gave one;
+    /// `Ok(None)` when it did not.
     pub(crate) fn truth_png(
         &self,
         rec: &crate::store::ReconstructionRecord,
     ) -> Result<Option<Vec<u8>>, TruthPngError> {
-        let Some(pattern) = rec
-            .params
-            .truth
-            .as_deref()
-            .and_then(crate::simulate::patterns::Pattern::from_name)
-        else {
+        let Some(truth) = &rec.params.truth else {
             return Ok(None);
         };
         let scene = self.scene(&rec.scene)?;
         let grid = scene.hidden().plane.grid;
-        let truth = pattern.render(grid);
-        Ok(Some(crate::files::image::encode_png16(
-            grid.nu,
-            grid.nv,
-            &crate::files::image::unit_to_u16(&truth),
-        )?))
+        let colour = matches!(truth, crate::store::Truth::Image(i)
+            if matches!(i.image.first().and_then(|r| r.first()), Some(crate::store::Pixel::Colour(_))));
+        let c = 1 + 2 * usize::from(colour);
+        let channels = truth.channels(grid, c, "truth")?;
+        let scene_order: Vec<f64> = (0..grid.count())
+            .flat_map(|k| channels.iter().map(move |ch| ch[k]))
+            .collect();
+        let pixels = crate::files::image::unit_to_u16(&grid.to_top_first(&scene_order, c));
+        Ok(Some(match colour {
+            true => crate::files::image::encode_png_rgb16(grid.nu, grid.nv, &pixels)?,
+            false => crate::files::image::encode_png16(grid.nu, grid.nv, &pixels)?,
+        }))
     }
 
     /// Where each pose of scene `name` sees its wall (the live view's aim).
@@ -641,6 +643,9 @@ pub(crate) enum TruthPngError {
     /// The image did not encode.
     #[error(transparent)]
     Png(#[from] crate::files::image::PngError),
+    /// The stored truth does not fit the scene now (its reason).
+    #[error(transparent)]
+    Truth(#[from] crate::files::truth::TruthError),
 }
 
 #[cfg(test)]

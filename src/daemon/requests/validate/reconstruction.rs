@@ -53,11 +53,8 @@ pub fn reconstruction(
     let solve = b.solve;
     solve.check().map_err(|e| invalid(e.to_string()))?;
     if let Some(t) = &b.truth {
-        if crate::simulate::patterns::Pattern::from_name(t).is_none() {
-            return Err(invalid(format!(
-                "truth = {t:?}: must be a test pattern name (disk, bars, letter, flat)"
-            )));
-        }
+        t.check(scene.hidden().plane.grid, "truth")
+            .map_err(|e| invalid(e.to_string()))?;
     }
     let blocks = blocks_of(scene);
     let mut covered = vec![false; blocks.len()];
