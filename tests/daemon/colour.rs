@@ -218,9 +218,14 @@ fn a_bayer_capture_reconstructs_each_colour_as_its_photons_allow() {
         .hidden()
         .plane
         .grid;
-    let letter = polnlos::simulate::patterns::Pattern::from_name("letter")
-        .unwrap()
-        .render(grid);
+    // The letter as the files hold images: top row first (recovered.npy,
+    // progressive.png; docs/formats.md "Which way is up").
+    let letter = grid.to_top_first(
+        &polnlos::simulate::patterns::Pattern::from_name("letter")
+            .unwrap()
+            .render(grid),
+        1,
+    );
     // Calibrated, a white letter stays white: each colour's mean over the
     // letter within 5 % of the others' (measured 0.681, 0.708, 0.688).
     // Before any solve: the measurement in units of T l, each colour divided

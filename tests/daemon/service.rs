@@ -19,13 +19,19 @@ fn truth(scene: &str) -> (polnlos::scene::Grid, Vec<f64>) {
     (grid, Pattern::Letter.render(grid))
 }
 
+/// A reconstruction's `recovered.npy` (top row first, docs/formats.md
+/// "Which way is up") in the scene grid's element order, as [`truth`].
 fn recovered(d: &Client, id: i64) -> Vec<f64> {
     let (s, bytes) = d.get_bytes(&format!("/reconstructions/{id}/recovered.npy"));
     assert_eq!(s, 200);
     let dir = scratch();
     let p = dir.path().join("r.npy");
     std::fs::write(&p, bytes).unwrap();
-    polnlos::files::npy::read(&p).unwrap().data
+    let a = polnlos::files::npy::read(&p).unwrap();
+    let [nv, nu] = a.shape[..] else {
+        panic!("shape {:?}", a.shape)
+    };
+    polnlos::scene::Grid { nu, nv }.from_top_first(&a.data, 1)
 }
 
 /// `polnlos measure` on a capture's downloaded raw frames and dark frames,
@@ -210,6 +216,8 @@ fn capture_every_block_reconstruct_and_fetch() {
         let shown = crate::png::decode(&png);
         let (grid, t) = truth(scene);
         assert_eq!((shown.width, shown.height), (grid.nu, grid.nv));
+        // Shown top row first, as every scene image.
+        let t = grid.to_top_first(&t, 1);
         let px: Vec<f64> = shown
             .grey()
             .iter()
