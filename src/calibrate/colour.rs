@@ -104,7 +104,7 @@ pub(crate) type ColourValues<'a> = (Colour, &'a [f64], Option<&'a [f64]>);
 
 /// Each colour's response from a measurement of a neutral field. Sums run
 /// over the rows every colour measured.
-pub fn balance(colours: &[ColourValues<'_>]) -> Result<ColourBalance, ColourBalanceError> {
+pub(crate) fn balance(colours: &[ColourValues<'_>]) -> Result<ColourBalance, ColourBalanceError> {
     if colours.len() < 2 {
         return Err(ColourBalanceError::OneColour(colours.len()));
     }

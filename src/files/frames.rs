@@ -52,7 +52,7 @@ pub fn decode_frames(bytes: &[u8]) -> Result<FrameFile, FileError> {
 /// A PNG in memory as one frame: grey or RGB (an alpha channel is
 /// dropped), 8 or 16 bits. Its size is checked against `MAX_SIDE` and
 /// [`MAX_PIXELS`] from the header, before any pixel is decoded.
-pub fn decode_png(bytes: &[u8]) -> Result<FrameFile, FileError> {
+pub(crate) fn decode_png(bytes: &[u8]) -> Result<FrameFile, FileError> {
     use super::image::DecodeError;
     let path = Path::new("<bytes>");
     let img = super::image::decode_png(bytes, MAX_SIDE, MAX_PIXELS).map_err(|e| match e {

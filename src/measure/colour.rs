@@ -93,7 +93,7 @@ impl BayerPattern {
 ///
 /// Why cells: the live view shows what the camera measured, not a
 /// demosaicing guess, as the polarizer mosaic's Stokes views do.
-pub fn cells_rgb(
+pub(crate) fn cells_rgb(
     pixels: &[u16],
     (width, height): (usize, usize),
     pattern: BayerPattern,

@@ -104,7 +104,7 @@ fn check(
 /// an element measured from all its pixels (MODEL.md revision 3) collects
 /// their photons, so its SNR is `sqrt(pixels)` times one pixel's; without
 /// it every element is one pixel.
-pub fn plan_exposure(
+pub(crate) fn plan_exposure(
     t: &Transport,
     calibration: f64,
     limits: &CameraLimits,

@@ -379,7 +379,7 @@ fn indicator2(
 }
 
 /// `||a - b||_F / ||b||_F` over all entries (`b` the reference).
-pub fn relative_error(a: &Transport, reference: &Transport) -> f64 {
+pub(crate) fn relative_error(a: &Transport, reference: &Transport) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     for (x, r) in a.col_major().iter().zip(reference.col_major()) {
         num += (x - r) * (x - r);
