@@ -1547,8 +1547,9 @@ fn a_real_colour_photo_reconstructs_with_gain_background_and_lambda_from_itself(
         serde_json::from_str(&std::fs::read_to_string(run.out.join("report.json")).unwrap())
             .unwrap();
     let m = &report["metrics"];
-    // Measured 0.803 / 11.74 dB / 11.42 dB (the authors' hand-tuned
-    // pipeline: 0.64 / 9.7 dB after the fit / 9.35 dB).
+    // Measured 0.821 / 12.03 dB / 11.99 dB with the area shadows the photo
+    // chooses (0.803 / 11.74 / 11.42 with point shadows; the authors'
+    // hand-tuned pipeline: 0.64 / 9.7 dB after the fit / 9.35 dB).
     assert!(m["zncc"].as_f64().unwrap() >= 0.80, "{m}");
     assert!(m["psnr_affine_db"].as_f64().unwrap() >= 11.4, "{m}");
     assert!(m["psnr_db"].as_f64().unwrap() >= 11.0, "{m}");

@@ -153,6 +153,17 @@ fn the_chair_photo_imported_over_http_reconstructs_as_the_cli_photo_mode() {
     let theirs = polnlos::files::npy::read(&cli.out.join("recovered.npy")).unwrap();
     let diff = max_diff(&ours, &theirs);
     assert!(diff <= 1e-9, "daemon and CLI differ by {diff:e}");
+    // fitted.npy (x = g l, top row first) the same in both folders too.
+    let read = |p: &Path| polnlos::files::npy::read(p).unwrap();
+    let fitted = dir
+        .path()
+        .join(format!("data/reconstructions/{}/fitted.npy", rec["id"]));
+    let (ours, theirs) = (read(&fitted), read(&cli.out.join("fitted.npy")));
+    let diff = max_diff(&ours, &theirs);
+    assert!(
+        diff <= 1e-9 * theirs.data.iter().fold(0.0, |m, v| v.abs().max(m)),
+        "fitted.npy: daemon and CLI differ by {diff:e}"
+    );
     let cli_report: Value =
         serde_json::from_str(&std::fs::read_to_string(cli.out.join("report.json")).unwrap())
             .unwrap();

@@ -683,7 +683,8 @@ impl Job<'_> {
         if c > 1 {
             shape.push(c);
         }
-        npy::write_f64(&dir.join("fitted.npy"), &shape, &x).map_err(file)?;
+        // Top row first, as recovered.npy and the CLI's fitted.npy.
+        npy::write_f64(&dir.join("fitted.npy"), &shape, &grid.to_top_first(&x, c)).map_err(file)?;
         tracing::info!(
             "fitted: {} channel(s), gain {:.4e}, lambda {}; {} warnings",
             c,
