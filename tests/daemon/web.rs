@@ -629,7 +629,17 @@ async fn drawn(c: &Client, css: &str) -> [f64; 4] {
 /// Asserts that image `css` of a `nu` x `nv` scene grid is drawn at the
 /// grid's aspect (within a pixel) and at least 160 px across its short side.
 async fn drawn_at_aspect(c: &Client, css: &str, nu: f64, nv: f64) -> [f64; 4] {
-    let size = drawn(c, css).await;
+    // Measured once loaded: a live image reloads at each result, and while
+    // its next one decodes it has no natural size (0 x 0 was read so once).
+    let size = until(
+        &format!("{css} loaded"),
+        Duration::from_secs(60),
+        || async {
+            let s = drawn(c, css).await;
+            (s[2] > 0.0 && s[3] > 0.0).then_some(s)
+        },
+    )
+    .await;
     let [w, h, natural_w, natural_h] = size;
     println!("{css}: drawn {w} x {h} px of {natural_w} x {natural_h}");
     assert_eq!([natural_w, natural_h], [nu, nv], "{css}");
