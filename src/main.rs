@@ -145,6 +145,17 @@ fn code_of(cause: &(dyn std::error::Error + 'static)) -> Option<u8> {
             _ => Some(INPUT),
         };
     }
+    if let Some(o) = cause.downcast_ref::<polnlos::calibrate::scene::SceneFitError>() {
+        use polnlos::calibrate::scene::SceneFitError as E;
+        return match o {
+            E::NothingFree | E::NoOccluders(_) | E::Parameter { .. } => Some(USAGE),
+            E::Selection(s) => code_of(s),
+            E::Transport(t) => code_of(t),
+            E::Solve(s) => code_of(s),
+            E::Stopped => Some(FAILED),
+            _ => Some(INPUT),
+        };
+    }
     if cause.is::<polnlos::calibrate::geometry::CalibrationError>()
         || cause.is::<polnlos::calibrate::wall::WallFitError>()
         || cause.is::<polnlos::measure::MeasureError>()

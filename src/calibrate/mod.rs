@@ -2,7 +2,8 @@
 //! [`colour`] measures a colour camera's balance from a white or grey field;
 //! [`geometry`] fits each pose's camera→wall homography to an image of a
 //! dot target on the wall; [`occluder`] fits the occluders' position to a
-//! photo; [`wall`] fits the wall's roughness, refractive
+//! photo; [`scene`] fits the bench's geometry (occluders, hidden plane,
+//! distance) to its photos; [`wall`] fits the wall's roughness, refractive
 //! index, diffuse weight and the radiometric gain to point-source captures
 //! (pure functions; no I/O). The wall's and the homographies' fits share
 //! one Levenberg-Marquardt (`levenberg`).
@@ -11,4 +12,5 @@ pub mod colour;
 pub mod geometry;
 mod levenberg;
 pub mod occluder;
+pub mod scene;
 pub mod wall;

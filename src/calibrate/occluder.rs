@@ -411,7 +411,10 @@ impl OccluderFit {
 }
 
 /// The occluder indices `selected` names, checked against the scene.
-fn selection(scene: &Scene, selected: Option<&[usize]>) -> Result<Vec<usize>, OccluderError> {
+pub(crate) fn selection(
+    scene: &Scene,
+    selected: Option<&[usize]>,
+) -> Result<Vec<usize>, OccluderError> {
     let count = scene.occluders().len();
     if count == 0 {
         return Err(OccluderError::NoOccluders);

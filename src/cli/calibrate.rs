@@ -8,6 +8,8 @@ use polnlos::calibrate::geometry::{detect, fit, scene_with_homography, SceneFold
 use polnlos::scene::Frame;
 use polnlos::transport::MemoryBudget;
 
+use super::{parse_indices, Indices};
+
 /// Calibrate a bench from images.
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -58,6 +60,24 @@ moved corner, the objective at start and end, the T builds and seconds; writes t
 for the new file's folder)."
     )]
     Occluder(OccluderArgs),
+    /// Fit the bench's geometry (the occluders' place, the hidden plane's
+    /// offset in its plane, the wall-to-scene distance; more with --free)
+    /// to one or more photos, unknown scenes or calibration shots of known
+    /// images, with uncertainties that include the model's error.
+    #[command(
+        after_help = "Example:\n  polnlos calibrate scene config/photos/saunders-chair.toml \\\n    --measurement tests/data/saunders-chair/measurement.npy --out chair-placed.toml\n\
+At each trial geometry it builds T (area shadows, the scene sampled once per\n\
+cell) and eliminates the hidden image (or a --known image's gain) and the\n\
+photo's background by least squares on the photo's differences; the\n\
+residual is descended by Levenberg-Marquardt on a coarse wall, then on the\n\
+full one (docs/realphoto.md, \"Fitting the geometry\"). Prints each fitted\n\
+offset with its uncertainty, the misfit before and after, the T builds and\n\
+seconds, and warnings: a freedom on its bound, freedoms the photos cannot\n\
+tell apart, freedoms they do not pin. Writes the scene file with only the\n\
+fitted values changed (comments and order kept, mesh paths rewritten for the\n\
+new file's folder)."
+    )]
+    Scene(super::calibrate_scene::SceneArgs),
 }
 
 #[derive(Debug, clap::Args)]
@@ -117,32 +137,6 @@ struct OccluderArgs {
     report: Option<PathBuf>,
 }
 
-/// Occluder indices as `--occluder` lists them.
-#[derive(Debug, Clone)]
-struct Indices(Vec<usize>);
-
-/// `0,3-11` as the indices it names, in order.
-fn parse_indices(s: &str) -> Result<Indices, super::ArgError> {
-    let bad = || super::ArgError::Indices(s.to_string());
-    let mut out = Vec::new();
-    for part in s.split(',').map(str::trim) {
-        match part.split_once('-') {
-            Some((a, b)) => {
-                let (a, b) = (
-                    a.trim().parse::<usize>().map_err(|_| bad())?,
-                    b.trim().parse::<usize>().map_err(|_| bad())?,
-                );
-                if a > b || b - a > 100_000 {
-                    return Err(bad());
-                }
-                out.extend(a..=b);
-            }
-            None => out.push(part.parse::<usize>().map_err(|_| bad())?),
-        }
-    }
-    Ok(Indices(out))
-}
-
 #[derive(Debug, clap::Args)]
 struct WallArgs {
     /// Scene file (or built-in scene name): wall, poses and hidden-scene plane.
@@ -199,6 +193,7 @@ pub fn run(a: Args, budget: MemoryBudget) -> anyhow::Result<()> {
         What::Geometry(g) => geometry(g),
         What::Wall(w) => wall(w, budget),
         What::Occluder(o) => occluder(o, budget),
+        What::Scene(s) => super::calibrate_scene::run(s, budget),
     }
 }
 

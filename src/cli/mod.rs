@@ -6,6 +6,7 @@ mod bench;
 #[cfg(all(feature = "report", feature = "daemon"))]
 mod bench_live;
 mod calibrate;
+mod calibrate_scene;
 mod cond;
 mod grid;
 mod measure;
@@ -125,6 +126,9 @@ pub enum ArgError {
     /// Neither a number nor `auto`.
     #[error("{0:?} is neither a number nor `auto`")]
     Lambda(String),
+    /// Not a freedom `calibrate scene` fits.
+    #[error("{0:?} is not a freedom: one of occluder-x, occluder-y, occluder-z, scene-u, scene-v, distance, occluder-yaw, wall-u, wall-v")]
+    Freedom(String),
 }
 
 /// A command line that asks for something that cannot be (exit status 2).
@@ -248,4 +252,30 @@ fn scene_name(path: &Path) -> String {
 fn out_dir(dir: &PathBuf) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir)
         .with_context(|| format!("cannot create the output folder {}", dir.display()))
+}
+
+/// Occluder indices as `--occluder` lists them.
+#[derive(Debug, Clone)]
+struct Indices(Vec<usize>);
+
+/// `0,3-11` as the indices it names, in order.
+fn parse_indices(s: &str) -> Result<Indices, ArgError> {
+    let bad = || ArgError::Indices(s.to_string());
+    let mut out = Vec::new();
+    for part in s.split(',').map(str::trim) {
+        match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b) = (
+                    a.trim().parse::<usize>().map_err(|_| bad())?,
+                    b.trim().parse::<usize>().map_err(|_| bad())?,
+                );
+                if a > b || b - a > 100_000 {
+                    return Err(bad());
+                }
+                out.extend(a..=b);
+            }
+            None => out.push(part.parse::<usize>().map_err(|_| bad())?),
+        }
+    }
+    Ok(Indices(out))
 }

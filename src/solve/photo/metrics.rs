@@ -91,6 +91,64 @@ pub(crate) fn least_squares_misfits(
     Ok(channels.iter().map(|c| fit.solve(c).1).collect())
 }
 
+/// Each channel's residual of the data term of differences, `D i_c - D T x`:
+/// with `known[c]` given, `x = g l` (the known image `l`, its gain `g`
+/// fitted), else `x` the unconstrained least-squares fit.
+///
+/// Why: a geometry fit by variable projection differentiates these residuals
+/// (`calibrate scene`): the image, gain and background are eliminated at
+/// each geometry, and the background drops out of differences.
+pub(crate) fn difference_residuals(
+    t: &Transport,
+    channels: &[Vec<f64>],
+    known: Option<&[Vec<f64>]>,
+) -> Result<Vec<Vec<f64>>, SolveError> {
+    for c in channels {
+        check_measurement(t, c)?;
+    }
+    let Some(known) = known else {
+        let fit = LeastSquares::new(t, DataTerm::Differences, channels)?;
+        return Ok(channels
+            .iter()
+            .map(|c| {
+                let (x, _) = fit.solve(c);
+                let y = difference_values(t, c);
+                let kx = difference_values(t, &t.apply(&x));
+                y.iter().zip(&kx).map(|(a, b)| a - b).collect()
+            })
+            .collect());
+    };
+    if known.len() != channels.len() {
+        return Err(SolveError::Parameter {
+            name: "known image channels",
+            value: known.len() as f64,
+            reason: "one known image per colour channel of the photo",
+        });
+    }
+    known
+        .iter()
+        .zip(channels)
+        .map(|(l, c)| {
+            if l.len() != t.cols() {
+                return Err(SolveError::Parameter {
+                    name: "known image cells",
+                    value: l.len() as f64,
+                    reason: "a known image has one value per cell of the scene's grid",
+                });
+            }
+            let y = difference_values(t, c);
+            let kl = difference_values(t, &t.apply(l));
+            let kk: f64 = kl.iter().map(|v| v * v).sum();
+            let g = if kk > 0.0 {
+                kl.iter().zip(&y).map(|(a, b)| a * b).sum::<f64>() / kk
+            } else {
+                0.0
+            };
+            Ok(y.iter().zip(&kl).map(|(a, b)| a - g * b).collect())
+        })
+        .collect()
+}
+
 /// The unconstrained least-squares fit of the data term, factored once.
 struct LeastSquares<'a> {
     t: &'a Transport,

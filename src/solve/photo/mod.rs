@@ -42,7 +42,9 @@ pub use differences::differences;
 use differences::*;
 pub use metrics::least_squares_misfit;
 pub(crate) use metrics::PhotoMetrics;
-pub(crate) use metrics::{least_squares_misfits, noise_checks, photo_metrics};
+pub(crate) use metrics::{
+    difference_residuals, least_squares_misfits, noise_checks, photo_metrics,
+};
 pub(crate) use model::PhotoModel;
 #[cfg(feature = "daemon")]
 pub(crate) use stream::PhotoStream;
