@@ -63,8 +63,8 @@ enum Command {
     Reconstruct(reconstruct::Args),
     /// Write a test pattern (disk, bars, letter, flat) as a PNG truth image.
     Pattern(pattern::Args),
-    /// Recommend the finest scene grid the measurement supports (`plan`
-    /// before the eighteenth session: still accepted).
+    /// Recommend the finest scene grid the measurement supports (also
+    /// accepted as `plan`).
     #[command(alias = "plan")]
     Grid(grid::Args),
     /// Write the bench reports: Table 1 and Fig. 6, stability, speed against

@@ -68,6 +68,11 @@ fn help_lists_the_subcommands() {
         assert!(text.contains(cmd), "{text}");
     }
     assert!(ok(&polnlos(&["simulate", "--help"])).contains("--photons"));
+    // Help says what is, not when it came to be ("before the eighteenth session").
+    for help in [text, ok(&polnlos(&["calibrate", "--help"]))] {
+        assert!(!help.contains("th session"), "{help}");
+    }
+    assert!(ok(&polnlos(&["calibrate", "--help"])).contains("scene"));
 }
 
 #[test]
