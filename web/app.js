@@ -849,6 +849,24 @@ const FRAMES_OR_PLAN = "or auto exposure and an empty Frames: the plan's";
 
 // Runs `build` (which reads the form's fields); a FieldError shows in `msg`
 // and gives null, so that the caller sends nothing.
+// The capture ids of field `name` of `form` (numbers separated by commas
+// or spaces); a FieldError naming what is not one, or an empty field.
+function captureIds(form, name) {
+  const input = form.querySelector(`[name=${name}]`);
+  const raw = String(input ? input.value : "").trim();
+  if (input) clearFieldError(input);
+  const parts = raw.split(/[ ,]+/).filter((p) => p);
+  const bad = parts.find((p) => !/^[0-9]+$/.test(p));
+  if (parts.length === 0 || bad !== undefined) {
+    const why = bad === undefined
+      ? `${name}: empty; give capture ids such as 1, 2`
+      : `${name}: "${bad}" is not a capture id (a whole number; several separated by commas or spaces)`;
+    if (input) markField(input, why);
+    throw new FieldError(why);
+  }
+  return parts.map(Number);
+}
+
 function fields(msg, build) {
   try {
     return build();
@@ -1002,7 +1020,7 @@ $("#reconstruction-form").addEventListener("submit", async (ev) => {
   const body = fields(msg, () => {
     const b = {
       scene: f.get("scene"),
-      captures: ids(f.get("captures")),
+      captures: captureIds(ev.target, "captures"),
       solver: f.get("solver"),
     };
     if (f.get("truth")) b.truth = f.get("truth");

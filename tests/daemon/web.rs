@@ -997,9 +997,16 @@ fn the_forms_refuse_unreadable_numbers_beside_the_field_and_send_nothing() {
             ("#capture-form", "frames", "", "#capture-message", "frames: empty; give a whole number (or auto exposure and an empty Frames: the plan's)"),
             ("#capture-form", "exposure_us", "", "#capture-message", "exposure_us: empty; give a number or auto"),
             ("#plan-form", "exposure_us", "", "#plan-message", "exposure_us: empty; give a number or auto"),
+            // Capture ids: a word is named, not sent as null.
+            ("#reconstruction-form", "captures", "abc", "#reconstruction-message", "captures: \"abc\" is not a capture id (a whole number; several separated by commas or spaces)"),
+            ("#reconstruction-form", "captures", "1, x2", "#reconstruction-message", "captures: \"x2\" is not a capture id (a whole number; several separated by commas or spaces)"),
         ] {
             set(&c, &format!("{form} [name={field}]"), typed).await;
-            let button = if form == "#plan-form" { "#run-plan" } else { "#start-capture" };
+            let button = match form {
+                "#plan-form" => "#run-plan",
+                "#reconstruction-form" => "#start-reconstruction",
+                _ => "#start-capture",
+            };
             click(&c, button).await;
             let shown = until("the refusal", long, || async {
                 let t = text(&c, message).await;
@@ -1019,6 +1026,7 @@ fn the_forms_refuse_unreadable_numbers_beside_the_field_and_send_nothing() {
         }
         // Nothing was queued; a good form then goes, and its mark is gone.
         assert_eq!(page.d.json("/plans").as_array().map(Vec::len), Some(0));
+        assert_eq!(page.d.json("/reconstructions").as_array().map(Vec::len), Some(0));
         assert_eq!(page.d.json("/captures").as_array().map(Vec::len), Some(0));
         set(&c, "#plan-form [name=frames]", "2").await;
         click(&c, "#run-plan").await;
