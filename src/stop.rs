@@ -60,6 +60,14 @@ pub(crate) fn finish_unless<R: Send + 'static>(
     stop: Stop<'_>,
     work: impl FnOnce() -> R + Send + 'static,
 ) -> Option<R> {
+    if rayon::current_thread_index().is_some() {
+        // On a pool thread the work runs here, inside the pool: a pool
+        // thread that waits for it, even lending itself to the pool's jobs
+        // meanwhile, hung two reconstructions of the suite (one in two
+        // quiet runs). The stop is then seen after the work.
+        let r = work();
+        return (!stop.raised()).then_some(r);
+    }
     let (tx, rx) = std::sync::mpsc::sync_channel(1);
     let handle = std::thread::spawn(move || {
         let r = work();
@@ -80,15 +88,13 @@ pub(crate) fn finish_unless<R: Send + 'static>(
     }
 }
 
-/// Whether the worker behind `rx` has ended, after running one of the
-/// rayon pool's pending jobs (on a pool thread that has one) or waiting
-/// up to [`POLL`] for it.
+/// Whether the worker behind `rx` has ended, after waiting up to [`POLL`]
+/// for it.
 fn ended(rx: &std::sync::mpsc::Receiver<()>) -> bool {
-    use std::sync::mpsc::{RecvTimeoutError, TryRecvError};
-    match rayon::yield_now() {
-        Some(rayon::Yield::Executed) => !matches!(rx.try_recv(), Err(TryRecvError::Empty)),
-        _ => !matches!(rx.recv_timeout(POLL), Err(RecvTimeoutError::Timeout)),
-    }
+    !matches!(
+        rx.recv_timeout(POLL),
+        Err(std::sync::mpsc::RecvTimeoutError::Timeout)
+    )
 }
 
 #[cfg(test)]
@@ -125,8 +131,8 @@ mod tests {
 
     #[test]
     fn finish_unless_on_a_pool_thread_lends_it_to_work_that_needs_the_pool() {
-        // One pool thread waits in finish_unless for work that needs that
-        // very pool: it ends only if the wait runs the pool's jobs.
+        // One pool thread calls finish_unless with work that needs that
+        // very pool: it ends only if the work does not wait for the pool.
         let pool = std::sync::Arc::new(
             rayon::ThreadPoolBuilder::new()
                 .num_threads(1)
