@@ -414,7 +414,7 @@ pub fn scene_with_homography(
     let mut doc: toml_edit::DocumentMut = scene_toml
         .parse()
         .map_err(|e| bad(format!("scene file: {e}")))?;
-    let entry = crate::calibrate::occluder::entries(&mut doc, "pose")
+    let entry = crate::calibrate::scene_text::entries(&mut doc, "pose")
         .into_iter()
         .find(|p| p.get("name").and_then(|n| n.as_str()) == Some(pose))
         .ok_or_else(|| bad(format!("scene file has no pose {pose:?}")))?;
@@ -424,12 +424,12 @@ pub fn scene_with_homography(
         .map(|r| Value::Array(r.iter().copied().collect()))
         .collect();
     let ints = |v: &[u32]| -> Array { v.iter().map(|&x| i64::from(x)).collect() };
-    let set = crate::calibrate::occluder::set_value;
+    let set = crate::calibrate::scene_text::set_value;
     set(entry, "homography", Value::Array(rows));
     set(entry, "region", Value::Array(ints(&region)));
     set(entry, "binning", Value::Array(ints(&[1, 1])));
     if folders.from != folders.to {
-        crate::calibrate::occluder::rebase_mesh_paths(&mut doc, folders.from, folders.to)
+        crate::calibrate::scene_text::rebase_mesh_paths(&mut doc, folders.from, folders.to)
             .map_err(|e| bad(e.to_string()))?;
     }
     let text = doc.to_string();

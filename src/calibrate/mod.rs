@@ -13,4 +13,5 @@ pub mod geometry;
 mod levenberg;
 pub mod occluder;
 pub mod scene;
+pub(crate) mod scene_text;
 pub mod wall;

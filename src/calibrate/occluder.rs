@@ -11,7 +11,9 @@
 //! shadows: exact, and continuous in the translation.
 
 use std::collections::HashMap;
-use std::path::{Component, Path, PathBuf};
+use std::path::Path;
+
+use super::scene_text::rebase;
 use std::time::Instant;
 
 use crate::optics::Vec3;
@@ -86,15 +88,8 @@ pub enum OccluderError {
     #[error("scene file: {0}")]
     SceneFile(String),
     /// A mesh path cannot be written for the new scene file's folder.
-    #[error("occluder[{index}].mesh = {path:?}: {reason}")]
-    MeshPath {
-        /// Occluder index.
-        index: usize,
-        /// The path as the scene file gives it.
-        path: String,
-        /// Why it cannot be rewritten.
-        reason: String,
-    },
+    #[error(transparent)]
+    MeshPath(#[from] super::scene_text::MeshPathError),
     /// `T` could not be built.
     #[error(transparent)]
     Transport(#[from] TransportError),
@@ -1482,140 +1477,6 @@ fn same_places(a: &[Occluder], b: &[Occluder]) -> bool {
         })
 }
 
-/// A folder as an absolute path without links (`""`: the current one).
-fn absolute(dir: &Path) -> std::io::Result<PathBuf> {
-    let dir = if dir.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        dir
-    };
-    dir.canonicalize()
-}
-
-/// The mesh path `path` of occluder `index`, written in a file in
-/// `from_dir`, as a file in `to_dir` must write it: an absolute path as it
-/// is, a relative one relative to `to_dir`, or absolute when no relative
-/// path leads there (another drive).
-fn rebase(
-    index: usize,
-    path: &str,
-    from_dir: &Path,
-    to_dir: &Path,
-) -> Result<String, OccluderError> {
-    if Path::new(path).is_absolute() {
-        return Ok(path.to_string());
-    }
-    let fail = |reason: String| OccluderError::MeshPath {
-        index,
-        path: path.to_string(),
-        reason,
-    };
-    let from = absolute(from_dir).map_err(|e| {
-        fail(format!(
-            "the scene file's folder {}: {e}",
-            from_dir.display()
-        ))
-    })?;
-    let to = absolute(to_dir).map_err(|e| {
-        fail(format!(
-            "the new scene file's folder {}: {e}",
-            to_dir.display()
-        ))
-    })?;
-    let target = from
-        .join(path)
-        .canonicalize()
-        .map_err(|e| fail(format!("{}: {e}", from.join(path).display())))?;
-    let new = relative_to(&target, &to).unwrap_or(target);
-    new.to_str().map(str::to_string).ok_or_else(|| {
-        fail(format!(
-            "{} is not UTF-8 and cannot be written in TOML",
-            new.display()
-        ))
-    })
-}
-
-/// The tables of the array `key` of `doc` (`[[key]]` or `key = [{...}]`),
-/// in file order, for editing in place.
-pub(crate) fn entries<'a>(
-    doc: &'a mut toml_edit::DocumentMut,
-    key: &str,
-) -> Vec<&'a mut dyn toml_edit::TableLike> {
-    match doc.get_mut(key) {
-        Some(toml_edit::Item::ArrayOfTables(a)) => a
-            .iter_mut()
-            .map(|t| t as &mut dyn toml_edit::TableLike)
-            .collect(),
-        Some(toml_edit::Item::Value(toml_edit::Value::Array(a))) => a
-            .iter_mut()
-            .filter_map(|v| v.as_inline_table_mut())
-            .map(|t| t as &mut dyn toml_edit::TableLike)
-            .collect(),
-        _ => Vec::new(),
-    }
-}
-
-/// Sets `key` of `entry` to `value`, keeping the comment that followed
-/// the value it replaces (the key's own comments stay with the key).
-pub(crate) fn set_value(
-    entry: &mut dyn toml_edit::TableLike,
-    key: &str,
-    mut value: toml_edit::Value,
-) {
-    if let Some(old) = entry.get(key).and_then(toml_edit::Item::as_value) {
-        *value.decor_mut() = old.decor().clone();
-    }
-    entry.insert(key, toml_edit::Item::Value(value));
-}
-
-/// Every relative `mesh` path of `doc`'s `[[occluder]]` entries (a file
-/// in `from_dir`) rewritten for a file in `to_dir` ([`rebase`]), the rest
-/// of the file as it is: the edited file reads the same meshes.
-pub(crate) fn rebase_mesh_paths(
-    doc: &mut toml_edit::DocumentMut,
-    from_dir: &Path,
-    to_dir: &Path,
-) -> Result<(), OccluderError> {
-    for (index, entry) in entries(doc, "occluder").into_iter().enumerate() {
-        let Some(path) = entry
-            .get("mesh")
-            .and_then(|m| m.as_str())
-            .map(str::to_string)
-        else {
-            continue;
-        };
-        let new = rebase(index, &path, from_dir, to_dir)?;
-        if new != path {
-            set_value(entry, "mesh", toml_edit::Value::from(new));
-        }
-    }
-    Ok(())
-}
-
-/// `target` relative to the folder `base`, both absolute; `None` when they
-/// have different roots (another drive).
-fn relative_to(target: &Path, base: &Path) -> Option<PathBuf> {
-    let t: Vec<Component> = target.components().collect();
-    let b: Vec<Component> = base.components().collect();
-    let is_root = |c: &&Component| matches!(c, Component::Prefix(_) | Component::RootDir);
-    let (tr, br) = (
-        t.iter().take_while(is_root).count(),
-        b.iter().take_while(is_root).count(),
-    );
-    if t[..tr] != b[..br] {
-        return None;
-    }
-    let common = t.iter().zip(&b).take_while(|(x, y)| x == y).count();
-    let mut out = PathBuf::new();
-    for _ in common..b.len() {
-        out.push("..");
-    }
-    for c in &t[common..] {
-        out.push(c);
-    }
-    Some(out)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1886,9 +1747,5 @@ rect = { center = [-0.05, 0.0, 0.5], half_u = [0.01, 0, 0], half_v = [0, 0.01, 0
         // Written in its own folder, the path is as it was.
         let same = scene_with_occluders_moved(&text, &from, &[0], d, &from).unwrap();
         assert!(same.contains("mesh = \"meshes/t.obj\""), "{same}");
-        assert_eq!(
-            relative_to(Path::new("/x/y/z.obj"), Path::new("/x/w/v")),
-            Some(PathBuf::from("../../y/z.obj"))
-        );
     }
 }

@@ -300,14 +300,7 @@ fn occluder(a: OccluderArgs, budget: MemoryBudget) -> anyhow::Result<()> {
     if let Some(p) = &a.report {
         polnlos::files::json::write(p, &f)?;
     }
-    match &a.out {
-        Some(p) => {
-            polnlos::files::write_atomic(p, out.as_bytes())?;
-            println!("scene with the occluders moved written to {}", p.display());
-        }
-        None => print!("{out}"),
-    }
-    Ok(())
+    super::write_scene_or_print(a.out.as_deref(), &out, "scene with the occluders moved")
 }
 
 /// `--variance` given once per `--measurement`, or not at all.
@@ -475,12 +468,5 @@ fn geometry(a: GeometryArgs) -> anyhow::Result<()> {
     );
     let m = f.homography.matrix();
     eprintln!("homography = {m:?}");
-    match &a.out {
-        Some(p) => {
-            polnlos::files::write_atomic(p, out.as_bytes())?;
-            println!("calibrated scene written to {}", p.display());
-        }
-        None => print!("{out}"),
-    }
-    Ok(())
+    super::write_scene_or_print(a.out.as_deref(), &out, "calibrated scene")
 }

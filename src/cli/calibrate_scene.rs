@@ -137,14 +137,7 @@ pub(super) fn run(a: SceneArgs, budget: MemoryBudget) -> anyhow::Result<()> {
     if let Some(p) = &a.report {
         polnlos::files::json::write(p, &fit)?;
     }
-    match &a.out {
-        Some(p) => {
-            polnlos::files::write_atomic(p, placed.as_bytes())?;
-            println!("placed scene written to {}", p.display());
-        }
-        None => print!("{placed}"),
-    }
-    Ok(())
+    super::write_scene_or_print(a.out.as_deref(), &placed, "placed scene")
 }
 
 /// The fit as a person reads it, on stderr.

@@ -279,3 +279,16 @@ fn parse_indices(s: &str) -> Result<Indices, ArgError> {
     }
     Ok(Indices(out))
 }
+
+/// A scene file a calibration wrote: to `out` (atomically, then said on
+/// stdout as `what written to PATH`), or printed when no `--out` is given.
+fn write_scene_or_print(out: Option<&Path>, text: &str, what: &str) -> anyhow::Result<()> {
+    match out {
+        Some(p) => {
+            polnlos::files::write_atomic(p, text.as_bytes())?;
+            println!("{what} written to {}", p.display());
+        }
+        None => print!("{text}"),
+    }
+    Ok(())
+}

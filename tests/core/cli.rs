@@ -15,7 +15,7 @@ fn scene(name: &str) -> PathBuf {
 
 /// `polnlos args`, with no cache of built matrices (a test writes nothing
 /// outside its own folders; `transport_cache_*` tests give their own).
-fn polnlos(args: &[&str]) -> Output {
+pub(crate) fn polnlos(args: &[&str]) -> Output {
     polnlos_with_cache(args, "off")
 }
 
@@ -30,7 +30,7 @@ fn polnlos_with_cache(args: &[&str], cache: &str) -> Output {
         .expect("run polnlos")
 }
 
-fn ok(out: &Output) -> String {
+pub(crate) fn ok(out: &Output) -> String {
     assert!(
         out.status.success(),
         "stderr: {}",

@@ -4,27 +4,10 @@
 //! calibration shot of a known image.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use polnlos::scene::{Occluder, Scene};
 
-fn polnlos(args: &[&str]) -> Output {
-    crate::priority::background();
-    Command::new(env!("CARGO_BIN_EXE_polnlos"))
-        .args(args)
-        .env("POLNLOS_CACHE", "off")
-        .output()
-        .expect("run polnlos")
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "stderr: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
+use crate::core::cli::{ok, polnlos};
 
 fn s(p: &Path) -> &str {
     p.to_str().expect("UTF-8 path")

@@ -79,6 +79,9 @@ pub enum SceneFitError {
     /// The occluder selection is wrong.
     #[error(transparent)]
     Selection(#[from] crate::calibrate::occluder::OccluderError),
+    /// A mesh path cannot be written for the placed file's folder.
+    #[error(transparent)]
+    MeshPath(#[from] crate::calibrate::scene_text::MeshPathError),
     /// The scene at a trial geometry does not validate.
     #[error("the scene with its geometry moved: {0}")]
     Scene(#[from] SceneError),

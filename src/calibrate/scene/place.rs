@@ -263,7 +263,7 @@ pub(crate) fn placed_scene_file(
     at: &Placement,
     to_dir: &Path,
 ) -> Result<String, SceneFitError> {
-    use crate::calibrate::occluder::{entries, rebase_mesh_paths, set_value};
+    use crate::calibrate::scene_text::{entries, rebase_mesh_paths, set_value};
     let scene = Scene::from_toml_str_in(text, from_dir)?;
     let pivot = pivot(&scene, selected);
     let moved = scene.clone().edit(|p| place(p, selected, pivot, at))?;
@@ -326,6 +326,6 @@ fn set_center(
         .get_mut(key)
         .and_then(toml_edit::Item::as_table_like_mut)
         .ok_or(SceneFitError::Missing(key))?;
-    crate::calibrate::occluder::set_value(t, "center", point(c));
+    crate::calibrate::scene_text::set_value(t, "center", point(c));
     Ok(())
 }

@@ -68,7 +68,7 @@ pub enum SceneChangeError {
         name: String,
         /// Why.
         #[source]
-        source: crate::calibrate::occluder::OccluderError,
+        source: crate::calibrate::scene_text::MeshPathError,
     },
     /// The body is not TOML that can be edited.
     #[error("scene {name:?}: the body is not TOML: {source}")]
@@ -287,7 +287,7 @@ impl SceneRegistry {
             what: "making scenes/".into(),
             source,
         })?;
-        crate::calibrate::occluder::rebase_mesh_paths(&mut doc, from, &self.posted).map_err(
+        crate::calibrate::scene_text::rebase_mesh_paths(&mut doc, from, &self.posted).map_err(
             |source| SceneChangeError::MeshPath {
                 name: name.into(),
                 source,
