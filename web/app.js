@@ -458,6 +458,11 @@ function captureRow(c) {
   } else {
     actions.append(twoStep("Delete", "Really delete?", () => deleteCapture(c.id, false)));
   }
+  if (c.state === "done" && c.kind === "light") {
+    const g = el("button", { type: "button", class: "fit-geometry", title: "fit the scene's geometry to this capture (Calibration: Geometry)" }, "Fit geometry");
+    g.addEventListener("click", () => fitGeometryOf(c));
+    actions.append(g);
+  }
   const dark = c.dark_capture ? ` − dark ${c.dark_capture}` : "";
   return el("tr", { id: `capture-${c.id}` },
     el("td", {}, String(c.id)),
@@ -718,6 +723,10 @@ async function cancel(job) {
 // ---- events ----
 
 async function onEvent(v) {
+  if (String(v.job || "").startsWith("scene-fit-")) {
+    geometryEvent(v);
+    return;
+  }
   const [kind, id] = String(v.job || "").split("-");
   if (v.type === "job") {
     // A capture turns the mount, moves the stage, switches the light: read them back.
@@ -1355,6 +1364,83 @@ $("#wall-form").addEventListener("submit", async (ev) => {
     : { scene: f.get("scene"), sources: positions };
   await fit("#fit-wall", "#wall-message", "#wall-result", "/calibrations/wall", body, showWall);
 });
+
+// The geometry fit runs as a job (minutes on a large wall): its progress
+// comes on /events, its end is read back from /calibrations/scene/{id}.
+let geometryJob = null;
+
+function fitGeometryOf(c) {
+  const form = $("#geometry-form");
+  form.querySelector("[name=scene]").value = c.scene;
+  form.querySelector("[name=captures]").value = String(c.id);
+  form.scrollIntoView();
+  form.requestSubmit();
+}
+
+$("#geometry-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const form = ev.target;
+  const body = fields("#geometry-message", () => ({
+    scene: form.querySelector("[name=scene]").value,
+    captures: captureIds(form, "captures"),
+  }));
+  if (!body) return;
+  const free = form.querySelector("[name=free]").value.split(/[ ,]+/).filter((x) => x);
+  if (free.length) body.free = free;
+  const known = form.querySelector("[name=known]").value.trim();
+  if (known) body.known = known;
+  const msg = $("#geometry-message");
+  msg.className = "message";
+  $("#fit-geometry").disabled = true;
+  const r = await api("POST", "/calibrations/scene", body);
+  if (r.status !== 202) {
+    $("#fit-geometry").disabled = false;
+    refused("#geometry-message", "#geometry-result", (r.json && r.json.detail) || `HTTP ${r.status}`);
+    return;
+  }
+  geometryJob = r.json.job;
+  text(msg, `fitting (${r.json.job})…`);
+  $("#geometry-result").replaceChildren();
+  for (;;) {
+    await new Promise((res) => setTimeout(res, 1000));
+    const g = await api("GET", `/calibrations/scene/${r.json.id}`);
+    if (g.status === 404) { $("#fit-geometry").disabled = false; refused("#geometry-message", "#geometry-result", g.json.detail); return; }
+    if (g.status !== 200 || active(g.json.state)) continue;
+    $("#fit-geometry").disabled = false;
+    geometryJob = null;
+    if (g.json.state === "done") { text(msg, `fitted: later reconstructions of ${g.json.scene} use it`); showGeometry(g.json); }
+    else refused("#geometry-message", "#geometry-result", `${g.json.state}: ${g.json.error || ""}`);
+    return;
+  }
+});
+
+function geometryEvent(v) {
+  if (v.type === "scene_fit" && v.job === geometryJob) {
+    text($("#geometry-message"), `fitting (${v.job}): ${v.builds} T builds of at most ${v.max_builds}`);
+  }
+}
+
+function showGeometry(g) {
+  const f = g.fit;
+  const rows = [["scene", g.scene], ["captures", g.captures.join(", ")], ["scene calibration", g.id]];
+  f.fitted.forEach((x) => {
+    const deg = x.freedom.endsWith("yaw");
+    const v = (m) => deg ? `${fmt(m, 3)}°` : `${fmt(1e3 * m, 3)} mm`;
+    rows.push([x.freedom, `${v(x.offset)} ± ${v(x.uncertainty)}`]);
+  });
+  const fall = 100 * (f.misfit_fitted / f.misfit_as_written - 1);
+  rows.push(["misfit", `${fmt(f.misfit_as_written, 4)} → ${fmt(f.misfit_fitted, 4)} (${fall.toFixed(1)} %)`],
+    ["T builds", `${f.evaluations} in ${fmt(f.seconds, 3)} s`]);
+  (f.messages || []).forEach((m) => rows.push(["warning", m]));
+  const file = new Blob([g.placed_toml], { type: "application/toml" });
+  const link = el("a", { href: URL.createObjectURL(file), download: `${g.scene}-placed.toml`, id: "geometry-download" }, "download the placed scene file");
+  const back = twoStep("Back to the file's geometry", "Really?", async () => {
+    const r = await api("DELETE", `/calibrations/scene/${g.id}`);
+    if (r.status === 204) { text($("#geometry-message"), `scene calibration ${g.id} deleted: ${g.scene} serves its file's geometry again (or an older fit's)`); $("#geometry-result").replaceChildren(); }
+    else refused("#geometry-message", "#geometry-result", (r.json && r.json.detail) || `HTTP ${r.status}`);
+  });
+  $("#geometry-result").replaceChildren(rowsTable(rows), el("div", { class: "fit" }, link, " ", back));
+}
 
 async function loadScenes() {
   const r = await api("GET", "/scenes");

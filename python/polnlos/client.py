@@ -281,6 +281,49 @@ class Client:
             body["sources"] = sources
         return self._json("POST", "/calibrations/wall", body)
 
+    def calibrate_scene(self, scene: str, captures: List[int], free: Optional[List[str]] = None,
+                        known: Any = None, range_m: Optional[float] = None,
+                        max_evaluations: Optional[int] = None, wait: bool = True,
+                        timeout: float = 3600.0) -> Dict[str, Any]:
+        """Fits the scene's geometry to its captures (`POST /calibrations/scene`)
+        as a job: the occluders' translation, the hidden plane's offset and
+        the distance by default (`free` chooses: occluder-x/y/z, scene-u/v,
+        distance, occluder-yaw, wall-u/v). `known` is the image the hidden
+        monitor showed (a pattern name or an array, top row first) for a
+        calibration shot. Once done, every later reconstruction of the scene
+        uses the fitted geometry (its report's `geometry` names it). With
+        `wait`, returns the calibration when it ends (`fit["fitted"]`: each
+        offset and uncertainty; `placed_toml`); else the accepted job."""
+        body: Dict[str, Any] = {"scene": scene, "captures": [int(c) for c in captures]}
+        if free is not None:
+            body["free"] = list(free)
+        if known is not None:
+            body["known"] = known if isinstance(known, (str, dict)) else {
+                "image": np.asarray(known, dtype=np.float64).tolist()}
+        if range_m is not None:
+            body["range_m"] = float(range_m)
+        if max_evaluations is not None:
+            body["max_evaluations"] = int(max_evaluations)
+        accepted = self._json("POST", "/calibrations/scene", body)
+        if not wait:
+            return accepted
+        self.wait(accepted, timeout=timeout)
+        return self.scene_calibration(accepted["id"])
+
+    def scene_calibration(self, calibration_id: int) -> Dict[str, Any]:
+        """One scene calibration (`GET /calibrations/scene/{id}`)."""
+        return self._json("GET", f"/calibrations/scene/{int(calibration_id)}")
+
+    def scene_calibrations(self) -> List[Dict[str, Any]]:
+        """Every scene calibration, newest first (`GET /calibrations/scene`)."""
+        return self._json("GET", "/calibrations/scene")
+
+    def delete_scene_calibration(self, calibration_id: int) -> None:
+        """Deletes a scene calibration: its scene serves the newest done one
+        left, or its file's geometry (`DELETE /calibrations/scene/{id}`)."""
+        with self._request("DELETE", f"/calibrations/scene/{int(calibration_id)}"):
+            pass
+
     # -- live view -----------------------------------------------------------
 
     def live_start(self, scene: str, pose: str, record: Optional[int] = None,

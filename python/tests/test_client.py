@@ -204,7 +204,7 @@ def test_a_scene_is_added_replaced_and_deleted_without_a_restart(client):
     import pathlib
     text = (pathlib.Path(__file__).parents[2] / "config/scenes/brewster-crossed.toml").read_text()
     added = client.add_scene("from-python", "# mine\n" + text)
-    assert added == {"name": "from-python", "origin": "posted", "error": None}
+    assert added == {"name": "from-python", "origin": "posted", "error": None, "fitted_by": None}
     assert "from-python" in client.scenes()
     with pytest.raises(polnlos.DaemonError) as e:
         client.add_scene("from-python", text)
@@ -218,3 +218,38 @@ def test_a_scene_is_added_replaced_and_deleted_without_a_restart(client):
     assert "from-python" not in client.scenes()
     listed = {s["name"]: s for s in client.scene_list()}
     assert listed["brewster-crossed"]["origin"] == "built-in"
+
+
+def test_a_scene_calibration_places_the_bench_for_later_reconstructions(client):
+    """A photo of a bench whose occluder stands 8 mm along x and -6 mm along z
+    off its file, imported and fitted through the client: the fitted
+    offsets cover the truth, and the next reconstruction uses them."""
+    import pathlib
+    text = (pathlib.Path(__file__).parents[2] / "config/scenes/occluder-nopol.toml").read_text()
+    written = "center = [-0.187, 0.0, 0.125]"
+    assert written in text
+    bench = polnlos.Scene.from_toml(text.replace(written, "center = [-0.179, 0.0, 0.119]"))
+    client.add_scene("nopol-python", text)
+    try:
+        truth = polnlos.pattern("letter", bench)
+        photo, _ = polnlos.simulate(bench, truth, photons=1e5, seed=3)
+        cap = client.import_capture("nopol-python", "A", photo, name="sim.npy")
+        before = client.report(client.wait(client.reconstruct("nopol-python", [cap["id"]], truth=truth))["id"])
+        assert before["geometry"] == "as written"
+        free = ["occluder-x", "occluder-y", "occluder-z"]
+        fit = client.calibrate_scene("nopol-python", [cap["id"]], free=free, known=truth)
+        assert fit["state"] == "done", fit
+        for f, want in zip(fit["fit"]["fitted"], [0.008, 0.0, -0.006]):
+            assert abs(f["offset"] - want) < 2 * f["uncertainty"], fit["fit"]["fitted"]
+        after = client.report(client.wait(client.reconstruct("nopol-python", [cap["id"]], truth=truth))["id"])
+        assert after["geometry"] == f"fitted by scene calibration {fit['id']}"
+        assert after["metrics"]["zncc"] > before["metrics"]["zncc"] + 0.01, (before["metrics"], after["metrics"])
+        assert fit["id"] in [c["id"] for c in client.scene_calibrations()]
+        with pytest.raises(polnlos.DaemonError) as e:
+            client.calibrate_scene("nopol-python", [cap["id"]], free=["occluder-w"])
+        assert e.value.status == 422 and "occluder-yaw" in e.value.message
+        client.delete_scene_calibration(fit["id"])
+        listed = {s["name"]: s for s in client.scene_list()}
+        assert listed["nopol-python"]["fitted_by"] is None
+    finally:
+        client.delete_scene("nopol-python")

@@ -114,6 +114,7 @@ impl From<crate::daemon::RequestError> for ApiError {
             crate::daemon::RequestError::Invalid(m) => Self::invalid(m),
             crate::daemon::RequestError::Unavailable(m) => Self::unavailable(m),
             crate::daemon::RequestError::Store(m) => Self::internal(m),
+            crate::daemon::RequestError::Busy(m) => Self::busy(m),
         }
     }
 }

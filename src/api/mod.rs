@@ -189,6 +189,14 @@ fn all_routes(import_limit: usize) -> OpenApiRouter<Arc<Daemon>> {
         .routes(routes!(routes::post_wall_calibration))
         .routes(routes!(routes::post_colour_calibration))
         .routes(routes!(
+            routes::post_scene_calibration,
+            routes::list_scene_calibrations
+        ))
+        .routes(routes!(
+            routes::get_scene_calibration,
+            routes::delete_scene_calibration
+        ))
+        .routes(routes!(
             routes::post_reconstruction,
             routes::list_reconstructions
         ))

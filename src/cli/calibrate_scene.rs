@@ -128,8 +128,13 @@ pub(super) fn run(a: SceneArgs, budget: MemoryBudget) -> anyhow::Result<()> {
         max_evaluations: a.max_evaluations,
         budget,
     };
+    let tell = |p: polnlos::calibrate::scene::FitProgress| {
+        if p.builds.is_multiple_of(10) {
+            eprintln!("{} T builds of at most {}", p.builds, p.max_builds);
+        }
+    };
     let fit = options
-        .fit(&scene, &shots, Default::default())
+        .fit_telling(&scene, &shots, Default::default(), &tell)
         .with_context(|| format!("scene {}", a.scene.display()))?;
     let from_dir = a.scene.parent().unwrap_or(Path::new(""));
     let placed = fit.placed_file(&text, from_dir, &out_dir)?;

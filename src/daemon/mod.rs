@@ -46,6 +46,7 @@ pub(crate) use procedures::colour::ColourCalibration;
 pub(crate) use procedures::mount_zero::{SweepPoint, ZeroFit};
 pub use procedures::plans::{steps_of, PlanStep};
 pub(crate) use procedures::plans::{PlanError, PlanView};
+pub(crate) use procedures::scene_fit::SceneFitBody;
 pub(crate) use requests::cancel::{CancelError, JobKind};
 pub(crate) use requests::validate::RequestError;
 pub use requests::validate::{
@@ -259,6 +260,7 @@ impl Daemon {
                 calibration.entry(name).or_insert(c);
             }
         }
+        procedures::scene_fit::place_fitted_scenes(&store, &scenes);
         let handle = CameraHandle::spawn(camera.opener);
         let hotplug = if camera.watch_usb {
             let rescan = handle.clone();

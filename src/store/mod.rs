@@ -13,6 +13,7 @@ mod plans;
 mod reconstructions;
 mod records;
 mod retention;
+mod scene_fits;
 mod schema;
 mod truth;
 
@@ -36,6 +37,7 @@ pub(crate) use records::{
     ReconstructionRecord, ReconstructionRequest,
 };
 pub(crate) use retention::Retention;
+pub(crate) use scene_fits::SceneFitRow;
 pub use schema::Table;
 pub use truth::{Pixel, Truth, TruthImage};
 
@@ -271,6 +273,7 @@ impl Store {
             .map_err(db)?;
         conn.execute(Table::REQUEUE_RECONSTRUCTIONS, [])
             .map_err(db)?;
+        Self::interrupt_scene_fits(&conn).map_err(db)?;
         // A deletion a stopped daemon left half done: a folder renamed to
         // `<id>.deleting` is removed when its row is gone, renamed back when
         // the row's deletion never committed.

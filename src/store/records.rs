@@ -74,7 +74,7 @@ impl JobState {
     }
 
     /// The state named `s`; `None` for a name the daemon never writes.
-    fn parse(s: &str) -> Option<Self> {
+    pub(super) fn parse(s: &str) -> Option<Self> {
         [
             JobState::Queued,
             JobState::Running,

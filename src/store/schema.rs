@@ -155,7 +155,7 @@ COMMIT;
 /// The catalogue's schema version, kept in SQLite's `user_version`: 1 is
 /// the layout [`SCHEMA`] creates, and each entry of [`MIGRATIONS`] is one
 /// more. A change to the layout is a new entry, never an edit of an old one.
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 
 /// Version 2: a reconstruction's solver is stored once, in its parameters
 /// document (`params.solver`, the typed [`crate::solve::Solver`] the worker
@@ -169,9 +169,28 @@ UPDATE reconstructions SET params = json_set(params, '$.solver', solver)
 ALTER TABLE reconstructions DROP COLUMN solver
 ";
 
+/// Version 3: scene calibrations (`POST /calibrations/scene`), each scene's
+/// geometry fitted to its captures: the file text it placed, the placed
+/// file and the fit's report.
+const SCENE_FITS: &str = "
+CREATE TABLE IF NOT EXISTS scene_fits (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    scene TEXT NOT NULL,
+    captures TEXT NOT NULL,
+    free TEXT NOT NULL,
+    state TEXT NOT NULL,
+    error TEXT,
+    created_at TEXT NOT NULL,
+    finished_at TEXT,
+    source_toml TEXT NOT NULL,
+    placed_toml TEXT,
+    fit TEXT
+)
+";
+
 /// The numbered migrations after version 1: `(n, statements)` brings a
 /// catalogue at version `n - 1` to `n`, in one transaction with the version.
-const MIGRATIONS: [(u32, &str); 1] = [(2, SOLVER_INTO_PARAMS)];
+const MIGRATIONS: [(u32, &str); 2] = [(2, SOLVER_INTO_PARAMS), (3, SCENE_FITS)];
 
 /// Why the catalogue cannot be brought to this polnlos's layout.
 #[derive(Debug, thiserror::Error)]
@@ -475,7 +494,7 @@ mod tests {
             }
         }
         let store = Store::open(dir.path()).unwrap();
-        assert_eq!(version(dir.path()), 2);
+        assert_eq!(version(dir.path()), super::VERSION);
         let first = store.reconstruction(1).unwrap();
         assert_eq!(first.params.solve.solver, crate::solve::Solver::FISTA_TV);
         assert_eq!(first.solver, "fista-tv");

@@ -1089,14 +1089,15 @@ fn public_items() -> Vec<String> {
 /// 331 with the geometry fit's nine types, `calibrate::scene`'s contract:
 /// `Freedom`, `Placement`, `Shot`, `SceneFitOptions`, `SceneFit`, `Fitted`,
 /// `Level`, `SceneFitWarning`, `SceneFitError`, its procedures methods of
-/// them). None is added without a reason named here.
+/// them); 332 with `FitProgress`, what a caller showing a fit's progress
+/// is told). None is added without a reason named here.
 #[test]
 fn the_public_surface_does_not_grow() {
     let items = public_items();
     println!("{} public items", items.len());
     assert!(
-        items.len() <= 331,
-        "{} public items in src/ (at most 331: make what only the crate uses pub(crate)):\n{}",
+        items.len() <= 332,
+        "{} public items in src/ (at most 332: make what only the crate uses pub(crate)):\n{}",
         items.len(),
         items.join("\n")
     );

@@ -24,6 +24,7 @@ mod plans;
 pub(crate) mod python;
 mod relay_device;
 mod roundtrip;
+mod scene_fit;
 mod scenes;
 mod service;
 mod verdict;

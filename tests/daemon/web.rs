@@ -10,7 +10,7 @@ use crate::daemon::common::{config, free_port, lock, psnr, scratch, Daemon, InPr
 use fantoccini::{Client, ClientBuilder, Locator};
 
 /// chromedriver on a free loopback port, stopped on drop.
-struct Driver {
+pub(super) struct Driver {
     child: Child,
     url: String,
 }
@@ -79,7 +79,7 @@ async fn browser(driver: &Driver, profile: &std::path::Path) -> Client {
 }
 
 /// The text of the first element matching `css`, or "" when there is none.
-async fn text(c: &Client, css: &str) -> String {
+pub(super) async fn text(c: &Client, css: &str) -> String {
     match c.find(Locator::Css(css)).await {
         Ok(e) => e.text().await.unwrap_or_default(),
         Err(_) => String::new(),
@@ -87,7 +87,7 @@ async fn text(c: &Client, css: &str) -> String {
 }
 
 /// Waits until `f` returns Some, polling every 100 ms.
-async fn until<T, F, Fut>(what: &str, within: Duration, mut f: F) -> T
+pub(super) async fn until<T, F, Fut>(what: &str, within: Duration, mut f: F) -> T
 where
     F: FnMut() -> Fut,
     Fut: std::future::Future<Output = Option<T>>,
@@ -142,11 +142,11 @@ async fn image_loaded(c: &Client, css: &str) -> bool {
 /// through Aravis is `service.rs`'s and `camera.rs`'s; or `polnlos serve`
 /// on Aravis's fake camera, for a sensor the synthetic one lacks),
 /// chromedriver and a runtime to drive them.
-struct Page<D = InProcess> {
+pub(super) struct Page<D = InProcess> {
     dir: tempfile::TempDir,
-    d: D,
+    pub(super) d: D,
     driver: Driver,
-    rt: tokio::runtime::Runtime,
+    pub(super) rt: tokio::runtime::Runtime,
 }
 
 impl Page<Daemon> {
@@ -172,7 +172,7 @@ impl<D: std::ops::Deref<Target = crate::daemon::common::Client>> Page<D> {
     }
 
     /// A chromium session on the page, once it shows the camera connected.
-    async fn open(&self) -> Client {
+    pub(super) async fn open(&self) -> Client {
         let c = browser(&self.driver, &self.dir.path().join("profile")).await;
         c.goto(&format!("{}/", self.d.base))
             .await
@@ -195,7 +195,7 @@ impl Page {
     }
 
     /// The page of a daemon whose configuration has these edits.
-    fn start_with(edits: &[(&str, &str)]) -> Self {
+    pub(super) fn start_with(edits: &[(&str, &str)]) -> Self {
         let dir = scratch();
         let cfg = config(dir.path(), edits);
         let d = InProcess::start(&cfg, &dir.path().join("data"));
@@ -204,7 +204,7 @@ impl Page {
 }
 
 /// Clicks the element matching `css`.
-async fn click(c: &Client, css: &str) {
+pub(super) async fn click(c: &Client, css: &str) {
     c.find(Locator::Css(css))
         .await
         .expect(css)
@@ -241,7 +241,7 @@ async fn capture(c: &Client, id: u32, fields: &[(&str, &str)], within: Duration)
 }
 
 /// The value cell of the row headed `key` in the table of `css`.
-async fn cell(c: &Client, css: &str, key: &str) -> String {
+pub(super) async fn cell(c: &Client, css: &str, key: &str) -> String {
     let js = format!(
         "for (const r of document.querySelectorAll({css:?} + ' tr')) {{ if (r.cells[0].textContent === {key:?}) return r.cells[1].textContent; }} return '';"
     );

@@ -57,3 +57,63 @@ pub async fn post_wall_calibration(
             .map_err(|e| ApiError::internal(e.to_string()))??;
     Ok(Json(r))
 }
+
+/// Fits the scene's geometry to its captures as a job (`scene-fit-<n>` on
+/// `/events`, cancelled by `DELETE /jobs/scene-fit-<n>`); once done, every
+/// later reconstruction of the scene uses the fitted geometry and says so.
+#[utoipa::path(post, path = "/calibrations/scene", request_body = crate::daemon::SceneFitBody, responses((status = 202, body = Accepted, description = "Started; Location names the scene calibration"), (status = 404, body = ErrorBody, description = "No such scene or capture"), (status = 409, body = ErrorBody, description = "Another scene calibration is running"), (status = 422, body = ErrorBody, description = "Not done light captures of the scene, a row unmeasured, an unknown freedom or a value out of range")))]
+pub async fn post_scene_calibration(
+    State(d): St,
+    ApiJson(b): ApiJson<crate::daemon::SceneFitBody>,
+) -> Result<Response, ApiError> {
+    let row = tokio::task::spawn_blocking(move || d.procedures().fit_scene(&b))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))??;
+    let location = format!("/calibrations/scene/{}", row.id);
+    let body = Accepted {
+        id: row.id,
+        state: "queued",
+        job: format!("scene-fit-{}", row.id),
+    };
+    Ok((
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, location)],
+        Json(body),
+    )
+        .into_response())
+}
+
+/// Scene calibrations, newest first; each scene serves the geometry of its
+/// newest done one (`GET /scenes` names it).
+#[utoipa::path(get, path = "/calibrations/scene", responses((status = 200, body = [crate::store::SceneFitRow])))]
+pub async fn list_scene_calibrations(
+    State(d): St,
+) -> Result<Json<Vec<crate::store::SceneFitRow>>, ApiError> {
+    Ok(Json(d.store().scene_fits()?))
+}
+
+/// One scene calibration: its state, and when done the fitted offsets with
+/// their uncertainties and the placed scene file.
+#[utoipa::path(get, path = "/calibrations/scene/{id}", params(("id" = String, Path, description = "The scene calibration's id, a positive whole number")), responses((status = 200, body = crate::store::SceneFitRow), (status = 404, body = ErrorBody, description = "No such scene calibration")))]
+pub async fn get_scene_calibration(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<Json<crate::store::SceneFitRow>, ApiError> {
+    Ok(Json(
+        d.store().scene_fit(parse_id(&id, "scene calibration")?)?,
+    ))
+}
+
+/// Deletes an ended scene calibration; its scene serves the newest done
+/// one left, or its file's geometry.
+#[utoipa::path(delete, path = "/calibrations/scene/{id}", params(("id" = String, Path, description = "The scene calibration's id, a positive whole number")), responses((status = 204, description = "Deleted"), (status = 404, body = ErrorBody, description = "No such scene calibration"), (status = 409, body = ErrorBody, description = "Queued or running: cancel it first")))]
+pub async fn delete_scene_calibration(
+    State(d): St,
+    Path(id): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    let id = parse_id(&id, "scene calibration")?;
+    tokio::task::spawn_blocking(move || d.procedures().delete_scene_fit(id))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))??;
+    Ok(StatusCode::NO_CONTENT)
+}

@@ -19,6 +19,10 @@ struct Residuals<'a> {
     budget: MemoryBudget,
     stop: Stop<'a>,
     builds: usize,
+    /// Told after each build.
+    progress: &'a dyn Fn(FitProgress),
+    /// What the search may spend ([`SceneFitOptions::max_evaluations`]).
+    max_builds: usize,
 }
 
 impl Residuals<'_> {
@@ -44,6 +48,10 @@ impl Residuals<'_> {
                 e => SceneFitError::Transport(e),
             })?;
         self.builds += 1;
+        (self.progress)(FitProgress {
+            builds: self.builds,
+            max_builds: self.max_builds,
+        });
         let mut out = Vec::new();
         for (shot, channels) in shots.iter().zip(photos) {
             for r in difference_residuals(&t, channels, shot.known.as_deref())? {
@@ -85,6 +93,7 @@ pub(super) fn fit_scene(
     shots: &[Shot],
     options: &SceneFitOptions,
     stop: Stop<'_>,
+    progress: &dyn Fn(FitProgress),
 ) -> Result<SceneFit, SceneFitError> {
     let start = Instant::now();
     check_shots(scene, shots)?;
@@ -115,6 +124,8 @@ pub(super) fn fit_scene(
             budget: options.budget,
             stop,
             builds: 0,
+            progress,
+            max_builds: options.max_evaluations,
         },
     };
     let (x, first) = fit.first_guess()?;

@@ -168,6 +168,16 @@ impl Default for SceneFitOptions {
     }
 }
 
+/// How far a fit is: `T` builds done and what the search may spend (the
+/// uncertainty's Jacobian at the end may add a few).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct FitProgress {
+    /// `T` builds done.
+    pub builds: usize,
+    /// Builds the search may spend.
+    pub max_builds: usize,
+}
+
 /// One fitted freedom.
 #[derive(Debug, Clone, Copy, serde::Serialize)]
 pub struct Fitted {
@@ -375,7 +385,19 @@ impl SceneFitOptions {
         shots: &[Shot],
         stop: Stop<'_>,
     ) -> Result<SceneFit, SceneFitError> {
-        fit::fit_scene(scene, shots, self, stop)
+        fit::fit_scene(scene, shots, self, stop, &|_| {})
+    }
+
+    /// [`SceneFitOptions::fit`], telling `progress` after each `T` build:
+    /// a fit takes minutes, and its caller shows how far it is.
+    pub fn fit_telling(
+        &self,
+        scene: &Scene,
+        shots: &[Shot],
+        stop: Stop<'_>,
+        progress: &dyn Fn(FitProgress),
+    ) -> Result<SceneFit, SceneFitError> {
+        fit::fit_scene(scene, shots, self, stop, progress)
     }
 }
 

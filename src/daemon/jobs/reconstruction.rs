@@ -200,10 +200,12 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     report.warnings.splice(0..0, stacked.warnings);
     report.radiometry = Some(radiometry);
     let c = report.colours.len().max(1);
-    write_result(d, id, t.scene_grid(), c, &image, &measurement, &report)?;
     log_summary(&report);
-    let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
-    d.store.reconstruction_done(id, kappa, &text).map_err(store)
+    let report = with_geometry(&report, d.scenes.geometry(&rec.scene))?;
+    write_result(d, id, t.scene_grid(), c, &image, &measurement, &report)?;
+    d.store
+        .reconstruction_done(id, kappa, &report.to_string())
+        .map_err(store)
 }
 
 /// What solving one measurement of a reconstruction needs beside it.
@@ -675,7 +677,8 @@ impl Job<'_> {
         let image = interleave(&|k, ch| r.channels[ch].image[k], grid.count());
         let x = interleave(&|k, ch| r.channels[ch].x[k], grid.count());
         let measurement = interleave(&|j, ch| channels[ch][j], self.t.rows());
-        write_result(d, id, grid, c, &image, &measurement, &report)?;
+        let written = with_geometry(&report, d.scenes.geometry(&rec.scene))?;
+        write_result(d, id, grid, c, &image, &measurement, &written)?;
         let dir = d.store.reconstruction_dir(id);
         let file =
             |e: crate::files::FileError| JobError::Store(d.store.redact_paths(&e.to_string()));
@@ -696,9 +699,8 @@ impl Job<'_> {
                 .join("/"),
             r.warnings.len()
         );
-        let text = serde_json::to_string(&report).map_err(|e| JobError::Store(e.to_string()))?;
         d.store
-            .reconstruction_done(id, kappa, &text)
+            .reconstruction_done(id, kappa, &written.to_string())
             .map_err(|e| JobError::Store(d.store.describe(&e)))
     }
 }
@@ -892,6 +894,19 @@ fn write_result(
     }
     .map_err(file)?;
     json::write(&dir.join("report.json"), report).map_err(file)
+}
+
+/// A reconstruction's report with the geometry its scene served with
+/// (`geometry`: `as written`, or `fitted by scene calibration N`).
+fn with_geometry(
+    report: &impl serde::Serialize,
+    geometry: crate::daemon::runtime::scenes::Geometry,
+) -> Result<serde_json::Value, JobError> {
+    let mut v = serde_json::to_value(report).map_err(|e| JobError::Store(e.to_string()))?;
+    if let Some(o) = v.as_object_mut() {
+        o.insert("geometry".into(), geometry.words().into());
+    }
+    Ok(v)
 }
 
 /// Logs a calibrated reconstruction's summary.

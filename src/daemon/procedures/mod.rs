@@ -5,6 +5,7 @@ pub(crate) mod calibration;
 pub(crate) mod colour;
 pub(crate) mod mount_zero;
 pub(crate) mod plans;
+pub(crate) mod scene_fit;
 
 use std::sync::Arc;
 

@@ -550,6 +550,11 @@ impl Plans {
                     .store
                     .reconstruction(id)
                     .map(|r| (r.state, r.error)),
+                JobKind::SceneFit => self
+                    .admission
+                    .store
+                    .scene_fit(id)
+                    .map(|r| (r.state, r.error)),
             };
             match state {
                 Ok((JobState::Done, _)) => return Waited::Done,

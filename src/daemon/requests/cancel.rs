@@ -19,6 +19,8 @@ pub enum JobKind {
     Capture,
     /// `reconstruction-<n>`.
     Reconstruction,
+    /// `scene-fit-<n>`: a scene calibration (`POST /calibrations/scene`).
+    SceneFit,
 }
 
 impl JobKind {
@@ -27,6 +29,7 @@ impl JobKind {
         match self {
             JobKind::Capture => "capture",
             JobKind::Reconstruction => "reconstruction",
+            JobKind::SceneFit => "scene-fit",
         }
     }
 }
@@ -90,6 +93,7 @@ impl Admission {
         let r = match kind {
             JobKind::Capture => self.store.capture(id).map(|c| c.state),
             JobKind::Reconstruction => self.store.reconstruction(id).map(|r| r.state),
+            JobKind::SceneFit => self.store.scene_fit(id).map(|r| r.state),
         };
         r.map_err(|e| match e {
             StoreError::NotFound { .. } => CancelError::NotFound {
@@ -117,6 +121,8 @@ impl Admission {
         let cancelled_queued = match kind {
             JobKind::Capture => self.store.cancel_queued_capture(id),
             JobKind::Reconstruction => self.store.cancel_queued_reconstruction(id),
+            // Its thread starts with it: it is never left queued.
+            JobKind::SceneFit => Ok(false),
         }
         .map_err(store_err)?;
         if cancelled_queued {

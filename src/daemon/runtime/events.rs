@@ -91,6 +91,15 @@ pub enum Event {
         #[serde(flatten)]
         step: Step,
     },
+    /// A scene calibration built one more `T` (see `/calibrations/scene/{id}`).
+    SceneFit {
+        /// `scene-fit-<id>`.
+        job: String,
+        /// `T` builds done.
+        builds: usize,
+        /// Builds its search may spend.
+        max_builds: usize,
+    },
     /// The live view published a result (see `GET /live`).
     Live {
         /// The live session (each `POST /live` starts one).

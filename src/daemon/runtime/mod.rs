@@ -14,3 +14,4 @@ pub(crate) mod registry;
 pub(crate) mod retention;
 pub mod scene_registry;
 pub mod scenes;
+pub(crate) mod wall_views;

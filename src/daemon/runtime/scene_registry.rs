@@ -112,6 +112,21 @@ pub struct SceneRegistry {
     /// Held through a change, so two changes do not each start from the
     /// same snapshot and lose one.
     changing: Mutex<()>,
+    /// Each scene's geometry in force from a scene calibration, by name.
+    fitted: Mutex<BTreeMap<String, FittedGeometry>>,
+}
+
+/// A scene calibration's geometry: the file text it placed and the placed
+/// file (in the same folder); a scene whose file reads otherwise now
+/// serves as written.
+#[derive(Debug, Clone)]
+pub(crate) struct FittedGeometry {
+    /// The scene calibration's id.
+    pub calibration: i64,
+    /// The scene file's text it placed.
+    pub source: String,
+    /// That text with the fitted geometry.
+    pub placed: String,
 }
 
 impl SceneRegistry {
@@ -131,6 +146,7 @@ impl SceneRegistry {
             posted,
             current: RwLock::new(Arc::new(current)),
             changing: Mutex::new(()),
+            fitted: Mutex::new(BTreeMap::new()),
         })
     }
 
@@ -208,8 +224,24 @@ impl SceneRegistry {
                 }
             }
         }
-        self.set(Scenes::of(entries, broken, self.budget).keeping(&now));
+        self.publish(entries, broken, &now);
         Ok(())
+    }
+
+    /// Serves scene `name` with a scene calibration's geometry, or
+    /// (`None`) with its file's; running jobs keep theirs.
+    pub(crate) fn set_fitted(&self, name: &str, fitted: Option<FittedGeometry>) {
+        let _g = self.changing.lock().unwrap_or_else(|e| e.into_inner());
+        {
+            let mut map = self.fitted.lock().unwrap_or_else(|e| e.into_inner());
+            match fitted {
+                Some(f) => map.insert(name.to_string(), f),
+                None => map.remove(name),
+            };
+        }
+        let now = self.now();
+        let (entries, broken) = now.parts();
+        self.publish(entries, broken, &now);
     }
 
     /// Reads every scene file again (SIGHUP): the scenes whose text is
@@ -224,7 +256,10 @@ impl SceneRegistry {
     /// Every layer read again, keeping what `now` made for unchanged scenes.
     fn reread(&self, now: &Scenes) {
         match gather(&self.files, &self.posted, self.budget) {
-            Ok(scenes) => self.set(scenes.keeping(now)),
+            Ok(scenes) => {
+                let (entries, broken) = scenes.parts();
+                self.publish(entries, broken, now)
+            }
             Err(e) => tracing::error!("the built-in scenes do not parse: {e}"),
         }
     }
@@ -264,12 +299,18 @@ impl SceneRegistry {
         let (mut entries, mut broken) = now.parts();
         entries.insert(name.into(), entry);
         broken.remove(name);
-        self.set(Scenes::of(entries, broken, self.budget).keeping(now));
-        Ok(SceneListing {
-            name: name.into(),
-            origin: SceneOrigin::Posted,
-            error: None,
-        })
+        self.publish(entries, broken, now);
+        Ok(self
+            .now()
+            .listing()
+            .into_iter()
+            .find(|l| l.name == name && l.error.is_none())
+            .unwrap_or(SceneListing {
+                name: name.into(),
+                origin: SceneOrigin::Posted,
+                error: None,
+                fitted_by: None,
+            }))
     }
 
     /// `text`, a file in `from`, as a file in the data directory's `scenes/`.
@@ -294,6 +335,45 @@ impl SceneRegistry {
             },
         )?;
         Ok(doc.to_string())
+    }
+
+    /// Serves `entries` (each with the fitted geometry in force where it
+    /// placed the entry's text as it reads now, else as written) and
+    /// `broken`, keeping what `now` made for scenes that did not change.
+    fn publish(
+        &self,
+        entries: BTreeMap<String, Entry>,
+        broken: BTreeMap<String, (SceneOrigin, String)>,
+        now: &Scenes,
+    ) {
+        let fitted = self
+            .fitted
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
+        let entries = entries
+            .into_iter()
+            .map(|(name, e)| {
+                let placed = fitted
+                    .get(&name)
+                    .filter(|f| f.source == e.source)
+                    .map(|f| (f.calibration, e.fitted(f.calibration, &f.placed)));
+                let entry = match placed {
+                    Some((_, Ok(placed))) => Ok(placed),
+                    Some((id, Err(err))) => {
+                        tracing::error!("scene {name:?}: scene calibration {id} does not load ({err}); it serves as written");
+                        e.as_written()
+                    }
+                    None => e.as_written(),
+                };
+                match entry {
+                    Ok(entry) => (name, entry),
+                    // Its text loaded before: it loads again.
+                    Err(_) => (name, e),
+                }
+            })
+            .collect();
+        self.set(Scenes::of(entries, broken, self.budget).keeping(now));
     }
 
     fn set(&self, scenes: Scenes) {

@@ -54,59 +54,8 @@ pub enum ScenesError {
     },
 }
 
-/// Where a pose's camera sees a scene's wall, for aiming the live view at it.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
-pub struct WallView {
-    /// Pose name.
-    pub pose: String,
-    /// The wall's corners (-u, -v), (+u, -v), (+u, +v), (-u, +v) in unbinned
-    /// sensor pixels through the pose's homography; null when the pose has
-    /// none (or its wall is not wholly in view), with `why`.
-    pub corners: Option<[[f64; 2]; 4]>,
-    /// The wall's centre (u, v) = (0, 0), sensor pixels; null likewise.
-    pub centre: Option<[f64; 2]>,
-    /// Why there are no corners.
-    pub why: Option<String>,
-}
-
-/// The wall as each pose of `scene` sees it, in file order.
-pub(crate) fn wall_views(scene: &Scene) -> Vec<WallView> {
-    let wall = &scene.wall().plane;
-    scene
-        .poses()
-        .iter()
-        .map(|p| {
-            let seen = match &p.homography {
-                None => Err(format!(
-                    "pose {:?} has no homography: capture the dot target at this pose (\"kind\": \"target\") and fit its homography with POST /calibrations, then load the scene file it returns",
-                    p.name
-                )),
-                Some(h) => crate::scene::wall_corners(h, wall, &p.name)
-                    .map_err(|e| e.to_string())
-                    .and_then(|corners| {
-                        let (x, y) = h.apply(0.0, 0.0).ok_or_else(|| {
-                            format!("pose {:?}: the wall's centre maps to infinity", p.name)
-                        })?;
-                        Ok((corners, [x, y]))
-                    }),
-            };
-            match seen {
-                Ok((corners, centre)) => WallView {
-                    pose: p.name.clone(),
-                    corners: Some(corners),
-                    centre: Some(centre),
-                    why: None,
-                },
-                Err(why) => WallView {
-                    pose: p.name.clone(),
-                    corners: None,
-                    centre: None,
-                    why: Some(why),
-                },
-            }
-        })
-        .collect()
-}
+use super::wall_views::wall_views;
+pub use super::wall_views::WallView;
 
 /// Where a scene the daemon knows comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, utoipa::ToSchema)]
@@ -132,6 +81,32 @@ impl SceneOrigin {
     }
 }
 
+/// Which geometry a scene serves with: its file's, or a scene calibration's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "kebab-case", tag = "geometry")]
+pub(crate) enum Geometry {
+    /// The scene file's geometry, as written.
+    #[default]
+    AsWritten,
+    /// Placed by a scene calibration (`POST /calibrations/scene`).
+    Fitted {
+        /// The calibration's id.
+        calibration: i64,
+    },
+}
+
+impl Geometry {
+    /// In words, as a reconstruction's report says it.
+    pub(crate) fn words(self) -> String {
+        match self {
+            Geometry::AsWritten => "as written".into(),
+            Geometry::Fitted { calibration } => {
+                format!("fitted by scene calibration {calibration}")
+            }
+        }
+    }
+}
+
 /// One scene as `GET /scenes` lists it: a scene that serves, or a file
 /// that does not, with why.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, utoipa::ToSchema)]
@@ -143,6 +118,8 @@ pub struct SceneListing {
     /// Why its file does not load (null for a scene that serves); another
     /// scene of the name (a built-in one) may serve meanwhile.
     pub error: Option<String>,
+    /// The scene calibration whose geometry it serves with (null: as written).
+    pub fitted_by: Option<i64>,
 }
 
 /// A scene as the daemon holds it: parsed, its text and where it is read from.
@@ -155,6 +132,8 @@ pub(crate) struct Entry {
     /// there); `""` for a built-in scene.
     pub(crate) folder: std::path::PathBuf,
     pub(crate) origin: SceneOrigin,
+    /// Whose geometry `scene` has: the file's (`source`), or a scene calibration's.
+    pub(crate) geometry: Geometry,
 }
 
 impl Entry {
@@ -179,7 +158,28 @@ impl Entry {
             source,
             folder,
             origin,
+            geometry: Geometry::AsWritten,
         })
+    }
+
+    /// This entry with the geometry of scene calibration `calibration`
+    /// (`placed`, a file in the entry's folder placed from its `source`).
+    pub(crate) fn fitted(&self, calibration: i64, placed: &str) -> Result<Self, SceneError> {
+        Ok(Self {
+            scene: Arc::new(Scene::from_toml_str_in(placed, &self.folder)?),
+            geometry: Geometry::Fitted { calibration },
+            ..self.clone()
+        })
+    }
+
+    /// This entry with its file's geometry.
+    pub(crate) fn as_written(&self) -> Result<Self, SceneError> {
+        match self.geometry {
+            Geometry::AsWritten => Ok(self.clone()),
+            Geometry::Fitted { .. } => {
+                Self::parse(self.source.clone(), self.folder.clone(), self.origin)
+            }
+        }
     }
 }
 
@@ -259,7 +259,9 @@ impl Scenes {
         let same = |name: &str| {
             let base = name.split('#').next().unwrap_or(name);
             match (self.entries.get(base), old.entries.get(base)) {
-                (Some(a), Some(b)) => a.source == b.source && a.folder == b.folder,
+                (Some(a), Some(b)) => {
+                    a.source == b.source && a.folder == b.folder && a.geometry == b.geometry
+                }
                 _ => false,
             }
         };
@@ -295,6 +297,10 @@ impl Scenes {
             name: name.clone(),
             origin: e.origin,
             error: None,
+            fitted_by: match e.geometry {
+                Geometry::Fitted { calibration } => Some(calibration),
+                Geometry::AsWritten => None,
+            },
         });
         let broken = self
             .broken
@@ -303,6 +309,7 @@ impl Scenes {
                 name: name.clone(),
                 origin: *origin,
                 error: Some(why.clone()),
+                fitted_by: None,
             });
         let mut all: Vec<SceneListing> = serving.chain(broken).collect();
         all.sort_by(|a, b| {
@@ -324,6 +331,14 @@ impl Scenes {
     /// The scene with this name.
     pub fn get(&self, name: &str) -> Option<Arc<Scene>> {
         self.entries.get(name).map(|e| Arc::clone(&e.scene))
+    }
+
+    /// Which geometry scene `name` serves with (as written when unknown).
+    pub(crate) fn geometry(&self, name: &str) -> Geometry {
+        self.entries
+            .get(name)
+            .map(|e| e.geometry)
+            .unwrap_or_default()
     }
 
     /// A scene's TOML text as loaded.

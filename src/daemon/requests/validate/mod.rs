@@ -37,6 +37,9 @@ pub enum RequestError {
     /// The catalogue could not be read (500; the text has no absolute paths).
     #[error("{0}")]
     Store(String),
+    /// It conflicts with what the daemon is doing (409).
+    #[error("{0}")]
+    Busy(String),
 }
 
 impl From<crate::daemon::runtime::scenes::ScenesError> for RequestError {
