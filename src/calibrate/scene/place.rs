@@ -120,6 +120,18 @@ impl Placement {
     pub fn set(&mut self, f: Freedom, value: f64) {
         self.0[f as usize] = value;
     }
+
+    /// `scene` moved by this placement, every occluder together (as a fit
+    /// of all occluders places them): a bench that stands off its file, for
+    /// a simulation or a fake camera to show.
+    pub fn moved(&self, scene: &Scene) -> Result<Scene, crate::scene::SceneError> {
+        let all: Vec<usize> = (0..scene.occluders().len()).collect();
+        let centre = match all.is_empty() {
+            true => Vec3::zeros(),
+            false => pivot(scene, &all),
+        };
+        scene.clone().edit(|p| place(p, &all, centre, self))
+    }
 }
 
 /// `p` rotated by `angle` radians about the unit `axis` through `pivot`

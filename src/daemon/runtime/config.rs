@@ -186,6 +186,37 @@ pub struct DemoConfig {
     /// against it (issue 49).
     #[serde(default)]
     pub motion: Option<MotionConfig>,
+    /// How far the fake bench stands off its scene files, by freedom
+    /// (`occluder-x` ... `wall-v`, `polnlos calibrate scene --free`; metres,
+    /// degrees for `occluder-yaw`): the camera shows the bench so placed,
+    /// and a scene calibration has a known truth to find (none unless set).
+    #[serde(default)]
+    pub bench_offset: std::collections::BTreeMap<String, f64>,
+}
+
+impl DemoConfig {
+    /// [`DemoConfig::bench_offset`] as a placement, or which entry is wrong.
+    pub fn placement(&self) -> Result<crate::calibrate::scene::Placement, ConfigError> {
+        use crate::calibrate::scene::{Freedom, Placement};
+        let mut p = Placement::default();
+        for (name, &v) in &self.bench_offset {
+            let f = Freedom::parse(name).ok_or_else(|| {
+                ConfigError::Invalid(format!(
+                    "demo.bench_offset.{name}: not a freedom; they are {}",
+                    Freedom::ALL.map(Freedom::name).join(", ")
+                ))
+            })?;
+            let most = if f.angular() { 30.0 } else { 0.1 };
+            if !(v.is_finite() && v.abs() <= most) {
+                return Err(ConfigError::Invalid(format!(
+                    "demo.bench_offset.{name} = {v}: give at most {most} {} either way",
+                    if f.angular() { "degrees" } else { "metres" }
+                )));
+            }
+            p.set(f, v);
+        }
+        Ok(p)
+    }
 }
 
 fn yes() -> bool {
@@ -447,6 +478,7 @@ impl Config {
                 r.check_every_s
             )));
         }
+        self.demo.placement()?;
         if let Some(m) = &self.demo.motion {
             m.check()?;
         }
@@ -647,6 +679,30 @@ mod tests {
             }
             let e = c.validate().unwrap_err().to_string();
             assert!(e.contains(&format!("demo.motion.{field}")), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_fake_bench_offset_is_a_placement_by_freedom_and_refused_out_of_range() {
+        use crate::calibrate::scene::Freedom;
+        let mut c = Config::embedded();
+        c.demo.bench_offset = [("occluder-x".into(), 0.02), ("scene-u".into(), -0.01)].into();
+        let p = c.demo.placement().unwrap();
+        assert_eq!(p.get(Freedom::OccluderX), 0.02);
+        assert_eq!(p.get(Freedom::SceneU), -0.01);
+        assert_eq!(p.get(Freedom::Distance), 0.0);
+        for (name, v, says) in [
+            ("occluder-w", 0.01, "not a freedom; they are occluder-x"),
+            ("distance", 0.5, "at most 0.1 metres"),
+            ("occluder-yaw", f64::NAN, "at most 30 degrees"),
+        ] {
+            let mut c = c.clone();
+            c.demo.bench_offset = [(name.into(), v)].into();
+            let e = c.validate().unwrap_err().to_string();
+            assert!(
+                e.contains(&format!("demo.bench_offset.{name}")) && e.contains(says),
+                "{e}"
+            );
         }
     }
 

@@ -33,6 +33,13 @@ const TARGET_LEVEL: f32 = 0.8;
 pub(crate) const DEMO_SOURCE: crate::calibrate::wall::PointSource =
     crate::calibrate::wall::PointSource { u: 0.03, v: -0.02 };
 
+/// Area shadows where the scene file leaves the choice open (`Auto`).
+fn area_shadows(p: &mut crate::scene::SceneParts) {
+    if p.hidden.shadows == crate::scene::ShadowModel::Auto {
+        p.hidden.shadows = crate::scene::ShadowModel::Area;
+    }
+}
+
 /// Renders the fake camera's frame for every block of the demo scene (and of
 /// every other scene on the same bench with poses of their own), normalized so
 /// that the unpolarized peak is 80 % of full scale at the reference exposure.
@@ -74,6 +81,7 @@ pub(in crate::daemon) fn frames(
         return Err(err("the demo scene lights no wall element".into()));
     }
     let norm = DEMO_PEAK_FRACTION / peak;
+    let placed = demo.placement().map_err(|e| err(e.to_string()))?;
     let mut frames: DemoFrames = DemoFrames::default();
     let target = crate::calibrate::geometry::Target::default_target();
     // The demo scene first; then same-bench scenes add blocks it lacks (B, C, angles).
@@ -102,6 +110,13 @@ pub(in crate::daemon) fn frames(
         {
             continue;
         }
+        // The bench as it stands ([demo] bench_offset), which its file may not say.
+        // A monitor's cell is an area, not a point: its shadows are the
+        // visible fraction of the cell, unless the scene file says otherwise.
+        let s = placed
+            .moved(&s)
+            .and_then(|s| s.edit(area_shadows))
+            .map_err(|e| err(format!("scene {name:?} moved by demo.bench_offset: {e}")))?;
         // Each pixel at its own wall point: the camera a measurement must average.
         let l = pattern.render(s.hidden().plane.grid);
         let lit = render(&s, &l, sensor);
@@ -128,10 +143,14 @@ pub(in crate::daemon) fn frames(
         }
     }
     if let Some(m) = &demo.motion {
+        let moved = placed
+            .moved(&scene)
+            .and_then(|s| s.edit(area_shadows))
+            .map_err(|e| err(e.to_string()))?;
         frames.path = path
             .iter()
             .map(|d| {
-                render(&scene, d, sensor)
+                render(&moved, d, sensor)
                     .into_iter()
                     .filter_map(|(block, frame)| {
                         let angle = bench_angle(&scene, &block);
