@@ -1,7 +1,7 @@
 //! How soon each stage of a reconstruction ends once its stop flag is
 //! raised: the T build, the Gram, an ADMM-TV solve with its automatic λ, a
-//! photo's fit with its bootstrap, and the wait on an SVD that cannot look
-//! at a flag. The daemon's cancel and SIGTERM raise this flag; the job then
+//! photo's fit with its bootstrap, and a scene calibration's search
+//! (`calibrate scene`, `POST /calibrations/scene`). The daemon's cancel and SIGTERM raise this flag; the job then
 //! records its end within milliseconds of the stage returning.
 //!
 //! Run: `cargo bench --bench cancel`. Scene: the Brewster bench (two poses,
@@ -15,6 +15,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use polnlos::calibrate::scene::{Freedom, Placement, SceneFitOptions, Shot};
 use polnlos::scene::Scene;
 use polnlos::simulate::patterns::Pattern;
 use polnlos::solve::gram::Gram;
@@ -108,5 +109,20 @@ fn main() {
             ..PhotoSettings::default()
         };
         let _ = reconstruct_photo(&t, std::slice::from_ref(&i), None, &settings);
+    });
+    // The occluder bench (wall 32x32, scene 8x8), its occluder 1 cm off the
+    // file, a calibration shot of the letter: a search of up to 80 T builds.
+    let written = Scene::load_or_builtin(std::path::Path::new("occluder-crossed")).expect("scene");
+    let mut off = Placement::default();
+    off.set(Freedom::OccluderX, 0.01);
+    let bench = off.moved(&written).expect("moved");
+    let tb = build(&bench, MemoryBudget::DEFAULT).expect("T");
+    let letter = Pattern::Letter.render(tb.scene_grid());
+    let shot = Shot {
+        channels: vec![tb.apply(&letter)],
+        known: Some(vec![letter]),
+    };
+    row("scene calibration's search", &|stop| {
+        let _ = SceneFitOptions::default().fit(&written, std::slice::from_ref(&shot), stop);
     });
 }

@@ -105,6 +105,12 @@ impl Gram {
         Self::formed(t, None, Stop::default()).expect("a default stop is never raised")
     }
 
+    /// [`Gram::new`], looking at `stop` between blocks of rows of `t`;
+    /// `None` once it is raised.
+    pub fn new_until(t: MatRef<'_, f64>, stop: Stop<'_>) -> Option<Self> {
+        Self::formed(t, None, stop)
+    }
+
     /// [`Gram::new`] for `t`, with its low-rank form when `t` has at least
     /// `LOW_RANK_MIN_COLS` columns and a numerical rank of at most a
     /// quarter of them.

@@ -49,6 +49,19 @@ impl PhotoModel {
     /// Why: a zeroed row differenced against a measured neighbour would be
     /// that neighbour's raw value, background and all.
     pub fn with_missing(t: &Transport, data_term: DataTerm, missing: &[usize]) -> Self {
+        Self::with_missing_until(t, data_term, missing, Stop::default())
+            .expect("a default stop is never raised")
+    }
+
+    /// [`PhotoModel::with_missing`], its Gram looking at `stop` between
+    /// blocks of rows; `None` once it is raised (a cancel during a photo's
+    /// first half second).
+    pub fn with_missing_until(
+        t: &Transport,
+        data_term: DataTerm,
+        missing: &[usize],
+        stop: Stop<'_>,
+    ) -> Option<Self> {
         let start = Instant::now();
         let mut gone = vec![false; t.rows()];
         missing
@@ -68,9 +81,9 @@ impl PhotoModel {
             .iter()
             .filter(|&&r| carries_data(t, data_term, r))
             .count();
-        let gram = Gram::new(k.as_mat());
+        let gram = Gram::new_until(k.as_mat(), stop)?;
         let eig_max = largest_eigenvalue(&symmetric(&gram.lower));
-        Self {
+        Some(Self {
             data_term,
             k,
             gram: Arc::new(gram),
@@ -79,7 +92,7 @@ impl PhotoModel {
             missing: gone,
             dropped,
             seconds: start.elapsed().as_secs_f64(),
-        }
+        })
     }
 
     /// Whether this model is the one [`PhotoModel::with_missing`] forms for
