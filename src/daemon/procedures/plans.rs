@@ -46,6 +46,8 @@ pub enum PlanStep {
         /// The step of the dark capture subtracted from this one.
         dark_step: Option<usize>,
     },
+    /// The scene's geometry fitted to the light captures (a calibration shot).
+    FitGeometry,
     /// The reconstruction from the light captures, in the scene's block order.
     Reconstruct,
 }
@@ -154,6 +156,9 @@ pub fn steps_of(scene: &Scene, body: &PlanBody, bench: Automated) -> Vec<PlanSte
             steps.push(capture(CaptureKind::Light, None));
         }
         last_pose = Some(block.pose);
+    }
+    if body.calibrate_scene.is_some() {
+        steps.push(PlanStep::FitGeometry);
     }
     steps.push(PlanStep::Reconstruct);
     steps
@@ -591,6 +596,7 @@ impl Plans {
                     self.capture_step(&mut plan, &body, &steps, at, switches)
                         .await
                 }
+                PlanStep::FitGeometry => self.fit_geometry_step(&plan, &body, &steps, at).await,
                 PlanStep::Reconstruct => self.reconstruct_step(&mut plan, &body, &steps, at).await,
             };
             if walked.is_break() {
@@ -794,6 +800,54 @@ impl Plans {
         }
     }
 
+    /// Runs the calibration shot's fit on the plan's light captures and
+    /// waits for it; `Break` stops the walk.
+    /// Why: the reconstruction after it is to use the fitted geometry.
+    async fn fit_geometry_step(
+        &self,
+        plan: &PlanRow,
+        body: &PlanBody,
+        steps: &[PlanStep],
+        at: usize,
+    ) -> ControlFlow<()> {
+        let shot = body
+            .calibrate_scene
+            .clone()
+            .unwrap_or(crate::daemon::requests::PlanSceneFit {
+                known: None,
+                free: None,
+            });
+        let b = crate::daemon::SceneFitBody {
+            scene: body.scene.clone(),
+            captures: reconstruction_body(plan, body, steps, steps.len()).captures,
+            free: shot.free,
+            known: shot.known,
+            range_m: None,
+            max_evaluations: None,
+        };
+        let procedures = super::Procedures::new(self.admission.clone());
+        let started = tokio::task::spawn_blocking(move || procedures.fit_scene(&b)).await;
+        let fit = match started {
+            Ok(Ok(row)) => row.id,
+            Ok(Err(e)) => {
+                self.fail_plan(plan, format!("step {at}: {e}"));
+                return ControlFlow::Break(());
+            }
+            Err(e) => {
+                self.fail_plan(plan, format!("step {at}: the fit did not start: {e}"));
+                return ControlFlow::Break(());
+            }
+        };
+        match self.wait_job(plan.id, JobKind::SceneFit, fit).await {
+            Waited::Done => ControlFlow::Continue(()),
+            Waited::Failed(why) => {
+                self.fail_plan(plan, format!("step {at}: {why}"));
+                ControlFlow::Break(())
+            }
+            Waited::PlanEnded | Waited::Stopping => ControlFlow::Break(()),
+        }
+    }
+
     /// Marks `plan` failed at the step it is at, for `why`.
     /// Why: a refused request or a failed reconstruction is not the operator's to mend.
     fn fail_plan(&self, plan: &PlanRow, why: String) {
@@ -889,6 +943,7 @@ mod tests {
                     capture,
                     ..
                 } => format!("{} {pose} {polarizer_deg:?}", capture.name()),
+                PlanStep::FitGeometry => "fit geometry".into(),
                 PlanStep::Reconstruct => "reconstruct".into(),
             })
             .collect()

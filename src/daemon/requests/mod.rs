@@ -222,6 +222,24 @@ pub struct PlanBody {
     /// The reconstruction queued when every block is captured (default: ADMM-TV, automatic λ).
     #[serde(default)]
     pub reconstruct: PlanReconstruct,
+    /// A calibration shot: once every block is captured, fit the scene's
+    /// geometry to the light captures (`POST /calibrations/scene`) before
+    /// the reconstruction, which then uses it (none unless set).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibrate_scene: Option<PlanSceneFit>,
+}
+
+/// A plan's calibration shot: what `POST /calibrations/scene` is asked
+/// besides the scene and the plan's light captures.
+#[derive(Debug, Clone, Deserialize, Serialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PlanSceneFit {
+    /// The image the hidden monitor shows (a pattern name or an image, top
+    /// row first); absent: the scene is unknown and fitted with the geometry.
+    pub known: Option<crate::store::Truth>,
+    /// What is fitted (default: the occluders' translation, the hidden
+    /// plane's offset and the distance).
+    pub free: Option<Vec<String>>,
 }
 
 /// The reconstruction a plan ends with.
