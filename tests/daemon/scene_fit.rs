@@ -249,6 +249,45 @@ fn a_scene_calibration_places_the_scene_for_every_later_reconstruction() {
     assert_eq!(again["report"]["geometry"], named.as_str());
     assert!((zncc(&again) - zncc(&after)).abs() < 1e-9);
 
+    // Four requests at once start one fit; the others are told it runs.
+    let slow = body(
+        json!({"free": ["occluder-x", "occluder-y", "occluder-z", "scene-u", "scene-v", "distance"], "max_evaluations": 400}),
+    );
+    let answers: Vec<(u16, String)> = std::thread::scope(|s| {
+        let posts: Vec<_> = (0..4)
+            .map(|_| {
+                s.spawn(|| {
+                    let (st, b, _) = d.post("/calibrations/scene", &slow);
+                    (st, b)
+                })
+            })
+            .collect();
+        posts.into_iter().map(|p| p.join().unwrap()).collect()
+    });
+    let started: Vec<&(u16, String)> = answers.iter().filter(|(st, _)| *st == 202).collect();
+    assert_eq!(started.len(), 1, "{answers:?}");
+    assert!(
+        answers
+            .iter()
+            .filter(|(st, _)| *st == 409)
+            .all(|(_, b)| b.contains("one fit runs at a time")),
+        "{answers:?}"
+    );
+    let first = serde_json::from_str::<Value>(&started[0].1).unwrap()["id"]
+        .as_i64()
+        .unwrap();
+    let (st, b) = d.delete(&format!("/jobs/scene-fit-{first}"));
+    assert!(st == 200 || st == 202, "{st} {b}");
+    d.wait(
+        &format!("/calibrations/scene/{first}"),
+        Duration::from_secs(60),
+    );
+    assert_eq!(
+        answers.iter().filter(|(st, _)| *st == 409).count(),
+        3,
+        "{answers:?}"
+    );
+
     // A fit cancelled while it runs is stored as such and places nothing.
     let (st, b, _) = d.post(
         "/calibrations/scene",

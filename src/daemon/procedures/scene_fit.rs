@@ -22,6 +22,9 @@ use crate::store::{CaptureKind, JobState, SceneFitRow, Truth};
 /// Most captures one scene calibration fits to.
 pub(crate) const MAX_SCENE_FIT_CAPTURES: usize = 16;
 
+/// Held while a scene calibration is checked and recorded.
+static STARTING: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// `POST /calibrations/scene` body.
 #[derive(Debug, Clone, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
@@ -62,6 +65,9 @@ impl super::Procedures {
     pub fn fit_scene(&self, b: &SceneFitBody) -> Result<SceneFitRow, RequestError> {
         let store = &self.services.store;
         let described = |e: crate::store::StoreError| RequestError::Store(store.describe(&e));
+        // Held from the look for a running fit to its row's insert, so two
+        // requests at once do not both start one.
+        let _one = STARTING.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(r) = store
             .scene_fits()
             .map_err(described)?
