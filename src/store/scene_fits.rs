@@ -91,21 +91,18 @@ impl Store {
 
     /// Every scene calibration, newest first.
     pub(crate) fn scene_fits(&self) -> Result<Vec<SceneFitRow>, StoreError> {
-        self.with(|c| {
-            let mut st = c.prepare(&format!(
-                "SELECT {COLUMNS} FROM scene_fits ORDER BY id DESC"
-            ))?;
-            let rows = st.query_map([], fit_row)?.collect();
-            rows
-        })
+        self.fit_rows("ORDER BY id DESC")
     }
 
     /// Each scene's newest done calibration: the geometry in force.
     pub(crate) fn scene_fits_in_force(&self) -> Result<Vec<SceneFitRow>, StoreError> {
+        self.fit_rows("WHERE id IN (SELECT MAX(id) FROM scene_fits WHERE state = 'done' GROUP BY scene) ORDER BY scene")
+    }
+
+    /// The rows `tail` (a WHERE and ORDER BY) selects.
+    fn fit_rows(&self, tail: &str) -> Result<Vec<SceneFitRow>, StoreError> {
         self.with(|c| {
-            let mut st = c.prepare(&format!(
-                "SELECT {COLUMNS} FROM scene_fits WHERE id IN (SELECT MAX(id) FROM scene_fits WHERE state = 'done' GROUP BY scene) ORDER BY scene"
-            ))?;
+            let mut st = c.prepare(&format!("SELECT {COLUMNS} FROM scene_fits {tail}"))?;
             let rows = st.query_map([], fit_row)?.collect();
             rows
         })

@@ -14,7 +14,7 @@ mod photo;
 #[cfg(feature = "report")]
 mod rendered;
 mod rev3;
-mod scene_fit;
+pub(crate) mod scene_fit;
 mod shadows;
 mod stability;
 mod transport;

@@ -42,13 +42,12 @@ fn fit(scene: &Path, sim: &Path, out: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(report).expect("the report")).expect("JSON")
 }
 
-#[test]
-fn a_calibration_shot_places_an_occluder_that_stands_off_its_file() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes/occluder-nopol.toml");
-    let text = std::fs::read_to_string(&file).unwrap();
-    // The bench: its occluder 8 mm along x and -6 mm along z off the file.
+/// The bench `occluder-nopol` with its occluder 8 mm along x and -6 mm
+/// along z off its file (`bench.toml` in `d`), photographed showing the
+/// letter (point shadows, 100000 photons, seed 3): the folder of the
+/// simulation (`measurement.npy`, `truth.npy`).
+pub(crate) fn simulate_moved_bench(d: &Path) -> PathBuf {
+    let text = std::fs::read_to_string(nopol_file()).unwrap();
     let written = "center = [-0.187, 0.0, 0.125]";
     assert!(text.contains(written));
     let bench = d.join("bench.toml");
@@ -79,6 +78,21 @@ fn a_calibration_shot_places_an_occluder_that_stands_off_its_file() {
         "--seed",
         "3",
     ]));
+    sim
+}
+
+/// `config/scenes/occluder-nopol.toml`: the file as written.
+pub(crate) fn nopol_file() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes/occluder-nopol.toml")
+}
+
+#[test]
+fn a_calibration_shot_places_an_occluder_that_stands_off_its_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let file = nopol_file();
+    let sim = simulate_moved_bench(d);
+    let bench = d.join("bench.toml");
 
     let placed = d.join("placed.toml");
     let from_file = fit(&file, &sim, &placed);

@@ -21,40 +21,9 @@ fn s(p: &Path) -> &str {
 /// z off the file, photographed showing the letter: (its folder, the file
 /// as written, named `nopol-written.toml`).
 fn moved_bench(d: &Path) -> (PathBuf, PathBuf) {
-    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes/occluder-nopol.toml");
-    let text = std::fs::read_to_string(&file).unwrap();
-    let written = "center = [-0.187, 0.0, 0.125]";
-    assert!(text.contains(written));
-    let bench = d.join("bench.toml");
-    std::fs::write(
-        &bench,
-        text.replace(written, "center = [-0.179, 0.0, 0.119]"),
-    )
-    .unwrap();
+    let sim = crate::core::scene_fit::simulate_moved_bench(d);
     let as_written = d.join("nopol-written.toml");
-    std::fs::write(&as_written, &text).unwrap();
-    let letter = d.join("letter.png");
-    ok(&polnlos(&[
-        "pattern",
-        "letter",
-        "--size",
-        "8",
-        "--out",
-        s(&letter),
-    ]));
-    let sim = d.join("sim");
-    ok(&polnlos(&[
-        "simulate",
-        s(&bench),
-        "--truth",
-        s(&letter),
-        "--out",
-        s(&sim),
-        "--photons",
-        "100000",
-        "--seed",
-        "3",
-    ]));
+    std::fs::copy(crate::core::scene_fit::nopol_file(), &as_written).unwrap();
     (sim, as_written)
 }
 

@@ -201,7 +201,11 @@ fn run_reconstruction(d: &JobContext, id: i64, cancel: &AtomicBool) -> Result<()
     report.radiometry = Some(radiometry);
     let c = report.colours.len().max(1);
     log_summary(&report);
-    let report = with_geometry(&report, d.scenes.geometry(&rec.scene))?;
+    let report = d
+        .scenes
+        .geometry(&rec.scene)
+        .stamped(&report)
+        .map_err(|e| JobError::Store(e.to_string()))?;
     write_result(d, id, t.scene_grid(), c, &image, &measurement, &report)?;
     d.store
         .reconstruction_done(id, kappa, &report.to_string())
@@ -677,7 +681,8 @@ impl Job<'_> {
         let image = interleave(&|k, ch| r.channels[ch].image[k], grid.count());
         let x = interleave(&|k, ch| r.channels[ch].x[k], grid.count());
         let measurement = interleave(&|j, ch| channels[ch][j], self.t.rows());
-        let written = with_geometry(&report, d.scenes.geometry(&rec.scene))?;
+        let written = (d.scenes.geometry(&rec.scene).stamped(&report))
+            .map_err(|e| JobError::Store(e.to_string()))?;
         write_result(d, id, grid, c, &image, &measurement, &written)?;
         let dir = d.store.reconstruction_dir(id);
         let file =
@@ -894,19 +899,6 @@ fn write_result(
     }
     .map_err(file)?;
     json::write(&dir.join("report.json"), report).map_err(file)
-}
-
-/// A reconstruction's report with the geometry its scene served with
-/// (`geometry`: `as written`, or `fitted by scene calibration N`).
-fn with_geometry(
-    report: &impl serde::Serialize,
-    geometry: crate::daemon::runtime::scenes::Geometry,
-) -> Result<serde_json::Value, JobError> {
-    let mut v = serde_json::to_value(report).map_err(|e| JobError::Store(e.to_string()))?;
-    if let Some(o) = v.as_object_mut() {
-        o.insert("geometry".into(), geometry.words().into());
-    }
-    Ok(v)
 }
 
 /// Logs a calibrated reconstruction's summary.

@@ -790,7 +790,19 @@ impl Plans {
                 rid
             }
         };
-        match self.wait_job(id, JobKind::Reconstruction, rid).await {
+        self.wait_step(plan, at, JobKind::Reconstruction, rid).await
+    }
+
+    /// Waits for job `job` of step `at`; `Break` stops the walk (and a
+    /// failed job fails the plan).
+    async fn wait_step(
+        &self,
+        plan: &PlanRow,
+        at: usize,
+        kind: JobKind,
+        job: i64,
+    ) -> ControlFlow<()> {
+        match self.wait_job(plan.id, kind, job).await {
             Waited::Done => ControlFlow::Continue(()),
             Waited::Failed(why) => {
                 self.fail_plan(plan, format!("step {at}: {why}"));
@@ -810,41 +822,19 @@ impl Plans {
         steps: &[PlanStep],
         at: usize,
     ) -> ControlFlow<()> {
-        let shot = body
-            .calibrate_scene
-            .clone()
-            .unwrap_or(crate::daemon::requests::PlanSceneFit {
-                known: None,
-                free: None,
-            });
-        let b = crate::daemon::SceneFitBody {
-            scene: body.scene.clone(),
-            captures: reconstruction_body(plan, body, steps, steps.len()).captures,
-            free: shot.free,
-            known: shot.known,
-            range_m: None,
-            max_evaluations: None,
-        };
+        let captures = reconstruction_body(plan, body, steps, steps.len()).captures;
+        let b = crate::daemon::SceneFitBody::of_plan(body, captures);
         let procedures = super::Procedures::new(self.admission.clone());
         let started = tokio::task::spawn_blocking(move || procedures.fit_scene(&b)).await;
-        let fit = match started {
-            Ok(Ok(row)) => row.id,
-            Ok(Err(e)) => {
-                self.fail_plan(plan, format!("step {at}: {e}"));
-                return ControlFlow::Break(());
-            }
-            Err(e) => {
-                self.fail_plan(plan, format!("step {at}: the fit did not start: {e}"));
-                return ControlFlow::Break(());
-            }
-        };
-        match self.wait_job(plan.id, JobKind::SceneFit, fit).await {
-            Waited::Done => ControlFlow::Continue(()),
-            Waited::Failed(why) => {
+        match started
+            .map_err(|e| e.to_string())
+            .and_then(|r| r.map_err(|e| e.to_string()))
+        {
+            Ok(row) => self.wait_step(plan, at, JobKind::SceneFit, row.id).await,
+            Err(why) => {
                 self.fail_plan(plan, format!("step {at}: {why}"));
                 ControlFlow::Break(())
             }
-            Waited::PlanEnded | Waited::Stopping => ControlFlow::Break(()),
         }
     }
 

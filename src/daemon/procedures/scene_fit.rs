@@ -49,8 +49,25 @@ pub(crate) struct SceneFitBody {
     pub max_evaluations: Option<usize>,
 }
 
+impl SceneFitBody {
+    /// The calibration shot of plan `body` on its light `captures`.
+    pub(crate) fn of_plan(body: &crate::daemon::requests::PlanBody, captures: Vec<i64>) -> Self {
+        let shot = body.calibrate_scene.clone();
+        let (known, free) = shot.map_or((None, None), |s| (s.known, s.free));
+        Self {
+            scene: body.scene.clone(),
+            captures,
+            free,
+            known,
+            range_m: None,
+            max_evaluations: None,
+        }
+    }
+}
+
 /// A scene calibration's inputs, checked: what its thread runs.
 struct Prepared {
+    name: String,
     scene: Scene,
     source: String,
     folder: std::path::PathBuf,
@@ -142,6 +159,7 @@ impl super::Procedures {
         }
         let shots = self.shots(&b.scene, &entry.scene, &b.captures, b.known.as_ref())?;
         Ok(Prepared {
+            name: b.scene.clone(),
             scene: (*entry.scene).clone(),
             source: entry.source.clone(),
             folder: entry.folder.clone(),
@@ -284,12 +302,8 @@ impl super::Procedures {
         s.store
             .scene_fit_done(id, &placed, &report)
             .map_err(|e| failed(s.store.describe(&e)))?;
-        let row = s
-            .store
-            .scene_fit(id)
-            .map_err(|e| failed(s.store.describe(&e)))?;
         s.scenes.set_fitted(
-            &row.scene,
+            &p.name,
             Some(FittedGeometry {
                 calibration: id,
                 source: p.source.clone(),
@@ -298,7 +312,7 @@ impl super::Procedures {
         );
         tracing::info!(
             "scene-fit-{id}: scene {:?} placed, misfit {:.4e} -> {:.4e}, {} T builds in {:.1} s",
-            row.scene,
+            p.name,
             fit.misfit_as_written,
             fit.misfit_fitted,
             fit.evaluations,

@@ -105,6 +105,18 @@ impl Geometry {
             }
         }
     }
+
+    /// A reconstruction's report with this geometry in `geometry`.
+    pub(crate) fn stamped(
+        self,
+        report: &impl serde::Serialize,
+    ) -> serde_json::Result<serde_json::Value> {
+        let mut v = serde_json::to_value(report)?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert("geometry".into(), self.words().into());
+        }
+        Ok(v)
+    }
 }
 
 /// One scene as `GET /scenes` lists it: a scene that serves, or a file

@@ -427,8 +427,8 @@ fn reconstruct_photo_with(
     let model = match model {
         Some(m) if m.fits(t, settings.data_term, &missing) => m,
         _ => {
-            formed = PhotoModel::with_missing_until(t, settings.data_term, &missing, settings.stop)
-                .ok_or(SolveError::Stopped { iterations: 0 })?;
+            formed =
+                PhotoModel::with_missing_until(t, settings.data_term, &missing, settings.stop)?;
             &formed
         }
     };
@@ -585,8 +585,7 @@ fn pick_shadows(
             .for_each(|(s, v)| *s += v);
     }
     let fit = |t: &Transport| {
-        let model = PhotoModel::with_missing_until(t, settings.data_term, &missing, settings.stop)
-            .ok_or(SolveError::Stopped { iterations: 0 })?;
+        let model = PhotoModel::with_missing_until(t, settings.data_term, &missing, settings.stop)?;
         model.floor_misfit(t, &sum, settings).map(|m| (m, model))
     };
     let (p, a) = rayon::join(|| fit(point), || fit(area));
@@ -770,7 +769,7 @@ mod tests {
         })
     }
 
-    fn transport(
+    pub(super) fn transport(
         rows_grid: Grid,
         scene: Grid,
         blocks: usize,
@@ -1006,28 +1005,6 @@ mod tests {
         assert!(model
             .channel(&t, &i[1..], &PhotoSettings::default())
             .is_err());
-    }
-
-    #[test]
-    fn a_raised_stop_ends_a_photo_fit_before_its_model_is_formed() {
-        let (wall, scene) = (Grid { nu: 4, nv: 3 }, Grid { nu: 2, nv: 2 });
-        let t = transport(wall, scene, 2, |j, k| 1.0 + ((j * 7 + k * 3) % 5) as f64);
-        let i: Vec<f64> = t.apply(&[0.5, 1.0, 0.2, 0.8]);
-        let flag = std::sync::atomic::AtomicBool::new(true);
-        let settings = PhotoSettings {
-            stop: Stop::on(&flag),
-            ..Default::default()
-        };
-        let r = reconstruct_photo(&t, std::slice::from_ref(&i), None, &settings);
-        assert!(
-            matches!(r, Err(SolveError::Stopped { iterations: 0 })),
-            "{r:?}"
-        );
-        assert!(
-            PhotoModel::with_missing_until(&t, DataTerm::Differences, &[], Stop::on(&flag))
-                .is_none()
-        );
-        assert!(reconstruct_photo(&t, &[i], None, &PhotoSettings::default()).is_ok());
     }
 
     #[test]

@@ -50,18 +50,18 @@ impl PhotoModel {
     /// that neighbour's raw value, background and all.
     pub fn with_missing(t: &Transport, data_term: DataTerm, missing: &[usize]) -> Self {
         Self::with_missing_until(t, data_term, missing, Stop::default())
-            .expect("a default stop is never raised")
+            .unwrap_or_else(|_| unreachable!("a default stop is never raised"))
     }
 
     /// [`PhotoModel::with_missing`], its Gram looking at `stop` between
-    /// blocks of rows; `None` once it is raised (a cancel during a photo's
-    /// first half second).
+    /// blocks of rows; `Stopped` once it is raised (a cancel during a
+    /// photo's first half second).
     pub fn with_missing_until(
         t: &Transport,
         data_term: DataTerm,
         missing: &[usize],
         stop: Stop<'_>,
-    ) -> Option<Self> {
+    ) -> Result<Self, SolveError> {
         let start = Instant::now();
         let mut gone = vec![false; t.rows()];
         missing
@@ -81,9 +81,10 @@ impl PhotoModel {
             .iter()
             .filter(|&&r| carries_data(t, data_term, r))
             .count();
-        let gram = Gram::new_until(k.as_mat(), stop)?;
+        let gram =
+            Gram::new_until(k.as_mat(), stop).ok_or(SolveError::Stopped { iterations: 0 })?;
         let eig_max = largest_eigenvalue(&symmetric(&gram.lower));
-        Some(Self {
+        Ok(Self {
             data_term,
             k,
             gram: Arc::new(gram),
@@ -500,5 +501,33 @@ impl PhotoModel {
             background_rmse: background_sq.iter().map(|sq| (sq / n).sqrt()).collect(),
             iterations,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::tests::transport;
+    use super::super::{reconstruct_photo, PhotoSettings};
+    use super::*;
+    use crate::scene::Grid;
+
+    #[test]
+    fn a_raised_stop_ends_a_photo_fit_before_its_model_is_formed() {
+        let (wall, scene) = (Grid { nu: 4, nv: 3 }, Grid { nu: 2, nv: 2 });
+        let t = transport(wall, scene, 2, |j, k| 1.0 + ((j * 7 + k * 3) % 5) as f64);
+        let i: Vec<f64> = t.apply(&[0.5, 1.0, 0.2, 0.8]);
+        let flag = std::sync::atomic::AtomicBool::new(true);
+        let settings = PhotoSettings {
+            stop: Stop::on(&flag),
+            ..Default::default()
+        };
+        let r = reconstruct_photo(&t, std::slice::from_ref(&i), None, &settings);
+        assert!(
+            matches!(r, Err(SolveError::Stopped { iterations: 0 })),
+            "{r:?}"
+        );
+        let model = PhotoModel::with_missing_until(&t, DataTerm::Differences, &[], Stop::on(&flag));
+        assert!(matches!(model, Err(SolveError::Stopped { .. })));
+        assert!(reconstruct_photo(&t, &[i], None, &PhotoSettings::default()).is_ok());
     }
 }
